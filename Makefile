@@ -1,0 +1,28 @@
+# The two commands of the README:
+#   make fit    set up everything, generate the synthetic session, fit it end to end, write the report
+#   make test   set up everything, run every test (Rust core without Python, then Python)
+PY := .venv/bin/python
+.PHONY: setup fit test test-rust test-python stubtest bench clean
+
+setup:
+	./scripts/setup.sh
+
+fit: setup
+	$(PY) -m coartic.cli demo --out results/demo
+
+test: setup test-rust stubtest test-python
+
+test-rust:
+	cargo test --release --quiet
+
+stubtest:
+	$(PY) -m mypy.stubtest coartic._core --allowlist tests/stubtest-allowlist.txt
+
+test-python:
+	$(PY) -m pytest -q -n 2 tests/python
+
+bench: setup
+	$(PY) bench/core_speed.py
+
+clean:
+	rm -rf target .venv results build

@@ -1,0 +1,15 @@
+"""The `coartic` command. Each sub-command lives beside the code it drives and is registered here."""
+
+import typer
+
+app = typer.Typer(
+    name="coartic",
+    help="Fit, sample and animate the Cohen-Massaro / Cosi-Perin coarticulation model.",
+    no_args_is_help=True,
+    add_completion=False,
+)
+
+# --- sub-commands (one line each) ---
+
+if __name__ == "__main__":
+    app()

@@ -1,0 +1,41 @@
+#!/usr/bin/env bash
+# Everything coartic needs on a fresh Debian machine: system packages (Festival with its Italian
+# voice, ffmpeg for previews), a virtual environment with the Python dependencies, and the Rust
+# extension built in release mode. Idempotent: a second run only rebuilds what changed.
+set -euo pipefail
+cd "$(dirname "$0")/.."
+
+need_apt=()
+command -v festival >/dev/null 2>&1 || need_apt+=(festival)
+[ -d /usr/share/festival/voices/italian ] || need_apt+=(festvox-italp16k)
+command -v ffmpeg >/dev/null 2>&1 || need_apt+=(ffmpeg)
+if ((${#need_apt[@]})); then
+  sudo_cmd=""
+  [ "$(id -u)" -eq 0 ] || sudo_cmd="sudo"
+  echo "setup: installing Debian packages: ${need_apt[*]}"
+  $sudo_cmd apt-get update -qq
+  DEBIAN_FRONTEND=noninteractive $sudo_cmd apt-get install -y -qq "${need_apt[@]}" >/dev/null
+fi
+
+if [ ! -x .venv/bin/python ]; then
+  echo "setup: creating .venv"
+  python3 -m venv .venv
+fi
+stamp=.venv/.deps-stamp
+if [ ! -f "$stamp" ] || [ pyproject.toml -nt "$stamp" ]; then
+  echo "setup: installing Python dependencies"
+  .venv/bin/pip install -q --upgrade pip
+  .venv/bin/pip install -q "maturin>=1.7,<2" \
+    $(.venv/bin/python - <<'PY'
+import tomllib
+p = tomllib.load(open("pyproject.toml", "rb"))["project"]
+print(" ".join(repr(d)[1:-1] for d in p["dependencies"] + p["optional-dependencies"]["dev"]))
+PY
+)
+  touch "$stamp"
+fi
+
+echo "setup: building the Rust extension (release)"
+VIRTUAL_ENV="$PWD/.venv" .venv/bin/maturin develop --release --quiet --skip-install 2>&1 | grep -v '^$' || true
+# maturin develop leaves coartic importable from python/ via a .pth file; check it really is.
+.venv/bin/python -c "import coartic._core" || { echo "setup: the extension did not build" >&2; exit 1; }
