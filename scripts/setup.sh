@@ -36,6 +36,6 @@ PY
 fi
 
 echo "setup: building the Rust extension (release)"
-VIRTUAL_ENV="$PWD/.venv" .venv/bin/maturin develop --release --quiet --skip-install 2>&1 | grep -v '^$' || true
+VIRTUAL_ENV="$PWD/.venv" .venv/bin/maturin develop --release --quiet
 # maturin develop leaves coartic importable from python/ via a .pth file; check it really is.
 .venv/bin/python -c "import coartic._core" || { echo "setup: the extension did not build" >&2; exit 1; }
