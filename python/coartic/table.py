@@ -1,0 +1,555 @@
+"""The parameter table: per phoneme, per channel, the ten model parameters of MODEL.md §1.
+
+The canonical file is JSON (schema ``coartic.table/1``, see docs/ARCHITECTURE.md); a long CSV
+(``phoneme,channel,parameter,value[,q2.5,q16,q50,q84,q97.5]``) is offered for spreadsheets.
+Every float is written with ``repr`` so that ``load(save(table))`` gives back the same bits.
+Loading validates everything and names the file, phoneme, channel and parameter at fault.
+"""
+
+from __future__ import annotations
+
+import copy
+import csv
+import io
+import json
+import math
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import numpy.typing as npt
+
+SCHEMA = "coartic.table/1"
+CHANNELS: tuple[str, ...] = ("ULO", "LLO", "ULP", "LLP", "LR", "JO")
+ALL_CHANNELS: tuple[str, ...] = CHANNELS + ("LA",)
+PARAMETERS: tuple[str, ...] = (
+    "target",
+    "alpha",
+    "theta_bw",
+    "theta_fw",
+    "c_bw",
+    "c_fw",
+    "k_r",
+    "sigma",
+    "psi",
+    "delta",
+)
+N_PARAMS = len(PARAMETERS)
+VARIANTS: tuple[str, ...] = ("original", "modified")
+QUANTILES: tuple[str, ...] = ("q2.5", "q16", "q50", "q84", "q97.5")
+PAUSE = "#"
+
+INF = math.inf
+# Target bounds depend on the channel and on the recording set-up (head-frame origin, EMA sensor
+# placement), so by default they are unbounded; a table narrows them in its "bounds" section.
+DEFAULT_BOUNDS: Mapping[str, tuple[float, float]] = {
+    "target": (-INF, INF),
+    "alpha": (0.0, INF),
+    "theta_bw": (0.0, INF),
+    "theta_fw": (0.0, INF),
+    "c_bw": (0.5, 3.0),
+    "c_fw": (0.5, 3.0),
+    "k_r": (0.0, 1.0),
+    "sigma": (-0.5, 0.5),
+    "psi": (0.0, INF),
+    "delta": (-0.08, 0.08),
+}
+# These must be strictly positive (they are fitted in log form); the other bounds are closed.
+OPEN_LOWER: frozenset[str] = frozenset({"alpha", "theta_bw", "theta_fw", "psi"})
+
+CHANNEL_DEFAULTS: Mapping[str, Any] = {
+    "unit": "mm",
+    "beta": 1.0,
+    "edge_extent": 1.0,
+    "apex_fraction": 0.5,
+}
+
+
+class TableError(ValueError):
+    """An invalid parameter table; the message names the file and the entry at fault."""
+
+
+@dataclass
+class ChannelSettings:
+    """Per-channel globals: unit, β, edge extent Λ, apex fraction a and the reference phoneme."""
+
+    reference_phoneme: str
+    unit: str = "mm"
+    beta: float = 1.0
+    edge_extent: float = 1.0
+    apex_fraction: float = 0.5
+
+
+@dataclass
+class ParameterTable:
+    """Model parameters per phoneme and channel, with optional bounds, uncertainty and reasons.
+
+    Attributes
+    ----------
+    variant : {"original", "modified"}
+    channels : dict channel -> ChannelSettings
+    values : dict phoneme -> channel -> parameter -> float (natural units, all ten parameters)
+    bounds : dict channel -> parameter -> (lo, hi), overriding ``DEFAULT_BOUNDS``
+    uncertainty : dict phoneme -> channel -> parameter -> quantile name -> float
+    reasons : dict phoneme -> channel -> parameter -> str (why this value)
+    metadata : free-form dict (method, corpus, date, software, rmse per channel ...)
+    source : where the table was read from (used in error messages), or "<table>"
+    """
+
+    variant: str = "modified"
+    channels: dict[str, ChannelSettings] = field(default_factory=dict)
+    values: dict[str, dict[str, dict[str, float]]] = field(default_factory=dict)
+    bounds: dict[str, dict[str, tuple[float, float]]] = field(default_factory=dict)
+    uncertainty: dict[str, dict[str, dict[str, dict[str, float]]]] = field(default_factory=dict)
+    reasons: dict[str, dict[str, dict[str, str]]] = field(default_factory=dict)
+    metadata: dict[str, Any] = field(default_factory=dict)
+    source: str = field(default="<table>", compare=False)
+
+    # ------------------------------------------------------------------ queries
+
+    @property
+    def phonemes(self) -> list[str]:
+        """All phonemes of the table, in table order."""
+        return list(self.values)
+
+    def phonemes_for(self, channel: str) -> list[str]:
+        """The phonemes that have parameters for ``channel``, in table order."""
+        self._check_channel(channel)
+        return [p for p, chans in self.values.items() if channel in chans]
+
+    def bounds_for(self, channel: str, parameter: str) -> tuple[float, float]:
+        """Effective (lo, hi) of a parameter in a channel: the table's override or the default."""
+        if parameter not in DEFAULT_BOUNDS:
+            raise TableError(f"{self.source}: unknown parameter {parameter!r} (known: {', '.join(PARAMETERS)})")
+        return self.bounds.get(channel, {}).get(parameter, DEFAULT_BOUNDS[parameter])
+
+    def to_matrix(
+        self, channel: str, phonemes: Sequence[str] | None = None
+    ) -> tuple[npt.NDArray[np.float64], float]:
+        """Parameter matrix ``[len(phonemes), N_PARAMS]`` (columns in ``PARAMETERS`` order) and β.
+
+        ``phonemes`` defaults to ``phonemes_for(channel)``; row i belongs to ``phonemes[i]``.
+        """
+        self._check_channel(channel)
+        names = self.phonemes_for(channel) if phonemes is None else list(phonemes)
+        out = np.empty((len(names), N_PARAMS), dtype=np.float64)
+        for i, ph in enumerate(names):
+            row = self.values.get(ph, {}).get(channel)
+            if row is None:
+                have = ", ".join(self.phonemes_for(channel))
+                raise TableError(
+                    f"{self.source}: phoneme {ph!r} has no parameters for channel {channel!r} "
+                    f"(phonemes with {channel}: {have})"
+                )
+            out[i] = [row[name] for name in PARAMETERS]
+        return out, float(self.channels[channel].beta)
+
+    def set_from_matrix(
+        self,
+        channel: str,
+        phonemes: Sequence[str],
+        params: npt.ArrayLike,
+        beta: float | None = None,
+    ) -> None:
+        """Write a parameter matrix (as from ``to_matrix``) back into the table, then validate.
+
+        New phonemes are added. On a validation error the table is left unchanged.
+        """
+        self._check_channel(channel)
+        mat = np.asarray(params, dtype=np.float64)
+        if mat.shape != (len(phonemes), N_PARAMS):
+            raise TableError(
+                f"{self.source}: params has shape {mat.shape}, expected ({len(phonemes)}, {N_PARAMS}) "
+                f"for {len(phonemes)} phonemes of channel {channel!r}"
+            )
+        saved_values = copy.deepcopy(self.values)
+        saved_beta = self.channels[channel].beta
+        for ph, row in zip(phonemes, mat):
+            self.values.setdefault(ph, {})[channel] = {n: float(v) for n, v in zip(PARAMETERS, row)}
+        if beta is not None:
+            self.channels[channel].beta = float(beta)
+        try:
+            self.validate()
+        except TableError:
+            self.values = saved_values
+            self.channels[channel].beta = saved_beta
+            raise
+
+    def _check_channel(self, channel: str) -> None:
+        if channel not in self.channels:
+            raise TableError(
+                f"{self.source}: channel {channel!r} is not in the table (channels: {', '.join(self.channels) or 'none'})"
+            )
+
+    # --------------------------------------------------------------- validation
+
+    def validate(self) -> None:
+        """Check everything; raise ``TableError`` naming the first entry at fault."""
+        src = self.source
+        if self.variant not in VARIANTS:
+            raise TableError(f"{src}: variant {self.variant!r} is not one of {', '.join(VARIANTS)}")
+        if not self.channels:
+            raise TableError(f"{src}: the table has no channels")
+        for ch, cs in self.channels.items():
+            where = f"{src}: channel {ch!r}"
+            if ch not in ALL_CHANNELS:
+                raise TableError(f"{src}: unknown channel {ch!r} (known: {', '.join(ALL_CHANNELS)})")
+            if not isinstance(cs.unit, str) or not cs.unit:
+                raise TableError(f"{where}: unit must be a non-empty string, got {cs.unit!r}")
+            _check_number(where, "beta", cs.beta, 0.0, INF, open_lower=False)
+            _check_number(where, "edge_extent", cs.edge_extent, 0.0, INF, open_lower=True)
+            _check_number(where, "apex_fraction", cs.apex_fraction, 0.0, 1.0, open_lower=False)
+            if not isinstance(cs.reference_phoneme, str) or cs.reference_phoneme not in self.values or ch not in self.values[cs.reference_phoneme]:
+                raise TableError(
+                    f"{where}: reference phoneme {cs.reference_phoneme!r} has no parameters for {ch}"
+                )
+        for ch, per in self.bounds.items():
+            if ch not in self.channels:
+                raise TableError(f"{src}: bounds given for channel {ch!r}, which the table does not have")
+            for name, (lo, hi) in per.items():
+                if name not in DEFAULT_BOUNDS:
+                    raise TableError(f"{src}: bounds for channel {ch!r}: unknown parameter {name!r} (known: {', '.join(PARAMETERS)})")
+                if not (isinstance(lo, float) and isinstance(hi, float)) or math.isnan(lo) or math.isnan(hi) or not lo < hi:
+                    raise TableError(f"{src}: bounds for channel {ch!r}, {name}: [{lo}, {hi}] is not an interval lo < hi")
+        for ph, chans in self.values.items():
+            if not isinstance(ph, str) or not ph:
+                raise TableError(f"{src}: phoneme names must be non-empty strings, got {ph!r}")
+            for ch, row in chans.items():
+                where = f"{src}: phoneme {ph!r}, channel {ch!r}"
+                if ch not in self.channels:
+                    raise TableError(
+                        f"{where}: the channel is not declared in 'channels' (declared: {', '.join(self.channels)})"
+                    )
+                unknown = [n for n in row if n not in DEFAULT_BOUNDS]
+                if unknown:
+                    raise TableError(f"{where}: unknown parameter {unknown[0]!r} (known: {', '.join(PARAMETERS)})")
+                missing = [n for n in PARAMETERS if n not in row]
+                if missing:
+                    raise TableError(f"{where}: missing parameter(s) {', '.join(missing)}")
+                for name in PARAMETERS:
+                    lo, hi = self.bounds_for(ch, name)
+                    _check_number(where, name, row[name], lo, hi, open_lower=name in OPEN_LOWER and lo == 0.0)
+            for ch in chans:
+                if self.channels[ch].reference_phoneme == ph and chans[ch]["alpha"] != 1.0:
+                    raise TableError(
+                        f"{src}: phoneme {ph!r}, channel {ch!r}: alpha = {chans[ch]['alpha']!r}, but {ph!r} is the "
+                        f"reference phoneme of {ch}, whose alpha is fixed to 1"
+                    )
+        for ph, chans in self.uncertainty.items():
+            for ch, per in chans.items():
+                for name, qs in per.items():
+                    where = f"{src}: uncertainty of phoneme {ph!r}, channel {ch!r}, {name}"
+                    if ph not in self.values or ch not in self.values[ph] or name not in PARAMETERS:
+                        raise TableError(f"{where}: no such parameter in the table")
+                    for q, v in qs.items():
+                        if q not in QUANTILES:
+                            raise TableError(f"{where}: unknown quantile {q!r} (known: {', '.join(QUANTILES)})")
+                        if not isinstance(v, float) or not math.isfinite(v):
+                            raise TableError(f"{where}: {q} = {v!r} is not a finite number")
+                    present = [qs[q] for q in QUANTILES if q in qs]
+                    if any(b < a for a, b in zip(present, present[1:])):
+                        raise TableError(f"{where}: quantiles are not in increasing order: {qs}")
+        for ph, chans in self.reasons.items():
+            for ch, per in chans.items():
+                for name, text in per.items():
+                    if name not in PARAMETERS or not isinstance(text, str):
+                        raise TableError(
+                            f"{src}: reason for phoneme {ph!r}, channel {ch!r}, {name!r} must name a parameter "
+                            f"and be a string"
+                        )
+        if not isinstance(self.metadata, dict):
+            raise TableError(f"{src}: metadata must be an object")
+
+    # ---------------------------------------------------------------------- JSON
+
+    def to_json_dict(self) -> dict[str, Any]:
+        """The JSON object of the ``coartic.table/1`` schema (optional sections only when non-empty)."""
+        doc: dict[str, Any] = {
+            "schema": SCHEMA,
+            "variant": self.variant,
+            "channels": {
+                ch: {
+                    "unit": cs.unit,
+                    "beta": cs.beta,
+                    "edge_extent": cs.edge_extent,
+                    "apex_fraction": cs.apex_fraction,
+                    "reference_phoneme": cs.reference_phoneme,
+                }
+                for ch, cs in self.channels.items()
+            },
+            "phonemes": {
+                ph: {ch: {n: row[n] for n in PARAMETERS} for ch, row in chans.items()}
+                for ph, chans in self.values.items()
+            },
+        }
+        if self.bounds:
+            # JSON has no infinity: an open end is written as null.
+            doc["bounds"] = {
+                ch: {n: [_inf_to_none(lo), _inf_to_none(hi)] for n, (lo, hi) in per.items()}
+                for ch, per in self.bounds.items()
+            }
+        if self.uncertainty:
+            doc["uncertainty"] = self.uncertainty
+        if self.reasons:
+            doc["reasons"] = self.reasons
+        if self.metadata:
+            doc["metadata"] = self.metadata
+        return doc
+
+    def save(self, path: str | Path) -> None:
+        """Validate, then write JSON (``.json``) or long CSV (``.csv``), chosen by the suffix."""
+        self.validate()
+        path = Path(path)
+        if path.suffix.lower() == ".csv":
+            path.write_text(self.to_csv(), encoding="utf-8")
+        else:
+            # json writes floats with repr: the shortest string that reads back to the same bits.
+            text = json.dumps(self.to_json_dict(), indent=2, ensure_ascii=False, allow_nan=False)
+            path.write_text(text + "\n", encoding="utf-8")
+
+    @classmethod
+    def from_json_dict(cls, doc: Any, source: str = "<table>") -> ParameterTable:
+        """Build and validate a table from a parsed JSON object."""
+        if not isinstance(doc, dict):
+            raise TableError(f"{source}: expected a JSON object at the top level")
+        schema = doc.get("schema")
+        if schema != SCHEMA:
+            raise TableError(f"{source}: schema is {schema!r}, this version of coartic reads {SCHEMA!r}")
+        known = {"schema", "variant", "channels", "phonemes", "bounds", "uncertainty", "reasons", "metadata"}
+        extra = sorted(set(doc) - known)
+        if extra:
+            raise TableError(f"{source}: unknown top-level key {extra[0]!r} (known: {', '.join(sorted(known))})")
+        for key in ("variant", "channels", "phonemes"):
+            if key not in doc:
+                raise TableError(f"{source}: missing required key {key!r}")
+        channels: dict[str, ChannelSettings] = {}
+        for ch, cdoc in _obj(doc["channels"], f"{source}: channels").items():
+            where = f"{source}: channel {ch!r}"
+            cdoc = _obj(cdoc, where)
+            extra = sorted(set(cdoc) - {"unit", "beta", "edge_extent", "apex_fraction", "reference_phoneme"})
+            if extra:
+                raise TableError(f"{where}: unknown key {extra[0]!r}")
+            if "reference_phoneme" not in cdoc:
+                raise TableError(f"{where}: missing 'reference_phoneme'")
+            channels[ch] = ChannelSettings(
+                reference_phoneme=cdoc["reference_phoneme"],
+                unit=cdoc.get("unit", CHANNEL_DEFAULTS["unit"]),
+                beta=_num(where, "beta", cdoc.get("beta", CHANNEL_DEFAULTS["beta"])),
+                edge_extent=_num(where, "edge_extent", cdoc.get("edge_extent", CHANNEL_DEFAULTS["edge_extent"])),
+                apex_fraction=_num(where, "apex_fraction", cdoc.get("apex_fraction", CHANNEL_DEFAULTS["apex_fraction"])),
+            )
+        values: dict[str, dict[str, dict[str, float]]] = {}
+        for ph, pdoc in _obj(doc["phonemes"], f"{source}: phonemes").items():
+            values[ph] = {}
+            for ch, row in _obj(pdoc, f"{source}: phoneme {ph!r}").items():
+                where = f"{source}: phoneme {ph!r}, channel {ch!r}"
+                values[ph][ch] = {n: _num(where, n, v) for n, v in _obj(row, where).items()}
+        bounds: dict[str, dict[str, tuple[float, float]]] = {}
+        for ch, per in _obj(doc.get("bounds", {}), f"{source}: bounds").items():
+            bounds[ch] = {}
+            for n, pair in _obj(per, f"{source}: bounds of {ch!r}").items():
+                if not isinstance(pair, list) or len(pair) != 2:
+                    raise TableError(f"{source}: bounds for channel {ch!r}, {n}: expected [lo, hi], got {pair!r}")
+                lo = -INF if pair[0] is None else _num(f"{source}: bounds for channel {ch!r}", n, pair[0])
+                hi = INF if pair[1] is None else _num(f"{source}: bounds for channel {ch!r}", n, pair[1])
+                bounds[ch][n] = (lo, hi)
+        uncertainty: dict[str, dict[str, dict[str, dict[str, float]]]] = {}
+        for ph, pdoc in _obj(doc.get("uncertainty", {}), f"{source}: uncertainty").items():
+            for ch, per in _obj(pdoc, f"{source}: uncertainty of {ph!r}").items():
+                for n, qs in _obj(per, f"{source}: uncertainty of {ph!r}, {ch!r}").items():
+                    where = f"{source}: uncertainty of phoneme {ph!r}, channel {ch!r}, {n}"
+                    uncertainty.setdefault(ph, {}).setdefault(ch, {})[n] = {
+                        q: _num(where, q, v) for q, v in _obj(qs, where).items()
+                    }
+        reasons = _obj(doc.get("reasons", {}), f"{source}: reasons")
+        metadata = _obj(doc.get("metadata", {}), f"{source}: metadata")
+        table = cls(
+            variant=doc["variant"],
+            channels=channels,
+            values=values,
+            bounds=bounds,
+            uncertainty=uncertainty,
+            reasons={ph: {ch: dict(per) for ch, per in _obj(c, f"{source}: reasons of {ph!r}").items()} for ph, c in reasons.items()},
+            metadata=dict(metadata),
+            source=source,
+        )
+        table.validate()
+        return table
+
+    @classmethod
+    def load(cls, path: str | Path) -> ParameterTable:
+        """Read and validate a table from JSON or (by suffix ``.csv``) long CSV."""
+        path = Path(path)
+        try:
+            text = path.read_text(encoding="utf-8")
+        except OSError as exc:
+            raise TableError(f"{path}: cannot read the table: {exc.strerror}") from None
+        if path.suffix.lower() == ".csv":
+            return cls.from_csv(text, source=str(path))
+        try:
+            doc = json.loads(text)
+        except json.JSONDecodeError as exc:
+            raise TableError(f"{path}: line {exc.lineno}, column {exc.colno}: invalid JSON: {exc.msg}") from None
+        return cls.from_json_dict(doc, source=str(path))
+
+    # ----------------------------------------------------------------------- CSV
+
+    def to_csv(self) -> str:
+        """Long CSV: one row per phoneme, channel and parameter; uncertainty columns when present.
+
+        Channel settings are rows with phoneme ``*`` (``unit``, ``beta``, ``edge_extent``,
+        ``apex_fraction``, ``reference_phoneme``); the variant is the row ``*,*,variant,<name>``.
+        Bounds, reasons and metadata are not carried by the CSV (the JSON is the canonical file).
+        """
+        buf = io.StringIO()
+        w = csv.writer(buf, lineterminator="\n")
+        with_q = bool(self.uncertainty)
+        w.writerow(["phoneme", "channel", "parameter", "value"] + (list(QUANTILES) if with_q else []))
+        pad = [""] * len(QUANTILES) if with_q else []
+        w.writerow(["*", "*", "variant", self.variant] + pad)
+        for ch, cs in self.channels.items():
+            w.writerow(["*", ch, "unit", cs.unit] + pad)
+            for name in ("beta", "edge_extent", "apex_fraction"):
+                w.writerow(["*", ch, name, repr(float(getattr(cs, name)))] + pad)
+            w.writerow(["*", ch, "reference_phoneme", cs.reference_phoneme] + pad)
+        for ph, chans in self.values.items():
+            for ch, row in chans.items():
+                for name in PARAMETERS:
+                    qs = self.uncertainty.get(ph, {}).get(ch, {}).get(name, {})
+                    extra = [repr(qs[q]) if q in qs else "" for q in QUANTILES] if with_q else []
+                    w.writerow([ph, ch, name, repr(float(row[name]))] + extra)
+        return buf.getvalue()
+
+    @classmethod
+    def from_csv(cls, text: str, source: str = "<csv>") -> ParameterTable:
+        """Read the long CSV written by ``to_csv`` and validate it."""
+        reader = csv.reader(io.StringIO(text))
+        try:
+            header = next(reader)
+        except StopIteration:
+            raise TableError(f"{source}: empty CSV file") from None
+        base = ["phoneme", "channel", "parameter", "value"]
+        if header not in (base, base + list(QUANTILES)):
+            raise TableError(
+                f"{source}: line 1: header must be {','.join(base)}[,{','.join(QUANTILES)}], got {','.join(header)}"
+            )
+        variant = "modified"
+        settings: dict[str, dict[str, str]] = {}
+        values: dict[str, dict[str, dict[str, float]]] = {}
+        uncertainty: dict[str, dict[str, dict[str, dict[str, float]]]] = {}
+        for lineno, rec in enumerate(reader, start=2):
+            if not rec:
+                continue
+            if len(rec) != len(header):
+                raise TableError(f"{source}: line {lineno}: expected {len(header)} fields, got {len(rec)}")
+            ph, ch, name, value = rec[:4]
+            where = f"{source}: line {lineno}: phoneme {ph!r}, channel {ch!r}"
+            if ph == "*":
+                if ch == "*":
+                    if name != "variant":
+                        raise TableError(f"{where}: unknown table setting {name!r}")
+                    variant = value
+                else:
+                    if name not in ("unit", "beta", "edge_extent", "apex_fraction", "reference_phoneme"):
+                        raise TableError(f"{where}: unknown channel setting {name!r}")
+                    settings.setdefault(ch, {})[name] = value
+                continue
+            values.setdefault(ph, {}).setdefault(ch, {})[name] = _parse_float(where, name, value)
+            for q, cell in zip(QUANTILES, rec[4:]):
+                if cell != "":
+                    uncertainty.setdefault(ph, {}).setdefault(ch, {}).setdefault(name, {})[q] = _parse_float(
+                        where, f"{name} {q}", cell
+                    )
+        channels: dict[str, ChannelSettings] = {}
+        for ch, s in settings.items():
+            where = f"{source}: channel {ch!r}"
+            if "reference_phoneme" not in s:
+                raise TableError(f"{where}: missing the row '*,{ch},reference_phoneme,<phoneme>'")
+            channels[ch] = ChannelSettings(
+                reference_phoneme=s["reference_phoneme"],
+                unit=s.get("unit", CHANNEL_DEFAULTS["unit"]),
+                beta=_parse_float(where, "beta", s.get("beta", "1.0")),
+                edge_extent=_parse_float(where, "edge_extent", s.get("edge_extent", "1.0")),
+                apex_fraction=_parse_float(where, "apex_fraction", s.get("apex_fraction", "0.5")),
+            )
+        table = cls(variant=variant, channels=channels, values=values, uncertainty=uncertainty, source=source)
+        table.validate()
+        return table
+
+    # ---------------------------------------------------------------- building
+
+    @classmethod
+    def from_rows(
+        cls,
+        rows: Mapping[str, Mapping[str, Mapping[str, float]]],
+        reference: Mapping[str, str],
+        variant: str = "modified",
+        settings: Mapping[str, Mapping[str, Any]] | None = None,
+        reasons: Mapping[str, Mapping[str, Mapping[str, str]]] | None = None,
+    ) -> ParameterTable:
+        """Build a validated table from ``rows[phoneme][channel][parameter]``.
+
+        ``reference[channel]`` names the reference phoneme; ``settings[channel]`` may set
+        unit, beta, edge_extent, apex_fraction.
+        """
+        channels = {
+            ch: ChannelSettings(reference_phoneme=ref, **dict((settings or {}).get(ch, {})))
+            for ch, ref in reference.items()
+        }
+        table = cls(
+            variant=variant,
+            channels=channels,
+            values={ph: {ch: {n: float(v) for n, v in row.items()} for ch, row in c.items()} for ph, c in rows.items()},
+            reasons={ph: {ch: dict(r) for ch, r in c.items()} for ph, c in (reasons or {}).items()},
+        )
+        table.validate()
+        return table
+
+
+# ---------------------------------------------------------------------- helpers
+
+
+def _obj(x: Any, where: str) -> dict[str, Any]:
+    if not isinstance(x, dict):
+        raise TableError(f"{where}: expected a JSON object, got {type(x).__name__}")
+    return x
+
+
+def _num(where: str, name: str, v: Any) -> float:
+    # bool is an int subclass; true/false in a table is always a mistake.
+    if isinstance(v, bool) or not isinstance(v, (int, float)):
+        raise TableError(f"{where}: {name} = {v!r} is not a number")
+    return float(v)
+
+
+def _parse_float(where: str, name: str, text: str) -> float:
+    try:
+        return float(text)
+    except ValueError:
+        raise TableError(f"{where}: {name} = {text!r} is not a number") from None
+
+
+def _check_number(where: str, name: str, v: Any, lo: float, hi: float, open_lower: bool) -> None:
+    if isinstance(v, bool) or not isinstance(v, (int, float)):
+        raise TableError(f"{where}: {name} = {v!r} is not a number")
+    if not math.isfinite(v):
+        raise TableError(f"{where}: {name} = {v!r} is not finite")
+    below = v <= lo if open_lower else v < lo
+    if below or v > hi:
+        interval = ("(" if open_lower or lo == -INF else "[") + f"{lo:g}, {hi:g}" + (")" if hi == INF else "]")
+        raise TableError(f"{where}: {name} = {v!r} is outside {interval}")
+
+
+def _inf_to_none(x: float) -> float | None:
+    return None if math.isinf(x) else x
+
+
+def parameter_index(name: str) -> int:
+    """Column of a parameter in the parameter matrix (``PARAMETERS.index``), with a clear error."""
+    try:
+        return PARAMETERS.index(name)
+    except ValueError:
+        raise TableError(f"unknown parameter {name!r} (known: {', '.join(PARAMETERS)})") from None
+
