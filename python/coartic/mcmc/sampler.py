@@ -1,0 +1,376 @@
+"""emcee ensembles run in chunks that are saved as they finish, so that nothing is lost and a run resumes.
+
+Storage (one directory per posterior): ``meta.json`` (coordinates, walkers, ensembles, seed and the
+posterior's fingerprint) and ``ens<E>_chunk<K>.npz`` files, each with the chain and log-probabilities
+of its steps, the accepted-move counts and the full sampler state at its end (walker positions,
+log-probabilities, the Mersenne-Twister state emcee draws from). A chunk is written to a temporary
+file and renamed into place, so a chunk on disk is always whole.
+
+Ctrl-C (SIGINT) and ``kill`` (SIGTERM) during sampling save the steps done so far as one more
+chunk before returning, so they lose nothing; ``kill -9`` loses at most the chunk in progress.
+Running the same command again continues from the saved state, and because the random state is
+saved too, the resumed chain is identical to one that was never interrupted.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import re
+import signal
+import threading
+from contextlib import contextmanager
+from dataclasses import dataclass, field
+from pathlib import Path
+from types import FrameType
+from typing import Any, Callable, Iterator, Sequence
+
+import numpy as np
+from numpy.typing import NDArray
+
+from coartic.mcmc import convergence
+from coartic.mcmc.convergence import ConvergenceReport
+
+LogProb = Callable[[NDArray[np.float64]], NDArray[np.float64]]
+Initial = Callable[[np.random.Generator, int], NDArray[np.float64]]
+
+META = "meta.json"
+_CHUNK = re.compile(r"^ens(\d+)_chunk(\d+)\.npz$")
+
+
+@dataclass
+class SamplerSettings:
+    """How long and how wide to sample. Defaults suit the ~10-dimensional per-phoneme posteriors."""
+
+    n_walkers: int = 32
+    n_ensembles: int = 3
+    chunk_steps: int = 500  # steps per saved chunk and between convergence checks
+    min_steps: int = 1000
+    max_steps: int = 20000
+    seed: int = 0
+    ball: float = 1e-3  # initial ball radius, as a fraction of each coordinate's prior width
+
+    def validate(self, dim: int) -> None:
+        if self.n_walkers < 2 * dim + 2:
+            raise ValueError(f"n_walkers = {self.n_walkers} is too few for {dim} dimensions (emcee needs > 2 x dim; use >= {2 * dim + 2})")
+        if self.n_walkers % 2:
+            raise ValueError(f"n_walkers = {self.n_walkers} must be even (emcee's stretch move splits walkers in halves)")
+        for name in ("n_ensembles", "chunk_steps", "max_steps"):
+            if getattr(self, name) < 1:
+                raise ValueError(f"{name} must be >= 1, got {getattr(self, name)}")
+        if self.min_steps > self.max_steps:
+            raise ValueError(f"min_steps = {self.min_steps} exceeds max_steps = {self.max_steps}")
+
+
+@dataclass
+class Chunk:
+    chain: NDArray[np.float64]  # (steps, walkers, dim)
+    log_prob: NDArray[np.float64]  # (steps, walkers)
+    accepted: NDArray[np.float64]  # (walkers,)
+    coords: NDArray[np.float64]  # final state
+    last_log_prob: NDArray[np.float64]
+    random_state: tuple[Any, ...]
+
+
+class ChainStore:
+    """Chunked, append-only chain storage in one directory (see the module docstring)."""
+
+    def __init__(self, directory: str | os.PathLike[str]) -> None:
+        self.directory = Path(directory)
+
+    def meta(self) -> dict[str, Any] | None:
+        p = self.directory / META
+        if not p.exists():
+            return None
+        try:
+            return dict(json.loads(p.read_text()))
+        except (OSError, json.JSONDecodeError) as exc:
+            raise ValueError(f"{p}: unreadable chain metadata ({exc}); delete the directory to start over") from exc
+
+    def open(self, meta: dict[str, Any]) -> None:
+        """Create the store, or check that an existing one holds chains of the same posterior and settings."""
+        old = self.meta()
+        if old is None:
+            self.directory.mkdir(parents=True, exist_ok=True)
+            _atomic_write_text(self.directory / META, json.dumps(meta, indent=1))
+            return
+        for key in ("fingerprint", "coordinates", "n_walkers", "n_ensembles", "seed"):
+            if old.get(key) != meta.get(key):
+                raise ValueError(
+                    f"{self.directory}: holds chains of a different run ({key}: saved {old.get(key)!r}, now {meta.get(key)!r}); "
+                    "use another output directory, or delete this one to start over"
+                )
+
+    def chunk_paths(self, ensemble: int) -> list[Path]:
+        if not self.directory.exists():
+            return []
+        found = []
+        for p in self.directory.iterdir():
+            m = _CHUNK.match(p.name)
+            if m and int(m.group(1)) == ensemble:
+                found.append((int(m.group(2)), p))
+        return [p for _, p in sorted(found)]
+
+    def append(self, ensemble: int, chunk: Chunk) -> Path:
+        k = len(self.chunk_paths(ensemble))
+        path = self.directory / f"ens{ensemble:02d}_chunk{k:05d}.npz"
+        rs = chunk.random_state
+        tmp = path.with_suffix(".tmp.npz")
+        np.savez(
+            tmp,
+            chain=chunk.chain,
+            log_prob=chunk.log_prob,
+            accepted=chunk.accepted,
+            coords=chunk.coords,
+            last_log_prob=chunk.last_log_prob,
+            rs_keys=np.asarray(rs[1], dtype=np.uint32),
+            rs_scalars=np.array([rs[2], rs[3]], dtype=np.int64),
+            rs_gauss=np.array([rs[4]], dtype=np.float64),
+        )
+        os.replace(tmp, path)
+        return path
+
+    def load(self, ensemble: int, dim: int, n_walkers: int) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64], Chunk | None]:
+        """(chain, log_prob, accepted counts, last chunk or None) of one ensemble."""
+        chains, lps = [], []
+        accepted = np.zeros(n_walkers)
+        last: Chunk | None = None
+        for p in self.chunk_paths(ensemble):
+            try:
+                with np.load(p) as z:
+                    last = Chunk(
+                        chain=z["chain"],
+                        log_prob=z["log_prob"],
+                        accepted=z["accepted"],
+                        coords=z["coords"],
+                        last_log_prob=z["last_log_prob"],
+                        random_state=("MT19937", z["rs_keys"], int(z["rs_scalars"][0]), int(z["rs_scalars"][1]), float(z["rs_gauss"][0])),
+                    )
+            except (OSError, KeyError, ValueError) as exc:
+                raise ValueError(f"{p}: damaged chain chunk ({exc}); delete it (and the chunks after it) to resume from the one before") from exc
+            if last.chain.ndim != 3 or last.chain.shape[1:] != (n_walkers, dim):
+                raise ValueError(f"{p}: chain shaped {last.chain.shape}, expected (steps, {n_walkers}, {dim})")
+            chains.append(last.chain)
+            lps.append(last.log_prob)
+            accepted += last.accepted
+        if not chains:
+            return np.empty((0, n_walkers, dim)), np.empty((0, n_walkers)), accepted, None
+        return np.concatenate(chains), np.concatenate(lps), accepted, last
+
+
+def _atomic_write_text(path: Path, text: str) -> None:
+    tmp = path.with_name(path.name + ".tmp")
+    tmp.write_text(text)
+    os.replace(tmp, path)
+
+
+@dataclass
+class SamplingResult:
+    names: list[str]  # coordinate names
+    chains: list[NDArray[np.float64]]  # per ensemble (steps, walkers, dim)
+    log_probs: list[NDArray[np.float64]]
+    acceptance: list[float]
+    report: ConvergenceReport | None
+    interrupted: bool = False
+    history: list[dict[str, float]] = field(default_factory=list)  # tau_max per check
+
+    @property
+    def converged(self) -> bool:
+        return bool(self.report is not None and self.report.converged and not self.interrupted)
+
+    def draws(self) -> NDArray[np.float64]:
+        """Post-burn-in, thinned draws of all ensembles and walkers, (n_draws, dim)."""
+        burn, thin = (self.report.burn_in, self.report.thin) if self.report else (len(self.chains[0]) // 2, 1)
+        return np.concatenate([c[burn::thin].reshape(-1, c.shape[2]) for c in self.chains])
+
+
+class _Signals:
+    """Ctrl-C (SIGINT) and ``kill`` (SIGTERM) become KeyboardInterrupt while sampling, except inside
+    ``saving()``, where they are held back until the chunk is on disk."""
+
+    def __enter__(self) -> "_Signals":
+        self.old: dict[int, Any] = {}
+        self.pending: int | None = None
+        self.critical = False
+        if threading.current_thread() is threading.main_thread():
+            for sig in (signal.SIGINT, signal.SIGTERM):
+                self.old[sig] = signal.signal(sig, self._handle)
+        return self
+
+    def _handle(self, signum: int, frame: FrameType | None) -> None:
+        if self.critical:
+            self.pending = signum
+            return
+        raise KeyboardInterrupt(f"signal {signum}")
+
+    @contextmanager
+    def saving(self) -> Iterator[None]:
+        self.critical = True
+        try:
+            yield
+        finally:
+            self.critical = False
+        if self.pending is not None:
+            signum, self.pending = self.pending, None
+            raise KeyboardInterrupt(f"signal {signum}")
+
+    def __exit__(self, *exc: object) -> None:
+        for sig, old in self.old.items():
+            signal.signal(sig, old)
+
+
+def _run_chunk(
+    log_prob: LogProb,
+    coords: NDArray[np.float64],
+    last_lp: NDArray[np.float64] | None,
+    random_state: tuple[Any, ...],
+    steps: int,
+    on_step: Callable[[], None],
+) -> tuple[Chunk | None, bool]:
+    """Advance one ensemble by ``steps``; on KeyboardInterrupt return the steps done so far and True."""
+    import emcee
+
+    n_walkers, dim = coords.shape
+    sampler = emcee.EnsembleSampler(n_walkers, dim, log_prob, vectorize=True)
+    state = emcee.State(coords, log_prob=last_lp, random_state=random_state)
+    last = None
+    yielded = 0
+    interrupted = False
+    it: Iterator[Any] = sampler.sample(state, iterations=steps, store=True)
+    try:
+        for last in it:
+            yielded += 1
+            on_step()
+    except KeyboardInterrupt:
+        interrupted = True
+    n = sampler.backend.iteration
+    if n == 0:
+        return None, interrupted
+    # A step interrupted half-way is neither stored nor used. The random state must be the one right
+    # after the last stored step, so that the resumed chain equals an uninterrupted one.
+    random_state = last.random_state if (last is not None and yielded == n) else sampler.random_state
+    chain = sampler.get_chain()[:n]
+    lp = sampler.get_log_prob()[:n]
+    return (
+        Chunk(
+            chain=chain,
+            log_prob=lp,
+            accepted=np.asarray(sampler.backend.accepted, dtype=np.float64),
+            coords=chain[-1].copy(),
+            last_log_prob=lp[-1].copy(),
+            random_state=random_state,
+        ),
+        interrupted,
+    )
+
+
+def run(
+    log_prob: LogProb,
+    initial: Initial,
+    names: Sequence[str],
+    out: str | os.PathLike[str],
+    settings: SamplerSettings,
+    fingerprint: str = "",
+    progress: bool = True,
+    label: str = "",
+    stop_when_converged: bool = True,
+) -> SamplingResult:
+    """Sample until converged (convergence.check) or ``max_steps``, resuming whatever ``out`` holds.
+
+    ``initial(rng, n_walkers)`` gives starting positions for a fresh ensemble. Returns the chains,
+    the last convergence report and whether the run was interrupted.
+    """
+    dim = len(names)
+    settings.validate(dim)
+    store = ChainStore(out)
+    store.open(
+        {
+            "coordinates": list(names),
+            "n_walkers": settings.n_walkers,
+            "n_ensembles": settings.n_ensembles,
+            "seed": settings.seed,
+            "fingerprint": fingerprint,
+        }
+    )
+    W, E = settings.n_walkers, settings.n_ensembles
+    chains, lps, accepted, states = [], [], [], []
+    for e in range(E):
+        c, lp, acc, last = store.load(e, dim, W)
+        chains.append(c)
+        lps.append(lp)
+        accepted.append(acc)
+        if last is None:
+            rng = np.random.default_rng([settings.seed, e])
+            coords = np.asarray(initial(rng, W), dtype=np.float64)
+            if coords.shape != (W, dim):
+                raise ValueError(f"initial positions shaped {coords.shape}, expected ({W}, {dim})")
+            rs = np.random.RandomState(np.random.SeedSequence([settings.seed, e, 1]).generate_state(4)).get_state()
+            states.append((coords, None, rs))
+        else:
+            states.append((last.coords, last.last_log_prob, last.random_state))
+
+    history: list[dict[str, float]] = []
+    report: ConvergenceReport | None = None
+    interrupted = False
+
+    def diagnose() -> ConvergenceReport | None:
+        n = min(len(c) for c in chains)
+        if n < 4:
+            return None
+        acc = [float(np.mean(a)) / len(c) for a, c in zip(accepted, chains)]
+        r = convergence.check([c[:n] for c in chains], acc, names)
+        history.append({"steps": float(n), "tau_max": r.tau_max})
+        return r
+
+    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
+
+    columns = [
+        TextColumn("[bold]{task.description}"),
+        BarColumn(),
+        MofNCompleteColumn(),
+        TextColumn("{task.fields[status]}"),
+        TimeElapsedColumn(),
+        TimeRemainingColumn(),
+    ]
+    with Progress(*columns, disable=not progress, transient=False) as bar, _Signals() as signals:
+        task = bar.add_task(label or "sampling", total=E * settings.max_steps, completed=sum(len(c) for c in chains), status="")
+
+        def loop() -> bool:
+            """Sample chunk after chunk; True if interrupted."""
+            nonlocal report
+            while True:
+                n = min(len(c) for c in chains)
+                if n >= max(settings.min_steps, 4) and (report is None or report.n_steps != n):
+                    report = diagnose()
+                    if report is not None:
+                        bar.update(task, status=f"tau {report.tau_max:.0f}, N/tau {n / max(report.tau_max, 1e-9):.0f}")
+                        if stop_when_converged and report.converged:
+                            return False
+                if n >= settings.max_steps:
+                    return False
+                for e in range(E):
+                    # at most one chunk, and lagging ensembles (after an interrupt) catch up first
+                    todo = min(settings.chunk_steps, settings.max_steps - len(chains[e]), n + settings.chunk_steps - len(chains[e]))
+                    if todo <= 0:
+                        continue
+                    coords, last_lp, rs = states[e]
+                    chunk, stopped = _run_chunk(log_prob, coords, last_lp, rs, todo, lambda: bar.advance(task))
+                    if chunk is not None:
+                        with signals.saving():
+                            store.append(e, chunk)
+                            chains[e] = np.concatenate([chains[e], chunk.chain])
+                            lps[e] = np.concatenate([lps[e], chunk.log_prob])
+                            accepted[e] = accepted[e] + chunk.accepted
+                            states[e] = (chunk.coords, chunk.last_log_prob, chunk.random_state)
+                    if stopped:
+                        return True
+
+        try:
+            interrupted = loop()
+        except KeyboardInterrupt:  # outside a chunk (e.g. during a convergence check): every chunk is saved
+            interrupted = True
+    n = min(len(c) for c in chains)
+    if report is None or report.n_steps != n:
+        report = diagnose()
+    acceptance = [float(np.mean(a)) / max(len(c), 1) for a, c in zip(accepted, chains)]
+    return SamplingResult(list(names), chains, lps, acceptance, report, interrupted, history)
