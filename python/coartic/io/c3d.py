@@ -1,0 +1,161 @@
+"""C3D marker files (ELITE/BTS, Vicon, Optotrak, Qualisys) through ezc3d, or the pure-Python `c3d`
+package when ezc3d is missing or fails.
+
+Occluded samples (a negative residual, which is how C3D flags them) become NaN. ezc3d reads a
+truncated file without complaint and returns fewer frames, so the frame count is checked against
+POINT:FRAMES / the header.
+"""
+
+from __future__ import annotations
+
+import warnings
+from os import PathLike
+from pathlib import Path
+from typing import Any, Literal
+
+import numpy as np
+from numpy.typing import NDArray
+
+from coartic.io.errors import DataError
+from coartic.io.trial import Trial
+from coartic.io.units import to_mm
+
+Backend = Literal["auto", "ezc3d", "c3d"]
+
+
+def read_c3d(path: str | PathLike[str], backend: Backend = "auto", units: str | None = None) -> Trial:
+    """Read the POINT data of a C3D file as a Trial (no labels) in mm.
+
+    `units` overrides POINT:UNITS when the file's own field is wrong or empty.
+    """
+    p = Path(path)
+    if not p.is_file():
+        raise DataError("no such C3D file", path=p)
+    with p.open("rb") as f:
+        head = f.read(2)
+    # Byte 2 of every C3D header is 0x50; checking it first keeps non-C3D files (and most
+    # garbage) away from the C++ parser.
+    if len(head) < 2 or head[1] != 0x50:
+        raise DataError("not a C3D file (byte 2 of the header is not 0x50)", path=p)
+    if backend in ("auto", "ezc3d"):
+        try:
+            import ezc3d  # noqa: F401
+        except ImportError:
+            if backend == "ezc3d":
+                raise DataError("ezc3d is not installed (pip install ezc3d)", path=p) from None
+        else:
+            return _read_ezc3d(p, units)
+    return _read_pyc3d(p, units)
+
+
+def _finish(
+    p: Path, xyz: NDArray[np.float64], names: list[str], rate: float, unit: str,
+    units: str | None, backend: str, first_frame: int,
+) -> Trial:
+    if not np.isfinite(rate) or rate <= 0:
+        raise DataError(f"POINT:RATE is {rate!r}, not a positive frame rate", path=p, item="POINT:RATE")
+    if xyz.shape[0] == 0:
+        raise DataError("no frames of POINT data", path=p)
+    if len(names) != xyz.shape[1]:
+        raise DataError(f"POINT:LABELS has {len(names)} names for {xyz.shape[1]} markers", path=p,
+                        item="POINT:LABELS")
+    seen: dict[str, int] = {}
+    for i, n in enumerate(names):
+        if n in seen:
+            raise DataError(f"marker name {n!r} appears twice in POINT:LABELS (markers "
+                            f"{seen[n] + 1} and {i + 1})", path=p, item=n)
+        seen[n] = i
+    given = units if units is not None else unit
+    notes: list[str] = []
+    if not given.strip():
+        raise DataError("POINT:UNITS is empty; pass units='mm' (or cm, m) to say what they are",
+                        path=p, item="POINT:UNITS")
+    xyz, note = to_mm(xyz, given, p, "marker positions")
+    if note:
+        notes.append(note)
+    meta: dict[str, Any] = {"backend": backend, "first_frame": first_frame, "notes": notes}
+    return Trial(markers=np.ascontiguousarray(xyz, dtype=np.float64), marker_names=tuple(names),
+                 rate=float(rate), units="mm", source=p, meta=meta, start_time=0.0)
+
+
+def _point_units(value: Any) -> str:
+    # POINT:UNITS is one string, but some writers (e.g. Optotrak) repeat it once per marker.
+    items = [str(v).strip() for v in (value if isinstance(value, (list, tuple)) else [value])]
+    items = [v for v in items if v]
+    if not items:
+        return ""
+    if len(set(items)) > 1:
+        return "mixed: " + ", ".join(sorted(set(items)))
+    return items[0]
+
+
+def _read_ezc3d(p: Path, units: str | None) -> Trial:
+    import ezc3d
+
+    try:
+        c = ezc3d.c3d(str(p))
+    except Exception as e:  # ezc3d raises RuntimeError/OSError/IndexError on corrupt files
+        raise DataError(f"corrupt or truncated C3D ({e})", path=p) from None
+    try:
+        point = c["parameters"]["POINT"]
+        pts = np.asarray(c["data"]["points"], dtype=np.float64)  # (4, M, F)
+        resid = np.asarray(c["data"]["meta_points"]["residuals"], dtype=np.float64)  # (1, M, F)
+        labels = [str(s).strip() for s in point["LABELS"]["value"]]
+        rate = float(np.asarray(point["RATE"]["value"]).ravel()[0])
+        unit = _point_units(point["UNITS"]["value"]) if "UNITS" in point else "mm"
+        header = c["header"]["points"]
+        first, last = int(header["first_frame"]), int(header["last_frame"])
+        expected = int(np.asarray(point["FRAMES"]["value"]).ravel()[0]) if "FRAMES" in point else (
+            last - first + 1)
+    except (KeyError, IndexError, TypeError, ValueError) as e:
+        raise DataError(f"C3D without usable POINT parameters ({type(e).__name__}: {e})",
+                        path=p) from None
+    n_frames = pts.shape[2] if pts.ndim == 3 else 0
+    # FRAMES is a signed 16-bit int: long files wrap it negative and then only the header counts.
+    if expected <= 0:
+        expected = last - first + 1
+    if n_frames < expected:
+        raise DataError(f"truncated C3D: the file declares {expected} frames of POINT data but "
+                        f"holds {n_frames}", path=p)
+    labels = labels[: pts.shape[1]]
+    xyz = np.transpose(pts[:3], (2, 1, 0)).copy()  # (F, M, 3)
+    invalid = np.transpose(resid[0], (1, 0)) < 0 if resid.size else np.zeros(xyz.shape[:2], bool)
+    xyz[invalid] = np.nan
+    return _finish(p, xyz, labels, rate, unit, units, "ezc3d", first)
+
+
+def _read_pyc3d(p: Path, units: str | None) -> Trial:
+    try:
+        import c3d
+    except ImportError:
+        raise DataError("neither ezc3d nor the c3d package is installed", path=p) from None
+    try:
+        with p.open("rb") as f, warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            r = c3d.Reader(f)
+            labels = [str(s).strip() for s in r.point_labels]
+            rate = float(r.point_rate)
+            upar = r.get("POINT:UNITS")
+            unit = _point_units(list(upar.string_array)) if upar is not None else "mm"
+            first, last = int(r.first_frame), int(r.last_frame)
+            frames = [np.array(pts, dtype=np.float64) for _, pts, _ in r.read_frames()]
+    except Exception as e:  # the c3d package raises many kinds on corrupt input
+        raise DataError(f"corrupt or truncated C3D ({type(e).__name__}: {e})", path=p) from None
+    eof = [w for w in caught if "end of file" in str(w.message).lower()]
+    if not frames:
+        raise DataError("no frames of POINT data", path=p)
+    if eof and len(frames) < last - first + 1 and len(frames) < _declared_frames(r):
+        raise DataError(f"truncated C3D: the file ends after {len(frames)} frames", path=p)
+    arr = np.stack(frames)  # (F, M, 5): x y z residual cameras
+    xyz = arr[:, :, :3].copy()
+    xyz[arr[:, :, 3] < 0] = np.nan
+    return _finish(p, xyz, labels[: xyz.shape[1]], rate, unit, units, "c3d", first)
+
+
+def _declared_frames(r: Any) -> int:
+    par = r.get("POINT:FRAMES")
+    try:
+        n = int(par.int16_value) if par is not None else 0
+    except Exception:
+        return 0
+    return n if n > 0 else 0

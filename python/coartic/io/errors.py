@@ -1,0 +1,33 @@
+"""The one exception every reader raises on bad input, so callers catch a single type."""
+
+from __future__ import annotations
+
+from os import PathLike
+from pathlib import Path
+
+
+class DataError(ValueError):
+    """Bad or unreadable input data; the message names the file and what is at fault.
+
+    `path`, `line` and `item` (a marker, label, tier or column name) are kept as attributes so
+    programs can react without parsing the message.
+    """
+
+    def __init__(
+        self,
+        message: str,
+        *,
+        path: str | PathLike[str] | None = None,
+        line: int | None = None,
+        item: str | None = None,
+    ) -> None:
+        self.path = None if path is None else Path(path)
+        self.line = line
+        self.item = item
+        where = ""
+        if self.path is not None:
+            where = f"{self.path}"
+            if line is not None:
+                where += f", line {line}"
+            where += ": "
+        super().__init__(where + message)

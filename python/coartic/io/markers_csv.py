@@ -1,0 +1,156 @@
+"""Marker tables as CSV/TSV: a time column and `<MARKER>_x, <MARKER>_y, <MARKER>_z` columns.
+
+The delimiter is sniffed (comma, tab, semicolon or whitespace); empty cells and `nan` are missing
+samples. The time column (`time_s`, `time`, `t`, or `time_ms` in milliseconds) must be evenly
+spaced: the frame rate is read from it. A leading comment line `# units: cm` gives the unit
+(default mm).
+"""
+
+from __future__ import annotations
+
+import csv
+import re
+from os import PathLike
+from pathlib import Path
+
+import numpy as np
+
+from coartic.io.errors import DataError
+from coartic.io.trial import Trial
+from coartic.io.units import to_mm
+
+TIME_COLUMNS = {"time_s": 1.0, "time": 1.0, "t": 1.0, "times": 1.0, "time_ms": 1e-3}
+_AXIS = re.compile(r"^(?P<marker>.+)_(?P<axis>[xyzXYZ])$")
+_UNITS = re.compile(r"^#\s*units?\s*[:=]\s*(?P<unit>\S+)", re.IGNORECASE)
+# Frame times may jitter by this fraction of a frame (rounded timestamps) before it is an error.
+RATE_JITTER = 0.05
+
+
+def read_table(path: Path) -> tuple[list[str], list[list[str]], list[int], str | None]:
+    """Header, data rows, their line numbers and a `# units:` value, delimiter sniffed."""
+    try:
+        text = path.read_text(encoding="utf-8-sig")
+    except (OSError, UnicodeDecodeError) as e:
+        raise DataError(f"cannot read the table as UTF-8 text: {e}", path=path) from None
+    if "\x00" in text:
+        raise DataError("contains NUL bytes: not a text table", path=path)
+    unit = None
+    lines = text.splitlines()
+    body: list[tuple[int, str]] = []
+    for no, line in enumerate(lines, start=1):
+        if line.startswith("#"):
+            m = _UNITS.match(line)
+            if m:
+                unit = m.group("unit")
+            continue
+        if line.strip():
+            body.append((no, line))
+    if not body:
+        raise DataError("empty table: no header line", path=path)
+    first = body[0][1]
+    delim: str | None
+    try:
+        delim = csv.Sniffer().sniff(first, delimiters=",\t;").delimiter
+    except csv.Error:
+        delim = None  # whitespace
+    rows: list[list[str]] = []
+    numbers: list[int] = []
+    for no, line in body:
+        if delim is None:
+            fields = line.split()
+        else:
+            try:
+                fields = next(csv.reader([line], delimiter=delim))
+            except csv.Error as e:
+                raise DataError(f"unreadable row: {e}", path=path, line=no) from None
+        rows.append([f.strip() for f in fields])
+        numbers.append(no)
+    return rows[0], rows[1:], numbers[1:], unit
+
+
+def parse_numbers(
+    rows: list[list[str]], lines: list[int], header: list[str], path: Path
+) -> np.ndarray:
+    """The rows as a float matrix; empty cells and nan are NaN, anything else non-numeric an error."""
+    out = np.full((len(rows), len(header)), np.nan)
+    for r, (row, no) in enumerate(zip(rows, lines)):
+        if len(row) != len(header):
+            raise DataError(f"{len(row)} fields where the header has {len(header)}", path=path,
+                            line=no)
+        for c, cell in enumerate(row):
+            if cell == "" or cell.lower() in ("nan", "na", "null"):
+                continue
+            try:
+                v = float(cell)
+            except ValueError:
+                raise DataError(f"column {header[c]!r}: {cell!r} is not a number", path=path,
+                                line=no, item=header[c]) from None
+            if not np.isfinite(v):
+                raise DataError(f"column {header[c]!r}: {cell!r} is not finite", path=path,
+                                line=no, item=header[c])
+            out[r, c] = v
+    return out
+
+
+def rate_from_times(times: np.ndarray, path: Path, lines: list[int], column: str) -> float:
+    if times.size < 2:
+        raise DataError("fewer than two frames: no frame rate", path=path)
+    if not np.all(np.isfinite(times)):
+        bad = int(np.flatnonzero(~np.isfinite(times))[0])
+        raise DataError(f"time column {column!r} is empty", path=path, line=lines[bad], item=column)
+    steps = np.diff(times)
+    step = float(np.median(steps))
+    if step <= 0:
+        raise DataError(f"time column {column!r} does not increase", path=path, item=column)
+    off = np.abs(steps - step) > RATE_JITTER * step
+    if off.any():
+        k = int(np.flatnonzero(off)[0])
+        raise DataError(f"time column {column!r} is not evenly spaced: {times[k]:g} s to "
+                        f"{times[k + 1]:g} s where the usual step is {step:g} s (missing frames "
+                        "should be rows with empty cells)", path=path, line=lines[k + 1], item=column)
+    # Timestamps written with few decimals give rates like 199.99999999; the true rate is round.
+    rate = 1.0 / float((times[-1] - times[0]) / (times.size - 1))
+    return round(rate, 6) if abs(rate - round(rate, 6)) < 1e-6 * rate else rate
+
+
+def read_markers_csv(path: str | PathLike[str], units: str | None = None) -> Trial:
+    """Read a marker table as a Trial (no labels), positions in mm."""
+    p = Path(path)
+    header, rows, lines, file_unit = read_table(p)
+    tcol = next((i for i, h in enumerate(header) if h.lower() in TIME_COLUMNS), None)
+    if tcol is None:
+        raise DataError(f"no time column (one of {sorted(TIME_COLUMNS)}); the columns are "
+                        f"{header[:12]}{'...' if len(header) > 12 else ''}", path=p, line=1)
+    names: list[str] = []
+    cols: dict[str, dict[str, int]] = {}
+    for i, h in enumerate(header):
+        m = _AXIS.match(h)
+        if i == tcol or m is None:
+            continue
+        marker, axis = m.group("marker"), m.group("axis").lower()
+        if marker not in cols:
+            cols[marker] = {}
+            names.append(marker)
+        if axis in cols[marker]:
+            raise DataError(f"column {h!r} appears twice", path=p, item=h)
+        cols[marker][axis] = i
+    if not names:
+        raise DataError(f"no marker columns named <MARKER>_x, _y, _z; the columns are {header}",
+                        path=p)
+    for name in names:
+        lacking = [a for a in "xyz" if a not in cols[name]]
+        if lacking:
+            raise DataError(f"marker {name!r} has no column " +
+                            ", ".join(f"{name}_{a}" for a in lacking), path=p, item=name)
+    if not rows:
+        raise DataError("a header but no data rows", path=p)
+    data = parse_numbers(rows, lines, header, p)
+    scale = TIME_COLUMNS[header[tcol].lower()]
+    times = data[:, tcol] * scale
+    rate = rate_from_times(times, p, lines, header[tcol])
+    xyz = np.stack([data[:, [cols[n]["x"], cols[n]["y"], cols[n]["z"]]] for n in names], axis=1)
+    unit = units or file_unit or "mm"
+    xyz, note = to_mm(xyz, unit, p, "marker positions")
+    meta = {"notes": [note] if note else []}
+    return Trial(markers=np.ascontiguousarray(xyz), marker_names=tuple(names), rate=rate,
+                 units="mm", source=p, meta=meta, start_time=float(times[0]))

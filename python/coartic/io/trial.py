@@ -1,0 +1,306 @@
+"""The Trial: one recording (markers or EMA sensors) with its labels, and its channels.
+
+`load_trial` is the one entry point: it picks the reader from the extension and the content,
+reads and maps the labels, and checks that they fit the data.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterator, Mapping, Sequence
+from dataclasses import dataclass, field, replace
+from os import PathLike
+from pathlib import Path
+from typing import Any, Literal
+
+import numpy as np
+from numpy.typing import NDArray
+
+from coartic.io.errors import DataError
+from coartic.io.gaps import DEFAULT_MAX_GAP, Gap, fill_gaps, resample
+from coartic.io.labelmap import PAUSE, LabelMap, resolve_label_map
+from coartic.io.labels import Segments, read_labels
+from coartic.io.roles import MARKER_ROLES, RoleMap, guess_ema_roles, resolve_role_map
+
+ALL_CHANNELS = ("ULO", "LLO", "ULP", "LLP", "LR", "JO", "LA")
+HEAD_ROLES = ("NOSE", "EAR_L", "EAR_R")
+# Markers each channel needs (MODEL.md §6): heights and protrusions are read in the head frame
+# (and y_0 needs UL and LL); the distances LR, JO, LA need no head frame.
+CHANNEL_ROLES: dict[str, tuple[str, ...]] = {
+    "ULO": (*HEAD_ROLES, "UL", "LL"), "LLO": (*HEAD_ROLES, "UL", "LL"),
+    "ULP": (*HEAD_ROLES, "UL"), "LLP": (*HEAD_ROLES, "LL"),
+    "LR": ("LC_L", "LC_R"), "JO": ("NOSE", "CHIN"), "LA": ("UL", "LL"),
+}
+DEFAULT_REST_FRAMES = 20
+
+
+@dataclass(frozen=True)
+class Channels(Mapping[str, NDArray[np.float64]]):
+    """Channel name → samples (mm), with a `valid` mask per channel (False: weight 0 in fits)."""
+
+    arrays: dict[str, NDArray[np.float64]]
+    valid: dict[str, NDArray[np.bool_]]
+    times: NDArray[np.float64]
+    rate: float
+    gaps: tuple[Gap, ...] = ()
+    unavailable: dict[str, str] = field(default_factory=dict)
+
+    def __getitem__(self, key: str) -> NDArray[np.float64]:
+        if key not in self.arrays:
+            why = self.unavailable.get(key)
+            raise KeyError(f"channel {key!r} is not available" + (f": {why}" if why else
+                           f"; the channels are {list(self.arrays)}"))
+        return self.arrays[key]
+
+    def __iter__(self) -> Iterator[str]:
+        return iter(self.arrays)
+
+    def __len__(self) -> int:
+        return len(self.arrays)
+
+    def weights(self, channel: str) -> NDArray[np.float64]:
+        """1.0 where the channel was measured, 0.0 where it is missing (for the SSE weights)."""
+        return self.valid[channel].astype(np.float64)
+
+
+@dataclass(frozen=True)
+class Trial:
+    """One recording: positions (frames x markers x 3, mm, NaN where missing) and labels."""
+
+    markers: NDArray[np.float64]
+    marker_names: tuple[str, ...]
+    rate: float
+    units: str = "mm"
+    segments: Segments | None = None
+    source: Path | None = None
+    meta: dict[str, Any] = field(default_factory=dict)
+    start_time: float = 0.0
+    kind: Literal["markers", "ema"] = "markers"
+    roles: RoleMap = field(default_factory=RoleMap)
+
+    def __post_init__(self) -> None:
+        m = self.markers
+        if m.ndim != 3 or m.shape[2] != 3 or m.shape[1] != len(self.marker_names):
+            raise DataError(f"markers must be frames x {len(self.marker_names)} x 3, got "
+                            f"{m.shape}", path=self.source)
+
+    @property
+    def n_frames(self) -> int:
+        return int(self.markers.shape[0])
+
+    @property
+    def times(self) -> NDArray[np.float64]:
+        return self.start_time + np.arange(self.n_frames) / self.rate
+
+    @property
+    def duration(self) -> float:
+        return self.n_frames / self.rate
+
+    @property
+    def valid(self) -> NDArray[np.bool_]:
+        """frames x markers: True where the marker was measured."""
+        return np.all(np.isfinite(self.markers), axis=2)
+
+    def marker(self, name: str) -> NDArray[np.float64]:
+        """frames x 3 of one marker, by its name in the file or by its role."""
+        k = self.roles.find(name, self.marker_names)
+        if k is None:
+            raise DataError(f"no marker {name!r}; the markers are {list(self.marker_names)}",
+                            path=self.source, item=name)
+        return self.markers[:, k, :]
+
+    def with_labels(self, segments: Segments, label_map: LabelMap | None = None) -> Trial:
+        """This trial with `segments` (mapped through `label_map`), checked against the data."""
+        lm = label_map if label_map is not None else LabelMap.model()
+        mapped = lm.apply(segments)
+        end = self.start_time + self.duration
+        tol = 1e-6
+        for i, (lab, s, e) in enumerate(zip(segments.labels, segments.starts, segments.ends)):
+            if e > end + tol or s < self.start_time - 1.0 / self.rate - tol:
+                src = f" of {self.source}" if self.source else ""
+                raise DataError(f"label {lab!r} ({s:g}-{e:g} s) lies beyond the data{src} "
+                                f"({self.start_time:g}-{end:g} s)", path=segments.source,
+                                line=segments.lines[i], item=lab)
+        meta = dict(self.meta)
+        meta["raw_labels"] = segments.labels
+        meta["label_map"] = lm.source
+        return replace(self, segments=mapped, meta=meta)
+
+    def rest_frames(self, n_frames: int = DEFAULT_REST_FRAMES) -> NDArray[np.bool_]:
+        """The frames that define y_0: the first pause label, else the first `n_frames` frames."""
+        mask = np.zeros(self.n_frames, dtype=bool)
+        if self.segments is not None and PAUSE in self.segments.labels:
+            i = self.segments.labels.index(PAUSE)
+            t = self.times
+            mask = (t >= self.segments.starts[i]) & (t <= self.segments.ends[i])
+            if mask.any():
+                return mask
+        mask[: max(1, n_frames)] = True
+        return mask
+
+    def fill_gaps(self, max_gap: float = DEFAULT_MAX_GAP) -> tuple[Trial, list[Gap]]:
+        """This trial with gaps up to `max_gap` s interpolated, and every gap found."""
+        filled, gaps = fill_gaps(self.markers, self.marker_names, self.rate, self.start_time,
+                                 max_gap)
+        return replace(self, markers=filled), gaps
+
+    def resample(self, rate: float) -> Trial:
+        """This trial on a new frame rate, never interpolating across a gap."""
+        if rate == self.rate:
+            return self
+        out = resample(self.markers, self.rate, rate, self.start_time)
+        meta = dict(self.meta)
+        meta["notes"] = [*meta.get("notes", []), f"resampled from {self.rate:g} Hz to {rate:g} Hz"]
+        return replace(self, markers=out, rate=float(rate), meta=meta)
+
+    def channels(
+        self,
+        channels: Sequence[str] | None = None,
+        *,
+        max_gap: float = DEFAULT_MAX_GAP,
+        rest_frames: int = DEFAULT_REST_FRAMES,
+    ) -> Channels:
+        """Articulatory channels (MODEL.md §6) with short gaps filled and long ones masked.
+
+        `channels=None` gives every channel the data allow (the others are listed in
+        `.unavailable`); naming a channel whose markers are missing is an error.
+        """
+        wanted = tuple(ALL_CHANNELS if channels is None else channels)
+        for c in wanted:
+            if c not in ALL_CHANNELS:
+                raise DataError(f"unknown channel {c!r}; channels are {list(ALL_CHANNELS)}", item=c)
+        filled, gaps = self.fill_gaps(max_gap)
+        rest = self.rest_frames(rest_frames)
+        if self.kind == "ema":
+            from coartic.io.ema import ema_channels
+
+            values, why = ema_channels(filled.markers, self.marker_names, self.roles, rest,
+                                       self.source)
+        else:
+            values, why = filled._marker_channels(wanted, channels is not None, rest)
+        if channels is not None:
+            for c in wanted:
+                if c not in values:
+                    raise DataError(f"channel {c} cannot be computed: {why.get(c, 'no data')}",
+                                    path=self.source, item=c)
+        values = {c: np.ascontiguousarray(values[c], dtype=np.float64) for c in wanted if c in values}
+        valid = {c: np.isfinite(v) for c, v in values.items()}
+        return Channels(values, valid, self.times, self.rate, tuple(gaps),
+                        {c: w for c, w in why.items() if c in wanted})
+
+    def _marker_channels(
+        self, wanted: Sequence[str], strict: bool, rest: NDArray[np.bool_]
+    ) -> tuple[dict[str, NDArray[np.float64]], dict[str, str]]:
+        idx = {r: self.roles.find(r, self.marker_names) for r in MARKER_ROLES}
+        needed: set[str] = set()
+        for c in wanted:
+            if strict or all(idx[r] is not None for r in CHANNEL_ROLES[c]):
+                needed.update(CHANNEL_ROLES[c])
+        lacking = [r for r in MARKER_ROLES if r in needed and idx[r] is None]
+        if lacking or not needed:
+            lacking = lacking or [r for r in MARKER_ROLES if idx[r] is None]
+            named = {r: self.roles.roles[r] for r in lacking if r in self.roles.roles}
+            raise DataError(
+                f"required marker(s) {lacking} missing" +
+                (f" (role map names {named})" if named else "") +
+                f"; the file has {list(self.marker_names)}; pass role_map={{'NOSE': '<name>', ...}}"
+                " to say which marker is which", path=self.source, item=lacking[0])
+        from coartic import _core
+
+        f = self.n_frames
+        stack = np.full((f, len(MARKER_ROLES), 3), np.nan)
+        for j, r in enumerate(MARKER_ROLES):
+            k = idx[r]
+            if k is not None:
+                stack[:, j, :] = self.markers[:, k, :]
+        cols = np.asarray(_core.marker_channels(np.ascontiguousarray(stack), rest))
+        values: dict[str, NDArray[np.float64]] = {}
+        why: dict[str, str] = {}
+        for j, c in enumerate(ALL_CHANNELS):
+            absent = [r for r in CHANNEL_ROLES[c] if idx[r] is None]
+            if absent:
+                why[c] = f"no marker for role(s) {absent}"
+            else:
+                values[c] = cols[:, j]
+        return values, why
+
+
+def _reader_for(p: Path) -> str:
+    try:
+        with p.open("rb") as f:
+            head = f.read(4096)
+    except OSError as e:
+        raise DataError(f"cannot read: {e.strerror or e}", path=p) from None
+    suffix = p.suffix.lower()
+    if suffix == ".c3d":
+        return "c3d"
+    if suffix == ".json":
+        return "emu"
+    if len(head) >= 2 and head[1] == 0x50 and suffix not in (".csv", ".tsv", ".txt"):
+        return "c3d"
+    first = head.decode("utf-8", errors="replace").lstrip("\ufeff").splitlines()
+    header = next((line for line in first if line.strip() and not line.startswith("#")), "")
+    if "_pos" in header.lower():
+        return "ema"
+    if suffix in (".csv", ".tsv", ".txt") or "_x" in header.lower():
+        return "csv"
+    raise DataError(f"cannot tell the format of this file (extension {suffix!r}); coartic reads "
+                    "C3D, marker CSV/TSV and EMA CSV", path=p)
+
+
+def load_trial(
+    path: str | PathLike[str],
+    labels: str | PathLike[str] | Segments | None = None,
+    label_map: LabelMap | Mapping[str, str] | str | PathLike[str] | None = None,
+    role_map: RoleMap | Mapping[str, Any] | str | PathLike[str] | None = None,
+    *,
+    tier: str | None = None,
+    units: str | None = None,
+    meta: Mapping[str, Any] | None = None,
+) -> Trial:
+    """Read a recording and (optionally) its labels.
+
+    `labels`: a label file (TextGrid, .lab, TSV) or Segments; `tier` picks the TextGrid tier.
+    `label_map`: corpus labels → model phonemes (a built-in name such as 'german_sampa', a TSV or
+    JSON file, or a dict); the default accepts only model phonemes and pauses.
+    `role_map`: which marker/sensor is NOSE, UL, JAW...; for EMA also the axes (default: up is
+    +z, forwards is -y, sensors guessed from usual names such as ul, ll, jw).
+    `units` overrides the file's length unit.
+    """
+    p = Path(path)
+    if not p.is_file():
+        raise DataError("no such file", path=p)
+    kind = _reader_for(p)
+    roles = resolve_role_map(role_map)
+    trial: Trial
+    if kind == "c3d":
+        from coartic.io.c3d import read_c3d
+
+        trial = read_c3d(p, units=units)
+    elif kind == "ema":
+        from coartic.io.ema import read_ema_csv
+
+        trial = read_ema_csv(p, units=units)
+        if role_map is None:
+            trial.meta["notes"].append("EMA axes assumed: up is +z, forwards is -y (pass a role "
+                                       "map to change)")
+        roles = guess_ema_roles(trial.marker_names, roles)
+    elif kind == "emu":
+        raise DataError("EMU bundle JSON is not read directly; use the derived <stem>_ema.csv "
+                        "and <stem>_Segment.tsv (docs/DATA.md)", path=p)
+    else:
+        from coartic.io.markers_csv import read_markers_csv
+
+        trial = read_markers_csv(p, units=units)
+    trial = replace(trial, roles=roles, meta={**trial.meta, **(dict(meta) if meta else {})})
+    if labels is not None:
+        segs = labels if isinstance(labels, Segments) else read_labels(labels, tier)
+        trial = trial.with_labels(segs, resolve_label_map(label_map))
+    return trial
+
+
+def common_rate(trials: Sequence[Trial], rate: float | None = None) -> list[Trial]:
+    """The trials on one frame rate: `rate`, or else the lowest among them (no invented samples)."""
+    if not trials:
+        return []
+    target = rate if rate is not None else min(t.rate for t in trials)
+    return [t.resample(target) for t in trials]

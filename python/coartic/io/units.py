@@ -1,0 +1,28 @@
+"""Lengths in millimetres: what the model's targets are in (MODEL.md §1)."""
+
+from __future__ import annotations
+
+from os import PathLike
+
+import numpy as np
+from numpy.typing import NDArray
+
+from coartic.io.errors import DataError
+
+_TO_MM = {"mm": 1.0, "millimeter": 1.0, "millimetre": 1.0, "millimeters": 1.0,
+          "millimetres": 1.0, "cm": 10.0, "m": 1000.0, "meter": 1000.0, "metre": 1000.0,
+          "meters": 1000.0, "metres": 1000.0}
+
+
+def to_mm(
+    values: NDArray[np.float64], unit: str, path: str | PathLike[str] | None, what: str = "data"
+) -> tuple[NDArray[np.float64], str | None]:
+    """`values` in mm and a note saying what was converted (None when already in mm)."""
+    key = unit.strip().lower()
+    if key not in _TO_MM:
+        raise DataError(f"{what} are in unit {unit!r}; coartic reads mm, cm or m only "
+                        "(pass units='mm' if the file's unit field is wrong)", path=path, item=unit)
+    factor = _TO_MM[key]
+    if factor == 1.0:
+        return values, None
+    return values * factor, f"{what} converted from {unit.strip()} to mm (x{factor:g})"
