@@ -10,6 +10,7 @@ app = typer.Typer(
 )
 
 # --- sub-commands (one line each) ---
+app.command("inspect")(__import__("coartic.io.inspect_cli", fromlist=["_"]).inspect_command)
 
 if __name__ == "__main__":
     app()
