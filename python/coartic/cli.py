@@ -10,6 +10,8 @@ app = typer.Typer(
 )
 
 # --- sub-commands (one line each) ---
+app.command("animate")(__import__("coartic.runtime.runtime_cli", fromlist=["_"]).animate_command)
+app.command("speak")(__import__("coartic.runtime.runtime_cli", fromlist=["_"]).speak_command)
 app.command("inspect")(__import__("coartic.io.inspect_cli", fromlist=["_"]).inspect_command)
 
 if __name__ == "__main__":

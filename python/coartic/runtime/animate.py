@@ -1,0 +1,200 @@
+"""Parameter table + phonemes with times → channel trajectories at a frame rate.
+
+The model itself is evaluated by the Rust core through `coartic.model.trajectories`; this module
+checks the request (every phoneme present for every channel, before the core sees it), lays out
+the frames, and keeps what a player needs next to the numbers (segments, neutral posture).
+"""
+
+from __future__ import annotations
+
+import csv
+import math
+import os
+from collections.abc import Container, Mapping, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+from numpy.typing import NDArray
+
+from coartic.io.labels import Segments
+from coartic.runtime.errors import AnimationError, MissingPhonemeError
+from coartic.table import CHANNELS, PAUSE, ParameterTable
+
+
+@dataclass(frozen=True)
+class Animation:
+    """Channel trajectories sampled at frame times `k / fps`, k = 0 .. n_frames - 1."""
+
+    fps: float
+    times: NDArray[np.float64]
+    channels: dict[str, NDArray[np.float64]]
+    segments: Segments
+    substitutions: dict[str, str] = field(default_factory=dict)
+
+    @property
+    def n_frames(self) -> int:
+        return int(self.times.size)
+
+    @property
+    def duration(self) -> float:
+        """Playing time: n_frames frames of 1 / fps each."""
+        return self.n_frames / self.fps
+
+
+def frame_times(duration: float, fps: float) -> NDArray[np.float64]:
+    """Frame times for `duration` seconds: round(duration * fps) frames (so within half a frame)."""
+    if not (math.isfinite(fps) and fps > 0):
+        raise AnimationError(f"frame rate must be a positive number of frames per second, got {fps!r}")
+    if not (math.isfinite(duration) and duration > 0):
+        raise AnimationError(f"duration must be positive, got {duration!r} s")
+    n = max(1, int(round(duration * fps)))
+    return np.arange(n, dtype=np.float64) / fps
+
+
+def _segment_where(segments: Segments, i: int) -> str:
+    src = f" of {segments.source}" if segments.source is not None else ""
+    line = segments.lines[i] if i < len(segments.lines) else None
+    at = f", line {line}" if line is not None else ""
+    return f"segment {i + 1}{src}{at} ({segments.starts[i]:.3f}-{segments.ends[i]:.3f} s)"
+
+
+def check_phonemes(table: ParameterTable, segments: Segments, channels: Sequence[str]) -> None:
+    """Raise MissingPhonemeError naming the first phoneme or channel the table cannot animate."""
+    missing_ch = [c for c in channels if c not in table.channels]
+    if missing_ch:
+        raise MissingPhonemeError(
+            f"{table.source}: channel(s) {', '.join(missing_ch)} not in the table "
+            f"(it has {', '.join(table.channels)})"
+        )
+    for i, ph in enumerate(segments.labels):
+        have = table.values.get(ph, {})
+        lacking = [c for c in channels if c not in have]
+        if lacking:
+            what = "phoneme" if not have else f"phoneme with channel(s) {', '.join(lacking)}:"
+            raise MissingPhonemeError(
+                f"{table.source} has no {what} {ph!r}, needed by {_segment_where(segments, i)}; "
+                f"the table's phonemes are {' '.join(table.phonemes)}"
+            )
+
+
+def substitute(
+    segments: Segments,
+    table: ParameterTable,
+    channels: Sequence[str],
+    fallbacks: Mapping[str, Sequence[str]],
+) -> tuple[Segments, dict[str, str]]:
+    """Replace phonemes the table lacks by their first fallback it has; report what was replaced.
+
+    A phoneme with no usable fallback stays, so that check_phonemes names it.
+    """
+    complete = {p for p, per in table.values.items() if all(c in per for c in channels)}
+    used: dict[str, str] = {}
+    labels = []
+    for ph in segments.labels:
+        choice = _first_available(ph, fallbacks.get(ph, ()), complete)
+        if choice != ph:
+            used[ph] = choice
+        labels.append(choice)
+    return (segments.with_labels(labels) if used else segments), used
+
+
+def _first_available(phoneme: str, fallbacks: Sequence[str], available: Container[str]) -> str:
+    for candidate in (phoneme, *fallbacks):
+        if candidate in available:
+            return candidate
+    return phoneme
+
+
+def evaluate(
+    table: ParameterTable, segments: Segments, times: NDArray[np.float64], channels: Sequence[str] = CHANNELS
+) -> dict[str, NDArray[np.float64]]:
+    """The channels at arbitrary times (the Rust core through coartic.model), after checking the input."""
+    from coartic.model import ModelInputError, trajectories
+
+    check_phonemes(table, segments, channels)
+    try:
+        out = trajectories(table, list(segments.labels), segments.starts, segments.ends,
+                           np.ascontiguousarray(times, dtype=np.float64), channels=list(channels))
+    except ModelInputError as err:
+        where = f"{segments.source}: " if segments.source is not None else ""
+        raise AnimationError(f"{where}{err}") from None
+    return {c: np.asarray(out[c], dtype=np.float64) for c in channels}
+
+
+def animate(
+    table: ParameterTable,
+    segments: Segments,
+    fps: float,
+    *,
+    duration: float | None = None,
+    channels: Sequence[str] = CHANNELS,
+    substitutions: Mapping[str, str] | None = None,
+) -> Animation:
+    """Trajectories of `channels` for `segments` at `fps` over `duration` (default: to the last end)."""
+    total = segments.end_time if duration is None else duration
+    times = frame_times(total, fps)
+    values = evaluate(table, segments, times, channels)
+    return Animation(fps=float(fps), times=times, channels=values, segments=segments,
+                     substitutions=dict(substitutions or {}))
+
+
+def neutral_posture(table: ParameterTable, channels: Sequence[str] = CHANNELS) -> dict[str, float]:
+    """The face at rest: the pause phoneme's targets, the posture MPEG-4's neutral face stands for."""
+    rest = table.values.get(PAUSE)
+    if rest is None:
+        raise MissingPhonemeError(
+            f"{table.source} has no pause phoneme {PAUSE!r}: its targets are the neutral face that FAPs "
+            "are measured from"
+        )
+    lacking = [c for c in channels if c not in rest]
+    if lacking:
+        raise MissingPhonemeError(f"{table.source}: pause phoneme {PAUSE!r} has no channel(s) {', '.join(lacking)}")
+    return {c: float(rest[c]["target"]) for c in channels}
+
+
+def target_times(table: ParameterTable, segments: Segments, channel: str) -> NDArray[np.float64]:
+    """t_i = s_i + a (e_i - s_i) + δ, clamped into the segment (MODEL.md §1): where targets are aimed."""
+    a = table.channels[channel].apex_fraction
+    delta = np.array([table.values[p][channel]["delta"] for p in segments.labels])
+    t = segments.starts + a * (segments.ends - segments.starts) + delta
+    return np.clip(t, segments.starts, segments.ends)
+
+
+def _atomic_write(path: Path, text: str) -> None:
+    tmp = path.with_name(path.name + ".part")
+    tmp.write_text(text, encoding="utf-8")
+    os.replace(tmp, path)
+
+
+def write_channels_csv(path: str | Path, animation: Animation) -> None:
+    """`frame,time,<channel>...` in mm, floats with repr (read back bit for bit)."""
+    names = list(animation.channels)
+    rows = [["frame", "time", *names]]
+    for k, t in enumerate(animation.times):
+        rows.append([str(k), repr(float(t)), *(repr(float(animation.channels[c][k])) for c in names)])
+    _atomic_write(Path(path), "".join(",".join(r) + "\n" for r in rows))
+
+
+def read_channels_csv(path: str | Path) -> tuple[NDArray[np.float64], dict[str, NDArray[np.float64]]]:
+    """Frame times and channels of a file written by write_channels_csv."""
+    path = Path(path)
+    with path.open(newline="", encoding="utf-8") as f:
+        rows = list(csv.reader(f))
+    if not rows or rows[0][:2] != ["frame", "time"]:
+        raise AnimationError(f"{path}, line 1: expected a header 'frame,time,<channel>...'")
+    names = rows[0][2:]
+    try:
+        data = np.array([[float(x) for x in r[1:]] for r in rows[1:]], dtype=np.float64).reshape(-1, len(names) + 1)
+    except ValueError as err:
+        raise AnimationError(f"{path}: not a channel table written by coartic ({err})") from None
+    return data[:, 0], {c: data[:, j + 1] for j, c in enumerate(names)}
+
+
+def write_segments_tsv(path: str | Path, segments: Segments, original: Sequence[str] | None = None) -> None:
+    """The segments animated (`start end phoneme`, plus the source label when it differs)."""
+    lines = ["start\tend\tphoneme" + ("\tsource" if original is not None else "")]
+    for i, (lab, s, e) in enumerate(zip(segments.labels, segments.starts, segments.ends)):
+        extra = f"\t{original[i]}" if original is not None else ""
+        lines.append(f"{float(s)!r}\t{float(e)!r}\t{lab}{extra}")
+    _atomic_write(Path(path), "\n".join(lines) + "\n")

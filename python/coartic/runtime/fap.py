@@ -1,0 +1,264 @@
+"""MPEG-4 Facial Animation Parameters: FAPU, the channel → FAP mapping, and the FAP text file.
+
+The mapping and its sign conventions are written down in docs/RUNTIME.md; keep the two in step.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+from numpy.typing import NDArray
+
+from coartic.runtime.errors import AnimationError, FapFormatError
+
+N_FAPS = 68
+
+# ISO/IEC 14496-2 FAP names, FAP 1 first.
+FAP_NAMES: tuple[str, ...] = (
+    "viseme", "expression", "open_jaw", "lower_t_midlip", "raise_b_midlip",
+    "stretch_l_cornerlip", "stretch_r_cornerlip", "lower_t_lip_lm", "lower_t_lip_rm",
+    "raise_b_lip_lm", "raise_b_lip_rm", "raise_l_cornerlip", "raise_r_cornerlip",
+    "thrust_jaw", "shift_jaw", "push_b_lip", "push_t_lip", "depress_chin",
+    "close_t_l_eyelid", "close_t_r_eyelid", "close_b_l_eyelid", "close_b_r_eyelid",
+    "yaw_l_eyeball", "yaw_r_eyeball", "pitch_l_eyeball", "pitch_r_eyeball",
+    "thrust_l_eyeball", "thrust_r_eyeball", "dilate_l_pupil", "dilate_r_pupil",
+    "raise_l_i_eyebrow", "raise_r_i_eyebrow", "raise_l_m_eyebrow", "raise_r_m_eyebrow",
+    "raise_l_o_eyebrow", "raise_r_o_eyebrow", "squeeze_l_eyebrow", "squeeze_r_eyebrow",
+    "puff_l_cheek", "puff_r_cheek", "lift_l_cheek", "lift_r_cheek", "shift_tongue_tip",
+    "raise_tongue_tip", "thrust_tongue_tip", "raise_tongue", "tongue_roll", "head_pitch",
+    "head_yaw", "head_roll", "lower_t_midlip_o", "raise_b_midlip_o", "stretch_l_cornerlip_o",
+    "stretch_r_cornerlip_o", "lower_t_lip_lm_o", "lower_t_lip_rm_o", "raise_b_lip_lm_o",
+    "raise_b_lip_rm_o", "raise_l_cornerlip_o", "raise_r_cornerlip_o", "stretch_l_nose",
+    "stretch_r_nose", "raise_nose", "bend_nose", "raise_l_ear", "raise_r_ear", "pull_l_ear",
+    "pull_r_ear",
+)
+assert len(FAP_NAMES) == N_FAPS
+
+# The lip-mid points (FAP 8-11) sit halfway between the midline and a corner; on the elliptic lip
+# contour the preview also draws, a point at half the half-width moves sqrt(1 - 0.5^2) of the midline.
+LIP_MID_FRACTION = math.sqrt(3.0) / 2.0
+
+# FAP number → (channel, factor) with FAP value = factor * (channel - neutral) / FAPU. Factors carry
+# the MPEG-4 sign (open_jaw and lower_t_* positive down, raise_b_* positive up, stretch_* outwards,
+# push_* forwards) against the channel's own sign (ULO, LLO positive away from the lip midline,
+# ULP, LLP positive forwards, LR the corner-to-corner width, JO the nose-chin distance).
+_INNER: dict[int, tuple[str, float]] = {
+    3: ("JO", 1.0),
+    4: ("ULO", -1.0),
+    5: ("LLO", -1.0),
+    6: ("LR", 0.5),
+    7: ("LR", 0.5),
+    8: ("ULO", -LIP_MID_FRACTION),
+    9: ("ULO", -LIP_MID_FRACTION),
+    10: ("LLO", -LIP_MID_FRACTION),
+    11: ("LLO", -LIP_MID_FRACTION),
+    16: ("LLP", 1.0),
+    17: ("ULP", 1.0),
+}
+# The vermilion markers cannot tell the inner from the outer contour, so the lips translate rigidly:
+# each outer-lip twin (51-60) carries the value of its inner FAP.
+OUTER_TWIN: dict[int, int] = {51: 4, 52: 5, 53: 6, 54: 7, 55: 8, 56: 9, 57: 10, 58: 11, 59: 12, 60: 13}
+# No channel measures the corners' vertical position: 12/13 (and 59/60) are sent as 0 so that a
+# player holds the corners at neutral instead of keeping whatever an earlier stream left there.
+CORNER_LIFTS: tuple[int, ...] = (12, 13)
+MW_FAPS: frozenset[int] = frozenset({6, 7, 53, 54})
+LIP_JAW_FAPS: tuple[int, ...] = tuple(sorted({*_INNER, *CORNER_LIFTS, *OUTER_TWIN}))
+FAP_CHANNELS: tuple[str, ...] = ("ULO", "LLO", "ULP", "LLP", "LR", "JO")
+
+
+@dataclass(frozen=True)
+class FaceUnits:
+    """A face's neutral mouth-nose separation and mouth width (mm); one FAPU is distance / 1024."""
+
+    mns_mm: float = 30.0
+    mw_mm: float = 50.0
+
+    def __post_init__(self) -> None:
+        for name, value in (("mns_mm", self.mns_mm), ("mw_mm", self.mw_mm)):
+            if not (math.isfinite(value) and value > 0.0):
+                raise AnimationError(f"face unit {name} must be a positive length in mm, got {value!r}")
+
+    @property
+    def mns(self) -> float:
+        return self.mns_mm / 1024.0
+
+    @property
+    def mw(self) -> float:
+        return self.mw_mm / 1024.0
+
+    def unit_of(self, fap: int) -> float:
+        """FAPU (mm) of a lip or jaw FAP."""
+        return self.mw if fap in MW_FAPS else self.mns
+
+
+@dataclass
+class FapSequence:
+    """Frames of FAP values: `mask[f, j]` says whether FAP j+1 is sent in frame f."""
+
+    name: str
+    fps: float
+    mask: NDArray[np.bool_]
+    values: NDArray[np.int64]
+    first_frame: int = 0
+
+    def __post_init__(self) -> None:
+        self.mask = np.ascontiguousarray(self.mask, dtype=bool)
+        self.values = np.ascontiguousarray(self.values, dtype=np.int64)
+        if self.mask.ndim != 2 or self.mask.shape[1] != N_FAPS or self.values.shape != self.mask.shape:
+            raise AnimationError(
+                f"FAP sequence {self.name!r}: mask and values must both be (frames, {N_FAPS}), "
+                f"got {self.mask.shape} and {self.values.shape}"
+            )
+        if not self.name or any(c.isspace() for c in self.name):
+            raise AnimationError(f"FAP sequence name must be one word without spaces, got {self.name!r}")
+        if not (math.isfinite(self.fps) and self.fps > 0):
+            raise AnimationError(f"FAP sequence {self.name!r}: fps must be positive, got {self.fps!r}")
+        self.values[~self.mask] = 0
+
+    @property
+    def n_frames(self) -> int:
+        return int(self.mask.shape[0])
+
+    def column(self, fap: int) -> NDArray[np.int64]:
+        """Values of FAP `fap` (1-based number) over the frames."""
+        if not 1 <= fap <= N_FAPS:
+            raise AnimationError(f"FAP number must be in 1..{N_FAPS}, got {fap}")
+        return self.values[:, fap - 1]
+
+    def same_as(self, other: FapSequence) -> bool:
+        return (
+            self.name == other.name
+            and self.fps == other.fps
+            and (self.first_frame == other.first_frame or self.n_frames == 0)  # no frame, no number
+            and np.array_equal(self.mask, other.mask)
+            and np.array_equal(self.values, other.values)
+        )
+
+
+def channels_to_faps(
+    channels: Mapping[str, NDArray[np.float64]],
+    neutral: Mapping[str, float],
+    face: FaceUnits,
+    name: str,
+    fps: float,
+) -> FapSequence:
+    """Lip and jaw FAPs (see LIP_JAW_FAPS) from channel trajectories in mm and the neutral posture."""
+    missing = [c for c in FAP_CHANNELS if c not in channels]
+    if missing:
+        raise AnimationError(f"FAPs need the channels {', '.join(FAP_CHANNELS)}; missing {', '.join(missing)}")
+    missing = [c for c in FAP_CHANNELS if c not in neutral]
+    if missing:
+        raise AnimationError(f"the neutral posture has no value for channel(s) {', '.join(missing)}")
+    n = len(channels[FAP_CHANNELS[0]])
+    for c in FAP_CHANNELS:
+        y = np.asarray(channels[c], dtype=float)
+        if y.shape != (n,):
+            raise AnimationError(f"channel {c} has shape {y.shape}, expected ({n},) like {FAP_CHANNELS[0]}")
+        bad = np.flatnonzero(~np.isfinite(y))
+        if bad.size:
+            raise AnimationError(f"channel {c} is not finite at frame {int(bad[0])}: cannot convert to FAPs")
+    mask = np.zeros((n, N_FAPS), dtype=bool)
+    values = np.zeros((n, N_FAPS), dtype=np.int64)
+    for fap, (channel, factor) in _INNER.items():
+        mm = factor * (np.asarray(channels[channel], dtype=float) - float(neutral[channel]))
+        if fap == 3:
+            # open_jaw is unidirectional in MPEG-4: the jaw does not close past the neutral face.
+            mm = np.maximum(mm, 0.0)
+        values[:, fap - 1] = np.rint(mm / face.unit_of(fap)).astype(np.int64)
+        mask[:, fap - 1] = True
+    for fap in CORNER_LIFTS:
+        mask[:, fap - 1] = True
+    for outer, inner in OUTER_TWIN.items():
+        values[:, outer - 1] = values[:, inner - 1]
+        mask[:, outer - 1] = True
+    return FapSequence(name=name, fps=fps, mask=mask, values=values)
+
+
+def _format_fps(fps: float) -> str:
+    return str(int(fps)) if float(fps).is_integer() else repr(float(fps))
+
+
+def write_fap(path: str | Path, seq: FapSequence) -> None:
+    """Write `seq` as a FAP text file (header, then a mask line and a value line per frame)."""
+    lines = [f"2.1 {seq.name} {_format_fps(seq.fps)} {seq.n_frames}"]
+    for f in range(seq.n_frames):
+        m = seq.mask[f]
+        lines.append(" ".join("1" if b else "0" for b in m))
+        lines.append(" ".join([str(seq.first_frame + f), *(str(int(v)) for v in seq.values[f][m])]))
+    Path(path).write_text("\n".join(lines) + "\n", encoding="ascii")
+
+
+def read_fap(path: str | Path) -> FapSequence:
+    """Read a FAP text file; any deviation is a FapFormatError naming the file and line."""
+    path = Path(path)
+    try:
+        text = path.read_text(encoding="ascii")
+    except UnicodeDecodeError as err:
+        raise FapFormatError(f"{path}: not an ASCII FAP file ({err})") from None
+    except OSError as err:
+        raise FapFormatError(f"{path}: cannot read ({err.strerror})") from None
+    raw = text.splitlines()
+    # Blank lines carry nothing; keep the original line numbers for the messages.
+    lines = [(i + 1, ln.split()) for i, ln in enumerate(raw) if ln.strip()]
+    if not lines:
+        raise FapFormatError(f"{path}: empty file, expected a header '2.1 <name> <fps> <nframes>'")
+    lineno, head = lines[0]
+    if len(head) != 4 or head[0] != "2.1":
+        raise FapFormatError(
+            f"{path}, line {lineno}: header must be '2.1 <name> <fps> <nframes>', got {raw[lineno - 1]!r}"
+        )
+    name = head[1]
+    try:
+        fps = float(head[2])
+    except ValueError:
+        raise FapFormatError(f"{path}, line {lineno}: fps {head[2]!r} is not a number") from None
+    if not (math.isfinite(fps) and fps > 0):
+        raise FapFormatError(f"{path}, line {lineno}: fps must be positive, got {head[2]!r}")
+    try:
+        n = int(head[3])
+    except ValueError:
+        raise FapFormatError(f"{path}, line {lineno}: frame count {head[3]!r} is not an integer") from None
+    if n < 0:
+        raise FapFormatError(f"{path}, line {lineno}: frame count must not be negative, got {n}")
+    body = lines[1:]
+    if len(body) != 2 * n:
+        raise FapFormatError(
+            f"{path}: header (line {lineno}) announces {n} frames = {2 * n} lines after it, "
+            f"found {len(body)} non-blank lines"
+        )
+    mask = np.zeros((n, N_FAPS), dtype=bool)
+    values = np.zeros((n, N_FAPS), dtype=np.int64)
+    first_frame = 0
+    for f in range(n):
+        mline, mtok = body[2 * f]
+        if len(mtok) != N_FAPS or any(t not in ("0", "1") for t in mtok):
+            raise FapFormatError(
+                f"{path}, line {mline}: frame {f} mask must be {N_FAPS} zeros and ones, "
+                f"got {len(mtok)} fields"
+                + ("" if len(mtok) != N_FAPS else f" including {next(t for t in mtok if t not in ('0', '1'))!r}")
+            )
+        m = np.array([t == "1" for t in mtok])
+        vline, vtok = body[2 * f + 1]
+        try:
+            ints = [int(t) for t in vtok]
+        except ValueError:
+            bad = next(t for t in vtok if not t.lstrip("+-").isdigit())
+            raise FapFormatError(f"{path}, line {vline}: {bad!r} is not an integer FAP value") from None
+        if f == 0:
+            first_frame = ints[0]
+        elif ints[0] != first_frame + f:
+            raise FapFormatError(
+                f"{path}, line {vline}: frame number {ints[0]}, expected {first_frame + f} (frames are consecutive)"
+            )
+        if len(ints) - 1 != int(m.sum()):
+            raise FapFormatError(
+                f"{path}, line {vline}: frame {ints[0]} has {len(ints) - 1} values but its mask "
+                f"(line {mline}) selects {int(m.sum())} FAPs"
+            )
+        mask[f] = m
+        values[f, m] = ints[1:]
+    return FapSequence(name=name, fps=fps, mask=mask, values=values, first_frame=first_frame)

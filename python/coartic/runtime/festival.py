@@ -1,0 +1,224 @@
+"""Italian text through the Festival speech synthesiser: a WAV and its Segment relation (phones, times).
+
+Festival is run as a program (`festival -b script.scm`) with a generated Scheme script, because
+that is how the Debian package is used everywhere; its Italian phone set is mapped to the model's
+phonemes by phones_italian.tsv.
+"""
+
+from __future__ import annotations
+
+import csv
+import math
+import os
+import re
+import shutil
+import subprocess
+import tempfile
+import wave
+from collections.abc import Sequence
+from dataclasses import dataclass
+from importlib import resources
+from pathlib import Path
+
+import numpy as np
+from numpy.typing import NDArray
+
+from coartic.runtime.errors import FestivalError, PhoneMapError
+
+DEFAULT_VOICE = "pc_diphone"
+_VOICE_NAME = re.compile(r"^[A-Za-z0-9_]+$")
+# Typographic punctuation an Italian text editor produces; the Italian voice reads ISO-8859-1 only.
+_TYPOGRAPHIC = str.maketrans({"\u2019": "'", "\u2018": "'", "\u201c": '"', "\u201d": '"',
+                              "\u00ab": '"', "\u00bb": '"', "\u2013": "-", "\u2014": "-", "\u2026": "..."})
+_INSTALL_HINT = "install the Debian packages festival and festvox-italp16k"
+
+
+@dataclass(frozen=True)
+class PhoneMap:
+    """Festival phone → model phoneme, with fallback phonemes for tables that lack the phoneme."""
+
+    phonemes: dict[str, str]
+    fallbacks: dict[str, tuple[str, ...]]
+    source: str
+
+    @classmethod
+    def load(cls, path: str | Path | None = None) -> PhoneMap:
+        """Read a phone map TSV (`festival, phoneme, fallbacks, why`); default: phones_italian.tsv."""
+        if path is None:
+            ref = resources.files("coartic.runtime").joinpath("phones_italian.tsv")
+            text, source = ref.read_text(encoding="utf-8"), "phones_italian.tsv"
+        else:
+            try:
+                text, source = Path(path).read_text(encoding="utf-8"), str(path)
+            except OSError as err:
+                raise PhoneMapError(f"{path}: cannot read the phone map ({err.strerror})") from None
+        rows = list(csv.reader(text.splitlines(), delimiter="\t"))
+        if not rows or [c.strip() for c in rows[0][:3]] != ["festival", "phoneme", "fallbacks"]:
+            raise PhoneMapError(f"{source}, line 1: header must start with festival<TAB>phoneme<TAB>fallbacks")
+        phonemes: dict[str, str] = {}
+        fallbacks: dict[str, tuple[str, ...]] = {}
+        for lineno, row in enumerate(rows[1:], start=2):
+            if not any(c.strip() for c in row):
+                continue
+            if len(row) < 2 or not row[0].strip() or not row[1].strip():
+                raise PhoneMapError(f"{source}, line {lineno}: need a Festival phone and a model phoneme, got {row!r}")
+            phone, phoneme = row[0].strip(), row[1].strip()
+            if phone in phonemes:
+                raise PhoneMapError(f"{source}, line {lineno}: Festival phone {phone!r} is mapped twice")
+            phonemes[phone] = phoneme
+            extra = row[2].strip() if len(row) > 2 else ""
+            fallbacks[phoneme] = fallbacks.get(phoneme, ()) or tuple(p.strip() for p in extra.split(",") if p.strip())
+        return cls(phonemes=phonemes, fallbacks=fallbacks, source=source)
+
+    def to_phonemes(self, phones: Sequence[str]) -> list[str]:
+        """Model phonemes of Festival phones; an unmapped phone is an error that names it."""
+        out = []
+        for i, phone in enumerate(phones):
+            if phone not in self.phonemes:
+                raise PhoneMapError(
+                    f"Festival phone {phone!r} (segment {i}) is not in {self.source}; "
+                    f"known phones: {' '.join(sorted(self.phonemes))}"
+                )
+            out.append(self.phonemes[phone])
+        return out
+
+
+@dataclass(frozen=True)
+class FestivalUtterance:
+    """What Festival said: its phones with acoustic times (s) and the WAV it wrote."""
+
+    text: str
+    phones: tuple[str, ...]
+    starts: NDArray[np.float64]
+    ends: NDArray[np.float64]
+    wav: Path
+    duration: float
+    dropped: tuple[str, ...] = ()
+
+
+def prepare_text(text: str) -> str:
+    """The text as the Italian voice can read it (ISO-8859-1), or an error naming what is wrong."""
+    cleaned = " ".join(text.translate(_TYPOGRAPHIC).split())
+    if not cleaned:
+        raise FestivalError("empty text: there is nothing to say")
+    for i, ch in enumerate(cleaned):
+        if ord(ch) > 0xFF:
+            raise FestivalError(
+                f"character {ch!r} (U+{ord(ch):04X}) at position {i} of the text cannot be read by "
+                "Festival's Italian voice (ISO-8859-1 only)"
+            )
+    return cleaned
+
+
+def _scheme_string(s: str) -> str:
+    return '"' + s.replace("\\", "\\\\").replace('"', '\\"') + '"'
+
+
+def _script(text: str, voice: str, stretch: float, segs: Path, wav: Path) -> str:
+    return "\n".join([
+        f"(voice_{voice})",
+        f"(Parameter.set 'Duration_Stretch {stretch!r})",
+        f"(set! utt (Utterance Text {_scheme_string(text)}))",
+        "(utt.synth utt)",
+        f"(set! fd (fopen {_scheme_string(str(segs))} \"w\"))",
+        '(mapcar (lambda (s) (format fd "%s\\t%f\\n" (item.name s) (item.feat s "end")))'
+        " (utt.relation.items utt 'Segment))",
+        "(fclose fd)",
+        f"(utt.save.wave utt {_scheme_string(str(wav))} 'riff)",
+        "",
+    ])
+
+
+def festival_program(festival: str = "festival") -> str:
+    """Absolute path of the Festival program, or a FestivalError saying it is not installed."""
+    found = shutil.which(festival)
+    if found is None:
+        raise FestivalError(f"Festival program {festival!r} not found on PATH ({_INSTALL_HINT})")
+    return found
+
+
+def wav_duration(path: Path) -> float:
+    try:
+        with wave.open(str(path), "rb") as w:
+            return w.getnframes() / float(w.getframerate())
+    except (OSError, wave.Error, EOFError) as err:
+        raise FestivalError(f"{path}: Festival's WAV cannot be read ({err})") from None
+
+
+def _parse_segments(path: Path) -> tuple[list[str], list[float]]:
+    phones: list[str] = []
+    ends: list[float] = []
+    for lineno, line in enumerate(path.read_text(encoding="latin-1").splitlines(), start=1):
+        if not line.strip():
+            continue
+        parts = line.split("\t")
+        try:
+            end = float(parts[1])
+        except (IndexError, ValueError):
+            raise FestivalError(f"Festival's segment list {path}, line {lineno}: expected 'phone<TAB>end', got {line!r}") from None
+        phones.append(parts[0])
+        ends.append(end)
+    return phones, ends
+
+
+def synthesize(
+    text: str,
+    wav_path: str | Path,
+    *,
+    stretch: float = 1.0,
+    voice: str = DEFAULT_VOICE,
+    festival: str = "festival",
+    timeout: float = 300.0,
+) -> FestivalUtterance:
+    """Synthesise `text` with Festival's Italian voice into `wav_path` and return its segments.
+
+    `stretch` is Festival's Duration_Stretch: 1 the voice's own rate, 0.6 about 1.7 times faster.
+    Zero-length segments (Festival gives a few) have no time for a target and are dropped; their
+    names are kept in `dropped`.
+    """
+    cleaned = prepare_text(text)
+    if not (math.isfinite(stretch) and stretch > 0):
+        raise FestivalError(f"speaking-rate stretch must be a positive number, got {stretch!r}")
+    if not _VOICE_NAME.match(voice):
+        raise FestivalError(f"voice name {voice!r} is not a Festival voice name (letters, digits, _)")
+    program = festival_program(festival)
+    wav_path = Path(wav_path)
+    with tempfile.TemporaryDirectory(prefix="coartic-festival-") as tmp:
+        segs, wav, script = Path(tmp, "segments.tsv"), Path(tmp, "speech.wav"), Path(tmp, "say.scm")
+        script.write_bytes(_script(cleaned, voice, float(stretch), segs, wav).encode("latin-1"))
+        try:
+            proc = subprocess.run(
+                [program, "-b", str(script)], capture_output=True, timeout=timeout, cwd=tmp,
+                env={**os.environ, "LC_ALL": "C"},
+            )
+        except subprocess.TimeoutExpired:
+            raise FestivalError(f"Festival did not finish within {timeout:g} s on {cleaned!r}") from None
+        except OSError as err:
+            raise FestivalError(f"Festival ({program}) could not be started: {err.strerror}") from None
+        stderr = proc.stderr.decode("latin-1", "replace").strip()
+        if proc.returncode != 0 or not segs.exists() or not wav.exists():
+            detail = stderr.splitlines()[-3:] if stderr else ["(no message)"]
+            hint = f"; is voice {voice!r} installed ({_INSTALL_HINT})?" if "voice_" in stderr else ""
+            raise FestivalError(
+                f"Festival failed (exit code {proc.returncode}) on {cleaned!r}: {' | '.join(detail)}{hint}"
+            )
+        phones, ends = _parse_segments(segs)
+        wav_path.parent.mkdir(parents=True, exist_ok=True)
+        shutil.copyfile(wav, wav_path)
+    if not phones:
+        raise FestivalError(f"Festival returned no segments for {cleaned!r}")
+    duration = wav_duration(wav_path)
+    starts = np.concatenate([[0.0], ends[:-1]])
+    ends_a = np.asarray(ends, dtype=float)
+    keep = ends_a > starts
+    dropped = tuple(p for p, k in zip(phones, keep) if not k)
+    phones_kept = tuple(p for p, k in zip(phones, keep) if k)
+    return FestivalUtterance(
+        text=cleaned,
+        phones=phones_kept,
+        starts=np.ascontiguousarray(starts[keep]),
+        ends=np.ascontiguousarray(ends_a[keep]),
+        wav=wav_path,
+        duration=duration,
+        dropped=dropped,
+    )

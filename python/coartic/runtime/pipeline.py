@@ -1,0 +1,141 @@
+"""The two things the runtime does end to end: animate a label file, and speak an Italian text.
+
+Each writes into one output directory: the channels (CSV), the FAP file, the segments animated,
+and (optionally) the preview; `speak` adds Festival's WAV. The cheap, exact outputs are written
+first and every file atomically, so an interrupted preview loses nothing else.
+"""
+
+from __future__ import annotations
+
+import re
+from dataclasses import dataclass, field
+from os import PathLike
+from pathlib import Path
+
+from rich.progress import Progress
+
+from coartic.io.labelmap import resolve_label_map
+from coartic.io.labels import Segments, read_labels
+from coartic.runtime import PREVIEW_FORMATS
+from coartic.runtime.animate import (
+    Animation,
+    animate,
+    neutral_posture,
+    substitute,
+    write_channels_csv,
+    write_segments_tsv,
+)
+from coartic.runtime.errors import AnimationError
+from coartic.runtime.fap import FaceUnits, FapSequence, channels_to_faps, write_fap
+from coartic.runtime.festival import DEFAULT_VOICE, FestivalUtterance, PhoneMap, synthesize
+from coartic.runtime.preview import plot_channels, render_preview, render_strip
+from coartic.table import CHANNELS, PAUSE, ParameterTable
+
+
+@dataclass
+class RuntimeOutput:
+    """What was written, and the animation behind it."""
+
+    animation: Animation
+    faps: FapSequence
+    files: dict[str, Path] = field(default_factory=dict)
+    utterance: FestivalUtterance | None = None
+
+
+def _name_from(text: str) -> str:
+    word = re.sub(r"[^0-9A-Za-z_]+", "_", text).strip("_")
+    return word[:40] or "coartic"
+
+
+def _write_outputs(
+    animation: Animation,
+    table: ParameterTable,
+    out: Path,
+    name: str,
+    face: FaceUnits,
+    preview: str,
+    original_labels: tuple[str, ...] | None,
+    progress: Progress | None,
+) -> RuntimeOutput:
+    if preview not in PREVIEW_FORMATS:
+        raise AnimationError(f"preview must be one of {', '.join(PREVIEW_FORMATS)}, got {preview!r}")
+    neutral = neutral_posture(table)
+    faps = channels_to_faps(animation.channels, neutral, face, name, animation.fps)
+    out.mkdir(parents=True, exist_ok=True)
+    files: dict[str, Path] = {}
+    files["channels"] = out / "channels.csv"
+    write_channels_csv(files["channels"], animation)
+    files["fap"] = out / f"{name}.fap"
+    tmp = out / f"{name}.fap.part"
+    write_fap(tmp, faps)
+    tmp.replace(files["fap"])
+    files["segments"] = out / "segments.tsv"
+    write_segments_tsv(files["segments"], animation.segments, original_labels)
+    files["plot"] = plot_channels(animation, out / "channels.png", title=name)
+    if preview != "none":
+        files["strip"] = render_strip(animation, table, out / "strip.png")
+        files["preview"] = render_preview(animation, neutral, out / f"preview.{preview}", title=name,
+                                          progress=progress)
+    return RuntimeOutput(animation=animation, faps=faps, files=files)
+
+
+def animate_file(
+    labels: str | PathLike[str],
+    table: ParameterTable,
+    out: str | PathLike[str],
+    *,
+    fps: float = 25.0,
+    tier: str | None = None,
+    label_map: str | None = None,
+    face: FaceUnits | None = None,
+    preview: str = "gif",
+    progress: Progress | None = None,
+) -> RuntimeOutput:
+    """A label file (.lab / TextGrid / TSV) → channels, FAP file and preview in `out`."""
+    raw = read_labels(labels, tier=tier)
+    segments = resolve_label_map(label_map).apply(raw)
+    animation = animate(table, segments, fps)
+    keep = raw.labels if raw.labels != segments.labels else None
+    return _write_outputs(animation, table, Path(out), _name_from(Path(labels).stem), face or FaceUnits(),
+                          preview, keep, progress)
+
+
+def speak_text(
+    text: str,
+    table: ParameterTable,
+    out: str | PathLike[str],
+    *,
+    fps: float = 25.0,
+    stretch: float = 1.0,
+    voice: str = DEFAULT_VOICE,
+    face: FaceUnits | None = None,
+    strict: bool = False,
+    phone_map: PhoneMap | None = None,
+    preview: str = "gif",
+    festival: str = "festival",
+    progress: Progress | None = None,
+) -> RuntimeOutput:
+    """Italian text → Festival's WAV, and channels, FAP file and preview lasting as long as the WAV.
+
+    Phonemes the table lacks are replaced by the phone map's fallbacks (reported in
+    `animation.substitutions`) unless `strict`.
+    """
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    pmap = phone_map or PhoneMap.load()
+    utt = synthesize(text, out / "speech.wav", stretch=stretch, voice=voice, festival=festival)
+    phonemes = pmap.to_phonemes(utt.phones)
+    ends = utt.ends.copy()
+    # Festival's WAV runs a few ms past the last segment: the final pause lasts to the end of the sound.
+    if phonemes[-1] == PAUSE and utt.duration > ends[-1]:
+        ends[-1] = utt.duration
+    segments = Segments(tuple(phonemes), utt.starts, ends)
+    used: dict[str, str] = {}
+    if not strict:
+        segments, used = substitute(segments, table, CHANNELS, pmap.fallbacks)
+    animation = animate(table, segments, fps, duration=utt.duration, substitutions=used)
+    result = _write_outputs(animation, table, out, _name_from(text), face or FaceUnits(), preview,
+                            utt.phones, progress)
+    result.files["wav"] = utt.wav
+    result.utterance = utt
+    return result

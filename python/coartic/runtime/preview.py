@@ -1,0 +1,341 @@
+"""A face a person can look at: front and side view of lips and jaw driven by the channels.
+
+Geometry (mm, y up, x to the face's left in the front view, z forwards in the side view; origin
+on the lip midline of the neutral face):
+- The lips of the neutral face touch on the midline; each lip's inner edge moves with its channel's
+  displacement from neutral (upper: ULO - ULO_0, lower: -(LLO - LLO_0)); where the two edges would
+  cross the lips press, and meet halfway. Lip thickness is fixed (4 and 5 mm half-heights).
+- The corners sit at x = ±LR/2 on the midline; inner contours are half-ellipses, outer ones fuller.
+- The chin hangs below the lips by the neutral face's mouth-to-chin distance and drops with JO.
+- Side view: upper and lower lip bulges move forward with ULP, LLP; the chin drops and swings
+  back as the jaw opens.
+"""
+
+from __future__ import annotations
+
+import os
+import shutil
+import subprocess
+from collections.abc import Callable, Iterator, Mapping, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt  # noqa: E402
+import numpy as np  # noqa: E402
+from matplotlib.axes import Axes  # noqa: E402
+from matplotlib.figure import Figure  # noqa: E402
+from matplotlib.patches import Polygon  # noqa: E402
+from numpy.typing import NDArray  # noqa: E402
+from rich.progress import Progress  # noqa: E402
+
+from coartic.runtime.animate import Animation, neutral_posture, target_times  # noqa: E402
+from coartic.runtime.errors import AnimationError  # noqa: E402
+from coartic.table import CHANNELS, PAUSE, ParameterTable  # noqa: E402
+
+# Half the vermilion height (mm) of an adult's upper and lower lip: the channels give where the lip
+# markers go, not how thick the lips are.
+UPPER_HALF_THICKNESS = 4.0
+LOWER_HALF_THICKNESS = 5.0
+CHIN_BELOW_LIPS = 35.0  # mm, neutral lip midline to chin
+NOSE_ABOVE_LIPS = 30.0  # mm, the default MNS
+_N = 41  # points per contour
+LIP = "#b5404a"
+MOUTH = "#2a0e12"
+SKIN = "#f0c9a8"
+EDGE = "#6b3a2a"
+
+
+@dataclass(frozen=True)
+class MouthShape:
+    """Contours of one posture, each an (n, 2) array of (x, y) or (z, y) in mm."""
+
+    upper_outer: NDArray[np.float64]
+    upper_inner: NDArray[np.float64]
+    lower_inner: NDArray[np.float64]
+    lower_outer: NDArray[np.float64]
+    chin: NDArray[np.float64]
+    profile: NDArray[np.float64]
+    aperture: float  # inner-lip gap on the midline (0 when the lips touch or press)
+
+
+def _arc(width: float, y_corner: float, y_mid: float, power: float) -> NDArray[np.float64]:
+    x = np.linspace(-width / 2.0, width / 2.0, _N)
+    u = np.clip(1.0 - (2.0 * x / max(width, 1e-9)) ** 2, 0.0, 1.0)
+    return np.column_stack([x, y_corner + (y_mid - y_corner) * u**power])
+
+
+def mouth_shape(posture: Mapping[str, float], neutral: Mapping[str, float]) -> MouthShape:
+    """Front contours and side profile for channel values `posture` (ULO..JO) around `neutral`."""
+    hu, hl = UPPER_HALF_THICKNESS, LOWER_HALF_THICKNESS
+    ui = posture["ULO"] - neutral["ULO"]
+    li = -(posture["LLO"] - neutral["LLO"])
+    if ui < li:  # lips pressed: the contact line lies between the two
+        ui = li = 0.5 * (ui + li)
+    width = max(posture["LR"], 1.0)
+    upper_outer = _arc(width, 0.0, ui + 2.0 * hu, 0.7)
+    # cupid's bow: a small dip at the midline of the upper outer contour
+    upper_outer[:, 1] -= 0.12 * hu * np.exp(-((upper_outer[:, 0] / (0.08 * width)) ** 2))
+    drop = posture["JO"] - neutral["JO"]
+    chin_y = -CHIN_BELOW_LIPS - drop
+    chin = _arc(0.9 * neutral["LR"] + 10.0, chin_y + 18.0, chin_y, 0.5)
+    # side view: z forwards; lips bulge at the markers, chin swings back as the jaw opens
+    zu = posture["ULP"] - neutral["ULP"]
+    zl = posture["LLP"] - neutral["LLP"]
+    z_chin = -6.0 - 0.25 * max(drop, 0.0)
+    profile = np.array([
+        [4.0, NOSE_ABOVE_LIPS + 30.0],  # nose bridge
+        [14.0, NOSE_ABOVE_LIPS + 6.0],  # nose tip
+        [2.0, NOSE_ABOVE_LIPS - 2.0],  # subnasale
+        [zu - 1.0, ui + 2.0 * hu],  # upper vermilion border
+        [zu + 1.5, ui + hu],  # upper lip marker
+        [zu - 2.0, ui],  # upper inner edge
+        [zl - 3.0, li],  # lower inner edge
+        [zl + 1.0, li - hl],  # lower lip marker
+        [zl - 2.5, li - 2.0 * hl],  # lower vermilion border
+        [z_chin - 6.0, 0.55 * (li - 2.0 * hl) + 0.45 * chin_y],  # labiomental fold
+        [z_chin, chin_y + 4.0],  # chin point
+        [z_chin - 10.0, chin_y - 6.0],  # under the chin
+        [z_chin - 40.0, chin_y - 10.0],  # throat
+    ])
+    return MouthShape(
+        upper_outer=upper_outer,
+        upper_inner=_arc(width, 0.0, ui, 0.5),
+        lower_inner=_arc(width, 0.0, li, 0.5),
+        lower_outer=_arc(width, 0.0, li - 2.0 * hl, 0.6),
+        chin=chin,
+        profile=profile,
+        aperture=float(ui - li),
+    )
+
+
+class FaceArtist:
+    """Front and side view on two axes, updated in place frame after frame."""
+
+    def __init__(self, front: Axes, side: Axes | None, neutral: Mapping[str, float]) -> None:
+        self.neutral = dict(neutral)
+        w = max(neutral["LR"], 20.0)
+        front.set_xlim(-0.9 * w - 10, 0.9 * w + 10)
+        front.set_ylim(-CHIN_BELOW_LIPS - 35, NOSE_ABOVE_LIPS + 10)
+        views = [(front, "front")]
+        if side is not None:
+            side.set_xlim(-60, 30)
+            side.set_ylim(-CHIN_BELOW_LIPS - 35, NOSE_ABOVE_LIPS + 10)
+            views.append((side, "side"))
+        for ax, title in views:
+            ax.set_aspect("equal")
+            ax.set_xticks([])
+            ax.set_yticks([])
+            ax.set_facecolor(SKIN)
+            ax.set_title(title, fontsize=8)
+        nose = np.array([[-12, NOSE_ABOVE_LIPS], [0, NOSE_ABOVE_LIPS + 10], [12, NOSE_ABOVE_LIPS],
+                         [0, NOSE_ABOVE_LIPS - 3]], dtype=float)
+        front.add_patch(Polygon(nose, closed=True, fc="none", ec=EDGE, lw=1))
+        empty = np.zeros((3, 2))
+        self.upper = front.add_patch(Polygon(empty, closed=True, fc=LIP, ec=EDGE, lw=1))
+        self.lower = front.add_patch(Polygon(empty, closed=True, fc=LIP, ec=EDGE, lw=1))
+        self.mouth = front.add_patch(Polygon(empty, closed=True, fc=MOUTH, ec="none"))
+        (self.chin,) = front.plot([], [], color=EDGE, lw=1.5)
+        self.profile = self.markers = None
+        if side is not None:
+            (self.profile,) = side.plot([], [], color=EDGE, lw=1.5)
+            (self.markers,) = side.plot([], [], "o", color=LIP, ms=3)
+
+    def update(self, posture: Mapping[str, float]) -> MouthShape:
+        s = mouth_shape(posture, self.neutral)
+        self.upper.set_xy(np.vstack([s.upper_outer, s.upper_inner[::-1]]))
+        self.lower.set_xy(np.vstack([s.lower_inner, s.lower_outer[::-1]]))
+        self.mouth.set_xy(np.vstack([s.upper_inner, s.lower_inner[::-1]]))
+        self.chin.set_data(s.chin[:, 0], s.chin[:, 1])
+        if self.profile is not None and self.markers is not None:
+            smooth = _smooth_profile(s.profile)
+            self.profile.set_data(smooth[:, 0], smooth[:, 1])
+            self.markers.set_data(s.profile[[4, 7], 0], s.profile[[4, 7], 1])
+        return s
+
+
+def _smooth_profile(points: NDArray[np.float64]) -> NDArray[np.float64]:
+    # Chaikin corner cutting: a rounded profile without a spline library's overshoot.
+    p = points
+    for _ in range(3):
+        q = 0.75 * p[:-1] + 0.25 * p[1:]
+        r = 0.25 * p[:-1] + 0.75 * p[1:]
+        p = np.vstack([p[:1], np.column_stack([q, r]).reshape(-1, 2), p[-1:]])
+    return p
+
+
+def _posture(animation: Animation, k: int) -> dict[str, float]:
+    return {c: float(animation.channels[c][k]) for c in CHANNELS}
+
+
+def _label_at(animation: Animation, t: float) -> str:
+    seg = animation.segments
+    i = int(np.searchsorted(seg.ends, t, side="right"))
+    return seg.labels[min(i, len(seg) - 1)]
+
+
+def _require_channels(animation: Animation) -> None:
+    missing = [c for c in CHANNELS if c not in animation.channels]
+    if missing:
+        raise AnimationError(f"the preview needs all six channels; missing {', '.join(missing)}")
+
+
+def _frames(animation: Animation, neutral: Mapping[str, float], title: str) -> Iterator[NDArray[np.uint8]]:
+    """RGB frames of the preview: front and side view over a trace of lip aperture with a cursor."""
+    _require_channels(animation)
+    fig = plt.figure(figsize=(6.4, 4.0), dpi=80)
+    gs = fig.add_gridspec(2, 2, height_ratios=[3, 1], hspace=0.25, wspace=0.05)
+    face = FaceArtist(fig.add_subplot(gs[0, 0]), fig.add_subplot(gs[0, 1]), neutral)
+    trace = fig.add_subplot(gs[1, :])
+    la = animation.channels["ULO"] + animation.channels["LLO"]
+    trace.plot(animation.times, la, color=LIP, lw=1)
+    trace.set_ylabel("ULO+LLO (mm)", fontsize=7)
+    trace.tick_params(labelsize=6)
+    trace.set_xlim(0, max(animation.duration, 1e-3))
+    seg = animation.segments
+    for lab, s, e in zip(seg.labels, seg.starts, seg.ends):
+        trace.axvline(s, color="0.8", lw=0.5)
+        if lab != PAUSE:
+            trace.text(0.5 * (s + e), 1.0, lab, transform=trace.get_xaxis_transform(), ha="center",
+                       va="bottom", fontsize=6)
+    cursor = trace.axvline(0.0, color="k", lw=1)
+    caption = fig.suptitle("", fontsize=9)
+    try:
+        for k in range(animation.n_frames):
+            t = float(animation.times[k])
+            face.update(_posture(animation, k))
+            cursor.set_xdata([t, t])
+            caption.set_text(f"{title}   t = {t:6.3f} s   /{_label_at(animation, t)}/")
+            fig.canvas.draw()
+            rgba = np.asarray(fig.canvas.buffer_rgba())  # type: ignore[attr-defined]
+            yield np.ascontiguousarray(rgba[:, :, :3])
+    finally:
+        plt.close(fig)
+
+
+def render_preview(
+    animation: Animation,
+    neutral: Mapping[str, float],
+    path: str | Path,
+    *,
+    title: str = "coartic",
+    progress: Progress | None = None,
+) -> Path:
+    """Animated preview as GIF (`.gif`) or MP4 (`.mp4`, through ffmpeg); written atomically."""
+    path = Path(path)
+    suffix = path.suffix.lower()
+    if suffix not in (".gif", ".mp4"):
+        raise AnimationError(f"{path}: preview format must be .gif or .mp4")
+    tmp = path.with_name(path.stem + ".part" + suffix)
+    task = progress.add_task(f"preview {path.name}", total=animation.n_frames) if progress else None
+    frames = _frames(animation, neutral, title)
+
+    def advance() -> None:
+        if progress is not None and task is not None:
+            progress.advance(task)
+
+    if suffix == ".gif":
+        from PIL import Image
+
+        images = []
+        for rgb in frames:
+            images.append(Image.fromarray(rgb).quantize(colors=64, method=Image.Quantize.MEDIANCUT))
+            advance()
+        images[0].save(tmp, save_all=True, append_images=images[1:], loop=0,
+                       duration=round(1000.0 / animation.fps), optimize=False)
+    else:
+        _write_mp4(tmp, frames, animation.fps, advance)
+    os.replace(tmp, path)
+    return path
+
+
+def _write_mp4(path: Path, frames: Iterator[NDArray[np.uint8]], fps: float, advance: Callable[[], None]) -> None:
+    ffmpeg = shutil.which("ffmpeg")
+    if ffmpeg is None:
+        raise AnimationError("ffmpeg is not on PATH: write the preview as .gif, or install ffmpeg")
+    first = next(frames)
+    h, w = first.shape[:2]
+    cmd = [ffmpeg, "-y", "-loglevel", "error", "-f", "rawvideo", "-pix_fmt", "rgb24", "-s", f"{w}x{h}",
+           "-r", repr(float(fps)), "-i", "-", "-vf", "pad=ceil(iw/2)*2:ceil(ih/2)*2",
+           "-pix_fmt", "yuv420p", "-f", "mp4", str(path)]
+    proc = subprocess.Popen(cmd, stdin=subprocess.PIPE, stderr=subprocess.PIPE)
+    assert proc.stdin is not None
+    try:
+        for rgb in _chain(first, frames):
+            proc.stdin.write(rgb.tobytes())
+            advance()
+    finally:
+        proc.stdin.close()
+        err = proc.stderr.read().decode(errors="replace") if proc.stderr else ""
+        code = proc.wait()
+    if code != 0:
+        raise AnimationError(f"ffmpeg failed writing {path} (exit {code}): {err.strip()[-300:]}")
+
+
+def _chain(first: NDArray[np.uint8], rest: Iterator[NDArray[np.uint8]]) -> Iterator[NDArray[np.uint8]]:
+    yield first
+    yield from rest
+
+
+def render_strip(
+    animation: Animation,
+    table: ParameterTable,
+    path: str | Path,
+    *,
+    max_panels: int = 14,
+) -> Path:
+    """PNG strip: the front view at each non-pause segment's target time, labelled with its phoneme."""
+    _require_channels(animation)
+    from coartic.runtime.animate import evaluate
+
+    neutral = neutral_posture(table)
+    seg = animation.segments
+    idx = [i for i, lab in enumerate(seg.labels) if lab != PAUSE][:max_panels]
+    if not idx:
+        raise AnimationError("the utterance has only pauses: nothing to show in a strip")
+    t = target_times(table, seg, "LLO")[idx]
+    values = evaluate(table, seg, t, CHANNELS)
+    fig: Figure = plt.figure(figsize=(1.3 * len(idx), 2.0), dpi=100)
+    for j, i in enumerate(idx):
+        ax = fig.add_subplot(1, len(idx), j + 1)
+        artist = FaceArtist(ax, None, neutral)  # the strip shows the front view only
+        artist.update({c: float(values[c][j]) for c in CHANNELS})
+        ax.set_title(f"/{seg.labels[i]}/ {t[j]:.2f}s", fontsize=8)
+        ax.set_ylim(-CHIN_BELOW_LIPS - 20, 25)
+    fig.tight_layout()
+    path = Path(path)
+    tmp = path.with_name(path.stem + ".part.png")
+    fig.savefig(tmp)
+    plt.close(fig)
+    os.replace(tmp, path)
+    return path
+
+
+def plot_channels(animation: Animation, path: str | Path, title: str = "") -> Path:
+    """The six channels over time with the segment labels: the numbers behind the preview."""
+    names: Sequence[str] = [c for c in CHANNELS if c in animation.channels]
+    fig, axes = plt.subplots(len(names), 1, figsize=(8, 1.3 * len(names) + 0.6), sharex=True, dpi=100)
+    axes = np.atleast_1d(axes)
+    seg = animation.segments
+    for ax, c in zip(axes, names):
+        ax.plot(animation.times, animation.channels[c], color=LIP, lw=1.2)
+        ax.set_ylabel(f"{c} (mm)", fontsize=8)
+        ax.tick_params(labelsize=7)
+        for s in seg.starts[1:]:
+            ax.axvline(s, color="0.85", lw=0.5)
+    for lab, s, e in zip(seg.labels, seg.starts, seg.ends):
+        if lab != PAUSE:
+            axes[0].text(0.5 * (s + e), 1.02, lab, transform=axes[0].get_xaxis_transform(), ha="center",
+                         va="bottom", fontsize=7)
+    axes[-1].set_xlabel("time (s)")
+    if title:
+        fig.suptitle(title, fontsize=9)
+    fig.tight_layout()
+    path = Path(path)
+    tmp = path.with_name(path.stem + ".part.png")
+    fig.savefig(tmp)
+    plt.close(fig)
+    os.replace(tmp, path)
+    return path

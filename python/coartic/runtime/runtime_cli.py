@@ -1,0 +1,108 @@
+"""`coartic animate` and `coartic speak`: tables to moving lips, from label files or Italian text."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import TYPE_CHECKING, Annotated
+
+import typer
+from rich.console import Console
+from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
+from rich.table import Table
+
+from coartic.io.errors import DataError
+from coartic.runtime.errors import AnimationError
+from coartic.runtime.fap import FaceUnits
+from coartic.runtime.festival import DEFAULT_VOICE
+from coartic.runtime import PREVIEW_FORMATS
+from coartic.table import ParameterTable, TableError
+
+if TYPE_CHECKING:
+    from coartic.runtime.pipeline import RuntimeOutput
+
+_err = Console(stderr=True)
+_out = Console()
+
+TableOpt = Annotated[Path, typer.Option("--table", "-t", help="Parameter table (JSON or long CSV).")]
+OutOpt = Annotated[Path, typer.Option("--out", "-o", help="Output directory (created if needed).")]
+FpsOpt = Annotated[float, typer.Option("--fps", help="Frames per second of the channels, FAP file and preview.")]
+MnsOpt = Annotated[float, typer.Option("--mns", help="The face's neutral mouth-nose separation, mm (FAPU = MNS/1024).")]
+MwOpt = Annotated[float, typer.Option("--mw", help="The face's neutral mouth width, mm (FAPU = MW/1024).")]
+PreviewOpt = Annotated[str, typer.Option("--preview", help=f"Preview format: {', '.join(PREVIEW_FORMATS)}.")]
+
+
+def _fail(err: Exception) -> None:
+    _err.print(f"[bold red]error:[/] {err}", highlight=False, markup=True, soft_wrap=True)
+    raise typer.Exit(code=1)
+
+
+def _progress() -> Progress:
+    return Progress(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeRemainingColumn(),
+                    console=_err, transient=True)
+
+
+def _report(result: RuntimeOutput) -> None:
+    a = result.animation
+    summary = Table(title=f"{a.n_frames} frames at {a.fps:g} fps = {a.duration:.3f} s", show_header=False)
+    summary.add_column("what")
+    summary.add_column("file")
+    for what, path in result.files.items():
+        summary.add_row(what, str(path))
+    _out.print(summary)
+    if a.substitutions:
+        subs = ", ".join(f"/{k}/ → /{v}/" for k, v in a.substitutions.items())
+        _err.print(f"[yellow]note:[/] the table has no {subs}; animated with the phone map's fallbacks "
+                   "(--strict refuses instead)", highlight=False)
+
+
+def _load_table(path: Path) -> ParameterTable:
+    return ParameterTable.load(path)
+
+
+def animate_command(
+    labels: Annotated[Path, typer.Argument(help="Label file: Praat TextGrid, HTK/Festival .lab or TSV 'start end label'.")],
+    table: TableOpt,
+    out: OutOpt,
+    fps: FpsOpt = 25.0,
+    tier: Annotated[str | None, typer.Option("--tier", help="TextGrid tier with the phones (default: the first interval tier).")] = None,
+    label_map: Annotated[str | None, typer.Option("--label-map", help="Corpus labels → model phonemes: a built-in map name or a TSV/JSON file.")] = None,
+    mns: MnsOpt = 30.0,
+    mw: MwOpt = 50.0,
+    preview: PreviewOpt = "gif",
+) -> None:
+    """Animate a label file: channel trajectories (CSV), an MPEG-4 FAP file and a preview."""
+    from coartic.runtime.pipeline import animate_file
+
+    try:
+        t = _load_table(table)
+        with _progress() as progress:
+            result = animate_file(labels, t, out, fps=fps, tier=tier, label_map=label_map,
+                                  face=FaceUnits(mns, mw), preview=preview, progress=progress)
+    except (AnimationError, DataError, TableError) as err:
+        _fail(err)
+    _report(result)
+
+
+def speak_command(
+    text: Annotated[str, typer.Argument(help="Italian text to say, e.g. \"Il babbo mangia la pappa.\"")],
+    table: TableOpt,
+    out: OutOpt,
+    fps: FpsOpt = 25.0,
+    stretch: Annotated[float, typer.Option("--stretch", help="Festival's Duration_Stretch: 1 = normal rate, 0.6 = fast.")] = 1.0,
+    voice: Annotated[str, typer.Option("--voice", help="Festival Italian voice (pc_diphone, lp_diphone).")] = DEFAULT_VOICE,
+    strict: Annotated[bool, typer.Option("--strict", help="Refuse phonemes the table lacks instead of using the phone map's fallbacks.")] = False,
+    mns: MnsOpt = 30.0,
+    mw: MwOpt = 50.0,
+    preview: PreviewOpt = "gif",
+) -> None:
+    """Say Italian text with Festival: WAV, channel trajectories, FAP file and preview, all as long as the WAV."""
+    from coartic.runtime.pipeline import speak_text
+
+    try:
+        t = _load_table(table)
+        with _progress() as progress:
+            result = speak_text(text, t, out, fps=fps, stretch=stretch, voice=voice, strict=strict,
+                                face=FaceUnits(mns, mw), preview=preview, progress=progress)
+    except (AnimationError, DataError, TableError) as err:
+        _fail(err)
+    _report(result)

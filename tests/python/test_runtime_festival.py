@@ -1,0 +1,122 @@
+"""Festival's Italian voice and its phone map (coartic.runtime.festival), with the real Festival."""
+
+from __future__ import annotations
+
+import re
+import stat
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from coartic.io.labelmap import MODEL_PHONEMES
+from coartic.runtime.errors import FestivalError, PhoneMapError
+from coartic.runtime.festival import PhoneMap, prepare_text, synthesize, wav_duration
+
+PHONESET = Path("/usr/share/festival/italian_scm/italian_phoneset.scm")
+SENTENCE = "Il babbo mangia la pappa, poi va via."
+
+
+def festival_phones() -> list[str]:
+    """The phone names declared in Festival's Italian defPhoneSet."""
+    text = PHONESET.read_text(encoding="latin-1")
+    body = text[text.index("(;;  VOCALI"):]
+    return re.findall(r"^\s*\(?\(\s*([A-Za-z#][A-Za-z0-9]*)\s+[+-]\s", body, flags=re.M)
+
+
+@pytest.mark.festival
+def test_every_festival_italian_phone_is_mapped_to_model_phonemes() -> None:
+    phones = festival_phones()
+    assert len(phones) >= 40 and {"a1", "dZ", "nf", "ng", "#"} <= set(phones)
+    pmap = PhoneMap.load()
+    assert sorted(pmap.phonemes) == sorted(phones)
+    for phone in phones:
+        assert pmap.phonemes[phone] in MODEL_PHONEMES, phone
+    for phoneme, fallbacks in pmap.fallbacks.items():
+        assert all(f in MODEL_PHONEMES and f != phoneme for f in fallbacks), phoneme
+
+
+def test_phone_map_decisions() -> None:
+    pmap = PhoneMap.load()
+    assert pmap.to_phonemes(["#", "a1", "O1", "p", "nf", "ng", "Z"]) == ["#", "a", "O", "p", "f", "n", "S"]
+    assert pmap.fallbacks["o"] == ("O", "u")
+    with pytest.raises(PhoneMapError, match=r"Festival phone 'xx' \(segment 1\) is not in phones_italian.tsv"):
+        pmap.to_phonemes(["a", "xx"])
+
+
+def test_malformed_phone_map_names_the_line(tmp_path: Path) -> None:
+    bad = tmp_path / "map.tsv"
+    bad.write_text("festival\tphoneme\tfallbacks\twhy\na\ta\t\t\nb\t\t\t\n")
+    with pytest.raises(PhoneMapError, match=r"map.tsv, line 3"):
+        PhoneMap.load(bad)
+    bad.write_text("festival\tphoneme\tfallbacks\na\ta\t\na\te\t\n")
+    with pytest.raises(PhoneMapError, match=r"line 3: Festival phone 'a' is mapped twice"):
+        PhoneMap.load(bad)
+    bad.write_text("phone\tphoneme\n")
+    with pytest.raises(PhoneMapError, match="line 1: header"):
+        PhoneMap.load(bad)
+
+
+def test_text_preparation() -> None:
+    assert prepare_text("  l\u2019altro   giorno\n") == "l'altro giorno"
+    assert prepare_text("perché città") == "perché città"
+    with pytest.raises(FestivalError, match="empty text"):
+        prepare_text(" \n\t ")
+    with pytest.raises(FestivalError, match=r"U\+1F600\) at position 5"):
+        prepare_text("ciao \U0001F600")
+
+
+@pytest.mark.festival
+def test_synthesis_segments_tile_the_wav(tmp_path: Path) -> None:
+    utt = synthesize(SENTENCE, tmp_path / "s.wav")
+    assert utt.phones[0] == "#" and utt.phones[-1] == "#"
+    assert "p" in utt.phones and "v" in utt.phones
+    assert utt.starts[0] == 0.0
+    np.testing.assert_array_equal(utt.starts[1:], utt.ends[:-1])
+    assert np.all(utt.ends > utt.starts)
+    assert utt.duration == wav_duration(tmp_path / "s.wav")
+    # Festival's WAV ends within a few tens of ms after its last segment
+    assert 0.0 <= utt.duration - utt.ends[-1] < 0.05
+
+
+@pytest.mark.festival
+def test_duration_stretch_speeds_speech_up(tmp_path: Path) -> None:
+    normal = synthesize(SENTENCE, tmp_path / "n.wav")
+    fast = synthesize(SENTENCE, tmp_path / "f.wav", stretch=0.6)
+    assert fast.phones == normal.phones
+    ratio = (fast.ends[-1] - fast.ends[0]) / (normal.ends[-1] - normal.ends[0])
+    assert 0.5 < ratio < 0.7
+
+
+@pytest.mark.festival
+def test_quotes_and_accents_reach_festival(tmp_path: Path) -> None:
+    utt = synthesize('Disse "sì" \\ perché', tmp_path / "q.wav")
+    assert "i1" in utt.phones and "e1" in utt.phones  # sì, perché: the accents were read
+
+
+def test_festival_not_on_path(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.setenv("PATH", str(tmp_path))
+    with pytest.raises(FestivalError, match="'festival' not found on PATH"):
+        synthesize("ciao", tmp_path / "x.wav")
+
+
+def test_festival_failure_is_reported(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    fake = tmp_path / "festival"
+    fake.write_text("#!/bin/sh\necho 'SIOD ERROR: something broke' >&2\nexit 3\n")
+    fake.chmod(fake.stat().st_mode | stat.S_IEXEC)
+    monkeypatch.setenv("PATH", str(tmp_path))
+    with pytest.raises(FestivalError, match=r"exit code 3.*SIOD ERROR: something broke"):
+        synthesize("ciao", tmp_path / "x.wav")
+
+
+@pytest.mark.festival
+def test_unknown_voice_is_named(tmp_path: Path) -> None:
+    with pytest.raises(FestivalError, match="voice 'xx_diphone'"):
+        synthesize("ciao", tmp_path / "x.wav", voice="xx_diphone")
+
+
+def test_bad_rate_and_voice_name(tmp_path: Path) -> None:
+    with pytest.raises(FestivalError, match="stretch"):
+        synthesize("ciao", tmp_path / "x.wav", stretch=0.0)
+    with pytest.raises(FestivalError, match="voice name"):
+        synthesize("ciao", tmp_path / "x.wav", voice="pc)(quit")
