@@ -1,0 +1,93 @@
+"""Typed stubs of the Rust extension ``coartic._core`` (checked by ``mypy.stubtest``).
+
+Arrays are NumPy float64 (int64 for indices, bool for masks); C-contiguous input is read in
+place, other layouts are copied once. Wrong type or dtype raises TypeError, wrong shape or any
+invalid value raises ValueError naming the argument, utterance, segment, phoneme or parameter.
+"""
+
+from typing import Final
+
+import numpy as np
+import numpy.typing as npt
+
+N_PARAMS: Final[int]
+MARKER_NAMES: Final[list[str]]
+CHANNEL_NAMES: Final[list[str]]
+
+class Corpus:
+    """Many utterances in CSR form (docs/ARCHITECTURE.md, "Corpus layout"), validated once."""
+
+    def __new__(
+        cls,
+        seg_offsets: npt.NDArray[np.int64],
+        seg_phoneme: npt.NDArray[np.int64],
+        seg_start: npt.NDArray[np.float64],
+        seg_end: npt.NDArray[np.float64],
+        sample_offsets: npt.NDArray[np.int64],
+        sample_times: npt.NDArray[np.float64],
+        n_phonemes: int,
+    ) -> Corpus: ...
+    @property
+    def n_utterances(self) -> int: ...
+    @property
+    def n_samples(self) -> int: ...
+    @property
+    def n_segments(self) -> int: ...
+    @property
+    def n_phonemes(self) -> int: ...
+
+class ModelOptions:
+    """Variant ("original" or "modified"), apex fraction a and edge extent Λ of one channel."""
+
+    def __new__(cls, variant: str = "modified", apex_fraction: float = 0.5, edge_extent: float = 1.0) -> ModelOptions: ...
+    @property
+    def variant(self) -> str: ...
+    @property
+    def apex_fraction(self) -> float: ...
+    @property
+    def edge_extent(self) -> float: ...
+
+def evaluate(
+    corpus: Corpus, params: npt.NDArray[np.float64], beta: float, options: ModelOptions
+) -> npt.NDArray[np.float64]:
+    """F at every sample: ndarray[n_samples]; params is [n_phonemes, 10]."""
+
+def jacobian(
+    corpus: Corpus, params: npt.NDArray[np.float64], beta: float, options: ModelOptions
+) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.int64], npt.NDArray[np.int64], npt.NDArray[np.float64]]:
+    """(values, indptr, indices, data): CSR Jacobian of shape (n_samples, n_phonemes*10 + 1)."""
+
+def sse_gradient(
+    corpus: Corpus,
+    params: npt.NDArray[np.float64],
+    beta: float,
+    options: ModelOptions,
+    observed: npt.NDArray[np.float64],
+    weights: npt.NDArray[np.float64],
+) -> tuple[float, npt.NDArray[np.float64], float]:
+    """(SSE, dSSE/dparams [n_phonemes*10], dSSE/dbeta), SSE = sum w (observed - F)^2."""
+
+def evaluate_batch(
+    corpus: Corpus, params: npt.NDArray[np.float64], betas: npt.NDArray[np.float64], options: ModelOptions
+) -> npt.NDArray[np.float64]:
+    """params [W, n_phonemes, 10], betas [W] -> ndarray[W, n_samples]."""
+
+def sse_batch(
+    corpus: Corpus,
+    params: npt.NDArray[np.float64],
+    betas: npt.NDArray[np.float64],
+    options: ModelOptions,
+    observed: npt.NDArray[np.float64],
+    weights: npt.NDArray[np.float64],
+) -> npt.NDArray[np.float64]:
+    """SSE of each of W parameter sets: ndarray[W]; an invalid walker gets +inf."""
+
+def physical_limit_loop(corpus: Corpus, params: npt.NDArray[np.float64], options: ModelOptions) -> float:
+    """Only the exponentials and powers the model needs (benchmark yardstick); a checksum."""
+
+def marker_channels(markers: npt.NDArray[np.float64], rest: npt.NDArray[np.bool_]) -> npt.NDArray[np.float64]:
+    """markers [F, 8, 3] (NOSE, EAR_L, EAR_R, UL, LL, LC_L, LC_R, CHIN), rest [F] -> [F, 7]
+    (ULO, LLO, ULP, LLP, LR, JO, LA); NaN where a needed marker is missing."""
+
+def head_frame(markers: npt.NDArray[np.float64], nose: int, ear_l: int, ear_r: int) -> npt.NDArray[np.float64]:
+    """markers [F, M, 3] expressed in each frame's head frame; NaN where it is undefined."""

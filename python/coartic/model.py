@@ -1,0 +1,309 @@
+"""The model from Python: segment lists and a parameter table in, channel trajectories out.
+
+This is what the animation runtime, the corpus generator and the fitting code call. The heavy
+lifting is in the Rust core (``coartic._core``); this module turns labels into phoneme rows,
+checks segment lists with messages that name the utterance and label at fault, and wraps the
+core's CSR Jacobian as a ``scipy.sparse.csr_matrix``.
+"""
+
+from __future__ import annotations
+
+import re
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from typing import overload, Literal
+
+import numpy as np
+import numpy.typing as npt
+import scipy.sparse as sp
+
+from coartic import _core
+from coartic.table import N_PARAMS, PARAMETERS, ParameterTable
+
+F64 = npt.NDArray[np.float64]
+
+
+class ModelInputError(ValueError):
+    """Invalid segments, times or labels given to the model; names the utterance and label."""
+
+
+@dataclass(frozen=True)
+class Utterance:
+    """One utterance: segment labels (model phonemes), their start and end times (s), and the
+    times (s) at which to evaluate the channels. ``name`` appears in error messages."""
+
+    labels: Sequence[str]
+    starts: npt.ArrayLike
+    ends: npt.ArrayLike
+    times: npt.ArrayLike
+    name: str = field(default="")
+
+
+def _vector(x: npt.ArrayLike, what: str, where: str) -> F64:
+    try:
+        a = np.asarray(x, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise ModelInputError(f"{where}: {what} must be numbers, got {x!r:.80}") from None
+    if a.ndim != 1:
+        raise ModelInputError(f"{where}: {what} must be one-dimensional, got shape {a.shape}")
+    bad = np.flatnonzero(~np.isfinite(a))
+    if bad.size:
+        raise ModelInputError(f"{where}: {what}[{bad[0]}] = {a[bad[0]]} is not finite")
+    return a
+
+
+def build_corpus(utterances: Sequence[Utterance], phonemes: Sequence[str]) -> _core.Corpus:
+    """Validate utterances and pack them into a ``_core.Corpus``.
+
+    Parameters
+    ----------
+    utterances : sequence of Utterance
+        Labels must be in ``phonemes``; segments sorted, non-overlapping, each with end > start.
+    phonemes : sequence of str
+        Row order of the parameter matrix: segment label ``phonemes[k]`` uses row k.
+
+    Returns
+    -------
+    _core.Corpus
+        Samples are concatenated in utterance order (utterance u owns
+        ``sample_offsets[u]:sample_offsets[u+1]``, i.e. its ``times`` in the given order).
+
+    Raises
+    ------
+    ModelInputError
+        Naming the utterance (by ``name`` or index) and the segment label at fault.
+    """
+    row_of = {p: i for i, p in enumerate(phonemes)}
+    if len(row_of) != len(phonemes):
+        dup = next(p for p in phonemes if list(phonemes).count(p) > 1)
+        raise ModelInputError(f"phoneme {dup!r} appears twice in the phoneme list")
+    seg_offsets = [0]
+    sample_offsets = [0]
+    rows: list[int] = []
+    starts: list[F64] = []
+    ends: list[F64] = []
+    times: list[F64] = []
+    for u, utt in enumerate(utterances):
+        where = f"utterance {utt.name!r}" if utt.name else f"utterance {u}"
+        labels = list(utt.labels)
+        s = _vector(utt.starts, "starts", where)
+        e = _vector(utt.ends, "ends", where)
+        t = _vector(utt.times, "times", where)
+        if not (len(labels) == len(s) == len(e)):
+            raise ModelInputError(
+                f"{where}: {len(labels)} labels, {len(s)} starts and {len(e)} ends: one of each per segment"
+            )
+        if not labels:
+            raise ModelInputError(f"{where}: no segments")
+        for i, lab in enumerate(labels):
+            if lab not in row_of:
+                known = " ".join(phonemes)
+                raise ModelInputError(
+                    f"{where}: label {lab!r} (segment {i}) is not a phoneme of the table (known: {known})"
+                )
+            if not e[i] > s[i]:
+                raise ModelInputError(f"{where}: segment {i} {lab!r} ends at {e[i]} s, not after its start {s[i]} s")
+            if i and s[i] < e[i - 1]:
+                raise ModelInputError(
+                    f"{where}: segment {i} {lab!r} starts at {s[i]} s, before segment {i - 1} "
+                    f"{labels[i - 1]!r} ends at {e[i - 1]} s (segments must be sorted and must not overlap)"
+                )
+        rows.extend(row_of[lab] for lab in labels)
+        starts.append(s)
+        ends.append(e)
+        times.append(t)
+        seg_offsets.append(seg_offsets[-1] + len(labels))
+        sample_offsets.append(sample_offsets[-1] + len(t))
+
+    def cat(parts: list[F64]) -> F64:
+        return np.concatenate(parts) if parts else np.empty(0)
+
+    return _core.Corpus(
+        np.asarray(seg_offsets, dtype=np.int64),
+        np.asarray(rows, dtype=np.int64),
+        cat(starts),
+        cat(ends),
+        np.asarray(sample_offsets, dtype=np.int64),
+        cat(times),
+        len(phonemes),
+    )
+
+
+def model_options(table: ParameterTable, channel: str) -> _core.ModelOptions:
+    """The core's options (variant, apex fraction, edge extent) of one channel of the table."""
+    cs = table.channels[channel]
+    return _core.ModelOptions(table.variant, cs.apex_fraction, cs.edge_extent)
+
+
+def jacobian_columns(phonemes: Sequence[str]) -> list[str]:
+    """Names of the Jacobian columns: ``"<phoneme>.<parameter>"`` for every row, then ``"beta"``."""
+    return [f"{p}.{name}" for p in phonemes for name in PARAMETERS] + ["beta"]
+
+
+_PHONEME_INDEX = re.compile(r"\bphoneme (\d+)")
+
+
+def _named(err: ValueError, channel: str, phonemes: Sequence[str]) -> ModelInputError:
+    """The core names phonemes by row; say which phoneme and channel that is."""
+
+    def name(m: re.Match[str]) -> str:
+        k = int(m.group(1))
+        return f"phoneme {phonemes[k]!r}" if k < len(phonemes) else m.group(0)
+
+    return ModelInputError(f"channel {channel!r}: {_PHONEME_INDEX.sub(name, str(err))}")
+
+
+def _channel_phonemes(table: ParameterTable, channel: str, labels: Sequence[str], where: str) -> list[str]:
+    phonemes = table.phonemes_for(channel)
+    known = set(phonemes)
+    for i, lab in enumerate(labels):
+        if lab not in known:
+            if lab in table.values:
+                raise ModelInputError(
+                    f"{where}: label {lab!r} (segment {i}) has no parameters for channel {channel!r} in {table.source}"
+                )
+            raise ModelInputError(
+                f"{where}: label {lab!r} (segment {i}) is not a phoneme of {table.source} "
+                f"(known: {' '.join(table.phonemes)})"
+            )
+    return phonemes
+
+
+@overload
+def trajectories(
+    table: ParameterTable,
+    labels: Sequence[str],
+    starts: npt.ArrayLike,
+    ends: npt.ArrayLike,
+    times: npt.ArrayLike,
+    channels: Sequence[str] | None = None,
+    jacobian: Literal[False] = False,
+) -> dict[str, F64]: ...
+@overload
+def trajectories(
+    table: ParameterTable,
+    labels: Sequence[str],
+    starts: npt.ArrayLike,
+    ends: npt.ArrayLike,
+    times: npt.ArrayLike,
+    channels: Sequence[str] | None = None,
+    *,
+    jacobian: Literal[True],
+) -> dict[str, tuple[F64, sp.csr_matrix]]: ...
+def trajectories(
+    table: ParameterTable,
+    labels: Sequence[str],
+    starts: npt.ArrayLike,
+    ends: npt.ArrayLike,
+    times: npt.ArrayLike,
+    channels: Sequence[str] | None = None,
+    jacobian: bool = False,
+) -> dict[str, F64] | dict[str, tuple[F64, sp.csr_matrix]]:
+    """Channel trajectories of one utterance under the table's model.
+
+    Parameters
+    ----------
+    table : ParameterTable
+        Variant, per-channel constants and per-phoneme parameters.
+    labels : sequence of str
+        Segment labels (model phonemes, pauses as ``"#"``), one per segment.
+    starts, ends : array_like of float
+        Acoustic segment times in seconds: sorted, non-overlapping, end > start.
+    times : array_like of float
+        Times (s) at which to evaluate, e.g. ``np.arange(n) / fps``.
+    channels : sequence of str, optional
+        Channels to compute; default every channel of the table.
+    jacobian : bool, default False
+        Also return each channel's Jacobian.
+
+    Returns
+    -------
+    dict
+        ``channel -> ndarray[len(times)]``, or with ``jacobian=True``
+        ``channel -> (values, J)`` where ``J`` is a ``scipy.sparse.csr_matrix`` of shape
+        ``(len(times), 10 * n + 1)``: column ``10 k + j`` is ∂F/∂(parameter j of phoneme k), with
+        phonemes ordered as ``table.phonemes_for(channel)`` (see ``jacobian_columns``) and the
+        last column ∂F/∂β.
+
+    Raises
+    ------
+    ModelInputError
+        Unknown label, label without parameters for a channel, unsorted or overlapping
+        segments, mismatched lengths, non-finite times.
+
+    Examples
+    --------
+    >>> out = trajectories(table, ["#", "a", "p", "a", "#"], [0, .1, .25, .33, .5],
+    ...                    [.1, .25, .33, .5, .6], np.arange(60) / 100, channels=["LLO"])
+    >>> out["LLO"].shape
+    (60,)
+    """
+    chans = list(table.channels) if channels is None else list(channels)
+    utt = Utterance(labels, starts, ends, times)
+    out: dict[str, F64] = {}
+    out_j: dict[str, tuple[F64, sp.csr_matrix]] = {}
+    corpora: dict[tuple[str, ...], _core.Corpus] = {}
+    for ch in chans:
+        table._check_channel(ch)
+        phonemes = _channel_phonemes(table, ch, list(labels), "utterance")
+        key = tuple(phonemes)
+        if key not in corpora:
+            corpora[key] = build_corpus([utt], phonemes)
+        corpus = corpora[key]
+        params, beta = table.to_matrix(ch, phonemes)
+        opts = model_options(table, ch)
+        try:
+            if jacobian:
+                values, indptr, indices, data = _core.jacobian(corpus, params, beta, opts)
+                jac = sp.csr_matrix((data, indices, indptr), shape=(corpus.n_samples, len(phonemes) * N_PARAMS + 1))
+                out_j[ch] = (values, jac)
+            else:
+                out[ch] = _core.evaluate(corpus, params, beta, opts)
+        except ValueError as err:
+            raise _named(err, ch, phonemes) from None
+    return out_j if jacobian else out
+
+
+def evaluate_corpus(table: ParameterTable, channel: str, utterances: Sequence[Utterance]) -> list[F64]:
+    """One channel over many utterances in one core call; one array per utterance."""
+    phonemes = table.phonemes_for(channel)
+    corpus = build_corpus(utterances, phonemes)
+    params, beta = table.to_matrix(channel, phonemes)
+    try:
+        values = _core.evaluate(corpus, params, beta, model_options(table, channel))
+    except ValueError as err:
+        raise _named(err, channel, phonemes) from None
+    bounds = np.cumsum([0] + [np.size(u.times) for u in utterances])
+    return [values[a:b] for a, b in zip(bounds[:-1], bounds[1:])]
+
+
+def segment_weights(
+    table: ParameterTable,
+    channel: str,
+    labels: Sequence[str],
+    starts: npt.ArrayLike,
+    ends: npt.ArrayLike,
+    times: npt.ArrayLike,
+) -> F64:
+    """The weight of each segment's target in F: ``w_i(t) = ∂F/∂T_i = S_i R_i D_i / Σ_j R_j D_j``.
+
+    These are the normalised dominance functions one draws under a trajectory
+    (F = Σ_i T_i w_i). Computed by the core: each segment gets its own copy of its phoneme's
+    parameters, so the target column of the Jacobian separates the segments.
+
+    Returns
+    -------
+    ndarray [len(labels), len(times)]
+    """
+    phonemes = _channel_phonemes(table, channel, list(labels), "utterance")
+    params, beta = table.to_matrix(channel, phonemes)
+    row_of = {p: i for i, p in enumerate(phonemes)}
+    per_segment = params[[row_of[lab] for lab in labels]]
+    seg_names = [f"{lab}@{i}" for i, lab in enumerate(labels)]
+    corpus = build_corpus([Utterance(seg_names, starts, ends, times)], seg_names)
+    try:
+        _, indptr, indices, data = _core.jacobian(corpus, per_segment, beta, model_options(table, channel))
+    except ValueError as err:
+        raise _named(err, channel, seg_names) from None
+    jac = sp.csr_matrix((data, indices, indptr), shape=(corpus.n_samples, len(labels) * N_PARAMS + 1))
+    return np.asarray(jac[:, 0 : len(labels) * N_PARAMS : N_PARAMS].toarray().T)

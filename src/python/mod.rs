@@ -1,0 +1,447 @@
+//! `coartic._core`: the thin PyO3 face of the core (docs/ARCHITECTURE.md lists the signatures).
+//!
+//! Input arrays must be NumPy arrays of the documented dtype (float64, int64 for indices, bool for
+//! masks). C-contiguous input is read in place; any other layout (strided, Fortran order) is
+//! copied once into C order. Outputs are handed to NumPy without a copy. Every computation runs
+//! with the GIL released. Invalid input raises TypeError (wrong type or dtype) or ValueError (wrong
+//! shape, or any error of the core, whose message names the utterance, segment, phoneme or
+//! parameter at fault); nothing panics across the boundary.
+
+use std::borrow::Cow;
+
+use numpy::ndarray::{Array2, Array3};
+use numpy::{
+    Element, IntoPyArray, PyArray1, PyArray2, PyArray3, PyArrayDyn, PyArrayMethods,
+    PyReadonlyArrayDyn, PyUntypedArray, PyUntypedArrayMethods,
+};
+use pyo3::exceptions::{PyTypeError, PyValueError};
+use pyo3::prelude::*;
+
+use crate::geometry::{self, GeometryError, N_CHANNELS, N_MARKERS};
+use crate::{ModelError, Variant, N_PARAMS};
+
+fn model_err(e: ModelError) -> PyErr {
+    PyValueError::new_err(e.to_string())
+}
+
+fn geometry_err(e: GeometryError) -> PyErr {
+    PyValueError::new_err(e.to_string())
+}
+
+/// Borrow `obj` as a read-only NumPy array of `T`, or raise TypeError naming the argument.
+fn array<'py, T: Element>(
+    obj: &Bound<'py, PyAny>,
+    name: &str,
+    dtype: &str,
+) -> PyResult<PyReadonlyArrayDyn<'py, T>> {
+    if let Ok(a) = obj.cast::<PyArrayDyn<T>>() {
+        return a
+            .try_readonly()
+            .map_err(|e| PyValueError::new_err(format!("argument '{name}': {e}")));
+    }
+    let got = match obj.cast::<PyUntypedArray>() {
+        Ok(a) => format!("an array of dtype {}", a.dtype()),
+        Err(_) => format!("{}", obj.get_type().name()?),
+    };
+    Err(PyTypeError::new_err(format!(
+        "argument '{name}' must be a numpy.ndarray of dtype {dtype}, got {got} \
+         (convert with numpy.asarray(..., dtype=numpy.{dtype}))"
+    )))
+}
+
+/// Check the shape: `expected[i] = None` accepts any length on axis i.
+fn check_shape<T: Element>(
+    a: &PyReadonlyArrayDyn<'_, T>,
+    name: &str,
+    expected: &[Option<usize>],
+    meaning: &str,
+) -> PyResult<()> {
+    let shape = a.shape();
+    let ok = shape.len() == expected.len()
+        && shape.iter().zip(expected).all(|(&s, e)| e.is_none_or(|e| e == s));
+    if ok {
+        return Ok(());
+    }
+    let want: Vec<String> = expected
+        .iter()
+        .map(|e| e.map_or_else(|| "*".to_string(), |v| v.to_string()))
+        .collect();
+    Err(PyValueError::new_err(format!(
+        "argument '{name}' has shape {shape:?}, expected ({}) = {meaning}",
+        want.join(", ")
+    )))
+}
+
+/// The elements in C order: in place if C-contiguous, else one copy.
+fn data<'a, T: Element + Copy>(a: &'a PyReadonlyArrayDyn<'_, T>) -> Cow<'a, [T]> {
+    if a.is_c_contiguous() {
+        if let Ok(s) = a.as_slice() {
+            return Cow::Borrowed(s);
+        }
+    }
+    Cow::Owned(a.as_array().iter().copied().collect())
+}
+
+fn f64_vec(obj: &Bound<'_, PyAny>, name: &str, len: Option<usize>, meaning: &str) -> PyResult<Vec<f64>> {
+    let a = array::<f64>(obj, name, "float64")?;
+    check_shape(&a, name, &[len], meaning)?;
+    Ok(data(&a).into_owned())
+}
+
+fn index_vec(obj: &Bound<'_, PyAny>, name: &str) -> PyResult<Vec<usize>> {
+    let a = array::<i64>(obj, name, "int64")?;
+    check_shape(&a, name, &[None], "one index per entry")?;
+    data(&a)
+        .iter()
+        .enumerate()
+        .map(|(i, &v)| {
+            usize::try_from(v).map_err(|_| PyValueError::new_err(format!("{name}[{i}] = {v} is negative")))
+        })
+        .collect()
+}
+
+/// Many utterances in CSR form, validated once (docs/ARCHITECTURE.md, "Corpus layout").
+#[pyclass(module = "coartic._core", frozen)]
+pub struct Corpus {
+    inner: crate::Corpus,
+}
+
+#[pymethods]
+impl Corpus {
+    #[new]
+    #[allow(clippy::too_many_arguments)]
+    fn new(
+        py: Python<'_>,
+        seg_offsets: &Bound<'_, PyAny>,
+        seg_phoneme: &Bound<'_, PyAny>,
+        seg_start: &Bound<'_, PyAny>,
+        seg_end: &Bound<'_, PyAny>,
+        sample_offsets: &Bound<'_, PyAny>,
+        sample_times: &Bound<'_, PyAny>,
+        n_phonemes: usize,
+    ) -> PyResult<Self> {
+        let seg_offsets = index_vec(seg_offsets, "seg_offsets")?;
+        let seg_phoneme = index_vec(seg_phoneme, "seg_phoneme")?;
+        let seg_start = f64_vec(seg_start, "seg_start", None, "one start time per segment")?;
+        let seg_end = f64_vec(seg_end, "seg_end", None, "one end time per segment")?;
+        let sample_offsets = index_vec(sample_offsets, "sample_offsets")?;
+        let sample_times = f64_vec(sample_times, "sample_times", None, "one time per sample")?;
+        let inner = py
+            .detach(|| {
+                crate::Corpus::new(
+                    seg_offsets,
+                    seg_phoneme,
+                    seg_start,
+                    seg_end,
+                    sample_offsets,
+                    sample_times,
+                    n_phonemes,
+                )
+            })
+            .map_err(model_err)?;
+        Ok(Corpus { inner })
+    }
+
+    #[getter]
+    fn n_utterances(&self) -> usize {
+        self.inner.n_utterances()
+    }
+    #[getter]
+    fn n_samples(&self) -> usize {
+        self.inner.n_samples()
+    }
+    #[getter]
+    fn n_segments(&self) -> usize {
+        self.inner.n_segments()
+    }
+    #[getter]
+    fn n_phonemes(&self) -> usize {
+        self.inner.n_phonemes()
+    }
+
+    fn __repr__(&self) -> String {
+        format!(
+            "Corpus(n_utterances={}, n_segments={}, n_samples={}, n_phonemes={})",
+            self.inner.n_utterances(),
+            self.inner.n_segments(),
+            self.inner.n_samples(),
+            self.inner.n_phonemes()
+        )
+    }
+}
+
+/// Variant and per-channel constants that are not fitted per phoneme.
+#[pyclass(module = "coartic._core", frozen)]
+pub struct ModelOptions {
+    inner: crate::ModelOptions,
+}
+
+#[pymethods]
+impl ModelOptions {
+    #[new]
+    #[pyo3(signature = (variant = "modified", apex_fraction = 0.5, edge_extent = 1.0))]
+    fn new(variant: &str, apex_fraction: f64, edge_extent: f64) -> PyResult<Self> {
+        let variant: Variant = variant
+            .parse()
+            .map_err(|e: crate::params::UnknownVariant| PyValueError::new_err(format!("variant: {e}")))?;
+        let inner = crate::ModelOptions {
+            variant,
+            apex_fraction,
+            edge_extent,
+        };
+        inner.validate().map_err(model_err)?;
+        Ok(ModelOptions { inner })
+    }
+
+    #[getter]
+    fn variant(&self) -> &'static str {
+        self.inner.variant.name()
+    }
+    #[getter]
+    fn apex_fraction(&self) -> f64 {
+        self.inner.apex_fraction
+    }
+    #[getter]
+    fn edge_extent(&self) -> f64 {
+        self.inner.edge_extent
+    }
+
+    fn __repr__(&self) -> String {
+        format!(
+            "ModelOptions(variant={:?}, apex_fraction={:?}, edge_extent={:?})",
+            self.inner.variant.name(),
+            self.inner.apex_fraction,
+            self.inner.edge_extent
+        )
+    }
+}
+
+/// The [n_phonemes, 10] parameter matrix of one model.
+fn params_of<'py>(obj: &Bound<'py, PyAny>, corpus: &Corpus) -> PyResult<PyReadonlyArrayDyn<'py, f64>> {
+    let a = array::<f64>(obj, "params", "float64")?;
+    check_shape(
+        &a,
+        "params",
+        &[Some(corpus.inner.n_phonemes()), Some(N_PARAMS)],
+        "[n_phonemes of the corpus, 10 parameters]",
+    )?;
+    Ok(a)
+}
+
+/// observed and weights, one per sample of the corpus.
+fn samples_of<'py>(obj: &Bound<'py, PyAny>, name: &str, corpus: &Corpus) -> PyResult<PyReadonlyArrayDyn<'py, f64>> {
+    let a = array::<f64>(obj, name, "float64")?;
+    check_shape(&a, name, &[Some(corpus.inner.n_samples())], "[n_samples of the corpus]")?;
+    Ok(a)
+}
+
+/// The trajectory at every sample of the corpus: ndarray[n_samples].
+#[pyfunction]
+fn evaluate<'py>(
+    py: Python<'py>,
+    corpus: &Corpus,
+    params: &Bound<'py, PyAny>,
+    beta: f64,
+    options: &ModelOptions,
+) -> PyResult<Bound<'py, PyArray1<f64>>> {
+    let p = params_of(params, corpus)?;
+    let p = data(&p);
+    let mut out = vec![0.0; corpus.inner.n_samples()];
+    py.detach(|| crate::evaluate(&corpus.inner, &p, beta, &options.inner, &mut out))
+        .map_err(model_err)?;
+    Ok(out.into_pyarray(py))
+}
+
+type JacobianTuple<'py> = (
+    Bound<'py, PyArray1<f64>>,
+    Bound<'py, PyArray1<i64>>,
+    Bound<'py, PyArray1<i64>>,
+    Bound<'py, PyArray1<f64>>,
+);
+
+/// Values and the CSR Jacobian (n_samples × (n_phonemes·10 + 1), last column β).
+#[pyfunction]
+fn jacobian<'py>(
+    py: Python<'py>,
+    corpus: &Corpus,
+    params: &Bound<'py, PyAny>,
+    beta: f64,
+    options: &ModelOptions,
+) -> PyResult<JacobianTuple<'py>> {
+    let p = params_of(params, corpus)?;
+    let p = data(&p);
+    let mut values = vec![0.0; corpus.inner.n_samples()];
+    let jac = py
+        .detach(|| crate::jacobian(&corpus.inner, &p, beta, &options.inner, &mut values))
+        .map_err(model_err)?;
+    // SciPy indexes with signed integers; usize → i64 is the one unavoidable copy.
+    let as_i64 = |v: Vec<usize>| -> Vec<i64> { v.into_iter().map(|x| x as i64).collect() };
+    Ok((
+        values.into_pyarray(py),
+        as_i64(jac.indptr).into_pyarray(py),
+        as_i64(jac.indices).into_pyarray(py),
+        jac.data.into_pyarray(py),
+    ))
+}
+
+/// (SSE, dSSE/dparams flattened [n_phonemes·10], dSSE/dβ) with SSE = Σ w (y − F)².
+#[pyfunction]
+fn sse_gradient<'py>(
+    py: Python<'py>,
+    corpus: &Corpus,
+    params: &Bound<'py, PyAny>,
+    beta: f64,
+    options: &ModelOptions,
+    observed: &Bound<'py, PyAny>,
+    weights: &Bound<'py, PyAny>,
+) -> PyResult<(f64, Bound<'py, PyArray1<f64>>, f64)> {
+    let p = params_of(params, corpus)?;
+    let p = data(&p);
+    let y = samples_of(observed, "observed", corpus)?;
+    let y = data(&y);
+    let w = samples_of(weights, "weights", corpus)?;
+    let w = data(&w);
+    let mut grad = vec![0.0; corpus.inner.n_phonemes() * N_PARAMS];
+    let (sse, dbeta) = py
+        .detach(|| crate::sse_gradient(&corpus.inner, &p, beta, &options.inner, &y, &w, &mut grad))
+        .map_err(model_err)?;
+    Ok((sse, grad.into_pyarray(py), dbeta))
+}
+
+/// params[W, n_phonemes, 10] and betas[W] of W walkers.
+fn batch_of<'py>(
+    params: &Bound<'py, PyAny>,
+    betas: &Bound<'py, PyAny>,
+    corpus: &Corpus,
+) -> PyResult<(PyReadonlyArrayDyn<'py, f64>, PyReadonlyArrayDyn<'py, f64>, usize)> {
+    let p = array::<f64>(params, "params", "float64")?;
+    check_shape(
+        &p,
+        "params",
+        &[None, Some(corpus.inner.n_phonemes()), Some(N_PARAMS)],
+        "[walkers, n_phonemes of the corpus, 10 parameters]",
+    )?;
+    let n_walkers = p.shape()[0];
+    let b = array::<f64>(betas, "betas", "float64")?;
+    check_shape(&b, "betas", &[Some(n_walkers)], "one beta per walker (params.shape[0])")?;
+    Ok((p, b, n_walkers))
+}
+
+/// The trajectories of W parameter sets: ndarray[W, n_samples].
+#[pyfunction]
+fn evaluate_batch<'py>(
+    py: Python<'py>,
+    corpus: &Corpus,
+    params: &Bound<'py, PyAny>,
+    betas: &Bound<'py, PyAny>,
+    options: &ModelOptions,
+) -> PyResult<Bound<'py, PyArray2<f64>>> {
+    let (p, b, n_walkers) = batch_of(params, betas, corpus)?;
+    let (p, b) = (data(&p), data(&b));
+    let n = corpus.inner.n_samples();
+    let mut out = vec![0.0; n_walkers * n];
+    py.detach(|| crate::evaluate_batch(&corpus.inner, &p, &b, &options.inner, &mut out))
+        .map_err(model_err)?;
+    let out = Array2::from_shape_vec((n_walkers, n), out).map_err(|e| PyValueError::new_err(e.to_string()))?;
+    Ok(out.into_pyarray(py))
+}
+
+/// The SSE of W parameter sets: ndarray[W]; an invalid walker gets +inf.
+#[pyfunction]
+fn sse_batch<'py>(
+    py: Python<'py>,
+    corpus: &Corpus,
+    params: &Bound<'py, PyAny>,
+    betas: &Bound<'py, PyAny>,
+    options: &ModelOptions,
+    observed: &Bound<'py, PyAny>,
+    weights: &Bound<'py, PyAny>,
+) -> PyResult<Bound<'py, PyArray1<f64>>> {
+    let (p, b, n_walkers) = batch_of(params, betas, corpus)?;
+    let (p, b) = (data(&p), data(&b));
+    let y = samples_of(observed, "observed", corpus)?;
+    let y = data(&y);
+    let w = samples_of(weights, "weights", corpus)?;
+    let w = data(&w);
+    let mut out = vec![0.0; n_walkers];
+    py.detach(|| crate::sse_batch(&corpus.inner, &p, &b, &options.inner, &y, &w, &mut out))
+        .map_err(model_err)?;
+    Ok(out.into_pyarray(py))
+}
+
+/// The benchmark's yardstick: a loop of only the exponentials and powers the model needs for this
+/// corpus (the physical limit on this machine). Returns a checksum so the loop is not optimised away.
+#[pyfunction]
+fn physical_limit_loop(
+    py: Python<'_>,
+    corpus: &Corpus,
+    params: &Bound<'_, PyAny>,
+    options: &ModelOptions,
+) -> PyResult<f64> {
+    let p = params_of(params, corpus)?;
+    let p = data(&p);
+    Ok(py.detach(|| crate::physical_limit_loop(&corpus.inner, &p, &options.inner)))
+}
+
+/// The channels ULO, LLO, ULP, LLP, LR, JO, LA of every frame: ndarray[F, 7].
+#[pyfunction]
+fn marker_channels<'py>(
+    py: Python<'py>,
+    markers: &Bound<'py, PyAny>,
+    rest: &Bound<'py, PyAny>,
+) -> PyResult<Bound<'py, PyArray2<f64>>> {
+    let m = array::<f64>(markers, "markers", "float64")?;
+    check_shape(
+        &m,
+        "markers",
+        &[None, Some(N_MARKERS), Some(3)],
+        "[frames, 8 markers NOSE, EAR_L, EAR_R, UL, LL, LC_L, LC_R, CHIN, xyz]",
+    )?;
+    let n_frames = m.shape()[0];
+    let r = array::<bool>(rest, "rest", "bool")?;
+    check_shape(&r, "rest", &[Some(n_frames)], "one flag per frame (markers.shape[0])")?;
+    let (m, r) = (data(&m), data(&r));
+    let mut out = vec![0.0; n_frames * N_CHANNELS];
+    py.detach(|| geometry::marker_channels(&m, n_frames, &r, &mut out))
+        .map_err(geometry_err)?;
+    let out = Array2::from_shape_vec((n_frames, N_CHANNELS), out).map_err(|e| PyValueError::new_err(e.to_string()))?;
+    Ok(out.into_pyarray(py))
+}
+
+/// Every marker expressed in the head frame of its frame: ndarray[F, M, 3].
+#[pyfunction]
+fn head_frame<'py>(
+    py: Python<'py>,
+    markers: &Bound<'py, PyAny>,
+    nose: usize,
+    ear_l: usize,
+    ear_r: usize,
+) -> PyResult<Bound<'py, PyArray3<f64>>> {
+    let m = array::<f64>(markers, "markers", "float64")?;
+    check_shape(&m, "markers", &[None, None, Some(3)], "[frames, markers, xyz]")?;
+    let (n_frames, n_markers) = (m.shape()[0], m.shape()[1]);
+    let m = data(&m);
+    let mut out = vec![0.0; m.len()];
+    py.detach(|| geometry::head_frame(&m, n_frames, n_markers, nose, ear_l, ear_r, &mut out))
+        .map_err(geometry_err)?;
+    let out = Array3::from_shape_vec((n_frames, n_markers, 3), out).map_err(|e| PyValueError::new_err(e.to_string()))?;
+    Ok(out.into_pyarray(py))
+}
+
+#[pymodule]
+fn _core(m: &Bound<'_, PyModule>) -> PyResult<()> {
+    m.add_class::<Corpus>()?;
+    m.add_class::<ModelOptions>()?;
+    m.add_function(wrap_pyfunction!(evaluate, m)?)?;
+    m.add_function(wrap_pyfunction!(jacobian, m)?)?;
+    m.add_function(wrap_pyfunction!(sse_gradient, m)?)?;
+    m.add_function(wrap_pyfunction!(evaluate_batch, m)?)?;
+    m.add_function(wrap_pyfunction!(sse_batch, m)?)?;
+    m.add_function(wrap_pyfunction!(physical_limit_loop, m)?)?;
+    m.add_function(wrap_pyfunction!(marker_channels, m)?)?;
+    m.add_function(wrap_pyfunction!(head_frame, m)?)?;
+    m.add("N_PARAMS", N_PARAMS)?;
+    m.add("MARKER_NAMES", geometry::MARKER_NAMES.to_vec())?;
+    m.add("CHANNEL_NAMES", geometry::CHANNEL_NAMES.to_vec())?;
+    Ok(())
+}
