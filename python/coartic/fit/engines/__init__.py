@@ -1,0 +1,71 @@
+"""Optimisation engines. Each has ``minimize(problem, x0, options) -> EngineResult``.
+
+Every engine is fed the Rust core's exact derivatives through ``ChannelProblem`` and returns the
+best point it saw, whatever happened (divergence, evaluation failures, Ctrl-C).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any, Callable
+
+import numpy as np
+from numpy.typing import NDArray
+
+from coartic.fit.problem import ChannelProblem
+
+
+@dataclass
+class EngineResult:
+    x: NDArray[np.float64]
+    status: str  # "converged", "max-evaluations", "interrupted", "failed", "non-finite start"
+    message: str
+    nfev: int
+    njev: int
+
+    @property
+    def success(self) -> bool:
+        return self.status == "converged"
+
+
+Minimizer = Callable[[ChannelProblem, NDArray[np.float64], dict[str, Any]], EngineResult]
+
+
+def get_engine(name: str) -> Minimizer:
+    """The engine's minimize function (imported lazily: nlopt and CasADi load only when used)."""
+    if name == "scipy":
+        from coartic.fit.engines.scipy_ls import minimize
+    elif name == "nlopt":
+        from coartic.fit.engines.nlopt_engine import minimize
+    elif name == "casadi":
+        from coartic.fit.engines.casadi_engine import minimize
+    else:
+        raise ValueError(f"unknown engine {name!r} (scipy, nlopt, casadi)")
+    return minimize
+
+
+def check_start(problem: ChannelProblem, x0: NDArray[np.float64]) -> EngineResult | None:
+    """An EngineResult explaining why x0 cannot start a fit, or None if it can."""
+    r = problem.residuals(x0)
+    if np.all(np.isfinite(r)):
+        return None
+    why = problem.last_error or "the model gives non-finite values there"
+    return EngineResult(x0, "non-finite start", f"residuals not finite at the start: {why}",
+                        problem.nfev, problem.njev)
+
+
+class Unit:
+    """Map x to z in [0, 1]^n by its bounds: gradient engines (L-BFGS, IPOPT) see one scale."""
+
+    def __init__(self, lo: NDArray[np.float64], hi: NDArray[np.float64]) -> None:
+        finite = np.isfinite(lo) & np.isfinite(hi)
+        self.lo = np.where(finite, lo, 0.0)
+        self.width = np.where(finite, hi - lo, 1.0)
+        self.z_lo = np.where(finite, 0.0, lo)
+        self.z_hi = np.where(finite, 1.0, hi)
+
+    def x(self, z: NDArray[np.float64]) -> NDArray[np.float64]:
+        return self.lo + self.width * np.asarray(z)
+
+    def z(self, x: NDArray[np.float64]) -> NDArray[np.float64]:
+        return (np.asarray(x) - self.lo) / self.width

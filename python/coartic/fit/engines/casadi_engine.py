@@ -1,0 +1,121 @@
+"""CasADi + IPOPT, with the Rust core's SSE and exact gradient wrapped in ``casadi.Callback``s.
+
+IPOPT is an interior-point method: it handles the bounds natively and is robust far from the
+optimum. The Hessian is approximated by L-BFGS (the Callback gives value and gradient only). x
+is scaled to the unit box by its bounds.
+
+Options: ``max_iter`` (default 300), ``tol`` (1e-6), ``print_level`` (0), and any other IPOPT
+option by name (passed through as ``ipopt.<name>``).
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import casadi as ca
+import numpy as np
+from numpy.typing import NDArray
+
+from coartic.fit.engines import EngineResult, Unit, check_start
+from coartic.fit.problem import ChannelProblem
+
+
+class _Objective(ca.Callback):  # type: ignore[misc]
+    """f(z) = SSE(x(z)), with a Jacobian (the gradient) callback below."""
+
+    def __init__(self, name: str, problem: ChannelProblem, unit: Unit, state: dict[str, Any]) -> None:
+        ca.Callback.__init__(self)
+        self.problem, self.unit, self.state = problem, unit, state
+        self.n = unit.lo.size
+        self._grad: _Gradient | None = None
+        self.construct(name, {})
+
+    def get_n_in(self) -> int:
+        return 1
+
+    def get_n_out(self) -> int:
+        return 1
+
+    def get_sparsity_in(self, i: int) -> ca.Sparsity:
+        return ca.Sparsity.dense(self.n, 1)
+
+    def get_sparsity_out(self, i: int) -> ca.Sparsity:
+        return ca.Sparsity.dense(1, 1)
+
+    def eval(self, arg: list[Any]) -> list[Any]:
+        try:
+            sse = self.problem.sse(self.unit.x(np.asarray(arg[0]).ravel()))
+        except KeyboardInterrupt:
+            self.state["interrupted"] = True
+            raise
+        return [sse if np.isfinite(sse) else np.nan]
+
+    def has_jacobian(self) -> bool:
+        return True
+
+    def get_jacobian(self, name: str, inames: list[str], onames: list[str], opts: dict[str, Any]) -> ca.Function:
+        self._grad = _Gradient(name, self.problem, self.unit, self.state, opts)
+        return self._grad
+
+
+class _Gradient(ca.Callback):  # type: ignore[misc]
+    def __init__(self, name: str, problem: ChannelProblem, unit: Unit, state: dict[str, Any],
+                 opts: dict[str, Any]) -> None:
+        ca.Callback.__init__(self)
+        self.problem, self.unit, self.state = problem, unit, state
+        self.n = unit.lo.size
+        self.construct(name, opts)
+
+    def get_n_in(self) -> int:
+        return 2  # z and the nominal output
+
+    def get_n_out(self) -> int:
+        return 1
+
+    def get_sparsity_in(self, i: int) -> ca.Sparsity:
+        return ca.Sparsity.dense(self.n, 1) if i == 0 else ca.Sparsity.dense(1, 1)
+
+    def get_sparsity_out(self, i: int) -> ca.Sparsity:
+        return ca.Sparsity.dense(1, self.n)
+
+    def eval(self, arg: list[Any]) -> list[Any]:
+        try:
+            _, g = self.problem.sse_gradient(self.unit.x(np.asarray(arg[0]).ravel()))
+        except KeyboardInterrupt:
+            self.state["interrupted"] = True
+            raise
+        return [ca.DM(g * self.unit.width).T]
+
+
+def minimize(problem: ChannelProblem, x0: NDArray[np.float64], options: dict[str, Any]) -> EngineResult:
+    lo, hi = problem.packing.bounds()
+    x0 = np.clip(x0, lo, hi)
+    bad = check_start(problem, x0)
+    if bad is not None:
+        return bad
+    unit = Unit(lo, hi)
+    state: dict[str, Any] = {"interrupted": False}
+    f = _Objective("coartic_sse", problem, unit, state)
+    z = ca.MX.sym("z", unit.lo.size)
+    ipopt = {"max_iter": 300, "tol": 1e-6, "acceptable_tol": 1e-4, "print_level": 0, "hessian_approximation": "limited-memory",
+             "sb": "yes"}
+    ipopt.update(options)
+    solver = ca.nlpsol("coartic_fit", "ipopt", {"x": z, "f": f(z)},
+                       {"ipopt": ipopt, "print_time": False, "error_on_fail": False})
+    try:
+        sol = solver(x0=unit.z(x0), lbx=unit.z_lo, ubx=unit.z_hi)
+        stats = solver.stats()
+    except KeyboardInterrupt:
+        state["interrupted"] = True
+    except RuntimeError as e:
+        if not state["interrupted"]:
+            return EngineResult(problem.best_x, "failed", f"IPOPT failed: {e}", problem.nfev, problem.njev)
+    if state["interrupted"]:
+        return EngineResult(problem.best_x, "interrupted", "stopped by the user (Ctrl-C); best point kept",
+                            problem.nfev, problem.njev)
+    x = unit.x(np.asarray(sol["x"]).ravel())
+    x = x if problem.sse(x) <= problem.best_sse else problem.best_x
+    rs = str(stats.get("return_status", "?"))
+    status = "converged" if stats.get("success") or rs in ("Solve_Succeeded", "Solved_To_Acceptable_Level") else (
+        "max-evaluations" if rs == "Maximum_Iterations_Exceeded" else "failed")
+    return EngineResult(x, status, f"IPOPT: {rs}", problem.nfev, problem.njev)

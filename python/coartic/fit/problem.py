@@ -1,0 +1,441 @@
+"""The least-squares problem of one channel: data, free-parameter packing, transforms, residuals.
+
+This module is the contract that the engines, the staged fit, the result statistics and the MCMC
+sampler (``coartic.mcmc``) share. Its pieces:
+
+``Utterance``
+    one recorded utterance: model-phoneme segments, sample times, the observed channels and their
+    validity masks, and metadata (stimulus, vowel, consonant, repetition, rate).
+``ChannelData``
+    every utterance of one channel packed into a ``coartic._core.Corpus`` (CSR), with the observed
+    values (NaN replaced by 0) and weights (1 valid, 0 masked). MODEL.md §5: all utterances
+    jointly, so a phoneme's parameters are shared by every context it occurs in.
+``Packing``
+    which entries of the parameter matrix ``params[n_phonemes, 10]`` (and ``beta``) are free, their
+    bounds, and the transform to the internal vector ``x`` the engines see: ``log`` for the
+    positive scale parameters (alpha, theta_bw, theta_fw, psi, and beta), identity for the others,
+    whose boxes are passed to the engine as bounds (so k_R = 1 is reachable, which a logistic
+    transform would put at infinity). ``pack``/``unpack`` map between ``x`` and the matrix.
+``ChannelProblem``
+    residuals ``r = sqrt(w) (F(x) - y)``, their sparse Jacobian with respect to ``x`` (the Rust
+    core's exact derivatives, free columns only, chain rule through the transform), the SSE and its
+    gradient, and a tracker of the best point seen (so Ctrl-C can keep it).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field, replace
+from typing import Any, Callable, Sequence
+
+import numpy as np
+import scipy.sparse as sp
+from numpy.typing import NDArray
+
+from coartic import _core
+from coartic.fit.spec import FitSpec, SpecError
+from coartic.table import PARAMETERS
+
+N_PARAMS = len(PARAMETERS)
+PAUSE = "#"
+# Columns fitted on a log scale (MODEL.md §1: "fit log α", "fit log θ"; ψ > 0 likewise).
+LOG_PARAMETERS: frozenset[str] = frozenset({"alpha", "theta_bw", "theta_fw", "psi"})
+LOG_COLUMNS: NDArray[np.bool_] = np.array([p in LOG_PARAMETERS for p in PARAMETERS])
+# Parameters that the original model (eq. 1) ignores: never free there.
+MODIFIED_ONLY: frozenset[str] = frozenset({"k_r", "sigma", "psi"})
+
+FloatArray = NDArray[np.float64]
+BoolArray = NDArray[np.bool_]
+
+
+@dataclass
+class Utterance:
+    """One recorded utterance, its segments already mapped to model phonemes."""
+
+    name: str
+    labels: tuple[str, ...]
+    starts: FloatArray
+    ends: FloatArray
+    times: FloatArray  # sample times (s), same clock as the segments
+    observed: dict[str, FloatArray]  # channel -> values (NaN where not measured)
+    valid: dict[str, BoolArray]  # channel -> usable sample (False: masked, weight 0)
+    meta: dict[str, str] = field(default_factory=dict)
+
+
+def phoneme_inventory(utterances: Sequence[Utterance]) -> tuple[str, ...]:
+    """Phonemes present, pause first, then in order of first appearance (stable across channels)."""
+    seen: dict[str, None] = {}
+    for u in utterances:
+        for lab in u.labels:
+            seen.setdefault(lab, None)
+    names = list(seen)
+    if PAUSE in seen:
+        names.remove(PAUSE)
+        names.insert(0, PAUSE)
+    return tuple(names)
+
+
+def model_options(spec: FitSpec) -> _core.ModelOptions:
+    return _core.ModelOptions(spec.variant, spec.apex_fraction, spec.edge_extent)
+
+
+def build_core_corpus(utterances: Sequence[Utterance], phonemes: Sequence[str]) -> _core.Corpus:
+    """The CSR corpus of ARCHITECTURE.md for these utterances; errors name the utterance."""
+    row = {p: i for i, p in enumerate(phonemes)}
+    seg_offsets = [0]
+    seg_phoneme: list[int] = []
+    sample_offsets = [0]
+    for u in utterances:
+        for lab in u.labels:
+            if lab not in row:
+                raise ValueError(f"utterance {u.name!r}: phoneme {lab!r} has no parameter row")
+            seg_phoneme.append(row[lab])
+        seg_offsets.append(len(seg_phoneme))
+        sample_offsets.append(sample_offsets[-1] + len(u.times))
+    try:
+        return _core.Corpus(
+            np.asarray(seg_offsets, dtype=np.int64), np.asarray(seg_phoneme, dtype=np.int64),
+            np.concatenate([u.starts for u in utterances]).astype(np.float64),
+            np.concatenate([u.ends for u in utterances]).astype(np.float64),
+            np.asarray(sample_offsets, dtype=np.int64),
+            np.concatenate([u.times for u in utterances]).astype(np.float64), len(phonemes))
+    except ValueError as e:
+        # The core names the utterance by index; add its name.
+        msg = str(e)
+        for i, u in enumerate(utterances):
+            if f"utterance {i}" in msg:
+                msg = f"{msg} (utterance {i} is {u.name!r})"
+                break
+        raise ValueError(msg) from None
+
+
+@dataclass
+class ChannelData:
+    """All utterances of one channel in the Rust core's corpus form, with observations and weights."""
+
+    channel: str
+    phonemes: tuple[str, ...]
+    utterances: list[Utterance]
+    corpus: _core.Corpus
+    observed: FloatArray  # NaN replaced by 0 (weight 0 there)
+    weights: FloatArray  # 1 valid, 0 masked
+    sample_offsets: NDArray[np.int64]
+
+    @classmethod
+    def build(cls, utterances: Sequence[Utterance], channel: str,
+              phonemes: Sequence[str] | None = None) -> ChannelData:
+        utts = [u for u in utterances if channel in u.observed and np.any(u.valid[channel])]
+        if not utts:
+            raise ValueError(f"channel {channel}: no utterance has a valid sample")
+        phon = tuple(phonemes) if phonemes is not None else phoneme_inventory(utts)
+        y = np.concatenate([u.observed[channel] for u in utts]).astype(np.float64)
+        valid = np.concatenate([u.valid[channel] for u in utts]) & np.isfinite(y)
+        offsets = np.cumsum([0] + [len(u.times) for u in utts]).astype(np.int64)
+        return cls(channel, phon, utts, build_core_corpus(utts, phon),
+                   np.where(valid, y, 0.0), valid.astype(np.float64), offsets)
+
+    def utterance_samples(self, u: int) -> slice:
+        return slice(int(self.sample_offsets[u]), int(self.sample_offsets[u + 1]))
+
+    @property
+    def n_valid(self) -> int:
+        return int(self.weights.sum())
+
+
+@dataclass
+class Packing:
+    """Free entries of (params[n_phonemes, 10], beta), their bounds, and the transform to x.
+
+    ``base`` holds every value (fixed ones and the current/start value of free ones). ``x`` lists
+    the free entries in row-major order (phoneme by phoneme, parameters in PARAMETERS order), then
+    beta if free. Internal x is log(value) for LOG_PARAMETERS and beta, the value otherwise.
+    """
+
+    phonemes: tuple[str, ...]
+    free: BoolArray  # [n_phonemes, 10]
+    beta_free: bool
+    lower: FloatArray  # [n_phonemes, 10] natural units
+    upper: FloatArray
+    beta_bounds: tuple[float, float]
+    base: FloatArray  # [n_phonemes, 10]
+    base_beta: float
+
+    def __post_init__(self) -> None:
+        self._idx = np.flatnonzero(self.free.ravel())
+        self._log = np.tile(LOG_COLUMNS, len(self.phonemes))[self._idx]
+
+    @property
+    def n_free(self) -> int:
+        return int(self._idx.size) + int(self.beta_free)
+
+    @property
+    def free_columns(self) -> NDArray[np.int64]:
+        """Columns of the core's full Jacobian (n_phonemes*10 + 1) that x maps to."""
+        cols = self._idx
+        if self.beta_free:
+            cols = np.append(cols, len(self.phonemes) * N_PARAMS)
+        return cols.astype(np.int64)
+
+    @property
+    def log_mask(self) -> BoolArray:
+        return np.append(self._log, True) if self.beta_free else self._log.copy()
+
+    def names(self) -> list[str]:
+        """'phoneme.parameter' for each entry of x (and 'beta')."""
+        out = [f"{self.phonemes[i // N_PARAMS]}.{PARAMETERS[i % N_PARAMS]}" for i in self._idx]
+        return out + (["beta"] if self.beta_free else [])
+
+    def entries(self) -> list[tuple[str, str]]:
+        """(phoneme, parameter) for each entry of x; beta is ('*', 'beta')."""
+        out = [(self.phonemes[i // N_PARAMS], PARAMETERS[i % N_PARAMS]) for i in self._idx]
+        return out + ([("*", "beta")] if self.beta_free else [])
+
+    def natural(self, x: FloatArray) -> FloatArray:
+        """The free values in natural units for an internal x."""
+        x = np.asarray(x, dtype=np.float64)
+        lm = self.log_mask
+        return np.where(lm, np.exp(np.where(lm, x, 0.0)), x)
+
+    def pack(self, params: FloatArray | None = None, beta: float | None = None) -> FloatArray:
+        params = self.base if params is None else np.asarray(params, dtype=np.float64)
+        beta = self.base_beta if beta is None else float(beta)
+        v = params.ravel()[self._idx]
+        if self.beta_free:
+            v = np.append(v, beta)
+        lm = self.log_mask
+        return np.where(lm, np.log(np.where(lm, np.maximum(v, 1e-300), 1.0)), v)
+
+    def unpack(self, x: FloatArray) -> tuple[FloatArray, float]:
+        v = self.natural(x)
+        params = self.base.copy()
+        params.ravel()[self._idx] = v[: self._idx.size]
+        beta = float(v[-1]) if self.beta_free else self.base_beta
+        return params, beta
+
+    def unpack_batch(self, xs: FloatArray) -> tuple[FloatArray, FloatArray]:
+        """Many x at once (rows) -> params [W, n_phonemes, 10], betas [W] (for _core.sse_batch)."""
+        xs = np.atleast_2d(np.asarray(xs, dtype=np.float64))
+        lm = self.log_mask
+        v = np.where(lm, np.exp(np.where(lm, xs, 0.0)), xs)
+        params = np.broadcast_to(self.base, (xs.shape[0],) + self.base.shape).copy()
+        flat = params.reshape(xs.shape[0], -1)
+        flat[:, self._idx] = v[:, : self._idx.size]
+        betas = v[:, -1].copy() if self.beta_free else np.full(xs.shape[0], self.base_beta)
+        return params, betas
+
+    def bounds(self) -> tuple[FloatArray, FloatArray]:
+        """Bounds of x (internal units)."""
+        lo = self.lower.ravel()[self._idx]
+        hi = self.upper.ravel()[self._idx]
+        if self.beta_free:
+            lo, hi = np.append(lo, self.beta_bounds[0]), np.append(hi, self.beta_bounds[1])
+        lm = self.log_mask
+        with np.errstate(divide="ignore", invalid="ignore"):
+            return np.where(lm, np.log(lo), lo), np.where(lm, np.log(hi), hi)
+
+    def dvalue_dx(self, x: FloatArray) -> FloatArray:
+        """d(natural value)/dx per entry of x: the chain-rule factor of each Jacobian column."""
+        return np.where(self.log_mask, self.natural(x), 1.0)
+
+    def clip(self, x: FloatArray) -> FloatArray:
+        lo, hi = self.bounds()
+        return np.clip(x, lo, hi)
+
+    def with_free(self, free: BoolArray, beta_free: bool, base: FloatArray | None = None,
+                  base_beta: float | None = None) -> Packing:
+        """The same bounds with another free set (and optionally other current values)."""
+        return replace(self, free=free.copy(), beta_free=beta_free,
+                       base=(self.base if base is None else base).copy(),
+                       base_beta=self.base_beta if base_beta is None else float(base_beta))
+
+
+def build_packing(spec: FitSpec, data: ChannelData, start: tuple[FloatArray, float] | None = None) -> Packing:
+    """Free set, bounds and starting values of one channel from the spec (and an optional start).
+
+    Targets start at the mean observed value at each phoneme's segment midpoints (a good start for
+    the targets-first stage); the rest from spec.start (or the start table). The reference phoneme
+    has alpha fixed at 1 (MODEL.md §1: α is scale-free).
+    """
+    ch, phon = data.channel, data.phonemes
+    n = len(phon)
+    where = f"{spec.path}"
+    free = np.zeros((n, N_PARAMS), dtype=bool)
+    for k, p in enumerate(PARAMETERS):
+        free[:, k] = p in spec.free
+    if spec.variant == "original":
+        for k, p in enumerate(PARAMETERS):
+            if p in MODIFIED_ONLY:
+                free[:, k] = False
+    lower = np.array([spec.bounds.get(p, (-np.inf, np.inf))[0] for p in PARAMETERS])[None, :].repeat(n, 0)
+    upper = np.array([spec.bounds.get(p, (-np.inf, np.inf))[1] for p in PARAMETERS])[None, :].repeat(n, 0)
+    valid_y = data.observed[data.weights > 0]
+    t_lo, t_hi = float(valid_y.min()) - spec.target_margin, float(valid_y.max()) + spec.target_margin
+    lower[:, 0], upper[:, 0] = t_lo, t_hi
+    for p, (lo, hi) in spec.channel_bounds.get(ch, {}).items():
+        k = PARAMETERS.index(p)
+        lower[:, k], upper[:, k] = lo, hi
+
+    if start is not None:
+        base, beta = np.array(start[0], dtype=np.float64), float(start[1])
+    else:
+        base = np.array([spec.start[p] for p in PARAMETERS], dtype=np.float64)[None, :].repeat(n, 0)
+        base[:, 0] = _data_targets(data)
+        beta = spec.beta
+
+    for o in spec.overrides:
+        for i, p in enumerate(phon):
+            if not o.applies(p, ch):
+                continue
+            for name, (lo, hi) in o.bounds.items():
+                k = PARAMETERS.index(name)
+                lower[i, k], upper[i, k] = lo, hi
+            for name, val in o.start.items():
+                base[i, PARAMETERS.index(name)] = val
+            for name in o.free:
+                free[i, PARAMETERS.index(name)] = True
+            for name, val in o.fixed.items():
+                k = PARAMETERS.index(name)
+                base[i, k], free[i, k] = val, False
+
+    if spec.reference_phoneme not in phon:
+        raise SpecError(f"{where}: [model.reference_phoneme] {spec.reference_phoneme!r} does not occur in "
+                        f"the {ch} data (phonemes: {' '.join(phon)})")
+    r = phon.index(spec.reference_phoneme)
+    ka = PARAMETERS.index("alpha")
+    free[r, ka], base[r, ka] = False, 1.0
+
+    # A free value outside its box starts on the nearest bound, not outside (engines refuse that).
+    base = np.where(free, np.clip(base, lower, upper), base)
+    bad = (lower > upper)
+    if bad.any():
+        i, k = map(int, np.argwhere(bad)[0])
+        raise SpecError(f"{where}: bounds of {phon[i]}.{PARAMETERS[k]} on {ch}: low {lower[i, k]} > high {upper[i, k]}")
+    beta_free = spec.fit_beta and spec.variant == "modified"
+    beta = float(np.clip(beta, *spec.beta_bounds)) if beta_free else beta
+    return Packing(phon, free, beta_free, lower, upper, spec.beta_bounds, base, beta)
+
+
+def _data_targets(data: ChannelData) -> FloatArray:
+    """Mean observed value at the segment midpoints of each phoneme (its acoustic centre)."""
+    sums = np.zeros(len(data.phonemes))
+    counts = np.zeros(len(data.phonemes))
+    row = {p: i for i, p in enumerate(data.phonemes)}
+    for u, utt in enumerate(data.utterances):
+        sl = data.utterance_samples(u)
+        y, w = data.observed[sl], data.weights[sl]
+        for lab, s, e in zip(utt.labels, utt.starts, utt.ends):
+            j = int(np.clip(np.searchsorted(utt.times, 0.5 * (s + e)), 0, len(utt.times) - 1))
+            if w[j] > 0:
+                sums[row[lab]] += y[j]
+                counts[row[lab]] += 1
+    fallback = float(np.average(data.observed, weights=data.weights))
+    return np.where(counts > 0, sums / np.maximum(counts, 1), fallback)
+
+
+class ChannelProblem:
+    """Residuals, Jacobian and SSE of one channel as functions of the internal vector x.
+
+    Every evaluation updates ``best_x`` / ``best_sse`` (the lowest finite SSE seen), so an
+    interrupted or failed engine can still return the best point. Invalid parameters (the core
+    raises ValueError) give non-finite residuals, which the engines treat as a rejected step.
+    """
+
+    def __init__(self, data: ChannelData, packing: Packing, options: _core.ModelOptions) -> None:
+        self.data = data
+        self.packing = packing
+        self.options = options
+        self.sqrt_w = np.sqrt(data.weights)
+        self.nfev = 0
+        self.njev = 0
+        self.best_x: FloatArray = packing.pack()
+        self.best_sse = np.inf
+        self.last_error: str | None = None
+        self.monitor: Callable[[int, float], None] | None = None  # (evaluations, best SSE) hook
+        self._cache_x: FloatArray | None = None
+        self._cache: tuple[FloatArray, sp.csr_matrix] | None = None
+
+    # --- natural-unit evaluation -------------------------------------------------------------
+    def evaluate(self, params: FloatArray, beta: float) -> FloatArray:
+        return np.asarray(_core.evaluate(self.data.corpus, params, beta, self.options))
+
+    def full_jacobian(self, params: FloatArray, beta: float) -> tuple[FloatArray, sp.csr_matrix]:
+        """Model values and the core's CSR Jacobian over every column (n_phonemes*10 + 1)."""
+        values, indptr, indices, data = _core.jacobian(self.data.corpus, params, beta, self.options)
+        shape = (self.data.corpus.n_samples, len(self.data.phonemes) * N_PARAMS + 1)
+        return np.asarray(values), sp.csr_matrix((data, indices, indptr), shape=shape)
+
+    # --- internal-x interface for engines ----------------------------------------------------
+    def _track(self, x: FloatArray, sse: float) -> None:
+        if np.isfinite(sse) and sse < self.best_sse:
+            self.best_sse = float(sse)
+            self.best_x = np.array(x, dtype=np.float64)
+        if self.monitor is not None:
+            self.monitor(self.nfev, self.best_sse)
+
+    def residuals(self, x: FloatArray) -> FloatArray:
+        self.nfev += 1
+        params, beta = self.packing.unpack(x)
+        try:
+            f = self.evaluate(params, beta)
+        except ValueError as e:
+            self.last_error = str(e)
+            return np.full(self.data.corpus.n_samples, np.nan)
+        r = self.sqrt_w * (f - self.data.observed)
+        self._track(x, float(r @ r))
+        return r
+
+    def jacobian(self, x: FloatArray) -> sp.csr_matrix:
+        """d r / d x: the core's Jacobian, free columns only, scaled by the transform and sqrt(w)."""
+        self.njev += 1
+        params, beta = self.packing.unpack(x)
+        try:
+            _, jac = self.full_jacobian(params, beta)
+        except ValueError as e:
+            self.last_error = str(e)
+            return sp.csr_matrix((self.data.corpus.n_samples, self.packing.n_free))
+        j = jac[:, self.packing.free_columns]
+        return sp.csr_matrix(sp.diags(self.sqrt_w) @ j @ sp.diags(self.packing.dvalue_dx(x)))
+
+    def sse(self, x: FloatArray) -> float:
+        r = self.residuals(x)
+        return float(r @ r) if np.all(np.isfinite(r)) else np.inf
+
+    def sse_gradient(self, x: FloatArray) -> tuple[float, FloatArray]:
+        """SSE and its gradient in x, from the core's fused SSE+gradient (no Jacobian formed)."""
+        self.nfev += 1
+        params, beta = self.packing.unpack(x)
+        try:
+            sse, grad, dbeta = _core.sse_gradient(self.data.corpus, params, beta, self.options,
+                                                  self.data.observed, self.data.weights)
+        except ValueError as e:
+            self.last_error = str(e)
+            return np.inf, np.zeros(self.packing.n_free)
+        full = np.append(np.asarray(grad), dbeta)
+        g = full[self.packing.free_columns] * self.packing.dvalue_dx(x)
+        if np.isfinite(sse):
+            self._track(x, float(sse))
+        return float(sse), g
+
+    def sse_batch(self, xs: FloatArray) -> FloatArray:
+        """SSE for many x at once (rows), through the core's parallel batch path; +inf if invalid."""
+        params, betas = self.packing.unpack_batch(xs)
+        return np.asarray(_core.sse_batch(self.data.corpus, params, betas, self.options,
+                                          self.data.observed, self.data.weights))
+
+    def with_packing(self, packing: Packing) -> ChannelProblem:
+        """A problem on the same data with another free set (staged fits); best point carried."""
+        p = ChannelProblem(self.data, packing, self.options)
+        p.nfev, p.njev, p.monitor = self.nfev, self.njev, self.monitor
+        return p
+
+
+def build_problem(spec: FitSpec, utterances: Sequence[Utterance], channel: str,
+                  start: tuple[FloatArray, float] | None = None,
+                  phonemes: Sequence[str] | None = None) -> ChannelProblem:
+    """The channel's problem from a spec and loaded utterances (the one entry point others use)."""
+    data = ChannelData.build(utterances, channel, phonemes)
+    return ChannelProblem(data, build_packing(spec, data, start), model_options(spec))
+
+
+def describe(packing: Packing) -> dict[str, Any]:
+    """A small summary (counts per parameter) for progress output and reports."""
+    return {p: int(packing.free[:, k].sum()) for k, p in enumerate(PARAMETERS)} | {"beta": int(packing.beta_free)}

@@ -1,0 +1,332 @@
+"""The fit specification: a TOML file (``fit/*.toml``) describing one least-squares fit.
+
+Every path in a spec is relative to the spec file. Every error names the spec file and the key at
+fault, e.g. ``fit/synthetic.toml: [engine] name = 'foo': unknown engine (scipy, nlopt, casadi)``.
+
+See ``fit/template.toml`` for a commented example of every key.
+"""
+
+from __future__ import annotations
+
+import tomllib
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+from typing import Any
+
+from coartic.table import ALL_CHANNELS, CHANNELS, PARAMETERS, VARIANTS
+
+ENGINES: tuple[str, ...] = ("scipy", "nlopt", "casadi")
+
+# Starting values of the dynamics; targets start from the data (mean value at the target times).
+DEFAULT_START: dict[str, float] = {
+    "target": 0.0, "alpha": 1.0, "theta_bw": 30.0, "theta_fw": 30.0, "c_bw": 1.0, "c_fw": 1.0,
+    "k_r": 0.5, "sigma": 0.0, "psi": 500.0, "delta": 0.0,
+}
+# Fitting bounds (natural units). MODEL.md allows (0, inf) for alpha, theta and psi; a fit needs
+# finite boxes (global engines search them, and a log transform needs them away from 0), so these
+# are wide practical boxes. Target bounds default to the data range widened by `target_margin`.
+DEFAULT_FIT_BOUNDS: dict[str, tuple[float, float]] = {
+    "alpha": (1e-2, 1e2), "theta_bw": (0.5, 2000.0), "theta_fw": (0.5, 2000.0),
+    "c_bw": (0.5, 3.0), "c_fw": (0.5, 3.0), "k_r": (0.0, 1.0), "sigma": (-0.5, 0.5),
+    "psi": (10.0, 1e5), "delta": (-0.08, 0.08),
+}
+DEFAULT_BETA_BOUNDS: tuple[float, float] = (0.05, 20.0)
+DEFAULT_STAGES: tuple[tuple[str, ...], ...] = (
+    ("target",),
+    ("alpha", "theta_bw", "theta_fw", "c_bw", "c_fw", "delta"),
+    ("k_r", "sigma", "psi", "beta"),
+)
+
+
+class SpecError(ValueError):
+    """A fit specification that cannot be used; the message names the file and the key."""
+
+
+@dataclass(frozen=True)
+class Override:
+    """Per-phoneme (optionally per-channel) changes to which parameters are free, their start and bounds."""
+
+    phonemes: tuple[str, ...]
+    channels: tuple[str, ...] | None = None  # None: every channel
+    fixed: dict[str, float] = field(default_factory=dict)  # fixed at this value
+    free: tuple[str, ...] = ()  # made free (even if not in the global list)
+    start: dict[str, float] = field(default_factory=dict)
+    bounds: dict[str, tuple[float, float]] = field(default_factory=dict)
+
+    def applies(self, phoneme: str, channel: str) -> bool:
+        return phoneme in self.phonemes and (self.channels is None or channel in self.channels)
+
+
+@dataclass(frozen=True)
+class CorpusSpec:
+    manifest: Path | None = None
+    files: tuple[Path, ...] = ()
+    labels: tuple[Path, ...] = ()
+    file_column: str = "file"  # manifest column holding the data file
+    label_map: str | None = None  # a label-map name or path; None: labels are model phonemes
+    role_map: dict[str, str] | None = None  # EMA: model role -> sensor name
+    select: dict[str, tuple[str, ...]] = field(default_factory=dict)  # manifest column -> kept values
+    limit: int | None = None  # keep only the first N trials (quick looks)
+
+
+@dataclass(frozen=True)
+class FitSpec:
+    path: Path  # the spec file (errors and relative paths refer to it)
+    name: str
+    corpus: CorpusSpec
+    channels: tuple[str, ...]
+    variant: str = "modified"
+    reference_phoneme: str = "a"
+    apex_fraction: float = 0.5
+    edge_extent: float = 1.0
+    beta: float = 1.0
+    fit_beta: bool = False
+    beta_bounds: tuple[float, float] = DEFAULT_BETA_BOUNDS
+    free: tuple[str, ...] = PARAMETERS
+    start_table: Path | None = None  # "from table": start values from a ParameterTable JSON
+    start: dict[str, float] = field(default_factory=lambda: dict(DEFAULT_START))
+    bounds: dict[str, tuple[float, float]] = field(default_factory=lambda: dict(DEFAULT_FIT_BOUNDS))
+    channel_bounds: dict[str, dict[str, tuple[float, float]]] = field(default_factory=dict)
+    target_margin: float = 5.0  # mm beyond the observed range for the default target box
+    overrides: tuple[Override, ...] = ()
+    engine: str = "scipy"
+    engine_options: dict[str, Any] = field(default_factory=dict)
+    staging: bool = True
+    stages: tuple[tuple[str, ...], ...] = DEFAULT_STAGES
+    max_gap: float = 0.05  # s: gaps up to this are interpolated by the reader, longer ones masked
+    holdout_repetition: int | None = 5
+    train_rate: str | None = "normal"
+    test_rate: str | None = "fast"
+
+    def with_options(self, **changes: Any) -> FitSpec:
+        return replace(self, **changes)
+
+
+def _err(path: Path, key: str, msg: str) -> SpecError:
+    return SpecError(f"{path}: [{key}] {msg}")
+
+
+def _take(d: dict[str, Any], path: Path, section: str, allowed: set[str]) -> None:
+    unknown = sorted(set(d) - allowed)
+    if unknown:
+        raise _err(path, section, f"unknown key(s) {unknown}; allowed: {sorted(allowed)}")
+
+
+def _str_list(v: Any, path: Path, key: str) -> tuple[str, ...]:
+    if isinstance(v, str):
+        return (v,)
+    if not isinstance(v, list) or not all(isinstance(s, str) for s in v):
+        raise _err(path, key, f"expected a list of strings, got {v!r}")
+    return tuple(v)
+
+
+def _float(v: Any, path: Path, key: str) -> float:
+    if isinstance(v, bool) or not isinstance(v, (int, float)):
+        raise _err(path, key, f"expected a number, got {v!r}")
+    return float(v)
+
+
+def _param_names(names: tuple[str, ...], path: Path, key: str, allow_beta: bool = False) -> tuple[str, ...]:
+    allowed = PARAMETERS + (("beta",) if allow_beta else ())
+    for n in names:
+        if n not in allowed:
+            raise _err(path, key, f"unknown parameter {n!r}; known: {', '.join(allowed)}")
+    return names
+
+
+def _param_values(d: Any, path: Path, key: str) -> dict[str, float]:
+    if not isinstance(d, dict):
+        raise _err(path, key, f"expected a table of parameter = value, got {d!r}")
+    _param_names(tuple(d), path, key)
+    return {k: _float(v, path, f"{key}.{k}") for k, v in d.items()}
+
+
+def _bounds(d: Any, path: Path, key: str) -> dict[str, tuple[float, float]]:
+    if not isinstance(d, dict):
+        raise _err(path, key, f"expected a table of parameter = [low, high], got {d!r}")
+    out: dict[str, tuple[float, float]] = {}
+    for k, v in d.items():
+        if isinstance(v, dict):
+            continue  # a per-channel sub-table, read by the caller
+        _param_names((k,), path, key)
+        if not isinstance(v, list) or len(v) != 2:
+            raise _err(path, f"{key}.{k}", f"expected [low, high], got {v!r}")
+        lo, hi = _float(v[0], path, f"{key}.{k}"), _float(v[1], path, f"{key}.{k}")
+        if not lo < hi:
+            raise _err(path, f"{key}.{k}", f"low {lo} must be below high {hi}")
+        out[k] = (lo, hi)
+    return out
+
+
+def _channels(names: tuple[str, ...], path: Path, key: str) -> tuple[str, ...]:
+    for c in names:
+        if c not in ALL_CHANNELS:
+            raise _err(path, key, f"unknown channel {c!r}; known: {', '.join(ALL_CHANNELS)}")
+    return names
+
+
+def _path(base: Path, v: Any, key: str, spec_path: Path) -> Path:
+    if not isinstance(v, str) or not v:
+        raise _err(spec_path, key, f"expected a path string, got {v!r}")
+    p = Path(v)
+    return p if p.is_absolute() else (base / p)
+
+
+def load_spec(path: str | Path) -> FitSpec:
+    """Read and check a fit spec. Raises SpecError naming the file and key on any problem."""
+    path = Path(path)
+    try:
+        raw = tomllib.loads(path.read_text(encoding="utf-8"))
+    except FileNotFoundError:
+        raise SpecError(f"{path}: no such fit spec") from None
+    except tomllib.TOMLDecodeError as e:
+        raise SpecError(f"{path}: not valid TOML: {e}") from None
+    return parse_spec(raw, path)
+
+
+def parse_spec(raw: dict[str, Any], path: Path) -> FitSpec:
+    """Build a FitSpec from an already parsed TOML document (``path`` locates relative paths)."""
+    base = path.parent
+    _take(raw, path, "top level",
+          {"name", "corpus", "model", "parameters", "override", "engine", "staging", "gaps", "validate"})
+    name = raw.get("name", path.stem)
+
+    c = raw.get("corpus")
+    if not isinstance(c, dict):
+        raise _err(path, "corpus", "missing: give a manifest or a list of files and labels")
+    _take(c, path, "corpus", {"manifest", "files", "labels", "file_column", "label_map", "role_map",
+                              "select", "limit"})
+    manifest = _path(base, c["manifest"], "corpus.manifest", path) if "manifest" in c else None
+    files = tuple(_path(base, f, "corpus.files", path) for f in _str_list(c.get("files", []), path, "corpus.files"))
+    labels = tuple(_path(base, f, "corpus.labels", path) for f in _str_list(c.get("labels", []), path, "corpus.labels"))
+    if manifest is None and not files:
+        raise _err(path, "corpus", "give either manifest = 'path/manifest.csv' or files = [...]")
+    if manifest is not None and files:
+        raise _err(path, "corpus", "give manifest or files, not both")
+    if files and len(labels) != len(files):
+        raise _err(path, "corpus.labels", f"{len(labels)} label files for {len(files)} data files")
+    label_map = c.get("label_map")
+    if label_map is not None and not isinstance(label_map, str):
+        raise _err(path, "corpus.label_map", f"expected a name or path, got {label_map!r}")
+    if label_map is not None and ("/" in label_map or label_map.endswith((".tsv", ".json"))):
+        label_map = str(_path(base, label_map, "corpus.label_map", path))
+    role_map = c.get("role_map")
+    if role_map is not None and (not isinstance(role_map, dict)
+                                 or not all(isinstance(v, str) for v in role_map.values())):
+        raise _err(path, "corpus.role_map", f"expected a table role = 'sensor', got {role_map!r}")
+    select_raw = c.get("select", {})
+    if not isinstance(select_raw, dict):
+        raise _err(path, "corpus.select", f"expected a table column = [values], got {select_raw!r}")
+    select = {k: tuple(str(x) for x in (v if isinstance(v, list) else [v])) for k, v in select_raw.items()}
+    limit = c.get("limit")
+    if limit is not None and (not isinstance(limit, int) or limit < 1):
+        raise _err(path, "corpus.limit", f"expected a positive integer, got {limit!r}")
+    corpus = CorpusSpec(manifest=manifest, files=files, labels=labels,
+                        file_column=str(c.get("file_column", "file")), label_map=label_map,
+                        role_map=role_map, select=select, limit=limit)
+
+    m = raw.get("model", {})
+    _take(m, path, "model", {"variant", "channels", "reference_phoneme", "apex_fraction", "edge_extent",
+                             "beta", "fit_beta", "beta_bounds"})
+    variant = m.get("variant", "modified")
+    if variant not in VARIANTS:
+        raise _err(path, "model.variant", f"{variant!r}: expected one of {VARIANTS}")
+    channels = _channels(_str_list(m.get("channels", list(CHANNELS)), path, "model.channels"), path, "model.channels")
+    if not channels:
+        raise _err(path, "model.channels", "no channel to fit")
+    beta_bounds = DEFAULT_BETA_BOUNDS
+    if "beta_bounds" in m:
+        bb = m["beta_bounds"]
+        if not isinstance(bb, list) or len(bb) != 2:
+            raise _err(path, "model.beta_bounds", f"expected [low, high], got {bb!r}")
+        beta_bounds = (_float(bb[0], path, "model.beta_bounds"), _float(bb[1], path, "model.beta_bounds"))
+        if not 0.0 <= beta_bounds[0] < beta_bounds[1]:
+            raise _err(path, "model.beta_bounds", f"need 0 <= low < high, got {beta_bounds}")
+    apex = _float(m.get("apex_fraction", 0.5), path, "model.apex_fraction")
+    if not 0.0 <= apex <= 1.0:
+        raise _err(path, "model.apex_fraction", f"{apex} is outside [0, 1]")
+    edge = _float(m.get("edge_extent", 1.0), path, "model.edge_extent")
+    if not edge > 0:
+        raise _err(path, "model.edge_extent", f"{edge} must be positive")
+    fit_beta = m.get("fit_beta", False)
+    if not isinstance(fit_beta, bool):
+        raise _err(path, "model.fit_beta", f"expected true or false, got {fit_beta!r}")
+
+    p = raw.get("parameters", {})
+    _take(p, path, "parameters", {"free", "start", "start_table", "bounds", "target_margin"})
+    free = _param_names(_str_list(p.get("free", list(PARAMETERS)), path, "parameters.free"), path, "parameters.free")
+    start = dict(DEFAULT_START)
+    start.update(_param_values(p.get("start", {}), path, "parameters.start"))
+    start_table = _path(base, p["start_table"], "parameters.start_table", path) if "start_table" in p else None
+    bounds_raw = p.get("bounds", {})
+    bounds = dict(DEFAULT_FIT_BOUNDS)
+    bounds.update(_bounds(bounds_raw, path, "parameters.bounds"))
+    channel_bounds: dict[str, dict[str, tuple[float, float]]] = {}
+    for k, v in bounds_raw.items():
+        if isinstance(v, dict):
+            _channels((k,), path, f"parameters.bounds.{k}")
+            channel_bounds[k] = _bounds(v, path, f"parameters.bounds.{k}")
+    for k, (lo, hi) in bounds.items():
+        if k in ("alpha", "theta_bw", "theta_fw", "psi") and lo <= 0:
+            raise _err(path, f"parameters.bounds.{k}", f"low {lo} must be > 0 (fitted on a log scale)")
+    margin = _float(p.get("target_margin", 5.0), path, "parameters.target_margin")
+
+    overrides: list[Override] = []
+    ov_raw = raw.get("override", [])
+    if not isinstance(ov_raw, list):
+        raise _err(path, "override", "expected [[override]] tables")
+    for i, o in enumerate(ov_raw):
+        key = f"override #{i + 1}"
+        if not isinstance(o, dict):
+            raise _err(path, key, f"expected a table, got {o!r}")
+        _take(o, path, key, {"phonemes", "channels", "fixed", "free", "start", "bounds"})
+        if "phonemes" not in o:
+            raise _err(path, key, "missing phonemes = [...]")
+        chans = _channels(_str_list(o["channels"], path, f"{key}.channels"), path, f"{key}.channels") \
+            if "channels" in o else None
+        overrides.append(Override(
+            phonemes=_str_list(o["phonemes"], path, f"{key}.phonemes"), channels=chans,
+            fixed=_param_values(o.get("fixed", {}), path, f"{key}.fixed"),
+            free=_param_names(_str_list(o.get("free", []), path, f"{key}.free"), path, f"{key}.free"),
+            start=_param_values(o.get("start", {}), path, f"{key}.start"),
+            bounds=_bounds(o.get("bounds", {}), path, f"{key}.bounds")))
+
+    e = raw.get("engine", {})
+    _take(e, path, "engine", {"name", "options"})
+    engine = e.get("name", "scipy")
+    if engine not in ENGINES:
+        raise _err(path, "engine.name", f"{engine!r}: unknown engine ({', '.join(ENGINES)})")
+    engine_options = e.get("options", {})
+    if not isinstance(engine_options, dict):
+        raise _err(path, "engine.options", f"expected a table, got {engine_options!r}")
+
+    s = raw.get("staging", {})
+    _take(s, path, "staging", {"enabled", "stages"})
+    staging = s.get("enabled", True)
+    if not isinstance(staging, bool):
+        raise _err(path, "staging.enabled", f"expected true or false, got {staging!r}")
+    stages = DEFAULT_STAGES
+    if "stages" in s:
+        if not isinstance(s["stages"], list) or not s["stages"]:
+            raise _err(path, "staging.stages", "expected a list of parameter lists")
+        stages = tuple(_param_names(_str_list(st, path, "staging.stages"), path, "staging.stages", allow_beta=True)
+                       for st in s["stages"])
+
+    g = raw.get("gaps", {})
+    _take(g, path, "gaps", {"max_gap"})
+    max_gap = _float(g.get("max_gap", 0.05), path, "gaps.max_gap")
+
+    v = raw.get("validate", {})
+    _take(v, path, "validate", {"holdout_repetition", "train_rate", "test_rate"})
+    hold = v.get("holdout_repetition", 5)
+    if hold is not None and not isinstance(hold, int):
+        raise _err(path, "validate.holdout_repetition", f"expected an integer, got {hold!r}")
+
+    return FitSpec(
+        path=path, name=str(name), corpus=corpus, channels=channels, variant=variant,
+        reference_phoneme=str(m.get("reference_phoneme", "a")), apex_fraction=apex, edge_extent=edge,
+        beta=_float(m.get("beta", 1.0), path, "model.beta"), fit_beta=fit_beta, beta_bounds=beta_bounds,
+        free=free, start_table=start_table, start=start, bounds=bounds, channel_bounds=channel_bounds,
+        target_margin=margin, overrides=tuple(overrides), engine=engine, engine_options=dict(engine_options),
+        staging=staging, stages=stages, max_gap=max_gap, holdout_repetition=hold,
+        train_rate=v.get("train_rate", "normal"), test_rate=v.get("test_rate", "fast"))

@@ -1,0 +1,91 @@
+"""Staged fitting: targets first, then timing and dynamics, then resistance and shape.
+
+With all parameters free from a rough start, the joint fit can settle in a poor minimum (the paper
+warns of several). Each stage frees more parameters, starting from the previous stage's optimum:
+stage 1 finds the targets with the dynamics held at their starting values, stage 2 adds α, θ, c, δ,
+stage 3 adds k_R, σ, ψ (and β). Stages are cumulative, so the last one is the full fit: staging
+can only change where the last fit starts from, never what it may fit.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any, Callable, Sequence
+
+import numpy as np
+from numpy.typing import NDArray
+
+from coartic.fit.engines import EngineResult, get_engine
+from coartic.fit.problem import ChannelProblem
+from coartic.table import PARAMETERS
+
+
+@dataclass
+class StageResult:
+    parameters: tuple[str, ...]  # the parameters free in this stage
+    n_free: int
+    sse_start: float
+    sse_end: float
+    engine: EngineResult
+
+
+def stage_free_sets(problem: ChannelProblem, stages: Sequence[Sequence[str]]) -> list[tuple[NDArray[np.bool_], bool, tuple[str, ...]]]:
+    """Cumulative free masks; whatever the full fit frees but no stage names joins the last stage."""
+    full, full_beta = problem.packing.free, problem.packing.beta_free
+    named: set[str] = set()
+    out = []
+    for i, st in enumerate(stages):
+        named |= set(st)
+        if i == len(stages) - 1:
+            named |= set(PARAMETERS) | {"beta"}
+        cols = np.array([p in named for p in PARAMETERS])
+        mask = full & cols[None, :]
+        beta = full_beta and "beta" in named
+        if mask.any() or beta:
+            if out and mask.sum() == out[-1][0].sum() and beta == out[-1][1]:
+                continue  # this stage frees nothing new
+            out.append((mask, beta, tuple(sorted(named & (set(PARAMETERS) | {"beta"}), key=_order))))
+    return out
+
+
+def _order(p: str) -> int:
+    return PARAMETERS.index(p) if p in PARAMETERS else len(PARAMETERS)
+
+
+def fit_staged(problem: ChannelProblem, engine: str, options: dict[str, Any], stages: Sequence[Sequence[str]] | None,
+               on_stage: Callable[[int, int, ChannelProblem], None] | None = None) -> tuple[ChannelProblem, EngineResult, list[StageResult]]:
+    """Run the stages (or one full fit when ``stages`` is None) and return the final problem and result.
+
+    A stage that is interrupted or fails to produce a finite start ends the sequence; its best point
+    is carried into the final problem so that the partial result is still usable.
+    """
+    minimize = get_engine(engine)
+    full = problem.packing
+    sets = stage_free_sets(problem, stages) if stages else [(full.free, full.beta_free, ())]
+    params, beta = full.base, full.base_beta
+    results: list[StageResult] = []
+    res: EngineResult | None = None
+    nfev = njev = 0
+    for i, (mask, bfree, names) in enumerate(sets):
+        packing = full.with_free(mask, bfree, params, beta)
+        prob = problem.with_packing(packing)
+        prob.nfev = prob.njev = 0
+        if on_stage is not None:
+            on_stage(i, len(sets), prob)
+        x0 = packing.pack()
+        sse0 = prob.sse(x0)
+        res = minimize(prob, x0, options)
+        nfev += prob.nfev
+        njev += prob.njev
+        params, beta = packing.unpack(res.x)
+        results.append(StageResult(names, packing.n_free, sse0, prob.sse(res.x), res))
+        if res.status in ("interrupted", "non-finite start"):
+            break
+    assert res is not None
+    # The final problem always carries the full free set (statistics need every free column).
+    packing = full.with_free(full.free, full.beta_free, params, beta)
+    out = problem.with_packing(packing)
+    out.nfev, out.njev = nfev, njev
+    x = packing.pack()
+    res = EngineResult(x, res.status, res.message, nfev, njev)
+    return out, res, results
