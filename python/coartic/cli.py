@@ -13,6 +13,7 @@ app = typer.Typer(
 app.command("animate")(__import__("coartic.runtime.runtime_cli", fromlist=["_"]).animate_command)
 app.command("speak")(__import__("coartic.runtime.runtime_cli", fromlist=["_"]).speak_command)
 app.command("inspect")(__import__("coartic.io.inspect_cli", fromlist=["_"]).inspect_command)
+app.add_typer(__import__("coartic.synthetic_cli", fromlist=["_"]).app, name="corpus")
 
 if __name__ == "__main__":
     app()

@@ -1,0 +1,445 @@
+"""Generate the synthetic ELITE-style session of CORPUS.md: VCV trials as C3D, CSV and labels.
+
+    coartic corpus synth OUT [--seed N] [--quick]        (or: python corpus-synthetic/generate.py OUT)
+
+Every trial is # V C V # with V in {i, a, u} and C every Italian consonant, at a normal and a fast
+rate, 5 repetitions. The six channels come from the modified model (``coartic.model.trajectories``)
+with the ground-truth table ``ground_truth.json``; the markers are then placed in a head frame so
+that MODEL.md §6 gives those channels back, moved rigidly (slow head motion), perturbed with
+Gaussian noise and occasional occlusions. All settings are in ``session.toml`` next to this file.
+
+Each trial draws from its own random stream, seeded by (seed, vowel, consonant, rate, repetition):
+a trial is the same whether it is generated in the full session or in a ``--quick`` one.
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+import math
+import shutil
+import tomllib
+from collections.abc import Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import ezc3d
+import numpy as np
+import numpy.typing as npt
+from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
+from scipy.spatial.transform import Rotation
+
+from coartic.model import trajectories
+from coartic.table import CHANNELS, ParameterTable
+
+HERE = Path(__file__).resolve().parent
+SETTINGS = HERE / "session.toml"
+GROUND_TRUTH = HERE / "ground_truth.json"
+
+F64 = npt.NDArray[np.float64]
+PAUSE = "#"
+MARKERS: tuple[str, ...] = ("NOSE", "EAR_L", "EAR_R", "UL", "LL", "LC_L", "LC_R", "CHIN")
+RATES: tuple[str, ...] = ("normal", "fast")
+MANIFEST_COLUMNS: tuple[str, ...] = (
+    "file", "labels", "stimulus", "vowel", "consonant", "repetition", "rate",
+    "csv", "lab", "truth", "n_frames", "duration_s", "dropout_frames", "y0_offset_mm",
+)
+# File names must stay distinct on case-insensitive file systems (S/s, L/l), so consonants are
+# spelled in plain lower-case ASCII there; the labels and the manifest keep the model phonemes.
+FILE_SPELLING = {"tS": "tsh", "dZ": "dzh", "S": "sh", "J": "gn", "L": "gli"}
+
+
+class SessionError(ValueError):
+    """A bad setting or output directory; the message names the file and the setting at fault."""
+
+
+@dataclass(frozen=True)
+class TrialPlan:
+    """One trial of the session, before anything is drawn."""
+
+    vowel: str
+    consonant: str
+    rate: str
+    repetition: int  # 1-based
+    key: tuple[int, int, int, int]  # (vowel, consonant, rate, repetition) indices: the RNG stream
+
+    @property
+    def name(self) -> str:
+        c = FILE_SPELLING.get(self.consonant, self.consonant)
+        return f"{self.vowel}{c}{self.vowel}_{self.rate}_{self.repetition:02d}"
+
+    @property
+    def stimulus(self) -> str:
+        return f"{self.vowel} {self.consonant} {self.vowel}"
+
+
+@dataclass
+class Trial:
+    """A generated trial: segments, the noise-free truth and the recorded markers."""
+
+    plan: TrialPlan
+    labels: list[str]
+    starts: F64
+    ends: F64
+    times: F64
+    channels: dict[str, F64]  # model trajectories (the truth), mm
+    head_markers: F64  # [F, 8, 3] noise-free, head frame
+    markers: F64  # [F, 8, 3] lab frame, noise and NaN dropouts
+    dropouts: list[tuple[str, int, int]]  # (marker, first frame, n frames)
+    y0_offset: float  # how far §6's y_0 (mean over the first pause) lies from the rest line, mm
+
+
+# ----------------------------------------------------------------------------- settings
+
+
+def load_settings(path: Path = SETTINGS) -> dict[str, Any]:
+    """Read ``session.toml`` and check what the generator relies on."""
+    try:
+        with open(path, "rb") as fh:
+            s = tomllib.load(fh)
+    except OSError as exc:
+        raise SessionError(f"{path}: cannot read the session settings: {exc.strerror}") from None
+    except tomllib.TOMLDecodeError as exc:
+        raise SessionError(f"{path}: invalid TOML: {exc}") from None
+    for key in ("seed", "rate_hz", "repetitions", "quick_repetitions", "vowels", "consonants",
+                "pause_label", "time_resolution", "durations", "geometry", "head_motion", "noise"):
+        if key not in s:
+            raise SessionError(f"{path}: missing setting {key!r}")
+    d = s["durations"]
+    for v in s["vowels"]:
+        for part in ("first_vowel", "second_vowel"):
+            if v not in d.get(part, {}):
+                raise SessionError(f"{path}: [durations.{part}] has no duration for vowel {v!r}")
+    for c in s["consonants"]:
+        if c not in d.get("consonant", {}):
+            raise SessionError(f"{path}: [durations.consonant] has no duration for consonant {c!r}")
+    if not 0 < s["quick_repetitions"] <= s["repetitions"]:
+        raise SessionError(f"{path}: quick_repetitions must be in 1..repetitions")
+    return s
+
+
+def plan_trials(settings: dict[str, Any], quick: bool = False) -> list[TrialPlan]:
+    """Every trial of the session (``quick``: the first ``quick_repetitions`` repetitions only)."""
+    reps = settings["quick_repetitions"] if quick else settings["repetitions"]
+    return [
+        TrialPlan(v, c, rate, rep + 1, (vi, ci, ri, rep))
+        for vi, v in enumerate(settings["vowels"])
+        for ci, c in enumerate(settings["consonants"])
+        for ri, rate in enumerate(RATES)
+        for rep in range(reps)
+    ]
+
+
+def trial_rng(seed: int, plan: TrialPlan) -> np.random.Generator:
+    return np.random.default_rng(np.random.SeedSequence([seed, *plan.key]))
+
+
+# ----------------------------------------------------------------------------- segments
+
+
+def draw_segments(
+    settings: dict[str, Any], plan: TrialPlan, rng: np.random.Generator
+) -> tuple[list[str], F64, F64, F64]:
+    """Labels, starts, ends (s) and sample times of ``# V C V #``.
+
+    Boundaries are rounded to ``time_resolution`` so that TextGrid and HTK .lab hold them
+    exactly, and the last pause is stretched (by less than one frame) to end on a frame.
+    """
+    d = settings["durations"]
+    scale = d["fast_factor"] if plan.rate == "fast" else 1.0
+    v, c = plan.vowel, plan.consonant
+    nominal = [
+        d["lead_pause"],
+        d["first_vowel"][v] * scale,
+        d["consonant"][c] * scale,
+        d["second_vowel"][v] * scale,
+        d["final_pause"],
+    ]
+    jitter = rng.uniform(1.0 - d["jitter"], 1.0 + d["jitter"], size=len(nominal))
+    res = settings["time_resolution"]
+    bounds = np.round(np.concatenate([[0.0], np.cumsum(np.asarray(nominal) * jitter)]) / res) * res
+    rate = float(settings["rate_hz"])
+    n_frames = int(math.ceil(bounds[-1] * rate - 1e-9)) + 1
+    bounds[-1] = (n_frames - 1) / rate
+    bounds = np.round(bounds / res) * res
+    times = np.arange(n_frames, dtype=np.float64) / rate
+    return [PAUSE, v, c, v, PAUSE], bounds[:-1].copy(), bounds[1:].copy(), times
+
+
+# ----------------------------------------------------------------------------- markers
+
+
+def place_markers(settings: dict[str, Any], channels: dict[str, F64], jaw_rest: float) -> F64:
+    """Markers [F, 8, 3] in the head frame whose MODEL.md §6 channels are ``channels``.
+
+    The head frame is fixed by NOSE and the ears (origin at the ear midpoint, x towards EAR_L,
+    z towards NOSE), so NOSE and the ears sit on its axes. UL and LL share the rest line y_0 at
+    rest, so ULO = UL_y - y_0 and LLO = y_0 - LL_y hold exactly; the lip corners are mirror
+    images (their distance is LR); CHIN lies on a ray from NOSE at distance JO, turning back as
+    the jaw opens.
+    """
+    g = settings["geometry"]
+    n = len(channels["ULO"])
+    m = np.zeros((n, len(MARKERS), 3))
+    idx = {name: i for i, name in enumerate(MARKERS)}
+    m[:, idx["NOSE"]] = (0.0, 0.0, g["nose_z"])
+    m[:, idx["EAR_L"]] = (g["ear_half_width"], 0.0, 0.0)
+    m[:, idx["EAR_R"]] = (-g["ear_half_width"], 0.0, 0.0)
+    y0 = g["lip_line_y"]
+    m[:, idx["UL"]] = np.stack([np.zeros(n), y0 + channels["ULO"], channels["ULP"]], axis=1)
+    m[:, idx["LL"]] = np.stack([np.zeros(n), y0 - channels["LLO"], channels["LLP"]], axis=1)
+    corner_z = channels["ULP"] + g["corner_z_offset"]
+    half = channels["LR"] / 2.0
+    m[:, idx["LC_L"]] = np.stack([half, np.full(n, g["corner_y"]), corner_z], axis=1)
+    m[:, idx["LC_R"]] = np.stack([-half, np.full(n, g["corner_y"]), corner_z], axis=1)
+    phi = np.radians(g["chin_angle"] + g["chin_angle_per_mm"] * (channels["JO"] - jaw_rest))
+    jo = channels["JO"]
+    m[:, idx["CHIN"]] = np.stack([np.zeros(n), -jo * np.cos(phi), g["nose_z"] - jo * np.sin(phi)], axis=1)
+    return m
+
+
+def head_pose(settings: dict[str, Any], times: F64, rng: np.random.Generator) -> tuple[F64, F64]:
+    """Rotation matrices [F, 3, 3] and translations [F, 3] taking the head frame to the lab.
+
+    A per-trial constant pose change plus a slow sway (a sinusoid of random phase and frequency
+    per axis) for each of the three rotation and three translation axes, on top of the head's
+    place in the lab.
+    """
+    h, g = settings["head_motion"], settings["geometry"]
+    lo, hi = h["sway_hz"]
+
+    def sway(amplitude: float, pose: float) -> F64:
+        offset = rng.uniform(-pose, pose, size=3)
+        freq = rng.uniform(lo, hi, size=3)
+        phase = rng.uniform(0.0, 2.0 * np.pi, size=3)
+        return offset + amplitude * np.sin(2.0 * np.pi * freq * times[:, None] + phase)  # [F, 3]
+
+    angles = sway(h["sway_deg"], h["pose_jitter_deg"])
+    shifts = sway(h["sway_mm"], h["pose_jitter_mm"])
+    base = Rotation.from_euler("xyz", g["lab_rotation"], degrees=True)
+    rot = base * Rotation.from_euler("xyz", angles, degrees=True)
+    trans = np.asarray(g["lab_position"], dtype=np.float64) + base.apply(shifts)
+    return rot.as_matrix(), trans
+
+
+def record(
+    settings: dict[str, Any], head_markers: F64, times: F64, rng: np.random.Generator, n_session: int
+) -> tuple[F64, list[tuple[str, int, int]]]:
+    """What the capture system writes: lab-frame markers with noise and occlusions (NaN)."""
+    rot, trans = head_pose(settings, times, rng)
+    lab = np.einsum("fij,fmj->fmi", rot, head_markers) + trans[:, None, :]
+    noise = settings["noise"]
+    lab = lab + rng.normal(0.0, noise["sigma_mm"], size=lab.shape)
+    # Occlusions: a Poisson number per marker per trial whose session total is dropouts_per_marker.
+    rate = noise["dropouts_per_marker"] / n_session
+    shortest, longest = noise["dropout_frames"]
+    dropouts: list[tuple[str, int, int]] = []
+    n = len(times)
+    for mi, name in enumerate(MARKERS):
+        for _ in range(rng.poisson(rate)):
+            length = int(rng.integers(shortest, longest + 1))
+            first = int(rng.integers(0, n - length + 1))
+            lab[first : first + length, mi] = np.nan
+            dropouts.append((name, first, length))
+    return lab, dropouts
+
+
+# ----------------------------------------------------------------------------- one trial
+
+
+def make_trial(
+    settings: dict[str, Any], table: ParameterTable, plan: TrialPlan, seed: int, n_session: int
+) -> Trial:
+    rng = trial_rng(seed, plan)
+    labels, starts, ends, times = draw_segments(settings, plan, rng)
+    traj = trajectories(table, labels, starts, ends, times, channels=list(CHANNELS))
+    channels = {ch: np.asarray(traj[ch], dtype=np.float64) for ch in CHANNELS}
+    jaw_rest = table.values[PAUSE]["JO"]["target"]
+    head = place_markers(settings, channels, jaw_rest)
+    markers, dropouts = record(settings, head, times, rng, n_session)
+    rest = (times >= starts[0]) & (times <= ends[0])
+    y0_offset = float(np.mean(channels["ULO"][rest] - channels["LLO"][rest]) / 2.0)
+    return Trial(plan, labels, starts, ends, times, channels, head, markers, dropouts, y0_offset)
+
+
+# ----------------------------------------------------------------------------- writers
+
+
+def write_c3d(path: Path, markers: F64, rate: float) -> None:
+    """C3D through ezc3d; an occluded sample is written as C3D flags it: zeros, residual -1."""
+    c = ezc3d.c3d()
+    c["parameters"]["POINT"]["RATE"]["value"] = [rate]
+    c["parameters"]["POINT"]["LABELS"]["value"] = list(MARKERS)
+    c["parameters"]["POINT"]["UNITS"]["value"] = ["mm"]
+    missing = np.isnan(markers).any(axis=2)  # [F, M]
+    pts = np.ones((4, len(MARKERS), len(markers)))
+    pts[:3] = np.where(missing[:, :, None], 0.0, markers).transpose(2, 1, 0)
+    residuals = np.where(missing.T, -1.0, 0.0)[None, :, :]
+    c["data"]["points"] = pts
+    c["data"]["meta_points"] = {
+        "residuals": residuals,
+        "camera_masks": np.zeros((7, len(MARKERS), len(markers)), dtype=bool),
+    }
+    c.write(str(path))
+
+
+def write_csv(path: Path, times: F64, markers: F64) -> None:
+    header = ["time_s"] + [f"{m}_{a}" for m in MARKERS for a in "xyz"]
+    flat = markers.reshape(len(times), -1)
+    with open(path, "w", newline="", encoding="utf-8") as fh:
+        w = csv.writer(fh)
+        w.writerow(header)
+        for t, row in zip(times, flat):
+            w.writerow([f"{t:.4f}"] + ["nan" if math.isnan(x) else f"{x:.4f}" for x in row])
+
+
+def _spell(label: str, pause_label: str) -> str:
+    return pause_label if label == PAUSE else label
+
+
+def write_textgrid(path: Path, labels: Sequence[str], starts: F64, ends: F64, pause_label: str) -> None:
+    """Praat TextGrid (long text format) with one interval tier, "phones"."""
+    xmax = float(ends[-1])
+    lines = [
+        'File type = "ooTextFile"',
+        'Object class = "TextGrid"',
+        "",
+        "xmin = 0 ",
+        f"xmax = {xmax!r} ",
+        "tiers? <exists> ",
+        "size = 1 ",
+        "item []: ",
+        "    item [1]:",
+        '        class = "IntervalTier" ',
+        '        name = "phones" ',
+        "        xmin = 0 ",
+        f"        xmax = {xmax!r} ",
+        f"        intervals: size = {len(labels)} ",
+    ]
+    for i, (lab, s, e) in enumerate(zip(labels, starts, ends), start=1):
+        lines += [
+            f"        intervals [{i}]:",
+            f"            xmin = {float(s)!r} ",
+            f"            xmax = {float(e)!r} ",
+            f'            text = "{_spell(lab, pause_label)}" ',
+        ]
+    path.write_text("\n".join(lines) + "\n", encoding="utf-8")
+
+
+def write_lab(path: Path, labels: Sequence[str], starts: F64, ends: F64, pause_label: str) -> None:
+    """HTK label file: start end label, times in 100 ns units."""
+    rows = [
+        f"{round(float(s) * 1e7)} {round(float(e) * 1e7)} {_spell(lab, pause_label)}"
+        for lab, s, e in zip(labels, starts, ends)
+    ]
+    path.write_text("\n".join(rows) + "\n", encoding="utf-8")
+
+
+def write_truth(path: Path, trial: Trial) -> None:
+    np.savez_compressed(
+        path,
+        times=trial.times,
+        labels=np.asarray(trial.labels),
+        starts=trial.starts,
+        ends=trial.ends,
+        head_markers=trial.head_markers,
+        marker_names=np.asarray(MARKERS),
+        **{ch: trial.channels[ch] for ch in CHANNELS},
+    )
+
+
+# ----------------------------------------------------------------------------- the session
+
+SUBDIRS = ("c3d", "csv", "labels", "truth")
+
+
+def _prepare(out: Path) -> None:
+    """Create ``out``; clear a previous session there, refuse to write into anything else."""
+    if out.exists() and not out.is_dir():
+        raise SessionError(f"{out}: exists and is not a directory")
+    if out.is_dir() and any(out.iterdir()):
+        if not (out / "manifest.csv").is_file():
+            raise SessionError(
+                f"{out}: the directory is not empty and holds no manifest.csv of an earlier session; "
+                f"choose a new or empty directory"
+            )
+        (out / "manifest.csv").unlink()  # first: an interrupted rewrite leaves no stale manifest
+        for sub in SUBDIRS:
+            if (out / sub).is_dir():
+                shutil.rmtree(out / sub)
+    for sub in SUBDIRS:
+        (out / sub).mkdir(parents=True, exist_ok=True)
+
+
+def generate(out: str | Path, seed: int | None = None, quick: bool = False, progress: bool = True) -> Path:
+    """Write the session into ``out``; return the path of its manifest.
+
+    The manifest is written last, so a directory without one is an interrupted run (run again:
+    generation is deterministic and takes seconds).
+    """
+    out = Path(out)
+    settings = load_settings()
+    seed = int(settings["seed"] if seed is None else seed)
+    table = ParameterTable.load(GROUND_TRUTH)
+    plans = plan_trials(settings, quick)
+    n_session = len(plan_trials(settings, quick=False))
+    _prepare(out)
+    pause_label = settings["pause_label"]
+    rate = float(settings["rate_hz"])
+    rows: list[dict[str, Any]] = []
+    columns = (
+        TextColumn("[bold]synthetic session"),
+        BarColumn(),
+        MofNCompleteColumn(),
+        TimeRemainingColumn(),
+        TextColumn("{task.description}"),
+    )
+    with Progress(*columns, disable=not progress, transient=False) as bar:
+        task = bar.add_task("", total=len(plans))
+        for plan in plans:
+            trial = make_trial(settings, table, plan, seed, n_session)
+            name = plan.name
+            write_c3d(out / "c3d" / f"{name}.c3d", trial.markers, rate)
+            write_csv(out / "csv" / f"{name}.csv", trial.times, trial.markers)
+            write_textgrid(out / "labels" / f"{name}.TextGrid", trial.labels, trial.starts, trial.ends, pause_label)
+            write_lab(out / "labels" / f"{name}.lab", trial.labels, trial.starts, trial.ends, pause_label)
+            write_truth(out / "truth" / f"{name}.npz", trial)
+            rows.append(
+                {
+                    "file": f"c3d/{name}.c3d",
+                    "labels": f"labels/{name}.TextGrid",
+                    "stimulus": plan.stimulus,
+                    "vowel": plan.vowel,
+                    "consonant": plan.consonant,
+                    "repetition": plan.repetition,
+                    "rate": plan.rate,
+                    "csv": f"csv/{name}.csv",
+                    "lab": f"labels/{name}.lab",
+                    "truth": f"truth/{name}.npz",
+                    "n_frames": len(trial.times),
+                    "duration_s": f"{trial.ends[-1]:.2f}",
+                    "dropout_frames": sum(n for _, _, n in trial.dropouts),
+                    "y0_offset_mm": f"{trial.y0_offset:.4f}",
+                }
+            )
+            bar.update(task, advance=1, description=name)
+    shutil.copyfile(GROUND_TRUTH, out / "ground_truth.json")
+    shutil.copyfile(SETTINGS, out / "session.toml")
+    (out / "session.json").write_text(
+        json.dumps({"seed": seed, "quick": quick, "n_trials": len(plans), "markers": list(MARKERS)}, indent=2)
+        + "\n",
+        encoding="utf-8",
+    )
+    manifest = out / "manifest.csv"
+    with open(manifest, "w", newline="", encoding="utf-8") as fh:
+        w = csv.DictWriter(fh, fieldnames=MANIFEST_COLUMNS)
+        w.writeheader()
+        w.writerows(rows)
+    return manifest
+
+
+if __name__ == "__main__":
+    from coartic.synthetic_cli import run
+
+    run()

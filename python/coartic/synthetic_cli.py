@@ -1,0 +1,80 @@
+"""`coartic corpus synth OUT`: write the synthetic ELITE-style session of corpus-synthetic/.
+
+The generator is not part of the installed package: it lives in the source checkout
+(``corpus-synthetic/generate.py``, beside its ground-truth table and settings), which the editable
+install points at. This module finds it there and runs it.
+"""
+
+from __future__ import annotations
+
+import importlib.util
+import sys
+from pathlib import Path
+from types import ModuleType
+from typing import Annotated, Optional
+
+import typer
+from rich.console import Console
+
+app = typer.Typer(help="The synthetic ELITE-style session (corpus-synthetic/).", no_args_is_help=True)
+
+GENERATOR_MODULE = "coartic_corpus_synthetic_generate"
+
+
+class GeneratorNotFound(RuntimeError):
+    """corpus-synthetic/ is not beside the package (a non-editable install)."""
+
+
+def corpus_dir() -> Path:
+    """The corpus-synthetic/ directory of the source checkout this package runs from."""
+    here = Path(__file__).resolve()
+    # python/coartic/synthetic_cli.py -> the repository root is two levels above the package.
+    root = here.parents[2]
+    path = root / "corpus-synthetic"
+    if not (path / "generate.py").is_file():
+        raise GeneratorNotFound(
+            f"the synthetic-session generator was not found at {path / 'generate.py'}: it lives in the "
+            f"coartic source checkout (corpus-synthetic/), and this coartic ({here.parent}) is not an "
+            f"editable install of one. Clone the repository and run `pip install -e .` there."
+        )
+    return path
+
+
+def load_generator() -> ModuleType:
+    """Import corpus-synthetic/generate.py (once) and return it as a module."""
+    if GENERATOR_MODULE in sys.modules:
+        return sys.modules[GENERATOR_MODULE]
+    path = corpus_dir() / "generate.py"
+    spec = importlib.util.spec_from_file_location(GENERATOR_MODULE, path)
+    assert spec is not None and spec.loader is not None
+    module = importlib.util.module_from_spec(spec)
+    sys.modules[GENERATOR_MODULE] = module  # dataclasses resolve their module through sys.modules
+    try:
+        spec.loader.exec_module(module)
+    except BaseException:
+        del sys.modules[GENERATOR_MODULE]
+        raise
+    return module
+
+
+@app.command("synth")
+def synth(
+    out: Annotated[Path, typer.Argument(help="Output directory (new, empty, or an earlier session).")],
+    seed: Annotated[Optional[int], typer.Option(help="Random seed (default: the one in session.toml).")] = None,
+    quick: Annotated[bool, typer.Option("--quick", help="Only the first 2 repetitions (for tests).")] = False,
+) -> None:
+    """Generate the session: C3D + CSV markers, TextGrid + .lab labels, manifest, ground truth."""
+    console = Console(stderr=True)
+    try:
+        gen = load_generator()
+        manifest = gen.generate(out, seed=seed, quick=quick, progress=True)
+    except (GeneratorNotFound, ValueError) as exc:  # SessionError and TableError are ValueErrors
+        console.print(f"[red]error:[/red] {exc}")
+        raise typer.Exit(code=1) from None
+    n = sum(1 for _ in open(manifest, encoding="utf-8")) - 1
+    console.print(f"wrote {n} trials to {out} (manifest: {manifest})")
+
+
+def run() -> None:
+    """Entry point of ``python corpus-synthetic/generate.py OUT [--seed N] [--quick]``."""
+    typer.run(synth)
