@@ -23,10 +23,15 @@ from coartic.io.units import to_mm
 Backend = Literal["auto", "ezc3d", "c3d"]
 
 
-def read_c3d(path: str | PathLike[str], backend: Backend = "auto", units: str | None = None) -> Trial:
+def read_c3d(
+    path: str | PathLike[str], backend: Backend = "auto", units: str | None = None,
+    allow_truncated: bool = False,
+) -> Trial:
     """Read the POINT data of a C3D file as a Trial (no labels) in mm.
 
-    `units` overrides POINT:UNITS when the file's own field is wrong or empty.
+    `units` overrides POINT:UNITS when the file's own field is wrong or empty. A file that holds
+    fewer frames than its header declares is an error unless `allow_truncated`, which reads the
+    frames that are there and says so in `meta["notes"]`.
     """
     p = Path(path)
     if not p.is_file():
@@ -37,15 +42,23 @@ def read_c3d(path: str | PathLike[str], backend: Backend = "auto", units: str | 
     # garbage) away from the C++ parser.
     if len(head) < 2 or head[1] != 0x50:
         raise DataError("not a C3D file (byte 2 of the header is not 0x50)", path=p)
-    if backend in ("auto", "ezc3d"):
+    use_ezc3d = backend in ("auto", "ezc3d")
+    if use_ezc3d:
         try:
             import ezc3d  # noqa: F401
         except ImportError:
             if backend == "ezc3d":
                 raise DataError("ezc3d is not installed (pip install ezc3d)", path=p) from None
-        else:
-            return _read_ezc3d(p, units)
-    return _read_pyc3d(p, units)
+            use_ezc3d = False
+    trial = _read_ezc3d(p, units) if use_ezc3d else _read_pyc3d(p, units)
+    declared = _declared_frames(p)
+    if declared is not None and trial.n_frames < declared:
+        msg = (f"truncated C3D: the header declares {declared} frames of POINT data, the file "
+               f"holds {trial.n_frames}")
+        if not allow_truncated:
+            raise DataError(msg + " (allow_truncated=True reads those)", path=p)
+        trial.meta["notes"].append(msg + "; read those")
+    return trial
 
 
 def _finish(
@@ -103,20 +116,12 @@ def _read_ezc3d(p: Path, units: str | None) -> Trial:
         labels = [str(s).strip() for s in point["LABELS"]["value"]]
         rate = float(np.asarray(point["RATE"]["value"]).ravel()[0])
         unit = _point_units(point["UNITS"]["value"]) if "UNITS" in point else "mm"
-        header = c["header"]["points"]
-        first, last = int(header["first_frame"]), int(header["last_frame"])
-        expected = int(np.asarray(point["FRAMES"]["value"]).ravel()[0]) if "FRAMES" in point else (
-            last - first + 1)
+        first = int(c["header"]["points"]["first_frame"])
     except (KeyError, IndexError, TypeError, ValueError) as e:
         raise DataError(f"C3D without usable POINT parameters ({type(e).__name__}: {e})",
                         path=p) from None
-    n_frames = pts.shape[2] if pts.ndim == 3 else 0
-    # FRAMES is a signed 16-bit int: long files wrap it negative and then only the header counts.
-    if expected <= 0:
-        expected = last - first + 1
-    if n_frames < expected:
-        raise DataError(f"truncated C3D: the file declares {expected} frames of POINT data but "
-                        f"holds {n_frames}", path=p)
+    if pts.ndim != 3 or pts.shape[0] < 3 or resid.ndim != 3:
+        raise DataError(f"C3D POINT data of unexpected shape {pts.shape}", path=p)
     labels = labels[: pts.shape[1]]
     xyz = np.transpose(pts[:3], (2, 1, 0)).copy()  # (F, M, 3)
     invalid = np.transpose(resid[0], (1, 0)) < 0 if resid.size else np.zeros(xyz.shape[:2], bool)
@@ -130,32 +135,40 @@ def _read_pyc3d(p: Path, units: str | None) -> Trial:
     except ImportError:
         raise DataError("neither ezc3d nor the c3d package is installed", path=p) from None
     try:
-        with p.open("rb") as f, warnings.catch_warnings(record=True) as caught:
-            warnings.simplefilter("always")
+        with p.open("rb") as f, warnings.catch_warnings():
+            warnings.simplefilter("ignore")  # the EOF warning; the frame count is checked after
             r = c3d.Reader(f)
             labels = [str(s).strip() for s in r.point_labels]
             rate = float(r.point_rate)
             upar = r.get("POINT:UNITS")
             unit = _point_units(list(upar.string_array)) if upar is not None else "mm"
-            first, last = int(r.first_frame), int(r.last_frame)
+            first = int(r.first_frame)
             frames = [np.array(pts, dtype=np.float64) for _, pts, _ in r.read_frames()]
     except Exception as e:  # the c3d package raises many kinds on corrupt input
         raise DataError(f"corrupt or truncated C3D ({type(e).__name__}: {e})", path=p) from None
-    eof = [w for w in caught if "end of file" in str(w.message).lower()]
     if not frames:
         raise DataError("no frames of POINT data", path=p)
-    if eof and len(frames) < last - first + 1 and len(frames) < _declared_frames(r):
-        raise DataError(f"truncated C3D: the file ends after {len(frames)} frames", path=p)
     arr = np.stack(frames)  # (F, M, 5): x y z residual cameras
     xyz = arr[:, :, :3].copy()
     xyz[arr[:, :, 3] < 0] = np.nan
     return _finish(p, xyz, labels[: xyz.shape[1]], rate, unit, units, "c3d", first)
 
 
-def _declared_frames(r: Any) -> int:
-    par = r.get("POINT:FRAMES")
+def _declared_frames(p: Path) -> int | None:
+    """Frames the file says it holds: POINT:FRAMES, or the header's first..last frame when that
+    16-bit field has wrapped. ezc3d rewrites both to what it read, so the header is read with the
+    `c3d` package; None when it cannot tell.
+    """
     try:
-        n = int(par.int16_value) if par is not None else 0
-    except Exception:
-        return 0
-    return n if n > 0 else 0
+        import c3d
+
+        with p.open("rb") as f, warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            r = c3d.Reader(f)
+            par = r.get("POINT:FRAMES")
+            n = int(par.int16_value) if par is not None else 0
+            if n <= 0:
+                n = int(r.last_frame) - int(r.first_frame) + 1
+    except Exception:  # an unreadable header was already reported by the reader that succeeded
+        return None
+    return n if n > 0 else None

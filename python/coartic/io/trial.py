@@ -256,6 +256,7 @@ def load_trial(
     tier: str | None = None,
     units: str | None = None,
     meta: Mapping[str, Any] | None = None,
+    allow_truncated: bool = False,
 ) -> Trial:
     """Read a recording and (optionally) its labels.
 
@@ -264,7 +265,8 @@ def load_trial(
     JSON file, or a dict); the default accepts only model phonemes and pauses.
     `role_map`: which marker/sensor is NOSE, UL, JAW...; for EMA also the axes (default: up is
     +z, forwards is -y, sensors guessed from usual names such as ul, ll, jw).
-    `units` overrides the file's length unit.
+    `units` overrides the file's length unit. `allow_truncated` reads a C3D that holds fewer
+    frames than its header declares (with a note in `meta["notes"]`) instead of refusing it.
     """
     p = Path(path)
     if not p.is_file():
@@ -275,7 +277,7 @@ def load_trial(
     if kind == "c3d":
         from coartic.io.c3d import read_c3d
 
-        trial = read_c3d(p, units=units)
+        trial = read_c3d(p, units=units, allow_truncated=allow_truncated)
     elif kind == "ema":
         from coartic.io.ema import read_ema_csv
 

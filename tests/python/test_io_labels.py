@@ -1,0 +1,226 @@
+"""Label readers (TextGrid long/short, HTK and xlabel .lab, TSV) and label maps."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from coartic.io import DataError, LabelMap, Segments, read_labels
+from coartic.io.labelmap import resolve_label_map
+from coartic.io.labels import write_tsv
+
+LONG_TG = '''File type = "ooTextFile"
+Object class = "TextGrid"
+
+xmin = 0
+xmax = 1.2
+tiers? <exists>
+size = 2
+item []:
+    item [1]:
+        class = "TextTier"
+        name = "events"
+        xmin = 0
+        xmax = 1.2
+        points: size = 1
+        points [1]:
+            number = 0.5
+            mark = "click"
+    item [2]:
+        class = "IntervalTier"
+        name = "phones"
+        xmin = 0
+        xmax = 1.2
+        intervals: size = 5
+        intervals [1]:
+            xmin = 0
+            xmax = 0.3
+            text = ""
+        intervals [2]:
+            xmin = 0.3
+            xmax = 0.45
+            text = "a"
+        intervals [3]:
+            xmin = 0.45
+            xmax = 0.55
+            text = "p"
+        intervals [4]:
+            xmin = 0.55
+            xmax = 0.7
+            text = "a"
+        intervals [5]:
+            xmin = 0.7
+            xmax = 1.2
+            text = "sil"
+'''
+
+SHORT_TG = '''File type = "ooTextFile"
+Object class = "TextGrid"
+
+0
+1.2
+<exists>
+1
+"IntervalTier"
+"phones"
+0
+1.2
+5
+0
+0.3
+""
+0.3
+0.45
+"a"
+0.45
+0.55
+"p"
+0.55
+0.7
+"a"
+0.7
+1.2
+"say ""sil"""
+'''
+
+
+def _write(tmp_path: Path, name: str, text: str, encoding: str = "utf-8") -> Path:
+    p = tmp_path / name
+    p.write_text(text, encoding=encoding)
+    return p
+
+
+def test_textgrid_long_format_picks_first_interval_tier(tmp_path: Path) -> None:
+    s = read_labels(_write(tmp_path, "a.TextGrid", LONG_TG))
+    assert s.tier == "phones"
+    assert s.labels == ("", "a", "p", "a", "sil")
+    np.testing.assert_array_equal(s.starts, [0, 0.3, 0.45, 0.55, 0.7])
+    np.testing.assert_array_equal(s.ends, [0.3, 0.45, 0.55, 0.7, 1.2])
+    # the line of each interval's xmin is kept for error messages
+    assert s.lines[2] == LONG_TG.splitlines().index("            xmin = 0.45") + 1
+
+
+def test_textgrid_short_format_and_quote_escape(tmp_path: Path) -> None:
+    s = read_labels(_write(tmp_path, "a.TextGrid", SHORT_TG))
+    assert s.labels == ("", "a", "p", "a", 'say "sil"')
+    np.testing.assert_array_equal(s.ends, [0.3, 0.45, 0.55, 0.7, 1.2])
+
+
+def test_textgrid_utf16_as_praat_writes_it(tmp_path: Path) -> None:
+    p = tmp_path / "u.TextGrid"
+    p.write_bytes(LONG_TG.replace('"p"', '"ʃ"').encode("utf-16"))
+    assert read_labels(p).labels[2] == "ʃ"
+
+
+def test_textgrid_tier_by_name_and_errors(tmp_path: Path) -> None:
+    p = _write(tmp_path, "a.TextGrid", LONG_TG)
+    assert read_labels(p, tier="phones").labels[1] == "a"
+    with pytest.raises(DataError, match=r"no interval tier named 'words'.*\['events', 'phones'\]"):
+        read_labels(p, tier="words")
+    with pytest.raises(DataError, match="point tier"):
+        read_labels(p, tier="events")
+
+
+def test_textgrid_truncated_names_line(tmp_path: Path) -> None:
+    text = "\n".join(LONG_TG.splitlines()[:30])
+    with pytest.raises(DataError, match=r"a\.TextGrid, line \d+: the TextGrid ends early"):
+        read_labels(_write(tmp_path, "a.TextGrid", text))
+
+
+def test_textgrid_overlap_names_label_and_line(tmp_path: Path) -> None:
+    text = LONG_TG.replace("            xmin = 0.45\n", "            xmin = 0.40\n")
+    line = text.splitlines().index("            xmin = 0.40") + 1
+    with pytest.raises(DataError, match=rf"line {line}: label 'p' \(segment 3\).*overlaps") as e:
+        read_labels(_write(tmp_path, "a.TextGrid", text))
+    assert e.value.item == "p" and e.value.line == line
+
+
+def test_htk_lab(tmp_path: Path) -> None:
+    p = _write(tmp_path, "a.lab", "0 3000000 sil\n3000000 4500000 a\n4500000 5500000 p -12.5\n")
+    s = read_labels(p)
+    assert s.labels == ("sil", "a", "p")
+    np.testing.assert_allclose(s.starts, [0, 0.3, 0.45])
+    np.testing.assert_allclose(s.ends, [0.3, 0.45, 0.55])
+
+
+def test_htk_lab_seconds_is_an_error(tmp_path: Path) -> None:
+    with pytest.raises(DataError, match=r"a\.lab, line 2: HTK times must be integers"):
+        read_labels(_write(tmp_path, "a.lab", "0 3000000 sil\n0.3 0.45 a\n"))
+
+
+def test_festival_xlabel(tmp_path: Path) -> None:
+    text = "separator ;\nnfields 1\n#\n0.300 125 pau\n0.450 125 a\n0.550 125 p\n"
+    s = read_labels(_write(tmp_path, "f.lab", text))
+    assert s.labels == ("pau", "a", "p")
+    np.testing.assert_allclose(s.starts, [0, 0.3, 0.45])
+    assert s.lines == (4, 5, 6)
+
+
+def test_tsv_with_header_and_unsorted(tmp_path: Path) -> None:
+    s = read_labels(_write(tmp_path, "a.tsv", "start\tend\tlabel\n0\t0.3\t&p:\n0.3\t0.5\tb\n"))
+    assert s.labels == ("&p:", "b") and s.lines == (2, 3)
+    bad = _write(tmp_path, "b.tsv", "0.3\t0.5\tb\n0\t0.3\ta\n")
+    with pytest.raises(DataError, match=r"b\.tsv, line 2: label 'a'.*out of order"):
+        read_labels(bad)
+    zero = _write(tmp_path, "c.tsv", "0\t0.3\ta\n0.3\t0.3\tb\n")
+    with pytest.raises(DataError, match=r"line 2: label 'b'.*not after its start"):
+        read_labels(zero)
+
+
+def test_tsv_round_trip(tmp_path: Path) -> None:
+    s = Segments(("#", "a", "p"), np.array([0.0, 0.1 + 0.2, 0.51]), np.array([0.1 + 0.2, 0.51,
+                                                                              0.6]))
+    write_tsv(s, tmp_path / "x.tsv")
+    back = read_labels(tmp_path / "x.tsv")
+    assert back.labels == s.labels
+    assert np.array_equal(back.starts, s.starts) and np.array_equal(back.ends, s.ends)
+
+
+def test_real_emu_segments_read() -> None:
+    p = Path(__file__).parents[1] / "data/realdata/emu-ema-german/derived/dfgspp_mo1_prosody_0024_Segment.tsv"
+    s = read_labels(p)
+    assert len(s) == 38 and s.labels[0] == "&p:" and s.labels[1] == "m"
+    assert s.ends[-1] == pytest.approx(3.99)
+
+
+# --- label maps ---------------------------------------------------------------------------------
+
+
+def test_german_map_and_pauses() -> None:
+    m = LabelMap.builtin("german_sampa")
+    assert [m.map_label(x) for x in ("&p:", "aI", "6", "b", "N", "h", "")] == [
+        "#", "a", "a", "b", "n", "h", "#"]
+
+
+def test_unmapped_label_names_label_file_and_line(tmp_path: Path) -> None:
+    p = _write(tmp_path, "a.tsv", "0\t0.3\t&p:\n0.3\t0.5\tX\n")
+    s = read_labels(p)
+    with pytest.raises(DataError, match=r"a\.tsv, line 2: phone 'X' \(segment 2\) has no mapping "
+                                        r"in builtin map 'model'"):
+        LabelMap.model().apply(s)
+
+
+def test_map_files_tsv_json_keep(tmp_path: Path) -> None:
+    tsv = _write(tmp_path, "m.tsv", "# comment\naa\ta\tlong a\nQ\t=\n")
+    m = resolve_label_map(tsv)
+    assert m.map_label("aa") == "a" and m.map_label("Q") == "Q" and m.map_label("zz") is None
+    js = _write(tmp_path, "m.json", json.dumps({"aa": "a", "*": "="}))
+    m2 = resolve_label_map(js)
+    assert m2.map_label("zz") == "zz" and m2.map_label("sil") == "#"
+    dup = _write(tmp_path, "d.tsv", "aa\ta\naa\to\n")
+    with pytest.raises(DataError, match=r"d\.tsv, line 2: label 'aa' is mapped twice"):
+        resolve_label_map(dup)
+    with pytest.raises(DataError, match="neither a file nor a built-in map"):
+        resolve_label_map("no_such_map")
+    assert resolve_label_map({"x": "p"}).map_label("x") == "p"
+
+
+def test_german_map_covers_both_real_utterances() -> None:
+    d = Path(__file__).parents[1] / "data/realdata/emu-ema-german/derived"
+    m = LabelMap.builtin("german_sampa")
+    for p in sorted(d.glob("*_Segment.tsv")):
+        mapped = m.apply(read_labels(p))
+        assert set(mapped.labels) <= set(LabelMap.model().mapping) | {"h", "Q"}

@@ -1,0 +1,293 @@
+"""Marker readers (C3D through ezc3d and the c3d fallback, CSV/TSV), gaps, resampling, Trial."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+from numpy.typing import NDArray
+
+from coartic.io import DataError, Segments, Trial, load_trial
+from coartic.io.c3d import read_c3d
+from coartic.io.gaps import fill_gaps, resample, runs
+
+ROLES = ("NOSE", "EAR_L", "EAR_R", "UL", "LL", "LC_L", "LC_R", "CHIN")
+RATE = 100.0
+
+
+def true_channels(n: int) -> dict[str, NDArray[np.float64]]:
+    """Smooth lip and jaw movements with a still rest at the start (ULO = LLO = 0 there)."""
+    t = np.arange(n) / RATE
+    move = np.clip((t - 0.3) / 0.2, 0, 1) ** 2
+    return {
+        "ULO": move * (2.0 * np.sin(6 * t)),
+        "LLO": move * (8.0 + 4.0 * np.sin(9 * t)),
+        "ULP": 12.0 + move * np.sin(5 * t),
+        "LLP": 10.0 + move * 2.0 * np.cos(7 * t),
+        "LR": 50.0 + move * 3.0 * np.sin(4 * t),
+        "JO": 118.0 + move * 5.0 * np.sin(3 * t),
+    }
+
+
+def face_markers(ch: dict[str, NDArray[np.float64]], seed: int = 0) -> NDArray[np.float64]:
+    """Markers (F, 8, 3) giving exactly `ch` in the head frame of MODEL.md §6, then moved rigidly."""
+    n = ch["ULO"].size
+    lip_y = -40.0
+    m = np.zeros((n, 8, 3))
+    m[:, 0] = (0.0, 0.0, 100.0)  # NOSE on the head z axis, so the frame is the one built here
+    m[:, 1] = (70.0, 0.0, 0.0)
+    m[:, 2] = (-70.0, 0.0, 0.0)
+    m[:, 3] = np.stack([np.zeros(n), lip_y + ch["ULO"], ch["ULP"]], axis=1)
+    m[:, 4] = np.stack([np.zeros(n), lip_y - ch["LLO"], ch["LLP"]], axis=1)
+    m[:, 5] = np.stack([ch["LR"] / 2, np.full(n, lip_y), np.full(n, 95.0)], axis=1)
+    m[:, 6] = np.stack([-ch["LR"] / 2, np.full(n, lip_y), np.full(n, 95.0)], axis=1)
+    m[:, 7] = np.stack([np.zeros(n), -ch["JO"], np.full(n, 100.0)], axis=1)
+    # slow rigid head motion: a few degrees about a tilted axis, a few mm
+    rng = np.random.default_rng(seed)
+    axis = rng.normal(size=3)
+    axis /= np.linalg.norm(axis)
+    t = np.arange(n) / RATE
+    out = np.empty_like(m)
+    for f in range(n):
+        a = np.deg2rad(4.0) * np.sin(1.3 * t[f])
+        k = np.array([[0, -axis[2], axis[1]], [axis[2], 0, -axis[0]], [-axis[1], axis[0], 0]])
+        rot = np.eye(3) + np.sin(a) * k + (1 - np.cos(a)) * k @ k
+        out[f] = m[f] @ rot.T + np.array([300.0, 1200.0, -50.0]) + 3.0 * np.sin(t[f])
+    return out
+
+
+def write_csv(path: Path, markers: NDArray[np.float64], names: tuple[str, ...], delim: str = ",",
+              t0: float = 0.0) -> None:
+    cols = ["time_s"] + [f"{n}_{a}" for n in names for a in "xyz"]
+    with open(path, "w") as f:
+        f.write(delim.join(cols) + "\n")
+        for i in range(markers.shape[0]):
+            vals = ["" if np.isnan(v) else repr(float(v)) for v in markers[i].ravel()]
+            f.write(delim.join([f"{t0 + i / RATE:.4f}", *vals]) + "\n")
+
+
+def write_c3d(path: Path, markers: NDArray[np.float64], names: tuple[str, ...],
+              unit: str = "mm", invalid: NDArray[np.bool_] | None = None) -> None:
+    import ezc3d
+
+    c = ezc3d.c3d()
+    c["parameters"]["POINT"]["RATE"]["value"] = [RATE]
+    c["parameters"]["POINT"]["LABELS"]["value"] = names
+    c["parameters"]["POINT"]["UNITS"]["value"] = [unit]
+    pts = np.ones((4, len(names), markers.shape[0]))
+    pts[:3] = np.transpose(np.nan_to_num(markers), (2, 1, 0))
+    c["data"]["points"] = pts
+    res = np.zeros((1, len(names), markers.shape[0]))
+    if invalid is not None:
+        res[0] = np.where(invalid.T, -1.0, 0.0)
+    c["data"]["meta_points"] = {"residuals": res,
+                                "camera_masks": np.zeros((7, len(names), markers.shape[0]), bool)}
+    c.write(str(path))
+
+
+@pytest.fixture(scope="module")
+def face() -> tuple[dict[str, NDArray[np.float64]], NDArray[np.float64]]:
+    ch = true_channels(150)
+    return ch, face_markers(ch)
+
+
+def test_csv_reads_markers_rate_and_missing(tmp_path: Path, face) -> None:  # type: ignore[no-untyped-def]
+    _, m = face
+    m = m.copy()
+    m[40:43, 3, :] = np.nan
+    p = tmp_path / "t.tsv"
+    write_csv(p, m, ROLES, delim="\t", t0=1.5)
+    t = load_trial(p)
+    assert t.marker_names == ROLES and t.rate == RATE and t.start_time == 1.5
+    assert np.isnan(t.markers[40:43, 3]).all() and np.isfinite(t.markers[43, 3]).all()
+    np.testing.assert_allclose(t.markers[~np.isnan(m)], m[~np.isnan(m)], rtol=1e-12)
+
+
+def test_csv_errors_name_line_and_column(tmp_path: Path, face) -> None:  # type: ignore[no-untyped-def]
+    _, m = face
+    p = tmp_path / "t.csv"
+    write_csv(p, m[:10], ROLES)
+    lines = p.read_text().splitlines()
+    fields = lines[4].split(",")
+    fields[1 + 3 * ROLES.index("UL") + 1] = "abc"
+    lines[4] = ",".join(fields)
+    p.write_text("\n".join(lines) + "\n")
+    with pytest.raises(DataError, match=r"t\.csv, line 5: column 'UL_y': 'abc' is not a number"):
+        load_trial(p)
+    write_csv(p, m[:10], ROLES)
+    lines = p.read_text().splitlines()
+    del lines[6]  # a dropped frame
+    p.write_text("\n".join(lines) + "\n")
+    with pytest.raises(DataError, match=r"line 7: time column 'time_s' is not evenly spaced"):
+        load_trial(p)
+    p.write_text("time_s,UL_x,UL_y\n0,1,2\n")
+    with pytest.raises(DataError, match=r"marker 'UL' has no column UL_z"):
+        load_trial(p)
+    p.write_text("# units: furlong\ntime_s,UL_x,UL_y,UL_z\n0,1,2,3\n0.01,1,2,3\n")
+    with pytest.raises(DataError, match=r"unit 'furlong'"):
+        load_trial(p)
+    p.write_text("# units: cm\ntime_s,UL_x,UL_y,UL_z\n0,1,2,3\n0.01,1,2,3\n")
+    t = load_trial(p)
+    assert t.markers[0, 0, 2] == 30.0 and "cm to mm" in t.meta["notes"][0]
+
+
+def test_c3d_round_trip_invalid_samples_and_units(tmp_path: Path, face) -> None:  # type: ignore[no-untyped-def]
+    _, m = face
+    invalid = np.zeros(m.shape[:2], bool)
+    invalid[10:14, 4] = True
+    p = tmp_path / "t.c3d"
+    write_c3d(p, m / 1000.0, ROLES, unit="m", invalid=invalid)
+    for backend in ("ezc3d", "c3d"):
+        t = read_c3d(p, backend=backend)  # type: ignore[arg-type]
+        assert t.marker_names == ROLES and t.rate == RATE and t.units == "mm"
+        assert np.isnan(t.markers[10:14, 4]).all()
+        assert not np.isnan(t.markers[~invalid]).any()
+        # C3D stores float32
+        np.testing.assert_allclose(t.markers[~invalid], m[~invalid], atol=1e-3)
+        assert any("m to mm" in n for n in t.meta["notes"])
+
+
+def test_c3d_truncated_and_garbage(tmp_path: Path, face) -> None:  # type: ignore[no-untyped-def]
+    _, m = face
+    p = tmp_path / "t.c3d"
+    write_c3d(p, m, ROLES)
+    data = p.read_bytes()
+    cut = tmp_path / "cut.c3d"
+    cut.write_bytes(data[: len(data) - 300])
+    with pytest.raises(DataError, match=r"cut\.c3d: truncated C3D: the header declares 150 frames"):
+        read_c3d(cut)
+    part = read_c3d(cut, allow_truncated=True)
+    assert 140 < part.n_frames < 150 and "truncated" in part.meta["notes"][-1]
+    head = tmp_path / "head.c3d"
+    head.write_bytes(data[:600])
+    with pytest.raises(DataError, match=r"head\.c3d: corrupt or truncated C3D"):
+        read_c3d(head)
+    junk = tmp_path / "junk.c3d"
+    junk.write_bytes(b"hello world" * 100)
+    with pytest.raises(DataError, match=r"junk\.c3d: not a C3D file"):
+        load_trial(junk)
+
+
+def test_real_optotrak_c3d() -> None:
+    p = Path(__file__).parents[1] / "data/realdata/c3d-optotrak/Optotrak.c3d"
+    # The file stops after 29 of the 1149 frames its header declares (README.txt).
+    with pytest.raises(DataError, match="header declares 1149 frames of POINT data, the file holds 29"):
+        read_c3d(p)
+    for backend in ("ezc3d", "c3d"):
+        t = read_c3d(p, backend=backend, allow_truncated=True)  # type: ignore[arg-type]
+        assert t.rate == 30.0 and t.units == "mm" and t.markers.shape == (29, 54, 3)
+        assert t.marker_names[0] == "Marker_1" and t.marker_names[-1] == "Marker_54"
+        frac = float(np.isnan(t.markers[:, :, 0]).mean())
+        assert 0.03 < frac < 0.05  # README: about 4 % invalid
+        # a sample is missing in all three coordinates or in none
+        assert (np.isnan(t.markers).any(axis=2) == np.isnan(t.markers).all(axis=2)).all()
+    t = load_trial(p, allow_truncated=True)
+    with pytest.raises(DataError, match=r"required marker\(s\) \['NOSE'.*the file has \['Marker_1'"):
+        t.channels()
+
+
+# --- gaps and resampling ------------------------------------------------------------------------
+
+
+def test_fill_gaps_short_filled_long_left_and_reported() -> None:
+    n = 200
+    t = np.arange(n) / RATE
+    x = np.stack([np.sin(3 * t), np.cos(2 * t), t**2], axis=1)[:, None, :]
+    m = x.copy()
+    m[50:55, 0] = np.nan  # 50 ms: filled
+    m[100:106, 0, 1] = np.nan  # 60 ms, one coordinate: the marker is missing, left
+    m[:3, 0] = np.nan  # at the start: left
+    filled, gaps = fill_gaps(m, ["UL"], RATE, start_time=0.0, max_gap=0.05)
+    assert [(g.frames, g.filled, g.reason) for g in gaps] == [
+        (3, False, "at the start"), (5, True, "filled"), (6, False, "too long")]
+    assert gaps[1].start == pytest.approx(0.50) and gaps[1].end == pytest.approx(0.54)
+    np.testing.assert_allclose(filled[50:55, 0], x[50:55, 0], atol=1e-4)
+    assert np.isnan(filled[100:106, 0]).all() and np.isnan(filled[:3, 0]).all()
+    assert "left missing (too long)" in str(gaps[2])
+
+
+def test_resample_never_bridges_a_gap() -> None:
+    n = 300
+    t = np.arange(n) / 200.0
+    x = np.stack([np.sin(4 * t)] * 3, axis=1)[:, None, :]
+    x[100:130] = np.nan
+    y = resample(x, 200.0, 100.0)
+    tn = np.arange(y.shape[0]) / 100.0
+    gap = (tn > t[99]) & (tn < t[130])
+    assert np.isnan(y[gap]).all()
+    ok = ~np.isnan(y[:, 0, 0])
+    np.testing.assert_allclose(y[ok, 0, 0], np.sin(4 * tn[ok]), atol=2e-3)
+    assert runs(np.isnan(y[:, 0, 0])) == [(50, 65)]
+
+
+# --- Trial and channels -------------------------------------------------------------------------
+
+
+def test_labels_beyond_data_and_rest_frames(tmp_path: Path, face) -> None:  # type: ignore[no-untyped-def]
+    _, m = face
+    p = tmp_path / "t.csv"
+    write_csv(p, m, ROLES)
+    lab = tmp_path / "t.lab"
+    lab.write_text("0 2500000 sil\n2500000 14000000 a\n14000000 16000000 p\n")
+    with pytest.raises(DataError, match=r"t\.lab, line 3: label 'p' \(1\.4-1\.6 s\) lies beyond "
+                                        r"the data"):
+        load_trial(p, labels=lab)
+    lab.write_text("0 2500000 sil\n2500000 14000000 a\n14000000 15000000 p\n")
+    t = load_trial(p, labels=lab)
+    assert t.segments is not None and t.segments.labels == ("#", "a", "p")
+    rest = t.rest_frames()
+    assert rest.sum() == 26 and rest[:26].all()  # 0 to 0.25 s inclusive at 100 Hz
+
+
+def test_channels_recover_geometry_through_head_motion(tmp_path: Path, face) -> None:  # type: ignore[no-untyped-def]
+    pytest.importorskip("coartic._core")
+    ch, m = face
+    m = m.copy()
+    m[60:63, 3] = np.nan  # 30 ms: filled
+    m[90:100, 4] = np.nan  # 100 ms: masked
+    p = tmp_path / "t.c3d"
+    write_c3d(p, m, ROLES)
+    rest = Segments(("#", "a"), np.array([0.0, 0.25]), np.array([0.25, 1.5]))
+    t = load_trial(p, labels=rest)
+    out = t.channels()
+    assert list(out) == ["ULO", "LLO", "ULP", "LLP", "LR", "JO", "LA"]
+    for name, truth in ch.items():
+        ok = out.valid[name]
+        np.testing.assert_allclose(out[name][ok], truth[ok], atol=2e-3, err_msg=name)
+    la = ch["ULO"] + ch["LLO"]  # |UL - LL| with both on the midline and the rest gap 0
+    ok = out.valid["LA"]
+    np.testing.assert_allclose(out["LA"][ok], np.hypot(la, ch["ULP"] - ch["LLP"])[ok], atol=2e-3)
+    assert not out.valid["LLO"][90:100].any() and out.valid["LLO"][60:63].all()
+    assert out.valid["ULP"][90:100].all()  # ULP needs only UL
+    assert out.weights("LLO").sum() == 140
+    assert [(g.marker, g.filled) for g in out.gaps] == [("UL", True), ("LL", False)]
+
+
+def test_channels_role_map_and_missing_marker(tmp_path: Path, face) -> None:  # type: ignore[no-untyped-def]
+    pytest.importorskip("coartic._core")
+    ch, m = face
+    names = ("nose_tip", "ear_l", "ear_r", "ul", "ll", "lcl", "lcr", "chin")
+    t = Trial(m.copy(), names, RATE)
+    with pytest.raises(DataError, match=r"required marker\(s\) \['NOSE', 'LC_L', 'LC_R'\]"):
+        t.channels(["ULO", "LR"])
+    p = tmp_path / "t.csv"
+    write_csv(p, m, names)
+    t = load_trial(p, role_map={"NOSE": "nose_tip", "LC_L": "lcl", "LC_R": "lcr"})
+    out = t.channels(["LR", "JO"])
+    np.testing.assert_allclose(out["LR"], ch["LR"], atol=1e-6)
+    np.testing.assert_allclose(out["JO"], ch["JO"], atol=1e-6)
+    # without the corners, LR is unavailable (and says why) but the rest is computed
+    t2 = Trial(m[:, :5].copy(), ROLES[:5], RATE)
+    out2 = t2.channels()
+    assert "LR" not in out2 and "LC_L" in out2.unavailable["LR"] and "JO" in out2.unavailable
+
+
+def test_common_rate(face) -> None:  # type: ignore[no-untyped-def]
+    from coartic.io import common_rate
+
+    _, m = face
+    a = Trial(m.copy(), ROLES, RATE)
+    b = Trial(np.repeat(m, 2, axis=0)[:-1].copy(), ROLES, 2 * RATE)
+    a2, b2 = common_rate([a, b])
+    assert a2 is a and b2.rate == RATE and b2.n_frames == a.n_frames
