@@ -158,7 +158,8 @@ def target_times(table: ParameterTable, segments: Segments, channel: str) -> NDA
     a = table.channels[channel].apex_fraction
     delta = np.array([table.values[p][channel]["delta"] for p in segments.labels])
     t = segments.starts + a * (segments.ends - segments.starts) + delta
-    return np.clip(t, segments.starts, segments.ends)
+    clamped: NDArray[np.float64] = np.clip(t, segments.starts, segments.ends)
+    return clamped
 
 
 def _atomic_write(path: Path, text: str) -> None:

@@ -134,9 +134,11 @@ class FaceArtist:
                          [0, NOSE_ABOVE_LIPS - 3]], dtype=float)
         front.add_patch(Polygon(nose, closed=True, fc="none", ec=EDGE, lw=1))
         empty = np.zeros((3, 2))
-        self.upper = front.add_patch(Polygon(empty, closed=True, fc=LIP, ec=EDGE, lw=1))
-        self.lower = front.add_patch(Polygon(empty, closed=True, fc=LIP, ec=EDGE, lw=1))
-        self.mouth = front.add_patch(Polygon(empty, closed=True, fc=MOUTH, ec="none"))
+        self.upper = Polygon(empty, closed=True, fc=LIP, ec=EDGE, lw=1)
+        self.lower = Polygon(empty, closed=True, fc=LIP, ec=EDGE, lw=1)
+        self.mouth = Polygon(empty, closed=True, fc=MOUTH, ec="none")
+        for patch in (self.upper, self.lower, self.mouth):
+            front.add_patch(patch)
         (self.chin,) = front.plot([], [], color=EDGE, lw=1.5)
         self.profile = self.markers = None
         if side is not None:

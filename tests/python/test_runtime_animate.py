@@ -1,0 +1,174 @@
+"""Label files → channels, FAP file, preview (coartic.runtime.animate, pipeline, preview)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+from PIL import Image
+from typer.testing import CliRunner
+
+from coartic.cli import app
+from coartic.io.errors import DataError
+from coartic.io.labels import Segments
+from coartic.runtime.animate import (
+    animate,
+    evaluate,
+    frame_times,
+    neutral_posture,
+    read_channels_csv,
+    substitute,
+    target_times,
+)
+from coartic.runtime.errors import AnimationError, MissingPhonemeError
+from coartic.runtime.fap import FaceUnits, read_fap
+from coartic.runtime.pipeline import animate_file
+from coartic.runtime.preview import mouth_shape
+from coartic.table import CHANNELS, PARAMETERS, ChannelSettings, ParameterTable
+
+REST = {"ULO": 0.0, "LLO": 0.0, "ULP": 98.0, "LLP": 95.0, "LR": 50.0, "JO": 115.0}
+TARGETS = {
+    "#": REST,
+    "a": {"ULO": 2.5, "LLO": 12.0, "ULP": 97.5, "LLP": 94.0, "LR": 52.0, "JO": 125.0},
+    "i": {"ULO": 1.5, "LLO": 5.0, "ULP": 96.5, "LLP": 93.5, "LR": 55.0, "JO": 117.0},
+    "p": {"ULO": -2.0, "LLO": -2.5, "ULP": 98.3, "LLP": 95.5, "LR": 49.5, "JO": 116.0},
+    "f": {"ULO": 0.8, "LLO": -1.0, "ULP": 98.2, "LLP": 92.5, "LR": 50.5, "JO": 115.5},
+}
+K_R = {"#": 1.0, "a": 0.4, "i": 0.4, "p": 1.0, "f": 1.0}
+
+
+def make_table(phonemes: tuple[str, ...] = ("#", "a", "i", "p", "f")) -> ParameterTable:
+    values = {}
+    for ph in phonemes:
+        values[ph] = {}
+        for ch in CHANNELS:
+            row = dict(target=TARGETS[ph][ch], alpha=1.0 if ph in "#a" else 2.0, theta_bw=20.0, theta_fw=20.0,
+                       c_bw=1.0, c_fw=1.0, k_r=K_R[ph], sigma=0.0, psi=100.0, delta=0.0)
+            values[ph][ch] = {p: float(row[p]) for p in PARAMETERS}
+    table = ParameterTable(variant="modified", channels={c: ChannelSettings(reference_phoneme="a") for c in CHANNELS},
+                           values=values, source="fixture.json")
+    table.validate()
+    return table
+
+
+LABELS = "start\tend\tlabel\n0.0\t0.30\tsil\n0.30\t0.45\ta\n0.45\t0.53\tp\n0.53\t0.68\ti\n0.68\t0.77\tf\n0.77\t0.92\ta\n0.92\t1.20\tsil\n"
+
+
+@pytest.fixture()
+def labels(tmp_path: Path) -> Path:
+    path = tmp_path / "apifa.tsv"
+    path.write_text(LABELS)
+    return path
+
+
+def test_frame_times() -> None:
+    t = frame_times(1.0, 25.0)
+    assert t.size == 25 and t[1] == 0.04
+    assert frame_times(1.21, 10.0).size == 12
+    with pytest.raises(AnimationError, match="frame rate"):
+        frame_times(1.0, 0.0)
+
+
+def test_animate_file_writes_consistent_outputs(tmp_path: Path, labels: Path) -> None:
+    out = tmp_path / "out"
+    result = animate_file(labels, make_table(), out, fps=50.0, preview="gif")
+    a = result.animation
+    assert a.n_frames == 60 and a.duration == pytest.approx(1.2)
+    for key in ("channels", "fap", "segments", "plot", "strip", "preview"):
+        assert result.files[key].exists(), key
+    assert not list(out.glob("*.part*"))
+    times, chans = read_channels_csv(result.files["channels"])
+    np.testing.assert_array_equal(times, a.times)
+    for c in CHANNELS:
+        np.testing.assert_array_equal(chans[c], a.channels[c])
+    faps = read_fap(result.files["fap"])
+    assert faps.n_frames == a.n_frames and faps.fps == 50.0 and faps.name == "apifa"
+    # the first frames are the rest posture: the neutral face, every FAP zero
+    assert np.all(faps.values[0] == 0)
+    # open /a/ at its target time: the jaw and lower lip are down, so open_jaw > 0, raise_b_midlip < 0
+    k = int(round(0.375 * 50))
+    fapu = FaceUnits().mns
+    assert faps.column(3)[k] == round((a.channels["JO"][k] - 115.0) / fapu) > 0
+    assert faps.column(5)[k] == round(-a.channels["LLO"][k] / fapu) < 0
+    with Image.open(result.files["preview"]) as gif:
+        assert gif.n_frames == a.n_frames
+    assert (out / "segments.tsv").read_text().splitlines()[1].split("\t") == ["0.0", "0.3", "#", "sil"]
+
+
+def test_resistant_targets_are_reached(labels: Path) -> None:
+    table = make_table()
+    from coartic.io.labelmap import LabelMap
+    from coartic.io.labels import read_labels
+
+    seg = LabelMap.model().apply(read_labels(labels))
+    for ch in ("ULO", "LLO"):
+        t = target_times(table, seg, ch)
+        y = evaluate(table, seg, t, [ch])[ch]
+        for i, ph in enumerate(seg.labels):
+            if ph in ("p", "f"):
+                assert y[i] == pytest.approx(TARGETS[ph][ch], abs=1e-9), (ph, ch)
+            if ph == "a":
+                assert abs(y[i] - TARGETS[ph][ch]) > 0.01  # k_R < 1: the vowel yields
+
+
+def test_missing_phoneme_names_file_line_and_phoneme(tmp_path: Path, labels: Path) -> None:
+    with pytest.raises(MissingPhonemeError) as err:
+        animate_file(labels, make_table(("#", "a", "i", "p")), tmp_path / "o", preview="none")
+    msg = str(err.value)
+    assert "fixture.json has no phoneme 'f'" in msg and "segment 5" in msg and "apifa.tsv, line 6" in msg
+
+
+def test_table_without_pause_has_no_neutral_face() -> None:
+    with pytest.raises(MissingPhonemeError, match="no pause phoneme '#'"):
+        neutral_posture(make_table(("a", "i", "p", "f")))
+
+
+def test_substitute_uses_fallbacks_in_order() -> None:
+    seg = Segments(("#", "o", "p", "e", "#"), np.array([0, .1, .2, .3, .4]), np.array([.1, .2, .3, .4, .5]))
+    new, used = substitute(seg, make_table(), CHANNELS, {"o": ("O", "u", "a"), "e": ("E", "i")})
+    assert new.labels == ("#", "a", "p", "i", "#") and used == {"o": "a", "e": "i"}
+    with pytest.raises(MissingPhonemeError, match="no phoneme 'o'"):
+        animate(make_table(), substitute(seg, make_table(), CHANNELS, {})[0], 25.0)
+
+
+def test_mouth_geometry() -> None:
+    rest = mouth_shape(REST, REST)
+    assert rest.aperture == 0.0
+    shut = mouth_shape(TARGETS["p"], REST)  # pressed lips meet, they do not cross
+    assert shut.aperture == 0.0
+    np.testing.assert_allclose(shut.upper_inner[:, 1], shut.lower_inner[:, 1])
+    open_a = mouth_shape(TARGETS["a"], REST)
+    assert open_a.aperture == pytest.approx(2.5 + 12.0)
+    assert open_a.upper_inner[:, 0].max() == pytest.approx(26.0)  # corners at ±LR/2
+    assert open_a.chin[:, 1].min() == pytest.approx(rest.chin[:, 1].min() - 10.0)  # the jaw dropped 10 mm
+
+
+def test_mp4_preview(tmp_path: Path, labels: Path) -> None:
+    result = animate_file(labels, make_table(), tmp_path / "o", fps=10.0, preview="mp4")
+    head = result.files["preview"].read_bytes()[:12]
+    assert head[4:8] == b"ftyp"
+
+
+def test_cli_animate_and_its_errors(tmp_path: Path, labels: Path) -> None:
+    table = tmp_path / "table.json"
+    make_table().save(table)
+    runner = CliRunner()
+    ok = runner.invoke(app, ["animate", str(labels), "--table", str(table), "--out", str(tmp_path / "o"),
+                             "--fps", "20", "--preview", "none"])
+    assert ok.exit_code == 0, ok.output
+    assert read_fap(tmp_path / "o" / "apifa.fap").n_frames == 24
+    small = tmp_path / "small.json"
+    make_table(("#", "a", "i", "p")).save(small)
+    bad = runner.invoke(app, ["animate", str(labels), "--table", str(small), "--out", str(tmp_path / "o2")])
+    assert bad.exit_code == 1
+    assert "has no phoneme 'f'" in bad.output and "Traceback" not in bad.output
+    garbled = tmp_path / "garbled.tsv"
+    garbled.write_text("0.0\t0.3\tsil\n0.2\t0.1\ta\n")
+    bad = runner.invoke(app, ["animate", str(garbled), "--table", str(table), "--out", str(tmp_path / "o3")])
+    assert bad.exit_code == 1 and "garbled.tsv" in bad.output and "Traceback" not in bad.output
+
+
+def test_label_reader_errors_pass_through(tmp_path: Path) -> None:
+    with pytest.raises(DataError):
+        animate_file(tmp_path / "missing.TextGrid", make_table(), tmp_path / "o")

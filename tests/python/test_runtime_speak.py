@@ -1,0 +1,126 @@
+"""`coartic speak`: Italian text through the real Festival to WAV, channels and FAP file.
+
+The table is the synthetic session's ground truth (corpus-synthetic/ground_truth.json), whose
+bilabials and labiodentals have k_R = 1: their targets must be reached at any speaking rate.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+from typer.testing import CliRunner
+
+from coartic.cli import app
+from coartic.runtime.animate import evaluate, read_channels_csv, target_times
+from coartic.runtime.errors import MissingPhonemeError
+from coartic.runtime.fap import read_fap
+from coartic.runtime.festival import wav_duration
+from coartic.runtime.pipeline import speak_text
+from coartic.table import ParameterTable
+
+GROUND_TRUTH = Path(__file__).resolve().parents[2] / "corpus-synthetic" / "ground_truth.json"
+SENTENCE = "Il babbo mangia la pappa, poi va via."
+BILABIAL = ("p", "b", "m")
+LABIODENTAL = ("f", "v")
+
+pytestmark = pytest.mark.festival
+
+
+@pytest.fixture(scope="module")
+def table() -> ParameterTable:
+    return ParameterTable.load(GROUND_TRUTH)
+
+
+@pytest.mark.parametrize("fps", [25.0, 30.0])
+def test_wav_fap_and_channels_last_as_long(tmp_path: Path, table: ParameterTable, fps: float) -> None:
+    result = speak_text(SENTENCE, table, tmp_path, fps=fps, preview="none")
+    wav = wav_duration(result.files["wav"])
+    faps = read_fap(result.files["fap"])
+    times, chans = read_channels_csv(result.files["channels"])
+    assert faps.fps == fps and faps.n_frames == times.size == chans["LLO"].size
+    assert abs(faps.n_frames / fps - wav) <= 1.0 / fps
+    assert abs(result.animation.segments.ends[-1] - wav) < 1e-9  # the last pause runs to the end of the sound
+    assert set(result.animation.substitutions) <= {"o", "O"}  # the session has only the vowels i a u
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("stretch", [1.0, 0.6])
+def test_lips_close_and_lower_lip_reaches_teeth_at_any_rate(
+    tmp_path: Path, table: ParameterTable, stretch: float
+) -> None:
+    for ph in BILABIAL:
+        assert table.values[ph]["ULO"]["k_r"] == table.values[ph]["LLO"]["k_r"] == 1.0, ph
+    for ph in LABIODENTAL:
+        assert table.values[ph]["LLO"]["k_r"] == 1.0, ph
+    result = speak_text(SENTENCE, table, tmp_path, stretch=stretch, preview="none")
+    seg = result.animation.segments
+    labels = seg.labels
+    assert sum(p in BILABIAL for p in labels) >= 7 and sum(p in LABIODENTAL for p in labels) >= 2
+    t_u = target_times(table, seg, "ULO")
+    t_l = target_times(table, seg, "LLO")
+    ulo = evaluate(table, seg, t_u, ["ULO"])["ULO"]
+    llo_at_u = evaluate(table, seg, t_u, ["LLO"])["LLO"]
+    llo = evaluate(table, seg, t_l, ["LLO"])["LLO"]
+    for i, ph in enumerate(labels):
+        if ph in BILABIAL:
+            assert t_u[i] == t_l[i]
+            closure = reached(table, ph, "ULO") + reached(table, ph, "LLO")
+            aperture = ulo[i] + llo_at_u[i]
+            assert abs(aperture - closure) <= 0.05, (i, ph, aperture, closure)
+        if ph in LABIODENTAL:
+            assert abs(llo[i] - reached(table, ph, "LLO")) <= 0.05, (i, ph, llo[i])
+    # faster speech: the same phones in less time
+    if stretch != 1.0:
+        normal = speak_text(SENTENCE, table, tmp_path / "normal", preview="none")
+        assert normal.animation.segments.labels == labels
+        assert seg.ends[-2] < 0.7 * normal.animation.segments.ends[-2]
+
+
+def reached(table: ParameterTable, phoneme: str, channel: str) -> float:
+    """What a k_R = 1 phoneme reaches at its target time: T S(0) = T (1 + sigma) (MODEL.md §3, item 3)."""
+    row = table.values[phoneme][channel]
+    return row["target"] * (1.0 + row["sigma"])
+
+
+def _without(table: ParameterTable, phoneme: str, path: Path) -> Path:
+    del table.values[phoneme]
+    table.reasons.pop(phoneme, None)
+    table.uncertainty.pop(phoneme, None)
+    table.save(path)
+    return path
+
+
+def test_missing_phoneme_is_named(tmp_path: Path) -> None:
+    small = ParameterTable.load(_without(ParameterTable.load(GROUND_TRUTH), "p", tmp_path / "no_p.json"))
+    with pytest.raises(MissingPhonemeError, match=r"no_p.json has no phoneme 'p', needed by segment \d+"):
+        speak_text("la pappa", small, tmp_path / "o", preview="none")
+
+
+def test_cli_speak_errors_exit_nonzero_without_traceback(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    runner = CliRunner()
+    table = _without(ParameterTable.load(GROUND_TRUTH), "p", tmp_path / "no_p.json")
+    cases = [
+        (["speak", "  ", "-t", str(table), "-o", str(tmp_path / "a")], "empty text"),
+        (["speak", "la pappa", "-t", str(table), "-o", str(tmp_path / "b")], "has no phoneme 'p'"),
+        (["speak", "poi", "--strict", "-t", str(GROUND_TRUTH), "-o", str(tmp_path / "c"), "--preview", "none"],
+         "has no phoneme 'O'"),
+        (["speak", "ciao", "-t", str(tmp_path / "nothere.json"), "-o", str(tmp_path / "d")], "nothere.json"),
+    ]
+    for args, needle in cases:
+        res = runner.invoke(app, args)
+        assert res.exit_code == 1, (args, res.output)
+        assert needle in res.output and "Traceback" not in res.output, res.output
+    monkeypatch.setenv("PATH", str(tmp_path))
+    res = runner.invoke(app, ["speak", "ciao", "-t", str(GROUND_TRUTH), "-o", str(tmp_path / "e")])
+    assert res.exit_code == 1 and "'festival' not found on PATH" in res.output
+
+
+def test_cli_speak_writes_everything(tmp_path: Path) -> None:
+    res = CliRunner().invoke(app, ["speak", "Viva la mamma!", "-t", str(GROUND_TRUTH), "-o", str(tmp_path),
+                                   "--fps", "25", "--stretch", "0.8"])
+    assert res.exit_code == 0, res.output
+    names = {p.name for p in tmp_path.iterdir()}
+    assert {"speech.wav", "channels.csv", "Viva_la_mamma.fap", "segments.tsv", "channels.png", "strip.png",
+            "preview.gif"} <= names
