@@ -5,15 +5,32 @@ place, other layouts are copied once. Wrong type or dtype raises TypeError, wron
 invalid value raises ValueError naming the argument, utterance, segment, phoneme or parameter.
 """
 
-from typing import Final
+from typing import Final, final
 
 import numpy as np
 import numpy.typing as npt
+
+__all__ = [
+    "CHANNEL_NAMES",
+    "Corpus",
+    "MARKER_NAMES",
+    "ModelOptions",
+    "N_PARAMS",
+    "evaluate",
+    "evaluate_batch",
+    "head_frame",
+    "jacobian",
+    "marker_channels",
+    "physical_limit_loop",
+    "sse_batch",
+    "sse_gradient",
+]
 
 N_PARAMS: Final[int]
 MARKER_NAMES: Final[list[str]]
 CHANNEL_NAMES: Final[list[str]]
 
+@final
 class Corpus:
     """Many utterances in CSR form (docs/ARCHITECTURE.md, "Corpus layout"), validated once."""
 
@@ -36,6 +53,7 @@ class Corpus:
     @property
     def n_phonemes(self) -> int: ...
 
+@final
 class ModelOptions:
     """Variant ("original" or "modified"), apex fraction a and edge extent Λ of one channel."""
 
