@@ -1,0 +1,768 @@
+//! Many utterances at once: the [`Corpus`] (CSR layout of docs/ARCHITECTURE.md, validated once)
+//! and the batch entry points — evaluation, sparse Jacobian, SSE with its gradient, and the
+//! walkers × corpus batches for MCMC — parallel with rayon over chunks of utterances.
+
+use crate::error::ModelError;
+use crate::gradient::{GradScratch, SegmentGrads};
+use crate::model::Prepared;
+use crate::params::{validate_params, ModelOptions, N_PARAMS};
+use rayon::prelude::*;
+use std::ops::Range;
+
+/// Work per parallel task, in (sample, segment) pairs: big enough to amortise rayon's scheduling,
+/// small enough to balance ~600 utterances over a few cores.
+const CHUNK_PAIRS: usize = 8192;
+
+/// Many utterances in compressed-sparse-row form (docs/ARCHITECTURE.md, "Corpus layout"):
+/// segments of utterance u are `seg_offsets[u]..seg_offsets[u+1]`, its samples
+/// `sample_offsets[u]..sample_offsets[u+1]`. Validated once by [`Corpus::new`]; every evaluation
+/// then trusts it.
+#[derive(Clone, Debug)]
+pub struct Corpus {
+    seg_offsets: Vec<usize>,
+    seg_phoneme: Vec<usize>,
+    seg_start: Vec<f64>,
+    seg_end: Vec<f64>,
+    sample_offsets: Vec<usize>,
+    sample_times: Vec<f64>,
+    n_phonemes: usize,
+    /// Sorted distinct phonemes of each utterance (CSR by `uniq_offsets`): the Jacobian columns
+    /// an utterance's rows touch.
+    uniq_offsets: Vec<usize>,
+    uniq_phonemes: Vec<usize>,
+    /// For each segment, the position of its phoneme in its utterance's distinct list.
+    seg_local: Vec<usize>,
+    /// Utterance ranges of the parallel tasks.
+    chunks: Vec<Range<usize>>,
+    total_pairs: usize,
+    max_segments: usize,
+}
+
+fn check_offsets(what: &'static str, offsets: &[usize], len: usize) -> Result<(), ModelError> {
+    if offsets.is_empty() {
+        return Err(ModelError::LengthMismatch {
+            what,
+            got: 0,
+            expected: 1,
+        });
+    }
+    if offsets[0] != 0 {
+        return Err(ModelError::BadOffsets {
+            what,
+            index: 0,
+            value: offsets[0],
+            reason: "must start at 0",
+        });
+    }
+    for (i, w) in offsets.windows(2).enumerate() {
+        if w[1] < w[0] {
+            return Err(ModelError::BadOffsets {
+                what,
+                index: i + 1,
+                value: w[1],
+                reason: "offsets must be non-decreasing",
+            });
+        }
+    }
+    let last = offsets.len() - 1;
+    if offsets[last] != len {
+        return Err(ModelError::BadOffsets {
+            what,
+            index: last,
+            value: offsets[last],
+            reason: "the last offset must equal the length of the array it indexes",
+        });
+    }
+    Ok(())
+}
+
+fn check_finite(what: &'static str, values: &[f64]) -> Result<(), ModelError> {
+    match values.iter().position(|v| !v.is_finite()) {
+        Some(index) => Err(ModelError::NonFiniteTime {
+            what,
+            index,
+            value: values[index],
+        }),
+        None => Ok(()),
+    }
+}
+
+impl Corpus {
+    /// Builds and validates a corpus. Errors name the array and the utterance / segment / sample
+    /// at fault: mismatched lengths, offsets not starting at 0, decreasing or not ending at the
+    /// array length, non-finite times, segments with end ≤ start, unsorted or overlapping
+    /// segments, phoneme index ≥ `n_phonemes`, an utterance with samples but no segments.
+    /// Sample times may lie outside the segments (the model extends beyond them); an utterance
+    /// with no samples is fine.
+    pub fn new(
+        seg_offsets: Vec<usize>,
+        seg_phoneme: Vec<usize>,
+        seg_start: Vec<f64>,
+        seg_end: Vec<f64>,
+        sample_offsets: Vec<usize>,
+        sample_times: Vec<f64>,
+        n_phonemes: usize,
+    ) -> Result<Corpus, ModelError> {
+        let n_seg = seg_phoneme.len();
+        for (what, got) in [("seg_start", seg_start.len()), ("seg_end", seg_end.len())] {
+            if got != n_seg {
+                return Err(ModelError::LengthMismatch {
+                    what,
+                    got,
+                    expected: n_seg,
+                });
+            }
+        }
+        if sample_offsets.len() != seg_offsets.len() {
+            return Err(ModelError::LengthMismatch {
+                what: "sample_offsets (n_utterances + 1, as seg_offsets)",
+                got: sample_offsets.len(),
+                expected: seg_offsets.len(),
+            });
+        }
+        check_offsets("seg_offsets", &seg_offsets, n_seg)?;
+        check_offsets("sample_offsets", &sample_offsets, sample_times.len())?;
+        check_finite("seg_start", &seg_start)?;
+        check_finite("seg_end", &seg_end)?;
+        check_finite("sample_times", &sample_times)?;
+        let n_utt = seg_offsets.len() - 1;
+        let mut uniq_offsets = Vec::with_capacity(n_utt + 1);
+        uniq_offsets.push(0);
+        let mut uniq_phonemes = Vec::new();
+        let mut seg_local = vec![0usize; n_seg];
+        let mut chunks = Vec::new();
+        let mut chunk_start = 0;
+        let mut chunk_pairs = 0;
+        let mut total_pairs = 0;
+        let mut max_segments = 0;
+        for u in 0..n_utt {
+            let segs = seg_offsets[u]..seg_offsets[u + 1];
+            let n_samples = sample_offsets[u + 1] - sample_offsets[u];
+            if segs.is_empty() && n_samples > 0 {
+                return Err(ModelError::NoSegments {
+                    utterance: u,
+                    n_samples,
+                });
+            }
+            for g in segs.clone() {
+                let segment = g - segs.start;
+                if seg_end[g] <= seg_start[g] {
+                    return Err(ModelError::EmptySegment {
+                        utterance: u,
+                        segment,
+                        global: g,
+                        start: seg_start[g],
+                        end: seg_end[g],
+                    });
+                }
+                if segment > 0 && seg_start[g] < seg_end[g - 1] {
+                    return Err(ModelError::OverlappingSegments {
+                        utterance: u,
+                        segment,
+                        global: g,
+                        start: seg_start[g],
+                        previous_end: seg_end[g - 1],
+                    });
+                }
+                if seg_phoneme[g] >= n_phonemes {
+                    return Err(ModelError::PhonemeOutOfRange {
+                        utterance: u,
+                        segment,
+                        global: g,
+                        phoneme: seg_phoneme[g],
+                        n_phonemes,
+                    });
+                }
+            }
+            let first = uniq_phonemes.len();
+            let mut distinct: Vec<usize> = seg_phoneme[segs.clone()].to_vec();
+            distinct.sort_unstable();
+            distinct.dedup();
+            for g in segs.clone() {
+                seg_local[g] = distinct.binary_search(&seg_phoneme[g]).unwrap_or(0);
+            }
+            uniq_phonemes.extend_from_slice(&distinct);
+            uniq_offsets.push(first + distinct.len());
+            max_segments = max_segments.max(segs.len());
+            let pairs = n_samples * segs.len() + segs.len();
+            total_pairs += pairs;
+            chunk_pairs += pairs;
+            if chunk_pairs >= CHUNK_PAIRS {
+                chunks.push(chunk_start..u + 1);
+                chunk_start = u + 1;
+                chunk_pairs = 0;
+            }
+        }
+        if chunk_start < n_utt {
+            chunks.push(chunk_start..n_utt);
+        }
+        Ok(Corpus {
+            seg_offsets,
+            seg_phoneme,
+            seg_start,
+            seg_end,
+            sample_offsets,
+            sample_times,
+            n_phonemes,
+            uniq_offsets,
+            uniq_phonemes,
+            seg_local,
+            chunks,
+            total_pairs,
+            max_segments,
+        })
+    }
+
+    /// Number of utterances.
+    pub fn n_utterances(&self) -> usize {
+        self.seg_offsets.len() - 1
+    }
+    /// Number of samples over all utterances (rows of the Jacobian).
+    pub fn n_samples(&self) -> usize {
+        self.sample_times.len()
+    }
+    /// Number of segments over all utterances.
+    pub fn n_segments(&self) -> usize {
+        self.seg_phoneme.len()
+    }
+    /// Number of rows of the parameter matrix.
+    pub fn n_phonemes(&self) -> usize {
+        self.n_phonemes
+    }
+    /// The segment offsets (length n_utterances + 1).
+    pub fn seg_offsets(&self) -> &[usize] {
+        &self.seg_offsets
+    }
+    /// Phoneme (parameter row) of each segment.
+    pub fn seg_phoneme(&self) -> &[usize] {
+        &self.seg_phoneme
+    }
+    /// Segment start times (s).
+    pub fn seg_start(&self) -> &[f64] {
+        &self.seg_start
+    }
+    /// Segment end times (s).
+    pub fn seg_end(&self) -> &[f64] {
+        &self.seg_end
+    }
+    /// The sample offsets (length n_utterances + 1).
+    pub fn sample_offsets(&self) -> &[usize] {
+        &self.sample_offsets
+    }
+    /// Sample times (s).
+    pub fn sample_times(&self) -> &[f64] {
+        &self.sample_times
+    }
+
+    fn segments(&self, u: usize) -> Range<usize> {
+        self.seg_offsets[u]..self.seg_offsets[u + 1]
+    }
+    fn samples(&self, u: usize) -> Range<usize> {
+        self.sample_offsets[u]..self.sample_offsets[u + 1]
+    }
+    fn distinct(&self, u: usize) -> &[usize] {
+        &self.uniq_phonemes[self.uniq_offsets[u]..self.uniq_offsets[u + 1]]
+    }
+    /// Non-zeros per Jacobian row of utterance u: every parameter of every distinct phoneme, and β.
+    fn row_nnz(&self, u: usize) -> usize {
+        (self.uniq_offsets[u + 1] - self.uniq_offsets[u]) * N_PARAMS + 1
+    }
+    fn parallel(&self) -> bool {
+        self.total_pairs >= 2 * CHUNK_PAIRS && self.chunks.len() > 1
+    }
+    fn prepare(&self, prep: &mut Prepared, u: usize, params: &[f64], opts: &ModelOptions) {
+        let s = self.segments(u);
+        prep.prepare(
+            &self.seg_start[s.clone()],
+            &self.seg_end[s.clone()],
+            &self.seg_phoneme[s],
+            params,
+            opts,
+        );
+    }
+
+    /// Runs `work` on every chunk (in parallel when the corpus is large) and collects the results.
+    fn map_chunks<R: Send>(&self, work: impl Fn(Range<usize>) -> R + Sync) -> Vec<R> {
+        if self.parallel() {
+            self.chunks.par_iter().map(|c| work(c.clone())).collect()
+        } else {
+            self.chunks.iter().map(|c| work(c.clone())).collect()
+        }
+    }
+}
+
+/// Splits `data` into consecutive pieces ending at `ends` (absolute, non-decreasing positions).
+fn split_at_ends<T>(
+    mut data: &mut [T],
+    start: usize,
+    ends: impl Iterator<Item = usize>,
+) -> Vec<&mut [T]> {
+    let mut pos = start;
+    let mut out = Vec::new();
+    for end in ends {
+        let (head, tail) = data.split_at_mut(end - pos);
+        out.push(head);
+        data = tail;
+        pos = end;
+    }
+    out
+}
+
+fn check_len(what: &'static str, got: usize, expected: usize) -> Result<(), ModelError> {
+    if got != expected {
+        Err(ModelError::LengthMismatch {
+            what,
+            got,
+            expected,
+        })
+    } else {
+        Ok(())
+    }
+}
+
+/// Evaluates on validated input; the shared body of [`evaluate`] and the batches.
+fn evaluate_unchecked(
+    corpus: &Corpus,
+    params: &[f64],
+    beta: f64,
+    opts: &ModelOptions,
+    out: &mut [f64],
+) -> Result<(), ModelError> {
+    let res = opts.variant.resistance();
+    let shape = opts.variant.shape();
+    let pieces = split_at_ends(
+        out,
+        0,
+        corpus.chunks.iter().map(|c| corpus.sample_offsets[c.end]),
+    );
+    let work = |(chunk, piece): (&Range<usize>, &mut [f64])| -> Result<(), ModelError> {
+        let mut prep = Prepared::default();
+        let base = corpus.sample_offsets[chunk.start];
+        for u in chunk.clone() {
+            let samples = corpus.samples(u);
+            if samples.is_empty() {
+                continue;
+            }
+            corpus.prepare(&mut prep, u, params, opts);
+            let local = samples.start - base..samples.end - base;
+            prep.evaluate(
+                &corpus.sample_times[samples.clone()],
+                beta,
+                res,
+                shape,
+                &mut piece[local],
+            )
+            .map_err(|n| ModelError::Degenerate {
+                utterance: u,
+                sample: samples.start + n,
+            })?;
+        }
+        Ok(())
+    };
+    if corpus.parallel() {
+        corpus
+            .chunks
+            .par_iter()
+            .zip(pieces.into_par_iter())
+            .map(work)
+            .collect()
+    } else {
+        corpus.chunks.iter().zip(pieces).try_for_each(work)
+    }
+}
+
+/// F at every sample of the corpus (MODEL.md eq. 3, or eq. 1 with [`crate::Variant::Original`]).
+///
+/// `params` is the `n_phonemes × 10` parameter matrix, row-major in the column order of
+/// [`crate::Param`]; `out` has one value per sample, in corpus order.
+pub fn evaluate(
+    corpus: &Corpus,
+    params: &[f64],
+    beta: f64,
+    opts: &ModelOptions,
+    out: &mut [f64],
+) -> Result<(), ModelError> {
+    validate_params(params, corpus.n_phonemes, beta, opts)?;
+    check_len("out (n_samples)", out.len(), corpus.n_samples())?;
+    evaluate_unchecked(corpus, params, beta, opts, out)
+}
+
+/// A Jacobian in compressed-sparse-row form: row n is sample n, column `p * 10 + k` is parameter
+/// k ([`crate::Param`] order) of phoneme p, the last column (`n_phonemes * 10`) is β. Column
+/// indices are sorted within a row; a row stores every parameter of every distinct phoneme of
+/// its utterance (explicit zeros included), so the pattern depends only on the corpus.
+#[derive(Clone, Debug, PartialEq)]
+pub struct SparseJacobian {
+    pub n_rows: usize,
+    pub n_cols: usize,
+    pub indptr: Vec<usize>,
+    pub indices: Vec<usize>,
+    pub data: Vec<f64>,
+}
+
+/// The slices of one parallel task's rows: values, column indices, Jacobian data.
+type JacobianPieces<'a> = ((&'a mut [f64], &'a mut [usize]), &'a mut [f64]);
+
+/// Values F (into `values_out`) and the exact Jacobian ∂F/∂(params, β) at every sample
+/// (MODEL.md §4). A phoneme occurring several times in an utterance gets the sum of its
+/// occurrences' derivatives. k_R and δ act through the neighbours' extents and the target
+/// times; their columns include that. At τ = 0 exactly the derivative of |τ| is taken as 0
+/// (see [`crate::dominance::LogDominanceGrad::d_tau`]).
+pub fn jacobian(
+    corpus: &Corpus,
+    params: &[f64],
+    beta: f64,
+    opts: &ModelOptions,
+    values_out: &mut [f64],
+) -> Result<SparseJacobian, ModelError> {
+    validate_params(params, corpus.n_phonemes, beta, opts)?;
+    check_len(
+        "values_out (n_samples)",
+        values_out.len(),
+        corpus.n_samples(),
+    )?;
+    let n_rows = corpus.n_samples();
+    let n_cols = corpus.n_phonemes * N_PARAMS + 1;
+    let mut indptr = Vec::with_capacity(n_rows + 1);
+    indptr.push(0usize);
+    for u in 0..corpus.n_utterances() {
+        let nnz = corpus.row_nnz(u);
+        for _ in corpus.samples(u) {
+            let last = *indptr.last().unwrap_or(&0);
+            indptr.push(last + nnz);
+        }
+    }
+    let nnz = indptr[n_rows];
+    let mut indices = vec![0usize; nnz];
+    let mut data = vec![0.0f64; nnz];
+    let res = opts.variant.resistance();
+    let shape = opts.variant.shape();
+    {
+        let chunk_ends = || corpus.chunks.iter().map(|c| corpus.sample_offsets[c.end]);
+        let value_pieces = split_at_ends(values_out, 0, chunk_ends());
+        let index_pieces = split_at_ends(&mut indices, 0, chunk_ends().map(|s| indptr[s]));
+        let data_pieces = split_at_ends(&mut data, 0, chunk_ends().map(|s| indptr[s]));
+        let indptr = &indptr;
+        let work = |(chunk, ((values, idx), dat)): (&Range<usize>, JacobianPieces)| -> Result<(), ModelError> {
+            let mut prep = Prepared::default();
+            let mut scratch = GradScratch::default();
+            let mut grads = SegmentGrads::default();
+            let base = corpus.sample_offsets[chunk.start];
+            let nz_base = indptr[base];
+            for u in chunk.clone() {
+                let samples = corpus.samples(u);
+                if samples.is_empty() {
+                    continue;
+                }
+                corpus.prepare(&mut prep, u, params, opts);
+                let segs = corpus.segments(u);
+                let distinct = corpus.distinct(u);
+                let row_nnz = corpus.row_nnz(u);
+                for n in samples {
+                    let row = indptr[n] - nz_base..indptr[n] - nz_base + row_nnz;
+                    let cols = &mut idx[row.clone()];
+                    for (l, &p) in distinct.iter().enumerate() {
+                        for k in 0..N_PARAMS {
+                            cols[l * N_PARAMS + k] = p * N_PARAMS + k;
+                        }
+                    }
+                    cols[row_nnz - 1] = n_cols - 1;
+                    let value = scratch
+                        .value_at(&prep, corpus.sample_times[n], beta, res, shape)
+                        .ok_or(ModelError::Degenerate { utterance: u, sample: n })?;
+                    values[n - base] = value;
+                    grads.reset(segs.len());
+                    scratch.accumulate(&prep, 1.0, &mut grads);
+                    grads.finish(&prep, res);
+                    let vals = &mut dat[row];
+                    vals.fill(0.0);
+                    for (i, d) in grads.d.iter().enumerate() {
+                        let l = corpus.seg_local[segs.start + i];
+                        for (v, dk) in vals[l * N_PARAMS..(l + 1) * N_PARAMS].iter_mut().zip(d) {
+                            *v += dk;
+                        }
+                    }
+                    vals[row_nnz - 1] = grads.beta;
+                }
+            }
+            Ok(())
+        };
+        let pieces = value_pieces.into_iter().zip(index_pieces).zip(data_pieces);
+        if corpus.parallel() {
+            corpus
+                .chunks
+                .par_iter()
+                .zip(pieces.collect::<Vec<_>>().into_par_iter())
+                .map(work)
+                .collect::<Result<(), ModelError>>()?;
+        } else {
+            corpus.chunks.iter().zip(pieces).try_for_each(work)?;
+        }
+    }
+    Ok(SparseJacobian {
+        n_rows,
+        n_cols,
+        indptr,
+        indices,
+        data,
+    })
+}
+
+/// Checks `observed` and `weights` (one per sample): weights finite and ≥ 0, observed finite
+/// wherever the weight is not 0 (NaN observed with weight 0 masks the sample).
+fn validate_observations(
+    corpus: &Corpus,
+    observed: &[f64],
+    weights: &[f64],
+) -> Result<(), ModelError> {
+    check_len("observed (n_samples)", observed.len(), corpus.n_samples())?;
+    check_len("weights (n_samples)", weights.len(), corpus.n_samples())?;
+    for (sample, (&y, &w)) in observed.iter().zip(weights).enumerate() {
+        if !(w.is_finite() && w >= 0.0) {
+            return Err(ModelError::BadWeight { sample, value: w });
+        }
+        if w != 0.0 && !y.is_finite() {
+            return Err(ModelError::NonFiniteObserved {
+                sample,
+                value: y,
+                weight: w,
+            });
+        }
+    }
+    Ok(())
+}
+
+/// SSE = Σ w (y − F)² (MODEL.md §5) and its exact gradient with respect to the flattened
+/// parameter matrix (into `grad_out`, length n_phonemes × 10) and β (returned), without building
+/// the Jacobian: per-segment derivative sums weighted by −2 w (y − F) are pushed through the
+/// extent recursion once per utterance. Samples with weight 0 are skipped (their observed value
+/// may be NaN).
+#[allow(clippy::too_many_arguments)]
+pub fn sse_gradient(
+    corpus: &Corpus,
+    params: &[f64],
+    beta: f64,
+    opts: &ModelOptions,
+    observed: &[f64],
+    weights: &[f64],
+    grad_out: &mut [f64],
+) -> Result<(f64, f64), ModelError> {
+    validate_params(params, corpus.n_phonemes, beta, opts)?;
+    validate_observations(corpus, observed, weights)?;
+    check_len(
+        "grad_out (n_phonemes * 10)",
+        grad_out.len(),
+        corpus.n_phonemes * N_PARAMS,
+    )?;
+    let res = opts.variant.resistance();
+    let shape = opts.variant.shape();
+    let n_grad = grad_out.len();
+    let parts = corpus.map_chunks(|chunk| -> Result<(f64, f64, Vec<f64>), ModelError> {
+        let mut prep = Prepared::default();
+        let mut scratch = GradScratch::default();
+        let mut grads = SegmentGrads::default();
+        let mut grad = vec![0.0; n_grad];
+        let mut sse = 0.0;
+        let mut d_beta = 0.0;
+        for u in chunk {
+            let samples = corpus.samples(u);
+            if samples.clone().all(|n| weights[n] == 0.0) {
+                continue;
+            }
+            corpus.prepare(&mut prep, u, params, opts);
+            let segs = corpus.segments(u);
+            grads.reset(segs.len());
+            for n in samples {
+                let w = weights[n];
+                if w == 0.0 {
+                    continue;
+                }
+                let f = scratch
+                    .value_at(&prep, corpus.sample_times[n], beta, res, shape)
+                    .ok_or(ModelError::Degenerate {
+                        utterance: u,
+                        sample: n,
+                    })?;
+                let r = observed[n] - f;
+                sse += w * r * r;
+                scratch.accumulate(&prep, -2.0 * w * r, &mut grads);
+            }
+            grads.finish(&prep, res);
+            for (i, d) in grads.d.iter().enumerate() {
+                let p = corpus.seg_phoneme[segs.start + i];
+                for (g, dk) in grad[p * N_PARAMS..(p + 1) * N_PARAMS].iter_mut().zip(d) {
+                    *g += dk;
+                }
+            }
+            d_beta += grads.beta;
+        }
+        Ok((sse, d_beta, grad))
+    });
+    grad_out.fill(0.0);
+    let mut sse = 0.0;
+    let mut d_beta = 0.0;
+    for part in parts {
+        let (s, b, g) = part?;
+        sse += s;
+        d_beta += b;
+        for (o, v) in grad_out.iter_mut().zip(&g) {
+            *o += v;
+        }
+    }
+    Ok((sse, d_beta))
+}
+
+fn check_batch(corpus: &Corpus, params_batch: &[f64], betas: &[f64]) -> Result<usize, ModelError> {
+    let per = corpus.n_phonemes * N_PARAMS;
+    let w = betas.len();
+    check_len(
+        "params_batch (n_walkers * n_phonemes * 10, n_walkers = len(betas))",
+        params_batch.len(),
+        w * per,
+    )?;
+    Ok(per)
+}
+
+/// F for W parameter sets at once (MCMC walkers): `params_batch` is W stacked parameter matrices,
+/// `betas` their β, `out` is W × n_samples (row-major). Parallel over walkers and utterances.
+/// An invalid walker is an error naming it ([`ModelError::InWalker`]).
+pub fn evaluate_batch(
+    corpus: &Corpus,
+    params_batch: &[f64],
+    betas: &[f64],
+    opts: &ModelOptions,
+    out: &mut [f64],
+) -> Result<(), ModelError> {
+    let per = check_batch(corpus, params_batch, betas)?;
+    let ns = corpus.n_samples();
+    check_len("out (n_walkers * n_samples)", out.len(), betas.len() * ns)?;
+    for (walker, &beta) in betas.iter().enumerate() {
+        validate_params(
+            &params_batch[walker * per..(walker + 1) * per],
+            corpus.n_phonemes,
+            beta,
+            opts,
+        )
+        .map_err(|e| ModelError::InWalker {
+            walker,
+            source: Box::new(e),
+        })?;
+    }
+    if ns == 0 {
+        return Ok(());
+    }
+    out.par_chunks_mut(ns)
+        .enumerate()
+        .map(|(walker, o)| {
+            evaluate_unchecked(
+                corpus,
+                &params_batch[walker * per..(walker + 1) * per],
+                betas[walker],
+                opts,
+                o,
+            )
+            .map_err(|e| ModelError::InWalker {
+                walker,
+                source: Box::new(e),
+            })
+        })
+        .collect()
+}
+
+/// SSE on validated parameters, without storing F.
+fn sse_unchecked(
+    corpus: &Corpus,
+    params: &[f64],
+    beta: f64,
+    opts: &ModelOptions,
+    observed: &[f64],
+    weights: &[f64],
+) -> Option<f64> {
+    let res = opts.variant.resistance();
+    let shape = opts.variant.shape();
+    let parts = corpus.map_chunks(|chunk| -> Option<f64> {
+        let mut prep = Prepared::default();
+        let mut sse = 0.0;
+        for u in chunk {
+            let samples = corpus.samples(u);
+            if samples.is_empty() {
+                continue;
+            }
+            corpus.prepare(&mut prep, u, params, opts);
+            for n in samples {
+                let w = weights[n];
+                if w == 0.0 {
+                    continue;
+                }
+                let r = observed[n] - prep.value_at(corpus.sample_times[n], beta, res, shape)?;
+                sse += w * r * r;
+            }
+        }
+        Some(sse)
+    });
+    parts.into_iter().sum()
+}
+
+/// SSE = Σ w (y − F)² for W parameter sets at once (the MCMC fast path). A walker whose
+/// parameters are invalid (outside their domain, non-finite) or degenerate gets +∞, not an
+/// error; `observed`/`weights` and the array lengths are still checked.
+pub fn sse_batch(
+    corpus: &Corpus,
+    params_batch: &[f64],
+    betas: &[f64],
+    opts: &ModelOptions,
+    observed: &[f64],
+    weights: &[f64],
+    out: &mut [f64],
+) -> Result<(), ModelError> {
+    opts.validate()?;
+    let per = check_batch(corpus, params_batch, betas)?;
+    validate_observations(corpus, observed, weights)?;
+    check_len("out (n_walkers)", out.len(), betas.len())?;
+    out.par_iter_mut().enumerate().for_each(|(walker, o)| {
+        let params = &params_batch[walker * per..(walker + 1) * per];
+        let beta = betas[walker];
+        *o = match validate_params(params, corpus.n_phonemes, beta, opts) {
+            Ok(()) => sse_unchecked(corpus, params, beta, opts, observed, weights)
+                .unwrap_or(f64::INFINITY),
+            Err(_) => f64::INFINITY,
+        };
+    });
+    Ok(())
+}
+
+/// The speed floor for the benchmark: a plain loop over exactly the (sample, segment) pairs that
+/// [`evaluate`] visits (those inside the resistance extent), computing only the transcendental
+/// functions the model needs there — ln|τ|, |τ|^c as exp(c ln|τ|), the weight exp, and the shape
+/// exp where σ ≠ 0 — summed into a checksum; no normalisation. Parallel like [`evaluate`].
+/// Returns NaN if the parameters are invalid.
+pub fn physical_limit_loop(corpus: &Corpus, params: &[f64], opts: &ModelOptions) -> f64 {
+    if validate_params(params, corpus.n_phonemes, 0.0, opts).is_err() {
+        return f64::NAN;
+    }
+    let res = opts.variant.resistance();
+    let shape = opts.variant.shape();
+    corpus
+        .map_chunks(|chunk| {
+            let mut prep = Prepared::default();
+            let mut sum = 0.0;
+            for u in chunk {
+                let samples = corpus.samples(u);
+                if samples.is_empty() {
+                    continue;
+                }
+                corpus.prepare(&mut prep, u, params, opts);
+                sum += prep.limit_checksum(&corpus.sample_times[samples], res, shape);
+            }
+            sum
+        })
+        .into_iter()
+        .sum()
+}
+
+impl Corpus {
+    /// Largest number of segments in one utterance.
+    pub fn max_segments(&self) -> usize {
+        self.max_segments
+    }
+}

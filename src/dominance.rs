@@ -1,0 +1,136 @@
+//! Dominance D_i(τ) of MODEL.md §2, in log form:
+//! ln D = ln α − θ |τ|^c, with (θ, c) = (θ_bw, c_bw) for τ ≤ 0 and (θ_fw, c_fw) for τ > 0.
+//!
+//! The core works with ln D because the normalisation of eq. 1 / eq. 3 is a log-sum-exp: when
+//! θ|τ|^c is large, D underflows to 0 but ln D stays exact.
+
+/// Which side of its target time a sample lies on.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Side {
+    /// τ ≤ 0: before (or at) the target; uses θ_bw, c_bw and the backward extent Δ⁻.
+    Backward,
+    /// τ > 0: after the target; uses θ_fw, c_fw and the forward extent Δ⁺.
+    Forward,
+}
+
+impl Side {
+    /// The side of τ = t − t_i (τ = 0 counts as backward, as in MODEL.md §2).
+    #[inline(always)]
+    pub fn of(tau: f64) -> Side {
+        if tau <= 0.0 {
+            Side::Backward
+        } else {
+            Side::Forward
+        }
+    }
+}
+
+/// ln D at one (sample, segment) pair, with the pieces its derivatives reuse.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct LogDominance {
+    /// ln D = ln α − θ |τ|^c.
+    pub log_d: f64,
+    /// |τ|^c (0 at τ = 0, since c > 0).
+    pub power: f64,
+    /// ln |τ|, taken as 0 at τ = 0 (where it only ever multiplies |τ|^c = 0).
+    pub ln_abs_tau: f64,
+}
+
+/// ln D for |τ| = `abs_tau` with the side's rate θ and exponent c (MODEL.md §2).
+///
+/// |τ|^c is computed as exp(c ln|τ|): one logarithm per pair, shared with ∂/∂c.
+#[inline(always)]
+pub fn log_dominance(log_alpha: f64, theta: f64, c: f64, abs_tau: f64) -> LogDominance {
+    if abs_tau > 0.0 {
+        let ln_abs_tau = abs_tau.ln();
+        let power = (c * ln_abs_tau).exp();
+        LogDominance {
+            log_d: log_alpha - theta * power,
+            power,
+            ln_abs_tau,
+        }
+    } else {
+        LogDominance {
+            log_d: log_alpha,
+            power: 0.0,
+            ln_abs_tau: 0.0,
+        }
+    }
+}
+
+/// Partial derivatives of ln D with respect to α, θ (of the side), c (of the side) and τ.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct LogDominanceGrad {
+    /// ∂ ln D / ∂α = 1/α.
+    pub d_alpha: f64,
+    /// ∂ ln D / ∂θ = −|τ|^c.
+    pub d_theta: f64,
+    /// ∂ ln D / ∂c = −θ |τ|^c ln|τ|: 0 at τ = 0 (MODEL.md §4), finite for every c > 0.
+    pub d_c: f64,
+    /// ∂ ln D / ∂τ = −θ c |τ|^c / τ. At τ = 0 the one-sided derivatives differ (a kink for
+    /// c ≤ 1, infinite for c < 1); the core takes 0 there, the mean of the two sides when the
+    /// sides are symmetric, so derivatives through t_i (δ) stay finite.
+    pub d_tau: f64,
+}
+
+/// Derivatives of ln D given the value computed by [`log_dominance`].
+#[inline(always)]
+pub fn log_dominance_grad(
+    alpha: f64,
+    theta: f64,
+    c: f64,
+    tau: f64,
+    ld: &LogDominance,
+) -> LogDominanceGrad {
+    let d_tau = if tau != 0.0 {
+        -theta * c * ld.power / tau
+    } else {
+        0.0
+    };
+    LogDominanceGrad {
+        d_alpha: 1.0 / alpha,
+        d_theta: -ld.power,
+        d_c: -theta * ld.power * ld.ln_abs_tau,
+        d_tau,
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn value_matches_definition() {
+        let ld = log_dominance(0.3f64.ln(), 20.0, 0.7, 0.05);
+        let direct = (0.3 * (-20.0 * 0.05f64.powf(0.7)).exp()).ln();
+        assert!((ld.log_d - direct).abs() < 1e-13);
+    }
+
+    #[test]
+    fn finite_at_zero_with_c_below_one() {
+        let ld = log_dominance(0.0, 20.0, 0.5, 0.0);
+        let g = log_dominance_grad(1.0, 20.0, 0.5, 0.0, &ld);
+        assert_eq!(ld.log_d, 0.0);
+        assert_eq!(g.d_c, 0.0);
+        assert_eq!(g.d_tau, 0.0);
+        assert!(g.d_theta == 0.0);
+    }
+
+    #[test]
+    fn tau_derivative_matches_difference() {
+        for &tau in &[-0.07, 0.03] {
+            let (theta, c) = (15.0, 1.7);
+            let f = |t: f64| log_dominance(0.0, theta, c, t.abs()).log_d;
+            let h = 1e-6;
+            let fd = (f(tau + h) - f(tau - h)) / (2.0 * h);
+            let g =
+                log_dominance_grad(1.0, theta, c, tau, &log_dominance(0.0, theta, c, tau.abs()));
+            assert!(
+                (g.d_tau - fd).abs() < 1e-6 * fd.abs().max(1.0),
+                "{} vs {}",
+                g.d_tau,
+                fd
+            );
+        }
+    }
+}
