@@ -157,12 +157,14 @@ def draw_segments(
         d["final_pause"],
     ]
     jitter = rng.uniform(1.0 - d["jitter"], 1.0 + d["jitter"], size=len(nominal))
-    res = settings["time_resolution"]
-    bounds = np.round(np.concatenate([[0.0], np.cumsum(np.asarray(nominal) * jitter)]) / res) * res
+    # Dividing by an integer gives the float nearest to the decimal k / scale, which is what a
+    # TextGrid (decimal text) and an HTK .lab (integer 100 ns units) read back to.
+    scale = round(1.0 / settings["time_resolution"])
+    bounds = np.round(np.concatenate([[0.0], np.cumsum(np.asarray(nominal) * jitter)]) * scale) / scale
     rate = float(settings["rate_hz"])
     n_frames = int(math.ceil(bounds[-1] * rate - 1e-9)) + 1
     bounds[-1] = (n_frames - 1) / rate
-    bounds = np.round(bounds / res) * res
+    bounds = np.round(bounds * scale) / scale
     times = np.arange(n_frames, dtype=np.float64) / rate
     return [PAUSE, v, c, v, PAUSE], bounds[:-1].copy(), bounds[1:].copy(), times
 
@@ -285,13 +287,10 @@ def write_c3d(path: Path, markers: F64, rate: float) -> None:
 
 
 def write_csv(path: Path, times: F64, markers: F64) -> None:
-    header = ["time_s"] + [f"{m}_{a}" for m in MARKERS for a in "xyz"]
-    flat = markers.reshape(len(times), -1)
-    with open(path, "w", newline="", encoding="utf-8") as fh:
-        w = csv.writer(fh)
-        w.writerow(header)
-        for t, row in zip(times, flat):
-            w.writerow([f"{t:.4f}"] + ["nan" if math.isnan(x) else f"{x:.4f}" for x in row])
+    """``time_s,<MARKER>_x,_y,_z,...`` in mm, 4 decimals (0.1 um); an occluded sample is ``nan``."""
+    header = ",".join(["time_s"] + [f"{m}_{a}" for m in MARKERS for a in "xyz"])
+    table = np.column_stack([times, markers.reshape(len(times), -1)])
+    np.savetxt(path, table, fmt="%.4f", delimiter=",", header=header, comments="", encoding="utf-8")
 
 
 def _spell(label: str, pause_label: str) -> str:
@@ -345,6 +344,7 @@ def write_truth(path: Path, trial: Trial) -> None:
         ends=trial.ends,
         head_markers=trial.head_markers,
         marker_names=np.asarray(MARKERS),
+        dropout_mask=np.isnan(trial.markers).any(axis=2),
         **{ch: trial.channels[ch] for ch in CHANNELS},
     )
 

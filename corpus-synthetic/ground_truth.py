@@ -112,7 +112,7 @@ def vowels(table: Table) -> None:
     t = {
         "a": {"ULO": 2.5, "LLO": 12.0, "ULP": 97.5, "LLP": 94.0, "LR": 52.0, "JO": 125.0},
         "i": {"ULO": 1.5, "LLO": 5.0, "ULP": 96.5, "LLP": 93.5, "LR": 55.0, "JO": 117.0},
-        "u": {"ULO": 0.5, "LLO": 3.5, "ULP": 101.0, "LLP": 98.0, "LR": 44.0, "JO": 116.5},
+        "u": {"ULO": 0.5, "LLO": 3.5, "ULP": 101.0, "LLP": 98.0, "LR": 45.0, "JO": 116.5},
     }
     why = {
         ("a", "ULO"): "open vowel: the upper lip lifts a little with the open mouth",
@@ -131,7 +131,7 @@ def vowels(table: Table) -> None:
         ("u", "LLO"): "rounded close vowel: the smallest vowel opening",
         ("u", "ULP"): "rounded vowel: the upper lip protrudes ~3 mm",
         ("u", "LLP"): "rounded vowel: the lower lip protrudes ~3 mm",
-        ("u", "LR"): "rounded vowel: the narrowest mouth (-6 mm)",
+        ("u", "LR"): "rounded vowel: the narrowest mouth (-5 mm)",
         ("u", "JO"): "close vowel: the jaw nearly at rest (+1.5 mm)",
     }
     for v in VOWELS:

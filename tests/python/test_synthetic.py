@@ -1,0 +1,325 @@
+"""The synthetic ELITE-style session (corpus-synthetic/): what it writes, and that it is right.
+
+The channels are read back from the written C3D files through the project's readers
+(``coartic.io.load_trial``), and compared with the noise-free model trajectories the generator
+saved (``truth/*.npz``).
+"""
+
+from __future__ import annotations
+
+import csv
+import filecmp
+import json
+import sys
+from collections.abc import Iterator
+from pathlib import Path
+from types import ModuleType
+from typing import Any
+
+import numpy as np
+import numpy.typing as npt
+import pytest
+from typer.testing import CliRunner
+
+from coartic import _core
+from coartic.cli import app
+from coartic.io import load_trial, read_labels
+from coartic.synthetic_cli import corpus_dir, load_generator
+from coartic.table import CHANNELS, PARAMETERS, ParameterTable
+
+F64 = npt.NDArray[np.float64]
+
+
+@pytest.fixture(scope="module")
+def gen() -> ModuleType:
+    return load_generator()
+
+
+@pytest.fixture(scope="module")
+def session(tmp_path_factory: pytest.TempPathFactory, gen: ModuleType) -> Path:
+    out = tmp_path_factory.mktemp("session")
+    gen.generate(out, quick=True, progress=False)
+    return out
+
+
+@pytest.fixture(scope="module")
+def manifest(session: Path) -> list[dict[str, str]]:
+    with open(session / "manifest.csv", newline="", encoding="utf-8") as fh:
+        return list(csv.DictReader(fh))
+
+
+@pytest.fixture(scope="module")
+def settings(gen: ModuleType) -> dict[str, Any]:
+    return dict(gen.load_settings())
+
+
+def truth(session: Path, row: dict[str, str]) -> dict[str, Any]:
+    with np.load(session / row["truth"]) as z:
+        return {k: z[k] for k in z.files}
+
+
+def rows_of(manifest: list[dict[str, str]], **kv: str) -> Iterator[dict[str, str]]:
+    return (r for r in manifest if all(r[k] == v for k, v in kv.items()))
+
+
+# ----------------------------------------------------------------------------- the session
+
+
+def test_manifest_lists_every_trial_once_with_its_files(
+    session: Path, manifest: list[dict[str, str]], settings: dict[str, Any]
+) -> None:
+    reps = settings["quick_repetitions"]
+    expected = {
+        (v, c, rate, str(rep))
+        for v in ("i", "a", "u")
+        for c in "p b m f v t d n l r s z ts dz tS dZ S k g J L".split()
+        for rate in ("normal", "fast")
+        for rep in range(1, reps + 1)
+    }
+    got = [(r["vowel"], r["consonant"], r["rate"], r["repetition"]) for r in manifest]
+    assert len(got) == len(set(got)) == len(expected) == 21 * 3 * 2 * reps
+    assert set(got) == expected
+    assert list(manifest[0])[:7] == ["file", "labels", "stimulus", "vowel", "consonant", "repetition", "rate"]
+    for r in manifest:
+        assert r["stimulus"] == f"{r['vowel']} {r['consonant']} {r['vowel']}"
+        for col in ("file", "labels", "csv", "lab", "truth"):
+            assert (session / r[col]).is_file(), (col, r[col])
+    # Distinct even on a case-insensitive file system (S/s, L/l).
+    assert len({r["file"].lower() for r in manifest}) == len(manifest)
+    assert (session / "ground_truth.json").read_bytes() == (corpus_dir() / "ground_truth.json").read_bytes()
+
+
+def test_same_seed_same_files_other_seed_other_data(
+    session: Path, gen: ModuleType, tmp_path: Path, settings: dict[str, Any]
+) -> None:
+    again = tmp_path / "again"
+    gen.generate(again, quick=True, progress=False)
+    cmp = filecmp.dircmp(session, again)
+    assert not cmp.left_only and not cmp.right_only
+    for sub in ("", "c3d", "csv", "labels", "truth"):
+        names = sorted(p.name for p in (session / sub).iterdir() if p.is_file())
+        match, mismatch, errors = filecmp.cmpfiles(session / sub, again / sub, names, shallow=False)
+        assert not mismatch and not errors, (sub, mismatch[:3], errors[:3])
+    plan = gen.plan_trials(settings, quick=True)[0]
+    table = ParameterTable.load(corpus_dir() / "ground_truth.json")
+    a = gen.make_trial(settings, table, plan, 1, 630)
+    b = gen.make_trial(settings, table, plan, 2, 630)
+    assert not np.allclose(a.markers[:10], b.markers[:10], equal_nan=True)
+    assert not np.array_equal(a.ends, b.ends)
+
+
+def test_rerun_into_an_earlier_session_replaces_it_and_refuses_foreign_directories(
+    tmp_path: Path,
+) -> None:
+    foreign = tmp_path / "mine"
+    foreign.mkdir()
+    (foreign / "thesis.tex").write_text("precious")
+    result = CliRunner().invoke(app, ["corpus", "synth", str(foreign), "--quick"])
+    assert result.exit_code == 1
+    assert str(foreign) in result.output.replace("\n", "") and "manifest.csv" in result.output
+    assert (foreign / "thesis.tex").read_text() == "precious"
+
+
+def test_durations_are_realistic_and_fast_is_about_40_percent_shorter(
+    session: Path, manifest: list[dict[str, str]]
+) -> None:
+    vcv: dict[tuple[str, str], list[float]] = {}
+    for r in manifest:
+        t = truth(session, r)
+        d = t["ends"] - t["starts"]
+        assert list(t["labels"]) == ["#", r["vowel"], r["consonant"], r["vowel"], "#"]
+        assert 0.25 <= d[0] <= 0.5 and 0.25 <= d[4] <= 0.4, d
+        if r["rate"] == "normal":
+            assert all(0.10 <= x <= 0.19 for x in (d[1], d[3])), d
+            assert 0.06 <= d[2] <= 0.16, d
+        vcv.setdefault((r["stimulus"], r["rate"]), []).append(float(d[1:4].sum()))
+    ratios = [np.mean(vcv[(s, "fast")]) / np.mean(vcv[(s, "normal")]) for s, rate in vcv if rate == "normal"]
+    assert 0.5 < float(np.mean(ratios)) < 0.7
+
+
+# ----------------------------------------------------------------------------- markers
+
+
+def expected_noise(head_markers: F64, sigma: float, rest: npt.NDArray[np.bool_]) -> F64:
+    """RMS per channel that isotropic marker noise of ``sigma`` gives through MODEL.md §6."""
+    rng = np.random.default_rng(0)
+    clean = np.asarray(_core.marker_channels(np.ascontiguousarray(head_markers), rest))
+    diffs = []
+    for _ in range(20):
+        noisy = head_markers + rng.normal(0.0, sigma, head_markers.shape)
+        diffs.append(np.asarray(_core.marker_channels(np.ascontiguousarray(noisy), rest)) - clean)
+    return np.sqrt(np.mean(np.concatenate(diffs) ** 2, axis=0))[:6]
+
+
+def test_channels_from_the_written_markers_match_the_model_within_the_noise(
+    session: Path, manifest: list[dict[str, str]], settings: dict[str, Any]
+) -> None:
+    sigma = settings["noise"]["sigma_mm"]
+    residuals: dict[str, list[F64]] = {ch: [] for ch in CHANNELS}
+    expected: list[F64] = []
+    moved = []
+    for r in manifest[::3]:
+        t = truth(session, r)
+        trial = load_trial(session / r["file"], labels=session / r["labels"])
+        got = trial.channels()
+        rest = trial.rest_frames()
+        # y_0 is the first pause's mean lip height: where the lips have started to move before the
+        # pause ends, ULO and LLO shift by that mean; take it from the truth over the same frames.
+        m = float(np.mean(t["ULO"][rest] - t["LLO"][rest]) / 2.0)
+        shift = {"ULO": -m, "LLO": m}
+        ok = ~t["dropout_mask"].any(axis=1)
+        for ch in CHANNELS:
+            residuals[ch].append((got[ch] - (t[ch] + shift.get(ch, 0.0)))[ok])
+        expected.append(expected_noise(t["head_markers"], sigma, rest))
+        nose = trial.markers[:, 0]
+        moved.append(np.nanmax(np.linalg.norm(nose - np.nanmean(nose, axis=0), axis=1)))
+    exp = np.mean(expected, axis=0)
+    for k, ch in enumerate(CHANNELS):
+        res = np.concatenate(residuals[ch])
+        rms = float(np.sqrt(np.mean(res**2)))
+        assert 0.8 * exp[k] < rms < 1.25 * exp[k], (ch, rms, exp[k])
+        assert abs(float(np.mean(res))) < 0.01, (ch, float(np.mean(res)))
+    # The head really moves in the lab (so the head frame has work to do), by a few mm.
+    assert 1.0 < float(np.median(moved)) < 15.0
+
+
+def test_rest_is_exact_in_the_first_half_of_the_first_pause(
+    session: Path, manifest: list[dict[str, str]]
+) -> None:
+    worst = []
+    for r in manifest:
+        t = truth(session, r)
+        first_half = t["times"] <= (t["starts"][0] + t["ends"][0]) / 2.0
+        assert np.all(t["ULO"][first_half] == 0.0) and np.all(t["LLO"][first_half] == 0.0)
+        whole = (t["times"] >= t["starts"][0]) & (t["times"] <= t["ends"][0])
+        worst.append(abs(float(np.mean(t["ULO"][whole] - t["LLO"][whole]) / 2.0)))
+        assert abs(worst[-1] - abs(float(r["y0_offset_mm"]))) < 1e-4
+    # Over the whole first pause the anticipation of the first vowel moves y_0 a little.
+    assert max(worst) < 0.2
+
+
+def test_c3d_and_csv_hold_nan_exactly_at_the_dropouts(
+    session: Path, manifest: list[dict[str, str]], settings: dict[str, Any]
+) -> None:
+    lo, hi = settings["noise"]["dropout_frames"]
+    with_gaps = 0
+    for r in manifest:
+        t = truth(session, r)
+        mask = t["dropout_mask"]
+        if not mask.any():
+            continue
+        with_gaps += 1
+        for key in ("file", "csv"):
+            trial = load_trial(session / r[key])
+            assert np.array_equal(np.isnan(trial.markers).any(axis=2), mask), (r[key])
+            assert np.array_equal(np.isnan(trial.markers).all(axis=2), mask), (r[key])
+        for m in range(mask.shape[1]):
+            runs = np.diff(np.concatenate([[0], mask[:, m].astype(int), [0]]))
+            lengths = np.flatnonzero(runs == -1) - np.flatnonzero(runs == 1)
+            assert all(lengths >= lo), lengths  # runs may touch and merge: no upper check
+    # A few per marker per session: some trials have gaps, most do not.
+    assert 0 < with_gaps < len(manifest) / 2
+
+
+def test_c3d_header_rate_units_and_residuals(session: Path, manifest: list[dict[str, str]]) -> None:
+    import ezc3d
+
+    r = next(r for r in manifest if int(r["dropout_frames"]) > 0)
+    c = ezc3d.c3d(str(session / r["file"]))
+    point = c["parameters"]["POINT"]
+    assert list(point["LABELS"]["value"]) == ["NOSE", "EAR_L", "EAR_R", "UL", "LL", "LC_L", "LC_R", "CHIN"]
+    assert point["RATE"]["value"][0] == 100.0 and point["UNITS"]["value"] == ["mm"]
+    res = c["data"]["meta_points"]["residuals"][0]  # [marker, frame]
+    mask = truth(session, r)["dropout_mask"].T
+    assert np.all(res[mask] < 0) and np.all(res[~mask] >= 0)
+
+
+def test_labels_round_trip_through_textgrid_and_htk(session: Path, manifest: list[dict[str, str]]) -> None:
+    for r in manifest[::7]:
+        t = truth(session, r)
+        for key in ("labels", "lab"):
+            seg = load_trial(session / r["file"], labels=session / r[key]).segments
+            assert seg is not None
+            assert list(seg.labels) == list(t["labels"]), r[key]
+            assert np.array_equal(seg.starts, t["starts"]) and np.array_equal(seg.ends, t["ends"]), r[key]
+        raw = read_labels(session / r["lab"])
+        assert raw.labels[0] == raw.labels[-1] == "sil"  # pauses spelled as aligners do
+        assert abs(t["ends"][-1] - t["times"][-1]) < 1e-9  # the labels end on the last frame
+
+
+# ----------------------------------------------------------------------------- ground truth
+
+
+def test_ground_truth_is_valid_complete_and_reasoned(gen: ModuleType) -> None:
+    table = ParameterTable.load(corpus_dir() / "ground_truth.json")
+    phonemes = ["#", "i", "a", "u", *"p b m f v t d n l r s z ts dz tS dZ S k g J L".split()]
+    assert sorted(table.phonemes) == sorted(phonemes)
+    assert table.variant == "modified"
+    for ch in CHANNELS:
+        cs = table.channels[ch]
+        assert (cs.reference_phoneme, cs.beta, cs.edge_extent, cs.apex_fraction, cs.unit) == ("a", 1.0, 1.0, 0.5, "mm")
+    for ph in phonemes:
+        for ch in CHANNELS:
+            v = table.values[ph][ch]
+            for p in PARAMETERS:
+                why = table.reasons[ph][ch][p]
+                assert isinstance(why, str) and len(why) > 15, (ph, ch, p)
+            assert 0.5 <= v["alpha"] <= 3.0 and 5.0 <= v["theta_bw"] <= 80.0 and 5.0 <= v["theta_fw"] <= 80.0
+            assert 0.8 <= v["c_bw"] <= 2.0 and 0.8 <= v["c_fw"] <= 2.0
+            assert 200.0 <= v["psi"] <= 2000.0 and abs(v["delta"]) <= 0.08
+    # The committed JSON is what ground_truth.py builds (no hand edits drifting from the rules).
+    assert json.loads((corpus_dir() / "ground_truth.json").read_text()) == json.loads(
+        json.dumps(_build_ground_truth().to_json_dict())
+    )
+
+
+def _build_ground_truth() -> ParameterTable:
+    import importlib.util
+
+    spec = importlib.util.spec_from_file_location("coartic_gt_rules", corpus_dir() / "ground_truth.py")
+    assert spec is not None and spec.loader is not None
+    mod = importlib.util.module_from_spec(spec)
+    sys.modules[spec.name] = mod  # dataclasses look their module up there
+    spec.loader.exec_module(mod)
+    table: ParameterTable = mod.build()
+    return table
+
+
+def test_ground_truth_phonetics() -> None:
+    v = ParameterTable.load(corpus_dir() / "ground_truth.json").values
+    T = {ph: {ch: v[ph][ch]["target"] for ch in CHANNELS} for ph in v}
+    for ch in ("ULO", "LLO", "JO"):
+        assert T["a"][ch] > T["i"][ch] > T["u"][ch], ch  # open /a/ > /i/ > /u/
+    assert T["u"]["ULP"] > T["#"]["ULP"] and T["u"]["LR"] < T["#"]["LR"] < T["i"]["LR"]
+    for c in ("S", "tS", "dZ"):
+        assert T[c]["ULP"] - T["#"]["ULP"] >= 2.0 and T[c]["LLP"] - T["#"]["LLP"] >= 2.0
+    for c in ("f", "v"):
+        assert T[c]["LLP"] < T["#"]["LLP"] - 2.0 and T[c]["LLO"] < 0.0
+        assert v[c]["LLO"]["k_r"] == v[c]["LLP"]["k_r"] == 1.0
+    for c in ("p", "b", "m"):
+        assert v[c]["ULO"]["k_r"] == v[c]["LLO"]["k_r"] == 1.0
+        assert max(v[c][ch]["k_r"] for ch in ("ULP", "LLP", "LR", "JO")) < 1.0
+    assert all(v["#"][ch]["target"] == 0.0 for ch in ("ULO", "LLO"))
+    assert 45.0 <= min(T[p]["LR"] for p in T) and max(T[p]["LR"] for p in T) <= 55.0
+    assert 110.0 <= min(T[p]["JO"] for p in T) and max(T[p]["JO"] for p in T) <= 125.0
+
+
+def test_bilabials_close_the_lips_and_labiodentals_do_not(
+    session: Path, manifest: list[dict[str, str]], settings: dict[str, Any]
+) -> None:
+    gap = settings["geometry"]["rest_gap"]
+    sigma = settings["noise"]["sigma_mm"]
+    for r in manifest:
+        c = r["consonant"]
+        if c not in ("p", "b", "m", "f", "v"):
+            continue
+        t = truth(session, r)
+        inside = (t["times"] >= t["starts"][2]) & (t["times"] <= t["ends"][2])
+        aperture = t["ULO"] + t["LLO"] + gap
+        got = load_trial(session / r["file"], labels=session / r["labels"]).channels()
+        measured = got["ULO"] + got["LLO"] + gap
+        if c in ("p", "b", "m"):
+            assert aperture[inside].min() < -1.0, (r["file"], aperture[inside].min())
+            assert np.nanmin(measured[inside]) < -1.0 + 4 * sigma, r["file"]
+        else:
+            assert aperture[inside].min() > 0.2, (r["file"], aperture[inside].min())
