@@ -1,0 +1,102 @@
+"""Shared fixtures: random models and corpora for the core, the illustrative VCV table.
+
+``random_params`` and ``random_corpus_arrays`` are plain functions (tests import them with
+``from conftest import ...``) and are also offered as fixtures.
+"""
+
+from __future__ import annotations
+
+import sys
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import numpy.typing as npt
+import pytest
+
+# numpy_model.py (the NumPy reference) sits beside the tests; make it importable from any rootdir.
+sys.path.insert(0, str(Path(__file__).parent))
+
+F64 = npt.NDArray[np.float64]
+I64 = npt.NDArray[np.int64]
+CorpusArrays = dict[str, Any]
+
+
+def random_params(rng: np.random.Generator, n_phonemes: int) -> F64:
+    """A random model within the default bounds of MODEL.md §1 (δ small enough never to clamp)."""
+    n = n_phonemes
+    return np.column_stack(
+        [
+            rng.uniform(-10.0, 20.0, n),  # target
+            rng.uniform(0.2, 3.0, n),  # alpha
+            rng.uniform(5.0, 120.0, n),  # theta_bw
+            rng.uniform(5.0, 120.0, n),  # theta_fw
+            rng.uniform(0.5, 3.0, n),  # c_bw
+            rng.uniform(0.5, 3.0, n),  # c_fw
+            rng.uniform(0.0, 1.0, n),  # k_r
+            rng.uniform(-0.5, 0.5, n),  # sigma
+            rng.uniform(1.0, 400.0, n),  # psi
+            rng.uniform(-0.015, 0.015, n),  # delta
+        ]
+    )
+
+
+def random_corpus_arrays(
+    rng: np.random.Generator,
+    n_utterances: int,
+    n_phonemes: int,
+    segments: tuple[int, int] = (3, 8),
+    samples: int = 80,
+) -> CorpusArrays:
+    """CSR corpus arrays (docs/ARCHITECTURE.md) of random utterances: segments 40–200 ms long,
+    samples at random times from 50 ms before the first to 50 ms after the last segment."""
+    seg_offsets, sample_offsets = [0], [0]
+    phon: list[I64] = []
+    st: list[F64] = []
+    en: list[F64] = []
+    tm: list[F64] = []
+    for _ in range(n_utterances):
+        n_seg = int(rng.integers(segments[0], segments[1] + 1))
+        dur = rng.uniform(0.04, 0.2, n_seg)
+        gaps = np.where(rng.random(n_seg) < 0.2, rng.uniform(0.0, 0.03, n_seg), 0.0)
+        starts = np.empty(n_seg)
+        ends = np.empty(n_seg)
+        t = rng.uniform(0.0, 0.5)
+        for i in range(n_seg):  # sequentially, so that start_i >= end_(i-1) holds in floating point
+            starts[i] = t + gaps[i]
+            ends[i] = starts[i] + dur[i]
+            t = ends[i]
+        phon.append(rng.integers(0, n_phonemes, n_seg))
+        st.append(starts)
+        en.append(ends)
+        tm.append(np.sort(rng.uniform(starts[0] - 0.05, ends[-1] + 0.05, samples)))
+        seg_offsets.append(seg_offsets[-1] + n_seg)
+        sample_offsets.append(sample_offsets[-1] + samples)
+    return {
+        "seg_offsets": np.asarray(seg_offsets, dtype=np.int64),
+        "seg_phoneme": np.concatenate(phon).astype(np.int64),
+        "seg_start": np.concatenate(st),
+        "seg_end": np.concatenate(en),
+        "sample_offsets": np.asarray(sample_offsets, dtype=np.int64),
+        "sample_times": np.concatenate(tm),
+        "n_phonemes": n_phonemes,
+    }
+
+
+@pytest.fixture
+def make_params() -> Callable[[np.random.Generator, int], F64]:
+    return random_params
+
+
+@pytest.fixture
+def make_corpus_arrays() -> Callable[..., CorpusArrays]:
+    return random_corpus_arrays
+
+
+@pytest.fixture
+def illustrative_table() -> Any:
+    """The demo's hand-made LLO table (#, a, p, f, t), a valid modified-model table."""
+    from coartic.demo import illustrative_table as make
+
+    return make()

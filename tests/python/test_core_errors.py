@@ -1,0 +1,134 @@
+"""Bad input to coartic._core: a clear Python exception naming the culprit, never a panic."""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+import pytest
+from conftest import random_params
+
+from coartic import _core
+
+
+def vcv() -> dict[str, Any]:
+    return {
+        "seg_offsets": np.array([0, 5], dtype=np.int64),
+        "seg_phoneme": np.array([2, 0, 1, 0, 2], dtype=np.int64),
+        "seg_start": np.array([0.0, 0.1, 0.25, 0.33, 0.5]),
+        "seg_end": np.array([0.1, 0.25, 0.33, 0.5, 0.6]),
+        "sample_offsets": np.array([0, 60], dtype=np.int64),
+        "sample_times": np.arange(60) / 100.0,
+        "n_phonemes": 3,
+    }
+
+
+def with_(**changes: Any) -> dict[str, Any]:
+    a = vcv()
+    a.update(changes)
+    return a
+
+
+@pytest.fixture
+def corpus() -> _core.Corpus:
+    return _core.Corpus(**vcv())
+
+
+@pytest.fixture
+def params() -> np.ndarray:
+    return random_params(np.random.default_rng(0), 3)
+
+
+OPTS = _core.ModelOptions()
+
+
+@pytest.mark.parametrize(
+    ("changes", "pattern"),
+    [
+        ({"seg_start": np.array([0.0, 0.1, 0.25, 0.33])}, r"seg_start.*length 4, expected 5"),
+        ({"sample_offsets": np.array([0, 61], dtype=np.int64)}, r"sample_offsets"),
+        ({"seg_offsets": np.array([0, 4], dtype=np.int64)}, r"seg_offsets"),
+        ({"seg_start": np.array([0.0, 0.1, 0.34, 0.33, 0.5])}, r"utterance 0, segment 2.*end 0.33 is not after start 0.34"),
+        ({"seg_start": np.array([0.0, 0.1, 0.2, 0.33, 0.5])}, r"utterance 0, segment 2.*before the previous segment ends"),
+        ({"seg_phoneme": np.array([2, 0, 3, 0, 2], dtype=np.int64)}, r"segment 2.*phoneme index 3 is not below n_phonemes = 3"),
+        ({"seg_phoneme": np.array([2, 0, -1, 0, 2], dtype=np.int64)}, r"seg_phoneme\[2\] = -1 is negative"),
+        ({"sample_times": np.where(np.arange(60) == 7, np.nan, np.arange(60) / 100.0)}, r"sample_times\[7\].*not finite"),
+    ],
+)
+def test_bad_corpus_is_a_value_error_naming_the_culprit(changes: dict[str, Any], pattern: str) -> None:
+    with pytest.raises(ValueError, match=pattern):
+        _core.Corpus(**with_(**changes))
+
+
+@pytest.mark.parametrize(
+    ("name", "value", "exc", "pattern"),
+    [
+        ("seg_start", [0.0, 0.1, 0.25, 0.33, 0.5], TypeError, r"'seg_start' must be a numpy.ndarray of dtype float64, got list"),
+        ("seg_start", np.array([0.0, 0.1, 0.25, 0.33, 0.5], dtype=np.float32), TypeError, r"'seg_start'.*dtype float32"),
+        ("seg_phoneme", np.array([2, 0, 1, 0, 2], dtype=np.int32), TypeError, r"'seg_phoneme'.*int64.*int32"),
+        ("seg_end", np.zeros((5, 1)), ValueError, r"'seg_end' has shape \[5, 1\]"),
+    ],
+)
+def test_wrong_type_dtype_or_shape_names_the_argument(name: str, value: Any, exc: type[Exception], pattern: str) -> None:
+    with pytest.raises(exc, match=pattern):
+        _core.Corpus(**with_(**{name: value}))
+
+
+@pytest.mark.parametrize(
+    ("row", "col", "value", "pattern"),
+    [
+        (1, 1, np.nan, r"phoneme 1, parameter alpha: value NaN is not finite"),
+        (0, 0, np.inf, r"phoneme 0, parameter target.*not finite"),
+        (2, 6, 1.5, r"phoneme 2, parameter k_r: value 1.5 is outside its domain \[0, 1\]"),
+        (1, 2, 0.0, r"phoneme 1, parameter theta_bw.*> 0"),
+    ],
+)
+def test_bad_parameters_are_value_errors(corpus: _core.Corpus, params: np.ndarray, row: int, col: int, value: float, pattern: str) -> None:
+    params[row, col] = value
+    for call in (
+        lambda: _core.evaluate(corpus, params, 1.0, OPTS),
+        lambda: _core.jacobian(corpus, params, 1.0, OPTS),
+        lambda: _core.sse_gradient(corpus, params, 1.0, OPTS, np.zeros(60), np.ones(60)),
+    ):
+        with pytest.raises(ValueError, match=pattern):
+            call()
+
+
+def test_bad_globals_and_options(corpus: _core.Corpus, params: np.ndarray) -> None:
+    with pytest.raises(ValueError, match=r"beta = -1 is invalid"):
+        _core.evaluate(corpus, params, -1.0, OPTS)
+    with pytest.raises(ValueError, match=r"unknown model variant \"modifed\""):
+        _core.ModelOptions("modifed")
+    with pytest.raises(ValueError, match=r"apex_fraction = 1.5"):
+        _core.ModelOptions("modified", 1.5)
+    with pytest.raises(ValueError, match=r"edge_extent = 0"):
+        _core.ModelOptions("modified", 0.5, 0.0)
+
+
+def test_shapes_of_params_and_samples(corpus: _core.Corpus, params: np.ndarray) -> None:
+    with pytest.raises(ValueError, match=r"'params' has shape \[2, 10\], expected \(3, 10\)"):
+        _core.evaluate(corpus, params[:2], 1.0, OPTS)
+    with pytest.raises(ValueError, match=r"'params' has shape \[30\]"):
+        _core.evaluate(corpus, params.ravel(), 1.0, OPTS)
+    with pytest.raises(TypeError, match=r"'params'.*dtype float64, got an array of dtype int64"):
+        _core.evaluate(corpus, params.astype(np.int64), 1.0, OPTS)
+    with pytest.raises(ValueError, match=r"'observed' has shape \[59\]"):
+        _core.sse_gradient(corpus, params, 1.0, OPTS, np.zeros(59), np.ones(59))
+    with pytest.raises(ValueError, match=r"'betas' has shape \[3\], expected \(2\)"):
+        _core.evaluate_batch(corpus, np.stack([params, params]), np.ones(3), OPTS)
+    with pytest.raises(ValueError, match=r"observed\[4\] = NaN is not finite but its weight is 1"):
+        y = np.zeros(60)
+        y[4] = np.nan
+        _core.sse_gradient(corpus, params, 1.0, OPTS, y, np.ones(60))
+    with pytest.raises(ValueError, match=r"weights\[3\] = -1 is invalid"):
+        w = np.ones(60)
+        w[3] = -1.0
+        _core.sse_gradient(corpus, params, 1.0, OPTS, np.zeros(60), w)
+    with pytest.raises(TypeError):
+        _core.evaluate("corpus", params, 1.0, OPTS)  # type: ignore[arg-type]
+
+
+def test_read_only_input_is_accepted(corpus: _core.Corpus, params: np.ndarray) -> None:
+    want = _core.evaluate(corpus, params, 1.0, OPTS)
+    params.setflags(write=False)
+    assert np.array_equal(_core.evaluate(corpus, params, 1.0, OPTS), want)
