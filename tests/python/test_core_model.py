@@ -1,0 +1,108 @@
+"""coartic.model: segment lists and a table in, trajectories (and Jacobians) out."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import scipy.sparse as sp
+
+import numpy_model as nm
+from coartic import _core
+from coartic.model import (
+    ModelInputError,
+    Utterance,
+    build_corpus,
+    evaluate_corpus,
+    jacobian_columns,
+    segment_weights,
+    trajectories,
+)
+from coartic.table import ParameterTable
+
+LABELS = ["#", "a", "p", "a", "#"]
+STARTS = np.array([0.0, 0.15, 0.29, 0.39, 0.55])
+ENDS = np.array([0.15, 0.29, 0.39, 0.55, 0.7])
+TIMES = np.arange(70) / 100.0
+
+
+def test_trajectories_match_the_reference(illustrative_table: ParameterTable) -> None:
+    out = trajectories(illustrative_table, LABELS, STARTS, ENDS, TIMES)
+    assert list(out) == ["LLO"] and out["LLO"].shape == (70,)
+    phonemes = illustrative_table.phonemes_for("LLO")
+    params, beta = illustrative_table.to_matrix("LLO")
+    rows = [phonemes.index(lab) for lab in LABELS]
+    want = nm.evaluate_utterance(params, rows, STARTS, ENDS, TIMES, beta, "modified")
+    np.testing.assert_allclose(out["LLO"], want, rtol=1e-12, atol=1e-12)
+    # /p/ has k_R = 1 and σ = 0: its target is reached at its target time.
+    t_p = trajectories(illustrative_table, LABELS, STARTS, ENDS, [0.34])["LLO"][0]
+    assert t_p == pytest.approx(illustrative_table.values["p"]["LLO"]["target"], abs=1e-12)
+
+
+def test_trajectories_with_jacobian(illustrative_table: ParameterTable) -> None:
+    out = trajectories(illustrative_table, LABELS, STARTS, ENDS, TIMES, channels=["LLO"], jacobian=True)
+    values, jac = out["LLO"]
+    phonemes = illustrative_table.phonemes_for("LLO")
+    assert isinstance(jac, sp.csr_matrix) and jac.shape == (70, 10 * len(phonemes) + 1)
+    cols = jacobian_columns(phonemes)
+    assert len(cols) == jac.shape[1] and cols[-1] == "beta" and cols[10 * phonemes.index("p")] == "p.target"
+    # ∂F/∂T of a phoneme that is not in the utterance is zero.
+    assert not jac[:, cols.index("f.target")].toarray().any()
+
+
+def test_segment_weights_are_the_normalised_dominance(illustrative_table: ParameterTable) -> None:
+    table = illustrative_table
+    table.values["a"]["LLO"]["sigma"] = 0.0
+    w = segment_weights(table, "LLO", LABELS, STARTS, ENDS, TIMES)
+    assert w.shape == (5, 70)
+    np.testing.assert_allclose(w.sum(axis=0), 1.0, atol=1e-12)
+    targets = np.array([table.values[lab]["LLO"]["target"] for lab in LABELS])
+    np.testing.assert_allclose(targets @ w, trajectories(table, LABELS, STARTS, ENDS, TIMES)["LLO"], atol=1e-12)
+
+
+def test_evaluate_corpus_splits_per_utterance(illustrative_table: ParameterTable) -> None:
+    utts = [
+        Utterance(LABELS, STARTS, ENDS, TIMES, name="apa"),
+        Utterance(["#", "a", "f", "a", "#"], STARTS, ENDS, TIMES[:30], name="afa"),
+    ]
+    out = evaluate_corpus(illustrative_table, "LLO", utts)
+    assert [len(o) for o in out] == [70, 30]
+    np.testing.assert_array_equal(out[0], trajectories(illustrative_table, LABELS, STARTS, ENDS, TIMES)["LLO"])
+
+
+def test_build_corpus_layout() -> None:
+    corpus = build_corpus(
+        [Utterance(["a", "p"], [0.0, 0.1], [0.1, 0.2], [0.05, 0.15]), Utterance(["p"], [0.0], [0.3], [0.1])],
+        ["p", "a"],
+    )
+    assert isinstance(corpus, _core.Corpus)
+    assert (corpus.n_utterances, corpus.n_segments, corpus.n_samples, corpus.n_phonemes) == (2, 3, 3, 2)
+
+
+@pytest.mark.parametrize(
+    ("labels", "starts", "ends", "times", "pattern"),
+    [
+        (["a", "x"], [0.0, 0.1], [0.1, 0.2], [0.1], r"utterance 'u7': label 'x' \(segment 1\) is not a phoneme of the table"),
+        (["a", "p"], [0.0, 0.05], [0.1, 0.2], [0.1], r"utterance 'u7': segment 1 'p' starts at 0.05 s, before segment 0 'a' ends at 0.1 s"),
+        (["a", "p"], [0.0, 0.1], [0.1, 0.1], [0.1], r"utterance 'u7': segment 1 'p' ends at 0.1 s, not after its start 0.1 s"),
+        (["a", "p"], [0.0, 0.1], [0.1], [0.1], r"utterance 'u7': 2 labels, 2 starts and 1 ends"),
+        (["a"], [0.0], [0.1], [0.1, np.nan], r"utterance 'u7': times\[1\] = nan is not finite"),
+        (["a"], [0.0], [0.1], [[0.1]], r"utterance 'u7': times must be one-dimensional"),
+        ([], [], [], [0.1], r"utterance 'u7': no segments"),
+    ],
+)
+def test_build_corpus_errors_name_utterance_and_label(labels: list[str], starts: list[float], ends: list[float],
+                                                      times: list[float], pattern: str) -> None:
+    with pytest.raises(ModelInputError, match=pattern):
+        build_corpus([Utterance(labels, starts, ends, times, name="u7")], ["a", "p"])
+
+
+def test_trajectories_errors(illustrative_table: ParameterTable) -> None:
+    with pytest.raises(ModelInputError, match=r"label 'o' \(segment 2\) is not a phoneme of <table> \(known: # a p f t\)"):
+        trajectories(illustrative_table, ["#", "a", "o", "a", "#"], STARTS, ENDS, TIMES)
+    with pytest.raises(ValueError, match=r"channel 'JO' is not in the table"):
+        trajectories(illustrative_table, LABELS, STARTS, ENDS, TIMES, channels=["JO"])
+    # A value the table accepts but the core rejects is named by phoneme, not by row index.
+    illustrative_table.bounds = {"LLO": {"c_bw": (-1.0, 3.0)}}
+    illustrative_table.values["p"]["LLO"]["c_bw"] = -0.5
+    with pytest.raises(ModelInputError, match=r"channel 'LLO': phoneme 'p', parameter c_bw"):
+        trajectories(illustrative_table, LABELS, STARTS, ENDS, TIMES)

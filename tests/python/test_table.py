@@ -1,0 +1,239 @@
+"""ParameterTable: bit-for-bit JSON and CSV round trips, and a precise message for every error."""
+
+from __future__ import annotations
+
+import copy
+import json
+import math
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from coartic.table import (
+    ALL_CHANNELS,
+    CHANNELS,
+    DEFAULT_BOUNDS,
+    N_PARAMS,
+    PARAMETERS,
+    QUANTILES,
+    SCHEMA,
+    ParameterTable,
+    TableError,
+)
+
+ROW = {"target": 12.0, "alpha": 1.0, "theta_bw": 40.0, "theta_fw": 40.0, "c_bw": 1.0, "c_fw": 1.0,
+       "k_r": 0.3, "sigma": 0.0, "psi": 100.0, "delta": 0.0}
+
+
+def base_doc() -> dict[str, Any]:
+    """The example of docs/ARCHITECTURE.md, plus a /p/."""
+    return {
+        "schema": SCHEMA,
+        "variant": "modified",
+        "channels": {"LLO": {"unit": "mm", "beta": 1.0, "edge_extent": 1.0, "apex_fraction": 0.5,
+                             "reference_phoneme": "a"}},
+        "phonemes": {"a": {"LLO": dict(ROW)}, "p": {"LLO": dict(ROW, target=-2.0, alpha=1.5, k_r=1.0)}},
+        "bounds": {"LLO": {"target": [-5.0, 30.0]}},
+        "uncertainty": {"a": {"LLO": {"target": {"q2.5": 11.8, "q16": 11.9, "q50": 12.0, "q84": 12.1,
+                                                 "q97.5": 12.2}}}},
+        "reasons": {"a": {"LLO": {"target": "open vowel: the largest lower-lip opening"}}},
+        "metadata": {"method": "scipy-least-squares", "rmse": {"LLO": 0.21}},
+    }
+
+
+def test_names_follow_the_contract() -> None:
+    assert CHANNELS == ("ULO", "LLO", "ULP", "LLP", "LR", "JO")
+    assert ALL_CHANNELS == CHANNELS + ("LA",)
+    assert PARAMETERS[0] == "target" and PARAMETERS[6] == "k_r" and PARAMETERS[9] == "delta"
+    assert N_PARAMS == 10 and set(DEFAULT_BOUNDS) == set(PARAMETERS)
+    assert DEFAULT_BOUNDS["k_r"] == (0.0, 1.0) and DEFAULT_BOUNDS["c_bw"] == (0.5, 3.0)
+
+
+def test_the_architecture_example_loads(tmp_path: Path) -> None:
+    path = tmp_path / "table.json"
+    path.write_text(json.dumps(base_doc()))
+    t = ParameterTable.load(path)
+    params, beta = t.to_matrix("LLO", ["p", "a"])
+    assert params.shape == (2, 10) and params.dtype == np.float64 and beta == 1.0
+    assert params[0, PARAMETERS.index("k_r")] == 1.0 and params[1, 0] == 12.0
+    assert t.bounds_for("LLO", "target") == (-5.0, 30.0)
+    assert t.bounds_for("LLO", "k_r") == (0.0, 1.0)
+    assert t.phonemes_for("LLO") == ["a", "p"]
+
+
+finite = st.floats(allow_nan=False, allow_infinity=False, width=64)
+
+
+def rows(draw: st.DrawFn) -> dict[str, float]:
+    return {
+        "target": draw(st.floats(-1e6, 1e6)),
+        "alpha": draw(st.floats(1e-300, 1e300, exclude_min=False)),
+        "theta_bw": draw(st.floats(5e-324, 1e300).filter(lambda x: x > 0)),
+        "theta_fw": draw(st.floats(1e-3, 1e4)),
+        "c_bw": draw(st.floats(0.5, 3.0)),
+        "c_fw": draw(st.floats(0.5, 3.0)),
+        "k_r": draw(st.floats(0.0, 1.0)),
+        "sigma": draw(st.floats(-0.5, 0.5)),
+        "psi": draw(st.floats(1e-6, 1e6)),
+        "delta": draw(st.floats(-0.08, 0.08)),
+    }
+
+
+@st.composite
+def tables(draw: st.DrawFn) -> ParameterTable:
+    channels = draw(st.lists(st.sampled_from(ALL_CHANNELS), min_size=1, max_size=3, unique=True))
+    phonemes = draw(st.lists(st.sampled_from(["#", "a", "i", "u", "p", "tS", "J", "L", "ò"]), min_size=1,
+                             max_size=5, unique=True))
+    values = {ph: {ch: rows(draw) for ch in channels} for ph in phonemes}
+    reference = {ch: draw(st.sampled_from(phonemes)) for ch in channels}
+    for ch, ph in reference.items():
+        values[ph][ch]["alpha"] = 1.0
+    settings_ = {ch: {"beta": draw(st.floats(0.0, 10.0)), "edge_extent": draw(st.floats(1e-3, 5.0)),
+                      "apex_fraction": draw(st.floats(0.0, 1.0)), "unit": draw(st.sampled_from(["mm", "cm"]))}
+                 for ch in channels}
+    t = ParameterTable.from_rows(values, reference, variant=draw(st.sampled_from(["original", "modified"])),
+                                 settings=settings_)
+    if draw(st.booleans()):
+        ph, ch = phonemes[0], channels[0]
+        qs = sorted(draw(st.lists(finite, min_size=5, max_size=5)))
+        t.uncertainty = {ph: {ch: {"delta": dict(zip(QUANTILES, qs))}}}
+    t.reasons = {phonemes[0]: {channels[0]: {"target": draw(st.text(max_size=30))}}}
+    t.metadata = {"method": "hypothesis", "rmse": {channels[0]: draw(finite)}}
+    t.validate()
+    return t
+
+
+@settings(max_examples=40, deadline=None)
+@given(tables())
+def test_json_round_trip_is_bit_for_bit(tmp_path_factory: pytest.TempPathFactory, table: ParameterTable) -> None:
+    path = tmp_path_factory.mktemp("t") / "table.json"
+    table.save(path)
+    back = ParameterTable.load(path)
+    assert back == table
+    for ch in table.channels:
+        a, beta_a = table.to_matrix(ch)
+        b, beta_b = back.to_matrix(ch)
+        assert a.tobytes() == b.tobytes() and math.copysign(1, beta_a) == math.copysign(1, beta_b)
+    path2 = path.with_name("again.json")
+    back.save(path2)
+    assert path2.read_bytes() == path.read_bytes()
+
+
+@settings(max_examples=40, deadline=None)
+@given(tables())
+def test_csv_round_trip_keeps_values_settings_and_uncertainty(tmp_path_factory: pytest.TempPathFactory,
+                                                               table: ParameterTable) -> None:
+    path = tmp_path_factory.mktemp("t") / "table.csv"
+    table.save(path)
+    back = ParameterTable.load(path)
+    assert back.values == table.values and back.channels == table.channels
+    assert back.variant == table.variant and back.uncertainty == table.uncertainty
+    for ch in table.channels:
+        assert table.to_matrix(ch)[0].tobytes() == back.to_matrix(ch)[0].tobytes()
+
+
+def test_csv_is_long_form(tmp_path: Path) -> None:
+    t = ParameterTable.from_json_dict(base_doc())
+    lines = t.to_csv().splitlines()
+    assert lines[0] == "phoneme,channel,parameter,value,q2.5,q16,q50,q84,q97.5"
+    assert "a,LLO,target,12.0,11.8,11.9,12.0,12.1,12.2" in lines
+    assert "p,LLO,k_r,1.0,,,,," in lines
+
+
+def test_set_from_matrix_round_trip_and_rollback() -> None:
+    t = ParameterTable.from_json_dict(base_doc())
+    params, beta = t.to_matrix("LLO", ["a", "p"])
+    params[1, 0] = -3.5
+    t.set_from_matrix("LLO", ["a", "p"], params, beta=2.0)
+    assert t.values["p"]["LLO"]["target"] == -3.5 and t.channels["LLO"].beta == 2.0
+    params[1, 6] = 1.3
+    with pytest.raises(TableError, match=r"phoneme 'p', channel 'LLO': k_r = 1.3 is outside \[0, 1\]"):
+        t.set_from_matrix("LLO", ["a", "p"], params, beta=5.0)
+    assert t.values["p"]["LLO"]["k_r"] == 1.0 and t.channels["LLO"].beta == 2.0
+    with pytest.raises(TableError, match=r"params has shape \(2, 9\), expected \(2, 10\)"):
+        t.set_from_matrix("LLO", ["a", "p"], params[:, :9])
+
+
+def mutate(path: list[Any], value: Any) -> dict[str, Any]:
+    doc = copy.deepcopy(base_doc())
+    node = doc
+    for key in path[:-1]:
+        node = node[key]
+    if value is DELETE:
+        del node[path[-1]]
+    else:
+        node[path[-1]] = value
+    return doc
+
+
+DELETE = object()
+ERRORS = [
+    (["schema"], "coartic.table/2", r"schema is 'coartic.table/2', this version of coartic reads 'coartic.table/1'"),
+    (["variant"], "new", r"variant 'new' is not one of original, modified"),
+    (["channels", "LLO", "reference_phoneme"], "o", r"channel 'LLO': reference phoneme 'o' has no parameters for LLO"),
+    (["channels", "LLO", "beta"], -1.0, r"channel 'LLO': beta = -1.0 is outside \[0, inf\)"),
+    (["channels", "LLO", "apex_fraction"], 2.0, r"apex_fraction = 2.0 is outside \[0, 1\]"),
+    (["channels", "LLO", "speed"], 2.0, r"channel 'LLO': unknown key 'speed'"),
+    (["channels", "XYZ"], {"reference_phoneme": "a"}, r"unknown channel 'XYZ'"),
+    (["phonemes", "p", "LLO", "k_r"], 1.3, r"phoneme 'p', channel 'LLO': k_r = 1.3 is outside \[0, 1\]"),
+    (["phonemes", "p", "LLO", "alpha"], 0.0, r"phoneme 'p', channel 'LLO': alpha = 0.0 is outside \(0, inf\)"),
+    (["phonemes", "p", "LLO", "c_fw"], 0.2, r"c_fw = 0.2 is outside \[0.5, 3\]"),
+    (["phonemes", "p", "LLO", "target"], 31.0, r"phoneme 'p', channel 'LLO': target = 31.0 is outside \[-5, 30\]"),
+    (["phonemes", "p", "LLO", "sigma"], "0.1", r"sigma = '0.1' is not a number"),
+    (["phonemes", "p", "LLO", "sigma"], True, r"sigma = True is not a number"),
+    (["phonemes", "p", "LLO", "psi"], DELETE, r"phoneme 'p', channel 'LLO': missing parameter\(s\) psi"),
+    (["phonemes", "p", "LLO", "gamma"], 1.0, r"unknown parameter 'gamma'"),
+    (["phonemes", "p", "ULO"], dict(ROW), r"phoneme 'p', channel 'ULO': the channel is not declared"),
+    (["phonemes", "a", "LLO", "alpha"], 2.0, r"alpha = 2.0, but 'a' is the reference phoneme of LLO"),
+    (["bounds", "LLO", "target"], [30.0, -5.0], r"bounds for channel 'LLO', target: \[30.0, -5.0\] is not an interval"),
+    (["bounds", "LLO", "target"], [1.0], r"expected \[lo, hi\]"),
+    (["uncertainty", "a", "LLO", "target", "q99"], 1.0, r"unknown quantile 'q99'"),
+    (["uncertainty", "a", "LLO", "target", "q16"], 13.0, r"quantiles are not in increasing order"),
+    (["uncertainty", "o"], {"LLO": {"target": {"q50": 1.0}}}, r"uncertainty of phoneme 'o'.*no such parameter"),
+    (["reasons", "a", "LLO", "target"], 3, r"reason for phoneme 'a'.*must name a parameter and be a string"),
+    (["extra"], 1, r"unknown top-level key 'extra'"),
+    (["phonemes"], DELETE, r"missing required key 'phonemes'"),
+    (["metadata"], [1], r"metadata: expected a JSON object, got list"),
+]
+
+
+@pytest.mark.parametrize(("path", "value", "pattern"), ERRORS, ids=[m for _, _, m in ERRORS])
+def test_every_error_names_file_and_entry(tmp_path: Path, path: list[Any], value: Any, pattern: str) -> None:
+    file = tmp_path / "table.json"
+    file.write_text(json.dumps(mutate(path, value)))
+    with pytest.raises(TableError, match=rf"^{file}: .*{pattern}"):
+        ParameterTable.load(file)
+
+
+def test_nan_and_bad_json_and_bad_csv(tmp_path: Path) -> None:
+    file = tmp_path / "table.json"
+    doc = base_doc()
+    doc["phonemes"]["a"]["LLO"]["delta"] = math.nan  # json writes the non-standard NaN
+    file.write_text(json.dumps(doc))
+    with pytest.raises(TableError, match=r"phoneme 'a', channel 'LLO': delta = nan is not finite"):
+        ParameterTable.load(file)
+    file.write_text('{"schema": "coartic.table/1",\n "variant": }')
+    with pytest.raises(TableError, match=rf"{file}: line 2, column 13: invalid JSON"):
+        ParameterTable.load(file)
+    with pytest.raises(TableError, match=r"cannot read the table"):
+        ParameterTable.load(tmp_path / "missing.json")
+    csv_file = tmp_path / "t.csv"
+    text = ParameterTable.from_json_dict(base_doc()).to_csv()
+    csv_file.write_text(text.replace("p,LLO,theta_fw,40.0", "p,LLO,theta_fw,fast"))
+    with pytest.raises(TableError, match=r"t.csv: line \d+: phoneme 'p', channel 'LLO': theta_fw = 'fast' is not a number"):
+        ParameterTable.load(csv_file)
+    csv_file.write_text("phoneme;channel\n")
+    with pytest.raises(TableError, match=r"line 1: header must be"):
+        ParameterTable.load(csv_file)
+
+
+def test_to_matrix_errors() -> None:
+    t = ParameterTable.from_json_dict(base_doc())
+    with pytest.raises(TableError, match=r"channel 'JO' is not in the table \(channels: LLO\)"):
+        t.to_matrix("JO")
+    with pytest.raises(TableError, match=r"phoneme 'u' has no parameters for channel 'LLO' \(phonemes with LLO: a, p\)"):
+        t.to_matrix("LLO", ["a", "u"])
