@@ -352,6 +352,52 @@ def write_truth(path: Path, trial: Trial) -> None:
 # ----------------------------------------------------------------------------- the session
 
 SUBDIRS = ("c3d", "csv", "labels", "truth")
+# The trials of the overview figure: a bilabial, a labiodental and a rounded postalveolar, and the
+# bilabial again at the fast rate (its closure must still be reached).
+OVERVIEW = ("apa_normal_01", "apa_fast_01", "ifi_normal_01", "ushu_normal_01")
+
+
+def plot_overview(out: Path, gap: float) -> Path:
+    """PNG of the overview trials: channels read back from the C3D files over the model truth."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from coartic.io import load_trial
+
+    names = [n for n in OVERVIEW if (out / "c3d" / f"{n}.c3d").is_file()]
+    fig, axes = plt.subplots(len(CHANNELS) + 1, len(names), figsize=(4.2 * len(names), 13), sharex="col",
+                             squeeze=False)
+    for j, name in enumerate(names):
+        with np.load(out / "truth" / f"{name}.npz") as z:
+            t = {k: z[k] for k in z.files}
+        got = load_trial(out / "c3d" / f"{name}.c3d", labels=out / "labels" / f"{name}.TextGrid").channels()
+        rows: list[tuple[str, F64, F64]] = [(ch, t[ch], got[ch]) for ch in CHANNELS]
+        rows.append(("aperture", t["ULO"] + t["LLO"] + gap, got["ULO"] + got["LLO"] + gap))
+        for i, (label, model, measured) in enumerate(rows):
+            ax = axes[i, j]
+            ax.plot(t["times"], measured, ".", ms=2.5, color="0.45", label="read back from the C3D")
+            ax.plot(t["times"], model, color="C3", lw=1.2, label="model (truth)")
+            for b in t["starts"][1:]:
+                ax.axvline(b, color="0.8", lw=0.7, zorder=0)
+            if label == "aperture":
+                ax.axhline(0.0, color="k", lw=0.6, ls=":")
+            if j == 0:
+                ax.set_ylabel(f"{label} (mm)")
+        top = axes[0, j]
+        top.set_title(name, pad=14)
+        for lab, s, e in zip(t["labels"], t["starts"], t["ends"]):
+            top.annotate(str(lab), ((s + e) / 2.0, 1.0), xycoords=("data", "axes fraction"),
+                         ha="center", va="bottom", fontsize=8)
+        axes[-1, j].set_xlabel("time (s)")
+    axes[0, 0].legend(loc="lower left", fontsize=7)
+    fig.suptitle("Synthetic session: channels of MODEL.md §6 from the written markers, over the model", y=0.995)
+    fig.tight_layout()
+    path = out / "overview.png"
+    fig.savefig(path, dpi=80)
+    plt.close(fig)
+    return path
 
 
 def _prepare(out: Path) -> None:
@@ -431,6 +477,7 @@ def generate(out: str | Path, seed: int | None = None, quick: bool = False, prog
         + "\n",
         encoding="utf-8",
     )
+    plot_overview(out, settings["geometry"]["rest_gap"])
     manifest = out / "manifest.csv"
     with open(manifest, "w", newline="", encoding="utf-8") as fh:
         w = csv.DictWriter(fh, fieldnames=MANIFEST_COLUMNS)
