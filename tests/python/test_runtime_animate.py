@@ -172,3 +172,24 @@ def test_cli_animate_and_its_errors(tmp_path: Path, labels: Path) -> None:
 def test_label_reader_errors_pass_through(tmp_path: Path) -> None:
     with pytest.raises(DataError):
         animate_file(tmp_path / "missing.TextGrid", make_table(), tmp_path / "o")
+
+
+def test_contact_snapping_keeps_short_closures_on_a_frame() -> None:
+    # fast /apa/: a 30 ms /p/ between two 25 fps frames (0.44 and 0.48 s), 50 ms vowels
+    seg = Segments(("#", "a", "p", "a", "#"), np.array([0.0, 0.4, 0.45, 0.48, 0.53]),
+                   np.array([0.4, 0.45, 0.48, 0.53, 1.0]))
+    table = make_table()
+    closure = TARGETS["p"]["ULO"] + TARGETS["p"]["LLO"]
+    plain = animate(table, seg, 25.0, snap_contacts=False)
+    snapped = animate(table, seg, 25.0)
+    la_plain = plain.channels["ULO"] + plain.channels["LLO"]
+    la_snap = snapped.channels["ULO"] + snapped.channels["LLO"]
+    assert la_plain.min() - closure > 0.5  # uniform sampling shows the lips apart
+    k = int(np.argmin(la_snap))
+    assert k == 12 and la_snap[k] == pytest.approx(closure, abs=1e-9)  # 0.48 s, 15 ms from t_p = 0.465 s
+    assert snapped.sample_times["ULO"][k] == pytest.approx(0.465)
+    # only frames next to k_R = 1 targets move, each by at most half a frame
+    moved = snapped.sample_times["LLO"] != snapped.times
+    assert np.all(np.abs(snapped.sample_times["LLO"] - snapped.times) <= 0.02 + 1e-12)
+    assert 0 < moved.sum() <= 3  # /p/ and the two pauses
+    np.testing.assert_array_equal(la_plain[~moved], la_snap[~moved])

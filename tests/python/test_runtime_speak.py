@@ -71,8 +71,25 @@ def test_lips_close_and_lower_lip_reaches_teeth_at_any_rate(
             assert abs(aperture - closure) <= 0.05, (i, ph, aperture, closure)
         if ph in LABIODENTAL:
             assert abs(llo[i] - reached(table, ph, "LLO")) <= 0.05, (i, ph, llo[i])
+    # and the FAP stream shows it: the frame nearest each target time (contact snapping)
+    a = result.animation
+    frame = np.rint(t_u * a.fps).astype(int)
+    for i, ph in enumerate(labels):
+        k = min(frame[i], a.n_frames - 1)
+        if ph in BILABIAL:
+            closure = reached(table, ph, "ULO") + reached(table, ph, "LLO")
+            assert abs(a.channels["ULO"][k] + a.channels["LLO"][k] - closure) <= 0.05, (i, ph, k)
+        if ph in LABIODENTAL:
+            assert abs(a.channels["LLO"][k] - reached(table, ph, "LLO")) <= 0.05, (i, ph, k)
     # faster speech: the same phones in less time
     if stretch != 1.0:
+        # and at 25 fps uniform sampling alone would show lips visibly apart (~0.6 mm) on some /p b m/
+        plain = speak_text(SENTENCE, table, tmp_path / "plain", stretch=stretch, preview="none",
+                           snap_contacts=False).animation
+        gaps = [abs(plain.channels["ULO"][frame[i]] + plain.channels["LLO"][frame[i]]
+                    - reached(table, ph, "ULO") - reached(table, ph, "LLO"))
+                for i, ph in enumerate(labels) if ph in BILABIAL]
+        assert max(gaps) > 0.3
         normal = speak_text(SENTENCE, table, tmp_path / "normal", preview="none")
         assert normal.animation.segments.labels == labels
         assert seg.ends[-2] < 0.7 * normal.animation.segments.ends[-2]

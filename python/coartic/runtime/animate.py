@@ -31,6 +31,8 @@ class Animation:
     channels: dict[str, NDArray[np.float64]]
     segments: Segments
     substitutions: dict[str, str] = field(default_factory=dict)
+    # channel -> the instants actually sampled, where contact snapping moved some frames
+    sample_times: dict[str, NDArray[np.float64]] = field(default_factory=dict)
 
     @property
     def n_frames(self) -> int:
@@ -130,13 +132,48 @@ def animate(
     duration: float | None = None,
     channels: Sequence[str] = CHANNELS,
     substitutions: Mapping[str, str] | None = None,
+    snap_contacts: bool = True,
 ) -> Animation:
-    """Trajectories of `channels` for `segments` at `fps` over `duration` (default: to the last end)."""
+    """Trajectories of `channels` for `segments` at `fps` over `duration` (default: to the last end).
+
+    With `snap_contacts`, the frame nearest to the target time of a phoneme with k_R = 1 on a
+    channel shows that channel at the target time itself (at most half a frame away): a /p/ of
+    30 ms falls between two frames at 25 fps, and uniform sampling would show lips that never close.
+    """
     total = segments.end_time if duration is None else duration
     times = frame_times(total, fps)
-    values = evaluate(table, segments, times, channels)
+    check_phonemes(table, segments, channels)
+    values: dict[str, NDArray[np.float64]] = {}
+    snapped: dict[str, NDArray[np.float64]] = {}
+    for ch in channels:
+        sample = contact_sample_times(table, segments, ch, times, fps) if snap_contacts else times
+        values[ch] = evaluate(table, segments, sample, [ch])[ch]
+        if not np.array_equal(sample, times):
+            snapped[ch] = sample
     return Animation(fps=float(fps), times=times, channels=values, segments=segments,
-                     substitutions=dict(substitutions or {}))
+                     substitutions=dict(substitutions or {}), sample_times=snapped)
+
+
+def contact_sample_times(
+    table: ParameterTable, segments: Segments, channel: str, times: NDArray[np.float64], fps: float
+) -> NDArray[np.float64]:
+    """Frame times, except that the frame nearest each k_R = 1 target time samples that time.
+
+    The first target claims a frame (a geminate /p p/ at speed can share one); frames stay in order
+    because a target time moves its frame by at most half a frame.
+    """
+    sample = times.copy()
+    claimed = np.zeros(times.size, dtype=bool)
+    t_target = target_times(table, segments, channel)
+    for i, ph in enumerate(segments.labels):
+        if table.values[ph][channel]["k_r"] != 1.0:
+            continue
+        k = min(max(int(round(t_target[i] * fps)), 0), times.size - 1)
+        # the tolerance lets a target exactly between two frames (rounded either way) take one
+        if not claimed[k] and abs(t_target[i] - times[k]) <= 0.5 / fps + 1e-9:
+            sample[k] = t_target[i]
+            claimed[k] = True
+    return sample
 
 
 def neutral_posture(table: ParameterTable, channels: Sequence[str] = CHANNELS) -> dict[str, float]:

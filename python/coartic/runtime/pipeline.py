@@ -89,12 +89,13 @@ def animate_file(
     label_map: str | None = None,
     face: FaceUnits | None = None,
     preview: str = "gif",
+    snap_contacts: bool = True,
     progress: Progress | None = None,
 ) -> RuntimeOutput:
     """A label file (.lab / TextGrid / TSV) → channels, FAP file and preview in `out`."""
     raw = read_labels(labels, tier=tier)
     segments = resolve_label_map(label_map).apply(raw)
-    animation = animate(table, segments, fps)
+    animation = animate(table, segments, fps, snap_contacts=snap_contacts)
     keep = raw.labels if raw.labels != segments.labels else None
     return _write_outputs(animation, table, Path(out), _name_from(Path(labels).stem), face or FaceUnits(),
                           preview, keep, progress)
@@ -113,6 +114,7 @@ def speak_text(
     phone_map: PhoneMap | None = None,
     preview: str = "gif",
     festival: str = "festival",
+    snap_contacts: bool = True,
     progress: Progress | None = None,
 ) -> RuntimeOutput:
     """Italian text → Festival's WAV, and channels, FAP file and preview lasting as long as the WAV.
@@ -133,7 +135,8 @@ def speak_text(
     used: dict[str, str] = {}
     if not strict:
         segments, used = substitute(segments, table, CHANNELS, pmap.fallbacks)
-    animation = animate(table, segments, fps, duration=utt.duration, substitutions=used)
+    animation = animate(table, segments, fps, duration=utt.duration, substitutions=used,
+                        snap_contacts=snap_contacts)
     result = _write_outputs(animation, table, out, _name_from(text), face or FaceUnits(), preview,
                             utt.phones, progress)
     result.files["wav"] = utt.wav

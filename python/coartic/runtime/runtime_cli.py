@@ -28,6 +28,7 @@ OutOpt = Annotated[Path, typer.Option("--out", "-o", help="Output directory (cre
 FpsOpt = Annotated[float, typer.Option("--fps", help="Frames per second of the channels, FAP file and preview.")]
 MnsOpt = Annotated[float, typer.Option("--mns", help="The face's neutral mouth-nose separation, mm (FAPU = MNS/1024).")]
 MwOpt = Annotated[float, typer.Option("--mw", help="The face's neutral mouth width, mm (FAPU = MW/1024).")]
+SnapOpt = Annotated[bool, typer.Option("--snap-contacts/--no-snap-contacts", help="Show each k_R = 1 target (lip closure, lip-teeth contact) on its nearest frame.")]
 PreviewOpt = Annotated[str, typer.Option("--preview", help=f"Preview format: {', '.join(PREVIEW_FORMATS)}.")]
 
 
@@ -69,6 +70,7 @@ def animate_command(
     mns: MnsOpt = 30.0,
     mw: MwOpt = 50.0,
     preview: PreviewOpt = "gif",
+    snap_contacts: SnapOpt = True,
 ) -> None:
     """Animate a label file: channel trajectories (CSV), an MPEG-4 FAP file and a preview."""
     from coartic.runtime.pipeline import animate_file
@@ -77,7 +79,8 @@ def animate_command(
         t = _load_table(table)
         with _progress() as progress:
             result = animate_file(labels, t, out, fps=fps, tier=tier, label_map=label_map,
-                                  face=FaceUnits(mns, mw), preview=preview, progress=progress)
+                                  face=FaceUnits(mns, mw), preview=preview, snap_contacts=snap_contacts,
+                                  progress=progress)
     except (AnimationError, DataError, TableError) as err:
         _fail(err)
     _report(result)
@@ -94,6 +97,7 @@ def speak_command(
     mns: MnsOpt = 30.0,
     mw: MwOpt = 50.0,
     preview: PreviewOpt = "gif",
+    snap_contacts: SnapOpt = True,
 ) -> None:
     """Say Italian text with Festival: WAV, channel trajectories, FAP file and preview, all as long as the WAV."""
     from coartic.runtime.pipeline import speak_text
@@ -102,7 +106,8 @@ def speak_command(
         t = _load_table(table)
         with _progress() as progress:
             result = speak_text(text, t, out, fps=fps, stretch=stretch, voice=voice, strict=strict,
-                                face=FaceUnits(mns, mw), preview=preview, progress=progress)
+                                face=FaceUnits(mns, mw), preview=preview, snap_contacts=snap_contacts,
+                                progress=progress)
     except (AnimationError, DataError, TableError) as err:
         _fail(err)
     _report(result)
