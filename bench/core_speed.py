@@ -21,6 +21,7 @@ import sys
 import timeit
 from collections.abc import Callable
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -38,7 +39,7 @@ def best(fn: Callable[[], object], repeat: int, number: int) -> float:
     return min(timeit.repeat(fn, repeat=repeat, number=number)) / number
 
 
-def vcv_corpus(n_utt: int, n_samples: int, rng: np.random.Generator) -> dict[str, object]:
+def vcv_corpus(n_utt: int, n_samples: int, rng: np.random.Generator) -> dict[str, Any]:
     """n_utt utterances # V C V C V # (7 segments), durations varied, n_samples evenly spaced."""
     n_seg = 7
     seg_phoneme = np.empty(n_utt * n_seg, dtype=np.int64)
@@ -91,11 +92,13 @@ def main() -> None:
     for variant in ("modified", "original"):
         opts = _core.ModelOptions(variant)
         got = _core.evaluate(corpus, params, beta, opts)
-        ref_args = [arrays[k] for k in ("seg_offsets", "seg_phoneme", "seg_start", "seg_end", "sample_offsets", "sample_times")]
-        want = nm.evaluate_corpus(params, *ref_args, beta, variant)  # type: ignore[arg-type]
+        def reference(variant: str = variant) -> np.ndarray:
+            return nm.evaluate_corpus_arrays(params, arrays, beta, variant)
+
+        want = reference()
         err = float(np.max(np.abs(got - want) / np.maximum(1.0, np.abs(want))))
         t_rust = best(lambda: _core.evaluate(corpus, params, beta, opts), repeat=7, number=20)
-        t_numpy = best(lambda: nm.evaluate_corpus(params, *ref_args, beta, variant), repeat=3, number=1)  # type: ignore[arg-type]
+        t_numpy = best(reference, repeat=3, number=1)
         t_limit = best(lambda: _core.physical_limit_loop(corpus, params, opts), repeat=7, number=20)
         t_jac = best(lambda: _core.jacobian(corpus, params, beta, opts), repeat=5, number=5)
         y = got + rng.normal(0, 0.1, got.shape)

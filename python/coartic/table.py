@@ -237,9 +237,9 @@ class ParameterTable:
                         f"{src}: phoneme {ph!r}, channel {ch!r}: alpha = {chans[ch]['alpha']!r}, but {ph!r} is the "
                         f"reference phoneme of {ch}, whose alpha is fixed to 1"
                     )
-        for ph, chans in self.uncertainty.items():
-            for ch, per in chans.items():
-                for name, qs in per.items():
+        for ph, u_chans in self.uncertainty.items():
+            for ch, u_per in u_chans.items():
+                for name, qs in u_per.items():
                     where = f"{src}: uncertainty of phoneme {ph!r}, channel {ch!r}, {name}"
                     if ph not in self.values or ch not in self.values[ph] or name not in PARAMETERS:
                         raise TableError(f"{where}: no such parameter in the table")
@@ -251,9 +251,9 @@ class ParameterTable:
                     present = [qs[q] for q in QUANTILES if q in qs]
                     if any(b < a for a, b in zip(present, present[1:])):
                         raise TableError(f"{where}: quantiles are not in increasing order: {qs}")
-        for ph, chans in self.reasons.items():
-            for ch, per in chans.items():
-                for name, text in per.items():
+        for ph, r_chans in self.reasons.items():
+            for ch, r_per in r_chans.items():
+                for name, text in r_per.items():
                     if name not in PARAMETERS or not isinstance(text, str):
                         raise TableError(
                             f"{src}: reason for phoneme {ph!r}, channel {ch!r}, {name!r} must name a parameter "

@@ -6,7 +6,8 @@ below is a line of MODEL.md §1–3. The benchmark imports it as the "NumPy refe
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
+from typing import Any
 
 import numpy as np
 import numpy.typing as npt
@@ -47,7 +48,7 @@ def log_rho(u: F64, beta: float) -> F64:
 
 def evaluate_utterance(
     params: F64,
-    rows: Sequence[int],
+    rows: Sequence[int] | npt.NDArray[np.int64],
     starts: F64,
     ends: F64,
     times: F64,
@@ -121,3 +122,27 @@ def evaluate_corpus(
             edge_extent,
         )
     return out
+
+
+def evaluate_corpus_arrays(
+    params: F64,
+    arrays: Mapping[str, Any],
+    beta: float = 1.0,
+    variant: str = "modified",
+    apex_fraction: float = 0.5,
+    edge_extent: float = 1.0,
+) -> F64:
+    """``evaluate_corpus`` on the keyword arrays of ``coartic._core.Corpus`` (as a dict)."""
+    return evaluate_corpus(
+        params,
+        arrays["seg_offsets"],
+        arrays["seg_phoneme"],
+        arrays["seg_start"],
+        arrays["seg_end"],
+        arrays["sample_offsets"],
+        arrays["sample_times"],
+        beta,
+        variant,
+        apex_fraction,
+        edge_extent,
+    )

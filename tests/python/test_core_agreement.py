@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
 import pytest
 from conftest import random_corpus_arrays, random_params
@@ -27,7 +29,7 @@ def test_matches_numpy_reference(variant: str, seed: int) -> None:
     edge = float(rng.uniform(0.3, 2.0))
     corpus = _core.Corpus(**arrays)
     got = _core.evaluate(corpus, params, beta, _core.ModelOptions(variant, apex, edge))
-    want = nm.evaluate_corpus(params, *[arrays[k] for k in list(arrays)[:-1]], beta, variant, apex, edge)
+    want = nm.evaluate_corpus_arrays(params, arrays, beta, variant, apex, edge)
     assert got.shape == (corpus.n_samples,)
     assert rel_err(got, want) < 1e-12
 
@@ -41,7 +43,7 @@ def test_underflowing_dominance_stays_finite_and_exact() -> None:
     params[:, 4:6] = 1.0
     corpus = _core.Corpus(**arrays)
     got = _core.evaluate(corpus, params, 1.0, _core.ModelOptions("original"))
-    want = nm.evaluate_corpus(params, *[arrays[k] for k in list(arrays)[:-1]], 1.0, "original")
+    want = nm.evaluate_corpus_arrays(params, arrays, 1.0, "original")
     assert np.all(np.isfinite(got))
     assert rel_err(got, want) < 1e-12
 
@@ -120,7 +122,7 @@ def test_non_contiguous_and_fortran_input_give_the_same_answer() -> None:
     params = random_params(rng, 4)
     opts = _core.ModelOptions()
     want = _core.evaluate(_core.Corpus(**arrays), params, 1.0, opts)
-    strided = {k: (np.repeat(v, 2)[::2] if isinstance(v, np.ndarray) else v) for k, v in arrays.items()}
+    strided: dict[str, Any] = {k: (np.repeat(v, 2)[::2] if isinstance(v, np.ndarray) else v) for k, v in arrays.items()}
     assert not strided["sample_times"].flags.c_contiguous
     corpus = _core.Corpus(**strided)
     fortran = np.asfortranarray(params)

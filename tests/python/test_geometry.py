@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from scipy.spatial.transform import Rotation
+from scipy.spatial.transform import Rotation  # type: ignore[import-untyped]
 
 from coartic import _core
 
@@ -94,7 +94,7 @@ def test_errors_name_the_argument() -> None:
     with pytest.raises(ValueError, match=r"'rest' has shape \[3\], expected \(4\)"):
         _core.marker_channels(frames, np.ones(3, dtype=bool))
     with pytest.raises(TypeError, match=r"'rest' must be a numpy.ndarray of dtype bool"):
-        _core.marker_channels(frames, np.ones(4))
+        _core.marker_channels(frames, np.ones(4))  # type: ignore[arg-type]
     with pytest.raises(ValueError, match=r"ear_r = 9 is not a marker index \(there are 8 markers\)"):
         _core.head_frame(frames, 0, 1, 9)
 
