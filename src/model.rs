@@ -4,7 +4,7 @@
 
 use crate::dominance::log_dominance;
 use crate::params::{ModelOptions, Param, N_PARAMS};
-use crate::resistance::{inverse_extent, Resistance};
+use crate::resistance::Resistance;
 use crate::shape::Shape;
 use crate::targets::target_time;
 
@@ -22,10 +22,11 @@ pub(crate) struct SegmentModel {
     pub c_fw: f64,
     pub sigma: f64,
     pub psi: f64,
-    /// 1/Δ⁻_i and 1/Δ⁺_i; 0 where R ≡ 1 on that side (backward of the first segment, forward
-    /// of the last), which makes u = 0 and every derivative through the extent vanish.
-    pub inv_bwd: f64,
-    pub inv_fwd: f64,
+    /// Δ⁻_i and Δ⁺_i; +∞ where R ≡ 1 on that side (backward of the first segment, forward of
+    /// the last, every side in the original model), which makes u = 0 and every derivative
+    /// through the extent vanish.
+    pub ext_bwd: f64,
+    pub ext_fwd: f64,
 }
 
 /// Per-utterance precomputation, reused from utterance to utterance by one worker so the inner
@@ -81,8 +82,8 @@ impl Prepared {
                 c_fw: row[Param::CFw.index()],
                 sigma: row[Param::Sigma.index()],
                 psi: row[Param::Psi.index()],
-                inv_bwd: 0.0,
-                inv_fwd: 0.0,
+                ext_bwd: f64::INFINITY,
+                ext_fwd: f64::INFINITY,
             });
             self.free.push(free);
             self.t.push(t);
@@ -105,16 +106,12 @@ impl Prepared {
         if !res.is_none() {
             for i in 0..n {
                 let s = &mut self.seg[i];
-                s.inv_bwd = if i == 0 {
-                    0.0
-                } else {
-                    inverse_extent(self.ext_bwd[i])
-                };
-                s.inv_fwd = if i + 1 == n {
-                    0.0
-                } else {
-                    inverse_extent(self.ext_fwd[i])
-                };
+                if i > 0 {
+                    s.ext_bwd = self.ext_bwd[i];
+                }
+                if i + 1 < n {
+                    s.ext_fwd = self.ext_fwd[i];
+                }
             }
         }
     }
@@ -126,13 +123,13 @@ impl Prepared {
         for (s, lw_out) in self.seg.iter().zip(self.log_w.iter_mut()) {
             let tau = time - s.t;
             let a = tau.abs();
-            let (theta, c, inv) = if tau <= 0.0 {
-                (s.theta_bw, s.c_bw, s.inv_bwd)
+            let (theta, c, ext) = if tau <= 0.0 {
+                (s.theta_bw, s.c_bw, s.ext_bwd)
             } else {
-                (s.theta_fw, s.c_fw, s.inv_fwd)
+                (s.theta_fw, s.c_fw, s.ext_fwd)
             };
             // R first: a pair beyond its extent costs no transcendental at all.
-            let mut lw = res.log_value(a, inv, beta);
+            let mut lw = res.log_value(a, ext, beta);
             if lw != f64::NEG_INFINITY {
                 lw += log_dominance(s.log_alpha, theta, c, a).log_d;
                 if lw > max_lw {
@@ -183,12 +180,12 @@ impl Prepared {
             for s in &self.seg {
                 let tau = time - s.t;
                 let a = tau.abs();
-                let (theta, c, inv) = if tau <= 0.0 {
-                    (s.theta_bw, s.c_bw, s.inv_bwd)
+                let (theta, c, ext) = if tau <= 0.0 {
+                    (s.theta_bw, s.c_bw, s.ext_bwd)
                 } else {
-                    (s.theta_fw, s.c_fw, s.inv_fwd)
+                    (s.theta_fw, s.c_fw, s.ext_fwd)
                 };
-                if !res.is_none() && a * inv >= 1.0 {
+                if !res.is_none() && a >= ext {
                     continue;
                 }
                 let power = (c * a.ln()).exp();

@@ -33,17 +33,20 @@ impl Resistance {
         matches!(self, Resistance::None)
     }
 
-    /// ln R for |τ| = `abs_tau` against an extent with reciprocal `inv_extent` (1/Δ; +∞ for a
-    /// zero extent). Returns −∞ where R = 0 (u ≥ 1): the caller skips that pair.
+    /// ln R for |τ| = `abs_tau` against the extent Δ of the sample's side (+∞ where R ≡ 1 on
+    /// that side). Returns −∞ where R = 0 (u ≥ 1, including Δ = 0): the caller skips that pair.
+    ///
+    /// u is |τ|/Δ by division, not by a reciprocal: at the next target of a k_R = 1 phoneme,
+    /// |τ| and Δ are the same difference t_{i+1} − t_i and u must be exactly 1.
     #[inline(always)]
-    pub fn log_value(self, abs_tau: f64, inv_extent: f64, beta: f64) -> f64 {
+    pub fn log_value(self, abs_tau: f64, extent: f64, beta: f64) -> f64 {
         match self {
             Resistance::None => 0.0,
             Resistance::Cutoff => {
                 if abs_tau == 0.0 {
                     return 0.0;
                 }
-                let u = abs_tau * inv_extent;
+                let u = abs_tau / extent;
                 if u >= 1.0 {
                     f64::NEG_INFINITY
                 } else {
@@ -56,14 +59,14 @@ impl Resistance {
     /// ln R and its derivatives; `None` where R = 0 (u ≥ 1), where ρ is C∞ and every
     /// derivative is 0.
     #[inline(always)]
-    pub fn log_value_grad(self, abs_tau: f64, inv_extent: f64, beta: f64) -> Option<LogResistance> {
+    pub fn log_value_grad(self, abs_tau: f64, extent: f64, beta: f64) -> Option<LogResistance> {
         match self {
             Resistance::None => Some(LogResistance::default()),
             Resistance::Cutoff => {
                 if abs_tau == 0.0 {
                     return Some(LogResistance::default());
                 }
-                let u = abs_tau * inv_extent;
+                let u = abs_tau / extent;
                 if u >= 1.0 {
                     return None;
                 }
@@ -76,8 +79,8 @@ impl Resistance {
                 Some(LogResistance {
                     log_r: -beta * u * q,
                     // u = |τ|/Δ: ∂u/∂Δ = −u/Δ, ∂u/∂|τ| = 1/Δ.
-                    d_extent: -d_u * u * inv_extent,
-                    d_abs_tau: d_u * inv_extent,
+                    d_extent: -d_u * u / extent,
+                    d_abs_tau: d_u / extent,
                     d_beta: -u * q,
                 })
             }
@@ -152,17 +155,6 @@ impl Resistance {
     }
 }
 
-/// 1/Δ, with +∞ for a zero extent (two target times clamped onto the same boundary with k_R = 1):
-/// then every τ ≠ 0 on that side is beyond the extent.
-#[inline(always)]
-pub fn inverse_extent(extent: f64) -> f64 {
-    if extent > 0.0 {
-        1.0 / extent
-    } else {
-        f64::INFINITY
-    }
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -170,12 +162,18 @@ mod tests {
     #[test]
     fn rho_is_exponential_near_zero_and_zero_beyond() {
         let r = Resistance::Cutoff;
-        assert_eq!(r.log_value(0.0, 10.0, 2.0), 0.0);
-        assert_eq!(r.log_value(0.1, 10.0, 2.0), f64::NEG_INFINITY);
-        assert_eq!(r.log_value(0.2, 10.0, 2.0), f64::NEG_INFINITY);
-        let v = r.log_value(0.05, 10.0, 2.0);
+        assert_eq!(r.log_value(0.0, 0.1, 2.0), 0.0);
+        assert_eq!(r.log_value(0.1, 0.1, 2.0), f64::NEG_INFINITY);
+        assert_eq!(r.log_value(0.2, 0.1, 2.0), f64::NEG_INFINITY);
+        let v = r.log_value(0.05, 0.1, 2.0);
         assert!((v - (-2.0 * 0.5 / 0.5)).abs() < 1e-15);
-        assert!(r.log_value_grad(0.1, 10.0, 2.0).is_none());
+        assert!(r.log_value_grad(0.1, 0.1, 2.0).is_none());
+        // No resistance on this side (Δ = +∞), and a zero extent.
+        assert_eq!(r.log_value(0.3, f64::INFINITY, 2.0), 0.0);
+        let g = r.log_value_grad(0.3, f64::INFINITY, 2.0).unwrap();
+        assert_eq!((g.d_extent, g.d_abs_tau, g.d_beta), (0.0, 0.0, 0.0));
+        assert_eq!(r.log_value(0.01, 0.0, 2.0), f64::NEG_INFINITY);
+        assert_eq!(r.log_value(0.0, 0.0, 2.0), 0.0);
     }
 
     #[test]
