@@ -193,3 +193,26 @@ def test_contact_snapping_keeps_short_closures_on_a_frame() -> None:
     assert np.all(np.abs(snapped.sample_times["LLO"] - snapped.times) <= 0.02 + 1e-12)
     assert 0 < moved.sum() <= 3  # /p/ and the two pauses
     np.testing.assert_array_equal(la_plain[~moved], la_snap[~moved])
+
+
+REAL_LABELS = Path(__file__).resolve().parents[1] / "data" / "realdata" / "emu-ema-german" / "derived"
+GROUND_TRUTH = Path(__file__).resolve().parents[2] / "corpus-synthetic" / "ground_truth.json"
+
+
+def test_real_german_labels_with_fallbacks_and_strict(tmp_path: Path) -> None:
+    labels = REAL_LABELS / "dfgspp_mo1_prosody_0024_Segment.tsv"
+    table = ParameterTable.load(GROUND_TRUTH)
+    result = animate_file(labels, table, tmp_path / "o", fps=25.0, label_map="german_sampa", preview="none")
+    a = result.animation
+    assert a.n_frames == round(a.segments.ends[-1] * 25)
+    assert "e" in a.substitutions  # German schwa -> /e/, which the i-a-u session lacks
+    assert set(a.segments.labels) <= set(table.values)
+    # the labelled /m/ and /b/ close the lips on their nearest frame (k_R = 1, contact snapping)
+    t = target_times(table, a.segments, "ULO")
+    for i, ph in enumerate(a.segments.labels):
+        if ph in ("p", "b", "m"):
+            k = int(round(t[i] * 25))
+            closure = sum(table.values[ph][c]["target"] * (1 + table.values[ph][c]["sigma"]) for c in ("ULO", "LLO"))
+            assert a.channels["ULO"][k] + a.channels["LLO"][k] == pytest.approx(closure, abs=1e-6)
+    with pytest.raises(MissingPhonemeError, match=r"has no phoneme 'O', needed by segment 3 of .*0024_Segment.tsv, line 4"):
+        animate_file(labels, table, tmp_path / "s", label_map="german_sampa", preview="none", strict=True)

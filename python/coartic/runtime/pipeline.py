@@ -90,12 +90,20 @@ def animate_file(
     face: FaceUnits | None = None,
     preview: str = "gif",
     snap_contacts: bool = True,
+    strict: bool = False,
+    phone_map: PhoneMap | None = None,
     progress: Progress | None = None,
 ) -> RuntimeOutput:
-    """A label file (.lab / TextGrid / TSV) → channels, FAP file and preview in `out`."""
+    """A label file (.lab / TextGrid / TSV) → channels, FAP file and preview in `out`.
+
+    Phonemes the table lacks are replaced by the phone map's fallbacks unless `strict`.
+    """
     raw = read_labels(labels, tier=tier)
     segments = resolve_label_map(label_map).apply(raw)
-    animation = animate(table, segments, fps, snap_contacts=snap_contacts)
+    used: dict[str, str] = {}
+    if not strict:
+        segments, used = substitute(segments, table, CHANNELS, (phone_map or PhoneMap.load()).fallbacks)
+    animation = animate(table, segments, fps, snap_contacts=snap_contacts, substitutions=used)
     keep = raw.labels if raw.labels != segments.labels else None
     return _write_outputs(animation, table, Path(out), _name_from(Path(labels).stem), face or FaceUnits(),
                           preview, keep, progress)

@@ -286,7 +286,8 @@ def render_strip(
     table: ParameterTable,
     path: str | Path,
     *,
-    max_panels: int = 14,
+    max_panels: int = 40,
+    per_row: int = 10,
 ) -> Path:
     """PNG strip: the front view at each non-pause segment's target time, labelled with its phoneme."""
     _require_channels(animation)
@@ -299,9 +300,11 @@ def render_strip(
         raise AnimationError("the utterance has only pauses: nothing to show in a strip")
     t = target_times(table, seg, "LLO")[idx]
     values = evaluate(table, seg, t, CHANNELS)
-    fig: Figure = plt.figure(figsize=(1.3 * len(idx), 2.0), dpi=100)
+    cols = min(len(idx), per_row)
+    rows = -(-len(idx) // per_row)
+    fig: Figure = plt.figure(figsize=(1.3 * cols, 1.6 * rows + 0.2), dpi=100)
     for j, i in enumerate(idx):
-        ax = fig.add_subplot(1, len(idx), j + 1)
+        ax = fig.add_subplot(rows, cols, j + 1)
         artist = FaceArtist(ax, None, neutral)  # the strip shows the front view only
         artist.update({c: float(values[c][j]) for c in CHANNELS})
         ax.set_title(f"/{seg.labels[i]}/ {t[j]:.2f}s", fontsize=8)

@@ -29,6 +29,7 @@ FpsOpt = Annotated[float, typer.Option("--fps", help="Frames per second of the c
 MnsOpt = Annotated[float, typer.Option("--mns", help="The face's neutral mouth-nose separation, mm (FAPU = MNS/1024).")]
 MwOpt = Annotated[float, typer.Option("--mw", help="The face's neutral mouth width, mm (FAPU = MW/1024).")]
 SnapOpt = Annotated[bool, typer.Option("--snap-contacts/--no-snap-contacts", help="Show each k_R = 1 target (lip closure, lip-teeth contact) on its nearest frame.")]
+StrictOpt = Annotated[bool, typer.Option("--strict", help="Refuse phonemes the table lacks instead of using the fallbacks of phones_italian.tsv.")]
 PreviewOpt = Annotated[str, typer.Option("--preview", help=f"Preview format: {', '.join(PREVIEW_FORMATS)}.")]
 
 
@@ -51,8 +52,8 @@ def _report(result: RuntimeOutput) -> None:
         summary.add_row(what, str(path))
     _out.print(summary)
     if a.substitutions:
-        subs = ", ".join(f"/{k}/ → /{v}/" for k, v in a.substitutions.items())
-        _err.print(f"[yellow]note:[/] the table has no {subs}; animated with the phone map's fallbacks "
+        subs = ", ".join(f"/{k}/ (shown as /{v}/)" for k, v in a.substitutions.items())
+        _err.print(f"[yellow]note:[/] the table has no {subs}: the fallbacks of phones_italian.tsv "
                    "(--strict refuses instead)", highlight=False)
 
 
@@ -71,6 +72,7 @@ def animate_command(
     mw: MwOpt = 50.0,
     preview: PreviewOpt = "gif",
     snap_contacts: SnapOpt = True,
+    strict: StrictOpt = False,
 ) -> None:
     """Animate a label file: channel trajectories (CSV), an MPEG-4 FAP file and a preview."""
     from coartic.runtime.pipeline import animate_file
@@ -80,7 +82,7 @@ def animate_command(
         with _progress() as progress:
             result = animate_file(labels, t, out, fps=fps, tier=tier, label_map=label_map,
                                   face=FaceUnits(mns, mw), preview=preview, snap_contacts=snap_contacts,
-                                  progress=progress)
+                                  strict=strict, progress=progress)
     except (AnimationError, DataError, TableError) as err:
         _fail(err)
     _report(result)
@@ -93,7 +95,7 @@ def speak_command(
     fps: FpsOpt = 25.0,
     stretch: Annotated[float, typer.Option("--stretch", help="Festival's Duration_Stretch: 1 = normal rate, 0.6 = fast.")] = 1.0,
     voice: Annotated[str, typer.Option("--voice", help="Festival Italian voice (pc_diphone, lp_diphone).")] = DEFAULT_VOICE,
-    strict: Annotated[bool, typer.Option("--strict", help="Refuse phonemes the table lacks instead of using the phone map's fallbacks.")] = False,
+    strict: StrictOpt = False,
     mns: MnsOpt = 30.0,
     mw: MwOpt = 50.0,
     preview: PreviewOpt = "gif",
