@@ -152,6 +152,9 @@ pub fn marker_channels(
     check_len("markers", markers.len(), n_frames * N_MARKERS * 3)?;
     check_len("rest", rest.len(), n_frames)?;
     check_len("out", out.len(), n_frames * N_CHANNELS)?;
+    if n_frames == 0 {
+        return Ok(()); // nothing to measure, so no y_0 needed
+    }
     let p = |f: usize, m: usize| point(markers, f, N_MARKERS, m);
     let mut lips = Vec::with_capacity(n_frames);
     for f in 0..n_frames {

@@ -88,6 +88,11 @@ fn f64_vec(obj: &Bound<'_, PyAny>, name: &str, len: Option<usize>, meaning: &str
     Ok(data(&a).into_owned())
 }
 
+/// A non-negative integer argument; a negative one is a ValueError naming it.
+fn count(value: i64, name: &str) -> PyResult<usize> {
+    usize::try_from(value).map_err(|_| PyValueError::new_err(format!("argument '{name}' = {value} must be >= 0")))
+}
+
 fn index_vec(obj: &Bound<'_, PyAny>, name: &str) -> PyResult<Vec<usize>> {
     let a = array::<i64>(obj, name, "int64")?;
     check_shape(&a, name, &[None], "one index per entry")?;
@@ -118,8 +123,9 @@ impl Corpus {
         seg_end: &Bound<'_, PyAny>,
         sample_offsets: &Bound<'_, PyAny>,
         sample_times: &Bound<'_, PyAny>,
-        n_phonemes: usize,
+        n_phonemes: i64,
     ) -> PyResult<Self> {
+        let n_phonemes = count(n_phonemes, "n_phonemes")?;
         let seg_offsets = index_vec(seg_offsets, "seg_offsets")?;
         let seg_phoneme = index_vec(seg_phoneme, "seg_phoneme")?;
         let seg_start = f64_vec(seg_start, "seg_start", None, "one start time per segment")?;
@@ -413,10 +419,11 @@ fn marker_channels<'py>(
 fn head_frame<'py>(
     py: Python<'py>,
     markers: &Bound<'py, PyAny>,
-    nose: usize,
-    ear_l: usize,
-    ear_r: usize,
+    nose: i64,
+    ear_l: i64,
+    ear_r: i64,
 ) -> PyResult<Bound<'py, PyArray3<f64>>> {
+    let (nose, ear_l, ear_r) = (count(nose, "nose")?, count(ear_l, "ear_l")?, count(ear_r, "ear_r")?);
     let m = array::<f64>(markers, "markers", "float64")?;
     check_shape(&m, "markers", &[None, None, Some(3)], "[frames, markers, xyz]")?;
     let (n_frames, n_markers) = (m.shape()[0], m.shape()[1]);

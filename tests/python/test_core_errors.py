@@ -94,6 +94,21 @@ def test_bad_parameters_are_value_errors(corpus: _core.Corpus, params: np.ndarra
             call()
 
 
+def test_negative_counts_and_indices_name_the_argument() -> None:
+    with pytest.raises(ValueError, match=r"argument 'n_phonemes' = -1 must be >= 0"):
+        _core.Corpus(**with_(n_phonemes=-1))
+    with pytest.raises(ValueError, match=r"argument 'ear_l' = -2 must be >= 0"):
+        _core.head_frame(np.zeros((2, 3, 3)), 0, -2, 1)
+
+
+def test_empty_input_gives_empty_output(params: np.ndarray) -> None:
+    empty = _core.Corpus(np.zeros(1, dtype=np.int64), np.zeros(0, dtype=np.int64), np.zeros(0), np.zeros(0),
+                         np.zeros(1, dtype=np.int64), np.zeros(0), 3)
+    assert _core.evaluate(empty, params, 1.0, OPTS).shape == (0,)
+    assert _core.evaluate_batch(empty, np.stack([params] * 2), np.ones(2), OPTS).shape == (2, 0)
+    assert _core.marker_channels(np.zeros((0, 8, 3)), np.zeros(0, dtype=bool)).shape == (0, 7)
+
+
 def test_bad_globals_and_options(corpus: _core.Corpus, params: np.ndarray) -> None:
     with pytest.raises(ValueError, match=r"beta = -1 is invalid"):
         _core.evaluate(corpus, params, -1.0, OPTS)
