@@ -93,7 +93,7 @@ def test_animate_file_writes_consistent_outputs(tmp_path: Path, labels: Path) ->
     assert faps.column(5)[k] == round(-a.channels["LLO"][k] / fapu) < 0
     with Image.open(result.files["preview"]) as gif:
         assert gif.n_frames == a.n_frames
-    assert (out / "segments.tsv").read_text().splitlines()[1].split("\t") == ["0.0", "0.3", "#", "sil"]
+    assert (out / "segments.tsv").read_text().splitlines()[1].split("\t") == ["0.0", "0.3", "#", "#", "sil"]
 
 
 def test_resistant_targets_are_reached(labels: Path) -> None:

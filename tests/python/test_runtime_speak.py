@@ -134,6 +134,18 @@ def test_cli_speak_errors_exit_nonzero_without_traceback(tmp_path: Path, monkeyp
     assert res.exit_code == 1 and "'festival' not found on PATH" in res.output
 
 
+def test_speak_output_animates_again_to_the_same_frames(tmp_path: Path, table: ParameterTable) -> None:
+    from coartic.runtime.pipeline import animate_file
+
+    spoken = speak_text("Vado a Bologna.", table, tmp_path / "s", preview="none")
+    again = animate_file(tmp_path / "s" / "segments.tsv", table, tmp_path / "a", preview="none")
+    assert again.animation.segments.labels == spoken.animation.segments.labels
+    assert again.animation.substitutions == spoken.animation.substitutions
+    for c, y in spoken.animation.channels.items():
+        np.testing.assert_array_equal(again.animation.channels[c], y)
+    np.testing.assert_array_equal(again.faps.values, spoken.faps.values)
+
+
 def test_cli_speak_writes_everything(tmp_path: Path) -> None:
     res = CliRunner().invoke(app, ["speak", "Viva la mamma!", "-t", str(GROUND_TRUTH), "-o", str(tmp_path),
                                    "--fps", "25", "--stretch", "0.8"])

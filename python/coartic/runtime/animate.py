@@ -229,10 +229,11 @@ def read_channels_csv(path: str | Path) -> tuple[NDArray[np.float64], dict[str, 
     return data[:, 0], {c: data[:, j + 1] for j, c in enumerate(names)}
 
 
-def write_segments_tsv(path: str | Path, segments: Segments, original: Sequence[str] | None = None) -> None:
-    """The segments animated (`start end phoneme`, plus the source label when it differs)."""
-    lines = ["start\tend\tphoneme" + ("\tsource" if original is not None else "")]
-    for i, (lab, s, e) in enumerate(zip(segments.labels, segments.starts, segments.ends)):
-        extra = f"\t{original[i]}" if original is not None else ""
-        lines.append(f"{float(s)!r}\t{float(e)!r}\t{lab}{extra}")
+def write_segments_tsv(path: str | Path, segments: Segments, requested: Sequence[str], source: Sequence[str]) -> None:
+    """`start end phoneme shown_as source`: the phoneme asked for, what the table animated it as
+    (a fallback, or the same), and the corpus or Festival label. Label readers take the first three
+    columns, so the file animates again with `coartic animate` (with another table, say)."""
+    lines = ["start\tend\tphoneme\tshown_as\tsource"]
+    for i, (shown, s, e) in enumerate(zip(segments.labels, segments.starts, segments.ends)):
+        lines.append(f"{float(s)!r}\t{float(e)!r}\t{requested[i]}\t{shown}\t{source[i]}")
     _atomic_write(Path(path), "\n".join(lines) + "\n")

@@ -54,7 +54,8 @@ def _write_outputs(
     name: str,
     face: FaceUnits,
     preview: str,
-    original_labels: tuple[str, ...] | None,
+    requested: tuple[str, ...],
+    source: tuple[str, ...],
     progress: Progress | None,
 ) -> RuntimeOutput:
     if preview not in PREVIEW_FORMATS:
@@ -70,7 +71,7 @@ def _write_outputs(
     write_fap(tmp, faps)
     tmp.replace(files["fap"])
     files["segments"] = out / "segments.tsv"
-    write_segments_tsv(files["segments"], animation.segments, original_labels)
+    write_segments_tsv(files["segments"], animation.segments, requested, source)
     files["plot"] = plot_channels(animation, out / "channels.png", title=name)
     if preview != "none":
         files["strip"] = render_strip(animation, table, out / "strip.png")
@@ -100,13 +101,13 @@ def animate_file(
     """
     raw = read_labels(labels, tier=tier)
     segments = resolve_label_map(label_map).apply(raw)
+    requested = segments.labels
     used: dict[str, str] = {}
     if not strict:
         segments, used = substitute(segments, table, CHANNELS, (phone_map or PhoneMap.load()).fallbacks)
     animation = animate(table, segments, fps, snap_contacts=snap_contacts, substitutions=used)
-    keep = raw.labels if raw.labels != segments.labels else None
     return _write_outputs(animation, table, Path(out), _name_from(Path(labels).stem), face or FaceUnits(),
-                          preview, keep, progress)
+                          preview, requested, raw.labels, progress)
 
 
 def speak_text(
@@ -140,13 +141,14 @@ def speak_text(
     if phonemes[-1] == PAUSE and utt.duration > ends[-1]:
         ends[-1] = utt.duration
     segments = Segments(tuple(phonemes), utt.starts, ends)
+    requested = segments.labels
     used: dict[str, str] = {}
     if not strict:
         segments, used = substitute(segments, table, CHANNELS, pmap.fallbacks)
     animation = animate(table, segments, fps, duration=utt.duration, substitutions=used,
                         snap_contacts=snap_contacts)
     result = _write_outputs(animation, table, out, _name_from(text), face or FaceUnits(), preview,
-                            utt.phones, progress)
+                            requested, utt.phones, progress)
     result.files["wav"] = utt.wav
     result.utterance = utt
     return result
