@@ -1,0 +1,97 @@
+"""Effective samples per second: emcee on the Rust batch log-posterior vs on a plain NumPy one.
+
+Both samplers target the same per-consonant posterior (one consonant's 8 parameters plus log σ_n,
+in the 3 vowel contexts × 2 rates × 5 repetitions of a model-generated session, 100 Hz): the Rust
+one hands all walkers to ``_core.sse_batch`` in one call (``vectorize=True``); the NumPy one is the
+plain reference model of tests/python/numpy_model.py called walker by walker, as emcee does by
+default. Same seed, same moves: the chains agree (checked below), so the autocorrelation time τ
+is the same and is measured once, on the longer Rust chain. ESS/s = steps × walkers / τ / seconds.
+
+Run: .venv/bin/python bench/mcmc_speed.py   (output saved in bench/results/mcmc_speed.txt)
+"""
+
+from __future__ import annotations
+
+import sys
+import time
+from pathlib import Path
+
+import emcee
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT / "tests" / "python"))
+
+import mcmc_data  # noqa: E402
+import numpy_model  # noqa: E402
+
+from coartic import _core  # noqa: E402
+from coartic.mcmc.convergence import autocorr_time  # noqa: E402
+from coartic.mcmc.posterior import LogPosterior, phoneme_posterior  # noqa: E402
+from coartic.mcmc.run import walkers_for  # noqa: E402
+
+RUST_STEPS = 4000
+NUMPY_STEPS = 60
+SEED = 42
+
+
+def numpy_sse_batch(utterances, rows):  # type: ignore[no-untyped-def]
+    """A drop-in for ``_core.sse_batch`` built on the NumPy reference, one walker at a time."""
+    seg_offsets = np.cumsum([0] + [len(u.labels) for u in utterances])
+    seg_phoneme = np.array([rows[lab] for u in utterances for lab in u.labels])
+    seg_start = np.concatenate([u.starts for u in utterances])
+    seg_end = np.concatenate([u.ends for u in utterances])
+    sample_offsets = np.cumsum([0] + [len(u.times) for u in utterances])
+    sample_times = np.concatenate([u.times for u in utterances])
+
+    def sse_batch(corpus, params, betas, options, observed, weights):  # type: ignore[no-untyped-def]
+        out = np.empty(len(params))
+        for w in range(len(params)):
+            f = numpy_model.evaluate_corpus(params[w], seg_offsets, seg_phoneme, seg_start, seg_end, sample_offsets,
+                                            sample_times, float(betas[w]), options.variant, options.apex_fraction,
+                                            options.edge_extent)
+            out[w] = float(np.sum(weights * (observed - f) ** 2))
+        return out
+
+    return sse_batch
+
+
+def run(post: LogPosterior, steps: int, walkers: int, vectorize: bool) -> tuple[np.ndarray, float]:
+    x0 = post.start_point()
+    p0 = post.initial_ball(x0, walkers, np.random.default_rng(SEED))
+    fn = post if vectorize else (lambda x: float(post(x[None])[0]))
+    s = emcee.EnsembleSampler(walkers, post.dim, fn, vectorize=vectorize)
+    s.random_state = np.random.RandomState(SEED).get_state()
+    t = time.perf_counter()
+    s.run_mcmc(p0, steps, progress=False)
+    return s.get_chain(), time.perf_counter() - t
+
+
+def main() -> None:
+    options = _core.ModelOptions("modified")
+    utts = mcmc_data.utterances(consonants=("t",), repetitions=5)
+    data = mcmc_data.channel(utts)
+    packing = mcmc_data.packing()
+    rust = phoneme_posterior(data, packing, options, "t")
+    rows = {p: i for i, p in enumerate(data.phonemes)}
+    slow = LogPosterior(rust.data, rust.packing, options, rust.noise, sse_batch=numpy_sse_batch(rust.data.utterances, rows),
+                        evaluate_batch=rust.evaluate_batch)
+    walkers = walkers_for(rust.dim, 0)
+    n_samples = rust.data.corpus.n_samples
+    print(f"posterior: /t/ on LLO, {rust.dim} dimensions, {len(rust.data.utterances)} utterances, {n_samples} samples, "
+          f"{walkers} walkers")
+    chain_r, t_r = run(rust, RUST_STEPS, walkers, vectorize=True)
+    chain_n, t_n = run(slow, NUMPY_STEPS, walkers, vectorize=False)
+    agree = float(np.max(np.abs(chain_r[:NUMPY_STEPS] - chain_n)))
+    tau = float(np.max(autocorr_time(chain_r)))
+    ess_r = RUST_STEPS * walkers / tau / t_r
+    ess_n = NUMPY_STEPS * walkers / tau / t_n
+    print(f"same moves: max |chain_rust - chain_numpy| over the first {NUMPY_STEPS} steps = {agree:.2e}")
+    print(f"autocorrelation time (Rust chain, {RUST_STEPS} steps, N/tau = {RUST_STEPS / tau:.0f}): tau = {tau:.1f} steps")
+    print(f"Rust batch  : {RUST_STEPS} steps in {t_r:7.2f} s = {1e3 * t_r / RUST_STEPS:8.3f} ms/step, ESS/s = {ess_r:9.1f}")
+    print(f"NumPy plain : {NUMPY_STEPS} steps in {t_n:7.2f} s = {1e3 * t_n / NUMPY_STEPS:8.3f} ms/step, ESS/s = {ess_n:9.1f}")
+    print(f"ratio (Rust / NumPy effective samples per second): {ess_r / ess_n:.1f}x  (aim >= 10x)")
+
+
+if __name__ == "__main__":
+    main()

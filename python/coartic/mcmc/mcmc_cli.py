@@ -1,0 +1,164 @@
+"""``coartic mcmc SPEC --fit DIR --out DIR``: posteriors for the least-squares table (docs/MCMC.md)."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Any, Optional
+
+import typer
+from rich.console import Console
+from rich.panel import Panel
+from rich.table import Table
+
+from coartic.mcmc.run import PosteriorRun, phoneme_dir, verdict_lines
+
+console = Console(stderr=True)
+
+
+def find_table(fit: Path) -> Path:
+    """The least-squares table: ``fit`` itself if a file, else the table JSON inside the fit directory."""
+    if fit.is_file():
+        return fit
+    if not fit.is_dir():
+        raise FileNotFoundError(f"{fit}: no such fit directory or table file")
+    for name in ("table.json", "parameters.json", "fitted_table.json"):
+        if (fit / name).is_file():
+            return fit / name
+    found = []
+    for p in sorted(fit.glob("*.json")):
+        try:
+            if json.loads(p.read_text()).get("schema") == "coartic.table/1":
+                found.append(p)
+        except (OSError, ValueError, AttributeError):
+            continue
+    if len(found) != 1:
+        what = "no" if not found else f"{len(found)} ({', '.join(p.name for p in found)})"
+        raise FileNotFoundError(f"{fit}: expected one parameter table (coartic.table/1 JSON), found {what}; pass the file itself with --fit")
+    return found[0]
+
+
+def _status_table(runs: list[PosteriorRun]) -> Table:
+    t = Table(title="MCMC posteriors")
+    for col in ("posterior", "dim", "steps", "tau", "N/tau", "max R-hat", "min ESS", "acceptance", "identified", "verdict"):
+        t.add_column(col, justify="right" if col not in ("posterior", "verdict") else "left")
+    for r in runs:
+        rep = r.result.report
+        ok = r.result.converged
+        ident = sum(s.identified for s in r.summaries)
+        rhat = max((x for x in rep.rhat if x == x), default=float("nan")) if rep else float("nan")
+        t.add_row(
+            r.label,
+            str(r.posterior.dim),
+            str(rep.n_steps) if rep else "0",
+            f"{rep.tau_max:.0f}" if rep else "-",
+            f"{rep.n_steps / max(rep.tau_max, 1e-9):.0f}" if rep else "-",
+            f"{rhat:.3f}",
+            f"{min(rep.ess_bulk):.0f}" if rep else "-",
+            " ".join(f"{a:.2f}" for a in r.result.acceptance),
+            f"{ident}/{len(r.summaries)}",
+            "[green]converged" if ok else ("[yellow]interrupted" if r.result.interrupted else "[bold red]NOT CONVERGED"),
+        )
+    return t
+
+
+def mcmc_command(
+    spec: Path = typer.Argument(..., help="The fit spec (TOML) used for the least-squares fit; its [mcmc] section configures sampling."),
+    fit: Path = typer.Option(..., "--fit", help="The least-squares output directory (or its table JSON): the walkers start at its optimum."),
+    out: Path = typer.Option(..., "--out", help="Output directory: chains (resumable), plots, summaries, table with uncertainty."),
+    channels: Optional[str] = typer.Option(None, help="Comma-separated channels (default: [mcmc] channels, else the spec's)."),
+    phonemes: Optional[str] = typer.Option(None, help="Comma-separated phonemes (default: [mcmc] phonemes, else every non-pause phoneme)."),
+    scope: Optional[str] = typer.Option(None, help="'phonemes' (one posterior per phoneme) or 'channel' (joint, slow)."),
+    max_steps: Optional[int] = typer.Option(None, help="Override [mcmc] max_steps."),
+    strict: bool = typer.Option(False, help="Exit with status 2 if any posterior has not converged."),
+    quiet: bool = typer.Option(False, help="No progress bars."),
+) -> None:
+    """Sample the posterior of the fitted parameters with emcee, check convergence, write intervals.
+
+    Rerun the same command after an interruption (Ctrl-C, kill) to resume where it stopped.
+    """
+    from coartic.mcmc import run as mcmc_run
+
+    try:
+        fit_spec, cfg = mcmc_run.read_spec(spec)
+        if channels:
+            cfg.channels = tuple(c.strip() for c in channels.split(",") if c.strip())
+        if phonemes:
+            cfg.phonemes = tuple(p.strip() for p in phonemes.split(",") if p.strip())
+        if scope:
+            if scope not in mcmc_run.SCOPES:
+                raise mcmc_run.McmcConfigError(f"--scope {scope!r}: expected one of {', '.join(mcmc_run.SCOPES)}")
+            cfg.scope = scope
+        if max_steps is not None:
+            cfg.settings.max_steps = max_steps
+            cfg.settings.min_steps = min(cfg.settings.min_steps, max_steps)
+        outcome = run_job(fit_spec, cfg, find_table(fit), out, progress=not quiet)
+    except (ValueError, FileNotFoundError) as e:
+        console.print(f"[bold red]error:[/] {e}")
+        raise typer.Exit(1) from None
+    runs, interrupted = outcome
+    console.print(_status_table(runs))
+    bad = verdict_lines(runs)
+    if interrupted:
+        console.print(Panel(f"Interrupted; every finished step is saved in {out}.\nRun the same command again to resume.", style="yellow"))
+        raise typer.Exit(130)
+    if bad:
+        console.print(Panel("\n".join(bad), title=f"{len(bad)} of {len(runs)} posteriors have NOT CONVERGED: their intervals are not trustworthy", style="bold red"))
+        if strict:
+            raise typer.Exit(2)
+    else:
+        console.print(f"[green]All {len(runs)} posteriors converged.[/] Table with uncertainty: {out / 'table.json'}")
+
+
+def run_job(fit_spec: Any, cfg: Any, table_path: Path, out: Path, progress: bool = True) -> tuple[list[PosteriorRun], bool]:
+    """Load the data and the table, sample every posterior, write table, summaries and report fragment."""
+    from coartic.fit.problem import ChannelData, build_packing, model_options
+    from coartic.mcmc import plots, summary
+    from coartic.mcmc.run import channel_runs
+    from coartic.table import ParameterTable
+
+    from coartic.fit.runner import load_utterances
+
+    table = ParameterTable.load(table_path)
+    utterances = load_utterances(fit_spec)
+    out.mkdir(parents=True, exist_ok=True)
+    runs: list[PosteriorRun] = []
+    sections: list[str] = []
+
+    def save(r: PosteriorRun) -> None:
+        # after every posterior, so an interrupted job keeps what is finished
+        runs.append(r)
+        summary.write_uncertainty(table, r.channel, r.summaries)
+        table.metadata.setdefault("mcmc", {})
+        meta = table.metadata["mcmc"]
+        meta.setdefault("not_converged", [])
+        if not r.result.converged and r.label not in meta["not_converged"]:
+            meta["not_converged"].append(r.label)
+        if r.result.converged and r.label in meta["not_converged"]:
+            meta["not_converged"].remove(r.label)
+        table.save(out / "table.json")
+        table.save(out / "table.csv")
+        verdict = r.result.report.summary() if r.result.report else "no convergence check"
+        sections.append(plots.html_fragment(r.label, r.images, r.summaries, verdict.splitlines()[0], r.result.converged, out))
+        (out / "mcmc.html").write_text("<div class=\"coartic-mcmc\">\n<h2>Posteriors (emcee)</h2>\n" + "".join(sections) + "</div>\n")
+        index = [
+            {"label": x.label, "channel": x.channel, "phoneme": x.phoneme, "converged": x.result.converged,
+             "directory": str(x.directory.relative_to(out)), "images": [str(p.relative_to(out)) for p in x.images]}
+            for x in runs
+        ]
+        (out / "mcmc.json").write_text(json.dumps(index, indent=1))
+
+    interrupted = False
+    for channel in cfg.channels or fit_spec.channels:
+        if channel not in table.channels:
+            raise ValueError(f"{table_path}: the table has no channel {channel!r} (channels: {', '.join(table.channels)})")
+        data = ChannelData.build(utterances, channel)
+        start = table.to_matrix(channel, data.phonemes)
+        packing = build_packing(fit_spec, data, start)
+        _, interrupted = channel_runs(channel, data, packing, model_options(fit_spec), cfg, out, progress, on_done=save)
+        if interrupted:
+            break
+    return runs, interrupted
+
+
+__all__ = ["mcmc_command", "find_table", "run_job", "phoneme_dir"]

@@ -1,0 +1,275 @@
+"""The whole MCMC job: per channel, per phoneme (or the channel jointly), sample, check, summarise, plot.
+
+``run(spec_path, fit, out)`` is what ``coartic mcmc SPEC --fit DIR --out DIR`` calls. The fit spec
+(the least-squares one, docs/FITTING.md) may carry an ``[mcmc]`` section (docs/MCMC.md); the
+least-squares table gives the optimum the walkers start from and the values held fixed.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import tomllib
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+from typing import Any, Callable, Sequence
+
+import numpy as np
+from numpy.typing import NDArray
+
+from coartic.mcmc import plots, sampler, summary
+from coartic.mcmc.posterior import LogPosterior, channel_posterior, phoneme_posterior
+from coartic.mcmc.sampler import SamplerSettings, SamplingResult
+from coartic.mcmc.summary import ParameterSummary
+
+SCOPES = ("phonemes", "channel")
+PAUSE = "#"
+
+
+class McmcConfigError(ValueError):
+    """A bad ``[mcmc]`` section; the message names the file and key."""
+
+
+@dataclass
+class McmcConfig:
+    scope: str = "phonemes"  # one posterior per phoneme per channel, or "channel": one joint posterior
+    phonemes: tuple[str, ...] | None = None  # None: every phoneme with a free parameter except the pause
+    channels: tuple[str, ...] | None = None  # None: the spec's channels
+    noise: str | float = "free"  # "free": sample log sigma_n; "fit": fixed at the LS residual RMS; or mm
+    priors: dict[str, dict[str, tuple[float, float]]] = field(default_factory=dict)  # channel -> name -> (mu, sd)
+    walkers: int = 0  # 0: max(32, 2 dim + 2)
+    settings: SamplerSettings = field(default_factory=SamplerSettings)
+    plots: bool = True
+
+
+def parse_config(raw: Any, path: Path) -> McmcConfig:
+    """Read the ``[mcmc]`` table of a spec (or an empty one); errors name the file and key."""
+    if raw is None:
+        return McmcConfig()
+    if not isinstance(raw, dict):
+        raise McmcConfigError(f"{path}: [mcmc] must be a table, got {raw!r}")
+
+    def err(key: str, msg: str) -> McmcConfigError:
+        return McmcConfigError(f"{path}: [mcmc] {key}: {msg}")
+
+    allowed = {"scope", "phonemes", "channels", "noise", "priors", "walkers", "ensembles", "chunk_steps", "min_steps",
+               "max_steps", "seed", "ball", "plots"}
+    unknown = sorted(set(raw) - allowed)
+    if unknown:
+        raise err(", ".join(unknown), f"unknown key(s); allowed: {', '.join(sorted(allowed))}")
+    cfg = McmcConfig()
+    scope = raw.get("scope", cfg.scope)
+    if scope not in SCOPES:
+        raise err("scope", f"{scope!r}: expected one of {', '.join(SCOPES)}")
+    cfg.scope = scope
+    for key in ("phonemes", "channels"):
+        if key in raw:
+            v = raw[key]
+            if not isinstance(v, list) or not all(isinstance(s, str) for s in v):
+                raise err(key, f"expected a list of strings, got {v!r}")
+            setattr(cfg, key, tuple(v))
+    noise = raw.get("noise", cfg.noise)
+    if isinstance(noise, bool) or not (noise in ("free", "fit") or (isinstance(noise, (int, float)) and noise > 0)):
+        raise err("noise", f"{noise!r}: expected \"free\", \"fit\" or a positive number (mm)")
+    cfg.noise = float(noise) if isinstance(noise, (int, float)) else noise
+    pri = raw.get("priors", {})
+    if not isinstance(pri, dict):
+        raise err("priors", f"expected a table \"CHANNEL.phoneme.parameter\" = [mean, sd], got {pri!r}")
+    for key, v in pri.items():
+        parts = key.split(".")
+        if len(parts) == 2 and parts[1] == "beta":
+            ch, name = parts[0], "beta"
+        elif len(parts) == 3:
+            ch, name = parts[0], f"{parts[1]}.{parts[2]}"
+        else:
+            raise err(f"priors.{key}", "expected a key \"CHANNEL.phoneme.parameter\" (or \"CHANNEL.beta\")")
+        if not (isinstance(v, list) and len(v) == 2 and all(isinstance(x, (int, float)) and not isinstance(x, bool) for x in v)):
+            raise err(f"priors.{key}", f"expected [mean, sd], got {v!r}")
+        if not (v[1] > 0 and math.isfinite(v[0]) and math.isfinite(v[1])):
+            raise err(f"priors.{key}", f"sd must be positive and both finite, got {v!r}")
+        cfg.priors.setdefault(ch, {})[name] = (float(v[0]), float(v[1]))
+    ints = {"walkers": 0, "ensembles": 1, "chunk_steps": 1, "min_steps": 1, "max_steps": 1, "seed": 0}
+    s = cfg.settings
+    for key, least in ints.items():
+        if key in raw:
+            v = raw[key]
+            if isinstance(v, bool) or not isinstance(v, int) or v < least:
+                raise err(key, f"expected an integer >= {least}, got {v!r}")
+    cfg.walkers = int(raw.get("walkers", 0))
+    s.n_ensembles = int(raw.get("ensembles", s.n_ensembles))
+    s.chunk_steps = int(raw.get("chunk_steps", s.chunk_steps))
+    s.min_steps = int(raw.get("min_steps", s.min_steps))
+    s.max_steps = int(raw.get("max_steps", s.max_steps))
+    s.seed = int(raw.get("seed", s.seed))
+    if s.min_steps > s.max_steps:
+        raise err("min_steps", f"{s.min_steps} exceeds max_steps = {s.max_steps}")
+    ball = raw.get("ball", s.ball)
+    if isinstance(ball, bool) or not isinstance(ball, (int, float)) or not 0 < ball < 1:
+        raise err("ball", f"expected a number in (0, 1), got {ball!r}")
+    s.ball = float(ball)
+    pl = raw.get("plots", True)
+    if not isinstance(pl, bool):
+        raise err("plots", f"expected true or false, got {pl!r}")
+    cfg.plots = pl
+    return cfg
+
+
+def read_spec(path: str | Path) -> tuple[Any, McmcConfig]:
+    """The fit spec (E's parser, the ``[mcmc]`` table removed first) and the MCMC configuration."""
+    from coartic.fit.spec import SpecError, parse_spec
+
+    path = Path(path)
+    try:
+        raw = tomllib.loads(path.read_text(encoding="utf-8"))
+    except FileNotFoundError:
+        raise SpecError(f"{path}: no such fit spec") from None
+    except tomllib.TOMLDecodeError as e:
+        raise SpecError(f"{path}: not valid TOML: {e}") from None
+    cfg = parse_config(raw.pop("mcmc", None), path)
+    return parse_spec(raw, path), cfg
+
+
+def walkers_for(dim: int, requested: int) -> int:
+    """emcee needs more than 2 dim walkers; an even count, at least 32 unless more are requested."""
+    n = requested if requested > 0 else max(32, 2 * dim + 2)
+    return n + (n % 2)
+
+
+@dataclass
+class PosteriorRun:
+    channel: str
+    phoneme: str | None  # None for the joint channel posterior
+    directory: Path
+    posterior: LogPosterior
+    result: SamplingResult
+    start: NDArray[np.float64]
+    summaries: list[ParameterSummary]
+    images: list[Path]
+
+    @property
+    def label(self) -> str:
+        return f"{self.channel} /{self.phoneme}/" if self.phoneme is not None else f"{self.channel} (joint)"
+
+
+def sample_posterior(
+    posterior: LogPosterior,
+    directory: Path,
+    settings: SamplerSettings,
+    label: str,
+    phoneme: str | None = None,
+    make_plots: bool = True,
+    progress: bool = True,
+    start: NDArray[np.float64] | None = None,
+) -> PosteriorRun:
+    """Sample one posterior into ``directory`` (resuming what is there), summarise and plot it."""
+    directory.mkdir(parents=True, exist_ok=True)
+    x0 = posterior.start_point() if start is None else np.asarray(start, dtype=np.float64)
+    if not np.isfinite(posterior(x0[None])[0]):
+        raise ValueError(f"{label}: the least-squares optimum has zero posterior density (outside the bounds or rejected by the core)")
+    result = sampler.run(
+        posterior,
+        lambda rng, n: posterior.initial_ball(x0, n, rng, settings.ball),
+        posterior.coordinates,
+        directory / "chains",
+        settings,
+        fingerprint=posterior.fingerprint(),
+        progress=progress,
+        label=label,
+    )
+    summaries = summary.summarize(posterior, result, x0)
+    images: list[Path] = []
+    if make_plots and not result.interrupted:
+        images.append(plots.trace_plot(result, directory / "trace.png", label))
+        images.append(plots.corner_plot(result, x0, directory / "corner.png", label))
+        images.append(plots.predictive_plot(posterior, result, x0, directory / "predictive.png", label))
+    doc = {
+        "label": label,
+        "converged": result.converged,
+        "interrupted": result.interrupted,
+        "convergence": result.report.to_dict() if result.report else None,
+        "acceptance": result.acceptance,
+        "n_data": posterior.n_data,
+        "n_utterances": len(posterior.data.utterances),
+        "parameters": summary.to_jsonable(summaries),
+    }
+    (directory / "summary.json").write_text(json.dumps(doc, indent=1))
+    return PosteriorRun(posterior.channel, phoneme, directory, posterior, result, x0, summaries, images)
+
+
+def fixed_noise(data: Any, packing: Any, options: Any, sse_batch: Callable[..., Any] | None = None) -> float:
+    """σ_n fixed at the least-squares residual RMS of the whole channel."""
+    if sse_batch is None:
+        from coartic import _core
+
+        sse_batch = _core.sse_batch
+    params, beta = packing.unpack_batch(packing.pack()[None])
+    sse = float(np.asarray(sse_batch(data.corpus, params, beta, options, data.observed, data.weights))[0])
+    return math.sqrt(sse / max(int(np.count_nonzero(data.weights > 0)), 1))
+
+
+def channel_runs(
+    channel: str,
+    data: Any,
+    packing: Any,
+    options: Any,
+    cfg: McmcConfig,
+    out: Path,
+    progress: bool = True,
+    on_done: Callable[[PosteriorRun], None] | None = None,
+) -> tuple[list[PosteriorRun], bool]:
+    """Every posterior the config asks for on one channel; returns them and whether interrupted."""
+    noise: float | None
+    if cfg.noise == "free":
+        noise = None
+    elif cfg.noise == "fit":
+        noise = fixed_noise(data, packing, options)
+    else:
+        noise = float(cfg.noise)
+    priors = cfg.priors.get(channel, {})
+    known = set(packing.names())
+    for name in priors:
+        if name not in known:
+            raise McmcConfigError(f"[mcmc] priors.{channel}.{name}: not a free parameter of {channel} (free: {', '.join(sorted(known))})")
+    runs: list[PosteriorRun] = []
+    if cfg.scope == "channel":
+        jobs: list[tuple[str | None, Callable[[], LogPosterior]]] = [(None, lambda: channel_posterior(data, packing, options, noise, priors))]
+    else:
+        wanted = cfg.phonemes or tuple(p for i, p in enumerate(data.phonemes) if p != PAUSE and packing.free[i].any())
+        missing = [p for p in wanted if p not in data.phonemes]
+        if missing:
+            raise McmcConfigError(f"[mcmc] phonemes: {', '.join(missing)} do not occur in the {channel} data (phonemes: {' '.join(data.phonemes)})")
+
+        def job(p: str) -> Callable[[], LogPosterior]:
+            return lambda: phoneme_posterior(data, packing, options, p, noise, priors)
+
+        jobs = [(p, job(p)) for p in wanted]
+    for phoneme, make in jobs:
+        post = make()
+        settings = replace(cfg.settings, n_walkers=walkers_for(post.dim, cfg.walkers))
+        label = f"{channel} /{phoneme}/" if phoneme is not None else f"{channel} (joint)"
+        directory = out / channel / (phoneme_dir(phoneme) if phoneme is not None else "_joint")
+        r = sample_posterior(post, directory, settings, label, phoneme, cfg.plots, progress)
+        runs.append(r)
+        if on_done is not None:
+            on_done(r)
+        if r.result.interrupted:
+            return runs, True
+    return runs, False
+
+
+def phoneme_dir(phoneme: str) -> str:
+    """A directory name for a phoneme label (labels such as 'tS' are fine; '#' or '/' are not)."""
+    safe = "".join(c if c.isalnum() or c in "-_" else f"x{ord(c):02x}" for c in phoneme)
+    return safe or "empty"
+
+
+def verdict_lines(runs: Sequence[PosteriorRun]) -> list[str]:
+    """One line per posterior that did not converge (empty when every one did)."""
+    out = []
+    for r in runs:
+        if not r.result.converged:
+            rep = r.result.report
+            why = "; ".join(rep.problems) if rep else "no convergence check could be made"
+            state = "interrupted" if r.result.interrupted else "NOT CONVERGED"
+            out.append(f"{r.label}: {state}: {why}")
+    return out
