@@ -274,7 +274,7 @@ def write_c3d(path: Path, markers: F64, rate: float) -> None:
     c["parameters"]["POINT"]["RATE"]["value"] = [rate]
     c["parameters"]["POINT"]["LABELS"]["value"] = list(MARKERS)
     c["parameters"]["POINT"]["UNITS"]["value"] = ["mm"]
-    missing = np.isnan(markers).any(axis=2)  # [F, M]
+    missing = np.asarray(np.isnan(markers).any(axis=2), dtype=bool)  # [F, M]
     pts = np.ones((4, len(MARKERS), len(markers)))
     pts[:3] = np.where(missing[:, :, None], 0.0, markers).transpose(2, 1, 0)
     residuals = np.where(missing.T, -1.0, 0.0)[None, :, :]
@@ -336,17 +336,17 @@ def write_lab(path: Path, labels: Sequence[str], starts: F64, ends: F64, pause_l
 
 
 def write_truth(path: Path, trial: Trial) -> None:
-    np.savez_compressed(
-        path,
-        times=trial.times,
-        labels=np.asarray(trial.labels),
-        starts=trial.starts,
-        ends=trial.ends,
-        head_markers=trial.head_markers,
-        marker_names=np.asarray(MARKERS),
-        dropout_mask=np.isnan(trial.markers).any(axis=2),
-        **{ch: trial.channels[ch] for ch in CHANNELS},
-    )
+    arrays: dict[str, npt.NDArray[Any]] = {
+        "times": trial.times,
+        "labels": np.asarray(trial.labels),
+        "starts": trial.starts,
+        "ends": trial.ends,
+        "head_markers": trial.head_markers,
+        "marker_names": np.asarray(MARKERS),
+        "dropout_mask": np.asarray(np.isnan(trial.markers).any(axis=2), dtype=bool),
+    }
+    arrays.update({ch: trial.channels[ch] for ch in CHANNELS})
+    np.savez_compressed(path, **arrays)  # type: ignore[arg-type]  # numpy stubs mix **kwds with allow_pickle
 
 
 # ----------------------------------------------------------------------------- the session
