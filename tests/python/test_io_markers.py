@@ -79,8 +79,8 @@ def write_c3d(path: Path, markers: NDArray[np.float64], names: tuple[str, ...],
     pts[:3] = np.transpose(np.nan_to_num(markers), (2, 1, 0))
     c["data"]["points"] = pts
     res = np.zeros((1, len(names), markers.shape[0]))
-    if invalid is not None:
-        res[0] = np.where(invalid.T, -1.0, 0.0)
+    flagged = np.isnan(markers).any(axis=2) if invalid is None else invalid | np.isnan(markers).any(axis=2)
+    res[0] = np.where(flagged.T, -1.0, 0.0)  # occluded: residual -1, as capture systems write
     c["data"]["meta_points"] = {"residuals": res,
                                 "camera_masks": np.zeros((7, len(names), markers.shape[0]), bool)}
     c.write(str(path))

@@ -1,0 +1,145 @@
+"""Fuzzing the readers: whatever the bytes, they return a result or raise DataError, nothing else."""
+
+from __future__ import annotations
+
+import tempfile
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+
+from coartic.io import DataError, load_trial, read_labels
+from coartic.io.c3d import read_c3d
+from coartic.io.labelmap import LabelMap
+
+REAL = Path(__file__).parents[1] / "data/realdata"
+OPTOTRAK = (REAL / "c3d-optotrak/Optotrak.c3d").read_bytes()
+EMA_HEAD = "\n".join(
+    (REAL / "emu-ema-german/derived/dfgspp_mo1_prosody_0020_ema.csv").read_text().splitlines()[:40]
+) + "\n"
+SEGMENTS = (REAL / "emu-ema-german/derived/dfgspp_mo1_prosody_0020_Segment.tsv").read_text()
+TEXTGRID = '''File type = "ooTextFile"
+Object class = "TextGrid"
+
+xmin = 0
+xmax = 0.7
+tiers? <exists>
+size = 1
+item []:
+    item [1]:
+        class = "IntervalTier"
+        name = "phones"
+        xmin = 0
+        xmax = 0.7
+        intervals: size = 3
+        intervals [1]:
+            xmin = 0
+            xmax = 0.3
+            text = ""
+        intervals [2]:
+            xmin = 0.3
+            xmax = 0.45
+            text = "a"
+        intervals [3]:
+            xmin = 0.45
+            xmax = 0.7
+            text = "p"
+'''
+HTK = "0 3000000 sil\n3000000 4500000 a\n4500000 7000000 p\n"
+XLABEL = "separator ;\nnfields 1\n#\n0.300 125 pau\n0.450 125 a\n0.700 125 p\n"
+MARKERS_CSV = "time_s,UL_x,UL_y,UL_z,LL_x,LL_y,LL_z\n" + "".join(
+    f"{i / 100:.2f},{i},1.5,2.5,,{i * 0.5},3\n" for i in range(12))
+
+FUZZ = settings(max_examples=120, deadline=None, derandomize=True,
+                suppress_health_check=[HealthCheck.too_slow, HealthCheck.data_too_large])
+
+
+@st.composite
+def mutated(draw: st.DrawFn, base: bytes, protect: int = 0) -> bytes:
+    """`base` with a few bytes changed, cut, or spliced; the first `protect` bytes are kept."""
+    b = bytearray(base)
+    for _ in range(draw(st.integers(1, 6))):
+        kind = draw(st.sampled_from(["set", "cut", "insert", "delete"]))
+        pos = draw(st.integers(protect, max(protect, len(b) - 1)))
+        if kind == "set" and pos < len(b):
+            b[pos] = draw(st.integers(0, 255))
+        elif kind == "cut":
+            del b[max(pos, protect):]
+        elif kind == "insert":
+            b[pos:pos] = draw(st.binary(min_size=1, max_size=8))
+        elif pos < len(b):
+            del b[pos:pos + draw(st.integers(1, 16))]
+    return bytes(b)
+
+
+def _only_data_error(data: bytes, suffix: str, read: Callable[[Path], Any]) -> None:
+    with tempfile.TemporaryDirectory() as d:
+        p = Path(d) / f"fuzz{suffix}"
+        p.write_bytes(data)
+        try:
+            read(p)
+        except DataError:
+            pass
+
+
+@pytest.mark.slow
+@FUZZ
+@given(data=st.one_of(mutated(OPTOTRAK, protect=2), st.binary(max_size=2000)))
+def test_c3d_fuzz_ezc3d(data: bytes) -> None:
+    _only_data_error(data, ".c3d", lambda p: read_c3d(p, allow_truncated=True))
+
+
+@pytest.mark.slow
+@FUZZ
+@given(data=mutated(OPTOTRAK, protect=2))
+def test_c3d_fuzz_pure_python_fallback(data: bytes) -> None:
+    _only_data_error(data, ".c3d", lambda p: read_c3d(p, backend="c3d"))
+
+
+def _text_cases(base: str) -> st.SearchStrategy[bytes]:
+    return st.one_of(
+        mutated(base.encode()),
+        st.text(max_size=400).map(lambda s: s.encode("utf-8", "surrogatepass")),
+        st.lists(st.sampled_from(base.splitlines()), max_size=30).map(
+            lambda lines: "\n".join(lines).encode()),
+    )
+
+
+@FUZZ
+@given(data=_text_cases(TEXTGRID))
+def test_textgrid_fuzz(data: bytes) -> None:
+    _only_data_error(data, ".TextGrid", read_labels)
+
+
+@FUZZ
+@given(data=st.one_of(_text_cases(HTK), _text_cases(XLABEL)))
+def test_lab_fuzz(data: bytes) -> None:
+    _only_data_error(data, ".lab", lambda p: LabelMap({}, keep_unmapped=True).apply(read_labels(p)))
+
+
+@FUZZ
+@given(data=_text_cases(SEGMENTS))
+def test_tsv_labels_fuzz(data: bytes) -> None:
+    _only_data_error(data, ".tsv", lambda p: LabelMap.builtin("german_sampa").apply(read_labels(p)))
+
+
+@FUZZ
+@given(data=_text_cases(MARKERS_CSV))
+def test_marker_csv_fuzz(data: bytes) -> None:
+    _only_data_error(data, ".csv", lambda p: load_trial(p).fill_gaps())
+
+
+@pytest.mark.slow
+@FUZZ
+@given(data=_text_cases(EMA_HEAD))
+def test_ema_csv_fuzz(data: bytes) -> None:
+    _only_data_error(data, ".csv", load_trial)
+
+
+@FUZZ
+@given(data=_text_cases("aa\ta\tlong a\nQ\t=\n*\t=\n"))
+def test_label_map_fuzz(data: bytes) -> None:
+    _only_data_error(data, ".tsv", LabelMap.from_file)
