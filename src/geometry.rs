@@ -62,7 +62,8 @@ impl HeadFrame {
         let to_nose = nose - origin;
         let z_perp = to_nose - to_nose.dot(x) * x;
         // A nose within a micrometre of the ear axis is a broken recording, not a face.
-        if !(z_perp.length() >= 1e-3) {
+        let len = z_perp.length();
+        if len.is_nan() || len < 1e-3 {
             return None;
         }
         let z = z_perp.normalize();
@@ -200,19 +201,22 @@ mod tests {
     /// A face in its own head frame (mm): ears at x = ±70, nose 100 mm in front, lips below it.
     fn face(jaw: f64) -> [DVec3; 8] {
         [
-            DVec3::new(0.0, 0.0, 100.0),         // NOSE
-            DVec3::new(70.0, 0.0, 0.0),          // EAR_L
-            DVec3::new(-70.0, 0.0, 0.0),         // EAR_R
-            DVec3::new(0.0, -20.0, 95.0),        // UL
-            DVec3::new(0.0, -30.0 - jaw, 93.0),  // LL
-            DVec3::new(25.0, -25.0, 85.0),       // LC_L
-            DVec3::new(-24.0, -25.0, 85.0),      // LC_R
-            DVec3::new(0.0, -60.0 - jaw, 90.0),  // CHIN
+            DVec3::new(0.0, 0.0, 100.0),        // NOSE
+            DVec3::new(70.0, 0.0, 0.0),         // EAR_L
+            DVec3::new(-70.0, 0.0, 0.0),        // EAR_R
+            DVec3::new(0.0, -20.0, 95.0),       // UL
+            DVec3::new(0.0, -30.0 - jaw, 93.0), // LL
+            DVec3::new(25.0, -25.0, 85.0),      // LC_L
+            DVec3::new(-24.0, -25.0, 85.0),     // LC_R
+            DVec3::new(0.0, -60.0 - jaw, 90.0), // CHIN
         ]
     }
 
     fn flatten(frames: &[[DVec3; 8]]) -> Vec<f64> {
-        frames.iter().flat_map(|f| f.iter().flat_map(|p| p.to_array())).collect()
+        frames
+            .iter()
+            .flat_map(|f| f.iter().flat_map(|p| p.to_array()))
+            .collect()
     }
 
     fn channels(frames: &[[DVec3; 8]], rest: &[bool]) -> Vec<f64> {
@@ -226,7 +230,7 @@ mod tests {
         let frames = [face(0.0), face(8.0)];
         let out = channels(&frames, &[true, false]);
         let y0 = -25.0; // (UL_y + LL_y) / 2 at rest
-        // JO: nose (0, 0, 100) to chin (0, -60 - jaw, 90); LA: UL (0, -20, 95) to LL (0, -30 - jaw, 93).
+                        // JO: nose (0, 0, 100) to chin (0, -60 - jaw, 90); LA: UL (0, -20, 95) to LL (0, -30 - jaw, 93).
         let jo0 = (60.0f64 * 60.0 + 10.0 * 10.0).sqrt();
         let jo1 = (68.0f64 * 68.0 + 10.0 * 10.0).sqrt();
         let la1 = (18.0f64 * 18.0 + 2.0 * 2.0).sqrt();
@@ -237,7 +241,11 @@ mod tests {
         ];
         for f in 0..2 {
             for c in 0..N_CHANNELS {
-                assert!((out[f * N_CHANNELS + c] - want[f][c]).abs() < 1e-12, "frame {f} {}", CHANNEL_NAMES[c]);
+                assert!(
+                    (out[f * N_CHANNELS + c] - want[f][c]).abs() < 1e-12,
+                    "frame {f} {}",
+                    CHANNEL_NAMES[c]
+                );
             }
         }
     }
@@ -284,7 +292,10 @@ mod tests {
         let mut out = vec![0.0; 7];
         assert!(matches!(
             marker_channels(&m, 2, &[true, true], &mut out),
-            Err(GeometryError::LengthMismatch { what: "markers", .. })
+            Err(GeometryError::LengthMismatch {
+                what: "markers",
+                ..
+            })
         ));
         assert!(matches!(
             marker_channels(&m, 1, &[true, true], &mut out),
@@ -293,7 +304,11 @@ mod tests {
         let mut hf = vec![0.0; 24];
         assert_eq!(
             head_frame(&m, 1, 8, 8, 1, 2, &mut hf),
-            Err(GeometryError::MarkerIndex { what: "nose", index: 8, n_markers: 8 })
+            Err(GeometryError::MarkerIndex {
+                what: "nose",
+                index: 8,
+                n_markers: 8
+            })
         );
     }
 

@@ -58,7 +58,10 @@ fn check_shape<T: Element>(
 ) -> PyResult<()> {
     let shape = a.shape();
     let ok = shape.len() == expected.len()
-        && shape.iter().zip(expected).all(|(&s, e)| e.is_none_or(|e| e == s));
+        && shape
+            .iter()
+            .zip(expected)
+            .all(|(&s, e)| e.is_none_or(|e| e == s));
     if ok {
         return Ok(());
     }
@@ -82,7 +85,12 @@ fn data<'a, T: Element + Copy>(a: &'a PyReadonlyArrayDyn<'_, T>) -> Cow<'a, [T]>
     Cow::Owned(a.as_array().iter().copied().collect())
 }
 
-fn f64_vec(obj: &Bound<'_, PyAny>, name: &str, len: Option<usize>, meaning: &str) -> PyResult<Vec<f64>> {
+fn f64_vec(
+    obj: &Bound<'_, PyAny>,
+    name: &str,
+    len: Option<usize>,
+    meaning: &str,
+) -> PyResult<Vec<f64>> {
     let a = array::<f64>(obj, name, "float64")?;
     check_shape(&a, name, &[len], meaning)?;
     Ok(data(&a).into_owned())
@@ -90,7 +98,8 @@ fn f64_vec(obj: &Bound<'_, PyAny>, name: &str, len: Option<usize>, meaning: &str
 
 /// A non-negative integer argument; a negative one is a ValueError naming it.
 fn count(value: i64, name: &str) -> PyResult<usize> {
-    usize::try_from(value).map_err(|_| PyValueError::new_err(format!("argument '{name}' = {value} must be >= 0")))
+    usize::try_from(value)
+        .map_err(|_| PyValueError::new_err(format!("argument '{name}' = {value} must be >= 0")))
 }
 
 fn index_vec(obj: &Bound<'_, PyAny>, name: &str) -> PyResult<Vec<usize>> {
@@ -100,7 +109,8 @@ fn index_vec(obj: &Bound<'_, PyAny>, name: &str) -> PyResult<Vec<usize>> {
         .iter()
         .enumerate()
         .map(|(i, &v)| {
-            usize::try_from(v).map_err(|_| PyValueError::new_err(format!("{name}[{i}] = {v} is negative")))
+            usize::try_from(v)
+                .map_err(|_| PyValueError::new_err(format!("{name}[{i}] = {v} is negative")))
         })
         .collect()
 }
@@ -189,7 +199,9 @@ impl ModelOptions {
     fn new(variant: &str, apex_fraction: f64, edge_extent: f64) -> PyResult<Self> {
         let variant: Variant = variant
             .parse()
-            .map_err(|e: crate::params::UnknownVariant| PyValueError::new_err(format!("variant: {e}")))?;
+            .map_err(|e: crate::params::UnknownVariant| {
+                PyValueError::new_err(format!("variant: {e}"))
+            })?;
         let inner = crate::ModelOptions {
             variant,
             apex_fraction,
@@ -223,7 +235,10 @@ impl ModelOptions {
 }
 
 /// The [n_phonemes, 10] parameter matrix of one model.
-fn params_of<'py>(obj: &Bound<'py, PyAny>, corpus: &Corpus) -> PyResult<PyReadonlyArrayDyn<'py, f64>> {
+fn params_of<'py>(
+    obj: &Bound<'py, PyAny>,
+    corpus: &Corpus,
+) -> PyResult<PyReadonlyArrayDyn<'py, f64>> {
     let a = array::<f64>(obj, "params", "float64")?;
     check_shape(
         &a,
@@ -235,9 +250,18 @@ fn params_of<'py>(obj: &Bound<'py, PyAny>, corpus: &Corpus) -> PyResult<PyReadon
 }
 
 /// observed and weights, one per sample of the corpus.
-fn samples_of<'py>(obj: &Bound<'py, PyAny>, name: &str, corpus: &Corpus) -> PyResult<PyReadonlyArrayDyn<'py, f64>> {
+fn samples_of<'py>(
+    obj: &Bound<'py, PyAny>,
+    name: &str,
+    corpus: &Corpus,
+) -> PyResult<PyReadonlyArrayDyn<'py, f64>> {
     let a = array::<f64>(obj, name, "float64")?;
-    check_shape(&a, name, &[Some(corpus.inner.n_samples())], "[n_samples of the corpus]")?;
+    check_shape(
+        &a,
+        name,
+        &[Some(corpus.inner.n_samples())],
+        "[n_samples of the corpus]",
+    )?;
     Ok(a)
 }
 
@@ -319,7 +343,11 @@ fn batch_of<'py>(
     params: &Bound<'py, PyAny>,
     betas: &Bound<'py, PyAny>,
     corpus: &Corpus,
-) -> PyResult<(PyReadonlyArrayDyn<'py, f64>, PyReadonlyArrayDyn<'py, f64>, usize)> {
+) -> PyResult<(
+    PyReadonlyArrayDyn<'py, f64>,
+    PyReadonlyArrayDyn<'py, f64>,
+    usize,
+)> {
     let p = array::<f64>(params, "params", "float64")?;
     check_shape(
         &p,
@@ -329,7 +357,12 @@ fn batch_of<'py>(
     )?;
     let n_walkers = p.shape()[0];
     let b = array::<f64>(betas, "betas", "float64")?;
-    check_shape(&b, "betas", &[Some(n_walkers)], "one beta per walker (params.shape[0])")?;
+    check_shape(
+        &b,
+        "betas",
+        &[Some(n_walkers)],
+        "one beta per walker (params.shape[0])",
+    )?;
     Ok((p, b, n_walkers))
 }
 
@@ -348,7 +381,8 @@ fn evaluate_batch<'py>(
     let mut out = vec![0.0; n_walkers * n];
     py.detach(|| crate::evaluate_batch(&corpus.inner, &p, &b, &options.inner, &mut out))
         .map_err(model_err)?;
-    let out = Array2::from_shape_vec((n_walkers, n), out).map_err(|e| PyValueError::new_err(e.to_string()))?;
+    let out = Array2::from_shape_vec((n_walkers, n), out)
+        .map_err(|e| PyValueError::new_err(e.to_string()))?;
     Ok(out.into_pyarray(py))
 }
 
@@ -405,12 +439,18 @@ fn marker_channels<'py>(
     )?;
     let n_frames = m.shape()[0];
     let r = array::<bool>(rest, "rest", "bool")?;
-    check_shape(&r, "rest", &[Some(n_frames)], "one flag per frame (markers.shape[0])")?;
+    check_shape(
+        &r,
+        "rest",
+        &[Some(n_frames)],
+        "one flag per frame (markers.shape[0])",
+    )?;
     let (m, r) = (data(&m), data(&r));
     let mut out = vec![0.0; n_frames * N_CHANNELS];
     py.detach(|| geometry::marker_channels(&m, n_frames, &r, &mut out))
         .map_err(geometry_err)?;
-    let out = Array2::from_shape_vec((n_frames, N_CHANNELS), out).map_err(|e| PyValueError::new_err(e.to_string()))?;
+    let out = Array2::from_shape_vec((n_frames, N_CHANNELS), out)
+        .map_err(|e| PyValueError::new_err(e.to_string()))?;
     Ok(out.into_pyarray(py))
 }
 
@@ -423,15 +463,25 @@ fn head_frame<'py>(
     ear_l: i64,
     ear_r: i64,
 ) -> PyResult<Bound<'py, PyArray3<f64>>> {
-    let (nose, ear_l, ear_r) = (count(nose, "nose")?, count(ear_l, "ear_l")?, count(ear_r, "ear_r")?);
+    let (nose, ear_l, ear_r) = (
+        count(nose, "nose")?,
+        count(ear_l, "ear_l")?,
+        count(ear_r, "ear_r")?,
+    );
     let m = array::<f64>(markers, "markers", "float64")?;
-    check_shape(&m, "markers", &[None, None, Some(3)], "[frames, markers, xyz]")?;
+    check_shape(
+        &m,
+        "markers",
+        &[None, None, Some(3)],
+        "[frames, markers, xyz]",
+    )?;
     let (n_frames, n_markers) = (m.shape()[0], m.shape()[1]);
     let m = data(&m);
     let mut out = vec![0.0; m.len()];
     py.detach(|| geometry::head_frame(&m, n_frames, n_markers, nose, ear_l, ear_r, &mut out))
         .map_err(geometry_err)?;
-    let out = Array3::from_shape_vec((n_frames, n_markers, 3), out).map_err(|e| PyValueError::new_err(e.to_string()))?;
+    let out = Array3::from_shape_vec((n_frames, n_markers, 3), out)
+        .map_err(|e| PyValueError::new_err(e.to_string()))?;
     Ok(out.into_pyarray(py))
 }
 
