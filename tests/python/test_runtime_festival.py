@@ -52,6 +52,9 @@ def test_malformed_phone_map_names_the_line(tmp_path: Path) -> None:
     bad.write_text("festival\tphoneme\tfallbacks\na\ta\t\na\te\t\n")
     with pytest.raises(PhoneMapError, match=r"line 3: Festival phone 'a' is mapped twice"):
         PhoneMap.load(bad)
+    bad.write_text("festival\tphoneme\tfallbacks\no\to\tu\no1\to\ta\n")
+    with pytest.raises(PhoneMapError, match=r"line 3: fallbacks a for phoneme 'o' differ from the u"):
+        PhoneMap.load(bad)
     bad.write_text("phone\tphoneme\n")
     with pytest.raises(PhoneMapError, match="line 1: header"):
         PhoneMap.load(bad)

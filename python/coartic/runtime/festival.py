@@ -67,7 +67,14 @@ class PhoneMap:
                 raise PhoneMapError(f"{source}, line {lineno}: Festival phone {phone!r} is mapped twice")
             phonemes[phone] = phoneme
             extra = row[2].strip() if len(row) > 2 else ""
-            fallbacks[phoneme] = fallbacks.get(phoneme, ()) or tuple(p.strip() for p in extra.split(",") if p.strip())
+            listed = tuple(p.strip() for p in extra.split(",") if p.strip())
+            if listed and fallbacks.get(phoneme) and fallbacks[phoneme] != listed:
+                raise PhoneMapError(
+                    f"{source}, line {lineno}: fallbacks {','.join(listed)} for phoneme {phoneme!r} differ "
+                    f"from the {','.join(fallbacks[phoneme])} given on an earlier line"
+                )
+            if listed:
+                fallbacks[phoneme] = listed
         return cls(phonemes=phonemes, fallbacks=fallbacks, source=source)
 
     def to_phonemes(self, phones: Sequence[str]) -> list[str]:
@@ -195,7 +202,9 @@ def synthesize(
             raise FestivalError(f"Festival did not finish within {timeout:g} s on {cleaned!r}") from None
         except OSError as err:
             raise FestivalError(f"Festival ({program}) could not be started: {err.strerror}") from None
-        stderr = proc.stderr.decode("latin-1", "replace").strip()
+        # Festival always complains that `festival -b` left its own script open: not news.
+        stderr = "\n".join(ln for ln in proc.stderr.decode("latin-1", "replace").strip().splitlines()
+                           if not ln.startswith("closing a file left open"))
         if proc.returncode != 0 or not segs.exists() or not wav.exists():
             detail = stderr.splitlines()[-3:] if stderr else ["(no message)"]
             hint = f"; is voice {voice!r} installed ({_INSTALL_HINT})?" if "voice_" in stderr else ""

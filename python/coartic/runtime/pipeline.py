@@ -132,7 +132,6 @@ def speak_text(
     `animation.substitutions`) unless `strict`.
     """
     out = Path(out)
-    out.mkdir(parents=True, exist_ok=True)
     pmap = phone_map or PhoneMap.load()
     utt = synthesize(text, out / "speech.wav", stretch=stretch, voice=voice, festival=festival)
     phonemes = pmap.to_phonemes(utt.phones)
