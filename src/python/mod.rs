@@ -35,6 +35,13 @@ fn array<'py, T: Element>(
     dtype: &str,
 ) -> PyResult<PyReadonlyArrayDyn<'py, T>> {
     if let Ok(a) = obj.cast::<PyArrayDyn<T>>() {
+        // A view at an odd byte offset (np.frombuffer(..., offset=1)) must not become a Rust
+        // reference: NumPy's copy() gives an aligned one.
+        let a = if (a.data() as usize) % std::mem::align_of::<T>() == 0 {
+            a.clone()
+        } else {
+            a.call_method0("copy")?.cast_into::<PyArrayDyn<T>>()?
+        };
         return a
             .try_readonly()
             .map_err(|e| PyValueError::new_err(format!("argument '{name}': {e}")));

@@ -81,6 +81,23 @@ def test_resistant_phoneme_reaches_its_target_at_any_rate(rate: float) -> None:
     assert f[0] == pytest.approx(params[1, 0], abs=1e-12)
 
 
+@pytest.mark.parametrize("seed", range(3))
+def test_continuous_in_resistance(seed: int) -> None:
+    # Λ keeps every extent finite, so F moves by O(ε) when any k_R moves by ε, up to k_R = 1.
+    rng = np.random.default_rng(20 + seed)
+    arrays = random_corpus_arrays(rng, n_utterances=3, n_phonemes=4)
+    corpus = _core.Corpus(**arrays)
+    opts = _core.ModelOptions()
+    for k_r in (0.0, 0.5, 1.0):
+        params = random_params(rng, 4)
+        params[:, 6] = k_r
+        nudged = params.copy()
+        nudged[:, 6] += -1e-7 if k_r == 1.0 else 1e-7
+        a = _core.evaluate(corpus, params, 1.0, opts)
+        b = _core.evaluate(corpus, nudged, 1.0, opts)
+        assert np.max(np.abs(a - b)) < 1e-4 * max(1.0, float(np.abs(params[:, 0]).max()))
+
+
 def test_batch_equals_single_calls() -> None:
     rng = np.random.default_rng(3)
     arrays = random_corpus_arrays(rng, n_utterances=6, n_phonemes=5)
@@ -135,6 +152,19 @@ def test_non_contiguous_and_fortran_input_give_the_same_answer() -> None:
     assert not batch.flags.c_contiguous
     out = _core.evaluate_batch(corpus, batch, np.ones(2), opts)
     assert np.array_equal(out[0], want) and np.array_equal(out[1], want)
+
+
+def test_misaligned_input_is_copied_not_misread() -> None:
+    rng = np.random.default_rng(8)
+    arrays = random_corpus_arrays(rng, n_utterances=2, n_phonemes=3)
+    params = random_params(rng, 3)
+    opts = _core.ModelOptions()
+    want = _core.evaluate(_core.Corpus(**arrays), params, 1.0, opts)
+    raw = bytearray(params.nbytes + 1)
+    odd = np.frombuffer(raw, dtype=np.float64, offset=1).reshape(params.shape)
+    odd[...] = params
+    assert not odd.flags.aligned
+    assert np.array_equal(_core.evaluate(_core.Corpus(**arrays), odd, 1.0, opts), want)
 
 
 def test_outputs_are_owned_writeable_numpy_arrays() -> None:
