@@ -26,12 +26,14 @@ def inspect_command(
     units: Annotated[Optional[str], typer.Option(help="Override the file's length unit (mm, cm, m).")] = None,
     max_gap: Annotated[float, typer.Option(help="Longest gap (s) filled by interpolation.")] = DEFAULT_MAX_GAP,
     plot: Annotated[Optional[Path], typer.Option(help="Write a PNG of the channels here.")] = None,
+    allow_truncated: Annotated[bool, typer.Option(
+        help="Read a C3D that holds fewer frames than its header declares.")] = False,
 ) -> None:
     """Summarise a recording: markers, rate, frames, gaps per marker, labels, channels."""
     console = Console()
     try:
         trial = load_trial(file, labels=labels, label_map=label_map, role_map=role_map, tier=tier,
-                           units=units)
+                           units=units, allow_truncated=allow_truncated)
         _, gaps = fill_gaps(trial.markers, trial.marker_names, trial.rate, trial.start_time, max_gap)
         channels: Channels | None = None
         channel_error = ""

@@ -1,0 +1,46 @@
+"""`coartic inspect`: the summary of a recording, its errors, and the plot."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from typer.testing import CliRunner
+
+from coartic.cli import app
+
+DATA = Path(__file__).parents[1] / "data/realdata"
+EMA = DATA / "emu-ema-german/derived"
+
+
+def test_inspect_ema_with_labels_and_plot(tmp_path: Path) -> None:
+    png = tmp_path / "ch.png"
+    r = CliRunner().invoke(app, [
+        "inspect", str(EMA / "dfgspp_mo1_prosody_0024_ema.csv"),
+        "--labels", str(EMA / "dfgspp_mo1_prosody_0024_Segment.tsv"),
+        "--label-map", "german_sampa", "--plot", str(png)], env={"COLUMNS": "160"})
+    assert r.exit_code == 0, r.output
+    out = r.output
+    assert "6 markers, 800 frames at 200 Hz" in out
+    assert "ul: 3.810-3.995 s (38 frames) left missing (at the end)" in out
+    assert "&p:" in out and "LR not available: no lip-corner sensor" in out
+    assert "│ LA " in out or "LA " in out
+    assert png.stat().st_size > 20_000 and png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+def test_inspect_c3d_without_face_markers_and_bad_file(tmp_path: Path) -> None:
+    r = CliRunner().invoke(app, ["inspect", str(DATA / "c3d-optotrak/Optotrak.c3d")],
+                           env={"COLUMNS": "160"})
+    assert r.exit_code == 1
+    assert "truncated C3D: the header declares 1149 frames" in r.output
+    png = tmp_path / "m.png"
+    r = CliRunner().invoke(app, ["inspect", str(DATA / "c3d-optotrak/Optotrak.c3d"),
+                                 "--allow-truncated", "--plot", str(png)], env={"COLUMNS": "160"})
+    assert r.exit_code == 0, r.output
+    assert "54 markers, 29 frames at 30 Hz" in r.output and "Marker_54" in r.output
+    assert "no channels:" in r.output and "required marker(s)" in r.output
+    assert png.read_bytes()[:4] == b"\x89PNG"
+    bad = tmp_path / "bad.csv"
+    bad.write_text("time_s,UL_x,UL_y,UL_z\n0,1,2,3\n0.01,1,x,3\n")
+    r = CliRunner().invoke(app, ["inspect", str(bad)], env={"COLUMNS": "200"})
+    assert r.exit_code == 1 and "line 3: column 'UL_y': 'x' is not a number" in r.output
+    assert "Traceback" not in r.output
