@@ -29,6 +29,7 @@ def fap_sequences(draw: st.DrawFn) -> FapSequence:
     n = draw(st.integers(0, 6))
     mask = np.array(draw(st.lists(st.lists(st.booleans(), min_size=N_FAPS, max_size=N_FAPS),
                                   min_size=n, max_size=n)), dtype=bool).reshape(n, N_FAPS)
+    mask[:, :2] = False  # viseme and expression are high-level FAPs, refused (tested below)
     values = np.array(draw(st.lists(st.integers(-(2**40), 2**40), min_size=n * N_FAPS, max_size=n * N_FAPS)),
                       dtype=np.int64).reshape(n, N_FAPS)
     name = draw(st.text(st.characters(min_codepoint=33, max_codepoint=126), min_size=1, max_size=12))
@@ -79,6 +80,7 @@ GOOD = "2.1 test 25 2\n" + " ".join(["0", "0", "1"] + ["0"] * 65) + "\n0 10\n" +
         (GOOD.replace("\n0 10\n", "\n0 1.5\n"), "line 3: '1.5' is not an integer"),
         (GOOD.replace("\n0 10\n", "\n0 10 11\n"), "line 3: frame 0 has 2 values but its mask (line 2) selects 1"),
         (GOOD.replace("\n1 12\n", "\n3 12\n"), "line 5: frame number 3, expected 1"),
+        (GOOD.replace("0 0 1 0", "1 0 1 0", 1), "line 2: FAP 1 (viseme) is set"),
     ],
 )
 def test_malformed_fap_files_name_the_line(tmp_path: Path, text: str, needle: str) -> None:
@@ -144,5 +146,9 @@ def test_mapping_rejects_bad_channels_and_units() -> None:
         channels_to_faps(chans, NEUTRAL, FaceUnits(), "n", 25.0)
     with pytest.raises(AnimationError, match="mns_mm"):
         FaceUnits(mns_mm=0.0)
+    high = np.zeros((1, N_FAPS), bool)
+    high[0, 1] = True
+    with pytest.raises(AnimationError, match=r"FAP 2 \(expression\) is a high-level FAP"):
+        FapSequence("x", 25.0, high, np.zeros((1, N_FAPS), np.int64))
     with pytest.raises(AnimationError, match="one word"):
         FapSequence("two words", 25.0, np.zeros((0, N_FAPS), bool), np.zeros((0, N_FAPS), np.int64))

@@ -65,6 +65,9 @@ OUTER_TWIN: dict[int, int] = {51: 4, 52: 5, 53: 6, 54: 7, 55: 8, 56: 9, 57: 10, 
 # No channel measures the corners' vertical position: 12/13 (and 59/60) are sent as 0 so that a
 # player holds the corners at neutral instead of keeping whatever an earlier stream left there.
 CORNER_LIFTS: tuple[int, ...] = (12, 13)
+# Viseme and expression carry several values each (selects, blend, intensities); coartic drives
+# the low-level lip and jaw FAPs instead and does not read or write them.
+HIGH_LEVEL_FAPS: tuple[int, ...] = (1, 2)
 MW_FAPS: frozenset[int] = frozenset({6, 7, 53, 54})
 LIP_JAW_FAPS: tuple[int, ...] = tuple(sorted({*_INNER, *CORNER_LIFTS, *OUTER_TWIN}))
 FAP_CHANNELS: tuple[str, ...] = ("ULO", "LLO", "ULP", "LLP", "LR", "JO")
@@ -117,6 +120,13 @@ class FapSequence:
             raise AnimationError(f"FAP sequence name must be one word without spaces, got {self.name!r}")
         if not (math.isfinite(self.fps) and self.fps > 0):
             raise AnimationError(f"FAP sequence {self.name!r}: fps must be positive, got {self.fps!r}")
+        high = np.flatnonzero(self.mask[:, [f - 1 for f in HIGH_LEVEL_FAPS]].any(axis=0))
+        if high.size:
+            fap = HIGH_LEVEL_FAPS[int(high[0])]
+            raise AnimationError(
+                f"FAP sequence {self.name!r}: FAP {fap} ({FAP_NAMES[fap - 1]}) is a high-level FAP with several "
+                "values per frame; only the low-level FAPs 3-68 (one integer each) are supported"
+            )
         self.values[~self.mask] = 0
 
     @property
@@ -242,6 +252,12 @@ def read_fap(path: str | Path) -> FapSequence:
                 + ("" if len(mtok) != N_FAPS else f" including {next(t for t in mtok if t not in ('0', '1'))!r}")
             )
         m = np.array([t == "1" for t in mtok])
+        for fap in HIGH_LEVEL_FAPS:
+            if m[fap - 1]:
+                raise FapFormatError(
+                    f"{path}, line {mline}: FAP {fap} ({FAP_NAMES[fap - 1]}) is set; high-level FAPs "
+                    "(several values per frame) are not read, only the low-level FAPs 3-68"
+                )
         vline, vtok = body[2 * f + 1]
         try:
             ints = [int(t) for t in vtok]
