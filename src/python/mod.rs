@@ -72,14 +72,24 @@ fn check_shape<T: Element>(
     if ok {
         return Ok(());
     }
-    let want: Vec<String> = expected
-        .iter()
-        .map(|e| e.map_or_else(|| "*".to_string(), |v| v.to_string()))
-        .collect();
+    let got = tuple(shape.iter().map(|s| s.to_string()).collect());
+    let want = tuple(
+        expected
+            .iter()
+            .map(|e| e.map_or_else(|| "*".to_string(), |v| v.to_string()))
+            .collect(),
+    );
     Err(PyValueError::new_err(format!(
-        "argument '{name}' has shape {shape:?}, expected ({}) = {meaning}",
-        want.join(", ")
+        "argument '{name}' has shape {got}, expected {want} = {meaning}"
     )))
+}
+
+/// A shape written as NumPy prints it: (5,), (3, 10).
+fn tuple(items: Vec<String>) -> String {
+    match items.len() {
+        1 => format!("({},)", items[0]),
+        _ => format!("({})", items.join(", ")),
+    }
 }
 
 /// The elements in C order: in place if C-contiguous, else one copy.
@@ -492,6 +502,9 @@ fn head_frame<'py>(
     Ok(out.into_pyarray(py))
 }
 
+/// The Rust core of coartic: the Cohen–Massaro / Cosi–Perin model over a corpus (evaluate,
+/// Jacobian, SSE gradient, walker batches) and marker geometry. NumPy float64/int64 arrays in
+/// and out; C-contiguous input is read without a copy; the GIL is released while computing.
 #[pymodule]
 fn _core(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_class::<Corpus>()?;

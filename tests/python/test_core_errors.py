@@ -66,7 +66,7 @@ def test_bad_corpus_is_a_value_error_naming_the_culprit(changes: dict[str, Any],
         ("seg_start", [0.0, 0.1, 0.25, 0.33, 0.5], TypeError, r"'seg_start' must be a numpy.ndarray of dtype float64, got list"),
         ("seg_start", np.array([0.0, 0.1, 0.25, 0.33, 0.5], dtype=np.float32), TypeError, r"'seg_start'.*dtype float32"),
         ("seg_phoneme", np.array([2, 0, 1, 0, 2], dtype=np.int32), TypeError, r"'seg_phoneme'.*int64.*int32"),
-        ("seg_end", np.zeros((5, 1)), ValueError, r"'seg_end' has shape \[5, 1\]"),
+        ("seg_end", np.zeros((5, 1)), ValueError, r"'seg_end' has shape \(5, 1\), expected \(\*,\)"),
     ],
 )
 def test_wrong_type_dtype_or_shape_names_the_argument(name: str, value: Any, exc: type[Exception], pattern: str) -> None:
@@ -121,15 +121,15 @@ def test_bad_globals_and_options(corpus: _core.Corpus, params: np.ndarray) -> No
 
 
 def test_shapes_of_params_and_samples(corpus: _core.Corpus, params: np.ndarray) -> None:
-    with pytest.raises(ValueError, match=r"'params' has shape \[2, 10\], expected \(3, 10\)"):
+    with pytest.raises(ValueError, match=r"'params' has shape \(2, 10\), expected \(3, 10\)"):
         _core.evaluate(corpus, params[:2], 1.0, OPTS)
-    with pytest.raises(ValueError, match=r"'params' has shape \[30\]"):
+    with pytest.raises(ValueError, match=r"'params' has shape \(30,\)"):
         _core.evaluate(corpus, params.ravel(), 1.0, OPTS)
     with pytest.raises(TypeError, match=r"'params'.*dtype float64, got an array of dtype int64"):
         _core.evaluate(corpus, params.astype(np.int64), 1.0, OPTS)
-    with pytest.raises(ValueError, match=r"'observed' has shape \[59\]"):
+    with pytest.raises(ValueError, match=r"'observed' has shape \(59,\), expected \(60,\)"):
         _core.sse_gradient(corpus, params, 1.0, OPTS, np.zeros(59), np.ones(59))
-    with pytest.raises(ValueError, match=r"'betas' has shape \[3\], expected \(2\)"):
+    with pytest.raises(ValueError, match=r"'betas' has shape \(3,\), expected \(2,\)"):
         _core.evaluate_batch(corpus, np.stack([params, params]), np.ones(3), OPTS)
     with pytest.raises(ValueError, match=r"observed\[4\] = NaN is not finite but its weight is 1"):
         y = np.zeros(60)

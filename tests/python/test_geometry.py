@@ -89,9 +89,9 @@ def test_errors_name_the_argument() -> None:
     frames = face_frames(np.random.default_rng(3), 4)
     with pytest.raises(ValueError, match=r"rest selects 0 frame\(s\).*y_0"):
         _core.marker_channels(frames, np.zeros(4, dtype=bool))
-    with pytest.raises(ValueError, match=r"'markers' has shape \[4, 7, 3\], expected \(\*, 8, 3\)"):
+    with pytest.raises(ValueError, match=r"'markers' has shape \(4, 7, 3\), expected \(\*, 8, 3\)"):
         _core.marker_channels(frames[:, :7], np.ones(4, dtype=bool))
-    with pytest.raises(ValueError, match=r"'rest' has shape \[3\], expected \(4\)"):
+    with pytest.raises(ValueError, match=r"'rest' has shape \(3,\), expected \(4,\)"):
         _core.marker_channels(frames, np.ones(3, dtype=bool))
     with pytest.raises(TypeError, match=r"'rest' must be a numpy.ndarray of dtype bool"):
         _core.marker_channels(frames, np.ones(4))  # type: ignore[arg-type]
