@@ -15,6 +15,8 @@ a trial is the same whether it is generated in the full session or in a ``--quic
 from __future__ import annotations
 
 import csv
+import functools
+import importlib.util
 import json
 import math
 import shutil
@@ -34,6 +36,7 @@ from coartic.model import trajectories
 from coartic.table import CHANNELS, ParameterTable
 
 HERE = Path(__file__).resolve().parent
+FLAVOURS: tuple[str, ...] = ("model", "gestures")
 SETTINGS = HERE / "session.toml"
 GROUND_TRUTH = HERE / "ground_truth.json"
 
@@ -103,7 +106,7 @@ def load_settings(path: Path = SETTINGS) -> dict[str, Any]:
     except tomllib.TOMLDecodeError as exc:
         raise SessionError(f"{path}: invalid TOML: {exc}") from None
     for key in ("seed", "rate_hz", "repetitions", "quick_repetitions", "vowels", "consonants",
-                "pause_label", "time_resolution", "durations", "geometry", "head_motion", "noise"):
+                "pause_label", "time_resolution", "durations", "geometry", "head_motion", "noise", "gestures"):
         if key not in s:
             raise SessionError(f"{path}: missing setting {key!r}")
     d = s["durations"]
@@ -250,12 +253,33 @@ def record(
 # ----------------------------------------------------------------------------- one trial
 
 
+@functools.cache
+def _gestures() -> Any:
+    """corpus-synthetic/gestures.py (a sibling file, not a package module)."""
+    spec = importlib.util.spec_from_file_location("coartic_corpus_synthetic_gestures", HERE / "gestures.py")
+    assert spec is not None and spec.loader is not None
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
 def make_trial(
-    settings: dict[str, Any], table: ParameterTable, plan: TrialPlan, seed: int, n_session: int
+    settings: dict[str, Any],
+    table: ParameterTable,
+    plan: TrialPlan,
+    seed: int,
+    n_session: int,
+    flavour: str = "model",
 ) -> Trial:
+    """One trial; ``flavour`` "model" (MODEL.md §3 with the table) or "gestures" (gestures.py)."""
     rng = trial_rng(seed, plan)
     labels, starts, ends, times = draw_segments(settings, plan, rng)
-    traj = trajectories(table, labels, starts, ends, times, channels=list(CHANNELS))
+    if flavour == "model":
+        traj = trajectories(table, labels, starts, ends, times, channels=list(CHANNELS))
+    elif flavour == "gestures":
+        traj = _gestures().gesture_trajectories(table, labels, starts, ends, times, settings["gestures"])
+    else:
+        raise SessionError(f"unknown flavour {flavour!r} (known: {', '.join(FLAVOURS)})")
     channels = {ch: np.asarray(traj[ch], dtype=np.float64) for ch in CHANNELS}
     jaw_rest = table.values[PAUSE]["JO"]["target"]
     head = place_markers(settings, channels, jaw_rest)
@@ -357,7 +381,7 @@ SUBDIRS = ("c3d", "csv", "labels", "truth")
 OVERVIEW = ("apa_normal_01", "apa_fast_01", "ifi_normal_01", "ushu_normal_01")
 
 
-def plot_overview(out: Path, gap: float) -> Path:
+def plot_overview(out: Path, gap: float, flavour: str) -> Path:
     """PNG of the overview trials: channels read back from the C3D files over the model truth."""
     import matplotlib
 
@@ -378,7 +402,7 @@ def plot_overview(out: Path, gap: float) -> Path:
         for i, (label, model, measured) in enumerate(rows):
             ax = axes[i, j]
             ax.plot(t["times"], measured, ".", ms=2.5, color="0.45", label="read back from the C3D")
-            ax.plot(t["times"], model, color="C3", lw=1.2, label="model (truth)")
+            ax.plot(t["times"], model, color="C3", lw=1.2, label="generated (truth)")
             for b in t["starts"][1:]:
                 ax.axvline(b, color="0.8", lw=0.7, zorder=0)
             if label == "aperture":
@@ -392,7 +416,8 @@ def plot_overview(out: Path, gap: float) -> Path:
                          ha="center", va="bottom", fontsize=8)
         axes[-1, j].set_xlabel("time (s)")
     axes[0, 0].legend(loc="lower left", fontsize=7)
-    fig.suptitle("Synthetic session: channels of MODEL.md §6 from the written markers, over the model", y=0.995)
+    fig.suptitle(f"Synthetic session ({flavour}): channels of MODEL.md §6 from the written markers, over the truth",
+                 y=0.995)
     fig.tight_layout()
     path = out / "overview.png"
     fig.savefig(path, dpi=80)
@@ -418,8 +443,19 @@ def _prepare(out: Path) -> None:
         (out / sub).mkdir(parents=True, exist_ok=True)
 
 
-def generate(out: str | Path, seed: int | None = None, quick: bool = False, progress: bool = True) -> Path:
+def generate(
+    out: str | Path,
+    seed: int | None = None,
+    quick: bool = False,
+    progress: bool = True,
+    flavour: str = "model",
+    consonants: Sequence[str] | None = None,
+) -> Path:
     """Write the session into ``out``; return the path of its manifest.
+
+    ``flavour``: "model" (the channels are the model's, with the ground truth) or "gestures"
+    (critically damped gestures towards the same targets: data the model did not make).
+    ``consonants``: only the trials of these consonants (default: all of session.toml).
 
     The manifest is written last, so a directory without one is an interrupted run (run again:
     generation is deterministic and takes seconds).
@@ -428,7 +464,14 @@ def generate(out: str | Path, seed: int | None = None, quick: bool = False, prog
     settings = load_settings()
     seed = int(settings["seed"] if seed is None else seed)
     table = ParameterTable.load(GROUND_TRUTH)
+    if flavour not in FLAVOURS:
+        raise SessionError(f"unknown flavour {flavour!r} (known: {', '.join(FLAVOURS)})")
     plans = plan_trials(settings, quick)
+    if consonants is not None:
+        unknown = sorted(set(consonants) - set(settings["consonants"]))
+        if unknown:
+            raise SessionError(f"{SETTINGS}: consonant(s) {unknown} are not in the session")
+        plans = [p for p in plans if p.consonant in set(consonants)]
     n_session = len(plan_trials(settings, quick=False))
     _prepare(out)
     pause_label = settings["pause_label"]
@@ -444,7 +487,7 @@ def generate(out: str | Path, seed: int | None = None, quick: bool = False, prog
     with Progress(*columns, disable=not progress, transient=False) as bar:
         task = bar.add_task("", total=len(plans))
         for plan in plans:
-            trial = make_trial(settings, table, plan, seed, n_session)
+            trial = make_trial(settings, table, plan, seed, n_session, flavour)
             name = plan.name
             write_c3d(out / "c3d" / f"{name}.c3d", trial.markers, rate)
             write_csv(out / "csv" / f"{name}.csv", trial.times, trial.markers)
@@ -473,11 +516,14 @@ def generate(out: str | Path, seed: int | None = None, quick: bool = False, prog
     shutil.copyfile(GROUND_TRUTH, out / "ground_truth.json")
     shutil.copyfile(SETTINGS, out / "session.toml")
     (out / "session.json").write_text(
-        json.dumps({"seed": seed, "quick": quick, "n_trials": len(plans), "markers": list(MARKERS)}, indent=2)
+        json.dumps(
+            {"seed": seed, "quick": quick, "flavour": flavour, "n_trials": len(plans), "markers": list(MARKERS)},
+            indent=2,
+        )
         + "\n",
         encoding="utf-8",
     )
-    plot_overview(out, settings["geometry"]["rest_gap"])
+    plot_overview(out, settings["geometry"]["rest_gap"], flavour)
     manifest = out / "manifest.csv"
     with open(manifest, "w", newline="", encoding="utf-8") as fh:
         w = csv.DictWriter(fh, fieldnames=MANIFEST_COLUMNS)

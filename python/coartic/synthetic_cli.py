@@ -62,12 +62,17 @@ def synth(
     out: Annotated[Path, typer.Argument(help="Output directory (new, empty, or an earlier session).")],
     seed: Annotated[Optional[int], typer.Option(help="Random seed (default: the one in session.toml).")] = None,
     quick: Annotated[bool, typer.Option("--quick", help="Only the first 2 repetitions (for tests).")] = False,
+    flavour: Annotated[
+        str,
+        typer.Option(help="model: the channels are the model's (ground truth known); gestures: critically "
+                     "damped gestures towards the same targets, data the model did not make."),
+    ] = "model",
 ) -> None:
     """Generate the session: C3D + CSV markers, TextGrid + .lab labels, manifest, ground truth."""
     console = Console(stderr=True)
     try:
         gen = load_generator()
-        manifest = gen.generate(out, seed=seed, quick=quick, progress=True)
+        manifest = gen.generate(out, seed=seed, quick=quick, progress=True, flavour=flavour)
     except (GeneratorNotFound, ValueError) as exc:  # SessionError and TableError are ValueErrors
         console.print(f"[red]error:[/red] {exc}")
         raise typer.Exit(code=1) from None
