@@ -216,3 +216,16 @@ def test_real_german_labels_with_fallbacks_and_strict(tmp_path: Path) -> None:
             assert a.channels["ULO"][k] + a.channels["LLO"][k] == pytest.approx(closure, abs=1e-6)
     with pytest.raises(MissingPhonemeError, match=r"has no phoneme 'O', needed by segment 3 of .*0024_Segment.tsv, line 4"):
         animate_file(labels, table, tmp_path / "s", label_map="german_sampa", preview="none", strict=True)
+
+
+def test_fapu_is_the_speakers_face(tmp_path: Path, labels: Path) -> None:
+    from coartic.runtime.pipeline import speaker_face
+
+    table = make_table()
+    table.values["#"]["LR"]["target"] = 48.0  # this speaker's mouth at rest is 48 mm wide
+    face = speaker_face(table)
+    assert (face.mns_mm, face.mw_mm) == (30.0, 48.0)
+    assert speaker_face(table, mns_mm=28.0, mw_mm=52.0) == FaceUnits(28.0, 52.0)
+    result = animate_file(labels, table, tmp_path / "o", preview="none")
+    d_lr = result.animation.channels["LR"] - 48.0
+    np.testing.assert_array_equal(result.faps.column(6), np.rint(d_lr / 2 / (48.0 / 1024)).astype(np.int64))

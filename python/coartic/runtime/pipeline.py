@@ -42,6 +42,15 @@ class RuntimeOutput:
     utterance: FestivalUtterance | None = None
 
 
+def speaker_face(table: ParameterTable, mns_mm: float | None = None, mw_mm: float | None = None) -> FaceUnits:
+    """FAPU of the face the table describes: MPEG-4 values are in the encoding face's units, and a
+    player rescales them to its own face. MW defaults to the rest mouth width (the pause's LR
+    target); MNS, which no channel measures, to FaceUnits' 30 mm."""
+    default = FaceUnits()
+    mw = neutral_posture(table, ["LR"])["LR"] if mw_mm is None else mw_mm
+    return FaceUnits(mns_mm=default.mns_mm if mns_mm is None else mns_mm, mw_mm=mw)
+
+
 def _name_from(text: str) -> str:
     word = re.sub(r"[^0-9A-Za-z_]+", "_", text).strip("_")
     return word[:40] or "coartic"
@@ -106,7 +115,7 @@ def animate_file(
     if not strict:
         segments, used = substitute(segments, table, CHANNELS, (phone_map or PhoneMap.load()).fallbacks)
     animation = animate(table, segments, fps, snap_contacts=snap_contacts, substitutions=used)
-    return _write_outputs(animation, table, Path(out), _name_from(Path(labels).stem), face or FaceUnits(),
+    return _write_outputs(animation, table, Path(out), _name_from(Path(labels).stem), face or speaker_face(table),
                           preview, requested, raw.labels, progress)
 
 
@@ -146,7 +155,7 @@ def speak_text(
         segments, used = substitute(segments, table, CHANNELS, pmap.fallbacks)
     animation = animate(table, segments, fps, duration=utt.duration, substitutions=used,
                         snap_contacts=snap_contacts)
-    result = _write_outputs(animation, table, out, _name_from(text), face or FaceUnits(), preview,
+    result = _write_outputs(animation, table, out, _name_from(text), face or speaker_face(table), preview,
                             requested, utt.phones, progress)
     result.files["wav"] = utt.wav
     result.utterance = utt

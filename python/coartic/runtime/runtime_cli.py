@@ -12,7 +12,6 @@ from rich.table import Table
 
 from coartic.io.errors import DataError
 from coartic.runtime.errors import AnimationError
-from coartic.runtime.fap import FaceUnits
 from coartic.runtime.festival import DEFAULT_VOICE
 from coartic.runtime import PREVIEW_FORMATS
 from coartic.table import ParameterTable, TableError
@@ -26,8 +25,8 @@ _out = Console()
 TableOpt = Annotated[Path, typer.Option("--table", "-t", help="Parameter table (JSON or long CSV).")]
 OutOpt = Annotated[Path, typer.Option("--out", "-o", help="Output directory (created if needed).")]
 FpsOpt = Annotated[float, typer.Option("--fps", help="Frames per second of the channels, FAP file and preview.")]
-MnsOpt = Annotated[float, typer.Option("--mns", help="The face's neutral mouth-nose separation, mm (FAPU = MNS/1024).")]
-MwOpt = Annotated[float, typer.Option("--mw", help="The face's neutral mouth width, mm (FAPU = MW/1024).")]
+MnsOpt = Annotated[float | None, typer.Option("--mns", help="The speaker's neutral mouth-nose separation, mm (FAPU = MNS/1024). Default 30 mm.")]
+MwOpt = Annotated[float | None, typer.Option("--mw", help="The speaker's neutral mouth width, mm (FAPU = MW/1024). Default: the table's rest LR.")]
 SnapOpt = Annotated[bool, typer.Option("--snap-contacts/--no-snap-contacts", help="Show each k_R = 1 target (lip closure, lip-teeth contact) on its nearest frame.")]
 StrictOpt = Annotated[bool, typer.Option("--strict", help="Refuse phonemes the table lacks instead of using the fallbacks of phones_italian.tsv.")]
 PreviewOpt = Annotated[str, typer.Option("--preview", help=f"Preview format: {', '.join(PREVIEW_FORMATS)}.")]
@@ -68,20 +67,20 @@ def animate_command(
     fps: FpsOpt = 25.0,
     tier: Annotated[str | None, typer.Option("--tier", help="TextGrid tier with the phones (default: the first interval tier).")] = None,
     label_map: Annotated[str | None, typer.Option("--label-map", help="Corpus labels → model phonemes: a built-in map name or a TSV/JSON file.")] = None,
-    mns: MnsOpt = 30.0,
-    mw: MwOpt = 50.0,
+    mns: MnsOpt = None,
+    mw: MwOpt = None,
     preview: PreviewOpt = "gif",
     snap_contacts: SnapOpt = True,
     strict: StrictOpt = False,
 ) -> None:
     """Animate a label file: channel trajectories (CSV), an MPEG-4 FAP file and a preview."""
-    from coartic.runtime.pipeline import animate_file
+    from coartic.runtime.pipeline import animate_file, speaker_face
 
     try:
         t = _load_table(table)
         with _progress() as progress:
             result = animate_file(labels, t, out, fps=fps, tier=tier, label_map=label_map,
-                                  face=FaceUnits(mns, mw), preview=preview, snap_contacts=snap_contacts,
+                                  face=speaker_face(t, mns, mw), preview=preview, snap_contacts=snap_contacts,
                                   strict=strict, progress=progress)
     except (AnimationError, DataError, TableError) as err:
         _fail(err)
@@ -96,19 +95,19 @@ def speak_command(
     stretch: Annotated[float, typer.Option("--stretch", help="Festival's Duration_Stretch: 1 = normal rate, 0.6 = fast.")] = 1.0,
     voice: Annotated[str, typer.Option("--voice", help="Festival Italian voice (pc_diphone, lp_diphone).")] = DEFAULT_VOICE,
     strict: StrictOpt = False,
-    mns: MnsOpt = 30.0,
-    mw: MwOpt = 50.0,
+    mns: MnsOpt = None,
+    mw: MwOpt = None,
     preview: PreviewOpt = "gif",
     snap_contacts: SnapOpt = True,
 ) -> None:
     """Say Italian text with Festival: WAV, channel trajectories, FAP file and preview, all as long as the WAV."""
-    from coartic.runtime.pipeline import speak_text
+    from coartic.runtime.pipeline import speak_text, speaker_face
 
     try:
         t = _load_table(table)
         with _progress() as progress:
             result = speak_text(text, t, out, fps=fps, stretch=stretch, voice=voice, strict=strict,
-                                face=FaceUnits(mns, mw), preview=preview, snap_contacts=snap_contacts,
+                                face=speaker_face(t, mns, mw), preview=preview, snap_contacts=snap_contacts,
                                 progress=progress)
     except (AnimationError, DataError, TableError) as err:
         _fail(err)
