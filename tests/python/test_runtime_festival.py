@@ -40,7 +40,7 @@ def test_phone_map_decisions() -> None:
     pmap = PhoneMap.load()
     assert pmap.to_phonemes(["#", "a1", "O1", "p", "nf", "ng", "Z"]) == ["#", "a", "O", "p", "f", "n", "S"]
     assert pmap.fallbacks["o"] == ("O", "u")
-    with pytest.raises(PhoneMapError, match=r"Festival phone 'xx' \(segment 1\) is not in phones_italian.tsv"):
+    with pytest.raises(PhoneMapError, match=r"Festival phone 'xx' \(segment 2\) is not in phones_italian.tsv"):
         pmap.to_phonemes(["a", "xx"])
 
 
@@ -123,3 +123,46 @@ def test_bad_rate_and_voice_name(tmp_path: Path) -> None:
         synthesize("ciao", tmp_path / "x.wav", stretch=0.0)
     with pytest.raises(FestivalError, match="voice name"):
         synthesize("ciao", tmp_path / "x.wav", voice="pc)(quit")
+
+
+FAKE_FESTIVAL = '''#!{python}
+# Stands in for Festival: finds the output paths in the script it is given, writes the segments
+# below and a silent 16 kHz WAV as long as the last segment.
+import re, sys, wave
+script = open(sys.argv[-1], encoding="latin-1").read()
+segs = re.search(r'fopen "([^"]+)"', script).group(1)
+wav = re.search(r'utt.save.wave utt "([^"]+)"', script).group(1)
+rows = {rows!r}
+open(segs, "w").write("".join(f"{{p}}\\t{{e:f}}\\n" for p, e in rows))
+with wave.open(wav, "wb") as w:
+    w.setnchannels(1); w.setsampwidth(2); w.setframerate(16000)
+    w.writeframes(b"\\0\\0" * int(16000 * rows[-1][1]))
+'''
+
+
+def fake_festival(tmp_path: Path, monkeypatch: pytest.MonkeyPatch, rows: list[tuple[str, float]]) -> None:
+    import sys
+
+    fake = tmp_path / "bin" / "festival"
+    fake.parent.mkdir()
+    fake.write_text(FAKE_FESTIVAL.format(python=sys.executable, rows=rows))
+    fake.chmod(fake.stat().st_mode | stat.S_IEXEC)
+    monkeypatch.setenv("PATH", str(fake.parent))
+
+
+def test_zero_length_segments_are_dropped_and_named(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    fake_festival(tmp_path, monkeypatch, [("#", 0.2), ("p", 0.2), ("a1", 0.35), ("#", 0.5)])
+    utt = synthesize("pa", tmp_path / "x.wav")
+    assert utt.phones == ("#", "a1", "#") and utt.dropped == ("p",)
+    np.testing.assert_allclose(utt.starts, [0.0, 0.2, 0.35])
+    assert utt.duration == pytest.approx(0.5)
+
+
+def test_unknown_festival_phone_is_named_by_speak(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    from coartic.runtime.pipeline import speak_text
+    from coartic.table import ParameterTable
+
+    fake_festival(tmp_path, monkeypatch, [("#", 0.2), ("a1", 0.3), ("QQ", 0.4), ("#", 0.5)])
+    table = ParameterTable.load(Path(__file__).resolve().parents[2] / "corpus-synthetic" / "ground_truth.json")
+    with pytest.raises(PhoneMapError, match=r"Festival phone 'QQ' \(segment 3\) is not in phones_italian.tsv"):
+        speak_text("qq", table, tmp_path / "o", preview="none")

@@ -83,7 +83,7 @@ class PhoneMap:
         for i, phone in enumerate(phones):
             if phone not in self.phonemes:
                 raise PhoneMapError(
-                    f"Festival phone {phone!r} (segment {i}) is not in {self.source}; "
+                    f"Festival phone {phone!r} (segment {i + 1}) is not in {self.source}; "
                     f"known phones: {' '.join(sorted(self.phonemes))}"
                 )
             out.append(self.phonemes[phone])
