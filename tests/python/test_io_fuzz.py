@@ -129,7 +129,7 @@ def test_tsv_labels_fuzz(data: bytes) -> None:
 @FUZZ
 @given(data=_text_cases(MARKERS_CSV))
 def test_marker_csv_fuzz(data: bytes) -> None:
-    _only_data_error(data, ".csv", lambda p: load_trial(p).fill_gaps())
+    _only_data_error(data, ".csv", lambda p: load_trial(p).channels())
 
 
 @pytest.mark.slow

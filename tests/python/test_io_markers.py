@@ -6,6 +6,8 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 from numpy.typing import NDArray
 
 from coartic.io import DataError, Segments, Trial, load_trial
@@ -139,7 +141,7 @@ def test_c3d_round_trip_invalid_samples_and_units(tmp_path: Path, face) -> None:
     p = tmp_path / "t.c3d"
     write_c3d(p, m / 1000.0, ROLES, unit="m", invalid=invalid)
     for backend in ("ezc3d", "c3d"):
-        t = read_c3d(p, backend=backend)  # type: ignore[arg-type]
+        t = read_c3d(p, backend=backend)
         assert t.marker_names == ROLES and t.rate == RATE and t.units == "mm"
         assert np.isnan(t.markers[10:14, 4]).all()
         assert not np.isnan(t.markers[~invalid]).any()
@@ -175,7 +177,7 @@ def test_real_optotrak_c3d() -> None:
     with pytest.raises(DataError, match="header declares 1149 frames of POINT data, the file holds 29"):
         read_c3d(p)
     for backend in ("ezc3d", "c3d"):
-        t = read_c3d(p, backend=backend, allow_truncated=True)  # type: ignore[arg-type]
+        t = read_c3d(p, backend=backend, allow_truncated=True)
         assert t.rate == 30.0 and t.units == "mm" and t.markers.shape == (29, 54, 3)
         assert t.marker_names[0] == "Marker_1" and t.marker_names[-1] == "Marker_54"
         frac = float(np.isnan(t.markers[:, :, 0]).mean())
@@ -205,6 +207,26 @@ def test_fill_gaps_short_filled_long_left_and_reported() -> None:
     np.testing.assert_allclose(filled[50:55, 0], x[50:55, 0], atol=1e-4)
     assert np.isnan(filled[100:106, 0]).all() and np.isnan(filled[:3, 0]).all()
     assert "left missing (too long)" in str(gaps[2])
+
+
+@settings(max_examples=60, deadline=None, derandomize=True)
+@given(missing=st.lists(st.booleans(), min_size=8, max_size=60),
+       max_gap=st.sampled_from([0.0, 0.02, 0.05, 0.1]))
+def test_fill_gaps_properties(missing: list[bool], max_gap: float) -> None:
+    n = len(missing)
+    x = np.stack([np.sin(np.arange(n) / 7.0)] * 3, axis=1)[:, None, :]
+    m = x.copy()
+    m[np.array(missing)] = np.nan
+    filled, gaps = fill_gaps(m, ["UL"], RATE, start_time=0.0, max_gap=max_gap)
+    ok = ~np.array(missing)
+    assert np.array_equal(filled[ok], m[ok])  # measured samples are never touched
+    # the gaps are exactly the missing runs, in order, and only interior short ones are filled
+    assert [(round(g.start * RATE), round(g.end * RATE) + 1) for g in gaps] == runs(np.array(missing))
+    for g in gaps:
+        a, b = round(g.start * RATE), round(g.end * RATE) + 1
+        interior = a > 0 and b < n
+        assert g.filled == (interior and g.frames / RATE <= max_gap + 1e-9 and ok.sum() >= 2)
+        assert np.isfinite(filled[a:b]).all() == g.filled
 
 
 def test_resample_never_bridges_a_gap() -> None:
@@ -281,6 +303,15 @@ def test_channels_role_map_and_missing_marker(tmp_path: Path, face) -> None:  # 
     t2 = Trial(m[:, :5].copy(), ROLES[:5], RATE)
     out2 = t2.channels()
     assert "LR" not in out2 and "LC_L" in out2.unavailable["LR"] and "JO" in out2.unavailable
+    # y_0 needs the lips in the rest frames
+    m3 = m.copy()
+    m3[:30, 4] = np.nan
+    with pytest.raises(DataError, match=r"never all present in the rest frames "
+                                        r"\(0\.000-0\.190 s\): y_0 is undefined, and so are ULO"):
+        Trial(m3, ROLES, RATE).channels(["ULO", "LA"])
+    out3 = Trial(m3, ROLES, RATE).channels()
+    assert "y_0 is undefined" in out3.unavailable["ULO"] and "LLO" not in out3
+    np.testing.assert_allclose(out3["ULP"], ch["ULP"], atol=1e-6)
 
 
 def test_common_rate(face) -> None:  # type: ignore[no-untyped-def]

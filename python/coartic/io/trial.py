@@ -98,7 +98,8 @@ class Trial:
     @property
     def valid(self) -> NDArray[np.bool_]:
         """frames x markers: True where the marker was measured."""
-        return np.all(np.isfinite(self.markers), axis=2)
+        valid: NDArray[np.bool_] = np.all(np.isfinite(self.markers), axis=2)
+        return valid
 
     def marker(self, name: str) -> NDArray[np.float64]:
         """frames x 3 of one marker, by its name in the file or by its role."""
@@ -131,9 +132,9 @@ class Trial:
         if self.segments is not None and PAUSE in self.segments.labels:
             i = self.segments.labels.index(PAUSE)
             t = self.times
-            mask = (t >= self.segments.starts[i]) & (t <= self.segments.ends[i])
-            if mask.any():
-                return mask
+            pause: NDArray[np.bool_] = (t >= self.segments.starts[i]) & (t <= self.segments.ends[i])
+            if pause.any():
+                return pause
         mask[: max(1, n_frames)] = True
         return mask
 
@@ -212,11 +213,35 @@ class Trial:
             k = idx[r]
             if k is not None:
                 stack[:, j, :] = self.markers[:, k, :]
-        cols = np.asarray(_core.marker_channels(np.ascontiguousarray(stack), rest))
-        values: dict[str, NDArray[np.float64]] = {}
         why: dict[str, str] = {}
+        # The core needs y_0, i.e. a rest frame with UL, LL and the head frame; without one, ULO
+        # and LLO are undefined but the other channels are not.
+        lips = np.ones(f, dtype=bool)
+        for j in (0, 1, 2, 3, 4):
+            lips &= np.isfinite(stack[:, j]).all(axis=1)
+        core_rest = rest
+        if not (lips & rest).any():
+            t = self.times[rest]
+            reason = (f"UL, LL and the head markers are never all present in the rest frames "
+                      f"({t[0]:.3f}-{t[-1]:.3f} s): y_0 is undefined")
+            if strict and {"ULO", "LLO"} & set(wanted):
+                raise DataError(reason + ", and so are ULO and LLO", path=self.source,
+                                item="UL/LL")
+            why["ULO"] = why["LLO"] = reason
+            core_rest = lips
+        if not core_rest.any():
+            # no frame has UL, LL and a head frame: the core cannot run at all
+            raise DataError("no frame has UL, LL, NOSE, EAR_L and EAR_R all present: the channels "
+                            "are undefined", path=self.source, item="UL/LL")
+        try:
+            cols = np.asarray(_core.marker_channels(np.ascontiguousarray(stack), core_rest))
+        except ValueError as e:
+            raise DataError(f"marker geometry: {e}", path=self.source) from None
+        values: dict[str, NDArray[np.float64]] = {}
         for j, c in enumerate(ALL_CHANNELS):
             absent = [r for r in CHANNEL_ROLES[c] if idx[r] is None]
+            if c in why:
+                continue
             if absent:
                 why[c] = f"no marker for role(s) {absent}"
             else:
