@@ -8,6 +8,7 @@ from typing import Any, Optional
 
 import typer
 from rich.console import Console
+from rich.markup import escape
 from rich.panel import Panel
 from rich.table import Table
 
@@ -63,13 +64,13 @@ def _status_table(runs: list[PosteriorRun]) -> Table:
 
 
 def mcmc_command(
-    spec: Path = typer.Argument(..., help="The fit spec (TOML) used for the least-squares fit; its [mcmc] section configures sampling."),
+    spec: Path = typer.Argument(..., help="The fit spec (TOML) used for the least-squares fit; its \\[mcmc] section configures sampling."),
     fit: Path = typer.Option(..., "--fit", help="The least-squares output directory (or its table JSON): the walkers start at its optimum."),
     out: Path = typer.Option(..., "--out", help="Output directory: chains (resumable), plots, summaries, table with uncertainty."),
-    channels: Optional[str] = typer.Option(None, help="Comma-separated channels (default: [mcmc] channels, else the spec's)."),
-    phonemes: Optional[str] = typer.Option(None, help="Comma-separated phonemes (default: [mcmc] phonemes, else every non-pause phoneme)."),
+    channels: Optional[str] = typer.Option(None, help="Comma-separated channels (default: \\[mcmc] channels, else the spec's)."),
+    phonemes: Optional[str] = typer.Option(None, help="Comma-separated phonemes (default: \\[mcmc] phonemes, else every non-pause phoneme)."),
     scope: Optional[str] = typer.Option(None, help="'phonemes' (one posterior per phoneme) or 'channel' (joint, slow)."),
-    max_steps: Optional[int] = typer.Option(None, help="Override [mcmc] max_steps."),
+    max_steps: Optional[int] = typer.Option(None, help="Override \\[mcmc] max_steps."),
     strict: bool = typer.Option(False, help="Exit with status 2 if any posterior has not converged."),
     quiet: bool = typer.Option(False, help="No progress bars."),
 ) -> None:
@@ -94,7 +95,7 @@ def mcmc_command(
             cfg.settings.min_steps = min(cfg.settings.min_steps, max_steps)
         outcome = run_job(fit_spec, cfg, find_table(fit), out, progress=not quiet)
     except (ValueError, FileNotFoundError) as e:
-        console.print(f"[bold red]error:[/] {e}")
+        console.print(f"[bold red]error:[/] {escape(str(e))}")
         raise typer.Exit(1) from None
     runs, interrupted = outcome
     console.print(_status_table(runs))
@@ -103,7 +104,7 @@ def mcmc_command(
         console.print(Panel(f"Interrupted; every finished step is saved in {out}.\nRun the same command again to resume.", style="yellow"))
         raise typer.Exit(130)
     if bad:
-        console.print(Panel("\n".join(bad), title=f"{len(bad)} of {len(runs)} posteriors have NOT CONVERGED: their intervals are not trustworthy", style="bold red"))
+        console.print(Panel(escape("\n".join(bad)), title=f"{len(bad)} of {len(runs)} posteriors have NOT CONVERGED: their intervals are not trustworthy", style="bold red"))
         if strict:
             raise typer.Exit(2)
     else:
@@ -112,12 +113,11 @@ def mcmc_command(
 
 def run_job(fit_spec: Any, cfg: Any, table_path: Path, out: Path, progress: bool = True) -> tuple[list[PosteriorRun], bool]:
     """Load the data and the table, sample every posterior, write table, summaries and report fragment."""
+    from coartic.fit.data import load_utterances
     from coartic.fit.problem import ChannelData, build_packing, model_options
     from coartic.mcmc import plots, summary
     from coartic.mcmc.run import channel_runs
     from coartic.table import ParameterTable
-
-    from coartic.fit.runner import load_utterances
 
     table = ParameterTable.load(table_path)
     utterances = load_utterances(fit_spec)
@@ -140,7 +140,9 @@ def run_job(fit_spec: Any, cfg: Any, table_path: Path, out: Path, progress: bool
         table.save(out / "table.csv")
         verdict = r.result.report.summary() if r.result.report else "no convergence check"
         sections.append(plots.html_fragment(r.label, r.images, r.summaries, verdict.splitlines()[0], r.result.converged, out))
-        (out / "mcmc.html").write_text("<div class=\"coartic-mcmc\">\n<h2>Posteriors (emcee)</h2>\n" + "".join(sections) + "</div>\n")
+        body = "".join(sections)
+        (out / "mcmc.html").write_text(_wrap(body))
+        add_to_fit_report(table_path.parent, out, runs)
         index = [
             {"label": x.label, "channel": x.channel, "phoneme": x.phoneme, "converged": x.result.converged,
              "directory": str(x.directory.relative_to(out)), "images": [str(p.relative_to(out)) for p in x.images]}
@@ -161,4 +163,42 @@ def run_job(fit_spec: Any, cfg: Any, table_path: Path, out: Path, progress: bool
     return runs, interrupted
 
 
-__all__ = ["mcmc_command", "find_table", "run_job", "phoneme_dir"]
+def _wrap(body: str) -> str:
+    return f'<div class="coartic-mcmc">\n<h2>Posteriors (emcee)</h2>\n{body}</div>\n'
+
+
+BEGIN, END = "<!-- coartic-mcmc begin -->", "<!-- coartic-mcmc end -->"
+
+
+def add_to_fit_report(fit_dir: Path, out: Path, runs: list[PosteriorRun]) -> Path:
+    """Put the posteriors into the least-squares report: ``report_mcmc.html`` in the fit directory
+    (the report includes every ``report_*.html`` when it is written) and, if ``report.html`` is
+    already there, the same block inserted (or replaced) before its ``</body>``."""
+    import os
+
+    from coartic.mcmc import plots
+
+    sections = []
+    for r in runs:
+        verdict = r.result.report.summary().splitlines()[0] if r.result.report else "no convergence check"
+        section = plots.html_fragment(r.label, r.images, r.summaries, verdict, r.result.converged, out)
+        # image paths as seen from the fit directory
+        for p in r.images:
+            rel_out = str(p.relative_to(out))
+            section = section.replace(f'src="{rel_out}"', f'src="{os.path.relpath(p, fit_dir)}"')
+        sections.append(section)
+    block = f"{BEGIN}\n{_wrap(''.join(sections))}{END}\n"
+    frag = fit_dir / "report_mcmc.html"
+    frag.write_text(block, encoding="utf-8")
+    report = fit_dir / "report.html"
+    if report.is_file():
+        text = report.read_text(encoding="utf-8")
+        if BEGIN in text and END in text:
+            text = text[: text.index(BEGIN)] + block + text[text.index(END) + len(END) + 1 :]
+        elif "</body>" in text:
+            text = text.replace("</body>", block + "</body>", 1)
+        report.write_text(text, encoding="utf-8")
+    return frag
+
+
+__all__ = ["mcmc_command", "find_table", "run_job", "add_to_fit_report", "phoneme_dir"]

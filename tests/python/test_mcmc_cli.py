@@ -1,0 +1,99 @@
+"""`coartic mcmc` end to end on a small synthetic session: fit, sample, report, resume, errors."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+from typer.testing import CliRunner
+
+from coartic.cli import app
+from coartic.mcmc.sampler import ChainStore
+
+SPEC = """
+name = "mcmc cli test"
+[corpus]
+manifest = "{manifest}"
+select = {{ vowel = ["a"] }}
+[model]
+channels = ["LLO"]
+reference_phoneme = "a"
+[parameters]
+free = ["target", "theta_bw", "theta_fw", "k_r"]
+[staging]
+enabled = false
+{mcmc}
+"""
+MCMC = """
+[mcmc]
+phonemes = ["p"]
+walkers = 12
+ensembles = 2
+chunk_steps = 100
+min_steps = 100
+max_steps = 200
+"""
+
+
+@pytest.fixture(scope="module")
+def fitted(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, Path]:
+    from coartic.fit import run
+    from coartic.report.html import write_report
+    from coartic.synthetic_cli import load_generator
+
+    root = tmp_path_factory.mktemp("mcmc_cli")
+    manifest = load_generator().generate(root / "session", quick=True, progress=False, consonants=["p"])
+    spec = root / "spec.toml"
+    spec.write_text(SPEC.format(manifest=manifest, mcmc=MCMC))
+    # the least-squares fit reads the same spec without [mcmc] (until fit/spec.py ignores that table)
+    fit_spec = root / "fit_spec.toml"
+    fit_spec.write_text(SPEC.format(manifest=manifest, mcmc=""))
+    result = run(fit_spec, root / "fit", quiet=True)
+    write_report(result, root / "fit")
+    return spec, root / "fit"
+
+
+@pytest.mark.slow
+def test_unconverged_run_says_so_writes_everything_and_resumes(fitted: tuple[Path, Path], tmp_path: Path) -> None:
+    spec, fit = fitted
+    out = tmp_path / "mcmc"
+    runner = CliRunner()
+    r = runner.invoke(app, ["mcmc", str(spec), "--fit", str(fit), "--out", str(out), "--strict", "--quiet"])
+    assert r.exit_code == 2, r.output
+    assert "NOT CONVERGED" in r.output and "chain too short" in r.output
+    table = json.loads((out / "table.json").read_text())
+    q = table["uncertainty"]["p"]["LLO"]
+    assert set(q) == {"target", "theta_bw", "theta_fw", "k_r"}
+    assert q["target"]["q2.5"] < q["target"]["q50"] < q["target"]["q97.5"]
+    assert table["metadata"]["mcmc"]["not_converged"] == ["LLO /p/"]
+    summary = json.loads((out / "LLO" / "p" / "summary.json").read_text())
+    assert summary["converged"] is False and summary["convergence"]["problems"]
+    for name in ("trace.png", "corner.png", "predictive.png"):
+        assert (out / "LLO" / "p" / name).stat().st_size > 1000
+    report = (fit / "report.html").read_text()
+    assert report.count("coartic-mcmc begin") == 1 and "NOT CONVERGED" in report
+    assert (fit / "report_mcmc.html").is_file()
+
+    # the same command with a longer budget continues the saved chains
+    before = ChainStore(out / "LLO" / "p" / "chains").load(0, 5, 12)[0]
+    r = runner.invoke(app, ["mcmc", str(spec), "--fit", str(fit), "--out", str(out), "--max-steps", "300", "--quiet"])
+    assert r.exit_code == 0, r.output
+    after = ChainStore(out / "LLO" / "p" / "chains").load(0, 5, 12)[0]
+    assert len(before) == 200 and len(after) == 300
+    np.testing.assert_array_equal(after[:200], before)
+    assert (fit / "report.html").read_text().count("coartic-mcmc begin") == 1
+
+
+def test_errors_name_the_file_and_key(fitted: tuple[Path, Path], tmp_path: Path) -> None:
+    spec, fit = fitted
+    runner = CliRunner()
+    bad = tmp_path / "bad.toml"
+    bad.write_text(spec.read_text().replace("walkers = 12", "walkerz = 12"))
+    r = runner.invoke(app, ["mcmc", str(bad), "--fit", str(fit), "--out", str(tmp_path / "o")])
+    assert r.exit_code == 1 and "bad.toml: [mcmc] walkerz: unknown key" in r.output.replace("\n", "")
+    r = runner.invoke(app, ["mcmc", str(spec), "--fit", str(tmp_path), "--out", str(tmp_path / "o")])
+    assert r.exit_code == 1 and "expected one parameter table" in r.output.replace("\n", "")
+    r = runner.invoke(app, ["mcmc", str(spec), "--fit", str(fit), "--out", str(tmp_path / "o"), "--phonemes", "zz"])
+    assert r.exit_code == 1 and "zz do not occur in the LLO data" in r.output.replace("\n", "")
