@@ -425,22 +425,28 @@ def plot_overview(out: Path, gap: float, flavour: str) -> Path:
     return path
 
 
+STAMP = ".coartic-synthetic-session"  # written first: marks a directory as ours, even half-written
+
+
 def _prepare(out: Path) -> None:
-    """Create ``out``; clear a previous session there, refuse to write into anything else."""
+    """Create ``out``; clear an earlier (or interrupted) session there, refuse anything else."""
     if out.exists() and not out.is_dir():
         raise SessionError(f"{out}: exists and is not a directory")
     if out.is_dir() and any(out.iterdir()):
-        if not (out / "manifest.csv").is_file():
+        if not (out / STAMP).is_file():
             raise SessionError(
-                f"{out}: the directory is not empty and holds no manifest.csv of an earlier session; "
+                f"{out}: the directory is not empty and is not a synthetic session written by coartic; "
                 f"choose a new or empty directory"
             )
-        (out / "manifest.csv").unlink()  # first: an interrupted rewrite leaves no stale manifest
+        if (out / "manifest.csv").is_file():
+            (out / "manifest.csv").unlink()  # first: an interrupted rewrite leaves no stale manifest
         for sub in SUBDIRS:
             if (out / sub).is_dir():
                 shutil.rmtree(out / sub)
+    out.mkdir(parents=True, exist_ok=True)
+    (out / STAMP).write_text("written by `coartic corpus synth`; the next run may replace this directory\n")
     for sub in SUBDIRS:
-        (out / sub).mkdir(parents=True, exist_ok=True)
+        (out / sub).mkdir(exist_ok=True)
 
 
 def generate(
@@ -463,6 +469,8 @@ def generate(
     out = Path(out)
     settings = load_settings()
     seed = int(settings["seed"] if seed is None else seed)
+    if seed < 0:
+        raise SessionError(f"seed must be a non-negative integer, got {seed}")
     table = ParameterTable.load(GROUND_TRUTH)
     if flavour not in FLAVOURS:
         raise SessionError(f"unknown flavour {flavour!r} (known: {', '.join(FLAVOURS)})")

@@ -116,8 +116,33 @@ def test_rerun_into_an_earlier_session_replaces_it_and_refuses_foreign_directori
     (foreign / "thesis.tex").write_text("precious")
     result = CliRunner().invoke(app, ["corpus", "synth", str(foreign), "--quick"])
     assert result.exit_code == 1
-    assert str(foreign) in result.output.replace("\n", "") and "manifest.csv" in result.output
+    assert str(foreign) in result.output.replace("\n", "") and "not a synthetic session" in result.output
     assert (foreign / "thesis.tex").read_text() == "precious"
+
+
+def test_an_interrupted_run_is_replaced_by_the_next(
+    gen: ModuleType, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    out = tmp_path / "s"
+    original = gen.write_truth
+    calls = {"n": 0}
+
+    def write_then_stop(path: Path, trial: Any) -> None:
+        calls["n"] += 1
+        if calls["n"] == 3:
+            raise KeyboardInterrupt  # Ctrl-C in the middle of the session
+        original(path, trial)
+
+    with monkeypatch.context() as mp:
+        mp.setattr(gen, "write_truth", write_then_stop)
+        with pytest.raises(KeyboardInterrupt):
+            gen.generate(out, quick=True, progress=False, consonants=["p"])
+    assert not (out / "manifest.csv").exists()  # an interrupted run is recognisable
+    gen.generate(out, quick=True, progress=False, consonants=["p"])
+    with open(out / "manifest.csv", newline="", encoding="utf-8") as fh:
+        assert len(list(csv.DictReader(fh))) == 3 * 2 * 2
+    with pytest.raises(ValueError, match="non-negative"):
+        gen.generate(out, seed=-1, quick=True, progress=False, consonants=["p"])
 
 
 def test_durations_are_realistic_and_fast_is_about_40_percent_shorter(
