@@ -7,6 +7,7 @@ use crate::gradient::{GradScratch, SegmentGrads};
 use crate::model::Prepared;
 use crate::params::{validate_params, ModelOptions, N_PARAMS};
 use rayon::prelude::*;
+use std::mem::MaybeUninit;
 use std::ops::Range;
 
 /// Work per parallel task, in (sample, segment) pairs: big enough to amortise rayon's scheduling,
@@ -308,6 +309,35 @@ fn split_at_ends<T>(
     out
 }
 
+/// An empty vector with room for `n` elements, for output written once in parallel. On Linux,
+/// large buffers are advised to use transparent huge pages: first-touch page faults on tens of
+/// MB of fresh 4 KiB pages otherwise cost more than computing the Jacobian that fills them.
+fn output_buffer<T>(n: usize) -> Vec<T> {
+    let v: Vec<T> = Vec::with_capacity(n);
+    #[cfg(target_os = "linux")]
+    {
+        const HUGE: usize = 2 << 20;
+        let bytes = n * std::mem::size_of::<T>();
+        if bytes >= 4 * HUGE {
+            let start = v.as_ptr() as usize;
+            let aligned = (start + HUGE - 1) & !(HUGE - 1);
+            let end = (start + bytes) & !(HUGE - 1);
+            if end > aligned {
+                // SAFETY: the range lies inside the vector's own allocation; MADV_HUGEPAGE only
+                // changes how the kernel backs it, and failure is harmless (ignored).
+                unsafe {
+                    libc::madvise(
+                        aligned as *mut libc::c_void,
+                        end - aligned,
+                        libc::MADV_HUGEPAGE,
+                    );
+                }
+            }
+        }
+    }
+    v
+}
+
 fn check_len(what: &'static str, got: usize, expected: usize) -> Result<(), ModelError> {
     if got != expected {
         Err(ModelError::LengthMismatch {
@@ -401,7 +431,10 @@ pub struct SparseJacobian {
 }
 
 /// The slices of one parallel task's rows: values, column indices, Jacobian data.
-type JacobianPieces<'a> = ((&'a mut [f64], &'a mut [usize]), &'a mut [f64]);
+type JacobianPieces<'a> = (
+    (&'a mut [f64], &'a mut [MaybeUninit<usize>]),
+    &'a mut [MaybeUninit<f64>],
+);
 
 /// Values F (into `values_out`) and the exact Jacobian ∂F/∂(params, β) at every sample
 /// (MODEL.md §4). A phoneme occurring several times in an utterance gets the sum of its
@@ -433,20 +466,30 @@ pub fn jacobian(
         }
     }
     let nnz = indptr[n_rows];
-    let mut indices = vec![0usize; nnz];
-    let mut data = vec![0.0f64; nnz];
+    let mut indices: Vec<usize> = output_buffer(nnz);
+    let mut data: Vec<f64> = output_buffer(nnz);
     let res = opts.variant.resistance();
     let shape = opts.variant.shape();
     {
         let chunk_ends = || corpus.chunks.iter().map(|c| corpus.sample_offsets[c.end]);
         let value_pieces = split_at_ends(values_out, 0, chunk_ends());
-        let index_pieces = split_at_ends(&mut indices, 0, chunk_ends().map(|s| indptr[s]));
-        let data_pieces = split_at_ends(&mut data, 0, chunk_ends().map(|s| indptr[s]));
+        let index_pieces = split_at_ends(
+            &mut indices.spare_capacity_mut()[..nnz],
+            0,
+            chunk_ends().map(|s| indptr[s]),
+        );
+        let data_pieces = split_at_ends(
+            &mut data.spare_capacity_mut()[..nnz],
+            0,
+            chunk_ends().map(|s| indptr[s]),
+        );
         let indptr = &indptr;
         let work = |(chunk, ((values, idx), dat)): (&Range<usize>, JacobianPieces)| -> Result<(), ModelError> {
             let mut prep = Prepared::default();
             let mut scratch = GradScratch::default();
             let mut grads = SegmentGrads::default();
+            let mut pattern: Vec<usize> = Vec::new();
+            let mut row_buf: Vec<f64> = Vec::new();
             let base = corpus.sample_offsets[chunk.start];
             let nz_base = indptr[base];
             for u in chunk.clone() {
@@ -458,15 +501,17 @@ pub fn jacobian(
                 let segs = corpus.segments(u);
                 let distinct = corpus.distinct(u);
                 let row_nnz = corpus.row_nnz(u);
+                pattern.clear();
+                for &p in distinct {
+                    pattern.extend((0..N_PARAMS).map(|k| p * N_PARAMS + k));
+                }
+                pattern.push(n_cols - 1);
+                row_buf.resize(row_nnz, 0.0);
                 for n in samples {
                     let row = indptr[n] - nz_base..indptr[n] - nz_base + row_nnz;
-                    let cols = &mut idx[row.clone()];
-                    for (l, &p) in distinct.iter().enumerate() {
-                        for k in 0..N_PARAMS {
-                            cols[l * N_PARAMS + k] = p * N_PARAMS + k;
-                        }
+                    for (dst, &src) in idx[row.clone()].iter_mut().zip(&pattern) {
+                        dst.write(src);
                     }
-                    cols[row_nnz - 1] = n_cols - 1;
                     let value = scratch
                         .value_at(&prep, corpus.sample_times[n], beta, res, shape)
                         .ok_or(ModelError::Degenerate { utterance: u, sample: n })?;
@@ -474,15 +519,19 @@ pub fn jacobian(
                     grads.reset(segs.len());
                     scratch.accumulate(&prep, 1.0, &mut grads);
                     grads.finish(&prep, res);
-                    let vals = &mut dat[row];
-                    vals.fill(0.0);
+                    // Sum occurrences in a small buffer, then write the row once: the output is
+                    // fresh memory, and a second pass over it costs more than the arithmetic.
+                    row_buf.fill(0.0);
                     for (i, d) in grads.d.iter().enumerate() {
                         let l = corpus.seg_local[segs.start + i];
-                        for (v, dk) in vals[l * N_PARAMS..(l + 1) * N_PARAMS].iter_mut().zip(d) {
+                        for (v, dk) in row_buf[l * N_PARAMS..(l + 1) * N_PARAMS].iter_mut().zip(d) {
                             *v += dk;
                         }
                     }
-                    vals[row_nnz - 1] = grads.beta;
+                    row_buf[row_nnz - 1] = grads.beta;
+                    for (dst, &src) in dat[row].iter_mut().zip(&row_buf) {
+                        dst.write(src);
+                    }
                 }
             }
             Ok(())
@@ -498,6 +547,12 @@ pub fn jacobian(
         } else {
             corpus.chunks.iter().zip(pieces).try_for_each(work)?;
         }
+    }
+    // SAFETY: the rows of all chunks tile 0..nnz (indptr is built from the same row counts the
+    // workers write), every worker wrote every element of its rows, and all succeeded.
+    unsafe {
+        indices.set_len(nnz);
+        data.set_len(nnz);
     }
     Ok(SparseJacobian {
         n_rows,

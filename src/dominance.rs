@@ -73,10 +73,10 @@ pub struct LogDominanceGrad {
     pub d_tau: f64,
 }
 
-/// Derivatives of ln D given the value computed by [`log_dominance`].
+/// Derivatives of ln D given the value computed by [`log_dominance`] and 1/α.
 #[inline(always)]
 pub fn log_dominance_grad(
-    alpha: f64,
+    inv_alpha: f64,
     theta: f64,
     c: f64,
     tau: f64,
@@ -88,7 +88,7 @@ pub fn log_dominance_grad(
         0.0
     };
     LogDominanceGrad {
-        d_alpha: 1.0 / alpha,
+        d_alpha: inv_alpha,
         d_theta: -ld.power,
         d_c: -theta * ld.power * ld.ln_abs_tau,
         d_tau,

@@ -64,16 +64,21 @@ pub(crate) struct SegmentGrads {
 impl SegmentGrads {
     /// Zeroes and sizes the accumulators for `n` segments.
     pub fn reset(&mut self, n: usize) {
-        self.d.clear();
-        self.d.resize(n, [0.0; N_PARAMS]);
-        self.g_fwd.clear();
-        self.g_fwd.resize(n, 0.0);
-        self.g_bwd.clear();
-        self.g_bwd.resize(n, 0.0);
-        self.d_k.clear();
-        self.d_k.resize(n, 0.0);
-        self.d_t.clear();
-        self.d_t.resize(n, 0.0);
+        if self.d.len() == n {
+            // The common case (every sample of an utterance): zero in place.
+            self.d.fill([0.0; N_PARAMS]);
+            self.g_fwd.fill(0.0);
+            self.g_bwd.fill(0.0);
+        } else {
+            self.d.clear();
+            self.d.resize(n, [0.0; N_PARAMS]);
+            self.g_fwd.clear();
+            self.g_fwd.resize(n, 0.0);
+            self.g_bwd.clear();
+            self.g_bwd.resize(n, 0.0);
+            self.d_k.resize(n, 0.0);
+            self.d_t.resize(n, 0.0);
+        }
         self.beta = 0.0;
     }
 
@@ -189,7 +194,7 @@ impl GradScratch {
                 Side::Backward => (s.theta_bw, s.c_bw),
                 Side::Forward => (s.theta_fw, s.c_fw),
             };
-            let dg = log_dominance_grad(s.alpha, theta, c, pair.tau, &pair.ld);
+            let dg = log_dominance_grad(s.inv_alpha, theta, c, pair.tau, &pair.ld);
             let sign = if pair.tau > 0.0 {
                 1.0
             } else if pair.tau < 0.0 {

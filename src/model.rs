@@ -14,7 +14,8 @@ pub(crate) struct SegmentModel {
     /// Target time t_i.
     pub t: f64,
     pub target: f64,
-    pub alpha: f64,
+    /// 1/α, for ∂ ln D/∂α.
+    pub inv_alpha: f64,
     pub log_alpha: f64,
     pub theta_bw: f64,
     pub theta_fw: f64,
@@ -74,7 +75,7 @@ impl Prepared {
             self.seg.push(SegmentModel {
                 t,
                 target: row[Param::Target.index()],
-                alpha,
+                inv_alpha: 1.0 / alpha,
                 log_alpha: alpha.ln(),
                 theta_bw: row[Param::ThetaBw.index()],
                 theta_fw: row[Param::ThetaFw.index()],
