@@ -76,7 +76,8 @@ def check_phonemes(table: ParameterTable, segments: Segments, channels: Sequence
             what = "phoneme" if not have else f"phoneme with channel(s) {', '.join(lacking)}:"
             raise MissingPhonemeError(
                 f"{table.source} has no {what} {ph!r}, needed by {_segment_where(segments, i)}; "
-                f"the table's phonemes are {' '.join(table.phonemes)}"
+                f"the table's phonemes are {' '.join(table.phonemes)}",
+                segment=i,
             )
 
 

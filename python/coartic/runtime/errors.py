@@ -18,4 +18,11 @@ class PhoneMapError(AnimationError):
 
 
 class MissingPhonemeError(AnimationError):
-    """A phoneme of the utterance (or a channel) that the parameter table does not have."""
+    """A phoneme of the utterance (or a channel) that the parameter table does not have.
+
+    `segment` is the 0-based index of the segment at fault, when there is one.
+    """
+
+    def __init__(self, message: str, segment: int | None = None) -> None:
+        super().__init__(message)
+        self.segment = segment

@@ -25,7 +25,7 @@ from coartic.runtime.animate import (
     write_channels_csv,
     write_segments_tsv,
 )
-from coartic.runtime.errors import AnimationError
+from coartic.runtime.errors import AnimationError, MissingPhonemeError
 from coartic.runtime.fap import FaceUnits, FapSequence, channels_to_faps, write_fap
 from coartic.runtime.festival import DEFAULT_VOICE, FestivalUtterance, PhoneMap, synthesize
 from coartic.runtime.preview import plot_channels, render_preview, render_strip
@@ -153,8 +153,14 @@ def speak_text(
     used: dict[str, str] = {}
     if not strict:
         segments, used = substitute(segments, table, CHANNELS, pmap.fallbacks)
-    animation = animate(table, segments, fps, duration=utt.duration, substitutions=used,
-                        snap_contacts=snap_contacts)
+    try:
+        animation = animate(table, segments, fps, duration=utt.duration, substitutions=used,
+                            snap_contacts=snap_contacts)
+    except MissingPhonemeError as err:
+        if err.segment is None:
+            raise
+        raise MissingPhonemeError(f"{err} (Festival phone {utt.phones[err.segment]!r} of {utt.text!r})",
+                                  err.segment) from None
     result = _write_outputs(animation, table, out, _name_from(text), face or speaker_face(table), preview,
                             requested, utt.phones, progress)
     result.files["wav"] = utt.wav
