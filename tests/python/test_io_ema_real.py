@@ -114,3 +114,27 @@ def test_ema_without_label_map_names_the_phone() -> None:
     with pytest.raises(DataError, match=r"0020_Segment\.tsv, line 3: phone 'z'|line 4: phone 'i:'"):
         load_trial(DATA / "dfgspp_mo1_prosody_0020_ema.csv",
                    labels=DATA / "dfgspp_mo1_prosody_0020_Segment.tsv")
+
+
+@pytest.mark.parametrize("stem", sorted(BILABIALS))
+def test_emu_bundle_matches_the_derived_tables(stem: str) -> None:
+    bundle = load_trial(DATA.parent / f"dfgspp_mo1_prosody_{stem}_bndl.json",
+                        label_map="german_sampa")
+    table = _load(stem)
+    assert bundle.rate == 200.0 and bundle.n_frames == 800 and bundle.kind == "ema"
+    order = [bundle.marker_names.index(n) for n in table.marker_names]
+    a, b = bundle.markers[:, order], table.markers
+    assert np.array_equal(np.isnan(a), np.isnan(b))
+    np.testing.assert_allclose(a[~np.isnan(a)], b[~np.isnan(b)], atol=6e-5)  # CSV has 4 decimals
+    assert bundle.segments is not None and table.segments is not None
+    assert bundle.segments.labels == table.segments.labels
+    np.testing.assert_allclose(bundle.segments.ends, table.segments.ends, atol=1e-9)
+    ca, cb = bundle.channels(), table.channels()
+    for c in cb:
+        np.testing.assert_allclose(ca[c][cb.valid[c]], cb[c][cb.valid[c]], atol=2e-4)
+    with pytest.raises(DataError, match=r"no SEGMENT level 'Phones'; the levels are \['Segment', "
+                                        r"'TT', 'TB'\]"):
+        load_trial(DATA.parent / f"dfgspp_mo1_prosody_{stem}_bndl.json", tier="Phones")
+    tt = load_trial(DATA.parent / f"dfgspp_mo1_prosody_{stem}_bndl.json", tier="TT",
+                    label_map={"raise": "=", "lower": "="})
+    assert tt.segments is not None and tt.segments.labels == ("raise", "lower")

@@ -139,6 +139,30 @@ def test_ema_csv_fuzz(data: bytes) -> None:
     _only_data_error(data, ".csv", load_trial)
 
 
+def _ssff_track() -> bytes:
+    import base64
+    import json
+
+    bundle = json.loads((REAL / "emu-ema-german/dfgspp_mo1_prosody_0020_bndl.json").read_text())
+    track = next(f for f in bundle["ssffFiles"] if f["fileExtension"] == "upper_lip")
+    raw = base64.b64decode(track["data"])
+    return raw[: raw.find(b"-----------------\n") + 18 + 24 * 40]  # header + 40 whole records
+
+
+SSFF = _ssff_track()
+
+
+@FUZZ
+@given(data=st.one_of(mutated(SSFF), st.binary(max_size=600)))
+def test_ssff_fuzz(data: bytes) -> None:
+    from coartic.io.emu import parse_ssff
+
+    try:
+        parse_ssff(data, "fuzz")
+    except DataError:
+        pass
+
+
 @FUZZ
 @given(data=_text_cases("aa\ta\tlong a\nQ\t=\n*\t=\n"))
 def test_label_map_fuzz(data: bytes) -> None:

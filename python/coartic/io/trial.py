@@ -285,7 +285,8 @@ def load_trial(
 ) -> Trial:
     """Read a recording and (optionally) its labels.
 
-    `labels`: a label file (TextGrid, .lab, TSV) or Segments; `tier` picks the TextGrid tier.
+    `labels`: a label file (TextGrid, .lab, TSV) or Segments; `tier` picks the TextGrid tier (or
+    the annotation level of an EMU bundle, whose own labels are used when `labels` is None).
     `label_map`: corpus labels → model phonemes (a built-in name such as 'german_sampa', a TSV or
     JSON file, or a dict); the default accepts only model phonemes and pauses.
     `role_map`: which marker/sensor is NOSE, UL, JAW...; for EMA also the axes (default: up is
@@ -312,8 +313,16 @@ def load_trial(
                                        "map to change)")
         roles = guess_ema_roles(trial.marker_names, roles)
     elif kind == "emu":
-        raise DataError("EMU bundle JSON is not read directly; use the derived <stem>_ema.csv "
-                        "and <stem>_Segment.tsv (docs/DATA.md)", path=p)
+        from coartic.io.emu import read_emu_bundle
+
+        trial, bundle_segments = read_emu_bundle(p, level=tier if labels is None else None,
+                                                 units=units)
+        if role_map is None:
+            trial.meta["notes"].append("EMA axes assumed: up is +z, forwards is -y (pass a role "
+                                       "map to change)")
+        roles = guess_ema_roles(trial.marker_names, roles)
+        if labels is None:
+            labels = bundle_segments
     else:
         from coartic.io.markers_csv import read_markers_csv
 
