@@ -229,3 +229,37 @@ def test_fapu_is_the_speakers_face(tmp_path: Path, labels: Path) -> None:
     result = animate_file(labels, table, tmp_path / "o", preview="none")
     d_lr = result.animation.channels["LR"] - 48.0
     np.testing.assert_array_equal(result.faps.column(6), np.rint(d_lr / 2 / (48.0 / 1024)).astype(np.int64))
+
+
+TEXTGRID = '''File type = "ooTextFile"
+Object class = "TextGrid"
+
+xmin = 0
+xmax = 1.2
+tiers? <exists>
+size = 1
+item []:
+    item [1]:
+        class = "IntervalTier"
+        name = "phones"
+        xmin = 0
+        xmax = 1.2
+        intervals: size = 7
+''' + "".join(
+    f'        intervals [{k + 1}]:\n            xmin = {s}\n            xmax = {e}\n            text = "{lab}"\n'
+    for k, (s, e, lab) in enumerate([(0.0, 0.3, ""), (0.3, 0.45, "a"), (0.45, 0.53, "p"), (0.53, 0.68, "i"),
+                                     (0.68, 0.77, "f"), (0.77, 0.92, "a"), (0.92, 1.2, "sil")])
+)
+HTK = "".join(f"{round(s * 1e7)} {round(e * 1e7)} {lab}\n" for s, e, lab in
+              [(0.0, 0.3, "sil"), (0.3, 0.45, "a"), (0.45, 0.53, "p"), (0.53, 0.68, "i"), (0.68, 0.77, "f"),
+               (0.77, 0.92, "a"), (0.92, 1.2, "sil")])
+
+
+def test_textgrid_lab_and_tsv_animate_alike(tmp_path: Path, labels: Path) -> None:
+    (tmp_path / "apifa.TextGrid").write_text(TEXTGRID)
+    (tmp_path / "apifa.lab").write_text(HTK)
+    ref = animate_file(labels, make_table(), tmp_path / "tsv", preview="none")
+    for name in ("apifa.TextGrid", "apifa.lab"):
+        other = animate_file(tmp_path / name, make_table(), tmp_path / name.replace(".", "_"), preview="none")
+        assert other.animation.segments.labels == ref.animation.segments.labels
+        np.testing.assert_array_equal(other.faps.values, ref.faps.values)
