@@ -163,6 +163,29 @@ def test_ssff_fuzz(data: bytes) -> None:
         pass
 
 
+def _small_bundle() -> str:
+    import base64
+    import json
+
+    track = base64.b64encode(SSFF).decode()
+    ll = base64.b64encode(SSFF.replace(b"ul_pos", b"ll_pos").replace(b"ul_ori", b"ll_ori")).decode()
+    items = [{"id": i, "sampleStart": 240 * i, "sampleDur": 240,
+              "labels": [{"name": "Segment", "value": v}]} for i, v in enumerate(["&p:", "a", "m"])]
+    return json.dumps({"ssffFiles": [{"fileExtension": "upper_lip", "encoding": "BASE64",
+                                      "data": track},
+                                     {"fileExtension": "lower_lip", "encoding": "BASE64", "data": ll}],
+                       "annotation": {"sampleRate": 24000, "levels": [
+                           {"name": "Segment", "type": "SEGMENT", "items": items}]}}, indent=1)
+
+
+@FUZZ
+@given(data=st.one_of(mutated(_small_bundle().encode()),
+                      st.lists(st.sampled_from(_small_bundle().splitlines()), max_size=40).map(
+                          lambda lines: "\n".join(lines).encode())))
+def test_emu_bundle_fuzz(data: bytes) -> None:
+    _only_data_error(data, ".json", lambda p: load_trial(p, label_map="german_sampa").channels())
+
+
 @FUZZ
 @given(data=_text_cases("aa\ta\tlong a\nQ\t=\n*\t=\n"))
 def test_label_map_fuzz(data: bytes) -> None:

@@ -166,7 +166,7 @@ def _segments(annotation: Any, level: str | None, p: Path) -> Segments | None:
             s, d = int(item["sampleStart"]), int(item["sampleDur"])
             lab = next((str(x["value"]) for x in item["labels"] if x.get("name") == lv["name"]),
                        str(item["labels"][0]["value"]) if item["labels"] else "")
-        except (KeyError, IndexError, TypeError, ValueError) as e:
+        except (KeyError, IndexError, TypeError, ValueError, AttributeError) as e:
             raise DataError(f"level {lv.get('name')!r} item {i + 1} is malformed ({e!r})", path=p,
                             item=str(lv.get("name"))) from None
         labels.append(lab)
