@@ -147,6 +147,20 @@ def test_speak_output_animates_again_to_the_same_frames(tmp_path: Path, table: P
     np.testing.assert_array_equal(again.faps.values, spoken.faps.values)
 
 
+def test_accented_text_gives_an_ascii_fap_name(tmp_path: Path, table: ParameterTable) -> None:
+    result = speak_text("Perché no?", table, tmp_path, preview="none")
+    assert result.files["fap"].name == "Perche_no.fap"
+    assert read_fap(result.files["fap"]).name == "Perche_no"
+
+
+def test_bad_preview_format_is_refused_before_festival_runs(tmp_path: Path, table: ParameterTable) -> None:
+    from coartic.runtime.errors import AnimationError
+
+    with pytest.raises(AnimationError, match="preview must be one of gif, mp4, none, got 'avi'"):
+        speak_text("ciao", table, tmp_path / "o", preview="avi")
+    assert not (tmp_path / "o").exists()
+
+
 def test_cli_speak_writes_everything(tmp_path: Path) -> None:
     res = CliRunner().invoke(app, ["speak", "Viva la mamma!", "-t", str(GROUND_TRUTH), "-o", str(tmp_path),
                                    "--fps", "25", "--stretch", "0.8"])

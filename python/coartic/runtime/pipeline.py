@@ -8,6 +8,7 @@ first and every file atomically, so an interrupted preview loses nothing else.
 from __future__ import annotations
 
 import re
+import unicodedata
 from dataclasses import dataclass, field
 from os import PathLike
 from pathlib import Path
@@ -52,8 +53,15 @@ def speaker_face(table: ParameterTable, mns_mm: float | None = None, mw_mm: floa
 
 
 def _name_from(text: str) -> str:
-    word = re.sub(r"[^0-9A-Za-z_]+", "_", text).strip("_")
+    # FAP files are ASCII and their name is one word: "Perché no?" -> "Perche_no"
+    ascii_text = unicodedata.normalize("NFKD", text).encode("ascii", "ignore").decode()
+    word = re.sub(r"[^0-9A-Za-z_]+", "_", ascii_text).strip("_")
     return word[:40] or "coartic"
+
+
+def _check_preview(preview: str) -> None:
+    if preview not in PREVIEW_FORMATS:
+        raise AnimationError(f"preview must be one of {', '.join(PREVIEW_FORMATS)}, got {preview!r}")
 
 
 def _write_outputs(
@@ -67,8 +75,6 @@ def _write_outputs(
     source: tuple[str, ...],
     progress: Progress | None,
 ) -> RuntimeOutput:
-    if preview not in PREVIEW_FORMATS:
-        raise AnimationError(f"preview must be one of {', '.join(PREVIEW_FORMATS)}, got {preview!r}")
     neutral = neutral_posture(table)
     faps = channels_to_faps(animation.channels, neutral, face, name, animation.fps)
     out.mkdir(parents=True, exist_ok=True)
@@ -108,6 +114,7 @@ def animate_file(
 
     Phonemes the table lacks are replaced by the phone map's fallbacks unless `strict`.
     """
+    _check_preview(preview)
     raw = read_labels(labels, tier=tier)
     segments = resolve_label_map(label_map).apply(raw)
     requested = segments.labels
@@ -140,6 +147,7 @@ def speak_text(
     Phonemes the table lacks are replaced by the phone map's fallbacks (reported in
     `animation.substitutions`) unless `strict`.
     """
+    _check_preview(preview)
     out = Path(out)
     pmap = phone_map or PhoneMap.load()
     utt = synthesize(text, out / "speech.wav", stretch=stretch, voice=voice, festival=festival)
