@@ -1,10 +1,12 @@
 """Generate the synthetic ELITE-style session of CORPUS.md: VCV trials as C3D, CSV and labels.
 
-    coartic corpus synth OUT [--seed N] [--quick]        (or: python corpus-synthetic/generate.py OUT)
+    coartic corpus synth OUT [--seed N] [--quick] [--flavour model|gestures]
+    python corpus-synthetic/generate.py OUT [...]            (the same)
 
 Every trial is # V C V # with V in {i, a, u} and C every Italian consonant, at a normal and a fast
 rate, 5 repetitions. The six channels come from the modified model (``coartic.model.trajectories``)
-with the ground-truth table ``ground_truth.json``; the markers are then placed in a head frame so
+with the ground-truth table ``ground_truth.json`` (or, ``--flavour gestures``, from critically damped
+gestures towards the same targets: gestures.py); the markers are then placed in a head frame so
 that MODEL.md §6 gives those channels back, moved rigidly (slow head motion), perturbed with
 Gaussian noise and occasional occlusions. All settings are in ``session.toml`` next to this file.
 
@@ -86,7 +88,7 @@ class Trial:
     starts: F64
     ends: F64
     times: F64
-    channels: dict[str, F64]  # model trajectories (the truth), mm
+    channels: dict[str, F64]  # the generated channel trajectories (the truth), mm
     head_markers: F64  # [F, 8, 3] noise-free, head frame
     markers: F64  # [F, 8, 3] lab frame, noise and NaN dropouts
     dropouts: list[tuple[str, int, int]]  # (marker, first frame, n frames)

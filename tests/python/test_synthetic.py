@@ -389,6 +389,20 @@ def test_gesture_flavour_is_other_data_with_the_same_guarantees(
     assert float(np.median(diffs)) > 0.3
 
 
+def test_bad_settings_name_the_file_and_the_setting(gen: ModuleType, tmp_path: Path) -> None:
+    text = (corpus_dir() / "session.toml").read_text()
+    broken = tmp_path / "session.toml"
+    broken.write_text(text.replace("[noise]", "[noise_]"))
+    with pytest.raises(ValueError, match=rf"{broken}: missing setting 'noise'"):
+        gen.load_settings(broken)
+    broken.write_text(text.replace("L = 0.140", ""))
+    with pytest.raises(ValueError, match=r"\[durations.consonant\] has no duration for consonant 'L'"):
+        gen.load_settings(broken)
+    broken.write_text(text.replace("seed = ", "seed == "))
+    with pytest.raises(ValueError, match=rf"{broken}: invalid TOML"):
+        gen.load_settings(broken)
+
+
 def test_bad_flavour_or_consonant_is_refused_before_writing(gen: ModuleType, tmp_path: Path) -> None:
     with pytest.raises(ValueError, match="unknown flavour 'spline'"):
         gen.generate(tmp_path / "a", quick=True, progress=False, flavour="spline")
