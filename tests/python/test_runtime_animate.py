@@ -263,3 +263,20 @@ def test_textgrid_lab_and_tsv_animate_alike(tmp_path: Path, labels: Path) -> Non
         other = animate_file(tmp_path / name, make_table(), tmp_path / name.replace(".", "_"), preview="none")
         assert other.animation.segments.labels == ref.animation.segments.labels
         np.testing.assert_array_equal(other.faps.values, ref.faps.values)
+
+
+def test_interrupted_preview_leaves_complete_outputs_and_no_partial_file(tmp_path: Path, labels: Path) -> None:
+    from rich.progress import Progress, TaskID
+
+    class Interrupt(Progress):
+        def advance(self, task_id: TaskID, advance: float = 1) -> None:
+            if self.tasks[0].completed >= 3:
+                raise KeyboardInterrupt
+            super().advance(task_id, advance)
+
+    out = tmp_path / "o"
+    with pytest.raises(KeyboardInterrupt), Interrupt(disable=True) as progress:
+        animate_file(labels, make_table(), out, preview="gif", progress=progress)
+    assert read_fap(out / "apifa.fap").n_frames == 30
+    assert (out / "channels.csv").exists() and (out / "strip.png").exists()
+    assert not (out / "preview.gif").exists() and not list(out.glob("*.part*"))

@@ -238,17 +238,22 @@ def render_preview(
         if progress is not None and task is not None:
             progress.advance(task)
 
-    if suffix == ".gif":
-        from PIL import Image
+    try:
+        if suffix == ".gif":
+            from PIL import Image
 
-        images = []
-        for rgb in frames:
-            images.append(Image.fromarray(rgb).quantize(colors=64, method=Image.Quantize.MEDIANCUT))
-            advance()
-        images[0].save(tmp, save_all=True, append_images=images[1:], loop=0,
-                       duration=round(1000.0 / animation.fps), optimize=False)
-    else:
-        _write_mp4(tmp, frames, animation.fps, advance)
+            images = []
+            for rgb in frames:
+                images.append(Image.fromarray(rgb).quantize(colors=64, method=Image.Quantize.MEDIANCUT))
+                advance()
+            images[0].save(tmp, save_all=True, append_images=images[1:], loop=0,
+                           duration=round(1000.0 / animation.fps), optimize=False)
+        else:
+            _write_mp4(tmp, frames, animation.fps, advance)
+    except BaseException:
+        # interrupted or failed: no half-written preview left behind (the other outputs are complete)
+        tmp.unlink(missing_ok=True)
+        raise
     os.replace(tmp, path)
     return path
 
