@@ -52,6 +52,7 @@ def test_truth_inside_95_percent_interval_for_at_least_90_percent_of_identified(
             if s.identified:
                 identified += 1
                 covered += inside
-    report = "\n".join(lines)
+    report = "\n".join(lines) + f"\ncovered {covered} of {identified} identified"
+    print(report)  # pytest -s shows the calibration table
     assert identified >= 10, report  # VCV data at two rates pin these parameters down
     assert covered >= 0.9 * identified, report

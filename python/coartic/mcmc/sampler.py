@@ -293,7 +293,11 @@ def run(
         }
     )
     W, E = settings.n_walkers, settings.n_ensembles
-    chains, lps, accepted, states = [], [], [], []
+    chains: list[NDArray[np.float64]] = []
+    lps: list[NDArray[np.float64]] = []
+    accepted: list[NDArray[np.float64]] = []
+    # per ensemble: walker positions, their log-probabilities (None before the first step), random state
+    states: list[tuple[NDArray[np.float64], NDArray[np.float64] | None, Any]] = []
     for e in range(E):
         c, lp, acc, last = store.load(e, dim, W)
         chains.append(c)
