@@ -7,7 +7,8 @@ Prints, and saves to bench/results/core_speed.txt:
 (b) the full Jacobian / one evaluation (aim <= 4x);
 (c) the cost of one Python call for one VCV (prebuilt Corpus, 100 samples; aim < 5 us), and the
     bare calling overhead (a 1-segment, 1-sample corpus).
-Times are the best of several repeats (timeit), so other load on the machine inflates them less.
+Times are the best of several rounds (timeit), the contenders of one ratio timed in turns, so that
+other load on this shared machine inflates them less and alike.
 
 Run: .venv/bin/python bench/core_speed.py [--utterances 600] [--out bench/results/core_speed.txt]
 """
@@ -32,6 +33,16 @@ import numpy_model as nm  # noqa: E402
 from conftest import random_params  # noqa: E402
 
 from coartic import _core  # noqa: E402
+
+
+def interleaved(fns: dict[str, tuple[Callable[[], object], int]], rounds: int) -> dict[str, float]:
+    """Best time per call (s) of each function, timed in turns round after round, so that a busy
+    spell on this shared machine slows all of them alike instead of one."""
+    out = {name: float("inf") for name in fns}
+    for _ in range(rounds):
+        for name, (fn, number) in fns.items():
+            out[name] = min(out[name], timeit.timeit(fn, number=number) / number)
+    return out
 
 
 def best(fn: Callable[[], object], repeat: int, number: int) -> float:
@@ -80,7 +91,8 @@ def main() -> None:
         lines.append(text)
 
     say(f"coartic core speed; {platform.machine()}, {os.cpu_count()} CPUs (shared), "
-        f"RAYON_NUM_THREADS={os.environ.get('RAYON_NUM_THREADS', 'default')}, numpy {np.__version__}")
+        f"RAYON_NUM_THREADS={os.environ.get('RAYON_NUM_THREADS', 'default')}, numpy {np.__version__}, "
+        f"load average {os.getloadavg()[0]:.1f} at start")
     arrays = vcv_corpus(args.utterances, 100, rng)
     corpus = _core.Corpus(**arrays)
     params = random_params(rng, 12)
@@ -97,13 +109,19 @@ def main() -> None:
 
         want = reference()
         err = float(np.max(np.abs(got - want) / np.maximum(1.0, np.abs(want))))
-        t_rust = best(lambda: _core.evaluate(corpus, params, beta, opts), repeat=7, number=20)
-        t_numpy = best(reference, repeat=3, number=1)
-        t_limit = best(lambda: _core.physical_limit_loop(corpus, params, opts), repeat=7, number=20)
-        t_jac = best(lambda: _core.jacobian(corpus, params, beta, opts), repeat=5, number=5)
         y = got + rng.normal(0, 0.1, got.shape)
         w = np.ones_like(y)
-        t_sse = best(lambda: _core.sse_gradient(corpus, params, beta, opts, y, w), repeat=5, number=5)
+        t = interleaved(
+            {
+                "rust": (lambda: _core.evaluate(corpus, params, beta, opts), 10),
+                "numpy": (reference, 1),
+                "limit": (lambda: _core.physical_limit_loop(corpus, params, opts), 10),
+                "jac": (lambda: _core.jacobian(corpus, params, beta, opts), 3),
+                "sse": (lambda: _core.sse_gradient(corpus, params, beta, opts, y, w), 5),
+            },
+            rounds=6,
+        )
+        t_rust, t_numpy, t_limit, t_jac, t_sse = (t[k] for k in ("rust", "numpy", "limit", "jac", "sse"))
         if variant == "modified":
             t_rust_mod = t_rust
         say(f"[{variant}] max relative difference Rust vs NumPy reference: {err:.1e}")
@@ -125,6 +143,7 @@ def main() -> None:
     say(f"    bare calling overhead (1 segment, 1 sample):   {t_bare * 1e6:6.2f} us per call")
     say(f"    so the VCV call is {t_bare * 1e6:.2f} us of overhead + {(t_call - t_bare) * 1e9 / 100:.0f} ns of model "
         f"per sample (the batch above: {t_rust_mod * 1e9 / corpus.n_samples:.0f} ns per sample)")
+    say(f"load average {os.getloadavg()[0]:.1f} at the end (other work on the machine slows both sides of a ratio)")
     args.out.parent.mkdir(parents=True, exist_ok=True)
     args.out.write_text("\n".join(lines) + "\n", encoding="utf-8")
     print(f"saved to {args.out}")
