@@ -29,8 +29,8 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "tests" / "python"))
 
-import numpy_model as nm  # noqa: E402
-from conftest import random_params  # noqa: E402
+import numpy_model as nm  # type: ignore[import-not-found]  # noqa: E402
+from conftest import random_params  # type: ignore[import-not-found]  # noqa: E402
 
 from coartic import _core  # noqa: E402
 
