@@ -33,6 +33,8 @@ from numpy.typing import NDArray
 
 from coartic import _core
 from coartic.fit.spec import FitSpec, SpecError
+from coartic.model import Utterance as ModelUtterance
+from coartic.model import build_corpus
 from coartic.table import PARAMETERS
 
 N_PARAMS = len(PARAMETERS)
@@ -79,33 +81,8 @@ def model_options(spec: FitSpec) -> _core.ModelOptions:
 
 
 def build_core_corpus(utterances: Sequence[Utterance], phonemes: Sequence[str]) -> _core.Corpus:
-    """The CSR corpus of ARCHITECTURE.md for these utterances; errors name the utterance."""
-    row = {p: i for i, p in enumerate(phonemes)}
-    seg_offsets = [0]
-    seg_phoneme: list[int] = []
-    sample_offsets = [0]
-    for u in utterances:
-        for lab in u.labels:
-            if lab not in row:
-                raise ValueError(f"utterance {u.name!r}: phoneme {lab!r} has no parameter row")
-            seg_phoneme.append(row[lab])
-        seg_offsets.append(len(seg_phoneme))
-        sample_offsets.append(sample_offsets[-1] + len(u.times))
-    try:
-        return _core.Corpus(
-            np.asarray(seg_offsets, dtype=np.int64), np.asarray(seg_phoneme, dtype=np.int64),
-            np.concatenate([u.starts for u in utterances]).astype(np.float64),
-            np.concatenate([u.ends for u in utterances]).astype(np.float64),
-            np.asarray(sample_offsets, dtype=np.int64),
-            np.concatenate([u.times for u in utterances]).astype(np.float64), len(phonemes))
-    except ValueError as e:
-        # The core names the utterance by index; add its name.
-        msg = str(e)
-        for i, u in enumerate(utterances):
-            if f"utterance {i}" in msg:
-                msg = f"{msg} (utterance {i} is {u.name!r})"
-                break
-        raise ValueError(msg) from None
+    """The CSR corpus of these utterances (``coartic.model.build_corpus``: errors name the utterance)."""
+    return build_corpus([ModelUtterance(u.labels, u.starts, u.ends, u.times, u.name) for u in utterances], phonemes)
 
 
 @dataclass
@@ -392,8 +369,11 @@ class ChannelProblem:
         except ValueError as e:
             self.last_error = str(e)
             return sp.csr_matrix((self.data.corpus.n_samples, self.packing.n_free))
-        j = jac[:, self.packing.free_columns]
-        return sp.csr_matrix(sp.diags(self.sqrt_w) @ j @ sp.diags(self.packing.dvalue_dx(x)))
+        j = jac[:, self.packing.free_columns].tocsr()
+        # Row scale sqrt(w) and column scale d(value)/dx applied to the stored entries in place.
+        rows = np.repeat(np.arange(j.shape[0]), np.diff(j.indptr))
+        j.data *= self.sqrt_w[rows] * self.packing.dvalue_dx(x)[j.indices]
+        return j
 
     def sse(self, x: FloatArray) -> float:
         r = self.residuals(x)

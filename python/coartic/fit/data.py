@@ -1,0 +1,84 @@
+"""Load the utterances a fit spec names (manifest or file list) through ``coartic.io.load_trial``."""
+
+from __future__ import annotations
+
+import csv
+from pathlib import Path
+from typing import Callable
+
+import numpy as np
+
+from coartic.fit.problem import Utterance
+from coartic.fit.spec import FitSpec, SpecError
+from coartic.io import DataError, load_trial
+
+
+def manifest_rows(spec: FitSpec) -> list[dict[str, str]]:
+    """The manifest's rows, kept by ``[corpus] select`` and ``limit``; paths made absolute."""
+    c = spec.corpus
+    if c.manifest is None:
+        rows = [{c.file_column: str(f), "labels": str(lab), "stimulus": f.stem}
+                for f, lab in zip(c.files, c.labels)]
+    else:
+        if not c.manifest.is_file():
+            raise SpecError(f"{spec.path}: [corpus.manifest] {c.manifest} does not exist"
+                            " (for the synthetic session run `coartic corpus synth build/session`)")
+        with c.manifest.open(newline="", encoding="utf-8") as f:
+            reader = csv.DictReader(f)
+            rows = list(reader)
+            cols = reader.fieldnames or []
+        for need in (c.file_column, "labels"):
+            if need not in cols:
+                raise SpecError(f"{spec.path}: [corpus] manifest {c.manifest} has no column {need!r} "
+                                f"(columns: {', '.join(cols)})")
+        for k in c.select:
+            if k not in cols:
+                raise SpecError(f"{spec.path}: [corpus.select] {k!r} is not a manifest column "
+                                f"(columns: {', '.join(cols)})")
+        base = c.manifest.parent
+        for r in rows:
+            r[c.file_column] = str(base / r[c.file_column])
+            r["labels"] = str(base / r["labels"])
+    rows = [r for r in rows if all(r.get(k, "") in v for k, v in c.select.items())]
+    if c.limit is not None:
+        rows = rows[: c.limit]
+    if not rows:
+        raise SpecError(f"{spec.path}: [corpus] no trial left after select = {c.select}")
+    return rows
+
+
+def load_utterances(spec: FitSpec, rows: list[dict[str, str]] | None = None,
+                    progress: Callable[[int, int], None] | None = None) -> list[Utterance]:
+    """One Utterance per trial with the spec's channels (gaps filled up to max_gap, longer ones masked)."""
+    rows = manifest_rows(spec) if rows is None else rows
+    out: list[Utterance] = []
+    col = spec.corpus.file_column
+    for i, r in enumerate(rows):
+        path = Path(r[col])
+        try:
+            trial = load_trial(path, labels=r["labels"], label_map=spec.corpus.label_map,
+                               role_map=spec.corpus.role_map)
+            ch = trial.channels(list(spec.channels), max_gap=spec.max_gap)
+        except DataError as e:
+            raise DataError(f"{e} (trial {i + 1} of the corpus in {spec.path})") from None
+        seg = trial.segments
+        assert seg is not None
+        meta = {k: v for k, v in r.items() if k not in (col, "labels")}
+        out.append(Utterance(
+            name=r.get("stimulus", path.stem) + (f"#{r['repetition']}" if "repetition" in r else "")
+            + (f"@{r['rate']}" if "rate" in r else ""),
+            labels=tuple(seg.labels), starts=np.asarray(seg.starts, dtype=np.float64),
+            ends=np.asarray(seg.ends, dtype=np.float64), times=np.asarray(ch.times, dtype=np.float64),
+            observed={c: np.asarray(ch[c], dtype=np.float64) for c in spec.channels},
+            valid={c: np.asarray(ch.valid[c], dtype=bool) for c in spec.channels},
+            meta={"file": str(path), **meta}))
+        if progress is not None:
+            progress(i + 1, len(rows))
+    return out
+
+
+def select(utterances: list[Utterance], **criteria: tuple[str, ...] | str) -> list[Utterance]:
+    """Utterances whose meta matches every criterion (value or tuple of accepted values)."""
+    def ok(u: Utterance) -> bool:
+        return all(u.meta.get(k) in ((v,) if isinstance(v, str) else v) for k, v in criteria.items())
+    return [u for u in utterances if ok(u)]

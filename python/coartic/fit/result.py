@@ -1,0 +1,304 @@
+"""What a fit produced: fitted values, parameter statistics, RMSE breakdowns, the parameter table.
+
+Statistics follow the usual least-squares recipe (as lmfit reports them): with J the Jacobian of
+the weighted residuals in the fitted (internal) coordinates at the optimum and s² = SSE/(n − m),
+cov = s² (JᵀJ)⁺. Directions of JᵀJ with eigenvalues below ``rtol`` × the largest are not
+identified by the data: the pseudo-inverse drops them and every parameter that loads on them is
+flagged. Standard errors are carried to natural units by the transform's derivative (delta method).
+"""
+
+from __future__ import annotations
+
+import csv
+import datetime as _dt
+import json
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Sequence
+
+import numpy as np
+from numpy.typing import NDArray
+
+from coartic import __version__
+from coartic.fit.problem import ChannelProblem, Packing
+from coartic.fit.spec import FitSpec
+from coartic.fit.staged import StageResult
+from coartic.table import PARAMETERS, ChannelSettings, ParameterTable
+
+BAR_MM = 0.3  # the paper's bar: RMSE below 0.3 mm
+GROUP_KEYS = ("vowel", "consonant", "repetition", "rate")
+FloatArray = NDArray[np.float64]
+
+
+@dataclass
+class ParameterStats:
+    names: list[str]  # 'phoneme.parameter' per free entry
+    values: FloatArray  # natural units
+    stderr: FloatArray  # natural units (NaN where not identified)
+    corr: FloatArray  # [m, m]
+    at_bound: list[str]  # names of free parameters sitting on a bound
+    unidentified: list[str]  # names loading on directions the data do not determine
+    s2: float  # residual variance (mm²)
+    dof: int
+
+
+def parameter_stats(problem: ChannelProblem, x: FloatArray, rtol: float = 1e-10) -> ParameterStats:
+    pk = problem.packing
+    names = pk.names()
+    m = pk.n_free
+    values = pk.natural(x)
+    r = problem.residuals(x)
+    n = problem.data.n_valid
+    dof = max(n - m, 1)
+    s2 = float(r @ r) / dof
+    if m == 0:
+        e = np.zeros(0)
+        return ParameterStats(names, values, e, np.zeros((0, 0)), [], [], s2, dof)
+    jac = problem.jacobian(x)
+    jtj = np.asarray((jac.T @ jac).toarray())
+    w, v = np.linalg.eigh(jtj)
+    keep = w > rtol * max(float(w.max()), 1e-300)
+    inv = (v[:, keep] / w[keep]) @ v[:, keep].T
+    cov = s2 * inv
+    null_load = (v[:, ~keep] ** 2).sum(axis=1)
+    unident = null_load > 0.5
+    sd_x = np.sqrt(np.clip(np.diag(cov), 0.0, None))
+    sd_x[unident] = np.nan
+    with np.errstate(invalid="ignore", divide="ignore"):
+        corr = cov / np.outer(sd_x, sd_x)
+    stderr = sd_x * pk.dvalue_dx(x)
+    lo, hi = pk.bounds()
+    width = np.where(np.isfinite(hi - lo), hi - lo, 1.0)
+    near = (np.abs(x - lo) <= 1e-6 * width) | (np.abs(hi - x) <= 1e-6 * width)
+    return ParameterStats(names, values, stderr, corr, [nm for nm, b in zip(names, near) if b],
+                          [nm for nm, b in zip(names, unident) if b], s2, dof)
+
+
+@dataclass
+class ChannelFit:
+    """The fit of one channel."""
+
+    channel: str
+    problem: ChannelProblem  # data, packing (with the optimum as base) and model options
+    x: FloatArray
+    params: FloatArray  # [n_phonemes, 10] natural units
+    beta: float
+    status: str
+    message: str
+    nfev: int
+    wall_time: float
+    stages: list[StageResult] = field(default_factory=list)
+    stats: ParameterStats | None = None
+    fitted: FloatArray | None = None  # model on every sample of the channel's corpus
+
+    @property
+    def phonemes(self) -> tuple[str, ...]:
+        return self.problem.data.phonemes
+
+    @property
+    def packing(self) -> Packing:
+        return self.problem.packing
+
+    def residuals(self) -> FloatArray:
+        """Model − measured on every sample (NaN where masked)."""
+        d = self.problem.data
+        assert self.fitted is not None
+        return np.where(d.weights > 0, self.fitted - d.observed, np.nan)
+
+    @property
+    def rmse(self) -> float:
+        r = self.residuals()
+        return float(np.sqrt(np.nanmean(r**2)))
+
+    def utterance_sse(self) -> tuple[FloatArray, FloatArray]:
+        """Per utterance: sum of squared residuals and number of valid samples."""
+        d = self.problem.data
+        r2 = np.nan_to_num(self.residuals() ** 2)
+        starts = d.sample_offsets[:-1]
+        return np.add.reduceat(r2, starts), np.add.reduceat(d.weights, starts)
+
+    def rmse_by(self, keys: Sequence[str]) -> dict[tuple[str, ...], tuple[float, int]]:
+        """RMSE over the utterances grouped by their meta values for ``keys``."""
+        sse, cnt = self.utterance_sse()
+        acc: dict[tuple[str, ...], list[float]] = {}
+        for u, utt in enumerate(self.problem.data.utterances):
+            k = tuple(str(utt.meta.get(key, "?")) for key in keys)
+            a = acc.setdefault(k, [0.0, 0.0])
+            a[0] += sse[u]
+            a[1] += cnt[u]
+        return {k: (float(np.sqrt(s / n)) if n else float("nan"), int(n)) for k, (s, n) in acc.items()}
+
+
+def finish_channel(problem: ChannelProblem, x: FloatArray, status: str, message: str, wall: float,
+                   stages: list[StageResult]) -> ChannelFit:
+    params, beta = problem.packing.unpack(x)
+    problem.packing.base, problem.packing.base_beta = params, beta
+    fitted = problem.evaluate(params, beta)
+    stats = parameter_stats(problem, x)
+    return ChannelFit(problem.data.channel, problem, x, params, beta, status, message, problem.nfev, wall,
+                      stages, stats, fitted)
+
+
+@dataclass
+class FitResult:
+    """Every channel's fit, and what was asked for."""
+
+    spec: FitSpec
+    channels: dict[str, ChannelFit]
+    started: str
+    interrupted: bool = False
+    notes: list[str] = field(default_factory=list)
+
+    # ---------------------------------------------------------------- tables
+    def rmse_rows(self) -> list[dict[str, Any]]:
+        """One row per channel and group (all, each vowel, consonant, repetition, rate)."""
+        rows: list[dict[str, Any]] = []
+        for ch, fit in self.channels.items():
+            n = int(fit.problem.data.n_valid)
+            rows.append({"channel": ch, "group": "all", "value": "all", "rmse_mm": fit.rmse, "samples": n,
+                         "below_bar": fit.rmse < BAR_MM})
+            present = set().union(*(u.meta for u in fit.problem.data.utterances))
+            for key in GROUP_KEYS:
+                if key not in present:
+                    continue
+                for (val,), (rm, cnt) in sorted(fit.rmse_by((key,)).items(), key=lambda kv: _natural(kv[0][0])):
+                    rows.append({"channel": ch, "group": key, "value": val, "rmse_mm": rm, "samples": cnt,
+                                 "below_bar": rm < BAR_MM})
+        return rows
+
+    def worst(self, group: str) -> dict[str, tuple[str, float]]:
+        """Per channel, the group value with the largest RMSE."""
+        out: dict[str, tuple[str, float]] = {}
+        for r in self.rmse_rows():
+            if r["group"] == group and (r["channel"] not in out or r["rmse_mm"] > out[r["channel"]][1]):
+                out[r["channel"]] = (r["value"], r["rmse_mm"])
+        return out
+
+    def table(self) -> ParameterTable:
+        """The fitted parameter table (coartic.table/1) with the fit's metadata."""
+        s = self.spec
+        t = ParameterTable(variant=s.variant, source=f"fit of {s.path}")
+        for ch, fit in self.channels.items():
+            t.channels[ch] = ChannelSettings(reference_phoneme=s.reference_phoneme, beta=fit.beta,
+                                             edge_extent=s.edge_extent, apex_fraction=s.apex_fraction)
+            lo, hi = fit.packing.lower[:, 0].min(), fit.packing.upper[:, 0].max()
+            t.bounds[ch] = {"target": (float(lo), float(hi))}
+            t.set_from_matrix(ch, list(fit.phonemes), fit.params, fit.beta)
+        t.metadata = {
+            "method": f"least squares ({s.engine}{', staged' if s.staging else ''})",
+            "corpus": str(s.corpus.manifest or [str(f) for f in s.corpus.files]),
+            "spec": str(s.path),
+            "date": self.started,
+            "software": f"coartic {__version__}",
+            "rmse": {ch: f.rmse for ch, f in self.channels.items()},
+            "status": {ch: f.status for ch, f in self.channels.items()},
+            "interrupted": self.interrupted,
+        }
+        return t
+
+    def parameter_rows(self) -> list[dict[str, Any]]:
+        rows = []
+        for ch, fit in self.channels.items():
+            st = fit.stats
+            assert st is not None
+            free = {nm: i for i, nm in enumerate(st.names)}
+            for i, ph in enumerate(fit.phonemes):
+                for k, p in enumerate(PARAMETERS):
+                    nm = f"{ph}.{p}"
+                    j = free.get(nm)
+                    rows.append({"channel": ch, "phoneme": ph, "parameter": p, "value": float(fit.params[i, k]),
+                                 "stderr": float(st.stderr[j]) if j is not None else "",
+                                 "free": j is not None,
+                                 "at_bound": nm in st.at_bound, "unidentified": nm in st.unidentified})
+            if fit.packing.beta_free:
+                j = free["beta"]
+                rows.append({"channel": ch, "phoneme": "*", "parameter": "beta", "value": fit.beta,
+                             "stderr": float(st.stderr[j]), "free": True,
+                             "at_bound": "beta" in st.at_bound, "unidentified": "beta" in st.unidentified})
+        return rows
+
+    def report_text(self, max_corr: int = 10) -> str:
+        """An lmfit-like fit report: statistics, warnings, strongest correlations, per channel."""
+        lines = [f"[[Fit]] {self.spec.name} ({self.spec.path})", f"    engine: {self.spec.engine}, "
+                 f"staged: {self.spec.staging}, variant: {self.spec.variant}, started {self.started}"]
+        if self.interrupted:
+            lines.append("    INTERRUPTED by the user: the results below are the best points reached")
+        lines += [f"    note: {n}" for n in self.notes]
+        for ch, fit in self.channels.items():
+            st = fit.stats
+            assert st is not None
+            lines += ["", f"[[Channel {ch}]]", f"    status: {fit.status} ({fit.message})",
+                      f"    evaluations: {fit.nfev}, wall time {fit.wall_time:.1f} s",
+                      f"    samples: {fit.problem.data.n_valid}, free parameters: {len(st.names)}, dof {st.dof}",
+                      f"    RMSE: {fit.rmse:.4f} mm ({'below' if fit.rmse < BAR_MM else 'ABOVE'} the {BAR_MM} mm bar)"]
+            for s_i, sr in enumerate(fit.stages):
+                lines.append(f"    stage {s_i + 1}: {sr.n_free} free ({', '.join(sr.parameters)}): "
+                             f"SSE {sr.sse_start:.4g} -> {sr.sse_end:.4g} [{sr.engine.status}]")
+            if st.at_bound:
+                lines.append(f"    warning: {len(st.at_bound)} parameter(s) at a bound: {', '.join(st.at_bound)}")
+            if st.unidentified:
+                lines.append(f"    warning: {len(st.unidentified)} parameter(s) not identified by the data "
+                             f"(no standard error): {', '.join(st.unidentified)}")
+            lines.append("    [[Variables]]")
+            for nm, v, se in zip(st.names, st.values, st.stderr):
+                flag = " (at bound)" if nm in st.at_bound else ""
+                err = f"+/- {se:.4g}" if np.isfinite(se) else "+/- (not identified)"
+                lines.append(f"        {nm:<16} {v:>12.5g} {err}{flag}")
+            c = np.triu(np.nan_to_num(st.corr), 1)
+            order = np.argsort(-np.abs(c), axis=None)[:max_corr]
+            strong = [(st.names[i], st.names[j], c[i, j]) for i, j in zip(*np.unravel_index(order, c.shape))
+                      if abs(c[i, j]) > 0.5]
+            if strong:
+                lines.append("    [[Correlations]] (|r| > 0.5, strongest first)")
+                lines += [f"        C({a}, {b}) = {r:+.3f}" for a, b, r in strong]
+        return "\n".join(lines) + "\n"
+
+    # ---------------------------------------------------------------- output
+    def save(self, out: str | Path) -> dict[str, Path]:
+        """Write table.json, table.csv, rmse.csv, parameters.csv, fit_report.txt, fitted.npz."""
+        out = Path(out)
+        out.mkdir(parents=True, exist_ok=True)
+        paths = {"table": out / "table.json", "table_csv": out / "table.csv", "rmse": out / "rmse.csv",
+                 "parameters": out / "parameters.csv", "report_text": out / "fit_report.txt",
+                 "fitted": out / "fitted.npz", "summary": out / "summary.json"}
+        if not self.channels:
+            (out / "fit_report.txt").write_text(self.report_text())
+            return {"report_text": out / "fit_report.txt"}
+        table = self.table()
+        table.save(paths["table"])
+        paths["table_csv"].write_text(table.to_csv())
+        _write_csv(paths["rmse"], self.rmse_rows())
+        _write_csv(paths["parameters"], self.parameter_rows())
+        paths["report_text"].write_text(self.report_text())
+        np.savez_compressed(paths["fitted"], **{f"{ch}_fitted": f.fitted for ch, f in self.channels.items()},
+                            **{f"{ch}_observed": np.where(f.problem.data.weights > 0, f.problem.data.observed, np.nan)
+                               for ch, f in self.channels.items()})
+        summary = {"spec": str(self.spec.path), "interrupted": self.interrupted, "started": self.started,
+                   "channels": {ch: {"rmse_mm": f.rmse, "status": f.status, "message": f.message, "nfev": f.nfev,
+                                     "wall_time_s": f.wall_time, "at_bound": f.stats.at_bound if f.stats else [],
+                                     "unidentified": f.stats.unidentified if f.stats else []}
+                                for ch, f in self.channels.items()}}
+        paths["summary"].write_text(json.dumps(summary, indent=2))
+        return paths
+
+
+def now() -> str:
+    return _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds")
+
+
+def _natural(v: str) -> tuple[int, float | str]:
+    try:
+        return (0, float(v))
+    except ValueError:
+        return (1, v)
+
+
+def _write_csv(path: Path, rows: list[dict[str, Any]]) -> None:
+    if not rows:
+        path.write_text("")
+        return
+    with path.open("w", newline="", encoding="utf-8") as f:
+        w = csv.DictWriter(f, fieldnames=list(rows[0]))
+        w.writeheader()
+        for r in rows:
+            w.writerow({k: (repr(v) if isinstance(v, float) else v) for k, v in r.items()})

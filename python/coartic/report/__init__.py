@@ -1,0 +1,1 @@
+"""Reports of fits: figures (plots.py) and one HTML page (html.py)."""

@@ -1,0 +1,73 @@
+"""The fit spec: the shipped specs load, and every mistake is named with the file and key."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+
+from coartic.fit.spec import DEFAULT_STAGES, SpecError, load_spec
+
+ROOT = Path(__file__).resolve().parents[2]
+
+
+@pytest.mark.parametrize("name", ["synthetic.toml", "template.toml", "ema_german.toml"])
+def test_shipped_specs_load(name: str) -> None:
+    s = load_spec(ROOT / "fit" / name)
+    assert s.channels and s.engine in ("scipy", "nlopt", "casadi")
+    assert s.path == ROOT / "fit" / name
+
+
+def test_synthetic_spec_values() -> None:
+    s = load_spec(ROOT / "fit" / "synthetic.toml")
+    assert s.corpus.manifest == ROOT / "fit" / ".." / "build" / "session" / "manifest.csv"
+    assert s.channels == ("ULO", "LLO", "ULP", "LLP", "LR", "JO")
+    assert s.reference_phoneme == "a" and s.staging and s.stages == DEFAULT_STAGES
+
+
+def write(tmp_path: Path, text: str) -> Path:
+    p = tmp_path / "spec.toml"
+    p.write_text(text)
+    return p
+
+
+BASE = '[corpus]\nmanifest = "m.csv"\n'
+
+
+@pytest.mark.parametrize("text, key, words", [
+    (BASE + '[engine]\nname = "foo"\n', "engine.name", "unknown engine"),
+    (BASE + '[parameters]\nfree = ["target", "tension"]\n', "parameters.free", "tension"),
+    (BASE + '[parameters.bounds]\nk_r = [1.0, 0.0]\n', "parameters.bounds.k_r", "below"),
+    (BASE + '[parameters.bounds]\ntheta_bw = [0.0, 10.0]\n', "parameters.bounds.theta_bw", "> 0"),
+    (BASE + '[model]\nchannels = ["LLO", "XYZ"]\n', "model.channels", "XYZ"),
+    (BASE + '[model]\nvariant = "new"\n', "model.variant", "new"),
+    (BASE + '[[override]]\nfixed = { k_r = 1.0 }\n', "override #1", "phonemes"),
+    (BASE + '[[override]]\nphonemes = ["p"]\nfixed = { kr = 1.0 }\n', "override #1.fixed", "kr"),
+    ('colour = "red"\n' + BASE, "top level", "colour"),
+    ('[model]\nchannels = ["LLO"]\n', "corpus", "missing"),
+    ('[corpus]\nfiles = ["a.c3d", "b.c3d"]\nlabels = ["a.lab"]\n', "corpus.labels", "2 data files"),
+    (BASE + '[staging]\nstages = [["target"], ["speed"]]\n', "staging.stages", "speed"),
+])
+def test_errors_name_file_and_key(tmp_path: Path, text: str, key: str, words: str) -> None:
+    p = write(tmp_path, text)
+    with pytest.raises(SpecError) as e:
+        load_spec(p)
+    msg = str(e.value)
+    assert str(p) in msg and f"[{key}]" in msg and words in msg
+
+
+def test_not_toml_and_missing(tmp_path: Path) -> None:
+    with pytest.raises(SpecError, match="not valid TOML"):
+        load_spec(write(tmp_path, "[corpus\n"))
+    with pytest.raises(SpecError, match="no such fit spec"):
+        load_spec(tmp_path / "absent.toml")
+
+
+def test_paths_relative_to_spec_and_overrides(tmp_path: Path) -> None:
+    p = write(tmp_path, BASE + '[[override]]\nphonemes = ["p", "b"]\nchannels = ["LLO"]\n'
+              'fixed = { k_r = 1.0 }\nbounds = { target = [-5.0, 0.0] }\n')
+    s = load_spec(p)
+    assert s.corpus.manifest == tmp_path / "m.csv"
+    o = s.overrides[0]
+    assert o.applies("p", "LLO") and not o.applies("p", "ULP") and not o.applies("t", "LLO")
+    assert o.fixed == {"k_r": 1.0} and o.bounds == {"target": (-5.0, 0.0)}
