@@ -161,6 +161,22 @@ def test_bad_preview_format_is_refused_before_festival_runs(tmp_path: Path, tabl
     assert not (tmp_path / "o").exists()
 
 
+def test_mp4_preview_carries_the_speech_in_sync(tmp_path: Path, table: ParameterTable) -> None:
+    import json
+    import subprocess
+
+    result = speak_text("Viva la mamma!", table, tmp_path, fps=25.0, preview="mp4")
+    probe = subprocess.run(["ffprobe", "-v", "error", "-show_streams", "-of", "json", str(result.files["preview"])],
+                           capture_output=True, text=True, check=True)
+    streams = {s["codec_type"]: s for s in json.loads(probe.stdout)["streams"]}
+    assert set(streams) == {"video", "audio"}
+    assert int(streams["video"]["nb_frames"]) == result.animation.n_frames
+    assert result.utterance is not None
+    video = float(streams["video"]["duration"])
+    audio = float(streams["audio"]["duration"])
+    assert abs(video - result.utterance.duration) <= 1 / 25 and abs(audio - result.utterance.duration) <= 1 / 25
+
+
 def test_cli_speak_writes_everything(tmp_path: Path) -> None:
     res = CliRunner().invoke(app, ["speak", "Viva la mamma!", "-t", str(GROUND_TRUTH), "-o", str(tmp_path),
                                    "--fps", "25", "--stretch", "0.8"])

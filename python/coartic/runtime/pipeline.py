@@ -74,6 +74,7 @@ def _write_outputs(
     requested: tuple[str, ...],
     source: tuple[str, ...],
     progress: Progress | None,
+    audio: Path | None = None,
 ) -> RuntimeOutput:
     neutral = neutral_posture(table)
     faps = channels_to_faps(animation.channels, neutral, face, name, animation.fps)
@@ -91,7 +92,7 @@ def _write_outputs(
     if preview != "none":
         files["strip"] = render_strip(animation, table, out / "strip.png")
         files["preview"] = render_preview(animation, neutral, out / f"preview.{preview}", title=name,
-                                          progress=progress)
+                                          progress=progress, audio=audio)
     return RuntimeOutput(animation=animation, faps=faps, files=files)
 
 
@@ -170,7 +171,7 @@ def speak_text(
         raise MissingPhonemeError(f"{err} (Festival phone {utt.phones[err.segment]!r} of {utt.text!r})",
                                   err.segment) from None
     result = _write_outputs(animation, table, out, _name_from(text), face or speaker_face(table), preview,
-                            requested, utt.phones, progress)
+                            requested, utt.phones, progress, audio=utt.wav)
     result.files["wav"] = utt.wav
     result.utterance = utt
     return result

@@ -224,8 +224,12 @@ def render_preview(
     *,
     title: str = "coartic",
     progress: Progress | None = None,
+    audio: Path | None = None,
 ) -> Path:
-    """Animated preview as GIF (`.gif`) or MP4 (`.mp4`, through ffmpeg); written atomically."""
+    """Animated preview as GIF (`.gif`) or MP4 (`.mp4`, through ffmpeg); written atomically.
+
+    `audio` (a WAV) becomes the MP4's sound track, so that lip sync can be judged by eye and ear.
+    """
     path = Path(path)
     suffix = path.suffix.lower()
     if suffix not in (".gif", ".mp4"):
@@ -249,7 +253,7 @@ def render_preview(
             images[0].save(tmp, save_all=True, append_images=images[1:], loop=0,
                            duration=round(1000.0 / animation.fps), optimize=False)
         else:
-            _write_mp4(tmp, frames, animation.fps, advance)
+            _write_mp4(tmp, frames, animation.fps, advance, audio)
     except BaseException:
         # interrupted or failed: no half-written preview left behind (the other outputs are complete)
         tmp.unlink(missing_ok=True)
@@ -258,15 +262,19 @@ def render_preview(
     return path
 
 
-def _write_mp4(path: Path, frames: Iterator[NDArray[np.uint8]], fps: float, advance: Callable[[], None]) -> None:
+def _write_mp4(
+    path: Path, frames: Iterator[NDArray[np.uint8]], fps: float, advance: Callable[[], None], audio: Path | None
+) -> None:
     ffmpeg = shutil.which("ffmpeg")
     if ffmpeg is None:
         raise AnimationError("ffmpeg is not on PATH: write the preview as .gif, or install ffmpeg")
     first = next(frames)
     h, w = first.shape[:2]
     cmd = [ffmpeg, "-y", "-loglevel", "error", "-f", "rawvideo", "-pix_fmt", "rgb24", "-s", f"{w}x{h}",
-           "-r", repr(float(fps)), "-i", "-", "-vf", "pad=ceil(iw/2)*2:ceil(ih/2)*2",
-           "-pix_fmt", "yuv420p", "-f", "mp4", str(path)]
+           "-r", repr(float(fps)), "-i", "-"]
+    if audio is not None:
+        cmd += ["-i", str(audio), "-c:a", "aac", "-b:a", "96k"]
+    cmd += ["-vf", "pad=ceil(iw/2)*2:ceil(ih/2)*2", "-pix_fmt", "yuv420p", "-f", "mp4", str(path)]
     proc = subprocess.Popen(cmd, stdin=subprocess.PIPE, stderr=subprocess.PIPE)
     assert proc.stdin is not None
     try:
