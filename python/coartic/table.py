@@ -211,7 +211,7 @@ class ParameterTable:
             for name, (lo, hi) in per.items():
                 if name not in DEFAULT_BOUNDS:
                     raise TableError(f"{src}: bounds for channel {ch!r}: unknown parameter {name!r} (known: {', '.join(PARAMETERS)})")
-                if not (isinstance(lo, float) and isinstance(hi, float)) or math.isnan(lo) or math.isnan(hi) or not lo < hi:
+                if not (_is_number(lo) and _is_number(hi)) or math.isnan(lo) or math.isnan(hi) or not lo < hi:
                     raise TableError(f"{src}: bounds for channel {ch!r}, {name}: [{lo}, {hi}] is not an interval lo < hi")
         for ph, chans in self.values.items():
             if not isinstance(ph, str) or not ph:
@@ -246,7 +246,7 @@ class ParameterTable:
                     for q, v in qs.items():
                         if q not in QUANTILES:
                             raise TableError(f"{where}: unknown quantile {q!r} (known: {', '.join(QUANTILES)})")
-                        if not isinstance(v, float) or not math.isfinite(v):
+                        if not _is_number(v) or not math.isfinite(v):
                             raise TableError(f"{where}: {q} = {v!r} is not a finite number")
                     present = [qs[q] for q in QUANTILES if q in qs]
                     if any(b < a for a, b in zip(present, present[1:])):
@@ -306,7 +306,11 @@ class ParameterTable:
             path.write_text(self.to_csv(), encoding="utf-8")
         else:
             # json writes floats with repr: the shortest string that reads back to the same bits.
-            text = json.dumps(self.to_json_dict(), indent=2, ensure_ascii=False, allow_nan=False)
+            try:
+                text = json.dumps(self.to_json_dict(), indent=2, ensure_ascii=False, allow_nan=False)
+            except (TypeError, ValueError) as exc:
+                # Only metadata is free-form enough to hold NaN or objects JSON cannot write.
+                raise TableError(f"{path}: metadata cannot be written as JSON: {exc}") from None
             path.write_text(text + "\n", encoding="utf-8")
 
     @classmethod
@@ -515,6 +519,10 @@ def _obj(x: Any, where: str) -> dict[str, Any]:
     if not isinstance(x, dict):
         raise TableError(f"{where}: expected a JSON object, got {type(x).__name__}")
     return x
+
+
+def _is_number(v: Any) -> bool:
+    return isinstance(v, (int, float)) and not isinstance(v, bool)
 
 
 def _num(where: str, name: str, v: Any) -> float:

@@ -231,6 +231,16 @@ def test_nan_and_bad_json_and_bad_csv(tmp_path: Path) -> None:
         ParameterTable.load(csv_file)
 
 
+def test_programmatic_ints_are_numbers_and_bad_metadata_is_named(tmp_path: Path) -> None:
+    t = ParameterTable.from_json_dict(base_doc())
+    t.bounds = {"LLO": {"target": (-5, 30)}}
+    t.uncertainty = {"a": {"LLO": {"k_r": {"q16": 0, "q84": 1}}}}
+    t.validate()
+    t.metadata = {"rmse": {"LLO": math.nan}}
+    with pytest.raises(TableError, match=r"t.json: metadata cannot be written as JSON"):
+        t.save(tmp_path / "t.json")
+
+
 def test_to_matrix_errors() -> None:
     t = ParameterTable.from_json_dict(base_doc())
     with pytest.raises(TableError, match=r"channel 'JO' is not in the table \(channels: LLO\)"):
