@@ -17,6 +17,8 @@ from numpy.typing import NDArray
 from scipy.interpolate import CubicSpline
 from scipy.signal import butter, sosfiltfilt
 
+from coartic.io.errors import DataError
+
 DEFAULT_MAX_GAP = 0.050  # s: a blink-length occlusion; longer and the lips may have moved a lot
 
 
@@ -51,8 +53,8 @@ def fill_gaps(
     max_gap: float = DEFAULT_MAX_GAP,
 ) -> tuple[NDArray[np.float64], list[Gap]]:
     """Markers (F, M, 3) with the short gaps filled, and every gap found."""
-    if max_gap < 0:
-        raise ValueError(f"max_gap must be >= 0 s, got {max_gap}")
+    if not max_gap >= 0:
+        raise DataError(f"max_gap must be a duration >= 0 s, got {max_gap}", item="max_gap")
     out = np.array(markers, dtype=np.float64, copy=True)
     n = out.shape[0]
     gaps: list[Gap] = []
