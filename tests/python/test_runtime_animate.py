@@ -280,3 +280,12 @@ def test_interrupted_preview_leaves_complete_outputs_and_no_partial_file(tmp_pat
     assert read_fap(out / "apifa.fap").n_frames == 30
     assert (out / "channels.csv").exists() and (out / "strip.png").exists()
     assert not (out / "preview.gif").exists() and not list(out.glob("*.part*"))
+
+
+def test_long_gif_is_refused_up_front(tmp_path: Path, labels: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    import coartic.runtime.preview as preview
+
+    monkeypatch.setattr(preview, "GIF_MAX_FRAMES", 10)
+    with pytest.raises(AnimationError, match=r"GIF of 30 frames .* --preview mp4"):
+        animate_file(labels, make_table(), tmp_path / "o", preview="gif")
+    assert not (tmp_path / "o" / "preview.gif").exists()

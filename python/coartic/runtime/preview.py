@@ -42,6 +42,7 @@ LOWER_HALF_THICKNESS = 5.0
 CHIN_BELOW_LIPS = 35.0  # mm, neutral lip midline to chin
 NOSE_ABOVE_LIPS = 30.0  # mm, the default MNS
 _N = 41  # points per contour
+GIF_MAX_FRAMES = 1500  # one minute at 25 fps
 LIP = "#b5404a"
 MOUTH = "#2a0e12"
 SKIN = "#f0c9a8"
@@ -234,6 +235,11 @@ def render_preview(
     suffix = path.suffix.lower()
     if suffix not in (".gif", ".mp4"):
         raise AnimationError(f"{path}: preview format must be .gif or .mp4")
+    if suffix == ".gif" and animation.n_frames > GIF_MAX_FRAMES:
+        raise AnimationError(
+            f"{path}: a GIF of {animation.n_frames} frames is held in memory whole (> {GIF_MAX_FRAMES} frames, "
+            "about 160 kB each); write the preview as .mp4 (--preview mp4), which is streamed"
+        )
     tmp = path.with_name(path.stem + ".part" + suffix)
     task = progress.add_task(f"preview {path.name}", total=animation.n_frames) if progress else None
     frames = _frames(animation, neutral, title)
