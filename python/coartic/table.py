@@ -164,6 +164,9 @@ class ParameterTable:
                 f"{self.source}: params has shape {mat.shape}, expected ({len(phonemes)}, {N_PARAMS}) "
                 f"for {len(phonemes)} phonemes of channel {channel!r}"
             )
+        if len(set(phonemes)) != len(phonemes):
+            dup = next(p for p in phonemes if list(phonemes).count(p) > 1)
+            raise TableError(f"{self.source}: phoneme {dup!r} appears twice in the phoneme list")
         saved_values = copy.deepcopy(self.values)
         saved_beta = self.channels[channel].beta
         for ph, row in zip(phonemes, mat):
@@ -498,6 +501,11 @@ class ParameterTable:
         ``reference[channel]`` names the reference phoneme; ``settings[channel]`` may set
         unit, beta, edge_extent, apex_fraction.
         """
+        allowed = {"unit", "beta", "edge_extent", "apex_fraction"}
+        for ch, given in (settings or {}).items():
+            extra = sorted(set(given) - allowed)
+            if extra:
+                raise TableError(f"settings of channel {ch!r}: unknown key {extra[0]!r} (known: {', '.join(sorted(allowed))})")
         channels = {
             ch: ChannelSettings(reference_phoneme=ref, **dict((settings or {}).get(ch, {})))
             for ch, ref in reference.items()

@@ -156,6 +156,10 @@ def test_set_from_matrix_round_trip_and_rollback() -> None:
     assert t.values["p"]["LLO"]["k_r"] == 1.0 and t.channels["LLO"].beta == 2.0
     with pytest.raises(TableError, match=r"params has shape \(2, 9\), expected \(2, 10\)"):
         t.set_from_matrix("LLO", ["a", "p"], params[:, :9])
+    with pytest.raises(TableError, match=r"phoneme 'a' appears twice"):
+        t.set_from_matrix("LLO", ["a", "a"], params)
+    with pytest.raises(TableError, match=r"settings of channel 'LLO': unknown key 'speed'"):
+        ParameterTable.from_rows({"a": {"LLO": ROW}}, {"LLO": "a"}, settings={"LLO": {"speed": 1.0}})
 
 
 def mutate(path: list[Any], value: Any) -> dict[str, Any]:
