@@ -286,6 +286,6 @@ def test_long_gif_is_refused_up_front(tmp_path: Path, labels: Path, monkeypatch:
     import coartic.runtime.preview as preview
 
     monkeypatch.setattr(preview, "GIF_MAX_FRAMES", 10)
-    with pytest.raises(AnimationError, match=r"GIF of 30 frames .* --preview mp4"):
+    with pytest.raises(AnimationError, match=r"GIF of 30 frames .*\(--preview mp4\)"):
         animate_file(labels, make_table(), tmp_path / "o", preview="gif")
     assert not (tmp_path / "o" / "preview.gif").exists()
