@@ -88,7 +88,7 @@ def minimize(problem: ChannelProblem, x0: NDArray[np.float64], options: dict[str
             current[:] = [g]
             try:
                 g.optimize(z)
-            except (nlopt.ForcedStop, nlopt.RoundoffLimited, RuntimeError) as e:
+            except (nlopt.ForcedStop, nlopt.RoundoffLimited, nlopt.runtime_error, RuntimeError) as e:
                 messages.append(f"global phase stopped: {type(e).__name__}")
             messages.append(f"global {o['global']}: best SSE {problem.best_sse:.6g}")
             z = unit.z(problem.best_x)
@@ -101,7 +101,7 @@ def minimize(problem: ChannelProblem, x0: NDArray[np.float64], options: dict[str
                 code = loc.last_optimize_result()
             except nlopt.RoundoffLimited:
                 code = nlopt.ROUNDOFF_LIMITED  # L-BFGS at the limit of precision: at the minimum
-            except (nlopt.ForcedStop, RuntimeError) as e:
+            except (nlopt.ForcedStop, nlopt.runtime_error, RuntimeError) as e:
                 code = -99
                 messages.append(f"local phase stopped: {type(e).__name__}")
             messages.append(f"local {o['local']}: nlopt result {code}")

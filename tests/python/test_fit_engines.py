@@ -1,0 +1,97 @@
+"""Engines and staging on data the model made (truth known): recovery, bad starts, Ctrl-C."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pytest
+
+from coartic.fit.engines import get_engine
+from coartic.fit.problem import ChannelProblem, build_problem
+from coartic.fit.simulate import PHONEMES, TRUTH, vcv_utterances
+from coartic.fit.spec import parse_spec
+from coartic.fit.staged import fit_staged, stage_free_sets
+from coartic.table import PARAMETERS
+
+FREE = ["target", "alpha", "theta_bw", "theta_fw", "k_r"]
+
+
+def make_problem(free: list[str] = FREE, noise: float = 0.1, **extra: Any) -> ChannelProblem:
+    utts = vcv_utterances(np.random.default_rng(11), repetitions=1, noise=noise)
+    raw = {"corpus": {"files": ["x"], "labels": ["y"]}, "model": {"channels": ["LLO"]},
+           "parameters": {"free": free}, **extra}
+    return build_problem(parse_spec(raw, Path("/tmp/spec.toml")), utts, "LLO", phonemes=PHONEMES)
+
+
+def recovered(problem: ChannelProblem, x: np.ndarray) -> np.ndarray:
+    return problem.packing.unpack(x)[0]
+
+
+@pytest.mark.parametrize("engine, options", [
+    ("scipy", {}),
+    ("nlopt", {"global": "none", "local_maxeval": 3000}),
+    ("casadi", {"max_iter": 400}),
+])
+def test_engines_recover_truth(engine: str, options: dict[str, Any]) -> None:
+    p = make_problem()
+    final, res, stages = fit_staged(p, engine, options, [["target"], ["alpha", "theta_bw", "theta_fw"], ["k_r"]])
+    assert res.status in ("converged", "max-evaluations"), res.message
+    params = recovered(final, res.x)
+    rmse = np.sqrt(final.sse(res.x) / final.data.n_valid)
+    assert rmse < 0.12, f"{engine}: RMSE {rmse} (noise 0.1)"
+    np.testing.assert_allclose(params[:, 0], TRUTH[:, 0], atol=0.2, err_msg=f"{engine}: targets")
+    assert params[PHONEMES.index("p"), PARAMETERS.index("k_r")] >= 0.9
+    # stages are cumulative and each one does not make the fit worse
+    assert [s.n_free for s in stages] == sorted(s.n_free for s in stages)
+    assert all(s.sse_end <= s.sse_start * (1 + 1e-9) for s in stages)
+
+
+@pytest.mark.parametrize("method", ["mlsl", "crs2"])
+def test_nlopt_global_phase_finds_the_least_squares_optimum(method: str) -> None:
+    # targets only: F is linear in them (σ = 0), so the optimum is unique and SciPy's is exact
+    p = make_problem(free=["target"], noise=0.05)
+    ref = get_engine("scipy")(p, p.packing.pack(), {})
+    q = make_problem(free=["target"], noise=0.05)
+    res = get_engine("nlopt")(q, q.packing.pack(), {"global": method, "global_maxeval": 300, "local_maxeval": 300})
+    assert f"global {method}" in res.message
+    assert q.sse(res.x) == pytest.approx(p.sse(ref.x), rel=1e-6)
+
+
+def test_stage_sets_cover_the_full_fit() -> None:
+    p = make_problem(free=list(PARAMETERS))
+    sets = stage_free_sets(p, [["target"], ["alpha"]])
+    assert sets[0][0][:, 0].all() and not sets[0][0][:, 1:].any()
+    np.testing.assert_array_equal(sets[-1][0], p.packing.free)  # the rest joins the last stage
+
+
+@pytest.mark.parametrize("engine", ["scipy", "nlopt", "casadi"])
+def test_bad_start_is_reported_not_raised(engine: str) -> None:
+    p = make_problem()
+    # a fixed parameter the core refuses (NaN): every evaluation fails
+    p.packing.base[PHONEMES.index("t"), PARAMETERS.index("sigma")] = np.nan
+    res = get_engine(engine)(p, p.packing.pack(), {})
+    assert res.status == "non-finite start" and "not finite" in res.message
+
+
+@pytest.mark.parametrize("engine, options", [("scipy", {}), ("nlopt", {"global": "none"}), ("casadi", {})])
+def test_ctrl_c_keeps_best_point(engine: str, options: dict[str, Any], monkeypatch: pytest.MonkeyPatch) -> None:
+    p = make_problem()
+    calls = {"n": 0}
+    for name in ("residuals", "sse_gradient"):
+        orig = getattr(p, name)
+
+        def wrapped(x: np.ndarray, _orig: Any = orig) -> Any:
+            calls["n"] += 1
+            if calls["n"] > 12:
+                raise KeyboardInterrupt
+            return _orig(x)
+
+        monkeypatch.setattr(p, name, wrapped)
+    x0 = p.packing.pack()
+    sse0 = ChannelProblem(p.data, p.packing, p.options).sse(x0)
+    res = get_engine(engine)(p, x0, options)
+    assert res.status == "interrupted"
+    assert np.all(np.isfinite(res.x)) and np.isfinite(p.best_sse) and p.best_sse <= sse0
+    np.testing.assert_array_equal(res.x, p.best_x)
