@@ -15,6 +15,7 @@ app.command("speak")(__import__("coartic.runtime.runtime_cli", fromlist=["_"]).s
 app.command("inspect")(__import__("coartic.io.inspect_cli", fromlist=["_"]).inspect_command)
 app.add_typer(__import__("coartic.synthetic_cli", fromlist=["_"]).app, name="corpus")
 app.command("demo")(__import__("coartic.demo", fromlist=["_"]).demo_command)
+app.command("fit")(__import__("coartic.fit.fit_cli", fromlist=["_"]).fit_command)
 app.command("mcmc")(__import__("coartic.mcmc.mcmc_cli", fromlist=["_"]).mcmc_command)
 
 if __name__ == "__main__":
