@@ -309,18 +309,14 @@ def load_trial(
 
         trial = read_ema_csv(p, units=units)
         if role_map is None:
-            trial.meta["notes"].append("EMA axes assumed: up is +z, forwards is -y (pass a role "
-                                       "map to change)")
-        roles = guess_ema_roles(trial.marker_names, roles)
+            roles = _guess(trial)
     elif kind == "emu":
         from coartic.io.emu import read_emu_bundle
 
         trial, bundle_segments = read_emu_bundle(p, level=tier if labels is None else None,
                                                  units=units)
         if role_map is None:
-            trial.meta["notes"].append("EMA axes assumed: up is +z, forwards is -y (pass a role "
-                                       "map to change)")
-        roles = guess_ema_roles(trial.marker_names, roles)
+            roles = _guess(trial)
         if labels is None:
             labels = bundle_segments
     else:
@@ -332,6 +328,16 @@ def load_trial(
         segs = labels if isinstance(labels, Segments) else read_labels(labels, tier)
         trial = trial.with_labels(segs, resolve_label_map(label_map))
     return trial
+
+
+def _guess(trial: Trial) -> RoleMap:
+    """Without a role map: sensors by their usual names, the EMU axes; both said in the notes."""
+    roles = guess_ema_roles(trial.marker_names, RoleMap(source="guessed role map"))
+    trial.meta["notes"].append(
+        "no role map: sensors guessed by name (" +
+        (", ".join(f"{r}={n}" for r, n in roles.roles.items()) or "none found") +
+        "), axes assumed up = +z, forwards = -y; pass a role map to change")
+    return roles
 
 
 def common_rate(trials: Sequence[Trial], rate: float | None = None) -> list[Trial]:

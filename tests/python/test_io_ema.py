@@ -1,0 +1,75 @@
+"""EMA channels on a made-up recording whose channels are known (docs/DATA.md, EMA table)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from coartic.io import DataError, load_trial
+
+RATE = 250.0
+
+
+def _write(path: Path, sensors: dict[str, np.ndarray], extra: str = "") -> None:
+    n = next(iter(sensors.values())).shape[0]
+    cols = ["time_s"] + [f"{s}_pos{a}" for s in sensors for a in "xyz"] + [f"{s}_orix" for s in
+                                                                          sensors]
+    with open(path, "w") as f:
+        f.write(extra)
+        f.write(",".join(cols) + "\n")
+        for i in range(n):
+            vals = [repr(float(v)) for s in sensors for v in sensors[s][i]] + ["0.5"] * len(sensors)
+            f.write(",".join([repr(i / RATE), *vals]) + "\n")
+
+
+def test_ema_channels_follow_the_documented_mapping(tmp_path: Path) -> None:
+    n = 200
+    t = np.arange(n) / RATE
+    move = np.where(t < 0.1, 0.0, np.sin(2 * np.pi * 2 * (t - 0.1)))
+    # axes of this system: x up, y lateral, z BACKWARDS (so anterior is -z)
+    ul = np.stack([5.0 + 1.0 * move, np.full(n, 0.2), -8.0 + 0.5 * move], axis=1)
+    ll = np.stack([-15.0 - 6.0 * move, np.full(n, -0.2), -6.0 - 1.0 * move], axis=1)
+    jaw = np.stack([-25.0 - 4.0 * move, np.zeros(n), 5.0 * np.ones(n)], axis=1)
+    lc = np.stack([-5.0 * np.ones(n), 24.0 + 2.0 * move, np.zeros(n)], axis=1)
+    nose = np.stack([40.0 * np.ones(n), np.zeros(n), -20.0 * np.ones(n)], axis=1)
+    p = tmp_path / "ema.csv"
+    _write(p, {"UpperLip": ul, "LowerLip": ll, "JawS": jaw, "Corner": lc, "nz": nose},
+           extra="# units: cm\n")
+    roles = {"UL": "UpperLip", "LL": "LowerLip", "JAW": "JawS", "LC": "Corner",
+             "axes": {"vertical": "+x", "anterior": "-z"}}
+    ch = load_trial(p, role_map=roles).channels(rest_frames=25)  # rest: the still first 0.1 s
+    mm = 10.0
+    y0 = (5.0 + -15.0) / 2 * mm
+    np.testing.assert_allclose(ch["ULO"], ul[:, 0] * mm - y0, atol=1e-9)
+    np.testing.assert_allclose(ch["LLO"], y0 - ll[:, 0] * mm, atol=1e-9)
+    np.testing.assert_allclose(ch["ULP"], -ul[:, 2] * mm, atol=1e-9)
+    np.testing.assert_allclose(ch["LLP"], -ll[:, 2] * mm, atol=1e-9)
+    np.testing.assert_allclose(ch["JO"], -jaw[:, 0] * mm, atol=1e-9)
+    np.testing.assert_allclose(ch["LR"], 2 * np.abs(lc[:, 1]) * mm, atol=1e-9)
+    np.testing.assert_allclose(ch["LA"], np.linalg.norm(ul - ll, axis=1) * mm, atol=1e-9)
+    assert all(v.all() for v in ch.valid.values()) and not ch.unavailable
+    # a NOSE sensor makes JO the NOSE-JAW distance, as for marker sets
+    ch2 = load_trial(p, role_map={**roles, "NOSE": "nz"}).channels(rest_frames=25)
+    np.testing.assert_allclose(ch2["JO"], np.linalg.norm(nose - jaw, axis=1) * mm, atol=1e-9)
+    # asking for LR without a corner sensor is an error naming the reason
+    no_lc = {k: v for k, v in roles.items() if k != "LC"}
+    with pytest.raises(DataError, match=r"channel LR cannot be computed: no lip-corner sensor"):
+        load_trial(p, role_map=no_lc).channels(["LR"])
+
+
+def test_ema_sensor_guess_and_missing_lips(tmp_path: Path) -> None:
+    n = 50
+    z = np.zeros((n, 3)) + 1.0
+    p = tmp_path / "guess.csv"
+    _write(p, {"upper_lip": z, "lower_lip": z - 10, "jaw": z - 20})
+    t = load_trial(p)
+    assert dict(t.roles.roles) == {"UL": "upper_lip", "LL": "lower_lip", "JAW": "jaw"}
+    assert any("sensors guessed by name (UL=upper_lip, LL=lower_lip, JAW=jaw)" in n
+               for n in t.meta["notes"])
+    q = tmp_path / "tongue.csv"
+    _write(q, {"tt": z, "tb": z})
+    with pytest.raises(DataError, match=r"tongue\.csv: EMA channels need the UL and LL roles; the "
+                                        r"sensors are \['tt', 'tb'\]"):
+        load_trial(q).channels()
