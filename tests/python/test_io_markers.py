@@ -150,6 +150,18 @@ def test_c3d_round_trip_invalid_samples_and_units(tmp_path: Path, face) -> None:
         assert any("m to mm" in n for n in t.meta["notes"])
 
 
+def test_c3d_unnamed_and_duplicate_markers(tmp_path: Path, face) -> None:  # type: ignore[no-untyped-def]
+    _, m = face
+    p = tmp_path / "u.c3d"
+    write_c3d(p, m[:, :3], ("NOSE", "", "EAR_R"))
+    t = read_c3d(p)
+    assert t.marker_names == ("NOSE", "Marker_2", "EAR_R") and "unlabelled" in t.meta["notes"][0]
+    write_c3d(p, m[:, :3], ("UL", "LL", "UL"))
+    with pytest.raises(DataError, match=r"u\.c3d: marker name 'UL' appears twice in POINT:LABELS "
+                                        r"\(markers 1 and 3\)"):
+        read_c3d(p)
+
+
 def test_c3d_truncated_and_garbage(tmp_path: Path, face) -> None:  # type: ignore[no-untyped-def]
     _, m = face
     p = tmp_path / "t.c3d"

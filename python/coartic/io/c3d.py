@@ -72,6 +72,12 @@ def _finish(
     if len(names) != xyz.shape[1]:
         raise DataError(f"POINT:LABELS has {len(names)} names for {xyz.shape[1]} markers", path=p,
                         item="POINT:LABELS")
+    notes: list[str] = []
+    unnamed = [i for i, n in enumerate(names) if not n]
+    if unnamed:
+        # some systems leave markers unlabelled; a stable name keeps them addressable
+        names = [n or f"Marker_{i + 1}" for i, n in enumerate(names)]
+        notes.append(f"{len(unnamed)} unlabelled marker(s) named Marker_<index>")
     seen: dict[str, int] = {}
     for i, n in enumerate(names):
         if n in seen:
@@ -79,7 +85,6 @@ def _finish(
                             f"{seen[n] + 1} and {i + 1})", path=p, item=n)
         seen[n] = i
     given = units if units is not None else unit
-    notes: list[str] = []
     if not given.strip():
         raise DataError("POINT:UNITS is empty; pass units='mm' (or cm, m) to say what they are",
                         path=p, item="POINT:UNITS")
@@ -112,7 +117,9 @@ def _read_ezc3d(p: Path, units: str | None) -> Trial:
     try:
         point = c["parameters"]["POINT"]
         pts = np.asarray(c["data"]["points"], dtype=np.float64)  # (4, M, F)
-        resid = np.asarray(c["data"]["meta_points"]["residuals"], dtype=np.float64)  # (1, M, F)
+        meta_points = c["data"]["meta_points"] if "meta_points" in c["data"] else {}
+        resid = np.asarray(meta_points.get("residuals", np.zeros((1, 0, 0))),
+                           dtype=np.float64)  # (1, M, F); ezc3d already NaNs most invalid samples
         labels = [str(s).strip() for s in point["LABELS"]["value"]]
         rate = float(np.asarray(point["RATE"]["value"]).ravel()[0])
         unit = _point_units(point["UNITS"]["value"]) if "UNITS" in point else "mm"
@@ -120,11 +127,14 @@ def _read_ezc3d(p: Path, units: str | None) -> Trial:
     except (KeyError, IndexError, TypeError, ValueError) as e:
         raise DataError(f"C3D without usable POINT parameters ({type(e).__name__}: {e})",
                         path=p) from None
-    if pts.ndim != 3 or pts.shape[0] < 3 or resid.ndim != 3:
+    if pts.ndim != 3 or pts.shape[0] < 3:
         raise DataError(f"C3D POINT data of unexpected shape {pts.shape}", path=p)
     labels = labels[: pts.shape[1]]
     xyz = np.transpose(pts[:3], (2, 1, 0)).copy()  # (F, M, 3)
-    invalid = np.transpose(resid[0], (1, 0)) < 0 if resid.size else np.zeros(xyz.shape[:2], bool)
+    if resid.ndim == 3 and resid.shape[1:] == pts.shape[1:]:
+        invalid = np.transpose(resid[0], (1, 0)) < 0
+    else:
+        invalid = np.zeros(xyz.shape[:2], dtype=bool)
     xyz[invalid] = np.nan
     return _finish(p, xyz, labels, rate, unit, units, "ezc3d", first)
 
