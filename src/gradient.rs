@@ -175,7 +175,9 @@ impl GradScratch {
         for pair in self.pairs.iter_mut().filter(|p| p.active) {
             pair.p *= inv_den;
         }
-        self.value = num * inv_den;
+        // num / den, not num × (1/den): the same rounding as `Prepared::value_at`, so the
+        // values returned with the Jacobian equal those of `evaluate` bit for bit.
+        self.value = num / den;
         Some(self.value)
     }
 

@@ -77,7 +77,7 @@ impl Resistance {
                     return None;
                 }
                 Some(LogResistance {
-                    log_r: -beta * u * q,
+                    log_r: -beta * u / (1.0 - u), // as in `log_value`, bit for bit
                     // u = |τ|/Δ: ∂u/∂Δ = −u/Δ, ∂u/∂|τ| = 1/Δ.
                     d_extent: -d_u * u / extent,
                     d_abs_tau: d_u / extent,

@@ -33,7 +33,7 @@ impl Shape {
                 if sigma == 0.0 {
                     1.0
                 } else {
-                    1.0 + sigma * (-psi * tau * tau).exp()
+                    1.0 + sigma * (-psi * (tau * tau)).exp()
                 }
             }
         }
