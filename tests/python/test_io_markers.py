@@ -283,7 +283,7 @@ def test_labels_beyond_data_and_rest_frames(tmp_path: Path, face) -> None:  # ty
     t = load_trial(p, labels=lab)
     assert t.segments is not None and t.segments.labels == ("#", "a", "p")
     rest = t.rest_frames()
-    assert rest.sum() == 26 and rest[:26].all()  # 0 to 0.25 s inclusive at 100 Hz
+    assert rest.sum() == 13 and rest[:13].all()  # the pause's first half, 0 to 0.125 s, at 100 Hz
 
 
 def test_channels_recover_geometry_through_head_motion(tmp_path: Path, face) -> None:  # type: ignore[no-untyped-def]
