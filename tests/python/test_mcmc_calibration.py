@@ -3,8 +3,8 @@
 Per-consonant posteriors (target, θ_bw, θ_fw, k_R of each of /p t l/, noise level fixed at the
 residual RMS) on a small VCV session, sampled until the convergence checks pass. The other
 phonemes are held at the truth, so each posterior is exactly the conditional posterior of its
-consonant and its intervals must be calibrated. (With the others held at a least-squares fit
-instead, the intervals are conditional on that fit's errors and cover less: docs/MCMC.md.)
+consonant and its intervals must be calibrated. (Held at a least-squares fit instead, the
+intervals are conditional on that fit: docs/MCMC.md.)
 
 "Identified" (summary.IDENTIFIED_FRACTION): the 95 % interval spans less than a tenth of the prior
 range in the sampling coordinate. A truth on a prior bound (k_R = 1 for /p/) cannot lie strictly
