@@ -11,7 +11,8 @@ from numpy.typing import NDArray
 
 import mcmc_data
 from coartic import _core
-from coartic.mcmc.posterior import LogPosterior, phoneme_posterior
+from coartic.mcmc.posterior import LogPosterior, channel_posterior, phoneme_posterior
+from coartic.mcmc.run import sample_posterior
 from coartic.mcmc.sampler import SamplerSettings, SamplingResult
 from coartic.mcmc import summary
 from coartic.table import ChannelSettings, ParameterTable, PARAMETERS
@@ -124,3 +125,29 @@ def test_quantiles_go_into_the_table_and_survive_a_round_trip(data: object, tmp_
     q = back.uncertainty["t"]["LLO"]["theta_bw"]
     assert list(q) == list(summary.QUANTILE_LEVELS) and q["q2.5"] <= q["q50"] <= q["q97.5"]
     assert q["q50"] == pytest.approx(50.0, rel=0.05)  # natural units, not log
+
+
+def test_channel_posterior_samples_every_free_parameter(data: object) -> None:
+    packing = mcmc_data.packing(("target", "k_r"))
+    joint = channel_posterior(data, packing, OPTIONS)  # type: ignore[arg-type]
+    assert joint.dim == packing.n_free + 1 and len(joint.data.utterances) == len(data.utterances)  # type: ignore[attr-defined]
+    x = joint.initial_ball(joint.start_point(), 4, np.random.default_rng(5), scale=0.05)
+    np.testing.assert_allclose(joint(x), [direct_log_posterior(joint, xi) for xi in x], rtol=1e-10)
+
+
+def test_an_interrupted_posterior_keeps_its_chains_but_gives_no_intervals(data: object, tmp_path: Path) -> None:
+    calls = {"n": 0}
+
+    def stopping(*args):  # type: ignore[no-untyped-def]
+        calls["n"] += 1
+        if calls["n"] == 40:
+            raise KeyboardInterrupt
+        return _core.sse_batch(*args)
+
+    post = phoneme_posterior(data, mcmc_data.packing(("target", "k_r")), OPTIONS, "t", sse_batch=stopping)  # type: ignore[arg-type]
+    settings = SamplerSettings(n_walkers=8, n_ensembles=2, chunk_steps=50, min_steps=50, max_steps=100)
+    run = sample_posterior(post, tmp_path / "t", settings, "LLO /t/", "t", progress=False)
+    assert run.result.interrupted and not run.result.converged
+    assert run.summaries == [] and run.images == []
+    assert sum(len(c) for c in run.result.chains) > 0  # what was sampled is on disk
+    assert list((tmp_path / "t" / "chains").glob("ens00_chunk*.npz"))

@@ -128,6 +128,8 @@ def run_job(fit_spec: Any, cfg: Any, table_path: Path, out: Path, progress: bool
     def save(r: PosteriorRun) -> None:
         # after every posterior, so an interrupted job keeps what is finished
         runs.append(r)
+        if r.result.interrupted:
+            return  # chains saved for resuming; no intervals from a partial chain
         summary.write_uncertainty(table, r.channel, r.summaries)
         table.metadata.setdefault("mcmc", {})
         meta = table.metadata["mcmc"]

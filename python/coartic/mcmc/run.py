@@ -176,7 +176,9 @@ def sample_posterior(
         progress=progress,
         label=label,
     )
-    summaries = summary.summarize(posterior, result, x0)
+    # An interrupted posterior keeps its chains (to resume) but gives no intervals: a partial chain
+    # would put unchecked numbers into the table.
+    summaries = [] if result.interrupted else summary.summarize(posterior, result, x0)
     images: list[Path] = []
     if make_plots and not result.interrupted:
         images.append(plots.trace_plot(result, directory / "trace.png", label))

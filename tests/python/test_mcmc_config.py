@@ -1,0 +1,51 @@
+"""The [mcmc] table of a fit spec: every key read, every mistake named with the file and key."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+
+from coartic.mcmc.run import McmcConfigError, parse_config, phoneme_dir, walkers_for
+
+SPEC = Path("fit/x.toml")
+
+
+def test_defaults_and_every_key() -> None:
+    assert parse_config(None, SPEC).scope == "phonemes"
+    cfg = parse_config(
+        {"scope": "channel", "phonemes": ["p", "tS"], "channels": ["LLO"], "noise": 0.12, "walkers": 40,
+         "ensembles": 4, "chunk_steps": 250, "min_steps": 500, "max_steps": 9000, "seed": 3, "ball": 0.01,
+         "plots": False, "priors": {"LLO.p.k_r": [1.0, 0.05], "ULO.beta": [1, 0.2]}},
+        SPEC,
+    )
+    assert (cfg.scope, cfg.phonemes, cfg.channels, cfg.noise, cfg.walkers, cfg.plots) == ("channel", ("p", "tS"), ("LLO",), 0.12, 40, False)
+    s = cfg.settings
+    assert (s.n_ensembles, s.chunk_steps, s.min_steps, s.max_steps, s.seed, s.ball) == (4, 250, 500, 9000, 3, 0.01)
+    assert cfg.priors == {"LLO": {"p.k_r": (1.0, 0.05)}, "ULO": {"beta": (1.0, 0.2)}}
+
+
+@pytest.mark.parametrize(
+    ("raw", "message"),
+    [
+        ({"walkerz": 3}, r"fit/x.toml: \[mcmc\] walkerz: unknown key"),
+        ({"scope": "all"}, r"\[mcmc\] scope: 'all': expected one of phonemes, channel"),
+        ({"noise": -1}, r"\[mcmc\] noise: -1: expected"),
+        ({"noise": "auto"}, r"\[mcmc\] noise: 'auto'"),
+        ({"walkers": 2.5}, r"\[mcmc\] walkers: expected an integer >= 0"),
+        ({"min_steps": 900, "max_steps": 800}, r"\[mcmc\] min_steps: 900 exceeds max_steps = 800"),
+        ({"ball": 2}, r"\[mcmc\] ball: expected a number in \(0, 1\)"),
+        ({"priors": {"p.k_r": [1, 0.1]}}, r"\[mcmc\] priors.p.k_r: expected a key \"CHANNEL.phoneme.parameter\""),
+        ({"priors": {"LLO.p.k_r": [1, 0]}}, r"\[mcmc\] priors.LLO.p.k_r: sd must be positive"),
+        ({"priors": {"LLO.p.k_r": "1"}}, r"\[mcmc\] priors.LLO.p.k_r: expected \[mean, sd\]"),
+        ({"phonemes": "p"}, r"\[mcmc\] phonemes: expected a list of strings"),
+    ],
+)
+def test_mistakes_are_named(raw: dict[str, object], message: str) -> None:
+    with pytest.raises(McmcConfigError, match=message):
+        parse_config(raw, SPEC)
+
+
+def test_walkers_and_directory_names() -> None:
+    assert walkers_for(9, 0) == 32 and walkers_for(20, 0) == 42 and walkers_for(3, 13) == 14
+    assert phoneme_dir("tS") == "tS" and phoneme_dir("#") == "x23" and phoneme_dir("a:") == "ax3a"
