@@ -7,6 +7,7 @@ from typing import Optional
 
 import typer
 from rich.console import Console
+from rich.markup import escape
 from rich.table import Table
 
 from coartic.fit.result import BAR_MM, FitResult
@@ -68,7 +69,7 @@ def fit_command(
 
         result = run(s, out)
     except (ValueError, OSError) as e:  # SpecError, DataError, ModelInputError: messages name the culprit
-        console.print(f"[red]error:[/red] {e}")
+        console.print(f"[red]error:[/red] {escape(str(e))}", soft_wrap=True)
         raise typer.Exit(2) from None
     if not result.channels:
         console.print("[yellow]nothing was fitted[/yellow]" + (" (interrupted)" if result.interrupted else ""))

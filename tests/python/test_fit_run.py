@@ -1,0 +1,89 @@
+"""End to end: `coartic fit` on a quick synthetic session (recovery of the truth) and on the real
+German EMA recordings (an RMSE that must not get worse)."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+from typer.testing import CliRunner
+
+from coartic.cli import app
+from coartic.fit import run
+from coartic.fit.spec import load_spec
+from coartic.table import ParameterTable
+
+ROOT = Path(__file__).resolve().parents[2]
+
+
+@pytest.fixture(scope="module")
+def quick_session(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    out = tmp_path_factory.mktemp("session")
+    res = CliRunner().invoke(app, ["corpus", "synth", str(out / "s"), "--quick"])
+    assert res.exit_code == 0, res.output
+    return out / "s"
+
+
+@pytest.mark.slow
+def test_cli_fit_recovers_synthetic_truth(quick_session: Path, tmp_path: Path) -> None:
+    spec = tmp_path / "spec.toml"
+    spec.write_text(f"""
+[corpus]
+manifest = "{quick_session / 'manifest.csv'}"
+select = {{ consonant = ["p", "f", "t"] }}
+[model]
+channels = ["LLO"]
+[staging]
+enabled = false
+""")
+    out = tmp_path / "out"
+    res = CliRunner().invoke(app, ["fit", str(spec), "--out", str(out)])
+    assert res.exit_code == 0, res.output
+    assert "LLO" in res.output and (out / "report.html").is_file()
+    for f in ("table.json", "table.csv", "rmse.csv", "parameters.csv", "fit_report.txt",
+              "figures/trajectories_LLO.png", "figures/rmse_map.png", "figures/truth.png"):
+        assert (out / f).is_file(), f
+    table = ParameterTable.load(out / "table.json")
+    truth = ParameterTable.load(quick_session / "ground_truth.json")
+    assert table.metadata["rmse"]["LLO"] < 0.3
+    rows = (out / "rmse.csv").read_text().splitlines()
+    vowel_rows = [r.split(",") for r in rows if ",vowel," in r]
+    assert len(vowel_rows) == 3 and all(float(r[3]) < 0.3 for r in vowel_rows)
+    # Targets of the resistant consonants (k_R = 1: the target is reached) are pinned by the data.
+    # Those of low-resistance phonemes trade off against alpha, theta and sigma on this small
+    # subset (docs/FITTING.md, "Identifiability"), so they are not asserted here.
+    for ph in ("p", "f"):
+        assert abs(table.values[ph]["LLO"]["target"] - truth.values[ph]["LLO"]["target"]) < 0.2, ph
+    for ph in ("p", "f"):
+        assert table.values[ph]["LLO"]["k_r"] >= 0.9, ph
+
+
+# Today's figures (fit/ema_german.toml, `coartic fit fit/ema_german.toml`): LA 0.547 mm, JO 0.189 mm.
+EMA_RMSE_LIMIT = {"LA": 0.60, "JO": 0.21}
+
+
+@pytest.mark.slow
+def test_real_ema_rmse_does_not_get_worse(tmp_path: Path) -> None:
+    result = run(load_spec(ROOT / "fit" / "ema_german.toml"), tmp_path, quiet=True)
+    assert not result.interrupted
+    for ch, limit in EMA_RMSE_LIMIT.items():
+        assert result.channels[ch].rmse < limit, f"{ch}: RMSE {result.channels[ch].rmse:.3f} mm > {limit}"
+    summary = json.loads((tmp_path / "summary.json").read_text())
+    assert set(summary["channels"]) == {"LA", "JO"}
+    # every phoneme of the German utterances got a row, and the table round-trips
+    t = ParameterTable.load(tmp_path / "table.json")
+    assert {"#", "a", "p", "b", "m"} <= set(t.phonemes)
+    assert np.isfinite(t.metadata["rmse"]["LA"])
+
+
+def test_cli_reports_spec_errors(tmp_path: Path) -> None:
+    spec = tmp_path / "bad.toml"
+    spec.write_text('[corpus]\nmanifest = "none.csv"\n[engine]\nname = "gauss"\n')
+    res = CliRunner().invoke(app, ["fit", str(spec), "--out", str(tmp_path / "o")])
+    assert res.exit_code == 2
+    assert "engine.name" in res.output and "bad.toml" in res.output and "Traceback" not in res.output
+    spec.write_text('[corpus]\nmanifest = "none.csv"\n')
+    res = CliRunner().invoke(app, ["fit", str(spec), "--out", str(tmp_path / "o")])
+    assert res.exit_code == 2 and "corpus.manifest" in res.output and "does not exist" in res.output
