@@ -8,7 +8,7 @@ setup:
 	./scripts/setup.sh
 
 fit: setup
-	$(PY) -m coartic.cli demo --out results/demo
+	([ -f build/session/manifest.csv ] || $(PY) -m coartic.cli corpus synth build/session) && $(PY) -m coartic.cli fit fit/synthetic.toml --out results/synthetic
 
 test: setup test-rust stubtest test-python
 
