@@ -3,7 +3,7 @@
 //! walkers × corpus batches for MCMC — parallel with rayon over chunks of utterances.
 
 use crate::error::ModelError;
-use crate::gradient::{GradScratch, SegmentGrads};
+use crate::gradient::{GradScratch, UtteranceGrads};
 use crate::model::Prepared;
 use crate::params::{validate_params, ModelOptions, N_PARAMS};
 use rayon::prelude::*;
@@ -487,9 +487,8 @@ pub fn jacobian(
         let work = |(chunk, ((values, idx), dat)): (&Range<usize>, JacobianPieces)| -> Result<(), ModelError> {
             let mut prep = Prepared::default();
             let mut scratch = GradScratch::default();
-            let mut grads = SegmentGrads::default();
+            let mut grads = UtteranceGrads::default();
             let mut pattern: Vec<usize> = Vec::new();
-            let mut row_buf: Vec<f64> = Vec::new();
             let base = corpus.sample_offsets[chunk.start];
             let nz_base = indptr[base];
             for u in chunk.clone() {
@@ -506,7 +505,7 @@ pub fn jacobian(
                     pattern.extend((0..N_PARAMS).map(|k| p * N_PARAMS + k));
                 }
                 pattern.push(n_cols - 1);
-                row_buf.resize(row_nnz, 0.0);
+                let local = &corpus.seg_local[segs.clone()];
                 for n in samples {
                     let row = indptr[n] - nz_base..indptr[n] - nz_base + row_nnz;
                     for (dst, &src) in idx[row.clone()].iter_mut().zip(&pattern) {
@@ -516,20 +515,13 @@ pub fn jacobian(
                         .value_at(&prep, corpus.sample_times[n], beta, res, shape)
                         .ok_or(ModelError::Degenerate { utterance: u, sample: n })?;
                     values[n - base] = value;
-                    grads.reset(segs.len());
-                    scratch.accumulate(&prep, 1.0, &mut grads);
-                    grads.finish(&prep, res);
-                    // Sum occurrences in a small buffer, then write the row once: the output is
-                    // fresh memory, and a second pass over it costs more than the arithmetic.
-                    row_buf.fill(0.0);
-                    for (i, d) in grads.d.iter().enumerate() {
-                        let l = corpus.seg_local[segs.start + i];
-                        for (v, dk) in row_buf[l * N_PARAMS..(l + 1) * N_PARAMS].iter_mut().zip(d) {
-                            *v += dk;
-                        }
-                    }
-                    row_buf[row_nnz - 1] = grads.beta;
-                    for (dst, &src) in dat[row].iter_mut().zip(&row_buf) {
+                    // The derivatives are summed in a small buffer laid out like the row, then
+                    // written once: the output is fresh memory, where a second pass costs more
+                    // than the arithmetic.
+                    grads.reset(segs.len(), distinct.len());
+                    scratch.accumulate(&prep, 1.0, local, &mut grads);
+                    grads.finish(&prep, res, local);
+                    for (dst, &src) in dat[row].iter_mut().zip(&grads.row) {
                         dst.write(src);
                     }
                 }
@@ -615,7 +607,7 @@ pub fn sse_gradient(
     let parts = corpus.map_chunks(|chunk| -> Result<(f64, f64, Vec<f64>), ModelError> {
         let mut prep = Prepared::default();
         let mut scratch = GradScratch::default();
-        let mut grads = SegmentGrads::default();
+        let mut grads = UtteranceGrads::default();
         let mut grad = vec![0.0; n_grad];
         let mut sse = 0.0;
         let mut d_beta = 0.0;
@@ -626,7 +618,9 @@ pub fn sse_gradient(
             }
             corpus.prepare(&mut prep, u, params, opts);
             let segs = corpus.segments(u);
-            grads.reset(segs.len());
+            let local = &corpus.seg_local[segs.clone()];
+            let distinct = corpus.distinct(u);
+            grads.reset(segs.len(), distinct.len());
             for n in samples {
                 let w = weights[n];
                 if w == 0.0 {
@@ -640,16 +634,16 @@ pub fn sse_gradient(
                     })?;
                 let r = observed[n] - f;
                 sse += w * r * r;
-                scratch.accumulate(&prep, -2.0 * w * r, &mut grads);
+                scratch.accumulate(&prep, -2.0 * w * r, local, &mut grads);
             }
-            grads.finish(&prep, res);
-            for (i, d) in grads.d.iter().enumerate() {
-                let p = corpus.seg_phoneme[segs.start + i];
-                for (g, dk) in grad[p * N_PARAMS..(p + 1) * N_PARAMS].iter_mut().zip(d) {
+            grads.finish(&prep, res, local);
+            for (l, &p) in distinct.iter().enumerate() {
+                let from = &grads.row[l * N_PARAMS..(l + 1) * N_PARAMS];
+                for (g, dk) in grad[p * N_PARAMS..(p + 1) * N_PARAMS].iter_mut().zip(from) {
                     *g += dk;
                 }
             }
-            d_beta += grads.beta;
+            d_beta += grads.beta();
         }
         Ok((sse, d_beta, grad))
     });

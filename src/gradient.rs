@@ -45,50 +45,55 @@ impl Default for Pair {
     }
 }
 
-/// Derivatives per segment of one utterance (or their weighted sum over samples).
+/// Derivatives of F (or of a weighted sum over samples) for one utterance, laid out like a
+/// Jacobian row: parameter k of the l-th distinct phoneme of the utterance at `l * 10 + k`, β
+/// last. A phoneme occurring in several segments gets the sum of its occurrences.
 ///
-/// Before [`SegmentGrads::finish`], `d[i][Delta]` holds ∂/∂t_i through τ only, `d[i][KR]` is 0,
-/// and `g_fwd/g_bwd` hold ∂/∂Δ±_i; after it, `d[i]` is the total derivative with respect to the
-/// parameters of segment i's phoneme (through this segment's occurrence).
+/// Before [`UtteranceGrads::finish`] the k_R and δ entries are incomplete: the per-segment
+/// ∂/∂t_i (through τ) and ∂/∂Δ±_i are kept aside and pushed through the extent recursion there.
 #[derive(Clone, Debug, Default)]
-pub(crate) struct SegmentGrads {
-    pub d: Vec<[f64; N_PARAMS]>,
-    pub g_fwd: Vec<f64>,
-    pub g_bwd: Vec<f64>,
-    d_k: Vec<f64>,
+pub(crate) struct UtteranceGrads {
+    pub row: Vec<f64>,
     d_t: Vec<f64>,
-    /// ∂/∂β.
-    pub beta: f64,
+    g_fwd: Vec<f64>,
+    g_bwd: Vec<f64>,
+    d_k: Vec<f64>,
 }
 
-impl SegmentGrads {
-    /// Zeroes and sizes the accumulators for `n` segments.
-    pub fn reset(&mut self, n: usize) {
-        if self.d.len() == n {
+impl UtteranceGrads {
+    /// Zeroes the accumulators for `n_segments` segments over `n_distinct` phonemes.
+    pub fn reset(&mut self, n_segments: usize, n_distinct: usize) {
+        let width = n_distinct * N_PARAMS + 1;
+        if self.row.len() == width && self.d_t.len() == n_segments {
             // The common case (every sample of an utterance): zero in place.
-            self.d.fill([0.0; N_PARAMS]);
+            self.row.fill(0.0);
+            self.d_t.fill(0.0);
             self.g_fwd.fill(0.0);
             self.g_bwd.fill(0.0);
         } else {
-            self.d.clear();
-            self.d.resize(n, [0.0; N_PARAMS]);
-            self.g_fwd.clear();
-            self.g_fwd.resize(n, 0.0);
-            self.g_bwd.clear();
-            self.g_bwd.resize(n, 0.0);
-            self.d_k.resize(n, 0.0);
-            self.d_t.resize(n, 0.0);
+            self.row.clear();
+            self.row.resize(width, 0.0);
+            for v in [
+                &mut self.d_t,
+                &mut self.g_fwd,
+                &mut self.g_bwd,
+                &mut self.d_k,
+            ] {
+                v.clear();
+                v.resize(n_segments, 0.0);
+            }
         }
-        self.beta = 0.0;
     }
 
-    /// Propagates ∂/∂Δ± and ∂/∂t_i to k_R and δ (linear, so it may run once on a weighted sum).
-    pub fn finish(&mut self, prep: &Prepared, res: Resistance) {
-        let n = self.d.len();
-        for i in 0..n {
-            self.d_t[i] = self.d[i][Param::Delta.index()];
-            self.d_k[i] = 0.0;
-        }
+    /// ∂/∂β.
+    pub fn beta(&self) -> f64 {
+        self.row[self.row.len() - 1]
+    }
+
+    /// Propagates ∂/∂Δ± and ∂/∂t_i to k_R and δ (linear, so it may run once on a weighted sum
+    /// over samples). `local[i]` is the distinct-phoneme position of segment i.
+    pub fn finish(&mut self, prep: &Prepared, res: Resistance, local: &[usize]) {
+        self.d_k.fill(0.0);
         res.extents_adjoint(
             &prep.k,
             &prep.ext_fwd,
@@ -98,9 +103,11 @@ impl SegmentGrads {
             &mut self.d_k,
             &mut self.d_t,
         );
-        for i in 0..n {
-            self.d[i][Param::KR.index()] = self.d_k[i];
-            self.d[i][Param::Delta.index()] = if prep.free[i] { self.d_t[i] } else { 0.0 };
+        for (i, &l) in local.iter().enumerate() {
+            self.row[l * N_PARAMS + Param::KR.index()] += self.d_k[i];
+            if prep.free[i] {
+                self.row[l * N_PARAMS + Param::Delta.index()] += self.d_t[i];
+            }
         }
     }
 }
@@ -181,8 +188,16 @@ impl GradScratch {
         Some(self.value)
     }
 
-    /// Adds `scale` × ∂F/∂(every parameter) at the last [`GradScratch::value_at`] to `grads`.
-    pub fn accumulate(&self, prep: &Prepared, scale: f64, grads: &mut SegmentGrads) {
+    /// Adds `scale` × ∂F/∂(every parameter) at the last [`GradScratch::value_at`] to `grads`;
+    /// `local[i]` is the distinct-phoneme position of segment i.
+    pub fn accumulate(
+        &self,
+        prep: &Prepared,
+        scale: f64,
+        local: &[usize],
+        grads: &mut UtteranceGrads,
+    ) {
+        let width = grads.row.len();
         let f = self.value;
         for (i, (s, pair)) in prep.seg.iter().zip(self.pairs.iter()).enumerate() {
             if !pair.active {
@@ -204,7 +219,8 @@ impl GradScratch {
             } else {
                 0.0
             };
-            let d = &mut grads.d[i];
+            let l = local[i] * N_PARAMS;
+            let d = &mut grads.row[l..l + N_PARAMS];
             d[Param::Target.index()] += sp * pair.sv.s;
             d[Param::Alpha.index()] += a * dg.d_alpha;
             let (ti, ci) = match side {
@@ -217,12 +233,12 @@ impl GradScratch {
             d[Param::Psi.index()] += sp * s.target * pair.sv.d_psi;
             // τ = t − t_i, so ∂/∂t_i = −∂/∂τ.
             let d_log_w_d_tau = dg.d_tau + pair.lr.d_abs_tau * sign;
-            d[Param::Delta.index()] -= a * d_log_w_d_tau + sp * s.target * pair.sv.d_tau;
+            grads.d_t[i] -= a * d_log_w_d_tau + sp * s.target * pair.sv.d_tau;
             match side {
                 Side::Backward => grads.g_bwd[i] += a * pair.lr.d_extent,
                 Side::Forward => grads.g_fwd[i] += a * pair.lr.d_extent,
             }
-            grads.beta += a * pair.lr.d_beta;
+            grads.row[width - 1] += a * pair.lr.d_beta;
         }
     }
 }
