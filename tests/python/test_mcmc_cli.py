@@ -97,3 +97,32 @@ def test_errors_name_the_file_and_key(fitted: tuple[Path, Path], tmp_path: Path)
     assert r.exit_code == 1 and "expected one parameter table" in r.output.replace("\n", "")
     r = runner.invoke(app, ["mcmc", str(spec), "--fit", str(fit), "--out", str(tmp_path / "o"), "--phonemes", "zz"])
     assert r.exit_code == 1 and "zz do not occur in the LLO data" in r.output.replace("\n", "")
+
+
+@pytest.mark.slow
+def test_ctrl_c_in_the_command_saves_and_the_rerun_resumes(fitted: tuple[Path, Path], tmp_path: Path) -> None:
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    spec, fit = fitted
+    out = tmp_path / "mcmc"
+    cmd = [sys.executable, "-m", "coartic.cli", "mcmc", str(spec), "--fit", str(fit), "--out", str(out),
+           "--max-steps", "2000", "--quiet"]
+    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    chains = out / "LLO" / "p" / "chains"
+    deadline = time.monotonic() + 120
+    while not list(chains.glob("ens01_chunk*.npz")) and time.monotonic() < deadline and proc.poll() is None:
+        time.sleep(0.05)
+    proc.send_signal(signal.SIGINT)
+    output, _ = proc.communicate(timeout=120)
+    assert proc.returncode == 130, output
+    assert "Run the same command again to resume" in output.replace("\n", " ")
+    saved = ChainStore(chains).load(0, 5, 12)[0]
+    assert len(saved) >= 100
+    r = CliRunner().invoke(app, ["mcmc", str(spec), "--fit", str(fit), "--out", str(out), "--max-steps", str(len(saved) + 100), "--quiet"])
+    assert r.exit_code == 0, r.output
+    resumed = ChainStore(chains).load(0, 5, 12)[0]
+    assert len(resumed) == len(saved) + 100
+    np.testing.assert_array_equal(resumed[: len(saved)], saved)

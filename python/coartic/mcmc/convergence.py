@@ -79,6 +79,14 @@ def _jsonable(v: Any) -> Any:
     return v
 
 
+def load_arviz() -> Any:
+    """ArviZ, imported quietly (it warns about its coming refactor on import)."""
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        import arviz as az
+    return az
+
+
 def autocorr_time(chain: NDArray[np.float64]) -> NDArray[np.float64]:
     """Integrated autocorrelation time per parameter of one ensemble, chain shaped (steps, walkers, dim).
 
@@ -114,10 +122,9 @@ def rhat_ess(
     chains: Sequence[NDArray[np.float64]], burn_in: int, thin: int
 ) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
     """ArviZ R-hat (one chain per ensemble), bulk ESS and tail ESS (one chain per walker) per parameter."""
+    az = load_arviz()
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        import arviz as az
-
         pooled = ensemble_chains(chains, burn_in, thin)
         walkers = walker_chains(chains, burn_in, thin)
         dim = pooled.shape[2]

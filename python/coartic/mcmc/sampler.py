@@ -282,6 +282,9 @@ def run(
     """
     dim = len(names)
     settings.validate(dim)
+    # Import the diagnostics' heavy dependencies now: a Ctrl-C that lands inside an extension
+    # module's import turns into an ImportError instead of a KeyboardInterrupt.
+    convergence.load_arviz()
     store = ChainStore(out)
     store.open(
         {
@@ -345,7 +348,8 @@ def run(
             while True:
                 n = min(len(c) for c in chains)
                 if n >= max(settings.min_steps, 4) and (report is None or report.n_steps != n):
-                    report = diagnose()
+                    with signals.saving():  # a Ctrl-C here waits until the check is done
+                        report = diagnose()
                     if report is not None:
                         bar.update(task, status=f"tau {report.tau_max:.0f}, N/tau {n / max(report.tau_max, 1e-9):.0f}")
                         if stop_when_converged and report.converged:
