@@ -136,12 +136,12 @@ impl GradScratch {
         for (s, pair) in prep.seg.iter().zip(self.pairs.iter_mut()) {
             let tau = time - s.t;
             let a = tau.abs();
-            let (theta, c, ext) = match Side::of(tau) {
-                Side::Backward => (s.theta_bw, s.c_bw, s.ext_bwd),
-                Side::Forward => (s.theta_fw, s.c_fw, s.ext_fwd),
+            let (theta, c, ext, inv) = match Side::of(tau) {
+                Side::Backward => (s.theta_bw, s.c_bw, s.ext_bwd, s.inv_bwd),
+                Side::Forward => (s.theta_fw, s.c_fw, s.ext_fwd, s.inv_fwd),
             };
             pair.tau = tau;
-            match res.log_value_grad(a, ext, beta) {
+            match res.log_value_grad(a, ext, inv, beta) {
                 None => {
                     pair.active = false;
                 }

@@ -28,6 +28,9 @@ pub(crate) struct SegmentModel {
     /// through the extent vanish.
     pub ext_bwd: f64,
     pub ext_fwd: f64,
+    /// 1/Δ⁻_i and 1/Δ⁺_i (0 where Δ = +∞), for the derivatives.
+    pub inv_bwd: f64,
+    pub inv_fwd: f64,
 }
 
 /// Per-utterance precomputation, reused from utterance to utterance by one worker so the inner
@@ -85,6 +88,8 @@ impl Prepared {
                 psi: row[Param::Psi.index()],
                 ext_bwd: f64::INFINITY,
                 ext_fwd: f64::INFINITY,
+                inv_bwd: 0.0,
+                inv_fwd: 0.0,
             });
             self.free.push(free);
             self.t.push(t);
@@ -109,9 +114,11 @@ impl Prepared {
                 let s = &mut self.seg[i];
                 if i > 0 {
                     s.ext_bwd = self.ext_bwd[i];
+                    s.inv_bwd = 1.0 / s.ext_bwd;
                 }
                 if i + 1 < n {
                     s.ext_fwd = self.ext_fwd[i];
+                    s.inv_fwd = 1.0 / s.ext_fwd;
                 }
             }
         }

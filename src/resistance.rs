@@ -50,16 +50,23 @@ impl Resistance {
                 if u >= 1.0 {
                     f64::NEG_INFINITY
                 } else {
-                    -beta * u / (1.0 - u)
+                    let q = 1.0 / (1.0 - u);
+                    -beta * u * q
                 }
             }
         }
     }
 
     /// ln R and its derivatives; `None` where R = 0 (u ≥ 1), where ρ is C∞ and every
-    /// derivative is 0.
+    /// derivative is 0. `inv_extent` is 1/Δ (0 for Δ = +∞), precomputed per segment.
     #[inline(always)]
-    pub fn log_value_grad(self, abs_tau: f64, extent: f64, beta: f64) -> Option<LogResistance> {
+    pub fn log_value_grad(
+        self,
+        abs_tau: f64,
+        extent: f64,
+        inv_extent: f64,
+        beta: f64,
+    ) -> Option<LogResistance> {
         match self {
             Resistance::None => Some(LogResistance::default()),
             Resistance::Cutoff => {
@@ -77,10 +84,10 @@ impl Resistance {
                     return None;
                 }
                 Some(LogResistance {
-                    log_r: -beta * u / (1.0 - u), // as in `log_value`, bit for bit
+                    log_r: -beta * u * q, // as in `log_value`, bit for bit
                     // u = |τ|/Δ: ∂u/∂Δ = −u/Δ, ∂u/∂|τ| = 1/Δ.
-                    d_extent: -d_u * u / extent,
-                    d_abs_tau: d_u / extent,
+                    d_extent: -d_u * u * inv_extent,
+                    d_abs_tau: d_u * inv_extent,
                     d_beta: -u * q,
                 })
             }
@@ -138,16 +145,22 @@ impl Resistance {
             return;
         }
         // Δ⁺_{i−1} contains (1 − k_i) Δ⁺_i, so the total adjoint flows forward in i.
-        let mut acc = 0.0;
-        for i in 0..n - 1 {
-            acc = g_fwd[i] + if i > 0 { (1.0 - k[i]) * acc } else { 0.0 };
+        let mut acc = g_fwd[0];
+        d_k[1] -= acc * fwd[1];
+        d_t[1] += acc;
+        d_t[0] -= acc;
+        for i in 1..n - 1 {
+            acc = g_fwd[i] + (1.0 - k[i]) * acc;
             d_k[i + 1] -= acc * fwd[i + 1];
             d_t[i + 1] += acc;
             d_t[i] -= acc;
         }
-        let mut acc = 0.0;
-        for i in (1..n).rev() {
-            acc = g_bwd[i] + if i < n - 1 { (1.0 - k[i]) * acc } else { 0.0 };
+        let mut acc = g_bwd[n - 1];
+        d_k[n - 2] -= acc * bwd[n - 2];
+        d_t[n - 1] += acc;
+        d_t[n - 2] -= acc;
+        for i in (1..n - 1).rev() {
+            acc = g_bwd[i] + (1.0 - k[i]) * acc;
             d_k[i - 1] -= acc * bwd[i - 1];
             d_t[i] += acc;
             d_t[i - 1] -= acc;
@@ -167,10 +180,10 @@ mod tests {
         assert_eq!(r.log_value(0.2, 0.1, 2.0), f64::NEG_INFINITY);
         let v = r.log_value(0.05, 0.1, 2.0);
         assert!((v - (-2.0 * 0.5 / 0.5)).abs() < 1e-15);
-        assert!(r.log_value_grad(0.1, 0.1, 2.0).is_none());
+        assert!(r.log_value_grad(0.1, 0.1, 10.0, 2.0).is_none());
         // No resistance on this side (Δ = +∞), and a zero extent.
         assert_eq!(r.log_value(0.3, f64::INFINITY, 2.0), 0.0);
-        let g = r.log_value_grad(0.3, f64::INFINITY, 2.0).unwrap();
+        let g = r.log_value_grad(0.3, f64::INFINITY, 0.0, 2.0).unwrap();
         assert_eq!((g.d_extent, g.d_abs_tau, g.d_beta), (0.0, 0.0, 0.0));
         assert_eq!(r.log_value(0.01, 0.0, 2.0), f64::NEG_INFINITY);
         assert_eq!(r.log_value(0.0, 0.0, 2.0), 0.0);
