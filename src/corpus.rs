@@ -423,10 +423,15 @@ pub fn evaluate(
 /// its utterance (explicit zeros included), so the pattern depends only on the corpus.
 #[derive(Clone, Debug, PartialEq)]
 pub struct SparseJacobian {
+    /// Number of rows: the corpus's samples.
     pub n_rows: usize,
+    /// Number of columns: n_phonemes × 10 + 1 (β last).
     pub n_cols: usize,
+    /// Row pointers (length n_rows + 1): row n is `indices/data[indptr[n]..indptr[n + 1]]`.
     pub indptr: Vec<usize>,
+    /// Column of each stored entry, sorted within each row.
     pub indices: Vec<usize>,
+    /// Value of each stored entry.
     pub data: Vec<f64>,
 }
 

@@ -221,3 +221,45 @@ fn duplicate_phonemes_are_summed() {
         assert!(cols.windows(2).all(|w| w[0] < w[1]));
     }
 }
+
+proptest! {
+    #![proptest_config(ProptestConfig { cases: 24, ..ProptestConfig::default() })]
+
+    /// The SSE gradient against Richardson-extrapolated central differences of the SSE itself.
+    #[test]
+    fn sse_gradient_matches_central_differences(m in model_strategy(6), noise in prop::collection::vec(-2.0..2.0f64, 23)) {
+        let times = m.times(23);
+        let c = m.corpus(&times);
+        let f = eval(&c, &m.params(), m.beta, &m.opts);
+        let observed: Vec<f64> = f.iter().zip(&noise).map(|(a, b)| a + b).collect();
+        let weights: Vec<f64> = (0..times.len()).map(|n| 1.0 + (n % 3) as f64).collect();
+        let sse_of = |mm: &Model| {
+            let mut g = vec![0.0; mm.n_phonemes() * N_PARAMS];
+            coartic::sse_gradient(&c, &mm.params(), mm.beta, &mm.opts, &observed, &weights, &mut g).unwrap()
+        };
+        let mut grad = vec![0.0; m.n_phonemes() * N_PARAMS];
+        let (sse, d_beta) = coartic::sse_gradient(&c, &m.params(), m.beta, &m.opts, &observed, &weights, &mut grad).unwrap();
+        let mut columns: Vec<(usize, Option<Param>)> = (0..m.n_phonemes()).flat_map(|p| Param::ALL.map(|k| (p, Some(k)))).collect();
+        columns.push((0, None));
+        for (p, k) in columns {
+            if k == Some(Param::Delta) && near_kink(&m, &times, p, 2e-3).iter().any(|&x| x) {
+                continue;
+            }
+            let h = step(&m, p, k);
+            let diff = |h: f64| {
+                let mut plus = m.clone();
+                let mut minus = m.clone();
+                match k {
+                    None => { plus.beta += h; minus.beta -= h; }
+                    Some(par) => { plus.rows[p][par.index()] += h; minus.rows[p][par.index()] -= h; }
+                }
+                (sse_of(&plus).0 - sse_of(&minus).0) / (2.0 * h)
+            };
+            let fd = (4.0 * diff(h / 2.0) - diff(h)) / 3.0;
+            let analytic = match k { None => d_beta, Some(par) => grad[p * N_PARAMS + par.index()] };
+            let atol = 200.0 * f64::EPSILON * sse.max(1.0) / h + 1e-10;
+            prop_assert!((analytic - fd).abs() <= 1e-6 * analytic.abs().max(fd.abs()) + atol,
+                "phoneme {} column {:?}: analytic {} vs {}", p, k, analytic, fd);
+        }
+    }
+}
