@@ -246,6 +246,7 @@ pub fn central(m: &Model, times: &[f64], p: usize, k: Option<Param>) -> Vec<f64>
 
 /// Compares one analytic Jacobian column with central differences, skipping rows where `skip`
 /// says the derivative is not defined. Returns a description of the first disagreement.
+#[allow(clippy::too_many_arguments)]
 pub fn check_column(
     m: &Model,
     times: &[f64],
