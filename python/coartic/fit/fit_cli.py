@@ -17,9 +17,11 @@ from coartic.fit.spec import ENGINES, SpecError, load_spec
 def rmse_table(result: FitResult, title: str = "RMSE (mm)") -> Table:
     """Channels as rows; overall, worst vowel context, worst consonant, worst repetition, worst rate."""
     t = Table(title=f"{title} — the paper's bar is {BAR_MM} mm")
-    for col in ("channel", "all", "worst vowel", "worst consonant", "worst repetition", "worst rate", "status"):
+    # only the groupings the corpus has (a manifest without 'rate' has no worst rate)
+    groups = [g for g in ("vowel", "consonant", "repetition", "rate") if result.worst(g)]
+    for col in ("channel", "all", *(f"worst {g}" for g in groups), "status"):
         t.add_column(col, justify="left" if col in ("channel", "status") else "right")
-    worst = {g: result.worst(g) for g in ("vowel", "consonant", "repetition", "rate")}
+    worst = {g: result.worst(g) for g in groups}
 
     def cell(v: float, label: str = "") -> str:
         colour = "green" if v < BAR_MM else "red"
@@ -27,7 +29,7 @@ def rmse_table(result: FitResult, title: str = "RMSE (mm)") -> Table:
 
     for ch, fit in result.channels.items():
         row = [ch, cell(fit.rmse)]
-        for g in ("vowel", "consonant", "repetition", "rate"):
+        for g in groups:
             w = worst[g].get(ch)
             row.append(cell(w[1], w[0]) if w else "–")
         row.append(fit.status)

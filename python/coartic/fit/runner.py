@@ -62,7 +62,11 @@ def fit_channel(spec: FitSpec, utterances: Sequence[Utterance], channel: str,
     with threadpool_limits(limits=1, user_api="blas"):
         final, res, stages = fit_staged(problem, spec.engine, spec.engine_options,
                                         spec.stages if spec.staging else None, on_stage)
-    fit = finish_channel(final, res.x, res.status, res.message, time.perf_counter() - t0, stages)
+    try:
+        fit = finish_channel(final, res.x, res.status, res.message, time.perf_counter() - t0, stages)
+    except KeyboardInterrupt:  # Ctrl-C while the statistics were computed: keep the fitted point
+        fit = finish_channel(final, res.x, "interrupted", "stopped by the user (Ctrl-C) after the fit",
+                             time.perf_counter() - t0, stages)
     if progress is not None and task is not None:
         progress.update(task, description=f"{channel} done", info=f"RMSE {fit.rmse:.3f} mm [{fit.status}]")
         progress.stop_task(task)

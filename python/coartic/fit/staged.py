@@ -73,12 +73,19 @@ def fit_staged(problem: ChannelProblem, engine: str, options: dict[str, Any], st
         if on_stage is not None:
             on_stage(i, len(sets), prob)
         x0 = packing.pack()
-        sse0 = prob.sse(x0)
-        res = minimize(prob, x0, options)
+        try:
+            sse0 = prob.sse(x0)
+            res = minimize(prob, x0, options)
+            sse1 = prob.sse(res.x)
+        except KeyboardInterrupt:  # outside the engine's own guard: keep the best point seen
+            res = EngineResult(prob.best_x, "interrupted", "stopped by the user (Ctrl-C); best point kept",
+                               prob.nfev, prob.njev)
+            sse0 = sse0 if "sse0" in locals() else float("nan")
+            sse1 = prob.best_sse
         nfev += prob.nfev
         njev += prob.njev
         params, beta = packing.unpack(res.x)
-        results.append(StageResult(names, packing.n_free, sse0, prob.sse(res.x), res))
+        results.append(StageResult(names, packing.n_free, sse0, sse1, res))
         if res.status in ("interrupted", "non-finite start"):
             break
     assert res is not None

@@ -116,7 +116,7 @@ def rmse_map_figure(result: FitResult) -> Figure | None:
         for i, j in np.argwhere(grid >= BAR_MM):
             ax.add_patch(plt.Rectangle((j - 0.5, i - 0.5), 1, 1, fill=False, ec="red", lw=1.5))
         ax.set_xticks(range(len(vows)), vows)
-        ax.set_yticks(range(len(cons)), cons, fontsize=7)
+        ax.set_yticks(range(len(cons)), cons if ax is axes[0, 0] else [], fontsize=7)
         ax.set_title(ch, fontsize=9)
     if im is not None:
         fig.colorbar(im, ax=axes[0].tolist(), label="RMSE (mm)", shrink=0.8)

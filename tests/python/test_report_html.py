@@ -1,0 +1,89 @@
+"""Statistics, saved files and the HTML report of a fit; an interrupted run still writes its result."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pytest
+
+from coartic.fit.problem import ChannelProblem
+from coartic.fit.result import FitResult
+from coartic.fit.runner import run
+from coartic.fit.simulate import PHONEMES, TRUTH, vcv_utterances
+from coartic.fit.spec import parse_spec
+from coartic.report.html import write_report
+from coartic.table import ParameterTable
+
+
+def make_spec(tmp_path: Path, free: list[str]) -> Any:
+    raw = {"corpus": {"files": ["x"], "labels": ["y"]}, "model": {"channels": ["LLO"]},
+           "parameters": {"free": free}, "staging": {"enabled": False},
+           # /p/ reaches its target (k_R = 1 in the truth): a box below that pins it on the bound
+           "override": [{"phonemes": ["p"], "bounds": {"k_r": [0.0, 0.8]}}]}
+    return parse_spec(raw, tmp_path / "spec.toml")
+
+
+@pytest.fixture(scope="module")
+def fitted(tmp_path_factory: pytest.TempPathFactory) -> tuple[FitResult, Path]:
+    tmp = tmp_path_factory.mktemp("fit")
+    utts = vcv_utterances(np.random.default_rng(5), repetitions=2)
+    spec = make_spec(tmp, ["target", "alpha", "theta_bw", "theta_fw", "k_r", "psi"])
+    return run(spec, tmp / "out", utterances=utts, quiet=True), tmp / "out"
+
+
+def test_statistics_flags(fitted: tuple[FitResult, Path]) -> None:
+    result, _ = fitted
+    st = result.channels["LLO"].stats
+    assert st is not None
+    # sigma is 0 (fixed): psi has no effect at all, so it is not identified
+    assert {f"{p}.psi" for p in PHONEMES} <= set(st.unidentified)
+    assert "p.k_r" in st.at_bound
+    i = st.names.index("a.target")
+    assert 0 < st.stderr[i] < 0.1 and abs(st.values[i] - TRUTH[1, 0]) < 5 * st.stderr[i] + 0.05
+    assert np.all(np.isnan(st.stderr[[st.names.index(f"{p}.psi") for p in PHONEMES]]))
+    assert "at a bound" in result.report_text() and "not identified" in result.report_text()
+
+
+def test_saved_files_and_table(fitted: tuple[FitResult, Path]) -> None:
+    result, out = fitted
+    t = ParameterTable.load(out / "table.json")
+    fit = result.channels["LLO"]
+    np.testing.assert_array_equal(t.to_matrix("LLO", list(fit.phonemes))[0], fit.params)
+    assert t.metadata["rmse"]["LLO"] == pytest.approx(fit.rmse) and "coartic" in t.metadata["software"]
+    rows = (out / "rmse.csv").read_text().splitlines()
+    assert rows[0].startswith("channel,group,value,rmse_mm") and any(",consonant,p," in r for r in rows)
+    assert (out / "parameters.csv").read_text().count("\n") == len(PHONEMES) * 10 + 1
+    assert ParameterTable.from_csv((out / "table.csv").read_text()).values == t.values
+
+
+def test_html_report(fitted: tuple[FitResult, Path]) -> None:
+    result, out = fitted
+    (out / "report_mcmc.html").write_text("<h2>Posterior section</h2>")
+    html = write_report(result, out).read_text()
+    for f in ("trajectories_LLO.png", "residuals.png", "rmse_map.png"):
+        assert (out / "figures" / f).stat().st_size > 5000 and f"figures/{f}" in html
+    assert "RMSE per channel" in html and "Posterior section" in html and "LLO" in html
+
+
+def test_interrupted_run_keeps_best_point(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    utts = vcv_utterances(np.random.default_rng(6), repetitions=1)
+    orig = ChannelProblem.residuals
+    calls = {"n": 0}
+
+    def residuals(self: ChannelProblem, x: np.ndarray) -> np.ndarray:
+        calls["n"] += 1
+        if calls["n"] == 4:  # one Ctrl-C, inside the engine (1: stage SSE, 2: start check)
+            raise KeyboardInterrupt
+        return orig(self, x)
+
+    monkeypatch.setattr(ChannelProblem, "residuals", residuals)
+    spec = make_spec(tmp_path, ["target", "alpha"])
+    spec = spec.with_options(channels=("LLO", "LLO"))
+    result = run(spec, tmp_path / "out", utterances=utts, quiet=True)
+    assert result.interrupted and list(result.channels) == ["LLO"]
+    summary = json.loads((tmp_path / "out" / "summary.json").read_text())
+    assert summary["interrupted"] and summary["channels"]["LLO"]["status"] == "interrupted"
+    assert np.isfinite(summary["channels"]["LLO"]["rmse_mm"])
