@@ -270,9 +270,10 @@ class FitResult:
         _write_csv(paths["rmse"], self.rmse_rows())
         _write_csv(paths["parameters"], self.parameter_rows())
         paths["report_text"].write_text(self.report_text())
-        np.savez_compressed(paths["fitted"], **{f"{ch}_fitted": f.fitted for ch, f in self.channels.items()},
-                            **{f"{ch}_observed": np.where(f.problem.data.weights > 0, f.problem.data.observed, np.nan)
-                               for ch, f in self.channels.items()})
+        arrays: dict[str, Any] = {f"{ch}_fitted": f.fitted for ch, f in self.channels.items()}
+        arrays |= {f"{ch}_observed": np.where(f.problem.data.weights > 0, f.problem.data.observed, np.nan)
+                   for ch, f in self.channels.items()}
+        np.savez_compressed(paths["fitted"], **arrays)
         summary = {"spec": str(self.spec.path), "interrupted": self.interrupted, "started": self.started,
                    "channels": {ch: {"rmse_mm": f.rmse, "status": f.status, "message": f.message, "nfev": f.nfev,
                                      "wall_time_s": f.wall_time, "at_bound": f.stats.at_bound if f.stats else [],

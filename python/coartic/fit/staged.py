@@ -33,7 +33,7 @@ def stage_free_sets(problem: ChannelProblem, stages: Sequence[Sequence[str]]) ->
     """Cumulative free masks; whatever the full fit frees but no stage names joins the last stage."""
     full, full_beta = problem.packing.free, problem.packing.beta_free
     named: set[str] = set()
-    out = []
+    out: list[tuple[NDArray[np.bool_], bool, tuple[str, ...]]] = []
     for i, st in enumerate(stages):
         named |= set(st)
         if i == len(stages) - 1:

@@ -10,7 +10,7 @@ option by name (passed through as ``ipopt.<name>``).
 
 from __future__ import annotations
 
-from typing import Any
+from typing import Any, Sequence
 
 import casadi as ca
 import numpy as np
@@ -42,7 +42,7 @@ class _Objective(ca.Callback):  # type: ignore[misc]
     def get_sparsity_out(self, i: int) -> ca.Sparsity:
         return ca.Sparsity.dense(1, 1)
 
-    def eval(self, arg: list[Any]) -> list[Any]:
+    def eval(self, arg: Sequence[Any]) -> list[Any]:  # type: ignore[override]
         try:
             sse = self.problem.sse(self.unit.x(np.asarray(arg[0]).ravel()))
         except KeyboardInterrupt:
@@ -53,7 +53,8 @@ class _Objective(ca.Callback):  # type: ignore[misc]
     def has_jacobian(self) -> bool:
         return True
 
-    def get_jacobian(self, name: str, inames: list[str], onames: list[str], opts: dict[str, Any]) -> ca.Function:
+    def get_jacobian(self, name: str, inames: Sequence[str], onames: Sequence[str],  # type: ignore[override]
+                     opts: dict[str, Any]) -> ca.Function:
         self._grad = _Gradient(name, self.problem, self.unit, self.state, opts)
         return self._grad
 
@@ -78,7 +79,7 @@ class _Gradient(ca.Callback):  # type: ignore[misc]
     def get_sparsity_out(self, i: int) -> ca.Sparsity:
         return ca.Sparsity.dense(1, self.n)
 
-    def eval(self, arg: list[Any]) -> list[Any]:
+    def eval(self, arg: Sequence[Any]) -> list[Any]:  # type: ignore[override]
         try:
             _, g = self.problem.sse_gradient(self.unit.x(np.asarray(arg[0]).ravel()))
         except KeyboardInterrupt:
@@ -100,8 +101,9 @@ def minimize(problem: ChannelProblem, x0: NDArray[np.float64], options: dict[str
     ipopt = {"max_iter": 300, "tol": 1e-6, "acceptable_tol": 1e-4, "print_level": 0, "hessian_approximation": "limited-memory",
              "sb": "yes"}
     ipopt.update(options)
-    solver = ca.nlpsol("coartic_fit", "ipopt", {"x": z, "f": f(z)},
-                       {"ipopt": ipopt, "print_time": False, "error_on_fail": False})
+    nlp: dict[str, Any] = {"x": z, "f": f(z)}
+    solver_opts: dict[str, Any] = {"ipopt": ipopt, "print_time": False, "error_on_fail": False}
+    solver = ca.nlpsol("coartic_fit", "ipopt", nlp, solver_opts)
     try:
         sol = solver(x0=unit.z(x0), lbx=unit.z_lo, ubx=unit.z_hi)
         stats = solver.stats()

@@ -26,7 +26,7 @@ _BIG = 1e300  # nlopt's local methods stall on inf; a huge finite value rejects 
 
 
 def minimize(problem: ChannelProblem, x0: NDArray[np.float64], options: dict[str, Any]) -> EngineResult:
-    o = {"global": "mlsl", "global_maxeval": 2000, "local": "lbfgs", "local_maxeval": 3000,
+    o: dict[str, Any] = {"global": "mlsl", "global_maxeval": 2000, "local": "lbfgs", "local_maxeval": 3000,
          "ftol_rel": 1e-12, "xtol_rel": 1e-10, "population": 0, "seed": 0}
     unknown = set(options) - set(o)
     if unknown:
