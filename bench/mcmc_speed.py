@@ -4,7 +4,7 @@ Both samplers target the same per-consonant posterior (one consonant's 8 paramet
 in the 3 vowel contexts × 2 rates × 5 repetitions of a model-generated session, 100 Hz): the Rust
 one hands all walkers to ``_core.sse_batch`` in one call (``vectorize=True``); the NumPy one is the
 plain reference model of tests/python/numpy_model.py called walker by walker, as emcee does by
-default. Same seed, same moves: the chains agree (checked below), so the autocorrelation time τ
+default. Both use the sampler's default moves (differential evolution + snooker). Same seed, same moves: the chains agree (checked below), so the autocorrelation time τ
 is the same and is measured once, on the longer Rust chain. ESS/s = steps × walkers / τ / seconds.
 
 Run: .venv/bin/python bench/mcmc_speed.py   (output saved in bench/results/mcmc_speed.txt)
@@ -30,6 +30,7 @@ from coartic import _core  # noqa: E402
 from coartic.mcmc.convergence import autocorr_time  # noqa: E402
 from coartic.mcmc.posterior import LogPosterior, phoneme_posterior  # noqa: E402
 from coartic.mcmc.run import walkers_for  # noqa: E402
+from coartic.mcmc.sampler import SamplerSettings, make_moves  # noqa: E402
 
 RUST_STEPS = 1500
 NUMPY_STEPS = 75
@@ -61,7 +62,7 @@ def numpy_sse_batch(utterances, rows):  # type: ignore[no-untyped-def]
 def sampler(post: LogPosterior, walkers: int, vectorize: bool) -> tuple[emcee.EnsembleSampler, np.ndarray]:
     p0 = post.initial_ball(post.start_point(), walkers, np.random.default_rng(SEED))
     fn = post if vectorize else (lambda x: float(post(x[None])[0]))
-    s = emcee.EnsembleSampler(walkers, post.dim, fn, vectorize=vectorize)
+    s = emcee.EnsembleSampler(walkers, post.dim, fn, vectorize=vectorize, moves=make_moves(SamplerSettings().moves))
     s.random_state = np.random.RandomState(SEED).get_state()
     return s, p0
 

@@ -16,12 +16,12 @@ def test_defaults_and_every_key() -> None:
     cfg = parse_config(
         {"scope": "channel", "phonemes": ["p", "tS"], "channels": ["LLO"], "noise": 0.12, "walkers": 40,
          "ensembles": 4, "chunk_steps": 250, "min_steps": 500, "max_steps": 9000, "seed": 3, "ball": 0.01,
-         "plots": False, "priors": {"LLO.p.k_r": [1.0, 0.05], "ULO.beta": [1, 0.2]}},
+         "plots": False, "moves": "stretch", "priors": {"LLO.p.k_r": [1.0, 0.05], "ULO.beta": [1, 0.2]}},
         SPEC,
     )
     assert (cfg.scope, cfg.phonemes, cfg.channels, cfg.noise, cfg.walkers, cfg.plots) == ("channel", ("p", "tS"), ("LLO",), 0.12, 40, False)
     s = cfg.settings
-    assert (s.n_ensembles, s.chunk_steps, s.min_steps, s.max_steps, s.seed, s.ball) == (4, 250, 500, 9000, 3, 0.01)
+    assert (s.n_ensembles, s.chunk_steps, s.min_steps, s.max_steps, s.seed, s.ball, s.moves) == (4, 250, 500, 9000, 3, 0.01, "stretch")
     assert cfg.priors == {"LLO": {"p.k_r": (1.0, 0.05)}, "ULO": {"beta": (1.0, 0.2)}}
 
 
@@ -38,6 +38,7 @@ def test_defaults_and_every_key() -> None:
         ({"priors": {"p.k_r": [1, 0.1]}}, r"\[mcmc\] priors.p.k_r: expected a key \"CHANNEL.phoneme.parameter\""),
         ({"priors": {"LLO.p.k_r": [1, 0]}}, r"\[mcmc\] priors.LLO.p.k_r: sd must be positive"),
         ({"priors": {"LLO.p.k_r": "1"}}, r"\[mcmc\] priors.LLO.p.k_r: expected \[mean, sd\]"),
+        ({"moves": "hmc"}, r"\[mcmc\] moves: 'hmc': expected one of de-snooker, stretch"),
         ({"phonemes": "p"}, r"\[mcmc\] phonemes: expected a list of strings"),
     ],
 )

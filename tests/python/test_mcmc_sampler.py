@@ -82,16 +82,17 @@ def _sigterm() -> None:
 
 
 @pytest.mark.parametrize("how", [_keyboard, _sigterm], ids=["ctrl-c", "sigterm"])
-def test_interrupted_run_loses_nothing_and_resumes(tmp_path: Path, how: Callable[[], None]) -> None:
+def test_interrupted_run_loses_nothing_and_resumes(tmp_path: Path, how: Callable[[], None], capsys: pytest.CaptureFixture[str]) -> None:
     if how is _sigterm and threading.current_thread() is not threading.main_thread():
         pytest.skip("signal handlers can only be installed from the main thread")
     full = sampler.run(gaussian, ball, NAMES, tmp_path / "full", settings(), progress=False, stop_when_converged=False)
-    # emcee calls log_prob twice per step (two half-ensembles) plus once at the start
+    # ensemble 0's first chunk (200 steps) takes a few hundred log_prob calls: cut well after it
     cut = sampler.run(_interrupting(2 * 250 + 1, how), ball, NAMES, tmp_path / "cut", settings(), progress=False, stop_when_converged=False)
     assert cut.interrupted and not cut.converged
     steps = [len(c) for c in cut.chains]
-    assert steps[0] == 200 and steps[1] == 49, steps  # chunk 0 of ens 0 done; ens 1 cut in its 50th step
+    assert steps[0] == 200 and 0 < steps[1] < 200, steps  # chunk 0 of ensemble 0 done; ensemble 1 cut
     assert len(list((tmp_path / "cut").glob("ens01_chunk*.npz"))) == 1  # the partial chunk was saved
+    assert "Exception while calling your likelihood" not in capsys.readouterr().out  # no parameter dump
     resumed = sampler.run(gaussian, ball, NAMES, tmp_path / "cut", settings(), progress=False, stop_when_converged=False)
     assert not resumed.interrupted
     for a, b in zip(full.chains, resumed.chains):

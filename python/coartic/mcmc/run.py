@@ -53,7 +53,7 @@ def parse_config(raw: Any, path: Path) -> McmcConfig:
         return McmcConfigError(f"{path}: [mcmc] {key}: {msg}")
 
     allowed = {"scope", "phonemes", "channels", "noise", "priors", "walkers", "ensembles", "chunk_steps", "min_steps",
-               "max_steps", "seed", "ball", "plots"}
+               "max_steps", "seed", "ball", "plots", "moves"}
     unknown = sorted(set(raw) - allowed)
     if unknown:
         raise err(", ".join(unknown), f"unknown key(s); allowed: {', '.join(sorted(allowed))}")
@@ -107,6 +107,10 @@ def parse_config(raw: Any, path: Path) -> McmcConfig:
     if isinstance(ball, bool) or not isinstance(ball, (int, float)) or not 0 < ball < 1:
         raise err("ball", f"expected a number in (0, 1), got {ball!r}")
     s.ball = float(ball)
+    moves = raw.get("moves", s.moves)
+    if moves not in sampler.MOVES:
+        raise err("moves", f"{moves!r}: expected one of {', '.join(sampler.MOVES)}")
+    s.moves = moves
     pl = raw.get("plots", True)
     if not isinstance(pl, bool):
         raise err("plots", f"expected true or false, got {pl!r}")
