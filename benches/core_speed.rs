@@ -121,6 +121,22 @@ fn main() {
         r.sort_by(|a, b| a.total_cmp(b));
         r[r.len() / 2]
     });
+    // The original model (eq. 1) with c = 1, where the power needs no ln/exp.
+    let mut p1 = p.clone();
+    for r in p1.chunks_exact_mut(N_PARAMS) {
+        r[Param::CBw.index()] = 1.0;
+        r[Param::CFw.index()] = 1.0;
+    }
+    let orig = ModelOptions {
+        variant: coartic::Variant::Original,
+        ..opts
+    };
+    let t_orig = time(reps, || {
+        evaluate(&corpus, &p1, beta, &orig, &mut out).unwrap()
+    });
+    let t_orig_limit = time(reps, || {
+        black_box(physical_limit_loop(&corpus, &p1, &orig));
+    });
     let w = 32;
     let batch: Vec<f64> = (0..w).flat_map(|_| p.iter().copied()).collect();
     let betas = vec![beta; w];
@@ -153,6 +169,11 @@ fn main() {
         "sse_gradient        {:9.3} ms   sse_grad / evaluate = {:.2}",
         t_grad * 1e3,
         t_grad / t_eval
+    );
+    println!(
+        "original, c = 1     {:9.3} ms   evaluate / limit   = {:.2}",
+        t_orig * 1e3,
+        t_orig / t_orig_limit
     );
     println!(
         "sse_batch W={w}      {:9.3} ms   per walker / evaluate = {:.2}",

@@ -36,14 +36,27 @@ pub struct LogDominance {
     pub ln_abs_tau: f64,
 }
 
-/// ln D for |τ| = `abs_tau` with the side's rate θ and exponent c (MODEL.md §2).
+/// |τ|^c as exp(c ln|τ|) given ln|τ|, and exactly |τ| for c = 1 (the original model's exponent,
+/// where the evaluator then needs no transcendental function for the power at all).
+#[inline(always)]
+fn power(c: f64, abs_tau: f64, ln_abs_tau: f64) -> f64 {
+    if c == 1.0 {
+        abs_tau
+    } else {
+        (c * ln_abs_tau).exp()
+    }
+}
+
+/// ln D for |τ| = `abs_tau` with the side's rate θ and exponent c (MODEL.md §2), with ln|τ|
+/// kept for ∂/∂c.
 ///
-/// |τ|^c is computed as exp(c ln|τ|): one logarithm per pair, shared with ∂/∂c.
+/// |τ|^c is computed as exp(c ln|τ|) (exactly |τ| for c = 1): one logarithm per pair, shared
+/// with ∂/∂c.
 #[inline(always)]
 pub fn log_dominance(log_alpha: f64, theta: f64, c: f64, abs_tau: f64) -> LogDominance {
     if abs_tau > 0.0 {
         let ln_abs_tau = abs_tau.ln();
-        let power = (c * ln_abs_tau).exp();
+        let power = power(c, abs_tau, ln_abs_tau);
         LogDominance {
             log_d: log_alpha - theta * power,
             power,
@@ -55,6 +68,21 @@ pub fn log_dominance(log_alpha: f64, theta: f64, c: f64, abs_tau: f64) -> LogDom
             power: 0.0,
             ln_abs_tau: 0.0,
         }
+    }
+}
+
+/// ln D alone, bit for bit equal to [`log_dominance`]`.log_d`, skipping ln|τ| when c = 1.
+#[inline(always)]
+pub fn log_dominance_value(log_alpha: f64, theta: f64, c: f64, abs_tau: f64) -> f64 {
+    if abs_tau > 0.0 {
+        let power = if c == 1.0 {
+            abs_tau
+        } else {
+            (c * abs_tau.ln()).exp()
+        };
+        log_alpha - theta * power
+    } else {
+        log_alpha
     }
 }
 
@@ -104,6 +132,24 @@ mod tests {
         let ld = log_dominance(0.3f64.ln(), 20.0, 0.7, 0.05);
         let direct = (0.3 * (-20.0 * 0.05f64.powf(0.7)).exp()).ln();
         assert!((ld.log_d - direct).abs() < 1e-13);
+    }
+
+    #[test]
+    fn value_only_form_is_bitwise_equal() {
+        for &(c, a) in &[
+            (1.0, 0.037),
+            (0.73, 0.2),
+            (2.4, 1e-5),
+            (1.0, 0.0),
+            (0.5, 0.0),
+        ] {
+            let full = log_dominance(0.2, 33.0, c, a).log_d;
+            assert_eq!(
+                full.to_bits(),
+                log_dominance_value(0.2, 33.0, c, a).to_bits()
+            );
+        }
+        assert_eq!(log_dominance(0.0, 10.0, 1.0, 0.25).power, 0.25);
     }
 
     #[test]

@@ -2,7 +2,7 @@
 //! and the evaluation of F(t) at its samples, MODEL.md eq. 1 / eq. 3, normalised in the log
 //! domain (log-sum-exp over segments) so that underflowing dominance never gives 0/0.
 
-use crate::dominance::log_dominance;
+use crate::dominance::log_dominance_value;
 use crate::params::{ModelOptions, Param, N_PARAMS};
 use crate::resistance::Resistance;
 use crate::shape::Shape;
@@ -139,7 +139,7 @@ impl Prepared {
             // R first: a pair beyond its extent costs no transcendental at all.
             let mut lw = res.log_value(a, ext, beta);
             if lw != f64::NEG_INFINITY {
-                lw += log_dominance(s.log_alpha, theta, c, a).log_d;
+                lw += log_dominance_value(s.log_alpha, theta, c, a);
                 if lw > max_lw {
                     max_lw = lw;
                 }
@@ -180,7 +180,8 @@ impl Prepared {
 
     /// The physical-limit loop for this utterance: the same (sample, segment) pairs as
     /// [`Prepared::value_at`], only the transcendental functions (ln|τ|, exp(c ln|τ|), the
-    /// weight exp, the shape exp where σ ≠ 0), summed into a checksum.
+    /// weight exp, the shape exp where σ ≠ 0; the power needs none where c = 1), summed into a
+    /// checksum.
     pub fn limit_checksum(&self, times: &[f64], res: Resistance, shape: Shape) -> f64 {
         let mut sum = 0.0;
         let shaped = !matches!(shape, Shape::None);
@@ -196,7 +197,8 @@ impl Prepared {
                 if !res.is_none() && a >= ext {
                     continue;
                 }
-                let power = (c * a.ln()).exp();
+                // Like the evaluator: no ln/exp for the power where c = 1.
+                let power = if c == 1.0 { a } else { (c * a.ln()).exp() };
                 sum += (s.log_alpha - theta * power).exp();
                 if shaped && s.sigma != 0.0 {
                     sum += (-s.psi * tau * tau).exp();
