@@ -7,13 +7,24 @@
 //!
 //! Entry points: build a [`Corpus`] (CSR layout of docs/ARCHITECTURE.md), then [`evaluate`],
 //! [`jacobian`], [`sse_gradient`], or the walker batches [`evaluate_batch`] and [`sse_batch`].
+//!
+//! Numerical conventions (MODEL.md §4):
+//! - F is normalised in the log domain (log-sum-exp over segments): no 0/0 where every
+//!   dominance underflows; a pair beyond its resistance extent (ρ = 0) is skipped.
+//! - u = |τ|/Δ by division, so next to a k_R = 1 phoneme the cut-off falls exactly on its target
+//!   and F(t_i) = T_i S_i(0) to the last bit.
+//! - At τ = 0 exactly, ∂/∂c has no ln|τ| term (it multiplies |τ|^c = 0) and the derivative of
+//!   |τ| through t_i (hence δ) is taken as 0: F has a kink there (one-sided slopes differ; for
+//!   c < 1 they are infinite).
+//! - ∂t_i/∂δ is 1 while the target time stays inside its segment, 0 where it is clamped.
+//! - The values returned with the Jacobian equal those of [`evaluate`] bit for bit.
 
 pub mod corpus;
 pub mod dominance;
 pub mod error;
 pub mod geometry;
-pub mod gradient;
-pub mod model;
+mod gradient;
+mod model;
 pub mod params;
 #[cfg(feature = "python")]
 mod python;
