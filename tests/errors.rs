@@ -456,3 +456,40 @@ fn evaluation_errors() {
         "{e:?}"
     );
 }
+
+/// θ|τ|^c overflowing to +∞ for every segment leaves no weight at all: an error naming the
+/// sample (never NaN), and +∞ for that walker in sse_batch.
+#[test]
+fn degenerate_weights_are_an_error_not_nan() {
+    let c = Corpus::new(
+        vec![0, 2],
+        vec![0, 1],
+        vec![0.0, 0.1],
+        vec![0.1, 0.2],
+        vec![0, 2],
+        vec![0.15, 50.0],
+        2,
+    )
+    .unwrap();
+    let p = flat(&[
+        row(0.0, 1.0, 1e306, 1e306, 3.0, 3.0, 0.5, 0.0, 1.0, 0.0),
+        row(5.0, 1.0, 1e306, 1e306, 3.0, 3.0, 0.5, 0.0, 1.0, 0.0),
+    ]);
+    let opts = ModelOptions {
+        variant: Variant::Original,
+        ..ModelOptions::default()
+    };
+    let mut out = vec![0.0; 2];
+    let e = evaluate(&c, &p, 1.0, &opts, &mut out).unwrap_err();
+    assert_eq!(
+        e,
+        ModelError::Degenerate {
+            utterance: 0,
+            sample: 1
+        }
+    );
+    assert!(jacobian(&c, &p, 1.0, &opts, &mut out).is_err());
+    let mut sse = vec![0.0; 1];
+    coartic::sse_batch(&c, &p, &[1.0], &opts, &[0.0, 0.0], &[1.0, 1.0], &mut sse).unwrap();
+    assert_eq!(sse[0], f64::INFINITY);
+}
