@@ -44,12 +44,9 @@ def stage_free_sets(problem: ChannelProblem, stages: Sequence[Sequence[str]]) ->
         if mask.any() or beta:
             if out and mask.sum() == out[-1][0].sum() and beta == out[-1][1]:
                 continue  # this stage frees nothing new
-            out.append((mask, beta, tuple(sorted(named & (set(PARAMETERS) | {"beta"}), key=_order))))
+            freed = [p for k, p in enumerate(PARAMETERS) if mask[:, k].any()] + (["beta"] if beta else [])
+            out.append((mask, beta, tuple(freed)))
     return out
-
-
-def _order(p: str) -> int:
-    return PARAMETERS.index(p) if p in PARAMETERS else len(PARAMETERS)
 
 
 def fit_staged(problem: ChannelProblem, engine: str, options: dict[str, Any], stages: Sequence[Sequence[str]] | None,
