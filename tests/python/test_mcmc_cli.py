@@ -126,3 +126,14 @@ def test_ctrl_c_in_the_command_saves_and_the_rerun_resumes(fitted: tuple[Path, P
     resumed = ChainStore(chains).load(0, 5, 12)[0]
     assert len(resumed) == len(saved) + 100
     np.testing.assert_array_equal(resumed[: len(saved)], saved)
+
+
+def test_a_table_fitted_to_other_data_is_refused(fitted: tuple[Path, Path], tmp_path: Path) -> None:
+    spec, fit = fitted
+    doc = json.loads((fit / "table.json").read_text())
+    doc["metadata"]["rmse"]["LLO"] *= 1.05  # as if the data had changed since the fit
+    stale = tmp_path / "stale.json"
+    stale.write_text(json.dumps(doc))
+    r = CliRunner().invoke(app, ["mcmc", str(spec), "--fit", str(stale), "--out", str(tmp_path / "o"), "--quiet"])
+    assert r.exit_code == 1 and "fitted to other data than the spec gives now" in r.output.replace("\n", " ")
+    assert not (tmp_path / "o" / "LLO").exists()

@@ -72,6 +72,7 @@ def mcmc_command(
     scope: Optional[str] = typer.Option(None, help="'phonemes' (one posterior per phoneme) or 'channel' (joint, slow)."),
     max_steps: Optional[int] = typer.Option(None, help="Override \\[mcmc] max_steps."),
     strict: bool = typer.Option(False, help="Exit with status 2 if any posterior has not converged."),
+    allow_stale_fit: bool = typer.Option(False, help="Sample even if the table's recorded RMSE does not match the data loaded now."),
     quiet: bool = typer.Option(False, help="No progress bars."),
 ) -> None:
     """Sample the posterior of the fitted parameters with emcee, check convergence, write intervals.
@@ -93,7 +94,7 @@ def mcmc_command(
         if max_steps is not None:
             cfg.settings.max_steps = max_steps
             cfg.settings.min_steps = min(cfg.settings.min_steps, max_steps)
-        outcome = run_job(fit_spec, cfg, find_table(fit), out, progress=not quiet)
+        outcome = run_job(fit_spec, cfg, find_table(fit), out, progress=not quiet, allow_stale=allow_stale_fit)
     except (ValueError, FileNotFoundError) as e:
         console.print(f"[bold red]error:[/] {escape(str(e))}")
         raise typer.Exit(1) from None
@@ -111,7 +112,30 @@ def mcmc_command(
         console.print(f"[green]All {len(runs)} posteriors converged.[/] Table with uncertainty: {out / 'table.json'}")
 
 
-def run_job(fit_spec: Any, cfg: Any, table_path: Path, out: Path, progress: bool = True) -> tuple[list[PosteriorRun], bool]:
+STALE_TOLERANCE = 0.01
+
+
+def check_fit_matches_data(table: Any, table_path: Path, channel: str, data: Any, packing: Any, options: Any,
+                           allow_stale: bool = False) -> None:
+    """Refuse a table fitted to other data: the RMSE at its values on the data loaded now must be
+    the RMSE the fit recorded (metadata.rmse), to 1 %. Otherwise the walkers would not start at the
+    optimum and every per-phoneme posterior would be conditioned on values that no longer fit."""
+    from coartic.mcmc.run import fixed_noise
+
+    recorded = (table.metadata or {}).get("rmse", {}).get(channel)
+    if recorded is None or allow_stale:
+        return
+    now = fixed_noise(data, packing, options)
+    if abs(now - recorded) > STALE_TOLERANCE * recorded:
+        raise ValueError(
+            f"{table_path}: fitted to other data than the spec gives now: on {channel} the RMSE at the table's "
+            f"values is {now:.4f} mm, the fit recorded {recorded:.4f} mm (metadata.rmse). Refit with coartic fit, "
+            "or pass --allow-stale-fit to sample anyway"
+        )
+
+
+def run_job(fit_spec: Any, cfg: Any, table_path: Path, out: Path, progress: bool = True,
+            allow_stale: bool = False) -> tuple[list[PosteriorRun], bool]:
     """Load the data and the table, sample every posterior, write table, summaries and report fragment."""
     from coartic.fit.data import load_utterances
     from coartic.fit.problem import ChannelData, build_packing, model_options
@@ -159,6 +183,7 @@ def run_job(fit_spec: Any, cfg: Any, table_path: Path, out: Path, progress: bool
         data = ChannelData.build(utterances, channel)
         start = table.to_matrix(channel, data.phonemes)
         packing = build_packing(fit_spec, data, start)
+        check_fit_matches_data(table, table_path, channel, data, packing, model_options(fit_spec), allow_stale)
         _, interrupted = channel_runs(channel, data, packing, model_options(fit_spec), cfg, out, progress, on_done=save)
         if interrupted:
             break
