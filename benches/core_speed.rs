@@ -4,8 +4,8 @@
 //! NumPy comparison and the Python-side overhead are in bench/core_speed.py.
 
 use coartic::{
-    evaluate, jacobian, physical_limit_loop, sse_batch, sse_gradient, Corpus, ModelOptions, Param,
-    N_PARAMS,
+    evaluate, jacobian, jacobian_values, physical_limit_loop, sse_batch, sse_gradient, Corpus,
+    ModelOptions, Param, N_PARAMS,
 };
 use std::hint::black_box;
 use std::time::Instant;
@@ -137,6 +137,11 @@ fn main() {
     let t_orig_limit = time(reps, || {
         black_box(physical_limit_loop(&corpus, &p1, &orig));
     });
+    // The values-only Jacobian into a reused buffer (the optimiser's loop).
+    let mut jdata = vec![0.0; corpus.jacobian_nnz()];
+    let t_jv = time(reps, || {
+        jacobian_values(&corpus, &p, beta, &opts, &mut vals, &mut jdata).unwrap();
+    });
     let w = 32;
     let batch: Vec<f64> = (0..w).flat_map(|_| p.iter().copied()).collect();
     let betas = vec![beta; w];
@@ -169,6 +174,11 @@ fn main() {
         "sse_gradient        {:9.3} ms   sse_grad / evaluate = {:.2}",
         t_grad * 1e3,
         t_grad / t_eval
+    );
+    println!(
+        "jacobian_values     {:9.3} ms   (reused buffer) / evaluate = {:.2}",
+        t_jv * 1e3,
+        t_jv / t_eval
     );
     println!(
         "original, c = 1     {:9.3} ms   evaluate / limit   = {:.2}",

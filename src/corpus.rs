@@ -37,6 +37,8 @@ pub struct Corpus {
     chunks: Vec<Range<usize>>,
     total_pairs: usize,
     max_segments: usize,
+    /// Row pointers of the Jacobian (its pattern depends only on the corpus).
+    jac_indptr: Vec<usize>,
 }
 
 fn check_offsets(what: &'static str, offsets: &[usize], len: usize) -> Result<(), ModelError> {
@@ -197,6 +199,15 @@ impl Corpus {
         if chunk_start < n_utt {
             chunks.push(chunk_start..n_utt);
         }
+        let mut jac_indptr = Vec::with_capacity(sample_times.len() + 1);
+        jac_indptr.push(0usize);
+        for u in 0..n_utt {
+            let row_nnz = (uniq_offsets[u + 1] - uniq_offsets[u]) * N_PARAMS + 1;
+            for _ in sample_offsets[u]..sample_offsets[u + 1] {
+                let last = jac_indptr[jac_indptr.len() - 1];
+                jac_indptr.push(last + row_nnz);
+            }
+        }
         Ok(Corpus {
             seg_offsets,
             seg_phoneme,
@@ -211,6 +222,7 @@ impl Corpus {
             chunks,
             total_pairs,
             max_segments,
+            jac_indptr,
         })
     }
 
@@ -437,7 +449,7 @@ pub struct SparseJacobian {
 
 /// The slices of one parallel task's rows: values, column indices, Jacobian data.
 type JacobianPieces<'a> = (
-    (&'a mut [f64], &'a mut [MaybeUninit<usize>]),
+    (&'a mut [f64], Option<&'a mut [MaybeUninit<usize>]>),
     &'a mut [MaybeUninit<f64>],
 );
 
@@ -459,92 +471,19 @@ pub fn jacobian(
         values_out.len(),
         corpus.n_samples(),
     )?;
-    let n_rows = corpus.n_samples();
-    let n_cols = corpus.n_phonemes * N_PARAMS + 1;
-    let mut indptr = Vec::with_capacity(n_rows + 1);
-    indptr.push(0usize);
-    for u in 0..corpus.n_utterances() {
-        let nnz = corpus.row_nnz(u);
-        for _ in corpus.samples(u) {
-            let last = *indptr.last().unwrap_or(&0);
-            indptr.push(last + nnz);
-        }
-    }
-    let nnz = indptr[n_rows];
+    let indptr = corpus.jac_indptr.clone();
+    let nnz = indptr[corpus.n_samples()];
     let mut indices: Vec<usize> = output_buffer(nnz);
     let mut data: Vec<f64> = output_buffer(nnz);
-    let res = opts.variant.resistance();
-    let shape = opts.variant.shape();
-    {
-        let chunk_ends = || corpus.chunks.iter().map(|c| corpus.sample_offsets[c.end]);
-        let value_pieces = split_at_ends(values_out, 0, chunk_ends());
-        let index_pieces = split_at_ends(
-            &mut indices.spare_capacity_mut()[..nnz],
-            0,
-            chunk_ends().map(|s| indptr[s]),
-        );
-        let data_pieces = split_at_ends(
-            &mut data.spare_capacity_mut()[..nnz],
-            0,
-            chunk_ends().map(|s| indptr[s]),
-        );
-        let indptr = &indptr;
-        let work = |(chunk, ((values, idx), dat)): (&Range<usize>, JacobianPieces)| -> Result<(), ModelError> {
-            let mut prep = Prepared::default();
-            let mut scratch = GradScratch::default();
-            let mut grads = UtteranceGrads::default();
-            let mut pattern: Vec<usize> = Vec::new();
-            let base = corpus.sample_offsets[chunk.start];
-            let nz_base = indptr[base];
-            for u in chunk.clone() {
-                let samples = corpus.samples(u);
-                if samples.is_empty() {
-                    continue;
-                }
-                corpus.prepare(&mut prep, u, params, opts);
-                let segs = corpus.segments(u);
-                let distinct = corpus.distinct(u);
-                let row_nnz = corpus.row_nnz(u);
-                pattern.clear();
-                for &p in distinct {
-                    pattern.extend((0..N_PARAMS).map(|k| p * N_PARAMS + k));
-                }
-                pattern.push(n_cols - 1);
-                let local = &corpus.seg_local[segs.clone()];
-                for n in samples {
-                    let row = indptr[n] - nz_base..indptr[n] - nz_base + row_nnz;
-                    for (dst, &src) in idx[row.clone()].iter_mut().zip(&pattern) {
-                        dst.write(src);
-                    }
-                    let value = scratch
-                        .value_at(&prep, corpus.sample_times[n], beta, res, shape)
-                        .ok_or(ModelError::Degenerate { utterance: u, sample: n })?;
-                    values[n - base] = value;
-                    // The derivatives are summed in a small buffer laid out like the row, then
-                    // written once: the output is fresh memory, where a second pass costs more
-                    // than the arithmetic.
-                    grads.reset(segs.len(), distinct.len());
-                    scratch.accumulate(&prep, 1.0, local, &mut grads);
-                    grads.finish(&prep, res, local);
-                    for (dst, &src) in dat[row].iter_mut().zip(&grads.row) {
-                        dst.write(src);
-                    }
-                }
-            }
-            Ok(())
-        };
-        let pieces = value_pieces.into_iter().zip(index_pieces).zip(data_pieces);
-        if corpus.parallel() {
-            corpus
-                .chunks
-                .par_iter()
-                .zip(pieces.collect::<Vec<_>>().into_par_iter())
-                .map(work)
-                .collect::<Result<(), ModelError>>()?;
-        } else {
-            corpus.chunks.iter().zip(pieces).try_for_each(work)?;
-        }
-    }
+    fill_jacobian(
+        corpus,
+        params,
+        beta,
+        opts,
+        values_out,
+        Some(&mut indices.spare_capacity_mut()[..nnz]),
+        &mut data.spare_capacity_mut()[..nnz],
+    )?;
     // SAFETY: the rows of all chunks tile 0..nnz (indptr is built from the same row counts the
     // workers write), every worker wrote every element of its rows, and all succeeded.
     unsafe {
@@ -552,12 +491,126 @@ pub fn jacobian(
         data.set_len(nnz);
     }
     Ok(SparseJacobian {
-        n_rows,
-        n_cols,
+        n_rows: corpus.n_samples(),
+        n_cols: corpus.n_phonemes * N_PARAMS + 1,
         indptr,
         indices,
         data,
     })
+}
+
+/// The Jacobian's values only, into a caller's buffer, for repeated calls (optimisers): the
+/// sparsity pattern depends only on the corpus ([`Corpus::jacobian_indptr`],
+/// [`Corpus::jacobian_indices`], equal to those [`jacobian`] returns), so reusing `data_out`
+/// saves allocating and first-touching tens of MB per call. `data_out` has
+/// [`Corpus::jacobian_nnz`] entries.
+pub fn jacobian_values(
+    corpus: &Corpus,
+    params: &[f64],
+    beta: f64,
+    opts: &ModelOptions,
+    values_out: &mut [f64],
+    data_out: &mut [f64],
+) -> Result<(), ModelError> {
+    validate_params(params, corpus.n_phonemes, beta, opts)?;
+    check_len(
+        "values_out (n_samples)",
+        values_out.len(),
+        corpus.n_samples(),
+    )?;
+    check_len(
+        "data_out (Jacobian nnz)",
+        data_out.len(),
+        corpus.jacobian_nnz(),
+    )?;
+    // SAFETY: f64 has no invalid bit patterns and no drop; the workers only write initialised
+    // values through this view.
+    let data = unsafe { &mut *(data_out as *mut [f64] as *mut [MaybeUninit<f64>]) };
+    fill_jacobian(corpus, params, beta, opts, values_out, None, data)
+}
+
+/// Writes values, Jacobian entries and (if given) column indices of every row, in parallel over
+/// chunks of utterances. On success every element of `indices` and `data` has been written.
+fn fill_jacobian(
+    corpus: &Corpus,
+    params: &[f64],
+    beta: f64,
+    opts: &ModelOptions,
+    values_out: &mut [f64],
+    indices: Option<&mut [MaybeUninit<usize>]>,
+    data: &mut [MaybeUninit<f64>],
+) -> Result<(), ModelError> {
+    let n_cols = corpus.n_phonemes * N_PARAMS + 1;
+    let indptr = &corpus.jac_indptr;
+    let res = opts.variant.resistance();
+    let shape = opts.variant.shape();
+    let chunk_ends = || corpus.chunks.iter().map(|c| corpus.sample_offsets[c.end]);
+    let value_pieces = split_at_ends(values_out, 0, chunk_ends());
+    let index_pieces: Vec<Option<&mut [MaybeUninit<usize>]>> = match indices {
+        Some(idx) => split_at_ends(idx, 0, chunk_ends().map(|s| indptr[s]))
+            .into_iter()
+            .map(Some)
+            .collect(),
+        None => corpus.chunks.iter().map(|_| None).collect(),
+    };
+    let data_pieces = split_at_ends(data, 0, chunk_ends().map(|s| indptr[s]));
+    let work = |(chunk, ((values, mut idx), dat)): (&Range<usize>, JacobianPieces)| -> Result<(), ModelError> {
+        let mut prep = Prepared::default();
+        let mut scratch = GradScratch::default();
+        let mut grads = UtteranceGrads::default();
+        let mut pattern: Vec<usize> = Vec::new();
+        let base = corpus.sample_offsets[chunk.start];
+        let nz_base = indptr[base];
+        for u in chunk.clone() {
+            let samples = corpus.samples(u);
+            if samples.is_empty() {
+                continue;
+            }
+            corpus.prepare(&mut prep, u, params, opts);
+            let segs = corpus.segments(u);
+            let distinct = corpus.distinct(u);
+            let row_nnz = corpus.row_nnz(u);
+            pattern.clear();
+            for &p in distinct {
+                pattern.extend((0..N_PARAMS).map(|k| p * N_PARAMS + k));
+            }
+            pattern.push(n_cols - 1);
+            let local = &corpus.seg_local[segs.clone()];
+            for n in samples {
+                let row = indptr[n] - nz_base..indptr[n] - nz_base + row_nnz;
+                if let Some(idx) = idx.as_deref_mut() {
+                    for (dst, &src) in idx[row.clone()].iter_mut().zip(&pattern) {
+                        dst.write(src);
+                    }
+                }
+                let value = scratch
+                    .value_at(&prep, corpus.sample_times[n], beta, res, shape)
+                    .ok_or(ModelError::Degenerate { utterance: u, sample: n })?;
+                values[n - base] = value;
+                // The derivatives are summed in a small buffer laid out like the row, then
+                // written once: the output is fresh memory, where a second pass costs more
+                // than the arithmetic.
+                grads.reset(segs.len(), distinct.len());
+                scratch.accumulate(&prep, 1.0, local, &mut grads);
+                grads.finish(&prep, res, local);
+                for (dst, &src) in dat[row].iter_mut().zip(&grads.row) {
+                    dst.write(src);
+                }
+            }
+        }
+        Ok(())
+    };
+    let pieces = value_pieces.into_iter().zip(index_pieces).zip(data_pieces);
+    if corpus.parallel() {
+        corpus
+            .chunks
+            .par_iter()
+            .zip(pieces.collect::<Vec<_>>().into_par_iter())
+            .map(work)
+            .collect::<Result<(), ModelError>>()
+    } else {
+        corpus.chunks.iter().zip(pieces).try_for_each(work)
+    }
 }
 
 /// Checks `observed` and `weights` (one per sample): weights finite and ≥ 0, observed finite
@@ -815,6 +868,32 @@ pub fn physical_limit_loop(corpus: &Corpus, params: &[f64], opts: &ModelOptions)
 }
 
 impl Corpus {
+    /// Row pointers of the Jacobian (length n_samples + 1), as [`jacobian`] returns them.
+    pub fn jacobian_indptr(&self) -> &[usize] {
+        &self.jac_indptr
+    }
+
+    /// Number of stored Jacobian entries (the length of `data_out` of [`jacobian_values`]).
+    pub fn jacobian_nnz(&self) -> usize {
+        self.jac_indptr[self.jac_indptr.len() - 1]
+    }
+
+    /// Column indices of the Jacobian, as [`jacobian`] returns them: every parameter of every
+    /// distinct phoneme of the row's utterance, then β; sorted within each row.
+    pub fn jacobian_indices(&self) -> Vec<usize> {
+        let n_cols = self.n_phonemes * N_PARAMS + 1;
+        let mut out = Vec::with_capacity(self.jacobian_nnz());
+        for u in 0..self.n_utterances() {
+            for _ in self.samples(u) {
+                for &p in self.distinct(u) {
+                    out.extend((0..N_PARAMS).map(|k| p * N_PARAMS + k));
+                }
+                out.push(n_cols - 1);
+            }
+        }
+        out
+    }
+
     /// Largest number of segments in one utterance.
     pub fn max_segments(&self) -> usize {
         self.max_segments

@@ -33,8 +33,8 @@ pub mod shape;
 pub mod targets;
 
 pub use corpus::{
-    evaluate, evaluate_batch, jacobian, physical_limit_loop, sse_batch, sse_gradient, Corpus,
-    SparseJacobian,
+    evaluate, evaluate_batch, jacobian, jacobian_values, physical_limit_loop, sse_batch,
+    sse_gradient, Corpus, SparseJacobian,
 };
 pub use error::ModelError;
 pub use params::{validate_params, ModelOptions, Param, UnknownVariant, Variant, N_PARAMS};

@@ -3,8 +3,8 @@
 
 mod common;
 use coartic::{
-    evaluate_batch, jacobian, sse_batch, sse_gradient, Corpus, ModelError, ModelOptions, Param,
-    N_PARAMS,
+    evaluate_batch, jacobian, jacobian_values, sse_batch, sse_gradient, Corpus, ModelError,
+    ModelOptions, Param, N_PARAMS,
 };
 use common::*;
 use proptest::prelude::*;
@@ -130,6 +130,30 @@ proptest! {
         sse_batch(&c, &bad, &betas, &opts, &observed, &weights, &mut sse).unwrap();
         prop_assert_eq!(sse[1], f64::INFINITY);
         prop_assert!(sse[0].is_finite() && sse[2].is_finite());
+    }
+}
+
+proptest! {
+    #![proptest_config(ProptestConfig { cases: 4, ..ProptestConfig::default() })]
+
+    /// jacobian_values into a reused buffer equals jacobian(), whose pattern is the corpus's.
+    #[test]
+    fn jacobian_values_reuse_the_pattern(models in prop::collection::vec(model_strategy(7), 200), rows in prop::collection::vec(row_strategy(), 5)) {
+        let opts = ModelOptions::default();
+        let (c, _) = big_corpus(&models, 5, 30);
+        let params = flat(&rows);
+        let mut v1 = vec![0.0; c.n_samples()];
+        let j = jacobian(&c, &params, 0.8, &opts, &mut v1).unwrap();
+        prop_assert_eq!(&j.indptr[..], c.jacobian_indptr());
+        prop_assert_eq!(&j.indices, &c.jacobian_indices());
+        prop_assert_eq!(c.jacobian_nnz(), j.data.len());
+        let mut v2 = vec![0.0; c.n_samples()];
+        let mut data = vec![f64::NAN; c.jacobian_nnz()];
+        jacobian_values(&c, &params, 0.8, &opts, &mut v2, &mut data).unwrap();
+        prop_assert!(first_difference(&data, &j.data).is_none(), "{:?}", first_difference(&data, &j.data));
+        prop_assert!(first_difference(&v1, &v2).is_none());
+        let e = jacobian_values(&c, &params, 0.8, &opts, &mut v2, &mut data[1..]).unwrap_err();
+        prop_assert!(matches!(e, ModelError::LengthMismatch { .. }), "{:?}", e);
     }
 }
 
