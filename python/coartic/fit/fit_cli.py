@@ -92,6 +92,9 @@ def fit_command(
         except KeyboardInterrupt:
             console.print("[yellow]validation interrupted[/yellow]")
             val = None
+        except ValueError as e:  # e.g. no repetition or rate to hold out: said, not raised
+            console.print(f"[yellow]no validation:[/yellow] {escape(str(e))}", soft_wrap=True)
+            val = None
         if val is not None:
             from coartic.fit.validate import validation_table
 
