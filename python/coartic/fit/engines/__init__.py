@@ -59,13 +59,16 @@ class Unit:
 
     def __init__(self, lo: NDArray[np.float64], hi: NDArray[np.float64]) -> None:
         finite = np.isfinite(lo) & np.isfinite(hi)
+        self.bound_lo, self.bound_hi = lo, hi
         self.lo = np.where(finite, lo, 0.0)
         self.width = np.where(finite, hi - lo, 1.0)
         self.z_lo = np.where(finite, 0.0, lo)
         self.z_hi = np.where(finite, 1.0, hi)
 
     def x(self, z: NDArray[np.float64]) -> NDArray[np.float64]:
-        return self.lo + self.width * np.asarray(z)
+        # Clipped: interior-point methods relax bounds by ~1e-8 and lo + width*1 can round past hi;
+        # the core rightly refuses k_R = 1 + 1e-16.
+        return np.clip(self.lo + self.width * np.asarray(z), self.bound_lo, self.bound_hi)
 
     def z(self, x: NDArray[np.float64]) -> NDArray[np.float64]:
         return (np.asarray(x) - self.lo) / self.width
