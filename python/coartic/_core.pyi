@@ -20,6 +20,7 @@ __all__ = [
     "evaluate_batch",
     "head_frame",
     "jacobian",
+    "jacobian_values",
     "marker_channels",
     "physical_limit_loop",
     "sse_batch",
@@ -52,6 +53,12 @@ class Corpus:
     def n_segments(self) -> int: ...
     @property
     def n_phonemes(self) -> int: ...
+    @property
+    def jacobian_nnz(self) -> int:
+        """Number of stored Jacobian entries: the length of ``data_out`` of ``jacobian_values``."""
+    def jacobian_pattern(self) -> tuple[npt.NDArray[np.int64], npt.NDArray[np.int64]]:
+        """(indptr, indices) of the CSR Jacobian, equal to those ``jacobian`` returns. Built once
+        per corpus; the same read-only arrays on every call."""
 
 @final
 class ModelOptions:
@@ -74,6 +81,19 @@ def jacobian(
     corpus: Corpus, params: npt.NDArray[np.float64], beta: float, options: ModelOptions
 ) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.int64], npt.NDArray[np.int64], npt.NDArray[np.float64]]:
     """(values, indptr, indices, data): CSR Jacobian of shape (n_samples, n_phonemes*10 + 1)."""
+
+def jacobian_values(
+    corpus: Corpus,
+    params: npt.NDArray[np.float64],
+    beta: float,
+    options: ModelOptions,
+    values_out: npt.NDArray[np.float64] | None = None,
+    data_out: npt.NDArray[np.float64] | None = None,
+) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.float64]]:
+    """(values, data) of the Jacobian whose pattern is ``corpus.jacobian_pattern()``, bit for bit
+    those of ``jacobian``. Given buffers (float64, C-contiguous, writeable, aligned, shapes
+    [n_samples] and [corpus.jacobian_nnz], no memory shared with params or each other) are filled
+    in place and returned as they are: nothing is allocated. On error they hold partial results."""
 
 def sse_gradient(
     corpus: Corpus,

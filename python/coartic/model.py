@@ -3,7 +3,7 @@
 This is what the animation runtime, the corpus generator and the fitting code call. The heavy
 lifting is in the Rust core (``coartic._core``); this module turns labels into phoneme rows,
 checks segment lists with messages that name the utterance and label at fault, and wraps the
-core's CSR Jacobian as a ``scipy.sparse.csr_matrix``.
+core's CSR Jacobian as a ``scipy.sparse.csr_matrix`` (``JacobianBuffer``, refilled in place).
 """
 
 from __future__ import annotations
@@ -135,6 +135,44 @@ def model_options(table: ParameterTable, channel: str) -> _core.ModelOptions:
     return _core.ModelOptions(table.variant, cs.apex_fraction, cs.edge_extent)
 
 
+class JacobianBuffer:
+    """The Jacobian of one corpus as a ``scipy.sparse.csr_matrix``, refilled in place.
+
+    The sparsity pattern depends only on the corpus, so it is built once here; every
+    ``compute`` writes the values and the Jacobian's entries into the same arrays
+    (``_core.jacobian_values``), allocating nothing: an optimiser's loop then costs about two
+    evaluations per Jacobian instead of allocating tens of MB each time.
+
+    ``compute`` returns ``(values, matrix)``: the buffer's own arrays, overwritten by the next
+    ``compute`` (copy them to keep them). Treat ``matrix`` as read-only; operations that change
+    its structure in place (``eliminate_zeros``, ``sum_duplicates``) would detach its data from
+    the buffer.
+
+    Examples
+    --------
+    >>> buf = JacobianBuffer(corpus)
+    >>> for params, beta in steps:                      # doctest: +SKIP
+    ...     values, jac = buf.compute(params, beta, options)
+    """
+
+    def __init__(self, corpus: _core.Corpus) -> None:
+        self.corpus = corpus
+        indptr, indices = corpus.jacobian_pattern()
+        self.values: F64 = np.empty(corpus.n_samples)
+        self.data: F64 = np.empty(corpus.jacobian_nnz)
+        shape = (corpus.n_samples, corpus.n_phonemes * N_PARAMS + 1)
+        self.matrix = sp.csr_matrix((self.data, indices, indptr), shape=shape)
+        # SciPy may keep a view or a copy of the data; the buffer must be the matrix's storage.
+        self.matrix.data = self.data
+
+    def compute(self, params: F64, beta: float, options: _core.ModelOptions) -> tuple[F64, sp.csr_matrix]:
+        """Values F [n_samples] and the Jacobian (n_samples, n_phonemes*10 + 1) at ``params``
+        [n_phonemes, 10] and ``beta``; the core's ValueError if they are invalid (the buffer then
+        holds partial results)."""
+        _core.jacobian_values(self.corpus, params, beta, options, self.values, self.data)
+        return self.values, self.matrix
+
+
 def jacobian_columns(phonemes: Sequence[str]) -> list[str]:
     """Names of the Jacobian columns: ``"<phoneme>.<parameter>"`` for every row, then ``"beta"``."""
     return [f"{p}.{name}" for p in phonemes for name in PARAMETERS] + ["beta"]
@@ -254,9 +292,7 @@ def trajectories(
         opts = model_options(table, ch)
         try:
             if jacobian:
-                values, indptr, indices, data = _core.jacobian(corpus, params, beta, opts)
-                jac = sp.csr_matrix((data, indices, indptr), shape=(corpus.n_samples, len(phonemes) * N_PARAMS + 1))
-                out_j[ch] = (values, jac)
+                out_j[ch] = JacobianBuffer(corpus).compute(params, beta, opts)
             else:
                 out[ch] = _core.evaluate(corpus, params, beta, opts)
         except ValueError as err:
@@ -302,8 +338,7 @@ def segment_weights(
     seg_names = [f"{lab}@{i}" for i, lab in enumerate(labels)]
     corpus = build_corpus([Utterance(seg_names, starts, ends, times)], seg_names)
     try:
-        _, indptr, indices, data = _core.jacobian(corpus, per_segment, beta, model_options(table, channel))
+        _, jac = JacobianBuffer(corpus).compute(per_segment, beta, model_options(table, channel))
     except ValueError as err:
         raise _named(err, channel, seg_names) from None
-    jac = sp.csr_matrix((data, indices, indptr), shape=(corpus.n_samples, len(labels) * N_PARAMS + 1))
     return np.asarray(jac[:, 0 : len(labels) * N_PARAMS : N_PARAMS].toarray().T)

@@ -11,11 +11,12 @@ use std::borrow::Cow;
 
 use numpy::ndarray::{Array2, Array3};
 use numpy::{
-    Element, IntoPyArray, PyArray1, PyArray2, PyArray3, PyArrayDyn, PyArrayMethods,
-    PyReadonlyArrayDyn, PyUntypedArray, PyUntypedArrayMethods,
+    BorrowError, Element, IntoPyArray, PyArray1, PyArray2, PyArray3, PyArrayDyn, PyArrayMethods,
+    PyReadonlyArrayDyn, PyReadwriteArrayDyn, PyUntypedArray, PyUntypedArrayMethods,
 };
 use pyo3::exceptions::{PyTypeError, PyValueError};
 use pyo3::prelude::*;
+use pyo3::sync::PyOnceLock;
 
 use crate::geometry::{self, GeometryError, N_CHANNELS, N_MARKERS};
 use crate::{ModelError, Variant, N_PARAMS};
@@ -46,14 +47,57 @@ fn array<'py, T: Element>(
             .try_readonly()
             .map_err(|e| PyValueError::new_err(format!("argument '{name}': {e}")));
     }
-    let got = match obj.cast::<PyUntypedArray>() {
+    Err(PyTypeError::new_err(format!(
+        "argument '{name}' must be a numpy.ndarray of dtype {dtype}, got {} \
+         (convert with numpy.asarray(..., dtype=numpy.{dtype}))",
+        what_is(obj)?
+    )))
+}
+
+/// What `obj` is, for a TypeError: "an array of dtype float32", "list".
+fn what_is(obj: &Bound<'_, PyAny>) -> PyResult<String> {
+    Ok(match obj.cast::<PyUntypedArray>() {
         Ok(a) => format!("an array of dtype {}", a.dtype()),
         Err(_) => format!("{}", obj.get_type().name()?),
+    })
+}
+
+/// A caller's output buffer, filled in place: a writeable, aligned, C-contiguous float64 array of
+/// shape (len,) that shares no memory with another argument of the call. Anything else is refused
+/// (TypeError for the type or dtype, ValueError otherwise): a silent copy would leave the
+/// caller's array unfilled.
+fn out_buffer<'py>(
+    obj: &Bound<'py, PyAny>,
+    name: &str,
+    len: usize,
+    meaning: &str,
+) -> PyResult<PyReadwriteArrayDyn<'py, f64>> {
+    let Ok(a) = obj.cast::<PyArrayDyn<f64>>() else {
+        return Err(PyTypeError::new_err(format!(
+            "argument '{name}' must be a numpy.ndarray of dtype float64 to fill in place, got \
+             {}; pass numpy.empty({len})",
+            what_is(obj)?
+        )));
     };
-    Err(PyTypeError::new_err(format!(
-        "argument '{name}' must be a numpy.ndarray of dtype {dtype}, got {got} \
-         (convert with numpy.asarray(..., dtype=numpy.{dtype}))"
-    )))
+    shape_ok(name, a.shape(), &[Some(len)], meaning)?;
+    let refuse = |why: &str| {
+        Err(PyValueError::new_err(format!(
+            "argument '{name}' {why}; pass numpy.empty({len}) (float64, C-contiguous, writeable)"
+        )))
+    };
+    if !a.is_c_contiguous() {
+        return refuse("is not C-contiguous (a strided view cannot be filled in place)");
+    }
+    if !a.is_aligned() {
+        return refuse("is not aligned to 8 bytes");
+    }
+    match a.try_readwrite() {
+        Ok(rw) => Ok(rw),
+        Err(BorrowError::NotWriteable) => refuse("is read-only"),
+        Err(_) => refuse(
+            "shares memory with another argument of this call (params, values_out, data_out)",
+        ),
+    }
 }
 
 /// Check the shape: `expected[i] = None` accepts any length on axis i.
@@ -63,7 +107,16 @@ fn check_shape<T: Element>(
     expected: &[Option<usize>],
     meaning: &str,
 ) -> PyResult<()> {
-    let shape = a.shape();
+    shape_ok(name, a.shape(), expected, meaning)
+}
+
+/// The shape test of [`check_shape`] on a bare shape.
+fn shape_ok(
+    name: &str,
+    shape: &[usize],
+    expected: &[Option<usize>],
+    meaning: &str,
+) -> PyResult<()> {
     let ok = shape.len() == expected.len()
         && shape
             .iter()
@@ -132,10 +185,17 @@ fn index_vec(obj: &Bound<'_, PyAny>, name: &str) -> PyResult<Vec<usize>> {
         .collect()
 }
 
+/// The Jacobian's CSR (indptr, indices), int64.
+type Pattern = (Py<PyArray1<i64>>, Py<PyArray1<i64>>);
+type BoundPattern<'py> = (Bound<'py, PyArray1<i64>>, Bound<'py, PyArray1<i64>>);
+
 /// Many utterances in CSR form, validated once (docs/ARCHITECTURE.md, "Corpus layout").
 #[pyclass(module = "coartic._core", frozen)]
 pub struct Corpus {
     inner: crate::Corpus,
+    /// The Jacobian's (indptr, indices), read-only, built on first request: it depends only on
+    /// the corpus, so a fitting loop asks once and refills only the values.
+    pattern: PyOnceLock<Pattern>,
 }
 
 #[pymethods]
@@ -172,7 +232,37 @@ impl Corpus {
                 )
             })
             .map_err(model_err)?;
-        Ok(Corpus { inner })
+        Ok(Corpus {
+            inner,
+            pattern: PyOnceLock::new(),
+        })
+    }
+
+    /// Number of stored Jacobian entries (the length of `data_out` of `jacobian_values`).
+    #[getter]
+    fn jacobian_nnz(&self) -> usize {
+        self.inner.jacobian_nnz()
+    }
+
+    /// The Jacobian's sparsity pattern (indptr, indices), equal to those `jacobian` returns.
+    /// Built once per corpus and returned read-only, the same arrays on every call.
+    fn jacobian_pattern<'py>(&self, py: Python<'py>) -> PyResult<BoundPattern<'py>> {
+        let (indptr, indices) = self.pattern.get_or_try_init(py, || -> PyResult<_> {
+            let (indptr, indices) = py.detach(|| {
+                (
+                    as_i64(self.inner.jacobian_indptr().to_vec()),
+                    as_i64(self.inner.jacobian_indices()),
+                )
+            });
+            let frozen = |v: Vec<i64>| -> PyResult<Py<PyArray1<i64>>> {
+                let a = v.into_pyarray(py);
+                // Shared by every caller: nobody may edit it under another's CSR matrix.
+                a.getattr("flags")?.setattr("writeable", false)?;
+                Ok(a.unbind())
+            };
+            Ok((frozen(indptr)?, frozen(indices)?))
+        })?;
+        Ok((indptr.bind(py).clone(), indices.bind(py).clone()))
     }
 
     #[getter]
@@ -299,6 +389,12 @@ fn evaluate<'py>(
     Ok(out.into_pyarray(py))
 }
 
+/// SciPy indexes with signed integers. Same size and alignment, so the collect reuses the
+/// allocation; an index beyond i64 would need more memory than exists.
+fn as_i64(v: Vec<usize>) -> Vec<i64> {
+    v.into_iter().map(|x| x as i64).collect()
+}
+
 type JacobianTuple<'py> = (
     Bound<'py, PyArray1<f64>>,
     Bound<'py, PyArray1<i64>>,
@@ -321,14 +417,46 @@ fn jacobian<'py>(
     let jac = py
         .detach(|| crate::jacobian(&corpus.inner, &p, beta, &options.inner, &mut values))
         .map_err(model_err)?;
-    // SciPy indexes with signed integers; usize → i64 is the one unavoidable copy.
-    let as_i64 = |v: Vec<usize>| -> Vec<i64> { v.into_iter().map(|x| x as i64).collect() };
     Ok((
         values.into_pyarray(py),
         as_i64(jac.indptr).into_pyarray(py),
         as_i64(jac.indices).into_pyarray(py),
         jac.data.into_pyarray(py),
     ))
+}
+
+/// Values and the Jacobian's entries only (the pattern is `Corpus.jacobian_pattern()`), written
+/// into `values_out` [n_samples] and `data_out` [jacobian_nnz] when given (nothing allocated: a
+/// fitting loop reuses them) or into new arrays. Returns the two arrays filled (the very objects
+/// passed). On error the buffers hold partial results.
+#[pyfunction]
+#[pyo3(signature = (corpus, params, beta, options, values_out = None, data_out = None))]
+fn jacobian_values<'py>(
+    py: Python<'py>,
+    corpus: &Corpus,
+    params: &Bound<'py, PyAny>,
+    beta: f64,
+    options: &ModelOptions,
+    values_out: Option<Bound<'py, PyAny>>,
+    data_out: Option<Bound<'py, PyAny>>,
+) -> PyResult<(Bound<'py, PyAny>, Bound<'py, PyAny>)> {
+    let (n, nnz) = (corpus.inner.n_samples(), corpus.inner.jacobian_nnz());
+    let fresh = |len: usize| PyArray1::<f64>::zeros(py, len, false).into_any();
+    let values_out = values_out.unwrap_or_else(|| fresh(n));
+    let data_out = data_out.unwrap_or_else(|| fresh(nnz));
+    let p = params_of(params, corpus)?;
+    let mut v = out_buffer(&values_out, "values_out", n, "[n_samples of the corpus]")?;
+    let mut d = out_buffer(&data_out, "data_out", nnz, "[corpus.jacobian_nnz]")?;
+    let p = data(&p);
+    let as_slice = |e| PyValueError::new_err(format!("output buffer: {e}"));
+    let (vs, ds) = (
+        v.as_slice_mut().map_err(as_slice)?,
+        d.as_slice_mut().map_err(as_slice)?,
+    );
+    py.detach(|| crate::jacobian_values(&corpus.inner, &p, beta, &options.inner, vs, ds))
+        .map_err(model_err)?;
+    drop((v, d));
+    Ok((values_out, data_out))
 }
 
 /// (SSE, dSSE/dparams flattened [n_phonemes·10], dSSE/dβ) with SSE = Σ w (y − F)².
@@ -511,6 +639,7 @@ fn _core(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_class::<ModelOptions>()?;
     m.add_function(wrap_pyfunction!(evaluate, m)?)?;
     m.add_function(wrap_pyfunction!(jacobian, m)?)?;
+    m.add_function(wrap_pyfunction!(jacobian_values, m)?)?;
     m.add_function(wrap_pyfunction!(sse_gradient, m)?)?;
     m.add_function(wrap_pyfunction!(evaluate_batch, m)?)?;
     m.add_function(wrap_pyfunction!(sse_batch, m)?)?;
