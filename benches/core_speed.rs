@@ -7,6 +7,7 @@ use coartic::{
     evaluate, jacobian, jacobian_values, physical_limit_loop, sse_batch, sse_gradient, Corpus,
     ModelOptions, Param, N_PARAMS,
 };
+use coartic::vector_math::{exp, exp_in_place, ln, ln_in_place, simd_enabled};
 use std::hint::black_box;
 use std::time::Instant;
 
@@ -96,6 +97,7 @@ fn main() {
         println!("jacobian {:.3} ms", t * 1e3);
         return;
     }
+    kernel_speed(&mut rng);
     let mut vals = vec![0.0; ns];
     evaluate(&corpus, &p, beta, &opts, &mut out).unwrap();
     let observed: Vec<f64> = out.iter().map(|v| v + 0.1).collect();
@@ -189,5 +191,40 @@ fn main() {
         "sse_batch W={w}      {:9.3} ms   per walker / evaluate = {:.2}",
         t_batch * 1e3,
         t_batch / w as f64 / t_eval
+    );
+}
+
+/// ns per value of std's exp/ln (libm), the scalar kernels and the lane path, over arguments like
+/// the model's (exp of c ln|τ| and of log-weights; ln of |τ|), single-threaded.
+fn kernel_speed(rng: &mut Rng) {
+    let n = 1 << 16;
+    let ex: Vec<f64> = (0..n).map(|_| rng.range(-30.0, 2.0)).collect();
+    let lx: Vec<f64> = (0..n).map(|_| rng.range(1e-4, 1.5)).collect();
+    let per = |t: f64| t / n as f64 * 1e9;
+    let mut buf = ex.clone();
+    let t_std = time(21, || buf.iter_mut().zip(&ex).for_each(|(b, &x)| *b = black_box(x).exp()));
+    let t_scalar = time(21, || buf.iter_mut().zip(&ex).for_each(|(b, &x)| *b = exp(black_box(x))));
+    let t_lanes = time(21, || {
+        buf.copy_from_slice(&ex);
+        exp_in_place(black_box(&mut buf));
+    });
+    println!(
+        "exp per value: std {:.2} ns, scalar kernel {:.2} ns, lanes {:.2} ns (AVX2 {})",
+        per(t_std),
+        per(t_scalar),
+        per(t_lanes),
+        if simd_enabled() { "on" } else { "off" }
+    );
+    let t_std = time(21, || buf.iter_mut().zip(&lx).for_each(|(b, &x)| *b = black_box(x).ln()));
+    let t_scalar = time(21, || buf.iter_mut().zip(&lx).for_each(|(b, &x)| *b = ln(black_box(x))));
+    let t_lanes = time(21, || {
+        buf.copy_from_slice(&lx);
+        ln_in_place(black_box(&mut buf));
+    });
+    println!(
+        "ln  per value: std {:.2} ns, scalar kernel {:.2} ns, lanes {:.2} ns",
+        per(t_std),
+        per(t_scalar),
+        per(t_lanes)
     );
 }

@@ -789,6 +789,7 @@ fn sse_unchecked(
     let shape = opts.variant.shape();
     let parts = corpus.map_chunks(|chunk| -> Option<f64> {
         let mut prep = Prepared::default();
+        let mut f = Vec::new();
         let mut sse = 0.0;
         for u in chunk {
             let samples = corpus.samples(u);
@@ -796,13 +797,23 @@ fn sse_unchecked(
                 continue;
             }
             corpus.prepare(&mut prep, u, params, opts);
-            for n in samples {
-                let w = weights[n];
-                if w == 0.0 {
-                    continue;
+            f.resize(samples.len(), 0.0);
+            let (w, y) = (&weights[samples.clone()], &observed[samples.clone()]);
+            // A degenerate sample only matters where it is weighted.
+            prep.evaluate_with(
+                &corpus.sample_times[samples],
+                beta,
+                res,
+                shape,
+                &mut f,
+                |n| if w[n] == 0.0 { Ok(()) } else { Err(()) },
+            )
+            .ok()?;
+            for ((&w, &y), &f) in w.iter().zip(y).zip(&f) {
+                if w != 0.0 {
+                    let r = y - f;
+                    sse += w * r * r;
                 }
-                let r = observed[n] - prep.value_at(corpus.sample_times[n], beta, res, shape)?;
-                sse += w * r * r;
             }
         }
         Some(sse)

@@ -4,6 +4,8 @@
 //! The core works with ln D because the normalisation of eq. 1 / eq. 3 is a log-sum-exp: when
 //! θ|τ|^c is large, D underflows to 0 but ln D stays exact.
 
+use crate::vector_math::{exp, ln};
+
 /// Which side of its target time a sample lies on.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum Side {
@@ -43,7 +45,7 @@ fn power(c: f64, abs_tau: f64, ln_abs_tau: f64) -> f64 {
     if c == 1.0 {
         abs_tau
     } else {
-        (c * ln_abs_tau).exp()
+        exp(c * ln_abs_tau)
     }
 }
 
@@ -51,11 +53,12 @@ fn power(c: f64, abs_tau: f64, ln_abs_tau: f64) -> f64 {
 /// kept for ∂/∂c.
 ///
 /// |τ|^c is computed as exp(c ln|τ|) (exactly |τ| for c = 1): one logarithm per pair, shared
-/// with ∂/∂c.
+/// with ∂/∂c. Through the [`crate::vector_math`] kernels, like the vectorised evaluator, so
+/// that both give the same bits.
 #[inline(always)]
 pub fn log_dominance(log_alpha: f64, theta: f64, c: f64, abs_tau: f64) -> LogDominance {
     if abs_tau > 0.0 {
-        let ln_abs_tau = abs_tau.ln();
+        let ln_abs_tau = ln(abs_tau);
         let power = power(c, abs_tau, ln_abs_tau);
         LogDominance {
             log_d: log_alpha - theta * power,
@@ -78,7 +81,7 @@ pub fn log_dominance_value(log_alpha: f64, theta: f64, c: f64, abs_tau: f64) -> 
         let power = if c == 1.0 {
             abs_tau
         } else {
-            (c * abs_tau.ln()).exp()
+            exp(c * ln(abs_tau))
         };
         log_alpha - theta * power
     } else {

@@ -167,7 +167,7 @@ impl GradScratch {
             if !pair.active {
                 continue;
             }
-            let w = (pair.log_w - max_lw).exp();
+            let w = crate::vector_math::exp(pair.log_w - max_lw);
             if w == 0.0 {
                 // Underflowed: contributes nothing, and its derivative factors may be huge.
                 pair.active = false;

@@ -31,6 +31,7 @@ mod python;
 pub mod resistance;
 pub mod shape;
 pub mod targets;
+pub mod vector_math;
 
 pub use corpus::{
     evaluate, evaluate_batch, jacobian, jacobian_values, physical_limit_loop, sse_batch,

@@ -2,11 +2,17 @@
 //! and the evaluation of F(t) at its samples, MODEL.md eq. 1 / eq. 3, normalised in the log
 //! domain (log-sum-exp over segments) so that underflowing dominance never gives 0/0.
 
-use crate::dominance::log_dominance_value;
 use crate::params::{ModelOptions, Param, N_PARAMS};
 use crate::resistance::Resistance;
 use crate::shape::Shape;
 use crate::targets::target_time;
+#[cfg(target_arch = "x86_64")]
+use crate::vector_math::{simd_enabled, F64x4};
+use crate::vector_math::{exp_lanes, ln_lanes, Lanes};
+
+/// Lanes of the widest evaluation path (AVX2: four f64); the per-segment scratch holds this many
+/// values per segment whatever path runs.
+const LANES: usize = 4;
 
 /// Everything about one segment that the inner loop reads, laid out together.
 #[derive(Clone, Copy, Debug, Default)]
@@ -45,7 +51,8 @@ pub(crate) struct Prepared {
     pub k: Vec<f64>,
     pub ext_fwd: Vec<f64>,
     pub ext_bwd: Vec<f64>,
-    /// Per-sample scratch: ln(R·D) of each segment, −∞ where the pair is skipped.
+    /// Per-block scratch: ln(R·D) of each segment at each lane (segment-major, [`LANES`] per
+    /// segment), −∞ where the pair is skipped.
     pub log_w: Vec<f64>,
 }
 
@@ -101,7 +108,7 @@ impl Prepared {
         }
         self.ext_fwd.resize(n, 0.0);
         self.ext_bwd.resize(n, 0.0);
-        self.log_w.resize(n, 0.0);
+        self.log_w.resize(n * LANES, 0.0);
         res.extents(
             &self.t,
             &self.k,
@@ -124,46 +131,152 @@ impl Prepared {
         }
     }
 
-    /// F at one time (eq. 1 or eq. 3); `None` only if every segment's weight is zero.
-    #[inline]
-    pub fn value_at(&mut self, time: f64, beta: f64, res: Resistance, shape: Shape) -> Option<f64> {
-        let mut max_lw = f64::NEG_INFINITY;
-        for (s, lw_out) in self.seg.iter().zip(self.log_w.iter_mut()) {
-            let tau = time - s.t;
+    /// F at the lanes of `time` (eq. 1 or eq. 3), with the lanes where every segment's weight is
+    /// zero (degenerate: F undefined there). The same operation sequence per lane whatever the
+    /// lane count, so the scalar and AVX2 instantiations agree bit for bit with each other and
+    /// with [`crate::gradient::GradScratch::value_at`].
+    #[inline(always)]
+    fn lanes_at<V: Lanes>(
+        &mut self,
+        time: V,
+        beta: f64,
+        res: Resistance,
+        shape: Shape,
+    ) -> (V, V::Mask) {
+        let s = V::splat;
+        let zero = s(0.0);
+        let one = s(1.0);
+        let neg_inf = s(f64::NEG_INFINITY);
+        let mut max_lw = neg_inf;
+        for (i, g) in self.seg.iter().enumerate() {
+            let tau = time.sub(s(g.t));
             let a = tau.abs();
-            let (theta, c, ext) = if tau <= 0.0 {
-                (s.theta_bw, s.c_bw, s.ext_bwd)
-            } else {
-                (s.theta_fw, s.c_fw, s.ext_fwd)
-            };
-            // R first: a pair beyond its extent costs no transcendental at all.
-            let mut lw = res.log_value(a, ext, beta);
-            if lw != f64::NEG_INFINITY {
-                lw += log_dominance_value(s.log_alpha, theta, c, a);
-                if lw > max_lw {
-                    max_lw = lw;
+            let bw = tau.le(zero);
+            let lr = match res {
+                Resistance::None => zero,
+                Resistance::Cutoff => {
+                    // As `Resistance::log_value`: u by division, −∞ beyond the extent.
+                    let ext = V::select(bw, s(g.ext_bwd), s(g.ext_fwd));
+                    let u = a.div(ext);
+                    let q = one.div(one.sub(u));
+                    let v = s(-beta).mul(u).mul(q);
+                    V::select(a.eq(zero), zero, V::select(u.ge(one), neg_inf, v))
                 }
-            }
-            *lw_out = lw;
-        }
-        if max_lw == f64::NEG_INFINITY {
-            return None;
-        }
-        let mut num = 0.0;
-        let mut den = 0.0;
-        for (s, &lw) in self.seg.iter().zip(self.log_w.iter()) {
-            if lw == f64::NEG_INFINITY {
+            };
+            let active = lr.ne(neg_inf);
+            let out = &mut self.log_w[i * LANES..];
+            if !V::any(active) {
+                // Every lane beyond the extent: no transcendental function for this segment.
+                neg_inf.store(out);
                 continue;
             }
-            let w = (lw - max_lw).exp();
-            num += w * s.target * shape.value(time - s.t, s.sigma, s.psi);
-            den += w;
+            let theta = V::select(bw, s(g.theta_bw), s(g.theta_fw));
+            // |τ|^c = exp(c ln|τ|) as in `log_dominance_value` (exactly |τ| where c = 1; at
+            // τ = 0, ln 0 = −∞ gives exp(−∞) = 0 = |τ|^c, so ln D = ln α there too).
+            let power = if g.c_bw == 1.0 && g.c_fw == 1.0 {
+                a
+            } else {
+                let c = V::select(bw, s(g.c_bw), s(g.c_fw));
+                V::select(c.eq(one), a, exp_lanes(c.mul(ln_lanes(a))))
+            };
+            let ld = s(g.log_alpha).sub(theta.mul(power));
+            let lw = V::select(active, lr.add(ld), neg_inf);
+            max_lw = V::select(lw.gt(max_lw), lw, max_lw);
+            lw.store(out);
         }
-        Some(num / den)
+        let degenerate = max_lw.eq(neg_inf);
+        let mut num = zero;
+        let mut den = zero;
+        for (i, g) in self.seg.iter().enumerate() {
+            let lw = V::load(&self.log_w[i * LANES..]);
+            let active = lw.ne(neg_inf);
+            if !V::any(active) {
+                continue;
+            }
+            let w = exp_lanes(lw.sub(max_lw));
+            let sv = match shape {
+                Shape::Gaussian if g.sigma != 0.0 => {
+                    let tau = time.sub(s(g.t));
+                    one.add(s(g.sigma).mul(exp_lanes(s(-g.psi).mul(tau.mul(tau)))))
+                }
+                _ => one,
+            };
+            num = V::select(active, num.add(w.mul(s(g.target)).mul(sv)), num);
+            den = V::select(active, den.add(w), den);
+        }
+        (num.div(den), degenerate)
     }
 
-    /// Evaluates F at `times` into `out`; on failure returns the local index of the sample
-    /// where every weight vanished.
+    /// Evaluates F at `times` into `out`, [`LANES`] samples at a time where AVX2 is available.
+    /// A degenerate sample (every weight zero) gets NaN and is reported to `bad` with its local
+    /// index, in order; `bad` decides whether that is an error.
+    pub fn evaluate_with<E>(
+        &mut self,
+        times: &[f64],
+        beta: f64,
+        res: Resistance,
+        shape: Shape,
+        out: &mut [f64],
+        bad: impl FnMut(usize) -> Result<(), E>,
+    ) -> Result<(), E> {
+        #[cfg(target_arch = "x86_64")]
+        if simd_enabled() {
+            // SAFETY: AVX2 was detected at run time.
+            return unsafe { self.evaluate_avx2(times, beta, res, shape, out, bad) };
+        }
+        self.evaluate_lanes::<f64, E>(times, beta, res, shape, out, bad)
+    }
+
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx2")]
+    fn evaluate_avx2<E>(
+        &mut self,
+        times: &[f64],
+        beta: f64,
+        res: Resistance,
+        shape: Shape,
+        out: &mut [f64],
+        bad: impl FnMut(usize) -> Result<(), E>,
+    ) -> Result<(), E> {
+        self.evaluate_lanes::<F64x4, E>(times, beta, res, shape, out, bad)
+    }
+
+    #[inline(always)]
+    fn evaluate_lanes<V: Lanes, E>(
+        &mut self,
+        times: &[f64],
+        beta: f64,
+        res: Resistance,
+        shape: Shape,
+        out: &mut [f64],
+        mut bad: impl FnMut(usize) -> Result<(), E>,
+    ) -> Result<(), E> {
+        let n = times.len();
+        let mut k = 0;
+        while k < n {
+            let m = V::N.min(n - k);
+            // A short last block repeats its last time in the spare lanes (results dropped).
+            let mut t = [times[k + m - 1]; LANES];
+            t[..m].copy_from_slice(&times[k..k + m]);
+            let (f, degenerate) = self.lanes_at(V::load(&t), beta, res, shape);
+            let mut v = [0.0; LANES];
+            f.store(&mut v);
+            let deg = V::bits(degenerate);
+            for j in 0..m {
+                if deg & (1 << j) != 0 {
+                    out[k + j] = f64::NAN;
+                    bad(k + j)?;
+                } else {
+                    out[k + j] = v[j];
+                }
+            }
+            k += m;
+        }
+        Ok(())
+    }
+
+    /// Evaluates F at `times` into `out`; on failure returns the local index of the first
+    /// sample where every weight vanished.
     pub fn evaluate(
         &mut self,
         times: &[f64],
@@ -172,39 +285,73 @@ impl Prepared {
         shape: Shape,
         out: &mut [f64],
     ) -> Result<(), usize> {
-        for (n, (&time, o)) in times.iter().zip(out.iter_mut()).enumerate() {
-            *o = self.value_at(time, beta, res, shape).ok_or(n)?;
-        }
-        Ok(())
+        self.evaluate_with(times, beta, res, shape, out, Err)
     }
 
-    /// The physical-limit loop for this utterance: the same (sample, segment) pairs as
-    /// [`Prepared::value_at`], only the transcendental functions (ln|τ|, exp(c ln|τ|), the
-    /// weight exp, the shape exp where σ ≠ 0; the power needs none where c = 1), summed into a
-    /// checksum.
+    /// The physical-limit loop for this utterance: the same (sample block, segment) pairs as
+    /// [`Prepared::evaluate`] visits, with the same kernels and lane count, computing only the
+    /// transcendental functions (ln|τ| and exp(c ln|τ|) where c ≠ 1, the weight exp, the shape
+    /// exp where σ ≠ 0), summed into a checksum over the lanes inside the extent.
     pub fn limit_checksum(&self, times: &[f64], res: Resistance, shape: Shape) -> f64 {
-        let mut sum = 0.0;
+        #[cfg(target_arch = "x86_64")]
+        if simd_enabled() {
+            // SAFETY: AVX2 was detected at run time.
+            return unsafe { self.limit_avx2(times, res, shape) };
+        }
+        self.limit_lanes::<f64>(times, res, shape)
+    }
+
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx2")]
+    fn limit_avx2(&self, times: &[f64], res: Resistance, shape: Shape) -> f64 {
+        self.limit_lanes::<F64x4>(times, res, shape)
+    }
+
+    #[inline(always)]
+    fn limit_lanes<V: Lanes>(&self, times: &[f64], res: Resistance, shape: Shape) -> f64 {
+        let s = V::splat;
+        let zero = s(0.0);
+        let one = s(1.0);
         let shaped = !matches!(shape, Shape::None);
-        for &time in times {
-            for s in &self.seg {
-                let tau = time - s.t;
+        let mut total = 0.0;
+        let mut k = 0;
+        while k < times.len() {
+            let m = V::N.min(times.len() - k);
+            let mut t = [times[k + m - 1]; LANES];
+            t[..m].copy_from_slice(&times[k..k + m]);
+            let time = V::load(&t);
+            let mut sum = zero;
+            for g in &self.seg {
+                let tau = time.sub(s(g.t));
                 let a = tau.abs();
-                let (theta, c, ext) = if tau <= 0.0 {
-                    (s.theta_bw, s.c_bw, s.ext_bwd)
+                let bw = tau.le(zero);
+                // The pairs the evaluator keeps: R ≡ 1, or |τ| inside the side's extent.
+                let inside = if res.is_none() {
+                    a.eq(a)
                 } else {
-                    (s.theta_fw, s.c_fw, s.ext_fwd)
+                    a.lt(V::select(bw, s(g.ext_bwd), s(g.ext_fwd)))
                 };
-                if !res.is_none() && a >= ext {
+                if !V::any(inside) {
                     continue;
                 }
-                // Like the evaluator: no ln/exp for the power where c = 1.
-                let power = if c == 1.0 { a } else { (c * a.ln()).exp() };
-                sum += (s.log_alpha - theta * power).exp();
-                if shaped && s.sigma != 0.0 {
-                    sum += (-s.psi * tau * tau).exp();
+                let theta = V::select(bw, s(g.theta_bw), s(g.theta_fw));
+                let power = if g.c_bw == 1.0 && g.c_fw == 1.0 {
+                    a
+                } else {
+                    let c = V::select(bw, s(g.c_bw), s(g.c_fw));
+                    V::select(c.eq(one), a, exp_lanes(c.mul(ln_lanes(a))))
+                };
+                let mut v = exp_lanes(s(g.log_alpha).sub(theta.mul(power)));
+                if shaped && g.sigma != 0.0 {
+                    v = v.add(exp_lanes(s(-g.psi).mul(tau.mul(tau))));
                 }
+                sum = V::select(inside, sum.add(v), sum);
             }
+            let mut lanes = [0.0; LANES];
+            sum.store(&mut lanes);
+            total += lanes[..m].iter().sum::<f64>();
+            k += m;
         }
-        sum
+        total
     }
 }

@@ -1,6 +1,8 @@
 //! Shape S_i(τ) of MODEL.md §3.2: S = 1 + σ exp(−ψ τ²). It multiplies only the target, in the
 //! numerator of eq. 3. Behind [`Shape`] so that another closed form is one more enum arm.
 
+use crate::vector_math::exp;
+
 /// The shape closed form.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum Shape {
@@ -33,7 +35,7 @@ impl Shape {
                 if sigma == 0.0 {
                     1.0
                 } else {
-                    1.0 + sigma * (-psi * (tau * tau)).exp()
+                    1.0 + sigma * exp(-psi * (tau * tau))
                 }
             }
         }
@@ -51,7 +53,7 @@ impl Shape {
             },
             Shape::Gaussian => {
                 let tau2 = tau * tau;
-                let e = (-psi * tau2).exp();
+                let e = exp(-psi * tau2);
                 ShapeValue {
                     s: 1.0 + sigma * e,
                     d_sigma: e,
