@@ -2,6 +2,13 @@
 
 import typer
 
+from coartic import synthetic_cli
+from coartic.demo import demo_command
+from coartic.fit.fit_cli import fit_command
+from coartic.io.inspect_cli import inspect_command
+from coartic.mcmc.mcmc_cli import mcmc_command
+from coartic.runtime.runtime_cli import animate_command, speak_command
+
 app = typer.Typer(
     name="coartic",
     help="Fit, sample and animate the Cohen-Massaro / Cosi-Perin coarticulation model.",
@@ -9,14 +16,13 @@ app = typer.Typer(
     add_completion=False,
 )
 
-# --- sub-commands (one line each) ---
-app.command("animate")(__import__("coartic.runtime.runtime_cli", fromlist=["_"]).animate_command)
-app.command("speak")(__import__("coartic.runtime.runtime_cli", fromlist=["_"]).speak_command)
-app.command("inspect")(__import__("coartic.io.inspect_cli", fromlist=["_"]).inspect_command)
-app.add_typer(__import__("coartic.synthetic_cli", fromlist=["_"]).app, name="corpus")
-app.command("demo")(__import__("coartic.demo", fromlist=["_"]).demo_command)
-app.command("fit")(__import__("coartic.fit.fit_cli", fromlist=["_"]).fit_command)
-app.command("mcmc")(__import__("coartic.mcmc.mcmc_cli", fromlist=["_"]).mcmc_command)
+app.add_typer(synthetic_cli.app, name="corpus")  # coartic corpus synth OUT
+app.command("inspect")(inspect_command)
+app.command("fit")(fit_command)
+app.command("mcmc")(mcmc_command)
+app.command("animate")(animate_command)
+app.command("speak")(speak_command)
+app.command("demo")(demo_command)
 
 if __name__ == "__main__":
     app()
