@@ -158,8 +158,7 @@ impl Prepared {
                     // As `Resistance::log_value`: u by division, −∞ beyond the extent.
                     let ext = V::select(bw, s(g.ext_bwd), s(g.ext_fwd));
                     let u = a.div(ext);
-                    let q = one.div(one.sub(u));
-                    let v = s(-beta).mul(u).mul(q);
+                    let v = s(-beta).mul(u).div(one.sub(u));
                     V::select(a.eq(zero), zero, V::select(u.ge(one), neg_inf, v))
                 }
             };

@@ -50,8 +50,8 @@ impl Resistance {
                 if u >= 1.0 {
                     f64::NEG_INFINITY
                 } else {
-                    let q = 1.0 / (1.0 - u);
-                    -beta * u * q
+                    // One division (the vectorised evaluator is bounded by the divider).
+                    -beta * u / (1.0 - u)
                 }
             }
         }
@@ -84,7 +84,7 @@ impl Resistance {
                     return None;
                 }
                 Some(LogResistance {
-                    log_r: -beta * u * q, // as in `log_value`, bit for bit
+                    log_r: -beta * u / (1.0 - u), // as in `log_value`, bit for bit
                     // u = |τ|/Δ: ∂u/∂Δ = −u/Δ, ∂u/∂|τ| = 1/Δ.
                     d_extent: -d_u * u * inv_extent,
                     d_abs_tau: d_u * inv_extent,

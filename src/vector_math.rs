@@ -5,9 +5,10 @@
 //!
 //! No FMA on purpose: a fused multiply–add rounds differently from a multiply then an add, and
 //! the scalar path must run on any x86_64 (and aarch64) without it. The reductions and
-//! polynomials are those of fdlibm's `__ieee754_exp` and `__ieee754_log` (Cody–Waite reduction by
-//! ln 2 split in two, a Remez rational for exp, a Remez series in s = f/(2 + f) for ln), whose
-//! error is below 1 ulp; tests/vector_math.rs checks them against std over wide ranges.
+//! polynomials: for exp, Cody–Waite reduction by ln2/32 split in two, a 32-entry table of
+//! 2^(j/32) and a degree-6 Taylor polynomial (no division); for ln, fdlibm's `__ieee754_log`
+//! (exponent extraction, a Remez series in s = f/(2 + f)). tests/vector_math.rs checks both
+//! against std over wide ranges (subnormals, edges, special values).
 
 #[cfg(target_arch = "x86_64")]
 use std::arch::x86_64::*;
@@ -49,6 +50,9 @@ pub(crate) trait Lanes: Copy {
     /// 2^j for j integral in [-1022, 1023], given j + [`MAGIC`] (the integer sits in the low
     /// mantissa bits).
     fn pow2_from_magic(j_plus_magic: Self) -> Self;
+    /// (2^(j/32) from [`EXP2_TABLE`], j as a float) for j the low 5 bits of n, given n +
+    /// [`MAGIC`].
+    fn exp2_table(n_plus_magic: Self) -> (Self, Self);
     /// (exponent field as a float, significand scaled to [1, 2)) of a positive finite normal x.
     fn split_exponent(self) -> (Self, Self);
 }
@@ -60,15 +64,53 @@ const TWO52: f64 = 4503599627370496.0;
 
 const LN2_HI: f64 = 6.931_471_803_691_238_164_90e-01; // 0x3fe62e42 fee00000: k·LN2_HI exact
 const LN2_LO: f64 = 1.908_214_929_270_587_700_02e-10; // 0x3dea39ef 35793c76
-const INV_LN2: f64 = 1.442_695_040_888_963_387_00e+00;
 /// Above ln(f64::MAX) exp overflows; below ln(2^-1075) it rounds to 0.
 const EXP_HI: f64 = 709.782_712_893_383_973_096;
 const EXP_LO: f64 = -745.133_219_101_941_108_42;
-const P1: f64 = 1.666_666_666_666_660_190_37e-01;
-const P2: f64 = -2.777_777_777_701_559_338_42e-03;
-const P3: f64 = 6.613_756_321_437_934_361_17e-05;
-const P4: f64 = -1.653_390_220_546_525_153_90e-06;
-const P5: f64 = 4.138_136_797_057_238_460_39e-08;
+/// 32/ln 2, and ln2/32 as hi + lo with hi's last 26 bits zero (n·hi exact for |n| < 2^26).
+const INV_LN2_32: f64 = 46.166_241_308_446_83;
+const LN2_32_HI: f64 = 0.021_660_849_219_188_094; // 0x3f962e42fc000000
+const LN2_32_LO: f64 = 1.733_101_967_801_894e-10;
+const C2: f64 = 1.0 / 2.0;
+const C3: f64 = 1.0 / 6.0;
+const C4: f64 = 1.0 / 24.0;
+const C5: f64 = 1.0 / 120.0;
+const C6: f64 = 1.0 / 720.0;
+/// 2^(j/32), correctly rounded (computed to 60 digits with Python's decimal).
+static EXP2_TABLE: [u64; 32] = [
+    0x3ff0000000000000, // 2^(0/32)
+    0x3ff059b0d3158574, // 2^(1/32)
+    0x3ff0b5586cf9890f, // 2^(2/32)
+    0x3ff11301d0125b51, // 2^(3/32)
+    0x3ff172b83c7d517b, // 2^(4/32)
+    0x3ff1d4873168b9aa, // 2^(5/32)
+    0x3ff2387a6e756238, // 2^(6/32)
+    0x3ff29e9df51fdee1, // 2^(7/32)
+    0x3ff306fe0a31b715, // 2^(8/32)
+    0x3ff371a7373aa9cb, // 2^(9/32)
+    0x3ff3dea64c123422, // 2^(10/32)
+    0x3ff44e086061892d, // 2^(11/32)
+    0x3ff4bfdad5362a27, // 2^(12/32)
+    0x3ff5342b569d4f82, // 2^(13/32)
+    0x3ff5ab07dd485429, // 2^(14/32)
+    0x3ff6247eb03a5585, // 2^(15/32)
+    0x3ff6a09e667f3bcd, // 2^(16/32)
+    0x3ff71f75e8ec5f74, // 2^(17/32)
+    0x3ff7a11473eb0187, // 2^(18/32)
+    0x3ff82589994cce13, // 2^(19/32)
+    0x3ff8ace5422aa0db, // 2^(20/32)
+    0x3ff93737b0cdc5e5, // 2^(21/32)
+    0x3ff9c49182a3f090, // 2^(22/32)
+    0x3ffa5503b23e255d, // 2^(23/32)
+    0x3ffae89f995ad3ad, // 2^(24/32)
+    0x3ffb7f76f2fb5e47, // 2^(25/32)
+    0x3ffc199bdd85529c, // 2^(26/32)
+    0x3ffcb720dcef9069, // 2^(27/32)
+    0x3ffd5818dcfba487, // 2^(28/32)
+    0x3ffdfc97337b9b5f, // 2^(29/32)
+    0x3ffea4afa2a490da, // 2^(30/32)
+    0x3fff50765b6e4540, // 2^(31/32)
+];
 
 const LG1: f64 = 6.666_666_666_666_735_130e-01;
 const LG2: f64 = 3.999_999_999_940_941_908e-01;
@@ -82,22 +124,21 @@ const SQRT2: f64 = std::f64::consts::SQRT_2;
 const TWO54: f64 = 18014398509481984.0;
 const MIN_POSITIVE: f64 = f64::MIN_POSITIVE;
 
-/// e^x, within 1 ulp (subnormal results within 1 ulp of 2^-1074); 0 below −745.13, +∞ above
+/// e^x, within 2 ulp (subnormal results within 2 ulp of 2^-1074); 0 below −745.13, +∞ above
 /// 709.78, NaN for NaN.
 #[inline(always)]
 pub(crate) fn exp_lanes<V: Lanes>(x: V) -> V {
     let s = V::splat;
     // The model's arguments nearly always lie here (a normal result, no special value): one
-    // scaling and no clean-up. Both ways give the same bits on these lanes (scaling by 2^k in
-    // two halves is exact when the result is normal).
+    // exact scaling and no clean-up. Both ways give the same bits on these lanes (scaling by 2^k
+    // in two exact halves equals scaling by 2^k when the result is normal).
     if V::all(x.abs().lt(s(708.0))) {
-        let (y, t) = exp_reduced(x);
-        return y.mul(V::pow2_from_magic(t));
+        let (y, k) = exp_reduced(x);
+        return y.mul(V::pow2_from_magic(k.add(s(MAGIC))));
     }
     // Clamped so that k stays small; the out-of-range lanes are replaced at the end.
     let xc = V::select(x.lt(s(-746.0)), s(-746.0), V::select(x.gt(s(710.0)), s(710.0), x));
-    let (y, t) = exp_reduced(xc);
-    let k = t.sub(s(MAGIC));
+    let (y, k) = exp_reduced(xc);
     // 2^k in two exact halves, so that subnormal results (k < −1022) round once, at the end.
     let k1 = k.mul(s(0.5)).add(s(MAGIC));
     let k2 = k.sub(k1.sub(s(MAGIC))).add(s(MAGIC));
@@ -107,21 +148,22 @@ pub(crate) fn exp_lanes<V: Lanes>(x: V) -> V {
     V::select(x.ne(x), x, e)
 }
 
-/// fdlibm's reduction x = k ln 2 + r, |r| ≤ ln 2 / 2, and e^r by its Remez rational: (e^r, k +
-/// [`MAGIC`]).
+/// x = (32k + j) ln2/32 + r with |r| ≤ ln2/64 (Cody–Waite, ln2/32 split in two so that n·hi is
+/// exact): (2^(j/32) e^r, k), e^r − 1 by its Taylor polynomial to r⁶ (remainder below 4·10⁻¹⁸).
+/// No division: the divider, not the adders, bounded the fdlibm rational form. The 2^k scaling
+/// is left to the caller, last, so that no intermediate underflows.
 #[inline(always)]
 fn exp_reduced<V: Lanes>(x: V) -> (V, V) {
     let s = V::splat;
-    let t = x.mul(s(INV_LN2)).add(s(MAGIC));
-    let k = t.sub(s(MAGIC));
-    let hi = x.sub(k.mul(s(LN2_HI)));
-    let lo = k.mul(s(LN2_LO));
-    let r = hi.sub(lo);
-    let rr = r.mul(r);
-    let poly = s(P1).add(rr.mul(s(P2).add(rr.mul(s(P3).add(rr.mul(s(P4).add(rr.mul(s(P5)))))))));
-    let c = r.sub(rr.mul(poly));
-    let y = s(1.0).sub(lo.sub(r.mul(c).div(s(2.0).sub(c))).sub(hi));
-    (y, t)
+    let t = x.mul(s(INV_LN2_32)).add(s(MAGIC));
+    let n = t.sub(s(MAGIC));
+    let r = x.sub(n.mul(s(LN2_32_HI))).sub(n.mul(s(LN2_32_LO)));
+    let (t_j, j) = V::exp2_table(t);
+    let k = n.sub(j).mul(s(1.0 / 32.0));
+    let p = r.add(r.mul(r).mul(
+        s(C2).add(r.mul(s(C3).add(r.mul(s(C4).add(r.mul(s(C5).add(r.mul(s(C6))))))))),
+    ));
+    (t_j.add(t_j.mul(p)), k)
 }
 
 /// ln x, within 1 ulp; −∞ at ±0, NaN below 0 and for NaN, +∞ at +∞, exact on subnormals.
@@ -338,6 +380,11 @@ impl Lanes for f64 {
         f64::from_bits(int.wrapping_add(1023) << 52)
     }
     #[inline(always)]
+    fn exp2_table(n: Self) -> (Self, Self) {
+        let j = (n.to_bits() & 31) as usize;
+        (f64::from_bits(EXP2_TABLE[j]), j as f64)
+    }
+    #[inline(always)]
     fn split_exponent(self) -> (Self, Self) {
         let b = self.to_bits();
         let e = f64::from_bits(TWO52.to_bits() | (b >> 52)) - TWO52;
@@ -448,6 +495,19 @@ impl Lanes for F64x4 {
             F64x4(_mm256_castsi256_pd(_mm256_slli_epi64::<52>(
                 _mm256_add_epi64(b, off),
             )))
+        }
+    }
+    #[inline(always)]
+    fn exp2_table(n: Self) -> (Self, Self) {
+        unsafe {
+            let j = _mm256_and_si256(_mm256_castpd_si256(n.0), _mm256_set1_epi64x(31));
+            let t = _mm256_i64gather_pd::<8>(EXP2_TABLE.as_ptr() as *const f64, j);
+            let two52 = _mm256_set1_pd(TWO52);
+            let jf = _mm256_sub_pd(
+                _mm256_castsi256_pd(_mm256_or_si256(_mm256_castpd_si256(two52), j)),
+                two52,
+            );
+            (F64x4(t), F64x4(jf))
         }
     }
     #[inline(always)]
