@@ -56,6 +56,11 @@ def test_errors_name_file_and_key(tmp_path: Path, text: str, key: str, words: st
     assert str(p) in msg and f"[{key}]" in msg and words in msg
 
 
+def test_the_mcmc_table_is_left_to_coartic_mcmc(tmp_path: Path) -> None:
+    s = load_spec(write(tmp_path, BASE + '[mcmc]\nscope = "phonemes"\nwalkers = 40\n'))
+    assert s.corpus.manifest == tmp_path / "m.csv"
+
+
 def test_not_toml_and_missing(tmp_path: Path) -> None:
     with pytest.raises(SpecError, match="not valid TOML"):
         load_spec(write(tmp_path, "[corpus\n"))

@@ -172,23 +172,28 @@ def _path(base: Path, v: Any, key: str, spec_path: Path) -> Path:
     return p if p.is_absolute() else (base / p)
 
 
-def load_spec(path: str | Path) -> FitSpec:
-    """Read and check a fit spec. Raises SpecError naming the file and key on any problem."""
-    path = Path(path)
+def read_document(path: Path) -> dict[str, Any]:
+    """The TOML document of a spec file, or a SpecError naming the file."""
     try:
-        raw = tomllib.loads(path.read_text(encoding="utf-8"))
+        return tomllib.loads(path.read_text(encoding="utf-8"))
     except FileNotFoundError:
         raise SpecError(f"{path}: no such fit spec") from None
     except tomllib.TOMLDecodeError as e:
         raise SpecError(f"{path}: not valid TOML: {e}") from None
-    return parse_spec(raw, path)
+
+
+def load_spec(path: str | Path) -> FitSpec:
+    """Read and check a fit spec. Raises SpecError naming the file and key on any problem."""
+    path = Path(path)
+    return parse_spec(read_document(path), path)
 
 
 def parse_spec(raw: dict[str, Any], path: Path) -> FitSpec:
     """Build a FitSpec from an already parsed TOML document (``path`` locates relative paths)."""
     base = path.parent
-    _take(raw, path, "top level",
-          {"name", "corpus", "model", "parameters", "override", "engine", "staging", "gaps", "validate"})
+    # [mcmc] belongs to coartic.mcmc (docs/MCMC.md): one spec file serves both commands.
+    _take(raw, path, "top level", {"name", "corpus", "model", "parameters", "override", "engine",
+                                   "staging", "gaps", "validate", "mcmc"})
     name = raw.get("name", path.stem)
 
     c = raw.get("corpus")

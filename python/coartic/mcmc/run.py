@@ -9,7 +9,6 @@ from __future__ import annotations
 
 import json
 import math
-import tomllib
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any, Callable, Sequence
@@ -119,18 +118,12 @@ def parse_config(raw: Any, path: Path) -> McmcConfig:
 
 
 def read_spec(path: str | Path) -> tuple[Any, McmcConfig]:
-    """The fit spec (E's parser, the ``[mcmc]`` table removed first) and the MCMC configuration."""
-    from coartic.fit.spec import SpecError, parse_spec
+    """The fit spec and the MCMC configuration from its ``[mcmc]`` table."""
+    from coartic.fit.spec import parse_spec, read_document
 
     path = Path(path)
-    try:
-        raw = tomllib.loads(path.read_text(encoding="utf-8"))
-    except FileNotFoundError:
-        raise SpecError(f"{path}: no such fit spec") from None
-    except tomllib.TOMLDecodeError as e:
-        raise SpecError(f"{path}: not valid TOML: {e}") from None
-    cfg = parse_config(raw.pop("mcmc", None), path)
-    return parse_spec(raw, path), cfg
+    raw = read_document(path)
+    return parse_spec(raw, path), parse_config(raw.get("mcmc"), path)
 
 
 def walkers_for(dim: int, requested: int) -> int:
