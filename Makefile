@@ -8,7 +8,8 @@ setup:
 	./scripts/setup.sh
 
 fit: setup
-	([ -f build/session/manifest.csv ] || $(PY) -m coartic.cli corpus synth build/session) && $(PY) -m coartic.cli fit fit/synthetic.toml --out results/synthetic
+	[ -f build/session/manifest.csv ] || $(PY) -m coartic.cli corpus synth build/session
+	$(PY) -m coartic.cli fit fit/synthetic.toml --out results/synthetic
 
 test: setup test-rust stubtest test-python
 
@@ -21,8 +22,12 @@ stubtest:
 test-python:
 	$(PY) -m pytest -q -n 2 tests/python
 
+# Each benchmark prints ratios measured in one run and saves its output in bench/results/.
 bench: setup
 	$(PY) bench/core_speed.py
+	$(PY) bench/fit_speed.py
+	$(PY) bench/mcmc_speed.py
+	$(PY) bench/runtime_contacts.py
 
 clean:
 	rm -rf target .venv results build
