@@ -3,11 +3,11 @@
 //! against one evaluation, and the walker batch. Prints times and ratios from one run; the
 //! NumPy comparison and the Python-side overhead are in bench/core_speed.py.
 
+use coartic::vector_math::{exp, exp_in_place, ln, ln_in_place, simd_enabled};
 use coartic::{
     evaluate, jacobian, jacobian_values, physical_limit_loop, sse_batch, sse_gradient, Corpus,
     ModelOptions, Param, N_PARAMS,
 };
-use coartic::vector_math::{exp, exp_in_place, ln, ln_in_place, simd_enabled};
 use std::hint::black_box;
 use std::time::Instant;
 
@@ -202,8 +202,16 @@ fn kernel_speed(rng: &mut Rng) {
     let lx: Vec<f64> = (0..n).map(|_| rng.range(1e-4, 1.5)).collect();
     let per = |t: f64| t / n as f64 * 1e9;
     let mut buf = ex.clone();
-    let t_std = time(21, || buf.iter_mut().zip(&ex).for_each(|(b, &x)| *b = black_box(x).exp()));
-    let t_scalar = time(21, || buf.iter_mut().zip(&ex).for_each(|(b, &x)| *b = exp(black_box(x))));
+    let t_std = time(21, || {
+        buf.iter_mut()
+            .zip(&ex)
+            .for_each(|(b, &x)| *b = black_box(x).exp())
+    });
+    let t_scalar = time(21, || {
+        buf.iter_mut()
+            .zip(&ex)
+            .for_each(|(b, &x)| *b = exp(black_box(x)))
+    });
     let t_lanes = time(21, || {
         buf.copy_from_slice(&ex);
         exp_in_place(black_box(&mut buf));
@@ -215,8 +223,16 @@ fn kernel_speed(rng: &mut Rng) {
         per(t_lanes),
         if simd_enabled() { "on" } else { "off" }
     );
-    let t_std = time(21, || buf.iter_mut().zip(&lx).for_each(|(b, &x)| *b = black_box(x).ln()));
-    let t_scalar = time(21, || buf.iter_mut().zip(&lx).for_each(|(b, &x)| *b = ln(black_box(x))));
+    let t_std = time(21, || {
+        buf.iter_mut()
+            .zip(&lx)
+            .for_each(|(b, &x)| *b = black_box(x).ln())
+    });
+    let t_scalar = time(21, || {
+        buf.iter_mut()
+            .zip(&lx)
+            .for_each(|(b, &x)| *b = ln(black_box(x)))
+    });
     let t_lanes = time(21, || {
         buf.copy_from_slice(&lx);
         ln_in_place(black_box(&mut buf));

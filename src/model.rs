@@ -6,9 +6,9 @@ use crate::params::{ModelOptions, Param, N_PARAMS};
 use crate::resistance::Resistance;
 use crate::shape::Shape;
 use crate::targets::target_time;
+use crate::vector_math::{exp_lanes, ln_lanes, Lanes};
 #[cfg(target_arch = "x86_64")]
 use crate::vector_math::{simd_enabled, F64x4};
-use crate::vector_math::{exp_lanes, ln_lanes, Lanes};
 
 /// Lanes of the widest evaluation path (AVX2: four f64); the per-segment scratch holds this many
 /// values per segment whatever path runs.

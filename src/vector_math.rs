@@ -62,11 +62,11 @@ pub(crate) trait Lanes: Copy {
 const MAGIC: f64 = 6755399441055744.0;
 const TWO52: f64 = 4503599627370496.0;
 
-const LN2_HI: f64 = 6.931_471_803_691_238_164_90e-01; // 0x3fe62e42 fee00000: k·LN2_HI exact
-const LN2_LO: f64 = 1.908_214_929_270_587_700_02e-10; // 0x3dea39ef 35793c76
+const LN2_HI: f64 = f64::from_bits(0x3fe62e42fee00000); // ln 2 to 32 bits: k·LN2_HI exact
+const LN2_LO: f64 = f64::from_bits(0x3dea39ef35793c76); // ln 2 − LN2_HI
 /// Above ln(f64::MAX) exp overflows; below ln(2^-1075) it rounds to 0.
-const EXP_HI: f64 = 709.782_712_893_383_973_096;
-const EXP_LO: f64 = -745.133_219_101_941_108_42;
+const EXP_HI: f64 = f64::from_bits(0x40862e42fefa39ef); // 709.782712893383973096
+const EXP_LO: f64 = f64::from_bits(0xc0874910d52d3051); // -745.13321910194110842
 /// 32/ln 2, and ln2/32 as hi + lo with hi's last 26 bits zero (n·hi exact for |n| < 2^26).
 const INV_LN2_32: f64 = 46.166_241_308_446_83;
 const LN2_32_HI: f64 = 0.021_660_849_219_188_094; // 0x3f962e42fc000000
@@ -112,13 +112,13 @@ static EXP2_TABLE: [u64; 32] = [
     0x3fff50765b6e4540, // 2^(31/32)
 ];
 
-const LG1: f64 = 6.666_666_666_666_735_130e-01;
-const LG2: f64 = 3.999_999_999_940_941_908e-01;
-const LG3: f64 = 2.857_142_874_366_239_149e-01;
-const LG4: f64 = 2.222_219_843_214_978_396e-01;
-const LG5: f64 = 1.818_357_216_161_805_012e-01;
-const LG6: f64 = 1.531_383_769_920_937_332e-01;
-const LG7: f64 = 1.479_819_860_511_658_591e-01;
+const LG1: f64 = f64::from_bits(0x3fe5555555555593); // 6.666666666666735130e-01
+const LG2: f64 = f64::from_bits(0x3fd999999997fa04); // 3.999999999940941908e-01
+const LG3: f64 = f64::from_bits(0x3fd2492494229359); // 2.857142874366239149e-01
+const LG4: f64 = f64::from_bits(0x3fcc71c51d8e78af); // 2.222219843214978396e-01
+const LG5: f64 = f64::from_bits(0x3fc7466496cb03de); // 1.818357216161805012e-01
+const LG6: f64 = f64::from_bits(0x3fc39a09d078c69f); // 1.531383769920937332e-01
+const LG7: f64 = f64::from_bits(0x3fc2f112df3e5244); // 1.479819860511658591e-01
 const SQRT2: f64 = std::f64::consts::SQRT_2;
 /// 2^54, to bring subnormal arguments of ln into the normal range.
 const TWO54: f64 = 18014398509481984.0;
@@ -137,7 +137,11 @@ pub(crate) fn exp_lanes<V: Lanes>(x: V) -> V {
         return y.mul(V::pow2_from_magic(k.add(s(MAGIC))));
     }
     // Clamped so that k stays small; the out-of-range lanes are replaced at the end.
-    let xc = V::select(x.lt(s(-746.0)), s(-746.0), V::select(x.gt(s(710.0)), s(710.0), x));
+    let xc = V::select(
+        x.lt(s(-746.0)),
+        s(-746.0),
+        V::select(x.gt(s(710.0)), s(710.0), x),
+    );
     let (y, k) = exp_reduced(xc);
     // 2^k in two exact halves, so that subnormal results (k < −1022) round once, at the end.
     let k1 = k.mul(s(0.5)).add(s(MAGIC));
@@ -160,9 +164,10 @@ fn exp_reduced<V: Lanes>(x: V) -> (V, V) {
     let r = x.sub(n.mul(s(LN2_32_HI))).sub(n.mul(s(LN2_32_LO)));
     let (t_j, j) = V::exp2_table(t);
     let k = n.sub(j).mul(s(1.0 / 32.0));
-    let p = r.add(r.mul(r).mul(
-        s(C2).add(r.mul(s(C3).add(r.mul(s(C4).add(r.mul(s(C5).add(r.mul(s(C6))))))))),
-    ));
+    let p = r.add(
+        r.mul(r)
+            .mul(s(C2).add(r.mul(s(C3).add(r.mul(s(C4).add(r.mul(s(C5).add(r.mul(s(C6)))))))))),
+    );
     (t_j.add(t_j.mul(p)), k)
 }
 
@@ -349,6 +354,7 @@ impl Lanes for f64 {
         self != o
     }
     #[inline(always)]
+    #[allow(clippy::neg_cmp_op_on_partial_ord)] // the NaN-true negation is the point
     fn nge(self, o: Self) -> bool {
         !(self >= o)
     }
