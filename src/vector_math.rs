@@ -5,8 +5,8 @@
 //!
 //! No FMA on purpose: a fused multiply–add rounds differently from a multiply then an add, and
 //! the scalar path must run on any x86_64 (and aarch64) without it. The reductions and
-//! polynomials: for exp, Cody–Waite reduction by ln2/32 split in two, a 32-entry table of
-//! 2^(j/32) and a degree-6 Taylor polynomial (no division); for ln, fdlibm's `__ieee754_log`
+//! polynomials: for exp, Cody–Waite reduction by ln 2 split in two and a degree-13 Taylor
+//! polynomial (no division, no table); for ln, fdlibm's `__ieee754_log`
 //! (exponent extraction, a Remez series in s = f/(2 + f)). tests/vector_math.rs checks both
 //! against std over wide ranges (subnormals, edges, special values).
 
@@ -50,9 +50,6 @@ pub(crate) trait Lanes: Copy {
     /// 2^j for j integral in [-1022, 1023], given j + [`MAGIC`] (the integer sits in the low
     /// mantissa bits).
     fn pow2_from_magic(j_plus_magic: Self) -> Self;
-    /// (2^(j/32) from [`EXP2_TABLE`], j as a float) for j the low 5 bits of n, given n +
-    /// [`MAGIC`].
-    fn exp2_table(n_plus_magic: Self) -> (Self, Self);
     /// (exponent field as a float, significand scaled to [1, 2)) of a positive finite normal x.
     fn split_exponent(self) -> (Self, Self);
 }
@@ -67,50 +64,19 @@ const LN2_LO: f64 = f64::from_bits(0x3dea39ef35793c76); // ln 2 − LN2_HI
 /// Above ln(f64::MAX) exp overflows; below ln(2^-1075) it rounds to 0.
 const EXP_HI: f64 = f64::from_bits(0x40862e42fefa39ef); // 709.782712893383973096
 const EXP_LO: f64 = f64::from_bits(0xc0874910d52d3051); // -745.13321910194110842
-/// 32/ln 2, and ln2/32 as hi + lo with hi's last 26 bits zero (n·hi exact for |n| < 2^26).
-const INV_LN2_32: f64 = 46.166_241_308_446_83;
-const LN2_32_HI: f64 = 0.021_660_849_219_188_094; // 0x3f962e42fc000000
-const LN2_32_LO: f64 = 1.733_101_967_801_894e-10;
-const C2: f64 = 1.0 / 2.0;
-const C3: f64 = 1.0 / 6.0;
-const C4: f64 = 1.0 / 24.0;
-const C5: f64 = 1.0 / 120.0;
-const C6: f64 = 1.0 / 720.0;
-/// 2^(j/32), correctly rounded (computed to 60 digits with Python's decimal).
-static EXP2_TABLE: [u64; 32] = [
-    0x3ff0000000000000, // 2^(0/32)
-    0x3ff059b0d3158574, // 2^(1/32)
-    0x3ff0b5586cf9890f, // 2^(2/32)
-    0x3ff11301d0125b51, // 2^(3/32)
-    0x3ff172b83c7d517b, // 2^(4/32)
-    0x3ff1d4873168b9aa, // 2^(5/32)
-    0x3ff2387a6e756238, // 2^(6/32)
-    0x3ff29e9df51fdee1, // 2^(7/32)
-    0x3ff306fe0a31b715, // 2^(8/32)
-    0x3ff371a7373aa9cb, // 2^(9/32)
-    0x3ff3dea64c123422, // 2^(10/32)
-    0x3ff44e086061892d, // 2^(11/32)
-    0x3ff4bfdad5362a27, // 2^(12/32)
-    0x3ff5342b569d4f82, // 2^(13/32)
-    0x3ff5ab07dd485429, // 2^(14/32)
-    0x3ff6247eb03a5585, // 2^(15/32)
-    0x3ff6a09e667f3bcd, // 2^(16/32)
-    0x3ff71f75e8ec5f74, // 2^(17/32)
-    0x3ff7a11473eb0187, // 2^(18/32)
-    0x3ff82589994cce13, // 2^(19/32)
-    0x3ff8ace5422aa0db, // 2^(20/32)
-    0x3ff93737b0cdc5e5, // 2^(21/32)
-    0x3ff9c49182a3f090, // 2^(22/32)
-    0x3ffa5503b23e255d, // 2^(23/32)
-    0x3ffae89f995ad3ad, // 2^(24/32)
-    0x3ffb7f76f2fb5e47, // 2^(25/32)
-    0x3ffc199bdd85529c, // 2^(26/32)
-    0x3ffcb720dcef9069, // 2^(27/32)
-    0x3ffd5818dcfba487, // 2^(28/32)
-    0x3ffdfc97337b9b5f, // 2^(29/32)
-    0x3ffea4afa2a490da, // 2^(30/32)
-    0x3fff50765b6e4540, // 2^(31/32)
-];
+const INV_LN2: f64 = std::f64::consts::LOG2_E;
+/// 1/n! for n = 0..=13.
+const INV_FACT: [f64; 14] = {
+    let mut f = [1.0; 14];
+    let mut n = 1;
+    let mut fact = 1.0;
+    while n < 14 {
+        fact *= n as f64; // exact: 13! < 2^53
+        f[n] = 1.0 / fact;
+        n += 1;
+    }
+    f
+};
 
 const LG1: f64 = f64::from_bits(0x3fe5555555555593); // 6.666666666666735130e-01
 const LG2: f64 = f64::from_bits(0x3fd999999997fa04); // 3.999999999940941908e-01
@@ -152,23 +118,26 @@ pub(crate) fn exp_lanes<V: Lanes>(x: V) -> V {
     V::select(x.ne(x), x, e)
 }
 
-/// x = (32k + j) ln2/32 + r with |r| ≤ ln2/64 (Cody–Waite, ln2/32 split in two so that n·hi is
-/// exact): (2^(j/32) e^r, k), e^r − 1 by its Taylor polynomial to r⁶ (remainder below 4·10⁻¹⁸).
-/// No division: the divider, not the adders, bounded the fdlibm rational form. The 2^k scaling
-/// is left to the caller, last, so that no intermediate underflows.
+/// x = k ln 2 + r with |r| ≤ ln2/2 (Cody–Waite, ln 2 split in two so that k·hi is exact):
+/// (e^r, k), e^r = 1 + r + r²q(r) with q the Taylor polynomial to r¹³ (remainder below 5·10⁻¹⁸)
+/// by Estrin's scheme. No division and no table: the divider bounded fdlibm's rational form and
+/// gathers are slow on recent Intel microcode. The 2^k scaling is left to the caller, last, so
+/// that no intermediate underflows.
 #[inline(always)]
 fn exp_reduced<V: Lanes>(x: V) -> (V, V) {
     let s = V::splat;
-    let t = x.mul(s(INV_LN2_32)).add(s(MAGIC));
-    let n = t.sub(s(MAGIC));
-    let r = x.sub(n.mul(s(LN2_32_HI))).sub(n.mul(s(LN2_32_LO)));
-    let (t_j, j) = V::exp2_table(t);
-    let k = n.sub(j).mul(s(1.0 / 32.0));
-    let p = r.add(
-        r.mul(r)
-            .mul(s(C2).add(r.mul(s(C3).add(r.mul(s(C4).add(r.mul(s(C5).add(r.mul(s(C6)))))))))),
-    );
-    (t_j.add(t_j.mul(p)), k)
+    let t = x.mul(s(INV_LN2)).add(s(MAGIC));
+    let k = t.sub(s(MAGIC));
+    let r = x.sub(k.mul(s(LN2_HI))).sub(k.mul(s(LN2_LO)));
+    let r2 = r.mul(r);
+    let r4 = r2.mul(r2);
+    let r8 = r4.mul(r4);
+    let pair = |a: usize| s(INV_FACT[a]).add(r.mul(s(INV_FACT[a + 1])));
+    let b0 = pair(2).add(r2.mul(pair(4)));
+    let b1 = pair(6).add(r2.mul(pair(8)));
+    let b2 = pair(10).add(r2.mul(pair(12)));
+    let q = b0.add(r4.mul(b1)).add(r8.mul(b2));
+    (s(1.0).add(r.add(r2.mul(q))), k)
 }
 
 /// ln x, within 1 ulp; −∞ at ±0, NaN below 0 and for NaN, +∞ at +∞, exact on subnormals.
@@ -386,11 +355,6 @@ impl Lanes for f64 {
         f64::from_bits(int.wrapping_add(1023) << 52)
     }
     #[inline(always)]
-    fn exp2_table(n: Self) -> (Self, Self) {
-        let j = (n.to_bits() & 31) as usize;
-        (f64::from_bits(EXP2_TABLE[j]), j as f64)
-    }
-    #[inline(always)]
     fn split_exponent(self) -> (Self, Self) {
         let b = self.to_bits();
         let e = f64::from_bits(TWO52.to_bits() | (b >> 52)) - TWO52;
@@ -501,19 +465,6 @@ impl Lanes for F64x4 {
             F64x4(_mm256_castsi256_pd(_mm256_slli_epi64::<52>(
                 _mm256_add_epi64(b, off),
             )))
-        }
-    }
-    #[inline(always)]
-    fn exp2_table(n: Self) -> (Self, Self) {
-        unsafe {
-            let j = _mm256_and_si256(_mm256_castpd_si256(n.0), _mm256_set1_epi64x(31));
-            let t = _mm256_i64gather_pd::<8>(EXP2_TABLE.as_ptr() as *const f64, j);
-            let two52 = _mm256_set1_pd(TWO52);
-            let jf = _mm256_sub_pd(
-                _mm256_castsi256_pd(_mm256_or_si256(_mm256_castpd_si256(two52), j)),
-                two52,
-            );
-            (F64x4(t), F64x4(jf))
         }
     }
     #[inline(always)]
