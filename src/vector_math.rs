@@ -217,12 +217,12 @@ pub fn simd_enabled() -> bool {
 
 /// e^x of every element, in place, four at a time where AVX2 is available (same bits as [`exp`]).
 pub fn exp_in_place(x: &mut [f64]) {
-    map_in_place(x, exp_lanes::<f64>, Kernel::Exp)
+    map_in_place(x, exp, Kernel::Exp)
 }
 
 /// ln x of every element, in place, four at a time where AVX2 is available (same bits as [`ln`]).
 pub fn ln_in_place(x: &mut [f64]) {
-    map_in_place(x, ln_lanes::<f64>, Kernel::Ln)
+    map_in_place(x, ln, Kernel::Ln)
 }
 
 #[derive(Clone, Copy)]
@@ -231,7 +231,8 @@ enum Kernel {
     Ln,
 }
 
-fn map_in_place(x: &mut [f64], scalar: fn(f64) -> f64, kernel: Kernel) {
+#[inline(always)]
+fn map_in_place(x: &mut [f64], scalar: impl Fn(f64) -> f64, kernel: Kernel) {
     #[cfg(target_arch = "x86_64")]
     if simd_enabled() {
         // SAFETY: AVX2 was detected at run time.
