@@ -852,7 +852,8 @@ pub fn sse_batch(
 /// The speed floor for the benchmark: a plain loop over exactly the (sample, segment) pairs that
 /// [`evaluate`] visits (those inside the resistance extent), computing only the transcendental
 /// functions the model needs there — ln|τ|, |τ|^c as exp(c ln|τ|), the weight exp, and the shape
-/// exp where σ ≠ 0 — summed into a checksum; no normalisation. Parallel like [`evaluate`].
+/// exp where σ ≠ 0 — summed into a checksum; no normalisation. Parallel like [`evaluate`], with
+/// the same kernels and lanes ([`crate::vector_math`]: four samples at a time with AVX2).
 /// Returns NaN if the parameters are invalid.
 pub fn physical_limit_loop(corpus: &Corpus, params: &[f64], opts: &ModelOptions) -> f64 {
     if validate_params(params, corpus.n_phonemes, 0.0, opts).is_err() {

@@ -182,7 +182,7 @@ impl GradScratch {
         for pair in self.pairs.iter_mut().filter(|p| p.active) {
             pair.p *= inv_den;
         }
-        // num / den, not num × (1/den): the same rounding as `Prepared::value_at`, so the
+        // num / den, not num × (1/den): the same rounding as `Prepared::lanes_at`, so the
         // values returned with the Jacobian equal those of `evaluate` bit for bit.
         self.value = num / den;
         Some(self.value)
