@@ -4,7 +4,7 @@
 
 use crate::error::ModelError;
 use crate::gradient::{GradScratch, UtteranceGrads};
-use crate::model::Prepared;
+use crate::model::{Prepared, LANES};
 use crate::params::{validate_params, ModelOptions, N_PARAMS};
 use rayon::prelude::*;
 use std::mem::MaybeUninit;
@@ -576,25 +576,32 @@ fn fill_jacobian(
             }
             pattern.push(n_cols - 1);
             let local = &corpus.seg_local[segs.clone()];
-            for n in samples {
-                let row = indptr[n] - nz_base..indptr[n] - nz_base + row_nnz;
-                if let Some(idx) = idx.as_deref_mut() {
-                    for (dst, &src) in idx[row.clone()].iter_mut().zip(&pattern) {
+            for block in blocks(samples) {
+                let degenerate =
+                    scratch.values_at(&prep, &corpus.sample_times[block.clone()], beta, res, shape);
+                if degenerate != 0 {
+                    return Err(ModelError::Degenerate {
+                        utterance: u,
+                        sample: block.start + degenerate.trailing_zeros() as usize,
+                    });
+                }
+                for (lane, n) in block.enumerate() {
+                    let row = indptr[n] - nz_base..indptr[n] - nz_base + row_nnz;
+                    if let Some(idx) = idx.as_deref_mut() {
+                        for (dst, &src) in idx[row.clone()].iter_mut().zip(&pattern) {
+                            dst.write(src);
+                        }
+                    }
+                    values[n - base] = scratch.value(lane);
+                    // The derivatives are summed in a small buffer laid out like the row, then
+                    // written once: the output is fresh memory, where a second pass costs more
+                    // than the arithmetic.
+                    grads.reset(segs.len(), distinct.len());
+                    scratch.accumulate(&prep, lane, 1.0, beta, res, shape, local, &mut grads);
+                    grads.finish(&prep, res, local);
+                    for (dst, &src) in dat[row].iter_mut().zip(&grads.row) {
                         dst.write(src);
                     }
-                }
-                let value = scratch
-                    .value_at(&prep, corpus.sample_times[n], beta, res, shape)
-                    .ok_or(ModelError::Degenerate { utterance: u, sample: n })?;
-                values[n - base] = value;
-                // The derivatives are summed in a small buffer laid out like the row, then
-                // written once: the output is fresh memory, where a second pass costs more
-                // than the arithmetic.
-                grads.reset(segs.len(), distinct.len());
-                scratch.accumulate(&prep, 1.0, local, &mut grads);
-                grads.finish(&prep, res, local);
-                for (dst, &src) in dat[row].iter_mut().zip(&grads.row) {
-                    dst.write(src);
                 }
             }
         }
@@ -611,6 +618,15 @@ fn fill_jacobian(
     } else {
         corpus.chunks.iter().zip(pieces).try_for_each(work)
     }
+}
+
+/// The samples `samples` in consecutive blocks of at most [`LANES`], the unit of the derivative
+/// passes' value pass.
+fn blocks(samples: Range<usize>) -> impl Iterator<Item = Range<usize>> {
+    samples
+        .clone()
+        .step_by(LANES)
+        .map(move |k| k..(k + LANES).min(samples.end))
 }
 
 /// Checks `observed` and `weights` (one per sample): weights finite and ≥ 0, observed finite
@@ -679,20 +695,36 @@ pub fn sse_gradient(
             let local = &corpus.seg_local[segs.clone()];
             let distinct = corpus.distinct(u);
             grads.reset(segs.len(), distinct.len());
-            for n in samples {
-                let w = weights[n];
-                if w == 0.0 {
+            for block in blocks(samples) {
+                let block_weights = &weights[block.clone()];
+                if block_weights.iter().all(|&w| w == 0.0) {
                     continue;
                 }
-                let f = scratch
-                    .value_at(&prep, corpus.sample_times[n], beta, res, shape)
-                    .ok_or(ModelError::Degenerate {
-                        utterance: u,
-                        sample: n,
-                    })?;
-                let r = observed[n] - f;
-                sse += w * r * r;
-                scratch.accumulate(&prep, -2.0 * w * r, local, &mut grads);
+                let degenerate =
+                    scratch.values_at(&prep, &corpus.sample_times[block.clone()], beta, res, shape);
+                for (lane, (n, &w)) in block.zip(block_weights).enumerate() {
+                    if w == 0.0 {
+                        continue;
+                    }
+                    if degenerate & (1 << lane) != 0 {
+                        return Err(ModelError::Degenerate {
+                            utterance: u,
+                            sample: n,
+                        });
+                    }
+                    let r = observed[n] - scratch.value(lane);
+                    sse += w * r * r;
+                    scratch.accumulate(
+                        &prep,
+                        lane,
+                        -2.0 * w * r,
+                        beta,
+                        res,
+                        shape,
+                        local,
+                        &mut grads,
+                    );
+                }
             }
             grads.finish(&prep, res, local);
             for (l, &p) in distinct.iter().enumerate() {

@@ -7,43 +7,14 @@
 //! (§3.1) and, for δ, the target time t_i; those go through the reverse-mode derivative of the
 //! extent recursion ([`Resistance::extents_adjoint`]), O(N) per sample.
 
-use crate::dominance::{log_dominance, log_dominance_grad, LogDominance, Side};
-use crate::model::Prepared;
+use crate::dominance::{log_dominance_grad, Side};
+use crate::model::{Prepared, LANES};
 use crate::params::{Param, N_PARAMS};
-use crate::resistance::{LogResistance, Resistance};
-use crate::shape::{Shape, ShapeValue};
-
-/// The state of one (sample, segment) pair between the value pass and the derivative pass.
-#[derive(Clone, Copy, Debug)]
-struct Pair {
-    active: bool,
-    tau: f64,
-    log_w: f64,
-    /// Normalised weight P_i.
-    p: f64,
-    ld: LogDominance,
-    lr: LogResistance,
-    sv: ShapeValue,
-}
-
-impl Default for Pair {
-    fn default() -> Self {
-        Pair {
-            active: false,
-            tau: 0.0,
-            log_w: f64::NEG_INFINITY,
-            p: 0.0,
-            ld: LogDominance::default(),
-            lr: LogResistance::default(),
-            sv: ShapeValue {
-                s: 1.0,
-                d_sigma: 0.0,
-                d_psi: 0.0,
-                d_tau: 0.0,
-            },
-        }
-    }
-}
+use crate::resistance::{cutoff_grad, LogResistance, Resistance};
+use crate::shape::Shape;
+use crate::vector_math::{exp_lanes, ln_lanes, Lanes};
+#[cfg(target_arch = "x86_64")]
+use crate::vector_math::{simd_enabled, F64x4};
 
 /// Derivatives of F (or of a weighted sum over samples) for one utterance, laid out like a
 /// Jacobian row: parameter k of the l-th distinct phoneme of the utterance at `l * 10 + k`, β
@@ -112,116 +83,242 @@ impl UtteranceGrads {
     }
 }
 
-/// Per-worker scratch for the derivative passes.
+/// Per-worker scratch for the derivative passes: the value pass runs [`LANES`] samples at a time
+/// through the lane kernels of [`crate::vector_math`] (like [`Prepared::evaluate`], so the
+/// values agree bit for bit) and keeps, per (segment, lane), the pieces the scalar derivative
+/// pass needs, so no transcendental function is computed twice.
 #[derive(Clone, Debug, Default)]
 pub(crate) struct GradScratch {
-    pairs: Vec<Pair>,
-    value: f64,
+    /// Per (segment, lane), segment-major with [`LANES`] per segment: τ.
+    tau: Vec<f64>,
+    /// ln|τ|, 0 at τ = 0 (where it only multiplies |τ|^c = 0).
+    ln_abs_tau: Vec<f64>,
+    /// |τ|^c.
+    power: Vec<f64>,
+    /// ln(R D) during the value pass, then the normalised weight P_i; 0 where the pair is
+    /// skipped (beyond the extent) or its weight underflowed (its derivative factors may be huge).
+    p: Vec<f64>,
+    /// u = |τ|/Δ and q = 1/(1 − u) of the sample's side (cut-off resistance only).
+    u: Vec<f64>,
+    q: Vec<f64>,
+    /// exp(−ψ τ²) (Gaussian shape only).
+    shape_exp: Vec<f64>,
+    /// F at each lane of the last block.
+    values: [f64; LANES],
 }
 
 impl GradScratch {
-    /// Value pass at one time: F, keeping every pair's pieces for [`GradScratch::accumulate`].
-    /// `None` if every weight vanishes.
-    pub fn value_at(
+    /// Value pass at up to [`LANES`] times (a short block is padded with its last time): F at
+    /// each, kept for [`GradScratch::value`] and [`GradScratch::accumulate`]. Returns the bits
+    /// (lane j at bit j) of the lanes where every weight vanishes (F undefined there).
+    pub fn values_at(
         &mut self,
         prep: &Prepared,
-        time: f64,
+        times: &[f64],
         beta: f64,
         res: Resistance,
         shape: Shape,
-    ) -> Option<f64> {
-        let n = prep.seg.len();
-        self.pairs.resize(n, Pair::default());
-        let mut max_lw = f64::NEG_INFINITY;
-        for (s, pair) in prep.seg.iter().zip(self.pairs.iter_mut()) {
-            let tau = time - s.t;
-            let a = tau.abs();
-            let (theta, c, ext, inv) = match Side::of(tau) {
-                Side::Backward => (s.theta_bw, s.c_bw, s.ext_bwd, s.inv_bwd),
-                Side::Forward => (s.theta_fw, s.c_fw, s.ext_fwd, s.inv_fwd),
-            };
-            pair.tau = tau;
-            match res.log_value_grad(a, ext, inv, beta) {
-                None => {
-                    pair.active = false;
-                }
-                Some(lr) => {
-                    let ld = log_dominance(s.log_alpha, theta, c, a);
-                    let lw = lr.log_r + ld.log_d;
-                    pair.active = lw != f64::NEG_INFINITY;
-                    pair.ld = ld;
-                    pair.lr = lr;
-                    pair.log_w = lw;
-                    if lw > max_lw {
-                        max_lw = lw;
-                    }
-                }
-            }
+    ) -> u32 {
+        let m = times.len();
+        debug_assert!((1..=LANES).contains(&m));
+        let len = prep.seg.len() * LANES;
+        for v in [
+            &mut self.tau,
+            &mut self.ln_abs_tau,
+            &mut self.power,
+            &mut self.p,
+            &mut self.u,
+            &mut self.q,
+            &mut self.shape_exp,
+        ] {
+            v.resize(len, 0.0);
         }
-        if max_lw == f64::NEG_INFINITY {
-            return None;
+        let mut t = [times[m - 1]; LANES];
+        t[..m].copy_from_slice(times);
+        #[cfg(target_arch = "x86_64")]
+        if simd_enabled() {
+            // SAFETY: AVX2 was detected at run time.
+            return unsafe { self.values_avx2(prep, &t, beta, res, shape) } & ((1 << m) - 1);
         }
-        let mut num = 0.0;
-        let mut den = 0.0;
-        for (s, pair) in prep.seg.iter().zip(self.pairs.iter_mut()) {
-            if !pair.active {
-                continue;
-            }
-            let w = crate::vector_math::exp(pair.log_w - max_lw);
-            if w == 0.0 {
-                // Underflowed: contributes nothing, and its derivative factors may be huge.
-                pair.active = false;
-                continue;
-            }
-            pair.p = w;
-            pair.sv = shape.value_grad(pair.tau, s.sigma, s.psi);
-            num += w * s.target * pair.sv.s;
-            den += w;
+        let mut degenerate = 0;
+        for (j, &time) in t[..m].iter().enumerate() {
+            degenerate |= self.lanes_at::<f64>(prep, time, j, beta, res, shape) << j;
         }
-        let inv_den = 1.0 / den;
-        for pair in self.pairs.iter_mut().filter(|p| p.active) {
-            pair.p *= inv_den;
-        }
-        // num / den, not num × (1/den): the same rounding as `Prepared::lanes_at`, so the
-        // values returned with the Jacobian equal those of `evaluate` bit for bit.
-        self.value = num / den;
-        Some(self.value)
+        degenerate
     }
 
-    /// Adds `scale` × ∂F/∂(every parameter) at the last [`GradScratch::value_at`] to `grads`;
-    /// `local[i]` is the distinct-phoneme position of segment i.
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx2")]
+    fn values_avx2(
+        &mut self,
+        prep: &Prepared,
+        t: &[f64; LANES],
+        beta: f64,
+        res: Resistance,
+        shape: Shape,
+    ) -> u32 {
+        self.lanes_at::<F64x4>(prep, F64x4::load(t), 0, beta, res, shape)
+    }
+
+    /// The value pass for the lanes `at..at + V::N`: the operation sequence of
+    /// [`Prepared::evaluate`]'s lane evaluator, keeping the pieces.
+    #[inline(always)]
+    fn lanes_at<V: Lanes>(
+        &mut self,
+        prep: &Prepared,
+        time: V,
+        at: usize,
+        beta: f64,
+        res: Resistance,
+        shape: Shape,
+    ) -> u32 {
+        let s = V::splat;
+        let zero = s(0.0);
+        let one = s(1.0);
+        let neg_inf = s(f64::NEG_INFINITY);
+        let mut max_lw = neg_inf;
+        for (i, g) in prep.seg.iter().enumerate() {
+            let o = i * LANES + at;
+            let tau = time.sub(s(g.t));
+            tau.store(&mut self.tau[o..]);
+            let a = tau.abs();
+            let bw = tau.le(zero);
+            let lr = match res {
+                Resistance::None => zero,
+                Resistance::Cutoff => {
+                    let ext = V::select(bw, s(g.ext_bwd), s(g.ext_fwd));
+                    let u = a.div(ext);
+                    let v = s(-beta).mul(u).div(one.sub(u));
+                    u.store(&mut self.u[o..]);
+                    one.div(one.sub(u)).store(&mut self.q[o..]);
+                    V::select(a.eq(zero), zero, V::select(u.ge(one), neg_inf, v))
+                }
+            };
+            let active = lr.ne(neg_inf);
+            if !V::any(active) {
+                neg_inf.store(&mut self.p[o..]);
+                continue;
+            }
+            let theta = V::select(bw, s(g.theta_bw), s(g.theta_fw));
+            // ln|τ| always (∂/∂c needs it even where c = 1); at τ = 0, ln 0 = −∞ gives
+            // exp(−∞) = 0 = |τ|^c, as in the evaluator.
+            let ln_a = ln_lanes(a);
+            let power = if g.c_bw == 1.0 && g.c_fw == 1.0 {
+                a
+            } else {
+                let c = V::select(bw, s(g.c_bw), s(g.c_fw));
+                V::select(c.eq(one), a, exp_lanes(c.mul(ln_a)))
+            };
+            V::select(a.eq(zero), zero, ln_a).store(&mut self.ln_abs_tau[o..]);
+            power.store(&mut self.power[o..]);
+            let ld = s(g.log_alpha).sub(theta.mul(power));
+            let lw = V::select(active, lr.add(ld), neg_inf);
+            max_lw = V::select(lw.gt(max_lw), lw, max_lw);
+            lw.store(&mut self.p[o..]);
+        }
+        let degenerate = max_lw.eq(neg_inf);
+        let mut num = zero;
+        let mut den = zero;
+        for (i, g) in prep.seg.iter().enumerate() {
+            let o = i * LANES + at;
+            let lw = V::load(&self.p[o..]);
+            let active = lw.ne(neg_inf);
+            if !V::any(active) {
+                zero.store(&mut self.p[o..]);
+                continue;
+            }
+            let w = exp_lanes(lw.sub(max_lw));
+            let sv = match shape {
+                Shape::Gaussian => {
+                    let tau = V::load(&self.tau[o..]);
+                    let e = exp_lanes(s(-g.psi).mul(tau.mul(tau)));
+                    e.store(&mut self.shape_exp[o..]);
+                    if g.sigma != 0.0 {
+                        one.add(s(g.sigma).mul(e))
+                    } else {
+                        one
+                    }
+                }
+                Shape::None => one,
+            };
+            num = V::select(active, num.add(w.mul(s(g.target)).mul(sv)), num);
+            den = V::select(active, den.add(w), den);
+            V::select(active, w, zero).store(&mut self.p[o..]);
+        }
+        num.div(den).store(&mut self.values[at..]);
+        let inv_den = V::select(degenerate, zero, one.div(den));
+        for i in 0..prep.seg.len() {
+            let o = i * LANES + at;
+            V::load(&self.p[o..]).mul(inv_den).store(&mut self.p[o..]);
+        }
+        V::bits(degenerate)
+    }
+
+    /// F at lane `lane` of the last [`GradScratch::values_at`] (num / den, the rounding of
+    /// [`Prepared::evaluate`], so equal to it bit for bit).
+    pub fn value(&self, lane: usize) -> f64 {
+        self.values[lane]
+    }
+
+    /// Adds `scale` × ∂F/∂(every parameter) at lane `lane` of the last
+    /// [`GradScratch::values_at`] to `grads`; `local[i]` is the distinct-phoneme position of
+    /// segment i. The lane must not be degenerate.
+    #[allow(clippy::too_many_arguments)]
     pub fn accumulate(
         &self,
         prep: &Prepared,
+        lane: usize,
         scale: f64,
+        beta: f64,
+        res: Resistance,
+        shape: Shape,
         local: &[usize],
         grads: &mut UtteranceGrads,
     ) {
         let width = grads.row.len();
-        let f = self.value;
-        for (i, (s, pair)) in prep.seg.iter().zip(self.pairs.iter()).enumerate() {
-            if !pair.active {
+        let f = self.values[lane];
+        for (i, s) in prep.seg.iter().enumerate() {
+            let o = i * LANES + lane;
+            let p = self.p[o];
+            if p == 0.0 {
                 continue;
             }
-            let sp = scale * pair.p;
-            // ∂F/∂(ln w_i), scaled.
-            let a = sp * (s.target * pair.sv.s - f);
-            let side = Side::of(pair.tau);
-            let (theta, c) = match side {
-                Side::Backward => (s.theta_bw, s.c_bw),
-                Side::Forward => (s.theta_fw, s.c_fw),
+            let tau = self.tau[o];
+            let side = Side::of(tau);
+            let (theta, c, inv_ext) = match side {
+                Side::Backward => (s.theta_bw, s.c_bw, s.inv_bwd),
+                Side::Forward => (s.theta_fw, s.c_fw, s.inv_fwd),
             };
-            let dg = log_dominance_grad(s.inv_alpha, theta, c, pair.tau, &pair.ld);
-            let sign = if pair.tau > 0.0 {
+            let lr = if res.is_none() || tau == 0.0 {
+                LogResistance::default()
+            } else {
+                match cutoff_grad(self.u[o], self.q[o], inv_ext, beta) {
+                    Some(lr) => lr,
+                    None => continue,
+                }
+            };
+            let sv = shape.value_grad_from_exp(tau, s.sigma, s.psi, self.shape_exp[o]);
+            let sp = scale * p;
+            // ∂F/∂(ln w_i), scaled.
+            let a = sp * (s.target * sv.s - f);
+            let dg = log_dominance_grad(
+                s.inv_alpha,
+                theta,
+                c,
+                tau,
+                self.power[o],
+                self.ln_abs_tau[o],
+            );
+            let sign = if tau > 0.0 {
                 1.0
-            } else if pair.tau < 0.0 {
+            } else if tau < 0.0 {
                 -1.0
             } else {
                 0.0
             };
             let l = local[i] * N_PARAMS;
             let d = &mut grads.row[l..l + N_PARAMS];
-            d[Param::Target.index()] += sp * pair.sv.s;
+            d[Param::Target.index()] += sp * sv.s;
             d[Param::Alpha.index()] += a * dg.d_alpha;
             let (ti, ci) = match side {
                 Side::Backward => (Param::ThetaBw.index(), Param::CBw.index()),
@@ -229,16 +326,16 @@ impl GradScratch {
             };
             d[ti] += a * dg.d_theta;
             d[ci] += a * dg.d_c;
-            d[Param::Sigma.index()] += sp * s.target * pair.sv.d_sigma;
-            d[Param::Psi.index()] += sp * s.target * pair.sv.d_psi;
+            d[Param::Sigma.index()] += sp * s.target * sv.d_sigma;
+            d[Param::Psi.index()] += sp * s.target * sv.d_psi;
             // τ = t − t_i, so ∂/∂t_i = −∂/∂τ.
-            let d_log_w_d_tau = dg.d_tau + pair.lr.d_abs_tau * sign;
-            grads.d_t[i] -= a * d_log_w_d_tau + sp * s.target * pair.sv.d_tau;
+            let d_log_w_d_tau = dg.d_tau + lr.d_abs_tau * sign;
+            grads.d_t[i] -= a * d_log_w_d_tau + sp * s.target * sv.d_tau;
             match side {
-                Side::Backward => grads.g_bwd[i] += a * pair.lr.d_extent,
-                Side::Forward => grads.g_fwd[i] += a * pair.lr.d_extent,
+                Side::Backward => grads.g_bwd[i] += a * lr.d_extent,
+                Side::Forward => grads.g_fwd[i] += a * lr.d_extent,
             }
-            grads.row[width - 1] += a * pair.lr.d_beta;
+            grads.row[width - 1] += a * lr.d_beta;
         }
     }
 }

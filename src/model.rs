@@ -12,7 +12,7 @@ use crate::vector_math::{simd_enabled, F64x4};
 
 /// Lanes of the widest evaluation path (AVX2: four f64); the per-segment scratch holds this many
 /// values per segment whatever path runs.
-const LANES: usize = 4;
+pub(crate) const LANES: usize = 4;
 
 /// Everything about one segment that the inner loop reads, laid out together.
 #[derive(Clone, Copy, Debug, Default)]
@@ -134,7 +134,7 @@ impl Prepared {
     /// F at the lanes of `time` (eq. 1 or eq. 3), with the lanes where every segment's weight is
     /// zero (degenerate: F undefined there). The same operation sequence per lane whatever the
     /// lane count, so the scalar and AVX2 instantiations agree bit for bit with each other and
-    /// with [`crate::gradient::GradScratch::value_at`].
+    /// with [`crate::gradient::GradScratch::values_at`].
     #[inline(always)]
     fn lanes_at<V: Lanes>(
         &mut self,

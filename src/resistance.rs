@@ -26,6 +26,24 @@ pub struct LogResistance {
     pub d_beta: f64,
 }
 
+/// The derivatives of ln R for the cut-off given u = |τ|/Δ < 1 and q = 1/(1 − u), 0 < |τ| (the
+/// vectorised value pass computes u and q four lanes at a time); `log_r` is left 0. `None` where
+/// 1 − u is so small that q² overflows: ρ is 0 to machine precision there.
+#[inline(always)]
+pub(crate) fn cutoff_grad(u: f64, q: f64, inv_extent: f64, beta: f64) -> Option<LogResistance> {
+    let d_u = -beta * q * q;
+    if !d_u.is_finite() {
+        return None;
+    }
+    Some(LogResistance {
+        log_r: 0.0,
+        // u = |τ|/Δ: ∂u/∂Δ = −u/Δ, ∂u/∂|τ| = 1/Δ.
+        d_extent: -d_u * u * inv_extent,
+        d_abs_tau: d_u * inv_extent,
+        d_beta: -u * q,
+    })
+}
+
 impl Resistance {
     /// Whether R is identically 1 (no extents needed, no k_R or β dependence).
     #[inline(always)]
@@ -77,19 +95,9 @@ impl Resistance {
                 if u >= 1.0 {
                     return None;
                 }
-                let q = 1.0 / (1.0 - u);
-                let d_u = -beta * q * q;
-                if !d_u.is_finite() {
-                    // 1 − u so small that q² overflows: ρ is 0 to machine precision here.
-                    return None;
-                }
-                Some(LogResistance {
-                    log_r: -beta * u / (1.0 - u), // as in `log_value`, bit for bit
-                    // u = |τ|/Δ: ∂u/∂Δ = −u/Δ, ∂u/∂|τ| = 1/Δ.
-                    d_extent: -d_u * u * inv_extent,
-                    d_abs_tau: d_u * inv_extent,
-                    d_beta: -u * q,
-                })
+                let mut lr = cutoff_grad(u, 1.0 / (1.0 - u), inv_extent, beta)?;
+                lr.log_r = -beta * u / (1.0 - u); // as in `log_value`, bit for bit
+                Some(lr)
             }
         }
     }
