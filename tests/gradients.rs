@@ -1,6 +1,7 @@
 //! Exact gradients (MODEL.md §4) against central finite differences on random models: every
 //! Jacobian column (all ten parameters of every phoneme, and β), the SSE gradient, c < 1 with a
-//! sample exactly at a target time, and dominance underflow.
+//! sample exactly at a target time, dominance underflow, and rows independent of the four-sample
+//! blocks the value pass runs in.
 
 mod common;
 use coartic::{ModelOptions, Param, Variant, N_PARAMS};
@@ -63,6 +64,24 @@ proptest! {
                 }
             }
             prop_assert_eq!(dj[r * n_cols + n_cols - 1], 0.0);
+        }
+    }
+
+    /// The derivative passes evaluate samples in blocks of four lanes: each sample's value and
+    /// Jacobian row are the same bits whether it shares a block with others (at any lane, in a
+    /// short last block) or is evaluated alone, and the values equal `evaluate`'s.
+    #[test]
+    fn jacobian_rows_do_not_depend_on_their_block(m in model_strategy(7), n in 2usize..11) {
+        let times = m.times(n);
+        let (values, dj, n_cols) = jac(&m, &times);
+        let direct = eval(&m.corpus(&times), &m.params(), m.beta, &m.opts);
+        for (r, &t) in times.iter().enumerate() {
+            let (v, row, _) = jac(&m, &[t]);
+            prop_assert_eq!(values[r].to_bits(), v[0].to_bits(), "value at sample {}", r);
+            prop_assert_eq!(values[r].to_bits(), direct[r].to_bits(), "evaluate at sample {}", r);
+            for (k, (a, b)) in dj[r * n_cols..(r + 1) * n_cols].iter().zip(&row).enumerate() {
+                prop_assert_eq!(a.to_bits(), b.to_bits(), "sample {} column {}", r, k);
+            }
         }
     }
 
