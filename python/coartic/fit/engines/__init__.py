@@ -44,14 +44,19 @@ def get_engine(name: str) -> Minimizer:
     return minimize
 
 
-def check_start(problem: ChannelProblem, x0: NDArray[np.float64]) -> EngineResult | None:
-    """An EngineResult explaining why x0 cannot start a fit, or None if it can."""
+def prepare_start(
+    problem: ChannelProblem, x0: NDArray[np.float64]
+) -> tuple[NDArray[np.float64], EngineResult | None]:
+    """x0 clipped into the bounds, and an EngineResult explaining why it cannot start a fit (None
+    if it can): every engine starts this way, so a bad start is reported alike by all of them."""
+    lo, hi = problem.packing.bounds()
+    x0 = np.clip(x0, lo, hi)
     r = problem.residuals(x0)
     if np.all(np.isfinite(r)):
-        return None
+        return x0, None
     why = problem.last_error or "the model gives non-finite values there"
-    return EngineResult(x0, "non-finite start", f"residuals not finite at the start: {why}",
-                        problem.nfev, problem.njev)
+    return x0, EngineResult(x0, "non-finite start", f"residuals not finite at the start: {why}",
+                            problem.nfev, problem.njev)
 
 
 class Unit:

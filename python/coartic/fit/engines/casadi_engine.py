@@ -16,7 +16,7 @@ import casadi as ca
 import numpy as np
 from numpy.typing import NDArray
 
-from coartic.fit.engines import EngineResult, Unit, check_start
+from coartic.fit.engines import EngineResult, Unit, prepare_start
 from coartic.fit.problem import ChannelProblem
 
 
@@ -89,11 +89,10 @@ class _Gradient(ca.Callback):  # type: ignore[misc]
 
 
 def minimize(problem: ChannelProblem, x0: NDArray[np.float64], options: dict[str, Any]) -> EngineResult:
-    lo, hi = problem.packing.bounds()
-    x0 = np.clip(x0, lo, hi)
-    bad = check_start(problem, x0)
+    x0, bad = prepare_start(problem, x0)
     if bad is not None:
         return bad
+    lo, hi = problem.packing.bounds()
     unit = Unit(lo, hi)
     state: dict[str, Any] = {"interrupted": False}
     f = _Objective("coartic_sse", problem, unit, state)

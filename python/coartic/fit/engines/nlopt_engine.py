@@ -18,7 +18,7 @@ import nlopt
 import numpy as np
 from numpy.typing import NDArray
 
-from coartic.fit.engines import EngineResult, Unit, check_start
+from coartic.fit.engines import EngineResult, Unit, prepare_start
 from coartic.fit.problem import ChannelProblem
 
 _GLOBAL = {"mlsl": nlopt.G_MLSL_LDS, "crs2": nlopt.GN_CRS2_LM}
@@ -42,11 +42,10 @@ def minimize(problem: ChannelProblem, x0: NDArray[np.float64], options: dict[str
         o["global"] = "mlsl" if x0.size <= AUTO_GLOBAL_MAX_FREE else "none"
     if o["global"] not in (*_GLOBAL, "none") or o["local"] not in _LOCAL:
         raise ValueError(f"[engine.options] global must be one of {[*_GLOBAL, 'none']}, local one of {list(_LOCAL)}")
-    lo, hi = problem.packing.bounds()
-    x0 = np.clip(x0, lo, hi)
-    bad = check_start(problem, x0)
+    x0, bad = prepare_start(problem, x0)
     if bad is not None:
         return bad
+    lo, hi = problem.packing.bounds()
     unit = Unit(lo, hi)
     n = x0.size
     interrupted = False

@@ -15,18 +15,17 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy.optimize import least_squares
 
-from coartic.fit.engines import EngineResult, check_start
+from coartic.fit.engines import EngineResult, prepare_start
 from coartic.fit.problem import ChannelProblem
 
 _STATUS = {-1: "failed", 0: "max-evaluations", 1: "converged", 2: "converged", 3: "converged", 4: "converged"}
 
 
 def minimize(problem: ChannelProblem, x0: NDArray[np.float64], options: dict[str, Any]) -> EngineResult:
-    lo, hi = problem.packing.bounds()
-    x0 = np.clip(x0, lo, hi)
-    bad = check_start(problem, x0)
+    x0, bad = prepare_start(problem, x0)
     if bad is not None:
         return bad
+    lo, hi = problem.packing.bounds()
     opts = dict(options)
     n_entries = problem.data.corpus.n_samples * problem.packing.n_free
     tr_solver = opts.pop("tr_solver", "exact" if n_entries < 2e5 else "lsmr")
