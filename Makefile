@@ -2,7 +2,7 @@
 #   make fit    set up everything, generate the synthetic session, fit it end to end, write the report
 #   make test   set up everything, run every test (Rust core without Python, then Python)
 PY := .venv/bin/python
-.PHONY: setup fit test test-rust test-python stubtest bench clean
+.PHONY: setup fit test test-rust test-python stubtest typecheck bench clean
 
 setup:
 	./scripts/setup.sh
@@ -11,13 +11,16 @@ fit: setup
 	[ -f build/session/manifest.csv ] || $(PY) -m coartic.cli corpus synth build/session
 	$(PY) -m coartic.cli fit fit/synthetic.toml --out results/synthetic
 
-test: setup test-rust stubtest test-python
+test: setup test-rust stubtest typecheck test-python
 
 test-rust:
 	cargo test --release --quiet
 
 stubtest:
 	$(PY) -m mypy.stubtest coartic._core --allowlist tests/stubtest-allowlist.txt
+
+typecheck:
+	$(PY) -m mypy
 
 test-python:
 	$(PY) -m pytest -q -n 2 tests/python
