@@ -33,11 +33,9 @@ from numpy.typing import NDArray
 
 from coartic import _core
 from coartic.fit.spec import FitSpec, SpecError
+from coartic.model import JacobianBuffer, build_corpus
 from coartic.model import Utterance as ModelUtterance
-from coartic.model import build_corpus
-from coartic.table import PARAMETERS
-
-N_PARAMS = len(PARAMETERS)
+from coartic.table import N_PARAMS, PARAMETERS
 PAUSE = "#"
 # Columns fitted on a log scale (MODEL.md §1: "fit log α", "fit log θ"; ψ > 0 likewise).
 LOG_PARAMETERS: frozenset[str] = frozenset({"alpha", "theta_bw", "theta_fw", "psi"})
@@ -327,18 +325,17 @@ class ChannelProblem:
         self.best_sse = np.inf
         self.last_error: str | None = None
         self.monitor: Callable[[int, float], None] | None = None  # (evaluations, best SSE) hook
-        self._cache_x: FloatArray | None = None
-        self._cache: tuple[FloatArray, sp.csr_matrix] | None = None
+        # One set of Jacobian arrays, refilled at every step: a fit allocates nothing per step.
+        self._jacobian = JacobianBuffer(data.corpus)
 
     # --- natural-unit evaluation -------------------------------------------------------------
     def evaluate(self, params: FloatArray, beta: float) -> FloatArray:
         return np.asarray(_core.evaluate(self.data.corpus, params, beta, self.options))
 
     def full_jacobian(self, params: FloatArray, beta: float) -> tuple[FloatArray, sp.csr_matrix]:
-        """Model values and the core's CSR Jacobian over every column (n_phonemes*10 + 1)."""
-        values, indptr, indices, data = _core.jacobian(self.data.corpus, params, beta, self.options)
-        shape = (self.data.corpus.n_samples, len(self.data.phonemes) * N_PARAMS + 1)
-        return np.asarray(values), sp.csr_matrix((data, indices, indptr), shape=shape)
+        """Model values and the core's CSR Jacobian over every column (n_phonemes*10 + 1); both are
+        overwritten by the next call, so copy what you keep."""
+        return self._jacobian.compute(params, beta, self.options)
 
     # --- internal-x interface for engines ----------------------------------------------------
     def _track(self, x: FloatArray, sse: float) -> None:
