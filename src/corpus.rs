@@ -808,7 +808,8 @@ pub fn evaluate_batch(
         .collect()
 }
 
-/// SSE on validated parameters, without storing F.
+/// SSE on validated parameters, without storing F; when `per_utterance` is given (one slot per
+/// utterance), each utterance's weighted residual sum Σ w (y − F) goes into it as well.
 fn sse_unchecked(
     corpus: &Corpus,
     params: &[f64],
@@ -816,41 +817,58 @@ fn sse_unchecked(
     opts: &ModelOptions,
     observed: &[f64],
     weights: &[f64],
+    mut per_utterance: Option<&mut [f64]>,
 ) -> Option<f64> {
     let res = opts.variant.resistance();
     let shape = opts.variant.shape();
-    let parts = corpus.map_chunks(|chunk| -> Option<f64> {
+    let want_sums = per_utterance.is_some();
+    let parts = corpus.map_chunks(|chunk| -> Option<(f64, Vec<f64>)> {
         let mut prep = Prepared::default();
         let mut f = Vec::new();
         let mut sse = 0.0;
+        let mut sums = Vec::with_capacity(if want_sums { chunk.len() } else { 0 });
         for u in chunk {
             let samples = corpus.samples(u);
-            if samples.is_empty() {
-                continue;
-            }
-            corpus.prepare(&mut prep, u, params, opts);
-            f.resize(samples.len(), 0.0);
-            let (w, y) = (&weights[samples.clone()], &observed[samples.clone()]);
-            // A degenerate sample only matters where it is weighted.
-            prep.evaluate_with(
-                &corpus.sample_times[samples],
-                beta,
-                res,
-                shape,
-                &mut f,
-                |n| if w[n] == 0.0 { Ok(()) } else { Err(()) },
-            )
-            .ok()?;
-            for ((&w, &y), &f) in w.iter().zip(y).zip(&f) {
-                if w != 0.0 {
-                    let r = y - f;
-                    sse += w * r * r;
+            let mut sum = 0.0;
+            if !samples.is_empty() {
+                corpus.prepare(&mut prep, u, params, opts);
+                f.resize(samples.len(), 0.0);
+                let (w, y) = (&weights[samples.clone()], &observed[samples.clone()]);
+                // A degenerate sample only matters where it is weighted.
+                prep.evaluate_with(
+                    &corpus.sample_times[samples],
+                    beta,
+                    res,
+                    shape,
+                    &mut f,
+                    |n| if w[n] == 0.0 { Ok(()) } else { Err(()) },
+                )
+                .ok()?;
+                for ((&w, &y), &f) in w.iter().zip(y).zip(&f) {
+                    if w != 0.0 {
+                        let r = y - f;
+                        sse += w * r * r;
+                        sum += w * r;
+                    }
                 }
             }
+            if want_sums {
+                sums.push(sum);
+            }
         }
-        Some(sse)
+        Some((sse, sums))
     });
-    parts.into_iter().sum()
+    let mut sse = 0.0;
+    let mut at = 0;
+    for part in parts {
+        let (part_sse, sums) = part?;
+        sse += part_sse;
+        if let Some(out) = per_utterance.as_deref_mut() {
+            out[at..at + sums.len()].copy_from_slice(&sums);
+            at += sums.len();
+        }
+    }
+    Some(sse)
 }
 
 /// SSE = Σ w (y − F)² for W parameter sets at once (the MCMC fast path). A walker whose
@@ -873,11 +891,64 @@ pub fn sse_batch(
         let params = &params_batch[walker * per..(walker + 1) * per];
         let beta = betas[walker];
         *o = match validate_params(params, corpus.n_phonemes, beta, opts) {
-            Ok(()) => sse_unchecked(corpus, params, beta, opts, observed, weights)
+            Ok(()) => sse_unchecked(corpus, params, beta, opts, observed, weights, None)
                 .unwrap_or(f64::INFINITY),
             Err(_) => f64::INFINITY,
         };
     });
+    Ok(())
+}
+
+/// [`sse_batch`] plus each utterance's weighted residual sum Σ w (y − F) per walker, into `sums`
+/// (W × n_utterances, row-major): what a likelihood with a random offset per utterance needs. A
+/// walker whose parameters are invalid or degenerate gets SSE +∞ and NaN sums.
+pub fn residual_sums_batch(
+    corpus: &Corpus,
+    params_batch: &[f64],
+    betas: &[f64],
+    opts: &ModelOptions,
+    observed: &[f64],
+    weights: &[f64],
+    sse: &mut [f64],
+    sums: &mut [f64],
+) -> Result<(), ModelError> {
+    opts.validate()?;
+    let per = check_batch(corpus, params_batch, betas)?;
+    validate_observations(corpus, observed, weights)?;
+    check_len("sse (n_walkers)", sse.len(), betas.len())?;
+    let nu = corpus.n_utterances();
+    check_len(
+        "sums (n_walkers * n_utterances)",
+        sums.len(),
+        betas.len() * nu,
+    )?;
+    if nu == 0 {
+        sse.fill(0.0);
+        return Ok(());
+    }
+    sse.par_iter_mut()
+        .zip(sums.par_chunks_mut(nu))
+        .enumerate()
+        .for_each(|(walker, (o, row))| {
+            let params = &params_batch[walker * per..(walker + 1) * per];
+            let beta = betas[walker];
+            let value = match validate_params(params, corpus.n_phonemes, beta, opts) {
+                Ok(()) => sse_unchecked(
+                    corpus,
+                    params,
+                    beta,
+                    opts,
+                    observed,
+                    weights,
+                    Some(&mut *row),
+                ),
+                Err(_) => None,
+            };
+            *o = value.unwrap_or(f64::INFINITY);
+            if value.is_none() {
+                row.fill(f64::NAN);
+            }
+        });
     Ok(())
 }
 

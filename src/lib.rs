@@ -6,7 +6,7 @@
 //! `src/python/` behind the `python` feature.
 //!
 //! Entry points: build a [`Corpus`] (CSR layout of docs/ARCHITECTURE.md), then [`evaluate`],
-//! [`jacobian`], [`sse_gradient`], or the walker batches [`evaluate_batch`] and [`sse_batch`].
+//! [`jacobian`], [`sse_gradient`], or the walker batches [`evaluate_batch`], [`sse_batch`] and [`residual_sums_batch`].
 //!
 //! Numerical conventions (MODEL.md §4):
 //! - F is normalised in the log domain (log-sum-exp over segments): no 0/0 where every
@@ -34,8 +34,8 @@ pub mod targets;
 pub mod vector_math;
 
 pub use corpus::{
-    evaluate, evaluate_batch, jacobian, jacobian_values, physical_limit_loop, sse_batch,
-    sse_gradient, Corpus, SparseJacobian,
+    evaluate, evaluate_batch, jacobian, jacobian_values, physical_limit_loop, residual_sums_batch,
+    sse_batch, sse_gradient, Corpus, SparseJacobian,
 };
 pub use error::ModelError;
 pub use params::{validate_params, ModelOptions, Param, UnknownVariant, Variant, N_PARAMS};

@@ -3,8 +3,8 @@
 
 mod common;
 use coartic::{
-    evaluate_batch, jacobian, jacobian_values, sse_batch, sse_gradient, Corpus, ModelError,
-    ModelOptions, Param, N_PARAMS,
+    evaluate_batch, jacobian, jacobian_values, residual_sums_batch, sse_batch, sse_gradient,
+    Corpus, ModelError, ModelOptions, Param, N_PARAMS,
 };
 use common::*;
 use proptest::prelude::*;
@@ -100,12 +100,13 @@ proptest! {
         }
     }
 
-    /// evaluate_batch / sse_batch equal per-walker evaluate / sse_gradient; an invalid walker
-    /// makes evaluate_batch fail naming it and gets +inf from sse_batch.
+    /// evaluate_batch / sse_batch equal per-walker evaluate / sse_gradient, and residual_sums_batch
+    /// gives sse_batch's SSE and each utterance's Σ w (y − F) of evaluate_batch's F; an invalid
+    /// walker makes evaluate_batch fail naming it, gets +inf from sse_batch and NaN sums.
     #[test]
     fn walker_batches_equal_single_calls(models in prop::collection::vec(model_strategy(6), 40), walkers in prop::collection::vec((prop::collection::vec(row_strategy(), 3), 0.0..3.0f64), 5)) {
         let opts = ModelOptions::default();
-        let (c, _) = big_corpus(&models, 3, 25);
+        let (c, per) = big_corpus(&models, 3, 25);
         let ns = c.n_samples();
         let batch: Vec<f64> = walkers.iter().flat_map(|(r, _)| flat(r)).collect();
         let betas: Vec<f64> = walkers.iter().map(|w| w.1).collect();
@@ -115,6 +116,19 @@ proptest! {
         let weights: Vec<f64> = (0..ns).map(|n| if n % 5 == 0 { 0.0 } else { 1.0 }).collect();
         let mut sse = vec![0.0; walkers.len()];
         sse_batch(&c, &batch, &betas, &opts, &observed, &weights, &mut sse).unwrap();
+        let nu = per.len();
+        let (mut sse2, mut sums) = (vec![0.0; walkers.len()], vec![0.0; walkers.len() * nu]);
+        residual_sums_batch(&c, &batch, &betas, &opts, &observed, &weights, &mut sse2, &mut sums).unwrap();
+        prop_assert!(first_difference(&sse2, &sse).is_none(), "{:?}", first_difference(&sse2, &sse));
+        for w in 0..walkers.len() {
+            let mut row0 = 0;
+            for (u, times) in per.iter().enumerate() {
+                let want: f64 = (row0..row0 + times.len()).map(|n| weights[n] * (observed[n] - out[w * ns + n])).sum();
+                let got = sums[w * nu + u];
+                prop_assert!((got - want).abs() <= 1e-12 * want.abs().max(1.0), "walker {} utterance {}: {} vs {}", w, u, got, want);
+                row0 += times.len();
+            }
+        }
         for (w, (rows, beta)) in walkers.iter().enumerate() {
             let single = eval(&c, &flat(rows), *beta, &opts);
             let got = &out[w * ns..(w + 1) * ns];
@@ -130,6 +144,9 @@ proptest! {
         sse_batch(&c, &bad, &betas, &opts, &observed, &weights, &mut sse).unwrap();
         prop_assert_eq!(sse[1], f64::INFINITY);
         prop_assert!(sse[0].is_finite() && sse[2].is_finite());
+        residual_sums_batch(&c, &bad, &betas, &opts, &observed, &weights, &mut sse2, &mut sums).unwrap();
+        prop_assert_eq!(sse2[1], f64::INFINITY);
+        prop_assert!(sums[nu..2 * nu].iter().all(|x| x.is_nan()) && sums[..nu].iter().all(|x| x.is_finite()));
     }
 }
 

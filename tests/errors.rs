@@ -455,6 +455,46 @@ fn evaluation_errors() {
         ),
         "{e:?}"
     );
+    // residual_sums_batch checks both outputs and the observations like sse_batch
+    let (mut sse, mut sums) = (vec![0.0; 1], vec![0.0; 2]);
+    let e = coartic::residual_sums_batch(
+        &c,
+        &p,
+        &[1.0],
+        &opts,
+        &[1.0; 3],
+        &[1.0; 3],
+        &mut sse,
+        &mut sums,
+    )
+    .unwrap_err();
+    assert!(
+        matches!(
+            e,
+            LengthMismatch {
+                got: 2,
+                expected: 1,
+                ..
+            }
+        ),
+        "{e:?}"
+    );
+    let mut sums = vec![0.0; 1];
+    let e = coartic::residual_sums_batch(&c, &p, &[1.0], &opts, &y, &[1.0; 3], &mut sse, &mut sums)
+        .unwrap_err();
+    assert!(matches!(e, NonFiniteObserved { sample: 1, .. }), "{e:?}");
+    coartic::residual_sums_batch(
+        &c,
+        &p,
+        &[1.0],
+        &opts,
+        &[1.0; 3],
+        &[1.0; 3],
+        &mut sse,
+        &mut sums,
+    )
+    .unwrap();
+    assert!(sse[0].is_finite() && sums[0].is_finite());
 }
 
 /// θ|τ|^c overflowing to +∞ for every segment leaves no weight at all: an error naming the

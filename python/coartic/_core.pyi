@@ -23,6 +23,7 @@ __all__ = [
     "jacobian_values",
     "marker_channels",
     "physical_limit_loop",
+    "residual_sums_batch",
     "sse_batch",
     "sse_gradient",
 ]
@@ -119,6 +120,17 @@ def sse_batch(
     weights: npt.NDArray[np.float64],
 ) -> npt.NDArray[np.float64]:
     """SSE of each of W parameter sets: ndarray[W]; an invalid walker gets +inf."""
+
+def residual_sums_batch(
+    corpus: Corpus,
+    params: npt.NDArray[np.float64],
+    betas: npt.NDArray[np.float64],
+    options: ModelOptions,
+    observed: npt.NDArray[np.float64],
+    weights: npt.NDArray[np.float64],
+) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.float64]]:
+    """SSE ndarray[W] and each utterance's sum of w (y - F) ndarray[W, n_utterances]; an invalid
+    walker gets +inf and NaN sums."""
 
 def physical_limit_loop(corpus: Corpus, params: npt.NDArray[np.float64], options: ModelOptions) -> float:
     """Only the exponentials and powers the model needs (benchmark yardstick); a checksum."""

@@ -554,6 +554,44 @@ fn sse_batch<'py>(
     Ok(out.into_pyarray(py))
 }
 
+/// The SSE and each utterance's weighted residual sum Σ w (y − F) of W parameter sets:
+/// (ndarray[W], ndarray[W, n_utterances]); an invalid walker gets +inf and NaN sums.
+#[pyfunction]
+fn residual_sums_batch<'py>(
+    py: Python<'py>,
+    corpus: &Corpus,
+    params: &Bound<'py, PyAny>,
+    betas: &Bound<'py, PyAny>,
+    options: &ModelOptions,
+    observed: &Bound<'py, PyAny>,
+    weights: &Bound<'py, PyAny>,
+) -> PyResult<(Bound<'py, PyArray1<f64>>, Bound<'py, PyArray2<f64>>)> {
+    let (p, b, n_walkers) = batch_of(params, betas, corpus)?;
+    let (p, b) = (data(&p), data(&b));
+    let y = samples_of(observed, "observed", corpus)?;
+    let y = data(&y);
+    let w = samples_of(weights, "weights", corpus)?;
+    let w = data(&w);
+    let nu = corpus.inner.n_utterances();
+    let (mut sse, mut sums) = (vec![0.0; n_walkers], vec![0.0; n_walkers * nu]);
+    py.detach(|| {
+        crate::residual_sums_batch(
+            &corpus.inner,
+            &p,
+            &b,
+            &options.inner,
+            &y,
+            &w,
+            &mut sse,
+            &mut sums,
+        )
+    })
+    .map_err(model_err)?;
+    let sums = Array2::from_shape_vec((n_walkers, nu), sums)
+        .map_err(|e| PyValueError::new_err(e.to_string()))?;
+    Ok((sse.into_pyarray(py), sums.into_pyarray(py)))
+}
+
 /// The benchmark's yardstick: a loop of only the exponentials and powers the model needs for this
 /// corpus (the physical limit on this machine). Returns a checksum so the loop is not optimised away.
 #[pyfunction]
@@ -643,6 +681,7 @@ fn _core(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(sse_gradient, m)?)?;
     m.add_function(wrap_pyfunction!(evaluate_batch, m)?)?;
     m.add_function(wrap_pyfunction!(sse_batch, m)?)?;
+    m.add_function(wrap_pyfunction!(residual_sums_batch, m)?)?;
     m.add_function(wrap_pyfunction!(physical_limit_loop, m)?)?;
     m.add_function(wrap_pyfunction!(marker_channels, m)?)?;
     m.add_function(wrap_pyfunction!(head_frame, m)?)?;
