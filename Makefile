@@ -30,6 +30,7 @@ bench: setup
 	$(PY) bench/core_speed.py
 	$(PY) bench/fit_speed.py
 	$(PY) bench/mcmc_speed.py
+	$(PY) bench/mcmc_moves.py
 	$(PY) bench/runtime_contacts.py
 
 clean:

@@ -1,11 +1,13 @@
 """Effective samples per second: emcee on the Rust batch log-posterior vs on a plain NumPy one.
 
-Both samplers target the same per-consonant posterior (one consonant's 8 parameters plus log σ_n,
-in the 3 vowel contexts × 2 rates × 5 repetitions of a model-generated session, 100 Hz): the Rust
-one hands all walkers to ``_core.sse_batch`` in one call (``vectorize=True``); the NumPy one is the
-plain reference model of tests/python/numpy_model.py called walker by walker, as emcee does by
-default. Both use the sampler's default moves (differential evolution + snooker). Same seed, same moves: the chains agree (checked below), so the autocorrelation time τ
-is the same and is measured once, on the longer Rust chain. ESS/s = steps × walkers / τ / seconds.
+Both samplers target the same per-consonant posterior with the likelihood `coartic mcmc` uses by
+default (one consonant's 8 parameters plus log σ_n and the sd of the per-utterance offsets, in the
+3 vowel contexts × 2 rates × 5 repetitions of a model-generated session, 100 Hz): the Rust one
+hands all walkers to ``_core.residual_sums_batch`` in one call (``vectorize=True``); the NumPy one
+is the plain reference model of tests/python/numpy_model.py called walker by walker, as emcee
+does by default. Both use the sampler's default moves (differential evolution). Same seed, same
+moves: the chains agree (checked below), so the autocorrelation time τ is the same and is
+measured once, on the longer Rust chain. ESS/s = steps × walkers / τ / seconds.
 
 Run: .venv/bin/python bench/mcmc_speed.py   (output saved in bench/results/mcmc_speed.txt)
 """
@@ -38,8 +40,8 @@ BLOCKS = 15
 SEED = 42
 
 
-def numpy_sse_batch(utterances, rows):  # type: ignore[no-untyped-def]
-    """A drop-in for ``_core.sse_batch`` built on the NumPy reference, one walker at a time."""
+def numpy_residual_sums_batch(utterances, rows):  # type: ignore[no-untyped-def]
+    """A drop-in for ``_core.residual_sums_batch`` built on the NumPy reference, one walker at a time."""
     seg_offsets = np.cumsum([0] + [len(u.labels) for u in utterances])
     seg_phoneme = np.array([rows[lab] for u in utterances for lab in u.labels])
     seg_start = np.concatenate([u.starts for u in utterances])
@@ -47,16 +49,18 @@ def numpy_sse_batch(utterances, rows):  # type: ignore[no-untyped-def]
     sample_offsets = np.cumsum([0] + [len(u.times) for u in utterances])
     sample_times = np.concatenate([u.times for u in utterances])
 
-    def sse_batch(corpus, params, betas, options, observed, weights):  # type: ignore[no-untyped-def]
-        out = np.empty(len(params))
+    def residual_sums_batch(corpus, params, betas, options, observed, weights):  # type: ignore[no-untyped-def]
+        sse, sums = np.empty(len(params)), np.empty((len(params), len(utterances)))
         for w in range(len(params)):
             f = numpy_model.evaluate_corpus(params[w], seg_offsets, seg_phoneme, seg_start, seg_end, sample_offsets,
                                             sample_times, float(betas[w]), options.variant, options.apex_fraction,
                                             options.edge_extent)
-            out[w] = float(np.sum(weights * (observed - f) ** 2))
-        return out
+            r = weights * (observed - f)
+            sse[w] = float(np.sum(r * (observed - f)))
+            sums[w] = np.add.reduceat(r, sample_offsets[:-1]) if len(r) else 0.0
+        return sse, sums
 
-    return sse_batch
+    return residual_sums_batch
 
 
 def sampler(post: LogPosterior, walkers: int, vectorize: bool) -> tuple[emcee.EnsembleSampler, np.ndarray]:
@@ -78,10 +82,11 @@ def main() -> None:
     utts = mcmc_data.utterances(consonants=("t",), repetitions=5)
     data = mcmc_data.channel(utts)
     packing = mcmc_data.packing()
-    rust = phoneme_posterior(data, packing, options, "t")
+    # the likelihood `coartic mcmc` uses by default: σ_n and the per-utterance offsets' sd sampled
+    rust = phoneme_posterior(data, packing, options, "t", offset_sd=None)
     rows = {p: i for i, p in enumerate(data.phonemes)}
-    slow = LogPosterior(rust.data, rust.packing, options, rust.noise, sse_batch=numpy_sse_batch(rust.data.utterances, rows),
-                        evaluate_batch=rust.evaluate_batch)
+    slow = LogPosterior(rust.data, rust.packing, options, rust.noise, offset_sd=None,
+                        residual_sums_batch=numpy_residual_sums_batch(rust.data.utterances, rows))
     walkers = walkers_for(rust.dim, 0)
     n_samples = rust.data.corpus.n_samples
     print(f"posterior: /t/ on LLO, {rust.dim} dimensions, {len(rust.data.utterances)} utterances, {n_samples} samples, "

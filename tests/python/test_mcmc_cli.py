@@ -29,7 +29,7 @@ enabled = false
 MCMC = """
 [mcmc]
 phonemes = ["p"]
-walkers = 12
+walkers = 14
 ensembles = 2
 chunk_steps = 100
 min_steps = 100
@@ -74,10 +74,10 @@ def test_unconverged_run_says_so_writes_everything_and_resumes(fitted: tuple[Pat
     assert (fit / "report_mcmc.html").is_file()
 
     # the same command with a longer budget continues the saved chains
-    before = ChainStore(out / "LLO" / "p" / "chains").load(0, 5, 12)[0]
+    before = ChainStore(out / "LLO" / "p" / "chains").load(0, 6, 14)[0]
     r = runner.invoke(app, ["mcmc", str(spec), "--fit", str(fit), "--out", str(out), "--max-steps", "300", "--quiet"])
     assert r.exit_code == 0, r.output
-    after = ChainStore(out / "LLO" / "p" / "chains").load(0, 5, 12)[0]
+    after = ChainStore(out / "LLO" / "p" / "chains").load(0, 6, 14)[0]
     assert len(before) == 200 and len(after) == 300
     np.testing.assert_array_equal(after[:200], before)
     assert (fit / "report.html").read_text().count("coartic-mcmc begin") == 1
@@ -87,7 +87,7 @@ def test_errors_name_the_file_and_key(fitted: tuple[Path, Path], tmp_path: Path)
     spec, fit = fitted
     runner = CliRunner()
     bad = tmp_path / "bad.toml"
-    bad.write_text(spec.read_text().replace("walkers = 12", "walkerz = 12"))
+    bad.write_text(spec.read_text().replace("walkers = 14", "walkerz = 14"))
     r = runner.invoke(app, ["mcmc", str(bad), "--fit", str(fit), "--out", str(tmp_path / "o")])
     assert r.exit_code == 1 and "bad.toml: [mcmc] walkerz: unknown key" in r.output.replace("\n", "")
     r = runner.invoke(app, ["mcmc", str(spec), "--fit", str(tmp_path), "--out", str(tmp_path / "o")])
@@ -116,11 +116,11 @@ def test_ctrl_c_in_the_command_saves_and_the_rerun_resumes(fitted: tuple[Path, P
     output, _ = proc.communicate(timeout=120)
     assert proc.returncode == 130, output
     assert "Run the same command again to resume" in output.replace("\n", " ")
-    saved = ChainStore(chains).load(0, 5, 12)[0]
+    saved = ChainStore(chains).load(0, 6, 14)[0]
     assert len(saved) >= 100
     r = CliRunner().invoke(app, ["mcmc", str(spec), "--fit", str(fit), "--out", str(out), "--max-steps", str(len(saved) + 100), "--quiet"])
     assert r.exit_code == 0, r.output
-    resumed = ChainStore(chains).load(0, 5, 12)[0]
+    resumed = ChainStore(chains).load(0, 6, 14)[0]
     assert len(resumed) == len(saved) + 100
     np.testing.assert_array_equal(resumed[: len(saved)], saved)
 

@@ -12,14 +12,16 @@ SPEC = Path("fit/x.toml")
 
 
 def test_defaults_and_every_key() -> None:
-    assert parse_config(None, SPEC).scope == "phonemes"
+    default = parse_config(None, SPEC)
+    assert (default.scope, default.noise, default.offsets, default.settings.moves) == ("phonemes", "free", "free", "de")
+    assert parse_config({"offsets": "none"}, SPEC).offsets == "none"
     cfg = parse_config(
-        {"scope": "channel", "phonemes": ["p", "tS"], "channels": ["LLO"], "noise": 0.12, "walkers": 40,
+        {"scope": "channel", "phonemes": ["p", "tS"], "channels": ["LLO"], "noise": 0.12, "offsets": 0.02, "walkers": 40,
          "ensembles": 4, "chunk_steps": 250, "min_steps": 500, "max_steps": 9000, "seed": 3, "ball": 0.01,
          "plots": False, "moves": "stretch", "priors": {"LLO.p.k_r": [1.0, 0.05], "ULO.beta": [1, 0.2]}},
         SPEC,
     )
-    assert (cfg.scope, cfg.phonemes, cfg.channels, cfg.noise, cfg.walkers, cfg.plots) == ("channel", ("p", "tS"), ("LLO",), 0.12, 40, False)
+    assert (cfg.scope, cfg.phonemes, cfg.channels, cfg.noise, cfg.offsets, cfg.walkers, cfg.plots) == ("channel", ("p", "tS"), ("LLO",), 0.12, 0.02, 40, False)
     s = cfg.settings
     assert (s.n_ensembles, s.chunk_steps, s.min_steps, s.max_steps, s.seed, s.ball, s.moves) == (4, 250, 500, 9000, 3, 0.01, "stretch")
     assert cfg.priors == {"LLO": {"p.k_r": (1.0, 0.05)}, "ULO": {"beta": (1.0, 0.2)}}
@@ -32,13 +34,16 @@ def test_defaults_and_every_key() -> None:
         ({"scope": "all"}, r"\[mcmc\] scope: 'all': expected one of phonemes, channel"),
         ({"noise": -1}, r"\[mcmc\] noise: -1: expected"),
         ({"noise": "auto"}, r"\[mcmc\] noise: 'auto'"),
+        ({"offsets": 0}, r"\[mcmc\] offsets: 0: expected \"free\", \"none\" or a positive number"),
+        ({"offsets": True}, r"\[mcmc\] offsets: True: expected"),
         ({"walkers": 2.5}, r"\[mcmc\] walkers: expected an integer >= 0"),
         ({"min_steps": 900, "max_steps": 800}, r"\[mcmc\] min_steps: 900 exceeds max_steps = 800"),
         ({"ball": 2}, r"\[mcmc\] ball: expected a number in \(0, 1\)"),
         ({"priors": {"p.k_r": [1, 0.1]}}, r"\[mcmc\] priors.p.k_r: expected a key \"CHANNEL.phoneme.parameter\""),
         ({"priors": {"LLO.p.k_r": [1, 0]}}, r"\[mcmc\] priors.LLO.p.k_r: sd must be positive"),
         ({"priors": {"LLO.p.k_r": "1"}}, r"\[mcmc\] priors.LLO.p.k_r: expected \[mean, sd\]"),
-        ({"moves": "hmc"}, r"\[mcmc\] moves: 'hmc': expected one of de-snooker, stretch"),
+        ({"moves": "hmc"}, r"\[mcmc\] moves: unknown moves 'hmc'; expected one of de, stretch"),
+        ({"moves": "de-snooker"}, r"\[mcmc\] moves: moves = 'de-snooker' is no longer offered: emcee's DESnookerMove"),
         ({"phonemes": "p"}, r"\[mcmc\] phonemes: expected a list of strings"),
     ],
 )

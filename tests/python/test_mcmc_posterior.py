@@ -151,3 +151,48 @@ def test_an_interrupted_posterior_keeps_its_chains_but_gives_no_intervals(data: 
     assert run.summaries == [] and run.images == []
     assert sum(len(c) for c in run.result.chains) > 0  # what was sampled is on disk
     assert list((tmp_path / "t" / "chains").glob("ens00_chunk*.npz"))
+
+
+def direct_log_likelihood_with_offsets(post: LogPosterior, x: NDArray[np.float64], sigma: float, tau: float) -> float:
+    """The dense way: each utterance's valid residuals ~ N(0, σ² I + τ² 1 1ᵀ)."""
+    from scipy.stats import multivariate_normal
+
+    params, beta = post.packing.unpack(x[: post.n_free])
+    r = post.data.observed - _core.evaluate(post.data.corpus, params, beta, OPTIONS)
+    total = 0.0
+    for k in range(len(post.data.utterances)):
+        sl = post.data.utterance_samples(k)
+        ru = r[sl][post.data.weights[sl] > 0]
+        cov = sigma**2 * np.eye(ru.size) + tau**2 * np.ones((ru.size, ru.size))
+        total += float(multivariate_normal(np.zeros(ru.size), cov).logpdf(ru))
+    return total
+
+
+@pytest.mark.parametrize(("noise", "offset_sd"), [(None, None), (0.12, None), (None, 0.05), (0.12, 0.05)])
+def test_per_utterance_offsets_integrate_out_exactly(data: object, noise: float | None, offset_sd: float | None) -> None:
+    post = LogPosterior(data, mcmc_data.packing(), OPTIONS, noise=noise, offset_sd=offset_sd)  # type: ignore[arg-type]
+    assert post.dim == post.n_free + (noise is None) + (offset_sd is None)
+    assert post.names[post.n_free:] == (["sigma_n"] if noise is None else []) + (["offset_sd"] if offset_sd is None else [])
+    rng = np.random.default_rng(3)
+    x = post.initial_ball(post.start_point(), 4, rng, scale=0.02)
+    if offset_sd is None:
+        x[:, -1] = [0.0, 0.01, 0.05, 0.4]  # τ = 0 is the iid likelihood
+    sigma, tau = post.sigma_n(x), post.offsets(x)
+    expected = [direct_log_likelihood_with_offsets(post, xi, s, t) for xi, s, t in zip(x, sigma, tau)]
+    np.testing.assert_allclose(post(x), expected, rtol=1e-9)
+    iid = LogPosterior(data, mcmc_data.packing(), OPTIONS, noise=0.12)  # type: ignore[arg-type]
+    if offset_sd is None and noise == 0.12:
+        assert post(x[:1])[0] == pytest.approx(iid(x[:1, : post.n_free])[0], rel=1e-12)
+
+
+def test_offset_start_reads_the_spread_of_utterance_means(data: object) -> None:
+    # add a known offset to every utterance: the start of τ sees it, the walkers start inside the prior
+    shifted = mcmc_data.channel(mcmc_data.utterances(repetitions=2))
+    rng = np.random.default_rng(0)
+    for k in range(len(shifted.utterances)):
+        shifted.observed[shifted.utterance_samples(k)] += rng.normal(0.0, 0.3)
+    post = LogPosterior(shifted, mcmc_data.packing(), OPTIONS, offset_sd=None)
+    tau0 = post.start_point()[-1]
+    assert 0.15 < tau0 < 0.5
+    with pytest.raises(ValueError, match="offset_sd must be >= 0"):
+        LogPosterior(shifted, mcmc_data.packing(), OPTIONS, offset_sd=-1.0)

@@ -76,13 +76,16 @@ def predictive_plot(
     seed: int = 0,
 ) -> Path:
     """Measured trajectories with the posterior predictive median, 68 % and 95 % bands (model
-    uncertainty plus σ_n noise) and the least-squares fit, for a few utterances."""
+    uncertainty plus σ_n noise and the per-utterance offsets) and the least-squares fit, for a few utterances."""
     data = posterior.data
     draws = result.draws()
     rng = np.random.default_rng(seed)
     pick = draws[rng.choice(len(draws), size=min(PREDICTIVE_DRAWS, len(draws)), replace=False)]
     model = posterior.predict(pick)
     noisy = model + posterior.sigma_n(pick)[:, None] * rng.standard_normal(model.shape)
+    # each utterance's offset is one draw shared by its samples
+    offsets = posterior.offsets(pick)[:, None] * rng.standard_normal((len(pick), len(data.utterances)))
+    noisy += np.repeat(offsets, np.diff(data.sample_offsets), axis=1)
     band = np.percentile(noisy, [2.5, 16, 50, 84, 97.5], axis=0)
     best = posterior.predict(np.asarray(start)[None])[0]
     n_utt = len(data.utterances)

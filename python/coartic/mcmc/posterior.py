@@ -10,9 +10,16 @@ Sampling coordinates are the least-squares problem's own internal vector x
 * times optional Gaussian priors on natural values, keyed ``"phoneme.parameter"`` (or ``"beta"``);
 * ``-inf`` outside the support (those walkers are not even sent to the core).
 
-The likelihood is Gaussian, independent per valid sample, with noise level σ_n: either fixed (a
-number, e.g. the least-squares residual RMS) or sampled as ``log_sigma_n`` with a uniform prior on
-``LOG_SIGMA_RANGE`` (a Jeffreys prior on σ_n).
+The likelihood is Gaussian with noise level σ_n per valid sample: either fixed (a number, e.g. the
+least-squares residual RMS) or sampled as ``log_sigma_n`` with a uniform prior on
+``LOG_SIGMA_RANGE`` (a Jeffreys prior on σ_n). Optionally each utterance also carries its own
+constant offset b_u ~ N(0, τ²), integrated out in closed form: a recorded channel is measured
+from a rest reference estimated once per utterance, so its error is shared by all of that
+utterance's samples. τ (``offset_sd``) is fixed, or sampled with a uniform prior on
+``OFFSET_RANGE`` (uniform on a group-level standard deviation, as Gelman 2006 recommends).
+With S_u = Σ w r and W_u = Σ w over utterance u, and the SSE Σ w r²:
+
+    log L = −½ (SSE − Σ_u τ² S_u² / (σ² + τ² W_u)) / σ² − ½ Σ_u log(1 + τ² W_u / σ²) − N log σ − (N/2) log 2π
 """
 
 from __future__ import annotations
@@ -41,14 +48,20 @@ PRIOR_RANGE: dict[str, tuple[float, float]] = {
 }
 LOG_SIGMA_RANGE = (math.log(1e-4), math.log(1e2))
 NOISE_NAME = "log_sigma_n"
+OFFSET_RANGE = (0.0, 5.0)  # mm
+OFFSET_NAME = "offset_sd"
 
 
 class LogPosterior:
     """Vectorised log-posterior: ``lp(x)`` with x shaped (walkers, dim) returns (walkers,).
 
-    All in-support walkers go to one ``sse_batch`` call (the Rust core: parallel, GIL released).
-    ``sse_batch``/``evaluate_batch`` default to ``coartic._core``'s and may be replaced by functions
-    of the same signature, which the speed benchmark does to compare evaluators on one posterior.
+    All in-support walkers go to one ``sse_batch`` call (``residual_sums_batch`` with per-utterance
+    offsets; the Rust core: parallel, GIL released). The batch functions default to
+    ``coartic._core``'s and may be replaced by functions of the same signature, which the speed
+    benchmark does to compare evaluators on one posterior.
+
+    ``noise``: σ_n fixed (mm), or None to sample it. ``offset_sd``: τ of the per-utterance offsets
+    fixed (mm; 0 for none), or None to sample it.
     """
 
     def __init__(
@@ -60,14 +73,14 @@ class LogPosterior:
         priors: Mapping[str, tuple[float, float]] | None = None,
         sse_batch: BatchFn | None = None,
         evaluate_batch: BatchFn | None = None,
+        offset_sd: float | None = 0.0,
+        residual_sums_batch: Callable[..., tuple[FloatArray, FloatArray]] | None = None,
     ) -> None:
-        if sse_batch is None or evaluate_batch is None:
-            from coartic import _core
+        from coartic import _core
 
-            sse_batch = sse_batch or _core.sse_batch
-            evaluate_batch = evaluate_batch or _core.evaluate_batch
-        self.sse_batch = sse_batch
-        self.evaluate_batch = evaluate_batch
+        self.sse_batch = sse_batch or _core.sse_batch
+        self.evaluate_batch = evaluate_batch or _core.evaluate_batch
+        self.residual_sums_batch = residual_sums_batch or _core.residual_sums_batch
         self.data = data
         self.packing = packing
         self.options = options
@@ -80,6 +93,10 @@ class LogPosterior:
         self.noise = None if noise is None else float(noise)
         if self.noise is not None and not (self.noise > 0 and math.isfinite(self.noise)):
             raise ValueError(f"channel {data.channel}: a fixed noise level sigma_n must be positive and finite, got {noise}")
+        self.offset_sd = None if offset_sd is None else float(offset_sd)
+        if self.offset_sd is not None and not (self.offset_sd >= 0 and math.isfinite(self.offset_sd)):
+            raise ValueError(f"channel {data.channel}: a fixed offset_sd must be >= 0 and finite, got {offset_sd}")
+        self.utterance_weight = np.array([data.weights[data.utterance_samples(k)].sum() for k in range(len(data.utterances))])
 
         free_names = packing.names()
         self.priors = {k: (float(v[0]), float(v[1])) for k, v in (priors or {}).items()}
@@ -108,11 +125,17 @@ class LogPosterior:
                 raise ValueError(f"{where}: the prior needs finite bounds, got [{lo[j]}, {hi[j]}]")
             if not lo[j] < hi[j]:
                 raise ValueError(f"{where}: empty prior support [{lo[j]}, {hi[j]}]")
-        if self.noise is None:
-            lo, hi = np.append(lo, LOG_SIGMA_RANGE[0]), np.append(hi, LOG_SIGMA_RANGE[1])
-        self.lower, self.upper = lo, hi
+        # sampled noise terms after the model's coordinates: (coordinate, natural name, range, is log)
+        self._extras = [(NOISE_NAME, "sigma_n", LOG_SIGMA_RANGE, True)] if self.noise is None else []
+        if self.offset_sd is None:
+            self._extras.append((OFFSET_NAME, OFFSET_NAME, OFFSET_RANGE, False))
+        self.lower = np.append(lo, [e[2][0] for e in self._extras])
+        self.upper = np.append(hi, [e[2][1] for e in self._extras])
         # coordinates that are logarithms of their natural value
-        self._exp = np.append(log, True) if self.noise is None else np.asarray(log, dtype=bool)
+        self._exp = np.append(np.asarray(log, dtype=bool), [e[3] for e in self._extras]).astype(bool)
+        extra_names = [e[0] for e in self._extras]
+        self._sigma_col = packing.n_free + extra_names.index(NOISE_NAME) if NOISE_NAME in extra_names else None
+        self._offset_col = packing.n_free + extra_names.index(OFFSET_NAME) if OFFSET_NAME in extra_names else None
         self.n_calls = 0
 
     # --- coordinates ---------------------------------------------------------------------------
@@ -126,14 +149,14 @@ class LogPosterior:
 
     @property
     def names(self) -> list[str]:
-        """Natural-unit name of every coordinate ('p.k_r', 'beta', and 'sigma_n' when sampled)."""
-        return self.packing.names() + ([] if self.noise is not None else ["sigma_n"])
+        """Natural-unit name of every coordinate ('p.k_r', 'beta', and 'sigma_n', 'offset_sd' when sampled)."""
+        return self.packing.names() + [e[1] for e in self._extras]
 
     @property
     def coordinates(self) -> list[str]:
         """Name of every sampling coordinate ('log p.theta_bw' for log-sampled ones)."""
         out = [f"log {n}" if lg else n for n, lg in zip(self.packing.names(), self.packing.log_mask)]
-        return out + ([] if self.noise is not None else [NOISE_NAME])
+        return out + [e[0] for e in self._extras]
 
     def to_natural(self, x: FloatArray) -> FloatArray:
         """Sampling coordinates → natural units (σ_n instead of log σ_n)."""
@@ -161,7 +184,12 @@ class LogPosterior:
     # --- the posterior -------------------------------------------------------------------------
     def sigma_n(self, x: FloatArray) -> FloatArray:
         x = np.atleast_2d(x)
-        return np.full(x.shape[0], self.noise) if self.noise is not None else np.exp(x[:, -1])
+        return np.full(x.shape[0], self.noise) if self._sigma_col is None else np.exp(x[:, self._sigma_col])
+
+    def offsets(self, x: FloatArray) -> FloatArray:
+        """τ, the standard deviation of the per-utterance offsets, per walker (mm)."""
+        x = np.atleast_2d(x)
+        return np.full(x.shape[0], self.offset_sd) if self._offset_col is None else x[:, self._offset_col].copy()
 
     def log_prior(self, x: FloatArray) -> FloatArray:
         x = np.atleast_2d(np.asarray(x, dtype=np.float64))
@@ -178,8 +206,27 @@ class LogPosterior:
         d = self.data
         return np.asarray(self.sse_batch(d.corpus, params, betas, self.options, d.observed, d.weights), dtype=np.float64)
 
-    def log_likelihood(self, sse: FloatArray, sigma: FloatArray) -> FloatArray:
-        ll = -0.5 * sse / sigma**2 - self.n_data * (np.log(sigma) + 0.5 * math.log(2 * math.pi))
+    def residual_sums(self, x: FloatArray) -> tuple[FloatArray, FloatArray]:
+        """SSE per walker and Σ w r per walker and utterance (+inf / NaN where the core rejects)."""
+        params, betas = self.matrices(x)
+        self.n_calls += 1
+        d = self.data
+        sse, sums = self.residual_sums_batch(d.corpus, params, betas, self.options, d.observed, d.weights)
+        return np.asarray(sse, dtype=np.float64), np.asarray(sums, dtype=np.float64)
+
+    def log_likelihood(self, sse: FloatArray, sigma: FloatArray, sums: FloatArray | None = None,
+                       tau: FloatArray | None = None) -> FloatArray:
+        """Gaussian log-likelihood; with per-utterance residual sums and offset sd τ, the offsets
+        integrated out (module docstring)."""
+        quad = sse
+        log_det = 0.0
+        if sums is not None and tau is not None:
+            s2, t2 = (sigma**2)[:, None], (tau**2)[:, None]
+            w = self.utterance_weight[None, :]
+            quad = sse - np.sum(t2 * sums**2 / (s2 + t2 * w), axis=1)
+            log_det = np.sum(np.log1p(t2 * w / s2), axis=1)
+        with np.errstate(invalid="ignore"):
+            ll = -0.5 * quad / sigma**2 - 0.5 * log_det - self.n_data * (np.log(sigma) + 0.5 * math.log(2 * math.pi))
         return np.where(np.isfinite(ll), ll, -np.inf)
 
     def __call__(self, x: FloatArray) -> FloatArray:
@@ -187,20 +234,36 @@ class LogPosterior:
         lp = self.log_prior(x)
         ok = np.flatnonzero(np.isfinite(lp))
         if ok.size:
-            lp[ok] += self.log_likelihood(self.sse(x[ok]), self.sigma_n(x[ok]))
+            xs = x[ok]
+            if self.offset_sd == 0.0:
+                lp[ok] += self.log_likelihood(self.sse(xs), self.sigma_n(xs))
+            else:
+                sse, sums = self.residual_sums(xs)
+                lp[ok] += self.log_likelihood(sse, self.sigma_n(xs), sums, self.offsets(xs))
         return lp
 
     # --- starting point, predictions, identity -------------------------------------------------
     def start_point(self) -> FloatArray:
         """The packing's base values (the least-squares optimum) in sampling coordinates; log σ_n
-        from the residual RMS there."""
+        from the residual RMS there, τ from the spread of the utterances' mean residuals beyond
+        what σ_n explains."""
         x = np.asarray(self.packing.pack(), dtype=np.float64)
-        if self.noise is None:
-            sse = float(self.sse(x[None])[0])
-            if not np.isfinite(sse):
-                raise ValueError(f"channel {self.channel}: the starting point (least-squares optimum) is rejected by the model core")
-            x = np.append(x, math.log(max(math.sqrt(sse / self.n_data), math.exp(LOG_SIGMA_RANGE[0] + 1.0))))
-        return x
+        if not self._extras:
+            return x
+        sse_a, sums_a = self.residual_sums(x[None])
+        sse, sums = float(sse_a[0]), sums_a[0]
+        if not np.isfinite(sse):
+            raise ValueError(f"channel {self.channel}: the starting point (least-squares optimum) is rejected by the model core")
+        sigma = max(math.sqrt(sse / self.n_data), math.exp(LOG_SIGMA_RANGE[0] + 1.0))
+        extra = []
+        if self._sigma_col is not None:
+            extra.append(math.log(sigma))
+        if self._offset_col is not None:
+            w = self.utterance_weight
+            used = w > 0
+            between = float(np.mean((sums[used] / w[used]) ** 2 - (self.noise or sigma) ** 2 / w[used]))
+            extra.append(min(max(math.sqrt(max(between, 0.0)), 0.01 * sigma), OFFSET_RANGE[1] / 2))
+        return np.append(x, extra)
 
     def initial_ball(self, center: FloatArray, n: int, rng: np.random.Generator, scale: float = 1e-3) -> FloatArray:
         """``n`` walkers around ``center``, clipped just inside the support.
@@ -226,7 +289,7 @@ class LogPosterior:
         p = self.packing
         for a in (self.data.observed, self.data.weights, p.base, p.free, self.lower, self.upper):
             h.update(np.ascontiguousarray(a).tobytes())
-        h.update(repr((p.base_beta, self.noise, sorted(self.priors.items()), self.coordinates, self.channel)).encode())
+        h.update(repr((p.base_beta, self.noise, self.offset_sd, sorted(self.priors.items()), self.coordinates, self.channel)).encode())
         for u in self.data.utterances:
             h.update(repr((u.name, u.labels)).encode())
             h.update(np.ascontiguousarray(u.starts).tobytes() + np.ascontiguousarray(u.ends).tobytes())
@@ -240,7 +303,8 @@ def phoneme_posterior(
     phoneme: str,
     noise: float | None = None,
     priors: Mapping[str, tuple[float, float]] | None = None,
-    **evaluators: BatchFn,
+    offset_sd: float | None = 0.0,
+    **evaluators: Callable[..., Any],
 ) -> LogPosterior:
     """The posterior of one phoneme's free parameters on one channel (about 10 dimensions).
 
@@ -259,7 +323,7 @@ def phoneme_posterior(
     sub = _ChannelData.build([u for u in data.utterances if phoneme in u.labels], data.channel, data.phonemes)
     names = set(packing.with_free(free, False).names())
     mine = {k: v for k, v in (priors or {}).items() if k in names}
-    return LogPosterior(sub, packing.with_free(free, False), options, noise, mine, **evaluators)
+    return LogPosterior(sub, packing.with_free(free, False), options, noise, mine, offset_sd=offset_sd, **evaluators)
 
 
 def channel_posterior(
@@ -268,8 +332,9 @@ def channel_posterior(
     options: Any,
     noise: float | None = None,
     priors: Mapping[str, tuple[float, float]] | None = None,
-    **evaluators: BatchFn,
+    offset_sd: float | None = 0.0,
+    **evaluators: Callable[..., Any],
 ) -> LogPosterior:
     """The joint posterior of every free parameter of the channel (hundreds of dimensions: slow
     for emcee, which is why per-phoneme posteriors are the default)."""
-    return LogPosterior(data, packing, options, noise, priors, **evaluators)
+    return LogPosterior(data, packing, options, noise, priors, offset_sd=offset_sd, **evaluators)

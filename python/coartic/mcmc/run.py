@@ -35,6 +35,7 @@ class McmcConfig:
     phonemes: tuple[str, ...] | None = None  # None: every phoneme with a free parameter except the pause
     channels: tuple[str, ...] | None = None  # None: the spec's channels
     noise: str | float = "free"  # "free": sample log sigma_n; "fit": fixed at the LS residual RMS; or mm
+    offsets: str | float = "free"  # per-utterance offsets: "free": sample their sd; "none"; or a fixed sd (mm)
     priors: dict[str, dict[str, tuple[float, float]]] = field(default_factory=dict)  # channel -> name -> (mu, sd)
     walkers: int = 0  # 0: max(32, 2 dim + 2)
     settings: SamplerSettings = field(default_factory=SamplerSettings)
@@ -51,7 +52,7 @@ def parse_config(raw: Any, path: Path) -> McmcConfig:
     def err(key: str, msg: str) -> McmcConfigError:
         return McmcConfigError(f"{path}: [mcmc] {key}: {msg}")
 
-    allowed = {"scope", "phonemes", "channels", "noise", "priors", "walkers", "ensembles", "chunk_steps", "min_steps",
+    allowed = {"scope", "phonemes", "channels", "noise", "offsets", "priors", "walkers", "ensembles", "chunk_steps", "min_steps",
                "max_steps", "seed", "ball", "plots", "moves"}
     unknown = sorted(set(raw) - allowed)
     if unknown:
@@ -71,6 +72,10 @@ def parse_config(raw: Any, path: Path) -> McmcConfig:
     if isinstance(noise, bool) or not (noise in ("free", "fit") or (isinstance(noise, (int, float)) and noise > 0)):
         raise err("noise", f"{noise!r}: expected \"free\", \"fit\" or a positive number (mm)")
     cfg.noise = float(noise) if isinstance(noise, (int, float)) else noise
+    offsets = raw.get("offsets", cfg.offsets)
+    if isinstance(offsets, bool) or not (offsets in ("free", "none") or (isinstance(offsets, (int, float)) and offsets > 0)):
+        raise err("offsets", f"{offsets!r}: expected \"free\", \"none\" or a positive number (mm)")
+    cfg.offsets = float(offsets) if isinstance(offsets, (int, float)) else offsets
     pri = raw.get("priors", {})
     if not isinstance(pri, dict):
         raise err("priors", f"expected a table \"CHANNEL.phoneme.parameter\" = [mean, sd], got {pri!r}")
@@ -107,8 +112,10 @@ def parse_config(raw: Any, path: Path) -> McmcConfig:
         raise err("ball", f"expected a number in (0, 1), got {ball!r}")
     s.ball = float(ball)
     moves = raw.get("moves", s.moves)
-    if moves not in sampler.MOVES:
-        raise err("moves", f"{moves!r}: expected one of {', '.join(sampler.MOVES)}")
+    try:
+        sampler.check_moves(moves)
+    except ValueError as exc:
+        raise err("moves", str(exc)) from None
     s.moves = moves
     pl = raw.get("plots", True)
     if not isinstance(pl, bool):
@@ -224,6 +231,13 @@ def channel_runs(
         noise = fixed_noise(data, packing, options)
     else:
         noise = float(cfg.noise)
+    offset_sd: float | None
+    if cfg.offsets == "free":
+        offset_sd = None
+    elif cfg.offsets == "none":
+        offset_sd = 0.0
+    else:
+        offset_sd = float(cfg.offsets)
     priors = cfg.priors.get(channel, {})
     known = set(packing.names())
     for name in priors:
@@ -231,7 +245,7 @@ def channel_runs(
             raise McmcConfigError(f"[mcmc] priors.{channel}.{name}: not a free parameter of {channel} (free: {', '.join(sorted(known))})")
     runs: list[PosteriorRun] = []
     if cfg.scope == "channel":
-        jobs: list[tuple[str | None, Callable[[], LogPosterior]]] = [(None, lambda: channel_posterior(data, packing, options, noise, priors))]
+        jobs: list[tuple[str | None, Callable[[], LogPosterior]]] = [(None, lambda: channel_posterior(data, packing, options, noise, priors, offset_sd))]
     else:
         wanted = cfg.phonemes or tuple(p for i, p in enumerate(data.phonemes) if p != PAUSE and packing.free[i].any())
         missing = [p for p in wanted if p not in data.phonemes]
@@ -239,7 +253,7 @@ def channel_runs(
             raise McmcConfigError(f"[mcmc] phonemes: {', '.join(missing)} do not occur in the {channel} data (phonemes: {' '.join(data.phonemes)})")
 
         def job(p: str) -> Callable[[], LogPosterior]:
-            return lambda: phoneme_posterior(data, packing, options, p, noise, priors)
+            return lambda: phoneme_posterior(data, packing, options, p, noise, priors, offset_sd)
 
         jobs = [(p, job(p)) for p in wanted]
     for phoneme, make in jobs:
