@@ -26,6 +26,7 @@ import mcmc_data
 from coartic import _core
 from coartic.mcmc.posterior import phoneme_posterior
 from coartic.mcmc.run import fixed_noise, sample_posterior
+from coartic.mcmc.summary import covers
 from coartic.mcmc.sampler import SamplerSettings
 from coartic.table import PARAMETERS
 
@@ -85,15 +86,6 @@ ensembles = 2
 max_steps = 20000
 plots = false
 """
-
-
-def covers(truth: float, low: float, high: float, bounds: tuple[float, float]) -> bool:
-    """Truth inside [low, high]; a truth on a prior bound counts when the interval reaches it to 1 %."""
-    lo, hi = bounds
-    if truth in (lo, hi):
-        edge = high if truth == hi else low
-        return abs(edge - truth) < 0.01 * (hi - lo)
-    return low <= truth <= high
 
 
 @pytest.mark.slow

@@ -196,3 +196,9 @@ def test_offset_start_reads_the_spread_of_utterance_means(data: object) -> None:
     assert 0.15 < tau0 < 0.5
     with pytest.raises(ValueError, match="offset_sd must be >= 0"):
         LogPosterior(shifted, mcmc_data.packing(), OPTIONS, offset_sd=-1.0)
+
+
+def test_covers_counts_a_truth_on_its_bound_when_the_interval_reaches_it() -> None:
+    assert summary.covers(0.5, 0.4, 0.6, (0.0, 1.0)) and not summary.covers(0.5, 0.51, 0.6, (0.0, 1.0))
+    assert summary.covers(1.0, 0.9, 0.995, (0.0, 1.0)) and not summary.covers(1.0, 0.9, 0.98, (0.0, 1.0))
+    assert summary.covers(0.0, 0.004, 0.2, (0.0, 1.0)) and not summary.covers(0.0, 0.02, 0.2, (0.0, 1.0))
