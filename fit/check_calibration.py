@@ -47,6 +47,7 @@ reference_phoneme = "a"
 [parameters]
 free = ["target", "theta_bw", "theta_fw", "k_r"]
 start_table = "{truth}"
+{override}
 [staging]
 enabled = false
 [mcmc]
@@ -69,8 +70,9 @@ def z_scores(fit_dir: Path, truth: object, channel: str) -> list[float]:
     return out
 
 
-def mcmc_coverage(root: Path, truth: object, channel: str) -> tuple[int, int]:
-    """`coartic mcmc` on the recorded fit; (truths inside the 95 % interval, identified parameters)."""
+def mcmc_coverage(root: Path, truth: object, channel: str, median_z: dict[str, list[float]]) -> tuple[int, int]:
+    """`coartic mcmc` on the recorded fit; (truths inside the 95 % interval, identified parameters).
+    Appends (truth − median) / sd of every identified parameter to ``median_z``."""
     import json
 
     from typer.testing import CliRunner
@@ -92,6 +94,7 @@ def mcmc_coverage(root: Path, truth: object, channel: str) -> tuple[int, int]:
         phoneme, parameter = p["name"].split(".")
         value = truth.values[phoneme][channel][parameter]  # type: ignore[attr-defined]
         q = p["quantiles"]
+        median_z.setdefault(p["name"], []).append((value - q["q50"]) / p["sd"])
         identified += 1
         inside += covers(value, q["q2.5"], q["q97.5"], truth.bounds_for(channel, parameter))  # type: ignore[attr-defined]
     return inside, identified
@@ -104,8 +107,12 @@ def main() -> None:
     ap.add_argument("--seed", type=int, action="append", help="these seeds instead of --first-seed/--seeds")
     ap.add_argument("--channel", default="LLO")
     ap.add_argument("--mcmc", action="store_true", help="also sample the joint posterior and count covered truths")
+    ap.add_argument("--fix-kr", default="", metavar="PHONEMES",
+                    help="hold k_R = 1 (its true value, on its bound) for these phonemes, e.g. '#,p,f'")
     args = ap.parse_args()
     seeds = args.seed or list(range(args.first_seed, args.first_seed + args.seeds))
+    fixed = [p for p in args.fix_kr.split(",") if p]
+    override = f"[[override]]\nphonemes = {fixed!r}\nfixed = {{ k_r = 1.0 }}".replace("'", '"') if fixed else ""
 
     from coartic.fit import run
     from coartic.fit.data import load_utterances
@@ -118,12 +125,13 @@ def main() -> None:
     ch = args.channel
     z: dict[str, list[float]] = {"recorded": [], "independent": []}
     coverage: list[tuple[int, int, int]] = []
+    median_z: dict[str, list[float]] = {}
     spread: dict[str, list[float]] = {"recorded": [], "independent": []}
     with tempfile.TemporaryDirectory() as tmp:
         for seed in seeds:
             root = Path(tmp) / f"seed{seed}"
             manifest = generator.generate(root / "session", seed=seed, quick=True, progress=False, consonants=["p", "t", "f"])
-            (root / "spec.toml").write_text(SPEC.format(manifest=manifest, channel=ch, truth=generator.GROUND_TRUTH))
+            (root / "spec.toml").write_text(SPEC.format(manifest=manifest, channel=ch, truth=generator.GROUND_TRUTH, override=override))
             spec = load_spec(root / "spec.toml")
             recorded = load_utterances(spec)
             rng = np.random.default_rng(seed)
@@ -147,7 +155,7 @@ def main() -> None:
                     if r.size > 1:
                         spread[name].append(float(r.mean() / (rms / np.sqrt(r.size))))
             if args.mcmc:
-                coverage.append((seed, *mcmc_coverage(root, truth, ch)))
+                coverage.append((seed, *mcmc_coverage(root, truth, ch, median_z)))
                 print(f"seed {seed}: {coverage[-1][1]} of {coverage[-1][2]} identified truths inside their 95 % intervals",
                       flush=True)
             print(f"seed {seed} done", file=sys.stderr)
@@ -156,7 +164,12 @@ def main() -> None:
         print(f"joint posterior, {len(coverage)} seeds: {inside} of {identified} = {100 * inside / identified:.1f} %; "
               f"seeds below 90 %: {sum(c[1] < 0.9 * c[2] for c in coverage)}")
     print(f"{len(seeds)} seeds ({', '.join(map(str, seeds[:3]))}{' ...' if len(seeds) > 3 else ''}), /p t f/ in /i a u/, "
-          f"quick session, channel {ch}; target, theta_bw, theta_fw, k_r free")
+          f"quick session, channel {ch}; target, theta_bw, theta_fw, k_r free"
+          + (f"; k_r held at 1 for {' '.join(fixed)}" if fixed else ""))
+    if args.mcmc:
+        print("posterior medians against the truth, (truth - median) / sd, mean over seeds:")
+        for name, zs in sorted(median_z.items()):
+            print(f"  {name:14s} {np.mean(zs):6.2f}")
     print(f"{'channel data':12s} {'n':>5s} {'sd of z':>8s} {'|z| > 1.96':>10s} {'utterance means / (sigma/sqrt n)':>34s}")
     for name in z:
         zz, ss = np.array(z[name]), np.array(spread[name])
