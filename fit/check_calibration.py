@@ -139,7 +139,7 @@ def main() -> None:
             results = {"recorded": run(spec, root / "recorded", utterances=recorded, quiet=True)}
             data = results["recorded"].channels[ch].problem.data
             valid = data.weights > 0
-            rms = float(np.sqrt(np.mean((data.observed - results["recorded"].channels[ch].fitted)[valid] ** 2)))
+            rms = float(np.sqrt(np.mean((data.observed - np.asarray(results["recorded"].channels[ch].fitted))[valid] ** 2)))
             for u in recorded:
                 clean = np.load(root / "session" / u.meta["truth"])[ch]
                 noisy = clean + rng.normal(0.0, rms, clean.size)
@@ -149,7 +149,7 @@ def main() -> None:
                 z[name] += z_scores(root / name, truth, ch)
                 cf = result.channels[ch]
                 d = cf.problem.data
-                residual = d.observed - cf.fitted
+                residual = d.observed - np.asarray(cf.fitted)
                 for k in range(len(d.utterances)):
                     r = residual[d.utterance_samples(k)][d.weights[d.utterance_samples(k)] > 0]
                     if r.size > 1:

@@ -3,7 +3,12 @@
 ``run(spec)`` is the whole job in one call (the ``coartic fit`` command calls it too).
 """
 
+from typing import TYPE_CHECKING
+
 from coartic.fit.spec import FitSpec, SpecError, load_spec
+
+if TYPE_CHECKING:  # the type of the lazy attribute below, for type checkers
+    from coartic.fit.runner import run
 
 __all__ = ["FitSpec", "SpecError", "load_spec", "run"]
 
