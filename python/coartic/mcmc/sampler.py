@@ -40,9 +40,9 @@ _CHUNK = re.compile(r"^ens(\d+)_chunk(\d+)\.npz$")
 
 MOVES = ("de", "stretch")
 # emcee 3.1.6's DESnookerMove does not leave the target invariant: alone it samples a 28-dimensional
-# Gaussian with 0.63 of its standard deviation, and mixed 20 % with DEMove (this module's default
-# until 2026-11) with 0.965, and 0.82-0.88 on a joint-channel posterior, so the 95 % intervals
-# under-covered (docs/MCMC.md). It steps x' = z + (1 + γ e·(z1 - z2)) (x - z), a scaling about z
+# Gaussian with 0.64 of its standard deviation, and mixed 20 % with DEMove (this module's default
+# until 2026-11) with 0.974 (bench/results/mcmc_moves.txt), so the 95 % intervals under-covered
+# (docs/MCMC.md). It steps x' = z + (1 + γ e·(z1 - z2)) (x - z), a scaling about z
 # whose factor has no inverse symmetry, and corrects with half the (d - 1) exponent.
 REMOVED_MOVES = {"de-snooker": "emcee's DESnookerMove does not sample the posterior (intervals come out too narrow, docs/MCMC.md)"}
 
