@@ -15,6 +15,7 @@ from typing import Annotated, Optional
 
 import typer
 from rich.console import Console
+from coartic.console import print_error
 
 app = typer.Typer(help="The synthetic ELITE-style session (corpus-synthetic/).", no_args_is_help=True)
 
@@ -74,7 +75,7 @@ def synth(
         gen = load_generator()
         manifest = gen.generate(out, seed=seed, quick=quick, progress=True, flavour=flavour)
     except (GeneratorNotFound, ValueError) as exc:  # SessionError and TableError are ValueErrors
-        console.print(f"[red]error:[/red] {exc}")
+        print_error(console, exc)
         raise typer.Exit(code=1) from None
     n = sum(1 for _ in open(manifest, encoding="utf-8")) - 1
     console.print(f"wrote {n} trials to {out} (manifest: {manifest})")

@@ -12,6 +12,7 @@ from rich.table import Table
 
 from coartic.fit.result import BAR_MM, FitResult
 from coartic.fit.spec import ENGINES, SpecError, load_spec
+from coartic.console import print_error
 
 
 def rmse_table(result: FitResult, title: str = "RMSE (mm)") -> Table:
@@ -71,7 +72,7 @@ def fit_command(
 
         result = run(s, out)
     except (ValueError, OSError) as e:  # SpecError, DataError, ModelInputError: messages name the culprit
-        console.print(f"[red]error:[/red] {escape(str(e))}", soft_wrap=True)
+        print_error(console, e)
         raise typer.Exit(2) from None
     if not result.channels:
         console.print("[yellow]nothing was fitted[/yellow]" + (" (interrupted)" if result.interrupted else ""))

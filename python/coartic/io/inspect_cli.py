@@ -13,6 +13,7 @@ from rich.table import Table
 from coartic.io.errors import DataError
 from coartic.io.gaps import DEFAULT_MAX_GAP, Gap, fill_gaps
 from coartic.io.trial import Channels, Trial, load_trial
+from coartic.console import print_error
 
 
 def inspect_command(
@@ -44,7 +45,7 @@ def inspect_command(
         except ImportError as e:  # the Rust core is not built
             channel_error = f"channels need the compiled core: {e}"
     except DataError as e:
-        console.print(f"[bold red]error:[/] {e}")
+        print_error(console, e)
         raise typer.Exit(1) from None
     _summary(console, trial)
     _markers(console, trial, gaps)

@@ -13,6 +13,7 @@ from rich.panel import Panel
 from rich.table import Table
 
 from coartic.mcmc.run import PosteriorRun, phoneme_dir, verdict_lines
+from coartic.console import print_error
 
 console = Console(stderr=True)
 
@@ -96,7 +97,7 @@ def mcmc_command(
             cfg.settings.min_steps = min(cfg.settings.min_steps, max_steps)
         outcome = run_job(fit_spec, cfg, find_table(fit), out, progress=not quiet, allow_stale=allow_stale_fit)
     except (ValueError, FileNotFoundError) as e:
-        console.print(f"[bold red]error:[/] {escape(str(e))}")
+        print_error(console, e)
         raise typer.Exit(1) from None
     runs, interrupted = outcome
     console.print(_status_table(runs))

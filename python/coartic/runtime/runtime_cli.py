@@ -15,6 +15,7 @@ from coartic.runtime.errors import AnimationError
 from coartic.runtime.festival import DEFAULT_VOICE
 from coartic.runtime import PREVIEW_FORMATS
 from coartic.table import ParameterTable, TableError
+from coartic.console import print_error
 
 if TYPE_CHECKING:
     from coartic.runtime.pipeline import RuntimeOutput
@@ -33,7 +34,7 @@ PreviewOpt = Annotated[str, typer.Option("--preview", help=f"Preview format: {',
 
 
 def _fail(err: Exception) -> None:
-    _err.print(f"[bold red]error:[/] {err}", highlight=False, markup=True, soft_wrap=True)
+    print_error(_err, err)
     raise typer.Exit(code=1)
 
 
