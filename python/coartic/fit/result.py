@@ -23,6 +23,7 @@ from coartic import __version__
 from coartic.fit.problem import ChannelProblem, Packing
 from coartic.fit.spec import FitSpec
 from coartic.fit.staged import StageResult
+from coartic.io.labelmap import resolve_label_map
 from coartic.table import PARAMETERS, ChannelSettings, ParameterTable
 
 BAR_MM = 0.3  # the paper's bar: RMSE below 0.3 mm
@@ -194,6 +195,8 @@ class FitResult:
             "status": {ch: f.status for ch, f in self.channels.items()},
             "interrupted": self.interrupted,
         }
+        # the map the corpus labels went through, so trajectories/animate/score read labels alike
+        resolve_label_map(s.corpus.label_map).record_in(t)
         return t
 
     def parameter_rows(self) -> list[dict[str, Any]]:
