@@ -24,6 +24,7 @@ from coartic import __version__
 from coartic.fit.problem import ChannelProblem, Packing
 from coartic.fit.spec import FitSpec
 from coartic.fit.staged import StageResult
+from coartic.io.labelmap import resolve_label_map
 from coartic.outputs import atomic_path, atomic_write_text
 from coartic.table import PARAMETERS, ChannelSettings, ParameterTable
 
@@ -196,6 +197,8 @@ class FitResult:
             "status": {ch: f.status for ch, f in self.channels.items()},
             "interrupted": self.interrupted,
         }
+        # the map the corpus labels went through, so trajectories/animate/score read labels alike
+        resolve_label_map(s.corpus.label_map).record_in(t)
         return t
 
     def parameter_rows(self) -> list[dict[str, Any]]:

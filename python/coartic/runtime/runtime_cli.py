@@ -54,6 +54,9 @@ def _report(result: RuntimeOutput) -> None:
     for what, path in result.files.items():
         summary.add_row(what, str(path))
     _out.print(summary)
+    if a.at_rest:
+        _err.print(f"[yellow]note:[/] the table has no channel(s) {', '.join(a.at_rest)}: held at rest "
+                   "(the neutral face) in the FAP file and preview, left out of channels.csv", highlight=False)
     if a.substitutions:
         subs = ", ".join(f"/{k}/ (shown as /{v}/)" for k, v in a.substitutions.items())
         _err.print(f"[yellow]note:[/] the table has no {subs}: the fallbacks of phones_italian.tsv "
