@@ -8,7 +8,7 @@ from typing import Callable
 
 import numpy as np
 
-from coartic.fit.problem import Utterance
+from coartic.model import Utterance
 from coartic.fit.spec import FitSpec, SpecError
 from coartic.io import DataError, load_trial
 
@@ -67,7 +67,7 @@ def load_utterances(spec: FitSpec, rows: list[dict[str, str]] | None = None,
         out.append(Utterance(
             name=r.get("stimulus", path.stem) + (f"#{r['repetition']}" if "repetition" in r else "")
             + (f"@{r['rate']}" if "rate" in r else ""),
-            labels=tuple(seg.labels), starts=np.asarray(seg.starts, dtype=np.float64),
+            labels=seg.labels, starts=np.asarray(seg.starts, dtype=np.float64),
             ends=np.asarray(seg.ends, dtype=np.float64), times=np.asarray(ch.times, dtype=np.float64),
             observed={c: np.asarray(ch[c], dtype=np.float64) for c in spec.channels},
             valid={c: np.asarray(ch.valid[c], dtype=bool) for c in spec.channels},

@@ -70,8 +70,8 @@ def fit_command(
         s = s.with_options(**changes)
         from coartic.fit.runner import run
 
-        result = run(s, out)
-    except (ValueError, OSError) as e:  # SpecError, DataError, ModelInputError: messages name the culprit
+        result = run(s, out, console=console, validate=validate, report=report)
+    except (ValueError, OSError) as e:  # SpecError, DataError, FitFailed: messages name the culprit
         print_error(console, e)
         raise typer.Exit(2) from None
     if not result.channels:
@@ -85,26 +85,14 @@ def fit_command(
         if st and st.unidentified:
             console.print(f"[yellow]{ch}: {len(st.unidentified)} parameter(s) not identified[/yellow] "
                           "(see fit_report.txt)")
-    if validate:
-        from coartic.fit.validate import validate_all
+    for note in result.notes:
+        console.print(f"[yellow]note:[/yellow] {escape(note)}", soft_wrap=True)
+    if result.validation:
+        from coartic.fit.validate import validation_table
 
-        try:
-            val = validate_all(s, out / "validation", console=console)
-        except KeyboardInterrupt:
-            console.print("[yellow]validation interrupted[/yellow]")
-            val = None
-        except ValueError as e:  # e.g. no repetition or rate to hold out: said, not raised
-            console.print(f"[yellow]no validation:[/yellow] {escape(str(e))}", soft_wrap=True)
-            val = None
-        if val is not None:
-            from coartic.fit.validate import validation_table
-
-            console.print(validation_table(val))
-    if report:
-        from coartic.report.html import write_report
-
-        html = write_report(result, out, console=console)
-        console.print(f"report: {html}")
+        console.print(validation_table(result.validation))
+    if result.report is not None:
+        console.print(f"report: {result.report}")
     console.print(f"table: {out / 'table.json'} (and table.csv); RMSE: {out / 'rmse.csv'}; "
                   f"fit report: {out / 'fit_report.txt'}")
     if result.interrupted:

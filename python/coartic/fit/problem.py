@@ -3,7 +3,7 @@
 This module is the contract that the engines, the staged fit, the result statistics and the MCMC
 sampler (``coartic.mcmc``) share. Its pieces:
 
-``Utterance``
+``Utterance`` (``coartic.model.Utterance``, the one utterance type of the package)
     one recorded utterance: model-phoneme segments, sample times, the observed channels and their
     validity masks, and metadata (stimulus, vowel, consonant, repetition, rate).
 ``ChannelData``
@@ -24,7 +24,7 @@ sampler (``coartic.mcmc``) share. Its pieces:
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, replace
 from typing import Any, Callable, Sequence
 
 import numpy as np
@@ -33,9 +33,12 @@ from numpy.typing import NDArray
 
 from coartic import _core
 from coartic.fit.spec import FitSpec, SpecError
-from coartic.model import JacobianBuffer, build_corpus
-from coartic.model import Utterance as ModelUtterance
+from coartic.model import JacobianBuffer, Utterance, build_corpus, channel_options
 from coartic.table import N_PARAMS, PARAMETERS
+
+__all__ = ["Utterance", "ChannelData", "Packing", "ChannelProblem", "build_problem", "build_packing",
+           "phoneme_inventory"]
+
 PAUSE = "#"
 # Columns fitted on a log scale (MODEL.md §1: "fit log α", "fit log θ"; ψ > 0 likewise).
 LOG_PARAMETERS: frozenset[str] = frozenset({"alpha", "theta_bw", "theta_fw", "psi"})
@@ -45,20 +48,6 @@ MODIFIED_ONLY: frozenset[str] = frozenset({"k_r", "sigma", "psi"})
 
 FloatArray = NDArray[np.float64]
 BoolArray = NDArray[np.bool_]
-
-
-@dataclass
-class Utterance:
-    """One recorded utterance, its segments already mapped to model phonemes."""
-
-    name: str
-    labels: tuple[str, ...]
-    starts: FloatArray
-    ends: FloatArray
-    times: FloatArray  # sample times (s), same clock as the segments
-    observed: dict[str, FloatArray]  # channel -> values (NaN where not measured)
-    valid: dict[str, BoolArray]  # channel -> usable sample (False: masked, weight 0)
-    meta: dict[str, str] = field(default_factory=dict)
 
 
 def phoneme_inventory(utterances: Sequence[Utterance]) -> tuple[str, ...]:
@@ -72,15 +61,6 @@ def phoneme_inventory(utterances: Sequence[Utterance]) -> tuple[str, ...]:
         names.remove(PAUSE)
         names.insert(0, PAUSE)
     return tuple(names)
-
-
-def model_options(spec: FitSpec) -> _core.ModelOptions:
-    return _core.ModelOptions(spec.variant, spec.apex_fraction, spec.edge_extent)
-
-
-def build_core_corpus(utterances: Sequence[Utterance], phonemes: Sequence[str]) -> _core.Corpus:
-    """The CSR corpus of these utterances (``coartic.model.build_corpus``: errors name the utterance)."""
-    return build_corpus([ModelUtterance(u.labels, u.starts, u.ends, u.times, u.name) for u in utterances], phonemes)
 
 
 @dataclass
@@ -105,7 +85,7 @@ class ChannelData:
         y = np.concatenate([u.observed[channel] for u in utts]).astype(np.float64)
         valid = np.concatenate([u.valid[channel] for u in utts]) & np.isfinite(y)
         offsets = np.cumsum([0] + [len(u.times) for u in utts]).astype(np.int64)
-        return cls(channel, phon, utts, build_core_corpus(utts, phon),
+        return cls(channel, phon, utts, build_corpus(utts, phon),
                    np.where(valid, y, 0.0), valid.astype(np.float64), offsets)
 
     def utterance_samples(self, u: int) -> slice:
@@ -410,7 +390,9 @@ def build_problem(spec: FitSpec, utterances: Sequence[Utterance], channel: str,
                   phonemes: Sequence[str] | None = None) -> ChannelProblem:
     """The channel's problem from a spec and loaded utterances (the one entry point others use)."""
     data = ChannelData.build(utterances, channel, phonemes)
-    return ChannelProblem(data, build_packing(spec, data, start), model_options(spec))
+    # Options from the settings the fitted table will record (spec.channel_settings): one source.
+    options = channel_options(spec.variant, spec.channel_settings(channel))
+    return ChannelProblem(data, build_packing(spec, data, start), options)
 
 
 def describe(packing: Packing) -> dict[str, Any]:

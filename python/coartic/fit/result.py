@@ -23,7 +23,7 @@ from coartic import __version__
 from coartic.fit.problem import ChannelProblem, Packing
 from coartic.fit.spec import FitSpec
 from coartic.fit.staged import StageResult
-from coartic.table import PARAMETERS, ChannelSettings, ParameterTable
+from coartic.table import PARAMETERS, ParameterTable
 
 BAR_MM = 0.3  # the paper's bar: RMSE below 0.3 mm
 GROUP_KEYS = ("vowel", "consonant", "repetition", "rate")
@@ -148,6 +148,8 @@ class FitResult:
     started: str
     interrupted: bool = False
     notes: list[str] = field(default_factory=list)
+    validation: list[Any] | None = None  # coartic.fit.validate.SplitScore per split and channel
+    report: Path | None = None  # the HTML report, once written
 
     # ---------------------------------------------------------------- tables
     def rmse_rows(self) -> list[dict[str, Any]]:
@@ -179,8 +181,7 @@ class FitResult:
         s = self.spec
         t = ParameterTable(variant=s.variant, source=f"fit of {s.path}")
         for ch, fit in self.channels.items():
-            t.channels[ch] = ChannelSettings(reference_phoneme=s.reference_phoneme, beta=fit.beta,
-                                             edge_extent=s.edge_extent, apex_fraction=s.apex_fraction)
+            t.channels[ch] = s.channel_settings(ch, fit.beta)
             lo, hi = fit.packing.lower[:, 0].min(), fit.packing.upper[:, 0].max()
             t.bounds[ch] = {"target": (float(lo), float(hi))}
             t.set_from_matrix(ch, list(fit.phonemes), fit.params, fit.beta)

@@ -13,7 +13,7 @@ from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
-from coartic.table import ALL_CHANNELS, CHANNELS, PARAMETERS, VARIANTS
+from coartic.table import ALL_CHANNELS, CHANNELS, PARAMETERS, VARIANTS, ChannelSettings
 
 ENGINES: tuple[str, ...] = ("scipy", "nlopt", "casadi")
 
@@ -100,6 +100,13 @@ class FitSpec:
 
     def with_options(self, **changes: Any) -> FitSpec:
         return replace(self, **changes)
+
+    def channel_settings(self, channel: str, beta: float | None = None) -> ChannelSettings:
+        """The settings a fit of ``channel`` uses and writes into its table (``beta``: the fitted
+        value; default the spec's). The fit's model options are made from them
+        (``coartic.model.channel_options``), so a table evaluates as it was fitted."""
+        return ChannelSettings(reference_phoneme=self.reference_phoneme, beta=self.beta if beta is None else beta,
+                               edge_extent=self.edge_extent, apex_fraction=self.apex_fraction)
 
 
 def _err(path: Path, key: str, msg: str) -> SpecError:
