@@ -32,7 +32,7 @@ import scipy.sparse as sp
 from numpy.typing import NDArray
 
 from coartic import _core
-from coartic.fit.spec import FitSpec, SpecError
+from coartic.fit.spec import FitSpec
 from coartic.model import JacobianBuffer, Utterance, build_corpus, channel_options
 from coartic.table import N_PARAMS, PARAMETERS
 
@@ -43,8 +43,6 @@ PAUSE = "#"
 # Columns fitted on a log scale (MODEL.md §1: "fit log α", "fit log θ"; ψ > 0 likewise).
 LOG_PARAMETERS: frozenset[str] = frozenset({"alpha", "theta_bw", "theta_fw", "psi"})
 LOG_COLUMNS: NDArray[np.bool_] = np.array([p in LOG_PARAMETERS for p in PARAMETERS])
-# Parameters that the original model (eq. 1) ignores: never free there.
-MODIFIED_ONLY: frozenset[str] = frozenset({"k_r", "sigma", "psi"})
 
 FloatArray = NDArray[np.float64]
 BoolArray = NDArray[np.bool_]
@@ -204,86 +202,11 @@ class Packing:
 
 
 def build_packing(spec: FitSpec, data: ChannelData, start: tuple[FloatArray, float] | None = None) -> Packing:
-    """Free set, bounds and starting values of one channel from the spec (and an optional start).
+    """Free set, bounds and starting values of one channel from the spec (and an optional start):
+    ``coartic.fit.parameters.ParameterSet.from_spec`` as the engines see it."""
+    from coartic.fit.parameters import ParameterSet
 
-    Targets start at the mean observed value at each phoneme's segment midpoints (a good start for
-    the targets-first stage); the rest from spec.start (or the start table). The reference phoneme
-    has alpha fixed at 1 (MODEL.md §1: α is scale-free).
-    """
-    ch, phon = data.channel, data.phonemes
-    n = len(phon)
-    where = f"{spec.path}"
-    free = np.zeros((n, N_PARAMS), dtype=bool)
-    for k, p in enumerate(PARAMETERS):
-        free[:, k] = p in spec.free
-    if spec.variant == "original":
-        for k, p in enumerate(PARAMETERS):
-            if p in MODIFIED_ONLY:
-                free[:, k] = False
-    lower = np.array([spec.bounds.get(p, (-np.inf, np.inf))[0] for p in PARAMETERS])[None, :].repeat(n, 0)
-    upper = np.array([spec.bounds.get(p, (-np.inf, np.inf))[1] for p in PARAMETERS])[None, :].repeat(n, 0)
-    valid_y = data.observed[data.weights > 0]
-    t_lo, t_hi = float(valid_y.min()) - spec.target_margin, float(valid_y.max()) + spec.target_margin
-    lower[:, 0], upper[:, 0] = t_lo, t_hi
-    for p, (lo, hi) in spec.channel_bounds.get(ch, {}).items():
-        k = PARAMETERS.index(p)
-        lower[:, k], upper[:, k] = lo, hi
-
-    if start is not None:
-        base, beta = np.array(start[0], dtype=np.float64), float(start[1])
-    else:
-        base = np.array([spec.start[p] for p in PARAMETERS], dtype=np.float64)[None, :].repeat(n, 0)
-        base[:, 0] = _data_targets(data)
-        beta = spec.beta
-
-    for o in spec.overrides:
-        for i, p in enumerate(phon):
-            if not o.applies(p, ch):
-                continue
-            for name, (lo, hi) in o.bounds.items():
-                k = PARAMETERS.index(name)
-                lower[i, k], upper[i, k] = lo, hi
-            for name, val in o.start.items():
-                base[i, PARAMETERS.index(name)] = val
-            for name in o.free:
-                free[i, PARAMETERS.index(name)] = True
-            for name, val in o.fixed.items():
-                k = PARAMETERS.index(name)
-                base[i, k], free[i, k] = val, False
-
-    if spec.reference_phoneme not in phon:
-        raise SpecError(f"{where}: [model.reference_phoneme] {spec.reference_phoneme!r} does not occur in "
-                        f"the {ch} data (phonemes: {' '.join(phon)})")
-    r = phon.index(spec.reference_phoneme)
-    ka = PARAMETERS.index("alpha")
-    free[r, ka], base[r, ka] = False, 1.0
-
-    # A free value outside its box starts on the nearest bound, not outside (engines refuse that).
-    base = np.where(free, np.clip(base, lower, upper), base)
-    bad = (lower > upper)
-    if bad.any():
-        i, k = map(int, np.argwhere(bad)[0])
-        raise SpecError(f"{where}: bounds of {phon[i]}.{PARAMETERS[k]} on {ch}: low {lower[i, k]} > high {upper[i, k]}")
-    beta_free = spec.fit_beta and spec.variant == "modified"
-    beta = float(np.clip(beta, *spec.beta_bounds)) if beta_free else beta
-    return Packing(phon, free, beta_free, lower, upper, spec.beta_bounds, base, beta)
-
-
-def _data_targets(data: ChannelData) -> FloatArray:
-    """Mean observed value at the segment midpoints of each phoneme (its acoustic centre)."""
-    sums = np.zeros(len(data.phonemes))
-    counts = np.zeros(len(data.phonemes))
-    row = {p: i for i, p in enumerate(data.phonemes)}
-    for u, utt in enumerate(data.utterances):
-        sl = data.utterance_samples(u)
-        y, w = data.observed[sl], data.weights[sl]
-        for lab, s, e in zip(utt.labels, utt.starts, utt.ends):
-            j = int(np.clip(np.searchsorted(utt.times, 0.5 * (s + e)), 0, len(utt.times) - 1))
-            if w[j] > 0:
-                sums[row[lab]] += y[j]
-                counts[row[lab]] += 1
-    fallback = float(np.average(data.observed, weights=data.weights))
-    return np.where(counts > 0, sums / np.maximum(counts, 1), fallback)
+    return ParameterSet.from_spec(spec, data, start).packing()
 
 
 class ChannelProblem:

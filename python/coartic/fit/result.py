@@ -20,6 +20,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from coartic import __version__
+from coartic.fit.parameters import ParameterSet
 from coartic.fit.problem import ChannelProblem, Packing
 from coartic.fit.spec import FitSpec
 from coartic.fit.staged import StageResult
@@ -98,6 +99,14 @@ class ChannelFit:
     @property
     def packing(self) -> Packing:
         return self.problem.packing
+
+    @property
+    def parameters(self) -> ParameterSet:
+        """The fitted parameter set: values, free, bounds and standard errors (lmfit-style)."""
+        st = self.stats
+        if st is None:
+            return ParameterSet.from_packing(self.channel, self.packing)
+        return ParameterSet.from_packing(self.channel, self.packing, st.names, st.stderr, st.at_bound, st.unidentified)
 
     def residuals(self) -> FloatArray:
         """Model − measured on every sample (NaN where masked)."""
@@ -198,25 +207,8 @@ class FitResult:
         return t
 
     def parameter_rows(self) -> list[dict[str, Any]]:
-        rows = []
-        for ch, fit in self.channels.items():
-            st = fit.stats
-            assert st is not None
-            free = {nm: i for i, nm in enumerate(st.names)}
-            for i, ph in enumerate(fit.phonemes):
-                for k, p in enumerate(PARAMETERS):
-                    nm = f"{ph}.{p}"
-                    j = free.get(nm)
-                    rows.append({"channel": ch, "phoneme": ph, "parameter": p, "value": float(fit.params[i, k]),
-                                 "stderr": float(st.stderr[j]) if j is not None else "",
-                                 "free": j is not None,
-                                 "at_bound": nm in st.at_bound, "unidentified": nm in st.unidentified})
-            if fit.packing.beta_free:
-                j = free["beta"]
-                rows.append({"channel": ch, "phoneme": "*", "parameter": "beta", "value": fit.beta,
-                             "stderr": float(st.stderr[j]), "free": True,
-                             "at_bound": "beta" in st.at_bound, "unidentified": "beta" in st.unidentified})
-        return rows
+        """``parameters.csv``: every channel's parameter set (value, stderr, free, bounds, flags)."""
+        return [row for fit in self.channels.values() for row in fit.parameters.rows()]
 
     def report_text(self, max_corr: int = 10) -> str:
         """An lmfit-like fit report: statistics, warnings, strongest correlations, per channel."""
@@ -241,10 +233,13 @@ class FitResult:
                 lines.append(f"    warning: {len(st.unidentified)} parameter(s) not identified by the data "
                              f"(no standard error): {', '.join(st.unidentified)}")
             lines.append("    [[Variables]]")
-            for nm, v, se in zip(st.names, st.values, st.stderr):
-                flag = " (at bound)" if nm in st.at_bound else ""
-                err = f"+/- {se:.4g}" if np.isfinite(se) else "+/- (not identified)"
-                lines.append(f"        {nm:<16} {v:>12.5g} {err}{flag}")
+            for prm in fit.parameters.values():
+                if not prm.free:
+                    continue
+                flag = " (at bound)" if prm.at_bound else ""
+                err = f"+/- {prm.stderr:.4g}" if np.isfinite(prm.stderr) else "+/- (not identified)"
+                lines.append(f"        {prm.name:<16} {prm.value:>12.5g} {err}{flag}"
+                             f"  [{prm.lower:.4g}, {prm.upper:.4g}]")
             c = np.triu(np.nan_to_num(st.corr), 1)
             order = np.argsort(-np.abs(c), axis=None)[:max_corr]
             strong = [(st.names[i], st.names[j], c[i, j]) for i, j in zip(*np.unravel_index(order, c.shape))

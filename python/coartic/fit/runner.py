@@ -17,6 +17,7 @@ from rich.console import Console
 from threadpoolctl import threadpool_limits
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
+from coartic.fit.engines import OptionError, check_options
 from coartic.fit.problem import ChannelProblem, Utterance, build_problem
 from coartic.fit.result import ChannelFit, FitResult, finish_channel, now
 from coartic.fit.spec import FitSpec, SpecError, load_spec
@@ -106,6 +107,7 @@ def run(spec: FitSpec | str | Path, out: str | Path | None = None, *, utterances
     """
     if not isinstance(spec, FitSpec):
         spec = load_spec(spec)
+    check_engine_options(spec)
     console = console or Console(stderr=True, quiet=quiet)
     result = FitResult(spec, {}, now())
     columns = (TextColumn("[bold]{task.description}"), BarColumn(), MofNCompleteColumn(),
@@ -159,6 +161,14 @@ def run(spec: FitSpec | str | Path, out: str | Path | None = None, *, utterances
 
             result.report = write_report(result, out, console=None if quiet else console)
     return result
+
+
+def check_engine_options(spec: FitSpec) -> None:
+    """``[engine.options]`` checked before anything is loaded: errors name the spec and the key."""
+    try:
+        check_options(spec.engine, spec.engine_options)
+    except OptionError as e:
+        raise SpecError(f"{spec.path}: [engine.options] {e.key} ({spec.engine} engine): {e.message}") from None
 
 
 def check_overrides(spec: FitSpec, utterances: Sequence[Utterance]) -> list[str]:
