@@ -15,7 +15,7 @@ from pathlib import Path
 
 from rich.progress import Progress
 
-from coartic.io.labelmap import resolve_label_map
+from coartic.io.labelmap import LabelMap, resolve_label_map
 from coartic.io.labels import Segments, read_labels
 from coartic.runtime import PREVIEW_FORMATS
 from coartic.runtime.animate import (
@@ -23,6 +23,7 @@ from coartic.runtime.animate import (
     animate,
     neutral_posture,
     substitute,
+    table_channels,
     write_channels_csv,
     write_segments_tsv,
 )
@@ -30,7 +31,7 @@ from coartic.runtime.errors import AnimationError, MissingPhonemeError
 from coartic.runtime.fap import FaceUnits, FapSequence, channels_to_faps, write_fap
 from coartic.runtime.festival import DEFAULT_VOICE, FestivalUtterance, PhoneMap, synthesize
 from coartic.runtime.preview import plot_channels, render_preview, render_strip
-from coartic.table import CHANNELS, PAUSE, ParameterTable
+from coartic.table import PAUSE, ParameterTable
 
 
 @dataclass
@@ -103,7 +104,7 @@ def animate_file(
     *,
     fps: float = 25.0,
     tier: str | None = None,
-    label_map: str | None = None,
+    label_map: LabelMap | str | None = None,
     face: FaceUnits | None = None,
     preview: str = "gif",
     snap_contacts: bool = True,
@@ -113,15 +114,19 @@ def animate_file(
 ) -> RuntimeOutput:
     """A label file (.lab / TextGrid / TSV) → channels, FAP file and preview in `out`.
 
-    Phonemes the table lacks are replaced by the phone map's fallbacks unless `strict`.
+    The labels are mapped by `label_map`, by default the map the table was fitted with
+    (`LabelMap.recorded`; the model phone set for a table that records none). Phonemes the table lacks are replaced by the phone map's fallbacks
+    unless `strict`.
     """
     _check_preview(preview)
     raw = read_labels(labels, tier=tier)
-    segments = resolve_label_map(label_map).apply(raw)
+    lmap = resolve_label_map(label_map) if label_map is not None else LabelMap.recorded(table)
+    segments = (lmap or LabelMap.model()).apply(raw)
     requested = segments.labels
     used: dict[str, str] = {}
     if not strict:
-        segments, used = substitute(segments, table, CHANNELS, (phone_map or PhoneMap.load()).fallbacks)
+        segments, used = substitute(segments, table, table_channels(table),
+                                    (phone_map or PhoneMap.load()).fallbacks)
     animation = animate(table, segments, fps, snap_contacts=snap_contacts, substitutions=used)
     return _write_outputs(animation, table, Path(out), _name_from(Path(labels).stem), face or speaker_face(table),
                           preview, requested, raw.labels, progress)
@@ -161,7 +166,7 @@ def speak_text(
     requested = segments.labels
     used: dict[str, str] = {}
     if not strict:
-        segments, used = substitute(segments, table, CHANNELS, pmap.fallbacks)
+        segments, used = substitute(segments, table, table_channels(table), pmap.fallbacks)
     try:
         animation = animate(table, segments, fps, duration=utt.duration, substitutions=used,
                             snap_contacts=snap_contacts)

@@ -16,6 +16,7 @@ from coartic.runtime.festival import DEFAULT_VOICE
 from coartic.runtime import PREVIEW_FORMATS
 from coartic.table import ParameterTable, TableError
 from coartic.console import print_error
+from coartic.outputs import OutputDir, OutputError
 
 if TYPE_CHECKING:
     from coartic.runtime.pipeline import RuntimeOutput
@@ -31,6 +32,8 @@ MwOpt = Annotated[float | None, typer.Option("--mw", help="The speaker's neutral
 SnapOpt = Annotated[bool, typer.Option("--snap-contacts/--no-snap-contacts", help="Show each k_R = 1 target (lip closure, lip-teeth contact) on its nearest frame.")]
 StrictOpt = Annotated[bool, typer.Option("--strict", help="Refuse phonemes the table lacks instead of using the fallbacks of phones_italian.tsv.")]
 PreviewOpt = Annotated[str, typer.Option("--preview", help=f"Preview format: {', '.join(PREVIEW_FORMATS)}.")]
+ForceOpt = Annotated[bool, typer.Option("--force", help="Replace --out even if it holds another run's output "
+                                        "(the same labels or text replace their own output without it).")]
 
 
 def _fail(err: Exception) -> None:
@@ -51,6 +54,9 @@ def _report(result: RuntimeOutput) -> None:
     for what, path in result.files.items():
         summary.add_row(what, str(path))
     _out.print(summary)
+    if a.at_rest:
+        _err.print(f"[yellow]note:[/] the table has no channel(s) {', '.join(a.at_rest)}: held at rest "
+                   "(the neutral face) in the FAP file and preview, left out of channels.csv", highlight=False)
     if a.substitutions:
         subs = ", ".join(f"/{k}/ (shown as /{v}/)" for k, v in a.substitutions.items())
         _err.print(f"[yellow]note:[/] the table has no {subs}: the fallbacks of phones_italian.tsv "
@@ -59,6 +65,12 @@ def _report(result: RuntimeOutput) -> None:
 
 def _load_table(path: Path) -> ParameterTable:
     return ParameterTable.load(path)
+
+
+def _moved(result: RuntimeOutput, staging: Path, out: Path) -> RuntimeOutput:
+    """The result with its file paths where they are after the staging directory was swapped in."""
+    result.files = {k: out / p.relative_to(staging) if p.is_relative_to(staging) else p for k, p in result.files.items()}
+    return result
 
 
 def animate_command(
@@ -73,19 +85,23 @@ def animate_command(
     preview: PreviewOpt = "gif",
     snap_contacts: SnapOpt = True,
     strict: StrictOpt = False,
+    force: ForceOpt = False,
 ) -> None:
-    """Animate a label file: channel trajectories (CSV), an MPEG-4 FAP file and a preview."""
+    """Animate a label file: channel trajectories (CSV), an MPEG-4 FAP file and a preview.
+
+    The files are written beside --out and swapped in together when all are done (docs/OUTPUTS.md)."""
     from coartic.runtime.pipeline import animate_file, speaker_face
 
     try:
         t = _load_table(table)
-        with _progress() as progress:
-            result = animate_file(labels, t, out, fps=fps, tier=tier, label_map=label_map,
+        output = OutputDir(out, "animate", {"labels": str(labels.resolve())}, force=force, protect=[labels, table])
+        with output as staging, _progress() as progress:
+            result = animate_file(labels, t, staging, fps=fps, tier=tier, label_map=label_map,
                                   face=speaker_face(t, mns, mw), preview=preview, snap_contacts=snap_contacts,
                                   strict=strict, progress=progress)
-    except (AnimationError, DataError, TableError) as err:
+    except (AnimationError, DataError, TableError, OutputError, OSError) as err:
         _fail(err)
-    _report(result)
+    _report(_moved(result, staging, out))
 
 
 def speak_command(
@@ -100,16 +116,20 @@ def speak_command(
     mw: MwOpt = None,
     preview: PreviewOpt = "gif",
     snap_contacts: SnapOpt = True,
+    force: ForceOpt = False,
 ) -> None:
-    """Say Italian text with Festival: WAV, channel trajectories, FAP file and preview, all as long as the WAV."""
+    """Say Italian text with Festival: WAV, channel trajectories, FAP file and preview, all as long as the WAV.
+
+    The files are written beside --out and swapped in together when all are done (docs/OUTPUTS.md)."""
     from coartic.runtime.pipeline import speak_text, speaker_face
 
     try:
         t = _load_table(table)
-        with _progress() as progress:
-            result = speak_text(text, t, out, fps=fps, stretch=stretch, voice=voice, strict=strict,
+        output = OutputDir(out, "speak", {"text": text}, force=force, protect=[table])
+        with output as staging, _progress() as progress:
+            result = speak_text(text, t, staging, fps=fps, stretch=stretch, voice=voice, strict=strict,
                                 face=speaker_face(t, mns, mw), preview=preview, snap_contacts=snap_contacts,
                                 progress=progress)
-    except (AnimationError, DataError, TableError) as err:
+    except (AnimationError, DataError, TableError, OutputError, OSError) as err:
         _fail(err)
-    _report(result)
+    _report(_moved(result, staging, out))
