@@ -21,10 +21,11 @@ import pytest
 from typer.testing import CliRunner
 
 from coartic.batch import load_batch_spec
-from coartic.batch.run import BatchError, is_done, plan_units, run_batch, unit_dir
+from coartic.batch.run import is_done, plan_units, run_batch, unit_dir
 from coartic.batch.tasks import UnitKey
 from coartic.cli import app
 from coartic.fit.spec import SpecError
+from coartic.outputs import OutputError
 from coartic.synthetic_cli import load_generator
 from coartic.table import CHANNELS, ParameterTable
 
@@ -216,10 +217,10 @@ def test_cli_refuses_another_batchs_folder_and_names_bad_keys(corpus: Path, seri
     other.write_text(BATCH_SPEC.replace('group_by = ["speaker"]', 'group_by = ["speaker", "rate"]')
                      .replace('"fit.toml"', f'"{corpus / "fit.toml"}"')
                      .replace('"corpus/manifest.csv"', f'"{corpus / "corpus/manifest.csv"}"'))
-    with pytest.raises(BatchError, match="another batch"):
+    with pytest.raises(OutputError, match="holds coartic batch spec .*batch.toml"):
         run_batch(load_batch_spec(other), serial, serial=True, quiet=True)
     res = CliRunner().invoke(app, ["batch", str(other), "--out", str(serial), "--serial"])
-    assert res.exit_code == 2 and "another batch" in res.output
+    assert res.exit_code == 2 and "--force" in res.output
     bad = tmp_path / "bad.toml"
     bad.write_text(BATCH_SPEC.replace("speaker", "talker").replace('"fit.toml"', f'"{corpus / "fit.toml"}"')
                    .replace('"corpus/manifest.csv"', f'"{corpus / "corpus/manifest.csv"}"'))

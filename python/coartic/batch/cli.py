@@ -21,6 +21,7 @@ def batch_command(
     workers: Optional[int] = typer.Option(None, min=1, help="worker processes of the local cluster "
                                           "(default: one per core, at most one per unit)"),
     serial: bool = typer.Option(False, "--serial", help="no Dask: every unit in this process, one after another"),
+    force: bool = typer.Option(False, "--force", help="replace an output folder that holds another run's results"),
 ) -> None:
     """Fit every speaker/session (and all of them pooled), one Dask task per speaker and channel."""
     console = Console()
@@ -34,8 +35,8 @@ def batch_command(
         s = load_batch_spec(spec)
         from coartic.batch.run import run_batch
 
-        outcome = run_batch(s, out, scheduler=scheduler, workers=workers, serial=serial, console=err)
-    except (ValueError, OSError) as e:  # SpecError, BatchError, DataError: messages name the culprit
+        outcome = run_batch(s, out, scheduler=scheduler, workers=workers, serial=serial, force=force, console=err)
+    except (ValueError, OSError) as e:  # SpecError, OutputError, DataError: messages name the culprit
         print_error(err, e)
         raise typer.Exit(2) from None
     from coartic.batch.report import rmse_rows

@@ -25,6 +25,7 @@ import numpy as np
 from coartic.batch.spec import BatchSpec
 from coartic.batch.tasks import UnitKey
 from coartic.fit.result import BAR_MM
+from coartic.outputs import atomic_write_bytes
 from coartic.table import PARAMETERS, ParameterTable
 
 if TYPE_CHECKING:
@@ -260,7 +261,7 @@ img{max-width:100%}</style></head><body>
 
 def write_outputs(spec: BatchSpec, out: Path, outcome: BatchOutcome) -> None:
     """The per-group and pooled tables of every complete group, the summary files and the report."""
-    from coartic.batch.run import is_done, land_dir, unit_dir, write_atomic
+    from coartic.batch.run import is_done, land_dir, unit_dir
 
     tables: dict[str, ParameterTable] = {}
     missing: list[str] = []
@@ -281,8 +282,8 @@ def write_outputs(spec: BatchSpec, out: Path, outcome: BatchOutcome) -> None:
             missing += [k.label for k in keys if not is_done(out, k)]
     rmse = rmse_rows(spec, out)
     spread = spread_rows(tables, pooled, spec.channels) if tables else []
-    write_atomic(out / "rmse_groups.csv", _csv_text(rmse).encode())
-    write_atomic(out / "spread.csv", _csv_text(spread).encode())
+    atomic_write_bytes(out / "rmse_groups.csv", _csv_text(rmse).encode())
+    atomic_write_bytes(out / "spread.csv", _csv_text(spread).encode())
     figs = _figures(spec, rmse, tables, pooled)
     land_dir(out / "figures", figs)
     by = {(r["group"], r["channel"]): r["rmse_mm"] for r in rmse}
@@ -302,9 +303,9 @@ def write_outputs(spec: BatchSpec, out: Path, outcome: BatchOutcome) -> None:
         channels=list(spec.channels), done=outcome.total - len(missing), total=outcome.total,
         failed=outcome.failed, missing=missing, grid=grid, bar=BAR_MM, pooled=spec.pooled, pooled_note=POOLED_NOTE,
         figures=[{"src": f"figures/{n}", "caption": captions.get(n, n)} for n in figs], spread=ranked)
-    write_atomic(out / "report.html", html.encode())
+    atomic_write_bytes(out / "report.html", html.encode())
     status = {"spec": str(spec.path), "units": outcome.total, "finished": outcome.total - len(missing),
               "skipped_as_done": outcome.skipped, "landed_now": [k.label for k in outcome.landed],
               "failed": outcome.failed, "interrupted": outcome.interrupted, "missing": missing,
               "workers": outcome.workers, "rayon_threads_per_worker": outcome.threads}
-    write_atomic(out / "status.json", (json.dumps(status, indent=2) + "\n").encode())
+    atomic_write_bytes(out / "status.json", (json.dumps(status, indent=2) + "\n").encode())

@@ -4,8 +4,9 @@
 (``units/<group>/<channel>/``) and of the pooled corpus's channel (``units/_pooled/<channel>/``);
 each unit's files arrive whole, under a temporary name that is renamed once everything is written,
 so a folder that exists is a finished unit. A rerun into the same ``out`` skips those; Ctrl-C,
-a lost worker or a failed unit loses none of them. ``batch.json`` records what the results depend
-on (the spec files and manifests): another batch is refused rather than mixed in.
+a lost worker or a failed unit loses none of them. The folder is claimed with ``coartic.outputs``
+(its marker records the spec and a fingerprint of the spec files and manifests): another batch's
+folder is refused rather than mixed in, and two runs never write one folder at once.
 
 Schedulers:
 
@@ -19,7 +20,6 @@ Schedulers:
 from __future__ import annotations
 
 import contextlib
-import fcntl
 import json
 import logging
 import os
@@ -30,7 +30,7 @@ from collections import defaultdict
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import IO, Any
+from typing import Any
 
 from rich.console import Console
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
@@ -38,15 +38,9 @@ from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, T
 from coartic.batch.spec import BatchSpec
 from coartic.batch.tasks import UnitKey, UnitOutput, fit_unit, load_group
 from coartic.fit.problem import Utterance
+from coartic.outputs import DeferredSignals, OutputDir
 
-SCHEMA = "coartic.batch/1"
-PLAN_FILE = "batch.json"
 UNIT_FILE = "unit.json"
-LOCK_FILE = ".batch.lock"
-
-
-class BatchError(ValueError):
-    """An output folder that belongs to another batch, or one in use; the message names it."""
 
 
 @dataclass
@@ -86,27 +80,6 @@ def is_done(out: Path, key: UnitKey) -> bool:
 # ----------------------------------------------------------------------------- the output folder
 
 
-def _plan_doc(spec: BatchSpec) -> dict[str, Any]:
-    return {"schema": SCHEMA, "spec": str(spec.path.resolve()), "fit_spec": str(spec.fit.path.resolve()),
-            "fingerprint": spec.fingerprint, "groups": list(spec.group_names), "channels": list(spec.channels),
-            "pooled": spec.pooled}
-
-
-def write_atomic(path: Path, data: bytes) -> None:
-    """Write ``path`` under a temporary name in the same folder, fsync, then rename over it."""
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.tmp-", dir=path.parent)
-    try:
-        with os.fdopen(fd, "wb") as f:
-            f.write(data)
-            f.flush()
-            os.fsync(f.fileno())
-        os.replace(tmp, path)
-    except BaseException:
-        with contextlib.suppress(OSError):
-            os.unlink(tmp)
-        raise
-
-
 def land_dir(target: Path, files: dict[str, bytes]) -> None:
     """Put ``files`` into the folder ``target`` whole: written into a temporary sibling folder,
     fsynced, then renamed; an existing ``target`` (an earlier assembly) is swapped out first."""
@@ -130,40 +103,14 @@ def land_dir(target: Path, files: dict[str, bytes]) -> None:
         raise
 
 
-@contextlib.contextmanager
-def claim_output(spec: BatchSpec, out: Path) -> Iterator[None]:
-    """Hold ``out`` for this run: refuse another batch's folder, or one another run is writing."""
-    plan = _plan_doc(spec)
-    if out.exists() and not out.is_dir():
-        raise BatchError(f"{out}: exists and is not a folder")
-    if out.is_dir() and any(out.iterdir()):
-        if not (out / PLAN_FILE).is_file():
-            raise BatchError(f"{out}: the folder is not empty and holds no {PLAN_FILE}: it is not a coartic batch; "
-                             "choose a new or empty folder")
-        try:
-            old = json.loads((out / PLAN_FILE).read_text(encoding="utf-8"))
-        except (OSError, ValueError) as e:
-            raise BatchError(f"{out / PLAN_FILE}: unreadable ({e}); choose a new folder") from None
-        changed = [k for k in ("schema", "fingerprint", "groups", "channels", "pooled") if old.get(k) != plan[k]]
-        if changed:
-            what = ", ".join(changed).replace("fingerprint", "the spec files or manifests")
-            raise BatchError(f"{out}: holds the results of another batch ({old.get('spec')}; differs in {what}); "
-                             f"choose a new folder for {spec.path}")
-    out.mkdir(parents=True, exist_ok=True)
-    lock: IO[str] = open(out / LOCK_FILE, "a+", encoding="utf-8")
-    try:
-        try:
-            fcntl.flock(lock.fileno(), fcntl.LOCK_EX | fcntl.LOCK_NB)
-        except BlockingIOError:
-            raise BatchError(f"{out}: another coartic batch is writing into this folder") from None
-        if not (out / PLAN_FILE).is_file():
-            write_atomic(out / PLAN_FILE, (json.dumps(plan, indent=2) + "\n").encode())
-        # Temporary folders of a run that was killed mid-landing: never a finished unit.
-        for stale in out.glob("units/*/.*.tmp-*"):
-            shutil.rmtree(stale, ignore_errors=True)
-        yield
-    finally:
-        lock.close()
+def output_dir(spec: BatchSpec, out: Path, force: bool = False) -> OutputDir:
+    """The batch's output folder, claimed in place (coartic.outputs): a rerun of the same batch
+    continues in it; another batch's folder (other spec files or manifests) is refused unless
+    ``force``; two runs never write it at once."""
+    identity = {"spec": str(spec.path.resolve()), "fingerprint": spec.fingerprint}
+    return OutputDir(out, "batch", identity, force=force, staged=False,
+                     protect=[spec.path, spec.fit.path, *(g.spec.corpus.manifest for g in spec.groups
+                                                          if g.spec.corpus.manifest is not None)])
 
 
 def land_unit(out: Path, spec: BatchSpec, result: UnitOutput) -> None:
@@ -172,7 +119,7 @@ def land_unit(out: Path, spec: BatchSpec, result: UnitOutput) -> None:
             "host": result.host, "pid": result.pid, "rayon_threads": result.rayon_threads,
             "fingerprint": spec.fingerprint}
     files = dict(result.files)
-    files[UNIT_FILE] = (json.dumps(info, indent=2) + "\n").encode()  # written last: a unit with it is whole
+    files[UNIT_FILE] = (json.dumps(info, indent=2) + "\n").encode()
     land_dir(unit_dir(out, result.key), files)
 
 
@@ -203,17 +150,23 @@ def cluster_threads(client: Any) -> int | None:
 
 
 def run_batch(spec: BatchSpec, out: str | Path, *, scheduler: str | None = None, workers: int | None = None,
-              serial: bool = False, console: Console | None = None, quiet: bool = False,
+              serial: bool = False, force: bool = False, console: Console | None = None, quiet: bool = False,
               before: Callable[[UnitKey], None] | None = None) -> BatchOutcome:
     """Run every unfinished unit of ``spec`` into ``out``, then write the tables and the report.
 
-    ``before`` is called on the worker before each fit unit (fault injection in tests).
+    ``before`` is called on the worker before each fit unit (fault injection in tests). Ctrl-C and
+    SIGTERM (a job's time limit) stop the run after the units that have finished; a unit being
+    landed is landed first.
     """
     out = Path(out)
     console = console or Console(stderr=True, quiet=quiet)
     keys = plan_units(spec)
     t0 = time.perf_counter()
-    with claim_output(spec, out):
+    od = output_dir(spec, out, force)
+    with DeferredSignals() as signals, od:
+        # Temporary folders of a run killed mid-landing: never a finished unit.
+        for stale in out.glob("units/*/.*.tmp-*"):
+            shutil.rmtree(stale, ignore_errors=True)
         todo = [k for k in keys if not is_done(out, k)]
         outcome = BatchOutcome(out, len(keys), len(keys) - len(todo))
         columns = (TextColumn("[bold]units"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(),
@@ -222,7 +175,8 @@ def run_batch(spec: BatchSpec, out: str | Path, *, scheduler: str | None = None,
             task = progress.add_task("", total=len(keys), completed=outcome.skipped)
 
             def landed(result: UnitOutput) -> None:
-                land_unit(out, spec, result)
+                with signals.saving():
+                    land_unit(out, spec, result)
                 outcome.landed.append(result.key)
                 progress.update(task, advance=1, description=f"{result.key.label}: RMSE {result.rmse:.3f} mm")
 
@@ -239,7 +193,9 @@ def run_batch(spec: BatchSpec, out: str | Path, *, scheduler: str | None = None,
                 outcome.interrupted = True
         from coartic.batch.report import write_outputs
 
-        write_outputs(spec, out, outcome)
+        with signals.saving():
+            write_outputs(spec, out, outcome)
+        od.status = "interrupted" if outcome.interrupted else "incomplete" if outcome.failed else "complete"
     outcome.wall_s = time.perf_counter() - t0
     return outcome
 
