@@ -33,6 +33,7 @@ bench: setup
 	$(PY) bench/mcmc_moves.py
 	$(PY) bench/runtime_contacts.py
 	$(PY) bench/runtime_speed.py
+	$(PY) bench/batch_scaling.py
 
 clean:
 	rm -rf target .venv results build
