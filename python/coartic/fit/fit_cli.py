@@ -150,5 +150,5 @@ def _fit_into(s: FitSpec, out: Path, console: Console, validate: bool, report: b
     if report:
         from coartic.report.html import write_report
 
-        write_report(result, out, console=console)
+        write_report(result, out)  # (its "wrote N figures to" would name the staging directory)
     return result
