@@ -90,7 +90,7 @@ def write_report(result: FitResult, out: str | Path, console: Console | None = N
     path = out / "report.html"
     atomic_write_text(path, html)
     if console is not None:
-        console.print(f"wrote {len(figures)} figures to {fig_dir}")
+        console.print(f"wrote the report with {len(figures)} figures")  # (no path: it may be a staging directory)
     return path
 
 
