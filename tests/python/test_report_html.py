@@ -10,7 +10,8 @@ import numpy as np
 import pytest
 
 from coartic import _core
-from coartic.fit.problem import ChannelProblem, Utterance, build_core_corpus
+from coartic.fit.problem import ChannelProblem
+from coartic.model import Utterance, build_corpus
 from coartic.fit.result import FitResult
 from coartic.fit.runner import run
 from coartic.fit.simulate import PHONEMES, TRUTH, vcv_utterances
@@ -113,9 +114,9 @@ def sentence(rng: np.random.Generator, n_words: int = 20) -> list[Utterance]:
     ends = np.cumsum(d)
     starts = np.concatenate([[0.0], ends[:-1]])
     t = np.arange(0.0, ends[-1], 0.01)
-    u = Utterance("dfgspp_mo1_prosody_0020_ema", tuple(labels), starts, ends, t, {}, {},
-                  {"stimulus": "dfgspp_mo1_prosody_0020_ema", "file": "/data/dfgspp_mo1_prosody_0020_ema.csv"})
-    f = _core.evaluate(build_core_corpus([u], PHONEMES), TRUTH, 1.0, _core.ModelOptions("modified", 0.5, 1.0))
+    u = Utterance(tuple(labels), starts, ends, t, name="dfgspp_mo1_prosody_0020_ema", observed={}, valid={},
+                  meta={"stimulus": "dfgspp_mo1_prosody_0020_ema", "file": "/data/dfgspp_mo1_prosody_0020_ema.csv"})
+    f = _core.evaluate(build_corpus([u], PHONEMES), TRUTH, 1.0, _core.ModelOptions("modified", 0.5, 1.0))
     u.observed["LLO"] = np.asarray(f) + rng.normal(0.0, 0.1, t.size)
     u.valid["LLO"] = np.ones(t.size, dtype=bool)
     return [u]

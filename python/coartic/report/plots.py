@@ -13,9 +13,8 @@ import numpy as np  # noqa: E402
 from matplotlib.figure import Figure  # noqa: E402
 from numpy.typing import NDArray  # noqa: E402
 
-from coartic.fit.problem import Utterance  # noqa: E402
 from coartic.fit.result import BAR_MM, ChannelFit, FitResult  # noqa: E402
-from coartic.model import segment_weights  # noqa: E402
+from coartic.model import Utterance, segment_weights  # noqa: E402
 from coartic.table import ParameterTable  # noqa: E402
 
 # The paper's Figure 1: lower lip opening for /a d a/, /a dz a/, /a l a/.
