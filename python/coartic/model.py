@@ -9,7 +9,7 @@ core's CSR Jacobian as a ``scipy.sparse.csr_matrix`` (``JacobianBuffer``, refill
 from __future__ import annotations
 
 import re
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Literal, overload
 
@@ -18,6 +18,8 @@ import numpy.typing as npt
 import scipy.sparse as sp  # type: ignore[import-untyped]
 
 from coartic import _core
+from coartic.io.errors import DataError
+from coartic.io.labelmap import LabelMap, resolve_label_map
 from coartic.table import N_PARAMS, PARAMETERS, ParameterTable
 
 F64 = npt.NDArray[np.float64]
@@ -216,6 +218,8 @@ def trajectories(
     times: npt.ArrayLike,
     channels: Sequence[str] | None = None,
     jacobian: Literal[False] = False,
+    *,
+    label_map: LabelMap | Mapping[str, str] | str | None = None,
 ) -> dict[str, F64]: ...
 @overload
 def trajectories(
@@ -227,6 +231,7 @@ def trajectories(
     channels: Sequence[str] | None = None,
     *,
     jacobian: Literal[True],
+    label_map: LabelMap | Mapping[str, str] | str | None = None,
 ) -> dict[str, tuple[F64, sp.csr_matrix]]: ...
 def trajectories(
     table: ParameterTable,
@@ -236,6 +241,8 @@ def trajectories(
     times: npt.ArrayLike,
     channels: Sequence[str] | None = None,
     jacobian: bool = False,
+    *,
+    label_map: LabelMap | Mapping[str, str] | str | None = None,
 ) -> dict[str, F64] | dict[str, tuple[F64, sp.csr_matrix]]:
     """Channel trajectories of one utterance under the table's model.
 
@@ -244,7 +251,9 @@ def trajectories(
     table : ParameterTable
         Variant, per-channel constants and per-phoneme parameters.
     labels : sequence of str
-        Segment labels (model phonemes, pauses as ``"#"``), one per segment.
+        Segment labels, one per segment: the table's phonemes (pauses as ``"#"``), or, when the
+        table records the label map it was fitted with, the corpus labels that map reads (e.g.
+        ARPAbet ``AH0``); see ``label_map``.
     starts, ends : array_like of float
         Acoustic segment times in seconds: sorted, non-overlapping, end > start.
     times : array_like of float
@@ -253,6 +262,10 @@ def trajectories(
         Channels to compute; default every channel of the table.
     jacobian : bool, default False
         Also return each channel's Jacobian.
+    label_map : LabelMap, dict, built-in name or file, optional
+        Labels → phonemes. Default: the map the table was fitted with
+        (``LabelMap.recorded(table)``; for a table that records none, the labels are its phonemes).
+        ``LabelMap.identity(table.phonemes, ...)`` takes the labels as the table's phonemes.
 
     Returns
     -------
@@ -277,6 +290,13 @@ def trajectories(
     (60,)
     """
     chans = list(table.channels) if channels is None else list(channels)
+    # a table without a recorded map takes its phonemes as they are (the checks below name them)
+    lmap = LabelMap.recorded(table) if label_map is None else resolve_label_map(label_map)
+    if lmap is not None:
+        try:
+            labels = lmap.apply_labels(list(labels), "utterance")
+        except DataError as err:
+            raise ModelInputError(str(err)) from None
     utt = Utterance(labels, starts, ends, times)
     out: dict[str, F64] = {}
     out_j: dict[str, tuple[F64, sp.csr_matrix]] = {}

@@ -224,3 +224,43 @@ def test_german_map_covers_both_real_utterances() -> None:
     for p in sorted(d.glob("*_Segment.tsv")):
         mapped = m.apply(read_labels(p))
         assert set(mapped.labels) <= set(LabelMap.model().mapping) | {"h", "Q"}
+
+
+def test_english_arpabet_map_strips_stress_and_maps_pauses() -> None:
+    m = LabelMap.builtin("english_arpabet")
+    got = [m.map_label(x) for x in ("sil", "sp", "AH0", "AH1", "ah2", "AA1", "L", "S", "SH", "HH",
+                                    "IY0", "UW", "NG", "B")]
+    # ARPAbet L and S are /l s/, not the model's palatal 'L' and postalveolar 'S'
+    assert got == ["#", "#", "e", "a", "a", "a", "l", "s", "S", "h", "i", "u", "g", "b"]
+    assert m.map_label("AH3") is None and m.map_label("XX") is None
+
+
+def test_label_map_patterns(tmp_path: Path) -> None:
+    tsv = _write(tmp_path, "m.tsv", "AH0\te\tschwa\nre:AH[12]?\ta\nre:(?i)p\tp\nre:[a-z]+\t=\n")
+    m = resolve_label_map(tsv)
+    # literal labels before patterns, patterns in file order, full matches only, '=' keeps the label
+    assert [m.map_label(x) for x in ("AH0", "AH1", "AH", "P", "xy", "AH12")] == [
+        "e", "a", "a", "p", "xy", None]
+    assert resolve_label_map({"re:b+": "b"}).map_label("bbb") == "b"
+    bad = _write(tmp_path, "bad.tsv", "a\ta\nre:(x\tb\n")
+    with pytest.raises(DataError, match=r"bad\.tsv, line 2: pattern 're:\(x' is not a valid regular"):
+        resolve_label_map(bad)
+
+
+def test_label_map_record_round_trips_through_a_table(tmp_path: Path) -> None:
+    from coartic.table import ParameterTable, TableError
+
+    table = ParameterTable.load(Path(__file__).parents[1] / "data/fitted/quick_llo_table.json")
+    assert LabelMap.recorded(table) == LabelMap.model()  # what `coartic fit` wrote
+    m = LabelMap.builtin("english_arpabet")
+    m.record_in(table)
+    table.save(tmp_path / "t.json")
+    back = LabelMap.recorded(ParameterTable.load(tmp_path / "t.json"))
+    assert back is not None and back.name == "english_arpabet"
+    for label in ("AH0", "sh", "sil", "K", "OW1"):
+        assert back.map_label(label) == m.map_label(label)
+    table.metadata["label_map"] = {"entries": [["a", 3]]}
+    with pytest.raises(TableError, match=r"metadata\.label_map: entry \['a', 3\] is not"):
+        LabelMap.recorded(table)
+    del table.metadata["label_map"]
+    assert LabelMap.recorded(table) is None

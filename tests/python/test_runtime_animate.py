@@ -289,3 +289,54 @@ def test_long_gif_is_refused_up_front(tmp_path: Path, labels: Path, monkeypatch:
     with pytest.raises(AnimationError, match=r"GIF of 30 frames .*\(--preview mp4\)"):
         animate_file(labels, make_table(), tmp_path / "o", preview="gif")
     assert not (tmp_path / "o" / "preview.gif").exists()
+
+
+FITTED = Path(__file__).parents[1] / "data/fitted/quick_llo_table.json"
+
+
+def test_fitted_table_snaps_contacts_and_animates_its_one_channel(tmp_path: Path) -> None:
+    # a table from `coartic fit` (tests/data/fitted): LLO only, k_R of /p f/ = 0.9999999999999999
+    table = ParameterTable.load(FITTED)
+    assert 0.999 < table.values["p"]["LLO"]["k_r"] < 1.0
+    labels = tmp_path / "apa.tsv"
+    labels.write_text("0\t0.2\t#\n0.2\t0.35\ta\n0.35\t0.41\tp\n0.41\t0.6\ta\n0.6\t0.8\t#\n")
+    res = CliRunner().invoke(app, ["animate", str(labels), "--table", str(FITTED), "--out",
+                                   str(tmp_path / "o"), "--preview", "none"])
+    assert res.exit_code == 0, res.output
+    assert "ULO, ULP, LLP, LR, JO: held at rest" in " ".join(res.output.split())
+    result = animate_file(labels, table, tmp_path / "o2", fps=25.0, preview="none")
+    a = result.animation
+    assert a.at_rest == ("ULO", "ULP", "LLP", "LR", "JO") and a.modelled == ["LLO"]
+    # the /p/ target (k_R at its bound) is shown on its nearest frame: the lower lip reaches it
+    i = a.segments.labels.index("p")
+    t_p = target_times(table, a.segments, "LLO")[i]
+    k = int(round(t_p * 25.0))
+    assert "LLO" in a.sample_times and a.sample_times["LLO"][k] == t_p
+    row = table.values["p"]["LLO"]
+    assert a.channels["LLO"][k] == pytest.approx(row["target"] * (1 + row["sigma"]), abs=1e-6)
+    # channels at rest are the neutral face: zero FAPs; only LLO is written as model output
+    faps = read_fap(result.files["fap"])
+    assert np.all(faps.column(3) == 0) and np.all(faps.column(17) == 0) and np.any(faps.column(5) != 0)
+    times, chans = read_channels_csv(result.files["channels"])
+    assert list(chans) == ["LLO"]
+
+
+def test_recorded_label_map_is_applied_by_trajectories_and_animate(tmp_path: Path) -> None:
+    from coartic.io.labelmap import LabelMap
+    from coartic.model import ModelInputError, trajectories
+
+    table = make_table()
+    LabelMap.from_dict({"AA1": "a", "IY0": "i", "P": "p", "F": "f"}, "arpa.json").record_in(table)
+    starts, ends = [0.0, 0.3, 0.45, 0.53, 0.68], [0.3, 0.45, 0.53, 0.68, 0.9]
+    times = np.linspace(0.0, 0.9, 19)
+    corpus = trajectories(table, ["sil", "AA1", "P", "IY0", "sil"], starts, ends, times)
+    model = trajectories(table, ["#", "a", "p", "i", "#"], starts, ends, times,
+                         label_map=LabelMap.identity(table.phonemes, "phonemes"))
+    for c in CHANNELS:
+        np.testing.assert_array_equal(corpus[c], model[c])
+    with pytest.raises(ModelInputError, match=r"label 'a' \(segment 2\) has no mapping in the label map recorded in fixture\.json \(arpa\.json\)"):
+        trajectories(table, ["#", "a", "p", "i", "#"], starts, ends, times)
+    labels = tmp_path / "arpa.tsv"
+    labels.write_text("0\t0.3\tsil\n0.3\t0.45\tAA1\n0.45\t0.53\tP\n0.53\t0.68\tIY0\n0.68\t0.9\tsil\n")
+    a = animate_file(labels, table, tmp_path / "o", fps=25.0, preview="none").animation
+    assert a.segments.labels == ("#", "a", "p", "i", "#")

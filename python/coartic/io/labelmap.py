@@ -2,22 +2,34 @@
 
 A map is a TSV file (`corpus_label<TAB>phoneme[<TAB>why]`, `#` starts a comment line), a JSON
 object, or a dict. Two special values: `=` keeps the corpus label as a phoneme of its own, and
-the key `*` with value `=` keeps every label the map does not list. Pause labels (`sil`, `pau`,
-`_`, `&p:`, `<p:>`, empty, ...) become the pause phoneme `#` unless the map says otherwise.
-A label that the map neither lists nor keeps is an error naming the label, its file and line.
+the key `*` with value `=` keeps every label the map does not list. A key `re:<regex>` is a
+pattern: it maps every label the regex matches in full (Python `re.fullmatch`; `(?i)` at its start
+ignores case); labels listed literally come first, then the patterns in the map's order. Pause
+labels (`sil`, `pau`, `_`, `&p:`, `<p:>`, empty, ...) become the pause phoneme `#` unless the map
+says otherwise. A label that the map neither lists nor keeps is an error naming the label, its file
+and line.
+
+A fitted table records the map it was fitted with (`LabelMap.to_record`, in the table's metadata
+under `label_map`); `LabelMap.recorded(table)` gives it back, so that whoever evaluates the table on
+corpus labels maps them the same way.
 """
 
 from __future__ import annotations
 
 import json
-from collections.abc import Mapping
+import re
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from importlib import resources
 from os import PathLike
 from pathlib import Path
+from typing import TYPE_CHECKING, Any
 
 from coartic.io.errors import DataError
 from coartic.io.labels import Segments
+
+if TYPE_CHECKING:
+    from coartic.table import ParameterTable
 
 PAUSE = "#"
 KEEP = "="
@@ -28,7 +40,10 @@ MODEL_VOWELS = ("i", "e", "E", "a", "O", "o", "u")
 MODEL_CONSONANTS = ("p", "b", "m", "f", "v", "t", "d", "n", "l", "r", "s", "z", "ts", "dz",
                     "tS", "dZ", "S", "k", "g", "J", "L", "j", "w")
 MODEL_PHONEMES = (PAUSE, *MODEL_VOWELS, *MODEL_CONSONANTS)
-BUILTIN = ("model", "german_sampa")
+BUILTIN = ("model", "german_sampa", "english_arpabet")
+PATTERN_PREFIX = "re:"
+# The key of the table metadata that holds the label map a table was fitted with.
+RECORD_KEY = "label_map"
 
 
 @dataclass(frozen=True)
@@ -37,13 +52,30 @@ class LabelMap:
 
     mapping: Mapping[str, str]
     keep_unmapped: bool = False
-    source: str = "<dict>"
-    lines: Mapping[str, int] = field(default_factory=dict)
+    source: str = field(default="<dict>", compare=False)  # where it came from, for messages
+    lines: Mapping[str, int] = field(default_factory=dict, compare=False)
+    # (regex, phoneme) in the map's order, tried after the literal labels; keys keep the "re:" text
+    patterns: tuple[tuple[str, str], ...] = ()
+    name: str | None = None  # the built-in map's name
+    _compiled: tuple[tuple[re.Pattern[str], str], ...] = field(
+        init=False, repr=False, compare=False, default=())
+
+    def __post_init__(self) -> None:
+        compiled = []
+        for key, phoneme in self.patterns:
+            try:
+                compiled.append((re.compile(key[len(PATTERN_PREFIX):]), phoneme))
+            except re.error as e:
+                line = self.lines.get(key)
+                where = f", line {line}" if line is not None else ""
+                raise DataError(f"{self.source}{where}: pattern {key!r} is not a valid regular "
+                                f"expression: {e}", line=line, item=key) from None
+        object.__setattr__(self, "_compiled", tuple(compiled))
 
     @classmethod
     def model(cls) -> LabelMap:
         """Labels that already are model phonemes (the synthetic session); anything else is an error."""
-        return cls({p: p for p in MODEL_PHONEMES}, source="builtin map 'model'")
+        return cls({p: p for p in MODEL_PHONEMES}, source="builtin map 'model'", name="model")
 
     @classmethod
     def builtin(cls, name: str) -> LabelMap:
@@ -52,11 +84,13 @@ class LabelMap:
         if name not in BUILTIN:
             raise DataError(f"no built-in label map {name!r}; built-in maps: {list(BUILTIN)}")
         res = resources.files("coartic.io").joinpath("labelmaps", f"{name}.tsv")
-        return cls._parse_tsv(res.read_text(encoding="utf-8"), f"builtin map {name!r} ({name}.tsv)")
+        m = cls._parse_tsv(res.read_text(encoding="utf-8"), f"builtin map {name!r} ({name}.tsv)")
+        return cls(m.mapping, m.keep_unmapped, m.source, m.lines, m.patterns, name)
 
     @classmethod
     def from_dict(cls, d: Mapping[str, str], source: str = "<dict>") -> LabelMap:
         mapping: dict[str, str] = {}
+        patterns: list[tuple[str, str]] = []
         keep = False
         for k, v in d.items():
             if not isinstance(k, str) or not isinstance(v, str):
@@ -67,8 +101,11 @@ class LabelMap:
                                     f"found {v!r}", item="*")
                 keep = True
                 continue
-            mapping[k] = v
-        return cls(mapping, keep, source)
+            if k.startswith(PATTERN_PREFIX):
+                patterns.append((k, v))
+            else:
+                mapping[k] = v
+        return cls(mapping, keep, source, patterns=tuple(patterns))
 
     @classmethod
     def from_file(cls, path: str | PathLike[str]) -> LabelMap:
@@ -91,6 +128,7 @@ class LabelMap:
     def _parse_tsv(cls, text: str, source: str) -> LabelMap:
         mapping: dict[str, str] = {}
         lines: dict[str, int] = {}
+        patterns: list[tuple[str, str]] = []
         keep = False
         for no, raw in enumerate(text.splitlines(), start=1):
             if not raw.strip() or raw.startswith("#"):
@@ -107,21 +145,96 @@ class LabelMap:
                 if phoneme != KEEP:
                     raise DataError(f"{source}, line {no}: '*' may only map to '='", line=no)
                 keep = True
+            elif label.startswith(PATTERN_PREFIX):
+                patterns.append((label, phoneme))
             else:
                 mapping[label] = phoneme
             lines[label] = no
-        return cls(mapping, keep, source, lines)
+        return cls(mapping, keep, source, lines, tuple(patterns))
+
+    # ------------------------------------------------------------- the table's record
+
+    def to_record(self) -> dict[str, Any]:
+        """What a fitted table stores (metadata["label_map"]): the whole map, not just its name
+        or path, so that the table maps labels the same way after the file or built-in changed."""
+        entries = [[k, v] for k, v in self.mapping.items()] + [[k, v] for k, v in self.patterns]
+        if self.keep_unmapped:
+            entries.append(["*", KEEP])
+        rec: dict[str, Any] = {"source": self.source, "entries": entries}
+        if self.name is not None:
+            rec["name"] = self.name
+        return rec
+
+    @classmethod
+    def from_record(cls, record: Any, source: str = "<table>") -> LabelMap:
+        """The map `to_record` wrote; a DataError naming `source` if the record is malformed."""
+        where = f"{source}: metadata.{RECORD_KEY}"
+        if not isinstance(record, Mapping) or not isinstance(record.get("entries"), list):
+            raise DataError(f"{where} must be an object with a list 'entries' of [label, phoneme] "
+                            f"pairs, found {str(record)[:80]!r}", item=RECORD_KEY)
+        pairs: dict[str, str] = {}
+        for e in record["entries"]:
+            if (not isinstance(e, list) or len(e) != 2
+                    or not all(isinstance(x, str) for x in e)):
+                raise DataError(f"{where}: entry {str(e)[:80]} is not a [label, phoneme] pair",
+                                item=RECORD_KEY)
+            if e[0] in pairs:
+                raise DataError(f"{where}: label {e[0]!r} is mapped twice", item=e[0])
+            pairs[e[0]] = e[1]
+        name = record.get("name")
+        m = cls.from_dict(pairs, f"the label map recorded in {source} "
+                                 f"({record.get('source', 'no source')})")
+        return cls(m.mapping, m.keep_unmapped, m.source, m.lines, m.patterns,
+                   name if isinstance(name, str) else None)
+
+    def record_in(self, table: ParameterTable) -> None:
+        """Store this map in the table's metadata (what `coartic fit` does with its spec's map)."""
+        table.metadata[RECORD_KEY] = self.to_record()
+
+    @classmethod
+    def recorded(cls, table: ParameterTable) -> LabelMap | None:
+        """The label map `table` was fitted with, or None for a table that records none (its
+        labels are then its phonemes; `LabelMap.model()` is the map such tables were fitted with).
+        A malformed record is the table's TableError."""
+        rec = table.metadata.get(RECORD_KEY)
+        if rec is None:
+            return None
+        from coartic.table import TableError
+
+        try:
+            return cls.from_record(rec, table.source)
+        except DataError as e:  # a table's fault, reported as the table's error
+            raise TableError(str(e)) from None
+
+    @classmethod
+    def identity(cls, phonemes: Sequence[str], source: str) -> LabelMap:
+        """Each of `phonemes` stands for itself; anything else is an error."""
+        return cls({p: p for p in phonemes}, source=source)
 
     def map_label(self, label: str) -> str | None:
         """The model phoneme for `label`, or None when the map has no answer."""
         if label in self.mapping:
             target = self.mapping[label]
             return label if target == KEEP else target
+        for rx, target in self._compiled:
+            if rx.fullmatch(label):
+                return label if target == KEEP else target
         if label in PAUSE_LABELS:
             return PAUSE
         if self.keep_unmapped:
             return label
         return None
+
+    def apply_labels(self, labels: Sequence[str], where: str = "") -> list[str]:
+        """`labels` mapped, for lists without a file (a DataError naming the first unmapped one)."""
+        out: list[str] = []
+        for i, label in enumerate(labels):
+            phoneme = self.map_label(label)
+            if phoneme is None:
+                raise DataError(f"{where}{': ' if where else ''}label {label!r} (segment {i + 1}) "
+                                f"has no mapping in {self.source}", item=label)
+            out.append(phoneme)
+        return out
 
     def apply(self, segments: Segments) -> Segments:
         out: list[str] = []

@@ -17,9 +17,21 @@ from pathlib import Path
 import numpy as np
 from numpy.typing import NDArray
 
+from coartic.io.labelmap import LabelMap
 from coartic.io.labels import Segments
 from coartic.runtime.errors import AnimationError, MissingPhonemeError
 from coartic.table import CHANNELS, PAUSE, ParameterTable
+
+# The most frames one animation may have (11 hours at 25 fps): channels, FAP text (~200 bytes a
+# frame) and preview grow with it, so a mistaken --fps 1e9 or a label ending at 1e6 s is refused
+# before anything is allocated. docs/LIMITS.md.
+MAX_FRAMES = 1_000_000
+# A fitted k_R sits at its upper bound 1 only to the optimiser's tolerance (0.9999996 in a
+# least-squares table): within this of 1 a target counts as a contact for snapping.
+CONTACT_K_R_TOLERANCE = 1e-3
+# A channel the table does not have is held at rest; only LR's absolute value matters to the
+# preview (the mouth's width), and FAPs are displacements from it, i.e. 0.
+REST_DEFAULTS_MM: dict[str, float] = {"ULO": 0.0, "LLO": 0.0, "ULP": 0.0, "LLP": 0.0, "LR": 50.0, "JO": 0.0}
 
 
 @dataclass(frozen=True)
@@ -33,6 +45,13 @@ class Animation:
     substitutions: dict[str, str] = field(default_factory=dict)
     # channel -> the instants actually sampled, where contact snapping moved some frames
     sample_times: dict[str, NDArray[np.float64]] = field(default_factory=dict)
+    # channels the table does not have: held at the neutral posture in `channels`, not modelled
+    at_rest: tuple[str, ...] = ()
+
+    @property
+    def modelled(self) -> list[str]:
+        """The channels the table animated (not held at rest), in `channels` order."""
+        return [c for c in self.channels if c not in self.at_rest]
 
     @property
     def n_frames(self) -> int:
@@ -50,8 +69,23 @@ def frame_times(duration: float, fps: float) -> NDArray[np.float64]:
         raise AnimationError(f"frame rate must be a positive number of frames per second, got {fps!r}")
     if not (math.isfinite(duration) and duration > 0):
         raise AnimationError(f"duration must be positive, got {duration!r} s")
-    n = max(1, int(round(duration * fps)))
+    n_exact = duration * fps
+    if not math.isfinite(n_exact) or n_exact > MAX_FRAMES:
+        raise AnimationError(
+            f"{duration:g} s at {fps:g} fps is {n_exact:.3g} frames, more than the {MAX_FRAMES} an "
+            "animation may have (docs/LIMITS.md): lower --fps or check the label times")
+    n = max(1, int(round(n_exact)))
     return np.arange(n, dtype=np.float64) / fps
+
+
+def table_channels(table: ParameterTable) -> list[str]:
+    """The runtime's channels (ULO..JO) that `table` has; a table with none cannot be animated."""
+    have = [c for c in CHANNELS if c in table.channels]
+    if not have:
+        raise MissingPhonemeError(
+            f"{table.source} has none of the channels {', '.join(CHANNELS)} (it has "
+            f"{', '.join(table.channels)}): nothing to animate")
+    return have
 
 
 def _segment_where(segments: Segments, i: int) -> str:
@@ -117,8 +151,10 @@ def evaluate(
 
     check_phonemes(table, segments, channels)
     try:
+        # the segments are the table's phonemes already (the label map was applied when reading)
         out = trajectories(table, list(segments.labels), segments.starts, segments.ends,
-                           np.ascontiguousarray(times, dtype=np.float64), channels=list(channels))
+                           np.ascontiguousarray(times, dtype=np.float64), channels=list(channels),
+                           label_map=LabelMap.identity(table.phonemes, str(table.source)))
     except ModelInputError as err:
         where = f"{segments.source}: " if segments.source is not None else ""
         raise AnimationError(f"{where}{err}") from None
@@ -131,28 +167,39 @@ def animate(
     fps: float,
     *,
     duration: float | None = None,
-    channels: Sequence[str] = CHANNELS,
+    channels: Sequence[str] | None = None,
     substitutions: Mapping[str, str] | None = None,
     snap_contacts: bool = True,
 ) -> Animation:
     """Trajectories of `channels` for `segments` at `fps` over `duration` (default: to the last end).
 
+    `channels` defaults to the six runtime channels; those the table does not have are held at the
+    neutral posture (listed in `Animation.at_rest`), so a table fitted on some channels animates.
     With `snap_contacts`, the frame nearest to the target time of a phoneme with k_R = 1 on a
     channel shows that channel at the target time itself (at most half a frame away): a /p/ of
     30 ms falls between two frames at 25 fps, and uniform sampling would show lips that never close.
     """
     total = segments.end_time if duration is None else duration
     times = frame_times(total, fps)
-    check_phonemes(table, segments, channels)
+    if channels is None:
+        modelled = table_channels(table)
+        at_rest = tuple(c for c in CHANNELS if c not in modelled)
+    else:
+        modelled, at_rest = list(channels), ()
+    check_phonemes(table, segments, modelled)
     values: dict[str, NDArray[np.float64]] = {}
     snapped: dict[str, NDArray[np.float64]] = {}
-    for ch in channels:
+    rest = neutral_posture(table, at_rest) if at_rest else {}
+    for ch in (CHANNELS if channels is None else channels):
+        if ch in at_rest:
+            values[ch] = np.full(times.size, rest[ch])
+            continue
         sample = contact_sample_times(table, segments, ch, times, fps) if snap_contacts else times
         values[ch] = evaluate(table, segments, sample, [ch])[ch]
         if not np.array_equal(sample, times):
             snapped[ch] = sample
     return Animation(fps=float(fps), times=times, channels=values, segments=segments,
-                     substitutions=dict(substitutions or {}), sample_times=snapped)
+                     substitutions=dict(substitutions or {}), sample_times=snapped, at_rest=at_rest)
 
 
 def contact_sample_times(
@@ -160,14 +207,15 @@ def contact_sample_times(
 ) -> NDArray[np.float64]:
     """Frame times, except that the frame nearest each k_R = 1 target time samples that time.
 
-    The first target claims a frame (a geminate /p p/ at speed can share one); frames stay in order
+    k_R counts as 1 within CONTACT_K_R_TOLERANCE (a fitted table holds 0.9999996, not 1.0). The
+    first target claims a frame (a geminate /p p/ at speed can share one); frames stay in order
     because a target time moves its frame by at most half a frame.
     """
     sample = times.copy()
     claimed = np.zeros(times.size, dtype=bool)
     t_target = target_times(table, segments, channel)
     for i, ph in enumerate(segments.labels):
-        if table.values[ph][channel]["k_r"] != 1.0:
+        if table.values[ph][channel]["k_r"] < 1.0 - CONTACT_K_R_TOLERANCE:
             continue
         k = min(max(int(round(t_target[i] * fps)), 0), times.size - 1)
         # the tolerance lets a target exactly between two frames (rounded either way) take one
@@ -178,17 +226,21 @@ def contact_sample_times(
 
 
 def neutral_posture(table: ParameterTable, channels: Sequence[str] = CHANNELS) -> dict[str, float]:
-    """The face at rest: the pause phoneme's targets, the posture MPEG-4's neutral face stands for."""
+    """The face at rest: the pause phoneme's targets, the posture MPEG-4's neutral face stands for.
+
+    A channel the table does not have at all takes REST_DEFAULTS_MM (it is held there)."""
+    modelled = [c for c in channels if c in table.channels]
     rest = table.values.get(PAUSE)
-    if rest is None:
+    if rest is None and modelled:
         raise MissingPhonemeError(
             f"{table.source} has no pause phoneme {PAUSE!r}: its targets are the neutral face that FAPs "
             "are measured from"
         )
-    lacking = [c for c in channels if c not in rest]
+    lacking = [c for c in modelled if rest is None or c not in rest]
     if lacking:
         raise MissingPhonemeError(f"{table.source}: pause phoneme {PAUSE!r} has no channel(s) {', '.join(lacking)}")
-    return {c: float(rest[c]["target"]) for c in channels}
+    return {c: float(rest[c]["target"]) if rest is not None and c in modelled else REST_DEFAULTS_MM[c]
+            for c in channels}
 
 
 def target_times(table: ParameterTable, segments: Segments, channel: str) -> NDArray[np.float64]:
@@ -208,7 +260,7 @@ def _atomic_write(path: Path, text: str) -> None:
 
 def write_channels_csv(path: str | Path, animation: Animation) -> None:
     """`frame,time,<channel>...` in mm, floats with repr (read back bit for bit)."""
-    names = list(animation.channels)
+    names = animation.modelled  # channels held at rest are constants, not model output
     rows = [["frame", "time", *names]]
     for k, t in enumerate(animation.times):
         rows.append([str(k), repr(float(t)), *(repr(float(animation.channels[c][k])) for c in names)])

@@ -317,8 +317,10 @@ def render_strip(
     idx = [i for i, lab in enumerate(seg.labels) if lab != PAUSE][:max_panels]
     if not idx:
         raise AnimationError("the utterance has only pauses: nothing to show in a strip")
-    t = target_times(table, seg, "LLO")[idx]
-    values = evaluate(table, seg, t, CHANNELS)
+    modelled = animation.modelled
+    t = target_times(table, seg, "LLO" if "LLO" in modelled else modelled[0])[idx]
+    values = evaluate(table, seg, t, modelled)
+    values.update({c: np.full(t.size, neutral[c]) for c in CHANNELS if c not in values})
     cols = min(len(idx), per_row)
     rows = -(-len(idx) // per_row)
     fig: Figure = plt.figure(figsize=(1.3 * cols, 1.6 * rows + 0.2), dpi=100)
@@ -339,7 +341,7 @@ def render_strip(
 
 def plot_channels(animation: Animation, path: str | Path, title: str = "") -> Path:
     """The six channels over time with the segment labels: the numbers behind the preview."""
-    names: Sequence[str] = [c for c in CHANNELS if c in animation.channels]
+    names: Sequence[str] = [c for c in CHANNELS if c in animation.modelled]
     fig, axes = plt.subplots(len(names), 1, figsize=(8, 1.3 * len(names) + 0.6), sharex=True, dpi=100)
     axes = np.atleast_1d(axes)
     seg = animation.segments

@@ -1,0 +1,183 @@
+"""The generated face, its feature points and its deformation by FAPs (coartic.face.mesh, deform)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from coartic.face.deform import (
+    JAW_FAP,
+    LIP_FAPS,
+    TARGET_NAMES,
+    TARGET_VALUE,
+    ZONES,
+    FaceRig,
+    build_rig,
+    held_values,
+    raised_cosine,
+)
+from coartic.face.mesh import PART_NAMES, build_face
+from coartic.io.labels import Segments
+from coartic.runtime.animate import animate, neutral_posture, target_times
+from coartic.runtime.fap import N_FAPS, FapSequence, channels_to_faps
+from coartic.runtime.pipeline import speaker_face
+from coartic.table import ParameterTable
+
+GROUND_TRUTH = Path(__file__).resolve().parents[2] / "corpus-synthetic" / "ground_truth.json"
+
+
+@pytest.fixture(scope="module")
+def rig() -> FaceRig:
+    return build_rig(build_face())
+
+
+def one_frame(values: dict[int, int]) -> FapSequence:
+    mask = np.zeros((1, N_FAPS), dtype=bool)
+    vals = np.zeros((1, N_FAPS), dtype=np.int64)
+    for fap, v in values.items():
+        mask[0, fap - 1] = True
+        vals[0, fap - 1] = v
+    return FapSequence(name="t", fps=25.0, mask=mask, values=vals)
+
+
+def displaced(rig: FaceRig, values: dict[int, int]) -> np.ndarray:
+    return rig.pose(rig.weights(one_frame(values))[0]) - rig.mesh.vertices
+
+
+def test_mesh_is_a_closed_mouth_face(rig: FaceRig) -> None:
+    m = rig.mesh
+    assert set(m.triangles) == set(PART_NAMES)
+    for name, tris in m.triangles.items():
+        assert tris.min() >= 0 and tris.max() < m.n_vertices
+        assert np.all(m.part[tris] == PART_NAMES.index(name)), name
+        p = m.vertices[tris]
+        area = 0.5 * np.linalg.norm(np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0]), axis=1)
+        assert area.min() > 1e-3, f"degenerate triangle in {name}"
+    # neutral face: the two sides of the lip cut coincide (lips in contact), mouth 4-6 cm wide
+    np.testing.assert_array_equal(m.vertices[m.slit[:, 0]], m.vertices[m.slit[:, 1]])
+    assert 25.0 < m.mns < 35.0 and 40.0 < m.mw < 60.0
+    assert m.upper[m.slit[:, 0]].all() and not m.upper[m.slit[:, 1]].any()
+    # teeth and mouth cavity lie behind the skin (hidden while the lips are closed)
+    from coartic.face.mesh import skin_depth
+    for part in ("upper_teeth", "lower_teeth", "cavity"):
+        v = m.vertices[m.in_part(part)]
+        assert (skin_depth(v[:, 0], v[:, 1]) - v[:, 2]).min() > 3.0, part
+    # deterministic: the same face every time
+    np.testing.assert_array_equal(build_face().vertices, m.vertices)
+
+
+def test_single_feature_point_zone_is_the_raised_cosine(rig: FaceRig) -> None:
+    """push_t_lip (17) is alone in its group: its field is exactly (1 + cos(π d / d_max)) / 2."""
+    m = rig.mesh
+    zone = next(z for z in ZONES if z.fap == 17)
+    value = 400
+    d = displaced(rig, {17: value})
+    fp = m.vertices[m.feature_points[zone.point]]
+    dist = np.linalg.norm(m.vertices - fp, axis=1)
+    expected = value * rig.fapu(17) * raised_cosine(dist, zone.d_max)
+    upper_skin = m.in_part("skin") & m.upper
+    np.testing.assert_allclose(d[upper_skin, 2], expected[upper_skin], atol=1e-9)
+    np.testing.assert_allclose(d[upper_skin, :2], 0.0, atol=1e-12)
+    assert np.abs(d[~upper_skin]).max() < 1e-12  # never the lower lip, teeth or eyes
+    assert (expected[upper_skin] == 0).sum() > 0.5 * upper_skin.sum()  # the zone ends at d_max
+
+
+@pytest.mark.parametrize("fap", [f for f in LIP_FAPS if f not in (12, 13, 59, 60)])
+def test_each_fap_moves_its_feature_point_exactly(rig: FaceRig, fap: int) -> None:
+    m = rig.mesh
+    value = 256
+    d = displaced(rig, {fap: value})
+    zone = next(z for z in ZONES if z.fap == fap)
+    # corners carry an inner and an outer FAP on one vertex: each moves it half (coartic sends both)
+    share = 0.5 if zone.point in ("2.4", "2.5", "8.3", "8.4") else 1.0
+    np.testing.assert_allclose(d[m.feature_points[zone.point]], share * value * rig.fapu(fap) * np.array(zone.direction),
+                               atol=1e-9)
+    # the other feature points moving the same way stay put
+    for other in ZONES:
+        if other.group == zone.group and m.feature_points[other.point] != m.feature_points[zone.point]:
+            assert abs(d[m.feature_points[other.point]] @ np.array(zone.direction)) < 1e-9, other.point
+
+
+def test_deformation_is_linear_in_fap_values(rig: FaceRig) -> None:
+    """At a given jaw opening, the lip FAPs add: each is one displacement field."""
+    zero = {f: 0 for f in LIP_FAPS} | {JAW_FAP: 250}
+    a = zero | {4: 120, 5: -300, 6: 80, 16: 50, 52: -300}
+    b = zero | {4: -60, 5: 100, 7: 40, 17: 30, 51: 10}
+    both = zero | {k: a[k] + b[k] for k in LIP_FAPS}
+    lhs = displaced(rig, both)
+    rhs = displaced(rig, a) + displaced(rig, b) - displaced(rig, zero)
+    np.testing.assert_allclose(lhs, rhs, atol=1e-9)
+    assert np.abs(displaced(rig, a) - displaced(rig, zero)).max() > 5.0
+
+
+def test_jaw_turns_chin_and_lower_teeth_rigidly(rig: FaceRig) -> None:
+    m = rig.mesh
+    value = 400
+    d = displaced(rig, {JAW_FAP: value})
+    chin = d[m.feature_points["2.1"]]
+    assert chin[1] == pytest.approx(-value * rig.fapu(JAW_FAP), abs=1e-9)  # open_jaw: chin down by value FAPU
+    assert chin[2] < 0  # and back: it turns about the jaw joints
+    teeth = m.in_part("lower_teeth")
+    before, after = m.vertices[teeth], m.vertices[teeth] + d[teeth]
+    dist0 = np.linalg.norm(before[:, None] - before[None], axis=2)
+    dist1 = np.linalg.norm(after[:, None] - after[None], axis=2)
+    np.testing.assert_allclose(dist1, dist0, atol=1e-9)
+    assert np.abs(d[m.in_part("upper_teeth") | m.in_part("eyes")]).max() == 0.0
+    assert np.abs(d[m.feature_points["2.2"]]).max() == 0.0  # the upper lip stays
+
+
+def test_lower_lip_is_not_moved_twice(rig: FaceRig) -> None:
+    """coartic's raise_b_midlip says where the lower lip goes, jaw included: with the jaw open by
+    400 and the lip lowered by 400 FAPU, the lip lands 400 FAPU down, not jaw + lip."""
+    m = rig.mesh
+    d = displaced(rig, {JAW_FAP: 400, 5: -400, 16: 0})
+    lip = d[m.feature_points["2.3"]]
+    np.testing.assert_allclose(lip, [0.0, -400 * rig.fapu(5), 0.0], atol=1e-9)
+    # a stream without lower-lip FAPs: the lip rides on the jaw; with raise_b_midlip 0, it stays
+    assert displaced(rig, {JAW_FAP: 400})[m.feature_points["2.3"]][1] < -5.0
+    assert displaced(rig, {JAW_FAP: 400, 5: 0, 16: 0})[m.feature_points["2.3"]] == pytest.approx([0, 0, 0], abs=1e-9)
+
+
+def test_unsent_faps_hold_their_last_value() -> None:
+    mask = np.zeros((3, N_FAPS), dtype=bool)
+    vals = np.zeros((3, N_FAPS), dtype=np.int64)
+    mask[0, 3], vals[0, 3] = True, 50
+    mask[2, 3], vals[2, 3] = True, -7
+    held = held_values(FapSequence(name="t", fps=25.0, mask=mask, values=vals))
+    assert held[:, 3].tolist() == [50, 50, -7]
+    assert held[:, 4].tolist() == [0, 0, 0]
+
+
+def inner_lip_gaps(rig: FaceRig, faps: FapSequence) -> np.ndarray:
+    """Per frame and per column of the lip cut: upper inner lip height minus lower, mm (< 0: pressed)."""
+    pos = rig.pose(rig.weights(faps))
+    slit = rig.mesh.slit
+    gaps: np.ndarray = pos[:, slit[:, 0], 1] - pos[:, slit[:, 1], 1]
+    return gaps
+
+
+def test_lips_close_for_p_b_m_and_open_for_a(rig: FaceRig) -> None:
+    """The synthetic session's ground truth driving the face: at the target frame of every /p b m/
+    the lips touch along the whole cut; at /a/ they are parted by centimetres."""
+    table = ParameterTable.load(GROUND_TRUTH)
+    labels = ["#", "a", "b", "a", "m", "a", "p", "p", "a", "#"]
+    durations = [0.2, 0.15, 0.07, 0.15, 0.08, 0.15, 0.06, 0.06, 0.18, 0.2]
+    ends = np.round(np.cumsum(durations), 6)
+    segs = Segments(tuple(labels), np.concatenate([[0.0], ends[:-1]]), ends)
+    anim = animate(table, segs, 25.0)
+    faps = channels_to_faps(anim.channels, neutral_posture(table), speaker_face(table), "apa", 25.0)
+    gaps = inner_lip_gaps(rig, faps)
+    frames = np.rint(target_times(table, segs, "LLO") * 25.0).astype(int)
+    for i, ph in enumerate(labels):
+        k = frames[i]
+        if ph in "pbm":
+            assert gaps[k].max() <= 0.0, f"/{ph}/ frame {k}: lips apart by {gaps[k].max():.2f} mm"
+        elif ph == "a":
+            assert gaps[k, gaps.shape[1] // 2] > 8.0, f"/a/ frame {k}: opening {gaps[k].max():.2f} mm"
+            assert (gaps[k] > 0).all()
+    assert len(TARGET_NAMES) == rig.targets.shape[0]
+    assert rig.weights(faps).shape == (anim.n_frames, len(TARGET_NAMES))
+    assert np.abs(rig.weights(faps)).max() < 1.0  # speech stays within one FAPU-1024 target
+    assert TARGET_VALUE == 1024.0
