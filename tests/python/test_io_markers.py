@@ -175,12 +175,49 @@ def test_c3d_truncated_and_garbage(tmp_path: Path, face) -> None:  # type: ignor
     assert 140 < part.n_frames < 150 and "truncated" in part.meta["notes"][-1]
     head = tmp_path / "head.c3d"
     head.write_bytes(data[:600])
-    with pytest.raises(DataError, match=r"head\.c3d: corrupt or truncated C3D"):
+    with pytest.raises(DataError, match=r"head\.c3d: parameter section: .* run past the end of the file"):
         read_c3d(head)
     junk = tmp_path / "junk.c3d"
     junk.write_bytes(b"hello world" * 100)
     with pytest.raises(DataError, match=r"junk\.c3d: not a C3D file"):
         load_trial(junk)
+
+
+def test_c3d_corrupt_parameter_section_is_refused_before_ezc3d(tmp_path: Path) -> None:
+    # one byte: the number of dimensions of POINT:LABELS set to 255 made ezc3d segfault
+    data = bytearray((Path(__file__).parents[1] / "data/realdata/c3d-optotrak/Optotrak.c3d").read_bytes())
+    at = data.index(b"LABELS") + len("LABELS") + 3  # after the name: 2 bytes offset, 1 data type
+    assert data[at] == 2
+    data[at] = 255
+    bad = tmp_path / "bad.c3d"
+    bad.write_bytes(bytes(data))
+    for backend in ("auto", "ezc3d", "c3d"):
+        with pytest.raises(DataError, match=r"bad\.c3d: parameter POINT:LABELS: 255 dimensions \(C3D "
+                                            r"allows at most 7\)"):
+            read_c3d(bad, backend=backend, allow_truncated=True)  # type: ignore[arg-type]
+    data[at] = 3  # three dimensions of the labels' sizes: more bytes than the entry holds
+    bad.write_bytes(bytes(data))
+    with pytest.raises(DataError, match=r"POINT:LABELS: dimensions \[40, 54, \d+\] of 1-byte values"):
+        read_c3d(bad, allow_truncated=True)
+
+
+def test_c3d_truncated_block_padding_is_not_read_as_frames(tmp_path: Path, face) -> None:  # type: ignore[no-untyped-def]
+    import c3d
+
+    _, m = face
+    p = tmp_path / "t.c3d"
+    write_c3d(p, m[:, :2], ROLES[:2])  # 2 markers: 32 bytes a frame, so a block pads several
+    data = p.read_bytes()
+    with p.open("rb") as f:
+        start = (c3d.Reader(f).header.data_block - 1) * 512
+    cut = start + 10 * 32
+    padded = tmp_path / "padded.c3d"
+    padded.write_bytes(data[:cut] + bytes(-cut % 512))  # 10 frames, then zeros to the block end
+    for backend in ("ezc3d", "c3d"):
+        t = read_c3d(padded, backend=backend, allow_truncated=True)
+        assert t.n_frames == 10, backend
+        np.testing.assert_allclose(t.markers, m[:10, :2], atol=1e-3)
+        assert "6 all-zero frames of block padding" in t.meta["notes"][-1]
 
 
 def test_real_optotrak_c3d() -> None:
