@@ -383,3 +383,54 @@ def test_common_rate(face) -> None:  # type: ignore[no-untyped-def]
     b = Trial(np.repeat(m, 2, axis=0)[:-1].copy(), ROLES, 2 * RATE)
     a2, b2 = common_rate([a, b])
     assert a2 is a and b2.rate == RATE and b2.n_frames == a.n_frames
+
+
+def test_la_without_head_markers_and_markers_differing_in_case(tmp_path: Path, face) -> None:  # type: ignore[no-untyped-def]
+    ch, m = face
+    p = tmp_path / "lips.csv"
+    write_csv(p, m[:, 3:5], ("UL", "LL"))  # the lips only: no head frame, but LA is a distance
+    la = load_trial(p).channels(["LA"])["LA"]
+    np.testing.assert_allclose(la, np.linalg.norm(m[:, 3] - m[:, 4], axis=1), atol=1e-9)
+    c = load_trial(p).channels()
+    assert list(c) == ["LA"] and "no marker for role(s) ['NOSE', 'EAR_L', 'EAR_R']" in c.unavailable["ULO"]
+    with pytest.raises(DataError, match=r"channel ULO cannot be computed|required marker"):
+        load_trial(p).channels(["ULO"])
+    q = tmp_path / "case.csv"
+    write_csv(q, m[:, 3:6], ("ul", "LL", "UL"))
+    with pytest.raises(DataError, match=r"case\.csv: markers \['ul', 'UL'\] differ only in case: which is UL"):
+        load_trial(q).channels(["LA"])
+    la2 = load_trial(q, role_map={"UL": "UL"}).channels(["LA"])["LA"]  # named exactly: no doubt
+    np.testing.assert_allclose(la2, np.linalg.norm(m[:, 5] - m[:, 4], axis=1), atol=1e-9)
+
+
+def test_csv_time_columns_overflow_and_implausible_values(tmp_path: Path, face) -> None:  # type: ignore[no-untyped-def]
+    from coartic.io.errors import DataWarning
+
+    _, m = face
+    p = tmp_path / "two_times.csv"
+    write_csv(p, m[:20], ROLES)
+    lines = p.read_text().splitlines()
+    p.write_text("\n".join([lines[0] + ",time"] + [ln + f",{i * 10}" for i, ln in enumerate(lines[1:])]) + "\n")
+    with pytest.raises(DataError, match=r"two_times\.csv, line 1: 2 time columns \['time_s', 'time'\]"):
+        load_trial(p)
+    q = tmp_path / "metres.csv"
+    big = m[:20] / 1000.0
+    big[7, 4, 1] = 1e306  # LL_y: finite in m, inf in mm
+    write_csv(q, big, ROLES)
+    q.write_text("# units: m\n" + q.read_text())
+    with pytest.raises(DataError, match=r"metres\.csv: marker positions: 1e\+306 m \(frame 7, marker 'LL', "
+                                        r"y\) overflows when converted to mm"):
+        load_trial(q)
+    r = tmp_path / "huge.csv"
+    huge = m[:60].copy()
+    huge[30, 0, 0] = 1e308
+    write_csv(r, huge, ROLES)
+    with pytest.warns(DataWarning, match=r"huge\.csv: marker 'NOSE' is at 1e\+308 mm \(x, frame 30"):
+        load_trial(r)
+    s = tmp_path / "wide.csv"
+    wide = m[:60].copy()
+    wide[40:, 4, :] -= 1300.0 * (wide[40:, 0, :] - wide[40:, 3, :]) / np.linalg.norm(
+        wide[40:, 0, :] - wide[40:, 3, :], axis=1)[:, None]  # the lower lip 1.3 m below the upper
+    write_csv(s, wide, ROLES)
+    with pytest.warns(DataWarning, match=r"wide\.csv: channel LA reaches 13\d\d(\.\d+)? mm \(beyond 150 mm"):
+        load_trial(s).channels(["LA"])

@@ -214,7 +214,7 @@ def _finish(
     if not given.strip():
         raise DataError("POINT:UNITS is empty; pass units='mm' (or cm, m) to say what they are",
                         path=p, item="POINT:UNITS")
-    xyz, note = to_mm(xyz, given, p, "marker positions")
+    xyz, note = to_mm(xyz, given, p, "marker positions", names)
     if note:
         notes.append(note)
     meta: dict[str, Any] = {"backend": backend, "first_frame": first_frame, "notes": notes}
