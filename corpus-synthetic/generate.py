@@ -16,11 +16,13 @@ a trial is the same whether it is generated in the full session or in a ``--quic
 
 from __future__ import annotations
 
+import copy
 import csv
 import functools
 import importlib.util
 import json
 import math
+import re
 import shutil
 import tomllib
 from collections.abc import Sequence
@@ -136,8 +138,10 @@ def plan_trials(settings: dict[str, Any], quick: bool = False) -> list[TrialPlan
     ]
 
 
-def trial_rng(seed: int, plan: TrialPlan) -> np.random.Generator:
-    return np.random.default_rng(np.random.SeedSequence([seed, *plan.key]))
+def trial_rng(seed: int, plan: TrialPlan, stream: tuple[int, ...] = ()) -> np.random.Generator:
+    """The trial's own random stream; ``stream`` (the speaker's number in a multi-speaker corpus)
+    gives every speaker other draws of the same trial. Empty for a one-speaker session."""
+    return np.random.default_rng(np.random.SeedSequence([seed, *plan.key, *stream]))
 
 
 # ----------------------------------------------------------------------------- segments
@@ -272,9 +276,10 @@ def make_trial(
     seed: int,
     n_session: int,
     flavour: str = "model",
+    stream: tuple[int, ...] = (),
 ) -> Trial:
     """One trial; ``flavour`` "model" (MODEL.md §3 with the table) or "gestures" (gestures.py)."""
-    rng = trial_rng(seed, plan)
+    rng = trial_rng(seed, plan, stream)
     labels, starts, ends, times = draw_segments(settings, plan, rng)
     if flavour == "model":
         traj = trajectories(table, labels, starts, ends, times, channels=list(CHANNELS))
@@ -458,12 +463,18 @@ def generate(
     progress: bool = True,
     flavour: str = "model",
     consonants: Sequence[str] | None = None,
+    speakers: int = 1,
 ) -> Path:
     """Write the session into ``out``; return the path of its manifest.
 
     ``flavour``: "model" (the channels are the model's, with the ground truth) or "gestures"
     (critically damped gestures towards the same targets: data the model did not make).
     ``consonants``: only the trials of these consonants (default: all of session.toml).
+    ``speakers``: more than 1 writes one session per speaker into ``out/s01``, ``out/s02``...
+    (speakers differ in target scale and speaking rate, ``speakers.toml``; each folder holds its
+    speaker's ``ground_truth.json``) and a corpus manifest ``out/manifest.csv`` with a ``speaker``
+    column over all of them; ``out/speakers.json`` records every speaker's scale, rate and truth.
+    One speaker is the default session, the same bytes as before speakers existed.
 
     The manifest is written last, so a directory without one is an interrupted run (run again:
     generation is deterministic and takes seconds).
@@ -473,6 +484,8 @@ def generate(
     seed = int(settings["seed"] if seed is None else seed)
     if seed < 0:
         raise SessionError(f"seed must be a non-negative integer, got {seed}")
+    if isinstance(speakers, bool) or not isinstance(speakers, int) or speakers < 1:
+        raise SessionError(f"--speakers must be a positive integer, got {speakers!r}")
     table = ParameterTable.load(GROUND_TRUTH)
     if flavour not in FLAVOURS:
         raise SessionError(f"unknown flavour {flavour!r} (known: {', '.join(FLAVOURS)})")
@@ -483,12 +496,31 @@ def generate(
             raise SessionError(f"{SETTINGS}: consonant(s) {unknown} are not in the session")
         plans = [p for p in plans if p.consonant in set(consonants)]
     n_session = len(plan_trials(settings, quick=False))
+    if speakers == 1:
+        return _write_session(out, settings, table, plans, seed, quick, progress, flavour, n_session)
+    return _write_speakers(out, settings, table, plans, seed, quick, progress, flavour, n_session, speakers)
+
+
+def _write_session(
+    out: Path,
+    settings: dict[str, Any],
+    table: ParameterTable,
+    plans: list[TrialPlan],
+    seed: int,
+    quick: bool,
+    progress: bool,
+    flavour: str,
+    n_session: int,
+    stream: tuple[int, ...] = (),
+    title: str = "synthetic session",
+) -> Path:
+    """One speaker's session (the whole of a default run): trials, truth, overview, manifest last."""
     _prepare(out)
     pause_label = settings["pause_label"]
     rate = float(settings["rate_hz"])
     rows: list[dict[str, Any]] = []
     columns = (
-        TextColumn("[bold]synthetic session"),
+        TextColumn(f"[bold]{title}"),
         BarColumn(),
         MofNCompleteColumn(),
         TimeRemainingColumn(),
@@ -497,7 +529,7 @@ def generate(
     with Progress(*columns, disable=not progress, transient=False) as bar:
         task = bar.add_task("", total=len(plans))
         for plan in plans:
-            trial = make_trial(settings, table, plan, seed, n_session, flavour)
+            trial = make_trial(settings, table, plan, seed, n_session, flavour, stream)
             name = plan.name
             write_c3d(out / "c3d" / f"{name}.c3d", trial.markers, rate)
             write_csv(out / "csv" / f"{name}.csv", trial.times, trial.markers)
@@ -523,7 +555,10 @@ def generate(
                 }
             )
             bar.update(task, advance=1, description=name)
-    shutil.copyfile(GROUND_TRUTH, out / "ground_truth.json")
+    if stream:  # a speaker of a multi-speaker corpus: its own (scaled) truth
+        table.save(out / "ground_truth.json")
+    else:
+        shutil.copyfile(GROUND_TRUTH, out / "ground_truth.json")
     shutil.copyfile(SETTINGS, out / "session.toml")
     (out / "session.json").write_text(
         json.dumps(
@@ -537,6 +572,123 @@ def generate(
     manifest = out / "manifest.csv"
     with open(manifest, "w", newline="", encoding="utf-8") as fh:
         w = csv.DictWriter(fh, fieldnames=MANIFEST_COLUMNS)
+        w.writeheader()
+        w.writerows(rows)
+    return manifest
+
+
+# ----------------------------------------------------------------------------- many speakers
+
+SPEAKER_SETTINGS = HERE / "speakers.toml"
+SPEAKER_DIR = re.compile(r"s\d{2,}")
+
+
+@dataclass(frozen=True)
+class Speaker:
+    """How one synthetic speaker differs from the ground truth of ``ground_truth.json``."""
+
+    name: str  # s01, s02, ... (the folder and the manifest's speaker column)
+    number: int  # 1-based: the extra random stream of its trials
+    target_scale: float  # every target's distance from the rest (pause) target is multiplied by it
+    duration_scale: float  # V, C, V durations multiplied by it (> 1: a slower speaker); pauses kept
+
+
+def load_speaker_settings(path: Path = SPEAKER_SETTINGS) -> dict[str, tuple[float, float]]:
+    """Read ``speakers.toml``: the ranges speakers spread over."""
+    try:
+        with open(path, "rb") as fh:
+            s = tomllib.load(fh)
+    except OSError as exc:
+        raise SessionError(f"{path}: cannot read the speaker settings: {exc.strerror}") from None
+    except tomllib.TOMLDecodeError as exc:
+        raise SessionError(f"{path}: invalid TOML: {exc}") from None
+    out: dict[str, tuple[float, float]] = {}
+    for key in ("target_scale", "duration_scale"):
+        v = s.get(key)
+        if (not isinstance(v, list) or len(v) != 2
+                or not all(isinstance(x, (int, float)) and not isinstance(x, bool) for x in v)
+                or not 0 < v[0] <= v[1]):
+            raise SessionError(f"{path}: {key} must be [low, high] with 0 < low <= high, got {v!r}")
+        out[key] = (float(v[0]), float(v[1]))
+    return out
+
+
+def plan_speakers(n: int, seed: int, ranges: dict[str, tuple[float, float]]) -> list[Speaker]:
+    """``n`` speakers evenly spread over both ranges; the pairing of scale and rate is shuffled by
+    the seed (so that scale and rate are not simply correlated across speakers)."""
+    width = max(2, len(str(n)))
+    scales = np.linspace(*ranges["target_scale"], n)
+    durations = np.linspace(*ranges["duration_scale"], n)
+    order = np.random.default_rng(np.random.SeedSequence([seed, n])).permutation(n)
+    return [Speaker(f"s{k + 1:0{width}d}", k + 1, float(scales[k]), float(durations[order[k]])) for k in range(n)]
+
+
+def speaker_table(table: ParameterTable, speaker: Speaker) -> ParameterTable:
+    """The ground truth scaled for one speaker: targets move away from (or towards) the rest."""
+    doc = copy.deepcopy(table.to_json_dict())
+    for ch in table.channels:
+        rest = table.values[PAUSE][ch]["target"]
+        for chans in doc["phonemes"].values():
+            if ch in chans:
+                chans[ch]["target"] = rest + speaker.target_scale * (chans[ch]["target"] - rest)
+    doc.setdefault("metadata", {})["speaker"] = {
+        "name": speaker.name, "target_scale": speaker.target_scale, "duration_scale": speaker.duration_scale,
+        "rule": "target = rest target + target_scale * (ground-truth target - rest target); "
+                "V, C, V durations multiplied by duration_scale",
+    }
+    return ParameterTable.from_json_dict(doc, source=f"{GROUND_TRUTH} for speaker {speaker.name}")
+
+
+def speaker_settings(settings: dict[str, Any], speaker: Speaker) -> dict[str, Any]:
+    s = copy.deepcopy(settings)
+    for part in ("first_vowel", "second_vowel", "consonant"):
+        s["durations"][part] = {k: v * speaker.duration_scale for k, v in s["durations"][part].items()}
+    return s
+
+
+def _write_speakers(
+    out: Path,
+    settings: dict[str, Any],
+    table: ParameterTable,
+    plans: list[TrialPlan],
+    seed: int,
+    quick: bool,
+    progress: bool,
+    flavour: str,
+    n_session: int,
+    n_speakers: int,
+) -> Path:
+    """One session per speaker in ``out/sNN``, then the corpus manifest over all of them."""
+    speakers = plan_speakers(n_speakers, seed, load_speaker_settings())
+    _prepare(out)
+    for old in out.iterdir():  # speakers of an earlier run (they carry our stamp); others refused above
+        if old.is_dir() and SPEAKER_DIR.fullmatch(old.name) and (old / STAMP).is_file():
+            shutil.rmtree(old)
+    for sub in SUBDIRS:
+        (out / sub).rmdir()  # the per-speaker folders hold the trials
+    rows: list[dict[str, Any]] = []
+    record_: dict[str, Any] = {}
+    for sp in speakers:
+        truth = speaker_table(table, sp)
+        manifest = _write_session(out / sp.name, speaker_settings(settings, sp), truth, plans, seed, quick,
+                                  progress, flavour, n_session, stream=(sp.number,),
+                                  title=f"speaker {sp.name}")
+        with open(manifest, newline="", encoding="utf-8") as fh:
+            for r in csv.DictReader(fh):
+                for col in ("file", "labels", "csv", "lab", "truth"):
+                    r[col] = f"{sp.name}/{r[col]}"
+                rows.append({"speaker": sp.name, **r})
+        record_[sp.name] = {"target_scale": sp.target_scale, "duration_scale": sp.duration_scale,
+                            "ground_truth": f"{sp.name}/ground_truth.json", "manifest": f"{sp.name}/manifest.csv",
+                            "n_trials": len(plans)}
+    shutil.copyfile(SPEAKER_SETTINGS, out / "speakers.toml")
+    (out / "speakers.json").write_text(
+        json.dumps({"seed": seed, "quick": quick, "flavour": flavour, "speakers": record_}, indent=2) + "\n",
+        encoding="utf-8",
+    )
+    manifest = out / "manifest.csv"
+    with open(manifest, "w", newline="", encoding="utf-8") as fh:
+        w = csv.DictWriter(fh, fieldnames=("speaker", *MANIFEST_COLUMNS))
         w.writeheader()
         w.writerows(rows)
     return manifest

@@ -3,8 +3,13 @@
 //!
 //! The core works with ln D because the normalisation of eq. 1 / eq. 3 is a log-sum-exp: when
 //! θ|τ|^c is large, D underflows to 0 but ln D stays exact.
+//!
+//! The value kernels are written once over [`Lanes`] and inlined into their callers: the scalar
+//! and AVX2 evaluators, the gradient's value pass and the physical-limit loop all run this code
+//! (a generic `#[inline(always)]` function takes on the caller's AVX2 target feature, a closure
+//! would not), and so do the unit tests below, with one lane.
 
-use crate::vector_math::{exp, ln};
+use crate::vector_math::{exp_lanes, ln_lanes, Lanes};
 
 /// Which side of its target time a sample lies on.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -27,66 +32,100 @@ impl Side {
     }
 }
 
-/// ln D at one (sample, segment) pair, with the pieces its derivatives reuse.
+/// The dominance parameters of one segment, both sides (MODEL.md §1–2), as the inner loops read
+/// them: ln α rather than α.
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
-pub struct LogDominance {
-    /// ln D = ln α − θ |τ|^c.
-    pub log_d: f64,
-    /// |τ|^c (0 at τ = 0, since c > 0).
-    pub power: f64,
-    /// ln |τ|, taken as 0 at τ = 0 (where it only ever multiplies |τ|^c = 0).
-    pub ln_abs_tau: f64,
+pub struct DominanceParams {
+    pub log_alpha: f64,
+    pub theta_bw: f64,
+    pub theta_fw: f64,
+    pub c_bw: f64,
+    pub c_fw: f64,
 }
 
-/// |τ|^c as exp(c ln|τ|) given ln|τ|, and exactly |τ| for c = 1 (the original model's exponent,
-/// where the evaluator then needs no transcendental function for the power at all).
-#[inline(always)]
-fn power(c: f64, abs_tau: f64, ln_abs_tau: f64) -> f64 {
-    if c == 1.0 {
-        abs_tau
-    } else {
-        exp(c * ln_abs_tau)
+impl DominanceParams {
+    /// Whether c = 1 on both sides (the original model's exponent): |τ|^c is then |τ| on every
+    /// lane and the value needs no transcendental function for the power (decided once per
+    /// segment, not per lane).
+    #[inline(always)]
+    fn linear(&self) -> bool {
+        self.c_bw == 1.0 && self.c_fw == 1.0
+    }
+
+    /// θ and c of each lane's side (`bw`: τ ≤ 0).
+    #[inline(always)]
+    fn theta<V: Lanes>(&self, bw: V::Mask) -> V {
+        V::select(bw, V::splat(self.theta_bw), V::splat(self.theta_fw))
+    }
+
+    #[inline(always)]
+    fn c<V: Lanes>(&self, bw: V::Mask) -> V {
+        V::select(bw, V::splat(self.c_bw), V::splat(self.c_fw))
     }
 }
 
-/// ln D for |τ| = `abs_tau` with the side's rate θ and exponent c (MODEL.md §2), with ln|τ|
-/// kept for ∂/∂c.
+/// The side mask of τ: true on the lanes where τ ≤ 0 ([`Side::Backward`]).
+#[inline(always)]
+pub(crate) fn backward<V: Lanes>(tau: V) -> V::Mask {
+    tau.le(V::splat(0.0))
+}
+
+/// |τ|^c as exp(c ln|τ|) given ln|τ|, and exactly |τ| on the lanes where c = 1. At τ = 0,
+/// ln 0 = −∞ gives exp(−∞) = 0 = |τ|^c for every c > 0.
+#[inline(always)]
+fn power<V: Lanes>(c: V, abs_tau: V, ln_abs_tau: V) -> V {
+    V::select(c.eq(V::splat(1.0)), abs_tau, exp_lanes(c.mul(ln_abs_tau)))
+}
+
+/// ln D on the lanes of |τ| = `abs_tau`, with the pieces its derivatives reuse.
+#[derive(Clone, Copy)]
+pub(crate) struct LogDominance<V> {
+    /// ln D = ln α − θ |τ|^c.
+    pub log_d: V,
+    /// |τ|^c (0 at τ = 0, since c > 0).
+    pub power: V,
+    /// ln |τ|, taken as 0 at τ = 0 (where it only ever multiplies |τ|^c = 0).
+    pub ln_abs_tau: V,
+}
+
+/// ln D for |τ| = `abs_tau` with each lane's side (`bw`: τ ≤ 0) rate θ and exponent c (MODEL.md
+/// §2), with |τ|^c and ln|τ| kept for the derivatives ([`log_dominance_grad`]).
 ///
 /// |τ|^c is computed as exp(c ln|τ|) (exactly |τ| for c = 1): one logarithm per pair, shared
-/// with ∂/∂c. Through the [`crate::vector_math`] kernels, like the vectorised evaluator, so
-/// that both give the same bits.
+/// with ∂/∂c, which needs ln|τ| even where c = 1. Bit for bit equal to
+/// [`log_dominance_value`] on `log_d`.
 #[inline(always)]
-pub fn log_dominance(log_alpha: f64, theta: f64, c: f64, abs_tau: f64) -> LogDominance {
-    if abs_tau > 0.0 {
-        let ln_abs_tau = ln(abs_tau);
-        let power = power(c, abs_tau, ln_abs_tau);
-        LogDominance {
-            log_d: log_alpha - theta * power,
-            power,
-            ln_abs_tau,
-        }
+pub(crate) fn log_dominance<V: Lanes>(
+    d: &DominanceParams,
+    bw: V::Mask,
+    abs_tau: V,
+) -> LogDominance<V> {
+    let s = V::splat;
+    let theta = d.theta::<V>(bw);
+    let ln_a = ln_lanes(abs_tau);
+    let power = if d.linear() {
+        abs_tau
     } else {
-        LogDominance {
-            log_d: log_alpha,
-            power: 0.0,
-            ln_abs_tau: 0.0,
-        }
+        power(d.c::<V>(bw), abs_tau, ln_a)
+    };
+    LogDominance {
+        log_d: s(d.log_alpha).sub(theta.mul(power)),
+        power,
+        ln_abs_tau: V::select(abs_tau.eq(s(0.0)), s(0.0), ln_a),
     }
 }
 
-/// ln D alone, bit for bit equal to [`log_dominance`]`.log_d`, skipping ln|τ| when c = 1.
+/// ln D alone (the evaluator's and the physical-limit loop's kernel): the same operations as
+/// [`log_dominance`], skipping ln|τ| where c = 1 on both sides.
 #[inline(always)]
-pub fn log_dominance_value(log_alpha: f64, theta: f64, c: f64, abs_tau: f64) -> f64 {
-    if abs_tau > 0.0 {
-        let power = if c == 1.0 {
-            abs_tau
-        } else {
-            exp(c * ln(abs_tau))
-        };
-        log_alpha - theta * power
+pub(crate) fn log_dominance_value<V: Lanes>(d: &DominanceParams, bw: V::Mask, abs_tau: V) -> V {
+    let theta = d.theta::<V>(bw);
+    let power = if d.linear() {
+        abs_tau
     } else {
-        log_alpha
-    }
+        power(d.c::<V>(bw), abs_tau, ln_lanes(abs_tau))
+    };
+    V::splat(d.log_alpha).sub(theta.mul(power))
 }
 
 /// Partial derivatives of ln D with respect to α, θ (of the side), c (of the side) and τ.
@@ -105,7 +144,7 @@ pub struct LogDominanceGrad {
 }
 
 /// Derivatives of ln D given 1/α and the pieces |τ|^c and ln|τ| (0 at τ = 0) of the value, as
-/// [`log_dominance`] returns them or as the vectorised value pass stores them.
+/// [`log_dominance`] returns them (the gradient's value pass stores them per lane).
 #[inline(always)]
 pub fn log_dominance_grad(
     inv_alpha: f64,
@@ -132,36 +171,77 @@ pub fn log_dominance_grad(
 mod tests {
     use super::*;
 
+    /// The same θ and c on both sides (one lane: the side does not matter).
+    fn sym(log_alpha: f64, theta: f64, c: f64) -> DominanceParams {
+        DominanceParams {
+            log_alpha,
+            theta_bw: theta,
+            theta_fw: theta,
+            c_bw: c,
+            c_fw: c,
+        }
+    }
+
+    fn ld(log_alpha: f64, theta: f64, c: f64, abs_tau: f64) -> LogDominance<f64> {
+        log_dominance::<f64>(&sym(log_alpha, theta, c), true, abs_tau)
+    }
+
     #[test]
     fn value_matches_definition() {
-        let ld = log_dominance(0.3f64.ln(), 20.0, 0.7, 0.05);
+        let v = ld(0.3f64.ln(), 20.0, 0.7, 0.05);
         let direct = (0.3 * (-20.0 * 0.05f64.powf(0.7)).exp()).ln();
-        assert!((ld.log_d - direct).abs() < 1e-13);
+        assert!((v.log_d - direct).abs() < 1e-13);
+    }
+
+    #[test]
+    fn sides_take_their_own_rate_and_exponent() {
+        let d = DominanceParams {
+            log_alpha: 0.0,
+            theta_bw: 10.0,
+            theta_fw: 30.0,
+            c_bw: 1.0,
+            c_fw: 2.0,
+        };
+        let tau = [-0.1, 0.1];
+        let got = tau.map(|t| log_dominance_value::<f64>(&d, backward(t), t.abs()));
+        assert!((got[0] - (-10.0 * 0.1)).abs() < 1e-15);
+        assert!((got[1] - (-30.0 * 0.01)).abs() < 1e-15);
+        assert!(backward(0.0) && !backward(1e-300));
     }
 
     #[test]
     fn value_only_form_is_bitwise_equal() {
-        for &(c, a) in &[
-            (1.0, 0.037),
-            (0.73, 0.2),
-            (2.4, 1e-5),
-            (1.0, 0.0),
-            (0.5, 0.0),
+        for &(c_bw, c_fw, a) in &[
+            (1.0, 1.0, 0.037),
+            (0.73, 0.73, 0.2),
+            (2.4, 2.4, 1e-5),
+            (1.0, 1.0, 0.0),
+            (0.5, 0.5, 0.0),
+            (1.0, 0.5, 0.3),
+            (0.5, 1.0, 0.3),
         ] {
-            let full = log_dominance(0.2, 33.0, c, a).log_d;
-            assert_eq!(
-                full.to_bits(),
-                log_dominance_value(0.2, 33.0, c, a).to_bits()
-            );
+            let d = DominanceParams {
+                log_alpha: 0.2,
+                theta_bw: 33.0,
+                theta_fw: 21.0,
+                c_bw,
+                c_fw,
+            };
+            for bw in [true, false] {
+                let full = log_dominance::<f64>(&d, bw, a).log_d;
+                let value = log_dominance_value::<f64>(&d, bw, a);
+                assert_eq!(full.to_bits(), value.to_bits());
+            }
         }
-        assert_eq!(log_dominance(0.0, 10.0, 1.0, 0.25).power, 0.25);
+        assert_eq!(ld(0.0, 10.0, 1.0, 0.25).power, 0.25);
     }
 
     #[test]
     fn finite_at_zero_with_c_below_one() {
-        let ld = log_dominance(0.0, 20.0, 0.5, 0.0);
-        let g = log_dominance_grad(1.0, 20.0, 0.5, 0.0, ld.power, ld.ln_abs_tau);
-        assert_eq!(ld.log_d, 0.0);
+        let v = ld(0.0, 20.0, 0.5, 0.0);
+        let g = log_dominance_grad(1.0, 20.0, 0.5, 0.0, v.power, v.ln_abs_tau);
+        assert_eq!(v.log_d, 0.0);
+        assert_eq!((v.power, v.ln_abs_tau), (0.0, 0.0));
         assert_eq!(g.d_c, 0.0);
         assert_eq!(g.d_tau, 0.0);
         assert!(g.d_theta == 0.0);
@@ -171,11 +251,11 @@ mod tests {
     fn tau_derivative_matches_difference() {
         for &tau in &[-0.07, 0.03] {
             let (theta, c) = (15.0, 1.7);
-            let f = |t: f64| log_dominance(0.0, theta, c, t.abs()).log_d;
+            let f = |t: f64| ld(0.0, theta, c, t.abs()).log_d;
             let h = 1e-6;
             let fd = (f(tau + h) - f(tau - h)) / (2.0 * h);
-            let ld = log_dominance(0.0, theta, c, tau.abs());
-            let g = log_dominance_grad(1.0, theta, c, tau, ld.power, ld.ln_abs_tau);
+            let v = ld(0.0, theta, c, tau.abs());
+            let g = log_dominance_grad(1.0, theta, c, tau, v.power, v.ln_abs_tau);
             assert!(
                 (g.d_tau - fd).abs() < 1e-6 * fd.abs().max(1.0),
                 "{} vs {}",
@@ -183,5 +263,21 @@ mod tests {
                 fd
             );
         }
+    }
+
+    #[test]
+    fn theta_and_c_derivatives_match_differences() {
+        let (la, theta, c, a) = (0.1, 12.0, 1.3, 0.08);
+        let h = 1e-6;
+        let v = ld(la, theta, c, a);
+        let g = log_dominance_grad(1.0, theta, c, a, v.power, v.ln_abs_tau);
+        let fd_theta = (ld(la, theta + h, c, a).log_d - ld(la, theta - h, c, a).log_d) / (2.0 * h);
+        let fd_c = (ld(la, theta, c + h, a).log_d - ld(la, theta, c - h, a).log_d) / (2.0 * h);
+        assert!(
+            (g.d_theta - fd_theta).abs() < 1e-8,
+            "{} vs {fd_theta}",
+            g.d_theta
+        );
+        assert!((g.d_c - fd_c).abs() < 1e-7, "{} vs {fd_c}", g.d_c);
     }
 }

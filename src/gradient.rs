@@ -7,12 +7,12 @@
 //! (§3.1) and, for δ, the target time t_i; those go through the reverse-mode derivative of the
 //! extent recursion ([`Resistance::extents_adjoint`]), O(N) per sample.
 
-use crate::dominance::{log_dominance_grad, Side};
+use crate::dominance::{backward, log_dominance, log_dominance_grad, Side};
 use crate::model::{Prepared, LANES};
 use crate::params::{Param, N_PARAMS};
-use crate::resistance::{cutoff_grad, LogResistance, Resistance};
-use crate::shape::Shape;
-use crate::vector_math::{exp_lanes, ln_lanes, Lanes};
+use crate::resistance::{cutoff_grad, cutoff_log_value, LogResistance, Resistance};
+use crate::shape::{gaussian_exp, gaussian_shape, Shape};
+use crate::vector_math::{exp_lanes, Lanes};
 #[cfg(target_arch = "x86_64")]
 use crate::vector_math::{simd_enabled, F64x4};
 
@@ -182,16 +182,15 @@ impl GradScratch {
             let tau = time.sub(s(g.t));
             tau.store(&mut self.tau[o..]);
             let a = tau.abs();
-            let bw = tau.le(zero);
+            let bw = backward(tau);
             let lr = match res {
                 Resistance::None => zero,
                 Resistance::Cutoff => {
                     let ext = V::select(bw, s(g.ext_bwd), s(g.ext_fwd));
-                    let u = a.div(ext);
-                    let v = s(-beta).mul(u).div(one.sub(u));
-                    u.store(&mut self.u[o..]);
-                    one.div(one.sub(u)).store(&mut self.q[o..]);
-                    V::select(a.eq(zero), zero, V::select(u.ge(one), neg_inf, v))
+                    let cv = cutoff_log_value(a, ext, beta);
+                    cv.u.store(&mut self.u[o..]);
+                    cv.q().store(&mut self.q[o..]);
+                    cv.log_r
                 }
             };
             let active = lr.ne(neg_inf);
@@ -199,20 +198,11 @@ impl GradScratch {
                 neg_inf.store(&mut self.p[o..]);
                 continue;
             }
-            let theta = V::select(bw, s(g.theta_bw), s(g.theta_fw));
-            // ln|τ| always (∂/∂c needs it even where c = 1); at τ = 0, ln 0 = −∞ gives
-            // exp(−∞) = 0 = |τ|^c, as in the evaluator.
-            let ln_a = ln_lanes(a);
-            let power = if g.c_bw == 1.0 && g.c_fw == 1.0 {
-                a
-            } else {
-                let c = V::select(bw, s(g.c_bw), s(g.c_fw));
-                V::select(c.eq(one), a, exp_lanes(c.mul(ln_a)))
-            };
-            V::select(a.eq(zero), zero, ln_a).store(&mut self.ln_abs_tau[o..]);
-            power.store(&mut self.power[o..]);
-            let ld = s(g.log_alpha).sub(theta.mul(power));
-            let lw = V::select(active, lr.add(ld), neg_inf);
+            // ln|τ| always (∂/∂c needs it even where c = 1).
+            let ld = log_dominance(&g.dom, bw, a);
+            ld.ln_abs_tau.store(&mut self.ln_abs_tau[o..]);
+            ld.power.store(&mut self.power[o..]);
+            let lw = V::select(active, lr.add(ld.log_d), neg_inf);
             max_lw = V::select(lw.gt(max_lw), lw, max_lw);
             lw.store(&mut self.p[o..]);
         }
@@ -230,11 +220,11 @@ impl GradScratch {
             let w = exp_lanes(lw.sub(max_lw));
             let sv = match shape {
                 Shape::Gaussian => {
-                    let tau = V::load(&self.tau[o..]);
-                    let e = exp_lanes(s(-g.psi).mul(tau.mul(tau)));
+                    // e even where σ = 0: ∂S/∂σ = e.
+                    let e = gaussian_exp(g.psi, V::load(&self.tau[o..]));
                     e.store(&mut self.shape_exp[o..]);
                     if g.sigma != 0.0 {
-                        one.add(s(g.sigma).mul(e))
+                        gaussian_shape(g.sigma, e)
                     } else {
                         one
                     }
@@ -286,8 +276,8 @@ impl GradScratch {
             let tau = self.tau[o];
             let side = Side::of(tau);
             let (theta, c, inv_ext) = match side {
-                Side::Backward => (s.theta_bw, s.c_bw, s.inv_bwd),
-                Side::Forward => (s.theta_fw, s.c_fw, s.inv_fwd),
+                Side::Backward => (s.dom.theta_bw, s.dom.c_bw, s.inv_bwd),
+                Side::Forward => (s.dom.theta_fw, s.dom.c_fw, s.inv_fwd),
             };
             let lr = if res.is_none() || tau == 0.0 {
                 LogResistance::default()

@@ -2,11 +2,12 @@
 //! and the evaluation of F(t) at its samples, MODEL.md eq. 1 / eq. 3, normalised in the log
 //! domain (log-sum-exp over segments) so that underflowing dominance never gives 0/0.
 
+use crate::dominance::{backward, log_dominance_value, DominanceParams};
 use crate::params::{ModelOptions, Param, N_PARAMS};
 use crate::resistance::Resistance;
-use crate::shape::Shape;
+use crate::shape::{gaussian_exp, Shape};
 use crate::targets::target_time;
-use crate::vector_math::{exp_lanes, ln_lanes, Lanes};
+use crate::vector_math::{exp_lanes, Lanes};
 #[cfg(target_arch = "x86_64")]
 use crate::vector_math::{simd_enabled, F64x4};
 
@@ -22,11 +23,8 @@ pub(crate) struct SegmentModel {
     pub target: f64,
     /// 1/α, for ∂ ln D/∂α.
     pub inv_alpha: f64,
-    pub log_alpha: f64,
-    pub theta_bw: f64,
-    pub theta_fw: f64,
-    pub c_bw: f64,
-    pub c_fw: f64,
+    /// ln α, θ and c of both sides.
+    pub dom: DominanceParams,
     pub sigma: f64,
     pub psi: f64,
     /// Δ⁻_i and Δ⁺_i; +∞ where R ≡ 1 on that side (backward of the first segment, forward of
@@ -86,11 +84,13 @@ impl Prepared {
                 t,
                 target: row[Param::Target.index()],
                 inv_alpha: 1.0 / alpha,
-                log_alpha: alpha.ln(),
-                theta_bw: row[Param::ThetaBw.index()],
-                theta_fw: row[Param::ThetaFw.index()],
-                c_bw: row[Param::CBw.index()],
-                c_fw: row[Param::CFw.index()],
+                dom: DominanceParams {
+                    log_alpha: alpha.ln(),
+                    theta_bw: row[Param::ThetaBw.index()],
+                    theta_fw: row[Param::ThetaFw.index()],
+                    c_bw: row[Param::CBw.index()],
+                    c_fw: row[Param::CFw.index()],
+                },
                 sigma: row[Param::Sigma.index()],
                 psi: row[Param::Psi.index()],
                 ext_bwd: f64::INFINITY,
@@ -145,23 +145,13 @@ impl Prepared {
     ) -> (V, V::Mask) {
         let s = V::splat;
         let zero = s(0.0);
-        let one = s(1.0);
         let neg_inf = s(f64::NEG_INFINITY);
         let mut max_lw = neg_inf;
         for (i, g) in self.seg.iter().enumerate() {
             let tau = time.sub(s(g.t));
             let a = tau.abs();
-            let bw = tau.le(zero);
-            let lr = match res {
-                Resistance::None => zero,
-                Resistance::Cutoff => {
-                    // As `Resistance::log_value`: u by division, −∞ beyond the extent.
-                    let ext = V::select(bw, s(g.ext_bwd), s(g.ext_fwd));
-                    let u = a.div(ext);
-                    let v = s(-beta).mul(u).div(one.sub(u));
-                    V::select(a.eq(zero), zero, V::select(u.ge(one), neg_inf, v))
-                }
-            };
+            let bw = backward(tau);
+            let lr = res.log_value(bw, a, g.ext_bwd, g.ext_fwd, beta);
             let active = lr.ne(neg_inf);
             let out = &mut self.log_w[i * LANES..];
             if !V::any(active) {
@@ -169,16 +159,7 @@ impl Prepared {
                 neg_inf.store(out);
                 continue;
             }
-            let theta = V::select(bw, s(g.theta_bw), s(g.theta_fw));
-            // |τ|^c = exp(c ln|τ|) as in `log_dominance_value` (exactly |τ| where c = 1; at
-            // τ = 0, ln 0 = −∞ gives exp(−∞) = 0 = |τ|^c, so ln D = ln α there too).
-            let power = if g.c_bw == 1.0 && g.c_fw == 1.0 {
-                a
-            } else {
-                let c = V::select(bw, s(g.c_bw), s(g.c_fw));
-                V::select(c.eq(one), a, exp_lanes(c.mul(ln_lanes(a))))
-            };
-            let ld = s(g.log_alpha).sub(theta.mul(power));
+            let ld = log_dominance_value(&g.dom, bw, a);
             let lw = V::select(active, lr.add(ld), neg_inf);
             max_lw = V::select(lw.gt(max_lw), lw, max_lw);
             lw.store(out);
@@ -193,13 +174,7 @@ impl Prepared {
                 continue;
             }
             let w = exp_lanes(lw.sub(max_lw));
-            let sv = match shape {
-                Shape::Gaussian if g.sigma != 0.0 => {
-                    let tau = time.sub(s(g.t));
-                    one.add(s(g.sigma).mul(exp_lanes(s(-g.psi).mul(tau.mul(tau)))))
-                }
-                _ => one,
-            };
+            let sv = shape.value(time.sub(s(g.t)), g.sigma, g.psi);
             num = V::select(active, num.add(w.mul(s(g.target)).mul(sv)), num);
             den = V::select(active, den.add(w), den);
         }
@@ -310,7 +285,6 @@ impl Prepared {
     fn limit_lanes<V: Lanes>(&self, times: &[f64], res: Resistance, shape: Shape) -> f64 {
         let s = V::splat;
         let zero = s(0.0);
-        let one = s(1.0);
         let shaped = !matches!(shape, Shape::None);
         let mut total = 0.0;
         let mut k = 0;
@@ -323,7 +297,7 @@ impl Prepared {
             for g in &self.seg {
                 let tau = time.sub(s(g.t));
                 let a = tau.abs();
-                let bw = tau.le(zero);
+                let bw = backward(tau);
                 // The pairs the evaluator keeps: R ≡ 1, or |τ| inside the side's extent.
                 let inside = if res.is_none() {
                     a.eq(a)
@@ -333,16 +307,9 @@ impl Prepared {
                 if !V::any(inside) {
                     continue;
                 }
-                let theta = V::select(bw, s(g.theta_bw), s(g.theta_fw));
-                let power = if g.c_bw == 1.0 && g.c_fw == 1.0 {
-                    a
-                } else {
-                    let c = V::select(bw, s(g.c_bw), s(g.c_fw));
-                    V::select(c.eq(one), a, exp_lanes(c.mul(ln_lanes(a))))
-                };
-                let mut v = exp_lanes(s(g.log_alpha).sub(theta.mul(power)));
+                let mut v = exp_lanes(log_dominance_value(&g.dom, bw, a));
                 if shaped && g.sigma != 0.0 {
-                    v = v.add(exp_lanes(s(-g.psi).mul(tau.mul(tau))));
+                    v = v.add(gaussian_exp(g.psi, tau));
                 }
                 sum = V::select(inside, sum.add(v), sum);
             }

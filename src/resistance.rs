@@ -3,6 +3,11 @@
 //!
 //! The closed form sits behind [`Resistance`] so that another one (a published formula 4 of
 //! Cosi & Perin, or a variant under test) is one more enum arm, not a change to the evaluator.
+//! The value is written once over [`Lanes`] ([`cutoff_log_value`], inlined into the evaluator,
+//! the gradient's value pass and the unit tests); the derivatives are scalar ([`cutoff_grad`]),
+//! as the gradient's derivative pass is.
+
+use crate::vector_math::Lanes;
 
 /// The resistance closed form.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -26,8 +31,46 @@ pub struct LogResistance {
     pub d_beta: f64,
 }
 
+/// ln R of the cut-off on some lanes, with u = |τ|/Δ for the derivatives.
+#[derive(Clone, Copy)]
+pub(crate) struct CutoffValue<V> {
+    /// ln ρ(u) = −β u/(1 − u); 0 at τ = 0, −∞ where u ≥ 1 (R = 0: the pair is skipped).
+    pub log_r: V,
+    pub u: V,
+}
+
+impl<V: Lanes> CutoffValue<V> {
+    /// q = 1/(1 − u), for [`cutoff_grad`].
+    #[inline(always)]
+    pub fn q(&self) -> V {
+        let one = V::splat(1.0);
+        one.div(one.sub(self.u))
+    }
+}
+
+/// ln R of MODEL.md §3.1 on the lanes of |τ| = `abs_tau` against the extent Δ of each lane's side
+/// (+∞ where R ≡ 1 on that side: u = 0).
+///
+/// u is |τ|/Δ by division, not by a reciprocal: at the next target of a k_R = 1 phoneme,
+/// |τ| and Δ are the same difference t_{i+1} − t_i and u must be exactly 1. One division for
+/// ln ρ (the vectorised evaluator is bounded by the divider).
+#[inline(always)]
+pub(crate) fn cutoff_log_value<V: Lanes>(abs_tau: V, extent: V, beta: f64) -> CutoffValue<V> {
+    let s = V::splat;
+    let zero = s(0.0);
+    let one = s(1.0);
+    let u = abs_tau.div(extent);
+    let v = s(-beta).mul(u).div(one.sub(u));
+    let log_r = V::select(
+        abs_tau.eq(zero),
+        zero,
+        V::select(u.ge(one), s(f64::NEG_INFINITY), v),
+    );
+    CutoffValue { log_r, u }
+}
+
 /// The derivatives of ln R for the cut-off given u = |τ|/Δ < 1 and q = 1/(1 − u), 0 < |τ| (the
-/// vectorised value pass computes u and q four lanes at a time); `log_r` is left 0. `None` where
+/// gradient's value pass keeps them from [`cutoff_log_value`]); `log_r` is left 0. `None` where
 /// 1 − u is so small that q² overflows: ρ is 0 to machine precision there.
 #[inline(always)]
 pub(crate) fn cutoff_grad(u: f64, q: f64, inv_extent: f64, beta: f64) -> Option<LogResistance> {
@@ -51,33 +94,32 @@ impl Resistance {
         matches!(self, Resistance::None)
     }
 
-    /// ln R for |τ| = `abs_tau` against the extent Δ of the sample's side (+∞ where R ≡ 1 on
-    /// that side). Returns −∞ where R = 0 (u ≥ 1, including Δ = 0): the caller skips that pair.
-    ///
-    /// u is |τ|/Δ by division, not by a reciprocal: at the next target of a k_R = 1 phoneme,
-    /// |τ| and Δ are the same difference t_{i+1} − t_i and u must be exactly 1.
+    /// ln R on the lanes of |τ| = `abs_tau`, each lane against the extent of its side (`bw`:
+    /// τ ≤ 0, Δ⁻ = `ext_bwd`, else Δ⁺ = `ext_fwd`; +∞ where R ≡ 1 on that side). −∞ where R = 0
+    /// (u ≥ 1, including Δ = 0): the caller skips that pair.
     #[inline(always)]
-    pub fn log_value(self, abs_tau: f64, extent: f64, beta: f64) -> f64 {
+    pub(crate) fn log_value<V: Lanes>(
+        self,
+        bw: V::Mask,
+        abs_tau: V,
+        ext_bwd: f64,
+        ext_fwd: f64,
+        beta: f64,
+    ) -> V {
         match self {
-            Resistance::None => 0.0,
+            Resistance::None => V::splat(0.0),
             Resistance::Cutoff => {
-                if abs_tau == 0.0 {
-                    return 0.0;
-                }
-                let u = abs_tau / extent;
-                if u >= 1.0 {
-                    f64::NEG_INFINITY
-                } else {
-                    // One division (the vectorised evaluator is bounded by the divider).
-                    -beta * u / (1.0 - u)
-                }
+                // The side's extent selected inside this arm: hoisted above the match, the mask
+                // stays live across the evaluator's branches and costs a conversion per pair.
+                let extent = V::select(bw, V::splat(ext_bwd), V::splat(ext_fwd));
+                cutoff_log_value(abs_tau, extent, beta).log_r
             }
         }
     }
 
-    /// ln R and its derivatives; `None` where R = 0 (u ≥ 1), where ρ is C∞ and every
-    /// derivative is 0. `inv_extent` is 1/Δ (0 for Δ = +∞), precomputed per segment.
-    #[inline(always)]
+    /// ln R and its derivatives at one pair; `None` where R = 0 (u ≥ 1), where ρ is C∞ and every
+    /// derivative is 0. `inv_extent` is 1/Δ (0 for Δ = +∞), precomputed per segment. The
+    /// composition of [`cutoff_log_value`] and [`cutoff_grad`] that the gradient makes.
     pub fn log_value_grad(
         self,
         abs_tau: f64,
@@ -88,15 +130,15 @@ impl Resistance {
         match self {
             Resistance::None => Some(LogResistance::default()),
             Resistance::Cutoff => {
+                let v = cutoff_log_value::<f64>(abs_tau, extent, beta);
                 if abs_tau == 0.0 {
                     return Some(LogResistance::default());
                 }
-                let u = abs_tau / extent;
-                if u >= 1.0 {
+                if v.log_r == f64::NEG_INFINITY {
                     return None;
                 }
-                let mut lr = cutoff_grad(u, 1.0 / (1.0 - u), inv_extent, beta)?;
-                lr.log_r = -beta * u / (1.0 - u); // as in `log_value`, bit for bit
+                let mut lr = cutoff_grad(v.u, v.q(), inv_extent, beta)?;
+                lr.log_r = v.log_r;
                 Some(lr)
             }
         }
@@ -180,21 +222,26 @@ impl Resistance {
 mod tests {
     use super::*;
 
+    /// ln R at one pair, both sides with the same extent.
+    fn lv(r: Resistance, abs_tau: f64, extent: f64, beta: f64) -> f64 {
+        r.log_value::<f64>(true, abs_tau, extent, extent, beta)
+    }
+
     #[test]
     fn rho_is_exponential_near_zero_and_zero_beyond() {
         let r = Resistance::Cutoff;
-        assert_eq!(r.log_value(0.0, 0.1, 2.0), 0.0);
-        assert_eq!(r.log_value(0.1, 0.1, 2.0), f64::NEG_INFINITY);
-        assert_eq!(r.log_value(0.2, 0.1, 2.0), f64::NEG_INFINITY);
-        let v = r.log_value(0.05, 0.1, 2.0);
+        assert_eq!(lv(r, 0.0, 0.1, 2.0), 0.0);
+        assert_eq!(lv(r, 0.1, 0.1, 2.0), f64::NEG_INFINITY);
+        assert_eq!(lv(r, 0.2, 0.1, 2.0), f64::NEG_INFINITY);
+        let v = lv(r, 0.05, 0.1, 2.0);
         assert!((v - (-2.0 * 0.5 / 0.5)).abs() < 1e-15);
         assert!(r.log_value_grad(0.1, 0.1, 10.0, 2.0).is_none());
         // No resistance on this side (Δ = +∞), and a zero extent.
-        assert_eq!(r.log_value(0.3, f64::INFINITY, 2.0), 0.0);
+        assert_eq!(lv(r, 0.3, f64::INFINITY, 2.0), 0.0);
         let g = r.log_value_grad(0.3, f64::INFINITY, 0.0, 2.0).unwrap();
         assert_eq!((g.d_extent, g.d_abs_tau, g.d_beta), (0.0, 0.0, 0.0));
-        assert_eq!(r.log_value(0.01, 0.0, 2.0), f64::NEG_INFINITY);
-        assert_eq!(r.log_value(0.0, 0.0, 2.0), 0.0);
+        assert_eq!(lv(r, 0.01, 0.0, 2.0), f64::NEG_INFINITY);
+        assert_eq!(lv(r, 0.0, 0.0, 2.0), 0.0);
     }
 
     #[test]

@@ -4,7 +4,9 @@ import typer
 
 from coartic import synthetic_cli
 from coartic.console import show_data_warnings
+from coartic.batch.cli import batch_command
 from coartic.demo import demo_command
+from coartic.face.view_cli import view_command
 from coartic.fit.fit_cli import fit_command
 from coartic.io.inspect_cli import inspect_command
 from coartic.mcmc.mcmc_cli import mcmc_command
@@ -16,7 +18,6 @@ app = typer.Typer(
     no_args_is_help=True,
     add_completion=False,
 )
-
 
 
 @app.callback()
@@ -33,6 +34,8 @@ app.command("mcmc")(mcmc_command)
 app.command("animate")(animate_command)
 app.command("speak")(speak_command)
 app.command("demo")(demo_command)
+app.command("view")(view_command)
+app.command("batch")(batch_command)
 
 if __name__ == "__main__":
     app()

@@ -68,17 +68,24 @@ def synth(
         typer.Option(help="model: the channels are the model's (ground truth known); gestures: critically "
                      "damped gestures towards the same targets, data the model did not make."),
     ] = "model",
+    speakers: Annotated[
+        int,
+        typer.Option(min=1, help="Number of speakers: more than 1 writes one session per speaker into OUT/s01, "
+                     "OUT/s02... (speakers differ in target scale and speaking rate, corpus-synthetic/speakers.toml) "
+                     "and OUT/manifest.csv with a 'speaker' column over all of them."),
+    ] = 1,
 ) -> None:
     """Generate the session: C3D + CSV markers, TextGrid + .lab labels, manifest, ground truth."""
     console = Console(stderr=True)
     try:
         gen = load_generator()
-        manifest = gen.generate(out, seed=seed, quick=quick, progress=True, flavour=flavour)
+        manifest = gen.generate(out, seed=seed, quick=quick, progress=True, flavour=flavour, speakers=speakers)
     except (GeneratorNotFound, ValueError) as exc:  # SessionError and TableError are ValueErrors
         print_error(console, exc)
         raise typer.Exit(code=1) from None
     n = sum(1 for _ in open(manifest, encoding="utf-8")) - 1
-    console.print(f"wrote {n} trials to {out} (manifest: {manifest})")
+    who = f" of {speakers} speakers" if speakers > 1 else ""
+    console.print(f"wrote {n} trials{who} to {out} (manifest: {manifest})")
 
 
 def run() -> None:

@@ -21,6 +21,8 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
+from coartic.outputs import atomic_write_text
+
 SCHEMA = "coartic.table/1"
 CHANNELS: tuple[str, ...] = ("ULO", "LLO", "ULP", "LLP", "LR", "JO")
 ALL_CHANNELS: tuple[str, ...] = CHANNELS + ("LA",)
@@ -305,8 +307,9 @@ class ParameterTable:
         """Validate, then write JSON (``.json``) or long CSV (``.csv``), chosen by the suffix."""
         self.validate()
         path = Path(path)
+        # whole or not at all: written aside, flushed and renamed (coartic.outputs)
         if path.suffix.lower() == ".csv":
-            path.write_text(self.to_csv(), encoding="utf-8")
+            atomic_write_text(path, self.to_csv())
         else:
             # json writes floats with repr: the shortest string that reads back to the same bits.
             try:
@@ -314,7 +317,7 @@ class ParameterTable:
             except (TypeError, ValueError) as exc:
                 # Only metadata is free-form enough to hold NaN or objects JSON cannot write.
                 raise TableError(f"{path}: metadata cannot be written as JSON: {exc}") from None
-            path.write_text(text + "\n", encoding="utf-8")
+            atomic_write_text(path, text + "\n")
 
     @classmethod
     def from_json_dict(cls, doc: Any, source: str = "<table>") -> ParameterTable:

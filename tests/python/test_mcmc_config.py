@@ -45,6 +45,9 @@ def test_defaults_and_every_key() -> None:
         ({"moves": "hmc"}, r"\[mcmc\] moves: unknown moves 'hmc'; expected one of de, stretch"),
         ({"moves": "de-snooker"}, r"\[mcmc\] moves: moves = 'de-snooker' is no longer offered: emcee's DESnookerMove"),
         ({"phonemes": "p"}, r"\[mcmc\] phonemes: expected a list of strings"),
+        # chains that cannot fit in memory: refused when the spec is read, naming the keys
+        ({"max_steps": 10**9}, r"fit/x.toml: \[mcmc\] max_steps: max_steps = 1000000000 x walkers = 32 .* lower"),
+        ({"walkers": 10**9}, r"fit/x.toml: \[mcmc\] walkers: max_steps = 20000 x walkers = 1000000000 .* lower"),
     ],
 )
 def test_mistakes_are_named(raw: dict[str, object], message: str) -> None:

@@ -137,6 +137,45 @@ def test_damaged_chunk_is_named(tmp_path: Path) -> None:
         sampler.run(gaussian, ball, NAMES, tmp_path / "c", settings(max_steps=400), progress=False)
 
 
+def test_a_gap_in_the_chunks_is_refused_not_spliced(tmp_path: Path) -> None:
+    s = settings(chunk_steps=50, min_steps=50, max_steps=150)
+    sampler.run(gaussian, ball, NAMES, tmp_path / "c", s, progress=False, stop_when_converged=False)
+    chunks = sorted(p.name for p in (tmp_path / "c").glob("ens00_chunk*.npz"))
+    assert chunks == ["ens00_chunk00000.npz", "ens00_chunk00001.npz", "ens00_chunk00002.npz"]
+    (tmp_path / "c" / "ens00_chunk00001.npz").unlink()
+    more = settings(chunk_steps=50, min_steps=50, max_steps=300)
+    with pytest.raises(ValueError, match=r"ens00_chunk00001.npz: missing, but later chunks exist \(ens00_chunk00002.npz\)"
+                                         r".*resume from chunk 0"):
+        sampler.run(gaussian, ball, NAMES, tmp_path / "c", more, progress=False, stop_when_converged=False)
+    # nothing was written over the surviving chunk
+    assert sorted(p.name for p in (tmp_path / "c").glob("ens00_chunk*.npz")) == ["ens00_chunk00000.npz", "ens00_chunk00002.npz"]
+    (tmp_path / "c" / "ens00_chunk00002.npz").unlink()  # as the message says: resumes from chunk 0
+    r = sampler.run(gaussian, ball, NAMES, tmp_path / "c", more, progress=False, stop_when_converged=False)
+    assert len(r.chains[0]) == len(r.chains[1]) == 300
+    assert len(list((tmp_path / "c").glob("ens00_chunk*.npz"))) == 6
+
+
+@pytest.mark.parametrize("damage", ["empty", "truncated"])
+def test_empty_or_truncated_chunk_is_named(tmp_path: Path, damage: str) -> None:
+    sampler.run(gaussian, ball, NAMES, tmp_path / "c", settings(chunk_steps=100, min_steps=100, max_steps=200),
+                progress=False, stop_when_converged=False)
+    victim = tmp_path / "c" / "ens00_chunk00000.npz"
+    data = victim.read_bytes()
+    victim.write_bytes(b"" if damage == "empty" else data[: len(data) // 2])
+    with pytest.raises(ValueError, match=r"ens00_chunk00000.npz: damaged chain chunk .*delete it and the 1 chunk\(s\) "
+                                         r"after it \(ens00_chunk00001.npz\)"):
+        sampler.run(gaussian, ball, NAMES, tmp_path / "c", settings(max_steps=400), progress=False)
+
+
+def test_chains_too_large_for_memory_are_refused_naming_the_keys() -> None:
+    with pytest.raises(ValueError, match=r"max_steps = 1000000000 x walkers = 16 x ensembles = 2 .* lower \[mcmc\] max_steps"):
+        settings(max_steps=10**9).validate(3)
+    with pytest.raises(ValueError, match=r"walkers = 1000000000 .* lower \[mcmc\] max_steps, walkers"):
+        settings(n_walkers=10**9).validate(3)
+    with pytest.raises(ValueError, match=r"chunk_steps = 600000 x walkers = 16 .*needs 1.6 GiB per chunk, more than the 1.0 GiB"):
+        SamplerSettings(n_walkers=16, chunk_steps=600_000, max_steps=600_000, n_ensembles=1).check_memory(10, limit=1 << 30)
+
+
 def test_too_few_walkers_is_explained() -> None:
     with pytest.raises(ValueError, match="too few for 3 dimensions"):
         settings(n_walkers=6).validate(3)

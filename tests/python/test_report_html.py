@@ -87,3 +87,19 @@ def test_interrupted_run_keeps_best_point(tmp_path: Path, monkeypatch: pytest.Mo
     summary = json.loads((tmp_path / "out" / "summary.json").read_text())
     assert summary["interrupted"] and summary["channels"]["LLO"]["status"] == "interrupted"
     assert np.isfinite(summary["channels"]["LLO"]["rmse_mm"])
+
+
+def test_report_escapes_names_and_manifest_cells(tmp_path: Path) -> None:
+    """A spec name or a manifest cell holding markup is shown as text, never run in the browser
+    (the template's .j2 suffix once defeated select_autoescape)."""
+    utts = vcv_utterances(np.random.default_rng(7), vowels=("a",), consonants=("p",), repetitions=2)
+    for u in utts:
+        u.meta["repetition"] = "<img src=x onerror=alert(2)>" + u.meta["repetition"]
+    raw = {"name": "<script>alert(1)</script>", "corpus": {"files": ["x"], "labels": ["y"]},
+           "model": {"channels": ["LLO"]}, "parameters": {"free": ["target"]}, "staging": {"enabled": False}}
+    result = run(parse_spec(raw, tmp_path / "spec.toml"), tmp_path / "out", utterances=utts, quiet=True)
+    (tmp_path / "out" / "report_mcmc.html").write_text("<section class=\"mcmc\"><h3>LLO /p/</h3></section>")
+    html = write_report(result, tmp_path / "out").read_text()
+    assert "<script>" not in html and "<img src=x" not in html
+    assert "&lt;script&gt;alert(1)&lt;/script&gt;" in html and "&lt;img src=x onerror=alert(2)&gt;1" in html
+    assert '<section class="mcmc"><h3>LLO /p/</h3></section>' in html  # the project's own fragment, as HTML

@@ -11,9 +11,10 @@ from rich.markup import escape
 from rich.table import Table
 
 from coartic.fit.result import BAR_MM, FitResult
-from coartic.fit.spec import ENGINES, SpecError, load_spec
+from coartic.fit.spec import ENGINES, FitSpec, SpecError, load_spec
 from coartic.console import print_error
 from coartic.table import ALL_CHANNELS
+from coartic.outputs import OutputDir
 
 
 def rmse_table(result: FitResult, title: str = "RMSE (mm)") -> Table:
@@ -48,8 +49,13 @@ def fit_command(
     validate: bool = typer.Option(False, "--validate", help="also fit on repetitions 1-4 / the normal rate "
                                   "and report RMSE on the held-out repetition / the fast rate"),
     report: bool = typer.Option(True, "--report/--no-report", help="write the HTML report with plots"),
+    force: bool = typer.Option(False, "--force", help="replace --out even if it holds another run's output "
+                               "(a rerun of the same spec and channels replaces its own output without it)"),
 ) -> None:
-    """Fit the coarticulation model to a corpus by least squares (MODEL.md §5)."""
+    """Fit the coarticulation model to a corpus by least squares (MODEL.md §5).
+
+    The outputs are written beside --out and swapped in whole when the fit ends (docs/OUTPUTS.md).
+    """
     console = Console()
     try:
         s = load_spec(spec)
@@ -70,15 +76,56 @@ def fit_command(
         if no_staging:
             changes["staging"] = False
         s = s.with_options(**changes)
-        from coartic.fit.runner import run
-
-        result = run(s, out)
-    except (ValueError, OSError) as e:  # SpecError, DataError, ModelInputError: messages name the culprit
+        output = fit_output(s, out, force)
+        with output as staging:
+            result = _fit_into(s, staging, console, validate, report)
+            if not result.channels:  # nothing to show for it: the previous output stays
+                output.abandon()
+            elif result.interrupted:
+                output.status = "interrupted"
+    except (ValueError, OSError) as e:  # SpecError, DataError, ModelInputError, OutputError: messages name the culprit
         print_error(console, e)
         raise typer.Exit(2) from None
+    except KeyboardInterrupt:  # outside the fit itself (report, swap): what was written is in --out
+        console.print(f"[yellow]interrupted[/yellow]; what was finished is in {escape(str(out))}", soft_wrap=True)
+        raise typer.Exit(130) from None
     if not result.channels:
         console.print("[yellow]nothing was fitted[/yellow]" + (" (interrupted)" if result.interrupted else ""))
         raise typer.Exit(130 if result.interrupted else 1)
+    console.print(escape(f"table: {out / 'table.json'} (and table.csv); RMSE: {out / 'rmse.csv'}; "
+                         f"fit report: {out / 'fit_report.txt'}" + (f"; report: {out / 'report.html'}" if report else "")),
+                  soft_wrap=True, highlight=False)
+    if result.interrupted:
+        console.print("[yellow]interrupted: the partial result above was written[/yellow]")
+        raise typer.Exit(130)
+
+
+def fit_output(spec: FitSpec, out: Path, force: bool = False) -> OutputDir:
+    """The output directory of a fit: the same spec file and channels replace their own output."""
+    spec_path = spec.path.resolve()
+
+    def legacy(d: Path) -> bool:  # written before coartic_run.json: its summary names the spec
+        import json
+
+        try:
+            doc = json.loads((d / "summary.json").read_text(encoding="utf-8"))
+            return Path(doc["spec"]).resolve() == spec_path and sorted(doc["channels"]) == sorted(spec.channels)
+        except (OSError, ValueError, KeyError, TypeError):
+            return False
+
+    c = spec.corpus
+    inputs = [spec.path, *(p for p in (c.manifest, spec.start_table) if p is not None), *c.files, *c.labels]
+    return OutputDir(out, "fit", {"spec": str(spec_path), "channels": ",".join(spec.channels)},
+                     force=force, protect=inputs, recognise=legacy)
+
+
+def _fit_into(s: FitSpec, out: Path, console: Console, validate: bool, report: bool) -> FitResult:
+    """The fit, its validation and report, written into ``out`` (the staging directory)."""
+    from coartic.fit.runner import run
+
+    result = run(s, out)
+    if not result.channels:
+        return result
     console.print(rmse_table(result))
     for ch, fit in result.channels.items():
         st = fit.stats
@@ -105,10 +152,5 @@ def fit_command(
     if report:
         from coartic.report.html import write_report
 
-        html = write_report(result, out, console=console)
-        console.print(f"report: {html}")
-    console.print(f"table: {out / 'table.json'} (and table.csv); RMSE: {out / 'rmse.csv'}; "
-                  f"fit report: {out / 'fit_report.txt'}")
-    if result.interrupted:
-        console.print("[yellow]interrupted: the partial result above was written[/yellow]")
-        raise typer.Exit(130)
+        write_report(result, out, console=console)
+    return result

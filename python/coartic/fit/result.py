@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import csv
 import datetime as _dt
+import io
 import json
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -24,6 +25,7 @@ from coartic.fit.problem import ChannelProblem, Packing
 from coartic.fit.spec import FitSpec
 from coartic.fit.staged import StageResult
 from coartic.io.labelmap import resolve_label_map
+from coartic.outputs import atomic_path, atomic_write_text
 from coartic.table import PARAMETERS, ChannelSettings, ParameterTable
 
 BAR_MM = 0.3  # the paper's bar: RMSE below 0.3 mm
@@ -264,25 +266,27 @@ class FitResult:
         paths = {"table": out / "table.json", "table_csv": out / "table.csv", "rmse": out / "rmse.csv",
                  "parameters": out / "parameters.csv", "report_text": out / "fit_report.txt",
                  "fitted": out / "fitted.npz", "summary": out / "summary.json"}
+        # each file whole (written aside, fsync, renamed); the directory as a whole: coartic.outputs.OutputDir
         if not self.channels:
-            (out / "fit_report.txt").write_text(self.report_text())
+            atomic_write_text(out / "fit_report.txt", self.report_text())
             return {"report_text": out / "fit_report.txt"}
         table = self.table()
         table.save(paths["table"])
-        paths["table_csv"].write_text(table.to_csv())
+        atomic_write_text(paths["table_csv"], table.to_csv())
         _write_csv(paths["rmse"], self.rmse_rows())
         _write_csv(paths["parameters"], self.parameter_rows())
-        paths["report_text"].write_text(self.report_text())
+        atomic_write_text(paths["report_text"], self.report_text())
         arrays: dict[str, Any] = {f"{ch}_fitted": f.fitted for ch, f in self.channels.items()}
         arrays |= {f"{ch}_observed": np.where(f.problem.data.weights > 0, f.problem.data.observed, np.nan)
                    for ch, f in self.channels.items()}
-        np.savez_compressed(paths["fitted"], **arrays)
+        with atomic_path(paths["fitted"]) as tmp:
+            np.savez_compressed(tmp, **arrays)
         summary = {"spec": str(self.spec.path), "interrupted": self.interrupted, "started": self.started,
                    "channels": {ch: {"rmse_mm": f.rmse, "status": f.status, "message": f.message, "nfev": f.nfev,
                                      "wall_time_s": f.wall_time, "at_bound": f.stats.at_bound if f.stats else [],
                                      "unidentified": f.stats.unidentified if f.stats else []}
                                 for ch, f in self.channels.items()}}
-        paths["summary"].write_text(json.dumps(summary, indent=2))
+        atomic_write_text(paths["summary"], json.dumps(summary, indent=2))
         return paths
 
 
@@ -298,11 +302,10 @@ def _natural(v: str) -> tuple[int, float | str]:
 
 
 def _write_csv(path: Path, rows: list[dict[str, Any]]) -> None:
-    if not rows:
-        path.write_text("")
-        return
-    with path.open("w", newline="", encoding="utf-8") as f:
+    f = io.StringIO(newline="")
+    if rows:
         w = csv.DictWriter(f, fieldnames=list(rows[0]))
         w.writeheader()
         for r in rows:
             w.writerow({k: (repr(v) if isinstance(v, float) else v) for k, v in r.items()})
+    atomic_write_text(path, f.getvalue())

@@ -14,6 +14,7 @@ from rich.table import Table
 
 from coartic.mcmc.run import PosteriorRun, phoneme_dir, verdict_lines
 from coartic.console import print_error
+from coartic.outputs import OutputDir, OutputError, atomic_write_text
 
 console = Console(stderr=True)
 
@@ -75,6 +76,8 @@ def mcmc_command(
     strict: bool = typer.Option(False, help="Exit with status 2 if any posterior has not converged."),
     allow_stale_fit: bool = typer.Option(False, help="Sample even if the table's recorded RMSE does not match the data loaded now."),
     quiet: bool = typer.Option(False, help="No progress bars."),
+    force: bool = typer.Option(False, "--force", help="Start over in --out even if it holds another run's chains "
+                               "(they are deleted); a rerun of the same spec and fit resumes without it."),
 ) -> None:
     """Sample the posterior of the fitted parameters with emcee, check convergence, write intervals.
 
@@ -95,8 +98,10 @@ def mcmc_command(
         if max_steps is not None:
             cfg.settings.max_steps = max_steps
             cfg.settings.min_steps = min(cfg.settings.min_steps, max_steps)
-        outcome = run_job(fit_spec, cfg, find_table(fit), out, progress=not quiet, allow_stale=allow_stale_fit)
-    except (ValueError, FileNotFoundError) as e:
+        table_path = find_table(fit)
+        with mcmc_output(spec, fit, table_path, out, force) as directory:
+            outcome = run_job(fit_spec, cfg, table_path, directory, progress=not quiet, allow_stale=allow_stale_fit)
+    except (ValueError, OSError) as e:
         print_error(console, e)
         raise typer.Exit(1) from None
     runs, interrupted = outcome
@@ -111,6 +116,28 @@ def mcmc_command(
             raise typer.Exit(2)
     else:
         console.print(f"[green]All {len(runs)} posteriors converged.[/] Table with uncertainty: {out / 'table.json'}")
+
+
+def mcmc_output(spec: Path, fit: Path, table_path: Path, out: Path, force: bool = False) -> OutputDir:
+    """``out`` claimed for this job, in place (its chains are resumed). Refused if it is, or is
+    inside, the fit directory (a new fit replaces that directory whole, and the fit's table.json
+    must not be overwritten by the table with uncertainty), if its table.json would be the table
+    sampled from, or if it holds another spec's or fit's chains."""
+    import os
+
+    from coartic.outputs import read_marker
+
+    here = Path(os.path.abspath(out))
+    table_abs = Path(os.path.abspath(table_path))
+    fit_dir = Path(os.path.abspath(fit)) if fit.is_dir() else table_abs.parent
+    is_fit_output = fit.is_dir() or (read_marker(fit_dir) or {}).get("command") == "fit"
+    if here / "table.json" == table_abs or (is_fit_output and (here == fit_dir or fit_dir in here.parents)):
+        where = "the" if here == fit_dir else "inside the"
+        raise OutputError(f"--out {out}: is {where} fit directory {fit_dir}; the MCMC table would overwrite the "
+                          "least-squares one, and a new fit replaces that directory whole. Choose an output "
+                          f"directory beside it, e.g. --out {fit_dir.with_name(fit_dir.name + '_mcmc')}")
+    return OutputDir(out, "mcmc", {"spec": str(spec.resolve()), "fit": str(table_abs.resolve())},
+                     force=force, staged=False, protect=[spec, table_path])
 
 
 STALE_TOLERANCE = 0.01
@@ -168,14 +195,14 @@ def run_job(fit_spec: Any, cfg: Any, table_path: Path, out: Path, progress: bool
         verdict = r.result.report.summary() if r.result.report else "no convergence check"
         sections.append(plots.html_fragment(r.label, r.images, r.summaries, verdict.splitlines()[0], r.result.converged, out))
         body = "".join(sections)
-        (out / "mcmc.html").write_text(_wrap(body))
+        atomic_write_text(out / "mcmc.html", _wrap(body))
         add_to_fit_report(table_path.parent, out, runs)
         index = [
             {"label": x.label, "channel": x.channel, "phoneme": x.phoneme, "converged": x.result.converged,
              "directory": str(x.directory.relative_to(out)), "images": [str(p.relative_to(out)) for p in x.images]}
             for x in runs
         ]
-        (out / "mcmc.json").write_text(json.dumps(index, indent=1))
+        atomic_write_text(out / "mcmc.json", json.dumps(index, indent=1))
 
     interrupted = False
     for channel in cfg.channels or fit_spec.channels:
@@ -217,7 +244,7 @@ def add_to_fit_report(fit_dir: Path, out: Path, runs: list[PosteriorRun]) -> Pat
         sections.append(section)
     block = f"{BEGIN}\n{_wrap(''.join(sections))}{END}\n"
     frag = fit_dir / "report_mcmc.html"
-    frag.write_text(block, encoding="utf-8")
+    atomic_write_text(frag, block)
     report = fit_dir / "report.html"
     if report.is_file():
         text = report.read_text(encoding="utf-8")
@@ -225,7 +252,7 @@ def add_to_fit_report(fit_dir: Path, out: Path, runs: list[PosteriorRun]) -> Pat
             text = text[: text.index(BEGIN)] + block + text[text.index(END) + len(END) + 1 :]
         elif "</body>" in text:
             text = text.replace("</body>", block + "</body>", 1)
-        report.write_text(text, encoding="utf-8")
+        atomic_write_text(report, text)
     return frag
 
 

@@ -20,6 +20,7 @@ from coartic.mcmc import plots, sampler, summary
 from coartic.mcmc.posterior import LogPosterior, channel_posterior, phoneme_posterior
 from coartic.mcmc.sampler import SamplerSettings, SamplingResult
 from coartic.mcmc.summary import ParameterSummary
+from coartic.outputs import atomic_write_text
 
 SCOPES = ("phonemes", "channel")
 PAUSE = "#"
@@ -107,6 +108,11 @@ def parse_config(raw: Any, path: Path) -> McmcConfig:
     s.seed = int(raw.get("seed", s.seed))
     if s.min_steps > s.max_steps:
         raise err("min_steps", f"{s.min_steps} exceeds max_steps = {s.max_steps}")
+    try:  # chains too large for memory: refused now (at one dimension, a lower bound), not hours later
+        replace(s, n_walkers=walkers_for(1, cfg.walkers)).check_memory(1)
+    except ValueError as exc:
+        keys = [k for k in ("max_steps", "walkers", "ensembles", "chunk_steps") if k in raw]
+        raise err(", ".join(keys) or "max_steps", str(exc)) from None
     ball = raw.get("ball", s.ball)
     if isinstance(ball, bool) or not isinstance(ball, (int, float)) or not 0 < ball < 1:
         raise err("ball", f"expected a number in (0, 1), got {ball!r}")
@@ -198,7 +204,7 @@ def sample_posterior(
         "n_utterances": len(posterior.data.utterances),
         "parameters": summary.to_jsonable(summaries),
     }
-    (directory / "summary.json").write_text(json.dumps(doc, indent=1))
+    atomic_write_text(directory / "summary.json", json.dumps(doc, indent=1))
     return PosteriorRun(posterior.channel, phoneme, directory, posterior, result, x0, summaries, images)
 
 

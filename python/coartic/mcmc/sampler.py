@@ -4,7 +4,9 @@ Storage (one directory per posterior): ``meta.json`` (coordinates, walkers, ense
 posterior's fingerprint) and ``ens<E>_chunk<K>.npz`` files, each with the chain and log-probabilities
 of its steps, the accepted-move counts and the full sampler state at its end (walker positions,
 log-probabilities, the Mersenne-Twister state emcee draws from). A chunk is written to a temporary
-file and renamed into place, so a chunk on disk is always whole.
+file, flushed to disk and renamed into place, so a chunk on disk is always whole. Chunks are
+numbered from 0 without gaps: a chain is never spliced across a missing chunk, and a damaged
+(truncated, empty) chunk is named in the error instead of being read around.
 
 Ctrl-C (SIGINT) and ``kill`` (SIGTERM) during sampling save the steps done so far as one more
 chunk before returning, so they lose nothing; ``kill -9`` loses at most the chunk in progress.
@@ -17,12 +19,10 @@ from __future__ import annotations
 import json
 import os
 import re
-import signal
-import threading
-from contextlib import contextmanager
+import zipfile
+import zlib
 from dataclasses import dataclass, field
 from pathlib import Path
-from types import FrameType
 from typing import Any, Callable, Iterator, Sequence
 
 import numpy as np
@@ -30,6 +30,7 @@ from numpy.typing import NDArray
 
 from coartic.mcmc import convergence
 from coartic.mcmc.convergence import ConvergenceReport
+from coartic.outputs import DeferredSignals, atomic_path, atomic_write_text
 
 LogProb = Callable[[NDArray[np.float64]], NDArray[np.float64]]
 Initial = Callable[[np.random.Generator, int], NDArray[np.float64]]
@@ -90,6 +91,42 @@ class SamplerSettings:
         check_moves(self.moves)
         if self.min_steps > self.max_steps:
             raise ValueError(f"min_steps = {self.min_steps} exceeds max_steps = {self.max_steps}")
+        self.check_memory(dim)
+
+    def check_memory(self, dim: int, limit: int | None = None) -> None:
+        """Refuse settings whose chains cannot fit in memory, naming the keys to lower.
+
+        Every ensemble's whole chain and log-probabilities are held in memory (for the convergence
+        checks), and emcee allocates each chunk in full before its first step."""
+        limit = memory_limit() if limit is None else limit
+        per_step = self.n_walkers * (dim + 1) * 8  # bytes: positions and log-probability
+        whole = self.n_ensembles * self.max_steps * per_step
+        chunk = 2 * min(self.chunk_steps, self.max_steps) * per_step  # emcee's backend + our copy
+        if whole > limit:
+            raise ValueError(
+                f"max_steps = {self.max_steps} x walkers = {self.n_walkers} x ensembles = {self.n_ensembles} in "
+                f"{dim} dimensions needs {_size(whole)} for the chains, more than the {_size(limit)} this machine "
+                "allows; lower [mcmc] max_steps, walkers or ensembles")
+        if chunk > limit:
+            raise ValueError(
+                f"chunk_steps = {self.chunk_steps} x walkers = {self.n_walkers} in {dim} dimensions needs "
+                f"{_size(chunk)} per chunk, more than the {_size(limit)} this machine allows; lower [mcmc] chunk_steps or walkers")
+
+
+def memory_limit() -> int:
+    """Bytes the chains may take: half the machine's physical memory (16 GiB where unknown)."""
+    try:
+        return int(os.sysconf("SC_PHYS_PAGES") * os.sysconf("SC_PAGE_SIZE")) // 2
+    except (ValueError, OSError, AttributeError):
+        return 16 << 30
+
+
+def _size(n: float) -> str:
+    for unit in ("bytes", "KiB", "MiB", "GiB", "TiB", "PiB"):
+        if n < 1024 or unit == "PiB":
+            return f"{n:.0f} {unit}" if unit == "bytes" else f"{n:.1f} {unit}"
+        n /= 1024
+    return f"{n} bytes"  # pragma: no cover
 
 
 @dataclass
@@ -122,7 +159,7 @@ class ChainStore:
         old = self.meta()
         if old is None:
             self.directory.mkdir(parents=True, exist_ok=True)
-            _atomic_write_text(self.directory / META, json.dumps(meta, indent=1))
+            atomic_write_text(self.directory / META, json.dumps(meta, indent=1))
             return
         for key in ("fingerprint", "coordinates", "n_walkers", "n_ensembles", "seed", "moves"):
             if old.get(key) != meta.get(key):
@@ -132,6 +169,7 @@ class ChainStore:
                 )
 
     def chunk_paths(self, ensemble: int) -> list[Path]:
+        """The ensemble's chunks in order; refuses a gap (a chain must not be spliced across it)."""
         if not self.directory.exists():
             return []
         found = []
@@ -139,25 +177,36 @@ class ChainStore:
             m = _CHUNK.match(p.name)
             if m and int(m.group(1)) == ensemble:
                 found.append((int(m.group(2)), p))
-        return [p for _, p in sorted(found)]
+        found.sort()
+        for expected, (k, p) in enumerate(found):
+            if k != expected:
+                later = [q.name for j, q in found if j > expected]
+                raise ValueError(
+                    f"{self.directory / f'ens{ensemble:02d}_chunk{expected:05d}.npz'}: missing, but later chunks exist "
+                    f"({', '.join(later)}); the chain cannot continue across the gap. Delete the later chunks to resume "
+                    f"from chunk {expected - 1}, or delete {self.directory} to start over" if expected else
+                    f"{self.directory / f'ens{ensemble:02d}_chunk00000.npz'}: missing, but later chunks exist "
+                    f"({', '.join(later)}); delete {self.directory} to start over")
+        return [p for _, p in found]
 
     def append(self, ensemble: int, chunk: Chunk) -> Path:
-        k = len(self.chunk_paths(ensemble))
+        k = len(self.chunk_paths(ensemble))  # no gaps, so the next number is free
         path = self.directory / f"ens{ensemble:02d}_chunk{k:05d}.npz"
+        if path.exists():  # pragma: no cover - only if another process writes the same store
+            raise ValueError(f"{path}: already exists; another run is writing {self.directory}")
         rs = chunk.random_state
-        tmp = path.with_suffix(".tmp.npz")
-        np.savez(
-            tmp,
-            chain=chunk.chain,
-            log_prob=chunk.log_prob,
-            accepted=chunk.accepted,
-            coords=chunk.coords,
-            last_log_prob=chunk.last_log_prob,
-            rs_keys=np.asarray(rs[1], dtype=np.uint32),
-            rs_scalars=np.array([rs[2], rs[3]], dtype=np.int64),
-            rs_gauss=np.array([rs[4]], dtype=np.float64),
-        )
-        os.replace(tmp, path)
+        with atomic_path(path) as tmp:  # fsync, then rename: a chunk on disk is whole after a crash
+            np.savez(
+                tmp,
+                chain=chunk.chain,
+                log_prob=chunk.log_prob,
+                accepted=chunk.accepted,
+                coords=chunk.coords,
+                last_log_prob=chunk.last_log_prob,
+                rs_keys=np.asarray(rs[1], dtype=np.uint32),
+                rs_scalars=np.array([rs[2], rs[3]], dtype=np.int64),
+                rs_gauss=np.array([rs[4]], dtype=np.float64),
+            )
         return path
 
     def load(self, ensemble: int, dim: int, n_walkers: int) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64], Chunk | None]:
@@ -165,8 +214,11 @@ class ChainStore:
         chains, lps = [], []
         accepted = np.zeros(n_walkers)
         last: Chunk | None = None
-        for p in self.chunk_paths(ensemble):
+        paths = self.chunk_paths(ensemble)
+        for i, p in enumerate(paths):
             try:
+                if p.stat().st_size == 0:
+                    raise ValueError("the file is empty")
                 with np.load(p) as z:
                     last = Chunk(
                         chain=z["chain"],
@@ -176,8 +228,12 @@ class ChainStore:
                         last_log_prob=z["last_log_prob"],
                         random_state=("MT19937", z["rs_keys"], int(z["rs_scalars"][0]), int(z["rs_scalars"][1]), float(z["rs_gauss"][0])),
                     )
-            except (OSError, KeyError, ValueError) as exc:
-                raise ValueError(f"{p}: damaged chain chunk ({exc}); delete it (and the chunks after it) to resume from the one before") from exc
+            except (OSError, KeyError, ValueError, EOFError, zipfile.BadZipFile, zlib.error) as exc:
+                # (an empty .npz raises EOFError, which the command line would turn into a bare "Aborted!")
+                after = [q.name for q in paths[i + 1:]]
+                what = f"delete it and the {len(after)} chunk(s) after it ({', '.join(after)})" if after else "delete it"
+                raise ValueError(f"{p}: damaged chain chunk ({type(exc).__name__}: {exc}); {what} to resume from "
+                                 "the chunk before, or delete the directory to start over") from exc
             if last.chain.ndim != 3 or last.chain.shape[1:] != (n_walkers, dim):
                 raise ValueError(f"{p}: chain shaped {last.chain.shape}, expected (steps, {n_walkers}, {dim})")
             chains.append(last.chain)
@@ -186,12 +242,6 @@ class ChainStore:
         if not chains:
             return np.empty((0, n_walkers, dim)), np.empty((0, n_walkers)), accepted, None
         return np.concatenate(chains), np.concatenate(lps), accepted, last
-
-
-def _atomic_write_text(path: Path, text: str) -> None:
-    tmp = path.with_name(path.name + ".tmp")
-    tmp.write_text(text)
-    os.replace(tmp, path)
 
 
 @dataclass
@@ -212,41 +262,6 @@ class SamplingResult:
         """Post-burn-in, thinned draws of all ensembles and walkers, (n_draws, dim)."""
         burn, thin = (self.report.burn_in, self.report.thin) if self.report else (len(self.chains[0]) // 2, 1)
         return np.concatenate([c[burn::thin].reshape(-1, c.shape[2]) for c in self.chains])
-
-
-class _Signals:
-    """Ctrl-C (SIGINT) and ``kill`` (SIGTERM) become KeyboardInterrupt while sampling, except inside
-    ``saving()``, where they are held back until the chunk is on disk."""
-
-    def __enter__(self) -> "_Signals":
-        self.old: dict[int, Any] = {}
-        self.pending: int | None = None
-        self.critical = False
-        if threading.current_thread() is threading.main_thread():
-            for sig in (signal.SIGINT, signal.SIGTERM):
-                self.old[sig] = signal.signal(sig, self._handle)
-        return self
-
-    def _handle(self, signum: int, frame: FrameType | None) -> None:
-        if self.critical:
-            self.pending = signum
-            return
-        raise KeyboardInterrupt(f"signal {signum}")
-
-    @contextmanager
-    def saving(self) -> Iterator[None]:
-        self.critical = True
-        try:
-            yield
-        finally:
-            self.critical = False
-        if self.pending is not None:
-            signum, self.pending = self.pending, None
-            raise KeyboardInterrupt(f"signal {signum}")
-
-    def __exit__(self, *exc: object) -> None:
-        for sig, old in self.old.items():
-            signal.signal(sig, old)
 
 
 def _run_chunk(
@@ -398,7 +413,7 @@ def run(
         TimeElapsedColumn(),
         TimeRemainingColumn(),
     ]
-    with Progress(*columns, disable=not progress, transient=False) as bar, _Signals() as signals:
+    with Progress(*columns, disable=not progress, transient=False) as bar, DeferredSignals() as signals:
         task = bar.add_task(label or "sampling", total=E * settings.max_steps, completed=sum(len(c) for c in chains), status="")
 
         def loop() -> bool:

@@ -2,6 +2,11 @@
 
 Other parts (the MCMC report) add sections by dropping an HTML fragment named
 ``report_*.html`` into the same directory: it is included at the end of the page.
+
+Everything else is escaped (``autoescape=True``: the template's ``.j2`` suffix would defeat
+``select_autoescape``), so a spec name, a file name or a manifest cell holding markup is shown as
+text, never run in the reader's browser. Only those fragments, which the project writes itself
+with their own values escaped (coartic.mcmc.plots.html_fragment), are passed as ``Markup``.
 """
 
 from __future__ import annotations
@@ -11,10 +16,12 @@ from pathlib import Path
 from typing import Any
 
 import jinja2
+import markupsafe
 from rich.console import Console
 
 from coartic.fit.result import BAR_MM, FitResult
 from coartic.report import plots
+from coartic.outputs import atomic_write_text
 from coartic.table import ParameterTable
 
 _TEMPLATES = Path(__file__).with_name("templates")
@@ -70,14 +77,14 @@ def write_report(result: FitResult, out: str | Path, console: Console | None = N
             "Synthetic session: fitted against ground-truth targets and resistances (grey: identity).")
 
     rmse_rows = result.rmse_rows()
-    extras = sorted(p.read_text(encoding="utf-8") for p in out.glob("report_*.html"))
-    env = jinja2.Environment(loader=jinja2.FileSystemLoader(_TEMPLATES), autoescape=jinja2.select_autoescape())
+    extras = [markupsafe.Markup(p.read_text(encoding="utf-8")) for p in sorted(out.glob("report_*.html"))]
+    env = jinja2.Environment(loader=jinja2.FileSystemLoader(_TEMPLATES), autoescape=True)
     html = env.get_template("fit_report.html.j2").render(
         result=result, spec=result.spec, bar=BAR_MM, figures=figures, rmse_rows=rmse_rows,
         channels=result.channels, report_text=result.report_text(), extras=extras,
         validation=_validation_rows(out))
     path = out / "report.html"
-    path.write_text(html, encoding="utf-8")
+    atomic_write_text(path, html)
     if console is not None:
         console.print(f"wrote {len(figures)} figures to {fig_dir}")
     return path

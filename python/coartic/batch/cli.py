@@ -1,0 +1,62 @@
+"""``coartic batch SPEC --out DIR``: one fit spec over many speakers or sessions, on Dask."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Optional
+
+import typer
+from rich.console import Console
+from rich.table import Table
+
+from coartic.console import print_error
+from coartic.fit.result import BAR_MM
+
+
+def batch_command(
+    spec: Path = typer.Argument(..., help="batch spec (TOML), e.g. fit/batch_synthetic.toml"),
+    out: Path = typer.Option(..., "--out", "-o", help="output folder (new, or this batch's: finished units are kept)"),
+    scheduler: Optional[str] = typer.Option(None, help="address of a running Dask scheduler, e.g. tcp://host:8786 "
+                                            "(default: a local cluster of worker processes)"),
+    workers: Optional[int] = typer.Option(None, min=1, help="worker processes of the local cluster "
+                                          "(default: one per core, at most one per unit)"),
+    serial: bool = typer.Option(False, "--serial", help="no Dask: every unit in this process, one after another"),
+    force: bool = typer.Option(False, "--force", help="replace an output folder that holds another run's results"),
+) -> None:
+    """Fit every speaker/session (and all of them pooled), one Dask task per speaker and channel."""
+    console = Console()
+    err = Console(stderr=True)
+    if scheduler is not None and (workers is not None or serial):
+        print_error(err, "--scheduler runs on the cluster's workers: --workers and --serial do not apply")
+        raise typer.Exit(2)
+    from coartic.batch.spec import load_batch_spec
+
+    try:
+        s = load_batch_spec(spec)
+        from coartic.batch.run import run_batch
+
+        outcome = run_batch(s, out, scheduler=scheduler, workers=workers, serial=serial, force=force, console=err)
+    except (ValueError, OSError) as e:  # SpecError, OutputError, DataError: messages name the culprit
+        print_error(err, e)
+        raise typer.Exit(2) from None
+    from coartic.batch.report import rmse_rows
+
+    rows = rmse_rows(s, out)
+    t = Table(title=f"RMSE (mm) per group and channel — the paper's bar is {BAR_MM} mm")
+    t.add_column("group")
+    for ch in s.channels:
+        t.add_column(ch, justify="right")
+    by = {(r["group"], r["channel"]): r["rmse_mm"] for r in rows}
+    for g in [*s.group_names, *(["pooled"] if s.pooled else [])]:
+        cells = [by.get((g, ch)) for ch in s.channels]
+        t.add_row(g, *[("–" if v is None else f"[{'green' if v < BAR_MM else 'red'}]{v:.3f}[/]") for v in cells])
+    console.print(t)
+    console.print(f"{len(outcome.landed)} unit(s) fitted now, {outcome.skipped} already done, of {outcome.total}; "
+                  f"report: {out / 'report.html'}", soft_wrap=True)
+    for label, why in outcome.failed.items():
+        print_error(err, f"unit {label}: {why}")
+    if outcome.interrupted:
+        err.print("[yellow]interrupted: every finished unit is kept; run the same command again to continue[/]")
+        raise typer.Exit(130)
+    if outcome.failed:
+        raise typer.Exit(1)

@@ -1,0 +1,285 @@
+"""Run a batch: every unit as a Dask task (or one after another), results landed as they finish.
+
+``run_batch(spec, out)`` is what ``coartic batch`` calls. Units are the fits of one group's channel
+(``units/<group>/<channel>/``) and of the pooled corpus's channel (``units/_pooled/<channel>/``);
+each unit's files arrive whole, under a temporary name that is renamed once everything is written,
+so a folder that exists is a finished unit. A rerun into the same ``out`` skips those; Ctrl-C,
+a lost worker or a failed unit loses none of them. The folder is claimed with ``coartic.outputs``
+(its marker records the spec and a fingerprint of the spec files and manifests): another batch's
+folder is refused rather than mixed in, and two runs never write one folder at once.
+
+Schedulers:
+
+- ``serial=True``: this process, one unit after the other (the reference the tests compare with);
+- no ``scheduler``: a ``distributed.LocalCluster`` of worker processes on this machine, one task at
+  a time each, the core's rayon threads capped at cores // workers;
+- ``scheduler="tcp://host:8786"``: a running Dask scheduler (``dask scheduler`` and ``dask worker``,
+  or dask-jobqueue on SLURM; docs/BATCH.md). Workers must read the recordings at the same paths.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import json
+import logging
+import os
+import shutil
+import tempfile
+import time
+from collections import defaultdict
+from collections.abc import Callable, Iterator
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from rich.console import Console
+from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
+
+from coartic.batch.spec import BatchSpec
+from coartic.batch.tasks import UnitKey, UnitOutput, fit_unit, load_group
+from coartic.fit.problem import Utterance
+from coartic.outputs import DeferredSignals, OutputDir
+
+UNIT_FILE = "unit.json"
+
+
+@dataclass
+class BatchOutcome:
+    out: Path
+    total: int  # units of the batch
+    skipped: int  # finished by an earlier run
+    landed: list[UnitKey] = field(default_factory=list)
+    failed: dict[str, str] = field(default_factory=dict)  # unit label -> why
+    interrupted: bool = False
+    wall_s: float = 0.0
+    workers: int = 0  # 0: serial
+    threads: int | None = None  # rayon threads per worker
+
+    @property
+    def complete(self) -> bool:
+        return not self.failed and not self.interrupted
+
+
+def plan_units(spec: BatchSpec) -> list[UnitKey]:
+    """Every unit: each group's channels, then the pooled corpus's."""
+    keys = [UnitKey(g.name, ch) for g in spec.groups for ch in spec.channels]
+    if spec.pooled:
+        keys += [UnitKey(None, ch) for ch in spec.channels]
+    return keys
+
+
+def unit_dir(out: Path, key: UnitKey) -> Path:
+    # "_pooled" cannot be a group's name (spec.GROUP_NAME starts with a letter or digit).
+    return out / "units" / (key.group if key.group is not None else "_pooled") / key.channel
+
+
+def is_done(out: Path, key: UnitKey) -> bool:
+    return (unit_dir(out, key) / UNIT_FILE).is_file()
+
+
+# ----------------------------------------------------------------------------- the output folder
+
+
+def land_dir(target: Path, files: dict[str, bytes]) -> None:
+    """Put ``files`` into the folder ``target`` whole: written into a temporary sibling folder,
+    fsynced, then renamed; an existing ``target`` (an earlier assembly) is swapped out first."""
+    target.parent.mkdir(parents=True, exist_ok=True)
+    tmp = Path(tempfile.mkdtemp(prefix=f".{target.name}.tmp-", dir=target.parent))
+    try:
+        for name, data in files.items():
+            with open(tmp / name, "wb") as f:
+                f.write(data)
+                f.flush()
+                os.fsync(f.fileno())
+        if target.exists():
+            old = Path(tempfile.mkdtemp(prefix=f".{target.name}.old-", dir=target.parent))
+            os.rename(target, old / target.name)
+            os.rename(tmp, target)
+            shutil.rmtree(old)
+        else:
+            os.rename(tmp, target)
+    except BaseException:
+        shutil.rmtree(tmp, ignore_errors=True)
+        raise
+
+
+def output_dir(spec: BatchSpec, out: Path, force: bool = False) -> OutputDir:
+    """The batch's output folder, claimed in place (coartic.outputs): a rerun of the same batch
+    continues in it; another batch's folder (other spec files or manifests) is refused unless
+    ``force``; two runs never write it at once."""
+    identity = {"spec": str(spec.path.resolve()), "fingerprint": spec.fingerprint}
+    return OutputDir(out, "batch", identity, force=force, staged=False,
+                     protect=[spec.path, spec.fit.path, *(g.spec.corpus.manifest for g in spec.groups
+                                                          if g.spec.corpus.manifest is not None)])
+
+
+def land_unit(out: Path, spec: BatchSpec, result: UnitOutput) -> None:
+    info = {"unit": result.key.label, "group": result.key.group, "channel": result.key.channel,
+            "status": result.status, "rmse_mm": result.rmse, "compute_s": result.compute_s, "load_s": result.load_s,
+            "host": result.host, "pid": result.pid, "rayon_threads": result.rayon_threads,
+            "fingerprint": spec.fingerprint}
+    files = dict(result.files)
+    files[UNIT_FILE] = (json.dumps(info, indent=2) + "\n").encode()
+    land_dir(unit_dir(out, result.key), files)
+
+
+# ----------------------------------------------------------------------------- schedulers
+
+
+def local_threads(workers: int) -> int:
+    """Rayon threads per worker so that workers × threads ≤ cores."""
+    return max(1, (os.cpu_count() or 1) // max(workers, 1))
+
+
+def cluster_threads(client: Any) -> int | None:
+    """Rayon threads per Dask thread on the tightest host of a running cluster (None: no worker)."""
+    try:
+        workers = client.scheduler_info(n_workers=-1)["workers"]
+    except TypeError:  # distributed before n_workers
+        workers = client.scheduler_info()["workers"]
+    if not workers:
+        return None
+    cores = client.run(os.cpu_count)
+    used: dict[str, int] = defaultdict(int)
+    have: dict[str, int] = {}
+    for addr, w in workers.items():
+        host = w.get("host", addr)
+        used[host] += int(w.get("nthreads", 1))
+        have[host] = int(cores.get(addr) or 1)
+    return min(max(1, have[h] // used[h]) for h in used)
+
+
+def run_batch(spec: BatchSpec, out: str | Path, *, scheduler: str | None = None, workers: int | None = None,
+              serial: bool = False, force: bool = False, console: Console | None = None, quiet: bool = False,
+              before: Callable[[UnitKey], None] | None = None) -> BatchOutcome:
+    """Run every unfinished unit of ``spec`` into ``out``, then write the tables and the report.
+
+    ``before`` is called on the worker before each fit unit (fault injection in tests). Ctrl-C and
+    SIGTERM (a job's time limit) stop the run after the units that have finished; a unit being
+    landed is landed first.
+    """
+    out = Path(out)
+    console = console or Console(stderr=True, quiet=quiet)
+    keys = plan_units(spec)
+    t0 = time.perf_counter()
+    od = output_dir(spec, out, force)
+    with DeferredSignals() as signals, od:
+        # Temporary folders of a run killed mid-landing: never a finished unit.
+        for stale in out.glob("units/*/.*.tmp-*"):
+            shutil.rmtree(stale, ignore_errors=True)
+        todo = [k for k in keys if not is_done(out, k)]
+        outcome = BatchOutcome(out, len(keys), len(keys) - len(todo))
+        columns = (TextColumn("[bold]units"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(),
+                   TextColumn("{task.description}"))
+        with Progress(*columns, console=console, transient=False, disable=quiet) as progress:
+            task = progress.add_task("", total=len(keys), completed=outcome.skipped)
+
+            def landed(result: UnitOutput) -> None:
+                with signals.saving():
+                    land_unit(out, spec, result)
+                outcome.landed.append(result.key)
+                progress.update(task, advance=1, description=f"{result.key.label}: RMSE {result.rmse:.3f} mm")
+
+            def failed(key: UnitKey, err: BaseException) -> None:
+                outcome.failed[key.label] = f"{type(err).__name__}: {err}"
+                progress.update(task, description=f"[red]{key.label} failed[/red]")
+
+            try:
+                if todo and serial:
+                    _run_serial(spec, todo, landed, failed, before)
+                elif todo:
+                    _run_dask(spec, todo, landed, failed, before, scheduler, workers, outcome, console)
+            except KeyboardInterrupt:
+                outcome.interrupted = True
+        from coartic.batch.report import write_outputs
+
+        with signals.saving():
+            write_outputs(spec, out, outcome)
+        od.status = "interrupted" if outcome.interrupted else "incomplete" if outcome.failed else "complete"
+    outcome.wall_s = time.perf_counter() - t0
+    return outcome
+
+
+def _run_serial(spec: BatchSpec, todo: list[UnitKey], landed: Callable[[UnitOutput], None],
+                failed: Callable[[UnitKey, BaseException], None],
+                before: Callable[[UnitKey], None] | None) -> None:
+    loaded: dict[str, list[Utterance] | BaseException] = {}
+    groups = {g.name: g for g in spec.groups}
+
+    def load(name: str) -> list[Utterance]:
+        if name not in loaded:
+            try:
+                loaded[name] = load_group(groups[name].spec, name)
+            except Exception as e:  # a bad trial fails that group's units, not the batch
+                loaded[name] = e
+        got = loaded[name]
+        if isinstance(got, BaseException):
+            raise got
+        return got
+
+    for key in todo:
+        try:
+            if key.group is None:
+                lists = [load(g.name) for g in spec.groups]
+                result = fit_unit(spec.pooled_spec, lists, key, None, before)
+            else:
+                result = fit_unit(groups[key.group].spec, [load(key.group)], key, None, before)
+        except Exception as e:
+            failed(key, e)
+            continue
+        landed(result)
+
+
+def _run_dask(spec: BatchSpec, todo: list[UnitKey], landed: Callable[[UnitOutput], None],
+              failed: Callable[[UnitKey, BaseException], None], before: Callable[[UnitKey], None] | None,
+              scheduler: str | None, workers: int | None, outcome: BatchOutcome, console: Console) -> None:
+    from distributed import Client, LocalCluster, as_completed
+
+    cluster = None
+    if scheduler is None:
+        n = workers if workers is not None else min(os.cpu_count() or 1, len(todo))
+        threads: int | None = local_threads(n)
+        # One task per worker process; the core's threads capped in each (the nanny sets the
+        # variable before the worker process starts, and again when it restarts a lost one).
+        cluster = LocalCluster(n_workers=n, threads_per_worker=1, processes=True, dashboard_address=None,
+                               env={"RAYON_NUM_THREADS": str(threads)}, silence_logs=logging.ERROR)
+        client = Client(cluster)
+        outcome.workers = n
+    else:
+        client = Client(scheduler, timeout="30s")
+        threads = cluster_threads(client)
+        outcome.workers = len(client.scheduler_info().get("workers", {}))
+    outcome.threads = threads
+    by_future: dict[Any, UnitKey] = {}
+    try:
+        groups = {g.name: g for g in spec.groups}
+        needed = {k.group for k in todo if k.group is not None}
+        if any(k.group is None for k in todo):
+            needed |= set(groups)
+        # Loads first (every fit waits for one), pooled fits next (the longest), then the groups'.
+        loads = {name: client.submit(load_group, groups[name].spec, name, threads, pure=False, priority=20)
+                 for name in groups if name in needed}
+        for key in todo:
+            if key.group is None:
+                fut = client.submit(fit_unit, spec.pooled_spec, [loads[g] for g in groups], key, threads, before,
+                                    pure=False, priority=10)
+            else:
+                fut = client.submit(fit_unit, groups[key.group].spec, [loads[key.group]], key, threads, before,
+                                    pure=False, priority=0)
+            by_future[fut] = key
+        del loads  # held by the fits only: each group's data is freed once its fits are done
+        for fut in as_completed(list(by_future)):
+            key = by_future.pop(fut)
+            try:
+                result = fut.result()
+            except Exception as e:  # the unit's error, or KilledWorker after repeated worker losses
+                failed(key, e)
+            else:
+                landed(result)
+            fut.release()
+    finally:
+        with contextlib.suppress(Exception):
+            client.cancel(list(by_future))
+        client.close()
+        if cluster is not None:
+            cluster.close()

@@ -1,0 +1,117 @@
+"""The units of a batch, as plain functions a Dask worker (or this process) runs.
+
+Two kinds of task:
+
+``load_group(group)``
+    reads one speaker's or session's trials through ``coartic.fit.data`` and returns the
+    ``Utterance`` list: NumPy arrays and strings, which pickle. A ``coartic._core.Corpus`` (a PyO3
+    class) does not pickle, and need not: the fit below builds it on the worker from these arrays.
+``fit_unit(spec, utterance_lists, channel, ...)``
+    fits one channel with ``coartic.fit.run`` (the library's whole least-squares job, as
+    ``coartic fit`` runs it) into a temporary folder on the worker, and returns the files it wrote
+    as bytes. The client lands them in the output folder: workers need no write access to it, only
+    read access to the recordings.
+
+The Rust core runs each evaluation on rayon's global thread pool, whose size it reads once, from
+``RAYON_NUM_THREADS`` (default: every core), at the first parallel call in a process.
+``cap_threads`` sets it before that call, so that workers × threads stays within the cores.
+"""
+
+from __future__ import annotations
+
+import os
+import socket
+import tempfile
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from coartic.fit.problem import Utterance
+from coartic.fit.spec import FitSpec
+
+RAYON_ENV = "RAYON_NUM_THREADS"
+# Statuses of coartic.fit whose point is not a finished fit: such a unit fails (and is not landed).
+FAILED_STATUSES = frozenset({"failed", "non-finite start", "interrupted"})
+
+
+class UnitFailed(RuntimeError):
+    """A unit whose fit did not finish; the message names the unit and the engine's reason."""
+
+
+@dataclass(frozen=True)
+class UnitKey:
+    """One fit: a group's (or the pooled corpus's, ``group`` None) channel."""
+
+    group: str | None
+    channel: str
+
+    @property
+    def label(self) -> str:
+        return f"{self.group if self.group is not None else 'pooled'} {self.channel}"
+
+
+@dataclass
+class UnitOutput:
+    """What a unit sends back: the files ``coartic.fit.run`` wrote, and where and how long it ran."""
+
+    key: UnitKey
+    files: dict[str, bytes]
+    compute_s: float  # the fit itself (coartic.fit.run), on the worker
+    load_s: float  # unpacking the data (the Corpus is built inside the fit)
+    host: str
+    pid: int
+    rayon_threads: str  # RAYON_NUM_THREADS as the worker saw it ('' = unset: every core)
+    status: str
+    rmse: float
+    extra: dict[str, float] = field(default_factory=dict)
+
+
+def cap_threads(threads: int | None) -> None:
+    """Cap the core's rayon pool in this process, unless the environment already caps it.
+
+    Effective only before the first parallel call of the core in this process (a fresh worker); a
+    worker started with ``RAYON_NUM_THREADS`` set keeps its own value.
+    """
+    if threads is not None and threads >= 1 and not os.environ.get(RAYON_ENV):
+        os.environ[RAYON_ENV] = str(int(threads))
+
+
+def load_group(spec: FitSpec, group: str | None, threads: int | None = None) -> list[Utterance]:
+    """Every trial of one group, read with ``coartic.fit.data`` (errors name the trial and spec)."""
+    cap_threads(threads)
+    from coartic.fit.data import load_utterances, manifest_rows
+
+    utts = load_utterances(spec, manifest_rows(spec))
+    if group is not None:
+        for u in utts:  # the pooled fit and the report tell the groups apart by this
+            u.meta["group"] = group
+    return utts
+
+
+def fit_unit(spec: FitSpec, utterance_lists: Sequence[Sequence[Utterance]], key: UnitKey,
+             threads: int | None = None, before: Callable[[UnitKey], None] | None = None) -> UnitOutput:
+    """Fit ``key.channel`` on the concatenated utterance lists with ``coartic.fit.run``.
+
+    ``before`` is called first, on the worker, with the unit's key (fault injection in tests).
+    Raises UnitFailed when the engine did not finish (nothing of it is landed).
+    """
+    cap_threads(threads)
+    if before is not None:
+        before(key)
+    t0 = time.perf_counter()
+    utts = [u for lst in utterance_lists for u in lst]
+    t1 = time.perf_counter()
+    from coartic.fit import run
+
+    with tempfile.TemporaryDirectory(prefix="coartic-unit-") as tmp:
+        result = run(spec.with_options(channels=(key.channel,)), tmp, utterances=utts, quiet=True)
+        t2 = time.perf_counter()
+        fit = result.channels.get(key.channel)
+        if fit is None or result.interrupted or fit.status in FAILED_STATUSES:
+            why = "nothing was fitted" if fit is None else f"{fit.status}: {fit.message}"
+            raise UnitFailed(f"unit {key.label}: the fit did not finish ({why}; spec {spec.path})")
+        files = {p.name: p.read_bytes() for p in sorted(Path(tmp).iterdir()) if p.is_file()}
+    return UnitOutput(key=key, files=files, compute_s=t2 - t1, load_s=t1 - t0, host=socket.gethostname(),
+                      pid=os.getpid(), rayon_threads=os.environ.get(RAYON_ENV, ""), status=fit.status,
+                      rmse=fit.rmse)

@@ -1,0 +1,245 @@
+"""coartic batch: many speakers, units as Dask tasks on a LocalCluster of 2 worker processes.
+
+One tiny two-speaker corpus (``coartic corpus synth --speakers 2``, 2 consonants, 2 repetitions),
+two channels, the pooled fit: 6 units. The serial run is the reference; the cluster run must give
+the same files bit for bit, although one of its workers is killed in the middle of a unit.
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+import os
+import shutil
+import sys
+from pathlib import Path
+from typing import Any
+
+import cloudpickle
+import numpy as np
+import pytest
+from typer.testing import CliRunner
+
+from coartic.batch import load_batch_spec
+from coartic.batch.run import is_done, plan_units, run_batch, unit_dir
+from coartic.batch.tasks import UnitKey
+from coartic.cli import app
+from coartic.fit.spec import SpecError
+from coartic.outputs import OutputError
+from coartic.synthetic_cli import load_generator
+from coartic.table import CHANNELS, ParameterTable
+
+# The kill hook below runs on the workers: ship this module's functions by value.
+cloudpickle.register_pickle_by_value(sys.modules[__name__])
+
+FIT_SPEC = """name = "tiny"
+[corpus]
+manifest = "unused.csv"   # replaced by the batch's groups
+[model]
+channels = ["LLO", "JO"]
+[parameters]
+free = ["target", "alpha", "theta_bw", "theta_fw", "k_r"]
+[staging]
+enabled = false
+"""
+BATCH_SPEC = """name = "two speakers <script>alert(1)</script>"
+fit = "fit.toml"
+[corpus]
+manifest = "corpus/manifest.csv"
+group_by = ["speaker"]
+"""
+TABLE_FILES = ("table.csv", "rmse.csv", "parameters.csv")
+
+
+@pytest.fixture(scope="module")
+def corpus(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    root = tmp_path_factory.mktemp("batch")
+    load_generator().generate(root / "corpus", quick=True, progress=False, consonants=["p", "t"], speakers=2)
+    (root / "fit.toml").write_text(FIT_SPEC)
+    (root / "batch.toml").write_text(BATCH_SPEC)
+    return root
+
+
+@pytest.fixture(scope="module")
+def serial(corpus: Path) -> Path:
+    out = corpus / "serial"
+    outcome = run_batch(load_batch_spec(corpus / "batch.toml"), out, serial=True, quiet=True)
+    assert outcome.complete and len(outcome.landed) == 6
+    return out
+
+
+def kill_own_worker_once(key: UnitKey) -> None:
+    """The first time unit s01 LLO starts, its worker process dies (as a lost node would)."""
+    marker = Path(os.environ["COARTIC_TEST_KILL_MARKER"])
+    if key == UnitKey("s01", "LLO") and not marker.exists():
+        marker.write_text(str(os.getpid()))
+        os._exit(1)
+
+
+@pytest.fixture(scope="module")
+def cluster_run(corpus: Path) -> tuple[Path, Any, Path]:
+    out = corpus / "cluster"
+    marker = corpus / "killed.pid"
+    os.environ["COARTIC_TEST_KILL_MARKER"] = str(marker)  # the nannies pass it on to the workers
+    try:
+        outcome = run_batch(load_batch_spec(corpus / "batch.toml"), out, workers=2, quiet=True,
+                            before=kill_own_worker_once)
+    finally:
+        del os.environ["COARTIC_TEST_KILL_MARKER"]
+    return out, outcome, marker
+
+
+# ----------------------------------------------------------------------------- synthetic speakers
+
+
+def test_speakers_differ_in_target_scale_and_rate_and_record_their_truth(corpus: Path) -> None:
+    c = corpus / "corpus"
+    with open(c / "manifest.csv", newline="", encoding="utf-8") as f:
+        rows = list(csv.DictReader(f))
+    assert [r["speaker"] for r in rows].count("s01") == [r["speaker"] for r in rows].count("s02") == 24
+    assert all((c / r["file"]).is_file() and r["file"].startswith(r["speaker"] + "/") for r in rows)
+    record = json.loads((c / "speakers.json").read_text())["speakers"]
+    base = ParameterTable.load(load_generator().GROUND_TRUTH)
+    for name, sp in record.items():
+        truth = ParameterTable.load(c / sp["ground_truth"])
+        for ch in CHANNELS:
+            rest = base.values["#"][ch]["target"]
+            for ph in ("a", "p", "u"):
+                want = rest + sp["target_scale"] * (base.values[ph][ch]["target"] - rest)
+                assert truth.values[ph][ch]["target"] == pytest.approx(want, abs=1e-12)
+                assert truth.values[ph][ch]["theta_bw"] == base.values[ph][ch]["theta_bw"]  # dynamics shared
+    s1, s2 = record["s01"], record["s02"]
+    assert {s1["target_scale"], s2["target_scale"]} == {0.8, 1.2}
+    assert {s1["duration_scale"], s2["duration_scale"]} == {0.8, 1.25}
+
+    def vcv_length(speaker: str) -> float:  # first vowel to second vowel, normal rate, every trial
+        total = 0.0
+        for r in rows:
+            if r["speaker"] == speaker and r["rate"] == "normal":
+                with np.load(c / r["truth"]) as z:
+                    total += float(z["ends"][3] - z["starts"][1])
+        return total
+
+    ratio = vcv_length("s01") / vcv_length("s02")
+    assert ratio == pytest.approx(s1["duration_scale"] / s2["duration_scale"], rel=0.06)
+    # The same trial of two speakers is another recording, not a copy.
+    a, b = (c / "s01/csv/apa_normal_01.csv").read_bytes(), (c / "s02/csv/apa_normal_01.csv").read_bytes()
+    assert a != b
+
+
+# ----------------------------------------------------------------------------- serial and cluster
+
+
+def test_serial_batch_writes_what_coartic_fit_writes_for_each_speaker(corpus: Path, serial: Path) -> None:
+    from coartic.fit import run
+
+    spec = load_batch_spec(corpus / "batch.toml")
+    group = spec.groups[1]
+    run(group.spec, corpus / "fit-s02", quiet=True)
+    for name in TABLE_FILES:
+        assert (serial / "groups/s02" / name).read_bytes() == (corpus / "fit-s02" / name).read_bytes(), name
+    table = ParameterTable.load(serial / "groups/s02/table.json")
+    assert list(table.channels) == ["LLO", "JO"]
+
+
+def test_cluster_gives_the_serial_tables_bit_for_bit(serial: Path, cluster_run: tuple[Path, Any, Path]) -> None:
+    out, outcome, _ = cluster_run
+    assert outcome.complete and outcome.workers == 2 and outcome.threads == max(1, (os.cpu_count() or 1) // 2)
+    for where in ("groups/s01", "groups/s02", "pooled"):
+        for name in TABLE_FILES:
+            assert (out / where / name).read_bytes() == (serial / where / name).read_bytes(), f"{where}/{name}"
+    assert (out / "rmse_groups.csv").read_bytes() == (serial / "rmse_groups.csv").read_bytes()
+    assert (out / "spread.csv").read_bytes() == (serial / "spread.csv").read_bytes()
+    info = json.loads((unit_dir(out, UnitKey("s02", "JO")) / "unit.json").read_text())
+    assert info["rayon_threads"] == str(outcome.threads) and info["pid"] != os.getpid()
+
+
+def test_a_killed_worker_loses_its_unit_and_the_unit_is_redone(cluster_run: tuple[Path, Any, Path]) -> None:
+    out, outcome, marker = cluster_run
+    killed = int(marker.read_text())  # the hook did kill a worker process
+    info = json.loads((unit_dir(out, UnitKey("s01", "LLO")) / "unit.json").read_text())
+    assert info["pid"] != killed and info["status"] == "converged"
+    assert UnitKey("s01", "LLO") in outcome.landed and not outcome.failed
+
+
+def test_a_rerun_skips_finished_units_and_redoes_only_missing_ones(corpus: Path, serial: Path) -> None:
+    out = corpus / "rerun"
+    shutil.copytree(serial, out)
+    spec = load_batch_spec(corpus / "batch.toml")
+    again = run_batch(spec, out, serial=True, quiet=True)
+    assert again.skipped == 6 and again.landed == [] and again.complete
+    shutil.rmtree(unit_dir(out, UnitKey("s02", "JO")))
+    (unit_dir(out, UnitKey("s01", "JO")) / "unit.json").unlink()  # as if killed before its last file
+    third = run_batch(spec, out, serial=True, quiet=True)
+    assert sorted(k.label for k in third.landed) == ["s01 JO", "s02 JO"] and third.skipped == 4
+    assert all(is_done(out, k) for k in plan_units(spec))
+    for name in TABLE_FILES:
+        assert (out / "groups/s02" / name).read_bytes() == (serial / "groups/s02" / name).read_bytes()
+
+
+def test_a_failed_unit_is_reported_and_the_others_land(corpus: Path, tmp_path: Path) -> None:
+    def fail_jo(key: UnitKey) -> None:
+        if key.channel == "JO":
+            raise RuntimeError("JO refused by the test")
+
+    out = tmp_path / "failing"
+    spec = load_batch_spec(corpus / "batch.toml")
+    outcome = run_batch(spec, out, serial=True, quiet=True, before=fail_jo)
+    assert sorted(outcome.failed) == ["pooled JO", "s01 JO", "s02 JO"]
+    assert "JO refused by the test" in outcome.failed["s01 JO"]
+    assert is_done(out, UnitKey("s01", "LLO")) and not (out / "groups/s01").exists()
+    status = json.loads((out / "status.json").read_text())
+    assert status["finished"] == 3 and "s01 JO" in status["missing"]
+
+
+# ----------------------------------------------------------------------------- report, CLI, errors
+
+
+def test_report_escapes_what_comes_from_the_spec_and_shows_every_group(serial: Path) -> None:
+    html = (serial / "report.html").read_text(encoding="utf-8")
+    assert "<script>" not in html and "&lt;script&gt;alert(1)&lt;/script&gt;" in html
+    assert "groups/s01/table.json" in html and "pooled/table.json" in html
+    for fig in ("rmse.png", "spread_LLO.png", "spread_JO.png"):
+        assert (serial / "figures" / fig).stat().st_size > 1000
+    with open(serial / "rmse_groups.csv", newline="") as f:
+        rows = list(csv.DictReader(f))
+    assert [(r["group"], r["channel"]) for r in rows] == [
+        ("s01", "LLO"), ("s01", "JO"), ("s02", "LLO"), ("s02", "JO"), ("pooled", "LLO"), ("pooled", "JO")]
+    # Speakers whose targets differ by a factor 1.5 are fitted to the noise; the pooled fit, with
+    # one set of targets for both, cannot be.
+    by = {(r["group"], r["channel"]): float(r["rmse_mm"]) for r in rows}
+    worst = max(by[(g, ch)] for g in ("s01", "s02") for ch in ("LLO", "JO"))
+    assert worst < 0.25 and by[("pooled", "LLO")] > 2 * worst
+
+
+def test_cli_refuses_another_batchs_folder_and_names_bad_keys(corpus: Path, serial: Path, tmp_path: Path) -> None:
+    other = tmp_path / "other.toml"
+    other.write_text(BATCH_SPEC.replace('group_by = ["speaker"]', 'group_by = ["speaker", "rate"]')
+                     .replace('"fit.toml"', f'"{corpus / "fit.toml"}"')
+                     .replace('"corpus/manifest.csv"', f'"{corpus / "corpus/manifest.csv"}"'))
+    with pytest.raises(OutputError, match="holds coartic batch spec .*batch.toml"):
+        run_batch(load_batch_spec(other), serial, serial=True, quiet=True)
+    res = CliRunner().invoke(app, ["batch", str(other), "--out", str(serial), "--serial"])
+    assert res.exit_code == 2 and "--force" in res.output
+    bad = tmp_path / "bad.toml"
+    bad.write_text(BATCH_SPEC.replace("speaker", "talker").replace('"fit.toml"', f'"{corpus / "fit.toml"}"')
+                   .replace('"corpus/manifest.csv"', f'"{corpus / "corpus/manifest.csv"}"'))
+    with pytest.raises(SpecError, match=r"bad.toml: \[corpus.group_by\] 'talker' is not a column"):
+        load_batch_spec(bad)
+    bad.write_text('fit = "fit.toml"\n[corpus]\nfolders = ["nowhere/*"]\n')
+    with pytest.raises(SpecError, match=r"\[fit\] .*no such fit spec"):
+        load_batch_spec(bad)
+    res = CliRunner().invoke(app, ["batch", str(corpus / "batch.toml"), "--out", str(tmp_path / "o"),
+                                   "--scheduler", "tcp://127.0.0.1:1", "--workers", "2"])
+    assert res.exit_code == 2 and "--workers" in res.output
+
+
+def test_folders_name_the_groups(corpus: Path) -> None:
+    spec_path = corpus / "folders.toml"
+    spec_path.write_text('fit = "fit.toml"\n[corpus]\nfolders = ["corpus/s*"]\n[pooled]\nenabled = false\n')
+    spec = load_batch_spec(spec_path)
+    assert spec.group_names == ("s01", "s02") and not spec.pooled
+    assert [str(k.label) for k in plan_units(spec)] == ["s01 LLO", "s01 JO", "s02 LLO", "s02 JO"]
+    by_column = load_batch_spec(corpus / "batch.toml")
+    assert spec.groups[0].spec.corpus.manifest == corpus / "corpus/s01/manifest.csv"
+    assert by_column.groups[0].spec.corpus.select == {"speaker": ("s01",)}
