@@ -73,7 +73,7 @@ channels = ["LA"]
 """)
     seen: list[tuple[str, ...]] = []
 
-    def run(s: Any, out: Path) -> None:  # the option is what is tested, not the fit
+    def run(s: Any, out: Path, **kw: Any) -> None:  # the option is what is tested, not the fit
         seen.append(s.channels)
         raise ValueError("stop here")
 
