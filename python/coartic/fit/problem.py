@@ -33,7 +33,7 @@ from numpy.typing import NDArray
 
 from coartic import _core
 from coartic.fit.spec import FitSpec, SpecError
-from coartic.model import JacobianBuffer, build_corpus
+from coartic.model import JacobianBuffer, build_corpus, core_error
 from coartic.model import Utterance as ModelUtterance
 from coartic.table import N_PARAMS, PARAMETERS
 PAUSE = "#"
@@ -133,6 +133,9 @@ class Packing:
     beta_bounds: tuple[float, float]
     base: FloatArray  # [n_phonemes, 10]
     base_beta: float
+    # [n_phonemes, 10]: where each base value came from, as a spec key ("[parameters.start]",
+    # "[override #2.fixed]", ...), so that a value the model refuses is named by its key.
+    origins: NDArray[np.object_] | None = None
 
     def __post_init__(self) -> None:
         self._idx = np.flatnonzero(self.free.ravel())
@@ -249,14 +252,18 @@ def build_packing(spec: FitSpec, data: ChannelData, start: tuple[FloatArray, flo
         k = PARAMETERS.index(p)
         lower[:, k], upper[:, k] = lo, hi
 
+    origins = np.empty((n, N_PARAMS), dtype=object)
     if start is not None:
         base, beta = np.array(start[0], dtype=np.float64), float(start[1])
+        origins[:] = f"[parameters.start_table] {spec.start_table}" if spec.start_table else "the start values"
     else:
         base = np.array([spec.start[p] for p in PARAMETERS], dtype=np.float64)[None, :].repeat(n, 0)
         base[:, 0] = _data_targets(data)
         beta = spec.beta
+        origins[:] = "[parameters.start]"
+        origins[:, 0] = "the data (mean observed value of the phoneme)"
 
-    for o in spec.overrides:
+    for j, o in enumerate(spec.overrides):
         for i, p in enumerate(phon):
             if not o.applies(p, ch):
                 continue
@@ -265,11 +272,13 @@ def build_packing(spec: FitSpec, data: ChannelData, start: tuple[FloatArray, flo
                 lower[i, k], upper[i, k] = lo, hi
             for name, val in o.start.items():
                 base[i, PARAMETERS.index(name)] = val
+                origins[i, PARAMETERS.index(name)] = f"[override #{j + 1}.start]"
             for name in o.free:
                 free[i, PARAMETERS.index(name)] = True
             for name, val in o.fixed.items():
                 k = PARAMETERS.index(name)
                 base[i, k], free[i, k] = val, False
+                origins[i, k] = f"[override #{j + 1}.fixed]"
 
     if spec.reference_phoneme not in phon:
         raise SpecError(f"{where}: [model.reference_phoneme] {spec.reference_phoneme!r} does not occur in "
@@ -277,6 +286,7 @@ def build_packing(spec: FitSpec, data: ChannelData, start: tuple[FloatArray, flo
     r = phon.index(spec.reference_phoneme)
     ka = PARAMETERS.index("alpha")
     free[r, ka], base[r, ka] = False, 1.0
+    origins[r, ka] = "[model.reference_phoneme]"
 
     # A free value outside its box starts on the nearest bound, not outside (engines refuse that).
     base = np.where(free, np.clip(base, lower, upper), base)
@@ -286,7 +296,7 @@ def build_packing(spec: FitSpec, data: ChannelData, start: tuple[FloatArray, flo
         raise SpecError(f"{where}: bounds of {phon[i]}.{PARAMETERS[k]} on {ch}: low {lower[i, k]} > high {upper[i, k]}")
     beta_free = spec.fit_beta and spec.variant == "modified"
     beta = float(np.clip(beta, *spec.beta_bounds)) if beta_free else beta
-    return Packing(phon, free, beta_free, lower, upper, spec.beta_bounds, base, beta)
+    return Packing(phon, free, beta_free, lower, upper, spec.beta_bounds, base, beta, origins)
 
 
 def _data_targets(data: ChannelData) -> FloatArray:
@@ -337,6 +347,22 @@ class ChannelProblem:
         overwritten by the next call, so copy what you keep."""
         return self._jacobian.compute(params, beta, self.options)
 
+    def explain(self, err: ValueError, params: FloatArray) -> str:
+        """A model error at ``params`` for people: the phoneme by name and, when the refused value
+        is the one the spec gave (not an engine's step), the spec key it came from, e.g.
+        ``[parameters.start] alpha = nan for phoneme 'a' on channel LLO: the value is not finite``."""
+        e = core_error(err, self.data.channel, self.packing.phonemes)
+        pk = self.packing
+        if (pk.origins is None or not isinstance(e.phoneme, str) or e.parameter not in PARAMETERS
+                or e.phoneme not in pk.phonemes):
+            return str(e)
+        i, k = pk.phonemes.index(e.phoneme), PARAMETERS.index(str(e.parameter))
+        v, b = float(params[i, k]), float(pk.base[i, k])
+        if not (v == b or (np.isnan(v) and np.isnan(b))):
+            return str(e)
+        return (f"{pk.origins[i, k]} {e.parameter} = {v!r} for phoneme {e.phoneme!r} on channel "
+                f"{self.data.channel}: the value {e.reason}")
+
     # --- internal-x interface for engines ----------------------------------------------------
     def _track(self, x: FloatArray, sse: float) -> None:
         if np.isfinite(sse) and sse < self.best_sse:
@@ -351,7 +377,7 @@ class ChannelProblem:
         try:
             f = self.evaluate(params, beta)
         except ValueError as e:
-            self.last_error = str(e)
+            self.last_error = self.explain(e, params)
             return np.full(self.data.corpus.n_samples, np.nan)
         r = self.sqrt_w * (f - self.data.observed)
         self._track(x, float(r @ r))
@@ -364,7 +390,7 @@ class ChannelProblem:
         try:
             _, jac = self.full_jacobian(params, beta)
         except ValueError as e:
-            self.last_error = str(e)
+            self.last_error = self.explain(e, params)
             return sp.csr_matrix((self.data.corpus.n_samples, self.packing.n_free))
         j = jac[:, self.packing.free_columns].tocsr()
         # Row scale sqrt(w) and column scale d(value)/dx applied to the stored entries in place.
@@ -384,7 +410,7 @@ class ChannelProblem:
             sse, grad, dbeta = _core.sse_gradient(self.data.corpus, params, beta, self.options,
                                                   self.data.observed, self.data.weights)
         except ValueError as e:
-            self.last_error = str(e)
+            self.last_error = self.explain(e, params)
             return np.inf, np.zeros(self.packing.n_free)
         full = np.append(np.asarray(grad), dbeta)
         g = full[self.packing.free_columns] * self.packing.dvalue_dx(x)

@@ -13,6 +13,7 @@ from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
+from coartic.errors import CoarticError
 from coartic.table import ALL_CHANNELS, CHANNELS, PARAMETERS, VARIANTS
 
 ENGINES: tuple[str, ...] = ("scipy", "nlopt", "casadi")
@@ -38,7 +39,7 @@ DEFAULT_STAGES: tuple[tuple[str, ...], ...] = (
 )
 
 
-class SpecError(ValueError):
+class SpecError(CoarticError, ValueError):
     """A fit specification that cannot be used; the message names the file and the key."""
 
 
