@@ -5,6 +5,7 @@ import typer
 from coartic import synthetic_cli
 from coartic.batch.cli import batch_command
 from coartic.demo import demo_command
+from coartic.face.view_cli import view_command
 from coartic.fit.fit_cli import fit_command
 from coartic.io.inspect_cli import inspect_command
 from coartic.mcmc.mcmc_cli import mcmc_command
@@ -24,6 +25,7 @@ app.command("mcmc")(mcmc_command)
 app.command("animate")(animate_command)
 app.command("speak")(speak_command)
 app.command("demo")(demo_command)
+app.command("view")(view_command)
 app.command("batch")(batch_command)
 
 if __name__ == "__main__":

@@ -10,7 +10,6 @@ a ``ModelInputError`` naming the channel and phoneme, and wraps the core's CSR J
 from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass, field
 from typing import Literal, overload
 
 import numpy as np
@@ -21,7 +20,7 @@ from coartic import _core
 from coartic.errors import CoarticError
 from coartic.io.errors import DataError
 from coartic.io.labelmap import LabelMap, resolve_label_map
-from coartic.table import N_PARAMS, PARAMETERS, ParameterTable
+from coartic.table import N_PARAMS, PARAMETERS, ChannelSettings, ParameterTable
 
 F64 = npt.NDArray[np.float64]
 
@@ -55,18 +54,6 @@ class ModelInputError(CoarticError, ValueError):
         self.sample, self.reason = sample, reason
 
 
-@dataclass(frozen=True)
-class Utterance:
-    """One utterance: segment labels (model phonemes), their start and end times (s), and the
-    times (s) at which to evaluate the channels. ``name`` appears in error messages."""
-
-    labels: Sequence[str]
-    starts: npt.ArrayLike
-    ends: npt.ArrayLike
-    times: npt.ArrayLike
-    name: str = field(default="")
-
-
 def _vector(x: npt.ArrayLike, what: str, where: str) -> F64:
     try:
         a = np.asarray(x, dtype=np.float64)
@@ -78,6 +65,42 @@ def _vector(x: npt.ArrayLike, what: str, where: str) -> F64:
     if bad.size:
         raise ModelInputError(f"{where}: {what}[{bad[0]}] = {a[bad[0]]} is not finite")
     return a
+
+
+BoolArray = npt.NDArray[np.bool_]
+
+
+class Utterance:
+    """One utterance: the single description every part uses (model, fit, MCMC, score).
+
+    Segment labels (model phonemes, pauses ``"#"``), their start and end times (s), and the times
+    (s) at which to evaluate the channels; ``name`` appears in error messages. A recorded utterance
+    also carries its observed channels (``observed``: channel -> values, NaN where not measured),
+    which samples are usable (``valid``: channel -> bool mask; weight 0 elsewhere) and metadata
+    from its manifest row (``meta``: stimulus, vowel, consonant, repetition, rate, speaker, ...).
+
+    Times are checked (numbers, one-dimensional, finite) here, so the error names the utterance;
+    labels against a phoneme list and segment order are checked by ``build_corpus``.
+    """
+
+    __slots__ = ("labels", "starts", "ends", "times", "name", "observed", "valid", "meta")
+
+    def __init__(self, labels: Sequence[str], starts: npt.ArrayLike, ends: npt.ArrayLike, times: npt.ArrayLike,
+                 name: str = "", observed: dict[str, F64] | None = None, valid: dict[str, BoolArray] | None = None,
+                 meta: dict[str, str] | None = None) -> None:
+        where = f"utterance {name!r}" if name else "utterance"
+        self.name = name
+        self.labels: tuple[str, ...] = tuple(labels)
+        self.starts: F64 = _vector(starts, "starts", where)
+        self.ends: F64 = _vector(ends, "ends", where)
+        self.times: F64 = _vector(times, "times", where)
+        self.observed: dict[str, F64] = {} if observed is None else observed
+        self.valid: dict[str, BoolArray] = {} if valid is None else valid
+        self.meta: dict[str, str] = {} if meta is None else meta
+
+    def __repr__(self) -> str:
+        return (f"Utterance({self.name!r}, {len(self.labels)} segments, {self.times.size} samples, "
+                f"channels {sorted(self.observed)})")
 
 
 def build_corpus(utterances: Sequence[Utterance], phonemes: Sequence[str]) -> _core.Corpus:
@@ -115,9 +138,7 @@ def build_corpus(utterances: Sequence[Utterance], phonemes: Sequence[str]) -> _c
     for u, utt in enumerate(utterances):
         where = f"utterance {utt.name!r}" if utt.name else f"utterance {u + 1}"
         labels = list(utt.labels)
-        s = _vector(utt.starts, "starts", where)
-        e = _vector(utt.ends, "ends", where)
-        t = _vector(utt.times, "times", where)
+        s, e, t = utt.starts, utt.ends, utt.times
         if not (len(labels) == len(s) == len(e)):
             raise ModelInputError(
                 f"{where}: {len(labels)} labels, {len(s)} starts and {len(e)} ends: one of each per segment"
@@ -164,10 +185,17 @@ def build_corpus(utterances: Sequence[Utterance], phonemes: Sequence[str]) -> _c
     )
 
 
+def channel_options(variant: str, settings: ChannelSettings) -> _core.ModelOptions:
+    """The core's options of one channel: the variant and the channel's settings (apex fraction,
+    edge extent). The one place they are made: a fit makes them from the settings it will write
+    into its table, and everything that uses a table (MCMC, score, animation) from the table's."""
+    return _core.ModelOptions(variant, settings.apex_fraction, settings.edge_extent)
+
+
 def model_options(table: ParameterTable, channel: str) -> _core.ModelOptions:
     """The core's options (variant, apex fraction, edge extent) of one channel of the table."""
-    cs = table.channels[channel]
-    return _core.ModelOptions(table.variant, cs.apex_fraction, cs.edge_extent)
+    table._check_channel(channel)
+    return channel_options(table.variant, table.channels[channel])
 
 
 class JacobianBuffer:
@@ -381,7 +409,7 @@ def evaluate_corpus(table: ParameterTable, channel: str, utterances: Sequence[Ut
         values = _core.evaluate(corpus, params, beta, model_options(table, channel))
     except ValueError as err:
         raise core_error(err, channel, phonemes) from None
-    bounds = np.cumsum([0] + [np.size(u.times) for u in utterances])
+    bounds = np.cumsum([0] + [u.times.size for u in utterances])
     return [values[a:b] for a, b in zip(bounds[:-1], bounds[1:])]
 
 

@@ -50,9 +50,9 @@ def utterances(
                     starts = np.concatenate([[0.0], ends[:-1]])
                     times = np.arange(0.0, ends[-1], 1.0 / RATE)
                     labels = ("#", v, c, v, "#")
-                    u = Utterance(f"{v}{c}{v}_{rate}_{r + 1}", labels, starts, ends, times,
-                                  {"LLO": np.zeros_like(times)}, {"LLO": np.ones(len(times), dtype=bool)},
-                                  {"vowel": v, "consonant": c, "repetition": str(r + 1), "rate": rate})
+                    u = Utterance(labels, starts, ends, times, name=f"{v}{c}{v}_{rate}_{r + 1}",
+                                  observed={"LLO": np.zeros_like(times)}, valid={"LLO": np.ones(len(times), dtype=bool)},
+                                  meta={"vowel": v, "consonant": c, "repetition": str(r + 1), "rate": rate})
                     out.append(u)
     data = ChannelData.build(out, "LLO", PHONEMES)
     clean = _core.evaluate(data.corpus, TRUTH, BETA, _core.ModelOptions("modified"))

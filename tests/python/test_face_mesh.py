@@ -59,6 +59,11 @@ def test_mesh_is_a_closed_mouth_face(rig: FaceRig) -> None:
     np.testing.assert_array_equal(m.vertices[m.slit[:, 0]], m.vertices[m.slit[:, 1]])
     assert 25.0 < m.mns < 35.0 and 40.0 < m.mw < 60.0
     assert m.upper[m.slit[:, 0]].all() and not m.upper[m.slit[:, 1]].any()
+    # teeth and mouth cavity lie behind the skin (hidden while the lips are closed)
+    from coartic.face.mesh import skin_depth
+    for part in ("upper_teeth", "lower_teeth", "cavity"):
+        v = m.vertices[m.in_part(part)]
+        assert (skin_depth(v[:, 0], v[:, 1]) - v[:, 2]).min() > 3.0, part
     # deterministic: the same face every time
     np.testing.assert_array_equal(build_face().vertices, m.vertices)
 

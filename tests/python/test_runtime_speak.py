@@ -182,5 +182,10 @@ def test_cli_speak_writes_everything(tmp_path: Path) -> None:
                                    "--fps", "25", "--stretch", "0.8"])
     assert res.exit_code == 0, res.output
     names = {p.name for p in tmp_path.iterdir()}
-    assert {"speech.wav", "channels.csv", "Viva_la_mamma.fap", "segments.tsv", "channels.png", "strip.png",
+    # the WAV under the FAP file's name: Greta loads NAME.fap with NAME.wav
+    assert {"Viva_la_mamma.wav", "channels.csv", "Viva_la_mamma.fap", "segments.tsv", "channels.png", "strip.png",
             "preview.gif"} <= names
+    res = CliRunner().invoke(app, ["speak", "Viva la mamma!", "-t", str(GROUND_TRUTH), "-o", str(tmp_path / "g"),
+                                   "--preview", "none", "--fap-name", "viva", "--gltf"])
+    assert res.exit_code == 0, res.output
+    assert {"viva.wav", "viva.fap", "viva.glb"} <= {p.name for p in (tmp_path / "g").iterdir()}

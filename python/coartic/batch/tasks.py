@@ -106,7 +106,7 @@ def fit_unit(spec: FitSpec, utterance_lists: Sequence[Sequence[Utterance]], key:
     from coartic.fit import run
 
     with tempfile.TemporaryDirectory(prefix="coartic-unit-") as tmp:
-        result = run(spec.with_options(channels=(key.channel,)), tmp, utterances=utts, quiet=True)
+        result = run(spec.with_options(channels=(key.channel,)), tmp, utterances=utts, quiet=True, report=False)
         t2 = time.perf_counter()
         fit = result.channels.get(key.channel)
         if fit is None or result.interrupted or fit.status in FAILED_STATUSES:

@@ -26,11 +26,12 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from functools import lru_cache
 
 import numpy as np
 from numpy.typing import NDArray
 
-from coartic.face.mesh import JAW_PIVOT, MOUTH_HALF_WIDTH, FaceMesh
+from coartic.face.mesh import JAW_PIVOT, MOUTH_HALF_WIDTH, FaceMesh, build_face
 from coartic.runtime.errors import AnimationError
 from coartic.runtime.fap import FAP_NAMES, MW_FAPS, N_FAPS, FapSequence
 
@@ -236,3 +237,9 @@ def build_rig(mesh: FaceMesh) -> FaceRig:
     targets = [fields[f] * fapu[f] * TARGET_VALUE for f in LIP_FAPS]
     targets += [jaw[:, None] * cross, jaw[:, None] * cross2]
     return FaceRig(mesh=mesh, targets=np.stack(targets), jaw=jaw)
+
+
+@lru_cache(maxsize=1)
+def default_rig() -> FaceRig:
+    """The project's face and its fields, built once per process (a third of a second)."""
+    return build_rig(build_face())

@@ -35,7 +35,7 @@ MOUTH_HALF_WIDTH = 25.0
 NOSE_BASE_Y = 30.0
 UPPER_LIP_HEIGHT = 9.0  # vermilion, at the midline
 LOWER_LIP_HEIGHT = 10.0
-FACE_TOP = 150.0  # forehead, above the lip line
+FACE_TOP = 125.0  # hairline, above the lip line
 FACE_BOTTOM = 78.0  # below the chin point
 # Where the jaw turns: the temporomandibular joints, on the axis x through this point (y, z).
 JAW_PIVOT = (22.0, -85.0)
@@ -50,7 +50,7 @@ class FaceMesh:
     """Vertices of all parts (rest positions), triangles per part, colours, and feature points."""
 
     vertices: NDArray[np.float64]  # (n, 3)
-    colors: NDArray[np.float64]  # (n, 3) linear RGB in 0..1
+    colors: NDArray[np.float64]  # (n, 3) sRGB in 0..1 (glTF export converts to linear)
     part: NDArray[np.int64]  # (n,) index into PART_NAMES
     upper: NDArray[np.bool_]  # (n,) skin vertex above the lip line (or on the cut's upper side)
     triangles: dict[str, NDArray[np.int64]]  # part name -> (m, 3) vertex indices, counter-clockwise seen from outside
@@ -87,8 +87,8 @@ def _grid_x(u: NDArray[np.float64]) -> NDArray[np.float64]:
 
 def _half_width(y: NDArray[np.float64]) -> NDArray[np.float64]:
     """Half-width of the face mask at height y: narrow chin, widest at the cheekbones."""
-    knots_y = np.array([-FACE_BOTTOM, -60.0, -35.0, 0.0, 40.0, 70.0, 110.0, FACE_TOP])
-    knots_w = np.array([12.0, 34.0, 52.0, 62.0, 72.0, 74.0, 66.0, 42.0])
+    knots_y = np.array([-FACE_BOTTOM, -66.0, -40.0, 0.0, 40.0, 70.0, 100.0, FACE_TOP])
+    knots_w = np.array([16.0, 36.0, 54.0, 64.0, 72.0, 74.0, 68.0, 50.0])
     out: NDArray[np.float64] = np.interp(y, knots_y, knots_w)
     return out
 
@@ -177,9 +177,11 @@ def _skin() -> tuple[NDArray[np.float64], NDArray[np.bool_], NDArray[np.int64], 
     upper = np.concatenate([upper, np.zeros(cut_cols.size, dtype=bool)])
     # lips: vermilion between the lip line and the borders, inside the corners
     x, y = vertices[:, 0], vertices[:, 1]
-    inside = np.abs(x) <= MOUTH_HALF_WIDTH + 0.5
-    is_lip = inside & (((y >= 0) & (y <= _upper_lip_edge(x) + 0.5)) | ((y <= 0) & (y >= -_lower_lip_edge(x) - 0.5)))
-    colors = np.where(is_lip[:, None], np.array(LIP), np.array(SKIN))
+    # how far inside the vermilion border (mm), blended over 1.5 mm so the coarse grid shows no steps
+    inside = np.where(y >= 0, _upper_lip_edge(x) - y, _lower_lip_edge(x) + y)
+    inside = np.minimum(inside, MOUTH_HALF_WIDTH - np.abs(x))
+    lip = np.clip(inside / 1.5 + 0.5, 0.0, 1.0)[:, None]
+    colors = lip * np.array(LIP) + (1.0 - lip) * np.array(SKIN)
     mid = _NU // 2
     fps: dict[str, int] = {
         "2.2": int(index[lip_row, mid]),
@@ -232,12 +234,12 @@ def _teeth(upper: bool) -> tuple[NDArray[np.float64], NDArray[np.int64]]:
     """A row of teeth along the dental arch, hidden behind the closed lips at rest."""
     x = np.linspace(-22.0, 22.0, 13)
     lip_front = skin_depth(np.zeros(1), np.zeros(1))[0]
-    z_front = lip_front - (9.0 if upper else 10.5)
+    z_front = lip_front - (11.0 if upper else 15.0)
     z = z_front - 14.0 * (x / 26.0) ** 2
     top = 9.0 if upper else -2.0  # upper incisors overlap the lower ones by 1 mm
     y = top - 1.5 * (x / 22.0) ** 2 * (1 if upper else -1)
     pts = np.column_stack([x, y, z])
-    return _strip(pts, 10.0, 3.0)
+    return _strip(pts, 10.0 if upper else 8.5, 3.0)
 
 
 def _cavity() -> tuple[NDArray[np.float64], NDArray[np.int64]]:

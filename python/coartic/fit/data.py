@@ -8,7 +8,7 @@ from typing import Callable
 
 import numpy as np
 
-from coartic.fit.problem import Utterance
+from coartic.model import Utterance
 from coartic.fit.spec import FitSpec, SpecError
 from coartic.io import DataError, load_trial
 
@@ -25,7 +25,18 @@ def manifest_rows(spec: FitSpec) -> list[dict[str, str]]:
                             " (for the synthetic session run `coartic corpus synth build/session`)")
         with c.manifest.open(newline="", encoding="utf-8") as f:
             reader = csv.DictReader(f)
-            rows = list(reader)
+            rows = []
+            lines = []
+            for r in reader:
+                # A short row leaves None in its last columns, a long one puts the excess under None:
+                # either way the row cannot be read as the header says (line numbers as an editor's).
+                if None in r or any(v is None for v in r.values()):
+                    extra = r.pop(None, None) or []  # type: ignore[call-overload]
+                    n = sum(v is not None for v in r.values()) + len(extra)
+                    raise SpecError(f"{c.manifest}, line {reader.line_num}: {n} cells, the header has "
+                                    f"{len(reader.fieldnames or [])} ({', '.join(reader.fieldnames or [])})")
+                rows.append(r)
+                lines.append(reader.line_num)
             cols = reader.fieldnames or []
         for need in (c.file_column, "labels"):
             if need not in cols:
@@ -36,6 +47,10 @@ def manifest_rows(spec: FitSpec) -> list[dict[str, str]]:
                 raise SpecError(f"{spec.path}: [corpus.select] {k!r} is not a manifest column "
                                 f"(columns: {', '.join(cols)})")
         base = c.manifest.parent
+        for line, r in zip(lines, rows):
+            for need in (c.file_column, "labels"):
+                if not r[need].strip():
+                    raise SpecError(f"{c.manifest}, line {line}: the {need!r} cell is empty")
         for r in rows:
             r[c.file_column] = str(base / r[c.file_column])
             r["labels"] = str(base / r["labels"])
@@ -67,7 +82,7 @@ def load_utterances(spec: FitSpec, rows: list[dict[str, str]] | None = None,
         out.append(Utterance(
             name=r.get("stimulus", path.stem) + (f"#{r['repetition']}" if "repetition" in r else "")
             + (f"@{r['rate']}" if "rate" in r else ""),
-            labels=tuple(seg.labels), starts=np.asarray(seg.starts, dtype=np.float64),
+            labels=seg.labels, starts=np.asarray(seg.starts, dtype=np.float64),
             ends=np.asarray(seg.ends, dtype=np.float64), times=np.asarray(ch.times, dtype=np.float64),
             observed={c: np.asarray(ch[c], dtype=np.float64) for c in spec.channels},
             valid={c: np.asarray(ch.valid[c], dtype=bool) for c in spec.channels},

@@ -81,7 +81,7 @@ def fit_command(
                 output.abandon()
             elif result.interrupted:
                 output.status = "interrupted"
-    except (ValueError, OSError) as e:  # SpecError, DataError, ModelInputError, OutputError: messages name the culprit
+    except (ValueError, OSError) as e:  # SpecError, DataError, FitFailed, OutputError: messages name the culprit
         print_error(console, e)
         raise typer.Exit(2) from None
     except KeyboardInterrupt:  # outside the fit itself (report, swap): what was written is in --out
@@ -118,10 +118,11 @@ def fit_output(spec: FitSpec, out: Path, force: bool = False) -> OutputDir:
 
 
 def _fit_into(s: FitSpec, out: Path, console: Console, validate: bool, report: bool) -> FitResult:
-    """The fit, its validation and report, written into ``out`` (the staging directory)."""
+    """The fit, its validation and report, written into ``out`` (the staging directory) by
+    ``coartic.fit.run``; printed here."""
     from coartic.fit.runner import run
 
-    result = run(s, out)
+    result = run(s, out, console=console, validate=validate, report=report)
     if not result.channels:
         return result
     console.print(rmse_table(result))
@@ -132,23 +133,10 @@ def _fit_into(s: FitSpec, out: Path, console: Console, validate: bool, report: b
         if st and st.unidentified:
             console.print(f"[yellow]{ch}: {len(st.unidentified)} parameter(s) not identified[/yellow] "
                           "(see fit_report.txt)")
-    if validate:
-        from coartic.fit.validate import validate_all
+    for note in result.notes:
+        console.print(f"[yellow]note:[/yellow] {escape(note)}", soft_wrap=True)
+    if result.validation:
+        from coartic.fit.validate import validation_table
 
-        try:
-            val = validate_all(s, out / "validation", console=console)
-        except KeyboardInterrupt:
-            console.print("[yellow]validation interrupted[/yellow]")
-            val = None
-        except ValueError as e:  # e.g. no repetition or rate to hold out: said, not raised
-            console.print(f"[yellow]no validation:[/yellow] {escape(str(e))}", soft_wrap=True)
-            val = None
-        if val is not None:
-            from coartic.fit.validate import validation_table
-
-            console.print(validation_table(val))
-    if report:
-        from coartic.report.html import write_report
-
-        write_report(result, out, console=console)
+        console.print(validation_table(result.validation))
     return result

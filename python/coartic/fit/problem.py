@@ -3,7 +3,7 @@
 This module is the contract that the engines, the staged fit, the result statistics and the MCMC
 sampler (``coartic.mcmc``) share. Its pieces:
 
-``Utterance``
+``Utterance`` (``coartic.model.Utterance``, the one utterance type of the package)
     one recorded utterance: model-phoneme segments, sample times, the observed channels and their
     validity masks, and metadata (stimulus, vowel, consonant, repetition, rate).
 ``ChannelData``
@@ -24,7 +24,7 @@ sampler (``coartic.mcmc``) share. Its pieces:
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, replace
 from typing import Any, Callable, Sequence
 
 import numpy as np
@@ -32,33 +32,20 @@ import scipy.sparse as sp
 from numpy.typing import NDArray
 
 from coartic import _core
-from coartic.fit.spec import FitSpec, SpecError
-from coartic.model import JacobianBuffer, build_corpus, core_error
-from coartic.model import Utterance as ModelUtterance
+from coartic.fit.spec import FitSpec
+from coartic.model import JacobianBuffer, Utterance, build_corpus, channel_options, core_error
 from coartic.table import N_PARAMS, PARAMETERS
+
+__all__ = ["Utterance", "ChannelData", "Packing", "ChannelProblem", "build_problem", "build_packing",
+           "phoneme_inventory"]
+
 PAUSE = "#"
 # Columns fitted on a log scale (MODEL.md §1: "fit log α", "fit log θ"; ψ > 0 likewise).
 LOG_PARAMETERS: frozenset[str] = frozenset({"alpha", "theta_bw", "theta_fw", "psi"})
 LOG_COLUMNS: NDArray[np.bool_] = np.array([p in LOG_PARAMETERS for p in PARAMETERS])
-# Parameters that the original model (eq. 1) ignores: never free there.
-MODIFIED_ONLY: frozenset[str] = frozenset({"k_r", "sigma", "psi"})
 
 FloatArray = NDArray[np.float64]
 BoolArray = NDArray[np.bool_]
-
-
-@dataclass
-class Utterance:
-    """One recorded utterance, its segments already mapped to model phonemes."""
-
-    name: str
-    labels: tuple[str, ...]
-    starts: FloatArray
-    ends: FloatArray
-    times: FloatArray  # sample times (s), same clock as the segments
-    observed: dict[str, FloatArray]  # channel -> values (NaN where not measured)
-    valid: dict[str, BoolArray]  # channel -> usable sample (False: masked, weight 0)
-    meta: dict[str, str] = field(default_factory=dict)
 
 
 def phoneme_inventory(utterances: Sequence[Utterance]) -> tuple[str, ...]:
@@ -72,15 +59,6 @@ def phoneme_inventory(utterances: Sequence[Utterance]) -> tuple[str, ...]:
         names.remove(PAUSE)
         names.insert(0, PAUSE)
     return tuple(names)
-
-
-def model_options(spec: FitSpec) -> _core.ModelOptions:
-    return _core.ModelOptions(spec.variant, spec.apex_fraction, spec.edge_extent)
-
-
-def build_core_corpus(utterances: Sequence[Utterance], phonemes: Sequence[str]) -> _core.Corpus:
-    """The CSR corpus of these utterances (``coartic.model.build_corpus``: errors name the utterance)."""
-    return build_corpus([ModelUtterance(u.labels, u.starts, u.ends, u.times, u.name) for u in utterances], phonemes)
 
 
 @dataclass
@@ -105,7 +83,7 @@ class ChannelData:
         y = np.concatenate([u.observed[channel] for u in utts]).astype(np.float64)
         valid = np.concatenate([u.valid[channel] for u in utts]) & np.isfinite(y)
         offsets = np.cumsum([0] + [len(u.times) for u in utts]).astype(np.int64)
-        return cls(channel, phon, utts, build_core_corpus(utts, phon),
+        return cls(channel, phon, utts, build_corpus(utts, phon),
                    np.where(valid, y, 0.0), valid.astype(np.float64), offsets)
 
     def utterance_samples(self, u: int) -> slice:
@@ -133,8 +111,8 @@ class Packing:
     beta_bounds: tuple[float, float]
     base: FloatArray  # [n_phonemes, 10]
     base_beta: float
-    # [n_phonemes, 10]: where each base value came from, as a spec key ("[parameters.start]",
-    # "[override #2.fixed]", ...), so that a value the model refuses is named by its key.
+    # [n_phonemes, 10]: the spec key each base value came from ("parameters.start.alpha",
+    # "override #2.fixed.k_r"; "" for defaults, data and start tables): ParameterSet.origins.
     origins: NDArray[np.object_] | None = None
 
     def __post_init__(self) -> None:
@@ -227,93 +205,11 @@ class Packing:
 
 
 def build_packing(spec: FitSpec, data: ChannelData, start: tuple[FloatArray, float] | None = None) -> Packing:
-    """Free set, bounds and starting values of one channel from the spec (and an optional start).
+    """Free set, bounds and starting values of one channel from the spec (and an optional start):
+    ``coartic.fit.parameters.ParameterSet.from_spec`` as the engines see it."""
+    from coartic.fit.parameters import ParameterSet
 
-    Targets start at the mean observed value at each phoneme's segment midpoints (a good start for
-    the targets-first stage); the rest from spec.start (or the start table). The reference phoneme
-    has alpha fixed at 1 (MODEL.md §1: α is scale-free).
-    """
-    ch, phon = data.channel, data.phonemes
-    n = len(phon)
-    where = f"{spec.path}"
-    free = np.zeros((n, N_PARAMS), dtype=bool)
-    for k, p in enumerate(PARAMETERS):
-        free[:, k] = p in spec.free
-    if spec.variant == "original":
-        for k, p in enumerate(PARAMETERS):
-            if p in MODIFIED_ONLY:
-                free[:, k] = False
-    lower = np.array([spec.bounds.get(p, (-np.inf, np.inf))[0] for p in PARAMETERS])[None, :].repeat(n, 0)
-    upper = np.array([spec.bounds.get(p, (-np.inf, np.inf))[1] for p in PARAMETERS])[None, :].repeat(n, 0)
-    valid_y = data.observed[data.weights > 0]
-    t_lo, t_hi = float(valid_y.min()) - spec.target_margin, float(valid_y.max()) + spec.target_margin
-    lower[:, 0], upper[:, 0] = t_lo, t_hi
-    for p, (lo, hi) in spec.channel_bounds.get(ch, {}).items():
-        k = PARAMETERS.index(p)
-        lower[:, k], upper[:, k] = lo, hi
-
-    origins = np.empty((n, N_PARAMS), dtype=object)
-    if start is not None:
-        base, beta = np.array(start[0], dtype=np.float64), float(start[1])
-        origins[:] = f"[parameters.start_table] {spec.start_table}" if spec.start_table else "the start values"
-    else:
-        base = np.array([spec.start[p] for p in PARAMETERS], dtype=np.float64)[None, :].repeat(n, 0)
-        base[:, 0] = _data_targets(data)
-        beta = spec.beta
-        origins[:] = "[parameters.start]"
-        origins[:, 0] = "the data (mean observed value of the phoneme)"
-
-    for j, o in enumerate(spec.overrides):
-        for i, p in enumerate(phon):
-            if not o.applies(p, ch):
-                continue
-            for name, (lo, hi) in o.bounds.items():
-                k = PARAMETERS.index(name)
-                lower[i, k], upper[i, k] = lo, hi
-            for name, val in o.start.items():
-                base[i, PARAMETERS.index(name)] = val
-                origins[i, PARAMETERS.index(name)] = f"[override #{j + 1}.start]"
-            for name in o.free:
-                free[i, PARAMETERS.index(name)] = True
-            for name, val in o.fixed.items():
-                k = PARAMETERS.index(name)
-                base[i, k], free[i, k] = val, False
-                origins[i, k] = f"[override #{j + 1}.fixed]"
-
-    if spec.reference_phoneme not in phon:
-        raise SpecError(f"{where}: [model.reference_phoneme] {spec.reference_phoneme!r} does not occur in "
-                        f"the {ch} data (phonemes: {' '.join(phon)})")
-    r = phon.index(spec.reference_phoneme)
-    ka = PARAMETERS.index("alpha")
-    free[r, ka], base[r, ka] = False, 1.0
-    origins[r, ka] = "[model.reference_phoneme]"
-
-    # A free value outside its box starts on the nearest bound, not outside (engines refuse that).
-    base = np.where(free, np.clip(base, lower, upper), base)
-    bad = (lower > upper)
-    if bad.any():
-        i, k = map(int, np.argwhere(bad)[0])
-        raise SpecError(f"{where}: bounds of {phon[i]}.{PARAMETERS[k]} on {ch}: low {lower[i, k]} > high {upper[i, k]}")
-    beta_free = spec.fit_beta and spec.variant == "modified"
-    beta = float(np.clip(beta, *spec.beta_bounds)) if beta_free else beta
-    return Packing(phon, free, beta_free, lower, upper, spec.beta_bounds, base, beta, origins)
-
-
-def _data_targets(data: ChannelData) -> FloatArray:
-    """Mean observed value at the segment midpoints of each phoneme (its acoustic centre)."""
-    sums = np.zeros(len(data.phonemes))
-    counts = np.zeros(len(data.phonemes))
-    row = {p: i for i, p in enumerate(data.phonemes)}
-    for u, utt in enumerate(data.utterances):
-        sl = data.utterance_samples(u)
-        y, w = data.observed[sl], data.weights[sl]
-        for lab, s, e in zip(utt.labels, utt.starts, utt.ends):
-            j = int(np.clip(np.searchsorted(utt.times, 0.5 * (s + e)), 0, len(utt.times) - 1))
-            if w[j] > 0:
-                sums[row[lab]] += y[j]
-                counts[row[lab]] += 1
-    fallback = float(np.average(data.observed, weights=data.weights))
-    return np.where(counts > 0, sums / np.maximum(counts, 1), fallback)
+    return ParameterSet.from_spec(spec, data, start).packing()
 
 
 class ChannelProblem:
@@ -358,10 +254,11 @@ class ChannelProblem:
             return str(e)
         i, k = pk.phonemes.index(e.phoneme), PARAMETERS.index(str(e.parameter))
         v, b = float(params[i, k]), float(pk.base[i, k])
-        if not (v == b or (np.isnan(v) and np.isnan(b))):
+        if not pk.origins[i, k] or not (v == b or (np.isnan(v) and np.isnan(b))):
             return str(e)
-        return (f"{pk.origins[i, k]} {e.parameter} = {v!r} for phoneme {e.phoneme!r} on channel "
-                f"{self.data.channel}: the value {e.reason}")
+        section, _, name = str(pk.origins[i, k]).rpartition(".")
+        return (f"[{section}] {name} = {v!r} for phoneme {e.phoneme!r} on channel {self.data.channel}: "
+                f"the value {e.reason}")
 
     # --- internal-x interface for engines ----------------------------------------------------
     def _track(self, x: FloatArray, sse: float) -> None:
@@ -436,7 +333,9 @@ def build_problem(spec: FitSpec, utterances: Sequence[Utterance], channel: str,
                   phonemes: Sequence[str] | None = None) -> ChannelProblem:
     """The channel's problem from a spec and loaded utterances (the one entry point others use)."""
     data = ChannelData.build(utterances, channel, phonemes)
-    return ChannelProblem(data, build_packing(spec, data, start), model_options(spec))
+    # Options from the settings the fitted table will record (spec.channel_settings): one source.
+    options = channel_options(spec.variant, spec.channel_settings(channel))
+    return ChannelProblem(data, build_packing(spec, data, start), options)
 
 
 def describe(packing: Packing) -> dict[str, Any]:

@@ -21,12 +21,13 @@ import numpy as np
 from numpy.typing import NDArray
 
 from coartic import __version__
+from coartic.fit.parameters import ParameterSet
 from coartic.fit.problem import ChannelProblem, Packing
 from coartic.fit.spec import FitSpec
 from coartic.fit.staged import StageResult
 from coartic.io.labelmap import resolve_label_map
 from coartic.outputs import atomic_path, atomic_write_text
-from coartic.table import PARAMETERS, ChannelSettings, ParameterTable
+from coartic.table import PARAMETERS, ParameterTable
 
 BAR_MM = 0.3  # the paper's bar: RMSE below 0.3 mm
 GROUP_KEYS = ("vowel", "consonant", "repetition", "rate")
@@ -102,6 +103,14 @@ class ChannelFit:
     def packing(self) -> Packing:
         return self.problem.packing
 
+    @property
+    def parameters(self) -> ParameterSet:
+        """The fitted parameter set: values, free, bounds and standard errors (lmfit-style)."""
+        st = self.stats
+        if st is None:
+            return ParameterSet.from_packing(self.channel, self.packing)
+        return ParameterSet.from_packing(self.channel, self.packing, st.names, st.stderr, st.at_bound, st.unidentified)
+
     def residuals(self) -> FloatArray:
         """Model − measured on every sample (NaN where masked)."""
         d = self.problem.data
@@ -151,6 +160,8 @@ class FitResult:
     started: str
     interrupted: bool = False
     notes: list[str] = field(default_factory=list)
+    validation: list[Any] | None = None  # coartic.fit.validate.SplitScore per split and channel
+    report: Path | None = None  # the HTML report, once written
 
     # ---------------------------------------------------------------- tables
     def rmse_rows(self) -> list[dict[str, Any]]:
@@ -182,8 +193,7 @@ class FitResult:
         s = self.spec
         t = ParameterTable(variant=s.variant, source=f"fit of {s.path}")
         for ch, fit in self.channels.items():
-            t.channels[ch] = ChannelSettings(reference_phoneme=s.reference_phoneme, beta=fit.beta,
-                                             edge_extent=s.edge_extent, apex_fraction=s.apex_fraction)
+            t.channels[ch] = s.channel_settings(ch, fit.beta)
             lo, hi = fit.packing.lower[:, 0].min(), fit.packing.upper[:, 0].max()
             t.bounds[ch] = {"target": (float(lo), float(hi))}
             t.set_from_matrix(ch, list(fit.phonemes), fit.params, fit.beta)
@@ -202,25 +212,8 @@ class FitResult:
         return t
 
     def parameter_rows(self) -> list[dict[str, Any]]:
-        rows = []
-        for ch, fit in self.channels.items():
-            st = fit.stats
-            assert st is not None
-            free = {nm: i for i, nm in enumerate(st.names)}
-            for i, ph in enumerate(fit.phonemes):
-                for k, p in enumerate(PARAMETERS):
-                    nm = f"{ph}.{p}"
-                    j = free.get(nm)
-                    rows.append({"channel": ch, "phoneme": ph, "parameter": p, "value": float(fit.params[i, k]),
-                                 "stderr": float(st.stderr[j]) if j is not None else "",
-                                 "free": j is not None,
-                                 "at_bound": nm in st.at_bound, "unidentified": nm in st.unidentified})
-            if fit.packing.beta_free:
-                j = free["beta"]
-                rows.append({"channel": ch, "phoneme": "*", "parameter": "beta", "value": fit.beta,
-                             "stderr": float(st.stderr[j]), "free": True,
-                             "at_bound": "beta" in st.at_bound, "unidentified": "beta" in st.unidentified})
-        return rows
+        """``parameters.csv``: every channel's parameter set (value, stderr, free, bounds, flags)."""
+        return [row for fit in self.channels.values() for row in fit.parameters.rows()]
 
     def report_text(self, max_corr: int = 10) -> str:
         """An lmfit-like fit report: statistics, warnings, strongest correlations, per channel."""
@@ -245,10 +238,13 @@ class FitResult:
                 lines.append(f"    warning: {len(st.unidentified)} parameter(s) not identified by the data "
                              f"(no standard error): {', '.join(st.unidentified)}")
             lines.append("    [[Variables]]")
-            for nm, v, se in zip(st.names, st.values, st.stderr):
-                flag = " (at bound)" if nm in st.at_bound else ""
-                err = f"+/- {se:.4g}" if np.isfinite(se) else "+/- (not identified)"
-                lines.append(f"        {nm:<16} {v:>12.5g} {err}{flag}")
+            for prm in fit.parameters.values():
+                if not prm.free:
+                    continue
+                flag = " (at bound)" if prm.at_bound else ""
+                err = f"+/- {prm.stderr:.4g}" if np.isfinite(prm.stderr) else "+/- (not identified)"
+                lines.append(f"        {prm.name:<16} {prm.value:>12.5g} {err}{flag}"
+                             f"  [{prm.lower:.4g}, {prm.upper:.4g}]")
             c = np.triu(np.nan_to_num(st.corr), 1)
             order = np.argsort(-np.abs(c), axis=None)[:max_corr]
             strong = [(st.names[i], st.names[j], c[i, j]) for i, j in zip(*np.unravel_index(order, c.shape))

@@ -17,6 +17,8 @@ from rich.console import Console
 from threadpoolctl import threadpool_limits
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
+from coartic.errors import CoarticError
+from coartic.fit.engines import OptionError, check_options
 from coartic.fit.problem import ChannelProblem, Utterance, build_problem
 from coartic.fit.result import ChannelFit, FitResult, finish_channel, now
 from coartic.fit.spec import FitSpec, SpecError, load_spec
@@ -73,14 +75,40 @@ def fit_channel(spec: FitSpec, utterances: Sequence[Utterance], channel: str,
     return fit
 
 
+class FitFailed(CoarticError, ValueError):
+    """An engine failed on a channel (its result would be the unfitted start values): the message
+    names the channel, the engine and the engine's own words."""
+
+
+# Engine outcomes that leave no fitted values: the run stops and says so, instead of writing the
+# start values as if they were a fit. ("max-evaluations" is a fit, reported in the status column.)
+FAILED_STATUSES = ("failed", "non-finite start")
+
+
 def run(spec: FitSpec | str | Path, out: str | Path | None = None, *, utterances: Sequence[Utterance] | None = None,
-        console: Console | None = None, quiet: bool = False) -> FitResult:
-    """Fit every channel of ``spec`` and return the FitResult (also saved to ``out`` if given).
+        console: Console | None = None, quiet: bool = False, validate: bool = False,
+        report: bool = True) -> FitResult:
+    """Fit every channel of ``spec`` and return the FitResult; with ``out``, write everything there.
+
+    ``out`` receives what ``coartic fit SPEC --out DIR`` writes (the command only calls this):
+    ``table.json``/``table.csv``, ``rmse.csv``, ``parameters.csv``, ``fit_report.txt``,
+    ``fitted.npz``, ``summary.json``, with ``report=True`` the HTML report and its figures, and
+    with ``validate=True`` the held-out fits in ``validation/`` (their scores also in
+    ``result.validation``). The result is written after every channel, so an interrupted run keeps
+    what it finished.
 
     ``utterances`` skips loading (e.g. a validation split of already loaded data).
+
+    Raises
+    ------
+    FitFailed
+        An engine failed on a channel (nothing is written for it); names the channel.
+    SpecError, DataError
+        A spec or data problem, naming the file and key.
     """
     if not isinstance(spec, FitSpec):
         spec = load_spec(spec)
+    check_engine_options(spec)
     console = console or Console(stderr=True, quiet=quiet)
     result = FitResult(spec, {}, now())
     columns = (TextColumn("[bold]{task.description}"), BarColumn(), MofNCompleteColumn(),
@@ -97,12 +125,16 @@ def run(spec: FitSpec | str | Path, out: str | Path | None = None, *, utterances
                 result.interrupted = True
                 result.notes.append("interrupted while loading the trials: nothing was fitted")
                 return result
+            result.notes += check_overrides(spec, utterances)
         for ch in spec.channels:
             try:
                 fit = fit_channel(spec, utterances, ch, progress)
             except KeyboardInterrupt:  # between engine calls: nothing of this channel to keep
                 result.interrupted = True
                 break
+            if fit.status in FAILED_STATUSES:
+                raise FitFailed(f"channel {ch}: the {spec.engine} engine failed ({fit.status}): {fit.message}"
+                                + (f"; nothing was written for {ch}" if out is not None else ""))
             result.channels[ch] = fit
             if fit.status == "interrupted":
                 result.interrupted = True
@@ -113,6 +145,45 @@ def run(spec: FitSpec | str | Path, out: str | Path | None = None, *, utterances
     if result.interrupted:
         done = ", ".join(result.channels) or "none"
         result.notes.append(f"interrupted by the user; channels finished or partly fitted: {done}")
-        if out is not None:
-            result.save(out)
+    if validate and result.channels and not result.interrupted:
+        from coartic.fit.validate import validate_all
+
+        try:
+            result.validation = validate_all(spec, None if out is None else Path(out) / "validation",
+                                             utterances=utterances, console=console, quiet=quiet)
+        except KeyboardInterrupt:
+            result.notes.append("validation interrupted by the user")
+        except SpecError as e:  # e.g. no repetition or rate to hold out: said, not raised
+            result.notes.append(f"no validation: {e}")
+    if out is not None:
+        result.save(out)
+        if report and result.channels:
+            from coartic.report.html import write_report
+
+            result.report = write_report(result, out, console=None if quiet else console)
     return result
+
+
+def check_engine_options(spec: FitSpec) -> None:
+    """``[engine.options]`` checked before anything is loaded: errors name the spec and the key."""
+    try:
+        check_options(spec.engine, spec.engine_options)
+    except OptionError as e:
+        raise SpecError(f"{spec.path}: [engine.options] {e.key} ({spec.engine} engine): {e.message}") from None
+
+
+def check_overrides(spec: FitSpec, utterances: Sequence[Utterance]) -> list[str]:
+    """An ``[[override]]`` whose phonemes occur nowhere in the corpus would change nothing without a
+    word: refused. One naming some absent phonemes (e.g. /b/ of "p b m" in a corpus cut by
+    ``select`` or ``limit``) applies to the others; the returned notes say which were absent.
+    Checked on the whole corpus, not on a validation split, which may lack a phoneme legitimately."""
+    present = {lab for u in utterances for lab in u.labels}
+    notes = []
+    for i, o in enumerate(spec.overrides):
+        missing = [p for p in o.phonemes if p not in present]
+        if len(missing) == len(o.phonemes):
+            raise SpecError(f"{spec.path}: [override #{i + 1}] phonemes {missing}: none occurs in the corpus "
+                            f"(phonemes: {' '.join(sorted(present))})")
+        if missing:
+            notes.append(f"[override #{i + 1}] phonemes {missing} do not occur in the corpus: not applied to them")
+    return notes

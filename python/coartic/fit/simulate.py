@@ -9,7 +9,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from coartic import _core
-from coartic.fit.problem import Utterance, build_core_corpus
+from coartic.model import Utterance, build_corpus
 
 # A small, identifiable VCV model for one channel (rows: # a i p t l; columns in PARAMETERS order).
 PHONEMES: tuple[str, ...] = ("#", "a", "i", "p", "t", "l")
@@ -43,10 +43,10 @@ def vcv_utterances(rng: np.random.Generator, params: NDArray[np.float64] = TRUTH
                     ends = np.cumsum(d)
                     starts = np.concatenate([[0.0], ends[:-1]])
                     t = np.arange(0.0, ends[-1], 1.0 / rate_hz)
-                    u = Utterance(f"{v}{c}{v}_{rate}_{rep}", labels, starts, ends, t, {}, {},
-                                  {"stimulus": f"{v} {c} {v}", "vowel": v, "consonant": c,
-                                   "repetition": str(rep), "rate": rate})
-                    f = _core.evaluate(build_core_corpus([u], phonemes), params, beta,
+                    u = Utterance(labels, starts, ends, t, name=f"{v}{c}{v}_{rate}_{rep}",
+                                  meta={"stimulus": f"{v} {c} {v}", "vowel": v, "consonant": c,
+                                        "repetition": str(rep), "rate": rate})
+                    f = _core.evaluate(build_corpus([u], phonemes), params, beta,
                                        _core.ModelOptions("modified", 0.5, 1.0))
                     u.observed[channel] = np.asarray(f) + rng.normal(0.0, noise, t.size)
                     u.valid[channel] = np.ones(t.size, dtype=bool)

@@ -14,7 +14,7 @@ from pathlib import Path
 from typing import Any
 
 from coartic.errors import CoarticError
-from coartic.table import ALL_CHANNELS, CHANNELS, PARAMETERS, VARIANTS
+from coartic.table import ALL_CHANNELS, CHANNELS, PARAMETERS, VARIANTS, ChannelSettings
 
 ENGINES: tuple[str, ...] = ("scipy", "nlopt", "casadi")
 
@@ -86,6 +86,7 @@ class FitSpec:
     free: tuple[str, ...] = PARAMETERS
     start_table: Path | None = None  # "from table": start values from a ParameterTable JSON
     start: dict[str, float] = field(default_factory=lambda: dict(DEFAULT_START))
+    start_given: frozenset[str] = frozenset()  # the [parameters.start] keys the spec gives (checked against bounds)
     bounds: dict[str, tuple[float, float]] = field(default_factory=lambda: dict(DEFAULT_FIT_BOUNDS))
     channel_bounds: dict[str, dict[str, tuple[float, float]]] = field(default_factory=dict)
     target_margin: float = 5.0  # mm beyond the observed range for the default target box
@@ -101,6 +102,13 @@ class FitSpec:
 
     def with_options(self, **changes: Any) -> FitSpec:
         return replace(self, **changes)
+
+    def channel_settings(self, channel: str, beta: float | None = None) -> ChannelSettings:
+        """The settings a fit of ``channel`` uses and writes into its table (``beta``: the fitted
+        value; default the spec's). The fit's model options are made from them
+        (``coartic.model.channel_options``), so a table evaluates as it was fitted."""
+        return ChannelSettings(reference_phoneme=self.reference_phoneme, beta=self.beta if beta is None else beta,
+                               edge_extent=self.edge_extent, apex_fraction=self.apex_fraction)
 
 
 def _err(path: Path, key: str, msg: str) -> SpecError:
@@ -225,7 +233,7 @@ def parse_spec(raw: dict[str, Any], path: Path) -> FitSpec:
         raise _err(path, "corpus.select", f"expected a table column = [values], got {select_raw!r}")
     select = {k: tuple(str(x) for x in (v if isinstance(v, list) else [v])) for k, v in select_raw.items()}
     limit = c.get("limit")
-    if limit is not None and (not isinstance(limit, int) or limit < 1):
+    if limit is not None and (isinstance(limit, bool) or not isinstance(limit, int) or limit < 1):
         raise _err(path, "corpus.limit", f"expected a positive integer, got {limit!r}")
     corpus = CorpusSpec(manifest=manifest, files=files, labels=labels,
                         file_column=str(c.get("file_column", "file")), label_map=label_map,
@@ -262,7 +270,8 @@ def parse_spec(raw: dict[str, Any], path: Path) -> FitSpec:
     _take(p, path, "parameters", {"free", "start", "start_table", "bounds", "target_margin"})
     free = _param_names(_str_list(p.get("free", list(PARAMETERS)), path, "parameters.free"), path, "parameters.free")
     start = dict(DEFAULT_START)
-    start.update(_param_values(p.get("start", {}), path, "parameters.start"))
+    start_given = _param_values(p.get("start", {}), path, "parameters.start")
+    start.update(start_given)
     start_table = _path(base, p["start_table"], "parameters.start_table", path) if "start_table" in p else None
     bounds_raw = p.get("bounds", {})
     bounds = dict(DEFAULT_FIT_BOUNDS)
@@ -297,6 +306,14 @@ def parse_spec(raw: dict[str, Any], path: Path) -> FitSpec:
             start=_param_values(o.get("start", {}), path, f"{key}.start"),
             bounds=_bounds(o.get("bounds", {}), path, f"{key}.bounds")))
 
+    reference = str(m.get("reference_phoneme", "a"))
+    for i, o in enumerate(overrides):
+        # alpha is scale-free: the reference phoneme's is 1 by definition (MODEL.md §1)
+        if reference in o.phonemes and ("alpha" in o.free or "alpha" in o.start or "alpha" in o.bounds
+                                        or o.fixed.get("alpha", 1.0) != 1.0):
+            raise _err(path, f"override #{i + 1}", f"sets alpha of the reference phoneme {reference!r}, which is "
+                       "fixed at 1 (alpha is scale-free); choose another [model] reference_phoneme to fit it")
+
     e = raw.get("engine", {})
     _take(e, path, "engine", {"name", "options"})
     engine = e.get("name", "scipy")
@@ -330,9 +347,9 @@ def parse_spec(raw: dict[str, Any], path: Path) -> FitSpec:
 
     return FitSpec(
         path=path, name=str(name), corpus=corpus, channels=channels, variant=variant,
-        reference_phoneme=str(m.get("reference_phoneme", "a")), apex_fraction=apex, edge_extent=edge,
+        reference_phoneme=reference, apex_fraction=apex, edge_extent=edge,
         beta=_float(m.get("beta", 1.0), path, "model.beta"), fit_beta=fit_beta, beta_bounds=beta_bounds,
-        free=free, start_table=start_table, start=start, bounds=bounds, channel_bounds=channel_bounds,
+        free=free, start_table=start_table, start=start, start_given=frozenset(start_given), bounds=bounds, channel_bounds=channel_bounds,
         target_margin=margin, overrides=tuple(overrides), engine=engine, engine_options=dict(engine_options),
         staging=staging, stages=stages, max_gap=max_gap, holdout_repetition=hold,
         train_rate=v.get("train_rate", "normal"), test_rate=v.get("test_rate", "fast"))

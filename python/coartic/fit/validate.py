@@ -88,7 +88,7 @@ def _rep(u: Utterance) -> str | None:
 
 
 def validate_all(spec: FitSpec, out: str | Path | None = None, utterances: Sequence[Utterance] | None = None,
-                 console: Console | None = None) -> list[SplitScore]:
+                 console: Console | None = None, quiet: bool = False) -> list[SplitScore]:
     from coartic.fit.runner import run
 
     if utterances is None:
@@ -97,10 +97,10 @@ def validate_all(spec: FitSpec, out: str | Path | None = None, utterances: Seque
         utterances = load_utterances(spec)
     scores: list[SplitScore] = []
     for name, train, test in splits(spec, utterances):
-        if console is not None:
+        if console is not None and not quiet:
             console.print(f"[bold]validation[/bold]: {name} ({len(train)} trials to fit, {len(test)} to test)")
         sub = Path(out) / name.replace(" ", "_").replace(",", "") if out is not None else None
-        res = run(spec, sub, utterances=train, console=console)
+        res = run(spec, sub, utterances=train, console=console, quiet=quiet, report=False)
         scores += score(res, test, name)
         if res.interrupted:
             break

@@ -166,9 +166,8 @@ def run_job(fit_spec: Any, cfg: Any, table_path: Path, out: Path, progress: bool
             allow_stale: bool = False) -> tuple[list[PosteriorRun], bool]:
     """Load the data and the table, sample every posterior, write table, summaries and report fragment."""
     from coartic.fit.data import load_utterances
-    from coartic.fit.problem import ChannelData, build_packing, model_options
     from coartic.mcmc import plots, summary
-    from coartic.mcmc.run import channel_runs
+    from coartic.mcmc.run import channel_runs, table_problem
     from coartic.table import ParameterTable
 
     table = ParameterTable.load(table_path)
@@ -206,13 +205,9 @@ def run_job(fit_spec: Any, cfg: Any, table_path: Path, out: Path, progress: bool
 
     interrupted = False
     for channel in cfg.channels or fit_spec.channels:
-        if channel not in table.channels:
-            raise ValueError(f"{table_path}: the table has no channel {channel!r} (channels: {', '.join(table.channels)})")
-        data = ChannelData.build(utterances, channel)
-        start = table.to_matrix(channel, data.phonemes)
-        packing = build_packing(fit_spec, data, start)
-        check_fit_matches_data(table, table_path, channel, data, packing, model_options(fit_spec), allow_stale)
-        _, interrupted = channel_runs(channel, data, packing, model_options(fit_spec), cfg, out, progress, on_done=save)
+        data, packing, options = table_problem(fit_spec, table, table_path, channel, utterances)
+        check_fit_matches_data(table, table_path, channel, data, packing, options, allow_stale)
+        _, interrupted = channel_runs(channel, data, packing, options, cfg, out, progress, on_done=save)
         if interrupted:
             break
     return runs, interrupted

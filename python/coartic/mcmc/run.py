@@ -140,6 +140,27 @@ def read_spec(path: str | Path) -> tuple[Any, McmcConfig]:
     return parse_spec(raw, path), parse_config(raw.get("mcmc"), path)
 
 
+def table_problem(fit_spec: Any, table: Any, table_path: Path, channel: str,
+                  utterances: Sequence[Any]) -> tuple[Any, Any, Any]:
+    """The data, packing and model options of one channel for sampling around a fitted table.
+
+    The options come from the table's own channel settings (variant, apex fraction, edge extent:
+    ``coartic.model.model_options``), never rebuilt from the spec: the posterior is the one of the
+    model the table was fitted with. The free set and bounds are the spec's, so a table of another
+    variant than the spec's ``[model] variant`` is refused (its free set would not match)."""
+    from coartic.fit.problem import ChannelData, build_packing
+    from coartic.model import model_options
+
+    if channel not in table.channels:
+        raise ValueError(f"{table_path}: the table has no channel {channel!r} (channels: {', '.join(table.channels)})")
+    if table.variant != fit_spec.variant:
+        raise ValueError(f"{table_path}: a table of the {table.variant!r} model, but {fit_spec.path} [model] variant = "
+                         f"{fit_spec.variant!r}: sample with the spec the table was fitted with")
+    data = ChannelData.build(utterances, channel)
+    packing = build_packing(fit_spec, data, table.to_matrix(channel, data.phonemes))
+    return data, packing, model_options(table, channel)
+
+
 def walkers_for(dim: int, requested: int) -> int:
     """emcee needs more than 2 dim walkers; an even count, at least 32 unless more are requested."""
     n = requested if requested > 0 else max(32, 2 * dim + 2)

@@ -7,8 +7,11 @@ first and every file atomically, so an interrupted preview loses nothing else.
 
 from __future__ import annotations
 
+import os
 import re
+import shutil
 import unicodedata
+import wave
 from dataclasses import dataclass, field
 from os import PathLike
 from pathlib import Path
@@ -29,7 +32,7 @@ from coartic.runtime.animate import (
 )
 from coartic.runtime.errors import AnimationError, MissingPhonemeError
 from coartic.runtime.fap import FaceUnits, FapSequence, channels_to_faps, write_fap
-from coartic.runtime.festival import DEFAULT_VOICE, FestivalUtterance, PhoneMap, synthesize
+from coartic.runtime.festival import DEFAULT_VOICE, FestivalUtterance, PhoneMap, synthesize, wav_duration
 from coartic.runtime.preview import plot_channels, render_preview, render_strip
 from coartic.table import PAUSE, ParameterTable
 
@@ -60,6 +63,36 @@ def _name_from(text: str) -> str:
     return word[:40] or "coartic"
 
 
+_NAME = re.compile(r"[0-9A-Za-z_][0-9A-Za-z_.-]*")
+
+
+def check_name(name: str) -> str:
+    """A FAP name as players read it: one ASCII word, also the stem of the WAV and glTF beside it."""
+    if not _NAME.fullmatch(name) or len(name) > 80:
+        raise AnimationError(f"FAP name {name!r} must be one ASCII word (letters, digits, _ . -), at most 80 "
+                             "characters: it is the FAP header's name and the stem of the .fap, .wav and .glb")
+    return name
+
+
+def copy_audio(src: str | PathLike[str], dest: Path) -> tuple[Path, float]:
+    """Copy the user's WAV to `dest` (through a .part name) after checking it reads; its duration in s."""
+    src = Path(src)
+    try:
+        with wave.open(str(src), "rb") as w:
+            if w.getnframes() == 0:
+                raise AnimationError(f"{src}: the WAV has no samples")
+    except (wave.Error, EOFError) as err:
+        raise AnimationError(f"{src}: not a PCM WAV file ({err}); convert it, e.g. ffmpeg -i IN -c:a pcm_s16le OUT.wav") from None
+    except OSError as err:
+        raise AnimationError(f"{src}: cannot read the audio ({err.strerror})") from None
+    dest.parent.mkdir(parents=True, exist_ok=True)
+    if src.resolve() != dest.resolve():
+        tmp = dest.with_name(dest.name + ".part")
+        shutil.copyfile(src, tmp)
+        os.replace(tmp, dest)
+    return dest, wav_duration(dest)
+
+
 def _check_preview(preview: str) -> None:
     if preview not in PREVIEW_FORMATS:
         raise AnimationError(f"preview must be one of {', '.join(PREVIEW_FORMATS)}, got {preview!r}")
@@ -76,6 +109,8 @@ def _write_outputs(
     source: tuple[str, ...],
     progress: Progress | None,
     audio: Path | None = None,
+    gltf: bool = False,
+    vrml: bool = False,
 ) -> RuntimeOutput:
     neutral = neutral_posture(table)
     faps = channels_to_faps(animation.channels, neutral, face, name, animation.fps)
@@ -89,6 +124,17 @@ def _write_outputs(
     tmp.replace(files["fap"])
     files["segments"] = out / "segments.tsv"
     write_segments_tsv(files["segments"], animation.segments, requested, source)
+    if audio is not None:
+        files["wav"] = audio
+    if gltf:
+        from coartic.face.gltf import write_face_glb
+
+        files["gltf"] = write_face_glb(out / f"{name}.glb", faps, audio=audio.name if audio else None,
+                                       fap_file=files["fap"].name)
+    if vrml:
+        from coartic.face.vrml import write_face_vrml
+
+        files["vrml"] = write_face_vrml(out / f"{name}.wrl", faps, audio=audio.name if audio else None)[0]
     files["plot"] = plot_channels(animation, out / "channels.png", title=name)
     if preview != "none":
         files["strip"] = render_strip(animation, table, out / "strip.png")
@@ -111,14 +157,23 @@ def animate_file(
     strict: bool = False,
     phone_map: PhoneMap | None = None,
     progress: Progress | None = None,
+    audio: str | PathLike[str] | None = None,
+    name: str | None = None,
+    gltf: bool = False,
+    vrml: bool = False,
 ) -> RuntimeOutput:
     """A label file (.lab / TextGrid / TSV) → channels, FAP file and preview in `out`.
 
     The labels are mapped by `label_map`, by default the map the table was fitted with
     (`LabelMap.recorded`; the model phone set for a table that records none). Phonemes the table lacks are replaced by the phone map's fallbacks
-    unless `strict`.
+    unless `strict`. With `audio` (the recording the labels describe), the WAV is copied beside
+    the FAP file under its name (Greta loads `name.fap` with `name.wav`), the animation lasts as
+    long as the sound, and the MP4 preview and the glTF bundle carry it. `name` defaults to the
+    label file's stem.
     """
     _check_preview(preview)
+    out = Path(out)
+    name = check_name(name) if name is not None else _name_from(Path(labels).stem)
     raw = read_labels(labels, tier=tier)
     lmap = resolve_label_map(label_map) if label_map is not None else LabelMap.recorded(table)
     segments = (lmap or LabelMap.model()).apply(raw)
@@ -127,9 +182,18 @@ def animate_file(
     if not strict:
         segments, used = substitute(segments, table, table_channels(table),
                                     (phone_map or PhoneMap.load()).fallbacks)
-    animation = animate(table, segments, fps, snap_contacts=snap_contacts, substitutions=used)
-    return _write_outputs(animation, table, Path(out), _name_from(Path(labels).stem), face or speaker_face(table),
-                          preview, requested, raw.labels, progress)
+    wav: Path | None = None
+    duration = None
+    if audio is not None:
+        wav, duration = copy_audio(audio, out / f"{name}.wav")
+        # labels that run on after the sound are for another recording (or another rate)
+        if segments.end_time > duration + 1.0 / fps:
+            raise AnimationError(f"{labels}: the labels run to {segments.end_time:.3f} s but {audio} lasts "
+                                 f"{duration:.3f} s; are they for this recording?")
+        duration = max(duration, 1.0 / fps)
+    animation = animate(table, segments, fps, duration=duration, snap_contacts=snap_contacts, substitutions=used)
+    return _write_outputs(animation, table, out, name, face or speaker_face(table),
+                          preview, requested, raw.labels, progress, audio=wav, gltf=gltf, vrml=vrml)
 
 
 def speak_text(
@@ -147,8 +211,14 @@ def speak_text(
     festival: str = "festival",
     snap_contacts: bool = True,
     progress: Progress | None = None,
+    name: str | None = None,
+    gltf: bool = False,
+    vrml: bool = False,
 ) -> RuntimeOutput:
     """Italian text → Festival's WAV, and channels, FAP file and preview lasting as long as the WAV.
+
+    The WAV is written as `name.wav` beside `name.fap` (Greta loads them by the shared name);
+    `name` defaults to a word made of the text.
 
     Phonemes the table lacks are replaced by the phone map's fallbacks (reported in
     `animation.substitutions`) unless `strict`.
@@ -156,7 +226,8 @@ def speak_text(
     _check_preview(preview)
     out = Path(out)
     pmap = phone_map or PhoneMap.load()
-    utt = synthesize(text, out / "speech.wav", stretch=stretch, voice=voice, festival=festival)
+    name = check_name(name) if name is not None else _name_from(text)
+    utt = synthesize(text, out / f"{name}.wav", stretch=stretch, voice=voice, festival=festival)
     phonemes = pmap.to_phonemes(utt.phones)
     ends = utt.ends.copy()
     # Festival's WAV runs a few ms past the last segment: the final pause lasts to the end of the sound.
@@ -175,8 +246,7 @@ def speak_text(
             raise
         raise MissingPhonemeError(f"{err} (Festival phone {utt.phones[err.segment]!r} of {utt.text!r})",
                                   err.segment) from None
-    result = _write_outputs(animation, table, out, _name_from(text), face or speaker_face(table), preview,
-                            requested, utt.phones, progress, audio=utt.wav)
-    result.files["wav"] = utt.wav
+    result = _write_outputs(animation, table, out, name, face or speaker_face(table), preview,
+                            requested, utt.phones, progress, audio=utt.wav, gltf=gltf, vrml=vrml)
     result.utterance = utt
     return result

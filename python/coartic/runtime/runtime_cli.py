@@ -7,6 +7,7 @@ from typing import TYPE_CHECKING, Annotated
 
 import typer
 from rich.console import Console
+from rich.markup import escape
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
 from rich.table import Table
 
@@ -32,6 +33,9 @@ MwOpt = Annotated[float | None, typer.Option("--mw", help="The speaker's neutral
 SnapOpt = Annotated[bool, typer.Option("--snap-contacts/--no-snap-contacts", help="Show each k_R = 1 target (lip closure, lip-teeth contact) on its nearest frame.")]
 StrictOpt = Annotated[bool, typer.Option("--strict", help="Refuse phonemes the table lacks instead of using the fallbacks of phones_italian.tsv.")]
 PreviewOpt = Annotated[str, typer.Option("--preview", help=f"Preview format: {', '.join(PREVIEW_FORMATS)}.")]
+GltfOpt = Annotated[bool, typer.Option("--gltf", help="Also write NAME.glb: the face with one morph target per FAP and their animation (coartic view DIR plays it).")]
+VrmlOpt = Annotated[bool, typer.Option("--vrml", help="Also write NAME.wrl: the face animated in VRML97 (interpolators, the sound as an AudioClip).")]
+FapNameOpt = Annotated[str | None, typer.Option("--fap-name", help="Name of the FAP file and its header; the WAV and glTF get the same stem (Greta loads NAME.fap with NAME.wav).")]
 ForceOpt = Annotated[bool, typer.Option("--force", help="Replace --out even if it holds another run's output "
                                         "(the same labels or text replace their own output without it).")]
 
@@ -44,6 +48,22 @@ def _fail(err: Exception) -> None:
 def _progress() -> Progress:
     return Progress(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeRemainingColumn(),
                     console=_err, transient=True)
+
+
+def fps_warnings(fps: float) -> list[str]:
+    """What FAP players do with a rate other than 25 fps (said before the run, not refused)."""
+    if fps != int(fps):
+        return [f"--fps {fps:g} is not a whole number: Xface reads the FAP header's rate as an integer "
+                f"({int(fps)}) and would drift out of sync with the sound"]
+    if fps != 25:
+        return [f"--fps {fps:g}: Greta plays FAP files at 25 fps whatever the header says, so it would play "
+                f"this one {fps / 25:.3g}x as long as the sound"]
+    return []
+
+
+def _warn_fps(fps: float) -> None:
+    for msg in fps_warnings(fps):
+        _err.print(f"[yellow]warning:[/] {escape(msg)}", highlight=False)
 
 
 def _report(result: RuntimeOutput) -> None:
@@ -85,6 +105,10 @@ def animate_command(
     preview: PreviewOpt = "gif",
     snap_contacts: SnapOpt = True,
     strict: StrictOpt = False,
+    audio: Annotated[Path | None, typer.Option("--audio", help="The recording the labels describe (WAV): copied as NAME.wav, the sound of the MP4 and the glTF bundle; the animation lasts as long.")] = None,
+    fap_name: FapNameOpt = None,
+    gltf: GltfOpt = False,
+    vrml: VrmlOpt = False,
     force: ForceOpt = False,
 ) -> None:
     """Animate a label file: channel trajectories (CSV), an MPEG-4 FAP file and a preview.
@@ -92,13 +116,16 @@ def animate_command(
     The files are written beside --out and swapped in together when all are done (docs/OUTPUTS.md)."""
     from coartic.runtime.pipeline import animate_file, speaker_face
 
+    _warn_fps(fps)
     try:
         t = _load_table(table)
-        output = OutputDir(out, "animate", {"labels": str(labels.resolve())}, force=force, protect=[labels, table])
+        output = OutputDir(out, "animate", {"labels": str(labels.resolve())}, force=force,
+                           protect=[labels, table, *([audio] if audio is not None else [])])
         with output as staging, _progress() as progress:
             result = animate_file(labels, t, staging, fps=fps, tier=tier, label_map=label_map,
                                   face=speaker_face(t, mns, mw), preview=preview, snap_contacts=snap_contacts,
-                                  strict=strict, progress=progress)
+                                  strict=strict, progress=progress, audio=audio, name=fap_name, gltf=gltf,
+                                  vrml=vrml)
     except (AnimationError, DataError, TableError, OutputError, OSError) as err:
         _fail(err)
     _report(_moved(result, staging, out))
@@ -116,6 +143,9 @@ def speak_command(
     mw: MwOpt = None,
     preview: PreviewOpt = "gif",
     snap_contacts: SnapOpt = True,
+    fap_name: FapNameOpt = None,
+    gltf: GltfOpt = False,
+    vrml: VrmlOpt = False,
     force: ForceOpt = False,
 ) -> None:
     """Say Italian text with Festival: WAV, channel trajectories, FAP file and preview, all as long as the WAV.
@@ -123,13 +153,14 @@ def speak_command(
     The files are written beside --out and swapped in together when all are done (docs/OUTPUTS.md)."""
     from coartic.runtime.pipeline import speak_text, speaker_face
 
+    _warn_fps(fps)
     try:
         t = _load_table(table)
         output = OutputDir(out, "speak", {"text": text}, force=force, protect=[table])
         with output as staging, _progress() as progress:
             result = speak_text(text, t, staging, fps=fps, stretch=stretch, voice=voice, strict=strict,
                                 face=speaker_face(t, mns, mw), preview=preview, snap_contacts=snap_contacts,
-                                progress=progress)
+                                progress=progress, name=fap_name, gltf=gltf, vrml=vrml)
     except (AnimationError, DataError, TableError, OutputError, OSError) as err:
         _fail(err)
     _report(_moved(result, staging, out))

@@ -6,12 +6,14 @@ best point it saw, whatever happened (divergence, evaluation failures, Ctrl-C).
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from typing import Any, Callable
 
 import numpy as np
 from numpy.typing import NDArray
 
+from coartic.errors import CoarticError
 from coartic.fit.problem import ChannelProblem
 
 
@@ -42,6 +44,41 @@ def get_engine(name: str) -> Minimizer:
     else:
         raise ValueError(f"unknown engine {name!r} (scipy, nlopt, casadi)")
     return minimize
+
+
+class OptionError(CoarticError, ValueError):
+    """An engine option the engine cannot use: ``key`` is the option's name."""
+
+    def __init__(self, key: str, message: str) -> None:
+        super().__init__(f"{key}: {message}")
+        self.key = key
+        self.message = message
+
+
+def check_options(name: str, options: dict[str, Any]) -> None:
+    """Refuse engine options of the wrong name, type or value before any fit starts (raising
+    ``OptionError`` naming the option), instead of a SciPy TypeError or a CasADi RuntimeError
+    from inside the first channel's fit."""
+    if name == "scipy":
+        from coartic.fit.engines.scipy_ls import check_options as check
+    elif name == "nlopt":
+        from coartic.fit.engines.nlopt_engine import check_options as check
+    elif name == "casadi":
+        from coartic.fit.engines.casadi_engine import check_options as check
+    else:
+        raise ValueError(f"unknown engine {name!r} (scipy, nlopt, casadi)")
+    check(options)
+
+
+def is_number(v: Any, low: float = -math.inf, positive: bool = False) -> bool:
+    """A real number (not a bool), finite, >= low (or > 0 with ``positive``)."""
+    if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
+        return False
+    return v > 0 if positive else v >= low
+
+
+def is_int(v: Any, low: int) -> bool:
+    return isinstance(v, int) and not isinstance(v, bool) and v >= low
 
 
 def prepare_start(

@@ -16,8 +16,31 @@ import casadi as ca
 import numpy as np
 from numpy.typing import NDArray
 
-from coartic.fit.engines import EngineResult, Unit, prepare_start
+from coartic.fit.engines import EngineResult, OptionError, Unit, prepare_start
 from coartic.fit.problem import ChannelProblem
+
+
+IPOPT_DEFAULTS: dict[str, Any] = {"max_iter": 300, "tol": 1e-6, "acceptable_tol": 1e-4, "print_level": 0,
+                                  "hessian_approximation": "limited-memory", "sb": "yes"}
+
+
+def check_options(options: dict[str, Any]) -> None:
+    """Each option as IPOPT sees it: a one-variable problem is built with it, so an unknown name,
+    a wrong type or a value IPOPT refuses is named before any fit, not raised from inside one."""
+    x = ca.SX.sym("x", 1)
+    for key, value in options.items():
+        if not isinstance(value, (bool, int, float, str)):
+            raise OptionError(key, f"{value!r}: expected a number or a string (an IPOPT option)")
+        ipopt: dict[str, Any] = {"print_level": 0, "sb": "yes", key: value}
+        opts: dict[str, Any] = {"ipopt": ipopt, "print_time": False}
+        try:
+            ca.nlpsol("coartic_check", "ipopt", {"x": x, "f": x * x}, opts)
+        except RuntimeError as e:
+            lines = [ln.strip() for ln in str(e).splitlines() if ln.strip()]
+            why = lines[-1].split(": ", 1)[-1] if lines else str(e)
+            if why.startswith("type mismatch") or "failed" in why:
+                why = "wrong type for this IPOPT option"
+            raise OptionError(key, f"{value!r}: IPOPT refuses it ({why})") from None
 
 
 class _Objective(ca.Callback):  # type: ignore[misc]
@@ -97,12 +120,15 @@ def minimize(problem: ChannelProblem, x0: NDArray[np.float64], options: dict[str
     state: dict[str, Any] = {"interrupted": False}
     f = _Objective("coartic_sse", problem, unit, state)
     z = ca.MX.sym("z", unit.lo.size)
-    ipopt = {"max_iter": 300, "tol": 1e-6, "acceptable_tol": 1e-4, "print_level": 0, "hessian_approximation": "limited-memory",
-             "sb": "yes"}
+    ipopt = dict(IPOPT_DEFAULTS)
     ipopt.update(options)
     nlp: dict[str, Any] = {"x": z, "f": f(z)}
     solver_opts: dict[str, Any] = {"ipopt": ipopt, "print_time": False, "error_on_fail": False}
-    solver = ca.nlpsol("coartic_fit", "ipopt", nlp, solver_opts)
+    try:
+        solver = ca.nlpsol("coartic_fit", "ipopt", nlp, solver_opts)
+    except RuntimeError as e:
+        return EngineResult(problem.best_x, "failed", f"IPOPT could not be set up: {str(e).splitlines()[-1]}",
+                            problem.nfev, problem.njev)
     try:
         sol = solver(x0=unit.z(x0), lbx=unit.z_lo, ubx=unit.z_hi)
         stats = solver.stats()

@@ -12,36 +12,66 @@ and ``xtol_rel`` (1e-15: L-BFGS then stops on round-off, not early),
 
 from __future__ import annotations
 
-from typing import Any
+from typing import Any, Callable
 
 import nlopt
 import numpy as np
 from numpy.typing import NDArray
 
-from coartic.fit.engines import EngineResult, Unit, prepare_start
+from coartic.fit.engines import EngineResult, OptionError, Unit, is_int, is_number, prepare_start
 from coartic.fit.problem import ChannelProblem
 
 _GLOBAL = {"mlsl": nlopt.G_MLSL_LDS, "crs2": nlopt.GN_CRS2_LM}
 _LOCAL = {"lbfgs": nlopt.LD_LBFGS, "slsqp": nlopt.LD_SLSQP}
 AUTO_GLOBAL_MAX_FREE = 40
 _BIG = 1e300  # nlopt's local methods stall on inf; a huge finite value rejects the point
+# nlopt's result codes by name (nlopt.h), for messages.
+_RESULTS = {1: "SUCCESS", 2: "STOPVAL_REACHED", 3: "FTOL_REACHED", 4: "XTOL_REACHED", 5: "MAXEVAL_REACHED",
+            6: "MAXTIME_REACHED", -1: "FAILURE", -2: "INVALID_ARGS", -3: "OUT_OF_MEMORY", -4: "ROUNDOFF_LIMITED",
+            -5: "FORCED_STOP"}
+
+
+def _nlopt_message(opt: nlopt.opt, err: BaseException) -> str:
+    """nlopt's own words: its error message (``get_errmsg``: e.g. which bound a start violates)
+    rather than the exception's generic "nlopt failure"."""
+    detail = opt.get_errmsg() if hasattr(opt, "get_errmsg") else None
+    return f"{type(err).__name__}: {detail or err}"
+
+
+# Tolerances far below what L-BFGS reaches: looser ones stopped it early on whole corpora
+# (RMSE 0.176 instead of 0.137 mm on 150 synthetic trials); it ends on round-off instead.
+DEFAULTS: dict[str, Any] = {"global": "auto", "global_maxeval": 2000, "local": "lbfgs", "local_maxeval": 5000,
+                            "ftol_rel": 1e-15, "xtol_rel": 1e-15, "population": 0, "seed": 0}
+
+
+def check_options(options: dict[str, Any]) -> None:
+    """Every option this engine knows, checked for type and value."""
+    checks: dict[str, tuple[Callable[[Any], bool], str]] = {
+        "global": (lambda v: v in ("auto", "none", *_GLOBAL), f"one of auto, none, {', '.join(_GLOBAL)}"),
+        "local": (lambda v: v in _LOCAL, f"one of {', '.join(_LOCAL)}"),
+        "global_maxeval": (lambda v: is_int(v, 0), "an integer >= 0"),
+        "local_maxeval": (lambda v: is_int(v, 1), "a positive integer"),
+        "ftol_rel": (lambda v: is_number(v, 0.0), "a number >= 0"),
+        "xtol_rel": (lambda v: is_number(v, 0.0), "a number >= 0"),
+        "population": (lambda v: is_int(v, 0), "an integer >= 0"),
+        "seed": (lambda v: is_int(v, 0), "an integer >= 0"),
+    }
+    for key, value in options.items():
+        if key not in checks:
+            raise OptionError(key, f"not an nlopt option; known: {', '.join(sorted(checks))}")
+        ok, what = checks[key]
+        if not ok(value):
+            raise OptionError(key, f"{value!r}: expected {what}")
 
 
 def minimize(problem: ChannelProblem, x0: NDArray[np.float64], options: dict[str, Any]) -> EngineResult:
-    # Tolerances far below what L-BFGS reaches: looser ones stopped it early on whole corpora
-    # (RMSE 0.176 instead of 0.137 mm on 150 synthetic trials); it ends on round-off instead.
-    o: dict[str, Any] = {"global": "auto", "global_maxeval": 2000, "local": "lbfgs", "local_maxeval": 5000,
-                         "ftol_rel": 1e-15, "xtol_rel": 1e-15, "population": 0, "seed": 0}
-    unknown = set(options) - set(o)
-    if unknown:
-        raise ValueError(f"[engine.options] unknown nlopt option(s) {sorted(unknown)}; known: {sorted(o)}")
+    check_options(options)
+    o = dict(DEFAULTS)
     o.update(options)
     if o["global"] == "auto":
         # A multi-start search is affordable, and worked, on a few dozen parameters; on a whole
         # channel (60-250 free) MLSL ended in nlopt's generic failure after its budget (docs/FITTING.md).
         o["global"] = "mlsl" if x0.size <= AUTO_GLOBAL_MAX_FREE else "none"
-    if o["global"] not in (*_GLOBAL, "none") or o["local"] not in _LOCAL:
-        raise ValueError(f"[engine.options] global must be one of {[*_GLOBAL, 'none']}, local one of {list(_LOCAL)}")
     x0, bad = prepare_start(problem, x0)
     if bad is not None:
         return bad
@@ -98,8 +128,8 @@ def minimize(problem: ChannelProblem, x0: NDArray[np.float64], options: dict[str
             current[:] = [g]
             try:
                 g.optimize(z)
-            except (nlopt.ForcedStop, nlopt.RoundoffLimited, nlopt.runtime_error, RuntimeError) as e:
-                messages.append(f"global phase stopped: {type(e).__name__} {e}")
+            except (nlopt.ForcedStop, nlopt.RoundoffLimited, nlopt.exception, RuntimeError, ValueError) as e:
+                messages.append(f"global phase stopped: {_nlopt_message(g, e)}")
             messages.append(f"global {o['global']}: best SSE {problem.best_sse:.6g}")
             z = unit.z(problem.best_x)
         z = np.clip(z, unit.z_lo, unit.z_hi)  # round-off must not put the start outside the box
@@ -112,11 +142,12 @@ def minimize(problem: ChannelProblem, x0: NDArray[np.float64], options: dict[str
                 code = loc.last_optimize_result()
             except nlopt.RoundoffLimited:
                 code = nlopt.ROUNDOFF_LIMITED  # L-BFGS at the limit of precision: at the minimum
-            except (nlopt.ForcedStop, nlopt.runtime_error, RuntimeError) as e:
-                code = -99
-                messages.append(f"local phase stopped: {type(e).__name__} {e}"
+            except (nlopt.ForcedStop, nlopt.exception, RuntimeError, ValueError) as e:
+                code = loc.last_optimize_result()
+                code = code if code < 0 else nlopt.FAILURE
+                messages.append(f"local phase stopped: {_nlopt_message(loc, e)}"
                                 + (f" (last model error: {problem.last_error})" if problem.last_error else ""))
-            messages.append(f"local {o['local']}: nlopt result {code}")
+            messages.append(f"local {o['local']}: nlopt result {code} ({_RESULTS.get(code, 'unknown')})")
             status = "converged" if code in (nlopt.SUCCESS, nlopt.FTOL_REACHED, nlopt.XTOL_REACHED,
                                              nlopt.STOPVAL_REACHED, nlopt.ROUNDOFF_LIMITED) else (
                 "max-evaluations" if code == nlopt.MAXEVAL_REACHED else "failed")

@@ -1,0 +1,339 @@
+"""glTF 2.0 binary (.glb): the face with one morph target per FAP and an animation of the weights.
+
+One node, one mesh with a primitive per part (skin, cavity, upper_teeth, lower_teeth, eyes; named
+in each primitive's `extras.part`), vertex colours (COLOR_0), and the morph targets of
+`coartic.face.deform` (`mesh.extras.targetNames`, the names Blender and three.js show). The
+animation has one channel, `path: "weights"`, sampled at the frame times with LINEAR
+interpolation. Units are metres (glTF's), so the face is 0.2 m tall. The sound is not inside (glTF
+has no audio in its core); `asset.extras` names the WAV written beside the file, with the frame
+rate and the FAP file, and that is what `coartic view` plays.
+
+`check_glb` is this module's own structural check against the specification (header and chunks,
+every index and byte range, accessor types and bounds, morph-target and animation consistency);
+the tests also read the file back with pygltflib and run Debian's gltfpack (cgltf's validator).
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import struct
+from os import PathLike
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from coartic.face.deform import FaceRig, default_rig
+from coartic.face.mesh import PART_NAMES
+from coartic.runtime.errors import AnimationError
+from coartic.runtime.fap import FapSequence
+
+GLB_MAGIC = 0x46546C67  # "glTF"
+CHUNK_JSON = 0x4E4F534A
+CHUNK_BIN = 0x004E4942
+FLOAT, UINT16, UINT32 = 5126, 5123, 5125
+ARRAY_BUFFER, ELEMENT_ARRAY_BUFFER = 34962, 34963
+_COMPONENTS = {"SCALAR": 1, "VEC2": 2, "VEC3": 3, "VEC4": 4, "MAT2": 4, "MAT3": 9, "MAT4": 16}
+_SIZES = {5120: 1, 5121: 1, 5122: 2, 5123: 2, 5125: 4, 5126: 4}
+MM = 0.001  # glTF lengths are metres
+
+
+class GltfError(AnimationError):
+    """A glTF file that breaks the specification (names the file and the JSON path)."""
+
+
+class _Builder:
+    def __init__(self) -> None:
+        self.blob = bytearray()
+        self.views: list[dict[str, Any]] = []
+        self.accessors: list[dict[str, Any]] = []
+
+    def add(self, data: NDArray[Any], type_: str, component: int, target: int | None = None,
+            bounds: bool = False) -> int:
+        arr = np.ascontiguousarray(data)
+        while len(self.blob) % 4:
+            self.blob.append(0)
+        view: dict[str, Any] = {"buffer": 0, "byteOffset": len(self.blob), "byteLength": arr.nbytes}
+        if target is not None:
+            view["target"] = target
+        self.blob += arr.tobytes()
+        self.views.append(view)
+        count = arr.shape[0]
+        acc: dict[str, Any] = {"bufferView": len(self.views) - 1, "componentType": component, "count": int(count),
+                               "type": type_}
+        if bounds:
+            flat = arr.reshape(count, -1)
+            acc["min"] = [float(v) for v in flat.min(axis=0)]
+            acc["max"] = [float(v) for v in flat.max(axis=0)]
+        self.accessors.append(acc)
+        return len(self.accessors) - 1
+
+
+def srgb_to_linear(c: NDArray[np.float64]) -> NDArray[np.float64]:
+    """The mesh's colours are sRGB (as picked); glTF's COLOR_0 is linear."""
+    out: NDArray[np.float64] = np.where(c <= 0.04045, c / 12.92, ((c + 0.055) / 1.055) ** 2.4)
+    return out
+
+
+def gltf_document(rig: FaceRig, weights: NDArray[np.float64], fps: float, name: str, *,
+                  audio: str | None = None, fap_file: str | None = None) -> tuple[dict[str, Any], bytes]:
+    """The glTF JSON and binary buffer for the face animated by `weights` (frames, targets) at `fps`."""
+    weights = np.asarray(weights, dtype=np.float64)
+    n_targets = rig.targets.shape[0]
+    if weights.ndim != 2 or weights.shape[1] != n_targets or weights.shape[0] < 1:
+        raise AnimationError(f"glTF weights must be (frames >= 1, {n_targets}), got {weights.shape}")
+    if not np.isfinite(weights).all():
+        raise AnimationError("glTF weights are not finite")
+    mesh = rig.mesh
+    b = _Builder()
+    primitives = []
+    for part in PART_NAMES:
+        sel = np.flatnonzero(mesh.in_part(part))
+        remap = np.full(mesh.n_vertices, -1, dtype=np.int64)
+        remap[sel] = np.arange(sel.size)
+        tris = remap[mesh.triangles[part]]
+        pos = b.add((mesh.vertices[sel] * MM).astype(np.float32), "VEC3", FLOAT, ARRAY_BUFFER, bounds=True)
+        col = b.add(srgb_to_linear(mesh.colors[sel]).astype(np.float32), "VEC3", FLOAT, ARRAY_BUFFER)
+        idx_type, comp = (np.uint16, UINT16) if sel.size < 65535 else (np.uint32, UINT32)
+        ind = b.add(tris.reshape(-1).astype(idx_type), "SCALAR", comp, ELEMENT_ARRAY_BUFFER)
+        b.accessors[ind]["min"] = [int(tris.min())]
+        b.accessors[ind]["max"] = [int(tris.max())]
+        targets = [{"POSITION": b.add((rig.targets[k][sel] * MM).astype(np.float32), "VEC3", FLOAT, ARRAY_BUFFER,
+                                      bounds=True)} for k in range(n_targets)]
+        primitives.append({"attributes": {"POSITION": pos, "COLOR_0": col}, "indices": ind, "material": 0,
+                           "mode": 4, "targets": targets, "extras": {"part": part}})
+    times = (np.arange(weights.shape[0]) / fps).astype(np.float32)
+    t_in = b.add(times, "SCALAR", FLOAT, bounds=True)
+    w_out = b.add(weights.astype(np.float32).reshape(-1), "SCALAR", FLOAT)
+    while len(b.blob) % 4:
+        b.blob.append(0)
+    doc: dict[str, Any] = {
+        "asset": {"version": "2.0", "generator": "coartic (coartic.face.gltf)",
+                  "extras": {"fps": float(fps), "frames": int(weights.shape[0]), "audio": audio,
+                             "fap_file": fap_file, "units": "m", "face": "coartic generated face"}},
+        "scene": 0,
+        "scenes": [{"name": name, "nodes": [0]}],
+        "nodes": [{"name": "face", "mesh": 0}],
+        "meshes": [{"name": "face", "primitives": primitives, "weights": [0.0] * n_targets,
+                    "extras": {"targetNames": list(rig.target_names)}}],
+        "materials": [{"name": "face", "doubleSided": True,
+                       "pbrMetallicRoughness": {"baseColorFactor": [1.0, 1.0, 1.0, 1.0], "metallicFactor": 0.0,
+                                                "roughnessFactor": 0.75}}],
+        "animations": [{"name": name, "channels": [{"sampler": 0, "target": {"node": 0, "path": "weights"}}],
+                        "samplers": [{"input": t_in, "output": w_out, "interpolation": "LINEAR"}]}],
+        "buffers": [{"byteLength": len(b.blob)}],
+        "bufferViews": b.views,
+        "accessors": b.accessors,
+    }
+    return doc, bytes(b.blob)
+
+
+def glb_bytes(doc: dict[str, Any], blob: bytes) -> bytes:
+    text = json.dumps(doc, separators=(",", ":")).encode("utf-8")
+    text += b" " * (-len(text) % 4)
+    blob = blob + b"\0" * (-len(blob) % 4)
+    total = 12 + 8 + len(text) + 8 + len(blob)
+    return (struct.pack("<III", GLB_MAGIC, 2, total) + struct.pack("<II", len(text), CHUNK_JSON) + text
+            + struct.pack("<II", len(blob), CHUNK_BIN) + blob)
+
+
+def write_glb(path: str | PathLike[str], rig: FaceRig, weights: NDArray[np.float64], fps: float, name: str, *,
+              audio: str | None = None, fap_file: str | None = None) -> Path:
+    """Write the animated face to `path` (through a .part name), after checking it."""
+    path = Path(path)
+    data = glb_bytes(*gltf_document(rig, weights, fps, name, audio=audio, fap_file=fap_file))
+    check_glb_bytes(data, str(path))
+    tmp = path.with_name(path.name + ".part")
+    tmp.write_bytes(data)
+    os.replace(tmp, path)
+    return path
+
+
+def read_glb(path: str | PathLike[str]) -> tuple[dict[str, Any], bytes]:
+    """JSON and binary chunk of a .glb, checked."""
+    data = Path(path).read_bytes()
+    return check_glb_bytes(data, str(path))
+
+
+def accessor_array(doc: dict[str, Any], blob: bytes, index: int) -> NDArray[Any]:
+    """The data of accessor `index` as a (count, components) or (count,) array."""
+    acc = doc["accessors"][index]
+    ncomp = _COMPONENTS[acc["type"]]
+    dtype = {5120: np.int8, 5121: np.uint8, 5122: np.int16, 5123: np.uint16, 5125: np.uint32, 5126: np.float32}[
+        acc["componentType"]]
+    if "bufferView" not in acc:
+        return np.zeros((acc["count"], ncomp) if ncomp > 1 else acc["count"], dtype=dtype)
+    view = doc["bufferViews"][acc["bufferView"]]
+    start = view.get("byteOffset", 0) + acc.get("byteOffset", 0)
+    arr = np.frombuffer(blob, dtype=dtype, count=acc["count"] * ncomp, offset=start)
+    return arr.reshape(acc["count"], ncomp) if ncomp > 1 else arr
+
+
+def _fail(where: str, msg: str) -> GltfError:
+    return GltfError(f"{where}: {msg}")
+
+
+def check_glb_bytes(data: bytes, where: str = "<glb>") -> tuple[dict[str, Any], bytes]:
+    """Check a .glb against the glTF 2.0 rules this exporter relies on; GltfError names the first breach."""
+    if len(data) < 20:
+        raise _fail(where, f"{len(data)} bytes, too short for a GLB header")
+    magic, version, length = struct.unpack_from("<III", data, 0)
+    if magic != GLB_MAGIC or version != 2:
+        raise _fail(where, f"not a glTF 2.0 binary (magic {magic:#x}, version {version})")
+    if length != len(data):
+        raise _fail(where, f"header says {length} bytes, file has {len(data)}")
+    jlen, jtype = struct.unpack_from("<II", data, 12)
+    if jtype != CHUNK_JSON or jlen % 4 or 20 + jlen > len(data):
+        raise _fail(where, "first chunk must be JSON, 4-byte aligned, inside the file")
+    try:
+        doc = json.loads(data[20:20 + jlen].decode("utf-8"))
+    except (UnicodeDecodeError, json.JSONDecodeError) as err:
+        raise _fail(where, f"JSON chunk does not parse ({err})") from None
+    blob = b""
+    pos = 20 + jlen
+    if pos < len(data):
+        blen, btype = struct.unpack_from("<II", data, pos)
+        if btype != CHUNK_BIN or blen % 4 or pos + 8 + blen != len(data):
+            raise _fail(where, "second chunk must be BIN, 4-byte aligned, ending the file")
+        blob = data[pos + 8:pos + 8 + blen]
+    check_gltf(doc, blob, where)
+    return doc, blob
+
+
+def _index(doc: dict[str, Any], key: str, i: Any, where: str) -> dict[str, Any]:
+    items = doc.get(key, [])
+    if not isinstance(i, int) or not 0 <= i < len(items):
+        raise _fail(where, f"refers to {key}[{i}], which does not exist ({len(items)} defined)")
+    item: dict[str, Any] = items[i]
+    return item
+
+
+def check_gltf(doc: dict[str, Any], blob: bytes, where: str = "<gltf>") -> None:
+    """The structural rules of glTF 2.0 (§3, §5 of the specification) for what this exporter writes."""
+    if doc.get("asset", {}).get("version") != "2.0":
+        raise _fail(where, "asset.version must be '2.0'")
+    buffers = doc.get("buffers", [])
+    for i, buf in enumerate(buffers):
+        if "uri" not in buf and i != 0:
+            raise _fail(where, f"buffers[{i}] has no uri; only buffer 0 may be the GLB's BIN chunk")
+        if i == 0 and "uri" not in buf and not (buf["byteLength"] <= len(blob) <= buf["byteLength"] + 3):
+            raise _fail(where, f"buffers[0].byteLength {buf['byteLength']} does not match the BIN chunk ({len(blob)})")
+    for i, view in enumerate(doc.get("bufferViews", [])):
+        buf = _index(doc, "buffers", view.get("buffer"), f"{where}: bufferViews[{i}]")
+        end = view.get("byteOffset", 0) + view["byteLength"]
+        if view["byteLength"] < 1 or end > buf["byteLength"]:
+            raise _fail(where, f"bufferViews[{i}] bytes {view.get('byteOffset', 0)}..{end} outside buffer of {buf['byteLength']}")
+        if view.get("target") not in (None, ARRAY_BUFFER, ELEMENT_ARRAY_BUFFER):
+            raise _fail(where, f"bufferViews[{i}].target {view.get('target')} is not 34962 or 34963")
+    for i, acc in enumerate(doc.get("accessors", [])):
+        at = f"accessors[{i}]"
+        if acc.get("type") not in _COMPONENTS or acc.get("componentType") not in _SIZES:
+            raise _fail(where, f"{at}: type {acc.get('type')} / componentType {acc.get('componentType')} invalid")
+        if not isinstance(acc.get("count"), int) or acc["count"] < 1:
+            raise _fail(where, f"{at}: count must be >= 1")
+        size = _SIZES[acc["componentType"]]
+        elem = size * _COMPONENTS[acc["type"]]
+        if "bufferView" in acc:
+            view = _index(doc, "bufferViews", acc["bufferView"], f"{where}: {at}")
+            stride = view.get("byteStride", elem)
+            off = acc.get("byteOffset", 0)
+            if (view.get("byteOffset", 0) + off) % size:
+                raise _fail(where, f"{at}: data not aligned to its {size}-byte components")
+            if off + stride * (acc["count"] - 1) + elem > view["byteLength"]:
+                raise _fail(where, f"{at}: {acc['count']} elements overrun bufferViews[{acc['bufferView']}]")
+        for bound in ("min", "max"):
+            if bound in acc and len(acc[bound]) != _COMPONENTS[acc["type"]]:
+                raise _fail(where, f"{at}.{bound} has {len(acc[bound])} values for type {acc['type']}")
+        if "min" in acc and "max" in acc and blob:
+            arr = accessor_array(doc, blob, i).reshape(acc["count"], -1)
+            if not (np.allclose(arr.min(axis=0), acc["min"], rtol=0, atol=0)
+                    and np.allclose(arr.max(axis=0), acc["max"], rtol=0, atol=0)):
+                raise _fail(where, f"{at}: min/max do not match the data")
+    n_nodes = len(doc.get("nodes", []))
+    for i, scene in enumerate(doc.get("scenes", [])):
+        for n in scene.get("nodes", []):
+            _index(doc, "nodes", n, f"{where}: scenes[{i}]")
+    for m, mesh in enumerate(doc.get("meshes", [])):
+        n_targets = None
+        for p, prim in enumerate(mesh["primitives"]):
+            at = f"meshes[{m}].primitives[{p}]"
+            attrs = prim.get("attributes", {})
+            if "POSITION" not in attrs:
+                raise _fail(where, f"{at} has no POSITION")
+            pos = _index(doc, "accessors", attrs["POSITION"], f"{where}: {at}")
+            if pos["type"] != "VEC3" or pos["componentType"] != FLOAT or "min" not in pos or "max" not in pos:
+                raise _fail(where, f"{at}: POSITION must be float VEC3 with min and max")
+            counts = {_index(doc, "accessors", a, f"{where}: {at}.{k}")["count"] for k, a in attrs.items()}
+            if len(counts) != 1:
+                raise _fail(where, f"{at}: attributes have different counts {sorted(counts)}")
+            if "indices" in prim:
+                ind = _index(doc, "accessors", prim["indices"], f"{where}: {at}.indices")
+                if ind["type"] != "SCALAR" or ind["componentType"] not in (5121, UINT16, UINT32):
+                    raise _fail(where, f"{at}.indices must be unsigned SCALAR")
+                if ind["count"] % 3 and prim.get("mode", 4) == 4:
+                    raise _fail(where, f"{at}: {ind['count']} indices is not whole triangles")
+                if blob and int(accessor_array(doc, blob, prim["indices"]).max()) >= pos["count"]:
+                    raise _fail(where, f"{at}: an index is >= the vertex count {pos['count']}")
+            if "material" in prim:
+                _index(doc, "materials", prim["material"], f"{where}: {at}")
+            targets = prim.get("targets", [])
+            if n_targets is None:
+                n_targets = len(targets)
+            elif n_targets != len(targets):
+                raise _fail(where, f"{at}: {len(targets)} morph targets, primitive 0 has {n_targets}")
+            for t, target in enumerate(targets):
+                for k, a in target.items():
+                    acc = _index(doc, "accessors", a, f"{where}: {at}.targets[{t}].{k}")
+                    if acc["count"] != pos["count"]:
+                        raise _fail(where, f"{at}.targets[{t}].{k}: {acc['count']} elements for {pos['count']} vertices")
+                    if k == "POSITION" and ("min" not in acc or "max" not in acc):
+                        raise _fail(where, f"{at}.targets[{t}].POSITION needs min and max")
+        if "weights" in mesh and len(mesh["weights"]) != (n_targets or 0):
+            raise _fail(where, f"meshes[{m}].weights has {len(mesh['weights'])} values for {n_targets} targets")
+        names = mesh.get("extras", {}).get("targetNames")
+        if names is not None and len(names) != (n_targets or 0):
+            raise _fail(where, f"meshes[{m}].extras.targetNames has {len(names)} names for {n_targets} targets")
+    for a, anim in enumerate(doc.get("animations", [])):
+        samplers = anim.get("samplers", [])
+        seen = set()
+        for c, ch in enumerate(anim.get("channels", [])):
+            at = f"animations[{a}].channels[{c}]"
+            if not isinstance(ch.get("sampler"), int) or not 0 <= ch["sampler"] < len(samplers):
+                raise _fail(where, f"{at}: sampler {ch.get('sampler')} does not exist")
+            tgt = ch["target"]
+            key = (tgt.get("node"), tgt["path"])
+            if key in seen:
+                raise _fail(where, f"{at}: node {key[0]} path {key[1]} animated twice")
+            seen.add(key)
+            node = _index(doc, "nodes", tgt.get("node"), f"{where}: {at}")
+            sampler = samplers[ch["sampler"]]
+            t_in = _index(doc, "accessors", sampler["input"], f"{where}: {at}.input")
+            t_out = _index(doc, "accessors", sampler["output"], f"{where}: {at}.output")
+            if t_in["componentType"] != FLOAT or "min" not in t_in or "max" not in t_in:
+                raise _fail(where, f"{at}: sampler input must be float with min and max")
+            if blob:
+                times = accessor_array(doc, blob, sampler["input"])
+                if times.size > 1 and not (np.diff(times) > 0).all():
+                    raise _fail(where, f"{at}: sampler input times are not strictly increasing")
+                if times.min() < 0:
+                    raise _fail(where, f"{at}: negative time")
+            if tgt["path"] == "weights":
+                if "mesh" not in node:
+                    raise _fail(where, f"{at}: weights animated on node {tgt['node']} without a mesh")
+                nt = len(doc["meshes"][node["mesh"]]["primitives"][0].get("targets", []))
+                per_key = nt * (3 if sampler.get("interpolation") == "CUBICSPLINE" else 1)
+                if nt == 0 or t_out["count"] != t_in["count"] * per_key:
+                    raise _fail(where, f"{at}: {t_out['count']} weights for {t_in['count']} times × {nt} targets")
+            elif tgt["path"] not in ("translation", "rotation", "scale"):
+                raise _fail(where, f"{at}: unknown path {tgt['path']!r}")
+    if n_nodes and "scene" in doc:
+        _index(doc, "scenes", doc["scene"], f"{where}: scene")
+
+
+def write_face_glb(path: str | PathLike[str], faps: FapSequence, *, audio: str | None = None,
+                   fap_file: str | None = None) -> Path:
+    """The project's face played by a FAP sequence, as a .glb at `path` (the sequence's fps and name)."""
+    rig = default_rig()
+    return write_glb(path, rig, rig.weights(faps), faps.fps, faps.name, audio=audio, fap_file=fap_file)

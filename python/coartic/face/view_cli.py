@@ -1,0 +1,53 @@
+"""`coartic view OUT_DIR`: the page that plays a run's glTF face with its sound and channels."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Annotated
+
+import typer
+from rich.console import Console
+from rich.markup import escape
+
+from coartic.console import print_error
+from coartic.runtime.errors import AnimationError
+
+_err = Console(stderr=True)
+_out = Console()
+
+
+def view_command(
+    out_dir: Annotated[Path, typer.Argument(help="Output directory of coartic animate/speak run with --gltf.")],
+    name: Annotated[str | None, typer.Option("--name", help="Which NAME.glb, when the directory has several.")] = None,
+    serve: Annotated[bool, typer.Option("--serve", help="Serve the directory on 127.0.0.1 and wait (Ctrl-C stops).")] = False,
+    port: Annotated[int, typer.Option("--port", help="Port for --serve (0: any free port).")] = 8000,
+    screenshot: Annotated[Path | None, typer.Option("--screenshot", help="Also save a PNG of the page from headless Chromium.")] = None,
+    frame: Annotated[int | None, typer.Option("--frame", help="Frame shown in the screenshot (default 0).")] = None,
+    face_only: Annotated[int | None, typer.Option("--face-only", help="Screenshot only the face, N x N pixels.")] = None,
+) -> None:
+    """Write OUT_DIR/view.html: the face (glTF) playing with its WAV in sync, the channels and a cursor.
+
+    The page needs no network: open it from disk in a browser, or use --serve.
+    """
+    from coartic.face.viewer import make_server, screenshot as take_screenshot, write_page
+
+    try:
+        page = write_page(out_dir, name)
+        _out.print(f"viewer: {escape(str(page))}", highlight=False)
+        if screenshot is not None:
+            size = (face_only, face_only) if face_only else (1130, 580)
+            png = take_screenshot(page, screenshot, frame=frame, face_only=face_only, size=size)
+            _out.print(f"screenshot: {escape(str(png))}", highlight=False)
+        if serve:
+            server = make_server(out_dir, port)
+            host, used = str(server.server_address[0]), int(server.server_address[1])
+            _out.print(f"serving on http://{host}:{used}/{page.name} (Ctrl-C stops)", highlight=False)
+            try:
+                server.serve_forever()
+            except KeyboardInterrupt:
+                pass
+            finally:
+                server.server_close()
+    except AnimationError as err:
+        print_error(_err, err)
+        raise typer.Exit(code=1) from None

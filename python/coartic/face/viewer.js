@@ -1,0 +1,314 @@
+// coartic view: plays the face (.glb, morph-target weights animation) with its WAV and the channels.
+// A minimal WebGL2 renderer written for this one mesh: no library, nothing fetched from the network.
+// Data come from the page: window.COARTIC = {glb: base64, channels: {...}, segments: [...], audio, fps, name}.
+"use strict";
+
+function decodeBase64(b64) {
+  const bin = atob(b64);
+  const out = new Uint8Array(bin.length);
+  for (let i = 0; i < bin.length; i++) out[i] = bin.charCodeAt(i);
+  return out.buffer;
+}
+
+// --- glTF 2.0 binary: the parts of the format this face uses -------------------------------------
+const TYPES = {SCALAR: 1, VEC2: 2, VEC3: 3, VEC4: 4};
+const ARRAYS = {5121: Uint8Array, 5123: Uint16Array, 5125: Uint32Array, 5126: Float32Array};
+
+function parseGlb(buffer) {
+  const dv = new DataView(buffer);
+  if (dv.getUint32(0, true) !== 0x46546c67 || dv.getUint32(4, true) !== 2) throw new Error("not a glTF 2.0 binary");
+  const jsonLen = dv.getUint32(12, true);
+  const json = JSON.parse(new TextDecoder().decode(new Uint8Array(buffer, 20, jsonLen)));
+  const binStart = 20 + jsonLen + 8;
+  const binLen = dv.getUint32(20 + jsonLen, true);
+  const bin = buffer.slice(binStart, binStart + binLen);
+  function accessor(i) {
+    const a = json.accessors[i];
+    const n = a.count * TYPES[a.type];
+    const Arr = ARRAYS[a.componentType];
+    if (a.bufferView === undefined) return new Arr(n);  // glTF: no bufferView means zeros
+    const v = json.bufferViews[a.bufferView];
+    return new Arr(bin, (v.byteOffset || 0) + (a.byteOffset || 0), n);
+  }
+  return {json, accessor};
+}
+
+// One vertex array for all primitives (parts), base positions, colours, triangles, morph targets,
+// and the weights animation.
+function loadFace(buffer) {
+  const {json, accessor} = parseGlb(buffer);
+  const mesh = json.meshes[0];
+  const nTargets = mesh.primitives[0].targets ? mesh.primitives[0].targets.length : 0;
+  let nVerts = 0;
+  for (const p of mesh.primitives) nVerts += json.accessors[p.attributes.POSITION].count;
+  const base = new Float32Array(nVerts * 3);
+  const color = new Float32Array(nVerts * 3).fill(0.8);
+  const targets = [];
+  for (let k = 0; k < nTargets; k++) targets.push(new Float32Array(nVerts * 3));
+  const indices = [];
+  let offset = 0;
+  for (const p of mesh.primitives) {
+    const pos = accessor(p.attributes.POSITION);
+    base.set(pos, offset * 3);
+    if (p.attributes.COLOR_0 !== undefined) {
+      const c = accessor(p.attributes.COLOR_0);
+      const nc = TYPES[json.accessors[p.attributes.COLOR_0].type];
+      for (let i = 0; i < pos.length / 3; i++) for (let j = 0; j < 3; j++) color[(offset + i) * 3 + j] = c[i * nc + j];
+    }
+    for (let k = 0; k < nTargets; k++) targets[k].set(accessor(p.targets[k].POSITION), offset * 3);
+    const idx = accessor(p.indices);
+    for (let i = 0; i < idx.length; i++) indices.push(idx[i] + offset);
+    offset += pos.length / 3;
+  }
+  const anim = json.animations[0];
+  const ch = anim.channels.find(c => c.target.path === "weights");
+  const sampler = anim.samplers[ch.sampler];
+  const times = accessor(sampler.input);
+  const weights = accessor(sampler.output);
+  return {base, color, targets, indices: new Uint32Array(indices), times, weights, nTargets,
+          names: (mesh.extras && mesh.extras.targetNames) || [], extras: json.asset.extras || {}};
+}
+
+// Weights at time t: linear between keys, held outside (glTF LINEAR sampler).
+function weightsAt(face, t) {
+  const {times, weights, nTargets} = face;
+  const n = times.length;
+  const w = new Float32Array(nTargets);
+  let i = 0;
+  if (t <= times[0]) i = 0;
+  else if (t >= times[n - 1]) i = n - 1;
+  else {
+    let lo = 0, hi = n - 1;
+    while (hi - lo > 1) { const mid = (lo + hi) >> 1; if (times[mid] <= t) lo = mid; else hi = mid; }
+    const f = (t - times[lo]) / (times[hi] - times[lo]);
+    for (let k = 0; k < nTargets; k++) w[k] = (1 - f) * weights[lo * nTargets + k] + f * weights[hi * nTargets + k];
+    return w;
+  }
+  for (let k = 0; k < nTargets; k++) w[k] = weights[i * nTargets + k];
+  return w;
+}
+
+// --- rendering -------------------------------------------------------------------------------------
+const VS = `#version 300 es
+in vec3 position; in vec3 color;
+uniform mat4 mvp; out vec3 vPos; out vec3 vColor;
+void main() { vPos = position; vColor = color; gl_Position = mvp * vec4(position, 1.0); }`;
+// Flat shading from screen-space derivatives: the normal of each triangle as it is now, morphed.
+const FS = `#version 300 es
+precision highp float;
+in vec3 vPos; in vec3 vColor; uniform vec3 eye; out vec4 outColor;
+void main() {
+  vec3 n = normalize(cross(dFdx(vPos), dFdy(vPos)));
+  if (dot(n, eye - vPos) < 0.0) n = -n;
+  vec3 key = normalize(vec3(0.55, 0.65, 0.75)), fill = normalize(vec3(-0.7, 0.0, 0.5));
+  float light = 0.22 + 0.78 * max(dot(n, key), 0.0) + 0.2 * max(dot(n, fill), 0.0);
+  outColor = vec4(pow(vColor * light, vec3(1.0 / 2.2)), 1.0);
+}`;
+
+function compile(gl, type, src) {
+  const s = gl.createShader(type);
+  gl.shaderSource(s, src);
+  gl.compileShader(s);
+  if (!gl.getShaderParameter(s, gl.COMPILE_STATUS)) throw new Error(gl.getShaderInfoLog(s));
+  return s;
+}
+
+function perspective(fovy, aspect, near, far) {
+  const f = 1 / Math.tan(fovy / 2), nf = 1 / (near - far);
+  return [f / aspect, 0, 0, 0, 0, f, 0, 0, 0, 0, (far + near) * nf, -1, 0, 0, 2 * far * near * nf, 0];
+}
+function lookAt(eye, at, up) {
+  const sub = (a, b) => [a[0] - b[0], a[1] - b[1], a[2] - b[2]];
+  const norm = a => { const l = Math.hypot(a[0], a[1], a[2]); return [a[0] / l, a[1] / l, a[2] / l]; };
+  const cross = (a, b) => [a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]];
+  const dot = (a, b) => a[0] * b[0] + a[1] * b[1] + a[2] * b[2];
+  const z = norm(sub(eye, at)), x = norm(cross(up, z)), y = cross(z, x);
+  return [x[0], y[0], z[0], 0, x[1], y[1], z[1], 0, x[2], y[2], z[2], 0, -dot(x, eye), -dot(y, eye), -dot(z, eye), 1];
+}
+function multiply(a, b) {  // column-major 4x4: a * b
+  const o = new Array(16).fill(0);
+  for (let c = 0; c < 4; c++) for (let r = 0; r < 4; r++) for (let k = 0; k < 4; k++) o[c * 4 + r] += a[k * 4 + r] * b[c * 4 + k];
+  return o;
+}
+
+class FaceView {
+  constructor(canvas, face) {
+    this.canvas = canvas;
+    this.face = face;
+    const gl = canvas.getContext("webgl2", {antialias: true, preserveDrawingBuffer: true});
+    if (!gl) throw new Error("this browser has no WebGL2");
+    this.gl = gl;
+    const prog = gl.createProgram();
+    gl.attachShader(prog, compile(gl, gl.VERTEX_SHADER, VS));
+    gl.attachShader(prog, compile(gl, gl.FRAGMENT_SHADER, FS));
+    gl.linkProgram(prog);
+    if (!gl.getProgramParameter(prog, gl.LINK_STATUS)) throw new Error(gl.getProgramInfoLog(prog));
+    this.prog = prog;
+    this.positions = new Float32Array(face.base);
+    this.posBuf = gl.createBuffer();
+    gl.bindBuffer(gl.ARRAY_BUFFER, this.posBuf);
+    gl.bufferData(gl.ARRAY_BUFFER, this.positions, gl.DYNAMIC_DRAW);
+    this.vao = gl.createVertexArray();
+    gl.bindVertexArray(this.vao);
+    const locPos = gl.getAttribLocation(prog, "position");
+    gl.enableVertexAttribArray(locPos);
+    gl.vertexAttribPointer(locPos, 3, gl.FLOAT, false, 0, 0);
+    const colBuf = gl.createBuffer();
+    gl.bindBuffer(gl.ARRAY_BUFFER, colBuf);
+    gl.bufferData(gl.ARRAY_BUFFER, face.color, gl.STATIC_DRAW);
+    const locCol = gl.getAttribLocation(prog, "color");
+    gl.enableVertexAttribArray(locCol);
+    gl.vertexAttribPointer(locCol, 3, gl.FLOAT, false, 0, 0);
+    const idxBuf = gl.createBuffer();
+    gl.bindBuffer(gl.ELEMENT_ARRAY_BUFFER, idxBuf);
+    gl.bufferData(gl.ELEMENT_ARRAY_BUFFER, face.indices, gl.STATIC_DRAW);
+    this.yaw = 0.0;
+    this.pitch = 0.08;
+  }
+  draw(t) {
+    const {gl, face} = this;
+    const w = weightsAt(face, t);
+    const p = this.positions;
+    p.set(face.base);
+    for (let k = 0; k < face.nTargets; k++) {
+      const wk = w[k];
+      if (wk === 0) continue;
+      const d = face.targets[k];
+      for (let i = 0; i < p.length; i++) p[i] += wk * d[i];
+    }
+    gl.bindBuffer(gl.ARRAY_BUFFER, this.posBuf);
+    gl.bufferSubData(gl.ARRAY_BUFFER, 0, p);
+    const width = this.canvas.width, height = this.canvas.height;
+    gl.viewport(0, 0, width, height);
+    gl.clearColor(0.93, 0.94, 0.96, 1);
+    gl.clear(gl.COLOR_BUFFER_BIT | gl.DEPTH_BUFFER_BIT);
+    gl.enable(gl.DEPTH_TEST);
+    gl.useProgram(this.prog);
+    const dist = 0.5, at = [0, 0.02, 0.05];
+    const eye = [at[0] + dist * Math.sin(this.yaw) * Math.cos(this.pitch), at[1] + dist * Math.sin(this.pitch),
+                 at[2] + dist * Math.cos(this.yaw) * Math.cos(this.pitch)];
+    const mvp = multiply(perspective(0.52, width / height, 0.05, 2.0), lookAt(eye, at, [0, 1, 0]));
+    gl.uniformMatrix4fv(gl.getUniformLocation(this.prog, "mvp"), false, mvp);
+    gl.uniform3fv(gl.getUniformLocation(this.prog, "eye"), eye);
+    gl.bindVertexArray(this.vao);
+    gl.drawElements(gl.TRIANGLES, face.indices.length, gl.UNSIGNED_INT, 0);
+  }
+}
+
+// --- the channels plot -----------------------------------------------------------------------------
+const CH_COLORS = {ULO: "#1f77b4", LLO: "#2ca02c", ULP: "#9467bd", LLP: "#8c564b", LR: "#e377c2", JO: "#7f7f7f"};
+
+function drawPlot(canvas, data, t) {
+  const ctx = canvas.getContext("2d");
+  const W = canvas.width, H = canvas.height;
+  ctx.fillStyle = "#ffffff";
+  ctx.fillRect(0, 0, W, H);
+  const times = data.times, names = Object.keys(data.channels);
+  const t1 = data.duration, left = 44, right = 8, top = 8, band = (H - top - 28) / names.length;
+  const X = s => left + (W - left - right) * s / t1;
+  ctx.font = "11px sans-serif";
+  for (const seg of data.segments) {  // phoneme boundaries and labels
+    ctx.strokeStyle = "#dddddd";
+    ctx.beginPath(); ctx.moveTo(X(seg[0]), top); ctx.lineTo(X(seg[0]), H - 20); ctx.stroke();
+    ctx.fillStyle = "pbm".includes(seg[2]) ? "#b00020" : "#333333";
+    if (seg[2] !== "#") ctx.fillText(seg[2], X((seg[0] + seg[1]) / 2) - 3, H - 6);
+  }
+  names.forEach((name, j) => {
+    const y = data.channels[name];
+    let lo = Infinity, hi = -Infinity;
+    for (const v of y) { lo = Math.min(lo, v); hi = Math.max(hi, v); }
+    if (hi - lo < 1e-6) { hi += 0.5; lo -= 0.5; }
+    const y0 = top + j * band, Y = v => y0 + band - 3 - (band - 6) * (v - lo) / (hi - lo);
+    ctx.strokeStyle = CH_COLORS[name] || "#000";
+    ctx.lineWidth = 1.5;
+    ctx.beginPath();
+    y.forEach((v, i) => (i ? ctx.lineTo(X(times[i]), Y(v)) : ctx.moveTo(X(times[i]), Y(v))));
+    ctx.stroke();
+    ctx.fillStyle = CH_COLORS[name] || "#000";
+    ctx.fillText(name, 4, y0 + band / 2 + 4);
+  });
+  ctx.strokeStyle = "#d62728";  // cursor
+  ctx.lineWidth = 2;
+  ctx.beginPath(); ctx.moveTo(X(t), top); ctx.lineTo(X(t), H - 20); ctx.stroke();
+}
+
+// --- the page ----------------------------------------------------------------------------------------
+function start() {
+  const data = window.COARTIC;
+  const face = loadFace(decodeBase64(data.glb));
+  const fps = data.fps;
+  const nFrames = face.times.length;
+  const params = new URLSearchParams(window.location.search);
+  // ?face=N: only the face, on an N x N canvas at the page's top left (screenshots, tests)
+  const faceOnly = params.has("face");
+  const canvas = document.getElementById("face");
+  const plot = document.getElementById("plot");
+  if (faceOnly) {
+    document.body.classList.add("face-only");
+    const n = Math.max(64, Math.min(4096, Number(params.get("face")) || 400));
+    canvas.width = canvas.height = n;
+    canvas.style.width = canvas.style.height = `${n}px`;
+  }
+  const view = new FaceView(canvas, face);
+  const audio = document.getElementById("audio");
+  const slider = document.getElementById("frame");
+  const label = document.getElementById("time");
+  const button = document.getElementById("play");
+  slider.max = String(nFrames - 1);
+  let playing = false, clockStart = 0, t = 0;
+  function show(time) {
+    t = Math.max(0, Math.min(time, (nFrames - 1) / fps));
+    view.draw(t);
+    if (!faceOnly) drawPlot(plot, data, t);
+    const k = Math.round(t * fps);
+    slider.value = String(k);
+    label.textContent = `${t.toFixed(3)} s  frame ${k} / ${nFrames - 1}`;
+    document.body.dataset.frame = String(k);
+  }
+  function tick() {
+    if (!playing) return;
+    // the sound is the clock: the face follows audio.currentTime, so picture and voice stay together
+    const now = data.audio ? audio.currentTime : (performance.now() - clockStart) / 1000;
+    show(now);
+    if (now >= (nFrames - 1) / fps || (data.audio && audio.ended)) { stop(); return; }
+    requestAnimationFrame(tick);
+  }
+  function play() {
+    if (t >= (nFrames - 1) / fps - 1e-9) t = 0;
+    playing = true;
+    button.textContent = "pause";
+    if (data.audio) { audio.currentTime = t; audio.play().catch(() => stop()); }
+    else clockStart = performance.now() - t * 1000;
+    requestAnimationFrame(tick);
+  }
+  function stop() { playing = false; button.textContent = "play"; if (data.audio) audio.pause(); }
+  button.addEventListener("click", () => (playing ? stop() : play()));
+  slider.addEventListener("input", () => { stop(); show(Number(slider.value) / fps); if (data.audio) audio.currentTime = t; });
+  document.getElementById("prev").addEventListener("click", () => { stop(); show((Math.round(t * fps) - 1) / fps); });
+  document.getElementById("next").addEventListener("click", () => { stop(); show((Math.round(t * fps) + 1) / fps); });
+  let drag = null;
+  canvas.addEventListener("pointerdown", e => { drag = [e.clientX, e.clientY, view.yaw, view.pitch]; });
+  window.addEventListener("pointerup", () => { drag = null; });
+  window.addEventListener("pointermove", e => {
+    if (!drag) return;
+    view.yaw = drag[2] - (e.clientX - drag[0]) * 0.01;
+    view.pitch = Math.max(-1.2, Math.min(1.2, drag[3] + (e.clientY - drag[1]) * 0.01));
+    show(t);
+  });
+  plot.addEventListener("click", e => {
+    const r = plot.getBoundingClientRect();
+    const s = (e.clientX - r.left - 44) / (r.width - 52) * data.duration;
+    stop(); show(s);
+  });
+  if (params.has("yaw")) view.yaw = Number(params.get("yaw"));
+  show(params.has("frame") ? Number(params.get("frame")) / fps : params.has("t") ? Number(params.get("t")) : 0);
+  window.coarticView = {show, play, stop, nFrames, fps};
+  document.title = `${data.name} - coartic view`;
+}
+
+window.addEventListener("load", () => {
+  try { start(); } catch (err) {
+    document.getElementById("error").textContent = "coartic view: " + err.message;
+    throw err;
+  }
+});

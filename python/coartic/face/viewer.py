@@ -1,0 +1,215 @@
+"""`coartic view OUT_DIR`: a static page that plays the face's glTF with its WAV, and the channels.
+
+The page (OUT_DIR/view.html) holds everything but the sound: the .glb (base64), the channels and
+the segments (JSON), and viewer.js, a small WebGL2 renderer written for this mesh. It needs no
+network and no library; it opens from disk, or from `coartic view OUT_DIR --serve` on localhost.
+The WAV is played by an <audio> element and is the clock: the face shows the weights at the
+sound's current time, so picture and voice stay in sync.
+
+`screenshot` runs a headless Chromium (Debian's `chromium`) on the page at a chosen frame: the
+README's figure and the viewer's test come from it.
+"""
+
+from __future__ import annotations
+
+import base64
+import functools
+import html
+import http.server
+import json
+import os
+import shutil
+import subprocess
+import tempfile
+import urllib.parse
+from collections.abc import Sequence
+from dataclasses import dataclass
+from importlib import resources
+from pathlib import Path
+from typing import Any
+
+from coartic.face.gltf import read_glb
+from coartic.runtime.animate import read_channels_csv
+from coartic.runtime.errors import AnimationError
+
+PAGE_NAME = "view.html"
+CHROMIUM_NAMES = ("chromium", "chromium-browser", "google-chrome", "google-chrome-stable")
+
+
+@dataclass(frozen=True)
+class ViewerInput:
+    """What a run left in its output directory for the viewer."""
+
+    glb: Path
+    channels: Path
+    segments: Path
+    audio: Path | None
+
+
+def find_inputs(out_dir: str | os.PathLike[str], name: str | None = None) -> ViewerInput:
+    """The glTF (NAME.glb, or the only .glb), channels.csv, segments.tsv and the WAV the glTF names."""
+    out = Path(out_dir)
+    if not out.is_dir():
+        raise AnimationError(f"{out}: not a directory (give the --out directory of coartic animate or speak)")
+    if name is not None:
+        glb = out / f"{name}.glb"
+        if not glb.is_file():
+            raise AnimationError(f"{glb}: no such glTF file")
+    else:
+        found = sorted(out.glob("*.glb"))
+        if not found:
+            raise AnimationError(f"{out}: no .glb file; run coartic animate or speak with --gltf and --out {out}")
+        if len(found) > 1:
+            raise AnimationError(f"{out}: several .glb files ({', '.join(p.name for p in found)}); choose one with --name")
+        glb = found[0]
+    for need in ("channels.csv", "segments.tsv"):
+        if not (out / need).is_file():
+            raise AnimationError(f"{out / need}: missing (written by coartic animate or speak with the .glb)")
+    doc, _ = read_glb(glb)
+    audio_name = (doc.get("asset", {}).get("extras") or {}).get("audio")
+    audio = None
+    if audio_name:
+        audio = out / str(audio_name)
+        if Path(str(audio_name)).name != audio_name or not audio.is_file():
+            raise AnimationError(f"{glb}: its sound {audio_name!r} is not in {out}")
+    return ViewerInput(glb=glb, channels=out / "channels.csv", segments=out / "segments.tsv", audio=audio)
+
+
+def _segments(path: Path) -> list[tuple[float, float, str]]:
+    rows = path.read_text(encoding="utf-8").splitlines()
+    out = []
+    for lineno, row in enumerate(rows[1:], start=2):
+        cols = row.split("\t")
+        try:
+            out.append((float(cols[0]), float(cols[1]), cols[2]))
+        except (ValueError, IndexError):
+            raise AnimationError(f"{path}, line {lineno}: expected 'start end phoneme ...'") from None
+    return out
+
+
+def _script_json(value: Any) -> str:
+    # inside <script>, "</" would end the element: JSON allows "<\/" for it
+    return json.dumps(value, separators=(",", ":")).replace("</", "<\\/")
+
+
+def page_html(inputs: ViewerInput) -> str:
+    """The viewer page for `inputs`, as text."""
+    doc, _ = read_glb(inputs.glb)
+    extras = doc["asset"].get("extras") or {}
+    times, channels = read_channels_csv(inputs.channels)
+    fps = float(extras.get("fps", 25.0))
+    name = doc["scenes"][0].get("name", inputs.glb.stem)
+    data = {
+        "glb": base64.b64encode(inputs.glb.read_bytes()).decode("ascii"),
+        "name": name,
+        "fps": fps,
+        "audio": inputs.audio.name if inputs.audio else None,
+        "times": [round(float(t), 6) for t in times],
+        "duration": float(times[-1]) if times.size > 1 else 1.0 / fps,
+        "channels": {c: [round(float(v), 4) for v in y] for c, y in channels.items()},
+        "segments": _segments(inputs.segments),
+    }
+    js = resources.files("coartic.face").joinpath("viewer.js").read_text(encoding="utf-8")
+    audio_tag = (f'<audio id="audio" preload="auto" src="{html.escape(urllib.parse.quote(inputs.audio.name))}"></audio>'
+                 if inputs.audio else '<audio id="audio"></audio>')
+    title = html.escape(f"{name} - coartic view")
+    return f"""<!DOCTYPE html>
+<html lang="en"><head><meta charset="utf-8"><title>{title}</title>
+<style>
+body {{ font-family: sans-serif; margin: 12px; background: #f6f6f8; color: #222; }}
+#row {{ display: flex; gap: 14px; align-items: flex-start; }}
+#face {{ background: #eef0f4; border: 1px solid #ccc; }}
+#plot {{ border: 1px solid #ccc; cursor: pointer; }}
+#controls {{ margin-top: 8px; display: flex; gap: 8px; align-items: center; }}
+#frame {{ width: 360px; }}
+#error {{ color: #b00020; }}
+body.face-only {{ margin: 0; overflow: hidden; }}
+body.face-only #side, body.face-only h1 {{ display: none; }}
+body.face-only #face {{ border: 0; position: fixed; left: 0; top: 0; }}
+</style></head>
+<body>
+<h1 style="font-size:18px">{html.escape(name)}</h1>
+<div id="row">
+<canvas id="face" width="520" height="520"></canvas>
+<div id="side">
+<canvas id="plot" width="560" height="400"></canvas>
+<div id="controls"><button id="play">play</button><button id="prev">&lt;</button><button id="next">&gt;</button>
+<input id="frame" type="range" min="0" max="0" step="1" value="0"><span id="time"></span></div>
+<p style="font-size:12px;color:#555">Drag the face to turn it; click the plot to jump. The sound sets the time.</p>
+<div id="error"></div>
+</div></div>
+{audio_tag}
+<script>window.COARTIC = {_script_json(data)};</script>
+<script>{js}</script>
+</body></html>
+"""
+
+
+def write_page(out_dir: str | os.PathLike[str], name: str | None = None) -> Path:
+    """Write OUT_DIR/view.html (through a .part name) and return its path."""
+    inputs = find_inputs(out_dir, name)
+    page = Path(out_dir) / PAGE_NAME
+    tmp = page.with_name(page.name + ".part")
+    tmp.write_text(page_html(inputs), encoding="utf-8")
+    os.replace(tmp, page)
+    return page
+
+
+def chromium_program() -> str:
+    for prog in CHROMIUM_NAMES:
+        found = shutil.which(prog)
+        if found:
+            return found
+    raise AnimationError("no Chromium on PATH (Debian package 'chromium'; scripts/setup.sh installs it)")
+
+
+def screenshot(page: str | os.PathLike[str], png: str | os.PathLike[str], *, frame: int | None = None,
+               face_only: int | None = None, size: tuple[int, int] = (1130, 580), yaw: float | None = None,
+               timeout: float = 60.0) -> Path:
+    """A PNG of `page` at `frame` (or its first frame) from a headless Chromium with software WebGL.
+
+    `face_only=N` shows only the face, on an N x N canvas at the top left.
+    """
+    query: dict[str, str] = {}
+    if frame is not None:
+        query["frame"] = str(int(frame))
+    if face_only is not None:
+        query["face"] = str(int(face_only))
+    if yaw is not None:
+        query["yaw"] = repr(float(yaw))
+    url = Path(page).resolve().as_uri() + ("?" + urllib.parse.urlencode(query) if query else "")
+    png = Path(png)
+    with tempfile.TemporaryDirectory(prefix="coartic-chromium-") as profile:
+        shot = Path(profile) / "shot.png"
+        cmd: Sequence[str] = [
+            chromium_program(), "--headless", "--no-sandbox", "--disable-gpu", "--use-angle=swiftshader",
+            "--enable-unsafe-swiftshader", "--hide-scrollbars", "--no-first-run", "--mute-audio",
+            f"--user-data-dir={profile}", f"--window-size={size[0]},{size[1]}", "--virtual-time-budget=5000",
+            f"--screenshot={shot}", url,
+        ]
+        try:
+            proc = subprocess.run(cmd, capture_output=True, timeout=timeout)
+        except subprocess.TimeoutExpired:
+            raise AnimationError(f"Chromium did not finish the screenshot of {page} within {timeout:g} s") from None
+        if proc.returncode != 0 or not shot.is_file():
+            tail = proc.stderr.decode("utf-8", "replace").strip().splitlines()[-3:]
+            raise AnimationError(f"Chromium failed on {page} (exit {proc.returncode}): {' | '.join(tail)}")
+        png.parent.mkdir(parents=True, exist_ok=True)
+        tmp = png.with_name(png.name + ".part")
+        shutil.copyfile(shot, tmp)
+        os.replace(tmp, png)
+    return png
+
+
+class _Handler(http.server.SimpleHTTPRequestHandler):
+    def log_message(self, format: str, *args: Any) -> None:  # noqa: A002 - the base class's name
+        pass  # one line per request would bury the URL the user needs
+
+
+def make_server(out_dir: str | os.PathLike[str], port: int = 8000) -> http.server.ThreadingHTTPServer:
+    """An HTTP server for OUT_DIR on 127.0.0.1 only (port 0: any free port); the caller runs it."""
+    handler = functools.partial(_Handler, directory=str(Path(out_dir).resolve()))
+    try:
+        return http.server.ThreadingHTTPServer(("127.0.0.1", port), handler)
+    except OSError as err:
+        raise AnimationError(f"cannot serve on 127.0.0.1:{port} ({err.strerror}); try another --port") from None

@@ -1,0 +1,238 @@
+"""The parameters of one channel's fit, lmfit-style: per phoneme and parameter its value, whether it
+is free, its bounds, its prior and (after a fit) its standard error.
+
+``ParameterSet.from_spec`` is where a fit spec becomes numbers (the one place: least squares, MCMC
+and the report all start from it); ``packing()`` gives the engines' view (``coartic.fit.problem.
+Packing``: the free entries as an internal vector x), and ``ChannelFit.parameters`` the fitted set
+with standard errors, which ``parameters.csv`` and ``fit_report.txt`` print.
+
+A setting the spec makes is honoured or refused, never dropped: a global ``[parameters.bounds]
+target`` replaces the data range, a ``target`` start replaces the data targets, and a start the
+spec gives outside its bounds is an error naming the key (a default start outside bounds the spec
+narrowed starts on the nearest bound).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import TYPE_CHECKING, Iterator, Mapping
+
+import numpy as np
+from numpy.typing import NDArray
+
+from coartic.fit.spec import FitSpec, SpecError
+from coartic.table import N_PARAMS, PARAMETERS
+
+if TYPE_CHECKING:
+    from coartic.fit.problem import ChannelData, Packing
+
+FloatArray = NDArray[np.float64]
+BoolArray = NDArray[np.bool_]
+# Parameters that the original model (eq. 1) ignores: never free there.
+MODIFIED_ONLY: frozenset[str] = frozenset({"k_r", "sigma", "psi"})
+BETA = "beta"
+
+
+@dataclass(frozen=True)
+class Parameter:
+    """One entry: ``phoneme`` is ``"*"`` for the channel's β."""
+
+    phoneme: str
+    parameter: str
+    value: float
+    free: bool
+    lower: float
+    upper: float
+    prior: tuple[float, float] | None = None  # Gaussian (mean, sd) on the natural value
+    stderr: float = math.nan  # after a fit; NaN when fixed or not identified
+    at_bound: bool = False
+    identified: bool = True
+
+    @property
+    def name(self) -> str:
+        return BETA if self.parameter == BETA else f"{self.phoneme}.{self.parameter}"
+
+
+class ParameterSet(Mapping[str, Parameter]):
+    """Every parameter of one channel, keyed ``"phoneme.parameter"`` (and ``"beta"``).
+
+    ``matrix`` (the values), ``free``, ``lower``, ``upper`` are ``[n_phonemes, 10]`` in
+    ``PARAMETERS`` column order, rows in ``phonemes`` order.
+    """
+
+    def __init__(self, channel: str, phonemes: tuple[str, ...], matrix: FloatArray, free: BoolArray,
+                 lower: FloatArray, upper: FloatArray, beta: float, beta_free: bool,
+                 beta_bounds: tuple[float, float], priors: Mapping[str, tuple[float, float]] | None = None,
+                 stderr: Mapping[str, float] | None = None, at_bound: frozenset[str] = frozenset(),
+                 unidentified: frozenset[str] = frozenset(),
+                 origins: NDArray[np.object_] | None = None) -> None:
+        self.channel = channel
+        self.phonemes = phonemes
+        self.matrix, self.free, self.lower, self.upper = matrix, free, lower, upper
+        self.beta, self.beta_free, self.beta_bounds = float(beta), bool(beta_free), beta_bounds
+        self.priors = dict(priors or {})
+        self.stderr = dict(stderr or {})
+        self.at_bound, self.unidentified = at_bound, unidentified
+        # [n_phonemes, 10]: the spec key each value came from ("" for defaults, data, start
+        # tables), so that a value the model refuses is named by its key (ChannelProblem.explain).
+        self.origins = origins
+
+    # ------------------------------------------------------------------ Mapping
+    def _names(self) -> list[str]:
+        return [f"{p}.{q}" for p in self.phonemes for q in PARAMETERS] + [BETA]
+
+    def __iter__(self) -> Iterator[str]:
+        return iter(self._names())
+
+    def __len__(self) -> int:
+        return len(self.phonemes) * N_PARAMS + 1
+
+    def __getitem__(self, name: str) -> Parameter:
+        def extra(nm: str) -> dict[str, object]:
+            return {"prior": self.priors.get(nm), "stderr": self.stderr.get(nm, math.nan),
+                    "at_bound": nm in self.at_bound, "identified": nm not in self.unidentified}
+
+        if name == BETA:
+            lo, hi = self.beta_bounds if self.beta_free else (self.beta, self.beta)
+            return Parameter("*", BETA, self.beta, self.beta_free, lo, hi, **extra(name))  # type: ignore[arg-type]
+        phoneme, _, parameter = name.rpartition(".")
+        if phoneme not in self.phonemes or parameter not in PARAMETERS:
+            raise KeyError(name)
+        i, k = self.phonemes.index(phoneme), PARAMETERS.index(parameter)
+        return Parameter(phoneme, parameter, float(self.matrix[i, k]), bool(self.free[i, k]),
+                         float(self.lower[i, k]), float(self.upper[i, k]), **extra(name))  # type: ignore[arg-type]
+
+    @property
+    def n_free(self) -> int:
+        return int(self.free.sum()) + int(self.beta_free)
+
+    # ------------------------------------------------------------------ building
+    @classmethod
+    def from_spec(cls, spec: FitSpec, data: ChannelData,
+                  start: tuple[FloatArray, float] | None = None) -> ParameterSet:
+        """Free set, bounds, priors and starting values of one channel from the spec.
+
+        Targets start at the mean observed value at each phoneme's segment midpoints (a good start
+        for the targets-first stage) unless the spec gives a ``target`` start; the rest from
+        ``[parameters.start]`` and the overrides, or from ``start`` (a start table's matrix and β).
+        The reference phoneme has α fixed at 1 (MODEL.md §1: α is scale-free).
+        """
+        ch, phon = data.channel, data.phonemes
+        n = len(phon)
+        free = np.zeros((n, N_PARAMS), dtype=bool)
+        for k, p in enumerate(PARAMETERS):
+            free[:, k] = p in spec.free and not (spec.variant == "original" and p in MODIFIED_ONLY)
+        inf = (-np.inf, np.inf)
+        lower = np.array([spec.bounds.get(p, inf)[0] for p in PARAMETERS])[None, :].repeat(n, 0)
+        upper = np.array([spec.bounds.get(p, inf)[1] for p in PARAMETERS])[None, :].repeat(n, 0)
+        if "target" not in spec.bounds:  # no global target box: the data range, widened
+            valid_y = data.observed[data.weights > 0]
+            lower[:, 0] = float(valid_y.min()) - spec.target_margin
+            upper[:, 0] = float(valid_y.max()) + spec.target_margin
+        for p, (lo, hi) in spec.channel_bounds.get(ch, {}).items():
+            k = PARAMETERS.index(p)
+            lower[:, k], upper[:, k] = lo, hi
+
+        # Where each start value came from: a spec key (checked against the bounds) or "" (a
+        # default, the data or a start table: moved onto the nearest bound if outside).
+        origin = np.full((n, N_PARAMS), "", dtype=object)
+        if start is not None:
+            base, beta = np.array(start[0], dtype=np.float64), float(start[1])
+        else:
+            base = np.array([spec.start[p] for p in PARAMETERS], dtype=np.float64)[None, :].repeat(n, 0)
+            for k, p in enumerate(PARAMETERS):
+                if p in spec.start_given:
+                    origin[:, k] = f"parameters.start.{p}"
+            if "target" not in spec.start_given:
+                base[:, 0] = data_targets(data)
+            beta = spec.beta
+
+        for j, o in enumerate(spec.overrides):
+            for i, p in enumerate(phon):
+                if not o.applies(p, ch):
+                    continue
+                for name, (lo, hi) in o.bounds.items():
+                    k = PARAMETERS.index(name)
+                    lower[i, k], upper[i, k] = lo, hi
+                for name, val in o.start.items():
+                    k = PARAMETERS.index(name)
+                    base[i, k] = val
+                    if start is None:
+                        origin[i, k] = f"override #{j + 1}.start.{name}"
+                for name in o.free:
+                    free[i, PARAMETERS.index(name)] = True
+                for name, val in o.fixed.items():
+                    k = PARAMETERS.index(name)
+                    # named (for errors) but never checked against bounds: a fixed value is not free
+                    base[i, k], free[i, k], origin[i, k] = val, False, f"override #{j + 1}.fixed.{name}"
+
+        if spec.reference_phoneme not in phon:
+            raise SpecError(f"{spec.path}: [model.reference_phoneme] {spec.reference_phoneme!r} does not occur in "
+                            f"the {ch} data (phonemes: {' '.join(phon)})")
+        r = phon.index(spec.reference_phoneme)
+        ka = PARAMETERS.index("alpha")
+        free[r, ka], base[r, ka] = False, 1.0
+
+        bad = lower > upper
+        if bad.any():
+            i, k = map(int, np.argwhere(bad)[0])
+            raise SpecError(f"{spec.path}: bounds of {phon[i]}.{PARAMETERS[k]} on {ch}: "
+                            f"low {lower[i, k]} > high {upper[i, k]}")
+        outside = free & ((base < lower) | (base > upper)) & (origin != "")
+        if outside.any():
+            i, k = map(int, np.argwhere(outside)[0])
+            raise SpecError(f"{spec.path}: [{origin[i, k]}] start {base[i, k]:g} of {phon[i]}.{PARAMETERS[k]} on {ch} "
+                            f"is outside its bounds [{lower[i, k]:g}, {upper[i, k]:g}]")
+        # A default (or data, or start-table) value outside a box starts on its nearest bound.
+        base = np.where(free, np.clip(base, lower, upper), base)
+        beta_free = spec.fit_beta and spec.variant == "modified"
+        beta = float(np.clip(beta, *spec.beta_bounds)) if beta_free else beta
+        return cls(ch, tuple(phon), base, free, lower, upper, beta, beta_free, spec.beta_bounds, origins=origin)
+
+    def packing(self) -> Packing:
+        """The engines' view: the free entries, their bounds and the transform to x."""
+        from coartic.fit.problem import Packing
+
+        return Packing(self.phonemes, self.free.copy(), self.beta_free, self.lower.copy(), self.upper.copy(),
+                       self.beta_bounds, self.matrix.copy(), self.beta, self.origins)
+
+    @classmethod
+    def from_packing(cls, channel: str, packing: Packing, names: list[str] | None = None,
+                     stderr: FloatArray | None = None, at_bound: list[str] | None = None,
+                     unidentified: list[str] | None = None) -> ParameterSet:
+        """The set a packing holds (its base values), with a fit's standard errors by free name."""
+        se = dict(zip(names, map(float, stderr))) if names is not None and stderr is not None else {}
+        return cls(channel, tuple(packing.phonemes), packing.base.copy(), packing.free.copy(), packing.lower.copy(),
+                   packing.upper.copy(), packing.base_beta, packing.beta_free, packing.beta_bounds, stderr=se,
+                   at_bound=frozenset(at_bound or ()), unidentified=frozenset(unidentified or ()))
+
+    # ------------------------------------------------------------------ output
+    def rows(self) -> list[dict[str, object]]:
+        """One row per parameter (β only when free): what ``parameters.csv`` holds."""
+        out: list[dict[str, object]] = []
+        for name in self:
+            p = self[name]
+            if p.parameter == BETA and not p.free:
+                continue
+            out.append({"channel": self.channel, "phoneme": p.phoneme, "parameter": p.parameter, "value": p.value,
+                        "stderr": p.stderr if p.free else "", "free": p.free, "lower": p.lower, "upper": p.upper,
+                        "at_bound": p.at_bound, "unidentified": not p.identified})
+        return out
+
+
+def data_targets(data: ChannelData) -> FloatArray:
+    """Mean observed value at the segment midpoints of each phoneme (its acoustic centre)."""
+    sums = np.zeros(len(data.phonemes))
+    counts = np.zeros(len(data.phonemes))
+    row = {p: i for i, p in enumerate(data.phonemes)}
+    for u, utt in enumerate(data.utterances):
+        sl = data.utterance_samples(u)
+        y, w = data.observed[sl], data.weights[sl]
+        for lab, s, e in zip(utt.labels, utt.starts, utt.ends):
+            j = int(np.clip(np.searchsorted(utt.times, 0.5 * (s + e)), 0, len(utt.times) - 1))
+            if w[j] > 0:
+                sums[row[lab]] += y[j]
+                counts[row[lab]] += 1
+    fallback = float(np.average(data.observed, weights=data.weights))
+    return np.where(counts > 0, sums / np.maximum(counts, 1), fallback)

@@ -1,0 +1,250 @@
+"""glTF 2.0 export of the animated face: structure, validation, read-back (coartic.face.gltf) and the
+runtime's --gltf, --audio, --fap-name and frame-rate warnings."""
+
+from __future__ import annotations
+
+import shutil
+import subprocess
+import wave
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pygltflib
+import pytest
+from typer.testing import CliRunner
+
+from coartic.cli import app
+from coartic.face.deform import TARGET_NAMES, default_rig
+from coartic.face.gltf import GltfError, accessor_array, check_glb_bytes, glb_bytes, read_glb, write_face_glb
+from coartic.face.mesh import PART_NAMES
+from coartic.runtime.fap import read_fap
+from coartic.runtime.festival import wav_duration
+
+GROUND_TRUTH = Path(__file__).resolve().parents[2] / "corpus-synthetic" / "ground_truth.json"
+LABELS = "start\tend\tlabel\n0.0\t0.20\t#\n0.20\t0.36\ta\n0.36\t0.44\tp\n0.44\t0.60\ta\n0.60\t0.68\tm\n0.68\t0.86\ta\n0.86\t1.00\t#\n"
+
+
+def write_wav(path: Path, seconds: float, rate: int = 16000) -> Path:
+    t = np.arange(int(seconds * rate)) / rate
+    samples = (8000 * np.sin(2 * np.pi * 220 * t)).astype("<i2")
+    with wave.open(str(path), "wb") as w:
+        w.setnchannels(1)
+        w.setsampwidth(2)
+        w.setframerate(rate)
+        w.writeframes(samples.tobytes())
+    return path
+
+
+@pytest.fixture(scope="module")
+def run(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """`coartic animate LABELS --audio WAV --fap-name base --gltf` once for the module."""
+    tmp = tmp_path_factory.mktemp("gltf")
+    labels = tmp / "apama.tsv"
+    labels.write_text(LABELS)
+    wav = write_wav(tmp / "recording.wav", 1.1)
+    out = tmp / "out"
+    res = CliRunner().invoke(app, ["animate", str(labels), "--table", str(GROUND_TRUTH), "--out", str(out),
+                                   "--preview", "none", "--audio", str(wav), "--fap-name", "base", "--gltf"])
+    assert res.exit_code == 0, res.output
+    return out
+
+
+def test_animate_writes_fap_wav_and_glb_under_one_name(run: Path) -> None:
+    assert {"base.fap", "base.wav", "base.glb"} <= {p.name for p in run.iterdir()}
+    assert not list(run.glob("*.part"))
+    faps = read_fap(run / "base.fap")
+    assert faps.name == "base"
+    # the animation lasts as long as the recording, not the labels (1.0 s)
+    assert faps.n_frames == round(wav_duration(run / "base.wav") * 25) == 28
+    doc, _ = read_glb(run / "base.glb")
+    assert doc["asset"]["extras"]["audio"] == "base.wav"
+    assert doc["asset"]["extras"]["fap_file"] == "base.fap"
+    assert doc["asset"]["extras"]["fps"] == 25.0
+
+
+def test_glb_reads_back_with_pygltflib(run: Path) -> None:
+    """An independent reader sees one mesh with a primitive per part, a morph target per FAP (and
+    two for the jaw), and a weights animation that reproduces the face of every frame."""
+    g = pygltflib.GLTF2().load(str(run / "base.glb"))
+    assert g.asset.version == "2.0"
+    (mesh,) = g.meshes
+    assert [p.extras["part"] for p in mesh.primitives] == list(PART_NAMES)
+    assert mesh.extras["targetNames"] == list(TARGET_NAMES)
+    assert all(len(p.targets) == len(TARGET_NAMES) for p in mesh.primitives)
+    (anim,) = g.animations
+    (channel,) = anim.channels
+    assert channel.target.path == "weights" and channel.target.node == 0
+    sampler = anim.samplers[channel.sampler]
+    assert sampler.interpolation == "LINEAR"
+    blob = g.binary_blob()
+    doc: dict[str, Any] = g.to_dict()
+    times = accessor_array(doc, blob, sampler.input)
+    weights = accessor_array(doc, blob, sampler.output).reshape(times.size, len(TARGET_NAMES))
+    faps = read_fap(run / "base.fap")
+    np.testing.assert_allclose(times, np.arange(faps.n_frames) / 25.0, rtol=0, atol=1e-6)
+    rig = default_rig()
+    expected = rig.weights(faps)
+    np.testing.assert_allclose(weights, expected, atol=1e-6)
+    # the skin at the /a/ of 0.28 s, rebuilt from the file: base positions + Σ weight × target (metres)
+    skin = mesh.primitives[0]
+    k = 7
+    pos = accessor_array(doc, blob, skin.attributes.POSITION).astype(float)
+    for j, target in enumerate(skin.targets):
+        pos += weights[k, j] * accessor_array(doc, blob, target["POSITION"])
+    want = rig.pose(expected[k])[rig.mesh.in_part("skin")] * 0.001
+    np.testing.assert_allclose(pos, want, atol=2e-7)
+    # and the lips are apart there (upper minus lower copy on the cut, mm)
+    slit = rig.mesh.slit
+    assert (pos[slit[:, 0], 1] - pos[slit[:, 1], 1]).max() * 1000 > 8.0
+
+
+def test_glb_passes_gltfpack_validation(run: Path, tmp_path: Path) -> None:
+    """Debian's gltfpack loads through cgltf's validator and refuses invalid files (checked below)."""
+    if shutil.which("gltfpack") is None:
+        pytest.skip("gltfpack (Debian package, installed by scripts/setup.sh) is not on PATH")
+    ok = subprocess.run(["gltfpack", "-i", str(run / "base.glb"), "-o", str(tmp_path / "ok.glb")],
+                        capture_output=True, text=True)
+    assert ok.returncode == 0, ok.stderr
+    doc, blob = read_glb(run / "base.glb")
+    doc["accessors"][doc["meshes"][0]["primitives"][0]["indices"]]["count"] += 3  # indices overrun their view
+    bad = tmp_path / "bad.glb"
+    bad.write_bytes(glb_bytes(doc, blob))
+    refused = subprocess.run(["gltfpack", "-i", str(bad), "-o", str(tmp_path / "no.glb")], capture_output=True, text=True)
+    assert refused.returncode != 0
+    with pytest.raises(GltfError, match="overrun"):
+        check_glb_bytes(bad.read_bytes(), "bad.glb")
+
+
+def _mutations() -> list[tuple[str, Any]]:
+    def drop_target(d: dict[str, Any]) -> None:
+        d["meshes"][0]["primitives"][2]["targets"].pop()
+
+    def bad_index(d: dict[str, Any]) -> None:
+        d["meshes"][0]["primitives"][0]["indices"] = 10_000
+
+    def wrong_bounds(d: dict[str, Any]) -> None:
+        d["accessors"][d["meshes"][0]["primitives"][0]["attributes"]["POSITION"]]["max"][1] += 0.01
+
+    def weights_count(d: dict[str, Any]) -> None:
+        d["accessors"][d["animations"][0]["samplers"][0]["output"]]["count"] -= 1
+
+    def path(d: dict[str, Any]) -> None:
+        d["animations"][0]["channels"][0]["target"]["path"] = "morph"
+
+    def version(d: dict[str, Any]) -> None:
+        d["asset"]["version"] = "1.0"
+
+    return [("morph targets", drop_target), ("does not exist", bad_index), ("min/max", wrong_bounds),
+            ("weights for", weights_count), ("unknown path", path), ("version", version)]
+
+
+@pytest.mark.parametrize(("message", "mutate"), _mutations(), ids=[m for m, _ in _mutations()])
+def test_structural_check_names_each_breach(run: Path, message: str, mutate: Any) -> None:
+    doc, blob = read_glb(run / "base.glb")
+    mutate(doc)
+    with pytest.raises(GltfError, match=message):
+        check_glb_bytes(glb_bytes(doc, blob), "x.glb")
+
+
+def test_structural_check_refuses_a_truncated_file(run: Path) -> None:
+    data = (run / "base.glb").read_bytes()
+    with pytest.raises(GltfError, match="header says"):
+        check_glb_bytes(data[:-4], "cut.glb")
+
+
+def test_write_face_glb_from_a_fap_file(run: Path, tmp_path: Path) -> None:
+    faps = read_fap(run / "base.fap")
+    path = write_face_glb(tmp_path / "again.glb", faps)
+    doc, _ = read_glb(path)
+    assert doc["asset"]["extras"]["audio"] is None
+    assert (tmp_path / "again.glb").read_bytes() == path.read_bytes()
+
+
+def test_labels_longer_than_the_audio_are_refused(tmp_path: Path) -> None:
+    labels = tmp_path / "l.tsv"
+    labels.write_text(LABELS)
+    wav = write_wav(tmp_path / "short.wav", 0.5)
+    res = CliRunner().invoke(app, ["animate", str(labels), "-t", str(GROUND_TRUTH), "-o", str(tmp_path / "o"),
+                                   "--preview", "none", "--audio", str(wav)])
+    assert res.exit_code == 1
+    assert "labels run to 1.000 s" in res.output and "short.wav" in res.output
+
+
+def test_audio_that_is_not_a_wav_is_refused(tmp_path: Path) -> None:
+    labels = tmp_path / "l.tsv"
+    labels.write_text(LABELS)
+    fake = tmp_path / "speech.wav"
+    fake.write_bytes(b"ID3 not a wav at all")
+    res = CliRunner().invoke(app, ["animate", str(labels), "-t", str(GROUND_TRUTH), "-o", str(tmp_path / "o"),
+                                   "--preview", "none", "--audio", str(fake)])
+    assert res.exit_code == 1
+    assert "not a PCM WAV" in res.output
+
+
+@pytest.mark.parametrize(("fps", "expect"), [("30", "Greta plays FAP files at 25 fps"),
+                                             ("29.97", "not a whole number"), ("25", None)])
+def test_frame_rate_warnings(tmp_path: Path, fps: str, expect: str | None) -> None:
+    labels = tmp_path / "l.tsv"
+    labels.write_text(LABELS)
+    res = CliRunner().invoke(app, ["animate", str(labels), "-t", str(GROUND_TRUTH), "-o", str(tmp_path / "o"),
+                                   "--preview", "none", "--fps", fps])
+    assert res.exit_code == 0, res.output
+    if expect is None:
+        assert "warning:" not in res.output
+    else:
+        assert "warning:" in res.output and expect in " ".join(res.output.split())
+
+
+def test_fap_name_must_be_one_word(tmp_path: Path) -> None:
+    labels = tmp_path / "l.tsv"
+    labels.write_text(LABELS)
+    res = CliRunner().invoke(app, ["animate", str(labels), "-t", str(GROUND_TRUTH), "-o", str(tmp_path / "o"),
+                                   "--preview", "none", "--fap-name", "two words"])
+    assert res.exit_code == 1
+    assert "one ASCII word" in res.output
+
+
+THREE = Path("/usr/share/javascript/three")
+
+
+def test_three_js_loads_and_plays_the_glb(run: Path, tmp_path: Path) -> None:
+    """three.js (Debian libjs-three, r111) and its GLTFLoader in headless Chromium: the morph targets
+    get their FAP names, and its AnimationMixer at frame 7 gives the weights coartic computed."""
+    import base64
+    import json
+
+    from coartic.face.viewer import chromium_program
+
+    if not (THREE / "examples/js/loaders/GLTFLoader.js").is_file():
+        pytest.skip("three.js (Debian package libjs-three, installed by scripts/setup.sh) is not installed")
+    chromium = chromium_program()
+    b64 = base64.b64encode((run / "base.glb").read_bytes()).decode()
+    page = tmp_path / "three.html"
+    page.write_text(f"""<html><body><pre id="out">pending</pre>
+<script src="{(THREE / 'three.min.js').as_uri()}"></script>
+<script src="{(THREE / 'examples/js/loaders/GLTFLoader.js').as_uri()}"></script>
+<script>
+const buf = Uint8Array.from(atob("{b64}"), c => c.charCodeAt(0)).buffer;
+new THREE.GLTFLoader().parse(buf, "", gltf => {{
+  const mixer = new THREE.AnimationMixer(gltf.scene);
+  mixer.clipAction(gltf.animations[0]).play();
+  mixer.setTime(7 / 25);
+  const meshes = [];
+  gltf.scene.traverse(o => {{ if (o.isMesh) meshes.push({{dict: o.morphTargetDictionary, w: Array.from(o.morphTargetInfluences)}}); }});
+  document.getElementById("out").textContent = JSON.stringify({{meshes, duration: gltf.animations[0].duration}});
+}}, err => {{ document.getElementById("out").textContent = "ERROR " + err; }});
+</script></body></html>""")
+    dom = subprocess.run([chromium, "--headless", "--no-sandbox", "--disable-gpu", f"--user-data-dir={tmp_path / 'p'}",
+                          "--virtual-time-budget=5000", "--dump-dom", page.as_uri()],
+                         capture_output=True, text=True, timeout=60).stdout
+    text = dom[dom.index('<pre id="out">') + len('<pre id="out">'):dom.index("</pre>")]
+    assert not text.startswith(("ERROR", "pending")), text
+    got = json.loads(text)
+    assert len(got["meshes"]) == len(PART_NAMES)  # one three.js mesh per primitive (part)
+    faps = read_fap(run / "base.fap")
+    assert got["duration"] == pytest.approx((faps.n_frames - 1) / 25, abs=1e-6)
+    want = default_rig().weights(faps)[7]
+    for mesh in got["meshes"]:
+        assert list(mesh["dict"]) == list(TARGET_NAMES)
+        np.testing.assert_allclose(mesh["w"], want, atol=1e-6)

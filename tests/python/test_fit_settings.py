@@ -1,0 +1,198 @@
+"""The estimation layer: one Utterance, options from channel settings, the parameter set, and every
+spec setting honoured or refused (issue 10 item 1, issue 11 "silently wrong" and "tracebacks")."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import nlopt
+import numpy as np
+import pytest
+from typer.testing import CliRunner
+
+from coartic import model
+from coartic.cli import app
+from coartic.fit import problem, run
+from coartic.fit.data import manifest_rows
+from coartic.fit.parameters import ParameterSet
+from coartic.fit.problem import ChannelData, build_packing
+from coartic.fit.runner import FitFailed, check_overrides
+from coartic.fit.simulate import PHONEMES, vcv_utterances
+from coartic.fit.spec import SpecError, load_spec, parse_spec
+from coartic.table import PARAMETERS
+
+ROOT = Path(__file__).resolve().parents[2]
+EMA = ROOT / "tests" / "data" / "realdata" / "emu-ema-german" / "derived"
+
+
+def spec_of(tmp_path: Path, **sections: Any) -> Any:
+    raw = {"corpus": {"files": ["x.csv"], "labels": ["x.lab"]}, "model": {"channels": ["LLO"]},
+           "parameters": {"free": ["target"]}, **sections}
+    return parse_spec(raw, tmp_path / "spec.toml")
+
+
+@pytest.fixture(scope="module")
+def utts() -> list[model.Utterance]:
+    return vcv_utterances(np.random.default_rng(3), repetitions=1, rates={"normal": 1.0}, consonants=("p", "t"))
+
+
+def test_one_utterance_type() -> None:
+    assert problem.Utterance is model.Utterance
+    u = model.Utterance(["#", "a"], [0, 0.1], [0.1, 0.2], [0.05, 0.15], name="u")
+    assert u.starts.dtype == np.float64 and u.observed == {} and u.meta == {}
+    with pytest.raises(model.ModelInputError, match=r"utterance 'u': times\[1\] = nan is not finite"):
+        model.Utterance(["a"], [0], [1], [0.5, np.nan], name="u")
+
+
+def test_settings_the_spec_gives_are_honoured(tmp_path: Path, utts: list[model.Utterance]) -> None:
+    data = ChannelData.build(utts, "LLO", PHONEMES)
+    # global target box and target start: today both were replaced by the data's
+    s = spec_of(tmp_path, parameters={"free": ["target"], "bounds": {"target": [-3.0, 14.0]}, "start": {"target": 1.0}})
+    pk = build_packing(s, data)
+    assert np.all(pk.lower[:, 0] == -3.0) and np.all(pk.upper[:, 0] == 14.0)
+    assert np.all(pk.base[:, 0] == 1.0)
+    # without them: the data range widened by target_margin, and data targets
+    pk = build_packing(spec_of(tmp_path), data)
+    assert pk.lower[0, 0] == pytest.approx(data.observed[data.weights > 0].min() - 5.0)
+
+
+@pytest.mark.parametrize("sections, key", [
+    ({"parameters": {"free": ["target", "theta_bw"], "start": {"theta_bw": 5.0},
+                     "bounds": {"theta_bw": [10.0, 100.0]}}}, "[parameters.start.theta_bw]"),
+    ({"parameters": {"free": ["target", "k_r"]},
+      "override": [{"phonemes": ["p"], "start": {"k_r": 1.5}}]}, "[override #1.start.k_r]"),
+])
+def test_a_start_outside_its_bounds_is_refused(tmp_path: Path, utts: list[model.Utterance],
+                                               sections: dict[str, Any], key: str) -> None:
+    data = ChannelData.build(utts, "LLO", PHONEMES)
+    with pytest.raises(SpecError, match="outside its bounds") as e:
+        build_packing(spec_of(tmp_path, **sections), data)
+    assert key in str(e.value) and "spec.toml" in str(e.value)
+
+
+def test_a_default_start_outside_narrowed_bounds_starts_on_the_bound(tmp_path: Path, utts: list[model.Utterance]) -> None:
+    s = spec_of(tmp_path, parameters={"free": ["target", "theta_bw"], "bounds": {"theta_bw": [50.0, 100.0]}})
+    pk = build_packing(s, ChannelData.build(utts, "LLO", PHONEMES))
+    assert np.all(pk.base[1:, PARAMETERS.index("theta_bw")] == 50.0)
+
+
+@pytest.mark.parametrize("text, key, words", [
+    ('[corpus]\nmanifest = "m.csv"\nlimit = true\n', "corpus.limit", "positive integer"),
+    ('[corpus]\nmanifest = "m.csv"\n[[override]]\nphonemes = ["a", "i"]\nfree = ["alpha"]\n', "override #1",
+     "reference phoneme 'a'"),
+    ('[corpus]\nmanifest = "m.csv"\n[[override]]\nphonemes = ["a"]\nfixed = { alpha = 2.0 }\n', "override #1",
+     "fixed at 1"),
+])
+def test_spec_settings_that_cannot_be_honoured_are_refused(tmp_path: Path, text: str, key: str, words: str) -> None:
+    p = tmp_path / "s.toml"
+    p.write_text(text)
+    with pytest.raises(SpecError, match=words) as e:
+        load_spec(p)
+    assert f"[{key}]" in str(e.value) and str(p) in str(e.value)
+
+
+def test_overrides_for_phonemes_absent_from_the_corpus(tmp_path: Path, utts: list[model.Utterance]) -> None:
+    none = spec_of(tmp_path, override=[{"phonemes": ["f", "v"], "fixed": {"k_r": 1.0}}])
+    with pytest.raises(SpecError, match=r"\[override #1\] phonemes \['f', 'v'\]: none occurs in the corpus"):
+        check_overrides(none, utts)
+    some = spec_of(tmp_path, override=[{"phonemes": ["p", "b"], "fixed": {"k_r": 1.0}}])
+    assert check_overrides(some, utts) == ["[override #1] phonemes ['b'] do not occur in the corpus: not applied to them"]
+
+
+@pytest.mark.parametrize("engine, options, key, words", [
+    ("scipy", {"method": "lm"}, "method", "bounded methods"),
+    ("scipy", {"max_nfev": 0}, "max_nfev", "positive integer"),
+    ("scipy", {"x_scale": "bad"}, "x_scale", "'jac' or a positive number"),
+    ("scipy", {"maxiter": 10}, "maxiter", "not a scipy option"),
+    ("scipy", {"ftol": "tight"}, "ftol", "number"),
+    ("nlopt", {"global": "mlsl2"}, "global", "one of"),
+    ("nlopt", {"local_maxeval": 1.5}, "local_maxeval", "positive integer"),
+    ("casadi", {"max_iterations": 10}, "max_iterations", "No such IPOPT option"),
+    ("casadi", {"max_iter": "many"}, "max_iter", "wrong type"),
+])
+def test_engine_options_are_checked_before_the_fit(tmp_path: Path, engine: str, options: dict[str, Any],
+                                                   key: str, words: str) -> None:
+    s = spec_of(tmp_path, engine={"name": engine, "options": options})
+    with pytest.raises(SpecError, match=words) as e:
+        run(s, quiet=True)  # refused before the (missing) data are loaded
+    assert f"[engine.options] {key} ({engine} engine)" in str(e.value) and "spec.toml" in str(e.value)
+
+
+def test_a_failed_engine_is_an_error_naming_the_channel(tmp_path: Path, utts: list[model.Utterance]) -> None:
+    # every tolerance 0: least_squares refuses to start; today the start values became the table
+    s = spec_of(tmp_path, engine={"options": {"ftol": 0.0, "xtol": 0.0, "gtol": 0.0}})
+    with pytest.raises(FitFailed, match=r"channel LLO: the scipy engine failed \(failed\): .*tolerances") as e:
+        run(s, tmp_path / "out", utterances=utts, quiet=True, report=False)
+    assert "nothing was written for LLO" in str(e.value)
+    assert not (tmp_path / "out" / "table.json").exists()
+
+
+def test_the_cli_exits_non_zero_when_an_engine_fails(tmp_path: Path) -> None:
+    spec = tmp_path / "ema.toml"
+    spec.write_text(f'[corpus]\nfiles = ["{EMA}/dfgspp_mo1_prosody_0020_ema.csv"]\n'
+                    f'labels = ["{EMA}/dfgspp_mo1_prosody_0020_Segment.tsv"]\nlabel_map = "german_sampa"\n'
+                    '[model]\nchannels = ["JO"]\n[parameters]\nfree = ["target"]\n'
+                    '[engine.options]\nftol = 0.0\nxtol = 0.0\ngtol = 0.0\n')
+    res = CliRunner().invoke(app, ["fit", str(spec), "--out", str(tmp_path / "o"), "--no-report"])
+    assert res.exit_code != 0
+    assert "channel JO: the scipy engine failed" in res.output and "Traceback" not in res.output
+
+
+def test_nlopt_failures_carry_nlopts_own_message() -> None:
+    from coartic.fit.engines.nlopt_engine import _nlopt_message
+
+    opt = nlopt.opt(nlopt.LD_LBFGS, 2)
+    opt.set_lower_bounds([0.0, 0.0])
+    opt.set_upper_bounds([1.0, 1.0])
+    opt.set_min_objective(lambda x, g: float(x @ x))
+    with pytest.raises(nlopt.exception) as e:  # what the engine catches
+        opt.optimize(np.array([2.0, 0.5]))
+    msg = _nlopt_message(opt, e.value)
+    assert "bounds 0 fail" in msg  # nlopt's words, not the generic "nlopt invalid argument"
+
+
+def test_a_manifest_row_with_missing_cells_names_file_and_line(tmp_path: Path) -> None:
+    m = tmp_path / "m.csv"
+    m.write_text("file,labels,vowel\na.c3d,a.lab,a\nb.c3d,b.lab\n")
+    s = parse_spec({"corpus": {"manifest": "m.csv"}}, tmp_path / "spec.toml")
+    with pytest.raises(SpecError, match=r"m\.csv, line 3: 2 cells, the header has 3"):
+        manifest_rows(s)
+    m.write_text("file,labels,vowel\na.c3d,,a\n")
+    with pytest.raises(SpecError, match=r"m\.csv, line 2: the 'labels' cell is empty"):
+        manifest_rows(s)
+
+
+def test_run_writes_what_the_command_writes_and_the_parameter_set(tmp_path: Path, utts: list[model.Utterance]) -> None:
+    s = spec_of(tmp_path, parameters={"free": ["target", "theta_bw"]}, model={"channels": ["LLO"], "edge_extent": 0.4})
+    result = run(s, tmp_path / "out", utterances=utts, quiet=True)
+    for f in ("table.json", "table.csv", "rmse.csv", "parameters.csv", "fit_report.txt", "summary.json",
+              "report.html"):
+        assert (tmp_path / "out" / f).is_file(), f
+    fit = result.channels["LLO"]
+    ps = fit.parameters
+    assert isinstance(ps, ParameterSet) and len(ps) == len(fit.phonemes) * 10 + 1 == 51
+    p = ps["p.theta_bw"]
+    assert p.free and np.isfinite(p.stderr) and p.lower == 0.5 and p.upper == 2000.0
+    assert not ps["a.alpha"].free and ps["a.alpha"].value == 1.0  # the reference phoneme
+    assert not ps["p.k_r"].free and np.isnan(ps["p.k_r"].stderr)
+    rows = {(r["phoneme"], r["parameter"]): r for r in result.parameter_rows()}
+    assert rows[("p", "theta_bw")]["stderr"] == p.stderr and rows[("p", "k_r")]["stderr"] == ""
+    # the table records the settings the fit ran with, and the options come from them
+    table = result.table()
+    assert table.channels["LLO"].edge_extent == 0.4
+    assert fit.problem.options.edge_extent == model.model_options(table, "LLO").edge_extent == 0.4
+
+
+def test_mcmc_takes_the_options_from_the_table(tmp_path: Path, utts: list[model.Utterance]) -> None:
+    from coartic.mcmc.run import table_problem
+
+    s = spec_of(tmp_path, parameters={"free": ["target"]})
+    table = run(s, None, utterances=utts, quiet=True).table()
+    table.channels["LLO"].edge_extent = 0.25
+    table.channels["LLO"].apex_fraction = 0.4
+    _, _, opts = table_problem(s, table, tmp_path / "t.json", "LLO", utts)
+    assert (opts.edge_extent, opts.apex_fraction) == (0.25, 0.4)  # not the spec's 1.0 and 0.5
+    table.variant = "original"
+    with pytest.raises(ValueError, match=r"t\.json: a table of the 'original' model, but .*variant = 'modified'"):
+        table_problem(s, table, tmp_path / "t.json", "LLO", utts)

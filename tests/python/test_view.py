@@ -1,0 +1,147 @@
+"""`coartic view`: the page, its data and escaping, the local server, and the face it shows in a real
+headless Chromium (Debian's chromium, software WebGL): lips closed at /p b m/, open at /a/."""
+
+from __future__ import annotations
+
+import shutil
+import subprocess
+import threading
+import urllib.request
+import wave
+from pathlib import Path
+
+import numpy as np
+import pytest
+from PIL import Image
+from typer.testing import CliRunner
+
+from coartic.cli import app
+from coartic.face.viewer import chromium_program, make_server, screenshot, write_page
+from coartic.io.labels import read_labels
+from coartic.runtime.animate import target_times
+from coartic.table import ParameterTable
+
+GROUND_TRUTH = Path(__file__).resolve().parents[2] / "corpus-synthetic" / "ground_truth.json"
+LABELS = ("start\tend\tlabel\n0.0\t0.20\t#\n0.20\t0.36\ta\n0.36\t0.44\tp\n0.44\t0.60\ta\n0.60\t0.68\tm\n"
+          "0.68\t0.84\ta\n0.84\t0.91\tb\n0.91\t1.08\ta\n1.08\t1.24\t#\n")
+
+
+@pytest.fixture(scope="module")
+def run(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    tmp = tmp_path_factory.mktemp("view")
+    labels = tmp / "apamaba.tsv"
+    labels.write_text(LABELS)
+    wav = tmp / "rec.wav"
+    with wave.open(str(wav), "wb") as w:
+        w.setnchannels(1)
+        w.setsampwidth(2)
+        w.setframerate(16000)
+        w.writeframes((3000 * np.sin(np.arange(20000) * 0.05)).astype("<i2").tobytes())
+    out = tmp / "out"
+    res = CliRunner().invoke(app, ["animate", str(labels), "-t", str(GROUND_TRUTH), "-o", str(out), "--preview", "none",
+                                   "--audio", str(wav), "--gltf"])
+    assert res.exit_code == 0, res.output
+    return out
+
+
+def test_view_writes_a_self_contained_page(run: Path) -> None:
+    res = CliRunner().invoke(app, ["view", str(run)])
+    assert res.exit_code == 0, res.output
+    page = (run / "view.html").read_text()
+    # nothing from the network: no external script, stylesheet or URL
+    assert "http://" not in page and "https://" not in page and "<script src" not in page
+    assert '<audio id="audio" preload="auto" src="apamaba.wav">' in page
+    assert '"fps":25.0' in page and '"audio":"apamaba.wav"' in page
+
+
+def test_page_data_cannot_close_the_script(run: Path, tmp_path: Path) -> None:
+    copy = tmp_path / "copy"
+    shutil.copytree(run, copy)
+    seg = copy / "segments.tsv"
+    rows = seg.read_text().splitlines()
+    cols = rows[2].split("\t")
+    cols[2] = "</script><img src=x onerror=alert(1)>"
+    rows[2] = "\t".join(cols)
+    seg.write_text("\n".join(rows) + "\n")
+    page = write_page(copy).read_text()
+    assert "</script><img" not in page
+    assert "<\\/script><img src=x onerror=alert(1)>" in page
+
+
+def test_view_names_what_is_missing(tmp_path: Path, run: Path) -> None:
+    res = CliRunner().invoke(app, ["view", str(tmp_path)])
+    assert res.exit_code == 1 and "no .glb file" in res.output and "--gltf" in res.output
+    two = tmp_path / "two"
+    shutil.copytree(run, two)
+    shutil.copy(two / "apamaba.glb", two / "other.glb")
+    res = CliRunner().invoke(app, ["view", str(two)])
+    assert res.exit_code == 1 and "several .glb files" in res.output
+    res = CliRunner().invoke(app, ["view", str(two), "--name", "other"])
+    assert res.exit_code == 0, res.output
+    (two / "apamaba.wav").unlink()
+    res = CliRunner().invoke(app, ["view", str(two), "--name", "apamaba"])
+    assert res.exit_code == 1 and "'apamaba.wav' is not in" in " ".join(res.output.split())
+
+
+def test_server_serves_page_and_sound_on_localhost(run: Path) -> None:
+    page = write_page(run)
+    server = make_server(run, 0)
+    thread = threading.Thread(target=server.serve_forever, daemon=True)
+    thread.start()
+    try:
+        host, port = server.server_address[0], server.server_address[1]
+        assert host == "127.0.0.1"
+        with urllib.request.urlopen(f"http://127.0.0.1:{port}/view.html", timeout=10) as r:
+            assert r.read() == page.read_bytes()
+        with urllib.request.urlopen(f"http://127.0.0.1:{port}/apamaba.wav", timeout=10) as r:
+            assert r.read() == (run / "apamaba.wav").read_bytes()
+    finally:
+        server.shutdown()
+        server.server_close()
+        thread.join(timeout=5)
+
+
+def mouth_opening(png: Path) -> float:
+    """Median over the central columns of the lips of the non-lip pixels between the top and the
+    bottom lip pixel: 0 when the lips touch, the mouth's height in pixels when open."""
+    img = np.asarray(Image.open(png).convert("RGB")).astype(int)
+    lip = (img[..., 0] - img[..., 1] > 70) & (img[..., 0] > 100)
+    ys, xs = np.nonzero(lip)
+    assert xs.size > 200, "no lips in the picture"
+    x0, x1 = int(xs.min()), int(xs.max())
+    centre, half = (x0 + x1) // 2, (x1 - x0) // 6
+    gaps = []
+    for x in range(centre - half, centre + half + 1):
+        col = np.nonzero(lip[:, x])[0]
+        gaps.append(0 if col.size == 0 else int(col.max() - col.min() + 1 - col.size))
+    return float(np.median(gaps))
+
+
+@pytest.fixture(scope="module")
+def chromium() -> str:
+    try:
+        return chromium_program()
+    except Exception as err:  # scripts/setup.sh installs it; without it there is nothing to look at
+        pytest.skip(str(err))
+
+
+def test_chromium_shows_lips_closed_at_p_b_m_and_open_at_a(run: Path, chromium: str, tmp_path: Path) -> None:
+    page = write_page(run)
+    table = ParameterTable.load(GROUND_TRUTH)
+    segs = read_labels(run / "segments.tsv")
+    frames = np.rint(target_times(table, segs, "LLO") * 25).astype(int)
+    labels = list(segs.labels)
+    shown = {"p": frames[labels.index("p")], "m": frames[labels.index("m")], "a": frames[labels.index("a")]}
+    opening = {}
+    for ph, k in shown.items():
+        png = screenshot(page, tmp_path / f"{ph}.png", frame=int(k), face_only=400, size=(400, 400))
+        opening[ph] = mouth_opening(png)
+    assert opening["p"] == 0 and opening["m"] == 0, opening
+    assert opening["a"] >= 8, opening  # ~12 mm of opening is ~16 px here
+    # the page ran without error and shows the frame asked for
+    dom = subprocess.run([chromium, "--headless", "--no-sandbox", "--disable-gpu", "--use-angle=swiftshader",
+                          "--enable-unsafe-swiftshader", f"--user-data-dir={tmp_path / 'profile'}",
+                          "--virtual-time-budget=5000", "--dump-dom", page.resolve().as_uri() + f"?frame={shown['m']}"],
+                         capture_output=True, text=True, timeout=60)
+    assert f'data-frame="{shown["m"]}"' in dom.stdout
+    assert '<div id="error"></div>' in dom.stdout
