@@ -33,3 +33,8 @@ class DataError(CoarticError, ValueError):
                 where += f", line {line}"
             where += ": "
         super().__init__(where + message)
+
+
+class DataWarning(UserWarning):
+    """Data that reads but looks wrong (implausible values, axes that seem swapped): the result may
+    be wrong, so the CLI prints it; `warnings.simplefilter("error", DataWarning)` makes it an error."""
