@@ -32,6 +32,8 @@ bench: setup
 	$(PY) bench/mcmc_speed.py
 	$(PY) bench/mcmc_moves.py
 	$(PY) bench/runtime_contacts.py
+	$(PY) bench/runtime_speed.py
+	$(PY) bench/batch_scaling.py
 
 clean:
 	rm -rf target .venv results build

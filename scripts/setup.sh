@@ -1,7 +1,8 @@
 #!/usr/bin/env bash
 # Everything coartic needs on a fresh Debian machine: system packages (Festival with its Italian
-# voice, ffmpeg for previews, chromium and gltfpack for the face viewer and glTF checks), a virtual
-# environment with the Python dependencies, and the Rust extension built in release mode. Idempotent: a second run only rebuilds what changed.
+# voice, ffmpeg for previews, chromium and checkers for the face's files), a virtual environment
+# with the Python dependencies, and the Rust extension built in release mode. Idempotent: a second
+# run only rebuilds what changed.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 
@@ -9,9 +10,12 @@ need_apt=()
 command -v festival >/dev/null 2>&1 || need_apt+=(festival)
 [ -d /usr/share/festival/voices/italian ] || need_apt+=(festvox-italp16k)
 command -v ffmpeg >/dev/null 2>&1 || need_apt+=(ffmpeg)
-# the face viewer's test and screenshots (headless Chromium, software WebGL); glTF validation (cgltf)
+# the face: viewer test and screenshots (headless Chromium, software WebGL), glTF checks (gltfpack's
+# cgltf validator, three.js's GLTFLoader), VRML97 check (tovrmlx3d from view3dscene)
 command -v chromium >/dev/null 2>&1 || need_apt+=(chromium)
 command -v gltfpack >/dev/null 2>&1 || need_apt+=(gltfpack)
+command -v tovrmlx3d >/dev/null 2>&1 || need_apt+=(view3dscene)
+[ -f /usr/share/javascript/three/examples/js/loaders/GLTFLoader.js ] || need_apt+=(libjs-three)
 if ((${#need_apt[@]})); then
   sudo_cmd=""
   [ "$(id -u)" -eq 0 ] || sudo_cmd="sudo"

@@ -3,6 +3,7 @@
 import typer
 
 from coartic import synthetic_cli
+from coartic.console import show_data_warnings
 from coartic.batch.cli import batch_command
 from coartic.demo import demo_command
 from coartic.face.view_cli import view_command
@@ -18,6 +19,14 @@ app = typer.Typer(
     no_args_is_help=True,
     add_completion=False,
 )
+
+
+@app.callback()
+def _main() -> None:
+    """Fit, sample and animate the Cohen-Massaro / Cosi-Perin coarticulation model."""
+    # data that reads but looks wrong (swapped EMA axes, metres taken for mm) is said by every command
+    show_data_warnings()
+
 
 app.add_typer(synthetic_cli.app, name="corpus")  # coartic corpus synth OUT
 app.command("inspect")(inspect_command)

@@ -135,7 +135,7 @@ def test_serial_batch_writes_what_coartic_fit_writes_for_each_speaker(corpus: Pa
 
     spec = load_batch_spec(corpus / "batch.toml")
     group = spec.groups[1]
-    run(group.spec, corpus / "fit-s02", quiet=True)
+    run(group.spec, corpus / "fit-s02", quiet=True, report=False)
     for name in TABLE_FILES:
         assert (serial / "groups/s02" / name).read_bytes() == (corpus / "fit-s02" / name).read_bytes(), name
     table = ParameterTable.load(serial / "groups/s02/table.json")

@@ -203,3 +203,68 @@ def test_fap_name_must_be_one_word(tmp_path: Path) -> None:
                                    "--preview", "none", "--fap-name", "two words"])
     assert res.exit_code == 1
     assert "one ASCII word" in res.output
+
+
+THREE = Path("/usr/share/javascript/three")
+
+
+def test_three_js_loads_and_plays_the_glb(run: Path, tmp_path: Path) -> None:
+    """three.js (Debian libjs-three, r111) and its GLTFLoader in headless Chromium: the morph targets
+    get their FAP names, and its AnimationMixer at frame 7 gives the weights coartic computed."""
+    import base64
+    import json
+
+    from coartic.face.viewer import chromium_program
+
+    if not (THREE / "examples/js/loaders/GLTFLoader.js").is_file():
+        pytest.skip("three.js (Debian package libjs-three, installed by scripts/setup.sh) is not installed")
+    chromium = chromium_program()
+    b64 = base64.b64encode((run / "base.glb").read_bytes()).decode()
+    page = tmp_path / "three.html"
+    page.write_text(f"""<html><body><pre id="out">pending</pre>
+<script src="{(THREE / 'three.min.js').as_uri()}"></script>
+<script src="{(THREE / 'examples/js/loaders/GLTFLoader.js').as_uri()}"></script>
+<script>
+const buf = Uint8Array.from(atob("{b64}"), c => c.charCodeAt(0)).buffer;
+new THREE.GLTFLoader().parse(buf, "", gltf => {{
+  const mixer = new THREE.AnimationMixer(gltf.scene);
+  mixer.clipAction(gltf.animations[0]).play();
+  mixer.setTime(7 / 25);
+  const meshes = [];
+  gltf.scene.traverse(o => {{ if (o.isMesh) meshes.push({{dict: o.morphTargetDictionary, w: Array.from(o.morphTargetInfluences)}}); }});
+  document.getElementById("out").textContent = JSON.stringify({{meshes, duration: gltf.animations[0].duration}});
+}}, err => {{ document.getElementById("out").textContent = "ERROR " + err; }});
+</script></body></html>""")
+    dom = subprocess.run([chromium, "--headless", "--no-sandbox", "--disable-gpu", f"--user-data-dir={tmp_path / 'p'}",
+                          "--virtual-time-budget=5000", "--dump-dom", page.as_uri()],
+                         capture_output=True, text=True, timeout=60).stdout
+    text = dom[dom.index('<pre id="out">') + len('<pre id="out">'):dom.index("</pre>")]
+    assert not text.startswith(("ERROR", "pending")), text
+    got = json.loads(text)
+    assert len(got["meshes"]) == len(PART_NAMES)  # one three.js mesh per primitive (part)
+    faps = read_fap(run / "base.fap")
+    assert got["duration"] == pytest.approx((faps.n_frames - 1) / 25, abs=1e-6)
+    want = default_rig().weights(faps)[7]
+    for mesh in got["meshes"]:
+        assert list(mesh["dict"]) == list(TARGET_NAMES)
+        np.testing.assert_allclose(mesh["w"], want, atol=1e-6)
+
+
+def test_animate_audio_is_the_mp4_sound_track(tmp_path: Path) -> None:
+    """--audio puts the user's recording into the MP4 preview, as long as the video."""
+    import json
+
+    labels = tmp_path / "l.tsv"
+    labels.write_text(LABELS)
+    wav = write_wav(tmp_path / "rec.wav", 1.1)
+    out = tmp_path / "o"
+    res = CliRunner().invoke(app, ["animate", str(labels), "-t", str(GROUND_TRUTH), "-o", str(out),
+                                   "--preview", "mp4", "--audio", str(wav)])
+    assert res.exit_code == 0, res.output
+    probe = subprocess.run(["ffprobe", "-v", "error", "-show_streams", "-of", "json", str(out / "preview.mp4")],
+                           capture_output=True, text=True, check=True)
+    streams = {s["codec_type"]: s for s in json.loads(probe.stdout)["streams"]}
+    assert set(streams) == {"video", "audio"}
+    assert int(streams["video"]["nb_frames"]) == 28
+    assert abs(float(streams["audio"]["duration"]) - 1.1) <= 1 / 25
+    assert (out / "l.wav").read_bytes() == wav.read_bytes()

@@ -37,10 +37,15 @@ from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, T
 
 from coartic.batch.spec import BatchSpec
 from coartic.batch.tasks import UnitKey, UnitOutput, fit_unit, load_group
+from coartic.errors import CoarticError
 from coartic.fit.problem import Utterance
 from coartic.outputs import DeferredSignals, OutputDir
 
 UNIT_FILE = "unit.json"
+
+
+class ClusterError(CoarticError, ValueError):
+    """The Dask cluster could not be started or reached; the message names the address."""
 
 
 @dataclass
@@ -236,19 +241,28 @@ def _run_dask(spec: BatchSpec, todo: list[UnitKey], landed: Callable[[UnitOutput
     from distributed import Client, LocalCluster, as_completed
 
     cluster = None
-    if scheduler is None:
-        n = workers if workers is not None else min(os.cpu_count() or 1, len(todo))
-        threads: int | None = local_threads(n)
-        # One task per worker process; the core's threads capped in each (the nanny sets the
-        # variable before the worker process starts, and again when it restarts a lost one).
-        cluster = LocalCluster(n_workers=n, threads_per_worker=1, processes=True, dashboard_address=None,
-                               env={"RAYON_NUM_THREADS": str(threads)}, silence_logs=logging.ERROR)
-        client = Client(cluster)
-        outcome.workers = n
-    else:
-        client = Client(scheduler, timeout="30s")
-        threads = cluster_threads(client)
-        outcome.workers = len(client.scheduler_info().get("workers", {}))
+    try:
+        if scheduler is None:
+            n = workers if workers is not None else min(os.cpu_count() or 1, len(todo))
+            threads: int | None = local_threads(n)
+            # One task per worker process; the core's threads capped in each (the nanny sets the
+            # variable before the worker process starts, and again when it restarts a lost one).
+            cluster = LocalCluster(n_workers=n, threads_per_worker=1, processes=True, dashboard_address=None,
+                                   env={"RAYON_NUM_THREADS": str(threads)}, silence_logs=logging.ERROR)
+            client = Client(cluster)
+            outcome.workers = n
+        else:
+            client = Client(scheduler, timeout="30s")
+            threads = cluster_threads(client)
+            outcome.workers = len(client.scheduler_info().get("workers", {}))
+    except KeyboardInterrupt:
+        raise
+    except Exception as e:  # Dask raises OSError, TimeoutError, RuntimeError... with its own words
+        if cluster is not None:
+            with contextlib.suppress(Exception):
+                cluster.close()
+        where = f"the Dask scheduler at {scheduler}" if scheduler else f"a local Dask cluster of {workers or 'default'} workers"
+        raise ClusterError(f"cannot start or reach {where}: {type(e).__name__}: {e}") from None
     outcome.threads = threads
     by_future: dict[Any, UnitKey] = {}
     try:

@@ -269,6 +269,7 @@ function start() {
     if (!playing) return;
     // the sound is the clock: the face follows audio.currentTime, so picture and voice stay together
     const now = data.audio ? audio.currentTime : (performance.now() - clockStart) / 1000;
+    document.body.dataset.clock = now.toFixed(4);  // what the frame was chosen from (tests read it)
     show(now);
     if (now >= (nFrames - 1) / fps || (data.audio && audio.ended)) { stop(); return; }
     requestAnimationFrame(tick);
@@ -291,7 +292,7 @@ function start() {
   window.addEventListener("pointerup", () => { drag = null; });
   window.addEventListener("pointermove", e => {
     if (!drag) return;
-    view.yaw = drag[2] - (e.clientX - drag[0]) * 0.01;
+    view.yaw = Math.max(-1.0, Math.min(1.0, drag[2] - (e.clientX - drag[0]) * 0.01));  // a mask: no back
     view.pitch = Math.max(-1.2, Math.min(1.2, drag[3] + (e.clientY - drag[1]) * 0.01));
     show(t);
   });
@@ -303,6 +304,7 @@ function start() {
   if (params.has("yaw")) view.yaw = Number(params.get("yaw"));
   show(params.has("frame") ? Number(params.get("frame")) / fps : params.has("t") ? Number(params.get("t")) : 0);
   window.coarticView = {show, play, stop, nFrames, fps};
+  if (params.get("play") === "1") play();  // ?play=1 starts at once (a browser may ask for a click first)
   document.title = `${data.name} - coartic view`;
 }
 

@@ -13,6 +13,9 @@ from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
+from coartic.errors import CoarticError
+from coartic.io.errors import DataError
+from coartic.io.roles import RoleMap
 from coartic.table import ALL_CHANNELS, CHANNELS, PARAMETERS, VARIANTS, ChannelSettings
 
 ENGINES: tuple[str, ...] = ("scipy", "nlopt", "casadi")
@@ -40,7 +43,7 @@ DEFAULT_STAGES: tuple[tuple[str, ...], ...] = (
 )
 
 
-class SpecError(ValueError):
+class SpecError(CoarticError, ValueError):
     """A fit specification that cannot be used; the message names the file and the key."""
 
 
@@ -66,7 +69,7 @@ class CorpusSpec:
     labels: tuple[Path, ...] = ()
     file_column: str = "file"  # manifest column holding the data file
     label_map: str | None = None  # a label-map name or path; None: labels are model phonemes
-    role_map: dict[str, str] | None = None  # EMA: model role -> sensor name
+    role_map: dict[str, Any] | None = None  # role -> marker/sensor name; EMA: "axes" = {vertical, anterior}
     select: dict[str, tuple[str, ...]] = field(default_factory=dict)  # manifest column -> kept values
     limit: int | None = None  # keep only the first N trials (quick looks)
 
@@ -228,9 +231,15 @@ def parse_spec(raw: dict[str, Any], path: Path) -> FitSpec:
     if label_map is not None and ("/" in label_map or label_map.endswith((".tsv", ".json"))):
         label_map = str(_path(base, label_map, "corpus.label_map", path))
     role_map = c.get("role_map")
-    if role_map is not None and (not isinstance(role_map, dict)
-                                 or not all(isinstance(v, str) for v in role_map.values())):
-        raise _err(path, "corpus.role_map", f"expected a table role = 'sensor', got {role_map!r}")
+    if role_map is not None:
+        if not isinstance(role_map, dict) or not all(
+                isinstance(v, str) or (k == "axes" and isinstance(v, dict)) for k, v in role_map.items()):
+            raise _err(path, "corpus.role_map", "expected a table role = 'sensor' (and for EMA "
+                       f"axes = {{ vertical = '+z', anterior = '-y' }}), got {role_map!r}")
+        try:  # the role map's own checks (roles, axes, one marker per role), named by the spec key
+            RoleMap.from_dict(role_map, "role map")
+        except DataError as bad:
+            raise _err(path, "corpus.role_map", str(bad)) from None
     select_raw = c.get("select", {})
     if not isinstance(select_raw, dict):
         raise _err(path, "corpus.select", f"expected a table column = [values], got {select_raw!r}")

@@ -129,7 +129,7 @@ def read_emu_bundle(
     xyz = np.stack([np.stack([sensors[s][a] for a in "xyz"], axis=1) for s in names], axis=1)
     zero = np.all(xyz == 0.0, axis=(1, 2))
     xyz[zero] = np.nan
-    xyz, note = to_mm(xyz, units or "mm", p, "sensor positions")
+    xyz, note = to_mm(xyz, units or "mm", p, "sensor positions", names)
     notes = [note] if note else []
     if zero.any():
         notes.append(f"{int(zero.sum())} all-zero frames (no data) set to NaN")

@@ -8,6 +8,7 @@ from typing import Annotated, Optional
 import numpy as np
 import typer
 from rich.console import Console
+from rich.markup import escape
 from rich.table import Table
 
 from coartic.io.errors import DataError
@@ -30,8 +31,14 @@ def inspect_command(
     allow_truncated: Annotated[bool, typer.Option(
         help="Read a C3D that holds fewer frames than its header declares.")] = False,
 ) -> None:
-    """Summarise a recording: markers, rate, frames, gaps per marker, labels, channels."""
+    """Summarise a recording: markers, rate, frames, gaps per marker, labels, channels.
+
+    Exits 1 when the file cannot be read or no channel can be computed from it."""
     console = Console()
+    if plot is not None and not plot.parent.is_dir():
+        # checked first: the summary should not be lost to a typo in the plot's folder
+        print_error(console, f"--plot {plot}: the folder {plot.parent} does not exist")
+        raise typer.Exit(1)
     try:
         trial = load_trial(file, labels=labels, label_map=label_map, role_map=role_map, tier=tier,
                            units=units, allow_truncated=allow_truncated)
@@ -51,13 +58,21 @@ def inspect_command(
     _markers(console, trial, gaps)
     if trial.segments is not None:
         _labels(console, trial)
-    if channels is not None:
+    if channels is not None and len(channels):
         _channels(console, channels)
     else:
-        console.print(f"[yellow]no channels:[/] {channel_error}")
+        console.print(f"[yellow]no channels:[/] {escape(channel_error or 'none can be computed')}")
+        for name, why in (channels.unavailable.items() if channels is not None else ()):
+            console.print(f"  {name} not available: {escape(why)}")
     if plot is not None:
-        plot_trial(trial, channels, plot)
+        try:
+            plot_trial(trial, channels, plot)
+        except OSError as e:
+            print_error(console, f"--plot {plot}: cannot write it: {e.strerror or e}")
+            raise typer.Exit(1) from None
         console.print(f"plot written to {plot}")
+    if channels is None or not len(channels):
+        raise typer.Exit(1)  # scripts must see that nothing usable came out of the file
 
 
 def _summary(console: Console, trial: Trial) -> None:

@@ -110,6 +110,7 @@ def _write_outputs(
     progress: Progress | None,
     audio: Path | None = None,
     gltf: bool = False,
+    vrml: bool = False,
 ) -> RuntimeOutput:
     neutral = neutral_posture(table)
     faps = channels_to_faps(animation.channels, neutral, face, name, animation.fps)
@@ -130,6 +131,10 @@ def _write_outputs(
 
         files["gltf"] = write_face_glb(out / f"{name}.glb", faps, audio=audio.name if audio else None,
                                        fap_file=files["fap"].name)
+    if vrml:
+        from coartic.face.vrml import write_face_vrml
+
+        files["vrml"] = write_face_vrml(out / f"{name}.wrl", faps, audio=audio.name if audio else None)[0]
     files["plot"] = plot_channels(animation, out / "channels.png", title=name)
     if preview != "none":
         files["strip"] = render_strip(animation, table, out / "strip.png")
@@ -155,6 +160,7 @@ def animate_file(
     audio: str | PathLike[str] | None = None,
     name: str | None = None,
     gltf: bool = False,
+    vrml: bool = False,
 ) -> RuntimeOutput:
     """A label file (.lab / TextGrid / TSV) → channels, FAP file and preview in `out`.
 
@@ -187,7 +193,7 @@ def animate_file(
         duration = max(duration, 1.0 / fps)
     animation = animate(table, segments, fps, duration=duration, snap_contacts=snap_contacts, substitutions=used)
     return _write_outputs(animation, table, out, name, face or speaker_face(table),
-                          preview, requested, raw.labels, progress, audio=wav, gltf=gltf)
+                          preview, requested, raw.labels, progress, audio=wav, gltf=gltf, vrml=vrml)
 
 
 def speak_text(
@@ -207,6 +213,7 @@ def speak_text(
     progress: Progress | None = None,
     name: str | None = None,
     gltf: bool = False,
+    vrml: bool = False,
 ) -> RuntimeOutput:
     """Italian text → Festival's WAV, and channels, FAP file and preview lasting as long as the WAV.
 
@@ -240,6 +247,6 @@ def speak_text(
         raise MissingPhonemeError(f"{err} (Festival phone {utt.phones[err.segment]!r} of {utt.text!r})",
                                   err.segment) from None
     result = _write_outputs(animation, table, out, name, face or speaker_face(table), preview,
-                            requested, utt.phones, progress, audio=utt.wav, gltf=gltf)
+                            requested, utt.phones, progress, audio=utt.wav, gltf=gltf, vrml=vrml)
     result.utterance = utt
     return result

@@ -34,6 +34,7 @@ SnapOpt = Annotated[bool, typer.Option("--snap-contacts/--no-snap-contacts", hel
 StrictOpt = Annotated[bool, typer.Option("--strict", help="Refuse phonemes the table lacks instead of using the fallbacks of phones_italian.tsv.")]
 PreviewOpt = Annotated[str, typer.Option("--preview", help=f"Preview format: {', '.join(PREVIEW_FORMATS)}.")]
 GltfOpt = Annotated[bool, typer.Option("--gltf", help="Also write NAME.glb: the face with one morph target per FAP and their animation (coartic view DIR plays it).")]
+VrmlOpt = Annotated[bool, typer.Option("--vrml", help="Also write NAME.wrl: the face animated in VRML97 (interpolators, the sound as an AudioClip).")]
 FapNameOpt = Annotated[str | None, typer.Option("--fap-name", help="Name of the FAP file and its header; the WAV and glTF get the same stem (Greta loads NAME.fap with NAME.wav).")]
 ForceOpt = Annotated[bool, typer.Option("--force", help="Replace --out even if it holds another run's output "
                                         "(the same labels or text replace their own output without it).")]
@@ -107,6 +108,7 @@ def animate_command(
     audio: Annotated[Path | None, typer.Option("--audio", help="The recording the labels describe (WAV): copied as NAME.wav, the sound of the MP4 and the glTF bundle; the animation lasts as long.")] = None,
     fap_name: FapNameOpt = None,
     gltf: GltfOpt = False,
+    vrml: VrmlOpt = False,
     force: ForceOpt = False,
 ) -> None:
     """Animate a label file: channel trajectories (CSV), an MPEG-4 FAP file and a preview.
@@ -122,7 +124,8 @@ def animate_command(
         with output as staging, _progress() as progress:
             result = animate_file(labels, t, staging, fps=fps, tier=tier, label_map=label_map,
                                   face=speaker_face(t, mns, mw), preview=preview, snap_contacts=snap_contacts,
-                                  strict=strict, progress=progress, audio=audio, name=fap_name, gltf=gltf)
+                                  strict=strict, progress=progress, audio=audio, name=fap_name, gltf=gltf,
+                                  vrml=vrml)
     except (AnimationError, DataError, TableError, OutputError, OSError) as err:
         _fail(err)
     _report(_moved(result, staging, out))
@@ -142,6 +145,7 @@ def speak_command(
     snap_contacts: SnapOpt = True,
     fap_name: FapNameOpt = None,
     gltf: GltfOpt = False,
+    vrml: VrmlOpt = False,
     force: ForceOpt = False,
 ) -> None:
     """Say Italian text with Festival: WAV, channel trajectories, FAP file and preview, all as long as the WAV.
@@ -156,7 +160,7 @@ def speak_command(
         with output as staging, _progress() as progress:
             result = speak_text(text, t, staging, fps=fps, stretch=stretch, voice=voice, strict=strict,
                                 face=speaker_face(t, mns, mw), preview=preview, snap_contacts=snap_contacts,
-                                progress=progress, name=fap_name, gltf=gltf)
+                                progress=progress, name=fap_name, gltf=gltf, vrml=vrml)
     except (AnimationError, DataError, TableError, OutputError, OSError) as err:
         _fail(err)
     _report(_moved(result, staging, out))

@@ -1,0 +1,133 @@
+"""How `coartic batch` scales: wall time on 1 and 2 Dask workers, and what a task costs beyond its fit.
+
+    .venv/bin/python bench/batch_scaling.py [--speakers 4] [--consonants p,f,t,s]
+
+A synthetic corpus of several speakers (``coartic corpus synth --speakers``, 2 repetitions of the
+chosen consonants), fitted with fit/synthetic.toml's settings on LLO and JO, each speaker and the
+pooled corpus: 2 × (speakers + 1) units. The same batch runs three times into fresh folders:
+serially in this process (the core's rayon threads on every core), on a LocalCluster of 1 worker
+(rayon on every core) and of 2 workers (rayon on cores / 2 each). Printed: the wall times and their
+ratios, the per-unit fit times the units recorded, a no-op task's round trip on the running
+cluster, the cluster's start-up, and the pickled size of one speaker's data (what a load task sends
+to the fits). The output is saved to bench/results/batch_scaling.txt.
+"""
+
+from __future__ import annotations
+
+import argparse
+import io
+import json
+import os
+import pickle
+import shutil
+import statistics
+import sys
+import tempfile
+import time
+from contextlib import redirect_stdout
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+RESULT = ROOT / "bench" / "results" / "batch_scaling.txt"
+
+
+def noop(x: int) -> int:
+    return x
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--speakers", type=int, default=4)
+    ap.add_argument("--consonants", default="p,f,t,s")
+    ap.add_argument("--no-save", action="store_true", help="print only")
+    args = ap.parse_args()
+    buf = io.StringIO()
+    screen = sys.stdout
+
+    class Tee(io.TextIOBase):
+        def write(self, s: str) -> int:
+            screen.write(s)
+            screen.flush()
+            return buf.write(s)
+
+    with redirect_stdout(Tee()):
+        run(args.speakers, args.consonants.split(","))
+    if not args.no_save:
+        RESULT.write_text(buf.getvalue(), encoding="utf-8")
+        print(f"saved to {RESULT.relative_to(ROOT)}")
+
+
+def run(n_speakers: int, consonants: list[str]) -> None:
+    from distributed import Client, LocalCluster
+
+    from coartic.batch import load_batch_spec
+    from coartic.batch.run import local_threads, run_batch, unit_dir
+    from coartic.batch.tasks import load_group
+    from coartic.synthetic_cli import load_generator
+
+    cores = os.cpu_count() or 1
+    print(f"batch_scaling: {n_speakers} speakers, consonants {' '.join(consonants)}, 2 repetitions, 2 rates; "
+          f"channels LLO JO; {cores} cores; load average {os.getloadavg()[0]:.1f} at the start")
+    with tempfile.TemporaryDirectory(prefix="coartic-bench-batch-") as tmp_:
+        tmp = Path(tmp_)
+        load_generator().generate(tmp / "corpus", quick=True, progress=False, consonants=consonants,
+                                  speakers=n_speakers)
+        fit = (ROOT / "fit" / "synthetic.toml").read_text(encoding="utf-8")
+        fit = fit.replace('channels = ["ULO", "LLO", "ULP", "LLP", "LR", "JO"]', 'channels = ["LLO", "JO"]')
+        assert 'channels = ["LLO", "JO"]' in fit
+        (tmp / "fit.toml").write_text(fit, encoding="utf-8")
+        (tmp / "batch.toml").write_text('name = "bench"\nfit = "fit.toml"\n[corpus]\n'
+                                        'manifest = "corpus/manifest.csv"\ngroup_by = ["speaker"]\n')
+        spec = load_batch_spec(tmp / "batch.toml")
+        units = 2 * (n_speakers + 1)
+        data = load_group(spec.groups[0].spec, spec.groups[0].name)
+        size = len(pickle.dumps(data, protocol=pickle.HIGHEST_PROTOCOL))
+        print(f"units: {units}; one speaker's data: {len(data)} trials, {size / 1e6:.2f} MB pickled")
+
+        walls: dict[str, float] = {}
+        compute: dict[str, list[float]] = {}
+        for label, kwargs in (("serial", {"serial": True}), ("1 worker", {"workers": 1}),
+                              ("2 workers", {"workers": 2})):
+            out = tmp / label.replace(" ", "-")
+            t0 = time.perf_counter()
+            outcome = run_batch(spec, out, quiet=True, **kwargs)  # type: ignore[arg-type]
+            walls[label] = time.perf_counter() - t0
+            assert outcome.complete and len(outcome.landed) == units, outcome.failed
+            compute[label] = [json.loads((unit_dir(out, k) / "unit.json").read_text())["compute_s"]
+                              for k in outcome.landed]
+            threads = "every core" if kwargs.get("serial") else f"{local_threads(int(kwargs['workers']))} each"
+            print(f"{label:>10}: wall {walls[label]:7.2f} s (rayon threads {threads}); unit fits "
+                  f"sum {sum(compute[label]):6.2f} s, median {statistics.median(compute[label]):5.2f} s, "
+                  f"max {max(compute[label]):5.2f} s")
+        for f in ("groups/s01/table.csv", "pooled/table.csv"):
+            same = len({(tmp / d / f).read_bytes() for d in ("serial", "1-worker", "2-workers")}) == 1
+            print(f"{f}: {'identical' if same else 'DIFFERENT'} in the three runs")
+        print(f"speed-up of 2 workers over 1: {walls['1 worker'] / walls['2 workers']:.2f}x "
+              f"(over serial: {walls['serial'] / walls['2 workers']:.2f}x)")
+
+        t0 = time.perf_counter()
+        cluster = LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None,
+                               env={"RAYON_NUM_THREADS": "1"})
+        client = Client(cluster)
+        start = time.perf_counter() - t0
+        client.gather(client.map(noop, range(20)))  # warm
+        n = 400
+        t0 = time.perf_counter()
+        client.gather(client.map(noop, range(n), pure=False))
+        per_task = (time.perf_counter() - t0) / n
+        client.submit(len, data[:1], pure=False).result()  # warm: the workers import coartic
+        t0 = time.perf_counter()
+        client.submit(len, data, pure=False).result()  # the data travels with the task
+        move = time.perf_counter() - t0
+        client.close()
+        cluster.close()
+        med = statistics.median(compute["2 workers"])
+        print(f"LocalCluster(2) start-up {start:.2f} s; a no-op task's round trip {per_task * 1e3:.2f} ms "
+              f"(2 workers, {n} tasks); one speaker's data sent with a task {move * 1e3:.0f} ms")
+        print(f"task overhead against its fit: {per_task / med * 100:.3f} % of the median unit "
+              f"({med:.2f} s); start-up against the whole 2-worker run: {start / walls['2 workers'] * 100:.0f} %")
+        shutil.rmtree(tmp / "corpus", ignore_errors=True)
+
+
+if __name__ == "__main__":
+    main()

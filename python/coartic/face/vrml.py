@@ -1,0 +1,126 @@
+"""VRML97 (.wrl) of the face, as LUCIA was exported: the deformed face at one frame, or the whole
+animation with a CoordinateInterpolator per part driven by a TimeSensor, and the sound as an
+AudioClip started with it.
+
+Units are metres, like the glTF. Every part is an IndexedFaceSet with per-vertex colours; the
+animated file keys each part's coordinates at every frame (linear in between, as VRML97
+interpolators are), so any VRML97 browser plays it without knowing about FAPs.
+"""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Iterable
+from os import PathLike
+from pathlib import Path
+
+import numpy as np
+from numpy.typing import NDArray
+
+from coartic.face.deform import FaceRig, default_rig
+from coartic.face.gltf import MM
+from coartic.face.mesh import PART_NAMES
+from coartic.runtime.errors import AnimationError
+from coartic.runtime.fap import FapSequence
+
+
+def _vec3(values: NDArray[np.float64]) -> str:
+    """Rows of 3 numbers, one vertex per line, VRML's comma-separated MFVec3f."""
+    rows = np.asarray(values).reshape(-1, 3)
+    return ",\n".join(" ".join(_fmt(v) for v in row) for row in rows)
+
+
+def _fmt(v: float) -> str:
+    s = f"{float(v):.6f}".rstrip("0").rstrip(".")
+    return "0" if s in ("-0", "", "-") else s
+
+
+def _indices(tris: NDArray[np.int64]) -> str:
+    return ",\n".join(f"{a} {b} {c} -1" for a, b, c in tris)
+
+
+def _parts(rig: FaceRig) -> Iterable[tuple[str, NDArray[np.int64], NDArray[np.int64]]]:
+    """Each part's vertex indices and triangles renumbered within the part."""
+    mesh = rig.mesh
+    for part in PART_NAMES:
+        sel = np.flatnonzero(mesh.in_part(part))
+        remap = np.full(mesh.n_vertices, -1, dtype=np.int64)
+        remap[sel] = np.arange(sel.size)
+        yield part, sel, remap[mesh.triangles[part]]
+
+
+def vrml_text(rig: FaceRig, weights: NDArray[np.float64], fps: float, name: str, *,
+              audio: str | None = None) -> str:
+    """A VRML97 world: one frame if `weights` is one row, else the animation at `fps`."""
+    w = np.atleast_2d(np.asarray(weights, dtype=float))
+    if w.shape[1] != rig.targets.shape[0] or not np.isfinite(w).all():
+        raise AnimationError(f"VRML weights must be finite (frames, {rig.targets.shape[0]}), got {w.shape}")
+    poses = rig.pose(w) * MM  # (frames, n, 3) metres
+    animated = w.shape[0] > 1
+    out = ["#VRML V2.0 utf8", f"# {name}: coartic's generated face driven by MPEG-4 FAPs (coartic.face.vrml)",
+           f'WorldInfo {{ title "{_string(name)}" info [ "frames {w.shape[0]}", "fps {fps:g}" ] }}',
+           'NavigationInfo { type [ "EXAMINE", "ANY" ] }',
+           'Viewpoint { position 0 0.02 0.55 description "front" }',
+           "Transform { children ["]
+    for part, sel, tris in _parts(rig):
+        out += [
+            "  Shape {",
+            "    appearance Appearance { material Material { diffuseColor 1 1 1 ambientIntensity 0.3 } }",
+            "    geometry IndexedFaceSet {",
+            "      solid FALSE creaseAngle 0 colorPerVertex TRUE",
+            f"      coord DEF {part}_coord Coordinate {{ point [\n{_vec3(poses[0][sel])}\n      ] }}",
+            f"      color Color {{ color [\n{_vec3(rig.mesh.colors[sel])}\n      ] }}",
+            f"      coordIndex [\n{_indices(tris)}\n      ]",
+            "    }",
+            "  }",
+        ]
+    out.append("] }")
+    if animated:
+        duration = w.shape[0] / fps
+        keys = np.arange(w.shape[0]) / fps / duration
+        out.append(f"DEF clock TimeSensor {{ cycleInterval {_fmt(duration)} loop TRUE }}")
+        for part, sel, _ in _parts(rig):
+            if np.ptp(poses[:, sel], axis=0).max() == 0.0:
+                continue  # a part that never moves needs no interpolator
+            out.append(f"DEF {part}_motion CoordinateInterpolator {{")
+            out.append(f"  key [ {' '.join(_fmt(k) for k in keys)} ]")
+            out.append(f"  keyValue [\n{_vec3(poses[:, sel])}\n  ]")
+            out.append("}")
+            out.append(f"ROUTE clock.fraction_changed TO {part}_motion.set_fraction")
+            out.append(f"ROUTE {part}_motion.value_changed TO {part}_coord.set_point")
+        if audio:
+            out.append(f'Sound {{ source DEF voice AudioClip {{ url [ "{_string(audio)}" ] loop TRUE }} '
+                       "spatialize FALSE minFront 100 minBack 100 maxFront 100 maxBack 100 }")
+    return "\n".join(out) + "\n"
+
+
+def _string(s: str) -> str:
+    return s.replace("\\", "\\\\").replace('"', '\\"')
+
+
+def write_vrml(path: str | PathLike[str], rig: FaceRig, weights: NDArray[np.float64], fps: float, name: str, *,
+               audio: str | None = None) -> Path:
+    """Write `vrml_text(...)` to `path` through a .part name."""
+    path = Path(path)
+    tmp = path.with_name(path.name + ".part")
+    tmp.write_text(vrml_text(rig, weights, fps, name, audio=audio), encoding="utf-8")
+    os.replace(tmp, path)
+    return path
+
+
+def write_face_vrml(path: str | PathLike[str], faps: FapSequence, *, frames: Iterable[int] | None = None,
+                    audio: str | None = None) -> list[Path]:
+    """The project's face played by `faps`: the animation in `path`, or with `frames`, the face at
+    each of those frames in PATH_STEM_fK.wrl (static worlds, as LUCIA's snapshots)."""
+    rig = default_rig()
+    weights = rig.weights(faps)
+    path = Path(path)
+    if frames is None:
+        return [write_vrml(path, rig, weights, faps.fps, faps.name, audio=audio)]
+    written = []
+    for k in frames:
+        if not 0 <= k < faps.n_frames:
+            raise AnimationError(f"frame {k} is outside 0..{faps.n_frames - 1} of {faps.name!r}")
+        written.append(write_vrml(path.with_name(f"{path.stem}_f{k}.wrl"), rig, weights[k], faps.fps,
+                                  f"{faps.name} frame {k}"))
+    return written
