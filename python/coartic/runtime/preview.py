@@ -308,22 +308,30 @@ def _write_mp4(
     h, w = first.shape[:2]
     cmd = [ffmpeg, "-y", "-loglevel", "error", "-f", "rawvideo", "-pix_fmt", "rgb24", "-s", f"{w}x{h}",
            "-r", repr(float(fps)), "-i", "-"]
+    # "file:" makes every path a path: ffmpeg reads "-odd/x.mp4" as an option and "take:2/x.mp4"
+    # as a protocol otherwise
     if audio is not None:
-        cmd += ["-i", str(audio), "-c:a", "aac", "-b:a", "96k"]
+        cmd += ["-i", f"file:{audio}", "-c:a", "aac", "-b:a", "96k"]
     # veryfast: the preview is for looking at, and x264's default preset makes the encoder the bottleneck
-    cmd += ["-vf", "pad=ceil(iw/2)*2:ceil(ih/2)*2", "-pix_fmt", "yuv420p", "-preset", "veryfast", "-f", "mp4", str(path)]
+    cmd += ["-vf", "pad=ceil(iw/2)*2:ceil(ih/2)*2", "-pix_fmt", "yuv420p", "-preset", "veryfast", "-f", "mp4",
+            f"file:{path}"]
     proc = subprocess.Popen(cmd, stdin=subprocess.PIPE, stderr=subprocess.PIPE)
     assert proc.stdin is not None
     try:
         for rgb in _chain(first, frames):
             proc.stdin.write(rgb.tobytes())
             advance()
+    except BrokenPipeError:
+        pass  # ffmpeg stopped reading: its exit code and message say why, below
     finally:
-        proc.stdin.close()
+        try:
+            proc.stdin.close()
+        except BrokenPipeError:
+            pass
         err = proc.stderr.read().decode(errors="replace") if proc.stderr else ""
         code = proc.wait()
     if code != 0:
-        raise AnimationError(f"ffmpeg failed writing {path} (exit {code}): {err.strip()[-300:]}")
+        raise AnimationError(f"ffmpeg failed writing {path} (exit {code}): {err.strip()[-300:] or 'no message'}")
 
 
 def _chain(first: NDArray[np.uint8], rest: Iterator[NDArray[np.uint8]]) -> Iterator[NDArray[np.uint8]]:
