@@ -22,6 +22,7 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
+from coartic.errors import CoarticError
 from coartic.outputs import atomic_write_text
 
 SCHEMA = "coartic.table/1"
@@ -70,7 +71,7 @@ CHANNEL_DEFAULTS: Mapping[str, Any] = {
 }
 
 
-class TableError(ValueError):
+class TableError(CoarticError, ValueError):
     """An invalid parameter table; the message names the file and the entry at fault."""
 
 

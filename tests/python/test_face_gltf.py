@@ -248,3 +248,23 @@ new THREE.GLTFLoader().parse(buf, "", gltf => {{
     for mesh in got["meshes"]:
         assert list(mesh["dict"]) == list(TARGET_NAMES)
         np.testing.assert_allclose(mesh["w"], want, atol=1e-6)
+
+
+def test_animate_audio_is_the_mp4_sound_track(tmp_path: Path) -> None:
+    """--audio puts the user's recording into the MP4 preview, as long as the video."""
+    import json
+
+    labels = tmp_path / "l.tsv"
+    labels.write_text(LABELS)
+    wav = write_wav(tmp_path / "rec.wav", 1.1)
+    out = tmp_path / "o"
+    res = CliRunner().invoke(app, ["animate", str(labels), "-t", str(GROUND_TRUTH), "-o", str(out),
+                                   "--preview", "mp4", "--audio", str(wav)])
+    assert res.exit_code == 0, res.output
+    probe = subprocess.run(["ffprobe", "-v", "error", "-show_streams", "-of", "json", str(out / "preview.mp4")],
+                           capture_output=True, text=True, check=True)
+    streams = {s["codec_type"]: s for s in json.loads(probe.stdout)["streams"]}
+    assert set(streams) == {"video", "audio"}
+    assert int(streams["video"]["nb_frames"]) == 28
+    assert abs(float(streams["audio"]["duration"]) - 1.1) <= 1 / 25
+    assert (out / "l.wav").read_bytes() == wav.read_bytes()

@@ -292,7 +292,7 @@ function start() {
   window.addEventListener("pointerup", () => { drag = null; });
   window.addEventListener("pointermove", e => {
     if (!drag) return;
-    view.yaw = drag[2] - (e.clientX - drag[0]) * 0.01;
+    view.yaw = Math.max(-1.0, Math.min(1.0, drag[2] - (e.clientX - drag[0]) * 0.01));  // a mask: no back
     view.pitch = Math.max(-1.2, Math.min(1.2, drag[3] + (e.clientY - drag[1]) * 0.01));
     show(t);
   });

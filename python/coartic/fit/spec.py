@@ -13,6 +13,7 @@ from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
+from coartic.errors import CoarticError
 from coartic.io.errors import DataError
 from coartic.io.roles import RoleMap
 from coartic.table import ALL_CHANNELS, CHANNELS, PARAMETERS, VARIANTS, ChannelSettings
@@ -40,7 +41,7 @@ DEFAULT_STAGES: tuple[tuple[str, ...], ...] = (
 )
 
 
-class SpecError(ValueError):
+class SpecError(CoarticError, ValueError):
     """A fit specification that cannot be used; the message names the file and the key."""
 
 
