@@ -24,6 +24,7 @@ def _write(path: Path, sensors: dict[str, np.ndarray], extra: str = "") -> None:
             f.write(",".join([repr(i / RATE), *vals]) + "\n")
 
 
+@pytest.mark.filterwarnings("ignore::coartic.io.errors.DataWarning")  # made-up sizes (LR 480 mm)
 def test_ema_channels_follow_the_documented_mapping(tmp_path: Path) -> None:
     n = 200
     t = np.arange(n) / RATE
@@ -73,3 +74,98 @@ def test_ema_sensor_guess_and_missing_lips(tmp_path: Path) -> None:
     with pytest.raises(DataError, match=r"tongue\.csv: EMA channels need the UL and LL roles; the "
                                         r"sensors are \['tt', 'tb'\]"):
         load_trial(q).channels()
+
+
+REAL = Path(__file__).parents[1] / "data/realdata/emu-ema-german/derived"
+
+
+def _x_anterior_copy(tmp_path: Path) -> tuple[Path, Path]:
+    """The real German EMA (up +z, forwards -y) rewritten with x forwards, y lateral, z up."""
+    src = REAL / "dfgspp_mo1_prosody_0020_ema.csv"
+    lines = src.read_text().splitlines()
+    header = lines[0].split(",")
+    out = [lines[0]]
+    for line in lines[1:]:
+        cells = line.split(",")
+        for s in ("ul", "ll", "jw", "tt", "tm", "tb"):
+            ix, iy = header.index(f"{s}_posx"), header.index(f"{s}_posy")
+            x, y = cells[ix], cells[iy]
+            cells[ix] = "" if y == "" else repr(-float(y)) if float(y) else "0.0"
+            cells[iy] = x
+        out.append(",".join(cells))
+    p = tmp_path / "x_anterior.csv"
+    p.write_text("\n".join(out) + "\n")
+    return src, p
+
+
+def test_ema_axes_from_the_spec_and_a_warning_when_they_look_wrong(tmp_path: Path) -> None:
+    import warnings
+
+    from typer.testing import CliRunner
+
+    from coartic.cli import app
+    from coartic.fit.data import load_utterances
+    from coartic.fit.spec import load_spec
+    from coartic.io.errors import DataWarning
+
+    src, p = _x_anterior_copy(tmp_path)
+    truth = load_trial(src).channels()
+    with pytest.warns(DataWarning, match=r"x_anterior\.csv: the EMA axes look wrong .*LL is 11\.\d mm "
+                                         r"from the jaw sensor along x \(taken as lateral\)"):
+        load_trial(p).channels()
+    axes = {"UL": "ul", "LL": "ll", "JAW": "jw", "axes": {"vertical": "+z", "anterior": "+x"}}
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", DataWarning)  # the right axes: no warning
+        right = load_trial(p, role_map=axes).channels()
+    for c in ("ULP", "LLP", "ULO", "LA", "JO"):
+        np.testing.assert_allclose(right[c], truth[c], atol=1e-9, err_msg=c)
+    # the fit spec's role map carries the axes too
+    spec = tmp_path / "spec.toml"
+    spec.write_text(f"""
+[corpus]
+files = ["{p}"]
+labels = ["{REAL / 'dfgspp_mo1_prosody_0020_Segment.tsv'}"]
+label_map = "german_sampa"
+role_map = {{ UL = "ul", LL = "ll", JAW = "jw", axes = {{ vertical = "+z", anterior = "+x" }} }}
+[model]
+channels = ["ULP", "LLP"]
+""")
+    utt = load_utterances(load_spec(spec))[0]
+    np.testing.assert_allclose(utt.observed["LLP"], truth["LLP"], atol=1e-9)
+    spec.write_text(spec.read_text().replace('anterior = "+x"', 'lateral = "+y"'))
+    from coartic.fit.spec import SpecError
+
+    with pytest.raises(SpecError, match=r"\[corpus\.role_map\] role map: unknown axis 'lateral'"):
+        load_spec(spec)
+    # the CLI prints the warning
+    r = CliRunner().invoke(app, ["inspect", str(p)], env={"COLUMNS": "200"})
+    assert r.exit_code == 0, r.output
+    assert "warning: " in r.output and "the EMA axes look wrong" in " ".join(r.output.split())
+
+
+def test_role_map_giving_two_roles_one_sensor_is_refused(tmp_path: Path) -> None:
+    from coartic.io.roles import RoleMap
+
+    with pytest.raises(DataError, match=r"roles UL and LL both name marker 'ul'"):
+        RoleMap.from_dict({"UL": "ul", "LL": "ul"})
+    # LL given the marker that UL finds by its own name: LA would be 0
+    with pytest.raises(DataError, match=r"0020_ema\.csv: roles UL and LL are both marker 'ul'"):
+        load_trial(REAL / "dfgspp_mo1_prosody_0020_ema.csv", role_map={"LL": "ul"}).channels()
+
+
+def test_emu_bundle_char_positions_and_deep_nesting(tmp_path: Path) -> None:
+    import base64
+    import json
+
+    header = ("SSFF -- (c) SHLRC\nMachine IBM-PC\nRecord_Freq 100.0\nStart_Time 0.0\n"
+              "Column ul_posx CHAR 1\nColumn ul_posy CHAR 1\nColumn ul_posz CHAR 1\n-----------------\n")
+    data = header.encode() + b"abc" * 20
+    p = tmp_path / "x_bndl.json"
+    p.write_text(json.dumps({"ssffFiles": [{"fileExtension": "ul",
+                                            "data": base64.b64encode(data).decode()}]}))
+    with pytest.raises(DataError, match=r"x_bndl\.json: track 'ul': position column 'ul_posx' holds "
+                                        r"\|S1 \(CHAR\), not numbers"):
+        load_trial(p)
+    p.write_text("[" * 100_000 + "]" * 100_000)
+    with pytest.raises(DataError, match=r"x_bndl\.json: JSON nested too deeply"):
+        load_trial(p)

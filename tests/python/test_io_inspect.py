@@ -3,7 +3,9 @@
 from __future__ import annotations
 
 from pathlib import Path
+from typing import Any
 
+import pytest
 from typer.testing import CliRunner
 
 from coartic.cli import app
@@ -35,7 +37,9 @@ def test_inspect_c3d_without_face_markers_and_bad_file(tmp_path: Path) -> None:
     png = tmp_path / "m.png"
     r = CliRunner().invoke(app, ["inspect", str(DATA / "c3d-optotrak/Optotrak.c3d"),
                                  "--allow-truncated", "--plot", str(png)], env={"COLUMNS": "160"})
-    assert r.exit_code == 0, r.output
+    # read, summarised and plotted, but no channel can be made of it: scripts must see that
+    assert r.exit_code == 1, r.output
+    assert png.is_file()
     assert "54 markers, 29 frames at 30 Hz" in r.output and "Marker_54" in r.output
     assert "no channels:" in r.output and "required marker(s)" in r.output
     assert png.read_bytes()[:4] == b"\x89PNG"
@@ -44,3 +48,39 @@ def test_inspect_c3d_without_face_markers_and_bad_file(tmp_path: Path) -> None:
     r = CliRunner().invoke(app, ["inspect", str(bad)], env={"COLUMNS": "200"})
     assert r.exit_code == 1 and "line 3: column 'UL_y': 'x' is not a number" in r.output
     assert "Traceback" not in r.output
+
+
+def test_inspect_plot_into_a_missing_folder_is_an_error_first(tmp_path: Path) -> None:
+    r = CliRunner().invoke(app, ["inspect", str(EMA / "dfgspp_mo1_prosody_0024_ema.csv"),
+                                 "--plot", str(tmp_path / "nodir" / "x.png")], env={"COLUMNS": "300"})
+    assert r.exit_code == 1, r.output
+    assert "error: --plot" in r.output and "nodir does not exist" in r.output
+    assert "Traceback" not in r.output
+
+
+def test_fit_channels_option_treats_la_like_the_others(tmp_path: Path,
+                                                      monkeypatch: pytest.MonkeyPatch) -> None:
+    import coartic.fit.runner as runner
+
+    spec = tmp_path / "s.toml"
+    spec.write_text(f"""
+[corpus]
+files = ["{EMA / 'dfgspp_mo1_prosody_0024_ema.csv'}"]
+labels = ["{EMA / 'dfgspp_mo1_prosody_0024_Segment.tsv'}"]
+label_map = "german_sampa"
+[model]
+channels = ["LA"]
+""")
+    seen: list[tuple[str, ...]] = []
+
+    def run(s: Any, out: Path, **kw: Any) -> None:  # the option is what is tested, not the fit
+        seen.append(s.channels)
+        raise ValueError("stop here")
+
+    monkeypatch.setattr(runner, "run", run)
+    for chans in ("JO", "LA,JO"):  # JO is not in the spec either: it may be named like LA
+        r = CliRunner().invoke(app, ["fit", str(spec), "--out", str(tmp_path / "o"), "--channels", chans])
+        assert "stop here" in r.output, r.output
+    r = CliRunner().invoke(app, ["fit", str(spec), "--out", str(tmp_path / "o"), "--channels", "XX"])
+    assert r.exit_code != 0 and "--channels: ['XX']: not channels" in r.output
+    assert seen == [("JO",), ("LA", "JO")]

@@ -264,3 +264,38 @@ def test_label_map_record_round_trips_through_a_table(tmp_path: Path) -> None:
         LabelMap.recorded(table)
     del table.metadata["label_map"]
     assert LabelMap.recorded(table) is None
+
+
+def test_tsv_malformed_first_row_is_an_error_not_a_header(tmp_path: Path) -> None:
+    p = _write(tmp_path, "a.tsv", "0.0x\t0.3\tsil\n0.3\t0.5\ta\n")
+    with pytest.raises(DataError, match=r"a\.tsv, line 1: expected times in seconds, found '0\.0x'"):
+        read_labels(p)
+    assert len(read_labels(_write(tmp_path, "h.tsv", "tmin\ttmax\ttext\n0\t0.3\tsil\n"))) == 1
+    with pytest.raises(DataError, match=r"b\.tsv, line 2: expected times in seconds, found '0\.5014abc'"):
+        read_labels(_write(tmp_path, "b.tsv", "0\t0.3\tsil\n0.5014abc\t0.6\ta\n"))
+
+
+def test_missing_label_is_an_error_not_a_pause(tmp_path: Path) -> None:
+    with pytest.raises(DataError, match=r"m\.tsv, line 2: no label after the times 0\.3 0\.5"):
+        read_labels(_write(tmp_path, "m.tsv", "0\t0.3\tsil\n0.3\t0.5\n0.5\t0.7\ta\n"))
+    with pytest.raises(DataError, match=r"w\.txt, line 2: no label"):
+        read_labels(_write(tmp_path, "w.txt", "0 0.3 sil\n0.3 0.5\n"))
+    with pytest.raises(DataError, match=r"x\.lab, line 4: .*no label"):
+        read_labels(_write(tmp_path, "x.lab", "separator ;\n#\n0.3 125 pau\n0.5 125\n"))
+    # an explicitly empty cell is Praat's empty interval: a pause
+    assert read_labels(_write(tmp_path, "e.tsv", "0\t0.3\t\n0.3\t0.5\ta\n")).labels == ("", "a")
+
+
+def test_textgrid_size_that_undercounts_and_malformed_numbers(tmp_path: Path) -> None:
+    # five intervals, size = 3: the two after the third must not be dropped silently
+    tg = LONG_TG.replace("intervals: size = 5", "intervals: size = 3")
+    with pytest.raises(DataError, match=r"c\.TextGrid, line \d+: tier 'phones' holds more items than "
+                                        r"its size says: unexpected '0\.55'"):
+        read_labels(_write(tmp_path, "c.TextGrid", tg))
+    tg2 = LONG_TG.replace("points: size = 1", "points: size = 0")
+    with pytest.raises(DataError, match=r"expected the class of tier 2, found '0\.5' \(does the size "
+                                        r"of tier 'events' count all its items\?\)"):
+        read_labels(_write(tmp_path, "d.TextGrid", tg2))
+    tg3 = LONG_TG.replace("xmax = 0.45", "xmax = 0.45abc")
+    with pytest.raises(DataError, match=r"f\.TextGrid, line \d+: malformed number '0\.45abc'"):
+        read_labels(_write(tmp_path, "f.TextGrid", tg3))

@@ -175,12 +175,49 @@ def test_c3d_truncated_and_garbage(tmp_path: Path, face) -> None:  # type: ignor
     assert 140 < part.n_frames < 150 and "truncated" in part.meta["notes"][-1]
     head = tmp_path / "head.c3d"
     head.write_bytes(data[:600])
-    with pytest.raises(DataError, match=r"head\.c3d: corrupt or truncated C3D"):
+    with pytest.raises(DataError, match=r"head\.c3d: parameter section: .* run past the end of the file"):
         read_c3d(head)
     junk = tmp_path / "junk.c3d"
     junk.write_bytes(b"hello world" * 100)
     with pytest.raises(DataError, match=r"junk\.c3d: not a C3D file"):
         load_trial(junk)
+
+
+def test_c3d_corrupt_parameter_section_is_refused_before_ezc3d(tmp_path: Path) -> None:
+    # one byte: the number of dimensions of POINT:LABELS set to 255 made ezc3d segfault
+    data = bytearray((Path(__file__).parents[1] / "data/realdata/c3d-optotrak/Optotrak.c3d").read_bytes())
+    at = data.index(b"LABELS") + len("LABELS") + 3  # after the name: 2 bytes offset, 1 data type
+    assert data[at] == 2
+    data[at] = 255
+    bad = tmp_path / "bad.c3d"
+    bad.write_bytes(bytes(data))
+    for backend in ("auto", "ezc3d", "c3d"):
+        with pytest.raises(DataError, match=r"bad\.c3d: parameter POINT:LABELS: 255 dimensions \(C3D "
+                                            r"allows at most 7\)"):
+            read_c3d(bad, backend=backend, allow_truncated=True)  # type: ignore[arg-type]
+    data[at] = 3  # three dimensions of the labels' sizes: more bytes than the entry holds
+    bad.write_bytes(bytes(data))
+    with pytest.raises(DataError, match=r"POINT:LABELS: dimensions \[40, 54, \d+\] of 1-byte values"):
+        read_c3d(bad, allow_truncated=True)
+
+
+def test_c3d_truncated_block_padding_is_not_read_as_frames(tmp_path: Path, face) -> None:  # type: ignore[no-untyped-def]
+    import c3d
+
+    _, m = face
+    p = tmp_path / "t.c3d"
+    write_c3d(p, m[:, :2], ROLES[:2])  # 2 markers: 32 bytes a frame, so a block pads several
+    data = p.read_bytes()
+    with p.open("rb") as f:
+        start = (c3d.Reader(f).header.data_block - 1) * 512
+    cut = start + 10 * 32
+    padded = tmp_path / "padded.c3d"
+    padded.write_bytes(data[:cut] + bytes(-cut % 512))  # 10 frames, then zeros to the block end
+    for backend in ("ezc3d", "c3d"):
+        t = read_c3d(padded, backend=backend, allow_truncated=True)
+        assert t.n_frames == 10, backend
+        np.testing.assert_allclose(t.markers, m[:10, :2], atol=1e-3)
+        assert "6 all-zero frames of block padding" in t.meta["notes"][-1]
 
 
 def test_real_optotrak_c3d() -> None:
@@ -346,3 +383,54 @@ def test_common_rate(face) -> None:  # type: ignore[no-untyped-def]
     b = Trial(np.repeat(m, 2, axis=0)[:-1].copy(), ROLES, 2 * RATE)
     a2, b2 = common_rate([a, b])
     assert a2 is a and b2.rate == RATE and b2.n_frames == a.n_frames
+
+
+def test_la_without_head_markers_and_markers_differing_in_case(tmp_path: Path, face) -> None:  # type: ignore[no-untyped-def]
+    ch, m = face
+    p = tmp_path / "lips.csv"
+    write_csv(p, m[:, 3:5], ("UL", "LL"))  # the lips only: no head frame, but LA is a distance
+    la = load_trial(p).channels(["LA"])["LA"]
+    np.testing.assert_allclose(la, np.linalg.norm(m[:, 3] - m[:, 4], axis=1), atol=1e-9)
+    c = load_trial(p).channels()
+    assert list(c) == ["LA"] and "no marker for role(s) ['NOSE', 'EAR_L', 'EAR_R']" in c.unavailable["ULO"]
+    with pytest.raises(DataError, match=r"channel ULO cannot be computed|required marker"):
+        load_trial(p).channels(["ULO"])
+    q = tmp_path / "case.csv"
+    write_csv(q, m[:, 3:6], ("ul", "LL", "UL"))
+    with pytest.raises(DataError, match=r"case\.csv: markers \['ul', 'UL'\] differ only in case: which is UL"):
+        load_trial(q).channels(["LA"])
+    la2 = load_trial(q, role_map={"UL": "UL"}).channels(["LA"])["LA"]  # named exactly: no doubt
+    np.testing.assert_allclose(la2, np.linalg.norm(m[:, 5] - m[:, 4], axis=1), atol=1e-9)
+
+
+def test_csv_time_columns_overflow_and_implausible_values(tmp_path: Path, face) -> None:  # type: ignore[no-untyped-def]
+    from coartic.io.errors import DataWarning
+
+    _, m = face
+    p = tmp_path / "two_times.csv"
+    write_csv(p, m[:20], ROLES)
+    lines = p.read_text().splitlines()
+    p.write_text("\n".join([lines[0] + ",time"] + [ln + f",{i * 10}" for i, ln in enumerate(lines[1:])]) + "\n")
+    with pytest.raises(DataError, match=r"two_times\.csv, line 1: 2 time columns \['time_s', 'time'\]"):
+        load_trial(p)
+    q = tmp_path / "metres.csv"
+    big = m[:20] / 1000.0
+    big[7, 4, 1] = 1e306  # LL_y: finite in m, inf in mm
+    write_csv(q, big, ROLES)
+    q.write_text("# units: m\n" + q.read_text())
+    with pytest.raises(DataError, match=r"metres\.csv: marker positions: 1e\+306 m \(frame 7, marker 'LL', "
+                                        r"y\) overflows when converted to mm"):
+        load_trial(q)
+    r = tmp_path / "huge.csv"
+    huge = m[:60].copy()
+    huge[30, 0, 0] = 1e308
+    write_csv(r, huge, ROLES)
+    with pytest.warns(DataWarning, match=r"huge\.csv: marker 'NOSE' is at 1e\+308 mm \(x, frame 30"):
+        load_trial(r)
+    s = tmp_path / "wide.csv"
+    wide = m[:60].copy()
+    wide[40:, 4, :] -= 1300.0 * (wide[40:, 0, :] - wide[40:, 3, :]) / np.linalg.norm(
+        wide[40:, 0, :] - wide[40:, 3, :], axis=1)[:, None]  # the lower lip 1.3 m below the upper
+    write_csv(s, wide, ROLES)
+    with pytest.warns(DataWarning, match=r"wide\.csv: channel LA reaches 13\d\d(\.\d+)? mm \(beyond 150 mm"):
+        load_trial(s).channels(["LA"])

@@ -9,7 +9,9 @@ from typing import Any
 import numpy as np
 import pytest
 
+from coartic import _core
 from coartic.fit.problem import ChannelProblem
+from coartic.model import Utterance, build_corpus
 from coartic.fit.result import FitResult
 from coartic.fit.runner import run
 from coartic.fit.simulate import PHONEMES, TRUTH, vcv_utterances
@@ -103,3 +105,59 @@ def test_report_escapes_names_and_manifest_cells(tmp_path: Path) -> None:
     assert "<script>" not in html and "<img src=x" not in html
     assert "&lt;script&gt;alert(1)&lt;/script&gt;" in html and "&lt;img src=x onerror=alert(2)&gt;1" in html
     assert '<section class="mcmc"><h3>LLO /p/</h3></section>' in html  # the project's own fragment, as HTML
+
+
+def sentence(rng: np.random.Generator, n_words: int = 20) -> list[Utterance]:
+    """One long utterance (a sentence of CV syllables, like the real EMA recordings) and one VCV."""
+    labels = ["#"] + [x for _ in range(n_words) for x in (str(rng.choice(["p", "t", "l"])), str(rng.choice(["a", "i"])))] + ["#"]
+    d = np.array([0.3] + [0.05] * (len(labels) - 2) + [0.3]) * rng.uniform(0.9, 1.1, len(labels))
+    ends = np.cumsum(d)
+    starts = np.concatenate([[0.0], ends[:-1]])
+    t = np.arange(0.0, ends[-1], 0.01)
+    u = Utterance(tuple(labels), starts, ends, t, name="dfgspp_mo1_prosody_0020_ema", observed={}, valid={},
+                  meta={"stimulus": "dfgspp_mo1_prosody_0020_ema", "file": "/data/dfgspp_mo1_prosody_0020_ema.csv"})
+    f = _core.evaluate(build_corpus([u], PHONEMES), TRUTH, 1.0, _core.ModelOptions("modified", 0.5, 1.0))
+    u.observed["LLO"] = np.asarray(f) + rng.normal(0.0, 0.1, t.size)
+    u.valid["LLO"] = np.ones(t.size, dtype=bool)
+    return [u]
+
+
+def overlaps(boxes: list[Any]) -> list[tuple[int, int]]:
+    return [(i, j) for i in range(len(boxes)) for j in range(i + 1, len(boxes)) if boxes[i].overlaps(boxes[j])]
+
+
+def test_report_of_a_sentence_reads_well(tmp_path: Path) -> None:
+    """A real sentence: a figure wide enough that no two segment labels overlap, a title without
+    slashes around the file name, a legend naming each phoneme's colour in the weight panel, and
+    the residual over time and per phoneme."""
+    from coartic.report import plots
+
+    utts = sentence(np.random.default_rng(3))
+    spec = make_spec(tmp_path, ["target"])
+    result = run(spec, tmp_path / "out", utterances=utts, quiet=True)
+    fit = result.channels["LLO"]
+    fig = plots.trajectory_figure(fit, result.table(), [0])
+    fig.canvas.draw()
+    top = fig.axes[0]
+    labels = [t for t in top.texts if t.get_text() in PHONEMES]
+    assert [t.get_text() for t in labels] == list(utts[0].labels)
+    r = fig.canvas.get_renderer()  # type: ignore[attr-defined]
+    assert overlaps([t.get_window_extent(r) for t in labels]) == []
+    title = top.get_title()
+    assert title.startswith("dfgspp_mo1_prosody_0020_ema ") and "/" not in title
+    assert top.title.get_window_extent(r).y0 > max(t.get_window_extent(r).y1 for t in labels) - 1  # above the labels
+    legend = fig.legends[0]
+    assert {t.get_text() for t in legend.get_texts()} == set(utts[0].labels)
+    # a VCV stimulus is a transcription: slashes
+    assert plots.utterance_title(vcv_utterances(np.random.default_rng(1), repetitions=1)[0]) == "/a p a/  normal"
+    # residual per phoneme: the RMSE of the samples inside its segments
+    per = plots.phoneme_rmse(fit)
+    res = fit.residuals()
+    u = utts[0]
+    seg = np.searchsorted(u.starts, u.times, side="right") - 1
+    for ph, (rmse, n) in per.items():
+        m = np.isin(seg, [i for i, lab in enumerate(u.labels) if lab == ph])
+        assert n == m.sum() and rmse == pytest.approx(np.sqrt(np.mean(res[m] ** 2)))
+    html = write_report(result, tmp_path / "out").read_text()
+    for f in ("residuals_time.png", "rmse_phonemes.png"):
+        assert (tmp_path / "out" / "figures" / f).is_file() and f"figures/{f}" in html

@@ -3,6 +3,7 @@ headless Chromium (Debian's chromium, software WebGL): lips closed at /p b m/, o
 
 from __future__ import annotations
 
+import re
 import shutil
 import subprocess
 import threading
@@ -145,3 +146,17 @@ def test_chromium_shows_lips_closed_at_p_b_m_and_open_at_a(run: Path, chromium: 
                          capture_output=True, text=True, timeout=60)
     assert f'data-frame="{shown["m"]}"' in dom.stdout
     assert '<div id="error"></div>' in dom.stdout
+
+
+def test_playing_follows_the_sound(run: Path, chromium: str, tmp_path: Path) -> None:
+    """?play=1 starts the WAV; every frame drawn is the frame of the sound's current time."""
+    page = write_page(run)
+    dom = subprocess.run([chromium, "--headless", "--no-sandbox", "--disable-gpu", "--use-angle=swiftshader",
+                          "--enable-unsafe-swiftshader", "--autoplay-policy=no-user-gesture-required",
+                          f"--user-data-dir={tmp_path / 'profile'}", "--virtual-time-budget=400", "--dump-dom",
+                          page.resolve().as_uri() + "?play=1"], capture_output=True, text=True, timeout=60).stdout
+    clock = re.search(r'data-clock="([0-9.]+)"', dom)
+    frame = re.search(r'data-frame="([0-9]+)"', dom)
+    assert clock and frame, dom[:300]
+    assert float(clock.group(1)) > 0  # the sound played
+    assert int(frame.group(1)) == round(float(clock.group(1)) * 25)

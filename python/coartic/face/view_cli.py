@@ -24,6 +24,7 @@ def view_command(
     screenshot: Annotated[Path | None, typer.Option("--screenshot", help="Also save a PNG of the page from headless Chromium.")] = None,
     frame: Annotated[int | None, typer.Option("--frame", help="Frame shown in the screenshot (default 0).")] = None,
     face_only: Annotated[int | None, typer.Option("--face-only", help="Screenshot only the face, N x N pixels.")] = None,
+    open_page: Annotated[bool, typer.Option("--open", help="Open the page in the default browser.")] = False,
 ) -> None:
     """Write OUT_DIR/view.html: the face (glTF) playing with its WAV in sync, the channels and a cursor.
 
@@ -38,10 +39,18 @@ def view_command(
             size = (face_only, face_only) if face_only else (1130, 580)
             png = take_screenshot(page, screenshot, frame=frame, face_only=face_only, size=size)
             _out.print(f"screenshot: {escape(str(png))}", highlight=False)
+        url = page.resolve().as_uri()
         if serve:
             server = make_server(out_dir, port)
             host, used = str(server.server_address[0]), int(server.server_address[1])
-            _out.print(f"serving on http://{host}:{used}/{page.name} (Ctrl-C stops)", highlight=False)
+            url = f"http://{host}:{used}/{page.name}"
+            _out.print(f"serving on {url} (Ctrl-C stops)", highlight=False)
+        if open_page:
+            import webbrowser
+
+            if not webbrowser.open(url):
+                _err.print(f"no browser found: open {escape(url)} yourself", highlight=False)
+        if serve:
             try:
                 server.serve_forever()
             except KeyboardInterrupt:

@@ -13,6 +13,7 @@ from rich.table import Table
 from coartic.fit.result import BAR_MM, FitResult
 from coartic.fit.spec import ENGINES, FitSpec, SpecError, load_spec
 from coartic.console import print_error
+from coartic.table import ALL_CHANNELS
 from coartic.outputs import OutputDir
 
 
@@ -67,9 +68,10 @@ def fit_command(
                 changes["engine_options"] = {}
         if channels is not None:
             chs = tuple(c.strip() for c in channels.split(",") if c.strip())
-            bad = [c for c in chs if c not in s.channels and c != "LA"]
-            if bad:
-                raise SpecError(f"--channels: {bad} not among the spec's channels {list(s.channels)}")
+            # any channel the data can give, LA like the others (the spec's list is the default)
+            bad = [c for c in chs if c not in ALL_CHANNELS]
+            if bad or not chs:
+                raise SpecError(f"--channels: {bad or channels!r}: not channels; known: {', '.join(ALL_CHANNELS)}")
             changes["channels"] = chs
         if no_staging:
             changes["staging"] = False

@@ -5,7 +5,7 @@ raises `DataError` (a ValueError) naming the file and the marker, label or line 
 See docs/DATA.md.
 """
 
-from coartic.io.errors import DataError
+from coartic.io.errors import DataError, DataWarning
 from coartic.io.gaps import DEFAULT_MAX_GAP, Gap
 from coartic.io.labelmap import PAUSE, LabelMap
 from coartic.io.labels import Segments, read_labels
@@ -18,6 +18,7 @@ __all__ = [
     "PAUSE",
     "Channels",
     "DataError",
+    "DataWarning",
     "Gap",
     "LabelMap",
     "RoleMap",

@@ -4,10 +4,17 @@ package when ezc3d is missing or fails.
 Occluded samples (a negative residual, which is how C3D flags them) become NaN. ezc3d reads a
 truncated file without complaint and returns fewer frames, so the frame count is checked against
 POINT:FRAMES / the header.
+
+ezc3d trusts the parameter section: one corrupted byte (a parameter's number of dimensions set to
+255) makes it read far past its buffers and crash the interpreter. So the section is walked here
+first, with bounds checked, and anything ezc3d could not read safely is a DataError.
 """
 
 from __future__ import annotations
 
+import dataclasses
+import math
+import struct
 import warnings
 from os import PathLike
 from pathlib import Path
@@ -21,6 +28,11 @@ from coartic.io.trial import Trial
 from coartic.io.units import to_mm
 
 Backend = Literal["auto", "ezc3d", "c3d"]
+
+BLOCK = 512  # C3D is organised in 512-byte blocks
+MAX_PARAM_DIMS = 7  # the C3D format allows at most 7 dimensions per parameter
+_ELEMENT_BYTES = {-1: 1, 1: 1, 2: 2, 4: 4}  # parameter data types: char, byte, int16, float
+_PROCESSORS = {84: "<", 85: "<", 86: ">"}  # Intel, DEC (little-endian integers), MIPS
 
 
 def read_c3d(
@@ -37,11 +49,13 @@ def read_c3d(
     if not p.is_file():
         raise DataError("no such C3D file", path=p)
     with p.open("rb") as f:
-        head = f.read(2)
+        # the header and the largest parameter section there can be (255 blocks after block 255)
+        head = f.read(2 * 256 * BLOCK)
     # Byte 2 of every C3D header is 0x50; checking it first keeps non-C3D files (and most
     # garbage) away from the C++ parser.
     if len(head) < 2 or head[1] != 0x50:
         raise DataError("not a C3D file (byte 2 of the header is not 0x50)", path=p)
+    check_parameter_section(p, head)
     use_ezc3d = backend in ("auto", "ezc3d")
     if use_ezc3d:
         try:
@@ -53,12 +67,124 @@ def read_c3d(
     trial = _read_ezc3d(p, units) if use_ezc3d else _read_pyc3d(p, units)
     declared = _declared_frames(p)
     if declared is not None and trial.n_frames < declared:
+        # A writer pads the last block with zero bytes; in a truncated file the readers take the
+        # whole frames of padding as frames at (0, 0, 0) with residual 0, i.e. valid.
+        held = _frames_before_padding(p)
+        padding = 0
+        if held is not None and held < trial.n_frames:
+            if held == 0:
+                raise DataError("no frames of POINT data (only the zero bytes that pad the last "
+                                "block)", path=p)
+            padding = trial.n_frames - held
+            trial = dataclasses.replace(trial, markers=trial.markers[:held].copy())
         msg = (f"truncated C3D: the header declares {declared} frames of POINT data, the file "
                f"holds {trial.n_frames}")
         if not allow_truncated:
             raise DataError(msg + " (allow_truncated=True reads those)", path=p)
-        trial.meta["notes"].append(msg + "; read those")
+        trial.meta["notes"].append(msg + "; read those" + (
+            f" ({padding} all-zero frames of block padding after them left out)" if padding else ""))
     return trial
+
+
+def check_parameter_section(p: Path, raw: bytes) -> None:
+    """Walk the parameter section in `raw` (the file's first bytes) as a C3D reader does, and
+    raise a DataError naming the group:parameter whose entry cannot be read within bounds."""
+    first = raw[0]
+    if first < 2:
+        raise DataError(f"header: the parameter section starts at block {first} (must be 2 or later)",
+                        path=p, item="header")
+    start = (first - 1) * BLOCK
+    if len(raw) < start + 4:
+        raise DataError("the file ends before its parameter section", path=p)
+    n_blocks, processor = raw[start + 2], raw[start + 3]
+    if processor not in _PROCESSORS:
+        raise DataError(f"parameter section: processor type {processor} is none of 84 (Intel), 85 "
+                        "(DEC), 86 (MIPS)", path=p)
+    end = start + BLOCK * n_blocks
+    if n_blocks == 0 or end > len(raw):
+        raise DataError(f"parameter section: {n_blocks} blocks from block {first} run past the end "
+                        "of the file", path=p)
+    order = _PROCESSORS[processor]
+    groups: dict[int, str] = {}
+    pos = start + 4
+    while pos + 2 <= end:
+        n_chars, gid = struct.unpack("bb", raw[pos:pos + 2])
+        if n_chars == 0 or gid == 0:
+            break  # the end of the parameter list
+        name_end = pos + 2 + abs(n_chars)
+        if name_end + 2 > end:
+            raise DataError(f"parameter section: the entry at byte {pos} runs past the section",
+                            path=p)
+        name = raw[pos + 2:name_end].decode("latin-1")
+        what = (f"parameter {groups.get(gid, f'group {gid}')}:{name}" if gid > 0 else f"group {name}")
+        if not name.isprintable():
+            raise DataError(f"parameter section: the name of the entry at byte {pos} is not text "
+                            f"({name!r})", path=p)
+        (offset,) = struct.unpack(order + "h", raw[name_end:name_end + 2])
+        nxt = end if offset == 0 else name_end + offset
+        if offset != 0 and not name_end + 2 <= nxt <= end:
+            raise DataError(f"{what}: its offset to the next entry ({offset}) points outside the "
+                            "parameter section", path=p, item=name)
+        if gid < 0:
+            groups[-gid] = name
+        else:
+            q = name_end + 2
+            if q + 2 > nxt:
+                raise DataError(f"{what}: the entry ends before its data type", path=p, item=name)
+            (dtype,) = struct.unpack("b", raw[q:q + 1])
+            n_dims = raw[q + 1]
+            if dtype not in _ELEMENT_BYTES:
+                raise DataError(f"{what}: data type {dtype} is none of -1 (char), 1 (byte), 2 "
+                                "(int16), 4 (float)", path=p, item=name)
+            if n_dims > MAX_PARAM_DIMS:
+                raise DataError(f"{what}: {n_dims} dimensions (C3D allows at most "
+                                f"{MAX_PARAM_DIMS}): a corrupt parameter section", path=p, item=name)
+            dims = list(raw[q + 2:q + 2 + n_dims])
+            size = math.prod(dims) * _ELEMENT_BYTES[dtype]
+            if q + 2 + n_dims + size > nxt:
+                raise DataError(f"{what}: dimensions {dims} of {_ELEMENT_BYTES[dtype]}-byte values "
+                                f"need {size} bytes, more than its entry holds: a corrupt parameter "
+                                "section", path=p, item=name)
+        if offset == 0:
+            break
+        pos = nxt
+
+
+def _frames_before_padding(p: Path) -> int | None:
+    """Whole frames of a truncated file that end before its trailing zero bytes (the padding of
+    the last block); None when the layout cannot be read."""
+    try:
+        import c3d
+
+        with p.open("rb") as f, warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            r = c3d.Reader(f)
+            data_start = (int(r.header.data_block) - 1) * BLOCK
+            size = 4 if float(r.point_scale) < 0 else 2
+            frame_bytes = size * (4 * int(r.point_used)
+                                  + int(r.analog_used) * int(r.header.analog_per_frame))
+    except Exception:  # an unreadable header was already reported by the reader that succeeded
+        return None
+    if frame_bytes <= 0:
+        return None
+    last = _last_nonzero_byte(p)
+    if last < data_start:
+        return 0
+    return -(-(last + 1 - data_start) // frame_bytes)  # frames that hold a non-zero byte
+
+
+def _last_nonzero_byte(p: Path) -> int:
+    """Offset of the file's last non-zero byte (-1 if none), reading backwards in blocks."""
+    with p.open("rb") as f:
+        pos = f.seek(0, 2)
+        while pos > 0:
+            step = min(pos, 64 * BLOCK)
+            pos -= step
+            f.seek(pos)
+            chunk = f.read(step).rstrip(b"\0")
+            if chunk:
+                return pos + len(chunk) - 1
+    return -1
 
 
 def _finish(
@@ -88,7 +214,7 @@ def _finish(
     if not given.strip():
         raise DataError("POINT:UNITS is empty; pass units='mm' (or cm, m) to say what they are",
                         path=p, item="POINT:UNITS")
-    xyz, note = to_mm(xyz, given, p, "marker positions")
+    xyz, note = to_mm(xyz, given, p, "marker positions", names)
     if note:
         notes.append(note)
     meta: dict[str, Any] = {"backend": backend, "first_frame": first_frame, "notes": notes}

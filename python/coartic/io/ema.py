@@ -9,6 +9,7 @@ channel is made is documented in docs/DATA.md.
 from __future__ import annotations
 
 import re
+import warnings
 from collections.abc import Sequence
 from os import PathLike
 from pathlib import Path
@@ -16,13 +17,17 @@ from pathlib import Path
 import numpy as np
 from numpy.typing import NDArray
 
-from coartic.io.errors import DataError
-from coartic.io.markers_csv import TIME_COLUMNS, parse_numbers, rate_from_times, read_table
+from coartic.io.errors import DataError, DataWarning
+from coartic.io.markers_csv import parse_numbers, rate_from_times, read_table, time_column
 from coartic.io.roles import RoleMap
 from coartic.io.trial import Trial
 from coartic.io.units import to_mm
 
 _POS = re.compile(r"^(?P<sensor>.+)_pos(?P<axis>[xyzXYZ])$")
+EMA_ROLES_USED = ("UL", "LL", "JAW", "LC", "LC_L", "LC_R", "NOSE")
+# The lips' motion along the axis taken as lateral may exceed their motion along the anterior axis
+# by this factor before the axes are called implausible (German EMA, right axes: 0.7).
+LATERAL_MOTION_RATIO = 2.0
 
 
 def looks_like_ema(header: Sequence[str]) -> bool:
@@ -36,10 +41,7 @@ def read_ema_csv(path: str | PathLike[str], units: str | None = None) -> Trial:
     """
     p = Path(path)
     header, rows, lines, file_unit = read_table(p)
-    tcol = next((i for i, h in enumerate(header) if h.lower() in TIME_COLUMNS), None)
-    if tcol is None:
-        raise DataError(f"no time column (one of {sorted(TIME_COLUMNS)}); the columns are "
-                        f"{header[:8]}...", path=p, line=1)
+    tcol, scale = time_column(header, p)
     cols: dict[str, dict[str, int]] = {}
     names: list[str] = []
     for i, h in enumerate(header):
@@ -62,12 +64,12 @@ def read_ema_csv(path: str | PathLike[str], units: str | None = None) -> Trial:
     if not rows:
         raise DataError("a header but no data rows", path=p)
     data = parse_numbers(rows, lines, header, p)
-    times = data[:, tcol] * TIME_COLUMNS[header[tcol].lower()]
+    times = data[:, tcol] * scale
     rate = rate_from_times(times, p, lines, header[tcol])
     xyz = np.stack([data[:, [cols[s]["x"], cols[s]["y"], cols[s]["z"]]] for s in names], axis=1)
     zero = np.all(xyz == 0.0, axis=(1, 2))
     xyz[zero] = np.nan
-    xyz, note = to_mm(xyz, units or file_unit or "mm", p, "sensor positions")
+    xyz, note = to_mm(xyz, units or file_unit or "mm", p, "sensor positions", names)
     notes = [note] if note else []
     if zero.any():
         notes.append(f"{int(zero.sum())} all-zero frames (no data) set to NaN")
@@ -85,8 +87,10 @@ def ema_channels(
     ai, asg = roles.anterior_axis
     li = 3 - vi - ai
 
+    idx = roles.resolve(EMA_ROLES_USED, names, source)
+
     def sensor(role: str) -> NDArray[np.float64] | None:
-        k = roles.find(role, names)
+        k = idx[role]
         return None if k is None else markers[:, k, :]
 
     ul, ll, jaw = sensor("UL"), sensor("LL"), sensor("JAW")
@@ -96,6 +100,7 @@ def ema_channels(
         raise DataError(f"EMA channels need the UL and LL roles; the sensors are {list(names)} "
                         "and the role map names " + (str(dict(roles.roles)) or "none") +
                         " (pass role_map={'UL': ..., 'LL': ...})", path=source, item="UL/LL")
+    check_axes(ul, ll, sensor("JAW"), roles, source)
     mid = 0.5 * (ul[:, vi] + ll[:, vi]) * vs
     rest_mid = mid[rest & np.isfinite(mid)]
     if rest_mid.size == 0:
@@ -122,3 +127,54 @@ def ema_channels(
     out["LA"] = np.linalg.norm(ul - ll, axis=1)
     return out, why
 
+
+
+def check_axes(
+    ul: NDArray[np.float64], ll: NDArray[np.float64], jaw: NDArray[np.float64] | None, roles: RoleMap,
+    source: Path | None,
+) -> None:
+    """Warn (DataWarning) when the role map's axes do not fit the sensors' geometry.
+
+    Three things hold on every speaker: the upper lip is above the lower lip, mostly along the
+    vertical; the lips sit in front of the lower incisors (the jaw sensor), more along the anterior
+    axis than sideways; and midline sensors move less sideways than forwards. Wrong axes give
+    wrong channels without an error, e.g. ULP and LLP read along the lateral axis.
+    """
+    vi, vs = roles.vertical_axis
+    ai, asg = roles.anterior_axis
+    li = 3 - vi - ai
+    ok = np.isfinite(ul).all(axis=1) & np.isfinite(ll).all(axis=1)
+    ok_jaw = ok & np.isfinite(jaw).all(axis=1) if jaw is not None else ok
+    if ok.sum() < 2:
+        return
+    where = f"{source}: " if source is not None else ""
+    axes = f"(axes: vertical {roles.vertical!r}, anterior {roles.anterior!r}, from {roles.source})"
+    sep = np.median(ul[ok] - ll[ok], axis=0)
+    problems: list[str] = []
+    if int(np.argmax(np.abs(sep))) != vi:
+        k = int(np.argmax(np.abs(sep)))
+        problems.append(f"UL and LL are {abs(sep[k]):.1f} mm apart along {'xyz'[k]} but "
+                        f"{abs(sep[vi]):.1f} mm along the vertical axis {'xyz'[vi]}")
+    elif sep[vi] * vs < 0:
+        problems.append(f"the UL sensor is {abs(sep[vi]):.1f} mm below LL along {roles.vertical!r} "
+                        "(the vertical sign, or UL/LL swapped?)")
+    if jaw is not None and ok_jaw.sum() >= 2:
+        front = np.median(ll[ok_jaw] - jaw[ok_jaw], axis=0)
+        if abs(front[li]) > abs(front[ai]):
+            problems.append(f"LL is {abs(front[li]):.1f} mm from the jaw sensor along {'xyz'[li]} "
+                            f"(taken as lateral) and {abs(front[ai]):.1f} mm along the anterior axis "
+                            f"{'xyz'[ai]}: the lips sit in front of the incisors, so "
+                            f"{'xyz'[li]} looks anterior")
+        elif front[ai] * asg < 0:
+            problems.append(f"LL is {abs(front[ai]):.1f} mm behind the jaw sensor along "
+                            f"{roles.anterior!r} (the anterior sign?)")
+    else:
+        lat = float(ul[ok, li].std() + ll[ok, li].std())
+        ant = float(ul[ok, ai].std() + ll[ok, ai].std())
+        if lat > LATERAL_MOTION_RATIO * ant:
+            problems.append(f"the lips move {lat / max(ant, 1e-12):.1f} times more along "
+                            f"{'xyz'[li]} (taken as lateral) than along the anterior axis {'xyz'[ai]}")
+    if problems:
+        warnings.warn(f"{where}the EMA axes look wrong {axes}: " + "; ".join(problems)
+                      + ". Give the axes in the role map, e.g. "
+                      '{"axes": {"vertical": "+z", "anterior": "+x"}}', DataWarning, stacklevel=3)

@@ -5,8 +5,10 @@ from __future__ import annotations
 from os import PathLike
 from pathlib import Path
 
+from coartic.errors import CoarticError
 
-class DataError(ValueError):
+
+class DataError(CoarticError, ValueError):
     """Bad or unreadable input data; the message names the file and what is at fault.
 
     `path`, `line` and `item` (a marker, label, tier or column name) are kept as attributes so
@@ -31,3 +33,8 @@ class DataError(ValueError):
                 where += f", line {line}"
             where += ": "
         super().__init__(where + message)
+
+
+class DataWarning(UserWarning):
+    """Data that reads but looks wrong (implausible values, axes that seem swapped): the result may
+    be wrong, so the CLI prints it; `warnings.simplefilter("error", DataWarning)` makes it an error."""

@@ -8,6 +8,7 @@ from typing import Annotated, Optional
 import numpy as np
 import typer
 from rich.console import Console
+from rich.markup import escape
 from rich.table import Table
 
 from coartic.io.errors import DataError
@@ -30,8 +31,14 @@ def inspect_command(
     allow_truncated: Annotated[bool, typer.Option(
         help="Read a C3D that holds fewer frames than its header declares.")] = False,
 ) -> None:
-    """Summarise a recording: markers, rate, frames, gaps per marker, labels, channels."""
+    """Summarise a recording: markers, rate, frames, gaps per marker, labels, channels.
+
+    Exits 1 when the file cannot be read or no channel can be computed from it."""
     console = Console()
+    if plot is not None and not plot.parent.is_dir():
+        # checked first: the summary should not be lost to a typo in the plot's folder
+        print_error(console, f"--plot {plot}: the folder {plot.parent} does not exist")
+        raise typer.Exit(1)
     try:
         trial = load_trial(file, labels=labels, label_map=label_map, role_map=role_map, tier=tier,
                            units=units, allow_truncated=allow_truncated)
@@ -51,13 +58,21 @@ def inspect_command(
     _markers(console, trial, gaps)
     if trial.segments is not None:
         _labels(console, trial)
-    if channels is not None:
+    if channels is not None and len(channels):
         _channels(console, channels)
     else:
-        console.print(f"[yellow]no channels:[/] {channel_error}")
+        console.print(f"[yellow]no channels:[/] {escape(channel_error or 'none can be computed')}")
+        for name, why in (channels.unavailable.items() if channels is not None else ()):
+            console.print(f"  {name} not available: {escape(why)}")
     if plot is not None:
-        plot_trial(trial, channels, plot)
+        try:
+            plot_trial(trial, channels, plot)
+        except OSError as e:
+            print_error(console, f"--plot {plot}: cannot write it: {e.strerror or e}")
+            raise typer.Exit(1) from None
         console.print(f"plot written to {plot}")
+    if channels is None or not len(channels):
+        raise typer.Exit(1)  # scripts must see that nothing usable came out of the file
 
 
 def _summary(console: Console, trial: Trial) -> None:
@@ -137,16 +152,13 @@ def plot_trial(trial: Trial, channels: Channels | None, out: Path) -> None:
         ax.plot(t, v, lw=1.0, color="C0")
         ax.set_ylabel(f"{name}\n(mm)", rotation=0, ha="right", va="center", fontsize=8)
         ax.grid(alpha=0.3)
-        if trial.segments is not None:
-            for s in trial.segments.starts:
-                ax.axvline(s, color="0.7", lw=0.5)
+    note = ""
     if trial.segments is not None:
-        top = axes[0, 0]
-        for lab, s, e in zip(trial.segments.labels, trial.segments.starts, trial.segments.ends):
-            top.text((s + e) / 2, 1.02, lab, transform=top.get_xaxis_transform(), ha="center",
-                     va="bottom", fontsize=7)
+        from coartic.runtime.preview import mark_segments  # the one bounded way to mark segments
+
+        note = mark_segments(list(axes[:, 0]), trial.segments, color="0.7", fontsize=7)
     axes[-1, 0].set_xlabel("time (s)")
-    fig.suptitle(str(trial.source.name if trial.source else "trial"), y=1.0)
+    fig.suptitle(" ".join(part for part in (trial.source.name if trial.source else "trial", note) if part), y=1.0)
     fig.tight_layout()
     fig.savefig(out, dpi=110)
     plt.close(fig)

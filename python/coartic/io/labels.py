@@ -145,7 +145,9 @@ _TOKEN = re.compile(
     r"|(?P<key>[A-Za-z_][A-Za-z_ ]*?\s*(?:\[\s*\d*\s*\])?\s*[=:])"
     r"|(?P<word>[A-Za-z_]\w*\??)"
     r"|(?P<index>\[\s*\d*\s*\]\s*:?)"
-    r"|(?P<num>[-+]?(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?)"
+    # a number must end where the token ends: "0.5014abc" is a malformed number, not 0.5014 and a word
+    r"|(?P<num>[-+]?(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?(?![\w.]))"
+    r"|(?P<badnum>[-+]?(?:\d|\.\d)[\w.+-]*)"
     r"|(?P<space>\s+)"
     r"|(?P<bad>.)",
     re.DOTALL,
@@ -169,6 +171,9 @@ class _TokenStream:
             value = m.group()
             if kind == "bad":
                 raise DataError(f"unexpected character {value!r} in a TextGrid", path=path, line=line)
+            if kind == "badnum":
+                raise DataError(f"malformed number {value!r} in a TextGrid", path=path, line=line,
+                                item=value)
             if kind in ("str", "flag", "num"):
                 if kind == "str":
                     value = value[1:-1].replace('""', '"')
@@ -203,6 +208,12 @@ class _TokenStream:
             raise DataError(f"{what} = {value:g} is not a plausible count", path=self.path, line=line)
         return int(value)
 
+    def at_end(self) -> bool:
+        return self.pos >= len(self.toks)
+
+    def peek(self) -> _Tok:
+        return self.toks[self.pos]
+
     def flag(self) -> None:
         if self.pos < len(self.toks) and self.toks[self.pos].kind == "flag":
             tok = self.toks[self.pos]
@@ -230,6 +241,10 @@ def parse_textgrid(text: str, path: Path, tier: str | None = None) -> Segments:
     names: list[str] = []
     chosen: Segments | None = None
     for t in range(n_tiers):
+        if not ts.at_end() and ts.peek().kind != "str":
+            hint = f" (does the size of tier {names[-1]!r} count all its items?)" if names else ""
+            raise DataError(f"expected the class of tier {t + 1}, found {ts.peek().value!r}{hint}",
+                            path=path, line=ts.peek().line)
         cls = ts.string(f"the class of tier {t + 1}")
         name = ts.string(f"the name of tier {t + 1}").value
         names.append(name)
@@ -260,6 +275,12 @@ def parse_textgrid(text: str, path: Path, tier: str | None = None) -> Segments:
         else:
             raise DataError(f"tier class {cls.value!r} is neither IntervalTier nor TextTier",
                             path=path, line=cls.line, item=name)
+    if not ts.at_end():
+        extra = ts.peek()
+        what = (f"tier {names[-1]!r} holds more items than its size says" if names and extra.kind == "num"
+                else f"the TextGrid has more than the {n_tiers} tier(s) its size says")
+        raise DataError(f"{what}: unexpected {extra.value!r} after the last item", path=path,
+                        line=extra.line)
     if chosen is None:
         if tier is not None:
             raise DataError(f"no interval tier named {tier!r}; the tiers are {names}", path=path,
@@ -324,7 +345,11 @@ def _parse_xlabel(lines: list[str], hash_line: int, path: Path) -> Segments:
         except ValueError:
             raise DataError(f"expected 'end_time colour label' (xlabel), found {s!r}", path=path,
                             line=no) from None
-        label = fields[2].strip() if len(fields) == 3 else ""
+        if len(fields) < 3:
+            # a pause is written as a label (e.g. "pau", "#"); an absent one is a broken line
+            raise DataError(f"expected 'end_time colour label' (xlabel), found {s!r}: no label",
+                            path=path, line=no)
+        label = fields[2].strip()
         labels.append(label)
         starts.append(previous)
         ends.append(end)
@@ -339,7 +364,11 @@ def _parse_xlabel(lines: list[str], hash_line: int, path: Path) -> Segments:
 
 
 def parse_tsv(text: str, path: Path) -> Segments:
-    """`start end label` in seconds, tab- (or else whitespace-) separated, optional header line."""
+    """`start end label` in seconds, tab- (or else whitespace-) separated, optional header line.
+
+    A header is a first line whose first two fields hold no digit ("start end label", "tmin tmax
+    text"): a first line with a malformed number is an error, not a header. Every line must have a
+    label column (with tabs, an empty cell is an empty label, i.e. a pause, as Praat writes it)."""
     labels: list[str] = []
     starts: list[float] = []
     ends: list[float] = []
@@ -354,12 +383,16 @@ def parse_tsv(text: str, path: Path) -> Segments:
         try:
             start, end = float(fields[0]), float(fields[1])
         except ValueError:
-            if not labels and not where:  # a header line
+            header = not any(ch.isdigit() for ch in fields[0] + fields[1])
+            if header and not labels and not where:  # a header line
                 where.append(None)
                 continue
             raise DataError(f"expected times in seconds, found {fields[0]!r} {fields[1]!r}",
                             path=path, line=no) from None
-        labels.append(fields[2] if len(fields) > 2 else "")
+        if len(fields) < 3:
+            raise DataError(f"no label after the times {fields[0]} {fields[1]} (write the pause "
+                            "label, e.g. '#' or 'sil', for a pause)", path=path, line=no)
+        labels.append(fields[2])
         starts.append(start)
         ends.append(end)
         where.append(no)

@@ -105,6 +105,20 @@ def parse_numbers(
     return out
 
 
+def time_column(header: list[str], path: Path) -> tuple[int, float]:
+    """Index of the one time column and its factor to seconds; two time columns are an error (which
+    one holds the sample times cannot be guessed: `time` in ms beside `time_s`, say)."""
+    found = [i for i, h in enumerate(header) if h.lower() in TIME_COLUMNS]
+    if not found:
+        raise DataError(f"no time column (one of {sorted(TIME_COLUMNS)}); the columns are "
+                        f"{header[:12]}{'...' if len(header) > 12 else ''}", path=path, line=1)
+    if len(found) > 1:
+        names = [header[i] for i in found]
+        raise DataError(f"{len(found)} time columns {names}: keep one (or rename the others)",
+                        path=path, line=1, item=names[1])
+    return found[0], TIME_COLUMNS[header[found[0]].lower()]
+
+
 def rate_from_times(times: np.ndarray, path: Path, lines: list[int], column: str) -> float:
     if times.size < 2:
         raise DataError("fewer than two frames: no frame rate", path=path)
@@ -130,10 +144,7 @@ def read_markers_csv(path: str | PathLike[str], units: str | None = None) -> Tri
     """Read a marker table as a Trial (no labels), positions in mm."""
     p = Path(path)
     header, rows, lines, file_unit = read_table(p)
-    tcol = next((i for i, h in enumerate(header) if h.lower() in TIME_COLUMNS), None)
-    if tcol is None:
-        raise DataError(f"no time column (one of {sorted(TIME_COLUMNS)}); the columns are "
-                        f"{header[:12]}{'...' if len(header) > 12 else ''}", path=p, line=1)
+    tcol, scale = time_column(header, p)
     names: list[str] = []
     cols: dict[str, dict[str, int]] = {}
     for i, h in enumerate(header):
@@ -158,12 +169,11 @@ def read_markers_csv(path: str | PathLike[str], units: str | None = None) -> Tri
     if not rows:
         raise DataError("a header but no data rows", path=p)
     data = parse_numbers(rows, lines, header, p)
-    scale = TIME_COLUMNS[header[tcol].lower()]
     times = data[:, tcol] * scale
     rate = rate_from_times(times, p, lines, header[tcol])
     xyz = np.stack([data[:, [cols[n]["x"], cols[n]["y"], cols[n]["z"]]] for n in names], axis=1)
     unit = units or file_unit or "mm"
-    xyz, note = to_mm(xyz, unit, p, "marker positions")
+    xyz, note = to_mm(xyz, unit, p, "marker positions", names)
     meta = {"notes": [note] if note else []}
     return Trial(markers=np.ascontiguousarray(xyz), marker_names=tuple(names), rate=rate,
                  units="mm", source=p, meta=meta, start_time=float(times[0]))

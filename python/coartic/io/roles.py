@@ -28,6 +28,7 @@ EMA_SENSOR_GUESSES: dict[str, tuple[str, ...]] = {
     "LC": ("lc", "lip_corner", "lipcorner", "corner"),
 }
 _AXES = ("x", "y", "z")
+AXIS_KEYS = ("vertical", "anterior")
 
 
 def _axis(spec: str, what: str, source: str) -> tuple[int, float]:
@@ -58,6 +59,14 @@ class RoleMap:
         if v[0] == a[0]:
             raise DataError(f"{self.source}: vertical {self.vertical!r} and anterior "
                             f"{self.anterior!r} are the same axis")
+        by_marker: dict[str, str] = {}
+        for r, name in self.roles.items():
+            other = by_marker.get(name.lower())
+            if other is not None:
+                # e.g. LL given the UL sensor: LA would be 0 and the lower lip a copy of the upper
+                raise DataError(f"{self.source}: roles {other} and {r} both name marker {name!r}; "
+                                "each role needs its own marker", item=r)
+            by_marker[name.lower()] = r
 
     @property
     def vertical_axis(self) -> tuple[int, float]:
@@ -74,11 +83,17 @@ class RoleMap:
         if not isinstance(axes, Mapping):
             raise DataError(f"{source}: 'axes' must be an object like "
                             '{"vertical": "+z", "anterior": "-y"}')
+        unknown = sorted(set(axes) - set(AXIS_KEYS))
+        if unknown:
+            raise DataError(f"{source}: unknown axis {unknown[0]!r} in 'axes'; give {list(AXIS_KEYS)} "
+                            "(the lateral axis is the third)", item=str(unknown[0]))
         for k, v in d.items():
             if k == "axes":
                 continue
             if not isinstance(v, str):
                 raise DataError(f"{source}: role {k!r} must name a marker, found {v!r}", item=k)
+            if k.upper() in roles:
+                raise DataError(f"{source}: role {k.upper()!r} is given twice", item=k)
             roles[k.upper()] = v
         return cls(roles, str(axes.get("vertical", "+z")), str(axes.get("anterior", "-y")), source)
 
@@ -95,15 +110,35 @@ class RoleMap:
             raise DataError('a role map is a JSON object {"UL": "<marker>", ...}', path=p)
         return cls.from_dict(d, str(p))
 
-    def find(self, role: str, names: Sequence[str]) -> int | None:
-        """Index of the marker playing `role` (its own name, case-insensitively, by default)."""
+    def find(self, role: str, names: Sequence[str], path: str | PathLike[str] | None = None) -> int | None:
+        """Index of the marker playing `role` (its own name, case-insensitively, by default).
+
+        Markers whose names differ only in case (`ul` and `UL`) make the match ambiguous: a
+        DataError naming both, unless the role map names one of them exactly."""
         wanted = self.roles.get(role, role)
-        if wanted in names:
-            return list(names).index(wanted)
-        lower = [n.lower() for n in names]
-        if wanted.lower() in lower:
-            return lower.index(wanted.lower())
-        return None
+        hits = [i for i, n in enumerate(names) if n.lower() == wanted.lower()]
+        if len(hits) > 1:
+            if role in self.roles and wanted in names:
+                return list(names).index(wanted)
+            raise DataError(f"markers {[names[i] for i in hits]} differ only in case: which is "
+                            f"{role}? (name it exactly in a role map)", path=path, item=role)
+        return hits[0] if hits else None
+
+    def resolve(
+        self, roles: Sequence[str], names: Sequence[str], path: str | PathLike[str] | None = None
+    ) -> dict[str, int | None]:
+        """Marker index of each role (None when absent); two roles on one marker is a DataError."""
+        idx = {r: self.find(r, names, path) for r in roles}
+        seen: dict[int, str] = {}
+        for r, k in idx.items():
+            if k is None:
+                continue
+            if k in seen:
+                raise DataError(f"roles {seen[k]} and {r} are both marker {names[k]!r}"
+                                + (f" (role map {self.source})" if self.roles else "")
+                                + "; each role needs its own marker", path=path, item=r)
+            seen[k] = r
+        return idx
 
 
 def resolve_role_map(spec: RoleMap | Mapping[str, Any] | str | PathLike[str] | None) -> RoleMap:

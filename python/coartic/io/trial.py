@@ -15,7 +15,9 @@ from typing import Any, Literal
 import numpy as np
 from numpy.typing import NDArray
 
-from coartic.io.errors import DataError
+import warnings
+
+from coartic.io.errors import DataError, DataWarning
 from coartic.io.gaps import DEFAULT_MAX_GAP, Gap, fill_gaps, resample
 from coartic.io.labelmap import PAUSE, LabelMap, resolve_label_map
 from coartic.io.labels import Segments, read_labels
@@ -31,6 +33,13 @@ CHANNEL_ROLES: dict[str, tuple[str, ...]] = {
     "LR": ("LC_L", "LC_R"), "JO": ("NOSE", "CHIN"), "LA": ("UL", "LL"),
 }
 DEFAULT_REST_FRAMES = 20
+DISTANCE_CHANNELS = ("LR", "JO", "LA")  # |a - b| of two markers: no head frame, no y_0
+# Beyond these a value is not a face: a unit mistake or a broken file (DataWarning). Positions: a
+# capture volume is a few metres across; channels (mm): a lip opening of 1.3 m is 1300 mm.
+PLAUSIBLE_POSITION_MM = 10_000.0
+PLAUSIBLE_CHANNEL_MM: dict[str, float] = {
+    "ULO": 100.0, "LLO": 100.0, "LA": 150.0, "LR": 150.0, "JO": 300.0, "ULP": 500.0, "LLP": 500.0,
+}
 
 
 @dataclass(frozen=True)
@@ -103,7 +112,7 @@ class Trial:
 
     def marker(self, name: str) -> NDArray[np.float64]:
         """frames x 3 of one marker, by its name in the file or by its role."""
-        k = self.roles.find(name, self.marker_names)
+        k = self.roles.find(name, self.marker_names, self.source)
         if k is None:
             raise DataError(f"no marker {name!r}; the markers are {list(self.marker_names)}",
                             path=self.source, item=name)
@@ -192,13 +201,20 @@ class Trial:
                                     path=self.source, item=c)
         values = {c: np.ascontiguousarray(values[c], dtype=np.float64) for c in wanted if c in values}
         valid = {c: np.isfinite(v) for c, v in values.items()}
+        for c, v in values.items():
+            big = np.abs(v[valid[c]]) > PLAUSIBLE_CHANNEL_MM[c]
+            if big.any():
+                worst = float(np.max(np.abs(v[valid[c]])))
+                warnings.warn(f"{self.source}: channel {c} reaches {worst:.6g} mm (beyond "
+                              f"{PLAUSIBLE_CHANNEL_MM[c]:g} mm in {int(big.sum())} frames): not a face's "
+                              "motion; check the units and the role map", DataWarning, stacklevel=2)
         return Channels(values, valid, self.times, self.rate, tuple(gaps),
                         {c: w for c, w in why.items() if c in wanted})
 
     def _marker_channels(
         self, wanted: Sequence[str], strict: bool, rest: NDArray[np.bool_]
     ) -> tuple[dict[str, NDArray[np.float64]], dict[str, str]]:
-        idx = {r: self.roles.find(r, self.marker_names) for r in MARKER_ROLES}
+        idx = self.roles.resolve(MARKER_ROLES, self.marker_names, self.source)
         needed: set[str] = set()
         for c in wanted:
             if strict or all(idx[r] is not None for r in CHANNEL_ROLES[c]):
@@ -212,6 +228,29 @@ class Trial:
                 (f" (role map names {named})" if named else "") +
                 f"; the file has {list(self.marker_names)}; pass role_map={{'NOSE': '<name>', ...}}"
                 " to say which marker is which", path=self.source, item=lacking[0])
+        why: dict[str, str] = {}
+        for c in ALL_CHANNELS:
+            absent = [r for r in CHANNEL_ROLES[c] if idx[r] is None]
+            if absent:
+                why[c] = f"no marker for role(s) {absent}"
+        if all(idx[r] is not None for r in (*HEAD_ROLES, "UL", "LL")):
+            values = self._head_frame_channels(idx, wanted, strict, rest, why)
+        else:
+            values = {}
+        # Distances need neither the head frame nor y_0: computed from the markers themselves
+        # when the core could not run (no head markers, or no frame with all of them).
+        for c in DISTANCE_CHANNELS:
+            if c not in values and c not in why:
+                a, b = (self.markers[:, idx[r], :] for r in CHANNEL_ROLES[c] if idx[r] is not None)
+                values[c] = np.linalg.norm(a - b, axis=1)
+        return values, why
+
+    def _head_frame_channels(
+        self, idx: Mapping[str, int | None], wanted: Sequence[str], strict: bool,
+        rest: NDArray[np.bool_], why: dict[str, str],
+    ) -> dict[str, NDArray[np.float64]]:
+        """Every channel the markers allow, through the Rust core (MODEL.md §6); {} when no frame
+        has UL, LL and the head markers (then only the distances can be made)."""
         from coartic import _core
 
         f = self.n_frames
@@ -220,7 +259,6 @@ class Trial:
             k = idx[r]
             if k is not None:
                 stack[:, j, :] = self.markers[:, k, :]
-        why: dict[str, str] = {}
         # The core needs y_0, i.e. a rest frame with UL, LL and the head frame; without one, ULO
         # and LLO are undefined but the other channels are not.
         lips = np.ones(f, dtype=bool)
@@ -237,23 +275,19 @@ class Trial:
             why["ULO"] = why["LLO"] = reason
             core_rest = lips
         if not core_rest.any():
-            # no frame has UL, LL and a head frame: the core cannot run at all
-            raise DataError("no frame has UL, LL, NOSE, EAR_L and EAR_R all present: the channels "
-                            "are undefined", path=self.source, item="UL/LL")
+            reason = "no frame has UL, LL, NOSE, EAR_L and EAR_R all present: no head frame"
+            head = [c for c in ("ULO", "LLO", "ULP", "LLP") if c in wanted]
+            if strict and head:
+                raise DataError(f"{reason}, so {', '.join(head)} cannot be computed",
+                                path=self.source, item="UL/LL")
+            for c in ("ULO", "LLO", "ULP", "LLP"):
+                why.setdefault(c, reason)
+            return {}
         try:
             cols = np.asarray(_core.marker_channels(np.ascontiguousarray(stack), core_rest))
         except ValueError as e:
             raise DataError(f"marker geometry: {e}", path=self.source) from None
-        values: dict[str, NDArray[np.float64]] = {}
-        for j, c in enumerate(ALL_CHANNELS):
-            absent = [r for r in CHANNEL_ROLES[c] if idx[r] is None]
-            if c in why:
-                continue
-            if absent:
-                why[c] = f"no marker for role(s) {absent}"
-            else:
-                values[c] = cols[:, j]
-        return values, why
+        return {c: cols[:, j] for j, c in enumerate(ALL_CHANNELS) if c not in why}
 
 
 def _reader_for(p: Path) -> str:
@@ -331,10 +365,22 @@ def load_trial(
 
         trial = read_markers_csv(p, units=units)
     trial = replace(trial, roles=roles, meta={**trial.meta, **(dict(meta) if meta else {})})
+    _warn_implausible_positions(trial)
     if labels is not None:
         segs = labels if isinstance(labels, Segments) else read_labels(labels, tier)
         trial = trial.with_labels(segs, resolve_label_map(label_map))
     return trial
+
+
+def _warn_implausible_positions(trial: Trial) -> None:
+    with np.errstate(invalid="ignore"):
+        big = np.abs(trial.markers) > PLAUSIBLE_POSITION_MM
+    if big.any():
+        f, m, a = (int(i) for i in np.argwhere(big)[0])
+        warnings.warn(f"{trial.source}: marker {trial.marker_names[m]!r} is at {trial.markers[f, m, a]:.6g} "
+                      f"mm ({'xyz'[a]}, frame {f}; {int(big.any(axis=2).sum())} samples beyond "
+                      f"{PLAUSIBLE_POSITION_MM:g} mm): not a position in a capture volume; check the "
+                      "units", DataWarning, stacklevel=3)
 
 
 def _guess(trial: Trial) -> RoleMap:

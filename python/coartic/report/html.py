@@ -60,7 +60,7 @@ def write_report(result: FitResult, out: str | Path, console: Console | None = N
         idx = list(range(min(3, len(fit.problem.data.utterances))))
     add(plots.trajectory_figure(fit, table, idx), f"trajectories_{ch}.png",
         f"{ch}: measured (dots) and modelled (line) trajectories, with each segment's weight "
-        "S·R·D/ΣR·D underneath (the dominance functions, as in the paper's Figure 1).")
+        "S·R·D/ΣR·D underneath (the dominance functions, as in the paper's Figure 1), one colour per phoneme.")
     for other in result.channels:
         if other == ch:
             continue
@@ -69,6 +69,10 @@ def write_report(result: FitResult, out: str | Path, console: Console | None = N
         add(plots.trajectory_figure(o, table, j), f"trajectories_{other}.png", f"{other}: measured and modelled.")
     add(plots.residual_figure(result), "residuals.png",
         f"Residual distributions per channel (dashed: ±{BAR_MM} mm; black: normal with the same spread).")
+    add(plots.residual_time_figure(result, [fit.problem.data.utterances[i].name for i in idx]), "residuals_time.png",
+        f"Model − measured over time in the utterances above, every channel (dashed: ±{BAR_MM} mm).")
+    add(plots.phoneme_rmse_figure(result), "rmse_phonemes.png",
+        f"RMSE of the samples inside each phoneme's segments, per channel (dashed: the {BAR_MM} mm bar).")
     add(plots.rmse_map_figure(result), "rmse_map.png",
         f"RMSE per consonant and vowel context; red outline: at or above the {BAR_MM} mm bar.")
     truth = _ground_truth(result)
@@ -86,7 +90,7 @@ def write_report(result: FitResult, out: str | Path, console: Console | None = N
     path = out / "report.html"
     atomic_write_text(path, html)
     if console is not None:
-        console.print(f"wrote {len(figures)} figures to {fig_dir}")
+        console.print(f"wrote the report with {len(figures)} figures")  # (no path: it may be a staging directory)
     return path
 
 

@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Sequence
+from typing import Any, Sequence
 
 import matplotlib
 
@@ -11,9 +11,10 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 from matplotlib.figure import Figure  # noqa: E402
+from numpy.typing import NDArray  # noqa: E402
 
 from coartic.fit.result import BAR_MM, ChannelFit, FitResult  # noqa: E402
-from coartic.model import segment_weights  # noqa: E402
+from coartic.model import Utterance, segment_weights  # noqa: E402
 from coartic.table import ParameterTable  # noqa: E402
 
 # The paper's Figure 1: lower lip opening for /a d a/, /a dz a/, /a l a/.
@@ -31,17 +32,118 @@ def pick_utterances(fit: ChannelFit, stimuli: Sequence[str], rate: str = "normal
     return out
 
 
+# Utterances with at most this many segments (the VCV stimuli) are drawn side by side, as in the
+# paper's Figure 1; a longer one (a sentence) gets a row of its own, as wide as its segments need.
+SIDE_BY_SIDE_SEGMENTS = 8
+LABEL_FONT = 8  # points
+MIN_SEGMENT_WIDTH_IN = 0.22  # the median segment gets at least this much width (inches)
+
+
+def utterance_title(utt: Utterance) -> str:
+    """Slashes only around a phonemic transcription (a stimulus such as "a p a" whose every token is
+    one of the utterance's phonemes), never around a file name or a sentence in letters:
+    /a p a/ normal, but dfgspp_mo1_prosody_0020_ema."""
+    stim = utt.meta.get("stimulus")
+    phonemic = bool(stim) and set(str(stim).split()) <= set(utt.labels)
+    title = f"/{stim}/" if phonemic else (str(stim) if stim else utt.name)
+    rate = utt.meta.get("rate")
+    return f"{title}  {rate}" if rate else title
+
+
+def _long(utts: Sequence[Utterance]) -> bool:
+    return any(len(u.labels) > SIDE_BY_SIDE_SEGMENTS for u in utts)
+
+
+def _row_width(utts: Sequence[Utterance]) -> float:
+    """Inches for one utterance per row: the median segment at least MIN_SEGMENT_WIDTH_IN wide."""
+    widths = []
+    for u in utts:
+        d = np.asarray(u.ends) - np.asarray(u.starts)
+        d = d[d > 0]
+        span = float(u.ends[-1] - u.starts[0]) if len(u.labels) else 1.0
+        if d.size:
+            widths.append(span / float(np.median(d)) * MIN_SEGMENT_WIDTH_IN)
+    return float(np.clip(max(widths, default=10.0) + 1.2, 9.0, 26.0))
+
+
+def _panels(utts: Sequence[Utterance], rows_per: int, height: float,
+            ratios: Sequence[float]) -> tuple[Figure, NDArray[np.object_], float]:
+    """A figure (constrained layout) with ``rows_per`` panels per utterance: utterances side by
+    side when short, each in a row of its own when long. Returns the figure, the axes indexed
+    [panel, utterance] and the estimated width of one panel in inches (for the segment labels)."""
+    n = max(len(utts), 1)
+    axes = np.empty((rows_per, n), dtype=object)
+    if _long(utts):
+        width = _row_width(utts)
+        fig = plt.figure(figsize=(width, height * n), layout="constrained")
+        subfigs = fig.subfigures(n, 1, squeeze=False)[:, 0]
+        for k, sf in enumerate(subfigs):
+            ax = sf.subplots(rows_per, 1, sharex=True, squeeze=False, height_ratios=list(ratios))
+            axes[:, k] = ax[:, 0]
+        return fig, axes, width - 1.3
+    fig = plt.figure(figsize=(4.2 * n, height), layout="constrained")
+    ax = fig.subplots(rows_per, n, sharex="col", squeeze=False, height_ratios=list(ratios))
+    axes[:, :] = ax
+    return fig, axes, 4.2 - 1.0
+
+
+def segment_labels(ax: Any, labels: Sequence[str], starts: Sequence[float] | NDArray[np.float64],
+                   ends: Sequence[float] | NDArray[np.float64], width_in: float, fontsize: float = LABEL_FONT) -> int:
+    """Each segment's label above the axes at its centre, stacked in as many lines as needed so
+    that no two overlap (short segments of a sentence) on axes ``width_in`` inches wide; returns
+    the number of lines used."""
+    x0, x1 = ax.get_xlim()
+    char = 0.62 * fontsize / 72 * (x1 - x0) / max(width_in, 1e-6)  # one character, in data units
+    line_end: list[float] = []
+    for lab, s, e in zip(labels, starts, ends):
+        c = 0.5 * (float(s) + float(e))
+        half = 0.5 * char * (len(lab) + 0.8)
+        line = next((k for k, end in enumerate(line_end) if c - half >= end), len(line_end))
+        if line == len(line_end):
+            line_end.append(c + half)
+        line_end[line] = c + half
+        ax.annotate(lab, xy=(c, 1.0), xycoords=("data", "axes fraction"), xytext=(0, 2 + line * (fontsize + 1)),
+                    textcoords="offset points", ha="center", va="bottom", fontsize=fontsize)
+    return len(line_end)
+
+
+def phoneme_colours(phonemes: Sequence[str]) -> dict[str, Any]:
+    """One colour per phoneme (the pause grey), the same in every panel of a figure."""
+    palette = [plt.get_cmap(name)(k) for name in ("tab20", "tab20b", "tab20c") for k in range(20)]
+    others = [p for p in dict.fromkeys(phonemes) if p != "#"]
+    colours: dict[str, Any] = {p: palette[k % len(palette)] for k, p in enumerate(others)}
+    if "#" in phonemes:
+        colours["#"] = (0.6, 0.6, 0.6, 1.0)
+    return colours
+
+
+def _bottom_legend(fig: Figure, handles: list[Any], labels: list[str], title: str) -> None:
+    """A legend under all panels, in as many columns as the figure's width holds."""
+    ncol = max(1, min(len(labels), int(fig.get_size_inches()[0] / 0.75)))
+    fig.legend(handles, labels, loc="outside lower center", ncol=ncol, fontsize=7, title=title, title_fontsize=7,
+               frameon=False, handlelength=1.2, columnspacing=0.9)
+
+
+def _label_and_title(axes: Sequence[Any], utts: Sequence[Utterance], titles: Sequence[str], width_in: float) -> None:
+    """Segment labels, then the title above them, on each utterance's top panel."""
+    for ax, utt, title in zip(axes, utts, titles):
+        lines = segment_labels(ax, utt.labels, utt.starts, utt.ends, width_in)
+        ax.set_title(title, fontsize=9, pad=6 + lines * (LABEL_FONT + 1))
+
+
 def trajectory_figure(fit: ChannelFit, table: ParameterTable, utterances: Sequence[int]) -> Figure:
     """Measured vs modelled channel per utterance, the normalised dominances drawn underneath.
 
     The lower panel shows w_i(t) = S_i R_i D_i / Σ_j R_j D_j of every segment (F = Σ T_i w_i), as the
-    paper's Figure 1 draws the dominance functions under the lower lip opening.
+    paper's Figure 1 draws the dominance functions under the lower lip opening; each phoneme has one
+    colour, named in the legend below. A sentence gets a row of its own, wide enough for its labels.
     """
     d = fit.problem.data
-    n = max(len(utterances), 1)
-    fig, axes = plt.subplots(2, n, figsize=(4.2 * n, 5.2), sharex="col", squeeze=False,
-                             gridspec_kw={"height_ratios": [2.2, 1]})
+    utts = [d.utterances[u] for u in utterances]
+    fig, axes, width_in = _panels(utts, 2, 5.2, (2.2, 1))
+    colours = phoneme_colours([lab for u in utts for lab in u.labels])
     assert fit.fitted is not None
+    titles = []
     for col, u in enumerate(utterances):
         utt = d.utterances[u]
         sl = d.utterance_samples(u)
@@ -51,23 +153,25 @@ def trajectory_figure(fit: ChannelFit, table: ParameterTable, utterances: Sequen
         top.plot(t, y, ".", ms=3, color="0.35", label="measured")
         top.plot(t, fit.fitted[sl], "-", color="C3", lw=1.6, label="model")
         rm = float(np.sqrt(np.nanmean((fit.fitted[sl] - y) ** 2)))
-        top.set_title(f"/{utt.meta.get('stimulus', utt.name)}/  {utt.meta.get('rate', '')}  RMSE {rm:.2f} mm",
-                      fontsize=9)
         w = segment_weights(table, d.channel, list(utt.labels), utt.starts, utt.ends, t)
         for i, (lab, s, e) in enumerate(zip(utt.labels, utt.starts, utt.ends)):
             for ax in (top, bottom):
                 ax.axvline(s, color="0.85", lw=0.6, zorder=0)
-            top.text(0.5 * (s + e), 1.0, lab, transform=top.get_xaxis_transform(), ha="center", va="bottom",
-                     fontsize=8)
-            bottom.plot(t, w[i], lw=1.2, label=lab)
-            bottom.fill_between(t, 0, w[i], alpha=0.12)
+            bottom.plot(t, w[i], lw=1.2, color=colours[lab])
+            bottom.fill_between(t, 0, w[i], alpha=0.12, color=colours[lab])
+        top.set_xlim(float(t[0]), float(t[-1]))
         bottom.set_ylim(0, 1.05)
         bottom.set_xlabel("time (s)")
+        top.set_ylabel(f"{d.channel} (mm)")
+        bottom.set_ylabel("weight of target")
         if col == 0:
-            top.set_ylabel(f"{d.channel} (mm)")
-            bottom.set_ylabel("weight of target")
             top.legend(fontsize=7, loc="best")
-    fig.tight_layout()
+        if _long(utts):  # one utterance per row: the time axis is labelled under the weights only
+            top.tick_params(labelbottom=False)
+        titles.append(f"{utterance_title(utt)}   RMSE {rm:.2f} mm")
+    handles = [plt.Line2D([], [], color=c, lw=2) for c in colours.values()]
+    _bottom_legend(fig, handles, list(colours), "weight of each phoneme's target (lower panels)")
+    _label_and_title(axes[0], utts, titles, width_in)
     return fig
 
 
@@ -89,6 +193,90 @@ def residual_figure(result: FitResult) -> Figure:
         ax.set_title(f"{ch}: RMSE {fit.rmse:.3f} mm", fontsize=9)
         ax.set_xlabel("model − measured (mm)")
     axes[0, 0].set_ylabel("density")
+    fig.tight_layout()
+    return fig
+
+
+def residual_time_figure(result: FitResult, names: Sequence[str]) -> Figure | None:
+    """Model − measured over time for the named utterances, every channel, segments labelled:
+    where in a sentence the model misses, and in which channel."""
+    first = next(iter(result.channels.values()))
+    by_name = {u.name: u for u in first.problem.data.utterances}
+    utts = [by_name[n] for n in names if n in by_name]
+    if not utts:
+        return None
+    fig, axes, width_in = _panels(utts, 1, 2.6, (1,))
+    lim = BAR_MM
+    titles = []
+    for col, utt in enumerate(utts):
+        ax = axes[0, col]
+        parts = []
+        for k, (ch, fit) in enumerate(result.channels.items()):
+            d = fit.problem.data
+            u = next((i for i, x in enumerate(d.utterances) if x.name == utt.name), None)
+            if u is None:
+                continue
+            sl = d.utterance_samples(u)
+            r = fit.residuals()[sl]
+            ax.plot(d.utterances[u].times, r, lw=0.9, color=f"C{k}", label=ch)
+            if np.any(np.isfinite(r)):
+                lim = max(lim, float(np.nanmax(np.abs(r))))
+                parts.append(f"{ch} {float(np.sqrt(np.nanmean(r ** 2))):.2f}")
+        for s in utt.starts:
+            ax.axvline(s, color="0.85", lw=0.6, zorder=0)
+        for b in (-BAR_MM, BAR_MM):
+            ax.axhline(b, color="C3", ls="--", lw=0.7)
+        ax.axhline(0, color="0.4", lw=0.6)
+        ax.set_xlim(float(utt.times[0]), float(utt.times[-1]))
+        ax.set_xlabel("time (s)")
+        ax.set_ylabel("model − measured (mm)")
+        titles.append(f"{utterance_title(utt)}   RMSE (mm): {', '.join(parts)}")
+        if col == 0:
+            ax.legend(fontsize=7, loc="upper right", ncol=len(result.channels))
+    for col in range(len(utts)):
+        axes[0, col].set_ylim(-1.1 * lim, 1.1 * lim)
+    _label_and_title(axes[0], utts, titles, width_in)
+    return fig
+
+
+def phoneme_rmse(fit: ChannelFit) -> dict[str, tuple[float, int]]:
+    """RMSE (mm) and sample count of the samples inside each phoneme's segments."""
+    d = fit.problem.data
+    r = fit.residuals()
+    sse: dict[str, float] = {}
+    cnt: dict[str, int] = {}
+    for u, utt in enumerate(d.utterances):
+        ru = r[d.utterance_samples(u)]
+        seg = np.searchsorted(np.asarray(utt.starts), utt.times, side="right") - 1
+        inside = (seg >= 0) & (utt.times < np.asarray(utt.ends)[np.clip(seg, 0, None)]) & np.isfinite(ru)
+        for i, lab in enumerate(utt.labels):
+            m = inside & (seg == i)
+            if m.any():
+                sse[lab] = sse.get(lab, 0.0) + float(np.sum(ru[m] ** 2))
+                cnt[lab] = cnt.get(lab, 0) + int(m.sum())
+    return {p: (float(np.sqrt(sse[p] / cnt[p])), cnt[p]) for p in d.phonemes if cnt.get(p)}
+
+
+def phoneme_rmse_figure(result: FitResult) -> Figure | None:
+    """RMSE per phoneme (samples inside its segments), one bar per channel, the 0.3 mm bar dashed."""
+    per = {ch: phoneme_rmse(fit) for ch, fit in result.channels.items()}
+    phonemes = list(dict.fromkeys(p for ch in per for p in per[ch]))
+    if not phonemes:
+        return None
+    nch = len(per)
+    width = float(np.clip(0.9 + 0.22 * len(phonemes) * max(nch, 2), 6.0, 24.0))
+    fig, ax = plt.subplots(figsize=(width, 3.2))
+    bar = 0.8 / nch
+    x = np.arange(len(phonemes))
+    for k, (ch, values) in enumerate(per.items()):
+        ax.bar(x - 0.4 + bar * (k + 0.5), [values.get(p, (np.nan, 0))[0] for p in phonemes], bar,
+               color=f"C{k}", label=ch)
+    ax.axhline(BAR_MM, color="C3", ls="--", lw=0.8)
+    ax.set_xticks(x, phonemes, fontsize=8)
+    ax.set_xlim(-0.6, len(phonemes) - 0.4)
+    ax.set_ylabel("RMSE (mm)")
+    ax.set_xlabel("phoneme (samples inside its segments)")
+    ax.legend(fontsize=7, ncol=nch)
     fig.tight_layout()
     return fig
 
