@@ -46,6 +46,14 @@ def test_a_run_is_swapped_in_whole_and_replaces_its_own_output(tmp_path: Path) -
     assert sorted(p.name for p in tmp_path.iterdir()) == ["out"]  # no staging, old copy or lock left
 
 
+def test_a_symlinked_output_directory_keeps_its_link(tmp_path: Path) -> None:
+    (tmp_path / "disk").mkdir()
+    write_run(tmp_path / "disk" / "out", {"spec": "a"}, {"t": "1"})
+    (tmp_path / "link").symlink_to(tmp_path / "disk" / "out")
+    write_run(tmp_path / "link", {"spec": "a"}, {"t": "2"})
+    assert (tmp_path / "link").is_symlink() and (tmp_path / "disk" / "out" / "t").read_text() == "2"
+
+
 def test_another_runs_output_is_refused_unless_forced(tmp_path: Path) -> None:
     out = tmp_path / "out"
     write_run(out, {"spec": "a"}, {"table.json": "1"})
