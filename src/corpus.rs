@@ -2,6 +2,7 @@
 //! and the batch entry points — evaluation, sparse Jacobian, SSE with its gradient, and the
 //! walkers × corpus batches for MCMC — parallel with rayon over chunks of utterances.
 
+use crate::alloc::{product, try_filled, try_with_capacity};
 use crate::error::ModelError;
 use crate::gradient::{GradScratch, UtteranceGrads};
 use crate::model::{Prepared, LANES};
@@ -128,6 +129,17 @@ impl Corpus {
         check_finite("seg_start", &seg_start)?;
         check_finite("seg_end", &seg_end)?;
         check_finite("sample_times", &sample_times)?;
+        if n_phonemes
+            .checked_mul(N_PARAMS)
+            .and_then(|n| n.checked_add(1))
+            .is_none()
+        {
+            return Err(ModelError::BadGlobal {
+                name: "n_phonemes",
+                value: n_phonemes as f64,
+                domain: "small enough that n_phonemes * 10 + 1 columns can be indexed",
+            });
+        }
         let n_utt = seg_offsets.len() - 1;
         let mut uniq_offsets = Vec::with_capacity(n_utt + 1);
         uniq_offsets.push(0);
@@ -205,7 +217,9 @@ impl Corpus {
             let row_nnz = (uniq_offsets[u + 1] - uniq_offsets[u]) * N_PARAMS + 1;
             for _ in sample_offsets[u]..sample_offsets[u + 1] {
                 let last = jac_indptr[jac_indptr.len() - 1];
-                jac_indptr.push(last + row_nnz);
+                // The number of stored entries could only overflow far beyond any memory; the
+                // Jacobian's allocation then fails with the sizes named (jacobian_nnz saturates).
+                jac_indptr.push(last.saturating_add(row_nnz));
             }
         }
         Ok(Corpus {
@@ -324,8 +338,8 @@ fn split_at_ends<T>(
 /// An empty vector with room for `n` elements, for output written once in parallel. On Linux,
 /// large buffers are advised to use transparent huge pages: first-touch page faults on tens of
 /// MB of fresh 4 KiB pages otherwise cost more than computing the Jacobian that fills them.
-fn output_buffer<T>(n: usize) -> Vec<T> {
-    let v: Vec<T> = Vec::with_capacity(n);
+fn output_buffer<T>(n: usize, what: impl FnOnce() -> String) -> Result<Vec<T>, ModelError> {
+    let v: Vec<T> = try_with_capacity(n, what)?;
     #[cfg(target_os = "linux")]
     {
         const HUGE: usize = 2 << 20;
@@ -347,7 +361,7 @@ fn output_buffer<T>(n: usize) -> Vec<T> {
             }
         }
     }
-    v
+    Ok(v)
 }
 
 fn check_len(what: &'static str, got: usize, expected: usize) -> Result<(), ModelError> {
@@ -471,10 +485,10 @@ pub fn jacobian(
         values_out.len(),
         corpus.n_samples(),
     )?;
+    let nnz = corpus.jacobian_nnz();
+    let mut indices: Vec<usize> = output_buffer(nnz, || corpus.jacobian_what("column indices"))?;
+    let mut data: Vec<f64> = output_buffer(nnz, || corpus.jacobian_what("values"))?;
     let indptr = corpus.jac_indptr.clone();
-    let nnz = indptr[corpus.n_samples()];
-    let mut indices: Vec<usize> = output_buffer(nnz);
-    let mut data: Vec<f64> = output_buffer(nnz);
     fill_jacobian(
         corpus,
         params,
@@ -682,7 +696,12 @@ pub fn sse_gradient(
         let mut prep = Prepared::default();
         let mut scratch = GradScratch::default();
         let mut grads = UtteranceGrads::default();
-        let mut grad = vec![0.0; n_grad];
+        let mut grad = try_filled(n_grad, 0.0, || {
+            format!(
+                "the SSE gradient of one task ({} phonemes × 10)",
+                corpus.n_phonemes
+            )
+        })?;
         let mut sse = 0.0;
         let mut d_beta = 0.0;
         for u in chunk {
@@ -751,13 +770,18 @@ pub fn sse_gradient(
     Ok((sse, d_beta))
 }
 
+/// "the output of a batch: W walkers × n samples", for [`ModelError::OutOfMemory`].
+pub fn batch_what(walkers: usize, n: usize, of: &str) -> String {
+    format!("the output of a batch ({walkers} walkers × {n} {of})")
+}
+
 fn check_batch(corpus: &Corpus, params_batch: &[f64], betas: &[f64]) -> Result<usize, ModelError> {
     let per = corpus.n_phonemes * N_PARAMS;
     let w = betas.len();
     check_len(
         "params_batch (n_walkers * n_phonemes * 10, n_walkers = len(betas))",
         params_batch.len(),
-        w * per,
+        w.saturating_mul(per),
     )?;
     Ok(per)
 }
@@ -774,7 +798,8 @@ pub fn evaluate_batch(
 ) -> Result<(), ModelError> {
     let per = check_batch(corpus, params_batch, betas)?;
     let ns = corpus.n_samples();
-    check_len("out (n_walkers * n_samples)", out.len(), betas.len() * ns)?;
+    let expected = product::<f64>(betas.len(), ns, || batch_what(betas.len(), ns, "samples"))?;
+    check_len("out (n_walkers * n_samples)", out.len(), expected)?;
     for (walker, &beta) in betas.iter().enumerate() {
         validate_params(
             &params_batch[walker * per..(walker + 1) * per],
@@ -917,11 +942,10 @@ pub fn residual_sums_batch(
     validate_observations(corpus, observed, weights)?;
     check_len("sse (n_walkers)", sse.len(), betas.len())?;
     let nu = corpus.n_utterances();
-    check_len(
-        "sums (n_walkers * n_utterances)",
-        sums.len(),
-        betas.len() * nu,
-    )?;
+    let expected = product::<f64>(betas.len(), nu, || {
+        batch_what(betas.len(), nu, "utterances")
+    })?;
+    check_len("sums (n_walkers * n_utterances)", sums.len(), expected)?;
     if nu == 0 {
         sse.fill(0.0);
         return Ok(());
@@ -995,9 +1019,11 @@ impl Corpus {
 
     /// Column indices of the Jacobian, as [`jacobian`] returns them: every parameter of every
     /// distinct phoneme of the row's utterance, then β; sorted within each row.
-    pub fn jacobian_indices(&self) -> Vec<usize> {
+    /// [`ModelError::OutOfMemory`] if they do not fit in memory.
+    pub fn jacobian_indices(&self) -> Result<Vec<usize>, ModelError> {
         let n_cols = self.n_phonemes * N_PARAMS + 1;
-        let mut out = Vec::with_capacity(self.jacobian_nnz());
+        let mut out =
+            try_with_capacity(self.jacobian_nnz(), || self.jacobian_what("column indices"))?;
         for u in 0..self.n_utterances() {
             for _ in self.samples(u) {
                 for &p in self.distinct(u) {
@@ -1006,7 +1032,21 @@ impl Corpus {
                 out.push(n_cols - 1);
             }
         }
-        out
+        Ok(out)
+    }
+
+    /// "the Jacobian's {part}: n samples, up to k distinct phonemes × 10 + β per row", for
+    /// [`ModelError::OutOfMemory`].
+    pub fn jacobian_what(&self, part: &str) -> String {
+        let widest = (0..self.n_utterances())
+            .map(|u| self.uniq_offsets[u + 1] - self.uniq_offsets[u])
+            .max()
+            .unwrap_or(0);
+        format!(
+            "the Jacobian's {part} ({} samples; up to {widest} distinct phonemes in an \
+             utterance, 10 parameters each, and beta per row)",
+            self.n_samples()
+        )
     }
 
     /// Largest number of segments in one utterance.

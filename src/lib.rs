@@ -19,6 +19,7 @@
 //! - ∂t_i/∂δ is 1 while the target time stays inside its segment, 0 where it is clamped.
 //! - The values returned with the Jacobian equal those of [`evaluate`] bit for bit.
 
+pub mod alloc;
 pub mod corpus;
 pub mod dominance;
 pub mod error;

@@ -162,7 +162,7 @@ proptest! {
         let mut v1 = vec![0.0; c.n_samples()];
         let j = jacobian(&c, &params, 0.8, &opts, &mut v1).unwrap();
         prop_assert_eq!(&j.indptr[..], c.jacobian_indptr());
-        prop_assert_eq!(&j.indices, &c.jacobian_indices());
+        prop_assert_eq!(&j.indices, &c.jacobian_indices().unwrap());
         prop_assert_eq!(c.jacobian_nnz(), j.data.len());
         let mut v2 = vec![0.0; c.n_samples()];
         let mut data = vec![f64::NAN; c.jacobian_nnz()];

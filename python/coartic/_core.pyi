@@ -2,7 +2,10 @@
 
 Arrays are NumPy float64 (int64 for indices, bool for masks); C-contiguous input is read in
 place, other layouts are copied once. Wrong type or dtype raises TypeError, wrong shape or any
-invalid value raises ValueError naming the argument, utterance, segment, phoneme or parameter.
+invalid value raises ``CoarticError`` (a ValueError) naming the argument, utterance, segment,
+phoneme or parameter, with those as attributes. A buffer whose size is a product of input sizes
+(a Jacobian, a batch of walkers) or a copy of a non-contiguous input that does not fit in memory
+raises MemoryError naming the sizes.
 """
 
 from typing import Final, final
@@ -10,8 +13,11 @@ from typing import Final, final
 import numpy as np
 import numpy.typing as npt
 
+from coartic.errors import CoarticError as _PackageError
+
 __all__ = [
     "CHANNEL_NAMES",
+    "CoarticError",
     "Corpus",
     "MARKER_NAMES",
     "ModelOptions",
@@ -31,6 +37,13 @@ __all__ = [
 N_PARAMS: Final[int]
 MARKER_NAMES: Final[list[str]]
 CHANNEL_NAMES: Final[list[str]]
+
+class CoarticError(_PackageError, ValueError):
+    """Invalid input to the model core. The message names the place at fault (utterances and
+    segments counted from 1); the attributes give it as indices counted from 0: ``utterance``,
+    ``segment`` (within its utterance), ``phoneme`` (row of the parameter matrix, an int),
+    ``parameter`` (name, or a global such as ``"beta"``), ``value``, ``sample``, ``walker``, and
+    ``reason`` (what is wrong); ``None`` where they do not apply."""
 
 @final
 class Corpus:

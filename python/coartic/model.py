@@ -2,13 +2,13 @@
 
 This is what the animation runtime, the corpus generator and the fitting code call. The heavy
 lifting is in the Rust core (``coartic._core``); this module turns labels into phoneme rows,
-checks segment lists with messages that name the utterance and label at fault, and wraps the
-core's CSR Jacobian as a ``scipy.sparse.csr_matrix`` (``JacobianBuffer``, refilled in place).
+checks segment lists with messages that name the utterance and label at fault (utterances and
+segments counted from 1, as everywhere in coartic), turns the core's ``_core.CoarticError`` into
+a ``ModelInputError`` naming the channel and phoneme, and wraps the core's CSR Jacobian as a ``scipy.sparse.csr_matrix`` (``JacobianBuffer``, refilled in place).
 """
 
 from __future__ import annotations
 
-import re
 from collections.abc import Mapping, Sequence
 from typing import Literal, overload
 
@@ -17,6 +17,7 @@ import numpy.typing as npt
 import scipy.sparse as sp  # type: ignore[import-untyped]
 
 from coartic import _core
+from coartic.errors import CoarticError
 from coartic.io.errors import DataError
 from coartic.io.labelmap import LabelMap, resolve_label_map
 from coartic.table import N_PARAMS, PARAMETERS, ChannelSettings, ParameterTable
@@ -24,8 +25,33 @@ from coartic.table import N_PARAMS, PARAMETERS, ChannelSettings, ParameterTable
 F64 = npt.NDArray[np.float64]
 
 
-class ModelInputError(ValueError):
-    """Invalid segments, times or labels given to the model; names the utterance and label."""
+class ModelInputError(CoarticError, ValueError):
+    """Invalid segments, times, labels or parameters given to the model; the message names the
+    utterance and label (or channel, phoneme and parameter).
+
+    Attributes as ``coartic.errors.CoarticError`` (indices from 0; ``phoneme`` is the phoneme's
+    name), plus ``channel``; ``None`` where they do not apply.
+    """
+
+    channel: str | None = None
+
+    def __init__(
+        self,
+        message: str,
+        *,
+        channel: str | None = None,
+        utterance: int | None = None,
+        segment: int | None = None,
+        phoneme: str | None = None,
+        parameter: str | None = None,
+        value: float | None = None,
+        sample: int | None = None,
+        reason: str | None = None,
+    ) -> None:
+        super().__init__(message)
+        self.channel, self.utterance, self.segment = channel, utterance, segment
+        self.phoneme, self.parameter, self.value = phoneme, parameter, value
+        self.sample, self.reason = sample, reason
 
 
 def _vector(x: npt.ArrayLike, what: str, where: str) -> F64:
@@ -96,7 +122,8 @@ def build_corpus(utterances: Sequence[Utterance], phonemes: Sequence[str]) -> _c
     Raises
     ------
     ModelInputError
-        Naming the utterance (by ``name`` or index) and the segment label at fault.
+        Naming the utterance (by ``name``, else counted from 1) and the segment (counted from 1)
+        and label at fault; the indices (from 0) as attributes.
     """
     row_of = {p: i for i, p in enumerate(phonemes)}
     if len(row_of) != len(phonemes):
@@ -109,7 +136,7 @@ def build_corpus(utterances: Sequence[Utterance], phonemes: Sequence[str]) -> _c
     ends: list[F64] = []
     times: list[F64] = []
     for u, utt in enumerate(utterances):
-        where = f"utterance {utt.name!r}" if utt.name else f"utterance {u}"
+        where = f"utterance {utt.name!r}" if utt.name else f"utterance {u + 1}"
         labels = list(utt.labels)
         s, e, t = utt.starts, utt.ends, utt.times
         if not (len(labels) == len(s) == len(e)):
@@ -117,19 +144,25 @@ def build_corpus(utterances: Sequence[Utterance], phonemes: Sequence[str]) -> _c
                 f"{where}: {len(labels)} labels, {len(s)} starts and {len(e)} ends: one of each per segment"
             )
         if not labels:
-            raise ModelInputError(f"{where}: no segments")
+            raise ModelInputError(f"{where}: no segments", utterance=u, reason="no segments")
         for i, lab in enumerate(labels):
             if lab not in row_of:
                 known = " ".join(phonemes)
                 raise ModelInputError(
-                    f"{where}: label {lab!r} (segment {i}) is not a phoneme of the table (known: {known})"
+                    f"{where}: label {lab!r} (segment {i + 1}) is not a phoneme of the table (known: {known})",
+                    utterance=u, segment=i, reason="not a phoneme of the table",
                 )
             if not e[i] > s[i]:
-                raise ModelInputError(f"{where}: segment {i} {lab!r} ends at {e[i]} s, not after its start {s[i]} s")
+                raise ModelInputError(
+                    f"{where}: segment {i + 1} {lab!r} ends at {e[i]} s, not after its start {s[i]} s",
+                    utterance=u, segment=i, phoneme=lab, value=float(e[i]), reason="end is not after start",
+                )
             if i and s[i] < e[i - 1]:
                 raise ModelInputError(
-                    f"{where}: segment {i} {lab!r} starts at {s[i]} s, before segment {i - 1} "
-                    f"{labels[i - 1]!r} ends at {e[i - 1]} s (segments must be sorted and must not overlap)"
+                    f"{where}: segment {i + 1} {lab!r} starts at {s[i]} s, before segment {i} "
+                    f"{labels[i - 1]!r} ends at {e[i - 1]} s (segments must be sorted and must not overlap)",
+                    utterance=u, segment=i, phoneme=lab, value=float(s[i]),
+                    reason="starts before the previous segment ends",
                 )
         rows.extend(row_of[lab] for lab in labels)
         starts.append(s)
@@ -208,17 +241,34 @@ def jacobian_columns(phonemes: Sequence[str]) -> list[str]:
     return [f"{p}.{name}" for p in phonemes for name in PARAMETERS] + ["beta"]
 
 
-_PHONEME_INDEX = re.compile(r"\bphoneme (\d+)")
+def core_error(err: ValueError, channel: str, phonemes: Sequence[str]) -> ModelInputError:
+    """The core's error as a ModelInputError naming the channel and, by name, the phoneme.
+
+    The core names a phoneme by its row of the parameter matrix; ``phonemes`` gives the names in
+    row order. The place comes from the error's attributes (``_core.CoarticError``), not from its
+    message; any other ValueError is only prefixed with the channel.
+    """
+    if not isinstance(err, _core.CoarticError):
+        return ModelInputError(f"channel {channel!r}: {err}", channel=channel)
+    row = err.phoneme if isinstance(err.phoneme, int) else None
+    name = phonemes[row] if row is not None and row < len(phonemes) else None
+    message = str(err)
+    if name is not None and err.parameter is not None:
+        # The core's "phoneme <row>, parameter <p>: value <v> <reason>" with the phoneme's name.
+        message = f"phoneme {name!r}, parameter {err.parameter}: value {_number(err.value)} {err.reason}"
+    return ModelInputError(
+        f"channel {channel!r}: {message}", channel=channel, utterance=err.utterance, segment=err.segment,
+        phoneme=name, parameter=err.parameter, value=err.value, sample=err.sample, reason=err.reason,
+    )
 
 
-def _named(err: ValueError, channel: str, phonemes: Sequence[str]) -> ModelInputError:
-    """The core names phonemes by row; say which phoneme and channel that is."""
-
-    def name(m: re.Match[str]) -> str:
-        k = int(m.group(1))
-        return f"phoneme {phonemes[k]!r}" if k < len(phonemes) else m.group(0)
-
-    return ModelInputError(f"channel {channel!r}: {_PHONEME_INDEX.sub(name, str(err))}")
+def _number(value: float | None) -> str:
+    """A value as the core prints it (NaN, inf, 1.5)."""
+    if value is None:
+        return "None"
+    if np.isnan(value):
+        return "NaN"
+    return str(value) if np.isfinite(value) else ("inf" if value > 0 else "-inf")
 
 
 def _channel_phonemes(table: ParameterTable, channel: str, labels: Sequence[str], where: str) -> list[str]:
@@ -228,11 +278,13 @@ def _channel_phonemes(table: ParameterTable, channel: str, labels: Sequence[str]
         if lab not in known:
             if lab in table.values:
                 raise ModelInputError(
-                    f"{where}: label {lab!r} (segment {i}) has no parameters for channel {channel!r} in {table.source}"
+                    f"{where}: label {lab!r} (segment {i + 1}) has no parameters for channel {channel!r} in {table.source}",
+                    channel=channel, segment=i, phoneme=lab, reason="no parameters for the channel",
                 )
             raise ModelInputError(
-                f"{where}: label {lab!r} (segment {i}) is not a phoneme of {table.source} "
-                f"(known: {' '.join(table.phonemes)})"
+                f"{where}: label {lab!r} (segment {i + 1}) is not a phoneme of {table.source} "
+                f"(known: {' '.join(table.phonemes)})",
+                channel=channel, segment=i, reason="not a phoneme of the table",
             )
     return phonemes
 
@@ -344,7 +396,7 @@ def trajectories(
             else:
                 out[ch] = _core.evaluate(corpus, params, beta, opts)
         except ValueError as err:
-            raise _named(err, ch, phonemes) from None
+            raise core_error(err, ch, phonemes) from None
     return out_j if jacobian else out
 
 
@@ -356,7 +408,7 @@ def evaluate_corpus(table: ParameterTable, channel: str, utterances: Sequence[Ut
     try:
         values = _core.evaluate(corpus, params, beta, model_options(table, channel))
     except ValueError as err:
-        raise _named(err, channel, phonemes) from None
+        raise core_error(err, channel, phonemes) from None
     bounds = np.cumsum([0] + [u.times.size for u in utterances])
     return [values[a:b] for a, b in zip(bounds[:-1], bounds[1:])]
 
@@ -388,5 +440,5 @@ def segment_weights(
     try:
         _, jac = JacobianBuffer(corpus).compute(per_segment, beta, model_options(table, channel))
     except ValueError as err:
-        raise _named(err, channel, seg_names) from None
+        raise core_error(err, channel, seg_names) from None
     return np.asarray(jac[:, 0 : len(labels) * N_PARAMS : N_PARAMS].toarray().T)

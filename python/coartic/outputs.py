@@ -31,6 +31,8 @@ from pathlib import Path
 from types import FrameType, TracebackType
 from typing import Any, Callable, Iterator, Mapping, Sequence
 
+from coartic.errors import CoarticError
+
 RUN_MARKER = "coartic_run.json"
 RUN_SCHEMA = "coartic.run/1"
 PARTIAL_SUFFIX = ".partial"  # the staging directory: .NAME.partial beside NAME
@@ -38,7 +40,7 @@ OLD_SUFFIX = ".old"  # the previous output between the two renames of a swap wit
 LOCK_SUFFIX = ".lock"
 
 
-class OutputError(ValueError):
+class OutputError(CoarticError, ValueError):
     """An output directory that this run must not write (another run's output, in use, unsafe)."""
 
 

@@ -16,13 +16,14 @@ from typing import Annotated, Optional
 import typer
 from rich.console import Console
 from coartic.console import print_error
+from coartic.errors import CoarticError
 
 app = typer.Typer(help="The synthetic ELITE-style session (corpus-synthetic/).", no_args_is_help=True)
 
 GENERATOR_MODULE = "coartic_corpus_synthetic_generate"
 
 
-class GeneratorNotFound(RuntimeError):
+class GeneratorNotFound(CoarticError, RuntimeError):
     """corpus-synthetic/ is not beside the package (a non-editable install)."""
 
 

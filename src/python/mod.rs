@@ -1,11 +1,13 @@
 //! `coartic._core`: the thin PyO3 face of the core (docs/ARCHITECTURE.md lists the signatures).
 //!
 //! Input arrays must be NumPy arrays of the documented dtype (float64, int64 for indices, bool for
-//! masks). C-contiguous input is read in place; any other layout (strided, Fortran order) is
-//! copied once into C order. Outputs are handed to NumPy without a copy. Every computation runs
-//! with the GIL released. Invalid input raises TypeError (wrong type or dtype) or ValueError (wrong
-//! shape, or any error of the core, whose message names the utterance, segment, phoneme or
-//! parameter at fault); nothing panics across the boundary.
+//! masks). C-contiguous input is read in place; any other layout (strided, Fortran order,
+//! broadcast) is copied once into C order. Outputs are handed to NumPy without a copy. Every
+//! computation runs with the GIL released. Invalid input raises TypeError (wrong type or dtype) or
+//! `CoarticError` (a ValueError subclass: wrong shape, or any error of the core, whose message names
+//! the utterance, segment, phoneme or parameter at fault, with those as attributes); a buffer whose
+//! size is a product of input sizes (a Jacobian, a batch) or a copy that does not fit in memory
+//! raises MemoryError naming the sizes. Nothing panics or aborts across the boundary.
 
 use std::borrow::Cow;
 
@@ -14,19 +16,78 @@ use numpy::{
     BorrowError, Element, IntoPyArray, PyArray1, PyArray2, PyArray3, PyArrayDyn, PyArrayMethods,
     PyReadonlyArrayDyn, PyReadwriteArrayDyn, PyUntypedArray, PyUntypedArrayMethods,
 };
-use pyo3::exceptions::{PyTypeError, PyValueError};
+use pyo3::exceptions::{PyMemoryError, PyTypeError, PyValueError};
 use pyo3::prelude::*;
 use pyo3::sync::PyOnceLock;
+use pyo3::types::{PyDict, PyType};
 
+use crate::alloc::{product, try_filled, try_with_capacity};
+use crate::error::ErrorFields;
 use crate::geometry::{self, GeometryError, N_CHANNELS, N_MARKERS};
 use crate::{ModelError, Variant, N_PARAMS};
 
+/// `coartic._core.CoarticError`, made at import: a subclass of the package's base
+/// `coartic.errors.CoarticError` and of ValueError, so that `except ValueError` and
+/// `except coartic.errors.CoarticError` both catch it.
+static CORE_ERROR: PyOnceLock<Py<PyType>> = PyOnceLock::new();
+
+const CORE_ERROR_DOC: &str = "Invalid input to the model core. The message names the place at \
+fault; the attributes utterance, segment (within its utterance), phoneme (row of the parameter \
+matrix), parameter, value, sample and walker give it as indices counted from 0 (None where they \
+do not apply; messages count utterances and segments from 1), reason says what is wrong.";
+
+fn core_error_type(py: Python<'_>) -> PyResult<&Bound<'_, PyType>> {
+    let ty = CORE_ERROR.get_or_try_init(py, || -> PyResult<Py<PyType>> {
+        let base = py.import("coartic.errors")?.getattr("CoarticError")?;
+        let attrs = PyDict::new(py);
+        attrs.set_item("__module__", "coartic._core")?;
+        attrs.set_item("__doc__", CORE_ERROR_DOC)?;
+        let bases = (base, py.get_type::<PyValueError>());
+        let ty = py
+            .get_type::<PyType>()
+            .call1(("CoarticError", bases, attrs))?;
+        Ok(ty.cast_into::<PyType>()?.unbind())
+    })?;
+    Ok(ty.bind(py))
+}
+
+/// A `CoarticError` with `message` and the attributes of `fields`.
+fn coartic_error(message: String, fields: Option<ErrorFields>) -> PyErr {
+    Python::attach(|py| {
+        let make = || -> PyResult<PyErr> {
+            let err = core_error_type(py)?.call1((message.clone(),))?;
+            if let Some(f) = fields {
+                err.setattr("utterance", f.utterance)?;
+                err.setattr("segment", f.segment)?;
+                err.setattr("phoneme", f.phoneme)?;
+                err.setattr("parameter", f.parameter)?;
+                err.setattr("value", f.value)?;
+                err.setattr("sample", f.sample)?;
+                err.setattr("walker", f.walker)?;
+                err.setattr("reason", f.reason)?;
+            }
+            Ok(PyErr::from_value(err))
+        };
+        // Only if coartic.errors cannot be imported: still an error, still a ValueError.
+        make().unwrap_or_else(|_| PyValueError::new_err(message.clone()))
+    })
+}
+
+/// An invalid argument found by the binding itself (shape, sign): a `CoarticError` too.
+fn value_error(message: String) -> PyErr {
+    coartic_error(message, None)
+}
+
+/// The core's error as `CoarticError` with its fields as attributes, or MemoryError.
 fn model_err(e: ModelError) -> PyErr {
-    PyValueError::new_err(e.to_string())
+    if e.is_out_of_memory() {
+        return PyMemoryError::new_err(e.to_string());
+    }
+    coartic_error(e.to_string(), Some(e.fields()))
 }
 
 fn geometry_err(e: GeometryError) -> PyErr {
-    PyValueError::new_err(e.to_string())
+    value_error(e.to_string())
 }
 
 /// Borrow `obj` as a read-only NumPy array of `T`, or raise TypeError naming the argument.
@@ -45,7 +106,7 @@ fn array<'py, T: Element>(
         };
         return a
             .try_readonly()
-            .map_err(|e| PyValueError::new_err(format!("argument '{name}': {e}")));
+            .map_err(|e| value_error(format!("argument '{name}': {e}")));
     }
     Err(PyTypeError::new_err(format!(
         "argument '{name}' must be a numpy.ndarray of dtype {dtype}, got {} \
@@ -81,7 +142,7 @@ fn out_buffer<'py>(
     };
     shape_ok(name, a.shape(), &[Some(len)], meaning)?;
     let refuse = |why: &str| {
-        Err(PyValueError::new_err(format!(
+        Err(value_error(format!(
             "argument '{name}' {why}; pass numpy.empty({len}) (float64, C-contiguous, writeable)"
         )))
     };
@@ -132,7 +193,7 @@ fn shape_ok(
             .map(|e| e.map_or_else(|| "*".to_string(), |v| v.to_string()))
             .collect(),
     );
-    Err(PyValueError::new_err(format!(
+    Err(value_error(format!(
         "argument '{name}' has shape {got}, expected {want} = {meaning}"
     )))
 }
@@ -145,14 +206,26 @@ fn tuple(items: Vec<String>) -> String {
     }
 }
 
-/// The elements in C order: in place if C-contiguous, else one copy.
-fn data<'a, T: Element + Copy>(a: &'a PyReadonlyArrayDyn<'_, T>) -> Cow<'a, [T]> {
+/// The elements of argument `name` in C order: in place if C-contiguous, else one copy, allocated
+/// fallibly: a broadcast view (`numpy.broadcast_to`) costs NumPy no memory however large its
+/// shape, but its copy does (MemoryError naming the argument and the sizes, not an abort).
+fn data<'a, T: Element + Copy>(
+    a: &'a PyReadonlyArrayDyn<'_, T>,
+    name: &str,
+) -> PyResult<Cow<'a, [T]>> {
     if a.is_c_contiguous() {
         if let Ok(s) = a.as_slice() {
-            return Cow::Borrowed(s);
+            return Ok(Cow::Borrowed(s));
         }
     }
-    Cow::Owned(a.as_array().iter().copied().collect())
+    let view = a.as_array();
+    let mut copy = try_with_capacity(view.len(), || {
+        let shape = tuple(view.shape().iter().map(|s| s.to_string()).collect());
+        format!("a C-ordered copy of argument '{name}' (shape {shape}, not C-contiguous)")
+    })
+    .map_err(model_err)?;
+    copy.extend(view.iter().copied());
+    Ok(Cow::Owned(copy))
 }
 
 fn f64_vec(
@@ -163,24 +236,23 @@ fn f64_vec(
 ) -> PyResult<Vec<f64>> {
     let a = array::<f64>(obj, name, "float64")?;
     check_shape(&a, name, &[len], meaning)?;
-    Ok(data(&a).into_owned())
+    Ok(data(&a, name)?.into_owned())
 }
 
 /// A non-negative integer argument; a negative one is a ValueError naming it.
 fn count(value: i64, name: &str) -> PyResult<usize> {
     usize::try_from(value)
-        .map_err(|_| PyValueError::new_err(format!("argument '{name}' = {value} must be >= 0")))
+        .map_err(|_| value_error(format!("argument '{name}' = {value} must be >= 0")))
 }
 
 fn index_vec(obj: &Bound<'_, PyAny>, name: &str) -> PyResult<Vec<usize>> {
     let a = array::<i64>(obj, name, "int64")?;
     check_shape(&a, name, &[None], "one index per entry")?;
-    data(&a)
+    data(&a, name)?
         .iter()
         .enumerate()
         .map(|(i, &v)| {
-            usize::try_from(v)
-                .map_err(|_| PyValueError::new_err(format!("{name}[{i}] = {v} is negative")))
+            usize::try_from(v).map_err(|_| value_error(format!("{name}[{i}] = {v} is negative")))
         })
         .collect()
 }
@@ -248,12 +320,14 @@ impl Corpus {
     /// Built once per corpus and returned read-only, the same arrays on every call.
     fn jacobian_pattern<'py>(&self, py: Python<'py>) -> PyResult<BoundPattern<'py>> {
         let (indptr, indices) = self.pattern.get_or_try_init(py, || -> PyResult<_> {
-            let (indptr, indices) = py.detach(|| {
-                (
-                    as_i64(self.inner.jacobian_indptr().to_vec()),
-                    as_i64(self.inner.jacobian_indices()),
-                )
-            });
+            let (indptr, indices) = py
+                .detach(|| -> Result<_, ModelError> {
+                    Ok((
+                        as_i64(self.inner.jacobian_indptr().to_vec()),
+                        as_i64(self.inner.jacobian_indices()?),
+                    ))
+                })
+                .map_err(model_err)?;
             let frozen = |v: Vec<i64>| -> PyResult<Py<PyArray1<i64>>> {
                 let a = v.into_pyarray(py);
                 // Shared by every caller: nobody may edit it under another's CSR matrix.
@@ -306,9 +380,7 @@ impl ModelOptions {
     fn new(variant: &str, apex_fraction: f64, edge_extent: f64) -> PyResult<Self> {
         let variant: Variant = variant
             .parse()
-            .map_err(|e: crate::params::UnknownVariant| {
-                PyValueError::new_err(format!("variant: {e}"))
-            })?;
+            .map_err(|e: crate::params::UnknownVariant| value_error(format!("variant: {e}")))?;
         let inner = crate::ModelOptions {
             variant,
             apex_fraction,
@@ -382,7 +454,7 @@ fn evaluate<'py>(
     options: &ModelOptions,
 ) -> PyResult<Bound<'py, PyArray1<f64>>> {
     let p = params_of(params, corpus)?;
-    let p = data(&p);
+    let p = data(&p, "params")?;
     let mut out = vec![0.0; corpus.inner.n_samples()];
     py.detach(|| crate::evaluate(&corpus.inner, &p, beta, &options.inner, &mut out))
         .map_err(model_err)?;
@@ -412,7 +484,7 @@ fn jacobian<'py>(
     options: &ModelOptions,
 ) -> PyResult<JacobianTuple<'py>> {
     let p = params_of(params, corpus)?;
-    let p = data(&p);
+    let p = data(&p, "params")?;
     let mut values = vec![0.0; corpus.inner.n_samples()];
     let jac = py
         .detach(|| crate::jacobian(&corpus.inner, &p, beta, &options.inner, &mut values))
@@ -441,14 +513,25 @@ fn jacobian_values<'py>(
     data_out: Option<Bound<'py, PyAny>>,
 ) -> PyResult<(Bound<'py, PyAny>, Bound<'py, PyAny>)> {
     let (n, nnz) = (corpus.inner.n_samples(), corpus.inner.jacobian_nnz());
-    let fresh = |len: usize| PyArray1::<f64>::zeros(py, len, false).into_any();
-    let values_out = values_out.unwrap_or_else(|| fresh(n));
-    let data_out = data_out.unwrap_or_else(|| fresh(nnz));
+    // New arrays through Rust's fallible allocation (NumPy's own failure would surface as a
+    // panic in rust-numpy).
+    let fresh = |len: usize| -> PyResult<Bound<'py, PyAny>> {
+        let v = try_filled(len, 0.0, || corpus.inner.jacobian_what("values")).map_err(model_err)?;
+        Ok(v.into_pyarray(py).into_any())
+    };
+    let values_out = match values_out {
+        Some(v) => v,
+        None => fresh(n)?,
+    };
+    let data_out = match data_out {
+        Some(d) => d,
+        None => fresh(nnz)?,
+    };
     let p = params_of(params, corpus)?;
     let mut v = out_buffer(&values_out, "values_out", n, "[n_samples of the corpus]")?;
     let mut d = out_buffer(&data_out, "data_out", nnz, "[corpus.jacobian_nnz]")?;
-    let p = data(&p);
-    let as_slice = |e| PyValueError::new_err(format!("output buffer: {e}"));
+    let p = data(&p, "params")?;
+    let as_slice = |e| value_error(format!("output buffer: {e}"));
     let (vs, ds) = (
         v.as_slice_mut().map_err(as_slice)?,
         d.as_slice_mut().map_err(as_slice)?,
@@ -471,11 +554,11 @@ fn sse_gradient<'py>(
     weights: &Bound<'py, PyAny>,
 ) -> PyResult<(f64, Bound<'py, PyArray1<f64>>, f64)> {
     let p = params_of(params, corpus)?;
-    let p = data(&p);
+    let p = data(&p, "params")?;
     let y = samples_of(observed, "observed", corpus)?;
-    let y = data(&y);
+    let y = data(&y, "observed")?;
     let w = samples_of(weights, "weights", corpus)?;
-    let w = data(&w);
+    let w = data(&w, "weights")?;
     let mut grad = vec![0.0; corpus.inner.n_phonemes() * N_PARAMS];
     let (sse, dbeta) = py
         .detach(|| crate::sse_gradient(&corpus.inner, &p, beta, &options.inner, &y, &w, &mut grad))
@@ -521,13 +604,15 @@ fn evaluate_batch<'py>(
     options: &ModelOptions,
 ) -> PyResult<Bound<'py, PyArray2<f64>>> {
     let (p, b, n_walkers) = batch_of(params, betas, corpus)?;
-    let (p, b) = (data(&p), data(&b));
+    let (p, b) = (data(&p, "params")?, data(&b, "betas")?);
     let n = corpus.inner.n_samples();
-    let mut out = vec![0.0; n_walkers * n];
+    let what = || crate::corpus::batch_what(n_walkers, n, "samples");
+    let len = product::<f64>(n_walkers, n, what).map_err(model_err)?;
+    let mut out = try_filled(len, 0.0, what).map_err(model_err)?;
     py.detach(|| crate::evaluate_batch(&corpus.inner, &p, &b, &options.inner, &mut out))
         .map_err(model_err)?;
-    let out = Array2::from_shape_vec((n_walkers, n), out)
-        .map_err(|e| PyValueError::new_err(e.to_string()))?;
+    let out =
+        Array2::from_shape_vec((n_walkers, n), out).map_err(|e| value_error(e.to_string()))?;
     Ok(out.into_pyarray(py))
 }
 
@@ -543,11 +628,11 @@ fn sse_batch<'py>(
     weights: &Bound<'py, PyAny>,
 ) -> PyResult<Bound<'py, PyArray1<f64>>> {
     let (p, b, n_walkers) = batch_of(params, betas, corpus)?;
-    let (p, b) = (data(&p), data(&b));
+    let (p, b) = (data(&p, "params")?, data(&b, "betas")?);
     let y = samples_of(observed, "observed", corpus)?;
-    let y = data(&y);
+    let y = data(&y, "observed")?;
     let w = samples_of(weights, "weights", corpus)?;
-    let w = data(&w);
+    let w = data(&w, "weights")?;
     let mut out = vec![0.0; n_walkers];
     py.detach(|| crate::sse_batch(&corpus.inner, &p, &b, &options.inner, &y, &w, &mut out))
         .map_err(model_err)?;
@@ -567,13 +652,16 @@ fn residual_sums_batch<'py>(
     weights: &Bound<'py, PyAny>,
 ) -> PyResult<(Bound<'py, PyArray1<f64>>, Bound<'py, PyArray2<f64>>)> {
     let (p, b, n_walkers) = batch_of(params, betas, corpus)?;
-    let (p, b) = (data(&p), data(&b));
+    let (p, b) = (data(&p, "params")?, data(&b, "betas")?);
     let y = samples_of(observed, "observed", corpus)?;
-    let y = data(&y);
+    let y = data(&y, "observed")?;
     let w = samples_of(weights, "weights", corpus)?;
-    let w = data(&w);
+    let w = data(&w, "weights")?;
     let nu = corpus.inner.n_utterances();
-    let (mut sse, mut sums) = (vec![0.0; n_walkers], vec![0.0; n_walkers * nu]);
+    let what = || crate::corpus::batch_what(n_walkers, nu, "utterances");
+    let len = product::<f64>(n_walkers, nu, what).map_err(model_err)?;
+    let mut sums = try_filled(len, 0.0, what).map_err(model_err)?;
+    let mut sse = vec![0.0; n_walkers];
     py.detach(|| {
         crate::residual_sums_batch(
             &corpus.inner,
@@ -587,8 +675,8 @@ fn residual_sums_batch<'py>(
         )
     })
     .map_err(model_err)?;
-    let sums = Array2::from_shape_vec((n_walkers, nu), sums)
-        .map_err(|e| PyValueError::new_err(e.to_string()))?;
+    let sums =
+        Array2::from_shape_vec((n_walkers, nu), sums).map_err(|e| value_error(e.to_string()))?;
     Ok((sse.into_pyarray(py), sums.into_pyarray(py)))
 }
 
@@ -602,7 +690,7 @@ fn physical_limit_loop(
     options: &ModelOptions,
 ) -> PyResult<f64> {
     let p = params_of(params, corpus)?;
-    let p = data(&p);
+    let p = data(&p, "params")?;
     Ok(py.detach(|| crate::physical_limit_loop(&corpus.inner, &p, &options.inner)))
 }
 
@@ -628,12 +716,12 @@ fn marker_channels<'py>(
         &[Some(n_frames)],
         "one flag per frame (markers.shape[0])",
     )?;
-    let (m, r) = (data(&m), data(&r));
+    let (m, r) = (data(&m, "markers")?, data(&r, "rest")?);
     let mut out = vec![0.0; n_frames * N_CHANNELS];
     py.detach(|| geometry::marker_channels(&m, n_frames, &r, &mut out))
         .map_err(geometry_err)?;
     let out = Array2::from_shape_vec((n_frames, N_CHANNELS), out)
-        .map_err(|e| PyValueError::new_err(e.to_string()))?;
+        .map_err(|e| value_error(e.to_string()))?;
     Ok(out.into_pyarray(py))
 }
 
@@ -659,12 +747,12 @@ fn head_frame<'py>(
         "[frames, markers, xyz]",
     )?;
     let (n_frames, n_markers) = (m.shape()[0], m.shape()[1]);
-    let m = data(&m);
+    let m = data(&m, "markers")?;
     let mut out = vec![0.0; m.len()];
     py.detach(|| geometry::head_frame(&m, n_frames, n_markers, nose, ear_l, ear_r, &mut out))
         .map_err(geometry_err)?;
     let out = Array3::from_shape_vec((n_frames, n_markers, 3), out)
-        .map_err(|e| PyValueError::new_err(e.to_string()))?;
+        .map_err(|e| value_error(e.to_string()))?;
     Ok(out.into_pyarray(py))
 }
 
@@ -675,6 +763,7 @@ fn head_frame<'py>(
 fn _core(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_class::<Corpus>()?;
     m.add_class::<ModelOptions>()?;
+    m.add("CoarticError", core_error_type(m.py())?)?;
     m.add_function(wrap_pyfunction!(evaluate, m)?)?;
     m.add_function(wrap_pyfunction!(jacobian, m)?)?;
     m.add_function(wrap_pyfunction!(jacobian_values, m)?)?;

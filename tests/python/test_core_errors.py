@@ -48,9 +48,9 @@ OPTS = _core.ModelOptions()
         ({"seg_start": np.array([0.0, 0.1, 0.25, 0.33])}, r"seg_start.*length 4, expected 5"),
         ({"sample_offsets": np.array([0, 61], dtype=np.int64)}, r"sample_offsets"),
         ({"seg_offsets": np.array([0, 4], dtype=np.int64)}, r"seg_offsets"),
-        ({"seg_start": np.array([0.0, 0.1, 0.34, 0.33, 0.5])}, r"utterance 0, segment 2.*end 0.33 is not after start 0.34"),
-        ({"seg_start": np.array([0.0, 0.1, 0.2, 0.33, 0.5])}, r"utterance 0, segment 2.*before the previous segment ends"),
-        ({"seg_phoneme": np.array([2, 0, 3, 0, 2], dtype=np.int64)}, r"segment 2.*phoneme index 3 is not below n_phonemes = 3"),
+        ({"seg_start": np.array([0.0, 0.1, 0.34, 0.33, 0.5])}, r"utterance 1, segment 3 \(counted from 1; seg_start\[2\]\): end 0.33 is not after start 0.34"),
+        ({"seg_start": np.array([0.0, 0.1, 0.2, 0.33, 0.5])}, r"utterance 1, segment 3 \(counted from 1; seg_start\[2\]\): starts at 0.2, before the previous segment ends"),
+        ({"seg_phoneme": np.array([2, 0, 3, 0, 2], dtype=np.int64)}, r"utterance 1, segment 3 \(counted from 1; seg_phoneme\[2\]\): phoneme index 3 is not below n_phonemes = 3"),
         ({"seg_phoneme": np.array([2, 0, -1, 0, 2], dtype=np.int64)}, r"seg_phoneme\[2\] = -1 is negative"),
         ({"sample_times": np.where(np.arange(60) == 7, np.nan, np.arange(60) / 100.0)}, r"sample_times\[7\].*not finite"),
     ],
@@ -147,3 +147,71 @@ def test_read_only_input_is_accepted(corpus: _core.Corpus, params: np.ndarray) -
     want = _core.evaluate(corpus, params, 1.0, OPTS)
     params.setflags(write=False)
     assert np.array_equal(_core.evaluate(corpus, params, 1.0, OPTS), want)
+
+
+def test_errors_are_coartic_errors_with_the_place_as_attributes(corpus: _core.Corpus, params: np.ndarray) -> None:
+    from coartic.errors import CoarticError
+
+    assert issubclass(_core.CoarticError, CoarticError) and issubclass(_core.CoarticError, ValueError)
+    with pytest.raises(_core.CoarticError) as bad_segment:
+        _core.Corpus(**with_(seg_start=np.array([0.0, 0.1, 0.34, 0.33, 0.5])))
+    e = bad_segment.value
+    # Indices from 0 in the attributes, counted from 1 in the message ("utterance 1, segment 3").
+    assert (e.utterance, e.segment, e.value, e.reason) == (0, 2, 0.33, "end is not after start")
+    assert (e.phoneme, e.parameter, e.sample, e.walker) == (None, None, None, None)
+
+    params[2, 6] = 1.5
+    with pytest.raises(CoarticError) as bad_param:
+        _core.jacobian(corpus, params, 1.0, OPTS)
+    e = bad_param.value
+    assert (e.phoneme, e.parameter, e.value, e.reason) == (2, "k_r", 1.5, "is outside its domain [0, 1]")
+    assert (e.utterance, e.segment, e.sample, e.walker) == (None, None, None, None)
+
+    batch = np.stack([random_params(np.random.default_rng(1), 3)] * 3)
+    batch[1, 0, 1] = np.nan
+    with pytest.raises(_core.CoarticError, match=r"walker 1: phoneme 0, parameter alpha: value NaN is not finite") as walker:
+        _core.evaluate_batch(corpus, batch, np.ones(3), OPTS)
+    assert (walker.value.walker, walker.value.phoneme, walker.value.parameter) == (1, 0, "alpha")
+
+    w = np.ones(60)
+    w[3] = -1.0
+    with pytest.raises(ValueError) as bad_weight:
+        _core.sse_gradient(corpus, random_params(np.random.default_rng(0), 3), 1.0, OPTS, np.zeros(60), w)
+    assert (bad_weight.value.sample, bad_weight.value.value) == (3, -1.0)  # type: ignore[attr-defined]
+
+    # The binding's own argument checks are CoarticErrors too (no attributes but the message).
+    with pytest.raises(_core.CoarticError, match=r"'params' has shape \(2, 10\)") as shape:
+        _core.evaluate(corpus, params[:2], 1.0, OPTS)
+    assert shape.value.utterance is None and shape.value.reason is None
+
+
+def test_degenerate_sample_is_named_by_utterance_and_sample() -> None:
+    # theta * |tau|^c overflows to inf for every segment at the sample 1e200 s away.
+    c = _core.Corpus(np.array([0, 1, 2]), np.array([0, 0]), np.array([0.0, 0.0]), np.array([1.0, 1.0]),
+                     np.array([0, 1, 3]), np.array([0.5, 0.5, 1e200]), 1)
+    p = random_params(np.random.default_rng(0), 1)
+    with pytest.raises(_core.CoarticError, match=r"utterance 2 \(counted from 1\), sample_times\[2\]: every segment has zero weight") as e:
+        _core.evaluate(c, p, 1.0, _core.ModelOptions("original"))
+    assert (e.value.utterance, e.value.sample) == (1, 2)
+
+
+def test_every_error_class_of_the_package_has_the_one_base() -> None:
+    """Every exception class defined under python/coartic subclasses coartic.errors.CoarticError."""
+    import ast
+    import importlib
+    from pathlib import Path
+
+    from coartic.errors import CoarticError
+
+    root = Path(__file__).resolve().parents[2] / "python"
+    found = []
+    for path in sorted((root / "coartic").rglob("*.py")):
+        module = ".".join(path.relative_to(root).with_suffix("").parts)
+        for node in ast.parse(path.read_text(encoding="utf-8")).body:
+            bases = [b.id if isinstance(b, ast.Name) else getattr(b, "attr", "") for b in getattr(node, "bases", [])]
+            if isinstance(node, ast.ClassDef) and any(b.endswith(("Error", "Exception")) for b in bases):
+                cls = getattr(importlib.import_module(module), node.name)
+                if isinstance(cls, type) and issubclass(cls, BaseException) and cls is not CoarticError:
+                    found.append(cls)
+                    assert issubclass(cls, CoarticError), f"{module}.{node.name} does not subclass CoarticError"
+    assert len(found) >= 10

@@ -81,9 +81,9 @@ def test_build_corpus_layout() -> None:
 @pytest.mark.parametrize(
     ("labels", "starts", "ends", "times", "pattern"),
     [
-        (["a", "x"], [0.0, 0.1], [0.1, 0.2], [0.1], r"utterance 'u7': label 'x' \(segment 1\) is not a phoneme of the table"),
-        (["a", "p"], [0.0, 0.05], [0.1, 0.2], [0.1], r"utterance 'u7': segment 1 'p' starts at 0.05 s, before segment 0 'a' ends at 0.1 s"),
-        (["a", "p"], [0.0, 0.1], [0.1, 0.1], [0.1], r"utterance 'u7': segment 1 'p' ends at 0.1 s, not after its start 0.1 s"),
+        (["a", "x"], [0.0, 0.1], [0.1, 0.2], [0.1], r"utterance 'u7': label 'x' \(segment 2\) is not a phoneme of the table"),
+        (["a", "p"], [0.0, 0.05], [0.1, 0.2], [0.1], r"utterance 'u7': segment 2 'p' starts at 0.05 s, before segment 1 'a' ends at 0.1 s"),
+        (["a", "p"], [0.0, 0.1], [0.1, 0.1], [0.1], r"utterance 'u7': segment 2 'p' ends at 0.1 s, not after its start 0.1 s"),
         (["a", "p"], [0.0, 0.1], [0.1], [0.1], r"utterance 'u7': 2 labels, 2 starts and 1 ends"),
         (["a"], [0.0], [0.1], [0.1, np.nan], r"utterance 'u7': times\[1\] = nan is not finite"),
         (["a"], [0.0], [0.1], [[0.1]], r"utterance 'u7': times must be one-dimensional"),
@@ -97,7 +97,7 @@ def test_build_corpus_errors_name_utterance_and_label(labels: list[str], starts:
 
 
 def test_trajectories_errors(illustrative_table: ParameterTable) -> None:
-    with pytest.raises(ModelInputError, match=r"label 'o' \(segment 2\) is not a phoneme of <table> \(known: # a p f t\)"):
+    with pytest.raises(ModelInputError, match=r"label 'o' \(segment 3\) is not a phoneme of <table> \(known: # a p f t\)"):
         trajectories(illustrative_table, ["#", "a", "o", "a", "#"], STARTS, ENDS, TIMES)
     with pytest.raises(ValueError, match=r"channel 'JO' is not in the table"):
         trajectories(illustrative_table, LABELS, STARTS, ENDS, TIMES, channels=["JO"])
@@ -106,3 +106,20 @@ def test_trajectories_errors(illustrative_table: ParameterTable) -> None:
     illustrative_table.values["p"]["LLO"]["c_bw"] = -0.5
     with pytest.raises(ModelInputError, match=r"channel 'LLO': phoneme 'p', parameter c_bw"):
         trajectories(illustrative_table, LABELS, STARTS, ENDS, TIMES)
+    with pytest.raises(ModelInputError) as e:
+        trajectories(illustrative_table, LABELS, STARTS, ENDS, TIMES, channels=["LLO"])
+    # The phoneme by name, from the core error's attributes (not re-parsed from its message).
+    assert str(e.value) == "channel 'LLO': phoneme 'p', parameter c_bw: value -0.5 is outside its domain > 0"
+    assert (e.value.channel, e.value.phoneme, e.value.parameter, e.value.value) == ("LLO", "p", "c_bw", -0.5)
+    assert e.value.reason == "is outside its domain > 0" and e.value.utterance is None
+
+
+def test_build_corpus_errors_carry_the_place(illustrative_table: ParameterTable) -> None:
+    from coartic.errors import CoarticError
+
+    with pytest.raises(CoarticError) as e:
+        build_corpus([Utterance(["a"], [0.0], [0.1], [0.0]),
+                      Utterance(["a", "p"], [0.0, 0.05], [0.1, 0.2], [0.1])], ["a", "p"])
+    assert str(e.value).startswith("utterance 2: segment 2 'p' starts at 0.05 s, before segment 1 'a' ends")
+    assert isinstance(e.value, ValueError)
+    assert (e.value.utterance, e.value.segment, e.value.phoneme, e.value.value) == (1, 1, "p", 0.05)

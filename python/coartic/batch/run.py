@@ -37,13 +37,14 @@ from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, T
 
 from coartic.batch.spec import BatchSpec
 from coartic.batch.tasks import UnitKey, UnitOutput, fit_unit, load_group
+from coartic.errors import CoarticError
 from coartic.fit.problem import Utterance
 from coartic.outputs import DeferredSignals, OutputDir
 
 UNIT_FILE = "unit.json"
 
 
-class ClusterError(ValueError):
+class ClusterError(CoarticError, ValueError):
     """The Dask cluster could not be started or reached; the message names the address."""
 
 

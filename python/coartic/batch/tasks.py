@@ -27,6 +27,7 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from coartic.errors import CoarticError
 from coartic.fit.problem import Utterance
 from coartic.fit.spec import FitSpec
 
@@ -35,7 +36,7 @@ RAYON_ENV = "RAYON_NUM_THREADS"
 FAILED_STATUSES = frozenset({"failed", "non-finite start", "interrupted"})
 
 
-class UnitFailed(RuntimeError):
+class UnitFailed(CoarticError, RuntimeError):
     """A unit whose fit did not finish; the message names the unit and the engine's reason."""
 
 

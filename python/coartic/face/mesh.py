@@ -175,6 +175,16 @@ def _skin() -> tuple[NDArray[np.float64], NDArray[np.bool_], NDArray[np.int64], 
     z = skin_depth(xy[:, 0], xy[:, 1])
     vertices = np.column_stack([xy, z])
     upper = np.concatenate([upper, np.zeros(cut_cols.size, dtype=bool)])
+    # the sides of the head: the mask's rim continued backwards, so that a turned face is not a shell
+    rim = np.concatenate([index[0, :], index[1:, -1], index[-1, -2::-1], index[-2:0:-1, 0]])
+    back = vertices[rim] * np.array([0.82, 1.0, 0.0]) + np.array([0.0, 0.0, -45.0])
+    back[:, 1] = np.where(back[:, 1] < -FACE_BOTTOM + 1, back[:, 1] + 12.0, back[:, 1])  # under the chin
+    skirt = vertices.shape[0] + np.arange(rim.size)
+    for i in range(rim.size):
+        j = (i + 1) % rim.size
+        tris += [(rim[i], skirt[i], skirt[j]), (rim[i], skirt[j], rim[j])]
+    vertices = np.concatenate([vertices, back])
+    upper = np.concatenate([upper, upper[rim]])
     # lips: vermilion between the lip line and the borders, inside the corners
     x, y = vertices[:, 0], vertices[:, 1]
     # how far inside the vermilion border (mm), blended over 1.5 mm so the coarse grid shows no steps

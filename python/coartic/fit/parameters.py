@@ -65,7 +65,8 @@ class ParameterSet(Mapping[str, Parameter]):
                  lower: FloatArray, upper: FloatArray, beta: float, beta_free: bool,
                  beta_bounds: tuple[float, float], priors: Mapping[str, tuple[float, float]] | None = None,
                  stderr: Mapping[str, float] | None = None, at_bound: frozenset[str] = frozenset(),
-                 unidentified: frozenset[str] = frozenset()) -> None:
+                 unidentified: frozenset[str] = frozenset(),
+                 origins: NDArray[np.object_] | None = None) -> None:
         self.channel = channel
         self.phonemes = phonemes
         self.matrix, self.free, self.lower, self.upper = matrix, free, lower, upper
@@ -73,6 +74,9 @@ class ParameterSet(Mapping[str, Parameter]):
         self.priors = dict(priors or {})
         self.stderr = dict(stderr or {})
         self.at_bound, self.unidentified = at_bound, unidentified
+        # [n_phonemes, 10]: the spec key each value came from ("" for defaults, data, start
+        # tables), so that a value the model refuses is named by its key (ChannelProblem.explain).
+        self.origins = origins
 
     # ------------------------------------------------------------------ Mapping
     def _names(self) -> list[str]:
@@ -160,7 +164,8 @@ class ParameterSet(Mapping[str, Parameter]):
                     free[i, PARAMETERS.index(name)] = True
                 for name, val in o.fixed.items():
                     k = PARAMETERS.index(name)
-                    base[i, k], free[i, k], origin[i, k] = val, False, ""
+                    # named (for errors) but never checked against bounds: a fixed value is not free
+                    base[i, k], free[i, k], origin[i, k] = val, False, f"override #{j + 1}.fixed.{name}"
 
         if spec.reference_phoneme not in phon:
             raise SpecError(f"{spec.path}: [model.reference_phoneme] {spec.reference_phoneme!r} does not occur in "
@@ -183,14 +188,14 @@ class ParameterSet(Mapping[str, Parameter]):
         base = np.where(free, np.clip(base, lower, upper), base)
         beta_free = spec.fit_beta and spec.variant == "modified"
         beta = float(np.clip(beta, *spec.beta_bounds)) if beta_free else beta
-        return cls(ch, tuple(phon), base, free, lower, upper, beta, beta_free, spec.beta_bounds)
+        return cls(ch, tuple(phon), base, free, lower, upper, beta, beta_free, spec.beta_bounds, origins=origin)
 
     def packing(self) -> Packing:
         """The engines' view: the free entries, their bounds and the transform to x."""
         from coartic.fit.problem import Packing
 
         return Packing(self.phonemes, self.free.copy(), self.beta_free, self.lower.copy(), self.upper.copy(),
-                       self.beta_bounds, self.matrix.copy(), self.beta)
+                       self.beta_bounds, self.matrix.copy(), self.beta, self.origins)
 
     @classmethod
     def from_packing(cls, channel: str, packing: Packing, names: list[str] | None = None,

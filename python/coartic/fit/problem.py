@@ -33,7 +33,7 @@ from numpy.typing import NDArray
 
 from coartic import _core
 from coartic.fit.spec import FitSpec
-from coartic.model import JacobianBuffer, Utterance, build_corpus, channel_options
+from coartic.model import JacobianBuffer, Utterance, build_corpus, channel_options, core_error
 from coartic.table import N_PARAMS, PARAMETERS
 
 __all__ = ["Utterance", "ChannelData", "Packing", "ChannelProblem", "build_problem", "build_packing",
@@ -111,6 +111,9 @@ class Packing:
     beta_bounds: tuple[float, float]
     base: FloatArray  # [n_phonemes, 10]
     base_beta: float
+    # [n_phonemes, 10]: the spec key each base value came from ("parameters.start.alpha",
+    # "override #2.fixed.k_r"; "" for defaults, data and start tables): ParameterSet.origins.
+    origins: NDArray[np.object_] | None = None
 
     def __post_init__(self) -> None:
         self._idx = np.flatnonzero(self.free.ravel())
@@ -240,6 +243,23 @@ class ChannelProblem:
         overwritten by the next call, so copy what you keep."""
         return self._jacobian.compute(params, beta, self.options)
 
+    def explain(self, err: ValueError, params: FloatArray) -> str:
+        """A model error at ``params`` for people: the phoneme by name and, when the refused value
+        is the one the spec gave (not an engine's step), the spec key it came from, e.g.
+        ``[parameters.start] alpha = nan for phoneme 'a' on channel LLO: the value is not finite``."""
+        e = core_error(err, self.data.channel, self.packing.phonemes)
+        pk = self.packing
+        if (pk.origins is None or not isinstance(e.phoneme, str) or e.parameter not in PARAMETERS
+                or e.phoneme not in pk.phonemes):
+            return str(e)
+        i, k = pk.phonemes.index(e.phoneme), PARAMETERS.index(str(e.parameter))
+        v, b = float(params[i, k]), float(pk.base[i, k])
+        if not pk.origins[i, k] or not (v == b or (np.isnan(v) and np.isnan(b))):
+            return str(e)
+        section, _, name = str(pk.origins[i, k]).rpartition(".")
+        return (f"[{section}] {name} = {v!r} for phoneme {e.phoneme!r} on channel {self.data.channel}: "
+                f"the value {e.reason}")
+
     # --- internal-x interface for engines ----------------------------------------------------
     def _track(self, x: FloatArray, sse: float) -> None:
         if np.isfinite(sse) and sse < self.best_sse:
@@ -254,7 +274,7 @@ class ChannelProblem:
         try:
             f = self.evaluate(params, beta)
         except ValueError as e:
-            self.last_error = str(e)
+            self.last_error = self.explain(e, params)
             return np.full(self.data.corpus.n_samples, np.nan)
         r = self.sqrt_w * (f - self.data.observed)
         self._track(x, float(r @ r))
@@ -267,7 +287,7 @@ class ChannelProblem:
         try:
             _, jac = self.full_jacobian(params, beta)
         except ValueError as e:
-            self.last_error = str(e)
+            self.last_error = self.explain(e, params)
             return sp.csr_matrix((self.data.corpus.n_samples, self.packing.n_free))
         j = jac[:, self.packing.free_columns].tocsr()
         # Row scale sqrt(w) and column scale d(value)/dx applied to the stored entries in place.
@@ -287,7 +307,7 @@ class ChannelProblem:
             sse, grad, dbeta = _core.sse_gradient(self.data.corpus, params, beta, self.options,
                                                   self.data.observed, self.data.weights)
         except ValueError as e:
-            self.last_error = str(e)
+            self.last_error = self.explain(e, params)
             return np.inf, np.zeros(self.packing.n_free)
         full = np.append(np.asarray(grad), dbeta)
         g = full[self.packing.free_columns] * self.packing.dvalue_dx(x)

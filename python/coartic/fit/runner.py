@@ -17,6 +17,7 @@ from rich.console import Console
 from threadpoolctl import threadpool_limits
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
+from coartic.errors import CoarticError
 from coartic.fit.engines import OptionError, check_options
 from coartic.fit.problem import ChannelProblem, Utterance, build_problem
 from coartic.fit.result import ChannelFit, FitResult, finish_channel, now
@@ -74,7 +75,7 @@ def fit_channel(spec: FitSpec, utterances: Sequence[Utterance], channel: str,
     return fit
 
 
-class FitFailed(ValueError):
+class FitFailed(CoarticError, ValueError):
     """An engine failed on a channel (its result would be the unfitted start values): the message
     names the channel, the engine and the engine's own words."""
 
@@ -149,7 +150,8 @@ def run(spec: FitSpec | str | Path, out: str | Path | None = None, *, utterances
 
         try:
             result.validation = validate_all(spec, None if out is None else Path(out) / "validation",
-                                             utterances=utterances, console=console, quiet=quiet)
+                                             utterances=utterances, console=console, quiet=quiet,
+                                             notes=result.notes)
         except KeyboardInterrupt:
             result.notes.append("validation interrupted by the user")
         except SpecError as e:  # e.g. no repetition or rate to hold out: said, not raised

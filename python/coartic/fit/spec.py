@@ -13,11 +13,14 @@ from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
+from coartic.errors import CoarticError
 from coartic.io.errors import DataError
 from coartic.io.roles import RoleMap
 from coartic.table import ALL_CHANNELS, CHANNELS, PARAMETERS, VARIANTS, ChannelSettings
 
 ENGINES: tuple[str, ...] = ("scipy", "nlopt", "casadi")
+# [validate] group: what a k-fold validation holds out together (manifest columns, or the file).
+VALIDATE_GROUPS: tuple[str, ...] = ("utterance", "sentence", "rate", "speaker", "repetition")
 
 # Starting values of the dynamics; targets start from the data (mean value at the target times).
 DEFAULT_START: dict[str, float] = {
@@ -40,7 +43,7 @@ DEFAULT_STAGES: tuple[tuple[str, ...], ...] = (
 )
 
 
-class SpecError(ValueError):
+class SpecError(CoarticError, ValueError):
     """A fit specification that cannot be used; the message names the file and the key."""
 
 
@@ -97,6 +100,8 @@ class FitSpec:
     staging: bool = True
     stages: tuple[tuple[str, ...], ...] = DEFAULT_STAGES
     max_gap: float = 0.05  # s: gaps up to this are interpolated by the reader, longer ones masked
+    validate_group: str | None = None  # k-fold validation by this grouping (VALIDATE_GROUPS)
+    validate_folds: int | None = None  # None: one fold per group (leave one group out)
     holdout_repetition: int | None = 5
     train_rate: str | None = "normal"
     test_rate: str | None = "fast"
@@ -347,10 +352,18 @@ def parse_spec(raw: dict[str, Any], path: Path) -> FitSpec:
     max_gap = _float(g.get("max_gap", 0.05), path, "gaps.max_gap")
 
     v = raw.get("validate", {})
-    _take(v, path, "validate", {"holdout_repetition", "train_rate", "test_rate"})
+    _take(v, path, "validate", {"holdout_repetition", "train_rate", "test_rate", "group", "folds"})
     hold = v.get("holdout_repetition", 5)
-    if hold is not None and not isinstance(hold, int):
+    if hold is not None and (isinstance(hold, bool) or not isinstance(hold, int)):
         raise _err(path, "validate.holdout_repetition", f"expected an integer, got {hold!r}")
+    group = v.get("group")
+    if group is not None and group not in VALIDATE_GROUPS:
+        raise _err(path, "validate.group", f"{group!r}: expected one of {', '.join(VALIDATE_GROUPS)}")
+    folds = v.get("folds")
+    if folds is not None and (isinstance(folds, bool) or not isinstance(folds, int) or folds < 2):
+        raise _err(path, "validate.folds", f"expected an integer >= 2, got {folds!r}")
+    if folds is not None and group is None:
+        raise _err(path, "validate.folds", "needs group = \"utterance\" (or sentence, rate, speaker, repetition)")
 
     return FitSpec(
         path=path, name=str(name), corpus=corpus, channels=channels, variant=variant,
@@ -358,5 +371,6 @@ def parse_spec(raw: dict[str, Any], path: Path) -> FitSpec:
         beta=_float(m.get("beta", 1.0), path, "model.beta"), fit_beta=fit_beta, beta_bounds=beta_bounds,
         free=free, start_table=start_table, start=start, start_given=frozenset(start_given), bounds=bounds, channel_bounds=channel_bounds,
         target_margin=margin, overrides=tuple(overrides), engine=engine, engine_options=dict(engine_options),
-        staging=staging, stages=stages, max_gap=max_gap, holdout_repetition=hold,
+        staging=staging, stages=stages, max_gap=max_gap, holdout_repetition=hold, validate_group=group,
+        validate_folds=folds,
         train_rate=v.get("train_rate", "normal"), test_rate=v.get("test_rate", "fast"))

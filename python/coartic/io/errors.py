@@ -5,8 +5,10 @@ from __future__ import annotations
 from os import PathLike
 from pathlib import Path
 
+from coartic.errors import CoarticError
 
-class DataError(ValueError):
+
+class DataError(CoarticError, ValueError):
     """Bad or unreadable input data; the message names the file and what is at fault.
 
     `path`, `line` and `item` (a marker, label, tier or column name) are kept as attributes so

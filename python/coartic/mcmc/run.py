@@ -16,6 +16,7 @@ from typing import Any, Callable, Sequence
 import numpy as np
 from numpy.typing import NDArray
 
+from coartic.errors import CoarticError
 from coartic.mcmc import plots, sampler, summary
 from coartic.mcmc.posterior import LogPosterior, channel_posterior, phoneme_posterior
 from coartic.mcmc.sampler import SamplerSettings, SamplingResult
@@ -26,7 +27,7 @@ SCOPES = ("phonemes", "channel")
 PAUSE = "#"
 
 
-class McmcConfigError(ValueError):
+class McmcConfigError(CoarticError, ValueError):
     """A bad ``[mcmc]`` section; the message names the file and key."""
 
 

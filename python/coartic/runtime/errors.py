@@ -1,7 +1,9 @@
 """The runtime's own exceptions: each message names the file, line, phone, phoneme or parameter at fault."""
 
+from coartic.errors import CoarticError
 
-class AnimationError(Exception):
+
+class AnimationError(CoarticError):
     """Base class for every error of the animation runtime; the CLI prints it without a traceback."""
 
 

@@ -33,7 +33,7 @@ MwOpt = Annotated[float | None, typer.Option("--mw", help="The speaker's neutral
 SnapOpt = Annotated[bool, typer.Option("--snap-contacts/--no-snap-contacts", help="Show each k_R = 1 target (lip closure, lip-teeth contact) on its nearest frame.")]
 StrictOpt = Annotated[bool, typer.Option("--strict", help="Refuse phonemes the table lacks instead of using the fallbacks of phones_italian.tsv.")]
 PreviewOpt = Annotated[str, typer.Option("--preview", help=f"Preview format: {', '.join(PREVIEW_FORMATS)}.")]
-GltfOpt = Annotated[bool, typer.Option("--gltf", help="Also write NAME.glb: the face with one morph target per FAP and their animation (coartic view DIR plays it).")]
+GltfOpt = Annotated[bool, typer.Option("--gltf", help="Also write NAME.glb: the face with morph targets per FAP and their animation (coartic view DIR plays it).")]
 VrmlOpt = Annotated[bool, typer.Option("--vrml", help="Also write NAME.wrl: the face animated in VRML97 (interpolators, the sound as an AudioClip).")]
 FapNameOpt = Annotated[str | None, typer.Option("--fap-name", help="Name of the FAP file and its header; the WAV and glTF get the same stem (Greta loads NAME.fap with NAME.wav).")]
 ForceOpt = Annotated[bool, typer.Option("--force", help="Replace --out even if it holds another run's output "

@@ -13,6 +13,7 @@ from typing import Any, Callable
 import numpy as np
 from numpy.typing import NDArray
 
+from coartic.errors import CoarticError
 from coartic.fit.problem import ChannelProblem
 
 
@@ -45,7 +46,7 @@ def get_engine(name: str) -> Minimizer:
     return minimize
 
 
-class OptionError(ValueError):
+class OptionError(CoarticError, ValueError):
     """An engine option the engine cannot use: ``key`` is the option's name."""
 
     def __init__(self, key: str, message: str) -> None:
