@@ -60,7 +60,9 @@ VARIANTS: dict[str, dict[str, Any]] = {
     "plateau-0.25": {"dominance": "plateau", "plateau_fraction": 0.25},
     "plateau-0.5": {"dominance": "plateau", "plateau_fraction": 0.5},
     "handover": {"dominance": "centre", "handover": True},
+    "plateau-0.4+handover": {"dominance": "plateau", "plateau_fraction": 0.4, "handover": True},
     "plateau-0.5+handover": {"dominance": "plateau", "plateau_fraction": 0.5, "handover": True},
+    "plateau-0.6+handover": {"dominance": "plateau", "plateau_fraction": 0.6, "handover": True},
     "segment+handover": {"dominance": "segment", "handover": True},
 }
 
@@ -75,11 +77,11 @@ def load(manifest: Path, channels: tuple[str, ...]) -> list[Utterance]:
         ch = trial.channels(list(channels))
         seg = trial.segments
         assert seg is not None
-        out.append(Utterance(r["stimulus"], tuple(seg.labels), np.asarray(seg.starts, float),
-                             np.asarray(seg.ends, float), np.asarray(ch.times, float),
-                             {c: np.asarray(ch[c], float) for c in channels},
-                             {c: np.asarray(ch.valid[c], bool) for c in channels},
-                             {k: r[k] for k in ("vowel", "consonant", "repetition", "rate")}))
+        out.append(Utterance(name=r["stimulus"], labels=tuple(seg.labels), starts=np.asarray(seg.starts, float),
+                             ends=np.asarray(seg.ends, float), times=np.asarray(ch.times, float),
+                             observed={c: np.asarray(ch[c], float) for c in channels},
+                             valid={c: np.asarray(ch.valid[c], bool) for c in channels},
+                             meta={k: r[k] for k in ("vowel", "consonant", "repetition", "rate")}))
     return out
 
 
@@ -177,9 +179,10 @@ def fit(train: Batch, channel: str, phonemes: list[str], kw: dict[str, Any], max
         params = unpack(res.x)
     final = np.flatnonzero(free.ravel())
     vals, lo_n, hi_n = params.ravel()[final], lower.ravel()[final], upper.ravel()[final]
-    at = [f"{phonemes[i // 10]}.{PARAMETERS[i % 10]}" for i, v, a, b in zip(final, vals, lo_n, hi_n)
-          if PARAMETERS[i % 10] not in ("target",) and (np.isclose(v, a, rtol=1e-6) or np.isclose(v, b, rtol=1e-6))
-          and PARAMETERS[i % 10] != "k_r"]
+    # k_R at 0 or 1 is expected (MODEL.md); other parameters at a bound are listed, "+" at the upper.
+    at = [f"{phonemes[i // 10]}.{PARAMETERS[i % 10]}{'+' if np.isclose(v, b, rtol=1e-6) else '-'}"
+          for i, v, a, b in zip(final, vals, lo_n, hi_n)
+          if PARAMETERS[i % 10] not in ("target", "k_r") and (np.isclose(v, a, rtol=1e-6) or np.isclose(v, b, rtol=1e-6))]
     return params, nfev, at
 
 
