@@ -25,7 +25,7 @@ sampler (``coartic.mcmc``) share. Its pieces:
 from __future__ import annotations
 
 from dataclasses import dataclass, replace
-from typing import Any, Callable, Sequence
+from typing import Any, Callable, Mapping, Sequence
 
 import numpy as np
 import scipy.sparse as sp
@@ -212,6 +212,60 @@ def build_packing(spec: FitSpec, data: ChannelData, start: tuple[FloatArray, flo
     return ParameterSet.from_spec(spec, data, start).packing()
 
 
+@dataclass(frozen=True)
+class Prior:
+    """A Gaussian prior on one parameter: on its natural value, or (``log``) on its logarithm
+    (``mean`` is then still given in natural units: the prior's median)."""
+
+    mean: float
+    sd: float
+    log: bool = False
+
+
+class Penalty:
+    """Gaussian priors as extra least-squares residuals ``noise · (value − mean) / sd`` (or on log
+    values), one row per prior on a free entry: minimising SSE + Σ rows² is the MAP estimate when
+    the measurement noise has sd ``noise`` (mm). Exact derivatives: d row / dx = noise ·
+    d(value)/dx / sd (natural) or noise / sd (log prior on a log-fitted parameter)."""
+
+    def __init__(self, packing: Packing, priors: Mapping[str, Prior], noise: float) -> None:
+        names = packing.names()
+        keys = [k for k in priors if k in names]
+        self.names = keys
+        self.idx = np.array([names.index(k) for k in keys], dtype=np.int64)
+        self.mean = np.array([priors[k].mean for k in keys], dtype=np.float64)
+        self.sd = np.array([priors[k].sd for k in keys], dtype=np.float64)
+        self.log = np.array([priors[k].log for k in keys], dtype=bool)
+        self.noise = float(noise)
+        self.packing = packing
+
+    @property
+    def size(self) -> int:
+        return int(self.idx.size)
+
+    def residuals(self, x: FloatArray) -> FloatArray:
+        v = self.packing.natural(x)[self.idx]
+        with np.errstate(divide="ignore", invalid="ignore"):
+            z = np.where(self.log, (np.log(np.where(self.log, v, 1.0)) - np.log(np.where(self.log, self.mean, 1.0))),
+                         v - self.mean) / self.sd
+        return self.noise * z
+
+    def jacobian(self, x: FloatArray) -> sp.csr_matrix:
+        v = self.packing.natural(x)[self.idx]
+        dv = self.packing.dvalue_dx(x)[self.idx]
+        with np.errstate(divide="ignore", invalid="ignore"):
+            d = self.noise * np.where(self.log, dv / v, dv) / self.sd
+        return sp.csr_matrix((d, (np.arange(self.size), self.idx)), shape=(self.size, self.packing.n_free))
+
+    def gradient(self, x: FloatArray) -> tuple[float, FloatArray]:
+        """Σ rows² and its gradient in x."""
+        r = self.residuals(x)
+        g = np.zeros(self.packing.n_free)
+        if self.size:
+            g += 2.0 * (self.jacobian(x).T @ r)
+        return float(r @ r), g
+
+
 class ChannelProblem:
     """Residuals, Jacobian and SSE of one channel as functions of the internal vector x.
 
@@ -220,10 +274,15 @@ class ChannelProblem:
     raises ValueError) give non-finite residuals, which the engines treat as a rejected step.
     """
 
-    def __init__(self, data: ChannelData, packing: Packing, options: _core.ModelOptions) -> None:
+    def __init__(self, data: ChannelData, packing: Packing, options: _core.ModelOptions,
+                 priors: Mapping[str, Prior] | None = None, prior_noise: float = 1.0) -> None:
         self.data = data
         self.packing = packing
         self.options = options
+        # Gaussian priors (spec [parameters.prior]) on free entries, as extra residual rows.
+        self.priors: dict[str, Prior] = dict(priors or {})
+        self.prior_noise = float(prior_noise)
+        self.penalty = Penalty(packing, self.priors, self.prior_noise)
         self.sqrt_w = np.sqrt(data.weights)
         self.nfev = 0
         self.njev = 0
@@ -275,8 +334,10 @@ class ChannelProblem:
             f = self.evaluate(params, beta)
         except ValueError as e:
             self.last_error = self.explain(e, params)
-            return np.full(self.data.corpus.n_samples, np.nan)
+            return np.full(self.data.corpus.n_samples + self.penalty.size, np.nan)
         r = self.sqrt_w * (f - self.data.observed)
+        if self.penalty.size:
+            r = np.concatenate([r, self.penalty.residuals(x)])
         self._track(x, float(r @ r))
         return r
 
@@ -288,11 +349,13 @@ class ChannelProblem:
             _, jac = self.full_jacobian(params, beta)
         except ValueError as e:
             self.last_error = self.explain(e, params)
-            return sp.csr_matrix((self.data.corpus.n_samples, self.packing.n_free))
+            return sp.csr_matrix((self.data.corpus.n_samples + self.penalty.size, self.packing.n_free))
         j = jac[:, self.packing.free_columns].tocsr()
         # Row scale sqrt(w) and column scale d(value)/dx applied to the stored entries in place.
         rows = np.repeat(np.arange(j.shape[0]), np.diff(j.indptr))
         j.data *= self.sqrt_w[rows] * self.packing.dvalue_dx(x)[j.indices]
+        if self.penalty.size:
+            j = sp.vstack([j, self.penalty.jacobian(x)], format="csr")
         return j
 
     def sse(self, x: FloatArray) -> float:
@@ -311,6 +374,9 @@ class ChannelProblem:
             return np.inf, np.zeros(self.packing.n_free)
         full = np.append(np.asarray(grad), dbeta)
         g = full[self.packing.free_columns] * self.packing.dvalue_dx(x)
+        if self.penalty.size:
+            ps, pg = self.penalty.gradient(x)
+            sse, g = sse + ps, g + pg
         if np.isfinite(sse):
             self._track(x, float(sse))
         return float(sse), g
@@ -318,12 +384,15 @@ class ChannelProblem:
     def sse_batch(self, xs: FloatArray) -> FloatArray:
         """SSE for many x at once (rows), through the core's parallel batch path; +inf if invalid."""
         params, betas = self.packing.unpack_batch(xs)
-        return np.asarray(_core.sse_batch(self.data.corpus, params, betas, self.options,
-                                          self.data.observed, self.data.weights))
+        out = np.asarray(_core.sse_batch(self.data.corpus, params, betas, self.options,
+                                         self.data.observed, self.data.weights))
+        if self.penalty.size:
+            out = out + np.array([float(r @ r) for r in map(self.penalty.residuals, np.atleast_2d(xs))])
+        return out
 
     def with_packing(self, packing: Packing) -> ChannelProblem:
         """A problem on the same data with another free set (staged fits); best point carried."""
-        p = ChannelProblem(self.data, packing, self.options)
+        p = ChannelProblem(self.data, packing, self.options, self.priors, self.prior_noise)
         p.nfev, p.njev, p.monitor = self.nfev, self.njev, self.monitor
         return p
 
@@ -335,7 +404,10 @@ def build_problem(spec: FitSpec, utterances: Sequence[Utterance], channel: str,
     data = ChannelData.build(utterances, channel, phonemes)
     # Options from the settings the fitted table will record (spec.channel_settings): one source.
     options = channel_options(spec.variant, spec.channel_settings(channel))
-    return ChannelProblem(data, build_packing(spec, data, start), options)
+    from coartic.fit.parameters import ParameterSet
+
+    ps = ParameterSet.from_spec(spec, data, start)
+    return ChannelProblem(data, ps.packing(), options, ps.priors, spec.prior_noise)
 
 
 def describe(packing: Packing) -> dict[str, Any]:
