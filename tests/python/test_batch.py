@@ -203,6 +203,23 @@ def test_a_failed_unit_is_reported_and_the_others_land(corpus: Path, tmp_path: P
     assert status["finished"] == 5 and "s01 JO" in status["missing"]  # 3 LLO fits, 2 LLO posteriors
 
 
+def test_ctrl_c_keeps_every_finished_unit_and_the_rerun_completes(corpus: Path, serial: Path, tmp_path: Path) -> None:
+    def ctrl_c_at_s02(key: UnitKey) -> None:
+        if key.group == "s02":
+            raise KeyboardInterrupt
+
+    out = tmp_path / "interrupted"
+    spec = load_batch_spec(corpus / "batch.toml")
+    first = run_batch(spec, out, serial=True, quiet=True, before=ctrl_c_at_s02)
+    assert first.interrupted and [k.label for k in first.landed] == ["s01 LLO", "s01 JO"]
+    assert json.loads((out / "coartic_run.json").read_text())["status"] == "interrupted"
+    assert (out / "groups/s01/table.csv").read_bytes() == (serial / "groups/s01/table.csv").read_bytes()
+    second = run_batch(spec, out, serial=True, quiet=True)
+    assert second.complete and second.skipped == 2 and len(second.landed) == 6
+    for name in TABLE_FILES:
+        assert (out / "groups/s02" / name).read_bytes() == (serial / "groups/s02" / name).read_bytes()
+
+
 # ----------------------------------------------------------------------------- report, CLI, errors
 
 
