@@ -271,6 +271,7 @@ def test_tsv_malformed_first_row_is_an_error_not_a_header(tmp_path: Path) -> Non
     with pytest.raises(DataError, match=r"a\.tsv, line 1: expected times in seconds, found '0\.0x'"):
         read_labels(p)
     assert len(read_labels(_write(tmp_path, "h.tsv", "tmin\ttmax\ttext\n0\t0.3\tsil\n"))) == 1
+    assert len(read_labels(_write(tmp_path, "h2.tsv", "t0\tt1\tphone\n0\t0.3\tsil\n"))) == 1
     with pytest.raises(DataError, match=r"b\.tsv, line 2: expected times in seconds, found '0\.5014abc'"):
         read_labels(_write(tmp_path, "b.tsv", "0\t0.3\tsil\n0.5014abc\t0.6\ta\n"))
 

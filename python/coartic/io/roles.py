@@ -147,7 +147,7 @@ def resolve_role_map(spec: RoleMap | Mapping[str, Any] | str | PathLike[str] | N
     if isinstance(spec, RoleMap):
         return spec
     if isinstance(spec, Mapping):
-        return RoleMap.from_dict(spec)
+        return RoleMap.from_dict(spec, "the role map given")
     return RoleMap.from_file(spec)
 
 
