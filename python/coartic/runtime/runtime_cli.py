@@ -76,7 +76,8 @@ def _report(result: RuntimeOutput) -> None:
     _out.print(summary)
     if a.at_rest:
         _err.print(f"[yellow]note:[/] the table has no channel(s) {', '.join(a.at_rest)}: held at rest "
-                   "(the neutral face) in the FAP file and preview, left out of channels.csv", highlight=False)
+                   "(the neutral face) in the FAP file and preview, left out of channels.csv", highlight=False,
+                   soft_wrap=True)
     if a.substitutions:
         subs = ", ".join(f"/{k}/ (shown as /{v}/)" for k, v in a.substitutions.items())
         _err.print(f"[yellow]note:[/] the table has no {subs}: the fallbacks of phones_italian.tsv "
