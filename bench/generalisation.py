@@ -68,8 +68,8 @@ def gestures(manifest: Path, variants: Sequence[str], channels: tuple[str, ...],
     utts = load_utterances(base)
     out.append(f"## gestures flavour: {manifest.parent.name}, {len(utts)} trials, fit/synthetic.toml, "
                f"channels {' '.join(channels)}")
-    out.append(f"{'variant':11s} {'split':36s} {'channel':7s} {'train':>7s} {'test':>7s}  worst vowel  "
-               "at a bound (fit of the split)")
+    out.append(f"{'variant':11s} {'split':36s} {'channel':7s} {'train':>7s} {'test':>7s} {'-offset':>7s}  "
+               "worst vowel  at a bound (fit of the split)")
     for name in variants:
         spec = variant_spec(base, name)
         if spec is None:
@@ -82,7 +82,8 @@ def gestures(manifest: Path, variants: Sequence[str], channels: tuple[str, ...],
             for s in score(res, test, split):
                 fit = res.channels[s.channel]
                 at = fit.stats.at_bound if fit.stats is not None else []
-                out.append(f"{name:11s} {split:36s} {s.channel:7s} {s.train_rmse:7.3f} {s.test_rmse:7.3f}  "
+                off = getattr(s, "test_rmse_offset_removed", float("nan"))  # each test utterance's offset removed
+                out.append(f"{name:11s} {split:36s} {s.channel:7s} {s.train_rmse:7.3f} {s.test_rmse:7.3f} {off:7.3f}  "
                            f"{s.worst_vowel[1]:.3f} ({s.worst_vowel[0]})  {len(at)}: {' '.join(at)}")
                 print(out[-1], flush=True)
             out.append(f"{'':11s} ({time.process_time() - t0:.0f} s CPU)")

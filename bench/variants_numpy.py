@@ -17,7 +17,9 @@ The product's own numbers are bench/generalisation.py's. Not part of `make test`
     coartic corpus synth build/gestures --flavour gestures
     .venv/bin/python bench/variants_numpy.py build/gestures/manifest.csv      # -> bench/results/variants_numpy.txt
 
-``--dominance`` / ``--channels`` / ``--splits`` restrict the runs; ``--out`` writes elsewhere.
+``--dominance`` / ``--channels`` / ``--splits`` restrict the runs (CPU is scarce: one variant, one
+channel and one split is a minute or two); ``--append`` adds a run to the results file, whose
+header lines record each run's arguments; ``--out`` writes elsewhere.
 """
 
 from __future__ import annotations
@@ -194,6 +196,7 @@ def main() -> int:
     ap.add_argument("--splits", default="rate,repetition")
     ap.add_argument("--max-nfev", type=int, default=60, help="per stage")
     ap.add_argument("--out", type=Path, default=ROOT / "bench" / "results" / "variants_numpy.txt")
+    ap.add_argument("--append", action="store_true", help="add this run to --out instead of replacing it")
     a = ap.parse_args()
     channels = tuple(a.channels.split(","))
     utts = load(a.manifest, channels)
@@ -204,8 +207,8 @@ def main() -> int:
         "repetition": ("reps 1-4 -> rep 5", [u for u in utts if u.meta["repetition"] != "5"],
                        [u for u in utts if u.meta["repetition"] == "5"]),
     }
-    lines = [f"# bench/variants_numpy.py {a.manifest.parent.name} ({len(utts)} trials), max_nfev {a.max_nfev} "
-             "per stage; RMSE in mm",
+    lines = [f"# bench/variants_numpy.py {' '.join(sys.argv[1:])}: {a.manifest.parent.name} ({len(utts)} trials), "
+             f"max_nfev {a.max_nfev} per stage; RMSE in mm",
              f"{'dominance':14s} {'channel':7s} {'split':18s} {'train':>7s} {'test':>7s}  worst vowel (test)   "
              "evals  s    at a bound (not k_R)"]
     print(lines[0]), print(lines[1])
@@ -226,8 +229,9 @@ def main() -> int:
                 lines.append(line)
     a.out.parent.mkdir(parents=True, exist_ok=True)
     fd, tmp = tempfile.mkstemp(dir=a.out.parent, prefix=a.out.name + ".")
+    earlier = a.out.read_text() if a.append and a.out.exists() else ""
     with os.fdopen(fd, "w") as f:
-        f.write("\n".join(lines) + "\n")
+        f.write(earlier + "\n".join(lines) + "\n")
     os.replace(tmp, a.out)
     return 0
 

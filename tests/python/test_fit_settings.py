@@ -261,3 +261,44 @@ def test_bad_priors_are_refused(tmp_path: Path, utts: list[model.Utterance], pri
     with pytest.raises(SpecError, match=words) as e:
         prior_problem(tmp_path, utts, prior)
     assert "[parameters.prior." in str(e.value)
+
+
+@pytest.mark.parametrize("offsets", ["free", 0.5])
+def test_per_utterance_offsets_are_profiled_with_exact_derivatives(tmp_path: Path, utts: list[model.Utterance],
+                                                                   offsets: Any) -> None:
+    from coartic.fit.problem import build_problem
+
+    s = spec_of(tmp_path, parameters={"free": ["target", "theta_bw", "k_r"], "prior_noise": 0.3},
+                model={"channels": ["LLO"], "offsets": offsets})
+    prob = build_problem(s, utts, "LLO", phonemes=PHONEMES)
+    x = prob.packing.pack() + 0.03
+    r = prob.residuals(x)
+    assert r.size == prob.n_residuals == prob.data.corpus.n_samples + (0 if offsets == "free" else len(utts))
+    j = prob.jacobian(x).toarray()
+    h = 1e-6
+    for col in range(0, x.size, 3):
+        e = np.zeros_like(x)
+        e[col] = h
+        fd = (prob.residuals(x + e) - prob.residuals(x - e)) / (2 * h)
+        np.testing.assert_allclose(j[:, col], fd, rtol=1e-5, atol=1e-7)
+    sse, g = prob.sse_gradient(x)
+    np.testing.assert_allclose(g, 2 * j.T @ r, rtol=1e-9)
+    assert prob.sse_batch(x[None])[0] == pytest.approx(sse, rel=1e-9)  # the core's residual sums agree
+
+
+def test_offsets_recover_shifted_recordings(tmp_path: Path) -> None:
+    # each utterance measured from its own rest reference: shifted by a constant
+    utts = vcv_utterances(np.random.default_rng(8), repetitions=1, rates={"normal": 1.0}, consonants=("p", "t"), noise=0.05)
+    shifts = np.random.default_rng(9).normal(0.0, 1.0, len(utts))
+    for u, d in zip(utts, shifts):
+        u.observed["LLO"] = u.observed["LLO"] + d
+    fits = {}
+    for offsets in ("none", "free"):
+        s = spec_of(tmp_path, parameters={"free": ["target", "alpha", "theta_bw", "theta_fw", "k_r"]},
+                    model={"channels": ["LLO"], "offsets": offsets}, staging={"enabled": False})
+        fits[offsets] = run(s, None, utterances=utts, quiet=True).channels["LLO"]
+    prob = fits["free"].problem
+    b = prob.utterance_offsets(fits["free"].x)
+    # offsets are identified up to a common constant (the targets absorb their mean)
+    np.testing.assert_allclose(b - b.mean(), shifts - shifts.mean(), atol=0.05)
+    assert prob.sse(fits["free"].x) < 0.1 * prob.__class__(prob.data, fits["none"].packing, prob.options).sse(fits["none"].x)

@@ -266,6 +266,58 @@ class Penalty:
         return float(r @ r), g
 
 
+class Offsets:
+    """Per-utterance offsets b_u (a constant added to the model over utterance u), profiled out of
+    least squares: for given model parameters each b_u has a closed form, so the engines see the
+    same parameters as without offsets and the offsets cost no extra variables.
+
+    With r = sqrt(w)(F − y), S_u = Σ_u sqrt(w) r, W_u = Σ_u w and a Gaussian random effect
+    b_u ~ N(0, τ²) (``lam`` = noise²/τ²; 0 for free offsets), the minimiser is b_u = −S_u/(W_u + lam),
+    the residuals become r + sqrt(w) b_u, plus one row sqrt(lam) b_u per utterance. All of it is
+    linear in r, so the exact Jacobian is J + sqrt(w)·db/dx with db/dx = −A J
+    (A[u, i] = sqrt(w_i)/(W_u + lam) on utterance u's samples), and the profiled SSE is
+    SSE − Σ_u S_u²/(W_u + lam) (what the MCMC likelihood integrates, MODEL.md §5 / docs/MCMC.md).
+    """
+
+    def __init__(self, data: ChannelData, lam: float) -> None:
+        n_utt = len(data.utterances)
+        self.n_utt = n_utt
+        self.utt = np.repeat(np.arange(n_utt), np.diff(data.sample_offsets)).astype(np.int64)
+        self.sqrt_w = np.sqrt(data.weights)
+        self.weight = np.bincount(self.utt, weights=data.weights, minlength=n_utt)
+        self.lam = float(lam)
+        denom = self.weight + self.lam
+        self.inv = np.where(denom > 0, 1.0 / np.where(denom > 0, denom, 1.0), 0.0)
+        n = self.utt.size
+        self.A = sp.csr_matrix((self.sqrt_w * self.inv[self.utt], (self.utt, np.arange(n))), shape=(n_utt, n))
+        self.S = sp.csr_matrix((self.sqrt_w, (np.arange(n), self.utt)), shape=(n, n_utt))
+
+    @property
+    def extra_rows(self) -> int:
+        return self.n_utt if self.lam > 0 else 0
+
+    def offsets(self, r: FloatArray) -> FloatArray:
+        """b_u for the weighted residuals r = sqrt(w)(F − y)."""
+        sums = np.bincount(self.utt, weights=self.sqrt_w * r, minlength=self.n_utt).astype(np.float64)
+        return -sums * self.inv
+
+    def residuals(self, r: FloatArray) -> FloatArray:
+        b = self.offsets(r)
+        out = r + self.sqrt_w * b[self.utt]
+        return np.concatenate([out, np.sqrt(self.lam) * b]) if self.lam > 0 else out
+
+    def jacobian(self, j: sp.csr_matrix) -> sp.csr_matrix:
+        db = -(self.A @ j)
+        out = j + self.S @ db
+        if self.lam > 0:
+            out = sp.vstack([out, np.sqrt(self.lam) * db])
+        return sp.csr_matrix(out)
+
+    def profiled_sse(self, sse: FloatArray, sums: FloatArray) -> FloatArray:
+        """From the core's SSE [W] and Σ_u w (y − F) [W, n_utt]: the SSE with the offsets profiled out."""
+        return sse - np.sum(sums**2 * self.inv[None, :], axis=1)
+
+
 class ChannelProblem:
     """Residuals, Jacobian and SSE of one channel as functions of the internal vector x.
 
@@ -275,10 +327,15 @@ class ChannelProblem:
     """
 
     def __init__(self, data: ChannelData, packing: Packing, options: _core.ModelOptions,
-                 priors: Mapping[str, Prior] | None = None, prior_noise: float = 1.0) -> None:
+                 priors: Mapping[str, Prior] | None = None, prior_noise: float = 1.0,
+                 offset_sd: float | None = None) -> None:
         self.data = data
         self.packing = packing
         self.options = options
+        # Per-utterance offsets (spec [model] offsets): None none, inf free, else their sd τ (mm).
+        self.offset_sd = offset_sd
+        self.offsets = None if offset_sd is None else Offsets(
+            data, 0.0 if np.isinf(offset_sd) else (prior_noise / offset_sd) ** 2)
         # Gaussian priors (spec [parameters.prior]) on free entries, as extra residual rows.
         self.priors: dict[str, Prior] = dict(priors or {})
         self.prior_noise = float(prior_noise)
@@ -334,8 +391,10 @@ class ChannelProblem:
             f = self.evaluate(params, beta)
         except ValueError as e:
             self.last_error = self.explain(e, params)
-            return np.full(self.data.corpus.n_samples + self.penalty.size, np.nan)
+            return np.full(self.n_residuals, np.nan)
         r = self.sqrt_w * (f - self.data.observed)
+        if self.offsets is not None:
+            r = self.offsets.residuals(r)
         if self.penalty.size:
             r = np.concatenate([r, self.penalty.residuals(x)])
         self._track(x, float(r @ r))
@@ -349,11 +408,13 @@ class ChannelProblem:
             _, jac = self.full_jacobian(params, beta)
         except ValueError as e:
             self.last_error = self.explain(e, params)
-            return sp.csr_matrix((self.data.corpus.n_samples + self.penalty.size, self.packing.n_free))
+            return sp.csr_matrix((self.n_residuals, self.packing.n_free))
         j = jac[:, self.packing.free_columns].tocsr()
         # Row scale sqrt(w) and column scale d(value)/dx applied to the stored entries in place.
         rows = np.repeat(np.arange(j.shape[0]), np.diff(j.indptr))
         j.data *= self.sqrt_w[rows] * self.packing.dvalue_dx(x)[j.indices]
+        if self.offsets is not None:
+            j = self.offsets.jacobian(j)
         if self.penalty.size:
             j = sp.vstack([j, self.penalty.jacobian(x)], format="csr")
         return j
@@ -362,8 +423,26 @@ class ChannelProblem:
         r = self.residuals(x)
         return float(r @ r) if np.all(np.isfinite(r)) else np.inf
 
+    @property
+    def n_residuals(self) -> int:
+        """Rows of the residual vector: samples, then offset rows (random effects), then priors."""
+        return self.data.corpus.n_samples + (self.offsets.extra_rows if self.offsets else 0) + self.penalty.size
+
+    def utterance_offsets(self, x: FloatArray) -> FloatArray:
+        """The fitted per-utterance offsets b_u (mm) at x (zeros without offsets)."""
+        if self.offsets is None:
+            return np.zeros(len(self.data.utterances))
+        params, beta = self.packing.unpack(x)
+        return self.offsets.offsets(self.sqrt_w * (self.evaluate(params, beta) - self.data.observed))
+
     def sse_gradient(self, x: FloatArray) -> tuple[float, FloatArray]:
-        """SSE and its gradient in x, from the core's fused SSE+gradient (no Jacobian formed)."""
+        """SSE and its gradient in x, from the core's fused SSE+gradient (no Jacobian formed); with
+        offsets, 2 Jᵀr from the profiled residuals and their exact Jacobian."""
+        if self.offsets is not None:
+            r = self.residuals(x)
+            if not np.all(np.isfinite(r)):
+                return np.inf, np.zeros(self.packing.n_free)
+            return float(r @ r), 2.0 * np.asarray(self.jacobian(x).T @ r).ravel()
         self.nfev += 1
         params, beta = self.packing.unpack(x)
         try:
@@ -384,15 +463,20 @@ class ChannelProblem:
     def sse_batch(self, xs: FloatArray) -> FloatArray:
         """SSE for many x at once (rows), through the core's parallel batch path; +inf if invalid."""
         params, betas = self.packing.unpack_batch(xs)
-        out = np.asarray(_core.sse_batch(self.data.corpus, params, betas, self.options,
-                                         self.data.observed, self.data.weights))
+        if self.offsets is not None:
+            sse, sums = _core.residual_sums_batch(self.data.corpus, params, betas, self.options,
+                                                  self.data.observed, self.data.weights)
+            out = self.offsets.profiled_sse(np.asarray(sse), np.asarray(sums))
+        else:
+            out = np.asarray(_core.sse_batch(self.data.corpus, params, betas, self.options,
+                                             self.data.observed, self.data.weights))
         if self.penalty.size:
             out = out + np.array([float(r @ r) for r in map(self.penalty.residuals, np.atleast_2d(xs))])
         return out
 
     def with_packing(self, packing: Packing) -> ChannelProblem:
         """A problem on the same data with another free set (staged fits); best point carried."""
-        p = ChannelProblem(self.data, packing, self.options, self.priors, self.prior_noise)
+        p = ChannelProblem(self.data, packing, self.options, self.priors, self.prior_noise, self.offset_sd)
         p.nfev, p.njev, p.monitor = self.nfev, self.njev, self.monitor
         return p
 
@@ -407,7 +491,9 @@ def build_problem(spec: FitSpec, utterances: Sequence[Utterance], channel: str,
     from coartic.fit.parameters import ParameterSet
 
     ps = ParameterSet.from_spec(spec, data, start)
-    return ChannelProblem(data, ps.packing(), options, ps.priors, spec.prior_noise)
+    offset_sd = {"none": None, "free": np.inf}.get(str(spec.offsets), spec.offsets)
+    return ChannelProblem(data, ps.packing(), options, ps.priors, spec.prior_noise,
+                          None if offset_sd is None else float(offset_sd))
 
 
 def describe(packing: Packing) -> dict[str, Any]:

@@ -231,6 +231,11 @@ class FitResult:
                       f"    evaluations: {fit.nfev}, wall time {fit.wall_time:.1f} s",
                       f"    samples: {fit.problem.data.n_valid}, free parameters: {len(st.names)}, dof {st.dof}",
                       f"    RMSE: {fit.rmse:.4f} mm ({'below' if fit.rmse < BAR_MM else 'ABOVE'} the {BAR_MM} mm bar)"]
+            if fit.problem.offsets is not None:
+                b = fit.problem.utterance_offsets(fit.x)
+                with_b = float(np.sqrt(np.nanmean((fit.residuals() + b[fit.problem.offsets.utt]) ** 2)))
+                lines.append(f"    per-utterance offsets ([model] offsets = {self.spec.offsets!r}): sd {b.std():.4f} mm, "
+                             f"range {b.min():+.3f} to {b.max():+.3f} mm; RMSE with them {with_b:.4f} mm")
             for s_i, sr in enumerate(fit.stages):
                 lines.append(f"    stage {s_i + 1}: {sr.n_free} free ({', '.join(sr.parameters)}): "
                              f"SSE {sr.sse_start:.4g} -> {sr.sse_end:.4g} [{sr.engine.status}]")

@@ -95,6 +95,7 @@ class FitSpec:
     # (or "beta") -> (mean, sd, on log values); weighed against prior_noise (mm)
     priors: dict[str, tuple[float, float, bool]] = field(default_factory=dict)
     prior_noise: float = 1.0
+    offsets: str | float = "none"  # per-utterance offsets in least squares: "none", "free" or their sd (mm)
     start_given: frozenset[str] = frozenset()  # the [parameters.start] keys the spec gives (checked against bounds)
     bounds: dict[str, tuple[float, float]] = field(default_factory=lambda: dict(DEFAULT_FIT_BOUNDS))
     channel_bounds: dict[str, dict[str, tuple[float, float]]] = field(default_factory=dict)
@@ -291,7 +292,12 @@ def parse_spec(raw: dict[str, Any], path: Path) -> FitSpec:
 
     m = raw.get("model", {})
     _take(m, path, "model", {"variant", "channels", "reference_phoneme", "apex_fraction", "edge_extent",
-                             "beta", "fit_beta", "beta_bounds"})
+                             "beta", "fit_beta", "beta_bounds", "offsets"})
+    offsets = m.get("offsets", "none")
+    if isinstance(offsets, bool) or not (offsets in ("none", "free") or (
+            isinstance(offsets, (int, float)) and math.isfinite(offsets) and offsets > 0)):
+        raise _err(path, "model.offsets", f"{offsets!r}: expected \"none\", \"free\" or a positive number "
+                   "(the offsets' sd in mm)")
     variant = m.get("variant", "modified")
     if variant not in VARIANTS:
         raise _err(path, "model.variant", f"{variant!r}: expected one of {VARIANTS}")
@@ -412,7 +418,7 @@ def parse_spec(raw: dict[str, Any], path: Path) -> FitSpec:
         reference_phoneme=reference, apex_fraction=apex, edge_extent=edge,
         beta=_float(m.get("beta", 1.0), path, "model.beta"), fit_beta=fit_beta, beta_bounds=beta_bounds,
         free=free, start_table=start_table, start=start, start_given=frozenset(start_given), bounds=bounds,
-        priors=priors, prior_noise=prior_noise, channel_bounds=channel_bounds,
+        priors=priors, prior_noise=prior_noise, offsets=offsets if isinstance(offsets, str) else float(offsets), channel_bounds=channel_bounds,
         target_margin=margin, overrides=tuple(overrides), engine=engine, engine_options=dict(engine_options),
         staging=staging, stages=stages, max_gap=max_gap, holdout_repetition=hold, validate_group=group,
         validate_folds=folds,
