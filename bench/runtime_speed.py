@@ -76,7 +76,7 @@ def main() -> None:
             "animation (channels + FAP frames, in memory), median of "
             f"{args.repeats}: {1000 * t_anim:.2f} ms = {t_anim / dur:.5f} x real time "
             f"({1e6 * t_anim / n:.1f} us per frame)",
-            f"face weights for the glTF (24 morph targets): {1000 * t_weights:.2f} ms = {t_weights / dur:.5f} x real time",
+            f"face weights for the glTF (24 displacement fields): {1000 * t_weights:.2f} ms = {t_weights / dur:.5f} x real time",
             f"writing the .glb (checked): {1000 * t_glb:.1f} ms = {t_glb / dur:.3f} x real time",
             "",
             "preview of the default view (front + side + aperture trace, 512 x 320 px), per frame against 40 ms:",

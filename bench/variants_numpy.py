@@ -17,7 +17,9 @@ The product's own numbers are bench/generalisation.py's. Not part of `make test`
     coartic corpus synth build/gestures --flavour gestures
     .venv/bin/python bench/variants_numpy.py build/gestures/manifest.csv      # -> bench/results/variants_numpy.txt
 
-``--dominance`` / ``--channels`` / ``--splits`` restrict the runs; ``--out`` writes elsewhere.
+``--dominance`` / ``--channels`` / ``--splits`` restrict the runs (CPU is scarce: one variant, one
+channel and one split is a minute or two); ``--append`` adds a run to the results file, whose
+header lines record each run's arguments; ``--out`` writes elsewhere.
 """
 
 from __future__ import annotations
@@ -60,7 +62,9 @@ VARIANTS: dict[str, dict[str, Any]] = {
     "plateau-0.25": {"dominance": "plateau", "plateau_fraction": 0.25},
     "plateau-0.5": {"dominance": "plateau", "plateau_fraction": 0.5},
     "handover": {"dominance": "centre", "handover": True},
+    "plateau-0.4+handover": {"dominance": "plateau", "plateau_fraction": 0.4, "handover": True},
     "plateau-0.5+handover": {"dominance": "plateau", "plateau_fraction": 0.5, "handover": True},
+    "plateau-0.6+handover": {"dominance": "plateau", "plateau_fraction": 0.6, "handover": True},
     "segment+handover": {"dominance": "segment", "handover": True},
 }
 
@@ -75,11 +79,11 @@ def load(manifest: Path, channels: tuple[str, ...]) -> list[Utterance]:
         ch = trial.channels(list(channels))
         seg = trial.segments
         assert seg is not None
-        out.append(Utterance(r["stimulus"], tuple(seg.labels), np.asarray(seg.starts, float),
-                             np.asarray(seg.ends, float), np.asarray(ch.times, float),
-                             {c: np.asarray(ch[c], float) for c in channels},
-                             {c: np.asarray(ch.valid[c], bool) for c in channels},
-                             {k: r[k] for k in ("vowel", "consonant", "repetition", "rate")}))
+        out.append(Utterance(name=r["stimulus"], labels=tuple(seg.labels), starts=np.asarray(seg.starts, float),
+                             ends=np.asarray(seg.ends, float), times=np.asarray(ch.times, float),
+                             observed={c: np.asarray(ch[c], float) for c in channels},
+                             valid={c: np.asarray(ch.valid[c], bool) for c in channels},
+                             meta={k: r[k] for k in ("vowel", "consonant", "repetition", "rate")}))
     return out
 
 
@@ -177,9 +181,10 @@ def fit(train: Batch, channel: str, phonemes: list[str], kw: dict[str, Any], max
         params = unpack(res.x)
     final = np.flatnonzero(free.ravel())
     vals, lo_n, hi_n = params.ravel()[final], lower.ravel()[final], upper.ravel()[final]
-    at = [f"{phonemes[i // 10]}.{PARAMETERS[i % 10]}" for i, v, a, b in zip(final, vals, lo_n, hi_n)
-          if PARAMETERS[i % 10] not in ("target",) and (np.isclose(v, a, rtol=1e-6) or np.isclose(v, b, rtol=1e-6))
-          and PARAMETERS[i % 10] != "k_r"]
+    # k_R at 0 or 1 is expected (MODEL.md); other parameters at a bound are listed, "+" at the upper.
+    at = [f"{phonemes[i // 10]}.{PARAMETERS[i % 10]}{'+' if np.isclose(v, b, rtol=1e-6) else '-'}"
+          for i, v, a, b in zip(final, vals, lo_n, hi_n)
+          if PARAMETERS[i % 10] not in ("target", "k_r") and (np.isclose(v, a, rtol=1e-6) or np.isclose(v, b, rtol=1e-6))]
     return params, nfev, at
 
 
@@ -191,6 +196,7 @@ def main() -> int:
     ap.add_argument("--splits", default="rate,repetition")
     ap.add_argument("--max-nfev", type=int, default=60, help="per stage")
     ap.add_argument("--out", type=Path, default=ROOT / "bench" / "results" / "variants_numpy.txt")
+    ap.add_argument("--append", action="store_true", help="add this run to --out instead of replacing it")
     a = ap.parse_args()
     channels = tuple(a.channels.split(","))
     utts = load(a.manifest, channels)
@@ -201,8 +207,8 @@ def main() -> int:
         "repetition": ("reps 1-4 -> rep 5", [u for u in utts if u.meta["repetition"] != "5"],
                        [u for u in utts if u.meta["repetition"] == "5"]),
     }
-    lines = [f"# bench/variants_numpy.py {a.manifest.parent.name} ({len(utts)} trials), max_nfev {a.max_nfev} "
-             "per stage; RMSE in mm",
+    lines = [f"# bench/variants_numpy.py {' '.join(sys.argv[1:])}: {a.manifest.parent.name} ({len(utts)} trials), "
+             f"max_nfev {a.max_nfev} per stage; RMSE in mm",
              f"{'dominance':14s} {'channel':7s} {'split':18s} {'train':>7s} {'test':>7s}  worst vowel (test)   "
              "evals  s    at a bound (not k_R)"]
     print(lines[0]), print(lines[1])
@@ -223,8 +229,9 @@ def main() -> int:
                 lines.append(line)
     a.out.parent.mkdir(parents=True, exist_ok=True)
     fd, tmp = tempfile.mkstemp(dir=a.out.parent, prefix=a.out.name + ".")
+    earlier = a.out.read_text() if a.append and a.out.exists() else ""
     with os.fdopen(fd, "w") as f:
-        f.write("\n".join(lines) + "\n")
+        f.write(earlier + "\n".join(lines) + "\n")
     os.replace(tmp, a.out)
     return 0
 

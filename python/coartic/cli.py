@@ -8,6 +8,8 @@ from coartic.batch.cli import batch_command
 from coartic.demo import demo_command
 from coartic.face.view_cli import view_command
 from coartic.fit.fit_cli import fit_command
+from coartic.fit.compare_cli import compare_command
+from coartic.fit.score_cli import score_command
 from coartic.io.inspect_cli import inspect_command
 from coartic.mcmc.mcmc_cli import mcmc_command
 from coartic.runtime.runtime_cli import animate_command, speak_command
@@ -30,6 +32,8 @@ def _main() -> None:
 app.add_typer(synthetic_cli.app, name="corpus")  # coartic corpus synth OUT
 app.command("inspect")(inspect_command)
 app.command("fit")(fit_command)
+app.command("score")(score_command)
+app.command("compare")(compare_command)
 app.command("mcmc")(mcmc_command)
 app.command("animate")(animate_command)
 app.command("speak")(speak_command)

@@ -210,7 +210,8 @@ class OutputDir:
     def __init__(self, out: str | os.PathLike[str], command: str, identity: Mapping[str, Any], *,
                  force: bool = False, staged: bool = True, protect: Sequence[str | os.PathLike[str]] = (),
                  recognise: Callable[[Path], bool] | None = None) -> None:
-        self.out = Path(os.path.abspath(out))
+        # a symlink to the output directory: the directory it points to is replaced, the link kept
+        self.out = Path(os.path.realpath(out) if Path(out).is_symlink() else os.path.abspath(out))
         self.command = command
         self.identity = {k: (str(v) if isinstance(v, os.PathLike) else v) for k, v in identity.items()}
         self.force = force

@@ -13,6 +13,7 @@ import csv
 import io
 import json
 import math
+import re
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -394,16 +395,18 @@ class ParameterTable:
         """Read and validate a table from JSON or (by suffix ``.csv``) long CSV."""
         path = Path(path)
         try:
-            text = path.read_text(encoding="utf-8")
+            raw = path.read_bytes()
         except OSError as exc:
             raise TableError(f"{path}: cannot read the table: {exc.strerror}") from None
+        try:
+            text = raw.decode("utf-8")
+        except UnicodeDecodeError as exc:
+            line = raw[: exc.start].count(b"\n") + 1
+            raise TableError(f"{path}: line {line}: not UTF-8 text (byte {raw[exc.start]:#04x} at offset "
+                             f"{exc.start}); tables are written in UTF-8") from None
         if path.suffix.lower() == ".csv":
             return cls.from_csv(text, source=str(path))
-        try:
-            doc = json.loads(text)
-        except json.JSONDecodeError as exc:
-            raise TableError(f"{path}: line {exc.lineno}, column {exc.colno}: invalid JSON: {exc.msg}") from None
-        return cls.from_json_dict(doc, source=str(path))
+        return cls.from_json_dict(parse_json(text, str(path)), source=str(path))
 
     # ----------------------------------------------------------------------- CSV
 
@@ -450,6 +453,7 @@ class ParameterTable:
         settings: dict[str, dict[str, str]] = {}
         values: dict[str, dict[str, dict[str, float]]] = {}
         uncertainty: dict[str, dict[str, dict[str, dict[str, float]]]] = {}
+        seen: dict[tuple[str, str, str], int] = {}
         for lineno, rec in enumerate(reader, start=2):
             if not rec:
                 continue
@@ -457,6 +461,10 @@ class ParameterTable:
                 raise TableError(f"{source}: line {lineno}: expected {len(header)} fields, got {len(rec)}")
             ph, ch, name, value = rec[:4]
             where = f"{source}: line {lineno}: phoneme {ph!r}, channel {ch!r}"
+            if (ph, ch, name) in seen:
+                # the later row would silently win: which value is meant cannot be known
+                raise TableError(f"{where}: {name} is given twice (first on line {seen[ph, ch, name]})")
+            seen[ph, ch, name] = lineno
             if ph == "*":
                 if ch == "*":
                     if name != "variant":
@@ -527,6 +535,61 @@ class ParameterTable:
 # ---------------------------------------------------------------------- helpers
 
 
+# Deeper than this a table is not a table (its own sections nest 4 levels; metadata a few more), and
+# Python's JSON reader and writer recurse: a 100000-deep document raised RecursionError. docs/LIMITS.md.
+MAX_JSON_DEPTH = 64
+
+
+def parse_json(text: str, source: str) -> Any:
+    """A JSON document with every object's keys unique (json keeps the last of two silently), at
+    most MAX_JSON_DEPTH deep, its integers within Python's 4300 digits; else a TableError."""
+
+    def unique(pairs: list[tuple[str, Any]]) -> dict[str, Any]:
+        out: dict[str, Any] = {}
+        for k, v in pairs:
+            if k in out:
+                raise TableError(f"{source}: {_line_of_second_key(text, k)}key {k!r} appears twice in one "
+                                 "object (JSON would keep the last silently)")
+            out[k] = v
+        return out
+
+    depth = deepest = 0
+    in_string = escaped = False
+    for ch in text:  # brackets outside strings: cheap, and before the recursive reader sees them
+        if in_string:
+            if escaped:
+                escaped = False
+            elif ch == "\\":
+                escaped = True
+            elif ch == '"':
+                in_string = False
+        elif ch == '"':
+            in_string = True
+        elif ch in "[{":
+            depth += 1
+            deepest = max(deepest, depth)
+        elif ch in "]}":
+            depth -= 1
+    if deepest > MAX_JSON_DEPTH:
+        raise TableError(f"{source}: JSON nested {deepest} levels deep (a table has at most {MAX_JSON_DEPTH})")
+    try:
+        return json.loads(text, object_pairs_hook=unique)
+    except json.JSONDecodeError as exc:
+        raise TableError(f"{source}: line {exc.lineno}, column {exc.colno}: invalid JSON: {exc.msg}") from None
+    except RecursionError:
+        raise TableError(f"{source}: JSON nested too deeply") from None
+    except ValueError as exc:  # e.g. "Exceeds the limit (4300 digits) for integer string conversion"
+        if isinstance(exc, TableError):
+            raise
+        raise TableError(f"{source}: a number cannot be read: {exc}") from None
+
+
+def _line_of_second_key(text: str, key: str) -> str:
+    hits = [m.start() for m in re.finditer(re.escape(json.dumps(key)) + r"\s*:", text)]
+    # only when the key occurs just twice is the second occurrence surely the duplicate
+    return f"line {text.count(chr(10), 0, hits[1]) + 1}: " if len(hits) == 2 else ""
+
+
 def _obj(x: Any, where: str) -> dict[str, Any]:
     if not isinstance(x, dict):
         raise TableError(f"{where}: expected a JSON object, got {type(x).__name__}")
@@ -540,8 +603,11 @@ def _is_number(v: Any) -> bool:
 def _num(where: str, name: str, v: Any) -> float:
     # bool is an int subclass; true/false in a table is always a mistake.
     if isinstance(v, bool) or not isinstance(v, (int, float)):
-        raise TableError(f"{where}: {name} = {v!r} is not a number")
-    return float(v)
+        raise TableError(f"{where}: {name} = {v!r:.60} is not a number")
+    try:
+        return float(v)
+    except OverflowError:  # an integer of hundreds of digits
+        raise TableError(f"{where}: {name} = {str(v)[:20]}... ({len(str(v))} digits) is not a finite number") from None
 
 
 def _parse_float(where: str, name: str, text: str) -> float:

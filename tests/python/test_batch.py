@@ -1,7 +1,7 @@
 """coartic batch: many speakers, units as Dask tasks on a LocalCluster of 2 worker processes.
 
 One tiny two-speaker corpus (``coartic corpus synth --speakers 2``, 2 consonants, 2 repetitions),
-two channels, the pooled fit: 6 units. The serial run is the reference; the cluster run must give
+two channels, the pooled fit, and each speaker's /p/ posterior on LLO: 8 units. The serial run is the reference; the cluster run must give
 the same files bit for bit, although one of its workers is killed in the middle of a unit.
 """
 
@@ -41,12 +41,21 @@ channels = ["LLO", "JO"]
 free = ["target", "alpha", "theta_bw", "theta_fw", "k_r"]
 [staging]
 enabled = false
+[mcmc]                    # the posteriors of /p/ on LLO, short chains (the batch test is about scheduling)
+phonemes = ["p"]
+channels = ["LLO"]
+plots = false
+chunk_steps = 100
+min_steps = 100
+max_steps = 200
 """
 BATCH_SPEC = """name = "two speakers <script>alert(1)</script>"
 fit = "fit.toml"
 [corpus]
 manifest = "corpus/manifest.csv"
 group_by = ["speaker"]
+[posteriors]
+enabled = true
 """
 TABLE_FILES = ("table.csv", "rmse.csv", "parameters.csv")
 
@@ -64,7 +73,7 @@ def corpus(tmp_path_factory: pytest.TempPathFactory) -> Path:
 def serial(corpus: Path) -> Path:
     out = corpus / "serial"
     outcome = run_batch(load_batch_spec(corpus / "batch.toml"), out, serial=True, quiet=True)
-    assert outcome.complete and len(outcome.landed) == 6
+    assert outcome.complete and len(outcome.landed) == 8
     return out
 
 
@@ -149,6 +158,8 @@ def test_cluster_gives_the_serial_tables_bit_for_bit(serial: Path, cluster_run: 
         for name in TABLE_FILES:
             assert (out / where / name).read_bytes() == (serial / where / name).read_bytes(), f"{where}/{name}"
     assert (out / "rmse_groups.csv").read_bytes() == (serial / "rmse_groups.csv").read_bytes()
+    for g in ("s01", "s02"):  # the posteriors too: same chains, same quantiles
+        assert (out / f"groups/{g}/table_mcmc.csv").read_bytes() == (serial / f"groups/{g}/table_mcmc.csv").read_bytes()
     assert (out / "spread.csv").read_bytes() == (serial / "spread.csv").read_bytes()
     info = json.loads((unit_dir(out, UnitKey("s02", "JO")) / "unit.json").read_text())
     assert info["rayon_threads"] == str(outcome.threads) and info["pid"] != os.getpid()
@@ -167,11 +178,11 @@ def test_a_rerun_skips_finished_units_and_redoes_only_missing_ones(corpus: Path,
     shutil.copytree(serial, out)
     spec = load_batch_spec(corpus / "batch.toml")
     again = run_batch(spec, out, serial=True, quiet=True)
-    assert again.skipped == 6 and again.landed == [] and again.complete
+    assert again.skipped == 8 and again.landed == [] and again.complete
     shutil.rmtree(unit_dir(out, UnitKey("s02", "JO")))
     (unit_dir(out, UnitKey("s01", "JO")) / "unit.json").unlink()  # as if killed before its last file
     third = run_batch(spec, out, serial=True, quiet=True)
-    assert sorted(k.label for k in third.landed) == ["s01 JO", "s02 JO"] and third.skipped == 4
+    assert sorted(k.label for k in third.landed) == ["s01 JO", "s02 JO"] and third.skipped == 6
     assert all(is_done(out, k) for k in plan_units(spec))
     for name in TABLE_FILES:
         assert (out / "groups/s02" / name).read_bytes() == (serial / "groups/s02" / name).read_bytes()
@@ -189,16 +200,33 @@ def test_a_failed_unit_is_reported_and_the_others_land(corpus: Path, tmp_path: P
     assert "JO refused by the test" in outcome.failed["s01 JO"]
     assert is_done(out, UnitKey("s01", "LLO")) and not (out / "groups/s01").exists()
     status = json.loads((out / "status.json").read_text())
-    assert status["finished"] == 3 and "s01 JO" in status["missing"]
+    assert status["finished"] == 5 and "s01 JO" in status["missing"]  # 3 LLO fits, 2 LLO posteriors
 
 
 # ----------------------------------------------------------------------------- report, CLI, errors
+
+
+def test_each_speaker_gets_posteriors_around_its_own_fit(serial: Path) -> None:
+    for g in ("s01", "s02"):
+        fitted = ParameterTable.load(serial / f"groups/{g}/table.json")
+        with_q = ParameterTable.load(serial / f"groups/{g}/table_mcmc.json")
+        assert with_q.values == fitted.values  # the least-squares values, with the posterior beside them
+        q = with_q.uncertainty["p"]["LLO"]["target"]
+        assert q["q2.5"] < fitted.values["p"]["LLO"]["target"] < q["q97.5"]
+        assert set(with_q.uncertainty) == {"p"} and set(with_q.uncertainty["p"]) == {"LLO"}
+        index = json.loads((serial / f"posteriors/{g}/LLO/posteriors.json").read_text())
+        assert [r["label"] for r in index] == ["LLO /p/"]
+    # s01 speaks with targets 0.8x the truth, s02 1.2x: the /p/ closures (LLO < 0) differ beyond the intervals.
+    q1 = ParameterTable.load(serial / "groups/s01/table_mcmc.json").uncertainty["p"]["LLO"]["target"]
+    q2 = ParameterTable.load(serial / "groups/s02/table_mcmc.json").uncertainty["p"]["LLO"]["target"]
+    assert q2["q97.5"] < q1["q2.5"]
 
 
 def test_report_escapes_what_comes_from_the_spec_and_shows_every_group(serial: Path) -> None:
     html = (serial / "report.html").read_text(encoding="utf-8")
     assert "<script>" not in html and "&lt;script&gt;alert(1)&lt;/script&gt;" in html
     assert "groups/s01/table.json" in html and "pooled/table.json" in html
+    assert "Posteriors (coartic.mcmc)" in html and "converged" in html
     for fig in ("rmse.png", "spread_LLO.png", "spread_JO.png"):
         assert (serial / "figures" / fig).stat().st_size > 1000
     with open(serial / "rmse_groups.csv", newline="") as f:
@@ -239,7 +267,7 @@ def test_folders_name_the_groups(corpus: Path) -> None:
     spec_path.write_text('fit = "fit.toml"\n[corpus]\nfolders = ["corpus/s*"]\n[pooled]\nenabled = false\n')
     spec = load_batch_spec(spec_path)
     assert spec.group_names == ("s01", "s02") and not spec.pooled
-    assert [str(k.label) for k in plan_units(spec)] == ["s01 LLO", "s01 JO", "s02 LLO", "s02 JO"]
+    assert [str(k.label) for k in plan_units(spec)] == ["s01 LLO", "s01 JO", "s02 LLO", "s02 JO"]  # no posteriors
     by_column = load_batch_spec(corpus / "batch.toml")
     assert spec.groups[0].spec.corpus.manifest == corpus / "corpus/s01/manifest.csv"
     assert by_column.groups[0].spec.corpus.select == {"speaker": ("s01",)}

@@ -181,3 +181,24 @@ def test_lips_close_for_p_b_m_and_open_for_a(rig: FaceRig) -> None:
     assert rig.weights(faps).shape == (anim.n_frames, len(TARGET_NAMES))
     assert np.abs(rig.weights(faps)).max() < 1.0  # speech stays within one FAPU-1024 target
     assert TARGET_VALUE == 1024.0
+
+
+@pytest.mark.festival
+@pytest.mark.parametrize("stretch", [1.0, 0.6])
+def test_the_readme_sentence_closes_every_p_b_m(rig: FaceRig, tmp_path: Path, stretch: float) -> None:
+    """"Il babbo mangia la pappa." through Festival, at the normal and a fast rate: at the target
+    frame of each of its seven /p b m/ the face's lips touch along the whole cut, and each /a/ is open."""
+    from coartic.runtime.pipeline import speak_text
+
+    table = ParameterTable.load(GROUND_TRUTH)
+    out = speak_text("Il babbo mangia la pappa.", table, tmp_path, preview="none", stretch=stretch)
+    gaps = inner_lip_gaps(rig, out.faps)
+    segs = out.animation.segments
+    frames = np.minimum(np.rint(target_times(table, segs, "LLO") * 25).astype(int), gaps.shape[0] - 1)
+    bilabials = [i for i, ph in enumerate(segs.labels) if ph in ("p", "b", "m")]
+    assert len(bilabials) == 7  # b, b b, m, p, p p (geminates are two segments)
+    for i in bilabials:
+        assert gaps[frames[i]].max() <= 0.0, f"/{segs.labels[i]}/ at frame {frames[i]}"
+    for i, ph in enumerate(segs.labels):
+        if ph == "a":
+            assert gaps[frames[i], gaps.shape[1] // 2] > 3.0, f"/a/ at frame {frames[i]}"

@@ -36,3 +36,46 @@ def test_nothing_to_hold_out(tmp_path: Path) -> None:
     utts = vcv_utterances(np.random.default_rng(2), repetitions=1, rates={"normal": 1.0})
     with pytest.raises(SpecError, match=r"\[validate\]"):
         splits(spec(tmp_path, holdout_repetition=5, train_rate="normal", test_rate="fast"), utts)
+
+
+def test_kfold_by_any_grouping_without_a_manifest(tmp_path: Path) -> None:
+    utts = vcv_utterances(np.random.default_rng(2), repetitions=2, noise=0.1)  # 24 utterances
+    # by utterance, 3 folds: every utterance held out exactly once
+    s = spec(tmp_path, group="utterance", folds=3)
+    sp = splits(s, utts)
+    assert [n.split(" (")[0] for n, _, _ in sp] == ["fold 1/3", "fold 2/3", "fold 3/3"]
+    held = [u.name for _, _, te in sp for u in te]
+    assert sorted(held) == sorted(u.name for u in utts)
+    assert all(len(tr) + len(te) == len(utts) and not set(map(id, tr)) & set(map(id, te)) for _, tr, te in sp)
+    # by rate: one fold per rate (leave one rate out)
+    sp = splits(spec(tmp_path, group="rate"), utts)
+    assert [n for n, _, _ in sp] == ["fold 1/2 (rate fast held out)", "fold 2/2 (rate normal held out)"]
+    assert {u.meta["rate"] for u in sp[0][2]} == {"fast"} and {u.meta["rate"] for u in sp[0][1]} == {"normal"}
+    # a grouping the corpus does not have
+    with pytest.raises(SpecError, match=r"\[validate\] group = 'speaker': the corpus has no 'speaker' column"):
+        splits(spec(tmp_path, group="speaker"), utts)
+
+
+def test_kfold_scores_pooled_with_and_without_offsets(tmp_path: Path) -> None:
+    from coartic.fit.validate import pooled
+
+    utts = vcv_utterances(np.random.default_rng(4), repetitions=2, rates={"normal": 1.0}, noise=0.1)
+    raw = {"corpus": {"files": ["x"], "labels": ["y"]}, "model": {"channels": ["LLO"]},
+           "parameters": {"free": ["target"]}, "validate": {"group": "repetition"}}
+    s = parse_spec(raw, tmp_path / "spec.toml")
+    scores = validate_all(s, tmp_path / "val", utterances=utts)
+    assert len(scores) == 2 and all(np.isfinite(sc.test_rmse_offset_removed) for sc in scores)
+    rm, ro, n = pooled(scores)["LLO"]
+    assert n == sum(sc.test_samples for sc in scores) and ro <= rm + 1e-12
+    text = (tmp_path / "val" / "validation.csv").read_text()
+    assert "test_rmse_offset_removed_mm" in text and text.count("\n") == 3
+
+
+@pytest.mark.parametrize("validate, key", [
+    ({"group": "speakers"}, "validate.group"),
+    ({"group": "utterance", "folds": 1}, "validate.folds"),
+    ({"folds": 3}, "validate.folds"),
+])
+def test_kfold_spec_errors(tmp_path: Path, validate: dict[str, object], key: str) -> None:
+    with pytest.raises(SpecError, match=rf"\[{key}\]"):
+        spec(tmp_path, **validate)

@@ -151,3 +151,21 @@ def test_role_map_giving_two_roles_one_sensor_is_refused(tmp_path: Path) -> None
     # LL given the marker that UL finds by its own name: LA would be 0
     with pytest.raises(DataError, match=r"0020_ema\.csv: roles UL and LL are both marker 'ul'"):
         load_trial(REAL / "dfgspp_mo1_prosody_0020_ema.csv", role_map={"LL": "ul"}).channels()
+
+
+def test_emu_bundle_char_positions_and_deep_nesting(tmp_path: Path) -> None:
+    import base64
+    import json
+
+    header = ("SSFF -- (c) SHLRC\nMachine IBM-PC\nRecord_Freq 100.0\nStart_Time 0.0\n"
+              "Column ul_posx CHAR 1\nColumn ul_posy CHAR 1\nColumn ul_posz CHAR 1\n-----------------\n")
+    data = header.encode() + b"abc" * 20
+    p = tmp_path / "x_bndl.json"
+    p.write_text(json.dumps({"ssffFiles": [{"fileExtension": "ul",
+                                            "data": base64.b64encode(data).decode()}]}))
+    with pytest.raises(DataError, match=r"x_bndl\.json: track 'ul': position column 'ul_posx' holds "
+                                        r"\|S1 \(CHAR\), not numbers"):
+        load_trial(p)
+    p.write_text("[" * 100_000 + "]" * 100_000)
+    with pytest.raises(DataError, match=r"x_bndl\.json: JSON nested too deeply"):
+        load_trial(p)

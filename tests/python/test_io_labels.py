@@ -271,6 +271,7 @@ def test_tsv_malformed_first_row_is_an_error_not_a_header(tmp_path: Path) -> Non
     with pytest.raises(DataError, match=r"a\.tsv, line 1: expected times in seconds, found '0\.0x'"):
         read_labels(p)
     assert len(read_labels(_write(tmp_path, "h.tsv", "tmin\ttmax\ttext\n0\t0.3\tsil\n"))) == 1
+    assert len(read_labels(_write(tmp_path, "h2.tsv", "t0\tt1\tphone\n0\t0.3\tsil\n"))) == 1
     with pytest.raises(DataError, match=r"b\.tsv, line 2: expected times in seconds, found '0\.5014abc'"):
         read_labels(_write(tmp_path, "b.tsv", "0\t0.3\tsil\n0.5014abc\t0.6\ta\n"))
 
@@ -299,3 +300,14 @@ def test_textgrid_size_that_undercounts_and_malformed_numbers(tmp_path: Path) ->
     tg3 = LONG_TG.replace("xmax = 0.45", "xmax = 0.45abc")
     with pytest.raises(DataError, match=r"f\.TextGrid, line \d+: malformed number '0\.45abc'"):
         read_labels(_write(tmp_path, "f.TextGrid", tg3))
+
+
+def test_json_label_and_role_maps_refuse_duplicate_keys(tmp_path: Path) -> None:
+    from coartic.io.roles import RoleMap
+
+    m = _write(tmp_path, "m.json", '{"aa": "a",\n "aa": "o"}')
+    with pytest.raises(DataError, match=r"m\.json: line 2: key 'aa' appears twice in one object"):
+        resolve_label_map(m)
+    r = _write(tmp_path, "r.json", '{"UL": "ul", "UL": "ll"}')
+    with pytest.raises(DataError, match=r"r\.json: line 1: key 'UL' appears twice"):
+        RoleMap.from_file(r)

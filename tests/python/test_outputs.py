@@ -46,6 +46,14 @@ def test_a_run_is_swapped_in_whole_and_replaces_its_own_output(tmp_path: Path) -
     assert sorted(p.name for p in tmp_path.iterdir()) == ["out"]  # no staging, old copy or lock left
 
 
+def test_a_symlinked_output_directory_keeps_its_link(tmp_path: Path) -> None:
+    (tmp_path / "disk").mkdir()
+    write_run(tmp_path / "disk" / "out", {"spec": "a"}, {"t": "1"})
+    (tmp_path / "link").symlink_to(tmp_path / "disk" / "out")
+    write_run(tmp_path / "link", {"spec": "a"}, {"t": "2"})
+    assert (tmp_path / "link").is_symlink() and (tmp_path / "disk" / "out" / "t").read_text() == "2"
+
+
 def test_another_runs_output_is_refused_unless_forced(tmp_path: Path) -> None:
     out = tmp_path / "out"
     write_run(out, {"spec": "a"}, {"table.json": "1"})
@@ -228,6 +236,42 @@ def test_fit_output_written_before_markers_is_recognised(session: tuple[Path, Pa
     assert code == 2 and "no coartic run wrote" in text, text
 
 
+def test_ctrl_c_in_a_fit_keeps_the_best_point_and_while_loading_keeps_the_previous_output(
+        session: tuple[Path, Path], tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    from coartic.fit import data
+    from coartic.fit.problem import ChannelProblem
+
+    spec, _ = session
+    out = tmp_path / "a" / "fit"  # parents created as needed (a fresh clone has no results/)
+    assert fit(str(spec), "--out", str(out))[0] == 0
+    (out / "stale.txt").write_text("")
+    orig = ChannelProblem.residuals
+    calls = {"n": 0}
+
+    def residuals(self: ChannelProblem, x: object) -> object:
+        calls["n"] += 1
+        if calls["n"] == 4:  # one Ctrl-C inside the engine, on the first channel
+            raise KeyboardInterrupt
+        return orig(self, x)  # type: ignore[arg-type]
+
+    monkeypatch.setattr(ChannelProblem, "residuals", residuals)
+    code, text = fit(str(spec), "--out", str(out))
+    assert code == 130 and "interrupted" in text, text
+    assert json.loads((out / RUN_MARKER).read_text())["status"] == "interrupted"
+    assert set(ParameterTable.load(out / "table.json").channels) == {"LLO"} and not (out / "stale.txt").exists()
+    monkeypatch.setattr(ChannelProblem, "residuals", orig)
+    assert fit(str(spec), "--out", str(out))[0] == 0
+    before = listing(out)
+
+    def loading(*a: object, **k: object) -> object:
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(data, "load_utterances", loading)
+    code, text = fit(str(spec), "--out", str(out))
+    assert code == 130 and "nothing was fitted" in text, text
+    assert listing(out) == before and json.loads((out / RUN_MARKER).read_text())["status"] == "complete"
+
+
 def test_mcmc_into_the_fit_directory_is_refused(session: tuple[Path, Path], tmp_path: Path) -> None:
     spec, _ = session
     out = tmp_path / "fit"
@@ -238,6 +282,14 @@ def test_mcmc_into_the_fit_directory_is_refused(session: tuple[Path, Path], tmp_
         text = r.output.replace("\n", " ")
         assert r.exit_code == 1 and "fit directory" in text and "beside it" in text, text
     assert (out / "table.json").read_bytes() == before and not (out / "mcmc").exists()
+    # chains of another spec: refused (resuming them would mix two runs), not deleted
+    other = tmp_path / "mcmc"
+    with OutputDir(other, "mcmc", {"spec": "/elsewhere/spec.toml", "fit": str(out / "table.json")}, staged=False) as d:
+        (d / "mcmc.json").write_text("[]")
+    r = CliRunner().invoke(app, ["mcmc", str(spec), "--fit", str(out), "--out", str(other), "--quiet"])
+    text = r.output.replace("\n", " ")
+    assert r.exit_code == 1 and "holds coartic mcmc spec /elsewhere/spec.toml" in text, text
+    assert (other / "mcmc.json").read_text() == "[]"
 
 
 def test_animate_into_a_used_directory(tmp_path: Path) -> None:

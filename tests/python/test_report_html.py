@@ -161,3 +161,27 @@ def test_report_of_a_sentence_reads_well(tmp_path: Path) -> None:
     html = write_report(result, tmp_path / "out").read_text()
     for f in ("residuals_time.png", "rmse_phonemes.png"):
         assert (tmp_path / "out" / "figures" / f).is_file() and f"figures/{f}" in html
+
+
+def test_report_of_a_very_long_utterance_is_bounded(tmp_path: Path) -> None:
+    """5000 segments: boundaries, labels and weights left out (and said) instead of minutes of drawing."""
+    from coartic.report import plots
+
+    from coartic.fit.problem import build_problem
+    from coartic.fit.result import ChannelFit
+
+    utts = sentence(np.random.default_rng(4), n_words=2500)
+    spec = make_spec(tmp_path, ["target"])
+    problem = build_problem(spec, utts, "LLO", start=(TRUTH.copy(), 1.0), phonemes=PHONEMES)
+    x = problem.packing.pack()
+    # the model at the truth, unfitted: a fit of 5000 segments would cost the test budget
+    fit = ChannelFit("LLO", problem, x, TRUTH.copy(), 1.0, "converged", "", 0, 0.0,
+                     fitted=problem.evaluate(TRUTH, 1.0))
+    result = FitResult(spec, {"LLO": fit}, "now")
+    fig = plots.trajectory_figure(fit, result.table(), [0])
+    top, bottom = fig.axes[0], fig.axes[1]
+    assert "(5002 segments: boundaries and labels not drawn)" in top.get_title()
+    assert not top.texts and not top.collections and "weights not drawn" in bottom.texts[0].get_text()
+    assert plots.residual_time_figure(result, [utts[0].name]) is not None
+    per = plots.phoneme_rmse(result.channels["LLO"])
+    assert sum(n for _, n in per.values()) == len(utts[0].times)

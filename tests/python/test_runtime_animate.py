@@ -340,3 +340,12 @@ def test_recorded_label_map_is_applied_by_trajectories_and_animate(tmp_path: Pat
     labels.write_text("0\t0.3\tsil\n0.3\t0.45\tAA1\n0.45\t0.53\tP\n0.53\t0.68\tIY0\n0.68\t0.9\tsil\n")
     a = animate_file(labels, table, tmp_path / "o", fps=25.0, preview="none").animation
     assert a.segments.labels == ("#", "a", "p", "i", "#")
+
+
+def test_table_without_runtime_channels_is_named(tmp_path: Path, labels: Path) -> None:
+    table = make_table()
+    table.channels = {"LA": table.channels["LLO"]}
+    table.values = {ph: {"LA": per["LLO"]} for ph, per in table.values.items()}
+    with pytest.raises(MissingPhonemeError, match=r"fixture\.json has none of the channels ULO, LLO, ULP, LLP, "
+                                                  r"LR, JO \(it has LA\): nothing to animate"):
+        animate_file(labels, table, tmp_path / "o", preview="none")

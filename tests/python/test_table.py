@@ -251,3 +251,35 @@ def test_to_matrix_errors() -> None:
         t.to_matrix("JO")
     with pytest.raises(TableError, match=r"phoneme 'u' has no parameters for channel 'LLO' \(phonemes with LLO: a, p\)"):
         t.to_matrix("LLO", ["a", "u"])
+
+
+def test_strict_loading_duplicates_encoding_depth_and_huge_numbers(tmp_path: Path) -> None:
+    p = tmp_path / "t.json"
+    text = json.dumps(base_doc(), indent=2)
+    # a second "variant" key: json keeps the last one silently
+    p.write_text(text.replace('"variant": "modified",', '"variant": "modified",\n  "variant": "original",'))
+    with pytest.raises(TableError, match=r"t\.json: line 4: key 'variant' appears twice in one object"):
+        ParameterTable.load(p)
+    p.write_text(text.replace('"alpha": 1.0,', '"alpha": 1.0, "alpha": 2.0,', 1))
+    with pytest.raises(TableError, match=r"t\.json: key 'alpha' appears twice in one object"):
+        ParameterTable.load(p)
+    p.write_bytes(text.replace('"variant"', '"var\xe9iant"').encode("latin-1"))
+    with pytest.raises(TableError, match=r"t\.json: line 3: not UTF-8 text \(byte 0xe9 at offset \d+\)"):
+        ParameterTable.load(p)
+    p.write_text('{"metadata": ' + "[" * 100_000 + "]" * 100_000 + "}")
+    with pytest.raises(TableError, match=r"t\.json: JSON nested 100001 levels deep"):
+        ParameterTable.load(p)
+    p.write_text(text.replace('"beta": 1.0', '"beta": ' + "1" * 5000))
+    with pytest.raises(TableError, match=r"t\.json: a number cannot be read: .*4300 digits"):
+        ParameterTable.load(p)
+    p.write_text(text.replace('"beta": 1.0', '"beta": ' + "1" * 400))
+    with pytest.raises(TableError, match=r"beta = 1111.*\(400 digits\) is not a finite number"):
+        ParameterTable.load(p)
+    c = tmp_path / "t.csv"
+    table = ParameterTable.from_json_dict(base_doc())
+    lines = table.to_csv().splitlines()
+    row = next(ln for ln in lines if ",target," in ln)
+    c.write_text("\n".join([*lines, row.replace(row.split(",")[3], "99.0")]) + "\n")
+    with pytest.raises(TableError, match=rf"t\.csv: line {len(lines) + 1}: .*target is given twice \(first "
+                                         rf"on line {lines.index(row) + 1}\)"):
+        ParameterTable.load(c)

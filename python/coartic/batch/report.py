@@ -45,7 +45,7 @@ def merge_tables(tables: Sequence[ParameterTable], source: str) -> ParameterTabl
     """One table from single-channel tables, channels in the given order (as FitResult.table builds it)."""
     first = tables[0]
     t = ParameterTable(variant=first.variant, source=source)
-    meta: dict[str, Any] = dict(first.metadata)
+    meta: dict[str, Any] = {k: v for k, v in first.metadata.items() if k != "mcmc"}
     for key in ("rmse", "status"):
         meta[key] = {}
     meta["interrupted"] = False
@@ -58,11 +58,17 @@ def merge_tables(tables: Sequence[ParameterTable], source: str) -> ParameterTabl
             phon = tb.phonemes_for(ch)
             mat, beta = tb.to_matrix(ch, phon)
             t.set_from_matrix(ch, phon, mat, beta)
+            for ph, chans in tb.uncertainty.items():  # posterior quantiles (coartic.mcmc)
+                if ch in chans:
+                    t.uncertainty.setdefault(ph, {})[ch] = chans[ch]
             for key in ("rmse", "status"):
                 if ch in tb.metadata.get(key, {}):
                     meta[key][ch] = tb.metadata[key][ch]
             dates[ch] = tb.metadata.get("date")
         meta["interrupted"] = meta["interrupted"] or bool(tb.metadata.get("interrupted"))
+        if "mcmc" in tb.metadata:
+            nc = meta.setdefault("mcmc", {"not_converged": []})["not_converged"]
+            nc += tb.metadata["mcmc"].get("not_converged", [])
     meta["date"] = dates
     t.metadata = meta
     return t
@@ -83,16 +89,25 @@ def _concat_csv(texts: Sequence[str]) -> str:
     return header + "".join(body)
 
 
-def assemble(out: Path, dirs: Sequence[Path], target: Path, source: str) -> None:
-    """Write the group's (or pooled) files into ``target`` from its units' folders."""
+def _table_files(table: ParameterTable, stem: str) -> dict[str, bytes]:
+    """The table as ParameterTable.save writes it, JSON and CSV."""
+    text = json.dumps(table.to_json_dict(), indent=2, ensure_ascii=False, allow_nan=False) + "\n"
+    return {f"{stem}.json": text.encode(), f"{stem}.csv": table.to_csv().encode()}
+
+
+def assemble(out: Path, dirs: Sequence[Path], target: Path, source: str,
+             posterior_dirs: Sequence[Path] | None = None) -> None:
+    """Write the group's (or pooled) files into ``target`` from its units' folders; with
+    ``posterior_dirs`` (one per channel: the posterior unit's folder, or the fit's where the
+    channel has no posteriors) also ``table_mcmc.json``/``.csv``, the table with the quantiles."""
     from coartic.batch.run import land_dir
 
     tables = [ParameterTable.load(d / "table.json") for d in dirs]
     table = merge_tables(tables, source)
-    files: dict[str, bytes] = {}
-    text = json.dumps(table.to_json_dict(), indent=2, ensure_ascii=False, allow_nan=False) + "\n"
-    files["table.json"] = text.encode()
-    files["table.csv"] = table.to_csv().encode()
+    files = _table_files(table, "table")
+    if posterior_dirs is not None:
+        with_q = merge_tables([ParameterTable.load(d / "table.json") for d in posterior_dirs], source)
+        files |= _table_files(with_q, "table_mcmc")
     for name in ("rmse.csv", "parameters.csv"):
         # bytes, not text mode: the CSV writer ends lines with \r\n, which text mode would rewrite
         files[name] = _concat_csv([(d / name).read_bytes().decode("utf-8") for d in dirs]).encode()
@@ -248,6 +263,11 @@ img{max-width:100%}</style></head><body>
 {% endfor %}</table>
 <p>The paper's bar is {{ bar }} mm. Per-group tables: <code>groups/&lt;group&gt;/table.json</code>; pooled: <code>pooled/table.json</code>.</p>
 {% if pooled %}<p class="note">{{ pooled_note }}</p>{% endif %}
+{% if posteriors %}<h2>Posteriors (coartic.mcmc) per group and channel</h2>
+<table><tr><th>group</th>{% for ch in posterior_channels %}<th>{{ ch }}</th>{% endfor %}</tr>
+{% for row in posteriors %}<tr><td>{{ row.name }}</td>{% for c in row.cells %}<td>{{ c }}</td>{% endfor %}</tr>{% endfor %}
+</table><p>Chains, summaries and plots: <code>posteriors/&lt;group&gt;/&lt;channel&gt;/</code>; each group's table with
+the posterior quantiles: <code>groups/&lt;group&gt;/table_mcmc.json</code>.</p>{% endif %}
 {% for f in figures %}<figure><img src="{{ f.src }}" alt="{{ f.src }}"><figcaption>{{ f.caption }}</figcaption></figure>{% endfor %}
 <h2>Largest spread across groups</h2>
 <table><tr><th>channel</th><th>phoneme</th><th>parameter</th><th>groups</th><th>mean</th><th>sd</th><th>min</th><th>max</th><th>pooled</th></tr>
@@ -267,11 +287,16 @@ def write_outputs(spec: BatchSpec, out: Path, outcome: BatchOutcome) -> None:
     missing: list[str] = []
     for g in spec.groups:
         keys = [UnitKey(g.name, ch) for ch in spec.channels]
+        post = [UnitKey(g.name, ch, "posterior") for ch in spec.posterior_channels]
+        missing += [k.label for k in keys + post if not is_done(out, k)]
         if all(is_done(out, k) for k in keys):
-            assemble(out, [unit_dir(out, k) for k in keys], out / "groups" / g.name, f"batch {spec.path}: {g.name}")
+            post_dirs = None
+            if post and all(is_done(out, k) for k in post):
+                post_dirs = [unit_dir(out, UnitKey(g.name, ch, "posterior" if ch in spec.posterior_channels else "fit"))
+                             for ch in spec.channels]
+            assemble(out, [unit_dir(out, k) for k in keys], out / "groups" / g.name, f"batch {spec.path}: {g.name}",
+                     post_dirs)
             tables[g.name] = ParameterTable.load(out / "groups" / g.name / "table.json")
-        else:
-            missing += [k.label for k in keys if not is_done(out, k)]
     pooled: ParameterTable | None = None
     if spec.pooled:
         keys = [UnitKey(None, ch) for ch in spec.channels]
@@ -297,12 +322,21 @@ def write_outputs(spec: BatchSpec, out: Path, outcome: BatchOutcome) -> None:
     captions = {"rmse.png": "RMSE of every group's fit (and the pooled fit) per channel."}
     captions |= {f"spread_{ch}.png": f"{ch}: every phoneme's parameters in each group's fit (dots) and in the "
                  "pooled fit (crosses)." for ch in spec.channels}
+    posteriors = []
+    for g in spec.groups if spec.posterior_channels else ():
+        cells = []
+        for ch in spec.posterior_channels:
+            key = UnitKey(g.name, ch, "posterior")
+            cells.append(json.loads((unit_dir(out, key) / "unit.json").read_text(encoding="utf-8"))["status"]
+                         if is_done(out, key) else "–")
+        posteriors.append({"name": g.name, "cells": cells})
     env = jinja2.Environment(autoescape=True, undefined=jinja2.StrictUndefined)
     html = env.from_string(_TEMPLATE).render(
         name=spec.name, spec=str(spec.path), fit_spec=str(spec.fit.path), n_groups=len(spec.groups),
         channels=list(spec.channels), done=outcome.total - len(missing), total=outcome.total,
         failed=outcome.failed, missing=missing, grid=grid, bar=BAR_MM, pooled=spec.pooled, pooled_note=POOLED_NOTE,
-        figures=[{"src": f"figures/{n}", "caption": captions.get(n, n)} for n in figs], spread=ranked)
+        figures=[{"src": f"figures/{n}", "caption": captions.get(n, n)} for n in figs], spread=ranked,
+        posteriors=posteriors, posterior_channels=list(spec.posterior_channels))
     atomic_write_bytes(out / "report.html", html.encode())
     status = {"spec": str(spec.path), "units": outcome.total, "finished": outcome.total - len(missing),
               "skipped_as_done": outcome.skipped, "landed_now": [k.label for k in outcome.landed],

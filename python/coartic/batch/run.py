@@ -36,7 +36,7 @@ from rich.console import Console
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
 from coartic.batch.spec import BatchSpec
-from coartic.batch.tasks import UnitKey, UnitOutput, fit_unit, load_group
+from coartic.batch.tasks import UnitFailed, UnitKey, UnitOutput, fit_unit, load_group, posterior_unit
 from coartic.errors import CoarticError
 from coartic.fit.problem import Utterance
 from coartic.outputs import DeferredSignals, OutputDir
@@ -66,16 +66,18 @@ class BatchOutcome:
 
 
 def plan_units(spec: BatchSpec) -> list[UnitKey]:
-    """Every unit: each group's channels, then the pooled corpus's."""
+    """Every unit: each group's channels, the pooled corpus's, then each group's posteriors."""
     keys = [UnitKey(g.name, ch) for g in spec.groups for ch in spec.channels]
     if spec.pooled:
         keys += [UnitKey(None, ch) for ch in spec.channels]
+    keys += [UnitKey(g.name, ch, "posterior") for g in spec.groups for ch in spec.posterior_channels]
     return keys
 
 
 def unit_dir(out: Path, key: UnitKey) -> Path:
     # "_pooled" cannot be a group's name (spec.GROUP_NAME starts with a letter or digit).
-    return out / "units" / (key.group if key.group is not None else "_pooled") / key.channel
+    tree = "units" if key.kind == "fit" else "posteriors"
+    return out / tree / (key.group if key.group is not None else "_pooled") / key.channel
 
 
 def is_done(out: Path, key: UnitKey) -> bool:
@@ -92,6 +94,7 @@ def land_dir(target: Path, files: dict[str, bytes]) -> None:
     tmp = Path(tempfile.mkdtemp(prefix=f".{target.name}.tmp-", dir=target.parent))
     try:
         for name, data in files.items():
+            (tmp / name).parent.mkdir(parents=True, exist_ok=True)  # a posterior's chains sit in sub-folders
             with open(tmp / name, "wb") as f:
                 f.write(data)
                 f.flush()
@@ -170,7 +173,7 @@ def run_batch(spec: BatchSpec, out: str | Path, *, scheduler: str | None = None,
     od = output_dir(spec, out, force)
     with DeferredSignals() as signals, od:
         # Temporary folders of a run killed mid-landing: never a finished unit.
-        for stale in out.glob("units/*/.*.tmp-*"):
+        for stale in [*out.glob("units/*/.*.tmp-*"), *out.glob("posteriors/*/.*.tmp-*")]:
             shutil.rmtree(stale, ignore_errors=True)
         todo = [k for k in keys if not is_done(out, k)]
         outcome = BatchOutcome(out, len(keys), len(keys) - len(todo))
@@ -183,7 +186,8 @@ def run_batch(spec: BatchSpec, out: str | Path, *, scheduler: str | None = None,
                 with signals.saving():
                     land_unit(out, spec, result)
                 outcome.landed.append(result.key)
-                progress.update(task, advance=1, description=f"{result.key.label}: RMSE {result.rmse:.3f} mm")
+                what = f"RMSE {result.rmse:.3f} mm" if result.key.kind == "fit" else result.status
+                progress.update(task, advance=1, description=f"{result.key.label}: {what}")
 
             def failed(key: UnitKey, err: BaseException) -> None:
                 outcome.failed[key.label] = f"{type(err).__name__}: {err}"
@@ -191,9 +195,9 @@ def run_batch(spec: BatchSpec, out: str | Path, *, scheduler: str | None = None,
 
             try:
                 if todo and serial:
-                    _run_serial(spec, todo, landed, failed, before)
+                    _run_serial(spec, out, todo, landed, failed, before)
                 elif todo:
-                    _run_dask(spec, todo, landed, failed, before, scheduler, workers, outcome, console)
+                    _run_dask(spec, out, todo, landed, failed, before, scheduler, workers, outcome, console)
             except KeyboardInterrupt:
                 outcome.interrupted = True
         from coartic.batch.report import write_outputs
@@ -205,7 +209,7 @@ def run_batch(spec: BatchSpec, out: str | Path, *, scheduler: str | None = None,
     return outcome
 
 
-def _run_serial(spec: BatchSpec, todo: list[UnitKey], landed: Callable[[UnitOutput], None],
+def _run_serial(spec: BatchSpec, out: Path, todo: list[UnitKey], landed: Callable[[UnitOutput], None],
                 failed: Callable[[UnitKey, BaseException], None],
                 before: Callable[[UnitKey], None] | None) -> None:
     loaded: dict[str, list[Utterance] | BaseException] = {}
@@ -224,7 +228,11 @@ def _run_serial(spec: BatchSpec, todo: list[UnitKey], landed: Callable[[UnitOutp
 
     for key in todo:
         try:
-            if key.group is None:
+            if key.kind == "posterior":
+                assert key.group is not None
+                table = fitted_table(out, key)
+                result = posterior_unit(groups[key.group].spec, spec.mcmc, table, [load(key.group)], key, None, before)
+            elif key.group is None:
                 lists = [load(g.name) for g in spec.groups]
                 result = fit_unit(spec.pooled_spec, lists, key, None, before)
             else:
@@ -235,7 +243,16 @@ def _run_serial(spec: BatchSpec, todo: list[UnitKey], landed: Callable[[UnitOutp
         landed(result)
 
 
-def _run_dask(spec: BatchSpec, todo: list[UnitKey], landed: Callable[[UnitOutput], None],
+def fitted_table(out: Path, key: UnitKey) -> dict[str, Any]:
+    """The landed table of the fit a posterior unit starts from (its JSON document)."""
+    path = unit_dir(out, key.fit) / "table.json"
+    if not is_done(out, key.fit):
+        raise UnitFailed(f"unit {key.label}: its fit (unit {key.fit.label}) did not finish")
+    doc: dict[str, Any] = json.loads(path.read_text(encoding="utf-8"))
+    return doc
+
+
+def _run_dask(spec: BatchSpec, out: Path, todo: list[UnitKey], landed: Callable[[UnitOutput], None],
               failed: Callable[[UnitKey, BaseException], None], before: Callable[[UnitKey], None] | None,
               scheduler: str | None, workers: int | None, outcome: BatchOutcome, console: Console) -> None:
     from distributed import Client, LocalCluster, as_completed
@@ -247,7 +264,7 @@ def _run_dask(spec: BatchSpec, todo: list[UnitKey], landed: Callable[[UnitOutput
             threads: int | None = local_threads(n)
             # One task per worker process; the core's threads capped in each (the nanny sets the
             # variable before the worker process starts, and again when it restarts a lost one).
-            cluster = LocalCluster(n_workers=n, threads_per_worker=1, processes=True, dashboard_address=None,
+            cluster = LocalCluster(n_workers=n, threads_per_worker=1, processes=True, dashboard_address=":0",
                                    env={"RAYON_NUM_THREADS": str(threads)}, silence_logs=logging.ERROR)
             client = Client(cluster)
             outcome.workers = n
@@ -273,7 +290,21 @@ def _run_dask(spec: BatchSpec, todo: list[UnitKey], landed: Callable[[UnitOutput
         # Loads first (every fit waits for one), pooled fits next (the longest), then the groups'.
         loads = {name: client.submit(load_group, groups[name].spec, name, threads, pure=False, priority=20)
                  for name in groups if name in needed}
+        # A posterior starts from its fit's landed table: submitted once that fit is on disk.
+        waiting = {k.fit: k for k in todo if k.kind == "posterior"}
+
+        def submit_posterior(key: UnitKey) -> Any:
+            assert key.group is not None
+            fut = client.submit(posterior_unit, groups[key.group].spec, spec.mcmc, fitted_table(out, key),
+                                [loads[key.group]], key, threads, before, pure=False, priority=5)
+            by_future[fut] = key
+            return fut
+
         for key in todo:
+            if key.kind == "posterior":
+                if is_done(out, key.fit):
+                    submit_posterior(waiting.pop(key.fit))
+                continue
             if key.group is None:
                 fut = client.submit(fit_unit, spec.pooled_spec, [loads[g] for g in groups], key, threads, before,
                                     pure=False, priority=10)
@@ -281,15 +312,21 @@ def _run_dask(spec: BatchSpec, todo: list[UnitKey], landed: Callable[[UnitOutput
                 fut = client.submit(fit_unit, groups[key.group].spec, [loads[key.group]], key, threads, before,
                                     pure=False, priority=0)
             by_future[fut] = key
-        del loads  # held by the fits only: each group's data is freed once its fits are done
-        for fut in as_completed(list(by_future)):
+        if not waiting:
+            del loads  # held by the units only: each group's data is freed once its units are done
+        running = as_completed(list(by_future))
+        for fut in running:
             key = by_future.pop(fut)
             try:
                 result = fut.result()
             except Exception as e:  # the unit's error, or KilledWorker after repeated worker losses
                 failed(key, e)
+                if key in waiting:
+                    failed(waiting.pop(key), UnitFailed(f"its fit (unit {key.label}) did not finish"))
             else:
                 landed(result)
+                if key in waiting:
+                    running.add(submit_posterior(waiting.pop(key)))
             fut.release()
     finally:
         with contextlib.suppress(Exception):

@@ -15,6 +15,9 @@ staging) and the corpus of many speakers or sessions, split into *groups*::
     [pooled]
     enabled = true                    # also one fit of every group's data together
 
+    [posteriors]
+    enabled = false                   # true: each group's posteriors too (the fit spec's [mcmc])
+
 Every path is relative to the batch spec. Every error names the file and the key at fault, as the
 fit spec's do (``coartic.fit.spec``).
 """
@@ -55,6 +58,8 @@ class BatchSpec:
     pooled: bool
     pooled_spec: FitSpec  # the fit spec of the pooled fit (corpus: every group's)
     fingerprint: str  # what the results depend on: the spec files and manifests (sha256)
+    mcmc: Any = None  # coartic.mcmc.run.McmcConfig from the fit spec's [mcmc], when posteriors are asked for
+    posterior_channels: tuple[str, ...] = ()  # channels whose posteriors each group gets (none: no posteriors)
 
     @property
     def group_names(self) -> tuple[str, ...]:
@@ -123,7 +128,7 @@ def load_batch_spec(path: str | Path) -> BatchSpec:
     path = Path(path)
     raw = read_document(path)
     base = path.parent
-    allowed = {"name", "fit", "channels", "corpus", "pooled"}
+    allowed = {"name", "fit", "channels", "corpus", "pooled", "posteriors"}
     unknown = sorted(set(raw) - allowed)
     if unknown:
         raise _err(path, "top level", f"unknown key(s) {unknown}; allowed: {sorted(allowed)}")
@@ -222,6 +227,26 @@ def load_batch_spec(path: str | Path) -> BatchSpec:
     if not isinstance(pooled, bool):
         raise _err(path, "pooled.enabled", f"expected true or false, got {pooled!r}")
     pooled_spec = fit.with_options(corpus=pooled_corpus, channels=channels, name=f"{name} (pooled)")
+
+    q = raw.get("posteriors", {})
+    if not isinstance(q, dict) or sorted(set(q) - {"enabled"}):
+        raise _err(path, "posteriors", f"expected a table with enabled = true/false, got {q!r}")
+    want = q.get("enabled", False)
+    if not isinstance(want, bool):
+        raise _err(path, "posteriors.enabled", f"expected true or false, got {want!r}")
+    mcmc: Any = None
+    post_channels: tuple[str, ...] = ()
+    if want:
+        from coartic.mcmc.run import parse_config
+
+        mcmc = parse_config(read_document(fit_path).get("mcmc"), fit_path)  # errors name the fit spec's key
+        post_channels = channels
+        if mcmc.channels is not None:
+            bad = [c for c in mcmc.channels if c not in channels]
+            if bad:
+                raise _err(fit_path, "mcmc.channels", f"{bad} are not among the batch's channels {list(channels)} "
+                           f"({path})")
+            post_channels = tuple(c for c in channels if c in mcmc.channels)
     digest = hashlib.sha256(repr(sorted(hashes.items())).encode()).hexdigest()
     return BatchSpec(path=path, name=name, fit=fit, groups=tuple(groups), channels=channels, pooled=pooled,
-                     pooled_spec=pooled_spec, fingerprint=digest)
+                     pooled_spec=pooled_spec, fingerprint=digest, mcmc=mcmc, posterior_channels=post_channels)

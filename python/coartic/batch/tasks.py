@@ -6,11 +6,15 @@ Two kinds of task:
     reads one speaker's or session's trials through ``coartic.fit.data`` and returns the
     ``Utterance`` list: NumPy arrays and strings, which pickle. A ``coartic._core.Corpus`` (a PyO3
     class) does not pickle, and need not: the fit below builds it on the worker from these arrays.
-``fit_unit(spec, utterance_lists, channel, ...)``
+``fit_unit(spec, utterance_lists, key, ...)``
     fits one channel with ``coartic.fit.run`` (the library's whole least-squares job, as
     ``coartic fit`` runs it) into a temporary folder on the worker, and returns the files it wrote
     as bytes. The client lands them in the output folder: workers need no write access to it, only
     read access to the recordings.
+``posterior_unit(spec, config, table, utterance_lists, key, ...)``
+    samples the channel's posteriors (``coartic.mcmc``: per phoneme or joint, as the fit spec's
+    ``[mcmc]`` says) around the group's fitted table, the same way, and returns the chains,
+    summaries, plots and the table with the posterior quantiles.
 
 The Rust core runs each evaluation on rayon's global thread pool, whose size it reads once, from
 ``RAYON_NUM_THREADS`` (default: every core), at the first parallel call in a process.
@@ -19,6 +23,7 @@ The Rust core runs each evaluation on rayon's global thread pool, whose size it 
 
 from __future__ import annotations
 
+import math
 import os
 import socket
 import tempfile
@@ -26,6 +31,7 @@ import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 from coartic.errors import CoarticError
 from coartic.fit.problem import Utterance
@@ -40,16 +46,27 @@ class UnitFailed(CoarticError, RuntimeError):
     """A unit whose fit did not finish; the message names the unit and the engine's reason."""
 
 
+KINDS = ("fit", "posterior")
+
+
 @dataclass(frozen=True)
 class UnitKey:
-    """One fit: a group's (or the pooled corpus's, ``group`` None) channel."""
+    """One unit: the fit of a group's (or the pooled corpus's, ``group`` None) channel, or the
+    posteriors (``kind`` "posterior", coartic.mcmc) of a group's channel around its fit."""
 
     group: str | None
     channel: str
+    kind: str = "fit"
 
     @property
     def label(self) -> str:
-        return f"{self.group if self.group is not None else 'pooled'} {self.channel}"
+        base = f"{self.group if self.group is not None else 'pooled'} {self.channel}"
+        return base if self.kind == "fit" else f"{base} {self.kind}"
+
+    @property
+    def fit(self) -> UnitKey:
+        """The fit unit this unit starts from (itself for a fit)."""
+        return UnitKey(self.group, self.channel)
 
 
 @dataclass
@@ -116,3 +133,54 @@ def fit_unit(spec: FitSpec, utterance_lists: Sequence[Sequence[Utterance]], key:
     return UnitOutput(key=key, files=files, compute_s=t2 - t1, load_s=t1 - t0, host=socket.gethostname(),
                       pid=os.getpid(), rayon_threads=os.environ.get(RAYON_ENV, ""), status=fit.status,
                       rmse=fit.rmse)
+
+
+def _files(root: Path, skip: frozenset[str] = frozenset()) -> dict[str, bytes]:
+    """Every file under ``root`` by its relative path (POSIX)."""
+    return {p.relative_to(root).as_posix(): p.read_bytes() for p in sorted(root.rglob("*"))
+            if p.is_file() and p.relative_to(root).as_posix() not in skip}
+
+
+def posterior_unit(spec: FitSpec, config: Any, table: dict[str, Any], utterance_lists: Sequence[Sequence[Utterance]],
+                   key: UnitKey, threads: int | None = None,
+                   before: Callable[[UnitKey], None] | None = None) -> UnitOutput:
+    """Sample ``key.channel``'s posteriors around the fitted ``table`` (its JSON document) with
+    ``coartic.mcmc`` and return what it wrote, plus ``table.json`` with the posterior quantiles."""
+    import json
+
+    from coartic.mcmc.mcmc_cli import check_fit_matches_data
+    from coartic.mcmc.run import channel_runs, table_problem
+    from coartic.mcmc.summary import write_uncertainty
+    from coartic.table import ParameterTable
+
+    cap_threads(threads)
+    if before is not None:
+        before(key)
+    t0 = time.perf_counter()
+    utts = [u for lst in utterance_lists for u in lst]
+    with tempfile.TemporaryDirectory(prefix="coartic-posterior-") as tmp_:
+        tmp = Path(tmp_)
+        fitted = tmp / "fit_table.json"
+        tab = ParameterTable.from_json_dict(table, source=f"the fit of unit {key.fit.label}")
+        tab.save(fitted)
+        data, packing, options = table_problem(spec, tab, fitted, key.channel, utts)
+        check_fit_matches_data(tab, fitted, key.channel, data, packing, options)
+        t1 = time.perf_counter()
+        runs, interrupted = channel_runs(key.channel, data, packing, options, config, tmp / "mcmc", progress=False)
+        t2 = time.perf_counter()
+        if interrupted:
+            raise UnitFailed(f"unit {key.label}: sampling was interrupted")
+        not_converged = []
+        for r in runs:
+            write_uncertainty(tab, key.channel, r.summaries)
+            if not r.result.converged:
+                not_converged.append(r.label)
+        tab.metadata["mcmc"] = {"not_converged": not_converged}
+        tab.save(tmp / "table.json")
+        index = [{"label": r.label, "phoneme": r.phoneme, "converged": bool(r.result.converged),
+                  "directory": r.directory.relative_to(tmp).as_posix()} for r in runs]
+        (tmp / "posteriors.json").write_text(json.dumps(index, indent=1) + "\n", encoding="utf-8")
+        files = _files(tmp, skip=frozenset({"fit_table.json"}))
+    return UnitOutput(key=key, files=files, compute_s=t2 - t1, load_s=t1 - t0, host=socket.gethostname(),
+                      pid=os.getpid(), rayon_threads=os.environ.get(RAYON_ENV, ""),
+                      status=f"{len(runs) - len(not_converged)} of {len(runs)} converged", rmse=math.nan)

@@ -1,8 +1,9 @@
-"""glTF 2.0 binary (.glb): the face with one morph target per FAP and an animation of the weights.
+"""glTF 2.0 binary (.glb): the face with morph targets per FAP and an animation of the weights.
 
 One node, one mesh with a primitive per part (skin, cavity, upper_teeth, lower_teeth, eyes; named
-in each primitive's `extras.part`), vertex colours (COLOR_0), and the morph targets of
-`coartic.face.deform` (`mesh.extras.targetNames`, the names Blender and three.js show). The
+in each primitive's `extras.part`), vertex colours (COLOR_0), and the displacement fields of
+`coartic.face.deform` as morph targets (`mesh.extras.targetNames`, the names Blender and three.js
+show), each split into a positive and a negative target (`split_signs`) and stored sparse. The
 animation has one channel, `path: "weights"`, sampled at the frame times with LINEAR
 interpolation. Units are metres (glTF's), so the face is 0.2 m tall. The sound is not inside (glTF
 has no audio in its core); `asset.extras` names the WAV written beside the file, with the frame
@@ -70,6 +71,53 @@ class _Builder:
         self.accessors.append(acc)
         return len(self.accessors) - 1
 
+    def _view(self, arr: NDArray[Any]) -> int:
+        while len(self.blob) % 4:
+            self.blob.append(0)
+        self.views.append({"buffer": 0, "byteOffset": len(self.blob), "byteLength": arr.nbytes})
+        self.blob += np.ascontiguousarray(arr).tobytes()
+        return len(self.views) - 1
+
+    def zeros(self, count: int) -> int:
+        """A bufferView of `count` zero VEC3 floats, the base every sparse target of a part shares
+        (an accessor without a bufferView would also mean zeros, but three.js r111 cannot read it)."""
+        return self._view(np.zeros((count, 3), dtype=np.float32))
+
+    def add_sparse_vec3(self, data: NDArray[np.float32], zeros: int) -> int:
+        """A float VEC3 accessor stored sparse over the zero bufferView `zeros`: only the rows that
+        are not zero are written (a morph target moves a few hundred of the vertices)."""
+        rows = np.flatnonzero(np.any(data != 0, axis=1))
+        acc: dict[str, Any] = {"bufferView": zeros, "componentType": FLOAT, "count": int(data.shape[0]),
+                               "type": "VEC3", "min": [float(v) for v in data.min(axis=0)],
+                               "max": [float(v) for v in data.max(axis=0)]}
+        if rows.size:
+            idx_type, comp = (np.uint16, UINT16) if data.shape[0] <= 65535 else (np.uint32, UINT32)
+            acc["sparse"] = {"count": int(rows.size),
+                             "indices": {"bufferView": self._view(rows.astype(idx_type)), "componentType": comp},
+                             "values": {"bufferView": self._view(np.ascontiguousarray(data[rows]))}}
+        self.accessors.append(acc)
+        return len(self.accessors) - 1
+
+
+def split_signs(names: tuple[str, ...], targets: NDArray[np.float64], weights: NDArray[np.float64]
+                ) -> tuple[list[str], NDArray[np.float64], NDArray[np.float64]]:
+    """Each signed field as two targets, NAME for positive weights and NAME_neg (the field negated)
+    for negative ones, so that every weight lies in 0..1: Blender's importer keeps a shape key
+    within 0..1 unless the first keyframe says otherwise, and would flatten negative FAPs to 0.
+    A field whose weight is never negative (open_jaw_1mcos) stays one target. Exact, also between
+    frames: linear interpolation of w+ and w- adds up to that of w."""
+    out_names, out_t, out_w = [], [], []
+    for k, name in enumerate(names):
+        w = weights[:, k]
+        out_names.append(name)
+        out_t.append(targets[k])
+        out_w.append(np.maximum(w, 0.0))
+        if name != "open_jaw_1mcos":
+            out_names.append(f"{name}_neg")
+            out_t.append(-targets[k])
+            out_w.append(np.maximum(-w, 0.0))
+    return out_names, np.stack(out_t), np.column_stack(out_w)
+
 
 def srgb_to_linear(c: NDArray[np.float64]) -> NDArray[np.float64]:
     """The mesh's colours are sRGB (as picked); glTF's COLOR_0 is linear."""
@@ -87,6 +135,8 @@ def gltf_document(rig: FaceRig, weights: NDArray[np.float64], fps: float, name: 
     if not np.isfinite(weights).all():
         raise AnimationError("glTF weights are not finite")
     mesh = rig.mesh
+    names, fields, weights = split_signs(rig.target_names, rig.targets, weights)
+    n_targets = len(names)
     b = _Builder()
     primitives = []
     for part in PART_NAMES:
@@ -100,8 +150,9 @@ def gltf_document(rig: FaceRig, weights: NDArray[np.float64], fps: float, name: 
         ind = b.add(tris.reshape(-1).astype(idx_type), "SCALAR", comp, ELEMENT_ARRAY_BUFFER)
         b.accessors[ind]["min"] = [int(tris.min())]
         b.accessors[ind]["max"] = [int(tris.max())]
-        targets = [{"POSITION": b.add((rig.targets[k][sel] * MM).astype(np.float32), "VEC3", FLOAT, ARRAY_BUFFER,
-                                      bounds=True)} for k in range(n_targets)]
+        zeros = b.zeros(sel.size)
+        targets = [{"POSITION": b.add_sparse_vec3((fields[k][sel] * MM).astype(np.float32), zeros)}
+                   for k in range(n_targets)]
         primitives.append({"attributes": {"POSITION": pos, "COLOR_0": col}, "indices": ind, "material": 0,
                            "mode": 4, "targets": targets, "extras": {"part": part}})
     times = (np.arange(weights.shape[0]) / fps).astype(np.float32)
@@ -117,7 +168,7 @@ def gltf_document(rig: FaceRig, weights: NDArray[np.float64], fps: float, name: 
         "scenes": [{"name": name, "nodes": [0]}],
         "nodes": [{"name": "face", "mesh": 0}],
         "meshes": [{"name": "face", "primitives": primitives, "weights": [0.0] * n_targets,
-                    "extras": {"targetNames": list(rig.target_names)}}],
+                    "extras": {"targetNames": names}}],
         "materials": [{"name": "face", "doubleSided": True,
                        "pbrMetallicRoughness": {"baseColorFactor": [1.0, 1.0, 1.0, 1.0], "metallicFactor": 0.0,
                                                 "roughnessFactor": 0.75}}],
@@ -164,10 +215,22 @@ def accessor_array(doc: dict[str, Any], blob: bytes, index: int) -> NDArray[Any]
     dtype = {5120: np.int8, 5121: np.uint8, 5122: np.int16, 5123: np.uint16, 5125: np.uint32, 5126: np.float32}[
         acc["componentType"]]
     if "bufferView" not in acc:
-        return np.zeros((acc["count"], ncomp) if ncomp > 1 else acc["count"], dtype=dtype)
-    view = doc["bufferViews"][acc["bufferView"]]
-    start = view.get("byteOffset", 0) + acc.get("byteOffset", 0)
-    arr = np.frombuffer(blob, dtype=dtype, count=acc["count"] * ncomp, offset=start)
+        arr = np.zeros(acc["count"] * ncomp, dtype=dtype)  # glTF: no bufferView means zeros
+    else:
+        view = doc["bufferViews"][acc["bufferView"]]
+        start = view.get("byteOffset", 0) + acc.get("byteOffset", 0)
+        arr = np.frombuffer(blob, dtype=dtype, count=acc["count"] * ncomp, offset=start).copy()
+    sparse = acc.get("sparse")
+    if sparse:
+        m = sparse["count"]
+        iview = doc["bufferViews"][sparse["indices"]["bufferView"]]
+        itype = {5121: np.uint8, 5123: np.uint16, 5125: np.uint32}[sparse["indices"]["componentType"]]
+        rows = np.frombuffer(blob, dtype=itype, count=m,
+                             offset=iview.get("byteOffset", 0) + sparse["indices"].get("byteOffset", 0))
+        vview = doc["bufferViews"][sparse["values"]["bufferView"]]
+        vals = np.frombuffer(blob, dtype=dtype, count=m * ncomp,
+                             offset=vview.get("byteOffset", 0) + sparse["values"].get("byteOffset", 0))
+        arr.reshape(acc["count"], ncomp)[rows.astype(np.int64)] = vals.reshape(m, ncomp)
     return arr.reshape(acc["count"], ncomp) if ncomp > 1 else arr
 
 
@@ -243,6 +306,27 @@ def check_gltf(doc: dict[str, Any], blob: bytes, where: str = "<gltf>") -> None:
                 raise _fail(where, f"{at}: data not aligned to its {size}-byte components")
             if off + stride * (acc["count"] - 1) + elem > view["byteLength"]:
                 raise _fail(where, f"{at}: {acc['count']} elements overrun bufferViews[{acc['bufferView']}]")
+        sparse = acc.get("sparse")
+        if sparse is not None:
+            m = sparse.get("count")
+            if not isinstance(m, int) or not 1 <= m <= acc["count"]:
+                raise _fail(where, f"{at}.sparse.count must be 1..count")
+            comp = sparse["indices"].get("componentType")
+            if comp not in (5121, UINT16, UINT32):
+                raise _fail(where, f"{at}.sparse.indices must be unsigned byte, short or int")
+            for part, width in (("indices", _SIZES[comp]), ("values", elem)):
+                sv = _index(doc, "bufferViews", sparse[part].get("bufferView"), f"{where}: {at}.sparse.{part}")
+                if sv.get("target") is not None or "byteStride" in sv:
+                    raise _fail(where, f"{at}.sparse.{part}: its bufferView must have no target or stride")
+                if sparse[part].get("byteOffset", 0) + m * width > sv["byteLength"]:
+                    raise _fail(where, f"{at}.sparse.{part}: {m} elements overrun their bufferView")
+            if blob:
+                iv = doc["bufferViews"][sparse["indices"]["bufferView"]]
+                itype = {5121: np.uint8, 5123: np.uint16, 5125: np.uint32}[comp]
+                rows = np.frombuffer(blob, dtype=itype, count=m,
+                                     offset=iv.get("byteOffset", 0) + sparse["indices"].get("byteOffset", 0))
+                if (m > 1 and not (np.diff(rows.astype(np.int64)) > 0).all()) or int(rows.max()) >= acc["count"]:
+                    raise _fail(where, f"{at}.sparse.indices must increase strictly and stay below count")
         for bound in ("min", "max"):
             if bound in acc and len(acc[bound]) != _COMPONENTS[acc["type"]]:
                 raise _fail(where, f"{at}.{bound} has {len(acc[bound])} values for type {acc['type']}")

@@ -24,11 +24,22 @@ function parseGlb(buffer) {
   const bin = buffer.slice(binStart, binStart + binLen);
   function accessor(i) {
     const a = json.accessors[i];
-    const n = a.count * TYPES[a.type];
+    const nc = TYPES[a.type];
     const Arr = ARRAYS[a.componentType];
-    if (a.bufferView === undefined) return new Arr(n);  // glTF: no bufferView means zeros
-    const v = json.bufferViews[a.bufferView];
-    return new Arr(bin, (v.byteOffset || 0) + (a.byteOffset || 0), n);
+    let out;
+    if (a.bufferView === undefined) out = new Arr(a.count * nc);  // glTF: no bufferView means zeros
+    else {
+      const v = json.bufferViews[a.bufferView];
+      out = new Arr(bin, (v.byteOffset || 0) + (a.byteOffset || 0), a.count * nc);
+    }
+    if (a.sparse) {  // the morph targets are sparse: only the vertices they move
+      const s = a.sparse, iv = json.bufferViews[s.indices.bufferView], vv = json.bufferViews[s.values.bufferView];
+      const idx = new ARRAYS[s.indices.componentType](bin, (iv.byteOffset || 0) + (s.indices.byteOffset || 0), s.count);
+      const vals = new Arr(bin, (vv.byteOffset || 0) + (s.values.byteOffset || 0), s.count * nc);
+      out = Arr.from(out);
+      for (let j = 0; j < s.count; j++) for (let c = 0; c < nc; c++) out[idx[j] * nc + c] = vals[j * nc + c];
+    }
+    return out;
   }
   return {json, accessor};
 }

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import csv
 from pathlib import Path
-from typing import Callable
+from typing import Any, Callable, Mapping, Sequence
 
 import numpy as np
 
@@ -66,26 +66,36 @@ def load_utterances(spec: FitSpec, rows: list[dict[str, str]] | None = None,
                     progress: Callable[[int, int], None] | None = None) -> list[Utterance]:
     """One Utterance per trial with the spec's channels (gaps filled up to max_gap, longer ones masked)."""
     rows = manifest_rows(spec) if rows is None else rows
+    return load_rows(rows, spec.channels, file_column=spec.corpus.file_column, label_map=spec.corpus.label_map,
+                     role_map=spec.corpus.role_map, max_gap=spec.max_gap, where=f"the corpus in {spec.path}",
+                     progress=progress)
+
+
+def load_rows(rows: Sequence[Mapping[str, str | None]], channels: Sequence[str], *, file_column: str = "file",
+              label_map: Any = None, role_map: Any = None, max_gap: float = 0.05, where: str = "the recordings",
+              progress: Callable[[int, int], None] | None = None) -> list[Utterance]:
+    """The trials of ``rows`` (data file in ``file_column``, label file in ``labels``, or None for
+    an EMU bundle's own; other cells become ``meta``) as Utterances with ``channels``: the one
+    loader of the fit, its validation and ``coartic score``."""
     out: list[Utterance] = []
-    col = spec.corpus.file_column
     for i, r in enumerate(rows):
-        path = Path(r[col])
+        path = Path(str(r[file_column]))
         try:
-            trial = load_trial(path, labels=r["labels"], label_map=spec.corpus.label_map,
-                               role_map=spec.corpus.role_map)
-            ch = trial.channels(list(spec.channels), max_gap=spec.max_gap)
+            trial = load_trial(path, labels=r.get("labels"), label_map=label_map, role_map=role_map)
+            ch = trial.channels(list(channels), max_gap=max_gap)
         except DataError as e:
-            raise DataError(f"{e} (trial {i + 1} of the corpus in {spec.path})") from None
+            raise DataError(f"{e} (trial {i + 1} of {where})") from None
         seg = trial.segments
-        assert seg is not None
-        meta = {k: v for k, v in r.items() if k not in (col, "labels")}
+        if seg is None:
+            raise DataError(f"{path}: no labels (trial {i + 1} of {where}): give its label file")
+        meta = {k: str(v) for k, v in r.items() if k not in (file_column, "labels") and v is not None}
         out.append(Utterance(
-            name=r.get("stimulus", path.stem) + (f"#{r['repetition']}" if "repetition" in r else "")
-            + (f"@{r['rate']}" if "rate" in r else ""),
+            name=meta.get("stimulus", path.stem) + (f"#{meta['repetition']}" if "repetition" in meta else "")
+            + (f"@{meta['rate']}" if "rate" in meta else ""),
             labels=seg.labels, starts=np.asarray(seg.starts, dtype=np.float64),
             ends=np.asarray(seg.ends, dtype=np.float64), times=np.asarray(ch.times, dtype=np.float64),
-            observed={c: np.asarray(ch[c], dtype=np.float64) for c in spec.channels},
-            valid={c: np.asarray(ch.valid[c], dtype=bool) for c in spec.channels},
+            observed={c: np.asarray(ch[c], dtype=np.float64) for c in channels},
+            valid={c: np.asarray(ch.valid[c], dtype=bool) for c in channels},
             meta={"file": str(path), **meta}))
         if progress is not None:
             progress(i + 1, len(rows))

@@ -25,7 +25,7 @@ from coartic.fit.spec import FitSpec, SpecError
 from coartic.table import N_PARAMS, PARAMETERS
 
 if TYPE_CHECKING:
-    from coartic.fit.problem import ChannelData, Packing
+    from coartic.fit.problem import ChannelData, Packing, Prior
 
 FloatArray = NDArray[np.float64]
 BoolArray = NDArray[np.bool_]
@@ -44,7 +44,7 @@ class Parameter:
     free: bool
     lower: float
     upper: float
-    prior: tuple[float, float] | None = None  # Gaussian (mean, sd) on the natural value
+    prior: Prior | None = None  # Gaussian (mean, sd, on log values or not)
     stderr: float = math.nan  # after a fit; NaN when fixed or not identified
     at_bound: bool = False
     identified: bool = True
@@ -63,7 +63,7 @@ class ParameterSet(Mapping[str, Parameter]):
 
     def __init__(self, channel: str, phonemes: tuple[str, ...], matrix: FloatArray, free: BoolArray,
                  lower: FloatArray, upper: FloatArray, beta: float, beta_free: bool,
-                 beta_bounds: tuple[float, float], priors: Mapping[str, tuple[float, float]] | None = None,
+                 beta_bounds: tuple[float, float], priors: Mapping[str, Prior] | None = None,
                  stderr: Mapping[str, float] | None = None, at_bound: frozenset[str] = frozenset(),
                  unidentified: frozenset[str] = frozenset(),
                  origins: NDArray[np.object_] | None = None) -> None:
@@ -174,6 +174,7 @@ class ParameterSet(Mapping[str, Parameter]):
         ka = PARAMETERS.index("alpha")
         free[r, ka], base[r, ka] = False, 1.0
 
+        priors = expand_priors(spec, ch, tuple(phon), free, spec.fit_beta and spec.variant == "modified")
         bad = lower > upper
         if bad.any():
             i, k = map(int, np.argwhere(bad)[0])
@@ -188,7 +189,8 @@ class ParameterSet(Mapping[str, Parameter]):
         base = np.where(free, np.clip(base, lower, upper), base)
         beta_free = spec.fit_beta and spec.variant == "modified"
         beta = float(np.clip(beta, *spec.beta_bounds)) if beta_free else beta
-        return cls(ch, tuple(phon), base, free, lower, upper, beta, beta_free, spec.beta_bounds, origins=origin)
+        return cls(ch, tuple(phon), base, free, lower, upper, beta, beta_free, spec.beta_bounds, priors=priors,
+                   origins=origin)
 
     def packing(self) -> Packing:
         """The engines' view: the free entries, their bounds and the transform to x."""
@@ -200,11 +202,12 @@ class ParameterSet(Mapping[str, Parameter]):
     @classmethod
     def from_packing(cls, channel: str, packing: Packing, names: list[str] | None = None,
                      stderr: FloatArray | None = None, at_bound: list[str] | None = None,
-                     unidentified: list[str] | None = None) -> ParameterSet:
+                     unidentified: list[str] | None = None, priors: Mapping[str, Prior] | None = None) -> ParameterSet:
         """The set a packing holds (its base values), with a fit's standard errors by free name."""
         se = dict(zip(names, map(float, stderr))) if names is not None and stderr is not None else {}
         return cls(channel, tuple(packing.phonemes), packing.base.copy(), packing.free.copy(), packing.lower.copy(),
-                   packing.upper.copy(), packing.base_beta, packing.beta_free, packing.beta_bounds, stderr=se,
+                   packing.upper.copy(), packing.base_beta, packing.beta_free, packing.beta_bounds, priors=priors,
+                   stderr=se,
                    at_bound=frozenset(at_bound or ()), unidentified=frozenset(unidentified or ()))
 
     # ------------------------------------------------------------------ output
@@ -217,8 +220,43 @@ class ParameterSet(Mapping[str, Parameter]):
                 continue
             out.append({"channel": self.channel, "phoneme": p.phoneme, "parameter": p.parameter, "value": p.value,
                         "stderr": p.stderr if p.free else "", "free": p.free, "lower": p.lower, "upper": p.upper,
-                        "at_bound": p.at_bound, "unidentified": not p.identified})
+                        "at_bound": p.at_bound, "unidentified": not p.identified,
+                        "prior_mean": p.prior.mean if p.prior else "", "prior_sd": p.prior.sd if p.prior else "",
+                        "prior_scale": ("log" if p.prior.log else "natural") if p.prior else ""})
         return out
+
+
+def expand_priors(spec: FitSpec, channel: str, phonemes: tuple[str, ...], free: BoolArray,
+                  beta_free: bool) -> dict[str, Prior]:
+    """``[parameters.prior]`` per free entry of one channel: "theta_bw" applies to every phoneme whose
+    θ_bw is free, "p.k_r" to one (a more specific key wins). A prior on nothing free is refused; one
+    on a phoneme absent from this channel's data applies to nothing here."""
+    from coartic.fit.problem import Prior
+
+    out: dict[str, Prior] = {}
+    for key in sorted(spec.priors, key=lambda k: "." in k):  # global keys first, specific ones override
+        mean, sd, log = spec.priors[key]
+        phoneme, _, name = key.rpartition(".")
+        if name == BETA:
+            if not beta_free:
+                raise SpecError(f"{spec.path}: [parameters.prior.{key}] beta is not fitted ([model] fit_beta)")
+            out[BETA] = Prior(mean, sd, log)
+            continue
+        k = PARAMETERS.index(name)
+        if phoneme:
+            if phoneme not in phonemes:
+                continue
+            if not free[phonemes.index(phoneme), k]:
+                raise SpecError(f"{spec.path}: [parameters.prior.{key}] {key} is not free on {channel}: a prior on "
+                                "a fixed value would do nothing")
+            out[key] = Prior(mean, sd, log)
+        else:
+            if not free[:, k].any():
+                raise SpecError(f"{spec.path}: [parameters.prior.{key}] {name} is free for no phoneme on {channel}")
+            for i, p in enumerate(phonemes):
+                if free[i, k]:
+                    out[f"{p}.{name}"] = Prior(mean, sd, log)
+    return out
 
 
 def data_targets(data: ChannelData) -> FloatArray:

@@ -25,7 +25,7 @@ sampler (``coartic.mcmc``) share. Its pieces:
 from __future__ import annotations
 
 from dataclasses import dataclass, replace
-from typing import Any, Callable, Sequence
+from typing import Any, Callable, Mapping, Sequence
 
 import numpy as np
 import scipy.sparse as sp
@@ -212,6 +212,112 @@ def build_packing(spec: FitSpec, data: ChannelData, start: tuple[FloatArray, flo
     return ParameterSet.from_spec(spec, data, start).packing()
 
 
+@dataclass(frozen=True)
+class Prior:
+    """A Gaussian prior on one parameter: on its natural value, or (``log``) on its logarithm
+    (``mean`` is then still given in natural units: the prior's median)."""
+
+    mean: float
+    sd: float
+    log: bool = False
+
+
+class Penalty:
+    """Gaussian priors as extra least-squares residuals ``noise · (value − mean) / sd`` (or on log
+    values), one row per prior on a free entry: minimising SSE + Σ rows² is the MAP estimate when
+    the measurement noise has sd ``noise`` (mm). Exact derivatives: d row / dx = noise ·
+    d(value)/dx / sd (natural) or noise / sd (log prior on a log-fitted parameter)."""
+
+    def __init__(self, packing: Packing, priors: Mapping[str, Prior], noise: float) -> None:
+        names = packing.names()
+        keys = [k for k in priors if k in names]
+        self.names = keys
+        self.idx = np.array([names.index(k) for k in keys], dtype=np.int64)
+        self.mean = np.array([priors[k].mean for k in keys], dtype=np.float64)
+        self.sd = np.array([priors[k].sd for k in keys], dtype=np.float64)
+        self.log = np.array([priors[k].log for k in keys], dtype=bool)
+        self.noise = float(noise)
+        self.packing = packing
+
+    @property
+    def size(self) -> int:
+        return int(self.idx.size)
+
+    def residuals(self, x: FloatArray) -> FloatArray:
+        v = self.packing.natural(x)[self.idx]
+        with np.errstate(divide="ignore", invalid="ignore"):
+            z = np.where(self.log, (np.log(np.where(self.log, v, 1.0)) - np.log(np.where(self.log, self.mean, 1.0))),
+                         v - self.mean) / self.sd
+        return self.noise * z
+
+    def jacobian(self, x: FloatArray) -> sp.csr_matrix:
+        v = self.packing.natural(x)[self.idx]
+        dv = self.packing.dvalue_dx(x)[self.idx]
+        with np.errstate(divide="ignore", invalid="ignore"):
+            d = self.noise * np.where(self.log, dv / v, dv) / self.sd
+        return sp.csr_matrix((d, (np.arange(self.size), self.idx)), shape=(self.size, self.packing.n_free))
+
+    def gradient(self, x: FloatArray) -> tuple[float, FloatArray]:
+        """Σ rows² and its gradient in x."""
+        r = self.residuals(x)
+        g = np.zeros(self.packing.n_free)
+        if self.size:
+            g += 2.0 * (self.jacobian(x).T @ r)
+        return float(r @ r), g
+
+
+class Offsets:
+    """Per-utterance offsets b_u (a constant added to the model over utterance u), profiled out of
+    least squares: for given model parameters each b_u has a closed form, so the engines see the
+    same parameters as without offsets and the offsets cost no extra variables.
+
+    With r = sqrt(w)(F − y), S_u = Σ_u sqrt(w) r, W_u = Σ_u w and a Gaussian random effect
+    b_u ~ N(0, τ²) (``lam`` = noise²/τ²; 0 for free offsets), the minimiser is b_u = −S_u/(W_u + lam),
+    the residuals become r + sqrt(w) b_u, plus one row sqrt(lam) b_u per utterance. All of it is
+    linear in r, so the exact Jacobian is J + sqrt(w)·db/dx with db/dx = −A J
+    (A[u, i] = sqrt(w_i)/(W_u + lam) on utterance u's samples), and the profiled SSE is
+    SSE − Σ_u S_u²/(W_u + lam) (what the MCMC likelihood integrates, MODEL.md §5 / docs/MCMC.md).
+    """
+
+    def __init__(self, data: ChannelData, lam: float) -> None:
+        n_utt = len(data.utterances)
+        self.n_utt = n_utt
+        self.utt = np.repeat(np.arange(n_utt), np.diff(data.sample_offsets)).astype(np.int64)
+        self.sqrt_w = np.sqrt(data.weights)
+        self.weight = np.bincount(self.utt, weights=data.weights, minlength=n_utt)
+        self.lam = float(lam)
+        denom = self.weight + self.lam
+        self.inv = np.where(denom > 0, 1.0 / np.where(denom > 0, denom, 1.0), 0.0)
+        n = self.utt.size
+        self.A = sp.csr_matrix((self.sqrt_w * self.inv[self.utt], (self.utt, np.arange(n))), shape=(n_utt, n))
+        self.S = sp.csr_matrix((self.sqrt_w, (np.arange(n), self.utt)), shape=(n, n_utt))
+
+    @property
+    def extra_rows(self) -> int:
+        return self.n_utt if self.lam > 0 else 0
+
+    def offsets(self, r: FloatArray) -> FloatArray:
+        """b_u for the weighted residuals r = sqrt(w)(F − y)."""
+        sums = np.bincount(self.utt, weights=self.sqrt_w * r, minlength=self.n_utt).astype(np.float64)
+        return -sums * self.inv
+
+    def residuals(self, r: FloatArray) -> FloatArray:
+        b = self.offsets(r)
+        out = r + self.sqrt_w * b[self.utt]
+        return np.concatenate([out, np.sqrt(self.lam) * b]) if self.lam > 0 else out
+
+    def jacobian(self, j: sp.csr_matrix) -> sp.csr_matrix:
+        db = -(self.A @ j)
+        out = j + self.S @ db
+        if self.lam > 0:
+            out = sp.vstack([out, np.sqrt(self.lam) * db])
+        return sp.csr_matrix(out)
+
+    def profiled_sse(self, sse: FloatArray, sums: FloatArray) -> FloatArray:
+        """From the core's SSE [W] and Σ_u w (y − F) [W, n_utt]: the SSE with the offsets profiled out."""
+        return sse - np.sum(sums**2 * self.inv[None, :], axis=1)
+
+
 class ChannelProblem:
     """Residuals, Jacobian and SSE of one channel as functions of the internal vector x.
 
@@ -220,10 +326,20 @@ class ChannelProblem:
     raises ValueError) give non-finite residuals, which the engines treat as a rejected step.
     """
 
-    def __init__(self, data: ChannelData, packing: Packing, options: _core.ModelOptions) -> None:
+    def __init__(self, data: ChannelData, packing: Packing, options: _core.ModelOptions,
+                 priors: Mapping[str, Prior] | None = None, prior_noise: float = 1.0,
+                 offset_sd: float | None = None) -> None:
         self.data = data
         self.packing = packing
         self.options = options
+        # Per-utterance offsets (spec [model] offsets): None none, inf free, else their sd τ (mm).
+        self.offset_sd = offset_sd
+        self.offsets = None if offset_sd is None else Offsets(
+            data, 0.0 if np.isinf(offset_sd) else (prior_noise / offset_sd) ** 2)
+        # Gaussian priors (spec [parameters.prior]) on free entries, as extra residual rows.
+        self.priors: dict[str, Prior] = dict(priors or {})
+        self.prior_noise = float(prior_noise)
+        self.penalty = Penalty(packing, self.priors, self.prior_noise)
         self.sqrt_w = np.sqrt(data.weights)
         self.nfev = 0
         self.njev = 0
@@ -275,8 +391,12 @@ class ChannelProblem:
             f = self.evaluate(params, beta)
         except ValueError as e:
             self.last_error = self.explain(e, params)
-            return np.full(self.data.corpus.n_samples, np.nan)
+            return np.full(self.n_residuals, np.nan)
         r = self.sqrt_w * (f - self.data.observed)
+        if self.offsets is not None:
+            r = self.offsets.residuals(r)
+        if self.penalty.size:
+            r = np.concatenate([r, self.penalty.residuals(x)])
         self._track(x, float(r @ r))
         return r
 
@@ -288,19 +408,41 @@ class ChannelProblem:
             _, jac = self.full_jacobian(params, beta)
         except ValueError as e:
             self.last_error = self.explain(e, params)
-            return sp.csr_matrix((self.data.corpus.n_samples, self.packing.n_free))
+            return sp.csr_matrix((self.n_residuals, self.packing.n_free))
         j = jac[:, self.packing.free_columns].tocsr()
         # Row scale sqrt(w) and column scale d(value)/dx applied to the stored entries in place.
         rows = np.repeat(np.arange(j.shape[0]), np.diff(j.indptr))
         j.data *= self.sqrt_w[rows] * self.packing.dvalue_dx(x)[j.indices]
+        if self.offsets is not None:
+            j = self.offsets.jacobian(j)
+        if self.penalty.size:
+            j = sp.vstack([j, self.penalty.jacobian(x)], format="csr")
         return j
 
     def sse(self, x: FloatArray) -> float:
         r = self.residuals(x)
         return float(r @ r) if np.all(np.isfinite(r)) else np.inf
 
+    @property
+    def n_residuals(self) -> int:
+        """Rows of the residual vector: samples, then offset rows (random effects), then priors."""
+        return self.data.corpus.n_samples + (self.offsets.extra_rows if self.offsets else 0) + self.penalty.size
+
+    def utterance_offsets(self, x: FloatArray) -> FloatArray:
+        """The fitted per-utterance offsets b_u (mm) at x (zeros without offsets)."""
+        if self.offsets is None:
+            return np.zeros(len(self.data.utterances))
+        params, beta = self.packing.unpack(x)
+        return self.offsets.offsets(self.sqrt_w * (self.evaluate(params, beta) - self.data.observed))
+
     def sse_gradient(self, x: FloatArray) -> tuple[float, FloatArray]:
-        """SSE and its gradient in x, from the core's fused SSE+gradient (no Jacobian formed)."""
+        """SSE and its gradient in x, from the core's fused SSE+gradient (no Jacobian formed); with
+        offsets, 2 Jᵀr from the profiled residuals and their exact Jacobian."""
+        if self.offsets is not None:
+            r = self.residuals(x)
+            if not np.all(np.isfinite(r)):
+                return np.inf, np.zeros(self.packing.n_free)
+            return float(r @ r), 2.0 * np.asarray(self.jacobian(x).T @ r).ravel()
         self.nfev += 1
         params, beta = self.packing.unpack(x)
         try:
@@ -311,6 +453,9 @@ class ChannelProblem:
             return np.inf, np.zeros(self.packing.n_free)
         full = np.append(np.asarray(grad), dbeta)
         g = full[self.packing.free_columns] * self.packing.dvalue_dx(x)
+        if self.penalty.size:
+            ps, pg = self.penalty.gradient(x)
+            sse, g = sse + ps, g + pg
         if np.isfinite(sse):
             self._track(x, float(sse))
         return float(sse), g
@@ -318,12 +463,20 @@ class ChannelProblem:
     def sse_batch(self, xs: FloatArray) -> FloatArray:
         """SSE for many x at once (rows), through the core's parallel batch path; +inf if invalid."""
         params, betas = self.packing.unpack_batch(xs)
-        return np.asarray(_core.sse_batch(self.data.corpus, params, betas, self.options,
-                                          self.data.observed, self.data.weights))
+        if self.offsets is not None:
+            sse, sums = _core.residual_sums_batch(self.data.corpus, params, betas, self.options,
+                                                  self.data.observed, self.data.weights)
+            out = self.offsets.profiled_sse(np.asarray(sse), np.asarray(sums))
+        else:
+            out = np.asarray(_core.sse_batch(self.data.corpus, params, betas, self.options,
+                                             self.data.observed, self.data.weights))
+        if self.penalty.size:
+            out = out + np.array([float(r @ r) for r in map(self.penalty.residuals, np.atleast_2d(xs))])
+        return out
 
     def with_packing(self, packing: Packing) -> ChannelProblem:
         """A problem on the same data with another free set (staged fits); best point carried."""
-        p = ChannelProblem(self.data, packing, self.options)
+        p = ChannelProblem(self.data, packing, self.options, self.priors, self.prior_noise, self.offset_sd)
         p.nfev, p.njev, p.monitor = self.nfev, self.njev, self.monitor
         return p
 
@@ -335,7 +488,12 @@ def build_problem(spec: FitSpec, utterances: Sequence[Utterance], channel: str,
     data = ChannelData.build(utterances, channel, phonemes)
     # Options from the settings the fitted table will record (spec.channel_settings): one source.
     options = channel_options(spec.variant, spec.channel_settings(channel))
-    return ChannelProblem(data, build_packing(spec, data, start), options)
+    from coartic.fit.parameters import ParameterSet
+
+    ps = ParameterSet.from_spec(spec, data, start)
+    offset_sd = {"none": None, "free": np.inf}.get(str(spec.offsets), spec.offsets)
+    return ChannelProblem(data, ps.packing(), options, ps.priors, spec.prior_noise,
+                          None if offset_sd is None else float(offset_sd))
 
 
 def describe(packing: Packing) -> dict[str, Any]:

@@ -107,9 +107,11 @@ class ChannelFit:
     def parameters(self) -> ParameterSet:
         """The fitted parameter set: values, free, bounds and standard errors (lmfit-style)."""
         st = self.stats
+        pri = self.problem.priors
         if st is None:
-            return ParameterSet.from_packing(self.channel, self.packing)
-        return ParameterSet.from_packing(self.channel, self.packing, st.names, st.stderr, st.at_bound, st.unidentified)
+            return ParameterSet.from_packing(self.channel, self.packing, priors=pri)
+        return ParameterSet.from_packing(self.channel, self.packing, st.names, st.stderr, st.at_bound, st.unidentified,
+                                         priors=pri)
 
     def residuals(self) -> FloatArray:
         """Model − measured on every sample (NaN where masked)."""
@@ -229,6 +231,11 @@ class FitResult:
                       f"    evaluations: {fit.nfev}, wall time {fit.wall_time:.1f} s",
                       f"    samples: {fit.problem.data.n_valid}, free parameters: {len(st.names)}, dof {st.dof}",
                       f"    RMSE: {fit.rmse:.4f} mm ({'below' if fit.rmse < BAR_MM else 'ABOVE'} the {BAR_MM} mm bar)"]
+            if fit.problem.offsets is not None:
+                b = fit.problem.utterance_offsets(fit.x)
+                with_b = float(np.sqrt(np.nanmean((fit.residuals() + b[fit.problem.offsets.utt]) ** 2)))
+                lines.append(f"    per-utterance offsets ([model] offsets = {self.spec.offsets!r}): sd {b.std():.4f} mm, "
+                             f"range {b.min():+.3f} to {b.max():+.3f} mm; RMSE with them {with_b:.4f} mm")
             for s_i, sr in enumerate(fit.stages):
                 lines.append(f"    stage {s_i + 1}: {sr.n_free} free ({', '.join(sr.parameters)}): "
                              f"SSE {sr.sse_start:.4g} -> {sr.sse_end:.4g} [{sr.engine.status}]")
@@ -243,8 +250,10 @@ class FitResult:
                     continue
                 flag = " (at bound)" if prm.at_bound else ""
                 err = f"+/- {prm.stderr:.4g}" if np.isfinite(prm.stderr) else "+/- (not identified)"
+                prior = "" if prm.prior is None else (
+                    f"  prior {'log-' if prm.prior.log else ''}N({prm.prior.mean:.4g}, {prm.prior.sd:.4g})")
                 lines.append(f"        {prm.name:<16} {prm.value:>12.5g} {err}{flag}"
-                             f"  [{prm.lower:.4g}, {prm.upper:.4g}]")
+                             f"  [{prm.lower:.4g}, {prm.upper:.4g}]{prior}")
             c = np.triu(np.nan_to_num(st.corr), 1)
             order = np.argsort(-np.abs(c), axis=None)[:max_corr]
             strong = [(st.names[i], st.names[j], c[i, j]) for i, j in zip(*np.unravel_index(order, c.shape))

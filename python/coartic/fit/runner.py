@@ -150,7 +150,8 @@ def run(spec: FitSpec | str | Path, out: str | Path | None = None, *, utterances
 
         try:
             result.validation = validate_all(spec, None if out is None else Path(out) / "validation",
-                                             utterances=utterances, console=console, quiet=quiet)
+                                             utterances=utterances, console=console, quiet=quiet,
+                                             notes=result.notes)
         except KeyboardInterrupt:
             result.notes.append("validation interrupted by the user")
         except SpecError as e:  # e.g. no repetition or rate to hold out: said, not raised

@@ -8,6 +8,7 @@ See ``fit/template.toml`` for a commented example of every key.
 
 from __future__ import annotations
 
+import math
 import tomllib
 from dataclasses import dataclass, field, replace
 from pathlib import Path
@@ -19,6 +20,8 @@ from coartic.io.roles import RoleMap
 from coartic.table import ALL_CHANNELS, CHANNELS, PARAMETERS, VARIANTS, ChannelSettings
 
 ENGINES: tuple[str, ...] = ("scipy", "nlopt", "casadi")
+# [validate] group: what a k-fold validation holds out together (manifest columns, or the file).
+VALIDATE_GROUPS: tuple[str, ...] = ("utterance", "sentence", "rate", "speaker", "repetition")
 
 # Starting values of the dynamics; targets start from the data (mean value at the target times).
 DEFAULT_START: dict[str, float] = {
@@ -88,6 +91,11 @@ class FitSpec:
     free: tuple[str, ...] = PARAMETERS
     start_table: Path | None = None  # "from table": start values from a ParameterTable JSON
     start: dict[str, float] = field(default_factory=lambda: dict(DEFAULT_START))
+    # Gaussian priors (penalties in least squares): "parameter" (every phoneme) or "phoneme.parameter"
+    # (or "beta") -> (mean, sd, on log values); weighed against prior_noise (mm)
+    priors: dict[str, tuple[float, float, bool]] = field(default_factory=dict)
+    prior_noise: float = 1.0
+    offsets: str | float = "none"  # per-utterance offsets in least squares: "none", "free" or their sd (mm)
     start_given: frozenset[str] = frozenset()  # the [parameters.start] keys the spec gives (checked against bounds)
     bounds: dict[str, tuple[float, float]] = field(default_factory=lambda: dict(DEFAULT_FIT_BOUNDS))
     channel_bounds: dict[str, dict[str, tuple[float, float]]] = field(default_factory=dict)
@@ -98,6 +106,8 @@ class FitSpec:
     staging: bool = True
     stages: tuple[tuple[str, ...], ...] = DEFAULT_STAGES
     max_gap: float = 0.05  # s: gaps up to this are interpolated by the reader, longer ones masked
+    validate_group: str | None = None  # k-fold validation by this grouping (VALIDATE_GROUPS)
+    validate_folds: int | None = None  # None: one fold per group (leave one group out)
     holdout_repetition: int | None = 5
     train_rate: str | None = "normal"
     test_rate: str | None = "fast"
@@ -183,6 +193,39 @@ def _path(base: Path, v: Any, key: str, spec_path: Path) -> Path:
     return p if p.is_absolute() else (base / p)
 
 
+LOG_SCALE_PARAMETERS = ("alpha", "theta_bw", "theta_fw", "psi", "beta")
+
+
+def _priors(d: Any, path: Path) -> dict[str, tuple[float, float, bool]]:
+    """``[parameters.prior]``: key "parameter", "phoneme.parameter" or "beta"; value [mean, sd] on
+    the natural value, or { mean = m, sd = s, scale = "log" } on its logarithm (m its median)."""
+    if not isinstance(d, dict):
+        raise _err(path, "parameters.prior", f"expected a table \"phoneme.parameter\" = [mean, sd], got {d!r}")
+    out: dict[str, tuple[float, float, bool]] = {}
+    for key, v in d.items():
+        where = f"parameters.prior.{key}"
+        name = key.rpartition(".")[2]
+        _param_names((name,), path, where, allow_beta=True)
+        if isinstance(v, list) and len(v) == 2:
+            mean, sd, scale = _float(v[0], path, where), _float(v[1], path, where), "natural"
+        elif isinstance(v, dict):
+            _take(v, path, where, {"mean", "sd", "scale"})
+            if "mean" not in v or "sd" not in v:
+                raise _err(path, where, "needs mean and sd")
+            mean, sd, scale = _float(v["mean"], path, where), _float(v["sd"], path, where), v.get("scale", "natural")
+        else:
+            raise _err(path, where, f"expected [mean, sd] or {{ mean, sd, scale }}, got {v!r}")
+        if scale not in ("natural", "log"):
+            raise _err(path, where, f"scale = {scale!r}: expected \"natural\" or \"log\"")
+        if not (math.isfinite(mean) and math.isfinite(sd) and sd > 0):
+            raise _err(path, where, f"needs a finite mean and a positive sd, got mean {mean}, sd {sd}")
+        if scale == "log" and (name not in LOG_SCALE_PARAMETERS or mean <= 0):
+            raise _err(path, where, f"a log-scale prior needs a positive parameter ({', '.join(LOG_SCALE_PARAMETERS)}) "
+                       f"and a positive mean, got {name} with mean {mean}")
+        out[key] = (mean, sd, scale == "log")
+    return out
+
+
 def read_document(path: Path) -> dict[str, Any]:
     """The TOML document of a spec file, or a SpecError naming the file."""
     try:
@@ -249,7 +292,12 @@ def parse_spec(raw: dict[str, Any], path: Path) -> FitSpec:
 
     m = raw.get("model", {})
     _take(m, path, "model", {"variant", "channels", "reference_phoneme", "apex_fraction", "edge_extent",
-                             "beta", "fit_beta", "beta_bounds"})
+                             "beta", "fit_beta", "beta_bounds", "offsets"})
+    offsets = m.get("offsets", "none")
+    if isinstance(offsets, bool) or not (offsets in ("none", "free") or (
+            isinstance(offsets, (int, float)) and math.isfinite(offsets) and offsets > 0)):
+        raise _err(path, "model.offsets", f"{offsets!r}: expected \"none\", \"free\" or a positive number "
+                   "(the offsets' sd in mm)")
     variant = m.get("variant", "modified")
     if variant not in VARIANTS:
         raise _err(path, "model.variant", f"{variant!r}: expected one of {VARIANTS}")
@@ -275,7 +323,7 @@ def parse_spec(raw: dict[str, Any], path: Path) -> FitSpec:
         raise _err(path, "model.fit_beta", f"expected true or false, got {fit_beta!r}")
 
     p = raw.get("parameters", {})
-    _take(p, path, "parameters", {"free", "start", "start_table", "bounds", "target_margin"})
+    _take(p, path, "parameters", {"free", "start", "start_table", "bounds", "target_margin", "prior", "prior_noise"})
     free = _param_names(_str_list(p.get("free", list(PARAMETERS)), path, "parameters.free"), path, "parameters.free")
     start = dict(DEFAULT_START)
     start_given = _param_values(p.get("start", {}), path, "parameters.start")
@@ -293,6 +341,10 @@ def parse_spec(raw: dict[str, Any], path: Path) -> FitSpec:
         if k in ("alpha", "theta_bw", "theta_fw", "psi") and lo <= 0:
             raise _err(path, f"parameters.bounds.{k}", f"low {lo} must be > 0 (fitted on a log scale)")
     margin = _float(p.get("target_margin", 5.0), path, "parameters.target_margin")
+    priors = _priors(p.get("prior", {}), path)
+    prior_noise = _float(p.get("prior_noise", 1.0), path, "parameters.prior_noise")
+    if not (prior_noise > 0 and math.isfinite(prior_noise)):
+        raise _err(path, "parameters.prior_noise", f"{prior_noise} must be a positive number (mm)")
 
     overrides: list[Override] = []
     ov_raw = raw.get("override", [])
@@ -348,16 +400,26 @@ def parse_spec(raw: dict[str, Any], path: Path) -> FitSpec:
     max_gap = _float(g.get("max_gap", 0.05), path, "gaps.max_gap")
 
     v = raw.get("validate", {})
-    _take(v, path, "validate", {"holdout_repetition", "train_rate", "test_rate"})
+    _take(v, path, "validate", {"holdout_repetition", "train_rate", "test_rate", "group", "folds"})
     hold = v.get("holdout_repetition", 5)
-    if hold is not None and not isinstance(hold, int):
+    if hold is not None and (isinstance(hold, bool) or not isinstance(hold, int)):
         raise _err(path, "validate.holdout_repetition", f"expected an integer, got {hold!r}")
+    group = v.get("group")
+    if group is not None and group not in VALIDATE_GROUPS:
+        raise _err(path, "validate.group", f"{group!r}: expected one of {', '.join(VALIDATE_GROUPS)}")
+    folds = v.get("folds")
+    if folds is not None and (isinstance(folds, bool) or not isinstance(folds, int) or folds < 2):
+        raise _err(path, "validate.folds", f"expected an integer >= 2, got {folds!r}")
+    if folds is not None and group is None:
+        raise _err(path, "validate.folds", "needs group = \"utterance\" (or sentence, rate, speaker, repetition)")
 
     return FitSpec(
         path=path, name=str(name), corpus=corpus, channels=channels, variant=variant,
         reference_phoneme=reference, apex_fraction=apex, edge_extent=edge,
         beta=_float(m.get("beta", 1.0), path, "model.beta"), fit_beta=fit_beta, beta_bounds=beta_bounds,
-        free=free, start_table=start_table, start=start, start_given=frozenset(start_given), bounds=bounds, channel_bounds=channel_bounds,
+        free=free, start_table=start_table, start=start, start_given=frozenset(start_given), bounds=bounds,
+        priors=priors, prior_noise=prior_noise, offsets=offsets if isinstance(offsets, str) else float(offsets), channel_bounds=channel_bounds,
         target_margin=margin, overrides=tuple(overrides), engine=engine, engine_options=dict(engine_options),
-        staging=staging, stages=stages, max_gap=max_gap, holdout_repetition=hold,
+        staging=staging, stages=stages, max_gap=max_gap, holdout_repetition=hold, validate_group=group,
+        validate_folds=folds,
         train_rate=v.get("train_rate", "normal"), test_rate=v.get("test_rate", "fast"))

@@ -1,22 +1,28 @@
-"""Validation beyond the training data: held-out repetition, and the other speaking rate.
+"""Validation beyond the training data: k-fold by a grouping, held-out repetition, the other rate.
 
-Fit on repetitions other than ``holdout_repetition`` and report RMSE on it; fit on ``train_rate``
-and report RMSE on ``test_rate`` (the model's claim is that the same parameters hold at a faster
-rate). Each split is a full fit of every channel (``run`` with the split's utterances).
+With ``[validate] group`` ("utterance", "sentence", "rate", "speaker" or "repetition") and
+optionally ``folds``: the groups are dealt into k folds and each fold is held out once (default
+one fold per group; "utterance" needs no manifest). Otherwise: fit on repetitions other than
+``holdout_repetition`` and report RMSE on it; fit on ``train_rate`` and report RMSE on
+``test_rate`` (the model's claim is that the same parameters hold at a faster rate). Each split is
+a full fit of every channel (``run`` with the split's utterances), scored by
+``coartic.fit.score`` (as measured and with each utterance's offset removed).
 """
 
 from __future__ import annotations
 
 import csv
+import io
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Sequence
 
 import numpy as np
 from rich.console import Console
+from rich.markup import escape
 from rich.table import Table
 
-from coartic.fit.problem import ChannelData, Utterance
+from coartic.fit.problem import Utterance
 from coartic.fit.result import BAR_MM, FitResult
 from coartic.fit.spec import FitSpec, SpecError
 
@@ -29,35 +35,82 @@ class SplitScore:
     test_rmse: float
     test_samples: int
     worst_vowel: tuple[str, float]
+    test_rmse_offset_removed: float = float("nan")  # after removing each test utterance's offset
+    train_sse: float = float("nan")
+    train_samples: int = 0
+    n_free: int = 0
 
 
 def score(result: FitResult, test: Sequence[Utterance], split: str) -> list[SplitScore]:
-    """RMSE of the fitted parameters on utterances the fit did not see."""
+    """RMSE of the fitted table on utterances the fit did not see (``coartic.fit.score``)."""
+    from coartic.fit.score import score_utterances
+
+    table = result.table()
     out = []
     for ch, fit in result.channels.items():
-        known = set(fit.phonemes)
-        unknown = sorted({lab for u in test for lab in u.labels} - known)
+        unknown = sorted({lab for u in test for lab in u.labels} - set(fit.phonemes))
         if unknown:
-            raise ValueError(f"{split}: the test utterances contain phonemes the training fit never saw: {unknown}")
-        data = ChannelData.build(test, ch, fit.phonemes)
-        f = fit.problem.__class__(data, fit.packing, fit.problem.options).evaluate(fit.params, fit.beta)
-        r2 = np.where(data.weights > 0, (f - data.observed) ** 2, 0.0)
-        per_utt = np.add.reduceat(r2, data.sample_offsets[:-1])
-        cnt = np.add.reduceat(data.weights, data.sample_offsets[:-1])
+            raise UnseenPhonemes(f"{split}: the test utterances contain phonemes the training fit never saw: {unknown}")
+        sc = score_utterances(table, test, [ch])
         by_vowel: dict[str, list[float]] = {}
-        for u, utt in enumerate(data.utterances):
+        for u, utt in enumerate(sc.utterances):
+            r = sc.residuals(ch, u)
             a = by_vowel.setdefault(utt.meta.get("vowel", "?"), [0.0, 0.0])
-            a[0] += per_utt[u]
-            a[1] += cnt[u]
+            a[0] += float(np.nansum(r**2))
+            a[1] += float(np.isfinite(r).sum())
         vowel_rmse = {v: float(np.sqrt(s / n)) for v, (s, n) in by_vowel.items() if n}
         worst = max(vowel_rmse.items(), key=lambda kv: kv[1])
-        out.append(SplitScore(split, ch, fit.rmse, float(np.sqrt(r2.sum() / data.weights.sum())),
-                              int(data.weights.sum()), worst))
+        row = sc.channel_rows()[0]
+        n = fit.problem.data.n_valid
+        out.append(SplitScore(split, ch, fit.rmse, row["rmse_mm"], row["samples"], worst, row["rmse_offset_removed_mm"],
+                              fit.rmse**2 * n, n, fit.packing.n_free))
+    return out
+
+
+class UnseenPhonemes(ValueError):
+    """A held-out utterance has a phoneme its training split lacks: the table cannot predict it."""
+
+
+def group_of(u: Utterance, group: str, spec: FitSpec) -> str:
+    """The value of ``[validate] group`` for an utterance: its manifest column, the sentence (or
+    stimulus), or for "utterance" its file."""
+    if group == "utterance":
+        return u.meta.get("file") or u.name
+    keys = ("sentence", "stimulus") if group == "sentence" else (group,)
+    for k in keys:
+        if k in u.meta:
+            v = u.meta[k]
+            return str(int(v)) if group == "repetition" and v.isdigit() else v
+    raise SpecError(f"{spec.path}: [validate] group = {group!r}: the corpus has no {' or '.join(map(repr, keys))} "
+                    "column (a manifest column), so its utterances cannot be grouped by it")
+
+
+def kfold_splits(spec: FitSpec, utterances: Sequence[Utterance]) -> list[tuple[str, list[Utterance], list[Utterance]]]:
+    """k-fold splits by ``[validate] group``: the groups (sorted) dealt round-robin into
+    ``folds`` folds (default one per group: leave one group out); each fold is held out once."""
+    group = spec.validate_group
+    assert group is not None
+    values = [group_of(u, group, spec) for u in utterances]
+    groups = sorted(set(values), key=_natural)
+    if len(groups) < 2:
+        raise SpecError(f"{spec.path}: [validate] group = {group!r}: the corpus has only one {group} "
+                        f"({groups[0] if groups else 'none'}), nothing to hold out")
+    k = min(spec.validate_folds or len(groups), len(groups))
+    out = []
+    for j in range(k):
+        held = set(groups[j::k])
+        test = [u for u, v in zip(utterances, values) if v in held]
+        train = [u for u, v in zip(utterances, values) if v not in held]
+        shown = ", ".join(Path(g).name if group == "utterance" else g for g in groups[j::k])
+        out.append((f"fold {j + 1}/{k} ({group} {shown} held out)", train, test))
     return out
 
 
 def splits(spec: FitSpec, utterances: Sequence[Utterance]) -> list[tuple[str, list[Utterance], list[Utterance]]]:
-    """(name, train, test) for each validation the spec asks for and the corpus allows."""
+    """(name, train, test) for each validation the spec asks for and the corpus allows: the
+    k-fold splits of ``[validate] group`` if given, else the held-out repetition and the rate."""
+    if spec.validate_group is not None:
+        return kfold_splits(spec, utterances)
     out = []
     if spec.holdout_repetition is not None:
         rep = str(spec.holdout_repetition)
@@ -73,8 +126,15 @@ def splits(spec: FitSpec, utterances: Sequence[Utterance]) -> list[tuple[str, li
     if not out:
         raise SpecError(f"{spec.path}: [validate] the corpus has no repetition {spec.holdout_repetition} / "
                         f"rates {spec.train_rate!r}, {spec.test_rate!r} to hold out (manifest columns "
-                        "'repetition' and 'rate')")
+                        "'repetition' and 'rate'); or give group = \"utterance\" (k-fold by any grouping)")
     return out
+
+
+def _natural(v: str) -> tuple[int, float | str]:
+    try:
+        return (0, float(v))
+    except ValueError:
+        return (1, v)
 
 
 def _rep(u: Utterance) -> str | None:
@@ -88,7 +148,11 @@ def _rep(u: Utterance) -> str | None:
 
 
 def validate_all(spec: FitSpec, out: str | Path | None = None, utterances: Sequence[Utterance] | None = None,
-                 console: Console | None = None, quiet: bool = False) -> list[SplitScore]:
+                 console: Console | None = None, quiet: bool = False,
+                 notes: list[str] | None = None) -> list[SplitScore]:
+    """Fit each split's training utterances and score its held-out ones; ``out`` receives one
+    directory per split and ``validation.csv``. A fold whose held-out utterances have a phoneme
+    its training lacks cannot be scored: it is skipped with a note (in ``notes``)."""
     from coartic.fit.runner import run
 
     if utterances is None:
@@ -98,30 +162,61 @@ def validate_all(spec: FitSpec, out: str | Path | None = None, utterances: Seque
     scores: list[SplitScore] = []
     for name, train, test in splits(spec, utterances):
         if console is not None and not quiet:
-            console.print(f"[bold]validation[/bold]: {name} ({len(train)} trials to fit, {len(test)} to test)")
-        sub = Path(out) / name.replace(" ", "_").replace(",", "") if out is not None else None
+            console.print(f"[bold]validation[/bold]: {escape(name)} ({len(train)} trials to fit, {len(test)} to test)")
+        sub = Path(out) / _dirname(name) if out is not None else None
         res = run(spec, sub, utterances=train, console=console, quiet=quiet, report=False)
-        scores += score(res, test, name)
+        try:
+            scores += score(res, test, name)
+        except UnseenPhonemes as e:
+            if notes is None:
+                raise
+            notes.append(f"validation: {e}; not scored")
         if res.interrupted:
             break
     if out is not None:
+        from coartic.outputs import atomic_write_text
+
         Path(out).mkdir(parents=True, exist_ok=True)
-        with (Path(out) / "validation.csv").open("w", newline="") as f:
-            w = csv.writer(f)
-            w.writerow(["split", "channel", "train_rmse_mm", "test_rmse_mm", "test_samples", "worst_vowel",
-                        "worst_vowel_rmse_mm"])
-            for s in scores:
-                w.writerow([s.split, s.channel, repr(s.train_rmse), repr(s.test_rmse), s.test_samples,
-                            s.worst_vowel[0], repr(s.worst_vowel[1])])
+        buf = io.StringIO()
+        w = csv.writer(buf, lineterminator="\n")
+        w.writerow(["split", "channel", "train_rmse_mm", "test_rmse_mm", "test_rmse_offset_removed_mm", "test_samples",
+                    "worst_vowel", "worst_vowel_rmse_mm"])
+        for sc in scores:
+            w.writerow([sc.split, sc.channel, repr(sc.train_rmse), repr(sc.test_rmse), repr(sc.test_rmse_offset_removed),
+                        sc.test_samples, sc.worst_vowel[0], repr(sc.worst_vowel[1])])
+        atomic_write_text(Path(out) / "validation.csv", buf.getvalue())
     return scores
+
+
+def pooled(scores: Sequence[SplitScore]) -> dict[str, tuple[float, float, int]]:
+    """Per channel, the held-out RMSE over every split's test samples together (as measured,
+    offset removed, samples): the one number a k-fold validation gives."""
+    acc: dict[str, list[float]] = {}
+    for sc in scores:
+        a = acc.setdefault(sc.channel, [0.0, 0.0, 0.0])
+        a[0] += sc.test_rmse**2 * sc.test_samples
+        a[1] += sc.test_rmse_offset_removed**2 * sc.test_samples
+        a[2] += sc.test_samples
+    return {ch: (float(np.sqrt(s / n)), float(np.sqrt(so / n)), int(n)) for ch, (s, so, n) in acc.items() if n}
+
+
+def _dirname(split: str) -> str:
+    return "".join(c if c.isalnum() or c in "-_." else "_" for c in split).strip("_")
 
 
 def validation_table(scores: Sequence[SplitScore]) -> Table:
     t = Table(title=f"Validation RMSE (mm) on data the fit did not see — bar {BAR_MM} mm")
-    for c in ("split", "channel", "train", "test", "worst vowel (test)"):
+    for c in ("split", "channel", "train", "test", "test, offset removed", "worst vowel (test)"):
         t.add_column(c, justify="left" if c in ("split", "channel") else "right")
-    for s in scores:
-        col = "green" if s.test_rmse < BAR_MM else "red"
-        t.add_row(s.split, s.channel, f"{s.train_rmse:.3f}", f"[{col}]{s.test_rmse:.3f}[/{col}]",
-                  f"{s.worst_vowel[1]:.3f} ({s.worst_vowel[0]})")
+
+    def cell(v: float) -> str:
+        col = "green" if v < BAR_MM else "red"
+        return f"[{col}]{v:.3f}[/{col}]"
+
+    for sc in scores:
+        t.add_row(escape(sc.split), sc.channel, f"{sc.train_rmse:.3f}", cell(sc.test_rmse),
+                  cell(sc.test_rmse_offset_removed), f"{sc.worst_vowel[1]:.3f} ({escape(sc.worst_vowel[0])})")
+    if len({sc.split for sc in scores}) > 1:
+        for ch, (rm, ro, _) in pooled(scores).items():
+            t.add_row("[bold]all splits pooled[/bold]", ch, "", cell(rm), cell(ro), "")
     return t

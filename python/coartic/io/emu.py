@@ -90,6 +90,10 @@ def read_emu_bundle(
         raise DataError(f"cannot read the bundle: {e}", path=p) from None
     except json.JSONDecodeError as e:
         raise DataError(f"not valid JSON: {e.msg}", path=p, line=e.lineno) from None
+    except RecursionError:
+        raise DataError("JSON nested too deeply to be an EMU bundle", path=p) from None
+    except ValueError as e:  # e.g. an integer of more than 4300 digits
+        raise DataError(f"not a usable JSON document: {e}", path=p) from None
     if not isinstance(bundle, dict) or not isinstance(bundle.get("ssffFiles"), list):
         raise DataError("not an EMU bundle (no 'ssffFiles' list)", path=p)
     sensors: dict[str, dict[str, NDArray[Any]]] = {}
@@ -117,6 +121,9 @@ def read_emu_bundle(
         for name, c in pos.items():
             m = _POS.match(name)
             assert m is not None
+            if c.dtype.kind not in "iuf":
+                raise DataError(f"track {ext!r}: position column {name!r} holds {c.dtype} "
+                                "(CHAR), not numbers", path=p, item=name)
             sensors.setdefault(m.group("sensor"), {})[m.group("axis")] = c[:, 0].astype(np.float64)
     if not sensors or rate is None or start is None:
         raise DataError("the bundle has no SSFF track with <sensor>_posx/_posy/_posz columns", path=p)

@@ -38,3 +38,14 @@ class DataError(CoarticError, ValueError):
 class DataWarning(UserWarning):
     """Data that reads but looks wrong (implausible values, axes that seem swapped): the result may
     be wrong, so the CLI prints it; `warnings.simplefilter("error", DataWarning)` makes it an error."""
+
+
+def parse_json(text: str, path: str | PathLike[str]) -> object:
+    """A small JSON file (label or role map) read as strictly as a parameter table: duplicate keys
+    (json keeps the last silently), deep nesting and unreadable numbers are a DataError."""
+    from coartic.table import TableError, parse_json as parse_table_json
+
+    try:
+        return parse_table_json(text, str(path))
+    except TableError as e:
+        raise DataError(str(e).removeprefix(f"{path}: "), path=path) from None

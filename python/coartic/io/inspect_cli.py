@@ -21,7 +21,7 @@ def inspect_command(
     file: Annotated[Path, typer.Argument(help="C3D, marker CSV/TSV or EMA CSV file.")],
     labels: Annotated[Optional[Path], typer.Option(help="Label file: TextGrid, .lab or TSV.")] = None,
     label_map: Annotated[Optional[str], typer.Option(
-        help="Label map: a built-in name (model, german_sampa) or a TSV/JSON file.")] = None,
+        help="Label map: a built-in name (model, german_sampa, english_arpabet) or a TSV/JSON file.")] = None,
     role_map: Annotated[Optional[Path], typer.Option(
         help="JSON role map: which marker/sensor is NOSE, UL, LL, JAW...; EMA axes.")] = None,
     tier: Annotated[Optional[str], typer.Option(help="TextGrid tier (default: first interval tier).")] = None,
@@ -152,16 +152,13 @@ def plot_trial(trial: Trial, channels: Channels | None, out: Path) -> None:
         ax.plot(t, v, lw=1.0, color="C0")
         ax.set_ylabel(f"{name}\n(mm)", rotation=0, ha="right", va="center", fontsize=8)
         ax.grid(alpha=0.3)
-        if trial.segments is not None:
-            for s in trial.segments.starts:
-                ax.axvline(s, color="0.7", lw=0.5)
+    note = ""
     if trial.segments is not None:
-        top = axes[0, 0]
-        for lab, s, e in zip(trial.segments.labels, trial.segments.starts, trial.segments.ends):
-            top.text((s + e) / 2, 1.02, lab, transform=top.get_xaxis_transform(), ha="center",
-                     va="bottom", fontsize=7)
+        from coartic.runtime.preview import mark_segments  # the one bounded way to mark segments
+
+        note = mark_segments(list(axes[:, 0]), trial.segments, color="0.7", fontsize=7)
     axes[-1, 0].set_xlabel("time (s)")
-    fig.suptitle(str(trial.source.name if trial.source else "trial"), y=1.0)
+    fig.suptitle(" ".join(part for part in (trial.source.name if trial.source else "trial", note) if part), y=1.0)
     fig.tight_layout()
     fig.savefig(out, dpi=110)
     plt.close(fig)

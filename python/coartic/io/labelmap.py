@@ -16,7 +16,6 @@ corpus labels maps them the same way.
 
 from __future__ import annotations
 
-import json
 import re
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
@@ -25,7 +24,7 @@ from os import PathLike
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from coartic.io.errors import DataError
+from coartic.io.errors import DataError, parse_json
 from coartic.io.labels import Segments
 
 if TYPE_CHECKING:
@@ -115,10 +114,7 @@ class LabelMap:
         except (OSError, UnicodeDecodeError) as e:
             raise DataError(f"cannot read the label map: {e}", path=p) from None
         if p.suffix.lower() == ".json":
-            try:
-                d = json.loads(text)
-            except json.JSONDecodeError as e:
-                raise DataError(f"not valid JSON: {e.msg}", path=p, line=e.lineno) from None
+            d = parse_json(text, p)
             if not isinstance(d, dict):
                 raise DataError("a JSON label map must be one object {label: phoneme}", path=p)
             return cls.from_dict(d, str(p))

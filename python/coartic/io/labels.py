@@ -366,8 +366,8 @@ def _parse_xlabel(lines: list[str], hash_line: int, path: Path) -> Segments:
 def parse_tsv(text: str, path: Path) -> Segments:
     """`start end label` in seconds, tab- (or else whitespace-) separated, optional header line.
 
-    A header is a first line whose first two fields hold no digit ("start end label", "tmin tmax
-    text"): a first line with a malformed number is an error, not a header. Every line must have a
+    A header is a first line whose first two fields do not start like numbers ("start end label",
+    "t0 t1 text"): a first line with a malformed number ("0.0x") is an error, not a header. Every line must have a
     label column (with tabs, an empty cell is an empty label, i.e. a pause, as Praat writes it)."""
     labels: list[str] = []
     starts: list[float] = []
@@ -383,7 +383,8 @@ def parse_tsv(text: str, path: Path) -> Segments:
         try:
             start, end = float(fields[0]), float(fields[1])
         except ValueError:
-            header = not any(ch.isdigit() for ch in fields[0] + fields[1])
+            # a header's first two fields are words ("start", "t0"); "0.0x" is a broken number
+            header = not any(f and (f[0].isdigit() or f[0] in "+-.") for f in fields[:2])
             if header and not labels and not where:  # a header line
                 where.append(None)
                 continue

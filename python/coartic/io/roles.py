@@ -8,14 +8,13 @@ upwards) or "-y" (forwards is decreasing y).
 
 from __future__ import annotations
 
-import json
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from os import PathLike
 from pathlib import Path
 from typing import Any
 
-from coartic.io.errors import DataError
+from coartic.io.errors import DataError, parse_json
 
 MARKER_ROLES = ("NOSE", "EAR_L", "EAR_R", "UL", "LL", "LC_L", "LC_R", "CHIN")
 EMA_ROLES = ("UL", "LL", "JAW", "LC", "LC_L", "LC_R")
@@ -101,11 +100,10 @@ class RoleMap:
     def from_file(cls, path: str | PathLike[str]) -> RoleMap:
         p = Path(path)
         try:
-            d = json.loads(p.read_text(encoding="utf-8"))
+            text = p.read_text(encoding="utf-8")
         except (OSError, UnicodeDecodeError) as e:
             raise DataError(f"cannot read the role map: {e}", path=p) from None
-        except json.JSONDecodeError as e:
-            raise DataError(f"not valid JSON: {e.msg}", path=p, line=e.lineno) from None
+        d = parse_json(text, p)
         if not isinstance(d, dict):
             raise DataError('a role map is a JSON object {"UL": "<marker>", ...}', path=p)
         return cls.from_dict(d, str(p))
@@ -147,7 +145,7 @@ def resolve_role_map(spec: RoleMap | Mapping[str, Any] | str | PathLike[str] | N
     if isinstance(spec, RoleMap):
         return spec
     if isinstance(spec, Mapping):
-        return RoleMap.from_dict(spec)
+        return RoleMap.from_dict(spec, "the role map given")
     return RoleMap.from_file(spec)
 
 

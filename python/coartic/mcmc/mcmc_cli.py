@@ -136,8 +136,13 @@ def mcmc_output(spec: Path, fit: Path, table_path: Path, out: Path, force: bool 
         raise OutputError(f"--out {out}: is {where} fit directory {fit_dir}; the MCMC table would overwrite the "
                           "least-squares one, and a new fit replaces that directory whole. Choose an output "
                           f"directory beside it, e.g. --out {fit_dir.with_name(fit_dir.name + '_mcmc')}")
+    def legacy(d: Path) -> bool:
+        # chains written before coartic_run.json: resumed as before (each posterior's chains/meta.json
+        # still refuses chains of another posterior), not deleted by a --force the user had to give
+        return (d / "mcmc.json").is_file() or any(d.glob("*/*/chains/meta.json"))
+
     return OutputDir(out, "mcmc", {"spec": str(spec.resolve()), "fit": str(table_abs.resolve())},
-                     force=force, staged=False, protect=[spec, table_path])
+                     force=force, staged=False, protect=[spec, table_path], recognise=legacy)
 
 
 STALE_TOLERANCE = 0.01

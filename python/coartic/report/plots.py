@@ -15,6 +15,7 @@ from numpy.typing import NDArray  # noqa: E402
 
 from coartic.fit.result import BAR_MM, ChannelFit, FitResult  # noqa: E402
 from coartic.model import Utterance, segment_weights  # noqa: E402
+from coartic.runtime.preview import MAX_SEGMENT_BOUNDARIES, MAX_SEGMENT_LABELS  # noqa: E402
 from coartic.table import ParameterTable  # noqa: E402
 
 # The paper's Figure 1: lower lip opening for /a d a/, /a dz a/, /a l a/.
@@ -37,6 +38,10 @@ def pick_utterances(fit: ChannelFit, stimuli: Sequence[str], rate: str = "normal
 SIDE_BY_SIDE_SEGMENTS = 8
 LABEL_FONT = 8  # points
 MIN_SEGMENT_WIDTH_IN = 0.22  # the median segment gets at least this much width (inches)
+# Bounded work for very long utterances (the same bounds as the runtime's plots): boundaries as one
+# line collection up to MAX_SEGMENT_BOUNDARIES, labels up to MAX_SEGMENT_LABELS segments, and the
+# weight panel (segments x samples values) up to MAX_WEIGHT_VALUES; past them left out, and said.
+MAX_WEIGHT_VALUES = 20_000_000
 
 
 def utterance_title(utt: Utterance) -> str:
@@ -124,10 +129,25 @@ def _bottom_legend(fig: Figure, handles: list[Any], labels: list[str], title: st
                frameon=False, handlelength=1.2, columnspacing=0.9)
 
 
+def _boundaries(axes: Sequence[Any], utt: Utterance) -> None:
+    """Segment boundaries, one line collection per axis (none past MAX_SEGMENT_BOUNDARIES)."""
+    if len(utt.labels) - 1 > MAX_SEGMENT_BOUNDARIES:
+        return
+    for ax in axes:
+        ax.vlines(np.asarray(utt.starts)[1:], 0.0, 1.0, transform=ax.get_xaxis_transform(), colors="0.85",
+                  lw=0.6, zorder=0)
+
+
 def _label_and_title(axes: Sequence[Any], utts: Sequence[Utterance], titles: Sequence[str], width_in: float) -> None:
-    """Segment labels, then the title above them, on each utterance's top panel."""
+    """Segment labels, then the title above them, on each utterance's top panel; what a very long
+    utterance leaves out is said in its title."""
     for ax, utt, title in zip(axes, utts, titles):
-        lines = segment_labels(ax, utt.labels, utt.starts, utt.ends, width_in)
+        n = len(utt.labels)
+        left_out = [what for what, limit in (("boundaries", MAX_SEGMENT_BOUNDARIES + 1), ("labels", MAX_SEGMENT_LABELS))
+                    if n > limit]
+        lines = segment_labels(ax, utt.labels, utt.starts, utt.ends, width_in) if n <= MAX_SEGMENT_LABELS else 0
+        if left_out:
+            title += f"   ({n} segments: {' and '.join(left_out)} not drawn)"
         ax.set_title(title, fontsize=9, pad=6 + lines * (LABEL_FONT + 1))
 
 
@@ -153,12 +173,15 @@ def trajectory_figure(fit: ChannelFit, table: ParameterTable, utterances: Sequen
         top.plot(t, y, ".", ms=3, color="0.35", label="measured")
         top.plot(t, fit.fitted[sl], "-", color="C3", lw=1.6, label="model")
         rm = float(np.sqrt(np.nanmean((fit.fitted[sl] - y) ** 2)))
-        w = segment_weights(table, d.channel, list(utt.labels), utt.starts, utt.ends, t)
-        for i, (lab, s, e) in enumerate(zip(utt.labels, utt.starts, utt.ends)):
-            for ax in (top, bottom):
-                ax.axvline(s, color="0.85", lw=0.6, zorder=0)
-            bottom.plot(t, w[i], lw=1.2, color=colours[lab])
-            bottom.fill_between(t, 0, w[i], alpha=0.12, color=colours[lab])
+        _boundaries((top, bottom), utt)
+        if len(utt.labels) <= MAX_SEGMENT_LABELS and len(utt.labels) * len(t) <= MAX_WEIGHT_VALUES:
+            w = segment_weights(table, d.channel, list(utt.labels), utt.starts, utt.ends, t)
+            for i, lab in enumerate(utt.labels):
+                bottom.plot(t, w[i], lw=1.2, color=colours[lab])
+                bottom.fill_between(t, 0, w[i], alpha=0.12, color=colours[lab])
+        else:
+            bottom.text(0.5, 0.5, f"weights not drawn: {len(utt.labels)} segments x {len(t)} samples",
+                        transform=bottom.transAxes, ha="center", va="center", fontsize=8)
         top.set_xlim(float(t[0]), float(t[-1]))
         bottom.set_ylim(0, 1.05)
         bottom.set_xlabel("time (s)")
@@ -222,8 +245,7 @@ def residual_time_figure(result: FitResult, names: Sequence[str]) -> Figure | No
             if np.any(np.isfinite(r)):
                 lim = max(lim, float(np.nanmax(np.abs(r))))
                 parts.append(f"{ch} {float(np.sqrt(np.nanmean(r ** 2))):.2f}")
-        for s in utt.starts:
-            ax.axvline(s, color="0.85", lw=0.6, zorder=0)
+        _boundaries((ax,), utt)
         for b in (-BAR_MM, BAR_MM):
             ax.axhline(b, color="C3", ls="--", lw=0.7)
         ax.axhline(0, color="0.4", lw=0.6)
@@ -243,18 +265,18 @@ def phoneme_rmse(fit: ChannelFit) -> dict[str, tuple[float, int]]:
     """RMSE (mm) and sample count of the samples inside each phoneme's segments."""
     d = fit.problem.data
     r = fit.residuals()
-    sse: dict[str, float] = {}
-    cnt: dict[str, int] = {}
+    index = {p: k for k, p in enumerate(d.phonemes)}
+    sse = np.zeros(len(d.phonemes))
+    cnt = np.zeros(len(d.phonemes))
     for u, utt in enumerate(d.utterances):
         ru = r[d.utterance_samples(u)]
-        seg = np.searchsorted(np.asarray(utt.starts), utt.times, side="right") - 1
-        inside = (seg >= 0) & (utt.times < np.asarray(utt.ends)[np.clip(seg, 0, None)]) & np.isfinite(ru)
-        for i, lab in enumerate(utt.labels):
-            m = inside & (seg == i)
-            if m.any():
-                sse[lab] = sse.get(lab, 0.0) + float(np.sum(ru[m] ** 2))
-                cnt[lab] = cnt.get(lab, 0) + int(m.sum())
-    return {p: (float(np.sqrt(sse[p] / cnt[p])), cnt[p]) for p in d.phonemes if cnt.get(p)}
+        starts, ends = np.asarray(utt.starts), np.asarray(utt.ends)
+        seg = np.searchsorted(starts, utt.times, side="right") - 1
+        inside = (seg >= 0) & (utt.times < ends[np.clip(seg, 0, None)]) & np.isfinite(ru)
+        ph = np.array([index[lab] for lab in utt.labels], dtype=np.int64)[seg[inside]]
+        sse += np.bincount(ph, weights=ru[inside] ** 2, minlength=len(sse))
+        cnt += np.bincount(ph, minlength=len(cnt))
+    return {p: (float(np.sqrt(sse[k] / cnt[k])), int(cnt[k])) for p, k in index.items() if cnt[k]}
 
 
 def phoneme_rmse_figure(result: FitResult) -> Figure | None:

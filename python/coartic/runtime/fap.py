@@ -71,6 +71,11 @@ HIGH_LEVEL_FAPS: tuple[int, ...] = (1, 2)
 MW_FAPS: frozenset[int] = frozenset({6, 7, 53, 54})
 LIP_JAW_FAPS: tuple[int, ...] = tuple(sorted({*_INNER, *CORNER_LIFTS, *OUTER_TWIN}))
 FAP_CHANNELS: tuple[str, ...] = ("ULO", "LLO", "ULP", "LLP", "LR", "JO")
+# FAP values are integers that players read as 32-bit; beyond that a value wraps (the int64 cast of
+# 1e21 FAPU gave INT64_MIN). docs/LIMITS.md.
+FAP_VALUE_LIMIT = 2**31 - 1
+# MNS and MW of a face, mm: a face unit outside this is a typo (--mns 1e-300), not a face.
+FACE_UNIT_RANGE_MM = (1.0, 1000.0)
 
 
 @dataclass(frozen=True)
@@ -81,9 +86,13 @@ class FaceUnits:
     mw_mm: float = 50.0
 
     def __post_init__(self) -> None:
+        lo, hi = FACE_UNIT_RANGE_MM
         for name, value in (("mns_mm", self.mns_mm), ("mw_mm", self.mw_mm)):
             if not (math.isfinite(value) and value > 0.0):
                 raise AnimationError(f"face unit {name} must be a positive length in mm, got {value!r}")
+            if not lo <= value <= hi:
+                raise AnimationError(f"face unit {name} = {value:g} mm is not a face's (a mouth-nose "
+                                     f"separation or mouth width lies within {lo:g}-{hi:g} mm)")
 
     @property
     def mns(self) -> float:
@@ -178,7 +187,17 @@ def channels_to_faps(
         if fap == 3:
             # open_jaw is unidirectional in MPEG-4: the jaw does not close past the neutral face.
             mm = np.maximum(mm, 0.0)
-        values[:, fap - 1] = np.rint(mm / face.unit_of(fap)).astype(np.int64)
+        with np.errstate(over="ignore", invalid="ignore"):
+            fapu = np.rint(mm / face.unit_of(fap))
+        over = ~(np.abs(fapu) <= FAP_VALUE_LIMIT)
+        if over.any():
+            k = int(np.flatnonzero(over)[0])
+            raise AnimationError(
+                f"FAP {fap} ({FAP_NAMES[fap - 1]}) would be {fapu[k]:.4g} FAPU at frame {k} "
+                f"({channel} {mm[k] / factor:+.6g} mm from the neutral face, FAPU {face.unit_of(fap):.4g} mm), "
+                f"beyond the ±{FAP_VALUE_LIMIT} a FAP file holds: check the table's {channel} targets "
+                "and the face units (--mns, --mw)")
+        values[:, fap - 1] = fapu.astype(np.int64)
         mask[:, fap - 1] = True
     for fap in CORNER_LIFTS:
         mask[:, fap - 1] = True

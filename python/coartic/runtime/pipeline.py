@@ -93,6 +93,16 @@ def copy_audio(src: str | PathLike[str], dest: Path) -> tuple[Path, float]:
     return dest, wav_duration(dest)
 
 
+def check_text(text: str) -> str:
+    """Text Festival can be given whole: a NUL ends a C string (Festival said only what came before
+    it), and other control characters are not speech; tabs and line breaks are spaces."""
+    for i, ch in enumerate(text):
+        if unicodedata.category(ch) == "Cc" and ch not in "\t\n\r":
+            raise AnimationError(f"the text to speak holds the control character {ch!r} at position {i + 1}: "
+                                 "Festival would cut or garble it; remove it")
+    return text
+
+
 def _check_preview(preview: str) -> None:
     if preview not in PREVIEW_FORMATS:
         raise AnimationError(f"preview must be one of {', '.join(PREVIEW_FORMATS)}, got {preview!r}")
@@ -224,6 +234,7 @@ def speak_text(
     `animation.substitutions`) unless `strict`.
     """
     _check_preview(preview)
+    check_text(text)
     out = Path(out)
     pmap = phone_map or PhoneMap.load()
     name = check_name(name) if name is not None else _name_from(text)

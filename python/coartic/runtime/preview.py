@@ -32,6 +32,7 @@ from numpy.typing import NDArray  # noqa: E402
 from PIL import Image  # noqa: E402
 from rich.progress import Progress  # noqa: E402
 
+from coartic.io.labels import Segments  # noqa: E402
 from coartic.runtime.animate import Animation, neutral_posture, target_times  # noqa: E402
 from coartic.runtime.errors import AnimationError  # noqa: E402
 from coartic.table import CHANNELS, PAUSE, ParameterTable  # noqa: E402
@@ -44,6 +45,11 @@ CHIN_BELOW_LIPS = 35.0  # mm, neutral lip midline to chin
 NOSE_ABOVE_LIPS = 30.0  # mm, the default MNS
 _N = 41  # points per contour
 GIF_MAX_FRAMES = 1500  # one minute at 25 fps
+# Segment marks on a time axis: boundaries as one line collection per axis, labels as text. Past
+# these counts they are not drawn (and the figure says so): 5000 segments drawn one artist each took
+# 42 s per figure, a million hung in Agg beyond the reach of Ctrl-C. docs/LIMITS.md.
+MAX_SEGMENT_BOUNDARIES = 2000
+MAX_SEGMENT_LABELS = 300
 LIP = "#b5404a"
 MOUTH = "#2a0e12"
 SKIN = "#f0c9a8"
@@ -198,12 +204,7 @@ def _frames(animation: Animation, neutral: Mapping[str, float], title: str) -> I
     trace.set_ylabel("ULO+LLO (mm)", fontsize=7)
     trace.tick_params(labelsize=6)
     trace.set_xlim(0, max(animation.duration, 1e-3))
-    seg = animation.segments
-    for lab, s, e in zip(seg.labels, seg.starts, seg.ends):
-        trace.axvline(s, color="0.8", lw=0.5)
-        if lab != PAUSE:
-            trace.text(0.5 * (s + e), 1.0, lab, transform=trace.get_xaxis_transform(), ha="center",
-                       va="bottom", fontsize=6)
+    mark_segments([trace], animation.segments, color="0.8", fontsize=6, label_y=1.0)
     cursor = trace.axvline(0.0, color="k", lw=1)
     caption = fig.suptitle("", fontsize=9)
     # Blitting: everything that does not move (axes, trace, labels, nose) is drawn once and kept as a
@@ -308,22 +309,30 @@ def _write_mp4(
     h, w = first.shape[:2]
     cmd = [ffmpeg, "-y", "-loglevel", "error", "-f", "rawvideo", "-pix_fmt", "rgb24", "-s", f"{w}x{h}",
            "-r", repr(float(fps)), "-i", "-"]
+    # "file:" makes every path a path: ffmpeg reads "-odd/x.mp4" as an option and "take:2/x.mp4"
+    # as a protocol otherwise
     if audio is not None:
-        cmd += ["-i", str(audio), "-c:a", "aac", "-b:a", "96k"]
+        cmd += ["-i", f"file:{audio}", "-c:a", "aac", "-b:a", "96k"]
     # veryfast: the preview is for looking at, and x264's default preset makes the encoder the bottleneck
-    cmd += ["-vf", "pad=ceil(iw/2)*2:ceil(ih/2)*2", "-pix_fmt", "yuv420p", "-preset", "veryfast", "-f", "mp4", str(path)]
+    cmd += ["-vf", "pad=ceil(iw/2)*2:ceil(ih/2)*2", "-pix_fmt", "yuv420p", "-preset", "veryfast", "-f", "mp4",
+            f"file:{path}"]
     proc = subprocess.Popen(cmd, stdin=subprocess.PIPE, stderr=subprocess.PIPE)
     assert proc.stdin is not None
     try:
         for rgb in _chain(first, frames):
             proc.stdin.write(rgb.tobytes())
             advance()
+    except BrokenPipeError:
+        pass  # ffmpeg stopped reading: its exit code and message say why, below
     finally:
-        proc.stdin.close()
+        try:
+            proc.stdin.close()
+        except BrokenPipeError:
+            pass
         err = proc.stderr.read().decode(errors="replace") if proc.stderr else ""
         code = proc.wait()
     if code != 0:
-        raise AnimationError(f"ffmpeg failed writing {path} (exit {code}): {err.strip()[-300:]}")
+        raise AnimationError(f"ffmpeg failed writing {path} (exit {code}): {err.strip()[-300:] or 'no message'}")
 
 
 def _chain(first: NDArray[np.uint8], rest: Iterator[NDArray[np.uint8]]) -> Iterator[NDArray[np.uint8]]:
@@ -375,20 +384,14 @@ def plot_channels(animation: Animation, path: str | Path, title: str = "") -> Pa
     names: Sequence[str] = [c for c in CHANNELS if c in animation.modelled]
     fig, axes = plt.subplots(len(names), 1, figsize=(8, 1.3 * len(names) + 0.6), sharex=True, dpi=100)
     axes = np.atleast_1d(axes)
-    seg = animation.segments
     for ax, c in zip(axes, names):
         ax.plot(animation.times, animation.channels[c], color=LIP, lw=1.2)
         ax.set_ylabel(f"{c} (mm)", fontsize=8)
         ax.tick_params(labelsize=7)
-        for s in seg.starts[1:]:
-            ax.axvline(s, color="0.85", lw=0.5)
-    for lab, s, e in zip(seg.labels, seg.starts, seg.ends):
-        if lab != PAUSE:
-            axes[0].text(0.5 * (s + e), 1.02, lab, transform=axes[0].get_xaxis_transform(), ha="center",
-                         va="bottom", fontsize=7)
+    note = mark_segments(list(axes), animation.segments, color="0.85", fontsize=7)
     axes[-1].set_xlabel("time (s)")
-    if title:
-        fig.suptitle(title, fontsize=9)
+    if title or note:
+        fig.suptitle("   ".join(t for t in (title, note) if t), fontsize=9)
     fig.tight_layout()
     path = Path(path)
     tmp = path.with_name(path.stem + ".part.png")
@@ -396,3 +399,28 @@ def plot_channels(animation: Animation, path: str | Path, title: str = "") -> Pa
     plt.close(fig)
     os.replace(tmp, path)
     return path
+
+
+def mark_segments(
+    axes: Sequence[Axes], segments: Segments, *, color: str = "0.85", fontsize: float = 7,
+    label_y: float = 1.02,
+) -> str:
+    """Segment boundaries on every axis and the (non-pause) labels above the first, with bounded
+    work: one line collection per axis, nothing past MAX_SEGMENT_BOUNDARIES / _LABELS segments.
+    Returns what was left out ("" when everything was drawn), for the figure's title."""
+    n = len(segments)
+    left_out = []
+    if n - 1 <= MAX_SEGMENT_BOUNDARIES:
+        for ax in axes:
+            ax.vlines(segments.starts[1:], 0.0, 1.0, transform=ax.get_xaxis_transform(), colors=color,
+                      lw=0.5, zorder=0)
+    else:
+        left_out.append("boundaries")
+    if n <= MAX_SEGMENT_LABELS:
+        for lab, s, e in zip(segments.labels, segments.starts, segments.ends):
+            if lab != PAUSE:
+                axes[0].text(0.5 * (s + e), label_y, lab, transform=axes[0].get_xaxis_transform(),
+                             ha="center", va="bottom", fontsize=fontsize)
+    else:
+        left_out.append("labels")
+    return f"({n} segments: {' and '.join(left_out)} not drawn)" if left_out else ""

@@ -33,7 +33,7 @@ MwOpt = Annotated[float | None, typer.Option("--mw", help="The speaker's neutral
 SnapOpt = Annotated[bool, typer.Option("--snap-contacts/--no-snap-contacts", help="Show each k_R = 1 target (lip closure, lip-teeth contact) on its nearest frame.")]
 StrictOpt = Annotated[bool, typer.Option("--strict", help="Refuse phonemes the table lacks instead of using the fallbacks of phones_italian.tsv.")]
 PreviewOpt = Annotated[str, typer.Option("--preview", help=f"Preview format: {', '.join(PREVIEW_FORMATS)}.")]
-GltfOpt = Annotated[bool, typer.Option("--gltf", help="Also write NAME.glb: the face with one morph target per FAP and their animation (coartic view DIR plays it).")]
+GltfOpt = Annotated[bool, typer.Option("--gltf", help="Also write NAME.glb: the face with morph targets per FAP and their animation (coartic view DIR plays it).")]
 VrmlOpt = Annotated[bool, typer.Option("--vrml", help="Also write NAME.wrl: the face animated in VRML97 (interpolators, the sound as an AudioClip).")]
 FapNameOpt = Annotated[str | None, typer.Option("--fap-name", help="Name of the FAP file and its header; the WAV and glTF get the same stem (Greta loads NAME.fap with NAME.wav).")]
 ForceOpt = Annotated[bool, typer.Option("--force", help="Replace --out even if it holds another run's output "
@@ -76,7 +76,8 @@ def _report(result: RuntimeOutput) -> None:
     _out.print(summary)
     if a.at_rest:
         _err.print(f"[yellow]note:[/] the table has no channel(s) {', '.join(a.at_rest)}: held at rest "
-                   "(the neutral face) in the FAP file and preview, left out of channels.csv", highlight=False)
+                   "(the neutral face) in the FAP file and preview, left out of channels.csv", highlight=False,
+                   soft_wrap=True)
     if a.substitutions:
         subs = ", ".join(f"/{k}/ (shown as /{v}/)" for k, v in a.substitutions.items())
         _err.print(f"[yellow]note:[/] the table has no {subs}: the fallbacks of phones_italian.tsv "
@@ -99,7 +100,7 @@ def animate_command(
     out: OutOpt,
     fps: FpsOpt = 25.0,
     tier: Annotated[str | None, typer.Option("--tier", help="TextGrid tier with the phones (default: the first interval tier).")] = None,
-    label_map: Annotated[str | None, typer.Option("--label-map", help="Corpus labels → model phonemes: a built-in map name or a TSV/JSON file.")] = None,
+    label_map: Annotated[str | None, typer.Option("--label-map", help="Corpus labels → model phonemes: a built-in map name or a TSV/JSON file (default: the map the table was fitted with).")] = None,
     mns: MnsOpt = None,
     mw: MwOpt = None,
     preview: PreviewOpt = "gif",

@@ -1,6 +1,7 @@
 """SciPy ``least_squares`` (trust-region reflective) with the Rust core's sparse Jacobian.
 
-The fast default engine. Options (spec ``[engine.options]``): ``max_nfev`` (default 200),
+The fast default engine. Options (spec ``[engine.options]``): ``max_nfev`` (default SciPy's, 100 x
+the number of free parameters),
 ``ftol``/``xtol``/``gtol`` (1e-8), ``loss`` ('linear'; 'soft_l1' etc. for outliers),
 ``tr_solver`` ('exact' densifies J, robust for the few hundred parameters of a channel; 'lsmr'
 keeps it sparse: much faster on a whole corpus, where J has ~1e5 rows; default 'lsmr', and
@@ -57,8 +58,10 @@ def minimize(problem: ChannelProblem, x0: NDArray[np.float64], options: dict[str
     if tr_solver == "exact":
         def jac(x: NDArray[np.float64]) -> NDArray[np.float64]:
             return problem.jacobian(x).toarray()
-    kw: dict[str, Any] = dict(method="trf", x_scale="jac", max_nfev=200, ftol=1e-8, xtol=1e-8, gtol=1e-8,
-                              tr_solver=tr_solver)
+    # No evaluation cap of our own: least_squares' default (100 x free parameters) lets a fit end
+    # converged. A cap of 200 ended one-utterance fits of real EMA at max-evaluations (stage 2
+    # needed 690-950 evaluations; docs/FITTING.md), while whole corpora converge in ~110.
+    kw: dict[str, Any] = dict(method="trf", x_scale="jac", ftol=1e-8, xtol=1e-8, gtol=1e-8, tr_solver=tr_solver)
     kw.update(opts)
     try:
         res = least_squares(problem.residuals, x0, jac=jac, bounds=(lo, hi), **kw)

@@ -1,0 +1,178 @@
+"""Does a fitted table predict speech it was not fitted on? (issue 10 item 5)
+
+With the product's own fitting (``coartic.fit.run`` and ``coartic.fit.validate``, exactly what
+``coartic fit --validate`` does), for each model variant the core offers:
+
+1. **Gestures flavour** of the synthetic session (``coartic corpus synth DIR --flavour gestures``:
+   critically damped gestures, data the model did not make), channels LLO and JO, fit/synthetic.toml:
+   fit the normal rate and score the fast rate; fit repetitions 1-4 and score repetition 5.
+2. **German EMA** (fit/ema_german.toml, two utterances of speaker mo1), leave one utterance out. The
+   two utterances share only 12 of their phonemes (0020 has /p t/ that 0024 lacks, 0024 has
+   /O g u m S v d/ that 0020 lacks), so the held-out utterance cannot be predicted as a whole. What is
+   measured instead: the shared phonemes' parameters are fixed at the training fit, only the
+   phonemes the training utterance lacks are fitted on the held-out one ("transfer"), and the RMSE
+   is reported on the samples inside shared-phoneme segments and on all samples, next to a fit of
+   the held-out utterance on its own (every phoneme free: the in-sample floor).
+
+Not part of `make test` (tens of CPU minutes). Output in bench/results/generalisation.txt:
+
+    coartic corpus synth build/gestures --flavour gestures
+    .venv/bin/python bench/generalisation.py build/gestures/manifest.csv
+
+``--variants`` picks among original, modified, rate-aware (plateau dominance + handover,
+docs/VARIANTS.md; skipped with a note while the core has no such option); ``--skip-gestures`` /
+``--skip-german`` run one half.
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import os
+import sys
+import tempfile
+import time
+from pathlib import Path
+from typing import Any, Sequence
+
+import numpy as np
+
+from coartic.fit import load_spec, run
+from coartic.fit.data import load_utterances
+from coartic.fit.problem import ChannelData, Utterance
+from coartic.fit.spec import FitSpec, Override
+from coartic.fit.validate import score, splits
+from coartic.table import PARAMETERS
+
+ROOT = Path(__file__).resolve().parents[1]
+# Model options of each variant, as FitSpec fields.
+VARIANTS: dict[str, dict[str, Any]] = {
+    "original": {"variant": "original"},
+    "modified": {"variant": "modified"},
+    "rate-aware": {"variant": "modified", "dominance": "plateau", "plateau_fraction": 0.5, "handover": True},
+}
+
+
+def variant_spec(spec: FitSpec, name: str) -> FitSpec | None:
+    """The spec with the variant's options, or None when this build's FitSpec lacks one of them."""
+    fields = {f.name for f in dataclasses.fields(FitSpec)}
+    opts = VARIANTS[name]
+    if not set(opts) <= fields:
+        return None
+    return spec.with_options(**opts)
+
+
+def gestures(manifest: Path, variants: Sequence[str], channels: tuple[str, ...], out: list[str]) -> None:
+    base = load_spec(ROOT / "fit" / "synthetic.toml")
+    base = base.with_options(corpus=dataclasses.replace(base.corpus, manifest=manifest.resolve()), channels=channels)
+    utts = load_utterances(base)
+    out.append(f"## gestures flavour: {manifest.parent.name}, {len(utts)} trials, fit/synthetic.toml, "
+               f"channels {' '.join(channels)}")
+    out.append(f"{'variant':11s} {'split':36s} {'channel':7s} {'train':>7s} {'test':>7s} {'-offset':>7s}  "
+               "worst vowel  at a bound (fit of the split)")
+    for name in variants:
+        spec = variant_spec(base, name)
+        if spec is None:
+            out.append(f"{name:11s} (skipped: this core/FitSpec has no {sorted(VARIANTS[name])} options)")
+            print(out[-1], flush=True)
+            continue
+        for split, train, test in splits(spec, utts):
+            t0 = time.process_time()
+            res = run(spec, utterances=train, quiet=True, report=False)
+            for s in score(res, test, split):
+                fit = res.channels[s.channel]
+                at = fit.stats.at_bound if fit.stats is not None else []
+                off = getattr(s, "test_rmse_offset_removed", float("nan"))  # each test utterance's offset removed
+                out.append(f"{name:11s} {split:36s} {s.channel:7s} {s.train_rmse:7.3f} {s.test_rmse:7.3f} {off:7.3f}  "
+                           f"{s.worst_vowel[1]:.3f} ({s.worst_vowel[0]})  {len(at)}: {' '.join(at)}")
+                print(out[-1], flush=True)
+            out.append(f"{'':11s} ({time.process_time() - t0:.0f} s CPU)")
+
+
+def _rmse(f: np.ndarray, data: ChannelData, keep: np.ndarray, offset: bool = False) -> float:
+    w = data.weights * keep
+    r = f - data.observed
+    if offset:
+        r = r - np.sum(w * r) / np.sum(w)
+    return float(np.sqrt(np.sum(w * r**2) / np.sum(w)))
+
+
+def german(variants: Sequence[str], out: list[str]) -> None:
+    base = load_spec(ROOT / "fit" / "ema_german.toml")
+    utts = load_utterances(base)
+    out.append(f"## German EMA (fit/ema_german.toml), leave one utterance out; RMSE (mm) on the held-out "
+               "utterance")
+    out.append("shared segs: samples inside segments of phonemes both utterances have (pauses excluded); "
+               "-offset: after removing the mean residual there")
+    out.append(f"{'variant':11s} {'held out':30s} {'ch':3s} {'shared':>6s} {'transfer':>9s} {'-offset':>8s} "
+               f"{'own fit':>8s} {'transfer':>9s} {'own fit':>8s}  unseen phonemes (fitted on the held-out one)")
+    out.append(f"{'':11s} {'':30s} {'':3s} {'phon.':>6s} {'shared segs':>27s} {'all samples':>18s}")
+    for name in variants:
+        spec = variant_spec(base, name)
+        if spec is None:
+            out.append(f"{name:11s} (skipped: this core/FitSpec has no {sorted(VARIANTS[name])} options)")
+            continue
+        for k, held in enumerate(utts):
+            train = [u for j, u in enumerate(utts) if j != k]
+            trained = run(spec, utterances=train, quiet=True, report=False)
+            own = run(spec, utterances=[held], quiet=True, report=False)
+            for ch in spec.channels:
+                fit = trained.channels[ch]
+                known = set(fit.phonemes)
+                shared = sorted(known & set(held.labels))
+                unseen = sorted(set(held.labels) - known)
+                # Every parameter of a shared phoneme fixed at the training fit; the others fitted.
+                row = {p: i for i, p in enumerate(fit.phonemes)}
+                fixes = tuple(Override(phonemes=(p,), channels=(ch,),
+                                       fixed={par: float(fit.params[row[p], j]) for j, par in enumerate(PARAMETERS)})
+                              for p in shared)
+                tspec = spec.with_options(channels=(ch,), overrides=spec.overrides + fixes)
+                transfer = run(tspec, utterances=[held], quiet=True, report=False).channels[ch]
+                mine = own.channels[ch]
+                data = transfer.problem.data
+                # Samples inside segments of shared phonemes (the ones the training fit can speak for).
+                keep = np.zeros_like(data.weights)
+                t = held.times
+                for lab, s, e in zip(held.labels, held.starts, held.ends):
+                    if lab in shared and lab != "#":
+                        keep[(t >= s) & (t < e)] = 1.0
+                ft = transfer.problem.evaluate(transfer.params, transfer.beta)
+                fo = mine.problem.evaluate(mine.params, mine.beta)
+                ones = np.ones_like(keep)
+                out.append(f"{name:11s} {held.name:30s} {ch:3s} {len(shared):6d} {_rmse(ft, data, keep):9.3f} "
+                           f"{_rmse(ft, data, keep, offset=True):8.3f} {_rmse(fo, mine.problem.data, keep):8.3f} {_rmse(ft, data, ones):9.3f} "
+                           f"{_rmse(fo, mine.problem.data, ones):8.3f}  {' '.join(unseen)}")
+                print(out[-1], flush=True)
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("manifest", type=Path, nargs="?", help="manifest.csv of a --flavour gestures session")
+    ap.add_argument("--variants", default=",".join(VARIANTS))
+    ap.add_argument("--channels", default="LLO,JO")
+    ap.add_argument("--skip-gestures", action="store_true")
+    ap.add_argument("--skip-german", action="store_true")
+    ap.add_argument("--out", type=Path, default=ROOT / "bench" / "results" / "generalisation.txt")
+    a = ap.parse_args()
+    variants = a.variants.split(",")
+    bad = sorted(set(variants) - set(VARIANTS))
+    if bad:
+        ap.error(f"--variants: unknown {bad} (choose from {', '.join(VARIANTS)})")
+    if not a.skip_gestures and a.manifest is None:
+        ap.error("give the gestures session's manifest.csv (or --skip-gestures)")
+    lines = ["# bench/generalisation.py: RMSE (mm) of fitted tables on data the fit did not see"]
+    if not a.skip_gestures:
+        gestures(a.manifest, variants, tuple(a.channels.split(",")), lines)
+    if not a.skip_german:
+        german(variants, lines)
+    a.out.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(dir=a.out.parent, prefix=a.out.name + ".")
+    with os.fdopen(fd, "w") as f:
+        f.write("\n".join(lines) + "\n")
+    os.replace(tmp, a.out)
+    print(f"wrote {a.out}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,213 @@
+"""Model comparison: several fit specs side by side, by held-out RMSE and by AIC/BIC.
+
+``compare(specs, out)`` fits every spec (``coartic.fit.run`` with its validation: the k-fold of
+``[validate] group`` or the held-out repetition and rate) and tabulates per spec and channel: free
+parameters, in-sample RMSE, held-out RMSE (pooled over the splits, as measured and with each
+utterance's offset removed), and the Gaussian information criteria of the full fit
+
+    AIC = n ln(SSE/n) + 2k,    BIC = n ln(SSE/n) + k ln n
+
+(n valid samples, k free parameters; lower is better, and only differences between specs fitted
+to the same samples mean anything, so specs on different data are flagged). ``out`` receives one
+directory per spec (its fit, as ``coartic fit`` writes it, without the HTML report), and
+``compare.csv``, ``compare.txt``, ``compare.png`` and ``compare.html``. ``coartic compare`` is the
+command over it.
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+import math
+from dataclasses import dataclass, field
+from os import PathLike
+from pathlib import Path
+from typing import Any, Sequence
+
+from rich.console import Console
+
+from coartic.fit.result import BAR_MM, FitResult
+from coartic.fit.spec import FitSpec, load_spec
+
+
+@dataclass
+class Row:
+    model: str  # the spec's name and file
+    channel: str
+    n_free: int
+    n_samples: int
+    sse: float
+    rmse: float  # in-sample, mm
+    heldout_rmse: float = math.nan  # pooled over the validation splits, mm
+    heldout_rmse_offset_removed: float = math.nan
+    status: str = ""
+
+    @property
+    def aic(self) -> float:
+        return self.n_samples * math.log(self.sse / self.n_samples) + 2 * self.n_free
+
+    @property
+    def bic(self) -> float:
+        return self.n_samples * math.log(self.sse / self.n_samples) + self.n_free * math.log(self.n_samples)
+
+    def as_dict(self) -> dict[str, Any]:
+        return {"model": self.model, "channel": self.channel, "free_parameters": self.n_free,
+                "samples": self.n_samples, "rmse_mm": self.rmse, "heldout_rmse_mm": self.heldout_rmse,
+                "heldout_rmse_offset_removed_mm": self.heldout_rmse_offset_removed, "aic": self.aic,
+                "bic": self.bic, "status": self.status}
+
+
+@dataclass
+class Comparison:
+    models: list[str]
+    rows: list[Row]
+    results: list[FitResult]
+    notes: list[str] = field(default_factory=list)
+
+    def best(self, channel: str, key: str) -> str | None:
+        """The model with the lowest ``key`` ("heldout_rmse", "aic", "bic", "rmse") on ``channel``."""
+        cands = [r for r in self.rows if r.channel == channel and math.isfinite(getattr(r, key))]
+        return min(cands, key=lambda r: getattr(r, key)).model if cands else None
+
+    def channels(self) -> list[str]:
+        return list(dict.fromkeys(r.channel for r in self.rows))
+
+    def text(self) -> str:
+        lines = [f"[[Comparison]] {len(self.models)} models"]
+        lines += [f"    note: {n}" for n in self.notes]
+        for ch in self.channels():
+            lines.append(f"[[{ch}]]  (best held-out: {self.best(ch, 'heldout_rmse')}, best BIC: {self.best(ch, 'bic')})")
+            for r in self.rows:
+                if r.channel == ch:
+                    lines.append(f"    {r.model}: k {r.n_free}, RMSE {r.rmse:.4f} mm, held-out {r.heldout_rmse:.4f} mm "
+                                 f"(offset removed {r.heldout_rmse_offset_removed:.4f}), AIC {r.aic:.1f}, "
+                                 f"BIC {r.bic:.1f} [{r.status}]")
+        return "\n".join(lines) + "\n"
+
+    def save(self, out: str | PathLike[str]) -> dict[str, Path]:
+        from coartic.outputs import atomic_write_text
+
+        out = Path(out)
+        out.mkdir(parents=True, exist_ok=True)
+        paths = {"csv": out / "compare.csv", "text": out / "compare.txt", "figure": out / "compare.png",
+                 "html": out / "compare.html"}
+        buf = io.StringIO()
+        w = csv.DictWriter(buf, fieldnames=list(self.rows[0].as_dict()), lineterminator="\n")
+        w.writeheader()
+        for r in self.rows:
+            w.writerow({k: (repr(v) if isinstance(v, float) else v) for k, v in r.as_dict().items()})
+        atomic_write_text(paths["csv"], buf.getvalue())
+        atomic_write_text(paths["text"], self.text())
+        comparison_figure(self, paths["figure"])
+        atomic_write_text(paths["html"], self.html(paths["figure"].name))
+        return paths
+
+    def html(self, figure: str) -> str:
+        """A page with the table and the figure; every text from specs and data escaped."""
+        import jinja2
+
+        env = jinja2.Environment(autoescape=True)
+        page = env.from_string(_PAGE)
+        return page.render(models=self.models, rows=[r.as_dict() for r in self.rows], notes=self.notes,
+                           figure=figure, bar=BAR_MM,
+                           best={ch: (self.best(ch, "heldout_rmse"), self.best(ch, "bic")) for ch in self.channels()})
+
+
+_PAGE = """<!doctype html>
+<html><head><meta charset="utf-8"><title>coartic: model comparison</title>
+<style>body{font-family:sans-serif;margin:2em}table{border-collapse:collapse}td,th{border:1px solid #ccc;
+padding:3px 8px;text-align:right}td:first-child,td:nth-child(2){text-align:left}.best{font-weight:bold}</style>
+</head><body>
+<h1>Model comparison</h1>
+<p>Held-out RMSE: pooled over the validation splits (data each fit did not see). AIC/BIC: of the fit to
+all data, Gaussian errors; lower is better, differences matter only on the same samples. The paper's bar: {{ bar }} mm.</p>
+{% for n in notes %}<p><em>note:</em> {{ n }}</p>{% endfor %}
+<table><tr><th>model</th><th>channel</th><th>free</th><th>samples</th><th>RMSE (mm)</th><th>held-out RMSE (mm)</th>
+<th>held-out, offset removed</th><th>AIC</th><th>BIC</th><th>status</th></tr>
+{% for r in rows %}<tr><td>{{ r.model }}</td><td>{{ r.channel }}</td><td>{{ r.free_parameters }}</td><td>{{ r.samples }}</td>
+<td>{{ '%.4f' % r.rmse_mm }}</td>
+<td{% if best[r.channel][0] == r.model %} class="best"{% endif %}>{{ '%.4f' % r.heldout_rmse_mm }}</td>
+<td>{{ '%.4f' % r.heldout_rmse_offset_removed_mm }}</td><td>{{ '%.1f' % r.aic }}</td>
+<td{% if best[r.channel][1] == r.model %} class="best"{% endif %}>{{ '%.1f' % r.bic }}</td><td>{{ r.status }}</td></tr>
+{% endfor %}</table>
+<p><img src="{{ figure }}" alt="held-out and in-sample RMSE per model and channel"></p>
+</body></html>
+"""
+
+
+def comparison_figure(cmp: Comparison, path: Path) -> Path:
+    """Grouped bars per channel: in-sample (light) and held-out (dark) RMSE of each model."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    import numpy as np
+
+    from coartic.outputs import atomic_path
+
+    chans = cmp.channels()
+    fig, axes = plt.subplots(1, len(chans), figsize=(max(4.0, 1.2 * len(cmp.models) + 2) * len(chans), 4),
+                             squeeze=False)
+    for ax, ch in zip(axes[0], chans):
+        rows = [r for r in cmp.rows if r.channel == ch]
+        x = np.arange(len(rows))
+        ax.bar(x - 0.2, [r.rmse for r in rows], 0.4, color="#9ecae1", label="in-sample")
+        ax.bar(x + 0.2, [r.heldout_rmse for r in rows], 0.4, color="#3182bd", label="held-out")
+        ax.axhline(BAR_MM, color="red", lw=0.8, ls="--")
+        ax.set_xticks(x, [f"{i + 1}" for i in range(len(rows))])
+        ax.set_xlabel("model (numbered as in the table)")
+        ax.set_ylabel(f"{ch} RMSE (mm)")
+        ax.legend(fontsize=7)
+    fig.tight_layout()
+    with atomic_path(path) as tmp:
+        fig.savefig(tmp, dpi=100, format="png")
+    plt.close(fig)
+    return path
+
+
+def compare(specs: Sequence[FitSpec | str | PathLike[str]], out: str | PathLike[str] | None = None, *,
+            validate: bool = True, console: Console | None = None, quiet: bool = True) -> Comparison:
+    """Fit each spec (with its validation) and compare them; with ``out``, write everything there."""
+    from coartic.fit.runner import run
+    from coartic.fit.validate import pooled
+
+    from coartic.fit.runner import check_engine_options
+
+    loaded = [s if isinstance(s, FitSpec) else load_spec(Path(s)) for s in specs]
+    if len(loaded) < 1:
+        raise ValueError("no spec to compare")
+    for s in loaded:  # every spec's mistakes before the first fit, not after it
+        check_engine_options(s)
+    models: list[str] = []
+    for i, s in enumerate(loaded):
+        models.append(f"{i + 1}. {s.name} ({s.path.name})")
+    rows: list[Row] = []
+    results: list[FitResult] = []
+    cmp = Comparison(models, rows, results)
+    for model, s in zip(models, loaded):
+        if console is not None and not quiet:
+            console.print(f"[bold]compare[/bold]: fitting {model}", highlight=False)
+        sub = None if out is None else Path(out) / _dirname(model)
+        res = run(s, sub, validate=validate, report=False, console=console, quiet=quiet)
+        results.append(res)
+        cmp.notes += [f"{model}: {n}" for n in res.notes]
+        held = pooled(res.validation or [])
+        for ch, fit in res.channels.items():
+            n = fit.problem.data.n_valid
+            h = held.get(ch, (math.nan, math.nan, 0))
+            rows.append(Row(model, ch, fit.packing.n_free, n, fit.rmse**2 * n, fit.rmse, h[0], h[1], fit.status))
+        if res.interrupted:
+            cmp.notes.append(f"interrupted while fitting {model}")
+            break
+    for ch in cmp.channels():
+        ns = {r.n_samples for r in rows if r.channel == ch}
+        if len(ns) > 1:
+            cmp.notes.append(f"{ch}: the models were fitted to different numbers of samples ({sorted(ns)}): "
+                             "their AIC/BIC cannot be compared")
+    if out is not None and rows:
+        cmp.save(out)
+    return cmp
+
+
+def _dirname(model: str) -> str:
+    return "".join(c if c.isalnum() or c in "-_." else "_" for c in model).strip("_")

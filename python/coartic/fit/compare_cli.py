@@ -1,0 +1,60 @@
+"""``coartic compare SPEC... --out DIR``: fit several specs and compare them by held-out RMSE and AIC/BIC."""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import typer
+from rich.console import Console
+from rich.markup import escape
+from rich.table import Table
+
+from coartic.console import print_error
+from coartic.fit.result import BAR_MM
+
+
+def compare_command(
+    specs: list[Path] = typer.Argument(..., help="fit specs (TOML) to compare, e.g. original vs modified"),
+    out: Path = typer.Option(Path("results/compare"), "--out", "-o", help="output directory"),
+    validate: bool = typer.Option(True, "--validate/--no-validate",
+                                  help="held-out RMSE from each spec's [validate] splits (AIC/BIC either way)"),
+    force: bool = typer.Option(False, "--force", help="replace --out even if it holds another run's output"),
+) -> None:
+    """Fit every spec on its data and compare: free parameters, RMSE, held-out RMSE, AIC, BIC."""
+    from coartic.fit.compare import compare
+    from coartic.outputs import OutputDir
+
+    console = Console()
+    try:
+        identity = {"specs": ",".join(str(s.resolve()) for s in specs), "validate": validate}
+        with OutputDir(out, "compare", identity, force=force, protect=specs) as d:
+            cmp = compare(specs, d, validate=validate, console=console, quiet=False)
+    except (ValueError, OSError) as e:  # SpecError, DataError, FitFailed, OutputError
+        print_error(console, e)
+        raise typer.Exit(2) from None
+    console.print(comparison_table(cmp))
+    for n in cmp.notes:
+        console.print(f"note: {escape(n)}", soft_wrap=True, highlight=False)
+    console.print(escape(f"written: {out / 'compare.html'} (table and figure), compare.csv, one fit per spec"),
+                  soft_wrap=True, highlight=False)
+
+
+def comparison_table(cmp: object) -> Table:
+    from coartic.fit.compare import Comparison
+
+    assert isinstance(cmp, Comparison)
+    t = Table(title=f"Model comparison (RMSE in mm, bar {BAR_MM} mm; lower AIC/BIC is better)")
+    for c in ("model", "channel", "free", "RMSE", "held-out", "held-out, no offsets", "AIC", "BIC"):
+        t.add_column(c, justify="left" if c in ("model", "channel") else "right")
+
+    def f(v: float, fmt: str, best: bool = False) -> str:
+        s = "–" if not math.isfinite(v) else format(v, fmt)
+        return f"[bold green]{s}[/bold green]" if best else s
+
+    for r in cmp.rows:
+        t.add_row(escape(r.model), r.channel, str(r.n_free), f(r.rmse, ".3f"),
+                  f(r.heldout_rmse, ".3f", cmp.best(r.channel, "heldout_rmse") == r.model),
+                  f(r.heldout_rmse_offset_removed, ".3f"), f(r.aic, ".1f"),
+                  f(r.bic, ".1f", cmp.best(r.channel, "bic") == r.model))
+    return t

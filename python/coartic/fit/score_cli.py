@@ -1,0 +1,69 @@
+"""``coartic score TABLE RECORDING... --labels L...``: how well a fitted table predicts recordings
+it was not fitted on (RMSE per channel, utterance and phoneme, as measured and without offsets)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Optional
+
+import typer
+from rich.console import Console
+from rich.markup import escape
+from rich.table import Table
+
+from coartic.console import print_error
+from coartic.fit.result import BAR_MM
+
+
+def score_command(
+    table: Path = typer.Argument(..., help="fitted table (table.json of coartic fit)"),
+    recordings: list[Path] = typer.Argument(..., help="recordings to predict (C3D, marker or EMA CSV, EMU bundle)"),
+    labels: Optional[list[Path]] = typer.Option(None, "--labels", "-l",
+                                                help="label file of each recording, in the same order (repeat)"),
+    label_map: Optional[str] = typer.Option(None, "--label-map", help="corpus labels -> model phonemes (built-in "
+                                            "name or file); default: the map the table records"),
+    channels: Optional[str] = typer.Option(None, help="comma-separated channels (default: the table's)"),
+    out: Optional[Path] = typer.Option(None, "--out", "-o", help="write CSVs, score.txt and figures here"),
+    force: bool = typer.Option(False, "--force", help="replace --out even if it holds another run's output"),
+) -> None:
+    """Predict recordings the fit did not see and report the RMSE (also after removing a
+    per-utterance offset)."""
+    from coartic.fit.score import score_recordings
+
+    console = Console()
+    try:
+        chans = [c.strip() for c in channels.split(",") if c.strip()] if channels else None
+        score = score_recordings(table, recordings, labels or None, label_map=label_map, channels=chans)
+        if out is not None:
+            from coartic.outputs import OutputDir
+
+            identity = {"table": str(table.resolve()), "recordings": ",".join(str(r) for r in recordings)}
+            with OutputDir(out, "score", identity, force=force, protect=[table, *recordings, *(labels or [])]) as d:
+                score.save(d)
+    except (ValueError, OSError) as e:  # DataError, TableError, ModelInputError, OutputError
+        print_error(console, e)
+        raise typer.Exit(2) from None
+    console.print(score_table(score))
+    for note in score.notes:
+        console.print(f"note: {escape(note)}", soft_wrap=True, highlight=False)
+    if out is not None:
+        console.print(escape(f"written: {out}/score_*.csv, score.txt, figures/"), soft_wrap=True, highlight=False)
+
+
+def score_table(score: object) -> Table:
+    from coartic.fit.score import Score
+
+    assert isinstance(score, Score)
+    t = Table(title=f"RMSE (mm) on {len(score.utterances)} recording(s) the fit did not see — bar {BAR_MM} mm")
+    for c in ("channel", "as measured", "offset removed", "worst utterance", "worst phoneme", "samples"):
+        t.add_column(c, justify="left" if c == "channel" else "right")
+    utt = score.utterance_rows()
+    ph = score.phoneme_rows()
+    for r in score.channel_rows():
+        ch = r["channel"]
+        wu = max((x for x in utt if x["channel"] == ch), key=lambda x: x["rmse_mm"])
+        wp = next((x for x in ph if x["channel"] == ch), None)  # sorted worst first
+        t.add_row(ch, f"{r['rmse_mm']:.3f}", f"{r['rmse_offset_removed_mm']:.3f}",
+                  f"{wu['rmse_mm']:.3f} ({escape(wu['utterance'])})",
+                  f"{wp['rmse_mm']:.3f} ({escape(wp['phoneme'])})" if wp else "–", str(r["samples"]))
+    return t

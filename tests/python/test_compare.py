@@ -1,0 +1,54 @@
+"""coartic compare: specs side by side by held-out RMSE and AIC/BIC (issue 10 item 4)."""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import pytest
+from typer.testing import CliRunner
+
+from coartic.cli import app
+from coartic.fit.compare import compare
+
+ROOT = Path(__file__).resolve().parents[2]
+EMA = ROOT / "tests" / "data" / "realdata" / "emu-ema-german" / "derived"
+
+
+def write_spec(tmp_path: Path, name: str, variant: str, free: str, validate: str = "") -> Path:
+    p = tmp_path / f"{variant}_{len(free)}.toml"
+    p.write_text(f'name = "{name}"\n[corpus]\nfiles = ["{EMA}/dfgspp_mo1_prosody_0020_ema.csv"]\n'
+                 f'labels = ["{EMA}/dfgspp_mo1_prosody_0020_Segment.tsv"]\nlabel_map = "german_sampa"\n'
+                 f'[model]\nvariant = "{variant}"\nchannels = ["JO"]\n[parameters]\nfree = {free}\n'
+                 '[staging]\nenabled = false\n' + validate)
+    return p
+
+
+def test_compare_tabulates_aic_bic_and_writes_table_and_plot(tmp_path: Path) -> None:
+    a = write_spec(tmp_path, "targets <script>alert(1)</script>", "modified", '["target"]')
+    b = write_spec(tmp_path, "targets and k_R", "modified", '["target", "k_r"]')
+    cmp = compare([a, b], tmp_path / "out", validate=False)
+    ra, rb = cmp.rows
+    assert (ra.channel, rb.channel) == ("JO", "JO") and ra.n_samples == rb.n_samples
+    assert rb.n_free > ra.n_free and rb.sse <= ra.sse * (1 + 1e-9)  # nested: more parameters fit no worse
+    n = ra.n_samples
+    assert ra.aic == pytest.approx(n * math.log(ra.sse / n) + 2 * ra.n_free)
+    assert rb.bic == pytest.approx(n * math.log(rb.sse / n) + rb.n_free * math.log(n))
+    assert math.isnan(ra.heldout_rmse)  # not validated
+    html = (tmp_path / "out" / "compare.html").read_text()
+    assert "<script>alert" not in html and "&lt;script&gt;" in html and 'src="compare.png"' in html
+    assert (tmp_path / "out" / "compare.png").stat().st_size > 0
+    assert (tmp_path / "out" / "compare.csv").read_text().count("\n") == 3
+    assert cmp.best("JO", "rmse") == cmp.models[1]
+
+
+def test_compare_command_reports_held_out_rmse_and_refuses_bad_specs(tmp_path: Path) -> None:
+    # one utterance: its [validate] group cannot hold anything out; the comparison says so and goes on
+    a = write_spec(tmp_path, "one", "modified", '["target"]', '[validate]\ngroup = "utterance"\n')
+    res = CliRunner().invoke(app, ["compare", str(a), "--out", str(tmp_path / "c")])
+    assert res.exit_code == 0, res.output
+    assert "no validation" in (tmp_path / "c" / "compare.txt").read_text()
+    bad = tmp_path / "bad.toml"
+    bad.write_text('[corpus]\nmanifest = "none.csv"\n[engine.options]\nmax_nfev = 0\n')
+    res = CliRunner().invoke(app, ["compare", str(a), str(bad), "--out", str(tmp_path / "d")])
+    assert res.exit_code == 2 and "[engine.options] max_nfev" in res.output

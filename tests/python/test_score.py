@@ -1,0 +1,90 @@
+"""coartic score: a table's predictions on recordings it was not fitted on (issue 10 item 4)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+from typer.testing import CliRunner
+
+from coartic.cli import app
+from coartic.fit import run
+from coartic.fit.score import score_recordings, score_utterances, segment_of
+from coartic.fit.simulate import PHONEMES, TRUTH, vcv_utterances
+from coartic.table import ParameterTable
+
+ROOT = Path(__file__).resolve().parents[2]
+EMA = ROOT / "tests" / "data" / "realdata" / "emu-ema-german" / "derived"
+U20 = (EMA / "dfgspp_mo1_prosody_0020_ema.csv", EMA / "dfgspp_mo1_prosody_0020_Segment.tsv")
+
+
+def truth_table() -> ParameterTable:
+    t = ParameterTable(variant="modified", source="<truth>")
+    from coartic.table import ChannelSettings
+
+    t.channels["LLO"] = ChannelSettings(reference_phoneme="a")
+    t.set_from_matrix("LLO", list(PHONEMES), TRUTH, 1.0)
+    return t
+
+
+def test_rmse_per_utterance_phoneme_channel_with_and_without_offsets() -> None:
+    utts = vcv_utterances(np.random.default_rng(5), repetitions=1, rates={"normal": 1.0}, noise=0.1)
+    utts[0].observed["LLO"] = utts[0].observed["LLO"] + 2.0  # a rest reference 2 mm off
+    sc = score_utterances(truth_table(), utts)
+    assert sc.channels == ("LLO",)
+    rows = {r["utterance"]: r for r in sc.utterance_rows()}
+    first = rows[utts[0].name]
+    assert first["offset_mm"] == pytest.approx(-2.0, abs=0.05)
+    assert first["rmse_mm"] == pytest.approx(2.0, abs=0.05)
+    assert first["rmse_offset_removed_mm"] == pytest.approx(0.1, abs=0.03)  # the noise
+    assert rows[utts[1].name]["rmse_mm"] == pytest.approx(0.1, abs=0.03)
+    ch = sc.channel_rows()[0]
+    assert ch["rmse_offset_removed_mm"] < 0.13 < ch["rmse_mm"]
+    phon = {r["phoneme"] for r in sc.phoneme_rows()}
+    assert phon == {"#", "a", "i", "p", "t", "l"}
+    # every sample inside a segment is counted once, by the segment it lies in
+    seg = segment_of(utts[0])
+    assert seg[0] == 0 and seg[-1] == len(utts[0].labels) - 1
+
+
+@pytest.fixture(scope="module")
+def ema_fit(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, float]:
+    out = tmp_path_factory.mktemp("fit")
+    spec = out / "one.toml"
+    spec.write_text(f'[corpus]\nfiles = ["{U20[0]}"]\nlabels = ["{U20[1]}"]\nlabel_map = "german_sampa"\n'
+                    '[model]\nchannels = ["JO"]\n[parameters]\nfree = ["target"]\n')
+    result = run(spec, out / "fit", quiet=True, report=False)
+    return out / "fit" / "table.json", result.channels["JO"].rmse
+
+
+def test_score_applies_the_label_map_the_table_records(ema_fit: tuple[Path, float], tmp_path: Path) -> None:
+    table_path, fit_rmse = ema_fit
+    sc = score_recordings(table_path, [U20[0]], [U20[1]], channels=["JO"])
+    assert sc.rmse("JO") == pytest.approx(fit_rmse, rel=1e-9)  # the fitted recording, predicted as fitted
+    assert "recorded label map" in sc.notes[0]
+    t = ParameterTable.load(table_path)
+    t.metadata.pop("label_map")
+    bare = tmp_path / "bare.json"
+    t.save(bare)
+    with pytest.raises(ValueError, match="label"):  # German SAMPA labels are not model phonemes
+        score_recordings(bare, [U20[0]], [U20[1]], channels=["JO"])
+
+
+def test_score_command_writes_tables_and_figures(ema_fit: tuple[Path, float], tmp_path: Path) -> None:
+    table_path, _ = ema_fit
+    out = tmp_path / "score"
+    res = CliRunner().invoke(app, ["score", str(table_path), str(U20[0]), "--labels", str(U20[1]),
+                                   "--channels", "JO", "--out", str(out)])
+    assert res.exit_code == 0, res.output
+    assert "rmse_offset_removed_mm" in (out / "score_channels.csv").read_text().splitlines()[0]
+    for f in ("score_channels.csv", "score_utterances.csv", "score_phonemes.csv", "score.txt",
+              "figures/measured_vs_predicted.png", "figures/residual_time.png", "figures/residual_phoneme.png"):
+        assert (out / f).is_file(), f
+    # a recording with a phoneme the table never saw: an error naming it, exit 2
+    other = EMA / "dfgspp_mo1_prosody_0024_ema.csv"
+    res = CliRunner().invoke(app, ["score", str(table_path), str(other), "-l",
+                                   str(EMA / "dfgspp_mo1_prosody_0024_Segment.tsv"), "--channels", "JO"])
+    assert res.exit_code == 2 and "is not a phoneme of" in res.output and "Traceback" not in res.output
+    res = CliRunner().invoke(app, ["score", str(table_path), str(U20[0]), "--channels", "JO"])
+    assert res.exit_code == 2 and "give its label file" in res.output
