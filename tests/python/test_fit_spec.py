@@ -11,7 +11,7 @@ from coartic.fit.spec import DEFAULT_STAGES, SpecError, load_spec
 ROOT = Path(__file__).resolve().parents[2]
 
 
-@pytest.mark.parametrize("name", ["synthetic.toml", "template.toml", "ema_german.toml"])
+@pytest.mark.parametrize("name", ["synthetic.toml", "template.toml", "ema_german.toml", "ema_german_original.toml"])
 def test_shipped_specs_load(name: str) -> None:
     s = load_spec(ROOT / "fit" / name)
     assert s.channels and s.engine in ("scipy", "nlopt", "casadi")

@@ -46,8 +46,9 @@ def fit_command(
     engine: Optional[str] = typer.Option(None, help=f"override the spec's engine ({', '.join(ENGINES)})"),
     channels: Optional[str] = typer.Option(None, help="comma-separated channels (default: the spec's)"),
     no_staging: bool = typer.Option(False, "--no-staging", help="one joint fit instead of stages"),
-    validate: bool = typer.Option(False, "--validate", help="also fit on repetitions 1-4 / the normal rate "
-                                  "and report RMSE on the held-out repetition / the fast rate"),
+    validate: bool = typer.Option(False, "--validate", help="also fit on part of the data and report RMSE on "
+                                  "the rest: k-fold by [validate] group (utterance, sentence, rate, speaker, "
+                                  "repetition), else the held-out repetition and the fast rate"),
     report: bool = typer.Option(True, "--report/--no-report", help="write the HTML report with plots"),
     force: bool = typer.Option(False, "--force", help="replace --out even if it holds another run's output "
                                "(a rerun of the same spec and channels replaces its own output without it)"),

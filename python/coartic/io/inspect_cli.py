@@ -21,7 +21,7 @@ def inspect_command(
     file: Annotated[Path, typer.Argument(help="C3D, marker CSV/TSV or EMA CSV file.")],
     labels: Annotated[Optional[Path], typer.Option(help="Label file: TextGrid, .lab or TSV.")] = None,
     label_map: Annotated[Optional[str], typer.Option(
-        help="Label map: a built-in name (model, german_sampa) or a TSV/JSON file.")] = None,
+        help="Label map: a built-in name (model, german_sampa, english_arpabet) or a TSV/JSON file.")] = None,
     role_map: Annotated[Optional[Path], typer.Option(
         help="JSON role map: which marker/sensor is NOSE, UL, LL, JAW...; EMA axes.")] = None,
     tier: Annotated[Optional[str], typer.Option(help="TextGrid tier (default: first interval tier).")] = None,

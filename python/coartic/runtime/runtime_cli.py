@@ -100,7 +100,7 @@ def animate_command(
     out: OutOpt,
     fps: FpsOpt = 25.0,
     tier: Annotated[str | None, typer.Option("--tier", help="TextGrid tier with the phones (default: the first interval tier).")] = None,
-    label_map: Annotated[str | None, typer.Option("--label-map", help="Corpus labels → model phonemes: a built-in map name or a TSV/JSON file.")] = None,
+    label_map: Annotated[str | None, typer.Option("--label-map", help="Corpus labels → model phonemes: a built-in map name or a TSV/JSON file (default: the map the table was fitted with).")] = None,
     mns: MnsOpt = None,
     mw: MwOpt = None,
     preview: PreviewOpt = "gif",
