@@ -302,3 +302,9 @@ def test_offsets_recover_shifted_recordings(tmp_path: Path) -> None:
     # offsets are identified up to a common constant (the targets absorb their mean)
     np.testing.assert_allclose(b - b.mean(), shifts - shifts.mean(), atol=0.05)
     assert prob.sse(fits["free"].x) < 0.1 * prob.__class__(prob.data, fits["none"].packing, prob.options).sse(fits["none"].x)
+
+
+def test_a_stage_that_did_not_converge_says_why(tmp_path: Path, utts: list[model.Utterance]) -> None:
+    s = spec_of(tmp_path, parameters={"free": ["target", "theta_bw"]}, engine={"options": {"max_nfev": 2}})
+    text = run(s, None, utterances=utts, quiet=True).report_text()
+    assert "[max-evaluations]: The maximum number of function evaluations is exceeded." in text
