@@ -7,6 +7,7 @@ PY := .venv/bin/python
 setup:
 	./scripts/setup.sh
 
+# A rerun refits and replaces results/synthetic whole (its own output: no --force; docs/OUTPUTS.md).
 fit: setup
 	[ -f build/session/manifest.csv ] || $(PY) -m coartic.cli corpus synth build/session
 	$(PY) -m coartic.cli fit fit/synthetic.toml --out results/synthetic
