@@ -17,7 +17,7 @@ from typing import Any
 from coartic.errors import CoarticError
 from coartic.io.errors import DataError
 from coartic.io.roles import RoleMap
-from coartic.table import ALL_CHANNELS, CHANNELS, PARAMETERS, VARIANTS, ChannelSettings
+from coartic.table import ALL_CHANNELS, CHANNELS, DOMINANCES, PARAMETERS, VARIANTS, ChannelSettings
 
 ENGINES: tuple[str, ...] = ("scipy", "nlopt", "casadi")
 # [validate] group: what a k-fold validation holds out together (manifest columns, or the file).
@@ -95,6 +95,10 @@ class FitSpec:
     reference_phoneme: str = "a"
     apex_fraction: float = 0.5
     edge_extent: float = 1.0
+    # the rate-aware options of docs/MODEL.md §2.1 (defaults: today's model)
+    dominance: str = "centre"
+    plateau_fraction: float = 0.5
+    handover: bool = False
     beta: float = 1.0
     fit_beta: bool = False
     beta_bounds: tuple[float, float] = DEFAULT_BETA_BOUNDS
@@ -131,7 +135,9 @@ class FitSpec:
         value; default the spec's). The fit's model options are made from them
         (``coartic.model.channel_options``), so a table evaluates as it was fitted."""
         return ChannelSettings(reference_phoneme=self.reference_phoneme, beta=self.beta if beta is None else beta,
-                               edge_extent=self.edge_extent, apex_fraction=self.apex_fraction)
+                               edge_extent=self.edge_extent, apex_fraction=self.apex_fraction,
+                               dominance=self.dominance, plateau_fraction=self.plateau_fraction,
+                               handover=self.handover)
 
 
 def _err(path: Path, key: str, msg: str) -> SpecError:
@@ -303,7 +309,8 @@ def parse_spec(raw: dict[str, Any], path: Path) -> FitSpec:
 
     m = raw.get("model", {})
     _take(m, path, "model", {"variant", "channels", "reference_phoneme", "apex_fraction", "edge_extent",
-                             "beta", "fit_beta", "beta_bounds", "offsets"})
+                             "beta", "fit_beta", "beta_bounds", "offsets", "dominance", "plateau_fraction",
+                             "handover"})
     offsets = m.get("offsets", "none")
     if isinstance(offsets, bool) or not (offsets in ("none", "free") or (
             isinstance(offsets, (int, float)) and math.isfinite(offsets) and offsets > 0)):
@@ -332,6 +339,15 @@ def parse_spec(raw: dict[str, Any], path: Path) -> FitSpec:
     fit_beta = m.get("fit_beta", False)
     if not isinstance(fit_beta, bool):
         raise _err(path, "model.fit_beta", f"expected true or false, got {fit_beta!r}")
+    dominance = m.get("dominance", "centre")
+    if dominance not in DOMINANCES:
+        raise _err(path, "model.dominance", f"{dominance!r}: expected one of {DOMINANCES}")
+    plateau = _float(m.get("plateau_fraction", 0.5), path, "model.plateau_fraction")
+    if not 0.0 <= plateau <= 1.0:
+        raise _err(path, "model.plateau_fraction", f"{plateau} is outside [0, 1]")
+    handover = m.get("handover", False)
+    if not isinstance(handover, bool):
+        raise _err(path, "model.handover", f"expected true or false, got {handover!r}")
 
     p = raw.get("parameters", {})
     _take(p, path, "parameters", {"free", "start", "start_table", "bounds", "target_margin", "prior", "prior_noise"})
@@ -446,7 +462,8 @@ def parse_spec(raw: dict[str, Any], path: Path) -> FitSpec:
 
     return FitSpec(
         path=path, name=str(name), corpus=corpus, channels=channels, variant=variant,
-        reference_phoneme=reference, apex_fraction=apex, edge_extent=edge,
+        reference_phoneme=reference, apex_fraction=apex, edge_extent=edge, dominance=dominance,
+        plateau_fraction=plateau, handover=handover,
         beta=_float(m.get("beta", 1.0), path, "model.beta"), fit_beta=fit_beta, beta_bounds=beta_bounds,
         free=free, start_table=start_table, start=start, start_given=frozenset(start_given), bounds=bounds,
         priors=priors, prior_noise=prior_noise, offsets=offsets if isinstance(offsets, str) else float(offsets), channel_bounds=channel_bounds,
