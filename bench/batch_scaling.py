@@ -129,6 +129,8 @@ def run(n_speakers: int, consonants: list[str]) -> None:
               f"(2 workers, {n} tasks); one speaker's data sent with a task {move * 1e3:.0f} ms (median of 5)")
         print(f"task overhead against its fit: {per_task / med * 100:.3f} % of the median unit "
               f"({med:.2f} s); start-up against the whole 2-worker run: {start / walls['2 workers'] * 100:.0f} %")
+        print(f"load average {os.getloadavg()[0]:.1f} at the end (on a machine whose other load leaves no core "
+              "free, a second worker cannot run faster: compare runs at a load below the core count)")
         shutil.rmtree(tmp / "corpus", ignore_errors=True)
 
 

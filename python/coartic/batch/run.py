@@ -158,8 +158,8 @@ def cluster_threads(client: Any) -> int | None:
 
 
 def run_batch(spec: BatchSpec, out: str | Path, *, scheduler: str | None = None, workers: int | None = None,
-              serial: bool = False, force: bool = False, console: Console | None = None, quiet: bool = False,
-              before: Callable[[UnitKey], None] | None = None) -> BatchOutcome:
+              serial: bool = False, force: bool = False, report: bool = True, console: Console | None = None,
+              quiet: bool = False, before: Callable[[UnitKey], None] | None = None) -> BatchOutcome:
     """Run every unfinished unit of ``spec`` into ``out``, then write the tables and the report.
 
     ``before`` is called on the worker before each fit unit (fault injection in tests). Ctrl-C and
@@ -203,7 +203,7 @@ def run_batch(spec: BatchSpec, out: str | Path, *, scheduler: str | None = None,
         from coartic.batch.report import write_outputs
 
         with signals.saving():
-            write_outputs(spec, out, outcome)
+            write_outputs(spec, out, outcome, report)
         od.status = "interrupted" if outcome.interrupted else "incomplete" if outcome.failed else "complete"
     outcome.wall_s = time.perf_counter() - t0
     return outcome
