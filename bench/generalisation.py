@@ -50,6 +50,7 @@ VARIANTS: dict[str, dict[str, Any]] = {
     "original": {"variant": "original"},
     "modified": {"variant": "modified"},
     "rate-aware": {"variant": "modified", "dominance": "plateau", "plateau_fraction": 0.5, "handover": True},
+    "rate-aware-h0.4": {"variant": "modified", "dominance": "plateau", "plateau_fraction": 0.4, "handover": True},
 }
 
 
@@ -68,12 +69,12 @@ def gestures(manifest: Path, variants: Sequence[str], channels: tuple[str, ...],
     utts = load_utterances(base)
     out.append(f"## gestures flavour: {manifest.parent.name}, {len(utts)} trials, fit/synthetic.toml, "
                f"channels {' '.join(channels)}")
-    out.append(f"{'variant':11s} {'split':36s} {'channel':7s} {'train':>7s} {'test':>7s} {'-offset':>7s}  "
+    out.append(f"{'variant':15s} {'split':36s} {'channel':7s} {'train':>7s} {'test':>7s} {'-offset':>7s}  "
                "worst vowel  at a bound (fit of the split)")
     for name in variants:
         spec = variant_spec(base, name)
         if spec is None:
-            out.append(f"{name:11s} (skipped: this core/FitSpec has no {sorted(VARIANTS[name])} options)")
+            out.append(f"{name:15s} (skipped: this core/FitSpec has no {sorted(VARIANTS[name])} options)")
             print(out[-1], flush=True)
             continue
         for split, train, test in splits(spec, utts):
@@ -83,10 +84,10 @@ def gestures(manifest: Path, variants: Sequence[str], channels: tuple[str, ...],
                 fit = res.channels[s.channel]
                 at = fit.stats.at_bound if fit.stats is not None else []
                 off = getattr(s, "test_rmse_offset_removed", float("nan"))  # each test utterance's offset removed
-                out.append(f"{name:11s} {split:36s} {s.channel:7s} {s.train_rmse:7.3f} {s.test_rmse:7.3f} {off:7.3f}  "
+                out.append(f"{name:15s} {split:36s} {s.channel:7s} {s.train_rmse:7.3f} {s.test_rmse:7.3f} {off:7.3f}  "
                            f"{s.worst_vowel[1]:.3f} ({s.worst_vowel[0]})  {len(at)}: {' '.join(at)}")
                 print(out[-1], flush=True)
-            out.append(f"{'':11s} ({time.process_time() - t0:.0f} s CPU)")
+            out.append(f"{'':15s} ({time.process_time() - t0:.0f} s CPU)")
 
 
 def _rmse(f: np.ndarray, data: ChannelData, keep: np.ndarray, offset: bool = False) -> float:
@@ -104,13 +105,13 @@ def german(variants: Sequence[str], out: list[str]) -> None:
                "utterance")
     out.append("shared segs: samples inside segments of phonemes both utterances have (pauses excluded); "
                "-offset: after removing the mean residual there")
-    out.append(f"{'variant':11s} {'held out':30s} {'ch':3s} {'shared':>6s} {'transfer':>9s} {'-offset':>8s} "
+    out.append(f"{'variant':15s} {'held out':30s} {'ch':3s} {'shared':>6s} {'transfer':>9s} {'-offset':>8s} "
                f"{'own fit':>8s} {'transfer':>9s} {'own fit':>8s}  unseen phonemes (fitted on the held-out one)")
-    out.append(f"{'':11s} {'':30s} {'':3s} {'phon.':>6s} {'shared segs':>27s} {'all samples':>18s}")
+    out.append(f"{'':15s} {'':30s} {'':3s} {'phon.':>6s} {'shared segs':>27s} {'all samples':>18s}")
     for name in variants:
         spec = variant_spec(base, name)
         if spec is None:
-            out.append(f"{name:11s} (skipped: this core/FitSpec has no {sorted(VARIANTS[name])} options)")
+            out.append(f"{name:15s} (skipped: this core/FitSpec has no {sorted(VARIANTS[name])} options)")
             continue
         for k, held in enumerate(utts):
             train = [u for j, u in enumerate(utts) if j != k]
@@ -139,7 +140,7 @@ def german(variants: Sequence[str], out: list[str]) -> None:
                 ft = transfer.problem.evaluate(transfer.params, transfer.beta)
                 fo = mine.problem.evaluate(mine.params, mine.beta)
                 ones = np.ones_like(keep)
-                out.append(f"{name:11s} {held.name:30s} {ch:3s} {len(shared):6d} {_rmse(ft, data, keep):9.3f} "
+                out.append(f"{name:15s} {held.name:30s} {ch:3s} {len(shared):6d} {_rmse(ft, data, keep):9.3f} "
                            f"{_rmse(ft, data, keep, offset=True):8.3f} {_rmse(fo, mine.problem.data, keep):8.3f} {_rmse(ft, data, ones):9.3f} "
                            f"{_rmse(fo, mine.problem.data, ones):8.3f}  {' '.join(unseen)}")
                 print(out[-1], flush=True)

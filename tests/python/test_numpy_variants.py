@@ -163,3 +163,25 @@ def test_handover_takes_the_forward_side_from_the_next_segment(dominance: str, v
         b = nm.evaluate_utterance(bumped, rows, starts, ends, times, 1.0, variant, dominance=dominance,
                                   handover=handover)
         assert (np.max(np.abs(a - b)) > 1e-6) == changes
+
+
+@pytest.mark.parametrize("handover", [False, True])
+@pytest.mark.parametrize("variant", VARIANTS)
+@pytest.mark.parametrize("seed", range(3))
+def test_core_rate_aware_options_match_the_reference(seed: int, variant: str, handover: bool) -> None:
+    # The Rust core's dominance="plateau" / handover options (docs/VARIANTS.md) compute the
+    # reference's numbers, including δ large enough to clamp target times into their segments.
+    from coartic import _core
+
+    rng = np.random.default_rng(100 + seed)
+    arrays = random_corpus_arrays(rng, n_utterances=4, n_phonemes=6)
+    params = random_params(rng, 6)
+    params[:, nm.DELTA] = rng.uniform(-0.08, 0.08, 6)
+    h = float(rng.uniform(0.0, 0.8))
+    for dominance in ("plateau", "centre"):
+        got = _core.evaluate(_core.Corpus(**arrays), params, 0.9,
+                             _core.ModelOptions(variant, 0.5, 1.0, dominance=dominance, plateau_fraction=h,
+                                                handover=handover))
+        want = nm.evaluate_corpus_arrays(params, arrays, 0.9, variant, 0.5, 1.0, dominance=dominance,
+                                         plateau_fraction=h, handover=handover)
+        assert np.max(np.abs(got - want) / np.maximum(1.0, np.abs(want))) < 1e-12
