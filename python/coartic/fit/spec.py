@@ -64,6 +64,16 @@ class Override:
 
 
 @dataclass(frozen=True)
+class Tie:
+    """Parameters shared by a group of phonemes (e.g. θ and c by place of articulation): the first
+    phoneme of the group present in a channel's data carries the value, the others take it."""
+
+    phonemes: tuple[str, ...]
+    parameters: tuple[str, ...]
+    channels: tuple[str, ...] | None = None  # None: every channel
+
+
+@dataclass(frozen=True)
 class CorpusSpec:
     manifest: Path | None = None
     files: tuple[Path, ...] = ()
@@ -105,6 +115,7 @@ class FitSpec:
     channel_bounds: dict[str, dict[str, tuple[float, float]]] = field(default_factory=dict)
     target_margin: float = 5.0  # mm beyond the observed range for the default target box
     overrides: tuple[Override, ...] = ()
+    ties: tuple[Tie, ...] = ()
     engine: str = "scipy"
     engine_options: dict[str, Any] = field(default_factory=dict)
     staging: bool = True
@@ -252,7 +263,7 @@ def parse_spec(raw: dict[str, Any], path: Path) -> FitSpec:
     """Build a FitSpec from an already parsed TOML document (``path`` locates relative paths)."""
     base = path.parent
     # [mcmc] belongs to coartic.mcmc (docs/MCMC.md): one spec file serves both commands.
-    _take(raw, path, "top level", {"name", "corpus", "model", "parameters", "override", "engine",
+    _take(raw, path, "top level", {"name", "corpus", "model", "parameters", "override", "tie", "engine",
                                    "staging", "gaps", "validate", "mcmc"})
     name = raw.get("name", path.stem)
 
@@ -383,6 +394,26 @@ def parse_spec(raw: dict[str, Any], path: Path) -> FitSpec:
             bounds=_bounds(o.get("bounds", {}), path, f"{key}.bounds")))
 
     reference = str(m.get("reference_phoneme", "a"))
+    ties: list[Tie] = []
+    tie_raw = raw.get("tie", [])
+    if not isinstance(tie_raw, list):
+        raise _err(path, "tie", "expected [[tie]] tables")
+    for i, t in enumerate(tie_raw):
+        key = f"tie #{i + 1}"
+        if not isinstance(t, dict):
+            raise _err(path, key, f"expected a table, got {t!r}")
+        _take(t, path, key, {"phonemes", "parameters", "channels"})
+        if "phonemes" not in t or "parameters" not in t:
+            raise _err(path, key, "needs phonemes = [...] and parameters = [...]")
+        tph = _str_list(t["phonemes"], path, f"{key}.phonemes")
+        if len(set(tph)) < 2:
+            raise _err(path, f"{key}.phonemes", f"a tie needs two phonemes or more, got {list(tph)}")
+        tpar = _param_names(_str_list(t["parameters"], path, f"{key}.parameters"), path, f"{key}.parameters")
+        if reference in tph and "alpha" in tpar:
+            raise _err(path, key, f"ties alpha of the reference phoneme {reference!r}, which is fixed at 1")
+        tch = _channels(_str_list(t["channels"], path, f"{key}.channels"), path, f"{key}.channels") \
+            if "channels" in t else None
+        ties.append(Tie(tph, tpar, tch))
     for i, o in enumerate(overrides):
         # alpha is scale-free: the reference phoneme's is 1 by definition (MODEL.md §1)
         if reference in o.phonemes and ("alpha" in o.free or "alpha" in o.start or "alpha" in o.bounds
@@ -436,7 +467,7 @@ def parse_spec(raw: dict[str, Any], path: Path) -> FitSpec:
         beta=_float(m.get("beta", 1.0), path, "model.beta"), fit_beta=fit_beta, beta_bounds=beta_bounds,
         free=free, start_table=start_table, start=start, start_given=frozenset(start_given), bounds=bounds,
         priors=priors, prior_noise=prior_noise, offsets=offsets if isinstance(offsets, str) else float(offsets), channel_bounds=channel_bounds,
-        target_margin=margin, overrides=tuple(overrides), engine=engine, engine_options=dict(engine_options),
+        target_margin=margin, overrides=tuple(overrides), ties=tuple(ties), engine=engine, engine_options=dict(engine_options),
         staging=staging, stages=stages, max_gap=max_gap, holdout_repetition=hold, validate_group=group,
         validate_folds=folds,
         train_rate=v.get("train_rate", "normal"), test_rate=v.get("test_rate", "fast"))
