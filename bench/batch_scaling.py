@@ -18,6 +18,7 @@ from __future__ import annotations
 import argparse
 import io
 import json
+import logging
 import os
 import pickle
 import shutil
@@ -98,11 +99,13 @@ def run(n_speakers: int, consonants: list[str], repeats: int) -> None:
             outcome = run_batch(spec, out, quiet=True, report=False, **kwargs)  # type: ignore[arg-type]
             wall = time.perf_counter() - t0
             assert outcome.complete and len(outcome.landed) == units, outcome.failed
-            fits = [json.loads((unit_dir(out, k) / "unit.json").read_text())["compute_s"] for k in outcome.landed]
+            infos = [json.loads((unit_dir(out, k) / "unit.json").read_text()) for k in outcome.landed]
+            fits = [i["compute_s"] for i in infos]
+            cpu = sum(i["cpu_s"] for i in infos)
             threads = "every core" if kwargs.get("serial") else f"{local_threads(int(kwargs['workers']))} each"
             print(f"{label:>10} #{r + 1}: wall {wall:7.2f} s (rayon threads {threads}); unit fits "
-                  f"sum {sum(fits):6.2f} s, median {statistics.median(fits):5.2f} s, max {max(fits):5.2f} s; "
-                  f"load {os.getloadavg()[0]:.1f}")
+                  f"sum {sum(fits):6.2f} s (CPU {cpu:6.2f} s), median {statistics.median(fits):5.2f} s, "
+                  f"max {max(fits):5.2f} s; load {os.getloadavg()[0]:.1f}")
             if label not in walls or wall < walls[label]:
                 walls[label], compute[label] = wall, fits
             (tmp / label.replace(" ", "-")).mkdir(exist_ok=True)
@@ -118,7 +121,7 @@ def run(n_speakers: int, consonants: list[str], repeats: int) -> None:
 
         t0 = time.perf_counter()
         cluster = LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=":0",
-                               env={"RAYON_NUM_THREADS": "1"})
+                               env={"RAYON_NUM_THREADS": "1"}, silence_logs=logging.CRITICAL)
         client = Client(cluster)
         start = time.perf_counter() - t0
         client.gather(client.map(noop, range(20)))  # warm
