@@ -139,6 +139,7 @@ def test_the_cli_exits_non_zero_when_an_engine_fails(tmp_path: Path) -> None:
     res = CliRunner().invoke(app, ["fit", str(spec), "--out", str(tmp_path / "o"), "--no-report"])
     assert res.exit_code != 0
     assert "channel JO: the scipy engine failed" in res.output and "Traceback" not in res.output
+    assert not (tmp_path / "o").exists()  # the staging directory was discarded: no start values as a table
 
 
 def test_nlopt_failures_carry_nlopts_own_message() -> None:
