@@ -10,10 +10,13 @@ exact and repeatable; compare two builds function by function:
     callgrind_annotate --inclusive=yes --threshold=100 cg.out | grep coartic::
 
 (the other build: the same with PYTHONPATH pointing at a copy of python/ holding its extension).
+``--rate-aware`` runs the same workload with the options of MODEL.md §2.1 (plateau dominance,
+h = 0.5, and handover), to see what they cost.
 """
 
 from __future__ import annotations
 
+import argparse
 import sys
 from pathlib import Path
 
@@ -30,12 +33,15 @@ from coartic import _core  # noqa: E402
 
 
 def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--rate-aware", action="store_true", help="plateau dominance (h = 0.5) and handover")
+    rate = {"dominance": "plateau", "plateau_fraction": 0.5, "handover": True} if ap.parse_args().rate_aware else {}
     rng = np.random.default_rng(1)
     corpus = _core.Corpus(**core_speed.vcv_corpus(150, 100, rng))
     params = random_params(rng, 12)
     y, w = np.zeros(corpus.n_samples), np.ones(corpus.n_samples)
     for variant in ("modified", "original"):
-        opts = _core.ModelOptions(variant)
+        opts = _core.ModelOptions(variant, **rate)  # type: ignore[arg-type]
         for _ in range(3):
             _core.evaluate(corpus, params, 1.0, opts)
         for _ in range(2):

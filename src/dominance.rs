@@ -33,7 +33,8 @@ impl Side {
 }
 
 /// The dominance parameters of one segment, both sides (MODEL.md §1–2), as the inner loops read
-/// them: ln α rather than α.
+/// them: ln α rather than α. With the handover option, `theta_fw` and `c_fw` are those of the
+/// next segment's phoneme (MODEL.md §2.1).
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
 pub struct DominanceParams {
     pub log_alpha: f64,
@@ -41,9 +42,41 @@ pub struct DominanceParams {
     pub theta_fw: f64,
     pub c_bw: f64,
     pub c_fw: f64,
+    /// h·d_i, the half-width of the plateau of MODEL.md §2.1 (s); 0 for the centre dominance.
+    pub plateau: f64,
 }
 
 impl DominanceParams {
+    /// The reach r = max(|τ| − h d_i, 0) that replaces |τ| inside D (MODEL.md §2.1); |τ| itself,
+    /// bit for bit, without a plateau. `RATE` is false when no rate-aware option is on for the
+    /// whole call: the test then compiles away and today's model runs today's instructions.
+    #[inline(always)]
+    pub(crate) fn reach<V: Lanes, const RATE: bool>(&self, abs_tau: V) -> V {
+        if !RATE || self.plateau == 0.0 {
+            abs_tau
+        } else {
+            let zero = V::splat(0.0);
+            let x = abs_tau.sub(V::splat(self.plateau));
+            V::select(x.gt(zero), x, zero)
+        }
+    }
+
+    /// sign(τ)·r: what the τ-derivative of ln D divides by ([`log_dominance_grad`]); τ itself
+    /// without a plateau.
+    #[inline(always)]
+    pub fn signed_reach<const RATE: bool>(&self, tau: f64) -> f64 {
+        if !RATE || self.plateau == 0.0 {
+            tau
+        } else {
+            let r = self.reach::<f64, RATE>(tau.abs());
+            if tau > 0.0 {
+                r
+            } else {
+                -r
+            }
+        }
+    }
+
     /// Whether c = 1 on both sides (the original model's exponent): |τ|^c is then |τ| on every
     /// lane and the value needs no transcendental function for the power (decided once per
     /// segment, not per lane).
@@ -77,14 +110,15 @@ fn power<V: Lanes>(c: V, abs_tau: V, ln_abs_tau: V) -> V {
     V::select(c.eq(V::splat(1.0)), abs_tau, exp_lanes(c.mul(ln_abs_tau)))
 }
 
-/// ln D on the lanes of |τ| = `abs_tau`, with the pieces its derivatives reuse.
+/// ln D on the lanes of |τ| = `abs_tau`, with the pieces its derivatives reuse. r is |τ| for the
+/// centre dominance, the reach max(|τ| − h d_i, 0) with a plateau.
 #[derive(Clone, Copy)]
 pub(crate) struct LogDominance<V> {
-    /// ln D = ln α − θ |τ|^c.
+    /// ln D = ln α − θ r^c.
     pub log_d: V,
-    /// |τ|^c (0 at τ = 0, since c > 0).
+    /// r^c (0 at r = 0, since c > 0).
     pub power: V,
-    /// ln |τ|, taken as 0 at τ = 0 (where it only ever multiplies |τ|^c = 0).
+    /// ln r, taken as 0 at r = 0 (where it only ever multiplies r^c = 0).
     pub ln_abs_tau: V,
 }
 
@@ -95,35 +129,41 @@ pub(crate) struct LogDominance<V> {
 /// with ∂/∂c, which needs ln|τ| even where c = 1. Bit for bit equal to
 /// [`log_dominance_value`] on `log_d`.
 #[inline(always)]
-pub(crate) fn log_dominance<V: Lanes>(
+pub(crate) fn log_dominance<V: Lanes, const RATE: bool>(
     d: &DominanceParams,
     bw: V::Mask,
     abs_tau: V,
 ) -> LogDominance<V> {
     let s = V::splat;
+    let r = d.reach::<V, RATE>(abs_tau);
     let theta = d.theta::<V>(bw);
-    let ln_a = ln_lanes(abs_tau);
+    let ln_r = ln_lanes(r);
     let power = if d.linear() {
-        abs_tau
+        r
     } else {
-        power(d.c::<V>(bw), abs_tau, ln_a)
+        power(d.c::<V>(bw), r, ln_r)
     };
     LogDominance {
         log_d: s(d.log_alpha).sub(theta.mul(power)),
         power,
-        ln_abs_tau: V::select(abs_tau.eq(s(0.0)), s(0.0), ln_a),
+        ln_abs_tau: V::select(r.eq(s(0.0)), s(0.0), ln_r),
     }
 }
 
 /// ln D alone (the evaluator's and the physical-limit loop's kernel): the same operations as
 /// [`log_dominance`], skipping ln|τ| where c = 1 on both sides.
 #[inline(always)]
-pub(crate) fn log_dominance_value<V: Lanes>(d: &DominanceParams, bw: V::Mask, abs_tau: V) -> V {
+pub(crate) fn log_dominance_value<V: Lanes, const RATE: bool>(
+    d: &DominanceParams,
+    bw: V::Mask,
+    abs_tau: V,
+) -> V {
+    let r = d.reach::<V, RATE>(abs_tau);
     let theta = d.theta::<V>(bw);
     let power = if d.linear() {
-        abs_tau
+        r
     } else {
-        power(d.c::<V>(bw), abs_tau, ln_lanes(abs_tau))
+        power(d.c::<V>(bw), r, ln_lanes(r))
     };
     V::splat(d.log_alpha).sub(theta.mul(power))
 }
@@ -143,19 +183,21 @@ pub struct LogDominanceGrad {
     pub d_tau: f64,
 }
 
-/// Derivatives of ln D given 1/α and the pieces |τ|^c and ln|τ| (0 at τ = 0) of the value, as
-/// [`log_dominance`] returns them (the gradient's value pass stores them per lane).
+/// Derivatives of ln D given 1/α and the pieces r^c and ln r (0 at r = 0) of the value, as
+/// [`log_dominance`] returns them (the gradient's value pass stores them per lane), and
+/// sign(τ)·r ([`DominanceParams::signed_reach`]; τ itself for the centre dominance). Within the
+/// plateau (r = 0) ∂/∂τ is 0, as at τ = 0 without one.
 #[inline(always)]
 pub fn log_dominance_grad(
     inv_alpha: f64,
     theta: f64,
     c: f64,
-    tau: f64,
+    signed_reach: f64,
     power: f64,
     ln_abs_tau: f64,
 ) -> LogDominanceGrad {
-    let d_tau = if tau != 0.0 {
-        -theta * c * power / tau
+    let d_tau = if signed_reach != 0.0 {
+        -theta * c * power / signed_reach
     } else {
         0.0
     };
@@ -179,11 +221,12 @@ mod tests {
             theta_fw: theta,
             c_bw: c,
             c_fw: c,
+            plateau: 0.0,
         }
     }
 
     fn ld(log_alpha: f64, theta: f64, c: f64, abs_tau: f64) -> LogDominance<f64> {
-        log_dominance::<f64>(&sym(log_alpha, theta, c), true, abs_tau)
+        log_dominance::<f64, true>(&sym(log_alpha, theta, c), true, abs_tau)
     }
 
     #[test]
@@ -201,9 +244,10 @@ mod tests {
             theta_fw: 30.0,
             c_bw: 1.0,
             c_fw: 2.0,
+            plateau: 0.0,
         };
         let tau = [-0.1, 0.1];
-        let got = tau.map(|t| log_dominance_value::<f64>(&d, backward(t), t.abs()));
+        let got = tau.map(|t| log_dominance_value::<f64, true>(&d, backward(t), t.abs()));
         assert!((got[0] - (-10.0 * 0.1)).abs() < 1e-15);
         assert!((got[1] - (-30.0 * 0.01)).abs() < 1e-15);
         assert!(backward(0.0) && !backward(1e-300));
@@ -226,10 +270,11 @@ mod tests {
                 theta_fw: 21.0,
                 c_bw,
                 c_fw,
+                plateau: 0.0,
             };
             for bw in [true, false] {
-                let full = log_dominance::<f64>(&d, bw, a).log_d;
-                let value = log_dominance_value::<f64>(&d, bw, a);
+                let full = log_dominance::<f64, true>(&d, bw, a).log_d;
+                let value = log_dominance_value::<f64, true>(&d, bw, a);
                 assert_eq!(full.to_bits(), value.to_bits());
             }
         }
@@ -279,5 +324,48 @@ mod tests {
             g.d_theta
         );
         assert!((g.d_c - fd_c).abs() < 1e-7, "{} vs {fd_c}", g.d_c);
+    }
+
+    #[test]
+    fn plateau_holds_alpha_then_decays_from_its_edge() {
+        let d = DominanceParams {
+            plateau: 0.05,
+            ..sym(0.3, 20.0, 1.5)
+        };
+        for a in [0.0, 0.02, 0.05] {
+            let v = log_dominance::<f64, true>(&d, true, a);
+            assert_eq!((v.log_d, v.power, v.ln_abs_tau), (0.3, 0.0, 0.0));
+            assert_eq!(d.signed_reach::<true>(a), 0.0);
+        }
+        let v = log_dominance::<f64, true>(&d, false, 0.09);
+        assert!((v.log_d - (0.3 - 20.0 * 0.04f64.powf(1.5))).abs() < 1e-14);
+        assert_eq!(
+            v.log_d.to_bits(),
+            log_dominance_value::<f64, true>(&d, false, 0.09).to_bits()
+        );
+        assert!((d.signed_reach::<true>(-0.09) + 0.04).abs() < 1e-16);
+        // ∂/∂τ through the reach: −θ c r^(c−1) sign(τ).
+        for tau in [-0.09, 0.08] {
+            let f = |t: f64| log_dominance::<f64, true>(&d, t <= 0.0, t.abs()).log_d;
+            let h = 1e-7;
+            let fd = (f(tau + h) - f(tau - h)) / (2.0 * h);
+            let v = log_dominance::<f64, true>(&d, tau <= 0.0, f64::abs(tau));
+            let g = log_dominance_grad(
+                1.0,
+                20.0,
+                1.5,
+                d.signed_reach::<true>(tau),
+                v.power,
+                v.ln_abs_tau,
+            );
+            assert!((g.d_tau - fd).abs() < 1e-6, "{} vs {fd}", g.d_tau);
+        }
+        // Without a plateau the reach is |τ| and sign(τ)·r is τ, bit for bit.
+        let c = sym(0.3, 20.0, 1.5);
+        assert_eq!(c.reach::<f64, true>(0.0371).to_bits(), 0.0371f64.to_bits());
+        assert_eq!(
+            c.signed_reach::<true>(-0.0371).to_bits(),
+            (-0.0371f64).to_bits()
+        );
     }
 }

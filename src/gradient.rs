@@ -138,18 +138,29 @@ impl GradScratch {
         #[cfg(target_arch = "x86_64")]
         if simd_enabled() {
             // SAFETY: AVX2 was detected at run time.
-            return unsafe { self.values_avx2(prep, &t, beta, res, shape) } & ((1 << m) - 1);
+            let bits = unsafe {
+                if prep.rate_aware {
+                    self.values_avx2::<true>(prep, &t, beta, res, shape)
+                } else {
+                    self.values_avx2::<false>(prep, &t, beta, res, shape)
+                }
+            };
+            return bits & ((1 << m) - 1);
         }
         let mut degenerate = 0;
         for (j, &time) in t[..m].iter().enumerate() {
-            degenerate |= self.lanes_at::<f64>(prep, time, j, beta, res, shape) << j;
+            degenerate |= if prep.rate_aware {
+                self.lanes_at::<f64, true>(prep, time, j, beta, res, shape)
+            } else {
+                self.lanes_at::<f64, false>(prep, time, j, beta, res, shape)
+            } << j;
         }
         degenerate
     }
 
     #[cfg(target_arch = "x86_64")]
     #[target_feature(enable = "avx2")]
-    fn values_avx2(
+    fn values_avx2<const RATE: bool>(
         &mut self,
         prep: &Prepared,
         t: &[f64; LANES],
@@ -157,13 +168,13 @@ impl GradScratch {
         res: Resistance,
         shape: Shape,
     ) -> u32 {
-        self.lanes_at::<F64x4>(prep, F64x4::load(t), 0, beta, res, shape)
+        self.lanes_at::<F64x4, RATE>(prep, F64x4::load(t), 0, beta, res, shape)
     }
 
     /// The value pass for the lanes `at..at + V::N`: the operation sequence of
     /// [`Prepared::evaluate`]'s lane evaluator, keeping the pieces.
     #[inline(always)]
-    fn lanes_at<V: Lanes>(
+    fn lanes_at<V: Lanes, const RATE: bool>(
         &mut self,
         prep: &Prepared,
         time: V,
@@ -199,7 +210,7 @@ impl GradScratch {
                 continue;
             }
             // ln|τ| always (∂/∂c needs it even where c = 1).
-            let ld = log_dominance(&g.dom, bw, a);
+            let ld = log_dominance::<V, RATE>(&g.dom, bw, a);
             ld.ln_abs_tau.store(&mut self.ln_abs_tau[o..]);
             ld.power.store(&mut self.power[o..]);
             let lw = V::select(active, lr.add(ld.log_d), neg_inf);
@@ -265,6 +276,27 @@ impl GradScratch {
         local: &[usize],
         grads: &mut UtteranceGrads,
     ) {
+        if prep.rate_aware {
+            self.accumulate_with::<true>(prep, lane, scale, beta, res, shape, local, grads)
+        } else {
+            self.accumulate_with::<false>(prep, lane, scale, beta, res, shape, local, grads)
+        }
+    }
+
+    /// [`GradScratch::accumulate`] with the rate-aware options (MODEL.md §2.1) compiled in or out.
+    #[allow(clippy::too_many_arguments)]
+    #[inline(always)]
+    fn accumulate_with<const RATE: bool>(
+        &self,
+        prep: &Prepared,
+        lane: usize,
+        scale: f64,
+        beta: f64,
+        res: Resistance,
+        shape: Shape,
+        local: &[usize],
+        grads: &mut UtteranceGrads,
+    ) {
         let width = grads.row.len();
         let f = self.values[lane];
         for (i, s) in prep.seg.iter().enumerate() {
@@ -295,7 +327,7 @@ impl GradScratch {
                 s.inv_alpha,
                 theta,
                 c,
-                tau,
+                s.dom.signed_reach::<RATE>(tau),
                 self.power[o],
                 self.ln_abs_tau[o],
             );
@@ -307,15 +339,28 @@ impl GradScratch {
                 0.0
             };
             let l = local[i] * N_PARAMS;
+            // The side's θ and c belong to the segment's phoneme, except the forward ones with
+            // the handover option: those of the next segment's phoneme (prep.fw).
+            let (l_side, ti, ci) = match side {
+                Side::Backward => (l, Param::ThetaBw.index(), Param::CBw.index()),
+                Side::Forward if RATE => (
+                    local[prep.fw[i]] * N_PARAMS,
+                    Param::ThetaFw.index(),
+                    Param::CFw.index(),
+                ),
+                Side::Forward => (l, Param::ThetaFw.index(), Param::CFw.index()),
+            };
             let d = &mut grads.row[l..l + N_PARAMS];
             d[Param::Target.index()] += sp * sv.s;
             d[Param::Alpha.index()] += a * dg.d_alpha;
-            let (ti, ci) = match side {
-                Side::Backward => (Param::ThetaBw.index(), Param::CBw.index()),
-                Side::Forward => (Param::ThetaFw.index(), Param::CFw.index()),
-            };
-            d[ti] += a * dg.d_theta;
-            d[ci] += a * dg.d_c;
+            if RATE {
+                grads.row[l_side + ti] += a * dg.d_theta;
+                grads.row[l_side + ci] += a * dg.d_c;
+            } else {
+                d[ti] += a * dg.d_theta;
+                d[ci] += a * dg.d_c;
+            }
+            let d = &mut grads.row[l..l + N_PARAMS];
             d[Param::Sigma.index()] += sp * s.target * sv.d_sigma;
             d[Param::Psi.index()] += sp * s.target * sv.d_psi;
             // τ = t − t_i, so ∂/∂t_i = −∂/∂τ.

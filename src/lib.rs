@@ -39,6 +39,9 @@ pub use corpus::{
     sse_batch, sse_gradient, Corpus, SparseJacobian,
 };
 pub use error::ModelError;
-pub use params::{validate_params, ModelOptions, Param, UnknownVariant, Variant, N_PARAMS};
+pub use params::{
+    validate_params, Dominance, ModelOptions, Param, UnknownDominance, UnknownVariant, Variant,
+    N_PARAMS,
+};
 pub use resistance::Resistance;
 pub use shape::Shape;

@@ -3,7 +3,7 @@
 //! domain (log-sum-exp over segments) so that underflowing dominance never gives 0/0.
 
 use crate::dominance::{backward, log_dominance_value, DominanceParams};
-use crate::params::{ModelOptions, Param, N_PARAMS};
+use crate::params::{Dominance, ModelOptions, Param, N_PARAMS};
 use crate::resistance::Resistance;
 use crate::shape::{gaussian_exp, Shape};
 use crate::targets::target_time;
@@ -44,6 +44,13 @@ pub(crate) struct Prepared {
     pub seg: Vec<SegmentModel>,
     /// Whether δ moves t_i (∂t_i/∂δ = 1) or t_i is clamped (0).
     pub free: Vec<bool>,
+    /// The segment whose phoneme gives segment i's forward θ_fw and c_fw: i + 1 with the
+    /// handover option (MODEL.md §2.1; i for the last segment), else i. Their derivatives go to
+    /// that phoneme's columns.
+    pub fw: Vec<usize>,
+    /// Whether a rate-aware option (MODEL.md §2.1) is on: the loops are instantiated twice, so
+    /// that today's model (false) runs exactly today's instructions.
+    pub rate_aware: bool,
     /// t_i, k_R and the extents as separate arrays for the recursion and its adjoint.
     pub t: Vec<f64>,
     pub k: Vec<f64>,
@@ -67,12 +74,20 @@ impl Prepared {
     ) {
         let n = starts.len();
         let res = opts.variant.resistance();
+        let plateau = match opts.dominance {
+            Dominance::Centre => 0.0,
+            Dominance::Plateau => opts.plateau_fraction,
+        };
+        self.rate_aware = plateau != 0.0 || opts.handover;
         self.seg.clear();
         self.free.clear();
+        self.fw.clear();
         self.t.clear();
         self.k.clear();
         for i in 0..n {
             let row = &params[phonemes[i] * N_PARAMS..(phonemes[i] + 1) * N_PARAMS];
+            let fw = if opts.handover && i + 1 < n { i + 1 } else { i };
+            let fw_row = &params[phonemes[fw] * N_PARAMS..(phonemes[fw] + 1) * N_PARAMS];
             let (t, free) = target_time(
                 starts[i],
                 ends[i],
@@ -87,9 +102,11 @@ impl Prepared {
                 dom: DominanceParams {
                     log_alpha: alpha.ln(),
                     theta_bw: row[Param::ThetaBw.index()],
-                    theta_fw: row[Param::ThetaFw.index()],
+                    theta_fw: fw_row[Param::ThetaFw.index()],
                     c_bw: row[Param::CBw.index()],
-                    c_fw: row[Param::CFw.index()],
+                    c_fw: fw_row[Param::CFw.index()],
+                    // h·d_i, from the acoustic segment (independent of every parameter).
+                    plateau: plateau * (ends[i] - starts[i]),
                 },
                 sigma: row[Param::Sigma.index()],
                 psi: row[Param::Psi.index()],
@@ -99,6 +116,7 @@ impl Prepared {
                 inv_fwd: 0.0,
             });
             self.free.push(free);
+            self.fw.push(fw);
             self.t.push(t);
             self.k.push(if res.is_none() {
                 0.0
@@ -136,7 +154,7 @@ impl Prepared {
     /// lane count, so the scalar and AVX2 instantiations agree bit for bit with each other and
     /// with [`crate::gradient::GradScratch::values_at`].
     #[inline(always)]
-    fn lanes_at<V: Lanes>(
+    fn lanes_at<V: Lanes, const RATE: bool>(
         &mut self,
         time: V,
         beta: f64,
@@ -159,7 +177,7 @@ impl Prepared {
                 neg_inf.store(out);
                 continue;
             }
-            let ld = log_dominance_value(&g.dom, bw, a);
+            let ld = log_dominance_value::<V, RATE>(&g.dom, bw, a);
             let lw = V::select(active, lr.add(ld), neg_inf);
             max_lw = V::select(lw.gt(max_lw), lw, max_lw);
             lw.store(out);
@@ -196,14 +214,24 @@ impl Prepared {
         #[cfg(target_arch = "x86_64")]
         if simd_enabled() {
             // SAFETY: AVX2 was detected at run time.
-            return unsafe { self.evaluate_avx2(times, beta, res, shape, out, bad) };
+            return unsafe {
+                if self.rate_aware {
+                    self.evaluate_avx2::<E, true>(times, beta, res, shape, out, bad)
+                } else {
+                    self.evaluate_avx2::<E, false>(times, beta, res, shape, out, bad)
+                }
+            };
         }
-        self.evaluate_lanes::<f64, E>(times, beta, res, shape, out, bad)
+        if self.rate_aware {
+            self.evaluate_lanes::<f64, E, true>(times, beta, res, shape, out, bad)
+        } else {
+            self.evaluate_lanes::<f64, E, false>(times, beta, res, shape, out, bad)
+        }
     }
 
     #[cfg(target_arch = "x86_64")]
     #[target_feature(enable = "avx2")]
-    fn evaluate_avx2<E>(
+    fn evaluate_avx2<E, const RATE: bool>(
         &mut self,
         times: &[f64],
         beta: f64,
@@ -212,11 +240,11 @@ impl Prepared {
         out: &mut [f64],
         bad: impl FnMut(usize) -> Result<(), E>,
     ) -> Result<(), E> {
-        self.evaluate_lanes::<F64x4, E>(times, beta, res, shape, out, bad)
+        self.evaluate_lanes::<F64x4, E, RATE>(times, beta, res, shape, out, bad)
     }
 
     #[inline(always)]
-    fn evaluate_lanes<V: Lanes, E>(
+    fn evaluate_lanes<V: Lanes, E, const RATE: bool>(
         &mut self,
         times: &[f64],
         beta: f64,
@@ -232,7 +260,7 @@ impl Prepared {
             // A short last block repeats its last time in the spare lanes (results dropped).
             let mut t = [times[k + m - 1]; LANES];
             t[..m].copy_from_slice(&times[k..k + m]);
-            let (f, degenerate) = self.lanes_at(V::load(&t), beta, res, shape);
+            let (f, degenerate) = self.lanes_at::<V, RATE>(V::load(&t), beta, res, shape);
             let mut v = [0.0; LANES];
             f.store(&mut v);
             let deg = V::bits(degenerate);
@@ -270,19 +298,34 @@ impl Prepared {
         #[cfg(target_arch = "x86_64")]
         if simd_enabled() {
             // SAFETY: AVX2 was detected at run time.
-            return unsafe { self.limit_avx2(times, res, shape) };
+            return unsafe {
+                if self.rate_aware {
+                    self.limit_avx2::<true>(times, res, shape)
+                } else {
+                    self.limit_avx2::<false>(times, res, shape)
+                }
+            };
         }
-        self.limit_lanes::<f64>(times, res, shape)
+        if self.rate_aware {
+            self.limit_lanes::<f64, true>(times, res, shape)
+        } else {
+            self.limit_lanes::<f64, false>(times, res, shape)
+        }
     }
 
     #[cfg(target_arch = "x86_64")]
     #[target_feature(enable = "avx2")]
-    fn limit_avx2(&self, times: &[f64], res: Resistance, shape: Shape) -> f64 {
-        self.limit_lanes::<F64x4>(times, res, shape)
+    fn limit_avx2<const RATE: bool>(&self, times: &[f64], res: Resistance, shape: Shape) -> f64 {
+        self.limit_lanes::<F64x4, RATE>(times, res, shape)
     }
 
     #[inline(always)]
-    fn limit_lanes<V: Lanes>(&self, times: &[f64], res: Resistance, shape: Shape) -> f64 {
+    fn limit_lanes<V: Lanes, const RATE: bool>(
+        &self,
+        times: &[f64],
+        res: Resistance,
+        shape: Shape,
+    ) -> f64 {
         let s = V::splat;
         let zero = s(0.0);
         let shaped = !matches!(shape, Shape::None);
@@ -307,7 +350,7 @@ impl Prepared {
                 if !V::any(inside) {
                     continue;
                 }
-                let mut v = exp_lanes(log_dominance_value(&g.dom, bw, a));
+                let mut v = exp_lanes(log_dominance_value::<V, RATE>(&g.dom, bw, a));
                 if shaped && g.sigma != 0.0 {
                     v = v.add(gaussian_exp(g.psi, tau));
                 }

@@ -139,7 +139,52 @@ impl FromStr for Variant {
     }
 }
 
-/// Per-channel options that are not fitted per phoneme (MODEL.md §1, §3.1).
+/// How a segment's dominance depends on the distance τ to its target time (MODEL.md §2.1).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, Default)]
+pub enum Dominance {
+    /// MODEL.md §2: D decays from the target time, ln D = ln α − θ |τ|^c.
+    #[default]
+    Centre,
+    /// MODEL.md §2.1: D is flat (= α) within h·d_i of the target time (d_i the segment's
+    /// duration, h the plateau fraction) and decays beyond, ln D = ln α − θ r^c with
+    /// r = max(|τ| − h d_i, 0): a longer (slower) segment holds its target longer, while the
+    /// transitions keep their time scale in seconds.
+    Plateau,
+}
+
+impl Dominance {
+    /// `"centre"` or `"plateau"`.
+    pub fn name(self) -> &'static str {
+        match self {
+            Dominance::Centre => "centre",
+            Dominance::Plateau => "plateau",
+        }
+    }
+}
+
+impl fmt::Display for Dominance {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.write_str(self.name())
+    }
+}
+
+/// Error of [`Dominance::from_str`]: the unknown name.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+#[error("unknown dominance {0:?}: expected \"centre\" or \"plateau\"")]
+pub struct UnknownDominance(pub String);
+
+impl FromStr for Dominance {
+    type Err = UnknownDominance;
+    fn from_str(s: &str) -> Result<Self, Self::Err> {
+        match s {
+            "centre" => Ok(Dominance::Centre),
+            "plateau" => Ok(Dominance::Plateau),
+            other => Err(UnknownDominance(other.to_string())),
+        }
+    }
+}
+
+/// Per-channel options that are not fitted per phoneme (MODEL.md §1, §2.1, §3.1).
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct ModelOptions {
     /// Original (eq. 1) or modified (eq. 3).
@@ -148,6 +193,15 @@ pub struct ModelOptions {
     pub apex_fraction: f64,
     /// Λ, the extent at the utterance edges (s), > 0; default 1.0.
     pub edge_extent: f64,
+    /// Centre (default, MODEL.md §2) or plateau dominance (§2.1).
+    pub dominance: Dominance,
+    /// h of the plateau dominance, in [0, 1] (fixed, not fitted); default 0.5. Unused with
+    /// [`Dominance::Centre`].
+    pub plateau_fraction: f64,
+    /// MODEL.md §2.1: the forward side of a segment's dominance (τ > 0) takes θ_fw and c_fw from
+    /// the phoneme of the next segment (the last segment of an utterance keeps its own), so θ_fw
+    /// of a phoneme is how fast it takes over from what precedes it. Default false.
+    pub handover: bool,
 }
 
 impl Default for ModelOptions {
@@ -156,13 +210,23 @@ impl Default for ModelOptions {
             variant: Variant::Modified,
             apex_fraction: 0.5,
             edge_extent: 1.0,
+            dominance: Dominance::Centre,
+            plateau_fraction: 0.5,
+            handover: false,
         }
     }
 }
 
 impl ModelOptions {
-    /// Checks a ∈ [0, 1] and Λ finite and > 0.
+    /// Checks a ∈ [0, 1], Λ finite and > 0, and h ∈ [0, 1].
     pub fn validate(&self) -> Result<(), ModelError> {
+        if !(self.plateau_fraction.is_finite() && (0.0..=1.0).contains(&self.plateau_fraction)) {
+            return Err(ModelError::BadGlobal {
+                name: "plateau_fraction",
+                value: self.plateau_fraction,
+                domain: "in [0, 1]",
+            });
+        }
         if !(self.apex_fraction.is_finite() && (0.0..=1.0).contains(&self.apex_fraction)) {
             return Err(ModelError::BadGlobal {
                 name: "apex_fraction",

@@ -4,7 +4,7 @@
 //! blocks the value pass runs in.
 
 mod common;
-use coartic::{ModelOptions, Param, Variant, N_PARAMS};
+use coartic::{Dominance, ModelOptions, Param, Variant, N_PARAMS};
 use common::*;
 use proptest::prelude::*;
 
@@ -27,10 +27,33 @@ fn near_kink(m: &Model, times: &[f64], p: usize, margin: f64) -> Vec<bool> {
         .collect()
 }
 
+/// Rows within `margin` of a plateau edge t_i ± h d_i of a segment of phoneme `p` (MODEL.md
+/// §2.1: the reach max(|τ| − h d_i, 0) has a kink there, an infinite slope for c < 1).
+fn near_plateau_edge(m: &Model, times: &[f64], p: usize, margin: f64) -> Vec<bool> {
+    if m.opts.dominance != Dominance::Plateau {
+        return vec![false; times.len()];
+    }
+    times
+        .iter()
+        .map(|&t| {
+            m.segs.iter().enumerate().any(|(i, &(q, s, e))| {
+                let half = m.opts.plateau_fraction * (e - s);
+                // The segment's own δ moves its edges; a handed-over θ_fw/c_fw does not.
+                q == p && ((t - m.target_time(i)).abs() - half).abs() < margin
+            })
+        })
+        .collect()
+}
+
 fn check_all_columns(m: &Model, times: &[f64]) -> Result<(), String> {
     let (values, dj, n_cols) = jac(m, times);
     for p in 0..m.n_phonemes() {
-        let kink = near_kink(m, times, p, 2e-3);
+        let edge = near_plateau_edge(m, times, p, 2e-3);
+        let kink: Vec<bool> = near_kink(m, times, p, 2e-3)
+            .iter()
+            .zip(&edge)
+            .map(|(a, b)| *a || *b)
+            .collect();
         for par in Param::ALL {
             let skip = |r: usize| par == Param::Delta && kink[r];
             check_column(m, times, &values, &dj, n_cols, p, Some(par), &skip)?;
@@ -64,6 +87,32 @@ proptest! {
                 }
             }
             prop_assert_eq!(dj[r * n_cols + n_cols - 1], 0.0);
+        }
+    }
+
+    /// The rate-aware options of MODEL.md §2.1 (plateau dominance with any h, handover, both),
+    /// in both variants: every Jacobian column equals central differences, and the SSE gradient
+    /// agrees with the Jacobian.
+    #[test]
+    fn rate_aware_jacobian_matches_central_differences(m in model_strategy(6), h in 0.0..1.0f64, which in 0usize..3, original in prop::bool::weighted(0.3)) {
+        let mut m = m;
+        m.opts.dominance = if which == 1 { Dominance::Centre } else { Dominance::Plateau };
+        m.opts.plateau_fraction = h;
+        m.opts.handover = which >= 1;
+        if original {
+            m.opts.variant = Variant::Original;
+        }
+        let times = m.times(31);
+        prop_assert!(check_all_columns(&m, &times).is_ok(), "{}", check_all_columns(&m, &times).unwrap_err());
+        let (values, dj, n_cols) = jac(&m, &times);
+        let c = m.corpus(&times);
+        let observed: Vec<f64> = values.iter().enumerate().map(|(r, v)| v + (r as f64 * 0.37).sin()).collect();
+        let weights = vec![1.0; times.len()];
+        let mut grad = vec![0.0; m.n_phonemes() * N_PARAMS];
+        coartic::sse_gradient(&c, &m.params(), m.beta, &m.opts, &observed, &weights, &mut grad).unwrap();
+        for (col, &g) in grad.iter().enumerate() {
+            let want: f64 = (0..times.len()).map(|r| -2.0 * (observed[r] - values[r]) * dj[r * n_cols + col]).sum();
+            prop_assert!((g - want).abs() <= 1e-9 * want.abs().max(1.0), "column {}: {} vs {}", col, g, want);
         }
     }
 

@@ -76,15 +76,34 @@ class Corpus:
 
 @final
 class ModelOptions:
-    """Variant ("original" or "modified"), apex fraction a and edge extent Λ of one channel."""
+    """Variant ("original" or "modified"), apex fraction a and edge extent Λ of one channel, and
+    the rate-aware options of MODEL.md §2.1: dominance "centre" (default, today's model) or
+    "plateau" (D flat within plateau_fraction h of the segment's duration around its target),
+    and handover (the forward side of a segment's dominance takes θ_fw, c_fw of the next
+    segment's phoneme)."""
 
-    def __new__(cls, variant: str = "modified", apex_fraction: float = 0.5, edge_extent: float = 1.0) -> ModelOptions: ...
+    def __new__(
+        cls,
+        variant: str = "modified",
+        apex_fraction: float = 0.5,
+        edge_extent: float = 1.0,
+        *,
+        dominance: str = "centre",
+        plateau_fraction: float = 0.5,
+        handover: bool = False,
+    ) -> ModelOptions: ...
     @property
     def variant(self) -> str: ...
     @property
     def apex_fraction(self) -> float: ...
     @property
     def edge_extent(self) -> float: ...
+    @property
+    def dominance(self) -> str: ...
+    @property
+    def plateau_fraction(self) -> float: ...
+    @property
+    def handover(self) -> bool: ...
 
 def evaluate(
     corpus: Corpus, params: npt.NDArray[np.float64], beta: float, options: ModelOptions

@@ -189,7 +189,8 @@ def channel_options(variant: str, settings: ChannelSettings) -> _core.ModelOptio
     """The core's options of one channel: the variant and the channel's settings (apex fraction,
     edge extent). The one place they are made: a fit makes them from the settings it will write
     into its table, and everything that uses a table (MCMC, score, animation) from the table's."""
-    return _core.ModelOptions(variant, settings.apex_fraction, settings.edge_extent)
+    return _core.ModelOptions(variant, settings.apex_fraction, settings.edge_extent, dominance=settings.dominance,
+                              plateau_fraction=settings.plateau_fraction, handover=settings.handover)
 
 
 def model_options(table: ParameterTable, channel: str) -> _core.ModelOptions:

@@ -42,6 +42,8 @@ PARAMETERS: tuple[str, ...] = (
 )
 N_PARAMS = len(PARAMETERS)
 VARIANTS: tuple[str, ...] = ("original", "modified")
+# Dominance time scale (docs/MODEL.md §2.1): "centre" is the model of §2, "plateau" the rate-aware one.
+DOMINANCES: tuple[str, ...] = ("centre", "plateau")
 QUANTILES: tuple[str, ...] = ("q2.5", "q16", "q50", "q84", "q97.5")
 PAUSE = "#"
 
@@ -68,7 +70,13 @@ CHANNEL_DEFAULTS: Mapping[str, Any] = {
     "beta": 1.0,
     "edge_extent": 1.0,
     "apex_fraction": 0.5,
+    "dominance": "centre",
+    "plateau_fraction": 0.5,
+    "handover": False,
 }
+# The rate-aware options of docs/MODEL.md §2.1: written to a table only when they differ from
+# the defaults, so a table of today's model reads and writes as before.
+RATE_SETTINGS: tuple[str, ...] = ("dominance", "plateau_fraction", "handover")
 
 
 class TableError(CoarticError, ValueError):
@@ -77,13 +85,21 @@ class TableError(CoarticError, ValueError):
 
 @dataclass
 class ChannelSettings:
-    """Per-channel globals: unit, β, edge extent Λ, apex fraction a and the reference phoneme."""
+    """Per-channel globals: unit, β, edge extent Λ, apex fraction a, the reference phoneme, and the
+    rate-aware options of docs/MODEL.md §2.1 (dominance, plateau fraction h, handover)."""
 
     reference_phoneme: str
     unit: str = "mm"
     beta: float = 1.0
     edge_extent: float = 1.0
     apex_fraction: float = 0.5
+    dominance: str = "centre"
+    plateau_fraction: float = 0.5
+    handover: bool = False
+
+    def rate_settings(self) -> dict[str, Any]:
+        """The rate-aware options that differ from the defaults (what a table file records)."""
+        return {n: getattr(self, n) for n in RATE_SETTINGS if getattr(self, n) != CHANNEL_DEFAULTS[n]}
 
 
 @dataclass
@@ -208,6 +224,11 @@ class ParameterTable:
             _check_number(where, "beta", cs.beta, 0.0, INF, open_lower=False)
             _check_number(where, "edge_extent", cs.edge_extent, 0.0, INF, open_lower=True)
             _check_number(where, "apex_fraction", cs.apex_fraction, 0.0, 1.0, open_lower=False)
+            if cs.dominance not in DOMINANCES:
+                raise TableError(f"{where}: dominance {cs.dominance!r} is not one of {', '.join(DOMINANCES)}")
+            _check_number(where, "plateau_fraction", cs.plateau_fraction, 0.0, 1.0, open_lower=False)
+            if not isinstance(cs.handover, bool):
+                raise TableError(f"{where}: handover = {cs.handover!r} is not true or false")
             if not isinstance(cs.reference_phoneme, str) or cs.reference_phoneme not in self.values or ch not in self.values[cs.reference_phoneme]:
                 raise TableError(
                     f"{where}: reference phoneme {cs.reference_phoneme!r} has no parameters for {ch}"
@@ -283,6 +304,7 @@ class ParameterTable:
                     "edge_extent": cs.edge_extent,
                     "apex_fraction": cs.apex_fraction,
                     "reference_phoneme": cs.reference_phoneme,
+                    **cs.rate_settings(),
                 }
                 for ch, cs in self.channels.items()
             },
@@ -340,7 +362,8 @@ class ParameterTable:
         for ch, cdoc in _obj(doc["channels"], f"{source}: channels").items():
             where = f"{source}: channel {ch!r}"
             cdoc = _obj(cdoc, where)
-            extra = sorted(set(cdoc) - {"unit", "beta", "edge_extent", "apex_fraction", "reference_phoneme"})
+            extra = sorted(set(cdoc) - {"unit", "beta", "edge_extent", "apex_fraction", "reference_phoneme",
+                                        *RATE_SETTINGS})
             if extra:
                 raise TableError(f"{where}: unknown key {extra[0]!r}")
             if "reference_phoneme" not in cdoc:
@@ -351,6 +374,10 @@ class ParameterTable:
                 beta=_num(where, "beta", cdoc.get("beta", CHANNEL_DEFAULTS["beta"])),
                 edge_extent=_num(where, "edge_extent", cdoc.get("edge_extent", CHANNEL_DEFAULTS["edge_extent"])),
                 apex_fraction=_num(where, "apex_fraction", cdoc.get("apex_fraction", CHANNEL_DEFAULTS["apex_fraction"])),
+                dominance=cdoc.get("dominance", CHANNEL_DEFAULTS["dominance"]),
+                plateau_fraction=_num(where, "plateau_fraction",
+                                      cdoc.get("plateau_fraction", CHANNEL_DEFAULTS["plateau_fraction"])),
+                handover=cdoc.get("handover", CHANNEL_DEFAULTS["handover"]),
             )
         values: dict[str, dict[str, dict[str, float]]] = {}
         for ph, pdoc in _obj(doc["phonemes"], f"{source}: phonemes").items():
@@ -414,7 +441,8 @@ class ParameterTable:
         """Long CSV: one row per phoneme, channel and parameter; uncertainty columns when present.
 
         Channel settings are rows with phoneme ``*`` (``unit``, ``beta``, ``edge_extent``,
-        ``apex_fraction``, ``reference_phoneme``); the variant is the row ``*,*,variant,<name>``.
+        ``apex_fraction``, ``reference_phoneme``, and ``dominance``, ``plateau_fraction``,
+        ``handover`` when not the defaults); the variant is the row ``*,*,variant,<name>``.
         Bounds, reasons and metadata are not carried by the CSV (the JSON is the canonical file).
         """
         buf = io.StringIO()
@@ -428,6 +456,9 @@ class ParameterTable:
             for name in ("beta", "edge_extent", "apex_fraction"):
                 w.writerow(["*", ch, name, repr(float(getattr(cs, name)))] + pad)
             w.writerow(["*", ch, "reference_phoneme", cs.reference_phoneme] + pad)
+            for name, v in cs.rate_settings().items():
+                text = repr(float(v)) if name == "plateau_fraction" else str(v).lower() if name == "handover" else v
+                w.writerow(["*", ch, name, text] + pad)
         for ph, chans in self.values.items():
             for ch, row in chans.items():
                 for name in PARAMETERS:
@@ -471,7 +502,8 @@ class ParameterTable:
                         raise TableError(f"{where}: unknown table setting {name!r}")
                     variant = value
                 else:
-                    if name not in ("unit", "beta", "edge_extent", "apex_fraction", "reference_phoneme"):
+                    if name not in ("unit", "beta", "edge_extent", "apex_fraction", "reference_phoneme",
+                                    *RATE_SETTINGS):
                         raise TableError(f"{where}: unknown channel setting {name!r}")
                     settings.setdefault(ch, {})[name] = value
                 continue
@@ -492,6 +524,9 @@ class ParameterTable:
                 beta=_parse_float(where, "beta", s.get("beta", "1.0")),
                 edge_extent=_parse_float(where, "edge_extent", s.get("edge_extent", "1.0")),
                 apex_fraction=_parse_float(where, "apex_fraction", s.get("apex_fraction", "0.5")),
+                dominance=s.get("dominance", CHANNEL_DEFAULTS["dominance"]),
+                plateau_fraction=_parse_float(where, "plateau_fraction", s.get("plateau_fraction", "0.5")),
+                handover=_parse_bool(where, "handover", s.get("handover", "false")),
             )
         table = cls(variant=variant, channels=channels, values=values, uncertainty=uncertainty, source=source)
         table.validate()
@@ -511,9 +546,9 @@ class ParameterTable:
         """Build a validated table from ``rows[phoneme][channel][parameter]``.
 
         ``reference[channel]`` names the reference phoneme; ``settings[channel]`` may set
-        unit, beta, edge_extent, apex_fraction.
+        unit, beta, edge_extent, apex_fraction, dominance, plateau_fraction, handover.
         """
-        allowed = {"unit", "beta", "edge_extent", "apex_fraction"}
+        allowed = {"unit", "beta", "edge_extent", "apex_fraction", *RATE_SETTINGS}
         for ch, given in (settings or {}).items():
             extra = sorted(set(given) - allowed)
             if extra:
@@ -608,6 +643,12 @@ def _num(where: str, name: str, v: Any) -> float:
         return float(v)
     except OverflowError:  # an integer of hundreds of digits
         raise TableError(f"{where}: {name} = {str(v)[:20]}... ({len(str(v))} digits) is not a finite number") from None
+
+
+def _parse_bool(where: str, name: str, text: str) -> bool:
+    if text not in ("true", "false"):
+        raise TableError(f"{where}: {name} = {text!r} is not true or false")
+    return text == "true"
 
 
 def _parse_float(where: str, name: str, text: str) -> float:

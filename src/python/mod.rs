@@ -24,7 +24,7 @@ use pyo3::types::{PyDict, PyType};
 use crate::alloc::{product, try_filled, try_with_capacity};
 use crate::error::ErrorFields;
 use crate::geometry::{self, GeometryError, N_CHANNELS, N_MARKERS};
-use crate::{ModelError, Variant, N_PARAMS};
+use crate::{Dominance, ModelError, Variant, N_PARAMS};
 
 /// `coartic._core.CoarticError`, made at import: a subclass of the package's base
 /// `coartic.errors.CoarticError` and of ValueError, so that `except ValueError` and
@@ -376,15 +376,29 @@ pub struct ModelOptions {
 #[pymethods]
 impl ModelOptions {
     #[new]
-    #[pyo3(signature = (variant = "modified", apex_fraction = 0.5, edge_extent = 1.0))]
-    fn new(variant: &str, apex_fraction: f64, edge_extent: f64) -> PyResult<Self> {
+    #[pyo3(signature = (variant = "modified", apex_fraction = 0.5, edge_extent = 1.0, *,
+                        dominance = "centre", plateau_fraction = 0.5, handover = false))]
+    fn new(
+        variant: &str,
+        apex_fraction: f64,
+        edge_extent: f64,
+        dominance: &str,
+        plateau_fraction: f64,
+        handover: bool,
+    ) -> PyResult<Self> {
         let variant: Variant = variant
             .parse()
             .map_err(|e: crate::params::UnknownVariant| value_error(format!("variant: {e}")))?;
+        let dominance: Dominance = dominance
+            .parse()
+            .map_err(|e: crate::params::UnknownDominance| value_error(format!("dominance: {e}")))?;
         let inner = crate::ModelOptions {
             variant,
             apex_fraction,
             edge_extent,
+            dominance,
+            plateau_fraction,
+            handover,
         };
         inner.validate().map_err(model_err)?;
         Ok(ModelOptions { inner })
@@ -402,14 +416,39 @@ impl ModelOptions {
     fn edge_extent(&self) -> f64 {
         self.inner.edge_extent
     }
+    #[getter]
+    fn dominance(&self) -> &'static str {
+        self.inner.dominance.name()
+    }
+    #[getter]
+    fn plateau_fraction(&self) -> f64 {
+        self.inner.plateau_fraction
+    }
+    #[getter]
+    fn handover(&self) -> bool {
+        self.inner.handover
+    }
 
     fn __repr__(&self) -> String {
-        format!(
-            "ModelOptions(variant={:?}, apex_fraction={:?}, edge_extent={:?})",
-            self.inner.variant.name(),
-            self.inner.apex_fraction,
-            self.inner.edge_extent
-        )
+        let o = &self.inner;
+        let mut s = format!(
+            "ModelOptions(variant={:?}, apex_fraction={:?}, edge_extent={:?}",
+            o.variant.name(),
+            o.apex_fraction,
+            o.edge_extent
+        );
+        // The rate-aware options only when they differ from the default (today's model).
+        if o.dominance != Dominance::Centre {
+            s += &format!(
+                ", dominance={:?}, plateau_fraction={:?}",
+                o.dominance.name(),
+                o.plateau_fraction
+            );
+        }
+        if o.handover {
+            s += ", handover=True";
+        }
+        s + ")"
     }
 }
 

@@ -177,6 +177,7 @@ pub fn model_strategy(max_segs: usize) -> impl Strategy<Value = Model> {
                     variant: coartic::Variant::Modified,
                     apex_fraction: apex,
                     edge_extent: edge,
+                    ..ModelOptions::default()
                 },
             }
         })

@@ -177,11 +177,11 @@ def test_a_rerun_skips_finished_units_and_redoes_only_missing_ones(corpus: Path,
     out = corpus / "rerun"
     shutil.copytree(serial, out)
     spec = load_batch_spec(corpus / "batch.toml")
-    again = run_batch(spec, out, serial=True, quiet=True)
+    again = run_batch(spec, out, serial=True, quiet=True, report=False)
     assert again.skipped == 8 and again.landed == [] and again.complete
     shutil.rmtree(unit_dir(out, UnitKey("s02", "JO")))
     (unit_dir(out, UnitKey("s01", "JO")) / "unit.json").unlink()  # as if killed before its last file
-    third = run_batch(spec, out, serial=True, quiet=True)
+    third = run_batch(spec, out, serial=True, quiet=True, report=False)
     assert sorted(k.label for k in third.landed) == ["s01 JO", "s02 JO"] and third.skipped == 6
     assert all(is_done(out, k) for k in plan_units(spec))
     for name in TABLE_FILES:
@@ -195,12 +195,30 @@ def test_a_failed_unit_is_reported_and_the_others_land(corpus: Path, tmp_path: P
 
     out = tmp_path / "failing"
     spec = load_batch_spec(corpus / "batch.toml")
-    outcome = run_batch(spec, out, serial=True, quiet=True, before=fail_jo)
+    outcome = run_batch(spec, out, serial=True, quiet=True, before=fail_jo, report=False)
     assert sorted(outcome.failed) == ["pooled JO", "s01 JO", "s02 JO"]
     assert "JO refused by the test" in outcome.failed["s01 JO"]
     assert is_done(out, UnitKey("s01", "LLO")) and not (out / "groups/s01").exists()
     status = json.loads((out / "status.json").read_text())
     assert status["finished"] == 5 and "s01 JO" in status["missing"]  # 3 LLO fits, 2 LLO posteriors
+
+
+def test_ctrl_c_keeps_every_finished_unit_and_the_rerun_completes(corpus: Path, serial: Path, tmp_path: Path) -> None:
+    def ctrl_c_at_s02(key: UnitKey) -> None:
+        if key.group == "s02":
+            raise KeyboardInterrupt
+
+    out = tmp_path / "interrupted"
+    spec = load_batch_spec(corpus / "batch.toml")
+    first = run_batch(spec, out, serial=True, quiet=True, before=ctrl_c_at_s02, report=False)
+    assert first.interrupted and [k.label for k in first.landed] == ["s01 LLO", "s01 JO"]
+    assert json.loads((out / "coartic_run.json").read_text())["status"] == "interrupted"
+    assert (out / "groups/s01/table.csv").read_bytes() == (serial / "groups/s01/table.csv").read_bytes()
+    second = run_batch(spec, out, serial=True, quiet=True, report=False)
+    assert not (out / "report.html").exists() and (out / "rmse_groups.csv").is_file()
+    assert second.complete and second.skipped == 2 and len(second.landed) == 6
+    for name in TABLE_FILES:
+        assert (out / "groups/s02" / name).read_bytes() == (serial / "groups/s02" / name).read_bytes()
 
 
 # ----------------------------------------------------------------------------- report, CLI, errors

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import csv
 import math
 from pathlib import Path
 
@@ -52,3 +53,17 @@ def test_compare_command_reports_held_out_rmse_and_refuses_bad_specs(tmp_path: P
     bad.write_text('[corpus]\nmanifest = "none.csv"\n[engine.options]\nmax_nfev = 0\n')
     res = CliRunner().invoke(app, ["compare", str(a), str(bad), "--out", str(tmp_path / "d")])
     assert res.exit_code == 2 and "[engine.options] max_nfev" in res.output
+
+
+def test_compare_varies_a_setting_to_choose_a_prior_strength(tmp_path: Path) -> None:
+    a = write_spec(tmp_path, "prior on theta", "modified", '["target", "theta_bw"]\nprior = { theta_bw = [5.0, 1.0] }')
+    res = CliRunner().invoke(app, ["compare", str(a), "--no-validate", "--vary", "prior_noise=0.01,3",
+                                   "--out", str(tmp_path / "c")])
+    assert res.exit_code == 0, res.output
+    with (tmp_path / "c" / "compare.csv").open() as f:
+        rows = list(csv.DictReader(f))
+    assert len(rows) == 2 and "prior_noise = 0.01" in rows[0]["model"] and "prior_noise = 3" in rows[1]["model"]
+    rmse = [float(r["rmse_mm"]) for r in rows]
+    assert rmse[1] > rmse[0]  # a strong prior (noise 3 mm) pulls theta_bw to 5 ms and away from the data
+    res = CliRunner().invoke(app, ["compare", str(a), "--vary", "speed=1,2", "--out", str(tmp_path / "d")])
+    assert res.exit_code == 2 and "not a setting compare can vary" in res.output

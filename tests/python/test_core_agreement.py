@@ -178,3 +178,50 @@ def test_outputs_are_owned_writeable_numpy_arrays() -> None:
         len(arrays["seg_phoneme"]),
         3,
     )
+
+
+@pytest.mark.parametrize(("dominance", "handover"), [("plateau", False), ("centre", True), ("plateau", True)])
+@pytest.mark.parametrize("variant", VARIANTS)
+@pytest.mark.parametrize("seed", range(3))
+def test_rate_aware_options_match_numpy_reference(dominance: str, handover: bool, variant: str, seed: int) -> None:
+    """MODEL.md §2.1: plateau dominance and handover, as tests/python/numpy_model.py has them."""
+    rng = np.random.default_rng(100 + seed)
+    arrays = random_corpus_arrays(rng, n_utterances=4, n_phonemes=5)
+    params = random_params(rng, 5)
+    beta, apex, edge, h = (float(rng.uniform(0.0, 3.0)), float(rng.uniform(0.2, 0.8)),
+                           float(rng.uniform(0.3, 2.0)), float(rng.uniform(0.1, 1.0)))
+    corpus = _core.Corpus(**arrays)
+    opts = _core.ModelOptions(variant, apex, edge, dominance=dominance, plateau_fraction=h, handover=handover)
+    got = _core.evaluate(corpus, params, beta, opts)
+    want = nm.evaluate_corpus_arrays(params, arrays, beta, variant, apex, edge, dominance=dominance,
+                                     plateau_fraction=h, handover=handover)
+    assert rel_err(got, want) < 1e-12
+    # The option changes the model (the test would not notice an option that is ignored).
+    plain = _core.evaluate(corpus, params, beta, _core.ModelOptions(variant, apex, edge))
+    assert rel_err(got, plain) > 1e-6
+    # Jacobian values and the batch path agree with evaluate bit for bit.
+    values, *_ = _core.jacobian(corpus, params, beta, opts)
+    assert np.array_equal(values, got)
+    batch = _core.evaluate_batch(corpus, np.stack([params, params]), np.array([beta, beta]), opts)
+    assert np.array_equal(batch[1], got)
+
+
+def test_default_options_are_todays_model_bit_for_bit() -> None:
+    rng = np.random.default_rng(5)
+    arrays = random_corpus_arrays(rng, n_utterances=4, n_phonemes=5)
+    params = random_params(rng, 5)
+    corpus = _core.Corpus(**arrays)
+    default = _core.evaluate(corpus, params, 1.2, _core.ModelOptions("modified", 0.4, 0.8))
+    for opts in (_core.ModelOptions("modified", 0.4, 0.8, dominance="centre", plateau_fraction=0.9),
+                 _core.ModelOptions("modified", 0.4, 0.8, dominance="plateau", plateau_fraction=0.0)):
+        assert np.array_equal(_core.evaluate(corpus, params, 1.2, opts), default)
+    o = _core.ModelOptions("original", dominance="plateau", plateau_fraction=0.25, handover=True)
+    assert (o.dominance, o.plateau_fraction, o.handover) == ("plateau", 0.25, True)
+    assert repr(o) == ('ModelOptions(variant="original", apex_fraction=0.5, edge_extent=1.0, dominance="plateau", '
+                       'plateau_fraction=0.25, handover=True)')
+    assert repr(_core.ModelOptions()) == 'ModelOptions(variant="modified", apex_fraction=0.5, edge_extent=1.0)'
+    with pytest.raises(_core.CoarticError, match=r"unknown dominance \"segment\""):
+        _core.ModelOptions(dominance="segment")
+    with pytest.raises(_core.CoarticError, match=r"plateau_fraction = 1.5 is invalid: must be in \[0, 1\]") as e:
+        _core.ModelOptions(dominance="plateau", plateau_fraction=1.5)
+    assert (e.value.parameter, e.value.value) == ("plateau_fraction", 1.5)

@@ -123,3 +123,42 @@ def test_build_corpus_errors_carry_the_place(illustrative_table: ParameterTable)
     assert str(e.value).startswith("utterance 2: segment 2 'p' starts at 0.05 s, before segment 1 'a' ends")
     assert isinstance(e.value, ValueError)
     assert (e.value.utterance, e.value.segment, e.value.phoneme, e.value.value) == (1, 1, "p", 0.05)
+
+
+def test_rate_aware_options_go_from_spec_to_table_to_core(illustrative_table: ParameterTable, tmp_path) -> None:  # type: ignore[no-untyped-def]
+    """docs/MODEL.md §2.1: [model] dominance / plateau_fraction / handover are the fit's options, the
+    table records them (JSON and CSV, only when not the defaults) and evaluates with them."""
+    from pathlib import Path
+
+    from coartic.fit.spec import SpecError, parse_spec
+
+    raw = {"corpus": {"files": ["x"], "labels": ["y"]}, "model": {"channels": ["LLO"], "dominance": "plateau",
+                                                               "plateau_fraction": 0.4, "handover": True}}
+    spec = parse_spec(raw, Path("/tmp/s.toml"))
+    cs = spec.channel_settings("LLO")
+    assert (cs.dominance, cs.plateau_fraction, cs.handover) == ("plateau", 0.4, True)
+    for bad, key in (({"dominance": "segment"}, "model.dominance"), ({"plateau_fraction": 2.0}, "model.plateau_fraction"),
+                     ({"handover": "yes"}, "model.handover")):
+        with pytest.raises(SpecError, match=rf"\[{key}\]"):
+            parse_spec({**raw, "model": {"channels": ["LLO"], **bad}}, Path("/tmp/s.toml"))
+
+    plain_json = illustrative_table.to_json_dict()
+    assert "dominance" not in plain_json["channels"]["LLO"]  # today's tables are written as before
+    assert "dominance" not in illustrative_table.to_csv()
+    before = trajectories(illustrative_table, LABELS, STARTS, ENDS, TIMES)["LLO"]
+    settings = illustrative_table.channels["LLO"]
+    settings.dominance, settings.plateau_fraction, settings.handover = cs.dominance, cs.plateau_fraction, cs.handover
+    out = trajectories(illustrative_table, LABELS, STARTS, ENDS, TIMES)["LLO"]
+    phonemes = illustrative_table.phonemes_for("LLO")
+    params, beta = illustrative_table.to_matrix("LLO")
+    rows = [phonemes.index(lab) for lab in LABELS]
+    want = nm.evaluate_utterance(params, rows, STARTS, ENDS, TIMES, beta, "modified", dominance="plateau",
+                                 plateau_fraction=0.4, handover=True)
+    np.testing.assert_allclose(out, want, rtol=1e-12, atol=1e-12)
+    assert np.max(np.abs(out - before)) > 1e-3
+    for name in ("t.json", "t.csv"):
+        illustrative_table.save(tmp_path / name)
+        back = ParameterTable.load(tmp_path / name)
+        b = back.channels["LLO"]
+        assert (b.dominance, b.plateau_fraction, b.handover) == ("plateau", 0.4, True), name
+        assert np.array_equal(trajectories(back, LABELS, STARTS, ENDS, TIMES)["LLO"], out), name

@@ -79,6 +79,14 @@ def test_single_frames_show_lips_closed_and_open(run: Path) -> None:
         write_face_vrml(run / "x.wrl", faps, frames=[faps.n_frames])
 
 
+def test_a_long_animation_is_refused_before_any_text(tmp_path: Path) -> None:
+    from coartic.face.vrml import VRML_MAX_FRAMES, vrml_text
+
+    rig = default_rig()
+    with pytest.raises(AnimationError, match="export chosen frames"):
+        vrml_text(rig, np.zeros((VRML_MAX_FRAMES + 1, rig.targets.shape[0])), 25.0, "long")
+
+
 def test_castle_engine_reads_the_world(run: Path) -> None:
     """tovrmlx3d (Debian view3dscene) parses VRML97 with its node and field types and converts it to
     X3D; it reports an error in the file (shown here on a broken one) as a warning on stderr."""

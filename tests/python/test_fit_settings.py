@@ -302,3 +302,61 @@ def test_offsets_recover_shifted_recordings(tmp_path: Path) -> None:
     # offsets are identified up to a common constant (the targets absorb their mean)
     np.testing.assert_allclose(b - b.mean(), shifts - shifts.mean(), atol=0.05)
     assert prob.sse(fits["free"].x) < 0.1 * prob.__class__(prob.data, fits["none"].packing, prob.options).sse(fits["none"].x)
+
+
+def test_a_stage_that_did_not_converge_says_why(tmp_path: Path, utts: list[model.Utterance]) -> None:
+    s = spec_of(tmp_path, parameters={"free": ["target", "theta_bw"]}, engine={"options": {"max_nfev": 2}})
+    text = run(s, None, utterances=utts, quiet=True).report_text()
+    assert "[max-evaluations]: The maximum number of function evaluations is exceeded." in text
+
+
+def test_tied_parameters_share_one_value_with_exact_derivatives(tmp_path: Path, utts: list[model.Utterance]) -> None:
+    from coartic.fit.problem import build_problem
+
+    free = ["target", "theta_bw", "theta_fw", "k_r"]
+    ties = [{"phonemes": ["p", "t"], "parameters": ["theta_bw", "theta_fw"]}, {"phonemes": ["a", "i"], "parameters": ["k_r"]}]
+    untied = build_problem(spec_of(tmp_path, parameters={"free": free}), utts, "LLO", phonemes=PHONEMES)
+    prob = build_problem(spec_of(tmp_path, parameters={"free": free}, tie=ties), utts, "LLO", phonemes=PHONEMES)
+    assert prob.packing.n_free == untied.packing.n_free - 3
+    x = prob.packing.pack() + 0.04
+    params, _ = prob.packing.unpack(x)
+    th = PARAMETERS.index("theta_bw")
+    assert params[PHONEMES.index("t"), th] == params[PHONEMES.index("p"), th]
+    j = prob.jacobian(x).toarray()
+    r = prob.residuals(x)
+    h = 1e-6
+    for col in range(x.size):
+        e = np.zeros_like(x)
+        e[col] = h
+        fd = (prob.residuals(x + e) - prob.residuals(x - e)) / (2 * h)
+        np.testing.assert_allclose(j[:, col], fd, rtol=1e-5, atol=1e-7)
+    sse, g = prob.sse_gradient(x)
+    np.testing.assert_allclose(g, 2 * j.T @ r, rtol=1e-6, atol=1e-8)
+    assert prob.sse_batch(x[None])[0] == pytest.approx(sse, rel=1e-10)
+
+
+def test_a_fit_with_ties_reports_them(tmp_path: Path, utts: list[model.Utterance]) -> None:
+    s = spec_of(tmp_path, parameters={"free": ["target", "theta_bw"]},
+                tie=[{"phonemes": ["p", "t"], "parameters": ["theta_bw"]}])
+    fit = run(s, None, utterances=utts, quiet=True).channels["LLO"]
+    ps = fit.parameters
+    assert ps["t.theta_bw"].tied_to == "p.theta_bw" and not ps["t.theta_bw"].free
+    assert ps["t.theta_bw"].value == ps["p.theta_bw"].value and ps["t.theta_bw"].stderr == ps["p.theta_bw"].stderr
+    assert run(s, None, utterances=utts, quiet=True).table().values["t"]["LLO"]["theta_bw"] == ps["p.theta_bw"].value
+
+
+@pytest.mark.parametrize("tie, words", [
+    ({"phonemes": ["p"], "parameters": ["theta_bw"]}, "two phonemes or more"),
+    ({"phonemes": ["a", "i"], "parameters": ["alpha"]}, "reference phoneme 'a'"),
+    ({"phonemes": ["p", "t"], "parameters": ["speed"]}, "unknown parameter 'speed'"),
+])
+def test_bad_ties_are_refused(tmp_path: Path, tie: dict[str, Any], words: str) -> None:
+    with pytest.raises(SpecError, match=words) as e:
+        spec_of(tmp_path, tie=[tie])
+    assert "[tie #1" in str(e.value)
+
+
+def test_a_tie_of_fixed_values_is_refused(tmp_path: Path, utts: list[model.Utterance]) -> None:
+    s = spec_of(tmp_path, tie=[{"phonemes": ["p", "t"], "parameters": ["k_r"]}])  # k_r is not free
+    with pytest.raises(SpecError, match=r"\[tie #1\] k_r is free for none of"):
+        build_packing(s, ChannelData.build(utts, "LLO", PHONEMES))

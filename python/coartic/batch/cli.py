@@ -22,8 +22,10 @@ def batch_command(
                                           "(default: one per core, at most one per unit)"),
     serial: bool = typer.Option(False, "--serial", help="no Dask: every unit in this process, one after another"),
     force: bool = typer.Option(False, "--force", help="replace an output folder that holds another run's results"),
+    report: bool = typer.Option(True, "--report/--no-report", help="write the figures and report.html"),
 ) -> None:
-    """Fit every speaker/session (and all of them pooled), one Dask task per speaker and channel."""
+    """Fit every speaker/session (and all of them pooled), with \\[posteriors] sample each one's posteriors: one Dask task
+    per speaker and channel; rerun the same command to continue after an interruption."""
     console = Console()
     err = Console(stderr=True)
     if scheduler is not None and (workers is not None or serial):
@@ -35,7 +37,8 @@ def batch_command(
         s = load_batch_spec(spec)
         from coartic.batch.run import run_batch
 
-        outcome = run_batch(s, out, scheduler=scheduler, workers=workers, serial=serial, force=force, console=err)
+        outcome = run_batch(s, out, scheduler=scheduler, workers=workers, serial=serial, force=force, report=report,
+                              console=err)
     except (ValueError, OSError) as e:  # SpecError, OutputError, DataError: messages name the culprit
         print_error(err, e)
         raise typer.Exit(2) from None
@@ -51,8 +54,9 @@ def batch_command(
         cells = [by.get((g, ch)) for ch in s.channels]
         t.add_row(g, *[("–" if v is None else f"[{'green' if v < BAR_MM else 'red'}]{v:.3f}[/]") for v in cells])
     console.print(t)
-    console.print(f"{len(outcome.landed)} unit(s) fitted now, {outcome.skipped} already done, of {outcome.total}; "
-                  f"report: {out / 'report.html'}", soft_wrap=True)
+    where = f"report: {out / 'report.html'}" if report else f"tables: {out / 'groups'}"
+    console.print(f"{len(outcome.landed)} unit(s) done now, {outcome.skipped} already done, of {outcome.total}; "
+                  f"{where}", soft_wrap=True)
     for label, why in outcome.failed.items():
         print_error(err, f"unit {label}: {why}")
     if outcome.interrupted:

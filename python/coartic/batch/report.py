@@ -15,6 +15,7 @@ import csv
 import io
 import json
 import math
+import shutil
 from collections.abc import Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -279,8 +280,9 @@ the posterior quantiles: <code>groups/&lt;group&gt;/table_mcmc.json</code>.</p>{
 """
 
 
-def write_outputs(spec: BatchSpec, out: Path, outcome: BatchOutcome) -> None:
-    """The per-group and pooled tables of every complete group, the summary files and the report."""
+def write_outputs(spec: BatchSpec, out: Path, outcome: BatchOutcome, report: bool = True) -> None:
+    """The per-group and pooled tables of every complete group, the summary files and (``report``)
+    the figures and report.html."""
     from coartic.batch.run import is_done, land_dir, unit_dir
 
     tables: dict[str, ParameterTable] = {}
@@ -309,35 +311,39 @@ def write_outputs(spec: BatchSpec, out: Path, outcome: BatchOutcome) -> None:
     spread = spread_rows(tables, pooled, spec.channels) if tables else []
     atomic_write_bytes(out / "rmse_groups.csv", _csv_text(rmse).encode())
     atomic_write_bytes(out / "spread.csv", _csv_text(spread).encode())
-    figs = _figures(spec, rmse, tables, pooled)
-    land_dir(out / "figures", figs)
-    by = {(r["group"], r["channel"]): r["rmse_mm"] for r in rmse}
-    grid = [{"name": n, "link": (f"groups/{n}/table.json" if n in tables else
-                                 "pooled/table.json" if n == "pooled" and pooled is not None else ""),
-             "cells": [by.get((n, ch)) for ch in spec.channels]}
-            for n in [*spec.group_names, *(["pooled"] if spec.pooled else [])]]
-    # The spread table shows the largest relative spreads (sd over |mean|, targets over their range).
-    ranked = sorted((r for r in spread if r["groups"] > 1 and r["sd"] > 0),
-                    key=lambda r: -r["sd"] / max(abs(r["mean"]), 1e-9))[:25]
-    captions = {"rmse.png": "RMSE of every group's fit (and the pooled fit) per channel."}
-    captions |= {f"spread_{ch}.png": f"{ch}: every phoneme's parameters in each group's fit (dots) and in the "
-                 "pooled fit (crosses)." for ch in spec.channels}
-    posteriors = []
-    for g in spec.groups if spec.posterior_channels else ():
-        cells = []
-        for ch in spec.posterior_channels:
-            key = UnitKey(g.name, ch, "posterior")
-            cells.append(json.loads((unit_dir(out, key) / "unit.json").read_text(encoding="utf-8"))["status"]
-                         if is_done(out, key) else "–")
-        posteriors.append({"name": g.name, "cells": cells})
-    env = jinja2.Environment(autoescape=True, undefined=jinja2.StrictUndefined)
-    html = env.from_string(_TEMPLATE).render(
-        name=spec.name, spec=str(spec.path), fit_spec=str(spec.fit.path), n_groups=len(spec.groups),
-        channels=list(spec.channels), done=outcome.total - len(missing), total=outcome.total,
-        failed=outcome.failed, missing=missing, grid=grid, bar=BAR_MM, pooled=spec.pooled, pooled_note=POOLED_NOTE,
-        figures=[{"src": f"figures/{n}", "caption": captions.get(n, n)} for n in figs], spread=ranked,
-        posteriors=posteriors, posterior_channels=list(spec.posterior_channels))
-    atomic_write_bytes(out / "report.html", html.encode())
+    if not report:  # an earlier run's page would no longer match the tables
+        (out / "report.html").unlink(missing_ok=True)
+        shutil.rmtree(out / "figures", ignore_errors=True)
+    if report:  # the figures and the page (the tables and CSVs above are written either way)
+        figs = _figures(spec, rmse, tables, pooled)
+        land_dir(out / "figures", figs)
+        by = {(r["group"], r["channel"]): r["rmse_mm"] for r in rmse}
+        grid = [{"name": n, "link": (f"groups/{n}/table.json" if n in tables else
+                                     "pooled/table.json" if n == "pooled" and pooled is not None else ""),
+                 "cells": [by.get((n, ch)) for ch in spec.channels]}
+                for n in [*spec.group_names, *(["pooled"] if spec.pooled else [])]]
+        # The spread table shows the largest relative spreads (sd over |mean|, targets over their range).
+        ranked = sorted((r for r in spread if r["groups"] > 1 and r["sd"] > 0),
+                        key=lambda r: -r["sd"] / max(abs(r["mean"]), 1e-9))[:25]
+        captions = {"rmse.png": "RMSE of every group's fit (and the pooled fit) per channel."}
+        captions |= {f"spread_{ch}.png": f"{ch}: every phoneme's parameters in each group's fit (dots) and in the "
+                     "pooled fit (crosses)." for ch in spec.channels}
+        posteriors = []
+        for g in spec.groups if spec.posterior_channels else ():
+            cells = []
+            for ch in spec.posterior_channels:
+                key = UnitKey(g.name, ch, "posterior")
+                cells.append(json.loads((unit_dir(out, key) / "unit.json").read_text(encoding="utf-8"))["status"]
+                             if is_done(out, key) else "–")
+            posteriors.append({"name": g.name, "cells": cells})
+        env = jinja2.Environment(autoescape=True, undefined=jinja2.StrictUndefined)
+        html = env.from_string(_TEMPLATE).render(
+            name=spec.name, spec=str(spec.path), fit_spec=str(spec.fit.path), n_groups=len(spec.groups),
+            channels=list(spec.channels), done=outcome.total - len(missing), total=outcome.total,
+            failed=outcome.failed, missing=missing, grid=grid, bar=BAR_MM, pooled=spec.pooled, pooled_note=POOLED_NOTE,
+            figures=[{"src": f"figures/{n}", "caption": captions.get(n, n)} for n in figs], spread=ranked,
+            posteriors=posteriors, posterior_channels=list(spec.posterior_channels))
+        atomic_write_bytes(out / "report.html", html.encode())
     status = {"spec": str(spec.path), "units": outcome.total, "finished": outcome.total - len(missing),
               "skipped_as_done": outcome.skipped, "landed_now": [k.label for k in outcome.landed],
               "failed": outcome.failed, "interrupted": outcome.interrupted, "missing": missing,

@@ -123,7 +123,7 @@ def output_dir(spec: BatchSpec, out: Path, force: bool = False) -> OutputDir:
 
 def land_unit(out: Path, spec: BatchSpec, result: UnitOutput) -> None:
     info = {"unit": result.key.label, "group": result.key.group, "channel": result.key.channel,
-            "status": result.status, "rmse_mm": result.rmse, "compute_s": result.compute_s, "load_s": result.load_s,
+            "status": result.status, "rmse_mm": result.rmse, "compute_s": result.compute_s, "cpu_s": result.cpu_s, "load_s": result.load_s,
             "host": result.host, "pid": result.pid, "rayon_threads": result.rayon_threads,
             "fingerprint": spec.fingerprint}
     files = dict(result.files)
@@ -158,8 +158,8 @@ def cluster_threads(client: Any) -> int | None:
 
 
 def run_batch(spec: BatchSpec, out: str | Path, *, scheduler: str | None = None, workers: int | None = None,
-              serial: bool = False, force: bool = False, console: Console | None = None, quiet: bool = False,
-              before: Callable[[UnitKey], None] | None = None) -> BatchOutcome:
+              serial: bool = False, force: bool = False, report: bool = True, console: Console | None = None,
+              quiet: bool = False, before: Callable[[UnitKey], None] | None = None) -> BatchOutcome:
     """Run every unfinished unit of ``spec`` into ``out``, then write the tables and the report.
 
     ``before`` is called on the worker before each fit unit (fault injection in tests). Ctrl-C and
@@ -203,7 +203,7 @@ def run_batch(spec: BatchSpec, out: str | Path, *, scheduler: str | None = None,
         from coartic.batch.report import write_outputs
 
         with signals.saving():
-            write_outputs(spec, out, outcome)
+            write_outputs(spec, out, outcome, report)
         od.status = "interrupted" if outcome.interrupted else "incomplete" if outcome.failed else "complete"
     outcome.wall_s = time.perf_counter() - t0
     return outcome
@@ -265,7 +265,10 @@ def _run_dask(spec: BatchSpec, out: Path, todo: list[UnitKey], landed: Callable[
             # One task per worker process; the core's threads capped in each (the nanny sets the
             # variable before the worker process starts, and again when it restarts a lost one).
             cluster = LocalCluster(n_workers=n, threads_per_worker=1, processes=True, dashboard_address=":0",
-                                   env={"RAYON_NUM_THREADS": str(threads)}, silence_logs=logging.ERROR)
+                                   env={"RAYON_NUM_THREADS": str(threads)},
+                                   # units report their errors through their futures; the workers' own
+                                   # messages at shutdown (heartbeats to a closed scheduler) are noise
+                                   silence_logs=logging.CRITICAL)
             client = Client(cluster)
             outcome.workers = n
         else:

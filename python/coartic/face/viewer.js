@@ -209,7 +209,28 @@ class FaceView {
 // --- the channels plot -----------------------------------------------------------------------------
 const CH_COLORS = {ULO: "#1f77b4", LLO: "#2ca02c", ULP: "#9467bd", LLP: "#8c564b", LR: "#e377c2", JO: "#7f7f7f"};
 
+// The curves and labels are drawn once into a hidden canvas; each frame copies it and adds the cursor,
+// so playing stays cheap however long the utterance.
+let plotCache = null;
+
 function drawPlot(canvas, data, t) {
+  const W = canvas.width, H = canvas.height;
+  const left = 44, right = 8, top = 8;
+  const X = s => left + (W - left - right) * s / data.duration;
+  if (!plotCache || plotCache.width !== W || plotCache.height !== H) {
+    plotCache = document.createElement("canvas");
+    plotCache.width = W;
+    plotCache.height = H;
+    drawCurves(plotCache, data);
+  }
+  const ctx = canvas.getContext("2d");
+  ctx.drawImage(plotCache, 0, 0);
+  ctx.strokeStyle = "#d62728";  // cursor
+  ctx.lineWidth = 2;
+  ctx.beginPath(); ctx.moveTo(X(t), top); ctx.lineTo(X(t), H - 20); ctx.stroke();
+}
+
+function drawCurves(canvas, data) {
   const ctx = canvas.getContext("2d");
   const W = canvas.width, H = canvas.height;
   ctx.fillStyle = "#ffffff";
@@ -221,7 +242,7 @@ function drawPlot(canvas, data, t) {
   for (const seg of data.segments) {  // phoneme boundaries and labels
     ctx.strokeStyle = "#dddddd";
     ctx.beginPath(); ctx.moveTo(X(seg[0]), top); ctx.lineTo(X(seg[0]), H - 20); ctx.stroke();
-    ctx.fillStyle = "pbm".includes(seg[2]) ? "#b00020" : "#333333";
+    ctx.fillStyle = ["p", "b", "m"].includes(seg[2]) ? "#b00020" : "#333333";
     if (seg[2] !== "#") ctx.fillText(seg[2], X((seg[0] + seg[1]) / 2) - 3, H - 6);
   }
   names.forEach((name, j) => {
@@ -238,9 +259,6 @@ function drawPlot(canvas, data, t) {
     ctx.fillStyle = CH_COLORS[name] || "#000";
     ctx.fillText(name, 4, y0 + band / 2 + 4);
   });
-  ctx.strokeStyle = "#d62728";  // cursor
-  ctx.lineWidth = 2;
-  ctx.beginPath(); ctx.moveTo(X(t), top); ctx.lineTo(X(t), H - 20); ctx.stroke();
 }
 
 // --- the page ----------------------------------------------------------------------------------------

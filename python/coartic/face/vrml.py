@@ -23,6 +23,10 @@ from coartic.face.mesh import PART_NAMES
 from coartic.runtime.errors import AnimationError
 from coartic.runtime.fap import FapSequence
 
+# An animated world keys every vertex of every moving part at every frame, ~58 kB of text per frame:
+# 1500 frames (a minute at 25 fps) is ~90 MB. Longer animations are refused (single frames are not).
+VRML_MAX_FRAMES = 1500
+
 
 def _vec3(values: NDArray[np.float64]) -> str:
     """Rows of 3 numbers, one vertex per line, VRML's comma-separated MFVec3f."""
@@ -55,6 +59,10 @@ def vrml_text(rig: FaceRig, weights: NDArray[np.float64], fps: float, name: str,
     w = np.atleast_2d(np.asarray(weights, dtype=float))
     if w.shape[1] != rig.targets.shape[0] or not np.isfinite(w).all():
         raise AnimationError(f"VRML weights must be finite (frames, {rig.targets.shape[0]}), got {w.shape}")
+    if w.shape[0] > VRML_MAX_FRAMES:
+        raise AnimationError(f"{name}: an animated VRML world of {w.shape[0]} frames would be ~{w.shape[0] * 58 // 1000} MB "
+                             f"of text (more than {VRML_MAX_FRAMES} frames); export chosen frames instead "
+                             "(write_face_vrml(..., frames=[...])) or use the glTF")
     poses = rig.pose(w) * MM  # (frames, n, 3) metres
     animated = w.shape[0] > 1
     out = ["#VRML V2.0 utf8", f"# {name}: coartic's generated face driven by MPEG-4 FAPs (coartic.face.vrml)",

@@ -165,13 +165,46 @@ def comparison_figure(cmp: Comparison, path: Path) -> Path:
     return path
 
 
+# Spec settings ``--vary`` may scan (e.g. the prior strength, chosen by held-out RMSE instead of by hand).
+VARIABLE: dict[str, type] = {"prior_noise": float, "target_margin": float, "apex_fraction": float,
+                             "edge_extent": float, "beta": float, "plateau_fraction": float, "offsets": str,
+                             "variant": str, "dominance": str}
+
+
+def vary(spec: FitSpec, key: str, values: Sequence[str]) -> list[FitSpec]:
+    """One spec per value of the setting ``key`` (one of ``VARIABLE``), named after it; the values
+    are checked as the spec's own would be (by parsing the spec with each)."""
+    from coartic.fit.spec import SpecError, parse_spec, read_document
+
+    if key not in VARIABLE:
+        raise SpecError(f"--vary {key}: not a setting compare can vary (known: {', '.join(VARIABLE)})")
+    raw = read_document(spec.path)
+    section = "parameters" if key in ("prior_noise", "target_margin") else "model"
+    out = []
+    for v in values:
+        value: Any = v
+        if key == "offsets":
+            try:
+                value = float(v)
+            except ValueError:
+                value = v
+        elif VARIABLE[key] is float:
+            try:
+                value = float(v)
+            except ValueError:
+                raise SpecError(f"--vary {key}={v}: not a number") from None
+        doc = dict(raw)
+        doc[section] = dict(doc.get(section, {})) | {key: value}
+        doc["name"] = f"{spec.name}, {key} = {v}"
+        out.append(parse_spec(doc, spec.path))
+    return out
+
+
 def compare(specs: Sequence[FitSpec | str | PathLike[str]], out: str | PathLike[str] | None = None, *,
             validate: bool = True, console: Console | None = None, quiet: bool = True) -> Comparison:
     """Fit each spec (with its validation) and compare them; with ``out``, write everything there."""
-    from coartic.fit.runner import run
+    from coartic.fit.runner import check_engine_options, run
     from coartic.fit.validate import pooled
-
-    from coartic.fit.runner import check_engine_options
 
     loaded = [s if isinstance(s, FitSpec) else load_spec(Path(s)) for s in specs]
     if len(loaded) < 1:

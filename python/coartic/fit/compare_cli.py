@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import math
 from pathlib import Path
+from typing import Optional
 
 import typer
 from rich.console import Console
@@ -20,16 +21,28 @@ def compare_command(
     validate: bool = typer.Option(True, "--validate/--no-validate",
                                   help="held-out RMSE from each spec's [validate] splits (AIC/BIC either way)"),
     force: bool = typer.Option(False, "--force", help="replace --out even if it holds another run's output"),
+    vary: Optional[str] = typer.Option(None, "--vary", help="KEY=V1,V2,...: one model per value of a setting of "
+                                       "each spec (e.g. prior_noise=0.1,0.3,1 to choose a prior strength by "
+                                       "held-out RMSE)"),
 ) -> None:
     """Fit every spec on its data and compare: free parameters, RMSE, held-out RMSE, AIC, BIC."""
     from coartic.fit.compare import compare
+    from coartic.fit.compare import vary as vary_spec
+    from coartic.fit.spec import FitSpec, SpecError, load_spec
     from coartic.outputs import OutputDir
 
     console = Console()
     try:
-        identity = {"specs": ",".join(str(s.resolve()) for s in specs), "validate": validate}
+        models: list[FitSpec | Path] = list(specs)
+        if vary is not None:
+            key, sep, values = vary.partition("=")
+            if not sep or not values.strip():
+                raise SpecError(f"--vary {vary!r}: expected KEY=V1,V2,...")
+            models = [m for s in specs for m in vary_spec(load_spec(s), key.strip(),
+                                                            [v.strip() for v in values.split(",") if v.strip()])]
+        identity = {"specs": ",".join(str(s.resolve()) for s in specs), "validate": validate, "vary": vary or ""}
         with OutputDir(out, "compare", identity, force=force, protect=specs) as d:
-            cmp = compare(specs, d, validate=validate, console=console, quiet=False)
+            cmp = compare(models, d, validate=validate, console=console, quiet=False)
     except (ValueError, OSError) as e:  # SpecError, DataError, FitFailed, OutputError
         print_error(console, e)
         raise typer.Exit(2) from None

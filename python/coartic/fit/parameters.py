@@ -48,6 +48,7 @@ class Parameter:
     stderr: float = math.nan  # after a fit; NaN when fixed or not identified
     at_bound: bool = False
     identified: bool = True
+    tied_to: str | None = None  # "phoneme.parameter" whose value this entry takes ([[tie]])
 
     @property
     def name(self) -> str:
@@ -77,6 +78,8 @@ class ParameterSet(Mapping[str, Parameter]):
         # [n_phonemes, 10]: the spec key each value came from ("" for defaults, data, start
         # tables), so that a value the model refuses is named by its key (ChannelProblem.explain).
         self.origins = origins
+        # (follower, leader) flat indices of [[tie]]d entries (Packing.ties)
+        self.ties: tuple[tuple[int, int], ...] = ()
 
     # ------------------------------------------------------------------ Mapping
     def _names(self) -> list[str]:
@@ -100,8 +103,11 @@ class ParameterSet(Mapping[str, Parameter]):
         if phoneme not in self.phonemes or parameter not in PARAMETERS:
             raise KeyError(name)
         i, k = self.phonemes.index(phoneme), PARAMETERS.index(parameter)
+        leader = dict(self.ties).get(i * N_PARAMS + k)
+        tied = None if leader is None else f"{self.phonemes[leader // N_PARAMS]}.{parameter}"
+        info = extra(name) if tied is None else extra(tied) | {"prior": None}
         return Parameter(phoneme, parameter, float(self.matrix[i, k]), bool(self.free[i, k]),
-                         float(self.lower[i, k]), float(self.upper[i, k]), **extra(name))  # type: ignore[arg-type]
+                         float(self.lower[i, k]), float(self.upper[i, k]), tied_to=tied, **info)  # type: ignore[arg-type]
 
     @property
     def n_free(self) -> int:
@@ -174,6 +180,24 @@ class ParameterSet(Mapping[str, Parameter]):
         ka = PARAMETERS.index("alpha")
         free[r, ka], base[r, ka] = False, 1.0
 
+        ties: list[tuple[int, int]] = []
+        for j, t in enumerate(spec.ties):
+            if t.channels is not None and ch not in t.channels:
+                continue
+            rows = [phon.index(p) for p in t.phonemes if p in phon]
+            for name in t.parameters:
+                k = PARAMETERS.index(name)
+                members = [i for i in rows if free[i, k]]
+                if len(rows) >= 2 and not members:
+                    raise SpecError(f"{spec.path}: [tie #{j + 1}] {name} is free for none of {list(t.phonemes)} "
+                                    f"on {ch}: nothing to tie")
+                if len(members) < 2:
+                    continue  # fewer than two present (and free) here: nothing to share
+                leader = members[0]
+                for i in members[1:]:
+                    free[i, k] = False
+                    base[i, k] = base[leader, k]
+                    ties.append((i * N_PARAMS + k, leader * N_PARAMS + k))
         priors = expand_priors(spec, ch, tuple(phon), free, spec.fit_beta and spec.variant == "modified")
         bad = lower > upper
         if bad.any():
@@ -189,15 +213,17 @@ class ParameterSet(Mapping[str, Parameter]):
         base = np.where(free, np.clip(base, lower, upper), base)
         beta_free = spec.fit_beta and spec.variant == "modified"
         beta = float(np.clip(beta, *spec.beta_bounds)) if beta_free else beta
-        return cls(ch, tuple(phon), base, free, lower, upper, beta, beta_free, spec.beta_bounds, priors=priors,
-                   origins=origin)
+        ps = cls(ch, tuple(phon), base, free, lower, upper, beta, beta_free, spec.beta_bounds, priors=priors,
+                 origins=origin)
+        ps.ties = tuple(ties)
+        return ps
 
     def packing(self) -> Packing:
         """The engines' view: the free entries, their bounds and the transform to x."""
         from coartic.fit.problem import Packing
 
         return Packing(self.phonemes, self.free.copy(), self.beta_free, self.lower.copy(), self.upper.copy(),
-                       self.beta_bounds, self.matrix.copy(), self.beta, self.origins)
+                       self.beta_bounds, self.matrix.copy(), self.beta, self.origins, self.ties)
 
     @classmethod
     def from_packing(cls, channel: str, packing: Packing, names: list[str] | None = None,
@@ -205,10 +231,12 @@ class ParameterSet(Mapping[str, Parameter]):
                      unidentified: list[str] | None = None, priors: Mapping[str, Prior] | None = None) -> ParameterSet:
         """The set a packing holds (its base values), with a fit's standard errors by free name."""
         se = dict(zip(names, map(float, stderr))) if names is not None and stderr is not None else {}
-        return cls(channel, tuple(packing.phonemes), packing.base.copy(), packing.free.copy(), packing.lower.copy(),
-                   packing.upper.copy(), packing.base_beta, packing.beta_free, packing.beta_bounds, priors=priors,
-                   stderr=se,
-                   at_bound=frozenset(at_bound or ()), unidentified=frozenset(unidentified or ()))
+        ps = cls(channel, tuple(packing.phonemes), packing.base.copy(), packing.free.copy(), packing.lower.copy(),
+                 packing.upper.copy(), packing.base_beta, packing.beta_free, packing.beta_bounds, priors=priors,
+                 stderr=se,
+                 at_bound=frozenset(at_bound or ()), unidentified=frozenset(unidentified or ()))
+        ps.ties = tuple(packing.ties)
+        return ps
 
     # ------------------------------------------------------------------ output
     def rows(self) -> list[dict[str, object]]:
@@ -219,7 +247,8 @@ class ParameterSet(Mapping[str, Parameter]):
             if p.parameter == BETA and not p.free:
                 continue
             out.append({"channel": self.channel, "phoneme": p.phoneme, "parameter": p.parameter, "value": p.value,
-                        "stderr": p.stderr if p.free else "", "free": p.free, "lower": p.lower, "upper": p.upper,
+                        "stderr": p.stderr if p.free or p.tied_to else "", "free": p.free, "tied_to": p.tied_to or "",
+                        "lower": p.lower, "upper": p.upper,
                         "at_bound": p.at_bound, "unidentified": not p.identified,
                         "prior_mean": p.prior.mean if p.prior else "", "prior_sd": p.prior.sd if p.prior else "",
                         "prior_scale": ("log" if p.prior.log else "natural") if p.prior else ""})

@@ -114,10 +114,32 @@ class Packing:
     # [n_phonemes, 10]: the spec key each base value came from ("parameters.start.alpha",
     # "override #2.fixed.k_r"; "" for defaults, data and start tables): ParameterSet.origins.
     origins: NDArray[np.object_] | None = None
+    # (follower, leader) flat indices into params.ravel(): a tied entry ([[tie]] in the spec) is not
+    # free itself but always takes its leader's value; the leader's Jacobian column is the sum.
+    ties: tuple[tuple[int, int], ...] = ()
 
     def __post_init__(self) -> None:
         self._idx = np.flatnonzero(self.free.ravel())
         self._log = np.tile(LOG_COLUMNS, len(self.phonemes))[self._idx]
+        self._followers = np.array([f for f, _ in self.ties], dtype=np.int64)
+        self._leaders = np.array([ld for _, ld in self.ties], dtype=np.int64)
+        self._tmap = self._column_map() if self.ties else None
+
+    def column_map(self) -> sp.csr_matrix | None:
+        """With ties, the (n_phonemes*10 + 1, n_free) 0/1 matrix taking the core's full Jacobian (or
+        gradient) to x's: each free column plus the columns of the entries tied to it; None without."""
+        return self._tmap
+
+    def _column_map(self) -> sp.csr_matrix:
+        col_of = {int(c): j for j, c in enumerate(self.free_columns)}
+        rows = list(col_of)
+        cols = list(col_of.values())
+        for f, ld in self.ties:
+            if ld in col_of:  # a leader held fixed in this stage: its followers follow a constant
+                rows.append(f)
+                cols.append(col_of[ld])
+        n_full = len(self.phonemes) * N_PARAMS + 1
+        return sp.csr_matrix((np.ones(len(rows)), (rows, cols)), shape=(n_full, self.n_free))
 
     @property
     def n_free(self) -> int:
@@ -163,7 +185,10 @@ class Packing:
     def unpack(self, x: FloatArray) -> tuple[FloatArray, float]:
         v = self.natural(x)
         params = self.base.copy()
-        params.ravel()[self._idx] = v[: self._idx.size]
+        flat = params.reshape(-1)
+        flat[self._idx] = v[: self._idx.size]
+        if self.ties:
+            flat[self._followers] = flat[self._leaders]
         beta = float(v[-1]) if self.beta_free else self.base_beta
         return params, beta
 
@@ -175,6 +200,8 @@ class Packing:
         params = np.broadcast_to(self.base, (xs.shape[0],) + self.base.shape).copy()
         flat = params.reshape(xs.shape[0], -1)
         flat[:, self._idx] = v[:, : self._idx.size]
+        if self.ties:
+            flat[:, self._followers] = flat[:, self._leaders]
         betas = v[:, -1].copy() if self.beta_free else np.full(xs.shape[0], self.base_beta)
         return params, betas
 
@@ -409,7 +436,8 @@ class ChannelProblem:
         except ValueError as e:
             self.last_error = self.explain(e, params)
             return sp.csr_matrix((self.n_residuals, self.packing.n_free))
-        j = jac[:, self.packing.free_columns].tocsr()
+        tmap = self.packing.column_map()
+        j = jac[:, self.packing.free_columns].tocsr() if tmap is None else sp.csr_matrix(jac @ tmap)
         # Row scale sqrt(w) and column scale d(value)/dx applied to the stored entries in place.
         rows = np.repeat(np.arange(j.shape[0]), np.diff(j.indptr))
         j.data *= self.sqrt_w[rows] * self.packing.dvalue_dx(x)[j.indices]
@@ -452,7 +480,8 @@ class ChannelProblem:
             self.last_error = self.explain(e, params)
             return np.inf, np.zeros(self.packing.n_free)
         full = np.append(np.asarray(grad), dbeta)
-        g = full[self.packing.free_columns] * self.packing.dvalue_dx(x)
+        tmap = self.packing.column_map()
+        g = (full[self.packing.free_columns] if tmap is None else tmap.T @ full) * self.packing.dvalue_dx(x)
         if self.penalty.size:
             ps, pg = self.penalty.gradient(x)
             sse, g = sse + ps, g + pg

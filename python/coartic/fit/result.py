@@ -238,7 +238,9 @@ class FitResult:
                              f"range {b.min():+.3f} to {b.max():+.3f} mm; RMSE with them {with_b:.4f} mm")
             for s_i, sr in enumerate(fit.stages):
                 lines.append(f"    stage {s_i + 1}: {sr.n_free} free ({', '.join(sr.parameters)}): "
-                             f"SSE {sr.sse_start:.4g} -> {sr.sse_end:.4g} [{sr.engine.status}]")
+                             f"SSE {sr.sse_start:.4g} -> {sr.sse_end:.4g} [{sr.engine.status}]"
+                             # a stage that did not converge says why, in the engine's own words
+                             + ("" if sr.engine.status == "converged" else f": {sr.engine.message}"))
             if st.at_bound:
                 lines.append(f"    warning: {len(st.at_bound)} parameter(s) at a bound: {', '.join(st.at_bound)}")
             if st.unidentified:

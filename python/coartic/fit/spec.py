@@ -17,7 +17,7 @@ from typing import Any
 from coartic.errors import CoarticError
 from coartic.io.errors import DataError
 from coartic.io.roles import RoleMap
-from coartic.table import ALL_CHANNELS, CHANNELS, PARAMETERS, VARIANTS, ChannelSettings
+from coartic.table import ALL_CHANNELS, CHANNELS, DOMINANCES, PARAMETERS, VARIANTS, ChannelSettings
 
 ENGINES: tuple[str, ...] = ("scipy", "nlopt", "casadi")
 # [validate] group: what a k-fold validation holds out together (manifest columns, or the file).
@@ -64,6 +64,16 @@ class Override:
 
 
 @dataclass(frozen=True)
+class Tie:
+    """Parameters shared by a group of phonemes (e.g. θ and c by place of articulation): the first
+    phoneme of the group present in a channel's data carries the value, the others take it."""
+
+    phonemes: tuple[str, ...]
+    parameters: tuple[str, ...]
+    channels: tuple[str, ...] | None = None  # None: every channel
+
+
+@dataclass(frozen=True)
 class CorpusSpec:
     manifest: Path | None = None
     files: tuple[Path, ...] = ()
@@ -85,6 +95,10 @@ class FitSpec:
     reference_phoneme: str = "a"
     apex_fraction: float = 0.5
     edge_extent: float = 1.0
+    # the rate-aware options of docs/MODEL.md §2.1 (defaults: today's model)
+    dominance: str = "centre"
+    plateau_fraction: float = 0.5
+    handover: bool = False
     beta: float = 1.0
     fit_beta: bool = False
     beta_bounds: tuple[float, float] = DEFAULT_BETA_BOUNDS
@@ -101,6 +115,7 @@ class FitSpec:
     channel_bounds: dict[str, dict[str, tuple[float, float]]] = field(default_factory=dict)
     target_margin: float = 5.0  # mm beyond the observed range for the default target box
     overrides: tuple[Override, ...] = ()
+    ties: tuple[Tie, ...] = ()
     engine: str = "scipy"
     engine_options: dict[str, Any] = field(default_factory=dict)
     staging: bool = True
@@ -120,7 +135,9 @@ class FitSpec:
         value; default the spec's). The fit's model options are made from them
         (``coartic.model.channel_options``), so a table evaluates as it was fitted."""
         return ChannelSettings(reference_phoneme=self.reference_phoneme, beta=self.beta if beta is None else beta,
-                               edge_extent=self.edge_extent, apex_fraction=self.apex_fraction)
+                               edge_extent=self.edge_extent, apex_fraction=self.apex_fraction,
+                               dominance=self.dominance, plateau_fraction=self.plateau_fraction,
+                               handover=self.handover)
 
 
 def _err(path: Path, key: str, msg: str) -> SpecError:
@@ -246,7 +263,7 @@ def parse_spec(raw: dict[str, Any], path: Path) -> FitSpec:
     """Build a FitSpec from an already parsed TOML document (``path`` locates relative paths)."""
     base = path.parent
     # [mcmc] belongs to coartic.mcmc (docs/MCMC.md): one spec file serves both commands.
-    _take(raw, path, "top level", {"name", "corpus", "model", "parameters", "override", "engine",
+    _take(raw, path, "top level", {"name", "corpus", "model", "parameters", "override", "tie", "engine",
                                    "staging", "gaps", "validate", "mcmc"})
     name = raw.get("name", path.stem)
 
@@ -292,7 +309,8 @@ def parse_spec(raw: dict[str, Any], path: Path) -> FitSpec:
 
     m = raw.get("model", {})
     _take(m, path, "model", {"variant", "channels", "reference_phoneme", "apex_fraction", "edge_extent",
-                             "beta", "fit_beta", "beta_bounds", "offsets"})
+                             "beta", "fit_beta", "beta_bounds", "offsets", "dominance", "plateau_fraction",
+                             "handover"})
     offsets = m.get("offsets", "none")
     if isinstance(offsets, bool) or not (offsets in ("none", "free") or (
             isinstance(offsets, (int, float)) and math.isfinite(offsets) and offsets > 0)):
@@ -321,6 +339,15 @@ def parse_spec(raw: dict[str, Any], path: Path) -> FitSpec:
     fit_beta = m.get("fit_beta", False)
     if not isinstance(fit_beta, bool):
         raise _err(path, "model.fit_beta", f"expected true or false, got {fit_beta!r}")
+    dominance = m.get("dominance", "centre")
+    if dominance not in DOMINANCES:
+        raise _err(path, "model.dominance", f"{dominance!r}: expected one of {DOMINANCES}")
+    plateau = _float(m.get("plateau_fraction", 0.5), path, "model.plateau_fraction")
+    if not 0.0 <= plateau <= 1.0:
+        raise _err(path, "model.plateau_fraction", f"{plateau} is outside [0, 1]")
+    handover = m.get("handover", False)
+    if not isinstance(handover, bool):
+        raise _err(path, "model.handover", f"expected true or false, got {handover!r}")
 
     p = raw.get("parameters", {})
     _take(p, path, "parameters", {"free", "start", "start_table", "bounds", "target_margin", "prior", "prior_noise"})
@@ -367,6 +394,26 @@ def parse_spec(raw: dict[str, Any], path: Path) -> FitSpec:
             bounds=_bounds(o.get("bounds", {}), path, f"{key}.bounds")))
 
     reference = str(m.get("reference_phoneme", "a"))
+    ties: list[Tie] = []
+    tie_raw = raw.get("tie", [])
+    if not isinstance(tie_raw, list):
+        raise _err(path, "tie", "expected [[tie]] tables")
+    for i, t in enumerate(tie_raw):
+        key = f"tie #{i + 1}"
+        if not isinstance(t, dict):
+            raise _err(path, key, f"expected a table, got {t!r}")
+        _take(t, path, key, {"phonemes", "parameters", "channels"})
+        if "phonemes" not in t or "parameters" not in t:
+            raise _err(path, key, "needs phonemes = [...] and parameters = [...]")
+        tph = _str_list(t["phonemes"], path, f"{key}.phonemes")
+        if len(set(tph)) < 2:
+            raise _err(path, f"{key}.phonemes", f"a tie needs two phonemes or more, got {list(tph)}")
+        tpar = _param_names(_str_list(t["parameters"], path, f"{key}.parameters"), path, f"{key}.parameters")
+        if reference in tph and "alpha" in tpar:
+            raise _err(path, key, f"ties alpha of the reference phoneme {reference!r}, which is fixed at 1")
+        tch = _channels(_str_list(t["channels"], path, f"{key}.channels"), path, f"{key}.channels") \
+            if "channels" in t else None
+        ties.append(Tie(tph, tpar, tch))
     for i, o in enumerate(overrides):
         # alpha is scale-free: the reference phoneme's is 1 by definition (MODEL.md §1)
         if reference in o.phonemes and ("alpha" in o.free or "alpha" in o.start or "alpha" in o.bounds
@@ -415,11 +462,12 @@ def parse_spec(raw: dict[str, Any], path: Path) -> FitSpec:
 
     return FitSpec(
         path=path, name=str(name), corpus=corpus, channels=channels, variant=variant,
-        reference_phoneme=reference, apex_fraction=apex, edge_extent=edge,
+        reference_phoneme=reference, apex_fraction=apex, edge_extent=edge, dominance=dominance,
+        plateau_fraction=plateau, handover=handover,
         beta=_float(m.get("beta", 1.0), path, "model.beta"), fit_beta=fit_beta, beta_bounds=beta_bounds,
         free=free, start_table=start_table, start=start, start_given=frozenset(start_given), bounds=bounds,
         priors=priors, prior_noise=prior_noise, offsets=offsets if isinstance(offsets, str) else float(offsets), channel_bounds=channel_bounds,
-        target_margin=margin, overrides=tuple(overrides), engine=engine, engine_options=dict(engine_options),
+        target_margin=margin, overrides=tuple(overrides), ties=tuple(ties), engine=engine, engine_options=dict(engine_options),
         staging=staging, stages=stages, max_gap=max_gap, holdout_repetition=hold, validate_group=group,
         validate_folds=folds,
         train_rate=v.get("train_rate", "normal"), test_rate=v.get("test_rate", "fast"))

@@ -22,6 +22,7 @@ from rich.console import Console
 from rich.markup import escape
 from rich.table import Table
 
+from coartic.errors import CoarticError
 from coartic.fit.problem import Utterance
 from coartic.fit.result import BAR_MM, FitResult
 from coartic.fit.spec import FitSpec, SpecError
@@ -67,7 +68,7 @@ def score(result: FitResult, test: Sequence[Utterance], split: str) -> list[Spli
     return out
 
 
-class UnseenPhonemes(ValueError):
+class UnseenPhonemes(CoarticError, ValueError):
     """A held-out utterance has a phoneme its training split lacks: the table cannot predict it."""
 
 
