@@ -60,7 +60,7 @@ def run(tmp_path_factory: pytest.TempPathFactory) -> Path:
 
 def test_animate_writes_fap_wav_and_glb_under_one_name(run: Path) -> None:
     assert {"base.fap", "base.wav", "base.glb"} <= {p.name for p in run.iterdir()}
-    assert not list(run.glob("*.part"))
+    assert not list(run.glob(".*.tmp-*"))
     faps = read_fap(run / "base.fap")
     assert faps.name == "base"
     # the animation lasts as long as the recording, not the labels (1.0 s)

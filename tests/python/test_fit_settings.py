@@ -139,6 +139,7 @@ def test_the_cli_exits_non_zero_when_an_engine_fails(tmp_path: Path) -> None:
     res = CliRunner().invoke(app, ["fit", str(spec), "--out", str(tmp_path / "o"), "--no-report"])
     assert res.exit_code != 0
     assert "channel JO: the scipy engine failed" in res.output and "Traceback" not in res.output
+    assert not (tmp_path / "o").exists()  # the staging directory was discarded: no start values as a table
 
 
 def test_nlopt_failures_carry_nlopts_own_message() -> None:
@@ -360,3 +361,24 @@ def test_a_tie_of_fixed_values_is_refused(tmp_path: Path, utts: list[model.Utter
     s = spec_of(tmp_path, tie=[{"phonemes": ["p", "t"], "parameters": ["k_r"]}])  # k_r is not free
     with pytest.raises(SpecError, match=r"\[tie #1\] k_r is free for none of"):
         build_packing(s, ChannelData.build(utts, "LLO", PHONEMES))
+
+
+def test_mcmc_has_the_priors_of_the_fit_spec(tmp_path: Path, utts: list[model.Utterance]) -> None:
+    from coartic.mcmc.posterior import LogPosterior
+    from coartic.mcmc.run import spec_priors, table_problem
+
+    s = spec_of(tmp_path, parameters={"free": ["target", "theta_bw", "k_r"],
+                                      "prior": {"theta_bw": {"mean": 30.0, "sd": 0.5, "scale": "log"},
+                                                "p.k_r": [0.9, 0.05]}})
+    table = run(s, None, utterances=utts, quiet=True).table()
+    data, packing, opts = table_problem(s, table, tmp_path / "t.json", "LLO", utts)
+    pri = spec_priors(s, packing, "LLO")
+    assert pri["p.k_r"] == (0.9, 0.05) and pri["t.theta_bw"] == (30.0, 0.5, True)
+    with_p = LogPosterior(data, packing, opts, noise=0.1, priors=pri)
+    without = LogPosterior(data, packing, opts, noise=0.1)
+    x = packing.pack()[None]
+    v = dict(zip(packing.names(), packing.natural(x[0])))
+    expected = -0.5 * (((v["p.k_r"] - 0.9) / 0.05) ** 2
+                       + sum(((np.log(v[f"{p}.theta_bw"]) - np.log(30.0)) / 0.5) ** 2
+                             for p in ("#", "a", "i", "p", "t")))
+    assert with_p(x)[0] - without(x)[0] == pytest.approx(expected, rel=1e-9)

@@ -77,7 +77,7 @@ def test_animate_file_writes_consistent_outputs(tmp_path: Path, labels: Path) ->
     assert a.n_frames == 60 and a.duration == pytest.approx(1.2)
     for key in ("channels", "fap", "segments", "plot", "strip", "preview"):
         assert result.files[key].exists(), key
-    assert not list(out.glob("*.part*"))
+    assert not list(out.glob(".*.tmp-*"))
     times, chans = read_channels_csv(result.files["channels"])
     np.testing.assert_array_equal(times, a.times)
     for c in CHANNELS:
@@ -279,7 +279,7 @@ def test_interrupted_preview_leaves_complete_outputs_and_no_partial_file(tmp_pat
         animate_file(labels, make_table(), out, preview="gif", progress=progress)
     assert read_fap(out / "apifa.fap").n_frames == 30
     assert (out / "channels.csv").exists() and (out / "strip.png").exists()
-    assert not (out / "preview.gif").exists() and not list(out.glob("*.part*"))
+    assert not (out / "preview.gif").exists() and not list(out.glob(".*.tmp-*"))
 
 
 def test_long_gif_is_refused_up_front(tmp_path: Path, labels: Path, monkeypatch: pytest.MonkeyPatch) -> None:

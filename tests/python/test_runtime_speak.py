@@ -189,3 +189,21 @@ def test_cli_speak_writes_everything(tmp_path: Path) -> None:
                                    "--preview", "none", "--fap-name", "viva", "--gltf"])
     assert res.exit_code == 0, res.output
     assert {"viva.wav", "viva.fap", "viva.glb"} <= {p.name for p in (tmp_path / "g").iterdir()}
+
+
+def test_speak_into_a_used_directory(tmp_path: Path) -> None:
+    """Other text into the same --out is refused (it would mix two runs) unless --force."""
+    out = tmp_path / "speech"
+
+    def speak(text: str, *extra: str) -> tuple[int, str]:
+        r = CliRunner().invoke(app, ["speak", text, "-t", str(GROUND_TRUTH), "-o", str(out), "--preview", "none", *extra])
+        return r.exit_code, r.output.replace("\n", " ")
+
+    assert speak("Ciao mamma.")[0] == 0
+    first = sorted(p.name for p in out.iterdir())
+    code, text = speak("Viva la pappa.")
+    assert code == 1 and "holds coartic speak text Ciao mamma." in text, text
+    assert sorted(p.name for p in out.iterdir()) == first
+    code, text = speak("Viva la pappa.", "--force")
+    assert code == 0, text
+    assert "Viva_la_pappa.fap" in {p.name for p in out.iterdir()} and "Ciao_mamma.fap" not in {p.name for p in out.iterdir()}

@@ -24,7 +24,8 @@ def batch_command(
     force: bool = typer.Option(False, "--force", help="replace an output folder that holds another run's results"),
     report: bool = typer.Option(True, "--report/--no-report", help="write the figures and report.html"),
 ) -> None:
-    """Fit every speaker/session (and all of them pooled), one Dask task per speaker and channel."""
+    """Fit every speaker/session (and all of them pooled), with \\[posteriors] sample each one's posteriors: one Dask task
+    per speaker and channel; rerun the same command to continue after an interruption."""
     console = Console()
     err = Console(stderr=True)
     if scheduler is not None and (workers is not None or serial):

@@ -123,7 +123,7 @@ def output_dir(spec: BatchSpec, out: Path, force: bool = False) -> OutputDir:
 
 def land_unit(out: Path, spec: BatchSpec, result: UnitOutput) -> None:
     info = {"unit": result.key.label, "group": result.key.group, "channel": result.key.channel,
-            "status": result.status, "rmse_mm": result.rmse, "compute_s": result.compute_s, "load_s": result.load_s,
+            "status": result.status, "rmse_mm": result.rmse, "compute_s": result.compute_s, "cpu_s": result.cpu_s, "load_s": result.load_s,
             "host": result.host, "pid": result.pid, "rayon_threads": result.rayon_threads,
             "fingerprint": spec.fingerprint}
     files = dict(result.files)
@@ -265,7 +265,10 @@ def _run_dask(spec: BatchSpec, out: Path, todo: list[UnitKey], landed: Callable[
             # One task per worker process; the core's threads capped in each (the nanny sets the
             # variable before the worker process starts, and again when it restarts a lost one).
             cluster = LocalCluster(n_workers=n, threads_per_worker=1, processes=True, dashboard_address=":0",
-                                   env={"RAYON_NUM_THREADS": str(threads)}, silence_logs=logging.ERROR)
+                                   env={"RAYON_NUM_THREADS": str(threads)},
+                                   # units report their errors through their futures; the workers' own
+                                   # messages at shutdown (heartbeats to a closed scheduler) are noise
+                                   silence_logs=logging.CRITICAL)
             client = Client(cluster)
             outcome.workers = n
         else:

@@ -29,7 +29,7 @@ import socket
 import tempfile
 import time
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -82,7 +82,7 @@ class UnitOutput:
     rayon_threads: str  # RAYON_NUM_THREADS as the worker saw it ('' = unset: every core)
     status: str
     rmse: float
-    extra: dict[str, float] = field(default_factory=dict)
+    cpu_s: float = math.nan  # CPU time of the worker process during the fit (every thread)
 
 
 def cap_threads(threads: int | None) -> None:
@@ -119,12 +119,15 @@ def fit_unit(spec: FitSpec, utterance_lists: Sequence[Sequence[Utterance]], key:
         before(key)
     t0 = time.perf_counter()
     utts = [u for lst in utterance_lists for u in lst]
+    from coartic.fit import run  # (a worker's first unit imports it: not part of the fit's time)
+
     t1 = time.perf_counter()
-    from coartic.fit import run
+    c1 = time.process_time()
 
     with tempfile.TemporaryDirectory(prefix="coartic-unit-") as tmp:
         result = run(spec.with_options(channels=(key.channel,)), tmp, utterances=utts, quiet=True, report=False)
         t2 = time.perf_counter()
+        c2 = time.process_time()
         fit = result.channels.get(key.channel)
         if fit is None or result.interrupted or fit.status in FAILED_STATUSES:
             why = "nothing was fitted" if fit is None else f"{fit.status}: {fit.message}"
@@ -132,7 +135,7 @@ def fit_unit(spec: FitSpec, utterance_lists: Sequence[Sequence[Utterance]], key:
         files = {p.name: p.read_bytes() for p in sorted(Path(tmp).iterdir()) if p.is_file()}
     return UnitOutput(key=key, files=files, compute_s=t2 - t1, load_s=t1 - t0, host=socket.gethostname(),
                       pid=os.getpid(), rayon_threads=os.environ.get(RAYON_ENV, ""), status=fit.status,
-                      rmse=fit.rmse)
+                      rmse=fit.rmse, cpu_s=c2 - c1)
 
 
 def _files(root: Path, skip: frozenset[str] = frozenset()) -> dict[str, bytes]:
@@ -149,7 +152,7 @@ def posterior_unit(spec: FitSpec, config: Any, table: dict[str, Any], utterance_
     import json
 
     from coartic.mcmc.mcmc_cli import check_fit_matches_data
-    from coartic.mcmc.run import channel_runs, table_problem
+    from coartic.mcmc.run import channel_runs, spec_priors, table_problem
     from coartic.mcmc.summary import write_uncertainty
     from coartic.table import ParameterTable
 
@@ -166,8 +169,11 @@ def posterior_unit(spec: FitSpec, config: Any, table: dict[str, Any], utterance_
         data, packing, options = table_problem(spec, tab, fitted, key.channel, utts)
         check_fit_matches_data(tab, fitted, key.channel, data, packing, options)
         t1 = time.perf_counter()
-        runs, interrupted = channel_runs(key.channel, data, packing, options, config, tmp / "mcmc", progress=False)
+        c1 = time.process_time()
+        runs, interrupted = channel_runs(key.channel, data, packing, options, config, tmp / "mcmc", progress=False,
+                                         spec_priors=spec_priors(spec, packing, key.channel))
         t2 = time.perf_counter()
+        c2 = time.process_time()
         if interrupted:
             raise UnitFailed(f"unit {key.label}: sampling was interrupted")
         not_converged = []
@@ -183,4 +189,5 @@ def posterior_unit(spec: FitSpec, config: Any, table: dict[str, Any], utterance_
         files = _files(tmp, skip=frozenset({"fit_table.json"}))
     return UnitOutput(key=key, files=files, compute_s=t2 - t1, load_s=t1 - t0, host=socket.gethostname(),
                       pid=os.getpid(), rayon_threads=os.environ.get(RAYON_ENV, ""),
-                      status=f"{len(runs) - len(not_converged)} of {len(runs)} converged", rmse=math.nan)
+                      status=f"{len(runs) - len(not_converged)} of {len(runs)} converged", rmse=math.nan,
+                      cpu_s=c2 - c1)

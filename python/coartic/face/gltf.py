@@ -17,7 +17,6 @@ the tests also read the file back with pygltflib and run Debian's gltfpack (cglt
 from __future__ import annotations
 
 import json
-import os
 import struct
 from os import PathLike
 from pathlib import Path
@@ -30,6 +29,7 @@ from coartic.face.deform import FaceRig, default_rig
 from coartic.face.mesh import PART_NAMES
 from coartic.runtime.errors import AnimationError
 from coartic.runtime.fap import FapSequence
+from coartic.outputs import atomic_write_bytes
 
 GLB_MAGIC = 0x46546C67  # "glTF"
 CHUNK_JSON = 0x4E4F534A
@@ -192,13 +192,11 @@ def glb_bytes(doc: dict[str, Any], blob: bytes) -> bytes:
 
 def write_glb(path: str | PathLike[str], rig: FaceRig, weights: NDArray[np.float64], fps: float, name: str, *,
               audio: str | None = None, fap_file: str | None = None) -> Path:
-    """Write the animated face to `path` (through a .part name), after checking it."""
+    """Write the animated face to `path` (atomically), after checking it."""
     path = Path(path)
     data = glb_bytes(*gltf_document(rig, weights, fps, name, audio=audio, fap_file=fap_file))
     check_glb_bytes(data, str(path))
-    tmp = path.with_name(path.name + ".part")
-    tmp.write_bytes(data)
-    os.replace(tmp, path)
+    atomic_write_bytes(path, data)
     return path
 
 

@@ -31,6 +31,7 @@ from typing import Any
 from coartic.face.gltf import read_glb
 from coartic.runtime.animate import read_channels_csv
 from coartic.runtime.errors import AnimationError
+from coartic.outputs import atomic_path, atomic_write_text
 
 PAGE_NAME = "view.html"
 CHROMIUM_NAMES = ("chromium", "chromium-browser", "google-chrome", "google-chrome-stable")
@@ -146,12 +147,10 @@ body.face-only #face {{ border: 0; position: fixed; left: 0; top: 0; }}
 
 
 def write_page(out_dir: str | os.PathLike[str], name: str | None = None) -> Path:
-    """Write OUT_DIR/view.html (through a .part name) and return its path."""
+    """Write OUT_DIR/view.html (atomically) and return its path."""
     inputs = find_inputs(out_dir, name)
     page = Path(out_dir) / PAGE_NAME
-    tmp = page.with_name(page.name + ".part")
-    tmp.write_text(page_html(inputs), encoding="utf-8")
-    os.replace(tmp, page)
+    atomic_write_text(page, page_html(inputs))
     return page
 
 
@@ -195,9 +194,8 @@ def screenshot(page: str | os.PathLike[str], png: str | os.PathLike[str], *, fra
             tail = proc.stderr.decode("utf-8", "replace").strip().splitlines()[-3:]
             raise AnimationError(f"Chromium failed on {page} (exit {proc.returncode}): {' | '.join(tail)}")
         png.parent.mkdir(parents=True, exist_ok=True)
-        tmp = png.with_name(png.name + ".part")
-        shutil.copyfile(shot, tmp)
-        os.replace(tmp, png)
+        with atomic_path(png) as tmp:
+            shutil.copyfile(shot, tmp)
     return png
 
 

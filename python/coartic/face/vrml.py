@@ -9,7 +9,6 @@ interpolators are), so any VRML97 browser plays it without knowing about FAPs.
 
 from __future__ import annotations
 
-import os
 from collections.abc import Iterable
 from os import PathLike
 from pathlib import Path
@@ -22,6 +21,7 @@ from coartic.face.gltf import MM
 from coartic.face.mesh import PART_NAMES
 from coartic.runtime.errors import AnimationError
 from coartic.runtime.fap import FapSequence
+from coartic.outputs import atomic_write_text
 
 # An animated world keys every vertex of every moving part at every frame, ~58 kB of text per frame:
 # 1500 frames (a minute at 25 fps) is ~90 MB. Longer animations are refused (single frames are not).
@@ -108,11 +108,9 @@ def _string(s: str) -> str:
 
 def write_vrml(path: str | PathLike[str], rig: FaceRig, weights: NDArray[np.float64], fps: float, name: str, *,
                audio: str | None = None) -> Path:
-    """Write `vrml_text(...)` to `path` through a .part name."""
+    """Write `vrml_text(...)` to `path` atomically."""
     path = Path(path)
-    tmp = path.with_name(path.name + ".part")
-    tmp.write_text(vrml_text(rig, weights, fps, name, audio=audio), encoding="utf-8")
-    os.replace(tmp, path)
+    atomic_write_text(path, vrml_text(rig, weights, fps, name, audio=audio))
     return path
 
 

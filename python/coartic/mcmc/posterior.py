@@ -99,8 +99,11 @@ class LogPosterior:
         self.utterance_weight = np.array([data.weights[data.utterance_samples(k)].sum() for k in range(len(data.utterances))])
 
         free_names = packing.names()
-        self.priors = {k: (float(v[0]), float(v[1])) for k, v in (priors or {}).items()}
-        for key, (mu, sd) in self.priors.items():
+        # (mean, sd) on the natural value, or (mean, sd, True) on its logarithm (mean: the median),
+        # as the fit spec's [parameters.prior] with scale = "log" gives them
+        self.priors: dict[str, tuple[Any, ...]] = {
+            k: (float(v[0]), float(v[1])) + ((True,) if len(v) > 2 and v[2] else ()) for k, v in (priors or {}).items()}
+        for key, (mu, sd, *_) in self.priors.items():
             if key not in free_names:
                 raise ValueError(
                     f"Gaussian prior on {key!r}: not a free parameter of this {data.channel} posterior "
@@ -109,7 +112,12 @@ class LogPosterior:
             if not (sd > 0 and math.isfinite(sd) and math.isfinite(mu)):
                 raise ValueError(f"Gaussian prior on {key!r}: needs a finite mean and a positive sd, got ({mu}, {sd})")
         self._prior_index = np.array([free_names.index(k) for k in self.priors], dtype=np.int64)
-        self._prior_mu = np.array([v[0] for v in self.priors.values()], dtype=np.float64)
+        self._prior_log = np.array([len(v) > 2 for v in self.priors.values()], dtype=bool)
+        for key, v in self.priors.items():
+            if len(v) > 2 and not v[0] > 0:
+                raise ValueError(f"Gaussian prior on log {key!r}: needs a positive median, got {v[0]}")
+        self._prior_mu = np.array([math.log(v[0]) if len(v) > 2 else v[0] for v in self.priors.values()],
+                                  dtype=np.float64)
         self._prior_sd = np.array([v[1] for v in self.priors.values()], dtype=np.float64)
 
         lo, hi = (np.array(b, dtype=np.float64) for b in packing.bounds())
@@ -196,6 +204,9 @@ class LogPosterior:
         lp = np.where(self.in_support(x), 0.0, -np.inf)
         if self._prior_index.size:
             nat = self.to_natural(x)[:, self._prior_index]
+            if self._prior_log.any():
+                with np.errstate(divide="ignore", invalid="ignore"):
+                    nat = np.where(self._prior_log, np.log(np.where(self._prior_log, nat, 1.0)), nat)
             lp = lp - 0.5 * np.sum(((nat - self._prior_mu) / self._prior_sd) ** 2, axis=1)
         return lp
 

@@ -11,7 +11,7 @@ import json
 import math
 from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import Any, Callable, Sequence
+from typing import Any, Callable, Mapping, Sequence
 
 import numpy as np
 from numpy.typing import NDArray
@@ -146,9 +146,11 @@ def table_problem(fit_spec: Any, table: Any, table_path: Path, channel: str,
 
     The options come from the table's own channel settings (variant, apex fraction, edge extent:
     ``coartic.model.model_options``), never rebuilt from the spec: the posterior is the one of the
-    model the table was fitted with. The free set and bounds are the spec's, so a table of another
-    variant than the spec's ``[model] variant`` is refused (its free set would not match)."""
-    from coartic.fit.problem import ChannelData, build_packing
+    model the table was fitted with. The free set, bounds and ties are the spec's (its
+    ``ParameterSet``), so a table of another variant than the spec's ``[model] variant`` is
+    refused (its free set would not match)."""
+    from coartic.fit.parameters import ParameterSet
+    from coartic.fit.problem import ChannelData
     from coartic.model import model_options
 
     if channel not in table.channels:
@@ -157,8 +159,18 @@ def table_problem(fit_spec: Any, table: Any, table_path: Path, channel: str,
         raise ValueError(f"{table_path}: a table of the {table.variant!r} model, but {fit_spec.path} [model] variant = "
                          f"{fit_spec.variant!r}: sample with the spec the table was fitted with")
     data = ChannelData.build(utterances, channel)
-    packing = build_packing(fit_spec, data, table.to_matrix(channel, data.phonemes))
-    return data, packing, model_options(table, channel)
+    ps = ParameterSet.from_spec(fit_spec, data, table.to_matrix(channel, data.phonemes))
+    return data, ps.packing(), model_options(table, channel)
+
+
+def spec_priors(fit_spec: Any, packing: Any, channel: str) -> dict[str, tuple[Any, ...]]:
+    """The fit spec's ``[parameters.prior]`` on the free entries of ``packing``, as ``LogPosterior``
+    takes them ((mean, sd), or (mean, sd, True) on log values): the posterior has the priors the
+    least-squares fit had (``[mcmc] priors`` add to and override them)."""
+    from coartic.fit.parameters import expand_priors
+
+    pri = expand_priors(fit_spec, channel, tuple(packing.phonemes), packing.free, packing.beta_free)
+    return {k: (p.mean, p.sd) + ((True,) if p.log else ()) for k, p in pri.items()}
 
 
 def walkers_for(dim: int, requested: int) -> int:
@@ -250,6 +262,7 @@ def channel_runs(
     out: Path,
     progress: bool = True,
     on_done: Callable[[PosteriorRun], None] | None = None,
+    spec_priors: Mapping[str, tuple[Any, ...]] | None = None,
 ) -> tuple[list[PosteriorRun], bool]:
     """Every posterior the config asks for on one channel; returns them and whether interrupted."""
     noise: float | None
@@ -266,7 +279,7 @@ def channel_runs(
         offset_sd = 0.0
     else:
         offset_sd = float(cfg.offsets)
-    priors = cfg.priors.get(channel, {})
+    priors = {**(spec_priors or {}), **cfg.priors.get(channel, {})}
     known = set(packing.names())
     for name in priors:
         if name not in known:

@@ -9,7 +9,6 @@ from __future__ import annotations
 
 import csv
 import math
-import os
 from collections.abc import Container, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -21,6 +20,7 @@ from coartic.io.labelmap import LabelMap
 from coartic.io.labels import Segments
 from coartic.runtime.errors import AnimationError, MissingPhonemeError
 from coartic.table import CHANNELS, PAUSE, ParameterTable
+from coartic.outputs import atomic_write_text
 
 # The most frames one animation may have (11 hours at 25 fps): channels, FAP text (~200 bytes a
 # frame) and preview grow with it, so a mistaken --fps 1e9 or a label ending at 1e6 s is refused
@@ -252,19 +252,13 @@ def target_times(table: ParameterTable, segments: Segments, channel: str) -> NDA
     return clamped
 
 
-def _atomic_write(path: Path, text: str) -> None:
-    tmp = path.with_name(path.name + ".part")
-    tmp.write_text(text, encoding="utf-8")
-    os.replace(tmp, path)
-
-
 def write_channels_csv(path: str | Path, animation: Animation) -> None:
     """`frame,time,<channel>...` in mm, floats with repr (read back bit for bit)."""
     names = animation.modelled  # channels held at rest are constants, not model output
     rows = [["frame", "time", *names]]
     for k, t in enumerate(animation.times):
         rows.append([str(k), repr(float(t)), *(repr(float(animation.channels[c][k])) for c in names)])
-    _atomic_write(Path(path), "".join(",".join(r) + "\n" for r in rows))
+    atomic_write_text(path, "".join(",".join(r) + "\n" for r in rows))
 
 
 def read_channels_csv(path: str | Path) -> tuple[NDArray[np.float64], dict[str, NDArray[np.float64]]]:
@@ -289,4 +283,4 @@ def write_segments_tsv(path: str | Path, segments: Segments, requested: Sequence
     lines = ["start\tend\tphoneme\tshown_as\tsource"]
     for i, (shown, s, e) in enumerate(zip(segments.labels, segments.starts, segments.ends)):
         lines.append(f"{float(s)!r}\t{float(e)!r}\t{requested[i]}\t{shown}\t{source[i]}")
-    _atomic_write(Path(path), "\n".join(lines) + "\n")
+    atomic_write_text(path, "\n".join(lines) + "\n")

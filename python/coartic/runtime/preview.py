@@ -13,7 +13,6 @@ on the lip midline of the neutral face):
 
 from __future__ import annotations
 
-import os
 import shutil
 import subprocess
 from collections.abc import Callable, Iterator, Mapping, Sequence
@@ -34,6 +33,7 @@ from rich.progress import Progress  # noqa: E402
 
 from coartic.io.labels import Segments  # noqa: E402
 from coartic.runtime.animate import Animation, neutral_posture, target_times  # noqa: E402
+from coartic.outputs import atomic_path  # noqa: E402
 from coartic.runtime.errors import AnimationError  # noqa: E402
 from coartic.table import CHANNELS, PAUSE, ParameterTable  # noqa: E402
 
@@ -272,7 +272,6 @@ def render_preview(
             f"{path}: a GIF of {animation.n_frames} frames is held in memory whole (> {GIF_MAX_FRAMES} frames, "
             "about 160 kB each); write the preview as .mp4 (--preview mp4), which is streamed"
         )
-    tmp = path.with_name(path.stem + ".part" + suffix)
     task = progress.add_task(f"preview {path.name}", total=animation.n_frames) if progress else None
     frames = _frames(animation, neutral, title)
 
@@ -280,7 +279,8 @@ def render_preview(
         if progress is not None and task is not None:
             progress.advance(task)
 
-    try:
+    # interrupted or failed: no half-written preview left behind (the other outputs are complete)
+    with atomic_path(path) as tmp:
         if suffix == ".gif":
             palette = gif_palette()
             images = []
@@ -291,11 +291,6 @@ def render_preview(
                            duration=round(1000.0 / animation.fps), optimize=False)
         else:
             _write_mp4(tmp, frames, animation.fps, advance, audio)
-    except BaseException:
-        # interrupted or failed: no half-written preview left behind (the other outputs are complete)
-        tmp.unlink(missing_ok=True)
-        raise
-    os.replace(tmp, path)
     return path
 
 
@@ -372,10 +367,11 @@ def render_strip(
         ax.set_ylim(-CHIN_BELOW_LIPS - 20, 25)
     fig.tight_layout()
     path = Path(path)
-    tmp = path.with_name(path.stem + ".part.png")
-    fig.savefig(tmp)
-    plt.close(fig)
-    os.replace(tmp, path)
+    try:
+        with atomic_path(path) as tmp:
+            fig.savefig(tmp)
+    finally:
+        plt.close(fig)
     return path
 
 
@@ -394,10 +390,11 @@ def plot_channels(animation: Animation, path: str | Path, title: str = "") -> Pa
         fig.suptitle("   ".join(t for t in (title, note) if t), fontsize=9)
     fig.tight_layout()
     path = Path(path)
-    tmp = path.with_name(path.stem + ".part.png")
-    fig.savefig(tmp)
-    plt.close(fig)
-    os.replace(tmp, path)
+    try:
+        with atomic_path(path) as tmp:
+            fig.savefig(tmp)
+    finally:
+        plt.close(fig)
     return path
 
 
