@@ -345,6 +345,89 @@ class Offsets:
         return sse - np.sum(sums**2 * self.inv[None, :], axis=1)
 
 
+class Speakers:
+    """Speaker-specific target offset and scale (spec ``[model] speakers``), profiled out of least
+    squares like ``Offsets``: utterances of speaker s are predicted as a_s + b_s·F, F the shared model
+    (shared dynamics and targets), and (a_s, b_s) have a closed form for given model parameters (a
+    weighted linear regression of y on F over that speaker's samples). The reference speaker (the
+    first in utterance order) keeps a = 0, b = 1, so the shared targets are its targets. Mode
+    ``"offset"`` fits a_s only (b_s = 1).
+
+    Exact Jacobian: with e_i = a + b F_i − y_i, differentiating the normal equations
+    M [a, b]ᵀ = [Σw y, Σw F y]ᵀ (M = [[Σw, Σw F], [Σw F, Σw F²]]) gives
+    [∂a/∂F_i, ∂b/∂F_i]ᵀ = −w_i M⁻¹ [b, e_i + b F_i]ᵀ; the residuals sqrt(w)(a + b F − y) then have
+    d r = sqrt(w)(b dF + da + F db), all linear in the core's Jacobian dF/dx.
+    """
+
+    def __init__(self, data: ChannelData, mode: str, column: str) -> None:
+        if mode not in ("offset", "offset_scale"):
+            raise ValueError(f"[model] speakers = {mode!r}: expected \"none\", \"offset\" or \"offset_scale\"")
+        names: dict[str, None] = {}
+        for u in data.utterances:
+            if column not in u.meta or not str(u.meta[column]):
+                raise ValueError(f"[model] speakers = {mode!r}: utterance {u.name!r} has no {column!r} "
+                                 f"(manifest column named by [model] speaker_column)")
+            names.setdefault(str(u.meta[column]), None)
+        self.mode = mode
+        self.names: tuple[str, ...] = tuple(names)
+        per_utt = np.array([self.names.index(str(u.meta[column])) for u in data.utterances], dtype=np.int64)
+        self.spk = np.repeat(per_utt, np.diff(data.sample_offsets)).astype(np.int64)
+        self.w = np.asarray(data.weights, dtype=np.float64)
+        self.sqrt_w = np.sqrt(self.w)
+        self.y = np.asarray(data.observed, dtype=np.float64)
+        n = self.spk.size
+        self.S = sp.csr_matrix((np.ones(n), (np.arange(n), self.spk)), shape=(n, len(self.names)))
+
+    def coefficients(self, f: FloatArray) -> tuple[FloatArray, FloatArray]:
+        """(a_s, b_s) per speaker for model values f (reference speaker 0 → a = 0, b = 1)."""
+        k = len(self.names)
+        sums = [np.bincount(self.spk, weights=v, minlength=k) for v in
+                (self.w, self.w * f, self.w * f * f, self.w * self.y, self.w * f * self.y)]
+        W, SF, SFF, Sy, SFy = sums
+        a, b = np.zeros(k), np.ones(k)
+        if self.mode == "offset":
+            a = np.where(W > 0, (Sy - SF) / np.where(W > 0, W, 1.0), 0.0)
+        else:
+            det = W * SFF - SF * SF
+            ok = det > 1e-12 * np.maximum(W * SFF, 1e-300)
+            d = np.where(ok, det, 1.0)
+            a = np.where(ok, (SFF * Sy - SF * SFy) / d, 0.0)
+            b = np.where(ok, (W * SFy - SF * Sy) / d, 1.0)
+        a[0], b[0] = 0.0, 1.0
+        return a, b
+
+    def residuals(self, f: FloatArray) -> FloatArray:
+        a, b = self.coefficients(f)
+        return self.sqrt_w * (a[self.spk] + b[self.spk] * f - self.y)
+
+    def jacobian(self, f: FloatArray, j: sp.csr_matrix) -> sp.csr_matrix:
+        """From j = sqrt(w)·dF/dx to the Jacobian of ``residuals``."""
+        a, b = self.coefficients(f)
+        k, n = len(self.names), self.spk.size
+        i = np.arange(n)
+        free = self.spk != 0  # the reference speaker's a, b are fixed
+        if self.mode == "offset":
+            W = np.bincount(self.spk, weights=self.w, minlength=k)
+            ga = np.where(free, -self.sqrt_w / np.where(W > 0, W, 1.0)[self.spk], 0.0)  # (∂a/∂F_i)/sqrt(w_i)
+            gb = np.zeros(n)
+        else:
+            W, SF, SFF = (np.bincount(self.spk, weights=v, minlength=k) for v in (self.w, self.w * f, self.w * f * f))
+            det = W * SFF - SF * SF
+            inv_det = np.where(det > 0, 1.0 / np.where(det > 0, det, 1.0), 0.0)
+            e = a[self.spk] + b[self.spk] * f - self.y
+            u, v = b[self.spk], e + b[self.spk] * f
+            s = self.spk
+            # M⁻¹ = [[SFF, −SF], [−SF, W]] / det; ∂(a, b)/∂F_i = −w_i M⁻¹ [u, v]ᵀ (divided by sqrt(w_i)).
+            ga = np.where(free, -self.sqrt_w * inv_det[s] * (SFF[s] * u - SF[s] * v), 0.0)
+            gb = np.where(free, -self.sqrt_w * inv_det[s] * (-SF[s] * u + W[s] * v), 0.0)
+        Ga = sp.csr_matrix((ga, (self.spk, i)), shape=(k, n))
+        Gb = sp.csr_matrix((gb, (self.spk, i)), shape=(k, n))
+        da, db = Ga @ j, Gb @ j
+        out = (sp.diags(b[self.spk]) @ j + sp.diags(self.sqrt_w) @ (self.S @ da)
+               + sp.diags(self.sqrt_w * f) @ (self.S @ db))
+        return sp.csr_matrix(out)
+
+
 class ChannelProblem:
     """Residuals, Jacobian and SSE of one channel as functions of the internal vector x.
 
@@ -355,8 +438,14 @@ class ChannelProblem:
 
     def __init__(self, data: ChannelData, packing: Packing, options: _core.ModelOptions,
                  priors: Mapping[str, Prior] | None = None, prior_noise: float = 1.0,
-                 offset_sd: float | None = None) -> None:
+                 offset_sd: float | None = None, speakers: str = "none",
+                 speaker_column: str = "speaker") -> None:
         self.data = data
+        # Speaker-specific target offset/scale (spec [model] speakers), profiled out like offsets.
+        self.speaker_mode, self.speaker_column = speakers, speaker_column
+        self.speakers = None if speakers == "none" else Speakers(data, speakers, speaker_column)
+        if self.speakers is not None and offset_sd is not None:
+            raise ValueError("[model] speakers and [model] offsets cannot be combined yet: choose one")
         self.packing = packing
         self.options = options
         # Per-utterance offsets (spec [model] offsets): None none, inf free, else their sd τ (mm).
@@ -419,7 +508,8 @@ class ChannelProblem:
         except ValueError as e:
             self.last_error = self.explain(e, params)
             return np.full(self.n_residuals, np.nan)
-        r = self.sqrt_w * (f - self.data.observed)
+        r = (self.sqrt_w * (f - self.data.observed) if self.speakers is None
+             else self.speakers.residuals(f))
         if self.offsets is not None:
             r = self.offsets.residuals(r)
         if self.penalty.size:
@@ -432,7 +522,7 @@ class ChannelProblem:
         self.njev += 1
         params, beta = self.packing.unpack(x)
         try:
-            _, jac = self.full_jacobian(params, beta)
+            f, jac = self.full_jacobian(params, beta)
         except ValueError as e:
             self.last_error = self.explain(e, params)
             return sp.csr_matrix((self.n_residuals, self.packing.n_free))
@@ -441,6 +531,8 @@ class ChannelProblem:
         # Row scale sqrt(w) and column scale d(value)/dx applied to the stored entries in place.
         rows = np.repeat(np.arange(j.shape[0]), np.diff(j.indptr))
         j.data *= self.sqrt_w[rows] * self.packing.dvalue_dx(x)[j.indices]
+        if self.speakers is not None:
+            j = self.speakers.jacobian(np.asarray(f, dtype=np.float64), j)
         if self.offsets is not None:
             j = self.offsets.jacobian(j)
         if self.penalty.size:
@@ -463,10 +555,18 @@ class ChannelProblem:
         params, beta = self.packing.unpack(x)
         return self.offsets.offsets(self.sqrt_w * (self.evaluate(params, beta) - self.data.observed))
 
+    def speaker_coefficients(self, x: FloatArray) -> dict[str, tuple[float, float]]:
+        """The fitted (a_s offset mm, b_s scale) per speaker at x ({} without [model] speakers)."""
+        if self.speakers is None:
+            return {}
+        params, beta = self.packing.unpack(x)
+        a, b = self.speakers.coefficients(self.evaluate(params, beta))
+        return {n: (float(a[i]), float(b[i])) for i, n in enumerate(self.speakers.names)}
+
     def sse_gradient(self, x: FloatArray) -> tuple[float, FloatArray]:
         """SSE and its gradient in x, from the core's fused SSE+gradient (no Jacobian formed); with
-        offsets, 2 Jᵀr from the profiled residuals and their exact Jacobian."""
-        if self.offsets is not None:
+        offsets or speakers, 2 Jᵀr from the profiled residuals and their exact Jacobian."""
+        if self.offsets is not None or self.speakers is not None:
             r = self.residuals(x)
             if not np.all(np.isfinite(r)):
                 return np.inf, np.zeros(self.packing.n_free)
@@ -491,6 +591,8 @@ class ChannelProblem:
 
     def sse_batch(self, xs: FloatArray) -> FloatArray:
         """SSE for many x at once (rows), through the core's parallel batch path; +inf if invalid."""
+        if self.speakers is not None:  # profiled per speaker: through the residuals, point by point
+            return np.array([self.sse(x) for x in np.atleast_2d(xs)])
         params, betas = self.packing.unpack_batch(xs)
         if self.offsets is not None:
             sse, sums = _core.residual_sums_batch(self.data.corpus, params, betas, self.options,
@@ -505,7 +607,8 @@ class ChannelProblem:
 
     def with_packing(self, packing: Packing) -> ChannelProblem:
         """A problem on the same data with another free set (staged fits); best point carried."""
-        p = ChannelProblem(self.data, packing, self.options, self.priors, self.prior_noise, self.offset_sd)
+        p = ChannelProblem(self.data, packing, self.options, self.priors, self.prior_noise, self.offset_sd,
+                           self.speaker_mode, self.speaker_column)
         p.nfev, p.njev, p.monitor = self.nfev, self.njev, self.monitor
         return p
 
@@ -522,7 +625,7 @@ def build_problem(spec: FitSpec, utterances: Sequence[Utterance], channel: str,
     ps = ParameterSet.from_spec(spec, data, start)
     offset_sd = {"none": None, "free": np.inf}.get(str(spec.offsets), spec.offsets)
     return ChannelProblem(data, ps.packing(), options, ps.priors, spec.prior_noise,
-                          None if offset_sd is None else float(offset_sd))
+                          None if offset_sd is None else float(offset_sd), spec.speakers, spec.speaker_column)
 
 
 def describe(packing: Packing) -> dict[str, Any]:

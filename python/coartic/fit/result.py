@@ -236,6 +236,9 @@ class FitResult:
                 with_b = float(np.sqrt(np.nanmean((fit.residuals() + b[fit.problem.offsets.utt]) ** 2)))
                 lines.append(f"    per-utterance offsets ([model] offsets = {self.spec.offsets!r}): sd {b.std():.4f} mm, "
                              f"range {b.min():+.3f} to {b.max():+.3f} mm; RMSE with them {with_b:.4f} mm")
+            for spk, (a_s, b_s) in fit.problem.speaker_coefficients(fit.x).items():
+                lines.append(f"    speaker {spk} ([model] speakers = {self.spec.speakers!r}): "
+                             f"offset a = {a_s:+.4f} mm, scale b = {b_s:.4f}")
             for s_i, sr in enumerate(fit.stages):
                 lines.append(f"    stage {s_i + 1}: {sr.n_free} free ({', '.join(sr.parameters)}): "
                              f"SSE {sr.sse_start:.4g} -> {sr.sse_end:.4g} [{sr.engine.status}]"

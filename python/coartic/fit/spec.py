@@ -110,6 +110,10 @@ class FitSpec:
     priors: dict[str, tuple[float, float, bool]] = field(default_factory=dict)
     prior_noise: float = 1.0
     offsets: str | float = "none"  # per-utterance offsets in least squares: "none", "free" or their sd (mm)
+    # several speakers in one fit: "none", "offset" (a_s + F) or "offset_scale" (a_s + b_s·F), the
+    # speaker read from the manifest column speaker_column; shared dynamics and reference targets
+    speakers: str = "none"
+    speaker_column: str = "speaker"
     start_given: frozenset[str] = frozenset()  # the [parameters.start] keys the spec gives (checked against bounds)
     bounds: dict[str, tuple[float, float]] = field(default_factory=lambda: dict(DEFAULT_FIT_BOUNDS))
     channel_bounds: dict[str, dict[str, tuple[float, float]]] = field(default_factory=dict)
@@ -310,12 +314,20 @@ def parse_spec(raw: dict[str, Any], path: Path) -> FitSpec:
     m = raw.get("model", {})
     _take(m, path, "model", {"variant", "channels", "reference_phoneme", "apex_fraction", "edge_extent",
                              "beta", "fit_beta", "beta_bounds", "offsets", "dominance", "plateau_fraction",
-                             "handover"})
+                             "handover", "speakers", "speaker_column"})
+    speakers = m.get("speakers", "none")
+    if speakers not in ("none", "offset", "offset_scale"):
+        raise _err(path, "model.speakers", f"{speakers!r}: expected \"none\", \"offset\" or \"offset_scale\"")
+    speaker_column = m.get("speaker_column", "speaker")
+    if not isinstance(speaker_column, str) or not speaker_column:
+        raise _err(path, "model.speaker_column", f"{speaker_column!r}: expected a manifest column name")
     offsets = m.get("offsets", "none")
     if isinstance(offsets, bool) or not (offsets in ("none", "free") or (
             isinstance(offsets, (int, float)) and math.isfinite(offsets) and offsets > 0)):
         raise _err(path, "model.offsets", f"{offsets!r}: expected \"none\", \"free\" or a positive number "
                    "(the offsets' sd in mm)")
+    if speakers != "none" and offsets != "none":
+        raise _err(path, "model.speakers", "cannot be combined with [model] offsets yet: choose one")
     variant = m.get("variant", "modified")
     if variant not in VARIANTS:
         raise _err(path, "model.variant", f"{variant!r}: expected one of {VARIANTS}")
@@ -466,7 +478,8 @@ def parse_spec(raw: dict[str, Any], path: Path) -> FitSpec:
         plateau_fraction=plateau, handover=handover,
         beta=_float(m.get("beta", 1.0), path, "model.beta"), fit_beta=fit_beta, beta_bounds=beta_bounds,
         free=free, start_table=start_table, start=start, start_given=frozenset(start_given), bounds=bounds,
-        priors=priors, prior_noise=prior_noise, offsets=offsets if isinstance(offsets, str) else float(offsets), channel_bounds=channel_bounds,
+        priors=priors, prior_noise=prior_noise, offsets=offsets if isinstance(offsets, str) else float(offsets),
+        speakers=str(speakers), speaker_column=speaker_column, channel_bounds=channel_bounds,
         target_margin=margin, overrides=tuple(overrides), ties=tuple(ties), engine=engine, engine_options=dict(engine_options),
         staging=staging, stages=stages, max_gap=max_gap, holdout_repetition=hold, validate_group=group,
         validate_folds=folds,
