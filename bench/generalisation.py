@@ -28,9 +28,7 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
-import os
 import sys
-import tempfile
 import time
 from pathlib import Path
 from typing import Any, Sequence
@@ -42,6 +40,7 @@ from coartic.fit.data import load_utterances
 from coartic.fit.problem import ChannelData, Utterance
 from coartic.fit.spec import FitSpec, Override
 from coartic.fit.validate import score, splits
+from coartic.outputs import atomic_write_text
 from coartic.table import PARAMETERS
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -88,6 +87,46 @@ def gestures(manifest: Path, variants: Sequence[str], channels: tuple[str, ...],
                            f"{s.worst_vowel[1]:.3f} ({s.worst_vowel[0]})  {len(at)}: {' '.join(at)}")
                 print(out[-1], flush=True)
             out.append(f"{'':15s} ({time.process_time() - t0:.0f} s CPU)")
+
+
+def select_plateau_fraction(manifest: Path, grid: Sequence[float], channels: tuple[str, ...],
+                            out: list[str]) -> None:
+    """Choose h (plateau_fraction of the rate-aware variant) as a user with only normal-rate data
+    would: by 5-fold cross-validation over repetitions *within the normal rate*; then score the
+    chosen h on the fast rate, which took no part in the choice."""
+    from coartic.fit.validate import kfold_splits
+
+    base = load_spec(ROOT / "fit" / "synthetic.toml")
+    base = base.with_options(corpus=dataclasses.replace(base.corpus, manifest=manifest.resolve()), channels=channels)
+    utts = load_utterances(base)
+    normal = [u for u in utts if u.meta.get("rate") == base.train_rate]
+    fast = [u for u in utts if u.meta.get("rate") == base.test_rate]
+    out.append(f"## choosing h by 5-fold CV over repetitions within the {base.train_rate} rate "
+               f"({len(normal)} trials); the {base.test_rate} rate ({len(fast)} trials) is scored only after")
+    out.append(f"{'h':>5s} {'channel':7s} {'CV held-out':>11s}")
+    cv: dict[tuple[float, str], float] = {}
+    for h in grid:
+        spec = base.with_options(**{**VARIANTS["rate-aware"], "plateau_fraction": h},
+                                 validate_group="repetition", validate_folds=5)
+        sse: dict[str, float] = {c: 0.0 for c in channels}
+        n: dict[str, float] = {c: 0.0 for c in channels}
+        for split, train, test in kfold_splits(spec, normal):
+            res = run(spec, utterances=train, quiet=True, report=False)
+            for s in score(res, test, split):
+                sse[s.channel] += s.test_rmse**2 * s.test_samples
+                n[s.channel] += s.test_samples
+        for c in channels:
+            cv[h, c] = float(np.sqrt(sse[c] / n[c]))
+            out.append(f"{h:5.2f} {c:7s} {cv[h, c]:11.3f}")
+            print(out[-1], flush=True)
+    for c in channels:
+        best = min(grid, key=lambda h: cv[h, c])
+        spec = base.with_options(**{**VARIANTS["rate-aware"], "plateau_fraction": best}, channels=(c,))
+        res = run(spec, utterances=normal, quiet=True, report=False)
+        (s,) = score(res, fast, f"fit {base.train_rate}, test {base.test_rate}")
+        out.append(f"{c}: CV chooses h = {best:g}; fit {base.train_rate} rate, test {base.test_rate} rate: "
+                   f"train {s.train_rmse:.3f}, test {s.test_rmse:.3f} mm")
+        print(out[-1], flush=True)
 
 
 def _rmse(f: np.ndarray, data: ChannelData, keep: np.ndarray, offset: bool = False) -> float:
@@ -153,8 +192,19 @@ def main() -> int:
     ap.add_argument("--channels", default="LLO,JO")
     ap.add_argument("--skip-gestures", action="store_true")
     ap.add_argument("--skip-german", action="store_true")
-    ap.add_argument("--out", type=Path, default=ROOT / "bench" / "results" / "generalisation.txt")
+    ap.add_argument("--select-h", metavar="GRID",
+                    help="only choose the rate-aware variant's plateau_fraction among GRID (e.g. 0.3,0.4,0.5,0.6) "
+                         "by CV within the normal rate, then score the fast rate (default --out: "
+                         "bench/results/generalisation_select_h.txt)")
+    ap.add_argument("--out", type=Path, default=None)
     a = ap.parse_args()
+    if a.select_h:
+        if a.manifest is None:
+            ap.error("--select-h needs the gestures session's manifest.csv")
+        lines = ["# bench/generalisation.py --select-h: the plateau fraction chosen without looking at the fast rate"]
+        select_plateau_fraction(a.manifest, [float(h) for h in a.select_h.split(",")], tuple(a.channels.split(",")),
+                                lines)
+        return _write(lines, a.out or ROOT / "bench" / "results" / "generalisation_select_h.txt")
     variants = a.variants.split(",")
     bad = sorted(set(variants) - set(VARIANTS))
     if bad:
@@ -166,12 +216,13 @@ def main() -> int:
         gestures(a.manifest, variants, tuple(a.channels.split(",")), lines)
     if not a.skip_german:
         german(variants, lines)
-    a.out.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=a.out.parent, prefix=a.out.name + ".")
-    with os.fdopen(fd, "w") as f:
-        f.write("\n".join(lines) + "\n")
-    os.replace(tmp, a.out)
-    print(f"wrote {a.out}")
+    return _write(lines, a.out or ROOT / "bench" / "results" / "generalisation.txt")
+
+
+def _write(lines: list[str], out: Path) -> int:
+    out.parent.mkdir(parents=True, exist_ok=True)
+    atomic_write_text(out, "\n".join(lines) + "\n")
+    print(f"wrote {out}")
     return 0
 
 
