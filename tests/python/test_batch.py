@@ -251,11 +251,16 @@ def test_report_escapes_what_comes_from_the_spec_and_shows_every_group(serial: P
         rows = list(csv.DictReader(f))
     assert [(r["group"], r["channel"]) for r in rows] == [
         ("s01", "LLO"), ("s01", "JO"), ("s02", "LLO"), ("s02", "JO"), ("pooled", "LLO"), ("pooled", "JO")]
-    # Speakers whose targets differ by a factor 1.5 are fitted to the noise; the pooled fit, with
-    # one set of targets for both, cannot be.
+    # Speakers whose targets differ by a factor 1.5 are fitted to the noise; so is the pooled fit,
+    # whose shared dynamics take each speaker's targets as offset + scale ([model] speakers =
+    # "offset_scale" by group; one set of targets for both gave 0.93 mm on LLO).
     by = {(r["group"], r["channel"]): float(r["rmse_mm"]) for r in rows}
     worst = max(by[(g, ch)] for g in ("s01", "s02") for ch in ("LLO", "JO"))
-    assert worst < 0.25 and by[("pooled", "LLO")] > 2 * worst
+    assert worst < 0.25 and by[("pooled", "LLO")] < 0.25 and by[("pooled", "JO")] < 0.25
+    pooled = json.loads((serial / "pooled" / "table.json").read_text(encoding="utf-8"))["metadata"]["speakers"]
+    assert pooled["mode"] == "offset_scale" and pooled["column"] == "group"
+    assert pooled["coefficients"]["LLO"]["s01"] == {"offset_mm": 0.0, "scale": 1.0}
+    assert pooled["coefficients"]["LLO"]["s02"]["scale"] == pytest.approx(1.5, abs=0.05)
 
 
 def test_cli_refuses_another_batchs_folder_and_names_bad_keys(corpus: Path, serial: Path, tmp_path: Path) -> None:

@@ -148,6 +148,9 @@ def finish_channel(problem: ChannelProblem, x: FloatArray, status: str, message:
     params, beta = problem.packing.unpack(x)
     problem.packing.base, problem.packing.base_beta = params, beta
     fitted = problem.evaluate(params, beta)
+    if problem.speakers is not None:  # each speaker's prediction a_s + b_s·F: what its mapped table gives
+        a, b = problem.speakers.coefficients(fitted)
+        fitted = a[problem.speakers.spk] + b[problem.speakers.spk] * fitted
     stats = parameter_stats(problem, x)
     return ChannelFit(problem.data.channel, problem, x, params, beta, status, message, problem.nfev, wall,
                       stages, stats, fitted)
