@@ -80,6 +80,12 @@ def test_pooled_offset_scale_recovers_speaker_and_beats_none(utts) -> None:  # t
     np.testing.assert_allclose(params[1:, TARGET], TRUTH[1:, TARGET], atol=0.2)
     _, _, rmse_none = fit(utts, "none")
     assert rmse < 0.6 * rmse_none
+    # docs/FITTING.md: the table for speaker s is its targets mapped a + b·target (F is a
+    # dominance-weighted mean of targets), so a + b·F is the model evaluated with those targets
+    f = p.evaluate(params, 1.0)
+    mapped = params.copy()
+    mapped[:, TARGET] = a + b * mapped[:, TARGET]
+    np.testing.assert_allclose(p.evaluate(mapped, 1.0), a + b * f, atol=1e-10)
 
 
 def test_speakers_need_the_column_and_a_known_mode(utts) -> None:  # type: ignore[no-untyped-def]

@@ -36,10 +36,11 @@ if TYPE_CHECKING:
 # mostly fixed or small; they are in spread.csv all the same).
 PLOTTED = ("target", "alpha", "theta_bw", "theta_fw", "k_r", "delta")
 LOG_PLOTTED = frozenset({"alpha", "theta_bw", "theta_fw"})
-POOLED_NOTE = ("The pooled fit is one least-squares fit of every group's trials together: targets and dynamics "
-               "are shared by all groups. Speaker-specific targets with shared dynamics need the estimation "
-               "layer's multi-speaker fit, which coartic.fit does not offer yet; the per-group tables carry the "
-               "speaker variation.")
+POOLED_NOTE = ("The pooled fit is one least-squares fit of every group's trials together: dynamics are shared "
+               "by all groups, and each group's trajectories are the first group's scaled and offset "
+               "(coartic.fit [model] speakers = \"offset_scale\"; the fitted offset and scale per group are in "
+               "pooled/table.json metadata \"speakers\" and pooled/fit_report.txt). The pooled table's targets "
+               "are the first group's; the per-group tables carry the full speaker variation.")
 
 
 def merge_tables(tables: Sequence[ParameterTable], source: str) -> ParameterTable:

@@ -226,7 +226,12 @@ def load_batch_spec(path: str | Path) -> BatchSpec:
     pooled = p.get("enabled", True)
     if not isinstance(pooled, bool):
         raise _err(path, "pooled.enabled", f"expected true or false, got {pooled!r}")
-    pooled_spec = fit.with_options(corpus=pooled_corpus, channels=channels, name=f"{name} (pooled)")
+    # The pooled fit: shared dynamics, each group's targets as offset + scale of the first group's
+    # ([model] speakers, by the "group" tag load_group puts on every utterance), unless the fit spec
+    # already chose speakers or per-utterance offsets.
+    own = fit.speakers != "none" or fit.offsets != "none"
+    pooled_spec = fit.with_options(corpus=pooled_corpus, channels=channels, name=f"{name} (pooled)",
+                                   **({} if own else {"speakers": "offset_scale", "speaker_column": "group"}))
 
     q = raw.get("posteriors", {})
     if not isinstance(q, dict) or sorted(set(q) - {"enabled"}):

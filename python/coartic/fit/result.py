@@ -209,6 +209,13 @@ class FitResult:
             "status": {ch: f.status for ch, f in self.channels.items()},
             "interrupted": self.interrupted,
         }
+        if s.speakers != "none":
+            # the targets are the reference speaker's; speaker s is a + b·F (docs/FITTING.md)
+            t.metadata["speakers"] = {
+                "mode": s.speakers, "column": s.speaker_column,
+                "coefficients": {ch: {spk: {"offset_mm": a, "scale": b}
+                                      for spk, (a, b) in f.problem.speaker_coefficients(f.x).items()}
+                                 for ch, f in self.channels.items()}}
         # the map the corpus labels went through, so trajectories/animate/score read labels alike
         resolve_label_map(s.corpus.label_map).record_in(t)
         return t
