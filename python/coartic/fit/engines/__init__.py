@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import Any, Callable
+from typing import Any, Callable, Mapping
 
 import numpy as np
 from numpy.typing import NDArray
@@ -68,6 +68,19 @@ def check_options(name: str, options: dict[str, Any]) -> None:
     else:
         raise ValueError(f"unknown engine {name!r} (scipy, nlopt, casadi)")
     check(options)
+
+
+Check = tuple[Callable[[Any], bool], str]  # (accepts the value?, what it should be)
+
+
+def check_against(engine: str, checks: Mapping[str, Check], options: Mapping[str, Any]) -> None:
+    """Each option known to ``checks`` and accepted by its test, else ``OptionError`` naming it."""
+    for key, value in options.items():
+        if key not in checks:
+            raise OptionError(key, f"not {engine} option; known: {', '.join(sorted(checks))}")
+        ok, what = checks[key]
+        if not ok(value):
+            raise OptionError(key, f"{value!r}: expected {what}")
 
 
 def is_number(v: Any, low: float = -math.inf, positive: bool = False) -> bool:

@@ -12,13 +12,13 @@ and ``xtol_rel`` (1e-15: L-BFGS then stops on round-off, not early),
 
 from __future__ import annotations
 
-from typing import Any, Callable
+from typing import Any
 
 import nlopt
 import numpy as np
 from numpy.typing import NDArray
 
-from coartic.fit.engines import EngineResult, OptionError, Unit, is_int, is_number, prepare_start
+from coartic.fit.engines import Check, EngineResult, check_against, Unit, is_int, is_number, prepare_start
 from coartic.fit.problem import ChannelProblem
 
 _GLOBAL = {"mlsl": nlopt.G_MLSL_LDS, "crs2": nlopt.GN_CRS2_LM}
@@ -46,7 +46,7 @@ DEFAULTS: dict[str, Any] = {"global": "auto", "global_maxeval": 2000, "local": "
 
 def check_options(options: dict[str, Any]) -> None:
     """Every option this engine knows, checked for type and value."""
-    checks: dict[str, tuple[Callable[[Any], bool], str]] = {
+    checks: dict[str, Check] = {
         "global": (lambda v: v in ("auto", "none", *_GLOBAL), f"one of auto, none, {', '.join(_GLOBAL)}"),
         "local": (lambda v: v in _LOCAL, f"one of {', '.join(_LOCAL)}"),
         "global_maxeval": (lambda v: is_int(v, 0), "an integer >= 0"),
@@ -56,12 +56,7 @@ def check_options(options: dict[str, Any]) -> None:
         "population": (lambda v: is_int(v, 0), "an integer >= 0"),
         "seed": (lambda v: is_int(v, 0), "an integer >= 0"),
     }
-    for key, value in options.items():
-        if key not in checks:
-            raise OptionError(key, f"not an nlopt option; known: {', '.join(sorted(checks))}")
-        ok, what = checks[key]
-        if not ok(value):
-            raise OptionError(key, f"{value!r}: expected {what}")
+    check_against("an nlopt", checks, options)
 
 
 def minimize(problem: ChannelProblem, x0: NDArray[np.float64], options: dict[str, Any]) -> EngineResult:

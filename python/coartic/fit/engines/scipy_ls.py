@@ -10,13 +10,13 @@ keeps it sparse: much faster on a whole corpus, where J has ~1e5 rows; default '
 
 from __future__ import annotations
 
-from typing import Any, Callable
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
 from scipy.optimize import least_squares
 
-from coartic.fit.engines import EngineResult, OptionError, is_int, is_number, prepare_start
+from coartic.fit.engines import Check, EngineResult, check_against, is_int, is_number, prepare_start
 from coartic.fit.problem import ChannelProblem
 
 _STATUS = {-1: "failed", 0: "max-evaluations", 1: "converged", 2: "converged", 3: "converged", 4: "converged"}
@@ -25,7 +25,7 @@ LOSSES = ("linear", "soft_l1", "huber", "cauchy", "arctan")
 
 def check_options(options: dict[str, Any]) -> None:
     """The least_squares options this engine passes on, each checked for type and value."""
-    checks: dict[str, tuple[Callable[[Any], bool], str]] = {
+    checks: dict[str, Check] = {
         "max_nfev": (lambda v: is_int(v, 1), "a positive integer"),
         "ftol": (lambda v: is_number(v, 0.0), "a number >= 0"),
         "xtol": (lambda v: is_number(v, 0.0), "a number >= 0"),
@@ -38,12 +38,7 @@ def check_options(options: dict[str, Any]) -> None:
         "method": (lambda v: v in ("trf", "dogbox"), "'trf' or 'dogbox' (the bounded methods)"),
         "verbose": (lambda v: v in (0, 1, 2) and not isinstance(v, bool), "0, 1 or 2"),
     }
-    for key, value in options.items():
-        if key not in checks:
-            raise OptionError(key, f"not a scipy option; known: {', '.join(sorted(checks))}")
-        ok, what = checks[key]
-        if not ok(value):
-            raise OptionError(key, f"{value!r}: expected {what}")
+    check_against("a scipy", checks, options)
 
 
 def minimize(problem: ChannelProblem, x0: NDArray[np.float64], options: dict[str, Any]) -> EngineResult:
