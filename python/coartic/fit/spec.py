@@ -148,6 +148,20 @@ def _err(path: Path, key: str, msg: str) -> SpecError:
     return SpecError(f"{path}: [{key}] {msg}")
 
 
+def _array_of_tables(raw: dict[str, Any], name: str, path: Path) -> list[tuple[str, dict[str, Any]]]:
+    """The spec's [[name]] tables, each with the key its errors are named by ("tie #2")."""
+    items = raw.get(name, [])
+    if not isinstance(items, list):
+        raise _err(path, name, f"expected [[{name}]] tables")
+    out = []
+    for i, item in enumerate(items):
+        key = f"{name} #{i + 1}"
+        if not isinstance(item, dict):
+            raise _err(path, key, f"expected a table, got {item!r}")
+        out.append((key, item))
+    return out
+
+
 def _take(d: dict[str, Any], path: Path, section: str, allowed: set[str]) -> None:
     unknown = sorted(set(d) - allowed)
     if unknown:
@@ -386,34 +400,22 @@ def parse_spec(raw: dict[str, Any], path: Path) -> FitSpec:
         raise _err(path, "parameters.prior_noise", f"{prior_noise} must be a positive number (mm)")
 
     overrides: list[Override] = []
-    ov_raw = raw.get("override", [])
-    if not isinstance(ov_raw, list):
-        raise _err(path, "override", "expected [[override]] tables")
-    for i, o in enumerate(ov_raw):
-        key = f"override #{i + 1}"
-        if not isinstance(o, dict):
-            raise _err(path, key, f"expected a table, got {o!r}")
-        _take(o, path, key, {"phonemes", "channels", "fixed", "free", "start", "bounds"})
-        if "phonemes" not in o:
+    for key, table in _array_of_tables(raw, "override", path):
+        _take(table, path, key, {"phonemes", "channels", "fixed", "free", "start", "bounds"})
+        if "phonemes" not in table:
             raise _err(path, key, "missing phonemes = [...]")
-        chans = _channels(_str_list(o["channels"], path, f"{key}.channels"), path, f"{key}.channels") \
-            if "channels" in o else None
+        chans = _channels(_str_list(table["channels"], path, f"{key}.channels"), path, f"{key}.channels") \
+            if "channels" in table else None
         overrides.append(Override(
-            phonemes=_str_list(o["phonemes"], path, f"{key}.phonemes"), channels=chans,
-            fixed=_param_values(o.get("fixed", {}), path, f"{key}.fixed"),
-            free=_param_names(_str_list(o.get("free", []), path, f"{key}.free"), path, f"{key}.free"),
-            start=_param_values(o.get("start", {}), path, f"{key}.start"),
-            bounds=_bounds(o.get("bounds", {}), path, f"{key}.bounds")))
+            phonemes=_str_list(table["phonemes"], path, f"{key}.phonemes"), channels=chans,
+            fixed=_param_values(table.get("fixed", {}), path, f"{key}.fixed"),
+            free=_param_names(_str_list(table.get("free", []), path, f"{key}.free"), path, f"{key}.free"),
+            start=_param_values(table.get("start", {}), path, f"{key}.start"),
+            bounds=_bounds(table.get("bounds", {}), path, f"{key}.bounds")))
 
     reference = str(m.get("reference_phoneme", "a"))
     ties: list[Tie] = []
-    tie_raw = raw.get("tie", [])
-    if not isinstance(tie_raw, list):
-        raise _err(path, "tie", "expected [[tie]] tables")
-    for i, t in enumerate(tie_raw):
-        key = f"tie #{i + 1}"
-        if not isinstance(t, dict):
-            raise _err(path, key, f"expected a table, got {t!r}")
+    for key, t in _array_of_tables(raw, "tie", path):
         _take(t, path, key, {"phonemes", "parameters", "channels"})
         if "phonemes" not in t or "parameters" not in t:
             raise _err(path, key, "needs phonemes = [...] and parameters = [...]")
