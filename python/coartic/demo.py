@@ -21,7 +21,9 @@ import typer
 from rich.console import Console
 from rich.table import Table
 
+from coartic.console import print_error
 from coartic.model import segment_weights, trajectories
+from coartic.outputs import OutputDir
 from coartic.table import PARAMETERS, ParameterTable
 
 CHANNEL = "LLO"
@@ -63,7 +65,8 @@ def vcv_segments(consonant: str, rate: float) -> tuple[list[str], npt.NDArray[np
 
 
 def run_demo(out: Path) -> dict[str, dict[str, dict[str, float]]]:
-    """Write demo.png, table.json and reached.json to ``out``; return the consonant values reached.
+    """Write demo.png, table.json and reached.json to ``out`` (an existing directory; the command
+    stages it, see ``demo_command``); return the consonant values reached.
 
     ``reached[stimulus][rate][variant]`` is F at the consonant's target time; the target is
     ``reached[stimulus]["target"]``.
@@ -73,7 +76,6 @@ def run_demo(out: Path) -> dict[str, dict[str, dict[str, float]]]:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    out.mkdir(parents=True, exist_ok=True)
     tables = {v: illustrative_table(v) for v in VARIANT_STYLE}
     tables["modified"].save(out / "table.json")
     fig, axes = plt.subplots(
@@ -133,10 +135,16 @@ def demo_command(
     out: Annotated[Path, typer.Option(help="Directory for demo.png, table.json and reached.json.")] = Path(
         "results/demo"
     ),
+    force: Annotated[bool, typer.Option("--force", help="Replace --out even if it holds another run's output.")] = False,
 ) -> None:
     """Plot the model on /a p a/, /a f a/, /a t a/ at a normal and a 3x faster rate (illustrative table)."""
     console = Console()
-    reached = run_demo(out)
+    try:
+        with OutputDir(out, "demo", {}, force=force) as staging:
+            reached = run_demo(staging)
+    except ValueError as e:  # OutputError: --out holds another run's output, or is in use
+        print_error(console, e)
+        raise typer.Exit(2) from None
     summary = Table(title=f"{CHANNEL} at the consonant's target time (illustrative parameters)")
     summary.add_column("stimulus")
     summary.add_column("target", justify="right")

@@ -17,6 +17,7 @@ import typer
 from rich.console import Console
 from coartic.console import print_error
 from coartic.errors import CoarticError
+from coartic.outputs import OutputDir
 
 app = typer.Typer(help="The synthetic ELITE-style session (corpus-synthetic/).", no_args_is_help=True)
 
@@ -61,7 +62,7 @@ def load_generator() -> ModuleType:
 
 @app.command("synth")
 def synth(
-    out: Annotated[Path, typer.Argument(help="Output directory (new, empty, or an earlier session).")],
+    out: Annotated[Path, typer.Argument(help="Output directory (new, empty, or this same session generated earlier).")],
     seed: Annotated[Optional[int], typer.Option(help="Random seed (default: the one in session.toml).")] = None,
     quick: Annotated[bool, typer.Option("--quick", help="Only the first 2 repetitions (for tests).")] = False,
     flavour: Annotated[
@@ -75,18 +76,36 @@ def synth(
                      "OUT/s02... (speakers differ in target scale and speaking rate, corpus-synthetic/speakers.toml) "
                      "and OUT/manifest.csv with a 'speaker' column over all of them."),
     ] = 1,
+    force: Annotated[bool, typer.Option("--force", help="Replace OUT even if it holds another run's output.")] = False,
 ) -> None:
     """Generate the session: C3D + CSV markers, TextGrid + .lab labels, manifest, ground truth."""
     console = Console(stderr=True)
     try:
         gen = load_generator()
-        manifest = gen.generate(out, seed=seed, quick=quick, progress=True, flavour=flavour, speakers=speakers)
-    except (GeneratorNotFound, ValueError) as exc:  # SessionError and TableError are ValueErrors
+        # the session is staged and swapped in whole (docs/OUTPUTS.md): an interrupted run leaves
+        # OUT as it was, and a session of other settings is never mixed with (or replaced by) this one
+        identity = {"seed": gen.load_settings()["seed"] if seed is None else seed, "flavour": flavour,
+                    "quick": quick, "speakers": speakers}
+        output = OutputDir(out, "corpus synth", identity, force=force, recognise=_earlier_session)
+        with output as staging:
+            try:
+                gen.generate(staging, seed=seed, quick=quick, progress=True, flavour=flavour, speakers=speakers)
+            except KeyboardInterrupt:
+                output.abandon()  # half a session is worth nothing: generation takes seconds
+                raise
+    except (GeneratorNotFound, ValueError) as exc:  # SessionError, TableError and OutputError are ValueErrors
         print_error(console, exc)
         raise typer.Exit(code=1) from None
+    manifest = out / "manifest.csv"
     n = sum(1 for _ in open(manifest, encoding="utf-8")) - 1
     who = f" of {speakers} speakers" if speakers > 1 else ""
     console.print(f"wrote {n} trials{who} to {out} (manifest: {manifest})")
+
+
+def _earlier_session(out: Path) -> bool:
+    """A session generated before output directories were marked: the generator's own files."""
+    return (out / "manifest.csv").is_file() and ((out / "ground_truth.json").is_file()
+                                                  or (out / "speakers.json").is_file())
 
 
 def run() -> None:
