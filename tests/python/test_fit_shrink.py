@@ -98,7 +98,8 @@ def test_cross_validation_chooses_the_strength(tmp_path: Path, utts: list[model.
     # repetitions badly, so CV must choose the weak end of the grid, then fit all data with it
     s = spec_of(tmp_path, shrink=[{"phonemes": ["p", "t"], "parameters": ["target"], "sd": 1.0}],
                 choose={"key": "shrink.sd", "values": [100.0, 0.001], "group": "repetition", "folds": 2})
-    res = run(s, tmp_path / "out", utterances=utts, quiet=True, report=False)
+    res = run(s, tmp_path / "out", utterances=utts, quiet=True, report=True)
+    assert 'src="choose.png"' in (tmp_path / "out" / "report.html").read_text()
     ch = res.choice
     assert ch is not None and ch.chosen == {"LLO": 100.0} and len(ch.folds) == 2
     weak, strong = (next(p for p in ch.curve("LLO") if p.value == v) for v in (100.0, 0.001))
