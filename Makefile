@@ -1,5 +1,6 @@
 # The two commands of the README:
-#   make fit    set up everything, generate the synthetic session, fit it end to end, write the report
+#   make fit    set up everything, generate the synthetic session, fit it end to end (with held-out
+#               checks), write the report, and check the fit against the session's ground truth
 #   make test   set up everything, run every test (Rust core without Python, then Python)
 PY := .venv/bin/python
 .PHONY: setup fit test test-rust test-python stubtest typecheck bench clean
@@ -10,7 +11,8 @@ setup:
 # A rerun refits and replaces results/synthetic whole (its own output: no --force; docs/OUTPUTS.md).
 fit: setup
 	[ -f build/session/manifest.csv ] || $(PY) -m coartic.cli corpus synth build/session
-	$(PY) -m coartic.cli fit fit/synthetic.toml --out results/synthetic
+	$(PY) -m coartic.cli fit fit/synthetic.toml --out results/synthetic --validate
+	$(PY) fit/check_recovery.py results/synthetic
 
 test: setup test-rust stubtest typecheck test-python
 

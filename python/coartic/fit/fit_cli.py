@@ -51,6 +51,10 @@ def fit_command(
                                   "the rest: k-fold by [validate] group (utterance, sentence, rate, speaker, "
                                   "repetition), else the held-out repetition and the fast rate"),
     report: bool = typer.Option(True, "--report/--no-report", help="write the HTML report with plots"),
+    choose: Optional[str] = typer.Option(None, "--choose", help="KEY=V1,V2,...: choose a setting by k-fold "
+                                         "cross-validation on the training data, then fit with it (e.g. "
+                                         "shrink.sd=0.03,0.1,0.3,1; replaces the spec's [choose] grid; "
+                                         "docs/FITTING.md)"),
     force: bool = typer.Option(False, "--force", help="replace --out even if it holds another run's output "
                                "(a rerun of the same spec and channels replaces its own output without it)"),
 ) -> None:
@@ -78,6 +82,10 @@ def fit_command(
         if no_staging:
             changes["staging"] = False
         s = s.with_options(**changes)
+        if choose is not None:
+            from coartic.fit.choose import parse_choose
+
+            s = parse_choose(s, choose)
         output = fit_output(s, out, force)
         with output as staging:
             result = _fit_into(s, staging, console, validate, report)

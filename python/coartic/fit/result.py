@@ -172,6 +172,7 @@ class FitResult:
     notes: list[str] = field(default_factory=list)
     validation: list[Any] | None = None  # coartic.fit.validate.SplitScore per split and channel
     report: Path | None = None  # the HTML report, once written
+    choice: Any = None  # coartic.fit.choose.Choice: the [choose] setting's CV curve and chosen values
 
     # ---------------------------------------------------------------- tables
     def rmse_rows(self) -> list[dict[str, Any]]:
@@ -224,6 +225,12 @@ class FitResult:
                 "coefficients": {ch: {spk: {"offset_mm": a, "scale": b}
                                       for spk, (a, b) in f.problem.speaker_coefficients(f.x).items()}
                                  for ch, f in self.channels.items()}}
+        if s.shrinks:  # the shrinkage the fit had (sd as the spec gives it; a [choose]n one in "choice")
+            t.metadata["shrinkage"] = [{"key": g.key, "phonemes": list(g.phonemes), "parameters": list(g.parameters),
+                                        "sd": g.sd, "scale": "log" if g.log else "natural", "prior_noise": s.prior_noise,
+                                        "channels": list(g.channels) if g.channels else "all"} for g in s.shrinks]
+        if self.choice is not None:
+            t.metadata["choice"] = self.choice.metadata()
         # the map the corpus labels went through, so trajectories/animate/score read labels alike
         resolve_label_map(s.corpus.label_map).record_in(t)
         return t
@@ -239,6 +246,8 @@ class FitResult:
         if self.interrupted:
             lines.append("    INTERRUPTED by the user: the results below are the best points reached")
         lines += [f"    note: {n}" for n in self.notes]
+        if self.choice is not None:
+            lines += self.choice.text_lines()
         for ch, fit in self.channels.items():
             st = fit.stats
             assert st is not None
@@ -259,6 +268,7 @@ class FitResult:
                              f"SSE {sr.sse_start:.4g} -> {sr.sse_end:.4g} [{sr.engine.status}]"
                              # a stage that did not converge says why, in the engine's own words
                              + ("" if sr.engine.status == "converged" else f": {sr.engine.message}"))
+            lines += shrinkage_lines(fit.problem, fit.x)
             if st.at_bound:
                 lines.append(f"    warning: {len(st.at_bound)} parameter(s) at a bound: {', '.join(st.at_bound)}")
                 lines.append(f"        why (computed from the fit, [[At a bound]] below): {summary_counts(st.bounds)}")
@@ -323,7 +333,28 @@ class FitResult:
                                      "unidentified": f.stats.unidentified if f.stats else []}
                                 for ch, f in self.channels.items()}}
         atomic_write_text(paths["summary"], json.dumps(summary, indent=2))
+        if self.choice is not None:
+            paths |= self.choice.save(out)
         return paths
+
+
+def shrinkage_lines(problem: ChannelProblem, x: FloatArray) -> list[str]:
+    """fit_report.txt: per [[shrink]] group, the class mean and each member's deviation in sd."""
+    sh = problem.shrinkage
+    if not sh.size:
+        return []
+    params, _ = problem.packing.unpack(x)
+    z = sh.z(params)
+    lines = [f"    [[Shrinkage]] (prior_noise {sh.noise:g} mm; deviation from the class mean in sd)"]
+    i = 0
+    for g in sh.groups:
+        v = params[list(g.rows), g.column]
+        mean = float(np.exp(np.mean(np.log(v)))) if g.log else float(np.mean(v))
+        devs = " ".join(f"{p} {d:+.2f}" for p, d in zip(g.phonemes, z[i:i + len(g.rows)]))
+        lines.append(f"        {g.key} {g.parameter}: sd {g.sd:g}{' (log)' if g.log else ''}, class "
+                     f"{'geometric ' if g.log else ''}mean {mean:.4g}: {devs}")
+        i += len(g.rows)
+    return lines
 
 
 def now() -> str:

@@ -8,6 +8,8 @@ Sampling coordinates are the least-squares problem's own internal vector x
   open by the bounds (α, θ, ψ have (0, ∞) by default) is closed with ``PRIOR_RANGE`` so that the
   prior is proper;
 * times optional Gaussian priors on natural values, keyed ``"phoneme.parameter"`` (or ``"beta"``);
+* times the fit spec's shrinkage toward class means (``[[shrink]]``: ``coartic.fit.problem.Shrinkage``,
+  the least-squares rows divided by prior_noise, so −½ Σ z²);
 * ``-inf`` outside the support (those walkers are not even sent to the core).
 
 The likelihood is Gaussian with noise level σ_n per valid sample: either fixed (a number, e.g. the
@@ -26,13 +28,13 @@ from __future__ import annotations
 
 import hashlib
 import math
-from typing import TYPE_CHECKING, Any, Callable, Mapping
+from typing import TYPE_CHECKING, Any, Callable, Mapping, Sequence
 
 import numpy as np
 from numpy.typing import NDArray
 
 if TYPE_CHECKING:
-    from coartic.fit.problem import ChannelData, Packing
+    from coartic.fit.problem import ChannelData, Packing, ShrinkGroup
 
 FloatArray = NDArray[np.float64]
 BatchFn = Callable[..., FloatArray]
@@ -75,8 +77,10 @@ class LogPosterior:
         evaluate_batch: BatchFn | None = None,
         offset_sd: float | None = 0.0,
         residual_sums_batch: Callable[..., tuple[FloatArray, FloatArray]] | None = None,
+        shrinkage: Sequence[ShrinkGroup] = (),
     ) -> None:
         from coartic import _core
+        from coartic.fit.problem import Shrinkage
 
         self.sse_batch = sse_batch or _core.sse_batch
         self.evaluate_batch = evaluate_batch or _core.evaluate_batch
@@ -119,6 +123,9 @@ class LogPosterior:
         self._prior_mu = np.array([math.log(v[0]) if len(v) > 2 else v[0] for v in self.priors.values()],
                                   dtype=np.float64)
         self._prior_sd = np.array([v[1] for v in self.priors.values()], dtype=np.float64)
+        # the same penalty as least squares, on the unpacked matrix (members outside this packing's
+        # free set count in the class mean at their fitted values)
+        self.shrinkage = Shrinkage(packing, shrinkage, 1.0)
 
         lo, hi = (np.array(b, dtype=np.float64) for b in packing.bounds())
         log = packing.log_mask
@@ -208,6 +215,11 @@ class LogPosterior:
                 with np.errstate(divide="ignore", invalid="ignore"):
                     nat = np.where(self._prior_log, np.log(np.where(self._prior_log, nat, 1.0)), nat)
             lp = lp - 0.5 * np.sum(((nat - self._prior_mu) / self._prior_sd) ** 2, axis=1)
+        if self.shrinkage.size:
+            params, _ = self.matrices(x)
+            with np.errstate(invalid="ignore"):
+                z = self.shrinkage.z(params)
+            lp = lp - 0.5 * np.sum(np.where(np.isfinite(z), z, np.inf) ** 2, axis=1)
         return lp
 
     def sse(self, x: FloatArray) -> FloatArray:
@@ -300,7 +312,8 @@ class LogPosterior:
         p = self.packing
         for a in (self.data.observed, self.data.weights, p.base, p.free, self.lower, self.upper):
             h.update(np.ascontiguousarray(a).tobytes())
-        h.update(repr((p.base_beta, self.noise, self.offset_sd, sorted(self.priors.items()), self.coordinates, self.channel)).encode())
+        h.update(repr((p.base_beta, self.noise, self.offset_sd, sorted(self.priors.items()), self.coordinates, self.channel,
+                       self.shrinkage.groups)).encode())
         for u in self.data.utterances:
             h.update(repr((u.name, u.labels)).encode())
             h.update(np.ascontiguousarray(u.starts).tobytes() + np.ascontiguousarray(u.ends).tobytes())
@@ -315,6 +328,7 @@ def phoneme_posterior(
     noise: float | None = None,
     priors: Mapping[str, tuple[float, float]] | None = None,
     offset_sd: float | None = 0.0,
+    shrinkage: Sequence[ShrinkGroup] = (),
     **evaluators: Callable[..., Any],
 ) -> LogPosterior:
     """The posterior of one phoneme's free parameters on one channel (about 10 dimensions).
@@ -334,7 +348,8 @@ def phoneme_posterior(
     sub = _ChannelData.build([u for u in data.utterances if phoneme in u.labels], data.channel, data.phonemes)
     names = set(packing.with_free(free, False).names())
     mine = {k: v for k, v in (priors or {}).items() if k in names}
-    return LogPosterior(sub, packing.with_free(free, False), options, noise, mine, offset_sd=offset_sd, **evaluators)
+    return LogPosterior(sub, packing.with_free(free, False), options, noise, mine, offset_sd=offset_sd,
+                        shrinkage=shrinkage, **evaluators)
 
 
 def channel_posterior(
@@ -344,8 +359,9 @@ def channel_posterior(
     noise: float | None = None,
     priors: Mapping[str, tuple[float, float]] | None = None,
     offset_sd: float | None = 0.0,
+    shrinkage: Sequence[ShrinkGroup] = (),
     **evaluators: Callable[..., Any],
 ) -> LogPosterior:
     """The joint posterior of every free parameter of the channel (hundreds of dimensions: slow
     for emcee, which is why per-phoneme posteriors are the default)."""
-    return LogPosterior(data, packing, options, noise, priors, offset_sd=offset_sd, **evaluators)
+    return LogPosterior(data, packing, options, noise, priors, offset_sd=offset_sd, shrinkage=shrinkage, **evaluators)
