@@ -157,6 +157,9 @@ def explain_bounds(problem: ChannelProblem, x: FloatArray, at_bound: Sequence[st
                 d[interior] = -(h_ff_pinv @ hi_col) * d[i]
         p["rows_out"] = _add(rows, x, i, [xb + out * s * width for s in STEPS_OUT])
         p["rows_in"] = _add(rows, x, i, [xb - out * s * width for s in STEPS_IN])
+        # a step larger than a box (a nearly flat direction) says nothing a shorter one does not: cap it
+        widths = np.where(np.isfinite(hi - lo), hi - lo, 1.0)
+        d *= min(1.0, 1.0 / max(float(np.max(np.abs(d) / widths)), 1e-300))
         gn_rows = []
         if d[i] * out > 0:  # the step goes past the bound (it does when the data pull outward)
             for s in GN_SCALES:
@@ -166,7 +169,8 @@ def explain_bounds(problem: ChannelProblem, x: FloatArray, at_bound: Sequence[st
                 rows.append(y)
         p["rows_gn"] = gn_rows
         plan.append(p)
-    ss = np.asarray(problem.sse_batch(np.array(rows)), dtype=np.float64)
+    with np.errstate(over="ignore", invalid="ignore"):  # a probe the model refuses is +inf: not a gain
+        ss = np.asarray(problem.sse_batch(np.array(rows)), dtype=np.float64)
     ss = np.where(np.isfinite(ss), ss, np.inf)
     base = float(ss[0]) if np.isfinite(ss[0]) else sse
 
