@@ -10,6 +10,7 @@ from rich.console import Console
 from rich.markup import escape
 from rich.table import Table
 
+from coartic.fit.bounds import summary_counts
 from coartic.fit.result import BAR_MM, FitResult
 from coartic.fit.spec import ENGINES, FitSpec, SpecError, load_spec
 from coartic.console import print_error
@@ -140,7 +141,10 @@ def _fit_into(s: FitSpec, out: Path, console: Console, validate: bool, report: b
     for ch, fit in result.channels.items():
         st = fit.stats
         if st and st.at_bound:
-            console.print(f"[yellow]{ch}: {len(st.at_bound)} parameter(s) at a bound[/yellow] (see fit_report.txt)")
+            unexplained = sum(b.category == "unexplained" for b in st.bounds.values())
+            colour = "red" if unexplained else "yellow"
+            console.print(f"[{colour}]{ch}: {len(st.at_bound)} parameter(s) at a bound[/{colour}]: "
+                          f"{escape(summary_counts(st.bounds))} (why: fit_report.txt, report.html)", soft_wrap=True)
         if st and st.unidentified:
             console.print(f"[yellow]{ch}: {len(st.unidentified)} parameter(s) not identified[/yellow] "
                           "(see fit_report.txt)")

@@ -21,6 +21,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from coartic import __version__
+from coartic.fit.bounds import CATEGORY_TITLES, BoundNote, explain_bounds, summary_counts
 from coartic.fit.parameters import ParameterSet
 from coartic.fit.problem import ChannelProblem, Packing
 from coartic.fit.spec import FitSpec
@@ -44,6 +45,8 @@ class ParameterStats:
     unidentified: list[str]  # names loading on directions the data do not determine
     s2: float  # residual variance (mm²)
     dof: int
+    # why each parameter in at_bound is there, computed from the fit (coartic.fit.bounds)
+    bounds: dict[str, BoundNote] = field(default_factory=dict)
 
 
 def parameter_stats(problem: ChannelProblem, x: FloatArray, rtol: float = 1e-10) -> ParameterStats:
@@ -74,8 +77,10 @@ def parameter_stats(problem: ChannelProblem, x: FloatArray, rtol: float = 1e-10)
     lo, hi = pk.bounds()
     width = np.where(np.isfinite(hi - lo), hi - lo, 1.0)
     near = (np.abs(x - lo) <= 1e-6 * width) | (np.abs(hi - x) <= 1e-6 * width)
-    return ParameterStats(names, values, stderr, corr, [nm for nm, b in zip(names, near) if b],
-                          [nm for nm, b in zip(names, unident) if b], s2, dof)
+    at_bound = [nm for nm, b in zip(names, near) if b]
+    notes = explain_bounds(problem, x, at_bound, jac, r, s2, corr)
+    return ParameterStats(names, values, stderr, corr, at_bound, [nm for nm, b in zip(names, unident) if b], s2, dof,
+                          notes)
 
 
 @dataclass
@@ -111,7 +116,7 @@ class ChannelFit:
         if st is None:
             return ParameterSet.from_packing(self.channel, self.packing, priors=pri)
         return ParameterSet.from_packing(self.channel, self.packing, st.names, st.stderr, st.at_bound, st.unidentified,
-                                         priors=pri)
+                                         priors=pri, bound_notes=st.bounds)
 
     def residuals(self) -> FloatArray:
         """Model − measured on every sample (NaN where masked)."""
@@ -266,6 +271,7 @@ class FitResult:
             lines += shrinkage_lines(fit.problem, fit.x)
             if st.at_bound:
                 lines.append(f"    warning: {len(st.at_bound)} parameter(s) at a bound: {', '.join(st.at_bound)}")
+                lines.append(f"        why (computed from the fit, [[At a bound]] below): {summary_counts(st.bounds)}")
             if st.unidentified:
                 lines.append(f"    warning: {len(st.unidentified)} parameter(s) not identified by the data "
                              f"(no standard error): {', '.join(st.unidentified)}")
@@ -273,12 +279,19 @@ class FitResult:
             for prm in fit.parameters.values():
                 if not prm.free:
                     continue
-                flag = " (at bound)" if prm.at_bound else ""
+                bn = prm.bound_note
+                flag = (f" (at {bn.side} bound: {bn.category})" if bn else " (at bound)") if prm.at_bound else ""
                 err = f"+/- {prm.stderr:.4g}" if np.isfinite(prm.stderr) else "+/- (not identified)"
                 prior = "" if prm.prior is None else (
                     f"  prior {'log-' if prm.prior.log else ''}N({prm.prior.mean:.4g}, {prm.prior.sd:.4g})")
                 lines.append(f"        {prm.name:<16} {prm.value:>12.5g} {err}{flag}"
                              f"  [{prm.lower:.4g}, {prm.upper:.4g}]{prior}")
+            if st.bounds:
+                lines.append("    [[At a bound]] (each free parameter at a bound: which bound, where it comes from, why)")
+                for bn in st.bounds.values():
+                    lines += [f"        {bn.name} = {bn.value:.5g} at its {bn.side} bound {bn.bound:.5g} ({bn.source})",
+                              f"            {CATEGORY_TITLES[bn.category]}: {bn.explanation}",
+                              f"            reading: {bn.reading}"]
             c = np.triu(np.nan_to_num(st.corr), 1)
             order = np.argsort(-np.abs(c), axis=None)[:max_corr]
             strong = [(st.names[i], st.names[j], c[i, j]) for i, j in zip(*np.unravel_index(order, c.shape))
@@ -314,6 +327,9 @@ class FitResult:
         summary = {"spec": str(self.spec.path), "interrupted": self.interrupted, "started": self.started,
                    "channels": {ch: {"rmse_mm": f.rmse, "status": f.status, "message": f.message, "nfev": f.nfev,
                                      "wall_time_s": f.wall_time, "at_bound": f.stats.at_bound if f.stats else [],
+                                     # why each is at its bound (coartic.fit.bounds.BoundNote fields)
+                                     "at_bound_explained": [b.as_dict() for b in f.stats.bounds.values()]
+                                     if f.stats else [],
                                      "unidentified": f.stats.unidentified if f.stats else []}
                                 for ch, f in self.channels.items()}}
         atomic_write_text(paths["summary"], json.dumps(summary, indent=2))
