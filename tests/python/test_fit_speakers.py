@@ -95,3 +95,99 @@ def test_speakers_need_the_column_and_a_known_mode(utts) -> None:  # type: ignor
         build_problem(spec("offset"), bare, "LLO", start=(TRUTH, 1.0), phonemes=PHONEMES)
     with pytest.raises(SpecError, match="model.speakers"):
         spec("scale")
+
+
+# ---------------------------------------------------------------- a fitted table's speakers: MCMC, score
+@pytest.fixture(scope="module")
+def fitted(utts):  # type: ignore[no-untyped-def]
+    """coartic.fit.run with [model] speakers = "offset_scale" on the two speakers, and its table."""
+    from coartic.fit.runner import run
+
+    res = run(spec("offset_scale"), utterances=utts, quiet=True, report=False)
+    return res, res.table()
+
+
+def test_mcmc_log_posterior_uses_the_fits_speaker_mapping(utts, fitted) -> None:  # type: ignore[no-untyped-def]
+    """The posterior's SSE at the least-squares a_s, b_s is the fit's cost (one mapping, Speakers.predict),
+    the speakers' offset and log scale are sampled coordinates, and a spec/table mismatch is refused."""
+    import math
+
+    from coartic.mcmc.posterior import channel_posterior, phoneme_posterior
+    from coartic.mcmc.run import fixed_noise, table_problem, table_speakers
+
+    res, table = fitted
+    s = spec("offset_scale")
+    data, packing, options = table_problem(s, table, Path("t.json"), "LLO", utts)
+    terms = table_speakers(s, table, Path("t.json"), "LLO")
+    assert terms is not None and terms.names == ("s1", "s2")
+    fit = res.channels["LLO"]
+    lsq_sse = fit.problem.sse(fit.x)
+    # the stale-fit check (and noise = "fit") see the mapped RMSE the fit recorded
+    assert fixed_noise(data, packing, options, speakers=terms) == pytest.approx(table.metadata["rmse"]["LLO"], rel=1e-9)
+    sigma = 0.1
+    post = channel_posterior(data, packing, options, noise=sigma, offset_sd=0.0, speakers=terms)
+    assert post.names[-2:] == ["speaker_offset:s2", "speaker_scale:s2"]
+    assert post.coordinates[-1] == "log speaker_scale:s2"
+    x0 = post.start_point()
+    a, b = table.metadata["speakers"]["coefficients"]["LLO"]["s2"].values()
+    np.testing.assert_allclose(x0[-2:], [a, math.log(b)])
+    assert float(post.sse(x0[None])[0]) == pytest.approx(lsq_sse, rel=1e-10)
+    n = post.n_data
+    expected = (float(post.log_prior(x0[None])[0]) - 0.5 * lsq_sse / sigma**2 - n * math.log(sigma)
+                - 0.5 * n * math.log(2 * math.pi))
+    assert float(post(x0[None])[0]) == pytest.approx(expected, rel=1e-12)
+    # the priors: a_s ~ N(0, 10 mm), log b_s ~ N(0, 0.5)
+    from coartic.mcmc.posterior import SPEAKER_LOG_SCALE_SD, SPEAKER_OFFSET_SD
+
+    lp0 = float(post.log_prior(x0[None])[0])
+    assert lp0 == pytest.approx(-0.5 * (a / SPEAKER_OFFSET_SD) ** 2 - 0.5 * (math.log(b) / SPEAKER_LOG_SCALE_SD) ** 2)
+    # moving b_s off the optimum raises the SSE: the sampled coordinate is used
+    moved = x0.copy()
+    moved[-1] += 0.05
+    assert float(post.sse(moved[None])[0]) > lsq_sse * 1.01
+    # a per-phoneme posterior samples the speakers as nuisance coordinates, reference fixed
+    pp = phoneme_posterior(data, packing, options, "a", noise=sigma, offset_sd=0.0, speakers=terms)
+    assert pp.names[-2:] == ["speaker_offset:s2", "speaker_scale:s2"] and "speaker_offset:s1" not in pp.names
+    # a spec without speakers cannot sample a table fitted with them (nor the other way round)
+    with pytest.raises(ValueError, match="fitted with \\[model\\] speakers = 'offset_scale'"):
+        table_speakers(spec("none"), table, Path("t.json"), "LLO")
+    with pytest.raises(ValueError, match="the table was fitted with 'offset_scale'"):
+        table_speakers(spec("offset"), table, Path("t.json"), "LLO")
+
+
+def test_score_maps_by_the_tables_speaker_and_calibrates(utts, fitted, tmp_path: Path) -> None:  # type: ignore[no-untyped-def]
+    from typer.testing import CliRunner
+
+    from coartic.cli import app
+    from coartic.fit.score import score_utterances
+    from coartic.speakers import SpeakerError
+
+    res, table = fitted
+    fit = res.channels["LLO"]
+    s2 = [u for u in utts if u.meta["speaker"] == "s2"]
+    mapped = score_utterances(table, s2, speaker="s2")
+    # s2's prediction is the fit's own (a_s + b_s·F): its in-sample RMSE on those utterances
+    sse, cnt = fit.utterance_sse()
+    mine = [i for i, u in enumerate(fit.problem.data.utterances) if u.meta["speaker"] == "s2"]
+    assert mapped.rmse("LLO") == pytest.approx(float(np.sqrt(sse[mine].sum() / cnt[mine].sum())), rel=1e-9)
+    population = score_utterances(table, s2)  # as a speaker the table does not know: a = 0, b = 1
+    assert population.rmse("LLO") > 1.3 * mapped.rmse("LLO")
+    assert any("without --speaker it predicts the population" in n for n in population.notes)
+    row = population.channel_rows()[0]
+    # calibrated on s2's own data, the population table recovers s2's mapping (a = 0.5, b = 1.2)
+    assert row["calibration_scale"] == pytest.approx(1.2, abs=1e-6)
+    assert row["calibration_offset_mm"] == pytest.approx(0.5, abs=1e-6)
+    assert row["rmse_calibrated_mm"] == pytest.approx(mapped.rmse("LLO"), rel=1e-9)
+    with pytest.raises(SpeakerError, match="no speaker 's9'; the table knows s1, s2"):
+        score_utterances(table, s2, speaker="s9")
+    bare = copy.deepcopy(table)
+    bare.metadata.pop("speakers")
+    with pytest.raises(SpeakerError, match="fitted without speakers"):
+        score_utterances(bare, s2, speaker="s1")
+    # the command: --speaker, and an unknown one is an error (exit 2) naming the known speakers
+    path = tmp_path / "table.json"
+    table.save(path)
+    # (the speaker is checked before any recording is read: this one does not exist)
+    bad = CliRunner().invoke(app, ["score", str(path), str(tmp_path / "absent.c3d"), "--speaker", "s9"])
+    assert bad.exit_code == 2 and "s1, s2" in bad.output and "Traceback" not in bad.output
+

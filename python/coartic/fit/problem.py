@@ -37,7 +37,7 @@ from coartic.model import JacobianBuffer, Utterance, build_corpus, channel_optio
 from coartic.table import N_PARAMS, PARAMETERS
 
 __all__ = ["Utterance", "ChannelData", "Packing", "ChannelProblem", "build_problem", "build_packing",
-           "phoneme_inventory"]
+           "phoneme_inventory", "Speakers", "affine_coefficients"]
 
 PAUSE = "#"
 # Columns fitted on a log scale (MODEL.md §1: "fit log α", "fit log θ"; ψ > 0 likewise).
@@ -345,6 +345,43 @@ class Offsets:
         return sse - np.sum(sums**2 * self.inv[None, :], axis=1)
 
 
+def utterance_speakers(utterances: Sequence[Utterance], mode: str, column: str,
+                       names: Sequence[str] | None = None) -> tuple[str, ...]:
+    """The speakers of the utterances in order of first appearance (the first is the reference), or
+    ``names`` checked to cover them; an utterance without a speaker is an error naming it."""
+    seen: dict[str, None] = {}
+    for u in utterances:
+        if column not in u.meta or not str(u.meta[column]):
+            raise ValueError(f"[model] speakers = {mode!r}: utterance {u.name!r} has no {column!r} "
+                             f"(manifest column named by [model] speaker_column)")
+        seen.setdefault(str(u.meta[column]), None)
+    if names is None:
+        return tuple(seen)
+    extra = [s for s in seen if s not in names]
+    if extra:
+        raise ValueError(f"[model] speakers: speaker(s) {', '.join(extra)} not among {', '.join(names)}")
+    return tuple(names)
+
+
+def affine_coefficients(group: NDArray[np.int64], k: int, w: FloatArray, f: FloatArray, y: FloatArray,
+                        scale: bool = True) -> tuple[FloatArray, FloatArray]:
+    """Per group g < k, the weighted least-squares (a_g, b_g) of y ≈ a + b·f (``scale`` False: b = 1):
+    the closed form behind the speakers' offset/scale and score's speaker calibration. A group
+    without data (or with constant f, when scaling) keeps a = 0, b = 1."""
+    sums = [np.bincount(group, weights=v, minlength=k) for v in (w, w * f, w * f * f, w * y, w * f * y)]
+    W, SF, SFF, Sy, SFy = sums
+    a, b = np.zeros(k), np.ones(k)
+    if not scale:
+        a = np.where(W > 0, (Sy - SF) / np.where(W > 0, W, 1.0), 0.0)
+    else:
+        det = W * SFF - SF * SF
+        ok = det > 1e-12 * np.maximum(W * SFF, 1e-300)
+        d = np.where(ok, det, 1.0)
+        a = np.where(ok, (SFF * Sy - SF * SFy) / d, 0.0)
+        b = np.where(ok, (W * SFy - SF * Sy) / d, 1.0)
+    return a, b
+
+
 class Speakers:
     """Speaker-specific target offset and scale (spec ``[model] speakers``), profiled out of least
     squares like ``Offsets``: utterances of speaker s are predicted as a_s + b_s·F, F the shared model
@@ -359,17 +396,13 @@ class Speakers:
     d r = sqrt(w)(b dF + da + F db), all linear in the core's Jacobian dF/dx.
     """
 
-    def __init__(self, data: ChannelData, mode: str, column: str) -> None:
+    def __init__(self, data: ChannelData, mode: str, column: str, names: Sequence[str] | None = None) -> None:
         if mode not in ("offset", "offset_scale"):
             raise ValueError(f"[model] speakers = {mode!r}: expected \"none\", \"offset\" or \"offset_scale\"")
-        names: dict[str, None] = {}
-        for u in data.utterances:
-            if column not in u.meta or not str(u.meta[column]):
-                raise ValueError(f"[model] speakers = {mode!r}: utterance {u.name!r} has no {column!r} "
-                                 f"(manifest column named by [model] speaker_column)")
-            names.setdefault(str(u.meta[column]), None)
         self.mode = mode
-        self.names: tuple[str, ...] = tuple(names)
+        # ``names`` fixes the order (the reference speaker first) when ``data`` is a subset of the
+        # fit's utterances (an MCMC per-phoneme posterior): the reference must stay the fit's.
+        self.names: tuple[str, ...] = utterance_speakers(data.utterances, mode, column, names)
         per_utt = np.array([self.names.index(str(u.meta[column])) for u in data.utterances], dtype=np.int64)
         self.spk = np.repeat(per_utt, np.diff(data.sample_offsets)).astype(np.int64)
         self.w = np.asarray(data.weights, dtype=np.float64)
@@ -380,25 +413,18 @@ class Speakers:
 
     def coefficients(self, f: FloatArray) -> tuple[FloatArray, FloatArray]:
         """(a_s, b_s) per speaker for model values f (reference speaker 0 → a = 0, b = 1)."""
-        k = len(self.names)
-        sums = [np.bincount(self.spk, weights=v, minlength=k) for v in
-                (self.w, self.w * f, self.w * f * f, self.w * self.y, self.w * f * self.y)]
-        W, SF, SFF, Sy, SFy = sums
-        a, b = np.zeros(k), np.ones(k)
-        if self.mode == "offset":
-            a = np.where(W > 0, (Sy - SF) / np.where(W > 0, W, 1.0), 0.0)
-        else:
-            det = W * SFF - SF * SF
-            ok = det > 1e-12 * np.maximum(W * SFF, 1e-300)
-            d = np.where(ok, det, 1.0)
-            a = np.where(ok, (SFF * Sy - SF * SFy) / d, 0.0)
-            b = np.where(ok, (W * SFy - SF * Sy) / d, 1.0)
+        a, b = affine_coefficients(self.spk, len(self.names), self.w, f, self.y, self.mode == "offset_scale")
         a[0], b[0] = 0.0, 1.0
         return a, b
 
+    def predict(self, f: FloatArray, a: FloatArray, b: FloatArray) -> FloatArray:
+        """Each sample's speaker prediction a_s + b_s·F; ``f`` (..., n) with ``a``, ``b`` (..., n_speakers)
+        (one row per MCMC walker, or one vector): the one place the mapping is applied."""
+        a, b = np.asarray(a, dtype=np.float64), np.asarray(b, dtype=np.float64)
+        return a[..., self.spk] + b[..., self.spk] * f
+
     def residuals(self, f: FloatArray) -> FloatArray:
-        a, b = self.coefficients(f)
-        return self.sqrt_w * (a[self.spk] + b[self.spk] * f - self.y)
+        return self.sqrt_w * (self.predict(f, *self.coefficients(f)) - self.y)
 
     def jacobian(self, f: FloatArray, j: sp.csr_matrix) -> sp.csr_matrix:
         """From j = sqrt(w)·dF/dx to the Jacobian of ``residuals``."""

@@ -18,7 +18,7 @@ from numpy.typing import NDArray
 
 from coartic.errors import CoarticError
 from coartic.mcmc import plots, sampler, summary
-from coartic.mcmc.posterior import LogPosterior, channel_posterior, phoneme_posterior
+from coartic.mcmc.posterior import LogPosterior, SpeakerTerms, channel_posterior, phoneme_posterior
 from coartic.mcmc.sampler import SamplerSettings, SamplingResult
 from coartic.mcmc.summary import ParameterSummary
 from coartic.outputs import atomic_write_text
@@ -163,6 +163,31 @@ def table_problem(fit_spec: Any, table: Any, table_path: Path, channel: str,
     return data, ps.packing(), model_options(table, channel)
 
 
+def table_speakers(fit_spec: Any, table: Any, table_path: Path, channel: str) -> SpeakerTerms | None:
+    """The speakers ([model] speakers) the table was fitted with on ``channel``, for the posterior:
+    mode and column must be the spec's (else refused: the posterior would not be the fit's model),
+    the speakers and their least-squares (a_s, b_s) come from the table's metadata."""
+    raw = (table.metadata or {}).get("speakers")
+    meta: dict[str, Any] = raw if isinstance(raw, dict) else {}
+    mode = fit_spec.speakers
+    told = meta.get("mode")
+    if mode == "none":
+        if told:
+            raise ValueError(f"{table_path}: fitted with [model] speakers = {told!r}, but {fit_spec.path} has none: "
+                             "sample with the spec the table was fitted with")
+        return None
+    if told != mode or meta.get("column") != fit_spec.speaker_column:
+        raise ValueError(f"{table_path}: {fit_spec.path} has [model] speakers = {mode!r} (column "
+                         f"{fit_spec.speaker_column!r}), but the table was fitted with "
+                         f"{'no speakers' if not told else repr(told) + ' (column ' + repr(meta.get('column')) + ')'}: "
+                         "sample with the spec the table was fitted with")
+    coefs = (meta.get("coefficients") or {}).get(channel)
+    if not coefs:
+        raise ValueError(f"{table_path}: metadata.speakers has no coefficients for channel {channel}")
+    start = {str(s): (float(c["offset_mm"]), float(c["scale"])) for s, c in coefs.items()}
+    return SpeakerTerms(mode, fit_spec.speaker_column, tuple(start), start)
+
+
 def spec_priors(fit_spec: Any, packing: Any, channel: str) -> dict[str, tuple[Any, ...]]:
     """The fit spec's ``[parameters.prior]`` on the free entries of ``packing``, as ``LogPosterior``
     takes them ((mean, sd), or (mean, sd, True) on log values): the posterior has the priors the
@@ -242,8 +267,14 @@ def sample_posterior(
     return PosteriorRun(posterior.channel, phoneme, directory, posterior, result, x0, summaries, images)
 
 
-def fixed_noise(data: Any, packing: Any, options: Any, sse_batch: Callable[..., Any] | None = None) -> float:
-    """σ_n fixed at the least-squares residual RMS of the whole channel."""
+def fixed_noise(data: Any, packing: Any, options: Any, sse_batch: Callable[..., Any] | None = None,
+                speakers: SpeakerTerms | None = None) -> float:
+    """σ_n fixed at the least-squares residual RMS of the whole channel (each speaker's a_s + b_s·F
+    with ``speakers``)."""
+    if speakers is not None:
+        post = channel_posterior(data, packing, options, noise=1.0, speakers=speakers)
+        sse_s = float(post.sse(post.start_point()[None])[0])
+        return math.sqrt(sse_s / max(int(np.count_nonzero(data.weights > 0)), 1))
     if sse_batch is None:
         from coartic import _core
 
@@ -263,13 +294,14 @@ def channel_runs(
     progress: bool = True,
     on_done: Callable[[PosteriorRun], None] | None = None,
     spec_priors: Mapping[str, tuple[Any, ...]] | None = None,
+    speakers: SpeakerTerms | None = None,
 ) -> tuple[list[PosteriorRun], bool]:
     """Every posterior the config asks for on one channel; returns them and whether interrupted."""
     noise: float | None
     if cfg.noise == "free":
         noise = None
     elif cfg.noise == "fit":
-        noise = fixed_noise(data, packing, options)
+        noise = fixed_noise(data, packing, options, speakers=speakers)
     else:
         noise = float(cfg.noise)
     offset_sd: float | None
@@ -286,7 +318,8 @@ def channel_runs(
             raise McmcConfigError(f"[mcmc] priors.{channel}.{name}: not a free parameter of {channel} (free: {', '.join(sorted(known))})")
     runs: list[PosteriorRun] = []
     if cfg.scope == "channel":
-        jobs: list[tuple[str | None, Callable[[], LogPosterior]]] = [(None, lambda: channel_posterior(data, packing, options, noise, priors, offset_sd))]
+        jobs: list[tuple[str | None, Callable[[], LogPosterior]]] = [(None, lambda: channel_posterior(data, packing, options, noise, priors, offset_sd,
+                                                                                                    speakers=speakers))]
     else:
         wanted = cfg.phonemes or tuple(p for i, p in enumerate(data.phonemes) if p != PAUSE and packing.free[i].any())
         missing = [p for p in wanted if p not in data.phonemes]
@@ -294,7 +327,7 @@ def channel_runs(
             raise McmcConfigError(f"[mcmc] phonemes: {', '.join(missing)} do not occur in the {channel} data (phonemes: {' '.join(data.phonemes)})")
 
         def job(p: str) -> Callable[[], LogPosterior]:
-            return lambda: phoneme_posterior(data, packing, options, p, noise, priors, offset_sd)
+            return lambda: phoneme_posterior(data, packing, options, p, noise, priors, offset_sd, speakers=speakers)
 
         jobs = [(p, job(p)) for p in wanted]
     for phoneme, make in jobs:

@@ -91,11 +91,12 @@ def to_jsonable(summaries: list[ParameterSummary]) -> list[dict[str, Any]]:
 def write_uncertainty(table: ParameterTable, channel: str, summaries: list[ParameterSummary]) -> int:
     """Store each per-phoneme parameter's quantiles in ``table.uncertainty``; returns how many.
 
-    β and σ_n have no per-phoneme slot in the table; they stay in the run's summary file.
+    β, σ_n and the speakers' offsets and scales have no per-phoneme slot in the table; they stay in
+    the run's summary file.
     """
     n = 0
     for s in summaries:
-        if "." not in s.name:
+        if "." not in s.name or s.name.startswith(("speaker_offset:", "speaker_scale:")):
             continue
         phoneme, parameter = s.name.split(".", 1)
         table.uncertainty.setdefault(phoneme, {}).setdefault(channel, {})[parameter] = dict(s.quantiles)
