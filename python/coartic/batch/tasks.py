@@ -152,7 +152,7 @@ def posterior_unit(spec: FitSpec, config: Any, table: dict[str, Any], utterance_
     import json
 
     from coartic.mcmc.mcmc_cli import check_fit_matches_data
-    from coartic.mcmc.run import channel_runs, spec_priors, table_problem, table_speakers
+    from coartic.mcmc.run import channel_runs, spec_priors, spec_shrinkage, table_problem, table_speakers
     from coartic.mcmc.summary import write_uncertainty
     from coartic.table import ParameterTable
 
@@ -172,7 +172,9 @@ def posterior_unit(spec: FitSpec, config: Any, table: dict[str, Any], utterance_
         t1 = time.perf_counter()
         c1 = time.process_time()
         runs, interrupted = channel_runs(key.channel, data, packing, options, config, tmp / "mcmc", progress=False,
-                                         spec_priors=spec_priors(spec, packing, key.channel), speakers=speakers)
+                                         spec_priors=spec_priors(spec, packing, key.channel),
+                                         spec_shrinkage=spec_shrinkage(spec, tab, packing, key.channel),
+                                         speakers=speakers)
         t2 = time.perf_counter()
         c2 = time.process_time()
         if interrupted:

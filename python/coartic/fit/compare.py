@@ -19,7 +19,7 @@ from __future__ import annotations
 import csv
 import io
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from os import PathLike
 from pathlib import Path
 from typing import Any, Sequence
@@ -176,8 +176,26 @@ def vary(spec: FitSpec, key: str, values: Sequence[str]) -> list[FitSpec]:
     are checked as the spec's own would be (by parsing the spec with each)."""
     from coartic.fit.spec import SpecError, parse_spec, read_document
 
+    from coartic.fit.spec import choose_base
+
+    if choose_base(key) == "shrink.sd":  # the [[shrink]] sd (all tables, or "shrink #N.sd" one)
+        from coartic.fit.choose import set_value
+
+        out = []
+        for v in values:
+            try:
+                sd = float(v)
+            except ValueError:
+                raise SpecError(f"--vary {key}={v}: not a number") from None
+            if not (sd > 0 and math.isfinite(sd)):
+                raise SpecError(f"--vary {key}={v}: an sd must be a positive number")
+            made = set_value(spec, key, sd)
+            if key == "shrink.sd" and not spec.shrinks or key != "shrink.sd" and made.shrinks == spec.shrinks:
+                raise SpecError(f"--vary {key}: {spec.path} has no such [[shrink]] table")
+            out.append(replace(made, name=f"{spec.name}, {key} = {v}"))
+        return out
     if key not in VARIABLE:
-        raise SpecError(f"--vary {key}: not a setting compare can vary (known: {', '.join(VARIABLE)})")
+        raise SpecError(f"--vary {key}: not a setting compare can vary (known: {', '.join(VARIABLE)}, shrink.sd)")
     raw = read_document(spec.path)
     section = "parameters" if key in ("prior_noise", "target_margin") else "model"
     out = []

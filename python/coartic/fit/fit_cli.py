@@ -10,6 +10,7 @@ from rich.console import Console
 from rich.markup import escape
 from rich.table import Table
 
+from coartic.fit.bounds import summary_counts
 from coartic.fit.result import BAR_MM, FitResult
 from coartic.fit.spec import ENGINES, FitSpec, SpecError, load_spec
 from coartic.console import print_error
@@ -50,6 +51,10 @@ def fit_command(
                                   "the rest: k-fold by [validate] group (utterance, sentence, rate, speaker, "
                                   "repetition), else the held-out repetition and the fast rate"),
     report: bool = typer.Option(True, "--report/--no-report", help="write the HTML report with plots"),
+    choose: Optional[str] = typer.Option(None, "--choose", help="KEY=V1,V2,...: choose a setting by k-fold "
+                                         "cross-validation on the training data, then fit with it (e.g. "
+                                         "shrink.sd=0.03,0.1,0.3,1; replaces the spec's [choose] grid; "
+                                         "docs/FITTING.md)"),
     force: bool = typer.Option(False, "--force", help="replace --out even if it holds another run's output "
                                "(a rerun of the same spec and channels replaces its own output without it)"),
 ) -> None:
@@ -77,6 +82,10 @@ def fit_command(
         if no_staging:
             changes["staging"] = False
         s = s.with_options(**changes)
+        if choose is not None:
+            from coartic.fit.choose import parse_choose
+
+            s = parse_choose(s, choose)
         output = fit_output(s, out, force)
         with output as staging:
             result = _fit_into(s, staging, console, validate, report)
@@ -132,7 +141,10 @@ def _fit_into(s: FitSpec, out: Path, console: Console, validate: bool, report: b
     for ch, fit in result.channels.items():
         st = fit.stats
         if st and st.at_bound:
-            console.print(f"[yellow]{ch}: {len(st.at_bound)} parameter(s) at a bound[/yellow] (see fit_report.txt)")
+            unexplained = sum(b.category == "unexplained" for b in st.bounds.values())
+            colour = "red" if unexplained else "yellow"
+            console.print(f"[{colour}]{ch}: {len(st.at_bound)} parameter(s) at a bound[/{colour}]: "
+                          f"{escape(summary_counts(st.bounds))} (why: fit_report.txt, report.html)", soft_wrap=True)
         if st and st.unidentified:
             console.print(f"[yellow]{ch}: {len(st.unidentified)} parameter(s) not identified[/yellow] "
                           "(see fit_report.txt)")

@@ -25,6 +25,7 @@ from coartic.fit.spec import FitSpec, SpecError
 from coartic.table import N_PARAMS, PARAMETERS
 
 if TYPE_CHECKING:
+    from coartic.fit.bounds import BoundNote
     from coartic.fit.problem import ChannelData, Packing, Prior
 
 FloatArray = NDArray[np.float64]
@@ -49,6 +50,7 @@ class Parameter:
     at_bound: bool = False
     identified: bool = True
     tied_to: str | None = None  # "phoneme.parameter" whose value this entry takes ([[tie]])
+    bound_note: BoundNote | None = None  # why it is at a bound (coartic.fit.bounds), after a fit
 
     @property
     def name(self) -> str:
@@ -67,7 +69,8 @@ class ParameterSet(Mapping[str, Parameter]):
                  beta_bounds: tuple[float, float], priors: Mapping[str, Prior] | None = None,
                  stderr: Mapping[str, float] | None = None, at_bound: frozenset[str] = frozenset(),
                  unidentified: frozenset[str] = frozenset(),
-                 origins: NDArray[np.object_] | None = None) -> None:
+                 origins: NDArray[np.object_] | None = None,
+                 bound_notes: Mapping[str, BoundNote] | None = None) -> None:
         self.channel = channel
         self.phonemes = phonemes
         self.matrix, self.free, self.lower, self.upper = matrix, free, lower, upper
@@ -75,11 +78,14 @@ class ParameterSet(Mapping[str, Parameter]):
         self.priors = dict(priors or {})
         self.stderr = dict(stderr or {})
         self.at_bound, self.unidentified = at_bound, unidentified
+        self.bound_notes = dict(bound_notes or {})
         # [n_phonemes, 10]: the spec key each value came from ("" for defaults, data, start
         # tables), so that a value the model refuses is named by its key (ChannelProblem.explain).
         self.origins = origins
         # (follower, leader) flat indices of [[tie]]d entries (Packing.ties)
         self.ties: tuple[tuple[int, int], ...] = ()
+        # free name -> where its box comes from (a spec key or a default): Packing.bound_sources
+        self.bound_sources: dict[str, str] = {}
 
     # ------------------------------------------------------------------ Mapping
     def _names(self) -> list[str]:
@@ -94,7 +100,8 @@ class ParameterSet(Mapping[str, Parameter]):
     def __getitem__(self, name: str) -> Parameter:
         def extra(nm: str) -> dict[str, object]:
             return {"prior": self.priors.get(nm), "stderr": self.stderr.get(nm, math.nan),
-                    "at_bound": nm in self.at_bound, "identified": nm not in self.unidentified}
+                    "at_bound": nm in self.at_bound, "identified": nm not in self.unidentified,
+                    "bound_note": self.bound_notes.get(nm)}
 
         if name == BETA:
             lo, hi = self.beta_bounds if self.beta_free else (self.beta, self.beta)
@@ -132,6 +139,8 @@ class ParameterSet(Mapping[str, Parameter]):
         inf = (-np.inf, np.inf)
         lower = np.array([spec.bounds.get(p, inf)[0] for p in PARAMETERS])[None, :].repeat(n, 0)
         upper = np.array([spec.bounds.get(p, inf)[1] for p in PARAMETERS])[None, :].repeat(n, 0)
+        # where each box comes from (coartic.fit.bounds explains a parameter at a bound by it)
+        source = np.array([default_bound_source(spec, p) for p in PARAMETERS], dtype=object)[None, :].repeat(n, 0)
         if "target" not in spec.bounds:  # no global target box: the data range, widened
             valid_y = data.observed[data.weights > 0]
             lower[:, 0] = float(valid_y.min()) - spec.target_margin
@@ -139,6 +148,7 @@ class ParameterSet(Mapping[str, Parameter]):
         for p, (lo, hi) in spec.channel_bounds.get(ch, {}).items():
             k = PARAMETERS.index(p)
             lower[:, k], upper[:, k] = lo, hi
+            source[:, k] = f"[parameters.bounds.{ch}] {p}"
 
         # Where each start value came from: a spec key (checked against the bounds) or "" (a
         # default, the data or a start table: moved onto the nearest bound if outside).
@@ -161,6 +171,7 @@ class ParameterSet(Mapping[str, Parameter]):
                 for name, (lo, hi) in o.bounds.items():
                     k = PARAMETERS.index(name)
                     lower[i, k], upper[i, k] = lo, hi
+                    source[i, k] = f"[override #{j + 1}] bounds.{name}"
                 for name, val in o.start.items():
                     k = PARAMETERS.index(name)
                     base[i, k] = val
@@ -216,6 +227,10 @@ class ParameterSet(Mapping[str, Parameter]):
         ps = cls(ch, tuple(phon), base, free, lower, upper, beta, beta_free, spec.beta_bounds, priors=priors,
                  origins=origin)
         ps.ties = tuple(ties)
+        ps.bound_sources = {f"{p}.{q}": str(source[i, k])
+                            for i, p in enumerate(phon) for k, q in enumerate(PARAMETERS) if free[i, k]}
+        if beta_free:
+            ps.bound_sources[BETA] = default_bound_source(spec, BETA)
         return ps
 
     def packing(self) -> Packing:
@@ -223,19 +238,24 @@ class ParameterSet(Mapping[str, Parameter]):
         from coartic.fit.problem import Packing
 
         return Packing(self.phonemes, self.free.copy(), self.beta_free, self.lower.copy(), self.upper.copy(),
-                       self.beta_bounds, self.matrix.copy(), self.beta, self.origins, self.ties)
+                       self.beta_bounds, self.matrix.copy(), self.beta, self.origins, self.ties,
+                       dict(self.bound_sources))
 
     @classmethod
     def from_packing(cls, channel: str, packing: Packing, names: list[str] | None = None,
                      stderr: FloatArray | None = None, at_bound: list[str] | None = None,
-                     unidentified: list[str] | None = None, priors: Mapping[str, Prior] | None = None) -> ParameterSet:
-        """The set a packing holds (its base values), with a fit's standard errors by free name."""
+                     unidentified: list[str] | None = None, priors: Mapping[str, Prior] | None = None,
+                     bound_notes: Mapping[str, BoundNote] | None = None) -> ParameterSet:
+        """The set a packing holds (its base values), with a fit's standard errors (and at-bound
+        explanations) by free name."""
         se = dict(zip(names, map(float, stderr))) if names is not None and stderr is not None else {}
         ps = cls(channel, tuple(packing.phonemes), packing.base.copy(), packing.free.copy(), packing.lower.copy(),
                  packing.upper.copy(), packing.base_beta, packing.beta_free, packing.beta_bounds, priors=priors,
                  stderr=se,
-                 at_bound=frozenset(at_bound or ()), unidentified=frozenset(unidentified or ()))
+                 at_bound=frozenset(at_bound or ()), unidentified=frozenset(unidentified or ()),
+                 bound_notes=bound_notes)
         ps.ties = tuple(packing.ties)
+        ps.bound_sources = dict(packing.bound_sources or {})
         return ps
 
     # ------------------------------------------------------------------ output
@@ -246,13 +266,35 @@ class ParameterSet(Mapping[str, Parameter]):
             p = self[name]
             if p.parameter == BETA and not p.free:
                 continue
+            bn = p.bound_note if p.at_bound else None  # a tied entry shares its carrier's
             out.append({"channel": self.channel, "phoneme": p.phoneme, "parameter": p.parameter, "value": p.value,
                         "stderr": p.stderr if p.free or p.tied_to else "", "free": p.free, "tied_to": p.tied_to or "",
                         "lower": p.lower, "upper": p.upper,
                         "at_bound": p.at_bound, "unidentified": not p.identified,
+                        # why it is at a bound: which side, the category, the computed sentence
+                        "bound_side": bn.side if bn else "", "bound_category": bn.category if bn else "",
+                        "bound_source": bn.source if bn else "",
+                        "bound_explanation": f"{bn.explanation} {bn.reading}" if bn else "",
                         "prior_mean": p.prior.mean if p.prior else "", "prior_sd": p.prior.sd if p.prior else "",
                         "prior_scale": ("log" if p.prior.log else "natural") if p.prior else ""})
         return out
+
+
+def default_bound_source(spec: FitSpec, parameter: str) -> str:
+    """Where the box of ``parameter`` comes from when no channel bound or override sets it: the
+    spec key that changed it, the data range (targets), or the defaults in coartic/fit/spec.py."""
+    from coartic.fit.spec import DEFAULT_BETA_BOUNDS, DEFAULT_FIT_BOUNDS
+
+    if parameter == BETA:
+        return ("[model] beta_bounds" if tuple(spec.beta_bounds) != DEFAULT_BETA_BOUNDS
+                else "the default beta_bounds (DEFAULT_BETA_BOUNDS, coartic/fit/spec.py)")
+    if parameter == "target" and "target" not in spec.bounds:
+        return f"the data range widened by [parameters] target_margin = {spec.target_margin:g} mm"
+    if parameter in spec.bounds and tuple(spec.bounds[parameter]) != DEFAULT_FIT_BOUNDS.get(parameter):
+        return f"[parameters.bounds] {parameter}"
+    if parameter in ("alpha", "theta_bw", "theta_fw", "psi"):
+        return "the default box (DEFAULT_FIT_BOUNDS, coartic/fit/spec.py; MODEL.md §1 allows (0, inf))"
+    return "the default box (DEFAULT_FIT_BOUNDS, coartic/fit/spec.py; MODEL.md §1's default bounds)"
 
 
 def expand_priors(spec: FitSpec, channel: str, phonemes: tuple[str, ...], free: BoolArray,

@@ -37,7 +37,7 @@ from coartic.model import JacobianBuffer, Utterance, build_corpus, channel_optio
 from coartic.table import N_PARAMS, PARAMETERS
 
 __all__ = ["Utterance", "ChannelData", "Packing", "ChannelProblem", "build_problem", "build_packing",
-           "phoneme_inventory", "Speakers", "affine_coefficients"]
+           "phoneme_inventory", "Shrinkage", "ShrinkGroup", "shrink_groups", "Speakers", "affine_coefficients"]
 
 PAUSE = "#"
 # Columns fitted on a log scale (MODEL.md §1: "fit log α", "fit log θ"; ψ > 0 likewise).
@@ -117,6 +117,9 @@ class Packing:
     # (follower, leader) flat indices into params.ravel(): a tied entry ([[tie]] in the spec) is not
     # free itself but always takes its leader's value; the leader's Jacobian column is the sum.
     ties: tuple[tuple[int, int], ...] = ()
+    # "phoneme.parameter" (and "beta") -> the spec key or default its box came from, so that a
+    # parameter at a bound is explained by where the bound comes from (coartic.fit.bounds).
+    bound_sources: Mapping[str, str] | None = None
 
     def __post_init__(self) -> None:
         self._idx = np.flatnonzero(self.free.ravel())
@@ -293,6 +296,129 @@ class Penalty:
         return float(r @ r), g
 
 
+@dataclass(frozen=True)
+class ShrinkGroup:
+    """One class and parameter of a ``[[shrink]]``: member rows (phonemes present in the channel's
+    data), the parameter's column, its scale and sd, and the spec key (for reports)."""
+
+    key: str
+    phonemes: tuple[str, ...]  # the members present, in the channel's phoneme order
+    rows: tuple[int, ...]
+    column: int
+    sd: float
+    log: bool = False
+
+    @property
+    def parameter(self) -> str:
+        return PARAMETERS[self.column]
+
+
+class Shrinkage:
+    """Shrinkage toward class means as extra least-squares residuals: for each group (a class of
+    phonemes and one parameter), one row per member ``noise · (u_i − ū) / sd`` with u the value
+    (or its logarithm) and ū the class mean over every member present, fixed ones included.
+    Minimising SSE + Σ rows² is the MAP estimate under a Gaussian prior on the members' deviations
+    from their common mean (the class mean itself is not penalised).
+
+    Each row depends on every member: d row_i / d u_j = noise (δ_ij − 1/n) / sd, and d u_j / dx
+    comes from the packing (d value/dx of the free entry carrying it, through a [[tie]] leader when
+    tied, times 1/v on the log scale; nothing for a fixed member). Rows are computed from the
+    unpacked parameter matrix, so the same groups serve any packing (a stage's, MCMC's per-phoneme
+    one)."""
+
+    def __init__(self, packing: Packing, groups: Sequence[ShrinkGroup], noise: float) -> None:
+        self.packing = packing
+        self.groups = [g for g in groups if len(g.rows) >= 2]
+        self.noise = float(noise)
+        self.size = sum(len(g.rows) for g in self.groups)
+        # the x index carrying each member entry (free itself, or its tie leader free), else -1
+        col_of = {int(c): j for j, c in enumerate(packing.free_columns)}
+        leader = dict(packing.ties)
+        self._xcol = []
+        for g in self.groups:
+            cols = []
+            for i in g.rows:
+                e = i * N_PARAMS + g.column
+                cols.append(col_of.get(e, col_of.get(leader.get(e, -1), -1)))
+            self._xcol.append(np.array(cols, dtype=np.int64))
+
+    def z(self, params: FloatArray) -> FloatArray:
+        """Standardised deviations (u_i − ū)/sd for parameter matrices [..., n_phonemes, 10]."""
+        out = []
+        for g in self.groups:
+            v = params[..., list(g.rows), g.column]
+            with np.errstate(divide="ignore", invalid="ignore"):
+                u = np.log(v) if g.log else v
+            out.append((u - u.mean(axis=-1, keepdims=True)) / g.sd)
+        if not out:
+            return np.zeros(params.shape[:-2] + (0,))
+        return np.concatenate(out, axis=-1)
+
+    def residuals(self, x: FloatArray) -> FloatArray:
+        params, _ = self.packing.unpack(x)
+        return self.noise * self.z(params)
+
+    def jacobian(self, x: FloatArray) -> sp.csr_matrix:
+        params, _ = self.packing.unpack(x)
+        dv = self.packing.dvalue_dx(x)
+        rows: list[NDArray[np.int64]] = []
+        cols: list[NDArray[np.int64]] = []
+        vals: list[FloatArray] = []
+        r0 = 0
+        for g, xc in zip(self.groups, self._xcol):
+            n = len(g.rows)
+            live = np.flatnonzero(xc >= 0)
+            if live.size:
+                v = params[list(g.rows), g.column][live]
+                du = dv[xc[live]] / v if g.log else dv[xc[live]]
+                # d row_i / d x_(member j) = noise (δ_ij − 1/n) du_j / sd, for every row i
+                d = self.noise * ((np.eye(n)[:, live] - 1.0 / n) * du[None, :]) / g.sd
+                ii, jj = np.meshgrid(np.arange(n), live, indexing="ij")
+                rows.append(r0 + ii.ravel())
+                cols.append(xc[jj.ravel()])
+                vals.append(d.ravel())
+            r0 += n
+        if not rows:
+            return sp.csr_matrix((self.size, self.packing.n_free))
+        # duplicates (two tied members carried by one x entry) are summed by the COO -> CSR step
+        return sp.coo_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))),
+                             shape=(self.size, self.packing.n_free)).tocsr()
+
+    def gradient(self, x: FloatArray) -> tuple[float, FloatArray]:
+        """Σ rows² and its gradient in x."""
+        r = self.residuals(x)
+        g = np.zeros(self.packing.n_free)
+        if self.size:
+            g += 2.0 * (self.jacobian(x).T @ r)
+        return float(r @ r), g
+
+    def with_packing(self, packing: Packing) -> Shrinkage:
+        return Shrinkage(packing, self.groups, self.noise)
+
+
+def shrink_groups(spec: FitSpec, channel: str, phonemes: Sequence[str], free: BoolArray) -> list[ShrinkGroup]:
+    """The spec's ``[[shrink]]`` tables as groups of one channel: members present in its data; a
+    class with two members or more present but the parameter free for none of them is refused (a
+    shrinkage of fixed values would do nothing), one with fewer than two present applies to nothing."""
+    from coartic.fit.spec import SpecError
+
+    out = []
+    for s in spec.shrinks:
+        if s.channels is not None and channel not in s.channels:
+            continue
+        rows = tuple(phonemes.index(p) for p in s.phonemes if p in phonemes)
+        if len(rows) < 2:
+            continue
+        for name in s.parameters:
+            k = PARAMETERS.index(name)
+            if not free[list(rows), k].any():
+                raise SpecError(f"{spec.path}: [{s.key}] {name} is free for none of {list(s.phonemes)} on {channel}: "
+                                "nothing to shrink")
+            members = tuple(phonemes[i] for i in rows)
+            out.append(ShrinkGroup(s.key, members, rows, k, s.sd, s.log))
+    return out
+
+
 class Offsets:
     """Per-utterance offsets b_u (a constant added to the model over utterance u), profiled out of
     least squares: for given model parameters each b_u has a closed form, so the engines see the
@@ -465,7 +591,7 @@ class ChannelProblem:
     def __init__(self, data: ChannelData, packing: Packing, options: _core.ModelOptions,
                  priors: Mapping[str, Prior] | None = None, prior_noise: float = 1.0,
                  offset_sd: float | None = None, speakers: str = "none",
-                 speaker_column: str = "speaker") -> None:
+                 speaker_column: str = "speaker", shrink: Sequence[ShrinkGroup] = ()) -> None:
         self.data = data
         # Speaker-specific target offset/scale (spec [model] speakers), profiled out like offsets.
         self.speaker_mode, self.speaker_column = speakers, speaker_column
@@ -482,6 +608,9 @@ class ChannelProblem:
         self.priors: dict[str, Prior] = dict(priors or {})
         self.prior_noise = float(prior_noise)
         self.penalty = Penalty(packing, self.priors, self.prior_noise)
+        # Shrinkage toward class means (spec [[shrink]]), likewise extra rows after the priors'.
+        self.shrink_groups = list(shrink)
+        self.shrinkage = Shrinkage(packing, self.shrink_groups, self.prior_noise)
         self.sqrt_w = np.sqrt(data.weights)
         self.nfev = 0
         self.njev = 0
@@ -540,6 +669,8 @@ class ChannelProblem:
             r = self.offsets.residuals(r)
         if self.penalty.size:
             r = np.concatenate([r, self.penalty.residuals(x)])
+        if self.shrinkage.size:
+            r = np.concatenate([r, self.shrinkage.residuals(x)])
         self._track(x, float(r @ r))
         return r
 
@@ -563,6 +694,8 @@ class ChannelProblem:
             j = self.offsets.jacobian(j)
         if self.penalty.size:
             j = sp.vstack([j, self.penalty.jacobian(x)], format="csr")
+        if self.shrinkage.size:
+            j = sp.vstack([j, self.shrinkage.jacobian(x)], format="csr")
         return j
 
     def sse(self, x: FloatArray) -> float:
@@ -571,8 +704,10 @@ class ChannelProblem:
 
     @property
     def n_residuals(self) -> int:
-        """Rows of the residual vector: samples, then offset rows (random effects), then priors."""
-        return self.data.corpus.n_samples + (self.offsets.extra_rows if self.offsets else 0) + self.penalty.size
+        """Rows of the residual vector: samples, then offset rows (random effects), then priors, then
+        shrinkage."""
+        return (self.data.corpus.n_samples + (self.offsets.extra_rows if self.offsets else 0) + self.penalty.size
+                + self.shrinkage.size)
 
     def utterance_offsets(self, x: FloatArray) -> FloatArray:
         """The fitted per-utterance offsets b_u (mm) at x (zeros without offsets)."""
@@ -608,9 +743,10 @@ class ChannelProblem:
         full = np.append(np.asarray(grad), dbeta)
         tmap = self.packing.column_map()
         g = (full[self.packing.free_columns] if tmap is None else tmap.T @ full) * self.packing.dvalue_dx(x)
-        if self.penalty.size:
-            ps, pg = self.penalty.gradient(x)
-            sse, g = sse + ps, g + pg
+        for pen in (self.penalty, self.shrinkage):
+            if pen.size:
+                ps, pg = pen.gradient(x)
+                sse, g = sse + ps, g + pg
         if np.isfinite(sse):
             self._track(x, float(sse))
         return float(sse), g
@@ -629,12 +765,14 @@ class ChannelProblem:
                                              self.data.observed, self.data.weights))
         if self.penalty.size:
             out = out + np.array([float(r @ r) for r in map(self.penalty.residuals, np.atleast_2d(xs))])
+        if self.shrinkage.size:
+            out = out + np.sum((self.shrinkage.noise * self.shrinkage.z(params)) ** 2, axis=-1)
         return out
 
     def with_packing(self, packing: Packing) -> ChannelProblem:
         """A problem on the same data with another free set (staged fits); best point carried."""
         p = ChannelProblem(self.data, packing, self.options, self.priors, self.prior_noise, self.offset_sd,
-                           self.speaker_mode, self.speaker_column)
+                           self.speaker_mode, self.speaker_column, self.shrink_groups)
         p.nfev, p.njev, p.monitor = self.nfev, self.njev, self.monitor
         return p
 
@@ -651,7 +789,17 @@ def build_problem(spec: FitSpec, utterances: Sequence[Utterance], channel: str,
     ps = ParameterSet.from_spec(spec, data, start)
     offset_sd = {"none": None, "free": np.inf}.get(str(spec.offsets), spec.offsets)
     return ChannelProblem(data, ps.packing(), options, ps.priors, spec.prior_noise,
-                          None if offset_sd is None else float(offset_sd), spec.speakers, spec.speaker_column)
+                          None if offset_sd is None else float(offset_sd), spec.speakers, spec.speaker_column,
+                          shrink_groups(spec, channel, data.phonemes, moving(ps.free, ps.ties)))
+
+
+def moving(free: BoolArray, ties: Sequence[tuple[int, int]]) -> BoolArray:
+    """Entries that move with x: the free ones and those tied to a free one."""
+    out = free.copy()
+    flat = out.reshape(-1)
+    for f, ld in ties:
+        flat[f] = flat[f] or free.reshape(-1)[ld]
+    return out
 
 
 def describe(packing: Packing) -> dict[str, Any]:

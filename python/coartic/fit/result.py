@@ -21,6 +21,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from coartic import __version__
+from coartic.fit.bounds import CATEGORY_TITLES, BoundNote, explain_bounds, summary_counts
 from coartic.fit.parameters import ParameterSet
 from coartic.fit.problem import ChannelProblem, Packing
 from coartic.fit.spec import FitSpec
@@ -44,6 +45,8 @@ class ParameterStats:
     unidentified: list[str]  # names loading on directions the data do not determine
     s2: float  # residual variance (mm²)
     dof: int
+    # why each parameter in at_bound is there, computed from the fit (coartic.fit.bounds)
+    bounds: dict[str, BoundNote] = field(default_factory=dict)
 
 
 def parameter_stats(problem: ChannelProblem, x: FloatArray, rtol: float = 1e-10) -> ParameterStats:
@@ -74,8 +77,10 @@ def parameter_stats(problem: ChannelProblem, x: FloatArray, rtol: float = 1e-10)
     lo, hi = pk.bounds()
     width = np.where(np.isfinite(hi - lo), hi - lo, 1.0)
     near = (np.abs(x - lo) <= 1e-6 * width) | (np.abs(hi - x) <= 1e-6 * width)
-    return ParameterStats(names, values, stderr, corr, [nm for nm, b in zip(names, near) if b],
-                          [nm for nm, b in zip(names, unident) if b], s2, dof)
+    at_bound = [nm for nm, b in zip(names, near) if b]
+    notes = explain_bounds(problem, x, at_bound, jac, r, s2, corr)
+    return ParameterStats(names, values, stderr, corr, at_bound, [nm for nm, b in zip(names, unident) if b], s2, dof,
+                          notes)
 
 
 @dataclass
@@ -111,7 +116,7 @@ class ChannelFit:
         if st is None:
             return ParameterSet.from_packing(self.channel, self.packing, priors=pri)
         return ParameterSet.from_packing(self.channel, self.packing, st.names, st.stderr, st.at_bound, st.unidentified,
-                                         priors=pri)
+                                         priors=pri, bound_notes=st.bounds)
 
     def residuals(self) -> FloatArray:
         """Model − measured on every sample (NaN where masked)."""
@@ -167,6 +172,7 @@ class FitResult:
     notes: list[str] = field(default_factory=list)
     validation: list[Any] | None = None  # coartic.fit.validate.SplitScore per split and channel
     report: Path | None = None  # the HTML report, once written
+    choice: Any = None  # coartic.fit.choose.Choice: the [choose] setting's CV curve and chosen values
 
     # ---------------------------------------------------------------- tables
     def rmse_rows(self) -> list[dict[str, Any]]:
@@ -219,6 +225,12 @@ class FitResult:
                 "coefficients": {ch: {spk: {"offset_mm": a, "scale": b}
                                       for spk, (a, b) in f.problem.speaker_coefficients(f.x).items()}
                                  for ch, f in self.channels.items()}}
+        if s.shrinks:  # the shrinkage the fit had (sd as the spec gives it; a [choose]n one in "choice")
+            t.metadata["shrinkage"] = [{"key": g.key, "phonemes": list(g.phonemes), "parameters": list(g.parameters),
+                                        "sd": g.sd, "scale": "log" if g.log else "natural", "prior_noise": s.prior_noise,
+                                        "channels": list(g.channels) if g.channels else "all"} for g in s.shrinks]
+        if self.choice is not None:
+            t.metadata["choice"] = self.choice.metadata()
         # the map the corpus labels went through, so trajectories/animate/score read labels alike
         resolve_label_map(s.corpus.label_map).record_in(t)
         return t
@@ -234,6 +246,8 @@ class FitResult:
         if self.interrupted:
             lines.append("    INTERRUPTED by the user: the results below are the best points reached")
         lines += [f"    note: {n}" for n in self.notes]
+        if self.choice is not None:
+            lines += self.choice.text_lines()
         for ch, fit in self.channels.items():
             st = fit.stats
             assert st is not None
@@ -254,8 +268,10 @@ class FitResult:
                              f"SSE {sr.sse_start:.4g} -> {sr.sse_end:.4g} [{sr.engine.status}]"
                              # a stage that did not converge says why, in the engine's own words
                              + ("" if sr.engine.status == "converged" else f": {sr.engine.message}"))
+            lines += shrinkage_lines(fit.problem, fit.x)
             if st.at_bound:
                 lines.append(f"    warning: {len(st.at_bound)} parameter(s) at a bound: {', '.join(st.at_bound)}")
+                lines.append(f"        why (computed from the fit, [[At a bound]] below): {summary_counts(st.bounds)}")
             if st.unidentified:
                 lines.append(f"    warning: {len(st.unidentified)} parameter(s) not identified by the data "
                              f"(no standard error): {', '.join(st.unidentified)}")
@@ -263,12 +279,19 @@ class FitResult:
             for prm in fit.parameters.values():
                 if not prm.free:
                     continue
-                flag = " (at bound)" if prm.at_bound else ""
+                bn = prm.bound_note
+                flag = (f" (at {bn.side} bound: {bn.category})" if bn else " (at bound)") if prm.at_bound else ""
                 err = f"+/- {prm.stderr:.4g}" if np.isfinite(prm.stderr) else "+/- (not identified)"
                 prior = "" if prm.prior is None else (
                     f"  prior {'log-' if prm.prior.log else ''}N({prm.prior.mean:.4g}, {prm.prior.sd:.4g})")
                 lines.append(f"        {prm.name:<16} {prm.value:>12.5g} {err}{flag}"
                              f"  [{prm.lower:.4g}, {prm.upper:.4g}]{prior}")
+            if st.bounds:
+                lines.append("    [[At a bound]] (each free parameter at a bound: which bound, where it comes from, why)")
+                for bn in st.bounds.values():
+                    lines += [f"        {bn.name} = {bn.value:.5g} at its {bn.side} bound {bn.bound:.5g} ({bn.source})",
+                              f"            {CATEGORY_TITLES[bn.category]}: {bn.explanation}",
+                              f"            reading: {bn.reading}"]
             c = np.triu(np.nan_to_num(st.corr), 1)
             order = np.argsort(-np.abs(c), axis=None)[:max_corr]
             strong = [(st.names[i], st.names[j], c[i, j]) for i, j in zip(*np.unravel_index(order, c.shape))
@@ -304,10 +327,34 @@ class FitResult:
         summary = {"spec": str(self.spec.path), "interrupted": self.interrupted, "started": self.started,
                    "channels": {ch: {"rmse_mm": f.rmse, "status": f.status, "message": f.message, "nfev": f.nfev,
                                      "wall_time_s": f.wall_time, "at_bound": f.stats.at_bound if f.stats else [],
+                                     # why each is at its bound (coartic.fit.bounds.BoundNote fields)
+                                     "at_bound_explained": [b.as_dict() for b in f.stats.bounds.values()]
+                                     if f.stats else [],
                                      "unidentified": f.stats.unidentified if f.stats else []}
                                 for ch, f in self.channels.items()}}
         atomic_write_text(paths["summary"], json.dumps(summary, indent=2))
+        if self.choice is not None:
+            paths |= self.choice.save(out)
         return paths
+
+
+def shrinkage_lines(problem: ChannelProblem, x: FloatArray) -> list[str]:
+    """fit_report.txt: per [[shrink]] group, the class mean and each member's deviation in sd."""
+    sh = problem.shrinkage
+    if not sh.size:
+        return []
+    params, _ = problem.packing.unpack(x)
+    z = sh.z(params)
+    lines = [f"    [[Shrinkage]] (prior_noise {sh.noise:g} mm; deviation from the class mean in sd)"]
+    i = 0
+    for g in sh.groups:
+        v = params[list(g.rows), g.column]
+        mean = float(np.exp(np.mean(np.log(v)))) if g.log else float(np.mean(v))
+        devs = " ".join(f"{p} {d:+.2f}" for p, d in zip(g.phonemes, z[i:i + len(g.rows)]))
+        lines.append(f"        {g.key} {g.parameter}: sd {g.sd:g}{' (log)' if g.log else ''}, class "
+                     f"{'geometric ' if g.log else ''}mean {mean:.4g}: {devs}")
+        i += len(g.rows)
+    return lines
 
 
 def now() -> str:

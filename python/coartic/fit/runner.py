@@ -126,9 +126,20 @@ def run(spec: FitSpec | str | Path, out: str | Path | None = None, *, utterances
                 result.notes.append("interrupted while loading the trials: nothing was fitted")
                 return result
             result.notes += check_overrides(spec, utterances)
+        if spec.choose is not None:  # the setting first, by k-fold CV on these (training) utterances
+            from coartic.fit.choose import cross_validate
+
+            try:
+                result.choice = cross_validate(spec, utterances, progress)
+            except KeyboardInterrupt:
+                result.interrupted = True
+                result.notes.append(f"interrupted while choosing {spec.choose.key} by cross-validation: nothing was fitted")
+                return result
+            result.notes += result.choice.notes
         for ch in spec.channels:
             try:
-                fit = fit_channel(spec, utterances, ch, progress)
+                fit = fit_channel(spec if result.choice is None else result.choice.spec_for(spec, ch),
+                                  utterances, ch, progress)
             except KeyboardInterrupt:  # between engine calls: nothing of this channel to keep
                 result.interrupted = True
                 break

@@ -74,6 +74,39 @@ class Tie:
 
 
 @dataclass(frozen=True)
+class Shrink:
+    """Shrinkage of a class of phonemes toward its class mean (``[[shrink]]``): for each parameter,
+    one penalty row per member, ``prior_noise · (v_i − mean_class(v)) / sd`` (v the value, or its
+    logarithm with ``log``), the mean over every member present in the channel's data (fixed ones
+    count in the mean)."""
+
+    phonemes: tuple[str, ...]
+    parameters: tuple[str, ...]
+    sd: float
+    log: bool = False
+    channels: tuple[str, ...] | None = None  # None: every channel
+    key: str = "shrink"  # the spec key its errors and reports are named by ("shrink #2")
+
+
+# Settings ``[choose]`` / ``coartic fit --choose`` may choose by cross-validation, and which end of a
+# grid is the stronger regularisation (the one-standard-error rule moves toward it): -1 smaller values,
+# +1 larger values, 0 no such direction.
+CHOOSABLE: dict[str, int] = {"shrink.sd": -1, "prior_noise": +1, "plateau_fraction": 0}
+CHOOSE_RULES: tuple[str, ...] = ("min", "1se")
+
+
+@dataclass(frozen=True)
+class Choose:
+    """``[choose]``: a setting chosen by k-fold cross-validation on the training data."""
+
+    key: str  # "shrink.sd" (every [[shrink]]), "shrink #2.sd" (one), "prior_noise", "plateau_fraction"
+    values: tuple[float, ...]
+    group: str = "utterance"  # VALIDATE_GROUPS: what a fold holds out together
+    folds: int = 5
+    rule: str = "1se"  # "min": lowest mean held-out RMSE; "1se": the strongest within one SE of it
+
+
+@dataclass(frozen=True)
 class CorpusSpec:
     manifest: Path | None = None
     files: tuple[Path, ...] = ()
@@ -120,6 +153,8 @@ class FitSpec:
     target_margin: float = 5.0  # mm beyond the observed range for the default target box
     overrides: tuple[Override, ...] = ()
     ties: tuple[Tie, ...] = ()
+    shrinks: tuple[Shrink, ...] = ()
+    choose: Choose | None = None
     engine: str = "scipy"
     engine_options: dict[str, Any] = field(default_factory=dict)
     staging: bool = True
@@ -261,6 +296,94 @@ def _priors(d: Any, path: Path) -> dict[str, tuple[float, float, bool]]:
     return out
 
 
+def _shrinks(raw: dict[str, Any], path: Path) -> tuple[Shrink, ...]:
+    """``[[shrink]]`` tables: phonemes (a class of two or more), parameters, sd, scale, channels."""
+    out = []
+    for key, t in _array_of_tables(raw, "shrink", path):
+        _take(t, path, key, {"phonemes", "parameters", "sd", "scale", "channels"})
+        if "phonemes" not in t or "parameters" not in t or "sd" not in t:
+            raise _err(path, key, "needs phonemes = [...], parameters = [...] and sd = ...")
+        ph = _str_list(t["phonemes"], path, f"{key}.phonemes")
+        if len(set(ph)) < 2 or len(set(ph)) != len(ph):
+            raise _err(path, f"{key}.phonemes", f"a class needs two distinct phonemes or more, got {list(ph)}")
+        par = _param_names(_str_list(t["parameters"], path, f"{key}.parameters"), path, f"{key}.parameters")
+        if not par or len(set(par)) != len(par):
+            raise _err(path, f"{key}.parameters", f"expected distinct parameters, got {list(par)}")
+        sd = _float(t["sd"], path, f"{key}.sd")
+        if not (sd > 0 and math.isfinite(sd)):
+            raise _err(path, f"{key}.sd", f"{sd} must be a positive number")
+        scale = t.get("scale", "natural")
+        if scale not in ("natural", "log"):
+            raise _err(path, f"{key}.scale", f"{scale!r}: expected \"natural\" or \"log\"")
+        if scale == "log":
+            bad = [p for p in par if p not in LOG_SCALE_PARAMETERS]
+            if bad:
+                raise _err(path, f"{key}.scale", f"log scale needs positive parameters ({', '.join(LOG_SCALE_PARAMETERS[:-1])}), "
+                           f"not {bad}: shrink those in another [[shrink]] on the natural scale")
+        ch = _channels(_str_list(t["channels"], path, f"{key}.channels"), path, f"{key}.channels") \
+            if "channels" in t else None
+        out.append(Shrink(ph, par, sd, scale == "log", ch, key))
+    return tuple(out)
+
+
+def _choose(c: Any, path: Path, shrinks: tuple[Shrink, ...]) -> Choose | None:
+    """``[choose]``: key, values (the grid), group, folds, rule."""
+    if c is None:
+        return None
+    if not isinstance(c, dict):
+        raise _err(path, "choose", f"expected a table, got {c!r}")
+    _take(c, path, "choose", {"key", "values", "group", "folds", "rule"})
+    if "key" not in c or "values" not in c:
+        raise _err(path, "choose", "needs key = \"shrink.sd\" (or another setting) and values = [...]")
+    return make_choose(path, c["key"], c["values"], c.get("group", "utterance"), c.get("folds", 5),
+                       c.get("rule", "1se"), shrinks, "choose")
+
+
+def make_choose(path: Path, key: Any, values: Any, group: Any, folds: Any, rule: Any,
+                shrinks: tuple[Shrink, ...], where: str) -> Choose:
+    """A checked ``Choose`` (from ``[choose]`` or ``coartic fit --choose``); errors name ``where``."""
+    if not isinstance(key, str):
+        raise _err(path, f"{where}.key", f"expected a setting name, got {key!r}")
+    base = choose_base(key)
+    if base is None:
+        raise _err(path, f"{where}.key", f"{key!r}: not a setting cross-validation can choose (known: "
+                   f"{', '.join(CHOOSABLE)}, or \"shrink #N.sd\" for one [[shrink]])")
+    if base == "shrink.sd":
+        if not shrinks:
+            raise _err(path, f"{where}.key", f"{key!r}: the spec has no [[shrink]] table")
+        if key != "shrink.sd" and not any(s.key == key[: -len(".sd")] for s in shrinks):
+            raise _err(path, f"{where}.key", f"{key!r}: no such table (the spec has {len(shrinks)} [[shrink]])")
+    if not isinstance(values, list) or len(values) < 2:
+        raise _err(path, f"{where}.values", f"expected a list of two values or more, got {values!r}")
+    vals = tuple(_float(v, path, f"{where}.values") for v in values)
+    if len(set(vals)) != len(vals):
+        raise _err(path, f"{where}.values", f"repeated values in {list(vals)}")
+    low = 0.0
+    if any(not math.isfinite(v) or v <= low for v in vals) and base != "plateau_fraction":
+        raise _err(path, f"{where}.values", f"{key} takes positive numbers, got {list(vals)}")
+    if base == "plateau_fraction" and any(not 0.0 <= v <= 1.0 for v in vals):
+        raise _err(path, f"{where}.values", f"plateau_fraction takes values in [0, 1], got {list(vals)}")
+    if group not in VALIDATE_GROUPS:
+        raise _err(path, f"{where}.group", f"{group!r}: expected one of {', '.join(VALIDATE_GROUPS)}")
+    if isinstance(folds, bool) or not isinstance(folds, int) or folds < 2:
+        raise _err(path, f"{where}.folds", f"expected an integer >= 2, got {folds!r}")
+    if rule not in CHOOSE_RULES:
+        raise _err(path, f"{where}.rule", f"{rule!r}: expected \"min\" or \"1se\"")
+    if rule == "1se" and CHOOSABLE[base] == 0:
+        raise _err(path, f"{where}.rule", f"\"1se\" needs a regularisation strength (shrink.sd, prior_noise); "
+                   f"{key} has no stronger end: use rule = \"min\"")
+    return Choose(key, tuple(sorted(vals)), str(group), int(folds), str(rule))
+
+
+def choose_base(key: str) -> str | None:
+    """The CHOOSABLE entry a key belongs to ("shrink #2.sd" -> "shrink.sd"), or None."""
+    if key in CHOOSABLE:
+        return key
+    if key.startswith("shrink #") and key.endswith(".sd") and key[len("shrink #"):-len(".sd")].isdigit():
+        return "shrink.sd"
+    return None
+
+
 def read_document(path: Path) -> dict[str, Any]:
     """The TOML document of a spec file, or a SpecError naming the file."""
     try:
@@ -281,8 +404,8 @@ def parse_spec(raw: dict[str, Any], path: Path) -> FitSpec:
     """Build a FitSpec from an already parsed TOML document (``path`` locates relative paths)."""
     base = path.parent
     # [mcmc] belongs to coartic.mcmc (docs/MCMC.md): one spec file serves both commands.
-    _take(raw, path, "top level", {"name", "corpus", "model", "parameters", "override", "tie", "engine",
-                                   "staging", "gaps", "validate", "mcmc"})
+    _take(raw, path, "top level", {"name", "corpus", "model", "parameters", "override", "tie", "shrink",
+                                   "choose", "engine", "staging", "gaps", "validate", "mcmc"})
     name = raw.get("name", path.stem)
 
     c = raw.get("corpus")
@@ -428,6 +551,7 @@ def parse_spec(raw: dict[str, Any], path: Path) -> FitSpec:
         tch = _channels(_str_list(t["channels"], path, f"{key}.channels"), path, f"{key}.channels") \
             if "channels" in t else None
         ties.append(Tie(tph, tpar, tch))
+    shrinks = _shrinks(raw, path)
     for i, o in enumerate(overrides):
         # alpha is scale-free: the reference phoneme's is 1 by definition (MODEL.md §1)
         if reference in o.phonemes and ("alpha" in o.free or "alpha" in o.start or "alpha" in o.bounds
@@ -474,6 +598,8 @@ def parse_spec(raw: dict[str, Any], path: Path) -> FitSpec:
     if folds is not None and group is None:
         raise _err(path, "validate.folds", "needs group = \"utterance\" (or sentence, rate, speaker, repetition)")
 
+    choose = _choose(raw.get("choose"), path, shrinks)
+
     return FitSpec(
         path=path, name=str(name), corpus=corpus, channels=channels, variant=variant,
         reference_phoneme=reference, apex_fraction=apex, edge_extent=edge, dominance=dominance,
@@ -482,7 +608,8 @@ def parse_spec(raw: dict[str, Any], path: Path) -> FitSpec:
         free=free, start_table=start_table, start=start, start_given=frozenset(start_given), bounds=bounds,
         priors=priors, prior_noise=prior_noise, offsets=offsets if isinstance(offsets, str) else float(offsets),
         speakers=str(speakers), speaker_column=speaker_column, channel_bounds=channel_bounds,
-        target_margin=margin, overrides=tuple(overrides), ties=tuple(ties), engine=engine, engine_options=dict(engine_options),
+        target_margin=margin, overrides=tuple(overrides), ties=tuple(ties), shrinks=shrinks, choose=choose,
+        engine=engine, engine_options=dict(engine_options),
         staging=staging, stages=stages, max_gap=max_gap, holdout_repetition=hold, validate_group=group,
         validate_folds=folds,
         train_rate=v.get("train_rate", "normal"), test_rate=v.get("test_rate", "fast"))

@@ -172,7 +172,7 @@ def run_job(fit_spec: Any, cfg: Any, table_path: Path, out: Path, progress: bool
     """Load the data and the table, sample every posterior, write table, summaries and report fragment."""
     from coartic.fit.data import load_utterances
     from coartic.mcmc import plots, summary
-    from coartic.mcmc.run import channel_runs, spec_priors, table_problem, table_speakers
+    from coartic.mcmc.run import channel_runs, spec_priors, spec_shrinkage, table_problem, table_speakers
     from coartic.table import ParameterTable
 
     table = ParameterTable.load(table_path)
@@ -214,7 +214,9 @@ def run_job(fit_spec: Any, cfg: Any, table_path: Path, out: Path, progress: bool
         speakers = table_speakers(fit_spec, table, table_path, channel)
         check_fit_matches_data(table, table_path, channel, data, packing, options, allow_stale, speakers)
         _, interrupted = channel_runs(channel, data, packing, options, cfg, out, progress, on_done=save,
-                                      spec_priors=spec_priors(fit_spec, packing, channel), speakers=speakers)
+                                      spec_priors=spec_priors(fit_spec, packing, channel),
+                                      spec_shrinkage=spec_shrinkage(fit_spec, table, packing, channel),
+                                      speakers=speakers)
         if interrupted:
             break
     return runs, interrupted

@@ -8,6 +8,8 @@ Sampling coordinates are the least-squares problem's own internal vector x
   open by the bounds (α, θ, ψ have (0, ∞) by default) is closed with ``PRIOR_RANGE`` so that the
   prior is proper;
 * times optional Gaussian priors on natural values, keyed ``"phoneme.parameter"`` (or ``"beta"``);
+* times the fit spec's shrinkage toward class means (``[[shrink]]``: ``coartic.fit.problem.Shrinkage``,
+  the least-squares rows divided by prior_noise, so −½ Σ z²);
 * ``-inf`` outside the support (those walkers are not even sent to the core).
 
 The likelihood is Gaussian with noise level σ_n per valid sample: either fixed (a number, e.g. the
@@ -34,13 +36,13 @@ from __future__ import annotations
 import hashlib
 import math
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Any, Callable, Mapping
+from typing import TYPE_CHECKING, Any, Callable, Mapping, Sequence
 
 import numpy as np
 from numpy.typing import NDArray
 
 if TYPE_CHECKING:
-    from coartic.fit.problem import ChannelData, Packing, Speakers
+    from coartic.fit.problem import ChannelData, Packing, ShrinkGroup, Speakers
 
 FloatArray = NDArray[np.float64]
 BatchFn = Callable[..., FloatArray]
@@ -88,10 +90,12 @@ class LogPosterior:
         evaluate_batch: BatchFn | None = None,
         offset_sd: float | None = 0.0,
         residual_sums_batch: Callable[..., tuple[FloatArray, FloatArray]] | None = None,
+        shrinkage: Sequence[ShrinkGroup] = (),
         speakers: Speakers | None = None,
         speaker_start: Mapping[str, tuple[float, float]] | None = None,
     ) -> None:
         from coartic import _core
+        from coartic.fit.problem import Shrinkage
 
         self.sse_batch = sse_batch or _core.sse_batch
         self.evaluate_batch = evaluate_batch or _core.evaluate_batch
@@ -129,6 +133,9 @@ class LogPosterior:
         for key, v in self.priors.items():
             if len(v) > 2 and not v[0] > 0:
                 raise ValueError(f"Gaussian prior on log {key!r}: needs a positive median, got {v[0]}")
+        # the same penalty as least squares, on the unpacked matrix (members outside this packing's
+        # free set count in the class mean at their fitted values)
+        self.shrinkage = Shrinkage(packing, shrinkage, 1.0)
 
         lo, hi = (np.array(b, dtype=np.float64) for b in packing.bounds())
         log = packing.log_mask
@@ -266,6 +273,11 @@ class LogPosterior:
                 with np.errstate(divide="ignore", invalid="ignore"):
                     nat = np.where(self._prior_log, np.log(np.where(self._prior_log, nat, 1.0)), nat)
             lp = lp - 0.5 * np.sum(((nat - self._prior_mu) / self._prior_sd) ** 2, axis=1)
+        if self.shrinkage.size:
+            params, _ = self.matrices(x)
+            with np.errstate(invalid="ignore"):
+                z = self.shrinkage.z(params)
+            lp = lp - 0.5 * np.sum(np.where(np.isfinite(z), z, np.inf) ** 2, axis=1)
         return lp
 
     def speaker_coefficients(self, x: FloatArray) -> tuple[FloatArray, FloatArray]:
@@ -399,7 +411,8 @@ class LogPosterior:
         p = self.packing
         for a in (self.data.observed, self.data.weights, p.base, p.free, self.lower, self.upper):
             h.update(np.ascontiguousarray(a).tobytes())
-        h.update(repr((p.base_beta, self.noise, self.offset_sd, sorted(self.priors.items()), self.coordinates, self.channel)).encode())
+        h.update(repr((p.base_beta, self.noise, self.offset_sd, sorted(self.priors.items()), self.coordinates, self.channel,
+                       self.shrinkage.groups)).encode())
         if self.speakers is not None:
             h.update(repr((self.speakers.mode, self.speakers.names, self._spk_a.tolist(), self._spk_b.tolist())).encode())
         for u in self.data.utterances:
@@ -416,6 +429,7 @@ def phoneme_posterior(
     noise: float | None = None,
     priors: Mapping[str, tuple[float, float]] | None = None,
     offset_sd: float | None = 0.0,
+    shrinkage: Sequence[ShrinkGroup] = (),
     speakers: SpeakerTerms | None = None,
     **evaluators: Any,
 ) -> LogPosterior:
@@ -439,7 +453,7 @@ def phoneme_posterior(
     names = set(packing.with_free(free, False).names())
     mine = {k: v for k, v in (priors or {}).items() if k in names}
     return LogPosterior(sub, packing.with_free(free, False), options, noise, mine, offset_sd=offset_sd,
-                        **_speaker_args(sub, speakers), **evaluators)
+                        shrinkage=shrinkage, **_speaker_args(sub, speakers), **evaluators)
 
 
 def channel_posterior(
@@ -449,12 +463,13 @@ def channel_posterior(
     noise: float | None = None,
     priors: Mapping[str, tuple[float, float]] | None = None,
     offset_sd: float | None = 0.0,
+    shrinkage: Sequence[ShrinkGroup] = (),
     speakers: SpeakerTerms | None = None,
     **evaluators: Any,
 ) -> LogPosterior:
     """The joint posterior of every free parameter of the channel (hundreds of dimensions: slow
     for emcee, which is why per-phoneme posteriors are the default)."""
-    return LogPosterior(data, packing, options, noise, priors, offset_sd=offset_sd,
+    return LogPosterior(data, packing, options, noise, priors, offset_sd=offset_sd, shrinkage=shrinkage,
                         **_speaker_args(data, speakers), **evaluators)
 
 

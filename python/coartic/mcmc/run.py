@@ -198,6 +198,19 @@ def spec_priors(fit_spec: Any, packing: Any, channel: str) -> dict[str, tuple[An
     return {k: (p.mean, p.sd) + ((True,) if p.log else ()) for k, p in pri.items()}
 
 
+def spec_shrinkage(fit_spec: Any, table: Any, packing: Any, channel: str) -> list[Any]:
+    """The fit spec's ``[[shrink]]`` groups on ``channel``, with the sd the fit used: a value chosen
+    by cross-validation (``[choose]``) is read from the table's metadata ("choice"), so the posterior
+    has the penalty the least-squares fit had."""
+    from coartic.fit.choose import set_value
+    from coartic.fit.problem import moving, shrink_groups
+
+    choice = (table.metadata or {}).get("choice") or {}
+    if choice.get("key") and channel in choice.get("chosen", {}):
+        fit_spec = set_value(fit_spec, choice["key"], float(choice["chosen"][channel]))
+    return shrink_groups(fit_spec, channel, tuple(packing.phonemes), moving(packing.free, packing.ties))
+
+
 def walkers_for(dim: int, requested: int) -> int:
     """emcee needs more than 2 dim walkers; an even count, at least 32 unless more are requested."""
     n = requested if requested > 0 else max(32, 2 * dim + 2)
@@ -294,6 +307,7 @@ def channel_runs(
     progress: bool = True,
     on_done: Callable[[PosteriorRun], None] | None = None,
     spec_priors: Mapping[str, tuple[Any, ...]] | None = None,
+    spec_shrinkage: Sequence[Any] = (),
     speakers: SpeakerTerms | None = None,
 ) -> tuple[list[PosteriorRun], bool]:
     """Every posterior the config asks for on one channel; returns them and whether interrupted."""
@@ -319,7 +333,7 @@ def channel_runs(
     runs: list[PosteriorRun] = []
     if cfg.scope == "channel":
         jobs: list[tuple[str | None, Callable[[], LogPosterior]]] = [(None, lambda: channel_posterior(data, packing, options, noise, priors, offset_sd,
-                                                                                                    speakers=speakers))]
+                                                                                       spec_shrinkage, speakers=speakers))]
     else:
         wanted = cfg.phonemes or tuple(p for i, p in enumerate(data.phonemes) if p != PAUSE and packing.free[i].any())
         missing = [p for p in wanted if p not in data.phonemes]
@@ -327,7 +341,8 @@ def channel_runs(
             raise McmcConfigError(f"[mcmc] phonemes: {', '.join(missing)} do not occur in the {channel} data (phonemes: {' '.join(data.phonemes)})")
 
         def job(p: str) -> Callable[[], LogPosterior]:
-            return lambda: phoneme_posterior(data, packing, options, p, noise, priors, offset_sd, speakers=speakers)
+            return lambda: phoneme_posterior(data, packing, options, p, noise, priors, offset_sd, spec_shrinkage,
+                                             speakers=speakers)
 
         jobs = [(p, job(p)) for p in wanted]
     for phoneme, make in jobs:

@@ -19,6 +19,7 @@ import jinja2
 import markupsafe
 from rich.console import Console
 
+from coartic.fit.bounds import summary_counts
 from coartic.fit.result import BAR_MM, FitResult
 from coartic.report import plots
 from coartic.outputs import atomic_write_text
@@ -86,7 +87,9 @@ def write_report(result: FitResult, out: str | Path, console: Console | None = N
     html = env.get_template("fit_report.html.j2").render(
         result=result, spec=result.spec, bar=BAR_MM, figures=figures, rmse_rows=rmse_rows,
         channels=result.channels, report_text=result.report_text(), extras=extras,
-        validation=_validation_rows(out))
+        validation=_validation_rows(out),
+        bound_notes={c: list(f.stats.bounds.values()) for c, f in result.channels.items() if f.stats and f.stats.bounds},
+        bound_counts={c: summary_counts(f.stats.bounds) if f.stats else "" for c, f in result.channels.items()})
     path = out / "report.html"
     atomic_write_text(path, html)
     if console is not None:

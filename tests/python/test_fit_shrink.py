@@ -1,0 +1,191 @@
+"""Shrinkage of a phoneme class toward its mean ([[shrink]]) and a setting chosen by cross-validation
+([choose], coartic fit --choose): issue 10 item 2."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pytest
+
+from coartic import model
+from coartic.fit import run
+from coartic.fit.choose import Choice, CurvePoint, parse_choose, set_value
+from coartic.fit.problem import build_problem
+from coartic.fit.simulate import PHONEMES, vcv_utterances
+from coartic.fit.spec import Choose, SpecError, parse_spec
+from coartic.table import PARAMETERS
+
+
+def spec_of(tmp_path: Path, **sections: Any) -> Any:
+    raw = {"corpus": {"files": ["x.csv"], "labels": ["x.lab"]}, "model": {"channels": ["LLO"]},
+           "parameters": {"free": ["target"]}, **sections}
+    return parse_spec(raw, tmp_path / "spec.toml")
+
+
+@pytest.fixture(scope="module")
+def utts() -> list[model.Utterance]:
+    return vcv_utterances(np.random.default_rng(3), repetitions=2, rates={"normal": 1.0}, consonants=("p", "t"))
+
+
+def check_derivatives(prob: Any, x: np.ndarray) -> None:
+    r = prob.residuals(x)
+    assert r.size == prob.n_residuals
+    j = prob.jacobian(x).toarray()
+    h = 1e-6
+    for col in range(x.size):
+        e = np.zeros_like(x)
+        e[col] = h
+        fd = (prob.residuals(x + e) - prob.residuals(x - e)) / (2 * h)
+        np.testing.assert_allclose(j[:, col], fd, rtol=1e-5, atol=1e-7)
+    sse, g = prob.sse_gradient(x)
+    assert sse == pytest.approx(float(r @ r), rel=1e-10)
+    np.testing.assert_allclose(g, 2 * j.T @ r, rtol=1e-6, atol=1e-8)
+    assert prob.sse_batch(x[None])[0] == pytest.approx(sse, rel=1e-10)
+
+
+def test_shrinkage_rows_have_exact_derivatives(tmp_path: Path, utts: list[model.Utterance]) -> None:
+    # log-scale α and θ (α of the reference /a/ is fixed: it counts in the mean, no derivative), a
+    # natural-scale k_R over a class with a [[tie]] inside it, and the target
+    s = spec_of(tmp_path, parameters={"free": ["target", "alpha", "theta_bw", "theta_fw", "k_r"], "prior_noise": 0.5},
+                tie=[{"phonemes": ["i", "a"], "parameters": ["k_r"]}],
+                shrink=[{"phonemes": ["a", "i", "p"], "parameters": ["alpha", "theta_bw"], "sd": 0.3, "scale": "log"},
+                        {"phonemes": ["a", "i", "t"], "parameters": ["k_r", "target"], "sd": 0.2}])
+    prob = build_problem(s, utts, "LLO", phonemes=PHONEMES)
+    assert prob.shrinkage.size == 4 * 3
+    x = prob.packing.pack() + np.random.default_rng(1).normal(0.0, 0.05, prob.packing.n_free)
+    check_derivatives(prob, x)
+    # the rows: prior_noise · (log α_i − mean log α) / sd over /a i p/
+    params, _ = prob.packing.unpack(x)
+    la = np.log(params[[1, 2, 3], PARAMETERS.index("alpha")])
+    n = prob.data.corpus.n_samples
+    np.testing.assert_allclose(prob.residuals(x)[n:n + 3], 0.5 * (la - la.mean()) / 0.3, rtol=1e-12)
+    # a stage that frees only some members: the others count in the mean at their values
+    free = prob.packing.free.copy()
+    free[:, 1:] = False
+    stage = prob.with_packing(prob.packing.with_free(free, False, params))
+    check_derivatives(stage, stage.packing.pack())
+    assert stage.shrinkage.size == prob.shrinkage.size
+
+
+def test_a_shrink_row_pulls_an_outlier_toward_its_class(tmp_path: Path, utts: list[model.Utterance]) -> None:
+    # k_R: /p/ 1.0 (always reached), /a i t/ 0.3-0.4; shrunk together with sd 0.02
+    free = {"free": ["target", "k_r"]}
+    k = PARAMETERS.index("k_r")
+    fits = {}
+    for name, shrink in (("free", []), ("shrunk", [{"phonemes": ["a", "i", "p", "t"], "parameters": ["k_r"], "sd": 0.02}])):
+        s = spec_of(tmp_path, parameters=free, shrink=shrink)
+        res = run(s, tmp_path / name, utterances=utts, quiet=True, report=False)
+        fits[name] = res.channels["LLO"]
+    row = {p: i for i, p in enumerate(fits["free"].phonemes)}
+    for name in fits:
+        v = fits[name].params[[row[p] for p in "aipt"], k]
+        fits[name].spread = v.max() - v.min()  # type: ignore[attr-defined]
+        fits[name].p_gap = v[2] - v[[0, 1, 3]].mean()  # type: ignore[attr-defined]
+    assert fits["free"].p_gap > 0.4  # type: ignore[attr-defined]
+    assert fits["shrunk"].p_gap < 0.5 * fits["free"].p_gap  # type: ignore[attr-defined]
+    assert fits["shrunk"].spread < fits["free"].spread  # type: ignore[attr-defined]
+    text = (tmp_path / "shrunk" / "fit_report.txt").read_text()
+    assert "[[Shrinkage]]" in text and "shrink #1 k_r: sd 0.02" in text
+    meta = json.loads((tmp_path / "shrunk" / "table.json").read_text())["metadata"]
+    assert meta["shrinkage"][0]["phonemes"] == ["a", "i", "p", "t"] and meta["shrinkage"][0]["sd"] == 0.02
+
+
+def test_cross_validation_chooses_the_strength(tmp_path: Path, utts: list[model.Utterance]) -> None:
+    # /p/ and /t/ have targets 5.5 mm apart: forcing them together (sd 0.001) predicts held-out
+    # repetitions badly, so CV must choose the weak end of the grid, then fit all data with it
+    s = spec_of(tmp_path, shrink=[{"phonemes": ["p", "t"], "parameters": ["target"], "sd": 1.0}],
+                choose={"key": "shrink.sd", "values": [100.0, 0.001], "group": "repetition", "folds": 2})
+    res = run(s, tmp_path / "out", utterances=utts, quiet=True, report=False)
+    ch = res.choice
+    assert ch is not None and ch.chosen == {"LLO": 100.0} and len(ch.folds) == 2
+    weak, strong = (next(p for p in ch.curve("LLO") if p.value == v) for v in (100.0, 0.001))
+    assert strong.mean > 1.3 * weak.mean
+    # the final fit used the chosen sd: /p/ and /t/ targets stay apart
+    fit = res.channels["LLO"]
+    assert fit.problem.shrinkage.groups[0].sd == 100.0
+    row = {p: i for i, p in enumerate(fit.phonemes)}
+    assert fit.params[row["t"], 0] - fit.params[row["p"], 0] > 4.0
+    meta = json.loads((tmp_path / "out" / "table.json").read_text())["metadata"]
+    assert meta["choice"]["chosen"] == {"LLO": 100.0} and meta["choice"]["rule"] == "1se"
+    csv = (tmp_path / "out" / "choose.csv").read_text().splitlines()
+    assert csv[0].startswith("key,value,channel") and len(csv) == 3
+    assert (tmp_path / "out" / "choose.png").stat().st_size > 0
+    assert "<- chosen" in (tmp_path / "out" / "fit_report.txt").read_text()
+
+
+def test_the_one_standard_error_rule_moves_to_the_stronger_end() -> None:
+    def choice(key: str, rule: str) -> Choice:
+        pts = [CurvePoint(v, "LLO", list(m), [100, 100]) for v, m in
+               ((0.1, (0.30, 0.32)), (1.0, (0.26, 0.32)), (10.0, (0.45, 0.47)))]
+        c = Choice(Choose(key, (0.1, 1.0, 10.0), rule=rule), pts, ["f1", "f2"])
+        c.pick()
+        return c
+
+    assert choice("shrink.sd", "min").chosen == {"LLO": 1.0}
+    assert choice("shrink.sd", "1se").chosen == {"LLO": 0.1}  # 0.31 is within one SE (0.03) of 0.29
+    assert choice("prior_noise", "1se").chosen == {"LLO": 1.0}  # stronger is larger: 10 is far worse
+
+
+def test_mcmc_has_the_shrinkage_of_the_fit_spec(tmp_path: Path, utts: list[model.Utterance]) -> None:
+    from coartic.mcmc.posterior import LogPosterior, phoneme_posterior
+    from coartic.mcmc.run import spec_shrinkage, table_problem
+
+    s = spec_of(tmp_path, parameters={"free": ["target", "theta_bw"]},
+                shrink=[{"phonemes": ["a", "i", "p", "t"], "parameters": ["theta_bw"], "sd": 0.5, "scale": "log"}])
+    table = run(s, None, utterances=utts, quiet=True).table()
+    data, packing, opts = table_problem(s, table, tmp_path / "t.json", "LLO", utts)
+    groups = spec_shrinkage(s, table, packing, "LLO")
+    x = packing.pack()[None]
+    th = np.log(packing.base[[data.phonemes.index(p) for p in "aipt"], PARAMETERS.index("theta_bw")])
+    expected = -0.5 * np.sum(((th - th.mean()) / 0.5) ** 2)
+    with_s = LogPosterior(data, packing, opts, noise=0.1, shrinkage=groups)
+    without = LogPosterior(data, packing, opts, noise=0.1)
+    assert with_s(x)[0] - without(x)[0] == pytest.approx(expected, rel=1e-9)
+    # a per-phoneme posterior keeps the whole class in the penalty (the others at their fitted values)
+    one = phoneme_posterior(data, packing, opts, "p", 0.1, shrinkage=groups)
+    assert one.log_prior(one.start_point()[None])[0] == pytest.approx(expected, rel=1e-9)
+    # a value chosen by CV is what the posterior uses
+    table.metadata["choice"] = {"key": "shrink.sd", "chosen": {"LLO": 0.25}}
+    assert spec_shrinkage(s, table, packing, "LLO")[0].sd == 0.25
+
+
+@pytest.mark.parametrize("sections, key, words", [
+    ({"shrink": [{"phonemes": ["p"], "parameters": ["k_r"], "sd": 0.1}]}, "shrink #1.phonemes", "two distinct"),
+    ({"shrink": [{"phonemes": ["p", "t"], "parameters": ["speed"], "sd": 0.1}]}, "shrink #1.parameters", "unknown parameter"),
+    ({"shrink": [{"phonemes": ["p", "t"], "parameters": ["k_r"]}]}, "shrink #1", "needs phonemes"),
+    ({"shrink": [{"phonemes": ["p", "t"], "parameters": ["k_r"], "sd": 0.1},
+                 {"phonemes": ["p", "t"], "parameters": ["k_r"], "sd": -1.0}]}, "shrink #2.sd", "positive"),
+    ({"shrink": [{"phonemes": ["p", "t"], "parameters": ["theta_bw", "k_r"], "sd": 0.1, "scale": "log"}]},
+     "shrink #1.scale", "log scale needs positive parameters"),
+    ({"shrink": [{"phonemes": ["p", "t"], "parameters": ["k_r"], "sd": 0.1, "strength": 2}]}, "shrink #1", "unknown key"),
+    ({"choose": {"key": "shrink.sd", "values": [0.1, 1.0]}}, "choose.key", r"no \[\[shrink\]\] table"),
+    ({"choose": {"key": "beta", "values": [0.1, 1.0]}}, "choose.key", "not a setting"),
+    ({"shrink": [{"phonemes": ["p", "t"], "parameters": ["k_r"], "sd": 0.1}],
+      "choose": {"key": "shrink #2.sd", "values": [0.1, 1.0]}}, "choose.key", "no such table"),
+    ({"shrink": [{"phonemes": ["p", "t"], "parameters": ["k_r"], "sd": 0.1}],
+      "choose": {"key": "shrink.sd", "values": [0.1]}}, "choose.values", "two values or more"),
+    ({"choose": {"key": "plateau_fraction", "values": [0.3, 0.5]}}, "choose.rule", "no stronger end"),
+    ({"choose": {"key": "prior_noise", "values": [0.3, 1.0], "group": "speaker", "folds": 1}}, "choose.folds",
+     "integer >= 2"),
+])
+def test_bad_shrink_and_choose_tables_are_refused(tmp_path: Path, sections: dict[str, Any], key: str, words: str) -> None:
+    with pytest.raises(SpecError, match=words) as e:
+        spec_of(tmp_path, **sections)
+    assert f"[{key}]" in str(e.value) and "spec.toml" in str(e.value)
+
+
+def test_shrinkage_of_fixed_values_and_bad_choose_options_are_refused(tmp_path: Path,
+                                                                     utts: list[model.Utterance]) -> None:
+    s = spec_of(tmp_path, shrink=[{"phonemes": ["p", "t"], "parameters": ["k_r"], "sd": 0.1}])  # k_r not free
+    with pytest.raises(SpecError, match=r"\[shrink #1\] k_r is free for none of \['p', 't'\] on LLO"):
+        build_problem(s, [u for u in vcv_utterances(np.random.default_rng(0), repetitions=1, rates={"n": 1.0},
+                                                     consonants=("p", "t"))], "LLO")
+    with pytest.raises(SpecError, match=r"\[--choose.values\] shrink.sd takes positive numbers"):
+        parse_choose(s, "shrink.sd=0,1")
+    with pytest.raises(SpecError, match=r"--choose 'shrink.sd': expected KEY=V1,V2"):
+        parse_choose(s, "shrink.sd")
+    assert parse_choose(s, "shrink.sd=1, 0.1").choose == Choose("shrink.sd", (0.1, 1.0), "utterance", 5, "1se")
+    assert set_value(s, "shrink #1.sd", 0.5).shrinks[0].sd == 0.5
