@@ -449,7 +449,12 @@ def phoneme_posterior(
     free[row] = packing.free[row]
     if not free.any():
         raise ValueError(f"channel {data.channel}: phoneme {phoneme!r} has no free parameter (all fixed by the spec)")
-    sub = _ChannelData.build([u for u in data.utterances if phoneme in u.labels], data.channel, data.phonemes)
+    # the utterances of the phoneme and of every phoneme whose entries follow its free ones
+    # ([[tie]], or the speakers' rows of [model] speakers = "targets"): the others do not depend on it
+    free_flat = packing.free.reshape(-1)
+    n_par = packing.free.shape[1]
+    labels = {phoneme} | {data.phonemes[f // n_par] for f, ld in packing.ties if ld // n_par == row and free_flat[ld]}
+    sub = _ChannelData.build([u for u in data.utterances if labels & set(u.labels)], data.channel, data.phonemes)
     names = set(packing.with_free(free, False).names())
     mine = {k: v for k, v in (priors or {}).items() if k in names}
     return LogPosterior(sub, packing.with_free(free, False), options, noise, mine, offset_sd=offset_sd,

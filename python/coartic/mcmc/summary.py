@@ -99,6 +99,11 @@ def write_uncertainty(table: ParameterTable, channel: str, summaries: list[Param
         if "." not in s.name or s.name.startswith(("speaker_offset:", "speaker_scale:")):
             continue
         phoneme, parameter = s.name.split(".", 1)
+        if phoneme not in table.values and "|" in phoneme:
+            # [model] speakers = "targets": row "p|s"; its shared entries are p's, its target s's own
+            if parameter == "target":
+                continue
+            phoneme = phoneme.rpartition("|")[0]
         table.uncertainty.setdefault(phoneme, {}).setdefault(channel, {})[parameter] = dict(s.quantiles)
         n += 1
     return n
