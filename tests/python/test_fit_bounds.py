@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import csv
 import json
+import re
 from dataclasses import replace
 from pathlib import Path
 from typing import Any
@@ -90,6 +91,9 @@ def test_domain_active_insensitive(built: tuple[FitResult, Path]) -> None:
     assert "model's domain" in p.source and "k_R" in p.source
     assert p.gradient < 0  # the data pull above 1 (SSE falls as k_R grows)
     assert "bilabial" in p.reading and "reaches its target" in p.reading
+    # measured on the fit: with k_R = 1 the model is at T·S(0) at /p/'s target times (MODEL.md §3 item 3)
+    gap = re.search(r"At its 4 target times the fitted LLO is on average (\S+) mm", p.reading)
+    assert gap is not None and float(gap.group(1)) < 1e-6
     t = nb["t.theta_fw"]
     assert (t.category, t.side, t.bound) == ("active", "upper", pytest.approx(20.0))
     assert t.source == "[override #1] bounds.theta_fw"

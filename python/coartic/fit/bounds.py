@@ -133,6 +133,8 @@ def explain_bounds(problem: ChannelProblem, x: FloatArray, at_bound: Sequence[st
     h = 2.0 * jtj
     dv = pk.dvalue_dx(x)
     nat = pk.natural(x)
+    params, beta = pk.unpack(x)
+    fitted: FloatArray | None = None  # the model at x, for the k_R notes (one evaluation, when needed)
     idx = [names.index(nm) for nm in at_bound]
     interior = np.array([j for j in range(m) if j not in set(idx)], dtype=np.int64)
     h_ff_pinv = _pinv(h[np.ix_(interior, interior)]) if interior.size else np.zeros((0, 0))
@@ -232,10 +234,19 @@ def explain_bounds(problem: ChannelProblem, x: FloatArray, at_bound: Sequence[st
         sentence = _sentence(category, grad_of, side, grad, outward, gain_held, held_value, gn_pred,
                              gn_meas, range_chi2, cost, rmse, rmse_relaxed, gain_in, in_value, partner, pc, s2,
                              lo_hi=(_nat(pk, i, lo[i]), _nat(pk, i, hi[i])))
+        row = _row(params, pk.phonemes, phoneme)
+        extra = ""
+        if parameter == "k_r" and phoneme in pk.phonemes:
+            if fitted is None:
+                fitted = np.asarray(problem.evaluate(params, beta), dtype=np.float64)
+            gap, count = target_gap(problem, fitted, row, phoneme)
+            if count:
+                extra = (f" At its {count} target times the fitted {problem.data.channel} is on average "
+                         f"{gap:.3g} mm from T·(1 + σ) = {row['target'] * (1 + row['sigma']):.4g} mm.")
         notes[name] = BoundNote(name, phoneme, parameter, value, side, bound, source, category, grad, grad_of,
                                 gain_held,
                                 held_value, gn_pred, gn_meas, range_chi2, rmse, rmse_relaxed, partner, pc,
-                                sentence, reading(parameter, side, value, phoneme, problem, bound))
+                                sentence, reading(parameter, side, value, phoneme, problem, bound, row) + extra)
     return notes
 
 
@@ -319,8 +330,45 @@ def _sentence(category: str, grad_of: str, side: str, grad: float, outward: bool
             f"{corr} ({s2_txt}).")
 
 
-def reading(parameter: str, side: str, value: float, phoneme: str, problem: ChannelProblem, bound: float) -> str:
-    """What this bound means for the model, in MODEL.md's terms (dominance D, resistance R, shape S)."""
+def _row(params: FloatArray, phonemes: Sequence[str], phoneme: str) -> dict[str, float]:
+    from coartic.table import PARAMETERS
+
+    if phoneme not in phonemes:
+        return {}
+    return dict(zip(PARAMETERS, map(float, params[list(phonemes).index(phoneme)])))
+
+
+def target_gap(problem: ChannelProblem, fitted: FloatArray, row: dict[str, float], phoneme: str) -> tuple[float, int]:
+    """Mean |F(t_i) − T·(1 + σ)| over the phoneme's segments (t_i its target time, MODEL.md §1, at the
+    nearest valid sample) and their number: whether the fit reaches the phoneme's target."""
+    d = problem.data
+    a = float(getattr(problem.options, "apex_fraction", 0.5))
+    goal = row.get("target", math.nan) * (1.0 + row.get("sigma", 0.0))
+    gaps: list[float] = []
+    for u, utt in enumerate(d.utterances):
+        sl = d.utterance_samples(u)
+        for lab, s0, e0 in zip(utt.labels, utt.starts, utt.ends):
+            if lab != phoneme:
+                continue
+            t = min(max(s0 + a * (e0 - s0) + row.get("delta", 0.0), s0), e0)
+            j = int(np.clip(np.searchsorted(utt.times, t), 0, len(utt.times) - 1))
+            if j > 0 and abs(utt.times[j - 1] - t) < abs(utt.times[j] - t):
+                j -= 1
+            if d.weights[sl][j] > 0:
+                gaps.append(abs(float(fitted[sl][j]) - goal))
+    return (float(np.mean(gaps)) if gaps else math.nan), len(gaps)
+
+
+def _reach_ms(theta: float, c: float) -> float:
+    """θ^(−1/c) in ms: where θ r^c = 1, i.e. D has fallen to α/e (r measured from the plateau's edge)."""
+    return 1e3 * theta ** (-1.0 / c) if theta > 0 and c > 0 else math.nan
+
+
+def reading(parameter: str, side: str, value: float, phoneme: str, problem: ChannelProblem, bound: float,
+            row: dict[str, float] | None = None) -> str:
+    """What this bound means for the model, in MODEL.md's terms (dominance D, resistance R, shape S);
+    ``row`` is the phoneme's fitted parameters (for θ, the reach θ^(−1/c) uses its c)."""
+    row = row or {}
     opts = problem.options
     plateau = getattr(opts, "dominance", "centre") == "plateau"
     handover = bool(getattr(opts, "handover", False))
@@ -334,8 +382,10 @@ def reading(parameter: str, side: str, value: float, phoneme: str, problem: Chan
                      f"here the data say {ph} reaches its target on {ch}, as MODEL.md reserves for /p b m f v/ contact")
             return (f"k_R = {value:.3g}: full resistance — the neighbours' R ends at {ph}'s target time, so {ph} "
                     f"reaches its target exactly (F(t_i) = T·S(0)) at any rate (MODEL.md §3 item 3): {where}.")
+        contact = (f" MODEL.md reserves k_R = 1 for the contact of /p b m f v/; on {ch} the data give {ph} none."
+                   if phoneme in CONTACT_PHONEMES and ch in LIP_CHANNELS else "")
         return (f"k_R = {value:.3g}: no resistance — {ph} does not cut its neighbours' dominance short; their R "
-                f"extents run on through it (MODEL.md §3.1), so around {ph} the model is the original eq. 1.")
+                f"extents run on through it (MODEL.md §3.1), so around {ph} the model is the original eq. 1.{contact}")
     if parameter == "beta":
         return (f"β = {value:.3g}: R = exp(−βu/(1 − u)) falls " + ("as steeply as allowed after each target."
                 if up else "as slowly as allowed: R is nearly flat until its extent."))
@@ -348,24 +398,30 @@ def reading(parameter: str, side: str, value: float, phoneme: str, problem: Chan
                  f"{ph} hardly dominates: its neighbours' targets set {ch} during its segment (transparent)."))
     if parameter in ("theta_bw", "theta_fw"):
         bw = parameter == "theta_bw"
-        reach = f"{1e3 / value:.3g} ms" if value > 0 else "n/a"
+        c = row.get("c_bw" if bw else "c_fw", 1.0)
+        reach = _reach_ms(value, c)
+        # θ is in s^-c: the same box allows very different reaches at different c
+        unit = (f" (θ is in s^-c: the box's {bound:g} allows reaches down to {_reach_ms(bound, 1.0):.3g} ms at c = 1 "
+                f"but only {_reach_ms(bound, 3.0):.3g} ms at c = 3)") if up else ""
+        edge = " beyond its plateau's edge" if plateau else " from its target time"
+        span = f"reach θ^(−1/c) = {reach:.3g} ms{edge} with {'c_bw' if bw else 'c_fw'} = {c:.3g}{unit}"
         if up:
             if bw and plateau:
                 h = float(getattr(opts, "plateau_fraction", 0.5))
-                return (f"θ_bw = {value:.4g} s^-c: {ph}'s dominance switches on as a near step where its plateau "
-                        f"begins ({h:g} of its segment's duration before its target time): no anticipation before "
-                        "that, as at a gesture's onset.")
+                return (f"θ_bw = {value:.4g} s^-c, {span}: {ph}'s dominance switches on about as fast as allowed "
+                        f"where its plateau begins ({h:g} of its segment's duration before its target time): "
+                        "little anticipation before that, as at a gesture's onset.")
             if bw:
-                return (f"θ_bw = {value:.4g} s^-c: the backward (anticipatory) dominance of {ph} decays as fast as "
-                        f"allowed (1/θ ≈ {reach} at c = 1): {ph} acts only around and after its own target.")
+                return (f"θ_bw = {value:.4g} s^-c, {span}: the backward (anticipatory) dominance of {ph} decays as "
+                        f"fast as allowed: {ph} acts only around and after its own target.")
             if handover:
-                return (f"θ_fw = {value:.4g} s^-c (with handover it sets how fast {ph} takes over from the "
-                        f"segment before it): {ph} takes over as a near step.")
-            return (f"θ_fw = {value:.4g} s^-c: the carry-over dominance of {ph} ends as fast as allowed after its "
-                    "target: no carry-over into the next segment.")
+                return (f"θ_fw = {value:.4g} s^-c, {span}: with handover θ_fw sets how fast {ph} takes over from "
+                        f"the segment before it, and {ph} takes over as fast as allowed.")
+            return (f"θ_fw = {value:.4g} s^-c, {span}: the carry-over dominance of {ph} ends as fast as allowed "
+                    "after its target: little carry-over into the next segment.")
         side_word = "anticipatory" if bw else ("take-over" if handover else "carry-over")
-        return (f"{'θ_bw' if bw else 'θ_fw'} = {value:.4g} s^-c: the {side_word} reach of {ph} is as long as the "
-                f"box allows: its dominance spreads over its whole neighbourhood.")
+        return (f"{'θ_bw' if bw else 'θ_fw'} = {value:.4g} s^-c, {span}: the {side_word} reach of {ph} is as long "
+                "as the box allows: its dominance spreads over its whole neighbourhood.")
     if parameter in ("c_bw", "c_fw"):
         fw = parameter == "c_fw"
         what = (f"the takeover by {ph} from the previous segment (handover)" if fw and handover
