@@ -53,13 +53,50 @@ VARIANTS: dict[str, dict[str, Any]] = {
 }
 
 
+# Classes for shrinkage toward a class mean ([[shrink]], docs/FITTING.md), by place of articulation;
+# vowels one class. A class with fewer than two members in a corpus applies to nothing there.
+CLASSES: dict[str, tuple[str, ...]] = {
+    "bilabial": ("p", "b", "m"), "labiodental": ("f", "v"),
+    "alveolar": ("t", "d", "n", "l", "r", "s", "z", "ts", "dz"), "postalveolar": ("tS", "dZ", "S"),
+    "palatal": ("J", "L"), "velar": ("k", "g"), "vowels": ("i", "e", "a", "o", "u", "E", "O"),
+}
+# The dynamics shrunk: the positive scales on the log scale, the others as they are.
+SHRINK_LOG = ("alpha", "theta_bw", "theta_fw")
+SHRINK_NATURAL = ("c_bw", "c_fw", "k_r")
+SHRINK_GRID = (0.03, 0.1, 0.3, 1.0)  # sd of every [[shrink]] (log units / natural units)
+SHRINK_GROUP, SHRINK_FOLDS = "repetition", 3  # the CV inside each training set (gestures)
+
+
+def shrink_options(spec: FitSpec, sd: float = 1.0, grid: Sequence[float] | None = SHRINK_GRID) -> dict[str, Any]:
+    """[[shrink]] tables for every class and the free dynamics of ``spec``, and (``grid``) a
+    [choose] of their sd by CV over repetitions inside the training data (the 1-SE rule)."""
+    from coartic.fit.spec import Choose, Shrink
+
+    shrinks = []
+    for cls, members in CLASSES.items():
+        for scale, pars in (("log", SHRINK_LOG), ("natural", SHRINK_NATURAL)):
+            free = tuple(p for p in pars if p in spec.free)
+            if free:
+                shrinks.append(Shrink(members, free, sd, scale == "log", None, f"shrink {cls} {scale}"))
+    opts: dict[str, Any] = {"shrinks": tuple(shrinks)}
+    if grid is not None:
+        opts["choose"] = Choose("shrink.sd", tuple(grid), SHRINK_GROUP, SHRINK_FOLDS, "1se")
+    return opts
+
+
+# Variants with shrinkage: a base variant plus shrink_options.
+SHRUNK: dict[str, str] = {"rate-aware-h0.4+shrink-cv": "rate-aware-h0.4", "modified+shrink-cv": "modified",
+                          "original+shrink-cv": "original"}
+
+
 def variant_spec(spec: FitSpec, name: str) -> FitSpec | None:
     """The spec with the variant's options, or None when this build's FitSpec lacks one of them."""
     fields = {f.name for f in dataclasses.fields(FitSpec)}
-    opts = VARIANTS[name]
+    opts = VARIANTS[SHRUNK.get(name, name)]
     if not set(opts) <= fields:
         return None
-    return spec.with_options(**opts)
+    spec = spec.with_options(**opts)
+    return spec.with_options(**shrink_options(spec)) if name in SHRUNK else spec
 
 
 def gestures(manifest: Path, variants: Sequence[str], channels: tuple[str, ...], out: list[str]) -> None:
@@ -79,6 +116,9 @@ def gestures(manifest: Path, variants: Sequence[str], channels: tuple[str, ...],
         for split, train, test in splits(spec, utts):
             t0 = time.process_time()
             res = run(spec, utterances=train, quiet=True, report=False)
+            if res.choice is not None:  # the CV curve inside this split's training data
+                out.extend(f"{'':15s}   {line}" for line in res.choice.text_lines())
+                print("\n".join(out[-len(res.choice.text_lines()):]), flush=True)
             for s in score(res, test, split):
                 fit = res.channels[s.channel]
                 at = fit.stats.at_bound if fit.stats is not None else []
@@ -147,10 +187,20 @@ def german(variants: Sequence[str], out: list[str]) -> None:
     out.append(f"{'variant':15s} {'held out':30s} {'ch':3s} {'shared':>6s} {'transfer':>9s} {'-offset':>8s} "
                f"{'own fit':>8s} {'transfer':>9s} {'own fit':>8s}  unseen phonemes (fitted on the held-out one)")
     out.append(f"{'':15s} {'':30s} {'':3s} {'phon.':>6s} {'shared segs':>27s} {'all samples':>18s}")
+    runs: list[tuple[str, FitSpec | None]] = []
     for name in variants:
-        spec = variant_spec(base, name)
+        if name in SHRUNK:
+            # One training utterance has no repetitions or sentences to cross-validate over, so no
+            # strength can be chosen here: every value of the grid is shown (not a choice).
+            plain = variant_spec(base, SHRUNK[name])
+            runs += [(f"{SHRUNK[name]}+shrink sd {sd:g}",
+                      None if plain is None else plain.with_options(**shrink_options(plain, sd, None)))
+                     for sd in SHRINK_GRID]
+        else:
+            runs.append((name, variant_spec(base, name)))
+    for name, spec in runs:
         if spec is None:
-            out.append(f"{name:15s} (skipped: this core/FitSpec has no {sorted(VARIANTS[name])} options)")
+            out.append(f"{name:15s} (skipped: this core/FitSpec lacks the variant's options)")
             continue
         for k, held in enumerate(utts):
             train = [u for j, u in enumerate(utts) if j != k]
@@ -188,7 +238,8 @@ def german(variants: Sequence[str], out: list[str]) -> None:
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("manifest", type=Path, nargs="?", help="manifest.csv of a --flavour gestures session")
-    ap.add_argument("--variants", default=",".join(VARIANTS))
+    ap.add_argument("--variants", default=",".join(VARIANTS),
+                    help=f"comma-separated, among {', '.join([*VARIANTS, *SHRUNK])}")
     ap.add_argument("--channels", default="LLO,JO")
     ap.add_argument("--skip-gestures", action="store_true")
     ap.add_argument("--skip-german", action="store_true")
@@ -206,7 +257,7 @@ def main() -> int:
                                 lines)
         return _write(lines, a.out or ROOT / "bench" / "results" / "generalisation_select_h.txt")
     variants = a.variants.split(",")
-    bad = sorted(set(variants) - set(VARIANTS))
+    bad = sorted(set(variants) - set(VARIANTS) - set(SHRUNK))
     if bad:
         ap.error(f"--variants: unknown {bad} (choose from {', '.join(VARIANTS)})")
     if not a.skip_gestures and a.manifest is None:

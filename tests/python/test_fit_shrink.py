@@ -98,7 +98,8 @@ def test_cross_validation_chooses_the_strength(tmp_path: Path, utts: list[model.
     # repetitions badly, so CV must choose the weak end of the grid, then fit all data with it
     s = spec_of(tmp_path, shrink=[{"phonemes": ["p", "t"], "parameters": ["target"], "sd": 1.0}],
                 choose={"key": "shrink.sd", "values": [100.0, 0.001], "group": "repetition", "folds": 2})
-    res = run(s, tmp_path / "out", utterances=utts, quiet=True, report=False)
+    res = run(s, tmp_path / "out", utterances=utts, quiet=True, report=True)
+    assert 'src="choose.png"' in (tmp_path / "out" / "report.html").read_text()
     ch = res.choice
     assert ch is not None and ch.chosen == {"LLO": 100.0} and len(ch.folds) == 2
     weak, strong = (next(p for p in ch.curve("LLO") if p.value == v) for v in (100.0, 0.001))
@@ -189,3 +190,33 @@ def test_shrinkage_of_fixed_values_and_bad_choose_options_are_refused(tmp_path: 
         parse_choose(s, "shrink.sd")
     assert parse_choose(s, "shrink.sd=1, 0.1").choose == Choose("shrink.sd", (0.1, 1.0), "utterance", 5, "1se")
     assert set_value(s, "shrink #1.sd", 0.5).shrinks[0].sd == 0.5
+
+
+def test_ctrl_c_while_choosing_writes_no_fit(tmp_path: Path, utts: list[model.Utterance],
+                                            monkeypatch: pytest.MonkeyPatch) -> None:
+    import coartic.fit.validate as validate
+
+    def interrupted(*args: Any, **kwargs: Any) -> Any:
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(validate, "score", interrupted)
+    s = spec_of(tmp_path, shrink=[{"phonemes": ["p", "t"], "parameters": ["target"], "sd": 1.0}],
+                choose={"key": "shrink.sd", "values": [100.0, 0.001], "group": "repetition", "folds": 2})
+    res = run(s, tmp_path / "out", utterances=utts, quiet=True, report=False)
+    assert res.interrupted and not res.channels and res.choice is None
+    assert "interrupted while choosing shrink.sd" in " ".join(res.notes)
+    assert not (tmp_path / "out" / "table.json").exists() and not (tmp_path / "out" / "choose.csv").exists()
+
+
+def test_compare_varies_the_shrinkage_sd(tmp_path: Path) -> None:
+    from coartic.fit.compare import vary
+
+    s = spec_of(tmp_path, shrink=[{"phonemes": ["p", "t"], "parameters": ["target"], "sd": 1.0},
+                                  {"phonemes": ["a", "i"], "parameters": ["target"], "sd": 1.0}])
+    made = vary(s, "shrink #2.sd", ["0.1", "3"])
+    assert [(m.shrinks[0].sd, m.shrinks[1].sd) for m in made] == [(1.0, 0.1), (1.0, 3.0)]
+    assert made[0].name.endswith("shrink #2.sd = 0.1")
+    with pytest.raises(SpecError, match="no such"):
+        vary(s, "shrink #3.sd", ["0.1"])
+    with pytest.raises(SpecError, match="positive"):
+        vary(s, "shrink.sd", ["-1"])

@@ -76,6 +76,10 @@ def write_report(result: FitResult, out: str | Path, console: Console | None = N
         f"RMSE of the samples inside each phoneme's segments, per channel (dashed: the {BAR_MM} mm bar).")
     add(plots.rmse_map_figure(result), "rmse_map.png",
         f"RMSE per consonant and vowel context; red outline: at or above the {BAR_MM} mm bar.")
+    if result.choice is not None and (out / "choose.png").is_file():  # written by result.save (choose.csv beside it)
+        figures.append({"src": "choose.png", "caption": f"{result.choice.choose.key} chosen by cross-validation on the "
+                        f"training data: mean held-out RMSE ± one SE over the folds; star: the chosen value "
+                        f"(rule {result.choice.choose.rule}). The numbers are in choose.csv and the fit report below."})
     truth = _ground_truth(result)
     if truth is not None:
         add(plots.truth_figure(result, truth), "truth.png",
