@@ -133,6 +133,26 @@ def test_optimal_and_unexplained(built: tuple[FitResult, Path]) -> None:
     assert "UNEXPLAINED" in FitResult(s, {"LLO": bad}, "now").report_text()
 
 
+def test_saturated_direction_is_not_binding(tmp_path: Path) -> None:
+    """/t/'s carry-over made as a step (θ_fw 1e8) and held at a box's 1e6 s^-1, where D is already a
+    step between 100 Hz samples: past the bound nothing changes, into the box it costs → not binding.
+    (At the default 2000 s^-1 it is not yet a step: samples 0.1 ms after t_i still see it: active.)"""
+    from coartic.fit.problem import build_problem
+
+    made = TRUTH.copy()
+    made[ROW["t"], K["theta_fw"]] = 1e8
+    start = made.copy()
+    start[ROW["t"], K["theta_fw"]] = 1e6
+    s = spec(tmp_path, ["target", "theta_fw"], override=[{"phonemes": ["t"], "bounds": {"theta_fw": [0.5, 1e6]}}])
+    pr = build_problem(s, utterances(13, made), "LLO", start=(start, 1.0), phonemes=PHONEMES)
+    fit = finish_channel(pr, pr.packing.pack(), "converged", "", 0.0, [])
+    assert fit.stats is not None
+    n = fit.stats.bounds["t.theta_fw"]
+    assert (n.category, n.side) == ("optimal", "upper")
+    assert n.beyond_chi2 < 1 <= n.range_chi2 and "any value beyond fits as well" in n.explanation
+    assert "reach θ^(−1/c) = 0.001 ms" in n.reading
+
+
 def test_report_csv_and_json_carry_the_explanations(built: tuple[FitResult, Path]) -> None:
     result, out = built
     nb = notes(result)

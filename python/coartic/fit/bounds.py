@@ -22,8 +22,10 @@ The category is one of a closed set (``CATEGORIES``):
 ``domain``       the bound is a limit of the model itself: by design (MODEL.md says what it means);
 ``active``       the data pull beyond a box the spec or the defaults set: relaxing it gains Δχ² ≥ 1;
 ``optimal``      relaxing it gains Δχ² < 1 although the data constrain it (moving it past the
-                 bound, or across its box, costs Δχ² ≥ 1): its best value is the bound itself, within
-                 the noise, and a wider box would change nothing;
+                 bound, or across its box, costs Δχ² ≥ 1): a wider box would not change the fit. Either
+                 its best value is the bound itself, within the noise, or past the bound the SSE is
+                 flat (a saturated direction: any value beyond fits as well) while the box's inside
+                 costs;
 ``insensitive``  relaxing it gains Δχ² < 1 and moving it past the bound and across its whole box
                  costs Δχ² < 1 too: the data do not constrain it (any value fits as well);
 ``unexplained``  the diagnostic cannot account for it: the objective falls back into the box
@@ -51,7 +53,7 @@ CATEGORIES: tuple[str, ...] = ("domain", "active", "optimal", "insensitive", "un
 CATEGORY_TITLES: dict[str, str] = {
     "domain": "model domain — by design",
     "active": "active — the data pull beyond the bound",
-    "optimal": "not binding — the data put the optimum at the bound",
+    "optimal": "not binding — a wider box would not change the fit",
     "insensitive": "insensitive — not constrained by the data",
     "unexplained": "UNEXPLAINED — the fit is not held at this bound",
 }
@@ -88,6 +90,7 @@ class BoundNote:
     gain_gn_chi2: float  # Gauss–Newton estimate with the interior parameters re-adjusted (Δχ²)
     gain_gn_measured_chi2: float  # the model evaluated along that direction (Δχ²); NaN: not probed
     range_chi2: float  # the largest SSE rise over the whole box, others held (Δχ²)
+    beyond_chi2: float  # the largest SSE rise past the bound, others held (Δχ²)
     rmse: float  # the channel's RMSE as fitted (mm)
     rmse_relaxed: float  # the RMSE with the best measured gain (mm)
     partner: str  # the free parameter most correlated with it ("" if none)
@@ -218,6 +221,7 @@ def explain_bounds(problem: ChannelProblem, x: FloatArray, at_bound: Sequence[st
 
         # the largest SSE rise anywhere it was moved, alone (past the bound and across the box)
         cost = max([-v for v in list(held) + list(inside) if math.isfinite(v)], default=math.nan)
+        beyond = max([-v for v in held if math.isfinite(v)], default=math.nan)
         if gain_in >= CHI2_NOISE:
             category = "unexplained"
         elif domain:
@@ -232,7 +236,7 @@ def explain_bounds(problem: ChannelProblem, x: FloatArray, at_bound: Sequence[st
             category = "insensitive"
 
         sentence = _sentence(category, grad_of, side, grad, outward, gain_held, held_value, gn_pred,
-                             gn_meas, range_chi2, cost, rmse, rmse_relaxed, gain_in, in_value, partner, pc, s2,
+                             gn_meas, range_chi2, cost, beyond, rmse, rmse_relaxed, gain_in, in_value, partner, pc, s2,
                              lo_hi=(_nat(pk, i, lo[i]), _nat(pk, i, hi[i])))
         row = _row(params, pk.phonemes, phoneme)
         extra = ""
@@ -245,7 +249,7 @@ def explain_bounds(problem: ChannelProblem, x: FloatArray, at_bound: Sequence[st
                          f"{gap:.3g} mm from T·(1 + σ) = {row['target'] * (1 + row['sigma']):.4g} mm.")
         notes[name] = BoundNote(name, phoneme, parameter, value, side, bound, source, category, grad, grad_of,
                                 gain_held,
-                                held_value, gn_pred, gn_meas, range_chi2, rmse, rmse_relaxed, partner, pc,
+                                held_value, gn_pred, gn_meas, range_chi2, beyond, rmse, rmse_relaxed, partner, pc,
                                 sentence, reading(parameter, side, value, phoneme, problem, bound, row) + extra)
     return notes
 
@@ -290,11 +294,13 @@ def _split(name: str) -> tuple[str, str]:
 
 
 def _chi(v: float) -> str:
+    v += 0.0  # no "-0"
     return "n/a" if not math.isfinite(v) else (f"{v:.3g}" if abs(v) < 1e4 else f"{v:.2e}")
 
 
 def _sentence(category: str, grad_of: str, side: str, grad: float, outward: bool, gain_held: float,
-              held_value: float, gn_pred: float, gn_meas: float, range_chi2: float, cost: float, rmse: float,
+              held_value: float, gn_pred: float, gn_meas: float, range_chi2: float, cost: float, beyond_chi2: float,
+              rmse: float,
               rmse_relaxed: float, gain_in: float, in_value: float, partner: str, pc: float, s2: float,
               lo_hi: tuple[float, float]) -> str:
     beyond = "above" if side == "upper" else "below"
@@ -302,7 +308,7 @@ def _sentence(category: str, grad_of: str, side: str, grad: float, outward: bool
             else f"d(SSE)/d({grad_of}) = {grad:+.3g} mm² at the bound: no pull {beyond} it")
     if math.isfinite(gain_held):
         held = (f"moved alone past the bound, the SSE at best {'falls' if gain_held > 0 else 'rises'} by "
-                f"{abs(gain_held) * s2:.3g} mm² (Δχ² {-gain_held:+.3g}, at {held_value:.4g})")
+                f"{abs(gain_held) * s2:.3g} mm² (Δχ² {-gain_held + 0.0:+.3g}, at {held_value:.4g})")
     else:
         held = "past the bound the model is not defined, so it was not moved there"
     gn = f"with the other free parameters re-adjusted, Gauss–Newton predicts a gain of Δχ² {_chi(gn_pred)}"
@@ -323,6 +329,11 @@ def _sentence(category: str, grad_of: str, side: str, grad: float, outward: bool
                 f"{rmse - rmse_relaxed:.2g} mm ({rmse:.5f} → {rmse_relaxed:.5f} mm){corr} ({s2_txt}).")
     gains = f"relaxing the bound gains less than the noise (Δχ² < {CHI2_NOISE:g})"
     if category == "optimal":
+        if math.isfinite(beyond_chi2) and beyond_chi2 < CHI2_NOISE:
+            return (f"{pull}; {held}; {gn}: {gains}. Past the bound the SSE changes by at most Δχ² {_chi(beyond_chi2)} "
+                    f"(any value beyond fits as well: the bound caps a direction the data cannot tell apart), while "
+                    f"moving it into the box costs up to Δχ² {_chi(range_chi2)}: a wider box would not change the fit"
+                    f"{corr} ({s2_txt}).")
         return (f"{pull}; {held}; {gn}: {gains}, while moving it costs up to Δχ² {_chi(cost)}: its best value is "
                 f"the bound itself, within the noise{corr} ({s2_txt}).")
     return (f"{pull}; {held}; {gn}: {gains}, and over its whole box [{lo_hi[0]:.4g}, {lo_hi[1]:.4g}] and past it "
