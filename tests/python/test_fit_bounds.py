@@ -131,6 +131,10 @@ def test_optimal_and_unexplained(built: tuple[FitResult, Path]) -> None:
     u = bad.stats.bounds["t.k_r"]
     assert u.category == "unexplained" and "inside the box, the SSE is lower" in u.explanation
     assert "UNEXPLAINED" in FitResult(s, {"LLO": bad}, "now").report_text()
+    from coartic.fit.fit_cli import warning_lines
+
+    assert any(line.startswith("[red]LLO: ") and "UNEXPLAINED" in line
+               for line in warning_lines(FitResult(s, {"LLO": bad}, "now")))
 
 
 def test_saturated_direction_is_not_binding(tmp_path: Path) -> None:
@@ -171,6 +175,9 @@ def test_report_csv_and_json_carry_the_explanations(built: tuple[FitResult, Path
     got = {d["name"]: d for d in doc["channels"]["LLO"]["at_bound_explained"]}
     assert set(got) == set(doc["channels"]["LLO"]["at_bound"]) == set(nb)
     assert got["l.psi"]["category"] == "insensitive" and got["t.theta_fw"]["bound"] == pytest.approx(20.0)
+    from coartic.fit.fit_cli import warning_lines
+
+    assert f"[yellow]LLO: {len(nb)} parameter(s) at a bound[/yellow]: {summary_counts(nb)}" in warning_lines(result)[0]
     html = (out / "report.html").read_text()
     assert "Parameters at a bound, and why" in html and "[override #1] bounds.theta_fw" in html
 
