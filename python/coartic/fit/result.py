@@ -5,6 +5,8 @@ the weighted residuals in the fitted (internal) coordinates at the optimum and s
 cov = s² (JᵀJ)⁺. Directions of JᵀJ with eigenvalues below ``rtol`` × the largest are not
 identified by the data: the pseudo-inverse drops them and every parameter that loads on them is
 flagged. Standard errors are carried to natural units by the transform's derivative (delta method).
+Every free parameter at a bound gets a computed explanation (``coartic.fit.bounds``): which bound,
+where it comes from, whether the data pull past it, and what that means for the model.
 """
 
 from __future__ import annotations
