@@ -129,7 +129,10 @@ def gestures(manifest: Path, variants: Sequence[str], channels: tuple[str, ...],
                 print("\n".join(out[-len(res.choice.text_lines()):]), flush=True)
             for s in score(res, test, split):
                 fit = res.channels[s.channel]
-                at = fit.stats.at_bound if fit.stats is not None else []
+                # each with its category (coartic.fit.bounds: domain, active, optimal, insensitive, unexplained)
+                notes = fit.stats.bounds if fit.stats is not None else {}
+                at = [f"{nm}({notes[nm].category if nm in notes else '?'})"
+                      for nm in (fit.stats.at_bound if fit.stats is not None else [])]
                 off = getattr(s, "test_rmse_offset_removed", float("nan"))  # each test utterance's offset removed
                 out.append(f"{name:15s} {split:36s} {s.channel:7s} {s.train_rmse:7.3f} {s.test_rmse:7.3f} {off:7.3f}  "
                            f"{s.worst_vowel[1]:.3f} ({s.worst_vowel[0]})  {len(at)}: {' '.join(at)}")

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import csv
 import json
+import re
 from dataclasses import replace
 from pathlib import Path
 from typing import Any
@@ -90,6 +91,9 @@ def test_domain_active_insensitive(built: tuple[FitResult, Path]) -> None:
     assert "model's domain" in p.source and "k_R" in p.source
     assert p.gradient < 0  # the data pull above 1 (SSE falls as k_R grows)
     assert "bilabial" in p.reading and "reaches its target" in p.reading
+    # measured on the fit: with k_R = 1 the model is at T·S(0) at /p/'s target times (MODEL.md §3 item 3)
+    gap = re.search(r"At its 4 target times the fitted LLO is on average (\S+) mm", p.reading)
+    assert gap is not None and float(gap.group(1)) < 1e-6
     t = nb["t.theta_fw"]
     assert (t.category, t.side, t.bound) == ("active", "upper", pytest.approx(20.0))
     assert t.source == "[override #1] bounds.theta_fw"
@@ -127,6 +131,30 @@ def test_optimal_and_unexplained(built: tuple[FitResult, Path]) -> None:
     u = bad.stats.bounds["t.k_r"]
     assert u.category == "unexplained" and "inside the box, the SSE is lower" in u.explanation
     assert "UNEXPLAINED" in FitResult(s, {"LLO": bad}, "now").report_text()
+    from coartic.fit.fit_cli import warning_lines
+
+    assert any(line.startswith("[red]LLO: ") and "UNEXPLAINED" in line
+               for line in warning_lines(FitResult(s, {"LLO": bad}, "now")))
+
+
+def test_saturated_direction_is_not_binding(tmp_path: Path) -> None:
+    """/t/'s carry-over made as a step (θ_fw 1e8) and held at a box's 1e6 s^-1, where D is already a
+    step between 100 Hz samples: past the bound nothing changes, into the box it costs → not binding.
+    (At the default 2000 s^-1 it is not yet a step: samples 0.1 ms after t_i still see it: active.)"""
+    from coartic.fit.problem import build_problem
+
+    made = TRUTH.copy()
+    made[ROW["t"], K["theta_fw"]] = 1e8
+    start = made.copy()
+    start[ROW["t"], K["theta_fw"]] = 1e6
+    s = spec(tmp_path, ["target", "theta_fw"], override=[{"phonemes": ["t"], "bounds": {"theta_fw": [0.5, 1e6]}}])
+    pr = build_problem(s, utterances(13, made), "LLO", start=(start, 1.0), phonemes=PHONEMES)
+    fit = finish_channel(pr, pr.packing.pack(), "converged", "", 0.0, [])
+    assert fit.stats is not None
+    n = fit.stats.bounds["t.theta_fw"]
+    assert (n.category, n.side) == ("optimal", "upper")
+    assert n.beyond_chi2 < 1 <= n.range_chi2 and "any value beyond fits as well" in n.explanation
+    assert "reach θ^(−1/c) = 0.001 ms" in n.reading
 
 
 def test_report_csv_and_json_carry_the_explanations(built: tuple[FitResult, Path]) -> None:
@@ -147,6 +175,9 @@ def test_report_csv_and_json_carry_the_explanations(built: tuple[FitResult, Path
     got = {d["name"]: d for d in doc["channels"]["LLO"]["at_bound_explained"]}
     assert set(got) == set(doc["channels"]["LLO"]["at_bound"]) == set(nb)
     assert got["l.psi"]["category"] == "insensitive" and got["t.theta_fw"]["bound"] == pytest.approx(20.0)
+    from coartic.fit.fit_cli import warning_lines
+
+    assert f"[yellow]LLO: {len(nb)} parameter(s) at a bound[/yellow]: {summary_counts(nb)}" in warning_lines(result)[0]
     html = (out / "report.html").read_text()
     assert "Parameters at a bound, and why" in html and "[override #1] bounds.theta_fw" in html
 

@@ -349,3 +349,31 @@ def test_table_without_runtime_channels_is_named(tmp_path: Path, labels: Path) -
     with pytest.raises(MissingPhonemeError, match=r"fixture\.json has none of the channels ULO, LLO, ULP, LLP, "
                                                   r"LR, JO \(it has LA\): nothing to animate"):
         animate_file(labels, table, tmp_path / "o", preview="none")
+
+
+def test_animate_speaks_as_the_tables_speaker(tmp_path: Path, labels: Path) -> None:
+    """--speaker maps the modelled channels and the neutral face by the table's a_s + b_s·F; an
+    unknown speaker, or a table fitted without speakers, is an error."""
+    from coartic.speakers import SpeakerError
+
+    table = make_table()
+    plain = animate_file(labels, table, tmp_path / "plain", fps=25.0, preview="none")
+    with pytest.raises(SpeakerError, match="fitted without speakers"):
+        animate_file(labels, table, tmp_path / "x", fps=25.0, preview="none", speaker="s2")
+    table.metadata["speakers"] = {"mode": "offset_scale", "column": "speaker", "coefficients": {
+        c: {"s1": {"offset_mm": 0.0, "scale": 1.0}, "s2": {"offset_mm": 0.5, "scale": 1.2}} for c in CHANNELS}}
+    s2 = animate_file(labels, table, tmp_path / "s2", fps=25.0, preview="none", speaker="s2")
+    for c in CHANNELS:
+        np.testing.assert_allclose(s2.animation.channels[c], 0.5 + 1.2 * plain.animation.channels[c], rtol=1e-12)
+    # the FAPs are measured from s2's own neutral face (a + b·rest): the first frames stay at zero
+    assert np.all(read_fap(s2.files["fap"]).values[0] == 0)
+    with pytest.raises(SpeakerError, match="no speaker 's9'; the table knows s1, s2"):
+        animate_file(labels, table, tmp_path / "y", fps=25.0, preview="none", speaker="s9")
+    path = tmp_path / "table.json"
+    table.save(path)
+    ok = CliRunner().invoke(app, ["animate", str(labels), "--table", str(path), "--out", str(tmp_path / "cli"),
+                                  "--preview", "none", "--speaker", "s2"])
+    assert ok.exit_code == 0, ok.output
+    bad = CliRunner().invoke(app, ["animate", str(labels), "--table", str(path), "--out", str(tmp_path / "cli2"),
+                                   "--preview", "none", "--speaker", "s9"])
+    assert bad.exit_code == 1 and "s1, s2" in bad.output and "Traceback" not in bad.output

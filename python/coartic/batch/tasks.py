@@ -152,7 +152,7 @@ def posterior_unit(spec: FitSpec, config: Any, table: dict[str, Any], utterance_
     import json
 
     from coartic.mcmc.mcmc_cli import check_fit_matches_data
-    from coartic.mcmc.run import channel_runs, spec_priors, spec_shrinkage, table_problem
+    from coartic.mcmc.run import channel_runs, spec_priors, spec_shrinkage, table_problem, table_speakers
     from coartic.mcmc.summary import write_uncertainty
     from coartic.table import ParameterTable
 
@@ -167,12 +167,14 @@ def posterior_unit(spec: FitSpec, config: Any, table: dict[str, Any], utterance_
         tab = ParameterTable.from_json_dict(table, source=f"the fit of unit {key.fit.label}")
         tab.save(fitted)
         data, packing, options = table_problem(spec, tab, fitted, key.channel, utts)
-        check_fit_matches_data(tab, fitted, key.channel, data, packing, options)
+        speakers = table_speakers(spec, tab, fitted, key.channel)
+        check_fit_matches_data(tab, fitted, key.channel, data, packing, options, speakers=speakers)
         t1 = time.perf_counter()
         c1 = time.process_time()
         runs, interrupted = channel_runs(key.channel, data, packing, options, config, tmp / "mcmc", progress=False,
                                          spec_priors=spec_priors(spec, packing, key.channel),
-                                         spec_shrinkage=spec_shrinkage(spec, tab, packing, key.channel))
+                                         spec_shrinkage=spec_shrinkage(spec, tab, packing, key.channel),
+                                         speakers=speakers)
         t2 = time.perf_counter()
         c2 = time.process_time()
         if interrupted:

@@ -22,8 +22,10 @@ The category is one of a closed set (``CATEGORIES``):
 ``domain``       the bound is a limit of the model itself: by design (MODEL.md says what it means);
 ``active``       the data pull beyond a box the spec or the defaults set: relaxing it gains Δχ² ≥ 1;
 ``optimal``      relaxing it gains Δχ² < 1 although the data constrain it (moving it past the
-                 bound, or across its box, costs Δχ² ≥ 1): its best value is the bound itself, within
-                 the noise, and a wider box would change nothing;
+                 bound, or across its box, costs Δχ² ≥ 1): a wider box would not change the fit. Either
+                 its best value is the bound itself, within the noise, or past the bound the SSE is
+                 flat (a saturated direction: any value beyond fits as well) while the box's inside
+                 costs;
 ``insensitive``  relaxing it gains Δχ² < 1 and moving it past the bound and across its whole box
                  costs Δχ² < 1 too: the data do not constrain it (any value fits as well);
 ``unexplained``  the diagnostic cannot account for it: the objective falls back into the box
@@ -51,7 +53,7 @@ CATEGORIES: tuple[str, ...] = ("domain", "active", "optimal", "insensitive", "un
 CATEGORY_TITLES: dict[str, str] = {
     "domain": "model domain — by design",
     "active": "active — the data pull beyond the bound",
-    "optimal": "not binding — the data put the optimum at the bound",
+    "optimal": "not binding — a wider box would not change the fit",
     "insensitive": "insensitive — not constrained by the data",
     "unexplained": "UNEXPLAINED — the fit is not held at this bound",
 }
@@ -88,6 +90,7 @@ class BoundNote:
     gain_gn_chi2: float  # Gauss–Newton estimate with the interior parameters re-adjusted (Δχ²)
     gain_gn_measured_chi2: float  # the model evaluated along that direction (Δχ²); NaN: not probed
     range_chi2: float  # the largest SSE rise over the whole box, others held (Δχ²)
+    beyond_chi2: float  # the largest SSE rise past the bound, others held (Δχ²)
     rmse: float  # the channel's RMSE as fitted (mm)
     rmse_relaxed: float  # the RMSE with the best measured gain (mm)
     partner: str  # the free parameter most correlated with it ("" if none)
@@ -133,6 +136,8 @@ def explain_bounds(problem: ChannelProblem, x: FloatArray, at_bound: Sequence[st
     h = 2.0 * jtj
     dv = pk.dvalue_dx(x)
     nat = pk.natural(x)
+    params, beta = pk.unpack(x)
+    fitted: FloatArray | None = None  # the model at x, for the k_R notes (one evaluation, when needed)
     idx = [names.index(nm) for nm in at_bound]
     interior = np.array([j for j in range(m) if j not in set(idx)], dtype=np.int64)
     h_ff_pinv = _pinv(h[np.ix_(interior, interior)]) if interior.size else np.zeros((0, 0))
@@ -216,6 +221,7 @@ def explain_bounds(problem: ChannelProblem, x: FloatArray, at_bound: Sequence[st
 
         # the largest SSE rise anywhere it was moved, alone (past the bound and across the box)
         cost = max([-v for v in list(held) + list(inside) if math.isfinite(v)], default=math.nan)
+        beyond = max([-v for v in held if math.isfinite(v)], default=math.nan)
         if gain_in >= CHI2_NOISE:
             category = "unexplained"
         elif domain:
@@ -230,12 +236,21 @@ def explain_bounds(problem: ChannelProblem, x: FloatArray, at_bound: Sequence[st
             category = "insensitive"
 
         sentence = _sentence(category, grad_of, side, grad, outward, gain_held, held_value, gn_pred,
-                             gn_meas, range_chi2, cost, rmse, rmse_relaxed, gain_in, in_value, partner, pc, s2,
+                             gn_meas, range_chi2, cost, beyond, rmse, rmse_relaxed, gain_in, in_value, partner, pc, s2,
                              lo_hi=(_nat(pk, i, lo[i]), _nat(pk, i, hi[i])))
+        row = _row(params, pk.phonemes, phoneme)
+        extra = ""
+        if parameter == "k_r" and phoneme in pk.phonemes:
+            if fitted is None:
+                fitted = np.asarray(problem.evaluate(params, beta), dtype=np.float64)
+            gap, count = target_gap(problem, fitted, row, phoneme)
+            if count:
+                extra = (f" At its {count} target times the fitted {problem.data.channel} is on average "
+                         f"{gap:.3g} mm from T·(1 + σ) = {row['target'] * (1 + row['sigma']):.4g} mm.")
         notes[name] = BoundNote(name, phoneme, parameter, value, side, bound, source, category, grad, grad_of,
                                 gain_held,
-                                held_value, gn_pred, gn_meas, range_chi2, rmse, rmse_relaxed, partner, pc,
-                                sentence, reading(parameter, side, value, phoneme, problem, bound))
+                                held_value, gn_pred, gn_meas, range_chi2, beyond, rmse, rmse_relaxed, partner, pc,
+                                sentence, reading(parameter, side, value, phoneme, problem, bound, row) + extra)
     return notes
 
 
@@ -279,11 +294,13 @@ def _split(name: str) -> tuple[str, str]:
 
 
 def _chi(v: float) -> str:
+    v += 0.0  # no "-0"
     return "n/a" if not math.isfinite(v) else (f"{v:.3g}" if abs(v) < 1e4 else f"{v:.2e}")
 
 
 def _sentence(category: str, grad_of: str, side: str, grad: float, outward: bool, gain_held: float,
-              held_value: float, gn_pred: float, gn_meas: float, range_chi2: float, cost: float, rmse: float,
+              held_value: float, gn_pred: float, gn_meas: float, range_chi2: float, cost: float, beyond_chi2: float,
+              rmse: float,
               rmse_relaxed: float, gain_in: float, in_value: float, partner: str, pc: float, s2: float,
               lo_hi: tuple[float, float]) -> str:
     beyond = "above" if side == "upper" else "below"
@@ -291,7 +308,7 @@ def _sentence(category: str, grad_of: str, side: str, grad: float, outward: bool
             else f"d(SSE)/d({grad_of}) = {grad:+.3g} mm² at the bound: no pull {beyond} it")
     if math.isfinite(gain_held):
         held = (f"moved alone past the bound, the SSE at best {'falls' if gain_held > 0 else 'rises'} by "
-                f"{abs(gain_held) * s2:.3g} mm² (Δχ² {-gain_held:+.3g}, at {held_value:.4g})")
+                f"{abs(gain_held) * s2:.3g} mm² (Δχ² {-gain_held + 0.0:+.3g}, at {held_value:.4g})")
     else:
         held = "past the bound the model is not defined, so it was not moved there"
     gn = f"with the other free parameters re-adjusted, Gauss–Newton predicts a gain of Δχ² {_chi(gn_pred)}"
@@ -312,6 +329,11 @@ def _sentence(category: str, grad_of: str, side: str, grad: float, outward: bool
                 f"{rmse - rmse_relaxed:.2g} mm ({rmse:.5f} → {rmse_relaxed:.5f} mm){corr} ({s2_txt}).")
     gains = f"relaxing the bound gains less than the noise (Δχ² < {CHI2_NOISE:g})"
     if category == "optimal":
+        if math.isfinite(beyond_chi2) and beyond_chi2 < CHI2_NOISE:
+            return (f"{pull}; {held}; {gn}: {gains}. Past the bound the SSE changes by at most Δχ² {_chi(beyond_chi2)} "
+                    f"(any value beyond fits as well: the bound caps a direction the data cannot tell apart), while "
+                    f"moving it into the box costs up to Δχ² {_chi(range_chi2)}: a wider box would not change the fit"
+                    f"{corr} ({s2_txt}).")
         return (f"{pull}; {held}; {gn}: {gains}, while moving it costs up to Δχ² {_chi(cost)}: its best value is "
                 f"the bound itself, within the noise{corr} ({s2_txt}).")
     return (f"{pull}; {held}; {gn}: {gains}, and over its whole box [{lo_hi[0]:.4g}, {lo_hi[1]:.4g}] and past it "
@@ -319,8 +341,45 @@ def _sentence(category: str, grad_of: str, side: str, grad: float, outward: bool
             f"{corr} ({s2_txt}).")
 
 
-def reading(parameter: str, side: str, value: float, phoneme: str, problem: ChannelProblem, bound: float) -> str:
-    """What this bound means for the model, in MODEL.md's terms (dominance D, resistance R, shape S)."""
+def _row(params: FloatArray, phonemes: Sequence[str], phoneme: str) -> dict[str, float]:
+    from coartic.table import PARAMETERS
+
+    if phoneme not in phonemes:
+        return {}
+    return dict(zip(PARAMETERS, map(float, params[list(phonemes).index(phoneme)])))
+
+
+def target_gap(problem: ChannelProblem, fitted: FloatArray, row: dict[str, float], phoneme: str) -> tuple[float, int]:
+    """Mean |F(t_i) − T·(1 + σ)| over the phoneme's segments (t_i its target time, MODEL.md §1, at the
+    nearest valid sample) and their number: whether the fit reaches the phoneme's target."""
+    d = problem.data
+    a = float(getattr(problem.options, "apex_fraction", 0.5))
+    goal = row.get("target", math.nan) * (1.0 + row.get("sigma", 0.0))
+    gaps: list[float] = []
+    for u, utt in enumerate(d.utterances):
+        sl = d.utterance_samples(u)
+        for lab, s0, e0 in zip(utt.labels, utt.starts, utt.ends):
+            if lab != phoneme:
+                continue
+            t = min(max(s0 + a * (e0 - s0) + row.get("delta", 0.0), s0), e0)
+            j = int(np.clip(np.searchsorted(utt.times, t), 0, len(utt.times) - 1))
+            if j > 0 and abs(utt.times[j - 1] - t) < abs(utt.times[j] - t):
+                j -= 1
+            if d.weights[sl][j] > 0:
+                gaps.append(abs(float(fitted[sl][j]) - goal))
+    return (float(np.mean(gaps)) if gaps else math.nan), len(gaps)
+
+
+def _reach_ms(theta: float, c: float) -> float:
+    """θ^(−1/c) in ms: where θ r^c = 1, i.e. D has fallen to α/e (r measured from the plateau's edge)."""
+    return 1e3 * theta ** (-1.0 / c) if theta > 0 and c > 0 else math.nan
+
+
+def reading(parameter: str, side: str, value: float, phoneme: str, problem: ChannelProblem, bound: float,
+            row: dict[str, float] | None = None) -> str:
+    """What this bound means for the model, in MODEL.md's terms (dominance D, resistance R, shape S);
+    ``row`` is the phoneme's fitted parameters (for θ, the reach θ^(−1/c) uses its c)."""
+    row = row or {}
     opts = problem.options
     plateau = getattr(opts, "dominance", "centre") == "plateau"
     handover = bool(getattr(opts, "handover", False))
@@ -334,8 +393,10 @@ def reading(parameter: str, side: str, value: float, phoneme: str, problem: Chan
                      f"here the data say {ph} reaches its target on {ch}, as MODEL.md reserves for /p b m f v/ contact")
             return (f"k_R = {value:.3g}: full resistance — the neighbours' R ends at {ph}'s target time, so {ph} "
                     f"reaches its target exactly (F(t_i) = T·S(0)) at any rate (MODEL.md §3 item 3): {where}.")
+        contact = (f" MODEL.md reserves k_R = 1 for the contact of /p b m f v/; on {ch} the data give {ph} none."
+                   if phoneme in CONTACT_PHONEMES and ch in LIP_CHANNELS else "")
         return (f"k_R = {value:.3g}: no resistance — {ph} does not cut its neighbours' dominance short; their R "
-                f"extents run on through it (MODEL.md §3.1), so around {ph} the model is the original eq. 1.")
+                f"extents run on through it (MODEL.md §3.1), so around {ph} the model is the original eq. 1.{contact}")
     if parameter == "beta":
         return (f"β = {value:.3g}: R = exp(−βu/(1 − u)) falls " + ("as steeply as allowed after each target."
                 if up else "as slowly as allowed: R is nearly flat until its extent."))
@@ -348,24 +409,30 @@ def reading(parameter: str, side: str, value: float, phoneme: str, problem: Chan
                  f"{ph} hardly dominates: its neighbours' targets set {ch} during its segment (transparent)."))
     if parameter in ("theta_bw", "theta_fw"):
         bw = parameter == "theta_bw"
-        reach = f"{1e3 / value:.3g} ms" if value > 0 else "n/a"
+        c = row.get("c_bw" if bw else "c_fw", 1.0)
+        reach = _reach_ms(value, c)
+        # θ is in s^-c: the same box allows very different reaches at different c
+        unit = (f" (θ is in s^-c: the box's {bound:g} allows reaches down to {_reach_ms(bound, 1.0):.3g} ms at c = 1 "
+                f"but only {_reach_ms(bound, 3.0):.3g} ms at c = 3)") if up else ""
+        edge = " beyond its plateau's edge" if plateau else " from its target time"
+        span = f"reach θ^(−1/c) = {reach:.3g} ms{edge} with {'c_bw' if bw else 'c_fw'} = {c:.3g}{unit}"
         if up:
             if bw and plateau:
                 h = float(getattr(opts, "plateau_fraction", 0.5))
-                return (f"θ_bw = {value:.4g} s^-c: {ph}'s dominance switches on as a near step where its plateau "
-                        f"begins ({h:g} of its segment's duration before its target time): no anticipation before "
-                        "that, as at a gesture's onset.")
+                return (f"θ_bw = {value:.4g} s^-c, {span}: {ph}'s dominance switches on about as fast as allowed "
+                        f"where its plateau begins ({h:g} of its segment's duration before its target time): "
+                        "little anticipation before that, as at a gesture's onset.")
             if bw:
-                return (f"θ_bw = {value:.4g} s^-c: the backward (anticipatory) dominance of {ph} decays as fast as "
-                        f"allowed (1/θ ≈ {reach} at c = 1): {ph} acts only around and after its own target.")
+                return (f"θ_bw = {value:.4g} s^-c, {span}: the backward (anticipatory) dominance of {ph} decays as "
+                        f"fast as allowed: {ph} acts only around and after its own target.")
             if handover:
-                return (f"θ_fw = {value:.4g} s^-c (with handover it sets how fast {ph} takes over from the "
-                        f"segment before it): {ph} takes over as a near step.")
-            return (f"θ_fw = {value:.4g} s^-c: the carry-over dominance of {ph} ends as fast as allowed after its "
-                    "target: no carry-over into the next segment.")
+                return (f"θ_fw = {value:.4g} s^-c, {span}: with handover θ_fw sets how fast {ph} takes over from "
+                        f"the segment before it, and {ph} takes over as fast as allowed.")
+            return (f"θ_fw = {value:.4g} s^-c, {span}: the carry-over dominance of {ph} ends as fast as allowed "
+                    "after its target: little carry-over into the next segment.")
         side_word = "anticipatory" if bw else ("take-over" if handover else "carry-over")
-        return (f"{'θ_bw' if bw else 'θ_fw'} = {value:.4g} s^-c: the {side_word} reach of {ph} is as long as the "
-                f"box allows: its dominance spreads over its whole neighbourhood.")
+        return (f"{'θ_bw' if bw else 'θ_fw'} = {value:.4g} s^-c, {span}: the {side_word} reach of {ph} is as long "
+                "as the box allows: its dominance spreads over its whole neighbourhood.")
     if parameter in ("c_bw", "c_fw"):
         fw = parameter == "c_fw"
         what = (f"the takeover by {ph} from the previous segment (handover)" if fw and handover

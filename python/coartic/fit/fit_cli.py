@@ -110,6 +110,22 @@ def fit_command(
         raise typer.Exit(130)
 
 
+def warning_lines(result: FitResult) -> list[str]:
+    """The console's warnings per channel (rich markup): parameters at a bound with the count of each
+    category of their explanation (red when one is unexplained), and parameters not identified."""
+    lines = []
+    for ch, fit in result.channels.items():
+        st = fit.stats
+        if st and st.at_bound:
+            colour = "red" if any(b.category == "unexplained" for b in st.bounds.values()) else "yellow"
+            lines.append(f"[{colour}]{escape(ch)}: {len(st.at_bound)} parameter(s) at a bound[/{colour}]: "
+                         f"{escape(summary_counts(st.bounds))} (why: fit_report.txt, report.html)")
+        if st and st.unidentified:
+            lines.append(f"[yellow]{escape(ch)}: {len(st.unidentified)} parameter(s) not identified[/yellow] "
+                         "(see fit_report.txt)")
+    return lines
+
+
 def fit_output(spec: FitSpec, out: Path, force: bool = False) -> OutputDir:
     """The output directory of a fit: the same spec file and channels replace their own output."""
     spec_path = spec.path.resolve()
@@ -138,16 +154,8 @@ def _fit_into(s: FitSpec, out: Path, console: Console, validate: bool, report: b
     if not result.channels:
         return result
     console.print(rmse_table(result))
-    for ch, fit in result.channels.items():
-        st = fit.stats
-        if st and st.at_bound:
-            unexplained = sum(b.category == "unexplained" for b in st.bounds.values())
-            colour = "red" if unexplained else "yellow"
-            console.print(f"[{colour}]{ch}: {len(st.at_bound)} parameter(s) at a bound[/{colour}]: "
-                          f"{escape(summary_counts(st.bounds))} (why: fit_report.txt, report.html)", soft_wrap=True)
-        if st and st.unidentified:
-            console.print(f"[yellow]{ch}: {len(st.unidentified)} parameter(s) not identified[/yellow] "
-                          "(see fit_report.txt)")
+    for line in warning_lines(result):
+        console.print(line, soft_wrap=True)
     for note in result.notes:
         console.print(f"[yellow]note:[/yellow] {escape(note)}", soft_wrap=True)
     if result.validation:

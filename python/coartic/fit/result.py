@@ -5,6 +5,8 @@ the weighted residuals in the fitted (internal) coordinates at the optimum and s
 cov = s² (JᵀJ)⁺. Directions of JᵀJ with eigenvalues below ``rtol`` × the largest are not
 identified by the data: the pseudo-inverse drops them and every parameter that loads on them is
 flagged. Standard errors are carried to natural units by the transform's derivative (delta method).
+Every free parameter at a bound gets a computed explanation (``coartic.fit.bounds``): which bound,
+where it comes from, whether the data pull past it, and what that means for the model.
 """
 
 from __future__ import annotations
@@ -207,7 +209,8 @@ class FitResult:
             t.channels[ch] = s.channel_settings(ch, fit.beta)
             lo, hi = fit.packing.lower[:, 0].min(), fit.packing.upper[:, 0].max()
             t.bounds[ch] = {"target": (float(lo), float(hi))}
-            t.set_from_matrix(ch, list(fit.phonemes), fit.params, fit.beta)
+            # (with per-speaker targets, the shared values and the population targets: ChannelProblem)
+            t.set_from_matrix(ch, list(fit.problem.phonemes), fit.problem.table_matrix(fit.params), fit.beta)
         t.metadata = {
             "method": f"least squares ({s.engine}{', staged' if s.staging else ''})",
             "corpus": str(s.corpus.manifest or [str(f) for f in s.corpus.files]),
@@ -219,12 +222,12 @@ class FitResult:
             "interrupted": self.interrupted,
         }
         if s.speakers != "none":
-            # the targets are the reference speaker's; speaker s is a + b·F (docs/FITTING.md)
-            t.metadata["speakers"] = {
-                "mode": s.speakers, "column": s.speaker_column,
-                "coefficients": {ch: {spk: {"offset_mm": a, "scale": b}
-                                      for spk, (a, b) in f.problem.speaker_coefficients(f.x).items()}
-                                 for ch, f in self.channels.items()}}
+            # speaker s is a + b·F, F with the reference speaker's targets, or with "targets" its own
+            # targets (metadata) and the table's the mean over the speakers (docs/FITTING.md)
+            per = {ch: f.problem.speaker_metadata(f.x) for ch, f in self.channels.items()}
+            t.metadata["speakers"] = {"mode": s.speakers, "column": s.speaker_column,
+                                      **{key: {ch: m[key] for ch, m in per.items()} for key in ("coefficients", "targets")
+                                         if any(key in m for m in per.values())}}
         if s.shrinks:  # the shrinkage the fit had (sd as the spec gives it; a [choose]n one in "choice")
             t.metadata["shrinkage"] = [{"key": g.key, "phonemes": list(g.phonemes), "parameters": list(g.parameters),
                                         "sd": g.sd, "scale": "log" if g.log else "natural", "prior_noise": s.prior_noise,

@@ -41,7 +41,7 @@ def fit_channel(spec: FitSpec, utterances: Sequence[Utterance], channel: str,
                 progress: Progress | None = None) -> ChannelFit:
     """Fit one channel (staged if the spec says so); never raises on a bad start or Ctrl-C."""
     problem: ChannelProblem = build_problem(spec, utterances, channel)
-    start = start_values(spec, channel, problem.data.phonemes)
+    start = start_values(spec, channel, problem.phonemes)
     if start is not None:
         problem = build_problem(spec, utterances, channel, start=start)
     task = None

@@ -4,7 +4,12 @@
 RMSE per utterance, per phoneme (the samples inside that phoneme's segments) and per channel,
 each both as measured and after removing a per-utterance offset (a recorded channel is measured
 from a rest reference estimated once per utterance: a constant error over a whole utterance says
-little about the model). ``score_recordings`` loads recordings first, with the label map the table
+little about the model). Per channel also after *calibrating* the speaker: a + b·prediction with
+(a, b) fitted by linear least squares on the scored data themselves, what a table fitted on other
+speakers can do for a new one given a little of their speech. ``speaker`` maps the predictions by
+one of the table's own speakers (``coartic.speakers``: the fit's a_s + b_s·F, or their own
+targets); without it a table fitted with speakers predicts its population (a = 0, b = 1, the
+table's targets). ``score_recordings`` loads recordings first, with the label map the table
 records (``coartic fit`` records its spec's), so corpus labels are mapped as in the fit.
 
 ``Score.save(out)`` writes ``score_channels.csv``, ``score_utterances.csv``,
@@ -39,6 +44,19 @@ class Score:
     utterances: list[Utterance]
     predicted: dict[str, list[F64]]  # channel -> one array per utterance
     notes: list[str] = field(default_factory=list)
+    speaker: str | None = None  # the table's speaker whose mapping the predictions carry
+
+    def calibration(self, channel: str) -> tuple[float, float]:
+        """(a, b) of measured ≈ a + b·predicted over every valid sample of ``channel``: the speaker
+        calibrated on its own data (``coartic.fit.problem.affine_coefficients``)."""
+        from coartic.fit.problem import affine_coefficients
+
+        f = np.concatenate(self.predicted[channel])
+        y = np.concatenate([u.observed[channel] for u in self.utterances]).astype(np.float64)
+        ok = np.concatenate([u.valid[channel] for u in self.utterances]) & np.isfinite(y) & np.isfinite(f)
+        a, b = affine_coefficients(np.zeros(f.size, dtype=np.int64), 1, ok.astype(np.float64),
+                                   np.where(ok, f, 0.0), np.where(ok, y, 0.0))
+        return float(a[0]), float(b[0])
 
     def residuals(self, channel: str, u: int, offset: bool = False) -> F64:
         """Predicted − measured for utterance ``u`` (NaN where not measured); with ``offset``, minus
@@ -89,8 +107,12 @@ class Score:
         for ch in self.channels:
             r = np.concatenate([self.residuals(ch, u) for u in range(len(self.utterances))])
             ro = np.concatenate([self.residuals(ch, u, offset=True) for u in range(len(self.utterances))])
+            a, b = self.calibration(ch)
+            f = np.concatenate(self.predicted[ch])
+            rc = np.where(np.isfinite(r), a + (b - 1.0) * f + r, np.nan)  # a + b·F − y
             rows.append({"channel": ch, "utterances": len(self.utterances), "samples": int(np.isfinite(r).sum()),
-                         "rmse_mm": _rms(r), "rmse_offset_removed_mm": _rms(ro)})
+                         "rmse_mm": _rms(r), "rmse_offset_removed_mm": _rms(ro), "rmse_calibrated_mm": _rms(rc),
+                         "calibration_offset_mm": a, "calibration_scale": b})
         return rows
 
     def rmse(self, channel: str, offset: bool = False) -> float:
@@ -98,11 +120,13 @@ class Score:
         return float(row["rmse_offset_removed_mm" if offset else "rmse_mm"])
 
     def text(self) -> str:
-        lines = [f"[[Score]] table {self.table.source} on {len(self.utterances)} utterance(s)"]
+        who = f", speaker {self.speaker}" if self.speaker is not None else ""
+        lines = [f"[[Score]] table {self.table.source}{who} on {len(self.utterances)} utterance(s)"]
         lines += [f"    note: {n}" for n in self.notes]
         for r in self.channel_rows():
-            lines.append(f"    {r['channel']}: RMSE {r['rmse_mm']:.4f} mm, offset removed {r['rmse_offset_removed_mm']:.4f} mm "
-                         f"({r['samples']} samples)")
+            lines.append(f"    {r['channel']}: RMSE {r['rmse_mm']:.4f} mm, offset removed {r['rmse_offset_removed_mm']:.4f} mm, "
+                         f"speaker-calibrated {r['rmse_calibrated_mm']:.4f} mm (a = {r['calibration_offset_mm']:+.3f} mm, "
+                         f"b = {r['calibration_scale']:.4f}) ({r['samples']} samples)")
         lines.append("[[Utterances]]")
         for r in self.utterance_rows():
             lines.append(f"    {r['channel']} {r['utterance']}: RMSE {r['rmse_mm']:.4f} mm, offset removed "
@@ -135,9 +159,14 @@ def segment_of(utt: Utterance) -> NDArray[np.int64]:
 
 
 def score_utterances(table: ParameterTable, utterances: Sequence[Utterance],
-                     channels: Sequence[str] | None = None) -> Score:
+                     channels: Sequence[str] | None = None, speaker: str | None = None) -> Score:
     """Evaluate ``table`` on utterances whose labels are model phonemes and compare with their
-    observed channels (default: the table's channels the utterances carry)."""
+    observed channels (default: the table's channels the utterances carry); with ``speaker``, the
+    predictions are that speaker's (``coartic.speakers.speaker_mapping``: an unknown name, or a
+    table without speakers, is an error)."""
+    from coartic.speakers import speaker_mapping, table_speakers
+
+    mapping = speaker_mapping(table, speaker)
     utts = list(utterances)
     if not utts:
         raise ValueError("no utterance to score")
@@ -151,13 +180,22 @@ def score_utterances(table: ParameterTable, utterances: Sequence[Utterance],
         missing = [u.name for u in utts if c not in u.observed]
         if missing:
             raise ValueError(f"channel {c}: not measured in {', '.join(missing[:5])}")
-    predicted = {c: evaluate_corpus(table, c, utts) for c in chans}
-    return Score(table, chans, utts, predicted)
+    if mapping is None:
+        predicted = {c: evaluate_corpus(table, c, utts) for c in chans}
+    else:
+        own = mapping.evaluation_table(table)
+        predicted = {c: [mapping.apply(c, v) for v in evaluate_corpus(own, c, utts)] for c in chans}
+    score = Score(table, chans, utts, predicted, speaker=speaker)
+    if mapping is None and table_speakers(table):
+        score.notes.append(f"the table was fitted on speakers {', '.join(table_speakers(table))}; without --speaker "
+                           "it predicts the population (a = 0, b = 1, the table's targets)")
+    return score
 
 
 def score_recordings(table: ParameterTable | str | PathLike[str], files: Sequence[str | PathLike[str]],
                      labels: Sequence[str | PathLike[str]] | None = None, *, label_map: Any = None,
-                     role_map: Any = None, channels: Sequence[str] | None = None, max_gap: float = 0.05) -> Score:
+                     role_map: Any = None, channels: Sequence[str] | None = None, max_gap: float = 0.05,
+                     speaker: str | None = None) -> Score:
     """Load recordings (each with its label file, or an EMU bundle's own labels) and score the table.
 
     The labels are mapped by ``label_map`` if given, else by the map the table records (the fit's),
@@ -166,8 +204,11 @@ def score_recordings(table: ParameterTable | str | PathLike[str], files: Sequenc
     from coartic.fit.data import load_rows
     from coartic.io.labelmap import LabelMap
 
+    from coartic.speakers import speaker_mapping
+
     if not isinstance(table, ParameterTable):
         table = ParameterTable.load(Path(table))
+    speaker_mapping(table, speaker)  # an unknown speaker is refused before anything is read
     if labels is not None and len(labels) != len(files):
         raise ValueError(f"{len(labels)} label files for {len(files)} recordings: give one --labels per recording")
     lmap = label_map if label_map is not None else LabelMap.recorded(table)
@@ -175,7 +216,7 @@ def score_recordings(table: ParameterTable | str | PathLike[str], files: Sequenc
     rows = [{"file": str(f), "labels": None if labels is None else str(labels[i]), "stimulus": Path(f).stem}
             for i, f in enumerate(files)]
     utts = load_rows(rows, chans, label_map=lmap, role_map=role_map, max_gap=max_gap)
-    score = score_utterances(table, utts, chans)
+    score = score_utterances(table, utts, chans, speaker)
     if label_map is None and lmap is not None:
         score.notes.append(f"labels mapped by the table's recorded label map ({lmap.source})")
     return score

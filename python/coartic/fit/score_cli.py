@@ -23,21 +23,25 @@ def score_command(
     label_map: Optional[str] = typer.Option(None, "--label-map", help="corpus labels -> model phonemes (built-in "
                                             "name or file); default: the map the table records"),
     channels: Optional[str] = typer.Option(None, help="comma-separated channels (default: the table's)"),
+    speaker: Optional[str] = typer.Option(None, "--speaker", help="predict as this speaker of the table (a table "
+                                          "fitted with [model] speakers): its offset and scale, or its own targets"),
     out: Optional[Path] = typer.Option(None, "--out", "-o", help="write CSVs, score.txt and figures here"),
     force: bool = typer.Option(False, "--force", help="replace --out even if it holds another run's output"),
 ) -> None:
     """Predict recordings the fit did not see and report the RMSE (also after removing a
-    per-utterance offset)."""
+    per-utterance offset, and after calibrating the speaker's offset and scale on these recordings)."""
     from coartic.fit.score import score_recordings
 
     console = Console()
     try:
         chans = [c.strip() for c in channels.split(",") if c.strip()] if channels else None
-        score = score_recordings(table, recordings, labels or None, label_map=label_map, channels=chans)
+        score = score_recordings(table, recordings, labels or None, label_map=label_map, channels=chans,
+                                 speaker=speaker)
         if out is not None:
             from coartic.outputs import OutputDir
 
-            identity = {"table": str(table.resolve()), "recordings": ",".join(str(r) for r in recordings)}
+            identity = {"table": str(table.resolve()), "recordings": ",".join(str(r) for r in recordings),
+                        **({"speaker": speaker} if speaker is not None else {})}
             with OutputDir(out, "score", identity, force=force, protect=[table, *recordings, *(labels or [])]) as d:
                 score.save(d)
     except (ValueError, OSError) as e:  # DataError, TableError, ModelInputError, OutputError
@@ -55,7 +59,8 @@ def score_table(score: object) -> Table:
 
     assert isinstance(score, Score)
     t = Table(title=f"RMSE (mm) on {len(score.utterances)} recording(s) the fit did not see — bar {BAR_MM} mm")
-    for c in ("channel", "as measured", "offset removed", "worst utterance", "worst phoneme", "samples"):
+    for c in ("channel", "as measured", "offset removed", "speaker-calibrated", "worst utterance", "worst phoneme",
+              "samples"):
         t.add_column(c, justify="left" if c == "channel" else "right")
     utt = score.utterance_rows()
     ph = score.phoneme_rows()
@@ -63,7 +68,7 @@ def score_table(score: object) -> Table:
         ch = r["channel"]
         wu = max((x for x in utt if x["channel"] == ch), key=lambda x: x["rmse_mm"])
         wp = next((x for x in ph if x["channel"] == ch), None)  # sorted worst first
-        t.add_row(ch, f"{r['rmse_mm']:.3f}", f"{r['rmse_offset_removed_mm']:.3f}",
+        t.add_row(ch, f"{r['rmse_mm']:.3f}", f"{r['rmse_offset_removed_mm']:.3f}", f"{r['rmse_calibrated_mm']:.3f}",
                   f"{wu['rmse_mm']:.3f} ({escape(wu['utterance'])})",
                   f"{wp['rmse_mm']:.3f} ({escape(wp['phoneme'])})" if wp else "–", str(r["samples"]))
     return t

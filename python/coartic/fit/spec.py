@@ -143,8 +143,9 @@ class FitSpec:
     priors: dict[str, tuple[float, float, bool]] = field(default_factory=dict)
     prior_noise: float = 1.0
     offsets: str | float = "none"  # per-utterance offsets in least squares: "none", "free" or their sd (mm)
-    # several speakers in one fit: "none", "offset" (a_s + F) or "offset_scale" (a_s + b_s·F), the
-    # speaker read from the manifest column speaker_column; shared dynamics and reference targets
+    # several speakers in one fit: "none", "offset" (a_s + F), "offset_scale" (a_s + b_s·F) or
+    # "targets" (own targets per speaker), the speaker read from the manifest column speaker_column;
+    # shared dynamics
     speakers: str = "none"
     speaker_column: str = "speaker"
     start_given: frozenset[str] = frozenset()  # the [parameters.start] keys the spec gives (checked against bounds)
@@ -453,8 +454,9 @@ def parse_spec(raw: dict[str, Any], path: Path) -> FitSpec:
                              "beta", "fit_beta", "beta_bounds", "offsets", "dominance", "plateau_fraction",
                              "handover", "speakers", "speaker_column"})
     speakers = m.get("speakers", "none")
-    if speakers not in ("none", "offset", "offset_scale"):
-        raise _err(path, "model.speakers", f"{speakers!r}: expected \"none\", \"offset\" or \"offset_scale\"")
+    if speakers not in ("none", "offset", "offset_scale", "targets"):
+        raise _err(path, "model.speakers",
+                   f"{speakers!r}: expected \"none\", \"offset\", \"offset_scale\" or \"targets\"")
     speaker_column = m.get("speaker_column", "speaker")
     if not isinstance(speaker_column, str) or not speaker_column:
         raise _err(path, "model.speaker_column", f"{speaker_column!r}: expected a manifest column name")

@@ -40,6 +40,8 @@ class SplitScore:
     train_sse: float = float("nan")
     train_samples: int = 0
     n_free: int = 0
+    # after calibrating the test speaker's offset and scale on the test data (coartic.fit.score)
+    test_rmse_calibrated: float = float("nan")
 
 
 def score(result: FitResult, test: Sequence[Utterance], split: str) -> list[SplitScore]:
@@ -49,7 +51,7 @@ def score(result: FitResult, test: Sequence[Utterance], split: str) -> list[Spli
     table = result.table()
     out = []
     for ch, fit in result.channels.items():
-        unknown = sorted({lab for u in test for lab in u.labels} - set(fit.phonemes))
+        unknown = sorted({lab for u in test for lab in u.labels} - set(fit.problem.phonemes))
         if unknown:
             raise UnseenPhonemes(f"{split}: the test utterances contain phonemes the training fit never saw: {unknown}")
         sc = score_utterances(table, test, [ch])
@@ -64,7 +66,7 @@ def score(result: FitResult, test: Sequence[Utterance], split: str) -> list[Spli
         row = sc.channel_rows()[0]
         n = fit.problem.data.n_valid
         out.append(SplitScore(split, ch, fit.rmse, row["rmse_mm"], row["samples"], worst, row["rmse_offset_removed_mm"],
-                              fit.rmse**2 * n, n, fit.packing.n_free))
+                              fit.rmse**2 * n, n, fit.packing.n_free, row["rmse_calibrated_mm"]))
     return out
 
 
@@ -181,10 +183,10 @@ def validate_all(spec: FitSpec, out: str | Path | None = None, utterances: Seque
         buf = io.StringIO()
         w = csv.writer(buf, lineterminator="\n")
         w.writerow(["split", "channel", "train_rmse_mm", "test_rmse_mm", "test_rmse_offset_removed_mm", "test_samples",
-                    "worst_vowel", "worst_vowel_rmse_mm"])
+                    "worst_vowel", "worst_vowel_rmse_mm", "test_rmse_speaker_calibrated_mm"])
         for sc in scores:
             w.writerow([sc.split, sc.channel, repr(sc.train_rmse), repr(sc.test_rmse), repr(sc.test_rmse_offset_removed),
-                        sc.test_samples, sc.worst_vowel[0], repr(sc.worst_vowel[1])])
+                        sc.test_samples, sc.worst_vowel[0], repr(sc.worst_vowel[1]), repr(sc.test_rmse_calibrated)])
         atomic_write_text(Path(out) / "validation.csv", buf.getvalue())
     return scores
 

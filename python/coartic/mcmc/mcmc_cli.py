@@ -149,7 +149,7 @@ STALE_TOLERANCE = 0.01
 
 
 def check_fit_matches_data(table: Any, table_path: Path, channel: str, data: Any, packing: Any, options: Any,
-                           allow_stale: bool = False) -> None:
+                           allow_stale: bool = False, speakers: Any = None) -> None:
     """Refuse a table fitted to other data: the RMSE at its values on the data loaded now must be
     the RMSE the fit recorded (metadata.rmse), to 1 %. Otherwise the walkers would not start at the
     optimum and every per-phoneme posterior would be conditioned on values that no longer fit."""
@@ -158,7 +158,7 @@ def check_fit_matches_data(table: Any, table_path: Path, channel: str, data: Any
     recorded = (table.metadata or {}).get("rmse", {}).get(channel)
     if recorded is None or allow_stale:
         return
-    now = fixed_noise(data, packing, options)
+    now = fixed_noise(data, packing, options, speakers=speakers)
     if abs(now - recorded) > STALE_TOLERANCE * recorded:
         raise ValueError(
             f"{table_path}: fitted to other data than the spec gives now: on {channel} the RMSE at the table's "
@@ -172,7 +172,7 @@ def run_job(fit_spec: Any, cfg: Any, table_path: Path, out: Path, progress: bool
     """Load the data and the table, sample every posterior, write table, summaries and report fragment."""
     from coartic.fit.data import load_utterances
     from coartic.mcmc import plots, summary
-    from coartic.mcmc.run import channel_runs, spec_priors, spec_shrinkage, table_problem
+    from coartic.mcmc.run import channel_runs, spec_priors, spec_shrinkage, table_problem, table_speakers
     from coartic.table import ParameterTable
 
     table = ParameterTable.load(table_path)
@@ -211,10 +211,12 @@ def run_job(fit_spec: Any, cfg: Any, table_path: Path, out: Path, progress: bool
     interrupted = False
     for channel in cfg.channels or fit_spec.channels:
         data, packing, options = table_problem(fit_spec, table, table_path, channel, utterances)
-        check_fit_matches_data(table, table_path, channel, data, packing, options, allow_stale)
+        speakers = table_speakers(fit_spec, table, table_path, channel)
+        check_fit_matches_data(table, table_path, channel, data, packing, options, allow_stale, speakers)
         _, interrupted = channel_runs(channel, data, packing, options, cfg, out, progress, on_done=save,
                                       spec_priors=spec_priors(fit_spec, packing, channel),
-                                      spec_shrinkage=spec_shrinkage(fit_spec, table, packing, channel))
+                                      spec_shrinkage=spec_shrinkage(fit_spec, table, packing, channel),
+                                      speakers=speakers)
         if interrupted:
             break
     return runs, interrupted

@@ -22,19 +22,27 @@ utterance's samples. τ (``offset_sd``) is fixed, or sampled with a uniform prio
 With S_u = Σ w r and W_u = Σ w over utterance u, and the SSE Σ w r²:
 
     log L = −½ (SSE − Σ_u τ² S_u² / (σ² + τ² W_u)) / σ² − ½ Σ_u log(1 + τ² W_u / σ²) − N log σ − (N/2) log 2π
+
+With the fit spec's ``[model] speakers`` (``coartic.fit.problem.Speakers``), speaker s's samples
+are predicted as a_s + b_s·F: every speaker but the reference (a = 0, b = 1, as in least squares)
+adds the coordinates ``speaker_offset:s`` (a_s, mm; prior N(0, SPEAKER_OFFSET_SD²)) and, with
+``offset_scale``, ``log speaker_scale:s`` (prior log b_s ~ N(0, SPEAKER_LOG_SCALE_SD²)). The
+mapping is the least-squares problem's own (``Speakers.predict``): at the least-squares (a_s, b_s)
+the SSE is the fit's cost.
 """
 
 from __future__ import annotations
 
 import hashlib
 import math
+from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any, Callable, Mapping, Sequence
 
 import numpy as np
 from numpy.typing import NDArray
 
 if TYPE_CHECKING:
-    from coartic.fit.problem import ChannelData, Packing, ShrinkGroup
+    from coartic.fit.problem import ChannelData, Packing, ShrinkGroup, Speakers
 
 FloatArray = NDArray[np.float64]
 BatchFn = Callable[..., FloatArray]
@@ -52,6 +60,11 @@ LOG_SIGMA_RANGE = (math.log(1e-4), math.log(1e2))
 NOISE_NAME = "log_sigma_n"
 OFFSET_RANGE = (0.0, 5.0)  # mm
 OFFSET_NAME = "offset_sd"
+# Priors of the speakers' offset a_s (mm) and log scale log b_s; their sampling support is ±10 sd.
+SPEAKER_OFFSET_SD = 10.0
+SPEAKER_LOG_SCALE_SD = 0.5
+SPEAKER_OFFSET = "speaker_offset:"
+SPEAKER_SCALE = "speaker_scale:"
 
 
 class LogPosterior:
@@ -78,6 +91,8 @@ class LogPosterior:
         offset_sd: float | None = 0.0,
         residual_sums_batch: Callable[..., tuple[FloatArray, FloatArray]] | None = None,
         shrinkage: Sequence[ShrinkGroup] = (),
+        speakers: Speakers | None = None,
+        speaker_start: Mapping[str, tuple[float, float]] | None = None,
     ) -> None:
         from coartic import _core
         from coartic.fit.problem import Shrinkage
@@ -115,14 +130,9 @@ class LogPosterior:
                 )
             if not (sd > 0 and math.isfinite(sd) and math.isfinite(mu)):
                 raise ValueError(f"Gaussian prior on {key!r}: needs a finite mean and a positive sd, got ({mu}, {sd})")
-        self._prior_index = np.array([free_names.index(k) for k in self.priors], dtype=np.int64)
-        self._prior_log = np.array([len(v) > 2 for v in self.priors.values()], dtype=bool)
         for key, v in self.priors.items():
             if len(v) > 2 and not v[0] > 0:
                 raise ValueError(f"Gaussian prior on log {key!r}: needs a positive median, got {v[0]}")
-        self._prior_mu = np.array([math.log(v[0]) if len(v) > 2 else v[0] for v in self.priors.values()],
-                                  dtype=np.float64)
-        self._prior_sd = np.array([v[1] for v in self.priors.values()], dtype=np.float64)
         # the same penalty as least squares, on the unpacked matrix (members outside this packing's
         # free set count in the class mean at their fitted values)
         self.shrinkage = Shrinkage(packing, shrinkage, 1.0)
@@ -140,6 +150,52 @@ class LogPosterior:
                 raise ValueError(f"{where}: the prior needs finite bounds, got [{lo[j]}, {hi[j]}]")
             if not lo[j] < hi[j]:
                 raise ValueError(f"{where}: empty prior support [{lo[j]}, {hi[j]}]")
+        # speakers ([model] speakers): every non-reference speaker with data here gets a_s (and log b_s)
+        self.speakers = speakers
+        self._spk_a = np.zeros(0)
+        self._spk_b = np.ones(0)
+        spk_names: list[str] = []
+        spk_log: list[bool] = []
+        spk_lo: list[float] = []
+        spk_hi: list[float] = []
+        self._spk_a_cols: list[tuple[int, int]] = []  # (coordinate, speaker index)
+        self._spk_b_cols: list[tuple[int, int]] = []
+        if speakers is not None:
+            k = len(speakers.names)
+            start = dict(speaker_start or {})
+            self._spk_a = np.array([float(start.get(n, (0.0, 1.0))[0]) for n in speakers.names])
+            self._spk_b = np.array([float(start.get(n, (0.0, 1.0))[1]) for n in speakers.names])
+            self._spk_a[0], self._spk_b[0] = 0.0, 1.0
+            present = np.bincount(speakers.spk, weights=data.weights, minlength=k) > 0
+            col = packing.n_free
+            for i, n in enumerate(speakers.names):
+                if i == 0 or not present[i]:
+                    continue  # the reference is fixed; a speaker without data here has nothing to sample
+                spk_names.append(SPEAKER_OFFSET + n)
+                spk_log.append(False)
+                spk_lo.append(-10 * SPEAKER_OFFSET_SD)
+                spk_hi.append(10 * SPEAKER_OFFSET_SD)
+                self._spk_a_cols.append((col, i))
+                self.priors[SPEAKER_OFFSET + n] = (0.0, SPEAKER_OFFSET_SD)
+                col += 1
+                if speakers.mode == "offset_scale":
+                    spk_names.append(SPEAKER_SCALE + n)
+                    spk_log.append(True)
+                    spk_lo.append(-10 * SPEAKER_LOG_SCALE_SD)
+                    spk_hi.append(10 * SPEAKER_LOG_SCALE_SD)
+                    self._spk_b_cols.append((col, i))
+                    self.priors[SPEAKER_SCALE + n] = (1.0, SPEAKER_LOG_SCALE_SD, True)
+                    col += 1
+        self._spk_names = spk_names
+        self._prior_index = np.array([(free_names + spk_names).index(k) for k in self.priors], dtype=np.int64)
+        self._prior_log = np.array([len(v) > 2 for v in self.priors.values()], dtype=bool)
+        self._prior_mu = np.array([math.log(v[0]) if len(v) > 2 else v[0] for v in self.priors.values()],
+                                  dtype=np.float64)
+        self._prior_sd = np.array([v[1] for v in self.priors.values()], dtype=np.float64)
+        lo = np.append(lo, spk_lo)
+        hi = np.append(hi, spk_hi)
+        log = np.append(np.asarray(log, dtype=bool), spk_log).astype(bool)
+        self._n_model = packing.n_free + len(spk_names)
         # sampled noise terms after the model's coordinates: (coordinate, natural name, range, is log)
         self._extras = [(NOISE_NAME, "sigma_n", LOG_SIGMA_RANGE, True)] if self.noise is None else []
         if self.offset_sd is None:
@@ -149,8 +205,8 @@ class LogPosterior:
         # coordinates that are logarithms of their natural value
         self._exp = np.append(np.asarray(log, dtype=bool), [e[3] for e in self._extras]).astype(bool)
         extra_names = [e[0] for e in self._extras]
-        self._sigma_col = packing.n_free + extra_names.index(NOISE_NAME) if NOISE_NAME in extra_names else None
-        self._offset_col = packing.n_free + extra_names.index(OFFSET_NAME) if OFFSET_NAME in extra_names else None
+        self._sigma_col = self._n_model + extra_names.index(NOISE_NAME) if NOISE_NAME in extra_names else None
+        self._offset_col = self._n_model + extra_names.index(OFFSET_NAME) if OFFSET_NAME in extra_names else None
         self.n_calls = 0
 
     # --- coordinates ---------------------------------------------------------------------------
@@ -164,13 +220,15 @@ class LogPosterior:
 
     @property
     def names(self) -> list[str]:
-        """Natural-unit name of every coordinate ('p.k_r', 'beta', and 'sigma_n', 'offset_sd' when sampled)."""
-        return self.packing.names() + [e[1] for e in self._extras]
+        """Natural-unit name of every coordinate ('p.k_r', 'beta', 'speaker_offset:s02', 'speaker_scale:s02',
+        and 'sigma_n', 'offset_sd' when sampled)."""
+        return self.packing.names() + self._spk_names + [e[1] for e in self._extras]
 
     @property
     def coordinates(self) -> list[str]:
         """Name of every sampling coordinate ('log p.theta_bw' for log-sampled ones)."""
         out = [f"log {n}" if lg else n for n, lg in zip(self.packing.names(), self.packing.log_mask)]
+        out += [f"log {n}" if n.startswith(SPEAKER_SCALE) else n for n in self._spk_names]
         return out + [e[0] for e in self._extras]
 
     def to_natural(self, x: FloatArray) -> FloatArray:
@@ -222,18 +280,55 @@ class LogPosterior:
             lp = lp - 0.5 * np.sum(np.where(np.isfinite(z), z, np.inf) ** 2, axis=1)
         return lp
 
-    def sse(self, x: FloatArray) -> FloatArray:
-        """Weighted sum of squared residuals per walker (+inf where the core rejects the parameters)."""
+    def speaker_coefficients(self, x: FloatArray) -> tuple[FloatArray, FloatArray]:
+        """(a, b) per walker and speaker (walkers, n_speakers): sampled, or held at their start."""
+        x = np.atleast_2d(x)
+        a = np.broadcast_to(self._spk_a, (x.shape[0], self._spk_a.size)).copy()
+        b = np.broadcast_to(self._spk_b, (x.shape[0], self._spk_b.size)).copy()
+        for col, i in self._spk_a_cols:
+            a[:, i] = x[:, col]
+        for col, i in self._spk_b_cols:
+            b[:, i] = np.exp(x[:, col])
+        return a, b
+
+    def _speaker_residuals(self, x: FloatArray) -> FloatArray:
+        """y − (a_s + b_s·F) per walker and sample (NaN rows where the core rejects the walker)."""
+        assert self.speakers is not None
         params, betas = self.matrices(x)
         self.n_calls += 1
         d = self.data
+        try:
+            f = np.asarray(self.evaluate_batch(d.corpus, params, betas, self.options), dtype=np.float64)
+        except ValueError:  # some walker is invalid: find which, one by one
+            f = np.full((params.shape[0], d.observed.size), np.nan)
+            for w in range(params.shape[0]):
+                try:
+                    f[w] = np.asarray(self.evaluate_batch(d.corpus, params[w:w + 1], betas[w:w + 1], self.options))[0]
+                except ValueError:
+                    pass
+        return d.observed - self.speakers.predict(f, *self.speaker_coefficients(x))
+
+    def sse(self, x: FloatArray) -> FloatArray:
+        """Weighted sum of squared residuals per walker (+inf where the core rejects the parameters)."""
+        d = self.data
+        if self.speakers is not None:
+            r = self._speaker_residuals(x)
+            out = np.sum(d.weights * np.where(d.weights > 0, r, 0.0) ** 2, axis=1)
+            return np.where(np.isfinite(out), out, np.inf)
+        params, betas = self.matrices(x)
+        self.n_calls += 1
         return np.asarray(self.sse_batch(d.corpus, params, betas, self.options, d.observed, d.weights), dtype=np.float64)
 
     def residual_sums(self, x: FloatArray) -> tuple[FloatArray, FloatArray]:
         """SSE per walker and Σ w r per walker and utterance (+inf / NaN where the core rejects)."""
+        d = self.data
+        if self.speakers is not None:
+            r = np.where(d.weights > 0, self._speaker_residuals(x), 0.0)
+            sse = np.sum(d.weights * r**2, axis=1)
+            sums = np.add.reduceat(d.weights * r, d.sample_offsets[:-1], axis=1) if r.shape[1] else r[:, :0]
+            return np.where(np.isfinite(sse), sse, np.inf), sums
         params, betas = self.matrices(x)
         self.n_calls += 1
-        d = self.data
         sse, sums = self.residual_sums_batch(d.corpus, params, betas, self.options, d.observed, d.weights)
         return np.asarray(sse, dtype=np.float64), np.asarray(sums, dtype=np.float64)
 
@@ -271,6 +366,8 @@ class LogPosterior:
         from the residual RMS there, τ from the spread of the utterances' mean residuals beyond
         what σ_n explains."""
         x = np.asarray(self.packing.pack(), dtype=np.float64)
+        x = np.append(x, [self._spk_a[i] for _, i in self._spk_a_cols] if not self._spk_b_cols else
+                      [v for (_, i) in self._spk_a_cols for v in (self._spk_a[i], math.log(self._spk_b[i]))])
         if not self._extras:
             return x
         sse_a, sums_a = self.residual_sums(x[None])
@@ -302,9 +399,11 @@ class LogPosterior:
         return np.clip(pos, lo, hi)
 
     def predict(self, x: FloatArray) -> FloatArray:
-        """Model trajectories (draws, n_samples) for parameter draws, through ``evaluate_batch``."""
+        """Model trajectories (draws, n_samples) for parameter draws, through ``evaluate_batch`` (each
+        speaker's a_s + b_s·F with [model] speakers)."""
         params, betas = self.matrices(x)
-        return np.asarray(self.evaluate_batch(self.data.corpus, params, betas, self.options), dtype=np.float64)
+        f = np.asarray(self.evaluate_batch(self.data.corpus, params, betas, self.options), dtype=np.float64)
+        return f if self.speakers is None else self.speakers.predict(f, *self.speaker_coefficients(x))
 
     def fingerprint(self) -> str:
         """A hash of everything that defines this posterior, so chains are never resumed on another."""
@@ -314,6 +413,8 @@ class LogPosterior:
             h.update(np.ascontiguousarray(a).tobytes())
         h.update(repr((p.base_beta, self.noise, self.offset_sd, sorted(self.priors.items()), self.coordinates, self.channel,
                        self.shrinkage.groups)).encode())
+        if self.speakers is not None:
+            h.update(repr((self.speakers.mode, self.speakers.names, self._spk_a.tolist(), self._spk_b.tolist())).encode())
         for u in self.data.utterances:
             h.update(repr((u.name, u.labels)).encode())
             h.update(np.ascontiguousarray(u.starts).tobytes() + np.ascontiguousarray(u.ends).tobytes())
@@ -329,12 +430,15 @@ def phoneme_posterior(
     priors: Mapping[str, tuple[float, float]] | None = None,
     offset_sd: float | None = 0.0,
     shrinkage: Sequence[ShrinkGroup] = (),
-    **evaluators: Callable[..., Any],
+    speakers: SpeakerTerms | None = None,
+    **evaluators: Any,
 ) -> LogPosterior:
     """The posterior of one phoneme's free parameters on one channel (about 10 dimensions).
 
     Every other phoneme stays at ``packing.base`` (the least-squares optimum), β is fixed, and only
-    the utterances that contain the phoneme are evaluated (the others do not depend on it).
+    the utterances that contain the phoneme are evaluated (the others do not depend on it). With
+    ``speakers``, the offset/scale of every speaker with such utterances is sampled too (a nuisance
+    for the phoneme; the reference speaker stays the fit's).
     """
     from coartic.fit.problem import ChannelData as _ChannelData
 
@@ -345,11 +449,16 @@ def phoneme_posterior(
     free[row] = packing.free[row]
     if not free.any():
         raise ValueError(f"channel {data.channel}: phoneme {phoneme!r} has no free parameter (all fixed by the spec)")
-    sub = _ChannelData.build([u for u in data.utterances if phoneme in u.labels], data.channel, data.phonemes)
+    # the utterances of the phoneme and of every phoneme whose entries follow its free ones
+    # ([[tie]], or the speakers' rows of [model] speakers = "targets"): the others do not depend on it
+    free_flat = packing.free.reshape(-1)
+    n_par = packing.free.shape[1]
+    labels = {phoneme} | {data.phonemes[f // n_par] for f, ld in packing.ties if ld // n_par == row and free_flat[ld]}
+    sub = _ChannelData.build([u for u in data.utterances if labels & set(u.labels)], data.channel, data.phonemes)
     names = set(packing.with_free(free, False).names())
     mine = {k: v for k, v in (priors or {}).items() if k in names}
     return LogPosterior(sub, packing.with_free(free, False), options, noise, mine, offset_sd=offset_sd,
-                        shrinkage=shrinkage, **evaluators)
+                        shrinkage=shrinkage, **_speaker_args(sub, speakers), **evaluators)
 
 
 def channel_posterior(
@@ -360,8 +469,31 @@ def channel_posterior(
     priors: Mapping[str, tuple[float, float]] | None = None,
     offset_sd: float | None = 0.0,
     shrinkage: Sequence[ShrinkGroup] = (),
-    **evaluators: Callable[..., Any],
+    speakers: SpeakerTerms | None = None,
+    **evaluators: Any,
 ) -> LogPosterior:
     """The joint posterior of every free parameter of the channel (hundreds of dimensions: slow
     for emcee, which is why per-phoneme posteriors are the default)."""
-    return LogPosterior(data, packing, options, noise, priors, offset_sd=offset_sd, shrinkage=shrinkage, **evaluators)
+    return LogPosterior(data, packing, options, noise, priors, offset_sd=offset_sd, shrinkage=shrinkage,
+                        **_speaker_args(data, speakers), **evaluators)
+
+
+@dataclass(frozen=True)
+class SpeakerTerms:
+    """A fitted table's speakers on one channel: the fit spec's mode and manifest column, the
+    speakers in the fit's order (reference first) and their least-squares (a_s, b_s)."""
+
+    mode: str
+    column: str
+    names: tuple[str, ...]
+    start: Mapping[str, tuple[float, float]]
+
+    def on(self, data: ChannelData) -> Speakers:
+        """The least-squares problem's speaker mapping on ``data`` (all utterances or a subset)."""
+        from coartic.fit.problem import Speakers
+
+        return Speakers(data, self.mode, self.column, self.names)
+
+
+def _speaker_args(data: ChannelData, speakers: SpeakerTerms | None) -> dict[str, Any]:
+    return {} if speakers is None else {"speakers": speakers.on(data), "speaker_start": speakers.start}

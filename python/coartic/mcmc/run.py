@@ -17,8 +17,9 @@ import numpy as np
 from numpy.typing import NDArray
 
 from coartic.errors import CoarticError
+from coartic.fit.problem import SPEAKER_SEP
 from coartic.mcmc import plots, sampler, summary
-from coartic.mcmc.posterior import LogPosterior, channel_posterior, phoneme_posterior
+from coartic.mcmc.posterior import LogPosterior, SpeakerTerms, channel_posterior, phoneme_posterior
 from coartic.mcmc.sampler import SamplerSettings, SamplingResult
 from coartic.mcmc.summary import ParameterSummary
 from coartic.outputs import atomic_write_text
@@ -148,9 +149,11 @@ def table_problem(fit_spec: Any, table: Any, table_path: Path, channel: str,
     ``coartic.model.model_options``), never rebuilt from the spec: the posterior is the one of the
     model the table was fitted with. The free set, bounds and ties are the spec's (its
     ``ParameterSet``), so a table of another variant than the spec's ``[model] variant`` is
-    refused (its free set would not match)."""
+    refused (its free set would not match). With ``[model] speakers = "targets"`` the problem is
+    the fit's per-speaker one (``coartic.fit.problem.expand_speaker_targets``), each speaker's
+    targets starting at the table's (metadata.speakers.targets)."""
     from coartic.fit.parameters import ParameterSet
-    from coartic.fit.problem import ChannelData
+    from coartic.fit.problem import ChannelData, expand_speaker_targets
     from coartic.model import model_options
 
     if channel not in table.channels:
@@ -160,7 +163,48 @@ def table_problem(fit_spec: Any, table: Any, table_path: Path, channel: str,
                          f"{fit_spec.variant!r}: sample with the spec the table was fitted with")
     data = ChannelData.build(utterances, channel)
     ps = ParameterSet.from_spec(fit_spec, data, table.to_matrix(channel, data.phonemes))
+    meta = _speaker_meta(fit_spec, table, table_path)
+    if fit_spec.speakers == "targets":
+        own = (meta.get("targets") or {}).get(channel)
+        if not own:
+            raise ValueError(f"{table_path}: metadata.speakers has no targets for channel {channel}")
+        data, ps, _ = expand_speaker_targets(fit_spec, data, ps, data_start=False, names=tuple(own),
+                                             start_targets=own)
     return data, ps.packing(), model_options(table, channel)
+
+
+def _speaker_meta(fit_spec: Any, table: Any, table_path: Path) -> dict[str, Any]:
+    """The table's metadata.speakers, refused unless the fit spec has the same [model] speakers."""
+    raw = (table.metadata or {}).get("speakers")
+    meta: dict[str, Any] = raw if isinstance(raw, dict) else {}
+    mode = fit_spec.speakers
+    told = meta.get("mode")
+    if mode == "none":
+        if told:
+            raise ValueError(f"{table_path}: fitted with [model] speakers = {told!r}, but {fit_spec.path} has none: "
+                             "sample with the spec the table was fitted with")
+        return meta
+    if told != mode or meta.get("column") != fit_spec.speaker_column:
+        raise ValueError(f"{table_path}: {fit_spec.path} has [model] speakers = {mode!r} (column "
+                         f"{fit_spec.speaker_column!r}), but the table was fitted with "
+                         f"{'no speakers' if not told else repr(told) + ' (column ' + repr(meta.get('column')) + ')'}: "
+                         "sample with the spec the table was fitted with")
+    return meta
+
+
+def table_speakers(fit_spec: Any, table: Any, table_path: Path, channel: str) -> SpeakerTerms | None:
+    """The speakers ([model] speakers) the table was fitted with on ``channel``, for the posterior:
+    mode and column must be the spec's (else refused: the posterior would not be the fit's model),
+    the speakers and their least-squares (a_s, b_s) come from the table's metadata. None without
+    speakers, and with per-speaker targets (sampled as the packing's own rows: ``table_problem``)."""
+    meta = _speaker_meta(fit_spec, table, table_path)
+    if fit_spec.speakers in ("none", "targets"):
+        return None
+    coefs = (meta.get("coefficients") or {}).get(channel)
+    if not coefs:
+        raise ValueError(f"{table_path}: metadata.speakers has no coefficients for channel {channel}")
+    start = {str(s): (float(c["offset_mm"]), float(c["scale"])) for s, c in coefs.items()}
+    return SpeakerTerms(fit_spec.speakers, fit_spec.speaker_column, tuple(start), start)
 
 
 def spec_priors(fit_spec: Any, packing: Any, channel: str) -> dict[str, tuple[Any, ...]]:
@@ -169,8 +213,27 @@ def spec_priors(fit_spec: Any, packing: Any, channel: str) -> dict[str, tuple[An
     least-squares fit had (``[mcmc] priors`` add to and override them)."""
     from coartic.fit.parameters import expand_priors
 
-    pri = expand_priors(fit_spec, channel, tuple(packing.phonemes), packing.free, packing.beta_free)
-    return {k: (p.mean, p.sd) + ((True,) if p.log else ()) for k, p in pri.items()}
+    if fit_spec.speakers != "targets":
+        pri = expand_priors(fit_spec, channel, tuple(packing.phonemes), packing.free, packing.beta_free)
+        return {k: (p.mean, p.sd) + ((True,) if p.log else ()) for k, p in pri.items()}
+    # per-speaker rows "p|s": the priors of phoneme p, on its first row (shared entries) and on
+    # every row's own target, as expand_speaker_targets gives them to least squares
+    rows: dict[str, list[int]] = {}
+    for i, lab in enumerate(packing.phonemes):
+        rows.setdefault(lab.rpartition(SPEAKER_SEP)[0], []).append(i)
+    base = tuple(rows)
+    free = np.array([packing.free[r[0]] for r in rows.values()])
+    kt = 0  # PARAMETERS[0] is the target
+    free[:, kt] = [packing.free[r, kt].any() for r in rows.values()]
+    out: dict[str, tuple[Any, ...]] = {}
+    for key, p in expand_priors(fit_spec, channel, base, free, packing.beta_free).items():
+        v = (p.mean, p.sd) + ((True,) if p.log else ())
+        phoneme, _, name = key.rpartition(".")
+        if not phoneme:
+            out[key] = v
+        for r in rows.get(phoneme, [])[: None if name == "target" else 1]:
+            out[f"{packing.phonemes[r]}.{name}"] = v
+    return out
 
 
 def spec_shrinkage(fit_spec: Any, table: Any, packing: Any, channel: str) -> list[Any]:
@@ -255,8 +318,14 @@ def sample_posterior(
     return PosteriorRun(posterior.channel, phoneme, directory, posterior, result, x0, summaries, images)
 
 
-def fixed_noise(data: Any, packing: Any, options: Any, sse_batch: Callable[..., Any] | None = None) -> float:
-    """σ_n fixed at the least-squares residual RMS of the whole channel."""
+def fixed_noise(data: Any, packing: Any, options: Any, sse_batch: Callable[..., Any] | None = None,
+                speakers: SpeakerTerms | None = None) -> float:
+    """σ_n fixed at the least-squares residual RMS of the whole channel (each speaker's a_s + b_s·F
+    with ``speakers``)."""
+    if speakers is not None:
+        post = channel_posterior(data, packing, options, noise=1.0, speakers=speakers)
+        sse_s = float(post.sse(post.start_point()[None])[0])
+        return math.sqrt(sse_s / max(int(np.count_nonzero(data.weights > 0)), 1))
     if sse_batch is None:
         from coartic import _core
 
@@ -277,13 +346,14 @@ def channel_runs(
     on_done: Callable[[PosteriorRun], None] | None = None,
     spec_priors: Mapping[str, tuple[Any, ...]] | None = None,
     spec_shrinkage: Sequence[Any] = (),
+    speakers: SpeakerTerms | None = None,
 ) -> tuple[list[PosteriorRun], bool]:
     """Every posterior the config asks for on one channel; returns them and whether interrupted."""
     noise: float | None
     if cfg.noise == "free":
         noise = None
     elif cfg.noise == "fit":
-        noise = fixed_noise(data, packing, options)
+        noise = fixed_noise(data, packing, options, speakers=speakers)
     else:
         noise = float(cfg.noise)
     offset_sd: float | None
@@ -301,15 +371,19 @@ def channel_runs(
     runs: list[PosteriorRun] = []
     if cfg.scope == "channel":
         jobs: list[tuple[str | None, Callable[[], LogPosterior]]] = [(None, lambda: channel_posterior(data, packing, options, noise, priors, offset_sd,
-                                                                                       spec_shrinkage))]
+                                                                                       spec_shrinkage, speakers=speakers))]
     else:
-        wanted = cfg.phonemes or tuple(p for i, p in enumerate(data.phonemes) if p != PAUSE and packing.free[i].any())
-        missing = [p for p in wanted if p not in data.phonemes]
+        # (with per-speaker targets the rows are "p|s": a phoneme named in [mcmc] phonemes means all its rows)
+        base = [p.rpartition(SPEAKER_SEP)[0] or p if SPEAKER_SEP in p else p for p in data.phonemes]
+        wanted = cfg.phonemes or tuple(p for i, p in enumerate(data.phonemes) if base[i] != PAUSE and packing.free[i].any())
+        missing = [p for p in wanted if p not in data.phonemes and p not in base]
+        wanted = tuple(r for p in wanted for r, b in zip(data.phonemes, base) if p in (r, b))
         if missing:
             raise McmcConfigError(f"[mcmc] phonemes: {', '.join(missing)} do not occur in the {channel} data (phonemes: {' '.join(data.phonemes)})")
 
         def job(p: str) -> Callable[[], LogPosterior]:
-            return lambda: phoneme_posterior(data, packing, options, p, noise, priors, offset_sd, spec_shrinkage)
+            return lambda: phoneme_posterior(data, packing, options, p, noise, priors, offset_sd, spec_shrinkage,
+                                             speakers=speakers)
 
         jobs = [(p, job(p)) for p in wanted]
     for phoneme, make in jobs:

@@ -91,13 +91,19 @@ def to_jsonable(summaries: list[ParameterSummary]) -> list[dict[str, Any]]:
 def write_uncertainty(table: ParameterTable, channel: str, summaries: list[ParameterSummary]) -> int:
     """Store each per-phoneme parameter's quantiles in ``table.uncertainty``; returns how many.
 
-    β and σ_n have no per-phoneme slot in the table; they stay in the run's summary file.
+    β, σ_n and the speakers' offsets and scales have no per-phoneme slot in the table; they stay in
+    the run's summary file.
     """
     n = 0
     for s in summaries:
-        if "." not in s.name:
+        if "." not in s.name or s.name.startswith(("speaker_offset:", "speaker_scale:")):
             continue
         phoneme, parameter = s.name.split(".", 1)
+        if phoneme not in table.values and "|" in phoneme:
+            # [model] speakers = "targets": row "p|s"; its shared entries are p's, its target s's own
+            if parameter == "target":
+                continue
+            phoneme = phoneme.rpartition("|")[0]
         table.uncertainty.setdefault(phoneme, {}).setdefault(channel, {})[parameter] = dict(s.quantiles)
         n += 1
     return n

@@ -16,6 +16,7 @@ from dataclasses import dataclass, field
 from os import PathLike
 from pathlib import Path
 
+import numpy as np
 from rich.progress import Progress
 
 from coartic.io.labelmap import LabelMap, resolve_label_map
@@ -34,6 +35,7 @@ from coartic.runtime.errors import AnimationError, MissingPhonemeError
 from coartic.runtime.fap import FaceUnits, FapSequence, channels_to_faps, write_fap
 from coartic.runtime.festival import DEFAULT_VOICE, FestivalUtterance, PhoneMap, synthesize, wav_duration
 from coartic.runtime.preview import plot_channels, render_preview, render_strip
+from coartic.speakers import SpeakerMapping, speaker_mapping
 from coartic.table import PAUSE, ParameterTable
 
 
@@ -47,13 +49,33 @@ class RuntimeOutput:
     utterance: FestivalUtterance | None = None
 
 
-def speaker_face(table: ParameterTable, mns_mm: float | None = None, mw_mm: float | None = None) -> FaceUnits:
+def speaker_face(table: ParameterTable, mns_mm: float | None = None, mw_mm: float | None = None,
+                 speaker: str | None = None) -> FaceUnits:
     """FAPU of the face the table describes: MPEG-4 values are in the encoding face's units, and a
     player rescales them to its own face. MW defaults to the rest mouth width (the pause's LR
-    target); MNS, which no channel measures, to FaceUnits' 30 mm."""
+    target, the speaker's with ``speaker``); MNS, which no channel measures, to FaceUnits' 30 mm."""
     default = FaceUnits()
-    mw = neutral_posture(table, ["LR"])["LR"] if mw_mm is None else mw_mm
+    mw = speaker_neutral(table, speaker_mapping(table, speaker), ["LR"])["LR"] if mw_mm is None else mw_mm
     return FaceUnits(mns_mm=default.mns_mm if mns_mm is None else mns_mm, mw_mm=mw)
+
+
+def speaker_neutral(table: ParameterTable, mapping: SpeakerMapping | None,
+                    channels: tuple[str, ...] | list[str] | None = None) -> dict[str, float]:
+    """The neutral posture (the pause's targets) of the table's speaker ``mapping`` (None: the table's own)."""
+    chans = list(channels) if channels is not None else None
+    if mapping is None:
+        return neutral_posture(table) if chans is None else neutral_posture(table, chans)
+    own = mapping.evaluation_table(table)
+    rest = neutral_posture(own) if chans is None else neutral_posture(own, chans)
+    return {c: float(mapping.apply(c, np.array([v]))[0]) if c in own.channels else v for c, v in rest.items()}
+
+
+def speak_as(animation: Animation, mapping: SpeakerMapping | None) -> Animation:
+    """The animation's modelled channels as the speaker says them (a + b·F; coartic.speakers)."""
+    if mapping is not None:
+        for c in animation.modelled:
+            animation.channels[c] = mapping.apply(c, animation.channels[c])
+    return animation
 
 
 def _name_from(text: str) -> str:
@@ -121,8 +143,9 @@ def _write_outputs(
     audio: Path | None = None,
     gltf: bool = False,
     vrml: bool = False,
+    mapping: SpeakerMapping | None = None,
 ) -> RuntimeOutput:
-    neutral = neutral_posture(table)
+    neutral = speaker_neutral(table, mapping)
     faps = channels_to_faps(animation.channels, neutral, face, name, animation.fps)
     out.mkdir(parents=True, exist_ok=True)
     files: dict[str, Path] = {}
@@ -171,6 +194,7 @@ def animate_file(
     name: str | None = None,
     gltf: bool = False,
     vrml: bool = False,
+    speaker: str | None = None,
 ) -> RuntimeOutput:
     """A label file (.lab / TextGrid / TSV) → channels, FAP file and preview in `out`.
 
@@ -179,9 +203,11 @@ def animate_file(
     unless `strict`. With `audio` (the recording the labels describe), the WAV is copied beside
     the FAP file under its name (Greta loads `name.fap` with `name.wav`), the animation lasts as
     long as the sound, and the MP4 preview and the glTF bundle carry it. `name` defaults to the
-    label file's stem.
+    label file's stem. `speaker`: one of the speakers of a table fitted with `[model] speakers`
+    (its offset and scale, or its own targets; coartic.speakers).
     """
     _check_preview(preview)
+    mapping = speaker_mapping(table, speaker)
     out = Path(out)
     name = check_name(name) if name is not None else _name_from(Path(labels).stem)
     raw = read_labels(labels, tier=tier)
@@ -201,9 +227,11 @@ def animate_file(
             raise AnimationError(f"{labels}: the labels run to {segments.end_time:.3f} s but {audio} lasts "
                                  f"{duration:.3f} s; are they for this recording?")
         duration = max(duration, 1.0 / fps)
-    animation = animate(table, segments, fps, duration=duration, snap_contacts=snap_contacts, substitutions=used)
-    return _write_outputs(animation, table, out, name, face or speaker_face(table),
-                          preview, requested, raw.labels, progress, audio=wav, gltf=gltf, vrml=vrml)
+    own = table if mapping is None else mapping.evaluation_table(table)
+    animation = speak_as(animate(own, segments, fps, duration=duration, snap_contacts=snap_contacts,
+                                 substitutions=used), mapping)
+    return _write_outputs(animation, table, out, name, face or speaker_face(table, speaker=speaker),
+                          preview, requested, raw.labels, progress, audio=wav, gltf=gltf, vrml=vrml, mapping=mapping)
 
 
 def speak_text(
@@ -224,6 +252,7 @@ def speak_text(
     name: str | None = None,
     gltf: bool = False,
     vrml: bool = False,
+    speaker: str | None = None,
 ) -> RuntimeOutput:
     """Italian text → Festival's WAV, and channels, FAP file and preview lasting as long as the WAV.
 
@@ -231,9 +260,10 @@ def speak_text(
     `name` defaults to a word made of the text.
 
     Phonemes the table lacks are replaced by the phone map's fallbacks (reported in
-    `animation.substitutions`) unless `strict`.
+    `animation.substitutions`) unless `strict`. `speaker`: as in `animate_file`.
     """
     _check_preview(preview)
+    mapping = speaker_mapping(table, speaker)
     check_text(text)
     out = Path(out)
     pmap = phone_map or PhoneMap.load()
@@ -250,14 +280,14 @@ def speak_text(
     if not strict:
         segments, used = substitute(segments, table, table_channels(table), pmap.fallbacks)
     try:
-        animation = animate(table, segments, fps, duration=utt.duration, substitutions=used,
-                            snap_contacts=snap_contacts)
+        animation = speak_as(animate(table if mapping is None else mapping.evaluation_table(table), segments, fps,
+                                     duration=utt.duration, substitutions=used, snap_contacts=snap_contacts), mapping)
     except MissingPhonemeError as err:
         if err.segment is None:
             raise
         raise MissingPhonemeError(f"{err} (Festival phone {utt.phones[err.segment]!r} of {utt.text!r})",
                                   err.segment) from None
-    result = _write_outputs(animation, table, out, name, face or speaker_face(table), preview,
-                            requested, utt.phones, progress, audio=utt.wav, gltf=gltf, vrml=vrml)
+    result = _write_outputs(animation, table, out, name, face or speaker_face(table, speaker=speaker), preview,
+                            requested, utt.phones, progress, audio=utt.wav, gltf=gltf, vrml=vrml, mapping=mapping)
     result.utterance = utt
     return result

@@ -15,6 +15,7 @@ from coartic.io.errors import DataError
 from coartic.runtime.errors import AnimationError
 from coartic.runtime.festival import DEFAULT_VOICE
 from coartic.runtime import PREVIEW_FORMATS
+from coartic.speakers import SpeakerError
 from coartic.table import ParameterTable, TableError
 from coartic.console import print_error
 from coartic.outputs import OutputDir, OutputError
@@ -36,6 +37,7 @@ PreviewOpt = Annotated[str, typer.Option("--preview", help=f"Preview format: {',
 GltfOpt = Annotated[bool, typer.Option("--gltf", help="Also write NAME.glb: the face with morph targets per FAP and their animation (coartic view DIR plays it).")]
 VrmlOpt = Annotated[bool, typer.Option("--vrml", help="Also write NAME.wrl: the face animated in VRML97 (interpolators, the sound as an AudioClip).")]
 FapNameOpt = Annotated[str | None, typer.Option("--fap-name", help="Name of the FAP file and its header; the WAV and glTF get the same stem (Greta loads NAME.fap with NAME.wav).")]
+SpeakerOpt = Annotated[str | None, typer.Option("--speaker", help="Speak as this speaker of a table fitted with [model] speakers (its offset and scale, or its own targets).")]
 ForceOpt = Annotated[bool, typer.Option("--force", help="Replace --out even if it holds another run's output "
                                         "(the same labels or text replace their own output without it).")]
 
@@ -110,6 +112,7 @@ def animate_command(
     fap_name: FapNameOpt = None,
     gltf: GltfOpt = False,
     vrml: VrmlOpt = False,
+    speaker: SpeakerOpt = None,
     force: ForceOpt = False,
 ) -> None:
     """Animate a label file: channel trajectories (CSV), an MPEG-4 FAP file and a preview.
@@ -124,10 +127,10 @@ def animate_command(
                            protect=[labels, table, *([audio] if audio is not None else [])])
         with output as staging, _progress() as progress:
             result = animate_file(labels, t, staging, fps=fps, tier=tier, label_map=label_map,
-                                  face=speaker_face(t, mns, mw), preview=preview, snap_contacts=snap_contacts,
+                                  face=speaker_face(t, mns, mw, speaker), preview=preview, snap_contacts=snap_contacts,
                                   strict=strict, progress=progress, audio=audio, name=fap_name, gltf=gltf,
-                                  vrml=vrml)
-    except (AnimationError, DataError, TableError, OutputError, OSError) as err:
+                                  vrml=vrml, speaker=speaker)
+    except (AnimationError, DataError, TableError, OutputError, SpeakerError, OSError) as err:
         _fail(err)
     _report(_moved(result, staging, out))
 
@@ -147,6 +150,7 @@ def speak_command(
     fap_name: FapNameOpt = None,
     gltf: GltfOpt = False,
     vrml: VrmlOpt = False,
+    speaker: SpeakerOpt = None,
     force: ForceOpt = False,
 ) -> None:
     """Say Italian text with Festival: WAV, channel trajectories, FAP file and preview, all as long as the WAV.
@@ -160,8 +164,8 @@ def speak_command(
         output = OutputDir(out, "speak", {"text": text}, force=force, protect=[table])
         with output as staging, _progress() as progress:
             result = speak_text(text, t, staging, fps=fps, stretch=stretch, voice=voice, strict=strict,
-                                face=speaker_face(t, mns, mw), preview=preview, snap_contacts=snap_contacts,
-                                progress=progress, name=fap_name, gltf=gltf, vrml=vrml)
-    except (AnimationError, DataError, TableError, OutputError, OSError) as err:
+                                face=speaker_face(t, mns, mw, speaker), preview=preview, snap_contacts=snap_contacts,
+                                progress=progress, name=fap_name, gltf=gltf, vrml=vrml, speaker=speaker)
+    except (AnimationError, DataError, TableError, OutputError, SpeakerError, OSError) as err:
         _fail(err)
     _report(_moved(result, staging, out))
