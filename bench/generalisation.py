@@ -143,9 +143,10 @@ def gestures(manifest: Path, variants: Sequence[str], channels: tuple[str, ...],
 def select_plateau_fraction(manifest: Path, grid: Sequence[float], channels: tuple[str, ...],
                             out: list[str]) -> None:
     """Choose h (plateau_fraction of the rate-aware variant) as a user with only normal-rate data
-    would: by 5-fold cross-validation over repetitions *within the normal rate*; then score the
-    chosen h on the fast rate, which took no part in the choice."""
-    from coartic.fit.validate import kfold_splits
+    would: ``[choose]`` (coartic.fit.choose) by 5-fold cross-validation over repetitions *within
+    the normal rate*, lowest mean held-out RMSE; then score the chosen h on the fast rate, which
+    took no part in the choice."""
+    from coartic.fit.spec import Choose
 
     base = load_spec(ROOT / "fit" / "synthetic.toml")
     base = base.with_options(corpus=dataclasses.replace(base.corpus, manifest=manifest.resolve()), channels=channels)
@@ -154,30 +155,15 @@ def select_plateau_fraction(manifest: Path, grid: Sequence[float], channels: tup
     fast = [u for u in utts if u.meta.get("rate") == base.test_rate]
     out.append(f"## choosing h by 5-fold CV over repetitions within the {base.train_rate} rate "
                f"({len(normal)} trials); the {base.test_rate} rate ({len(fast)} trials) is scored only after")
-    out.append(f"{'h':>5s} {'channel':7s} {'CV held-out':>11s}")
-    cv: dict[tuple[float, str], float] = {}
-    for h in grid:
-        spec = base.with_options(**{**VARIANTS["rate-aware"], "plateau_fraction": h},
-                                 validate_group="repetition", validate_folds=5)
-        sse: dict[str, float] = {c: 0.0 for c in channels}
-        n: dict[str, float] = {c: 0.0 for c in channels}
-        for split, train, test in kfold_splits(spec, normal):
-            res = run(spec, utterances=train, quiet=True, report=False)
-            for s in score(res, test, split):
-                sse[s.channel] += s.test_rmse**2 * s.test_samples
-                n[s.channel] += s.test_samples
-        for c in channels:
-            cv[h, c] = float(np.sqrt(sse[c] / n[c]))
-            out.append(f"{h:5.2f} {c:7s} {cv[h, c]:11.3f}")
-            print(out[-1], flush=True)
-    for c in channels:
-        best = min(grid, key=lambda h: cv[h, c])
-        spec = base.with_options(**{**VARIANTS["rate-aware"], "plateau_fraction": best}, channels=(c,))
-        res = run(spec, utterances=normal, quiet=True, report=False)
-        (s,) = score(res, fast, f"fit {base.train_rate}, test {base.test_rate}")
-        out.append(f"{c}: CV chooses h = {best:g}; fit {base.train_rate} rate, test {base.test_rate} rate: "
-                   f"train {s.train_rmse:.3f}, test {s.test_rmse:.3f} mm")
-        print(out[-1], flush=True)
+    spec = base.with_options(**VARIANTS["rate-aware"],
+                             choose=Choose("plateau_fraction", tuple(sorted(grid)), "repetition", 5, "min"))
+    res = run(spec, utterances=normal, quiet=True, report=False)
+    assert res.choice is not None
+    out.extend(res.choice.text_lines())
+    for s in score(res, fast, f"fit {base.train_rate}, test {base.test_rate}"):
+        out.append(f"{s.channel}: CV chooses h = {res.choice.chosen[s.channel]:g}; fit {base.train_rate} rate, test "
+                   f"{base.test_rate} rate: train {s.train_rmse:.3f}, test {s.test_rmse:.3f} mm")
+    print("\n".join(out), flush=True)
 
 
 def _rmse(f: np.ndarray, data: ChannelData, keep: np.ndarray, offset: bool = False) -> float:

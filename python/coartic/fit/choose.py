@@ -219,7 +219,12 @@ def cross_validate(spec: FitSpec, utterances: Sequence[Utterance], progress: Pro
     c = spec.choose
     if c is None:
         raise ValueError("cross_validate needs a spec with [choose]")
-    folds = kfold_splits(replace(spec, validate_group=c.group, validate_folds=c.folds), utterances)
+    try:
+        folds = kfold_splits(replace(spec, validate_group=c.group, validate_folds=c.folds), utterances)
+    except SpecError as e:  # named by [choose], where the grouping came from
+        why = str(e).partition("] ")[2] or str(e)
+        raise SpecError(f"{spec.path}: [choose] group = {c.group!r}, in {len(utterances)} training utterances: "
+                        f"{why}") from None
     points = {(v, ch): CurvePoint(v, ch, [], []) for v in c.values for ch in spec.channels}
     scored: list[str] = []
     notes: list[str] = []
