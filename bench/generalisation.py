@@ -75,7 +75,7 @@ def shrink_options(spec: FitSpec, sd: float = 1.0, grid: Sequence[float] | None 
     shrinks = []
     for cls, members in CLASSES.items():
         for scale, pars in (("log", SHRINK_LOG), ("natural", SHRINK_NATURAL)):
-            free = tuple(p for p in pars if p in spec.free)
+            free = tuple(p for p in pars if p in spec.free and not (spec.variant == "original" and p == "k_r"))
             if free:
                 shrinks.append(Shrink(members, free, sd, scale == "log", None, f"shrink {cls} {scale}"))
     opts: dict[str, Any] = {"shrinks": tuple(shrinks)}
@@ -99,18 +99,26 @@ def variant_spec(spec: FitSpec, name: str) -> FitSpec | None:
     return spec.with_options(**shrink_options(spec)) if name in SHRUNK else spec
 
 
-def gestures(manifest: Path, variants: Sequence[str], channels: tuple[str, ...], out: list[str]) -> None:
+def gestures(manifest: Path, variants: Sequence[str], channels: tuple[str, ...], out: list[str],
+             repetitions: Sequence[str] | None = None) -> None:
     base = load_spec(ROOT / "fit" / "synthetic.toml")
     base = base.with_options(corpus=dataclasses.replace(base.corpus, manifest=manifest.resolve()), channels=channels)
     utts = load_utterances(base)
-    out.append(f"## gestures flavour: {manifest.parent.name}, {len(utts)} trials, fit/synthetic.toml, "
-               f"channels {' '.join(channels)}")
+    if repetitions:  # a data-poor session: only these repetitions (CV over utterances, not repetitions)
+        utts = [u for u in utts if str(int(u.meta.get("repetition", "0"))) in repetitions]
+    out.append(f"## gestures flavour: {manifest.parent.name}, {len(utts)} trials"
+               + (f" (repetitions {','.join(repetitions)} only)" if repetitions else "")
+               + f", fit/synthetic.toml, channels {' '.join(channels)}")
     out.append(f"{'variant':15s} {'split':36s} {'channel':7s} {'train':>7s} {'test':>7s} {'-offset':>7s}  "
                "worst vowel  at a bound (fit of the split)")
     for name in variants:
         spec = variant_spec(base, name)
+        if spec is not None and spec.choose is not None and repetitions and len(repetitions) < 3:
+            # folds dealt round-robin over the sorted files: 4 (coprime with the 21 consonants) keeps
+            # every consonant in each fold's training; 3 would hold out all of a consonant's contexts
+            spec = spec.with_options(choose=dataclasses.replace(spec.choose, group="utterance", folds=4))
         if spec is None:
-            out.append(f"{name:15s} (skipped: this core/FitSpec has no {sorted(VARIANTS[name])} options)")
+            out.append(f"{name:15s} (skipped: this core/FitSpec has no {sorted(VARIANTS[SHRUNK.get(name, name)])} options)")
             print(out[-1], flush=True)
             continue
         for split, train, test in splits(spec, utts):
@@ -135,9 +143,10 @@ def gestures(manifest: Path, variants: Sequence[str], channels: tuple[str, ...],
 def select_plateau_fraction(manifest: Path, grid: Sequence[float], channels: tuple[str, ...],
                             out: list[str]) -> None:
     """Choose h (plateau_fraction of the rate-aware variant) as a user with only normal-rate data
-    would: by 5-fold cross-validation over repetitions *within the normal rate*; then score the
-    chosen h on the fast rate, which took no part in the choice."""
-    from coartic.fit.validate import kfold_splits
+    would: ``[choose]`` (coartic.fit.choose) by 5-fold cross-validation over repetitions *within
+    the normal rate*, lowest mean held-out RMSE; then score the chosen h on the fast rate, which
+    took no part in the choice."""
+    from coartic.fit.spec import Choose
 
     base = load_spec(ROOT / "fit" / "synthetic.toml")
     base = base.with_options(corpus=dataclasses.replace(base.corpus, manifest=manifest.resolve()), channels=channels)
@@ -146,30 +155,15 @@ def select_plateau_fraction(manifest: Path, grid: Sequence[float], channels: tup
     fast = [u for u in utts if u.meta.get("rate") == base.test_rate]
     out.append(f"## choosing h by 5-fold CV over repetitions within the {base.train_rate} rate "
                f"({len(normal)} trials); the {base.test_rate} rate ({len(fast)} trials) is scored only after")
-    out.append(f"{'h':>5s} {'channel':7s} {'CV held-out':>11s}")
-    cv: dict[tuple[float, str], float] = {}
-    for h in grid:
-        spec = base.with_options(**{**VARIANTS["rate-aware"], "plateau_fraction": h},
-                                 validate_group="repetition", validate_folds=5)
-        sse: dict[str, float] = {c: 0.0 for c in channels}
-        n: dict[str, float] = {c: 0.0 for c in channels}
-        for split, train, test in kfold_splits(spec, normal):
-            res = run(spec, utterances=train, quiet=True, report=False)
-            for s in score(res, test, split):
-                sse[s.channel] += s.test_rmse**2 * s.test_samples
-                n[s.channel] += s.test_samples
-        for c in channels:
-            cv[h, c] = float(np.sqrt(sse[c] / n[c]))
-            out.append(f"{h:5.2f} {c:7s} {cv[h, c]:11.3f}")
-            print(out[-1], flush=True)
-    for c in channels:
-        best = min(grid, key=lambda h: cv[h, c])
-        spec = base.with_options(**{**VARIANTS["rate-aware"], "plateau_fraction": best}, channels=(c,))
-        res = run(spec, utterances=normal, quiet=True, report=False)
-        (s,) = score(res, fast, f"fit {base.train_rate}, test {base.test_rate}")
-        out.append(f"{c}: CV chooses h = {best:g}; fit {base.train_rate} rate, test {base.test_rate} rate: "
-                   f"train {s.train_rmse:.3f}, test {s.test_rmse:.3f} mm")
-        print(out[-1], flush=True)
+    spec = base.with_options(**VARIANTS["rate-aware"],
+                             choose=Choose("plateau_fraction", tuple(sorted(grid)), "repetition", 5, "min"))
+    res = run(spec, utterances=normal, quiet=True, report=False)
+    assert res.choice is not None
+    out.extend(res.choice.text_lines())
+    for s in score(res, fast, f"fit {base.train_rate}, test {base.test_rate}"):
+        out.append(f"{s.channel}: CV chooses h = {res.choice.chosen[s.channel]:g}; fit {base.train_rate} rate, test "
+                   f"{base.test_rate} rate: train {s.train_rmse:.3f}, test {s.test_rmse:.3f} mm")
+    print("\n".join(out), flush=True)
 
 
 def _rmse(f: np.ndarray, data: ChannelData, keep: np.ndarray, offset: bool = False) -> float:
@@ -219,7 +213,10 @@ def german(variants: Sequence[str], out: list[str]) -> None:
                 fixes = tuple(Override(phonemes=(p,), channels=(ch,),
                                        fixed={par: float(fit.params[row[p], j]) for j, par in enumerate(PARAMETERS)})
                               for p in shared)
-                tspec = spec.with_options(channels=(ch,), overrides=spec.overrides + fixes)
+                # Shrinkage pulls the unseen phonemes toward their class means, which include the
+                # shared members at their trained values; a class with no unseen member has nothing free.
+                tspec = spec.with_options(channels=(ch,), overrides=spec.overrides + fixes,
+                                          shrinks=tuple(g for g in spec.shrinks if set(g.phonemes) & set(unseen)))
                 transfer = run(tspec, utterances=[held], quiet=True, report=False).channels[ch]
                 mine = own.channels[ch]
                 data = transfer.problem.data
@@ -245,6 +242,8 @@ def main() -> int:
                     help=f"comma-separated, among {', '.join([*VARIANTS, *SHRUNK])}")
     ap.add_argument("--channels", default="LLO,JO")
     ap.add_argument("--skip-gestures", action="store_true")
+    ap.add_argument("--repetitions", metavar="R1,R2", help="gestures: keep only these repetitions (a data-poor "
+                    "session; the shrinkage variants then cross-validate over utterances)")
     ap.add_argument("--skip-german", action="store_true")
     ap.add_argument("--select-h", metavar="GRID",
                     help="only choose the rate-aware variant's plateau_fraction among GRID (e.g. 0.3,0.4,0.5,0.6) "
@@ -267,7 +266,8 @@ def main() -> int:
         ap.error("give the gestures session's manifest.csv (or --skip-gestures)")
     lines = ["# bench/generalisation.py: RMSE (mm) of fitted tables on data the fit did not see"]
     if not a.skip_gestures:
-        gestures(a.manifest, variants, tuple(a.channels.split(",")), lines)
+        gestures(a.manifest, variants, tuple(a.channels.split(",")), lines,
+                 a.repetitions.split(",") if a.repetitions else None)
     if not a.skip_german:
         german(variants, lines)
     return _write(lines, a.out or ROOT / "bench" / "results" / "generalisation.txt")

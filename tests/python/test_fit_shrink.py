@@ -220,3 +220,11 @@ def test_compare_varies_the_shrinkage_sd(tmp_path: Path) -> None:
         vary(s, "shrink #3.sd", ["0.1"])
     with pytest.raises(SpecError, match="positive"):
         vary(s, "shrink.sd", ["-1"])
+
+
+def test_a_choice_without_folds_is_refused_naming_choose(tmp_path: Path, utts: list[model.Utterance]) -> None:
+    s = spec_of(tmp_path, shrink=[{"phonemes": ["p", "t"], "parameters": ["target"], "sd": 1.0}],
+                choose={"key": "shrink.sd", "values": [1.0, 0.1], "group": "repetition"})
+    one = [u for u in utts if u.meta["repetition"] == "1"]
+    with pytest.raises(SpecError, match=r"\[choose\] group = 'repetition', in 4 training utterances: .*only one repetition"):
+        run(s, utterances=one, quiet=True)

@@ -101,6 +101,7 @@ class Choice:
     choose: Choose
     points: list[CurvePoint]
     folds: list[str]  # the folds scored
+    n_folds: int = 0  # the folds made (some may not be scorable)
     chosen: dict[str, float] = field(default_factory=dict)
     notes: list[str] = field(default_factory=list)
 
@@ -138,15 +139,18 @@ class Choice:
 
     def metadata(self) -> dict[str, Any]:
         c = self.choose
-        return {"key": c.key, "rule": c.rule, "group": c.group, "folds": len(self.folds), "values": list(c.values),
+        return {"key": c.key, "rule": c.rule, "group": c.group, "folds": max(self.n_folds, len(self.folds)),
+                "folds_scored": len(self.folds), "values": list(c.values),
                 "chosen": dict(self.chosen),
                 "curve": {ch: {repr(p.value): {"mean_rmse_mm": p.mean, "se_mm": p.se} for p in self.curve(ch)}
                           for ch in dict.fromkeys(p.channel for p in self.points)}}
 
     def text_lines(self) -> list[str]:
         c = self.choose
-        lines = [f"[[Choice]] {c.key} by {len(self.folds)}-fold cross-validation on the training data "
-                 f"(group {c.group}, rule {c.rule}): " + ", ".join(f"{ch} {v:g}" for ch, v in self.chosen.items())]
+        made = max(self.n_folds, len(self.folds))
+        scored = "" if made == len(self.folds) else f", {len(self.folds)} scored"
+        lines = [f"[[Choice]] {c.key} by {made}-fold cross-validation on the training data "
+                 f"(group {c.group}{scored}, rule {c.rule}): " + ", ".join(f"{ch} {v:g}" for ch, v in self.chosen.items())]
         lines += [f"    note: {n}" for n in self.notes]
         for ch in dict.fromkeys(p.channel for p in self.points):
             for p in self.curve(ch):
@@ -215,7 +219,12 @@ def cross_validate(spec: FitSpec, utterances: Sequence[Utterance], progress: Pro
     c = spec.choose
     if c is None:
         raise ValueError("cross_validate needs a spec with [choose]")
-    folds = kfold_splits(replace(spec, validate_group=c.group, validate_folds=c.folds), utterances)
+    try:
+        folds = kfold_splits(replace(spec, validate_group=c.group, validate_folds=c.folds), utterances)
+    except SpecError as e:  # named by [choose], where the grouping came from
+        why = str(e).partition("] ")[2] or str(e)
+        raise SpecError(f"{spec.path}: [choose] group = {c.group!r}, in {len(utterances)} training utterances: "
+                        f"{why}") from None
     points = {(v, ch): CurvePoint(v, ch, [], []) for v in c.values for ch in spec.channels}
     scored: list[str] = []
     notes: list[str] = []
@@ -260,6 +269,6 @@ def cross_validate(spec: FitSpec, utterances: Sequence[Utterance], progress: Pro
     if not scored:
         raise SpecError(f"{spec.path}: [choose] no {c.group} fold can be scored (each holds out phonemes its "
                         f"training lacks: {'; '.join(notes)}); group by something else or give more utterances")
-    choice = Choice(c, [p for p in points.values() if p.fold_rmse], scored, notes=notes)
+    choice = Choice(c, [p for p in points.values() if p.fold_rmse], scored, len(folds), notes=notes)
     choice.pick()
     return choice

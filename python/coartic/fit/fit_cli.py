@@ -154,6 +154,11 @@ def _fit_into(s: FitSpec, out: Path, console: Console, validate: bool, report: b
     if not result.channels:
         return result
     console.print(rmse_table(result))
+    if result.choice is not None:
+        c = result.choice
+        console.print(escape(f"{c.choose.key} chosen by cross-validation on the training data (rule {c.choose.rule}): "
+                             + ", ".join(f"{ch} {v:g}" for ch, v in c.chosen.items())
+                             + " (curve: choose.csv, choose.png, fit_report.txt)"), soft_wrap=True, highlight=False)
     for line in warning_lines(result):
         console.print(line, soft_wrap=True)
     for note in result.notes:
