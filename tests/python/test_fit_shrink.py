@@ -250,3 +250,18 @@ def test_coartic_fit_choose_refuses_folds_it_cannot_score(tmp_path: Path) -> Non
     assert not (tmp_path / "o").exists()
     res = CliRunner().invoke(app, ["fit", str(spec), "--out", str(tmp_path / "o"), "--choose", "shrink #2.sd=0.1,1"])
     assert res.exit_code == 2 and "no such table" in res.output
+
+
+def test_a_chosen_model_option_is_what_the_table_records(tmp_path: Path, utts: list[model.Utterance]) -> None:
+    # the table must evaluate as the channel was fitted: with the chosen plateau fraction
+    s = spec_of(tmp_path, model={"channels": ["LLO"], "dominance": "plateau", "plateau_fraction": 0.5},
+                choose={"key": "plateau_fraction", "values": [0.0, 1.0], "group": "repetition", "folds": 2,
+                        "rule": "min"})
+    res = run(s, None, utterances=utts, quiet=True)
+    assert res.choice is not None
+    chosen = res.choice.chosen["LLO"]
+    assert res.table().channels["LLO"].plateau_fraction == chosen
+    from coartic.fit.score import score_utterances
+
+    assert score_utterances(res.table(), utts, ["LLO"]).channel_rows()[0]["rmse_mm"] == pytest.approx(
+        res.channels["LLO"].rmse, rel=1e-9)

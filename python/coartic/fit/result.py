@@ -206,7 +206,9 @@ class FitResult:
         s = self.spec
         t = ParameterTable(variant=s.variant, source=f"fit of {s.path}")
         for ch, fit in self.channels.items():
-            t.channels[ch] = s.channel_settings(ch, fit.beta)
+            # the settings the channel was fitted with: a [choose]n model option (plateau_fraction) is the chosen one
+            fitted_with = s if self.choice is None else self.choice.spec_for(s, ch)
+            t.channels[ch] = fitted_with.channel_settings(ch, fit.beta)
             lo, hi = fit.packing.lower[:, 0].min(), fit.packing.upper[:, 0].max()
             t.bounds[ch] = {"target": (float(lo), float(hi))}
             # (with per-speaker targets, the shared values and the population targets: ChannelProblem)
