@@ -248,7 +248,7 @@ def test_speaker_targets_gradient_and_recovery(two_speakers) -> None:  # type: i
     assert float(np.sqrt(np.sum(rq.fun**2) / q.data.n_valid)) > 2 * rmse  # an affine map cannot do it
 
 
-def test_speaker_targets_table_score_and_mcmc(two_speakers) -> None:  # type: ignore[no-untyped-def]
+def test_speaker_targets_table_score_and_mcmc(two_speakers, tmp_path: Path) -> None:  # type: ignore[no-untyped-def]
     from coartic.fit.runner import run
     from coartic.fit.score import score_utterances
     from coartic.mcmc.posterior import phoneme_posterior
@@ -256,7 +256,8 @@ def test_speaker_targets_table_score_and_mcmc(two_speakers) -> None:  # type: ig
 
     utts, _ = two_speakers
     s = targets_spec()
-    res = run(s, utterances=utts, quiet=True, report=False)
+    res = run(s, tmp_path / "fit", utterances=utts, quiet=True)  # what coartic fit writes, the report too
+    assert (tmp_path / "fit" / "report.html").is_file()
     fit, table = res.channels["LLO"], res.table()
     meta = table.metadata["speakers"]
     assert meta["mode"] == "targets" and set(meta["targets"]["LLO"]) == {"s1", "s2"}
