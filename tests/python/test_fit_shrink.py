@@ -228,3 +228,25 @@ def test_a_choice_without_folds_is_refused_naming_choose(tmp_path: Path, utts: l
     one = [u for u in utts if u.meta["repetition"] == "1"]
     with pytest.raises(SpecError, match=r"\[choose\] group = 'repetition', in 4 training utterances: .*only one repetition"):
         run(s, utterances=one, quiet=True)
+
+
+def test_coartic_fit_choose_refuses_folds_it_cannot_score(tmp_path: Path) -> None:
+    from typer.testing import CliRunner
+
+    from coartic.cli import app
+
+    ema = Path(__file__).resolve().parents[2] / "tests" / "data" / "realdata" / "emu-ema-german" / "derived"
+    files = [f"{ema}/dfgspp_mo1_prosody_00{n}_ema.csv" for n in (20, 24)]
+    labels = [f"{ema}/dfgspp_mo1_prosody_00{n}_Segment.tsv" for n in (20, 24)]
+    spec = tmp_path / "ema.toml"
+    spec.write_text(f'[corpus]\nfiles = {json.dumps(files)}\nlabels = {json.dumps(labels)}\nlabel_map = "german_sampa"\n'
+                    '[model]\nchannels = ["JO"]\n[parameters]\nfree = ["target", "k_r"]\n'
+                    '[[shrink]]\nphonemes = ["a", "e", "i"]\nparameters = ["k_r"]\nsd = 0.1\n')
+    # two utterances that do not share their phonemes: neither fold can be scored, nothing is written
+    res = CliRunner().invoke(app, ["fit", str(spec), "--out", str(tmp_path / "o"), "--choose", "shrink.sd=0.1,1",
+                                   "--no-report"])
+    assert res.exit_code == 2, res.output
+    assert "[choose] no utterance fold can be scored" in res.output and "Traceback" not in res.output
+    assert not (tmp_path / "o").exists()
+    res = CliRunner().invoke(app, ["fit", str(spec), "--out", str(tmp_path / "o"), "--choose", "shrink #2.sd=0.1,1"])
+    assert res.exit_code == 2 and "no such table" in res.output
