@@ -122,6 +122,8 @@ def test_mcmc_log_posterior_uses_the_fits_speaker_mapping(utts, fitted) -> None:
     assert terms is not None and terms.names == ("s1", "s2")
     fit = res.channels["LLO"]
     lsq_sse = fit.problem.sse(fit.x)
+    # s2's a and b are profiled out of x but fitted: they cost two degrees of freedom (stats, AIC/BIC)
+    assert fit.problem.n_profiled == 2 and fit.stats.dof == fit.problem.data.n_valid - fit.packing.n_free - 2
     # the stale-fit check (and noise = "fit") see the mapped RMSE the fit recorded
     assert fixed_noise(data, packing, options, speakers=terms) == pytest.approx(table.metadata["rmse"]["LLO"], rel=1e-9)
     sigma = 0.1
