@@ -122,6 +122,8 @@ def test_mcmc_log_posterior_uses_the_fits_speaker_mapping(utts, fitted) -> None:
     assert terms is not None and terms.names == ("s1", "s2")
     fit = res.channels["LLO"]
     lsq_sse = fit.problem.sse(fit.x)
+    # s2's a and b are profiled out of x but fitted: they cost two degrees of freedom (stats, AIC/BIC)
+    assert fit.problem.n_profiled == 2 and fit.stats.dof == fit.problem.data.n_valid - fit.packing.n_free - 2
     # the stale-fit check (and noise = "fit") see the mapped RMSE the fit recorded
     assert fixed_noise(data, packing, options, speakers=terms) == pytest.approx(table.metadata["rmse"]["LLO"], rel=1e-9)
     sigma = 0.1
@@ -248,7 +250,7 @@ def test_speaker_targets_gradient_and_recovery(two_speakers) -> None:  # type: i
     assert float(np.sqrt(np.sum(rq.fun**2) / q.data.n_valid)) > 2 * rmse  # an affine map cannot do it
 
 
-def test_speaker_targets_table_score_and_mcmc(two_speakers) -> None:  # type: ignore[no-untyped-def]
+def test_speaker_targets_table_score_and_mcmc(two_speakers, tmp_path: Path) -> None:  # type: ignore[no-untyped-def]
     from coartic.fit.runner import run
     from coartic.fit.score import score_utterances
     from coartic.mcmc.posterior import phoneme_posterior
@@ -256,7 +258,8 @@ def test_speaker_targets_table_score_and_mcmc(two_speakers) -> None:  # type: ig
 
     utts, _ = two_speakers
     s = targets_spec()
-    res = run(s, utterances=utts, quiet=True, report=False)
+    res = run(s, tmp_path / "fit", utterances=utts, quiet=True)  # what coartic fit writes, the report too
+    assert (tmp_path / "fit" / "report.html").is_file()
     fit, table = res.channels["LLO"], res.table()
     meta = table.metadata["speakers"]
     assert meta["mode"] == "targets" and set(meta["targets"]["LLO"]) == {"s1", "s2"}

@@ -137,3 +137,32 @@ def test_a_table_fitted_to_other_data_is_refused(fitted: tuple[Path, Path], tmp_
     r = CliRunner().invoke(app, ["mcmc", str(spec), "--fit", str(stale), "--out", str(tmp_path / "o"), "--quiet"])
     assert r.exit_code == 1 and "fitted to other data than the spec gives now" in r.output.replace("\n", " ")
     assert not (tmp_path / "o" / "LLO").exists()
+
+
+def test_mcmc_command_samples_a_speakers_fit(tmp_path: Path) -> None:
+    """`coartic mcmc` on a fit with [model] speakers = "offset_scale": the speakers' offset and scale
+    are sampled (summary.json), the table gets the phoneme's quantiles only, and a spec without the
+    speakers is refused for that table (exit 2, naming both)."""
+    from coartic.fit import run
+    from coartic.synthetic_cli import load_generator
+
+    manifest = load_generator().generate(tmp_path / "session", quick=True, progress=False, consonants=["p"],
+                                         speakers=2)
+    mcmc = MCMC.replace("max_steps = 200", "max_steps = 100").replace("walkers = 14", "walkers = 18")
+    spec = tmp_path / "spec.toml"
+    text = SPEC.format(manifest=manifest, mcmc=mcmc).replace('select = { vowel = ["a"] }',
+                                                              'select = { vowel = ["a"], repetition = ["1"] }')
+    spec.write_text(text.replace('reference_phoneme = "a"', 'reference_phoneme = "a"\nspeakers = "offset_scale"'))
+    run(spec, tmp_path / "fit", quiet=True, report=False)
+    out = tmp_path / "mcmc"
+    r = CliRunner().invoke(app, ["mcmc", str(spec), "--fit", str(tmp_path / "fit"), "--out", str(out), "--quiet"])
+    assert r.exit_code == 0, r.output
+    names = [p["name"] for p in json.loads((out / "LLO" / "p" / "summary.json").read_text())["parameters"]]
+    assert "speaker_offset:s02" in names and "speaker_scale:s02" in names and "speaker_offset:s01" not in names
+    table = json.loads((out / "table.json").read_text())
+    assert set(table["uncertainty"]) == {"p"}
+    plain = tmp_path / "plain.toml"
+    plain.write_text(text)
+    bad = CliRunner().invoke(app, ["mcmc", str(plain), "--fit", str(tmp_path / "fit"), "--out", str(tmp_path / "m2"),
+                                   "--quiet"])
+    assert bad.exit_code != 0 and "speakers = 'offset_scale'" in bad.output and "Traceback" not in bad.output

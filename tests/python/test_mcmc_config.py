@@ -58,3 +58,15 @@ def test_mistakes_are_named(raw: dict[str, object], message: str) -> None:
 def test_walkers_and_directory_names() -> None:
     assert walkers_for(9, 0) == 32 and walkers_for(20, 0) == 42 and walkers_for(3, 13) == 14
     assert phoneme_dir("tS") == "tS" and phoneme_dir("#") == "x23" and phoneme_dir("a:") == "ax3a"
+
+
+def test_offsets_follow_the_least_squares_model_unless_mcmc_says() -> None:
+    """[model] offsets = τ (least squares with per-utterance offsets of sd τ) is the posterior's
+    model too: τ fixed, unless [mcmc] offsets chooses otherwise; "none"/"free" keep the default."""
+    from types import SimpleNamespace
+
+    assert parse_config(None, SPEC, SimpleNamespace(offsets=0.05)).offsets == 0.05
+    assert parse_config({"walkers": 40}, SPEC, SimpleNamespace(offsets=0.05)).offsets == 0.05
+    assert parse_config({"offsets": "none"}, SPEC, SimpleNamespace(offsets=0.05)).offsets == "none"
+    assert parse_config(None, SPEC, SimpleNamespace(offsets="free")).offsets == "free"
+    assert parse_config(None, SPEC, SimpleNamespace(offsets="none")).offsets == "free"

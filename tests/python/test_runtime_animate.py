@@ -365,6 +365,13 @@ def test_animate_speaks_as_the_tables_speaker(tmp_path: Path, labels: Path) -> N
     s2 = animate_file(labels, table, tmp_path / "s2", fps=25.0, preview="none", speaker="s2")
     for c in CHANNELS:
         np.testing.assert_allclose(s2.animation.channels[c], 0.5 + 1.2 * plain.animation.channels[c], rtol=1e-12)
+    # the strip of mouth shapes is the speaker's too: its faces differ from the table's own
+    from coartic.runtime.pipeline import speaker_mapping
+    from coartic.runtime.preview import render_strip
+
+    render_strip(s2.animation, table, tmp_path / "own.png", speaker=speaker_mapping(table, "s2"))
+    render_strip(s2.animation, table, tmp_path / "population.png")
+    assert (tmp_path / "own.png").read_bytes() != (tmp_path / "population.png").read_bytes()
     # the FAPs are measured from s2's own neutral face (a + b·rest): the first frames stay at zero
     assert np.all(read_fap(s2.files["fap"]).values[0] == 0)
     with pytest.raises(SpeakerError, match="no speaker 's9'; the table knows s1, s2"):

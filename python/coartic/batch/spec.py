@@ -244,7 +244,7 @@ def load_batch_spec(path: str | Path) -> BatchSpec:
     if want:
         from coartic.mcmc.run import parse_config
 
-        mcmc = parse_config(read_document(fit_path).get("mcmc"), fit_path)  # errors name the fit spec's key
+        mcmc = parse_config(read_document(fit_path).get("mcmc"), fit_path, fit)  # errors name the fit spec's key
         post_channels = channels
         if mcmc.channels is not None:
             bad = [c for c in mcmc.channels if c not in channels]

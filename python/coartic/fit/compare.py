@@ -246,7 +246,8 @@ def compare(specs: Sequence[FitSpec | str | PathLike[str]], out: str | PathLike[
         for ch, fit in res.channels.items():
             n = fit.problem.data.n_valid
             h = held.get(ch, (math.nan, math.nan, 0))
-            rows.append(Row(model, ch, fit.packing.n_free, n, fit.rmse**2 * n, fit.rmse, h[0], h[1], fit.status))
+            # (+ the speakers' offsets and scales, profiled out of x but fitted all the same)
+            rows.append(Row(model, ch, fit.packing.n_free + fit.problem.n_profiled, n, fit.rmse**2 * n, fit.rmse, h[0], h[1], fit.status))
         if res.interrupted:
             cmp.notes.append(f"interrupted while fitting {model}")
             break

@@ -725,6 +725,14 @@ class ChannelProblem:
         return self.offsets.offsets(self.sqrt_w * (self.evaluate(params, beta) - self.data.observed))
 
     @property
+    def n_profiled(self) -> int:
+        """Parameters profiled out of x that still cost degrees of freedom: each non-reference
+        speaker's a_s (and b_s with offset_scale). AIC/BIC and the residual dof count them."""
+        if self.speakers is None:
+            return 0
+        return (len(self.speakers.names) - 1) * (2 if self.speakers.mode == "offset_scale" else 1)
+
+    @property
     def phonemes(self) -> tuple[str, ...]:
         """The channel's phonemes as the table has them (the data's rows, or with per-speaker
         targets the phonemes those rows expand)."""

@@ -58,7 +58,7 @@ def parameter_stats(problem: ChannelProblem, x: FloatArray, rtol: float = 1e-10)
     values = pk.natural(x)
     r = problem.residuals(x)
     n = problem.data.n_valid
-    dof = max(n - m, 1)
+    dof = max(n - m - problem.n_profiled, 1)  # the speakers' profiled a_s, b_s are fitted too
     s2 = float(r @ r) / dof
     if m == 0:
         e = np.zeros(0)

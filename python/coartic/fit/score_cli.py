@@ -58,7 +58,8 @@ def score_table(score: object) -> Table:
     from coartic.fit.score import Score
 
     assert isinstance(score, Score)
-    t = Table(title=f"RMSE (mm) on {len(score.utterances)} recording(s) the fit did not see — bar {BAR_MM} mm")
+    who = f" as speaker {score.speaker}" if score.speaker is not None else ""
+    t = Table(title=f"RMSE (mm){who} on {len(score.utterances)} recording(s) the fit did not see — bar {BAR_MM} mm")
     for c in ("channel", "as measured", "offset removed", "speaker-calibrated", "worst utterance", "worst phoneme",
               "samples"):
         t.add_column(c, justify="left" if c == "channel" else "right")

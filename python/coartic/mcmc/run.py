@@ -45,8 +45,19 @@ class McmcConfig:
     plots: bool = True
 
 
-def parse_config(raw: Any, path: Path) -> McmcConfig:
-    """Read the ``[mcmc]`` table of a spec (or an empty one); errors name the file and key."""
+def parse_config(raw: Any, path: Path, fit_spec: Any = None) -> McmcConfig:
+    """Read the ``[mcmc]`` table of a spec (or an empty one); errors name the file and key. The
+    least-squares fit's per-utterance offsets with a given sd (``[model] offsets = τ`` of
+    ``fit_spec``) are the posterior's too unless ``[mcmc] offsets`` says otherwise."""
+    cfg = _parse_config(raw, path)
+    given = isinstance(raw, dict) and "offsets" in raw
+    spec_sd = getattr(fit_spec, "offsets", "none")
+    if not given and isinstance(spec_sd, (int, float)) and not isinstance(spec_sd, bool):
+        cfg.offsets = float(spec_sd)
+    return cfg
+
+
+def _parse_config(raw: Any, path: Path) -> McmcConfig:
     if raw is None:
         return McmcConfig()
     if not isinstance(raw, dict):
@@ -138,7 +149,8 @@ def read_spec(path: str | Path) -> tuple[Any, McmcConfig]:
 
     path = Path(path)
     raw = read_document(path)
-    return parse_spec(raw, path), parse_config(raw.get("mcmc"), path)
+    spec = parse_spec(raw, path)
+    return spec, parse_config(raw.get("mcmc"), path, spec)
 
 
 def table_problem(fit_spec: Any, table: Any, table_path: Path, channel: str,

@@ -175,7 +175,10 @@ def trajectory_figure(fit: ChannelFit, table: ParameterTable, utterances: Sequen
         rm = float(np.sqrt(np.nanmean((fit.fitted[sl] - y) ** 2)))
         _boundaries((top, bottom), utt)
         if len(utt.labels) <= MAX_SEGMENT_LABELS and len(utt.labels) * len(t) <= MAX_WEIGHT_VALUES:
-            w = segment_weights(table, d.channel, list(utt.labels), utt.starts, utt.ends, t)
+            # (rows "p|s" of [model] speakers = "targets" are the table's p: the weights do not
+            # depend on the targets, so the table's give this speaker's exactly)
+            own = [lab if lab in table.values or "|" not in lab else lab.rpartition("|")[0] for lab in utt.labels]
+            w = segment_weights(table, d.channel, own, utt.starts, utt.ends, t)
             for i, lab in enumerate(utt.labels):
                 bottom.plot(t, w[i], lw=1.2, color=colours[lab])
                 bottom.fill_between(t, 0, w[i], alpha=0.12, color=colours[lab])

@@ -170,7 +170,7 @@ def _write_outputs(
         files["vrml"] = write_face_vrml(out / f"{name}.wrl", faps, audio=audio.name if audio else None)[0]
     files["plot"] = plot_channels(animation, out / "channels.png", title=name)
     if preview != "none":
-        files["strip"] = render_strip(animation, table, out / "strip.png")
+        files["strip"] = render_strip(animation, table, out / "strip.png", speaker=mapping)
         files["preview"] = render_preview(animation, neutral, out / f"preview.{preview}", title=name,
                                           progress=progress, audio=audio)
     return RuntimeOutput(animation=animation, faps=faps, files=files)

@@ -35,6 +35,7 @@ from coartic.io.labels import Segments  # noqa: E402
 from coartic.runtime.animate import Animation, neutral_posture, target_times  # noqa: E402
 from coartic.outputs import atomic_path  # noqa: E402
 from coartic.runtime.errors import AnimationError  # noqa: E402
+from coartic.speakers import SpeakerMapping  # noqa: E402
 from coartic.table import CHANNELS, PAUSE, ParameterTable  # noqa: E402
 
 # Half the vermilion height (mm) of an adult's upper and lower lip: the channels give where the lip
@@ -342,11 +343,15 @@ def render_strip(
     *,
     max_panels: int = 40,
     per_row: int = 10,
+    speaker: SpeakerMapping | None = None,
 ) -> Path:
-    """PNG strip: the front view at each non-pause segment's target time, labelled with its phoneme."""
+    """PNG strip: the front view at each non-pause segment's target time, labelled with its phoneme
+    (as the table's ``speaker`` says it, when given: coartic.speakers)."""
     _require_channels(animation)
     from coartic.runtime.animate import evaluate
 
+    if speaker is not None:
+        table = speaker.evaluation_table(table)
     neutral = neutral_posture(table)
     seg = animation.segments
     idx = [i for i, lab in enumerate(seg.labels) if lab != PAUSE][:max_panels]
@@ -355,6 +360,9 @@ def render_strip(
     modelled = animation.modelled
     t = target_times(table, seg, "LLO" if "LLO" in modelled else modelled[0])[idx]
     values = evaluate(table, seg, t, modelled)
+    if speaker is not None:
+        values = {c: speaker.apply(c, v) for c, v in values.items()}
+        neutral = {c: float(speaker.apply(c, np.array([v]))[0]) if c in modelled else v for c, v in neutral.items()}
     values.update({c: np.full(t.size, neutral[c]) for c in CHANNELS if c not in values})
     cols = min(len(idx), per_row)
     rows = -(-len(idx) // per_row)
