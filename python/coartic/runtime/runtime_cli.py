@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 from pathlib import Path
-from typing import TYPE_CHECKING, Annotated
+from typing import TYPE_CHECKING, Annotated, Callable
 
 import typer
 from rich.console import Console
@@ -96,6 +96,19 @@ def _moved(result: RuntimeOutput, staging: Path, out: Path) -> RuntimeOutput:
     return result
 
 
+def _run_staged(table: Path, out: Path, command: str, identity: dict[str, str], force: bool, protect: list[Path],
+                make: Callable[[ParameterTable, Path, Progress], RuntimeOutput]) -> None:
+    """Load the table, run ``make`` into the staging directory of ``out`` with a progress bar, and
+    report what was written (where it is once swapped in); any failure is one clear error."""
+    try:
+        t = _load_table(table)
+        with OutputDir(out, command, identity, force=force, protect=protect) as staging, _progress() as progress:
+            result = make(t, staging, progress)
+    except (AnimationError, DataError, TableError, OutputError, SpeakerError, OSError) as err:
+        _fail(err)
+    _report(_moved(result, staging, out))
+
+
 def animate_command(
     labels: Annotated[Path, typer.Argument(help="Label file: Praat TextGrid, HTK/Festival .lab or TSV 'start end label'.")],
     table: TableOpt,
@@ -121,18 +134,15 @@ def animate_command(
     from coartic.runtime.pipeline import animate_file, speaker_face
 
     _warn_fps(fps)
-    try:
-        t = _load_table(table)
-        output = OutputDir(out, "animate", {"labels": str(labels.resolve())}, force=force,
-                           protect=[labels, table, *([audio] if audio is not None else [])])
-        with output as staging, _progress() as progress:
-            result = animate_file(labels, t, staging, fps=fps, tier=tier, label_map=label_map,
-                                  face=speaker_face(t, mns, mw, speaker), preview=preview, snap_contacts=snap_contacts,
-                                  strict=strict, progress=progress, audio=audio, name=fap_name, gltf=gltf,
-                                  vrml=vrml, speaker=speaker)
-    except (AnimationError, DataError, TableError, OutputError, SpeakerError, OSError) as err:
-        _fail(err)
-    _report(_moved(result, staging, out))
+
+    def make(t: ParameterTable, staging: Path, progress: Progress) -> RuntimeOutput:
+        return animate_file(labels, t, staging, fps=fps, tier=tier, label_map=label_map,
+                            face=speaker_face(t, mns, mw, speaker), preview=preview, snap_contacts=snap_contacts,
+                            strict=strict, progress=progress, audio=audio, name=fap_name, gltf=gltf,
+                            vrml=vrml, speaker=speaker)
+
+    _run_staged(table, out, "animate", {"labels": str(labels.resolve())}, force,
+                [labels, table, *([audio] if audio is not None else [])], make)
 
 
 def speak_command(
@@ -159,13 +169,10 @@ def speak_command(
     from coartic.runtime.pipeline import speak_text, speaker_face
 
     _warn_fps(fps)
-    try:
-        t = _load_table(table)
-        output = OutputDir(out, "speak", {"text": text}, force=force, protect=[table])
-        with output as staging, _progress() as progress:
-            result = speak_text(text, t, staging, fps=fps, stretch=stretch, voice=voice, strict=strict,
-                                face=speaker_face(t, mns, mw, speaker), preview=preview, snap_contacts=snap_contacts,
-                                progress=progress, name=fap_name, gltf=gltf, vrml=vrml, speaker=speaker)
-    except (AnimationError, DataError, TableError, OutputError, SpeakerError, OSError) as err:
-        _fail(err)
-    _report(_moved(result, staging, out))
+
+    def make(t: ParameterTable, staging: Path, progress: Progress) -> RuntimeOutput:
+        return speak_text(text, t, staging, fps=fps, stretch=stretch, voice=voice, strict=strict,
+                          face=speaker_face(t, mns, mw, speaker), preview=preview, snap_contacts=snap_contacts,
+                          progress=progress, name=fap_name, gltf=gltf, vrml=vrml, speaker=speaker)
+
+    _run_staged(table, out, "speak", {"text": text}, force, [table], make)
