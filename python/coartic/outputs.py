@@ -92,6 +92,16 @@ def atomic_write_text(path: str | os.PathLike[str], text: str, encoding: str = "
 
 
 # ---------------------------------------------------------------------------------- signals
+def save_figure(fig: Any, path: str | os.PathLike[str], dpi: int = 100) -> Path:
+    """Write a matplotlib figure as PNG through ``atomic_path`` and close it; return the path."""
+    import matplotlib.pyplot as plt
+
+    with atomic_path(path) as tmp:
+        fig.savefig(tmp, dpi=dpi, format="png")
+    plt.close(fig)
+    return Path(path)
+
+
 class DeferredSignals:
     """Ctrl-C (SIGINT) and ``kill`` (SIGTERM) become KeyboardInterrupt inside the ``with`` block,
     except inside ``saving()``, where they are held back until the block is done (the data on
@@ -389,4 +399,4 @@ def _version() -> str:
 
 
 __all__ = ["OutputDir", "OutputError", "DeferredSignals", "atomic_path", "atomic_write_bytes",
-           "atomic_write_text", "fsync_dir", "read_marker", "signals_held", "RUN_MARKER"]
+           "atomic_write_text", "fsync_dir", "read_marker", "save_figure", "signals_held", "RUN_MARKER"]

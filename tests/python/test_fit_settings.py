@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 from typer.testing import CliRunner
 
+from derivatives import check_problem_derivatives
 from coartic import model
 from coartic.cli import app
 from coartic.fit import problem, run
@@ -227,20 +228,8 @@ def test_priors_are_penalties_with_exact_derivatives(tmp_path: Path, utts: list[
                                           "p.k_r": [0.9, 0.05], "t.theta_fw": [40.0, 10.0]})
     assert prob.penalty.size == 6 + 1 + 1  # θ_bw of each of the 6 phonemes, k_R of p, θ_fw of t
     x = prob.packing.pack() + 0.05
-    r = prob.residuals(x)
-    n = prob.data.corpus.n_samples
-    assert r.size == n + prob.penalty.size
-    j = prob.jacobian(x).toarray()
-    h = 1e-6
-    for col in range(x.size):
-        e = np.zeros_like(x)
-        e[col] = h
-        fd = (prob.residuals(x + e) - prob.residuals(x - e)) / (2 * h)
-        np.testing.assert_allclose(j[:, col], fd, rtol=1e-5, atol=1e-7)
-    sse, g = prob.sse_gradient(x)
-    assert sse == pytest.approx(float(r @ r), rel=1e-10)
-    np.testing.assert_allclose(g, 2 * j.T @ r, rtol=1e-6, atol=1e-8)
-    assert prob.sse_batch(x[None])[0] == pytest.approx(sse, rel=1e-10)
+    assert prob.n_residuals == prob.data.corpus.n_samples + prob.penalty.size
+    check_problem_derivatives(prob, x)
 
 
 def test_a_prior_pulls_the_fit_and_is_reported(tmp_path: Path, utts: list[model.Utterance]) -> None:
@@ -273,18 +262,8 @@ def test_per_utterance_offsets_are_profiled_with_exact_derivatives(tmp_path: Pat
                 model={"channels": ["LLO"], "offsets": offsets})
     prob = build_problem(s, utts, "LLO", phonemes=PHONEMES)
     x = prob.packing.pack() + 0.03
-    r = prob.residuals(x)
-    assert r.size == prob.n_residuals == prob.data.corpus.n_samples + (0 if offsets == "free" else len(utts))
-    j = prob.jacobian(x).toarray()
-    h = 1e-6
-    for col in range(0, x.size, 3):
-        e = np.zeros_like(x)
-        e[col] = h
-        fd = (prob.residuals(x + e) - prob.residuals(x - e)) / (2 * h)
-        np.testing.assert_allclose(j[:, col], fd, rtol=1e-5, atol=1e-7)
-    sse, g = prob.sse_gradient(x)
-    np.testing.assert_allclose(g, 2 * j.T @ r, rtol=1e-9)
-    assert prob.sse_batch(x[None])[0] == pytest.approx(sse, rel=1e-9)  # the core's residual sums agree
+    assert prob.n_residuals == prob.data.corpus.n_samples + (0 if offsets == "free" else len(utts))
+    check_problem_derivatives(prob, x, step=3)
 
 
 def test_offsets_recover_shifted_recordings(tmp_path: Path) -> None:
@@ -323,17 +302,7 @@ def test_tied_parameters_share_one_value_with_exact_derivatives(tmp_path: Path, 
     params, _ = prob.packing.unpack(x)
     th = PARAMETERS.index("theta_bw")
     assert params[PHONEMES.index("t"), th] == params[PHONEMES.index("p"), th]
-    j = prob.jacobian(x).toarray()
-    r = prob.residuals(x)
-    h = 1e-6
-    for col in range(x.size):
-        e = np.zeros_like(x)
-        e[col] = h
-        fd = (prob.residuals(x + e) - prob.residuals(x - e)) / (2 * h)
-        np.testing.assert_allclose(j[:, col], fd, rtol=1e-5, atol=1e-7)
-    sse, g = prob.sse_gradient(x)
-    np.testing.assert_allclose(g, 2 * j.T @ r, rtol=1e-6, atol=1e-8)
-    assert prob.sse_batch(x[None])[0] == pytest.approx(sse, rel=1e-10)
+    check_problem_derivatives(prob, x)
 
 
 def test_a_fit_with_ties_reports_them(tmp_path: Path, utts: list[model.Utterance]) -> None:

@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 
 from coartic import model
+from derivatives import check_problem_derivatives
 from coartic.fit import run
 from coartic.fit.choose import Choice, CurvePoint, parse_choose, set_value
 from coartic.fit.problem import build_problem
@@ -30,22 +31,6 @@ def utts() -> list[model.Utterance]:
     return vcv_utterances(np.random.default_rng(3), repetitions=2, rates={"normal": 1.0}, consonants=("p", "t"))
 
 
-def check_derivatives(prob: Any, x: np.ndarray) -> None:
-    r = prob.residuals(x)
-    assert r.size == prob.n_residuals
-    j = prob.jacobian(x).toarray()
-    h = 1e-6
-    for col in range(x.size):
-        e = np.zeros_like(x)
-        e[col] = h
-        fd = (prob.residuals(x + e) - prob.residuals(x - e)) / (2 * h)
-        np.testing.assert_allclose(j[:, col], fd, rtol=1e-5, atol=1e-7)
-    sse, g = prob.sse_gradient(x)
-    assert sse == pytest.approx(float(r @ r), rel=1e-10)
-    np.testing.assert_allclose(g, 2 * j.T @ r, rtol=1e-6, atol=1e-8)
-    assert prob.sse_batch(x[None])[0] == pytest.approx(sse, rel=1e-10)
-
-
 def test_shrinkage_rows_have_exact_derivatives(tmp_path: Path, utts: list[model.Utterance]) -> None:
     # log-scale α and θ (α of the reference /a/ is fixed: it counts in the mean, no derivative), a
     # natural-scale k_R over a class with a [[tie]] inside it, and the target
@@ -56,7 +41,7 @@ def test_shrinkage_rows_have_exact_derivatives(tmp_path: Path, utts: list[model.
     prob = build_problem(s, utts, "LLO", phonemes=PHONEMES)
     assert prob.shrinkage.size == 4 * 3
     x = prob.packing.pack() + np.random.default_rng(1).normal(0.0, 0.05, prob.packing.n_free)
-    check_derivatives(prob, x)
+    check_problem_derivatives(prob, x)
     # the rows: prior_noise · (log α_i − mean log α) / sd over /a i p/
     params, _ = prob.packing.unpack(x)
     la = np.log(params[[1, 2, 3], PARAMETERS.index("alpha")])
@@ -66,7 +51,7 @@ def test_shrinkage_rows_have_exact_derivatives(tmp_path: Path, utts: list[model.
     free = prob.packing.free.copy()
     free[:, 1:] = False
     stage = prob.with_packing(prob.packing.with_free(free, False, params))
-    check_derivatives(stage, stage.packing.pack())
+    check_problem_derivatives(stage, stage.packing.pack())
     assert stage.shrinkage.size == prob.shrinkage.size
 
 

@@ -182,7 +182,7 @@ def curve_figure(choice: Choice, path: Path) -> Path:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from coartic.outputs import atomic_path
+    from coartic.outputs import save_figure
 
     fig, ax = plt.subplots(figsize=(5.5, 3.8))
     for ch in dict.fromkeys(p.channel for p in choice.points):
@@ -199,10 +199,7 @@ def curve_figure(choice: Choice, path: Path) -> Path:
     ax.set_ylabel("held-out RMSE (mm), mean ± SE over folds")
     ax.legend(fontsize=8)
     fig.tight_layout()
-    with atomic_path(path) as tmp:
-        fig.savefig(tmp, dpi=100, format="png")
-    plt.close(fig)
-    return path
+    return save_figure(fig, path)
 
 
 def cross_validate(spec: FitSpec, utterances: Sequence[Utterance], progress: Progress | None = None,

@@ -143,7 +143,7 @@ def comparison_figure(cmp: Comparison, path: Path) -> Path:
     import matplotlib.pyplot as plt
     import numpy as np
 
-    from coartic.outputs import atomic_path
+    from coartic.outputs import save_figure
 
     chans = cmp.channels()
     fig, axes = plt.subplots(1, len(chans), figsize=(max(4.0, 1.2 * len(cmp.models) + 2) * len(chans), 4),
@@ -159,10 +159,7 @@ def comparison_figure(cmp: Comparison, path: Path) -> Path:
         ax.set_ylabel(f"{ch} RMSE (mm)")
         ax.legend(fontsize=7)
     fig.tight_layout()
-    with atomic_path(path) as tmp:
-        fig.savefig(tmp, dpi=100, format="png")
-    plt.close(fig)
-    return path
+    return save_figure(fig, path)
 
 
 # Spec settings ``--vary`` may scan (e.g. the prior strength, chosen by held-out RMSE instead of by hand).

@@ -255,7 +255,30 @@ class Prior:
     log: bool = False
 
 
-class Penalty:
+class PenaltyRows:
+    """Extra least-squares residual rows on the packed vector x (priors, shrinkage): the residuals
+    and their exact Jacobian come from the subclass; Σ rows² and its gradient, for the engines that
+    take a fused SSE and gradient (nlopt, CasADi), are computed from them here, once."""
+
+    packing: Packing
+    size: int
+
+    def residuals(self, x: FloatArray) -> FloatArray:
+        raise NotImplementedError
+
+    def jacobian(self, x: FloatArray) -> sp.csr_matrix:
+        raise NotImplementedError
+
+    def gradient(self, x: FloatArray) -> tuple[float, FloatArray]:
+        """Σ rows² and its gradient in x."""
+        r = self.residuals(x)
+        g = np.zeros(self.packing.n_free)
+        if self.size:
+            g += 2.0 * (self.jacobian(x).T @ r)
+        return float(r @ r), g
+
+
+class Penalty(PenaltyRows):
     """Gaussian priors as extra least-squares residuals ``noise · (value − mean) / sd`` (or on log
     values), one row per prior on a free entry: minimising SSE + Σ rows² is the MAP estimate when
     the measurement noise has sd ``noise`` (mm). Exact derivatives: d row / dx = noise ·
@@ -271,10 +294,7 @@ class Penalty:
         self.log = np.array([priors[k].log for k in keys], dtype=bool)
         self.noise = float(noise)
         self.packing = packing
-
-    @property
-    def size(self) -> int:
-        return int(self.idx.size)
+        self.size = int(self.idx.size)
 
     def residuals(self, x: FloatArray) -> FloatArray:
         v = self.packing.natural(x)[self.idx]
@@ -290,13 +310,6 @@ class Penalty:
             d = self.noise * np.where(self.log, dv / v, dv) / self.sd
         return sp.csr_matrix((d, (np.arange(self.size), self.idx)), shape=(self.size, self.packing.n_free))
 
-    def gradient(self, x: FloatArray) -> tuple[float, FloatArray]:
-        """Σ rows² and its gradient in x."""
-        r = self.residuals(x)
-        g = np.zeros(self.packing.n_free)
-        if self.size:
-            g += 2.0 * (self.jacobian(x).T @ r)
-        return float(r @ r), g
 
 
 @dataclass(frozen=True)
@@ -316,7 +329,7 @@ class ShrinkGroup:
         return PARAMETERS[self.column]
 
 
-class Shrinkage:
+class Shrinkage(PenaltyRows):
     """Shrinkage toward class means as extra least-squares residuals: for each group (a class of
     phonemes and one parameter), one row per member ``noise · (u_i − ū) / sd`` with u the value
     (or its logarithm) and ū the class mean over every member present, fixed ones included.
@@ -387,13 +400,6 @@ class Shrinkage:
         return sp.coo_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))),
                              shape=(self.size, self.packing.n_free)).tocsr()
 
-    def gradient(self, x: FloatArray) -> tuple[float, FloatArray]:
-        """Σ rows² and its gradient in x."""
-        r = self.residuals(x)
-        g = np.zeros(self.packing.n_free)
-        if self.size:
-            g += 2.0 * (self.jacobian(x).T @ r)
-        return float(r @ r), g
 
     def with_packing(self, packing: Packing) -> Shrinkage:
         return Shrinkage(packing, self.groups, self.noise)

@@ -230,7 +230,7 @@ def score_figures(score: Score, out: Path) -> dict[str, Path]:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from coartic.outputs import atomic_path
+    from coartic.outputs import save_figure
 
     fig_dir = out / "figures"
     fig_dir.mkdir(parents=True, exist_ok=True)
@@ -238,10 +238,7 @@ def score_figures(score: Score, out: Path) -> dict[str, Path]:
     paths: dict[str, Path] = {}
 
     def save(fig: Any, name: str) -> None:
-        with atomic_path(fig_dir / name) as tmp:
-            fig.savefig(tmp, dpi=100, format="png")
-        plt.close(fig)
-        paths[name.removesuffix(".png")] = fig_dir / name
+        paths[name.removesuffix(".png")] = save_figure(fig, fig_dir / name)
 
     fig, axes = plt.subplots(1, n, figsize=(4 * n, 4), squeeze=False)
     for ax, ch in zip(axes[0], score.channels):

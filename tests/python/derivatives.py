@@ -1,0 +1,27 @@
+"""The one check of a least-squares problem's derivatives that the fit tests share: its Jacobian
+against central finite differences of its residuals, its fused SSE and gradient against the
+Jacobian, and the core's batch SSE against both."""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+import pytest
+
+
+def check_problem_derivatives(prob: Any, x: np.ndarray, step: int = 1) -> None:
+    """``prob``: a ChannelProblem; ``step``: check every step-th column of x (all by default)."""
+    r = prob.residuals(x)
+    assert r.size == prob.n_residuals
+    j = prob.jacobian(x).toarray()
+    h = 1e-6
+    for col in range(0, x.size, step):
+        e = np.zeros_like(x)
+        e[col] = h
+        fd = (prob.residuals(x + e) - prob.residuals(x - e)) / (2 * h)
+        np.testing.assert_allclose(j[:, col], fd, rtol=1e-5, atol=1e-7)
+    sse, g = prob.sse_gradient(x)
+    assert sse == pytest.approx(float(r @ r), rel=1e-10)
+    np.testing.assert_allclose(g, 2 * j.T @ r, rtol=1e-6, atol=1e-8)
+    assert prob.sse_batch(x[None])[0] == pytest.approx(sse, rel=1e-9)  # the core's residual sums agree
