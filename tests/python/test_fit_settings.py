@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 from typer.testing import CliRunner
 
-from derivatives import check_problem_derivatives
+from fit_helpers import check_problem_derivatives, spec_of
 from coartic import model
 from coartic.cli import app
 from coartic.fit import problem, run
@@ -25,12 +25,6 @@ from coartic.table import PARAMETERS
 
 ROOT = Path(__file__).resolve().parents[2]
 EMA = ROOT / "tests" / "data" / "realdata" / "emu-ema-german" / "derived"
-
-
-def spec_of(tmp_path: Path, **sections: Any) -> Any:
-    raw = {"corpus": {"files": ["x.csv"], "labels": ["x.lab"]}, "model": {"channels": ["LLO"]},
-           "parameters": {"free": ["target"]}, **sections}
-    return parse_spec(raw, tmp_path / "spec.toml")
 
 
 @pytest.fixture(scope="module")

@@ -11,19 +11,13 @@ import numpy as np
 import pytest
 
 from coartic import model
-from derivatives import check_problem_derivatives
+from fit_helpers import check_problem_derivatives, spec_of
 from coartic.fit import run
 from coartic.fit.choose import Choice, CurvePoint, parse_choose, set_value
 from coartic.fit.problem import build_problem
 from coartic.fit.simulate import PHONEMES, vcv_utterances
-from coartic.fit.spec import Choose, SpecError, parse_spec
+from coartic.fit.spec import Choose, SpecError
 from coartic.table import PARAMETERS
-
-
-def spec_of(tmp_path: Path, **sections: Any) -> Any:
-    raw = {"corpus": {"files": ["x.csv"], "labels": ["x.lab"]}, "model": {"channels": ["LLO"]},
-           "parameters": {"free": ["target"]}, **sections}
-    return parse_spec(raw, tmp_path / "spec.toml")
 
 
 @pytest.fixture(scope="module")

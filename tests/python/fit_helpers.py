@@ -1,13 +1,24 @@
-"""The one check of a least-squares problem's derivatives that the fit tests share: its Jacobian
-against central finite differences of its residuals, its fused SSE and gradient against the
-Jacobian, and the core's batch SSE against both."""
+"""What the fit tests share: a spec from inline sections (``spec_of``), and the one check of a
+least-squares problem's derivatives (``check_problem_derivatives``): its Jacobian against central
+finite differences of its residuals, its fused SSE and gradient against the Jacobian, and the
+core's batch SSE against both."""
 
 from __future__ import annotations
 
+from pathlib import Path
 from typing import Any
 
 import numpy as np
 import pytest
+
+from coartic.fit.spec import FitSpec, parse_spec
+
+
+def spec_of(tmp_path: Path, **sections: Any) -> FitSpec:
+    """A one-channel (LLO) spec with ``sections`` added to (or replacing) the minimal ones."""
+    raw = {"corpus": {"files": ["x.csv"], "labels": ["x.lab"]}, "model": {"channels": ["LLO"]},
+           "parameters": {"free": ["target"]}, **sections}
+    return parse_spec(raw, tmp_path / "spec.toml")
 
 
 def check_problem_derivatives(prob: Any, x: np.ndarray, step: int = 1) -> None:
