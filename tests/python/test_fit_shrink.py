@@ -4,6 +4,7 @@
 from __future__ import annotations
 
 import json
+import re
 from pathlib import Path
 from typing import Any
 
@@ -244,3 +245,16 @@ def test_a_chosen_model_option_is_what_the_table_records(tmp_path: Path, utts: l
 
     assert score_utterances(res.table(), utts, ["LLO"]).channel_rows()[0]["rmse_mm"] == pytest.approx(
         res.channels["LLO"].rmse, rel=1e-9)
+
+
+def test_grid_options_are_read_by_one_parser(tmp_path: Path) -> None:
+    from coartic.fit.spec import parse_grid
+
+    assert parse_grid("--vary", " prior_noise = 0.3, 1 ") == ("prior_noise", ["0.3", "1"])
+    for bad, said in (("prior_noise", "expected KEY=V1"), ("=1,2", "expected KEY=V1"), ("k=", "expected KEY=V1"),
+                      ("k=1,,2", "an empty value")):
+        with pytest.raises(SpecError, match=rf"--vary '{re.escape(bad)}': {said}"):
+            parse_grid("--vary", bad)
+    with pytest.raises(SpecError, match=r"--choose 'shrink.sd=0.1,x': 'x' is not a number"):
+        parse_choose(spec_of(tmp_path, shrink=[{"phonemes": ["p", "t"], "parameters": ["k_r"], "sd": 0.1}]),
+                     "shrink.sd=0.1,x")

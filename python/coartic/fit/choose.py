@@ -34,7 +34,7 @@ from rich.console import Console
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
 from coartic.fit.problem import Utterance
-from coartic.fit.spec import CHOOSABLE, Choose, FitSpec, SpecError, choose_base, make_choose
+from coartic.fit.spec import CHOOSABLE, Choose, FitSpec, SpecError, choose_base, make_choose, parse_grid
 
 
 def set_value(spec: FitSpec, key: str, value: float) -> FitSpec:
@@ -54,16 +54,13 @@ def set_value(spec: FitSpec, key: str, value: float) -> FitSpec:
 def parse_choose(spec: FitSpec, text: str) -> FitSpec:
     """``coartic fit --choose KEY=V1,V2,...``: the spec with that grid (group, folds and rule from
     the spec's ``[choose]``, else by utterance, 5 folds, and 1-SE for a strength)."""
-    key, sep, values = text.partition("=")
-    key = key.strip()
-    if not sep or not values.strip():
-        raise SpecError(f"--choose {text!r}: expected KEY=V1,V2,... (e.g. shrink.sd=0.03,0.1,0.3,1)")
+    key, values = parse_grid("--choose", text, "shrink.sd=0.03,0.1,0.3,1")
     grid: list[Any] = []
-    for v in values.split(","):
+    for v in values:
         try:
             grid.append(float(v))
         except ValueError:
-            raise SpecError(f"--choose {text!r}: {v.strip()!r} is not a number") from None
+            raise SpecError(f"--choose {text!r}: {v!r} is not a number") from None
     c = spec.choose
     base = choose_base(key)
     rule = c.rule if c is not None else ("1se" if base is not None and CHOOSABLE[base] != 0 else "min")

@@ -28,18 +28,15 @@ def compare_command(
     """Fit every spec on its data and compare: free parameters, RMSE, held-out RMSE, AIC, BIC."""
     from coartic.fit.compare import compare
     from coartic.fit.compare import vary as vary_spec
-    from coartic.fit.spec import FitSpec, SpecError, load_spec
+    from coartic.fit.spec import FitSpec, load_spec, parse_grid
     from coartic.outputs import OutputDir
 
     console = Console()
     try:
         models: list[FitSpec | Path] = list(specs)
         if vary is not None:
-            key, sep, values = vary.partition("=")
-            if not sep or not values.strip():
-                raise SpecError(f"--vary {vary!r}: expected KEY=V1,V2,...")
-            models = [m for s in specs for m in vary_spec(load_spec(s), key.strip(),
-                                                            [v.strip() for v in values.split(",") if v.strip()])]
+            key, values = parse_grid("--vary", vary)
+            models = [m for s in specs for m in vary_spec(load_spec(s), key, values)]
         identity = {"specs": ",".join(str(s.resolve()) for s in specs), "validate": validate, "vary": vary or ""}
         with OutputDir(out, "compare", identity, force=force, protect=specs) as d:
             cmp = compare(models, d, validate=validate, console=console, quiet=False)

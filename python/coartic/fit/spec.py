@@ -376,6 +376,18 @@ def make_choose(path: Path, key: Any, values: Any, group: Any, folds: Any, rule:
     return Choose(key, tuple(sorted(vals)), str(group), int(folds), str(rule))
 
 
+def parse_grid(option: str, text: str, example: str = "") -> tuple[str, list[str]]:
+    """``KEY=V1,V2,...`` of a command-line option (``--vary``, ``--choose``): the key and the values
+    as given (each command converts them), or a SpecError naming the option."""
+    key, sep, values = text.partition("=")
+    if not sep or not key.strip() or not values.strip():
+        raise SpecError(f"{option} {text!r}: expected KEY=V1,V2,...{f' (e.g. {example})' if example else ''}")
+    grid = [v.strip() for v in values.split(",")]
+    if not all(grid):
+        raise SpecError(f"{option} {text!r}: an empty value between commas")
+    return key.strip(), grid
+
+
 def choose_base(key: str) -> str | None:
     """The CHOOSABLE entry a key belongs to ("shrink #2.sd" -> "shrink.sd"), or None."""
     if key in CHOOSABLE:
