@@ -1,4 +1,5 @@
-"""What the fit tests share: a spec from inline sections (``spec_of``), and the one check of a
+"""What the fit tests share: a spec from inline sections (``spec_of``), a spec file over one real
+German EMA utterance (``german_utterance_spec``), and the one check of a
 least-squares problem's derivatives (``check_problem_derivatives``): its Jacobian against central
 finite differences of its residuals, its fused SSE and gradient against the Jacobian, and the
 core's batch SSE against both."""
@@ -12,6 +13,19 @@ import numpy as np
 import pytest
 
 from coartic.fit.spec import FitSpec, parse_spec
+
+
+ROOT = Path(__file__).resolve().parents[2]
+EMA = ROOT / "tests" / "data" / "realdata" / "emu-ema-german" / "derived"
+
+
+def german_utterance_spec(path: Path, rest: str, name: str | None = None) -> Path:
+    """A spec file at ``path`` fitting one real German EMA utterance (0020, German SAMPA labels);
+    ``rest``: the TOML that follows its [corpus] table ([model], [parameters]...)."""
+    head = f'name = "{name}"\n' if name is not None else ""
+    path.write_text(head + f'[corpus]\nfiles = ["{EMA}/dfgspp_mo1_prosody_0020_ema.csv"]\n'
+                    f'labels = ["{EMA}/dfgspp_mo1_prosody_0020_Segment.tsv"]\nlabel_map = "german_sampa"\n' + rest)
+    return path
 
 
 def spec_of(tmp_path: Path, **sections: Any) -> FitSpec:

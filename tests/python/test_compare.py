@@ -10,19 +10,14 @@ import pytest
 from typer.testing import CliRunner
 
 from coartic.cli import app
+from fit_helpers import german_utterance_spec
 from coartic.fit.compare import compare
-
-ROOT = Path(__file__).resolve().parents[2]
-EMA = ROOT / "tests" / "data" / "realdata" / "emu-ema-german" / "derived"
 
 
 def write_spec(tmp_path: Path, name: str, variant: str, free: str, validate: str = "") -> Path:
-    p = tmp_path / f"{variant}_{len(free)}.toml"
-    p.write_text(f'name = "{name}"\n[corpus]\nfiles = ["{EMA}/dfgspp_mo1_prosody_0020_ema.csv"]\n'
-                 f'labels = ["{EMA}/dfgspp_mo1_prosody_0020_Segment.tsv"]\nlabel_map = "german_sampa"\n'
-                 f'[model]\nvariant = "{variant}"\nchannels = ["JO"]\n[parameters]\nfree = {free}\n'
-                 '[staging]\nenabled = false\n' + validate)
-    return p
+    return german_utterance_spec(tmp_path / f"{variant}_{len(free)}.toml",
+                                 f'[model]\nvariant = "{variant}"\nchannels = ["JO"]\n[parameters]\nfree = {free}\n'
+                                 '[staging]\nenabled = false\n' + validate, name=name)
 
 
 def test_compare_tabulates_aic_bic_and_writes_table_and_plot(tmp_path: Path) -> None:

@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 from typer.testing import CliRunner
 
-from fit_helpers import check_problem_derivatives, spec_of
+from fit_helpers import check_problem_derivatives, german_utterance_spec, spec_of
 from coartic import model
 from coartic.cli import app
 from coartic.fit import problem, run
@@ -23,8 +23,6 @@ from coartic.fit.simulate import PHONEMES, vcv_utterances
 from coartic.fit.spec import SpecError, load_spec, parse_spec
 from coartic.table import PARAMETERS
 
-ROOT = Path(__file__).resolve().parents[2]
-EMA = ROOT / "tests" / "data" / "realdata" / "emu-ema-german" / "derived"
 
 
 @pytest.fixture(scope="module")
@@ -126,11 +124,8 @@ def test_a_failed_engine_is_an_error_naming_the_channel(tmp_path: Path, utts: li
 
 @pytest.mark.filterwarnings("ignore:Setting .* below the machine epsilon")
 def test_the_cli_exits_non_zero_when_an_engine_fails(tmp_path: Path) -> None:
-    spec = tmp_path / "ema.toml"
-    spec.write_text(f'[corpus]\nfiles = ["{EMA}/dfgspp_mo1_prosody_0020_ema.csv"]\n'
-                    f'labels = ["{EMA}/dfgspp_mo1_prosody_0020_Segment.tsv"]\nlabel_map = "german_sampa"\n'
-                    '[model]\nchannels = ["JO"]\n[parameters]\nfree = ["target"]\n'
-                    '[engine.options]\nftol = 0.0\nxtol = 0.0\ngtol = 0.0\n')
+    spec = german_utterance_spec(tmp_path / "ema.toml", '[model]\nchannels = ["JO"]\n[parameters]\nfree = ["target"]\n'
+                                 '[engine.options]\nftol = 0.0\nxtol = 0.0\ngtol = 0.0\n')
     res = CliRunner().invoke(app, ["fit", str(spec), "--out", str(tmp_path / "o"), "--no-report"])
     assert res.exit_code != 0
     assert "channel JO: the scipy engine failed" in res.output and "Traceback" not in res.output
@@ -199,11 +194,9 @@ def test_mcmc_takes_the_options_from_the_table(tmp_path: Path, utts: list[model.
 def test_the_default_budget_ends_a_one_utterance_real_fit_converged(tmp_path: Path) -> None:
     # One German EMA utterance, jaw opening, all at once: 327 evaluations to converge, so the
     # former cap of 200 ended it at max-evaluations (docs/FITTING.md has the measurements).
-    spec = tmp_path / "one.toml"
-    spec.write_text(f'[corpus]\nfiles = ["{EMA}/dfgspp_mo1_prosody_0020_ema.csv"]\n'
-                    f'labels = ["{EMA}/dfgspp_mo1_prosody_0020_Segment.tsv"]\nlabel_map = "german_sampa"\n'
-                    '[model]\nchannels = ["JO"]\n[parameters]\nfree = ["target", "alpha", "theta_bw", "theta_fw", "k_r"]\n'
-                    'start = { theta_bw = 40.0, theta_fw = 40.0 }\n[staging]\nenabled = false\n')
+    spec = german_utterance_spec(tmp_path / "one.toml", '[model]\nchannels = ["JO"]\n[parameters]\n'
+                                 'free = ["target", "alpha", "theta_bw", "theta_fw", "k_r"]\n'
+                                 'start = { theta_bw = 40.0, theta_fw = 40.0 }\n[staging]\nenabled = false\n')
     fit = run(spec, quiet=True).channels["JO"]
     assert fit.status == "converged", fit.message
     assert fit.nfev > 200
