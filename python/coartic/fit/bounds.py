@@ -44,6 +44,8 @@ from typing import TYPE_CHECKING, Any, Sequence
 import numpy as np
 from numpy.typing import NDArray
 
+from coartic.fit.parameters import psd_pseudo_inverse
+
 if TYPE_CHECKING:
     from coartic.fit.problem import ChannelProblem
 
@@ -140,7 +142,7 @@ def explain_bounds(problem: ChannelProblem, x: FloatArray, at_bound: Sequence[st
     fitted: FloatArray | None = None  # the model at x, for the k_R notes (one evaluation, when needed)
     idx = [names.index(nm) for nm in at_bound]
     interior = np.array([j for j in range(m) if j not in set(idx)], dtype=np.int64)
-    h_ff_pinv = _pinv(h[np.ix_(interior, interior)]) if interior.size else np.zeros((0, 0))
+    h_ff_pinv = psd_pseudo_inverse(h[np.ix_(interior, interior)])[0] if interior.size else np.zeros((0, 0))
 
     # every probe of every parameter in one batch (the core's parallel path)
     rows: list[FloatArray] = [x.copy()]
@@ -264,12 +266,6 @@ def summary_counts(notes: dict[str, BoundNote]) -> str:
 
 # --------------------------------------------------------------------------------------------------
 _DOMAIN_TEXT = {"k_r": "k_R ∈ [0, 1], MODEL.md §1 and §3.1", "beta": "β ≥ 0, MODEL.md §3.1"}
-
-
-def _pinv(a: FloatArray, rtol: float = 1e-10) -> FloatArray:
-    w, v = np.linalg.eigh(a)
-    keep = w > rtol * max(float(w.max()) if w.size else 0.0, 1e-300)
-    return (v[:, keep] / w[keep]) @ v[:, keep].T
 
 
 def _add(rows: list[FloatArray], x: FloatArray, i: int, values: list[float]) -> list[int]:

@@ -24,12 +24,22 @@ from numpy.typing import NDArray
 from coartic.fit.spec import FitSpec, SpecError
 from coartic.table import N_PARAMS, PARAMETERS
 
+
 if TYPE_CHECKING:
     from coartic.fit.bounds import BoundNote
     from coartic.fit.problem import ChannelData, Packing, Prior
 
 FloatArray = NDArray[np.float64]
 BoolArray = NDArray[np.bool_]
+def psd_pseudo_inverse(a: FloatArray, rtol: float = 1e-10) -> tuple[FloatArray, FloatArray, BoolArray]:
+    """The pseudo-inverse of a symmetric positive semi-definite matrix (JᵀJ, a Gauss–Newton
+    Hessian), dropping eigen-directions below ``rtol`` × the largest eigenvalue (the directions
+    the data do not identify); also the eigenvectors and which of them were kept."""
+    w, v = np.linalg.eigh(a)
+    keep = w > rtol * max(float(w.max()) if w.size else 0.0, 1e-300)
+    return (v[:, keep] / w[keep]) @ v[:, keep].T, v, keep
+
+
 # Parameters that the original model (eq. 1) ignores: never free there.
 MODIFIED_ONLY: frozenset[str] = frozenset({"k_r", "sigma", "psi"})
 BETA = "beta"

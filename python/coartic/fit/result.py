@@ -24,7 +24,7 @@ from numpy.typing import NDArray
 
 from coartic import __version__
 from coartic.fit.bounds import CATEGORY_TITLES, BoundNote, explain_bounds, summary_counts
-from coartic.fit.parameters import ParameterSet
+from coartic.fit.parameters import ParameterSet, psd_pseudo_inverse
 from coartic.fit.problem import ChannelProblem, Packing
 from coartic.fit.spec import FitSpec
 from coartic.fit.staged import StageResult
@@ -65,9 +65,7 @@ def parameter_stats(problem: ChannelProblem, x: FloatArray, rtol: float = 1e-10)
         return ParameterStats(names, values, e, np.zeros((0, 0)), [], [], s2, dof)
     jac = problem.jacobian(x)
     jtj = np.asarray((jac.T @ jac).toarray())
-    w, v = np.linalg.eigh(jtj)
-    keep = w > rtol * max(float(w.max()), 1e-300)
-    inv = (v[:, keep] / w[keep]) @ v[:, keep].T
+    inv, v, keep = psd_pseudo_inverse(jtj, rtol)
     cov = s2 * inv
     null_load = (v[:, ~keep] ** 2).sum(axis=1)
     unident = null_load > 0.5
