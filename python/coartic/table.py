@@ -64,6 +64,21 @@ DEFAULT_BOUNDS: Mapping[str, tuple[float, float]] = {
 }
 # These must be strictly positive (they are fitted in log form); the other bounds are closed.
 OPEN_LOWER: frozenset[str] = frozenset({"alpha", "theta_bw", "theta_fw", "psi"})
+# The model's own domain of each parameter (MODEL.md §1): (low, high, low excluded). The Rust core
+# refuses the same (params.rs validate_params; tests/python/test_table.py checks the two agree).
+# DEFAULT_BOUNDS above is narrower (c, σ, δ): a table may widen its boxes, never past these.
+MODEL_DOMAIN: Mapping[str, tuple[float, float, bool]] = {
+    "target": (-INF, INF, False),
+    "alpha": (0.0, INF, True),
+    "theta_bw": (0.0, INF, True),
+    "theta_fw": (0.0, INF, True),
+    "c_bw": (0.0, INF, True),
+    "c_fw": (0.0, INF, True),
+    "k_r": (0.0, 1.0, False),
+    "sigma": (-INF, INF, False),
+    "psi": (0.0, INF, False),
+    "delta": (-INF, INF, False),
+}
 
 CHANNEL_DEFAULTS: Mapping[str, Any] = {
     "unit": "mm",
@@ -259,6 +274,10 @@ class ParameterTable:
                 for name in PARAMETERS:
                     lo, hi = self.bounds_for(ch, name)
                     _check_number(where, name, row[name], lo, hi, open_lower=name in OPEN_LOWER and lo == 0.0)
+                    problem = domain_problem(name, row[name])
+                    if problem is not None:  # the table's own bounds let it through: they are too wide
+                        raise TableError(f"{where}: {name} = {row[name]!r} {problem}, the model's domain of "
+                                         f"{name} (MODEL.md §1), whatever the table's bounds say")
             for ch in chans:
                 if self.channels[ch].reference_phoneme == ph and chans[ch]["alpha"] != 1.0:
                     raise TableError(
@@ -658,15 +677,30 @@ def _parse_float(where: str, name: str, text: str) -> float:
         raise TableError(f"{where}: {name} = {text!r} is not a number") from None
 
 
-def _check_number(where: str, name: str, v: Any, lo: float, hi: float, open_lower: bool) -> None:
+def number_problem(v: Any, lo: float, hi: float, open_lower: bool) -> str | None:
+    """Why ``v`` is not a number in [lo, hi] (``(lo, hi]`` with ``open_lower``), or None: the one
+    wording of a value outside its interval, for tables and specs alike."""
     if isinstance(v, bool) or not isinstance(v, (int, float)):
-        raise TableError(f"{where}: {name} = {v!r} is not a number")
+        return "is not a number"
     if not math.isfinite(v):
-        raise TableError(f"{where}: {name} = {v!r} is not finite")
+        return "is not finite"
     below = v <= lo if open_lower else v < lo
     if below or v > hi:
         interval = ("(" if open_lower or lo == -INF else "[") + f"{lo:g}, {hi:g}" + (")" if hi == INF else "]")
-        raise TableError(f"{where}: {name} = {v!r} is outside {interval}")
+        return f"is outside {interval}"
+    return None
+
+
+def domain_problem(name: str, v: Any) -> str | None:
+    """Why ``v`` is not a value of parameter ``name`` in the model's domain (MODEL_DOMAIN), or None."""
+    lo, hi, open_lower = MODEL_DOMAIN[name]
+    return number_problem(v, lo, hi, open_lower)
+
+
+def _check_number(where: str, name: str, v: Any, lo: float, hi: float, open_lower: bool) -> None:
+    problem = number_problem(v, lo, hi, open_lower)
+    if problem is not None:
+        raise TableError(f"{where}: {name} = {v!r} {problem}")
 
 
 def _inf_to_none(x: float) -> float | None:

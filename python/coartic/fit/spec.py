@@ -15,9 +15,10 @@ from pathlib import Path
 from typing import Any
 
 from coartic.errors import CoarticError
+from coartic.textfile import TextDecodeError, read_text
 from coartic.io.errors import DataError
 from coartic.io.roles import RoleMap
-from coartic.table import ALL_CHANNELS, CHANNELS, DOMINANCES, PARAMETERS, VARIANTS, ChannelSettings
+from coartic.table import ALL_CHANNELS, CHANNELS, DOMINANCES, PARAMETERS, VARIANTS, ChannelSettings, domain_problem
 
 ENGINES: tuple[str, ...] = ("scipy", "nlopt", "casadi")
 # [validate] group: what a k-fold validation holds out together (manifest columns, or the file).
@@ -213,7 +214,8 @@ def _str_list(v: Any, path: Path, key: str) -> tuple[str, ...]:
 
 
 def _float(v: Any, path: Path, key: str) -> float:
-    if isinstance(v, bool) or not isinstance(v, (int, float)):
+    # TOML has nan: refused here, once, so that no comparison downstream lets it through
+    if isinstance(v, bool) or not isinstance(v, (int, float)) or math.isnan(v):
         raise _err(path, key, f"expected a number, got {v!r}")
     return float(v)
 
@@ -226,11 +228,19 @@ def _param_names(names: tuple[str, ...], path: Path, key: str, allow_beta: bool 
     return names
 
 
-def _param_values(d: Any, path: Path, key: str) -> dict[str, float]:
+def _param_values(d: Any, path: Path, key: str, phonemes: tuple[str, ...] = ()) -> dict[str, float]:
+    """``parameter = value`` pairs (starts, fixed values), each in its parameter's model domain
+    (MODEL.md §1); errors name the key and, for an ``[[override]]``, its phonemes."""
     if not isinstance(d, dict):
         raise _err(path, key, f"expected a table of parameter = value, got {d!r}")
     _param_names(tuple(d), path, key)
-    return {k: _float(v, path, f"{key}.{k}") for k, v in d.items()}
+    out = {k: _float(v, path, f"{key}.{k}") for k, v in d.items()}
+    for k, v in out.items():
+        problem = domain_problem(k, v)
+        if problem is not None:
+            whose = f" (of {', '.join(phonemes)})" if phonemes else ""
+            raise _err(path, f"{key}.{k}", f"{k} = {v:g}{whose} {problem}, the model's domain of {k}")
+    return out
 
 
 def _bounds(d: Any, path: Path, key: str) -> dict[str, tuple[float, float]]:
@@ -400,9 +410,13 @@ def choose_base(key: str) -> str | None:
 def read_document(path: Path) -> dict[str, Any]:
     """The TOML document of a spec file, or a SpecError naming the file."""
     try:
-        return tomllib.loads(path.read_text(encoding="utf-8"))
+        return tomllib.loads(read_text(path, "fit spec"))
     except FileNotFoundError:
         raise SpecError(f"{path}: no such fit spec") from None
+    except IsADirectoryError:
+        raise SpecError(f"{path}: is a directory, not a fit spec (.toml) file") from None
+    except TextDecodeError as e:
+        raise SpecError(str(e)) from None
     except tomllib.TOMLDecodeError as e:
         raise SpecError(f"{path}: not valid TOML: {e}") from None
 
@@ -512,6 +526,10 @@ def parse_spec(raw: dict[str, Any], path: Path) -> FitSpec:
     if not isinstance(handover, bool):
         raise _err(path, "model.handover", f"expected true or false, got {handover!r}")
 
+    beta = _float(m.get("beta", 1.0), path, "model.beta")
+    if not (math.isfinite(beta) and beta >= 0.0):
+        raise _err(path, "model.beta", f"{beta} must be a finite number >= 0 (MODEL.md §3.1)")
+
     p = raw.get("parameters", {})
     _take(p, path, "parameters", {"free", "start", "start_table", "bounds", "target_margin", "prior", "prior_noise"})
     free = _param_names(_str_list(p.get("free", list(PARAMETERS)), path, "parameters.free"), path, "parameters.free")
@@ -543,11 +561,12 @@ def parse_spec(raw: dict[str, Any], path: Path) -> FitSpec:
             raise _err(path, key, "missing phonemes = [...]")
         chans = _channels(_str_list(table["channels"], path, f"{key}.channels"), path, f"{key}.channels") \
             if "channels" in table else None
+        o_phonemes = _str_list(table["phonemes"], path, f"{key}.phonemes")
         overrides.append(Override(
-            phonemes=_str_list(table["phonemes"], path, f"{key}.phonemes"), channels=chans,
-            fixed=_param_values(table.get("fixed", {}), path, f"{key}.fixed"),
+            phonemes=o_phonemes, channels=chans,
+            fixed=_param_values(table.get("fixed", {}), path, f"{key}.fixed", o_phonemes),
             free=_param_names(_str_list(table.get("free", []), path, f"{key}.free"), path, f"{key}.free"),
-            start=_param_values(table.get("start", {}), path, f"{key}.start"),
+            start=_param_values(table.get("start", {}), path, f"{key}.start", o_phonemes),
             bounds=_bounds(table.get("bounds", {}), path, f"{key}.bounds")))
 
     reference = str(m.get("reference_phoneme", "a"))
@@ -618,7 +637,7 @@ def parse_spec(raw: dict[str, Any], path: Path) -> FitSpec:
         path=path, name=str(name), corpus=corpus, channels=channels, variant=variant,
         reference_phoneme=reference, apex_fraction=apex, edge_extent=edge, dominance=dominance,
         plateau_fraction=plateau, handover=handover,
-        beta=_float(m.get("beta", 1.0), path, "model.beta"), fit_beta=fit_beta, beta_bounds=beta_bounds,
+        beta=beta, fit_beta=fit_beta, beta_bounds=beta_bounds,
         free=free, start_table=start_table, start=start, start_given=frozenset(start_given), bounds=bounds,
         priors=priors, prior_noise=prior_noise, offsets=offsets if isinstance(offsets, str) else float(offsets),
         speakers=str(speakers), speaker_column=speaker_column, channel_bounds=channel_bounds,
