@@ -9,7 +9,7 @@ from typing import Any, Callable, Mapping, Sequence
 import numpy as np
 
 from coartic.model import Utterance
-from coartic.fit.spec import FitSpec, SpecError
+from coartic.fit.spec import FitSpec, SpecError, synth_hint
 from coartic.io import DataError, load_trial
 
 
@@ -21,8 +21,7 @@ def manifest_rows(spec: FitSpec) -> list[dict[str, str]]:
                 for f, lab in zip(c.files, c.labels)]
     else:
         if not c.manifest.is_file():
-            raise SpecError(f"{spec.path}: [corpus.manifest] {c.manifest} does not exist"
-                            " (for the synthetic session run `coartic corpus synth build/session`)")
+            raise SpecError(f"{spec.path}: [corpus.manifest] {c.manifest} does not exist{synth_hint(c.manifest)}")
         with c.manifest.open(newline="", encoding="utf-8") as f:
             reader = csv.DictReader(f)
             rows = []
