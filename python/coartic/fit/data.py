@@ -10,7 +10,7 @@ from typing import Any, Callable, Mapping, Sequence
 import numpy as np
 
 from coartic.model import Utterance
-from coartic.fit.spec import FitSpec, SpecError
+from coartic.fit.spec import FitSpec, SpecError, synth_hint
 from coartic.io import DataError, load_trial
 from coartic.textfile import TextDecodeError, read_text
 
@@ -26,8 +26,7 @@ def manifest_rows(spec: FitSpec) -> list[dict[str, str]]:
             raise SpecError(f"{spec.path}: [corpus.manifest] {c.manifest} is a directory: name the manifest "
                             f"file in it (e.g. {c.manifest / 'manifest.csv'})")
         if not c.manifest.is_file():
-            raise SpecError(f"{spec.path}: [corpus.manifest] {c.manifest} does not exist"
-                            " (for the synthetic session run `coartic corpus synth build/session`)")
+            raise SpecError(f"{spec.path}: [corpus.manifest] {c.manifest} does not exist{synth_hint(c.manifest)}")
         try:
             text = read_text(c.manifest, "manifest")
         except TextDecodeError as e:

@@ -267,6 +267,13 @@ def _channels(names: tuple[str, ...], path: Path, key: str) -> tuple[str, ...]:
     return names
 
 
+def synth_hint(manifest: Path) -> str:
+    """What to run when ``manifest`` is absent, naming that very corpus (the session and the
+    speakers' corpus are both made by ``coartic corpus synth``, which one is not known here)."""
+    return (f" (if it is a synthetic corpus: `coartic corpus synth {manifest.parent}`, with `--speakers N` for "
+            "several speakers)")
+
+
 def _path(base: Path, v: Any, key: str, spec_path: Path) -> Path:
     if not isinstance(v, str) or not v:
         raise _err(spec_path, key, f"expected a path string, got {v!r}")
