@@ -3,14 +3,16 @@
 from __future__ import annotations
 
 import csv
+import io
 from pathlib import Path
 from typing import Any, Callable, Mapping, Sequence
 
 import numpy as np
 
 from coartic.model import Utterance
-from coartic.fit.spec import FitSpec, SpecError
+from coartic.fit.spec import FitSpec, SpecError, synth_hint
 from coartic.io import DataError, load_trial
+from coartic.textfile import TextDecodeError, read_text
 
 
 def manifest_rows(spec: FitSpec) -> list[dict[str, str]]:
@@ -20,10 +22,16 @@ def manifest_rows(spec: FitSpec) -> list[dict[str, str]]:
         rows = [{c.file_column: str(f), "labels": str(lab), "stimulus": f.stem}
                 for f, lab in zip(c.files, c.labels)]
     else:
+        if c.manifest.is_dir():
+            raise SpecError(f"{spec.path}: [corpus.manifest] {c.manifest} is a directory: name the manifest "
+                            f"file in it (e.g. {c.manifest / 'manifest.csv'})")
         if not c.manifest.is_file():
-            raise SpecError(f"{spec.path}: [corpus.manifest] {c.manifest} does not exist"
-                            " (for the synthetic session run `coartic corpus synth build/session`)")
-        with c.manifest.open(newline="", encoding="utf-8") as f:
+            raise SpecError(f"{spec.path}: [corpus.manifest] {c.manifest} does not exist{synth_hint(c.manifest)}")
+        try:
+            text = read_text(c.manifest, "manifest")
+        except TextDecodeError as e:
+            raise SpecError(f"{spec.path}: [corpus.manifest] {e}") from None
+        with io.StringIO(text, newline="") as f:
             reader = csv.DictReader(f)
             rows = []
             lines = []

@@ -212,6 +212,13 @@ class ParameterSet(Mapping[str, Parameter]):
                 if len(rows) >= 2 and not members:
                     raise SpecError(f"{spec.path}: [tie #{j + 1}] {name} is free for none of {list(t.phonemes)} "
                                     f"on {ch}: nothing to tie")
+                held = [i for i in rows if not free[i, k]]
+                if members and held:
+                    # a tie means one shared value: a member held at its own value would silently not share it
+                    i = held[0]
+                    by = f"[{origin[i, k]}]" if origin[i, k] else f"{name} is not in [parameters] free for it"
+                    raise SpecError(f"{spec.path}: [tie #{j + 1}] ties {name} of {list(t.phonemes)} on {ch}, but "
+                                    f"{phon[i]}.{name} is fixed ({by}): free it, or take {phon[i]} out of the tie")
                 if len(members) < 2:
                     continue  # fewer than two present (and free) here: nothing to share
                 leader = members[0]

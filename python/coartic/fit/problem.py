@@ -34,7 +34,7 @@ from numpy.typing import NDArray
 from coartic import _core
 from coartic.fit.spec import FitSpec
 from coartic.model import JacobianBuffer, Utterance, build_corpus, channel_options, core_error
-from coartic.table import N_PARAMS, PARAMETERS
+from coartic.table import N_PARAMS, PARAMETERS, PAUSE
 
 if TYPE_CHECKING:
     from coartic.fit.parameters import ParameterSet
@@ -42,7 +42,6 @@ if TYPE_CHECKING:
 __all__ = ["Utterance", "ChannelData", "Packing", "ChannelProblem", "build_problem", "build_packing",
            "phoneme_inventory", "Shrinkage", "ShrinkGroup", "shrink_groups", "Speakers", "affine_coefficients"]
 
-PAUSE = "#"
 # Columns fitted on a log scale (MODEL.md §1: "fit log α", "fit log θ"; ψ > 0 likewise).
 LOG_PARAMETERS: frozenset[str] = frozenset({"alpha", "theta_bw", "theta_fw", "psi"})
 LOG_COLUMNS: NDArray[np.bool_] = np.array([p in LOG_PARAMETERS for p in PARAMETERS])
