@@ -29,7 +29,10 @@ from coartic.settings import CHANNEL_SETTINGS, DOMINANCES, RATE_SETTINGS
 
 SCHEMA = "coartic.table/1"
 CHANNELS: tuple[str, ...] = ("ULO", "LLO", "ULP", "LLP", "LR", "JO")
-ALL_CHANNELS: tuple[str, ...] = CHANNELS + ("LA",)
+# Tongue-tip and tongue-body height and advancement from EMA TT and TB sensors (docs/DATA.md):
+# fitted like any channel (the model is per channel), driven as tongue FAPs by the face.
+TONGUE_CHANNELS: tuple[str, ...] = ("TTH", "TTA", "TBH", "TBA")
+ALL_CHANNELS: tuple[str, ...] = CHANNELS + ("LA",) + TONGUE_CHANNELS
 PARAMETERS: tuple[str, ...] = (
     "target",
     "alpha",

@@ -47,7 +47,7 @@ def base_doc() -> dict[str, Any]:
 
 def test_names_follow_the_contract() -> None:
     assert CHANNELS == ("ULO", "LLO", "ULP", "LLP", "LR", "JO")
-    assert ALL_CHANNELS == CHANNELS + ("LA",)
+    assert ALL_CHANNELS == CHANNELS + ("LA", "TTH", "TTA", "TBH", "TBA")
     assert PARAMETERS[0] == "target" and PARAMETERS[6] == "k_r" and PARAMETERS[9] == "delta"
     assert N_PARAMS == 10 and set(DEFAULT_BOUNDS) == set(PARAMETERS)
     assert DEFAULT_BOUNDS["k_r"] == (0.0, 1.0) and DEFAULT_BOUNDS["c_bw"] == (0.5, 3.0)
