@@ -164,7 +164,9 @@ def _fit_into(s: FitSpec, out: Path, console: Console, validate: bool, report: b
     for note in result.notes:
         console.print(f"[yellow]note:[/yellow] {escape(note)}", soft_wrap=True)
     if result.validation:
-        from coartic.fit.validate import validation_table
+        from coartic.fit.validate import flags, validation_table
 
         console.print(validation_table(result.validation))
+        for f in flags(result.validation):
+            console.print(f"[bold red]WORSE THAN THE STEP MODEL[/bold red] {escape(f)}", soft_wrap=True, highlight=False)
     return result
