@@ -8,7 +8,7 @@ readers) are imported on first use, so ``import coartic`` stays light.
 from typing import Any
 
 from coartic.model import build_corpus, trajectories
-from coartic.table import ALL_CHANNELS, CHANNELS, PARAMETERS, ParameterTable
+from coartic.table import ALL_CHANNELS, CHANNELS, PARAMETERS, TONGUE_CHANNELS, ParameterTable
 
 __version__ = "0.1.0"
 
@@ -16,6 +16,7 @@ __all__ = [
     "ALL_CHANNELS",
     "CHANNELS",
     "PARAMETERS",
+    "TONGUE_CHANNELS",
     "ParameterTable",
     "Trial",
     "build_corpus",

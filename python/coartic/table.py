@@ -24,10 +24,15 @@ import numpy.typing as npt
 
 from coartic.errors import CoarticError
 from coartic.outputs import atomic_write_text
+from coartic.settings import CHANNEL_SETTINGS, DOMINANCES, RATE_SETTINGS
+
 
 SCHEMA = "coartic.table/1"
 CHANNELS: tuple[str, ...] = ("ULO", "LLO", "ULP", "LLP", "LR", "JO")
-ALL_CHANNELS: tuple[str, ...] = CHANNELS + ("LA",)
+# Tongue-tip and tongue-body height and advancement from EMA TT and TB sensors (docs/DATA.md):
+# fitted like any channel (the model is per channel), driven as tongue FAPs by the face.
+TONGUE_CHANNELS: tuple[str, ...] = ("TTH", "TTA", "TBH", "TBA")
+ALL_CHANNELS: tuple[str, ...] = CHANNELS + ("LA",) + TONGUE_CHANNELS
 PARAMETERS: tuple[str, ...] = (
     "target",
     "alpha",
@@ -42,8 +47,6 @@ PARAMETERS: tuple[str, ...] = (
 )
 N_PARAMS = len(PARAMETERS)
 VARIANTS: tuple[str, ...] = ("original", "modified")
-# Dominance time scale (docs/MODEL.md §2.1): "centre" is the model of §2, "plateau" the rate-aware one.
-DOMINANCES: tuple[str, ...] = ("centre", "plateau")
 QUANTILES: tuple[str, ...] = ("q2.5", "q16", "q50", "q84", "q97.5")
 PAUSE = "#"
 
@@ -64,19 +67,23 @@ DEFAULT_BOUNDS: Mapping[str, tuple[float, float]] = {
 }
 # These must be strictly positive (they are fitted in log form); the other bounds are closed.
 OPEN_LOWER: frozenset[str] = frozenset({"alpha", "theta_bw", "theta_fw", "psi"})
-
-CHANNEL_DEFAULTS: Mapping[str, Any] = {
-    "unit": "mm",
-    "beta": 1.0,
-    "edge_extent": 1.0,
-    "apex_fraction": 0.5,
-    "dominance": "centre",
-    "plateau_fraction": 0.5,
-    "handover": False,
+# The model's own domain of each parameter (MODEL.md §1): (low, high, low excluded). The Rust core
+# refuses the same (params.rs validate_params; tests/python/test_table.py checks the two agree).
+# DEFAULT_BOUNDS above is narrower (c, σ, δ): a table may widen its boxes, never past these.
+MODEL_DOMAIN: Mapping[str, tuple[float, float, bool]] = {
+    "target": (-INF, INF, False),
+    "alpha": (0.0, INF, True),
+    "theta_bw": (0.0, INF, True),
+    "theta_fw": (0.0, INF, True),
+    "c_bw": (0.0, INF, True),
+    "c_fw": (0.0, INF, True),
+    "k_r": (0.0, 1.0, False),
+    "sigma": (-INF, INF, False),
+    "psi": (0.0, INF, False),
+    "delta": (-INF, INF, False),
 }
-# The rate-aware options of docs/MODEL.md §2.1: written to a table only when they differ from
-# the defaults, so a table of today's model reads and writes as before.
-RATE_SETTINGS: tuple[str, ...] = ("dominance", "plateau_fraction", "handover")
+
+CHANNEL_DEFAULTS: Mapping[str, Any] = {"unit": "mm", **{n: s.default for n, s in CHANNEL_SETTINGS.items()}}
 
 
 class TableError(CoarticError, ValueError):
@@ -90,12 +97,12 @@ class ChannelSettings:
 
     reference_phoneme: str
     unit: str = "mm"
-    beta: float = 1.0
-    edge_extent: float = 1.0
-    apex_fraction: float = 0.5
-    dominance: str = "centre"
-    plateau_fraction: float = 0.5
-    handover: bool = False
+    beta: float = CHANNEL_SETTINGS["beta"].default
+    edge_extent: float = CHANNEL_SETTINGS["edge_extent"].default
+    apex_fraction: float = CHANNEL_SETTINGS["apex_fraction"].default
+    dominance: str = CHANNEL_SETTINGS["dominance"].default
+    plateau_fraction: float = CHANNEL_SETTINGS["plateau_fraction"].default
+    handover: bool = CHANNEL_SETTINGS["handover"].default
 
     def rate_settings(self) -> dict[str, Any]:
         """The rate-aware options that differ from the defaults (what a table file records)."""
@@ -221,14 +228,10 @@ class ParameterTable:
                 raise TableError(f"{src}: unknown channel {ch!r} (known: {', '.join(ALL_CHANNELS)})")
             if not isinstance(cs.unit, str) or not cs.unit:
                 raise TableError(f"{where}: unit must be a non-empty string, got {cs.unit!r}")
-            _check_number(where, "beta", cs.beta, 0.0, INF, open_lower=False)
-            _check_number(where, "edge_extent", cs.edge_extent, 0.0, INF, open_lower=True)
-            _check_number(where, "apex_fraction", cs.apex_fraction, 0.0, 1.0, open_lower=False)
-            if cs.dominance not in DOMINANCES:
-                raise TableError(f"{where}: dominance {cs.dominance!r} is not one of {', '.join(DOMINANCES)}")
-            _check_number(where, "plateau_fraction", cs.plateau_fraction, 0.0, 1.0, open_lower=False)
-            if not isinstance(cs.handover, bool):
-                raise TableError(f"{where}: handover = {cs.handover!r} is not true or false")
+            for name, setting in CHANNEL_SETTINGS.items():
+                problem = setting.problem(getattr(cs, name))
+                if problem is not None:
+                    raise TableError(f"{where}: {name} = {getattr(cs, name)!r} {problem}")
             if not isinstance(cs.reference_phoneme, str) or cs.reference_phoneme not in self.values or ch not in self.values[cs.reference_phoneme]:
                 raise TableError(
                     f"{where}: reference phoneme {cs.reference_phoneme!r} has no parameters for {ch}"
@@ -259,6 +262,10 @@ class ParameterTable:
                 for name in PARAMETERS:
                     lo, hi = self.bounds_for(ch, name)
                     _check_number(where, name, row[name], lo, hi, open_lower=name in OPEN_LOWER and lo == 0.0)
+                    problem = domain_problem(name, row[name])
+                    if problem is not None:  # the table's own bounds let it through: they are too wide
+                        raise TableError(f"{where}: {name} = {row[name]!r} {problem}, the model's domain of "
+                                         f"{name} (MODEL.md §1), whatever the table's bounds say")
             for ch in chans:
                 if self.channels[ch].reference_phoneme == ph and chans[ch]["alpha"] != 1.0:
                     raise TableError(
@@ -658,15 +665,30 @@ def _parse_float(where: str, name: str, text: str) -> float:
         raise TableError(f"{where}: {name} = {text!r} is not a number") from None
 
 
-def _check_number(where: str, name: str, v: Any, lo: float, hi: float, open_lower: bool) -> None:
+def number_problem(v: Any, lo: float, hi: float, open_lower: bool) -> str | None:
+    """Why ``v`` is not a number in [lo, hi] (``(lo, hi]`` with ``open_lower``), or None: the one
+    wording of a value outside its interval, for tables and specs alike."""
     if isinstance(v, bool) or not isinstance(v, (int, float)):
-        raise TableError(f"{where}: {name} = {v!r} is not a number")
+        return "is not a number"
     if not math.isfinite(v):
-        raise TableError(f"{where}: {name} = {v!r} is not finite")
+        return "is not finite"
     below = v <= lo if open_lower else v < lo
     if below or v > hi:
         interval = ("(" if open_lower or lo == -INF else "[") + f"{lo:g}, {hi:g}" + (")" if hi == INF else "]")
-        raise TableError(f"{where}: {name} = {v!r} is outside {interval}")
+        return f"is outside {interval}"
+    return None
+
+
+def domain_problem(name: str, v: Any) -> str | None:
+    """Why ``v`` is not a value of parameter ``name`` in the model's domain (MODEL_DOMAIN), or None."""
+    lo, hi, open_lower = MODEL_DOMAIN[name]
+    return number_problem(v, lo, hi, open_lower)
+
+
+def _check_number(where: str, name: str, v: Any, lo: float, hi: float, open_lower: bool) -> None:
+    problem = number_problem(v, lo, hi, open_lower)
+    if problem is not None:
+        raise TableError(f"{where}: {name} = {v!r} {problem}")
 
 
 def _inf_to_none(x: float) -> float | None:

@@ -78,8 +78,18 @@ def serial(corpus: Path) -> Path:
 
 
 def kill_own_worker_once(key: UnitKey) -> None:
-    """The first time unit s01 LLO starts, its worker process dies (as a lost node would)."""
+    """The first time unit s01 LLO starts, its worker process dies (as a lost node would). Before,
+    every socket listening in the test's process tree (client, scheduler, nannies, workers) is
+    written down, while the cluster runs."""
     marker = Path(os.environ["COARTIC_TEST_KILL_MARKER"])
+    sockets = marker.with_name("listening.json")
+    if not sockets.exists():
+        import psutil
+
+        top = psutil.Process(int(os.environ["COARTIC_TEST_CLIENT_PID"]))
+        found = [[c.laddr.ip, c.laddr.port] for p in [top, *top.children(recursive=True)]
+                 for c in p.net_connections(kind="inet") if c.status == psutil.CONN_LISTEN]
+        sockets.write_text(json.dumps(found))
     if key == UnitKey("s01", "LLO") and not marker.exists():
         marker.write_text(str(os.getpid()))
         os._exit(1)
@@ -90,11 +100,12 @@ def cluster_run(corpus: Path) -> tuple[Path, Any, Path]:
     out = corpus / "cluster"
     marker = corpus / "killed.pid"
     os.environ["COARTIC_TEST_KILL_MARKER"] = str(marker)  # the nannies pass it on to the workers
+    os.environ["COARTIC_TEST_CLIENT_PID"] = str(os.getpid())
     try:
         outcome = run_batch(load_batch_spec(corpus / "batch.toml"), out, workers=2, quiet=True,
                             before=kill_own_worker_once)
     finally:
-        del os.environ["COARTIC_TEST_KILL_MARKER"]
+        del os.environ["COARTIC_TEST_KILL_MARKER"], os.environ["COARTIC_TEST_CLIENT_PID"]
     return out, outcome, marker
 
 
@@ -163,6 +174,14 @@ def test_cluster_gives_the_serial_tables_bit_for_bit(serial: Path, cluster_run: 
     assert (out / "spread.csv").read_bytes() == (serial / "spread.csv").read_bytes()
     info = json.loads((unit_dir(out, UnitKey("s02", "JO")) / "unit.json").read_text())
     assert info["rayon_threads"] == str(outcome.threads) and info["pid"] != os.getpid()
+
+
+def test_the_local_cluster_listens_on_loopback_only(cluster_run: tuple[Path, Any, Path]) -> None:
+    """Scheduler, dashboard, nannies and workers: nothing reachable from another machine."""
+    _, _, marker = cluster_run
+    listening = json.loads(marker.with_name("listening.json").read_text())
+    assert len(listening) >= 4, listening  # the scheduler, its HTTP server (dashboard), a nanny and a worker at least
+    assert all(ip in ("127.0.0.1", "::1") for ip, _ in listening), listening
 
 
 def test_a_killed_worker_loses_its_unit_and_the_unit_is_redone(cluster_run: tuple[Path, Any, Path]) -> None:

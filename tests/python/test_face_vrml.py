@@ -79,6 +79,23 @@ def test_single_frames_show_lips_closed_and_open(run: Path) -> None:
         write_face_vrml(run / "x.wrl", faps, frames=[faps.n_frames])
 
 
+def test_the_loop_lasts_as_long_as_the_sound(run: Path) -> None:
+    """With its WAV, the world loops every len(WAV) s (53 frames at 25 fps against 2.109 s of sound
+    used to loop every 2.12 s and drift 11 ms a cycle); frames past the sound's end are not keyed."""
+    from coartic.face.vrml import vrml_text
+
+    rig = default_rig()
+    weights = rig.weights(read_fap(run / "apa.fap"))[:19]
+    text = vrml_text(rig, weights, 25.0, "apa", audio="apa.wav", audio_seconds=0.709)
+    assert re.search(r"cycleInterval 0\.709 loop TRUE", text)
+    keys = block(text, "DEF skin_motion CoordinateInterpolator")
+    assert keys.size == 18  # frame 18 starts at 0.72 s, after the sound
+    np.testing.assert_allclose(keys, np.arange(18) / 25 / 0.709, atol=1e-6)
+    assert 'AudioClip { url [ "apa.wav" ] loop TRUE }' in text
+    with pytest.raises(AnimationError, match="sound's length"):
+        vrml_text(rig, weights, 25.0, "apa", audio="apa.wav", audio_seconds=0.0)
+
+
 def test_a_long_animation_is_refused_before_any_text(tmp_path: Path) -> None:
     from coartic.face.vrml import VRML_MAX_FRAMES, vrml_text
 

@@ -53,8 +53,8 @@ def test_settings_the_spec_gives_are_honoured(tmp_path: Path, utts: list[model.U
 @pytest.mark.parametrize("sections, key", [
     ({"parameters": {"free": ["target", "theta_bw"], "start": {"theta_bw": 5.0},
                      "bounds": {"theta_bw": [10.0, 100.0]}}}, "[parameters.start.theta_bw]"),
-    ({"parameters": {"free": ["target", "k_r"]},
-      "override": [{"phonemes": ["p"], "start": {"k_r": 1.5}}]}, "[override #1.start.k_r]"),
+    ({"parameters": {"free": ["target", "c_bw"]},  # c = 4 is in the model's domain, not in the fit's box
+      "override": [{"phonemes": ["p"], "start": {"c_bw": 4.0}}]}, "[override #1.start.c_bw]"),
 ])
 def test_a_start_outside_its_bounds_is_refused(tmp_path: Path, utts: list[model.Utterance],
                                                sections: dict[str, Any], key: str) -> None:
@@ -317,6 +317,47 @@ def test_a_tie_of_fixed_values_is_refused(tmp_path: Path, utts: list[model.Utter
     s = spec_of(tmp_path, tie=[{"phonemes": ["p", "t"], "parameters": ["k_r"]}])  # k_r is not free
     with pytest.raises(SpecError, match=r"\[tie #1\] k_r is free for none of"):
         build_packing(s, ChannelData.build(utts, "LLO", PHONEMES))
+
+
+def test_a_tie_over_a_member_an_override_fixes_is_refused(tmp_path: Path, utts: list[model.Utterance]) -> None:
+    # issue 21: the fixed member used to be dropped from the tie without a word
+    s = spec_of(tmp_path, parameters={"free": ["target", "theta_bw"]},
+                tie=[{"phonemes": ["p", "t"], "parameters": ["theta_bw"]}],
+                override=[{"phonemes": ["t"], "fixed": {"theta_bw": 30.0}}])
+    with pytest.raises(SpecError, match=r"\[tie #1\] ties theta_bw of \['p', 't'\] on LLO, but t.theta_bw is fixed "
+                       r"\(\[override #1.fixed.theta_bw\]\)") as e:
+        build_packing(s, ChannelData.build(utts, "LLO", PHONEMES))
+    assert e.value.key == "tie #1" and e.value.phoneme == "t" and e.value.file == tmp_path / "spec.toml"
+
+
+@pytest.mark.parametrize("kind, table", [
+    ("tie", {"phonemes": ["p", "f"], "parameters": ["theta_bw"]}),
+    ("shrink", {"phonemes": ["p", "f", "v"], "parameters": ["target"], "sd": 1.0}),
+])
+def test_ties_and_shrinks_of_phonemes_absent_from_the_corpus(tmp_path: Path, utts: list[model.Utterance],
+                                                             kind: str, table: dict[str, Any]) -> None:
+    # one member present: nothing to share or pull together, refused (it used to be accepted, and a
+    # shrink recorded in the table as applied)
+    s = spec_of(tmp_path, parameters={"free": ["target", "theta_bw"]}, **{kind: [table]})
+    with pytest.raises(SpecError, match=rf"\[{kind} #1\] phonemes .*: fewer than two occur in the corpus"):
+        check_overrides(s, utts)
+    # two present: applied to them, the absent ones named
+    some = spec_of(tmp_path, parameters={"free": ["target", "theta_bw"]},
+                   **{kind: [{**table, "phonemes": ["p", "t", "f"]}]})
+    assert check_overrides(some, utts) == [f"[{kind} #1] phonemes ['f'] do not occur in the corpus: not applied to them"]
+    if kind == "shrink":  # the table records the members the shrinkage was applied to
+        shrinkage = run(some, None, utterances=utts, quiet=True).table().metadata["shrinkage"]
+        assert shrinkage[0]["phonemes"] == ["p", "t"]
+
+
+def test_a_manifest_that_is_a_directory_or_not_utf8_is_named(tmp_path: Path) -> None:
+    (tmp_path / "session").mkdir()
+    s = spec_of(tmp_path, corpus={"manifest": "session"})
+    with pytest.raises(SpecError, match=r"\[corpus.manifest\] .*session is a directory: name the manifest file in it"):
+        manifest_rows(s)
+    (tmp_path / "m.csv").write_bytes("file,labels\nsé.c3d,a.lab\n".encode("latin-1"))
+    with pytest.raises(SpecError, match=r"m.csv: line 2, column 2: byte 0xe9 is not UTF-8.*decodes as cp1252"):
+        manifest_rows(spec_of(tmp_path, corpus={"manifest": "m.csv"}))
 
 
 def test_mcmc_has_the_priors_of_the_fit_spec(tmp_path: Path, utts: list[model.Utterance]) -> None:

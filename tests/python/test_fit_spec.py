@@ -47,6 +47,19 @@ BASE = '[corpus]\nmanifest = "m.csv"\n'
     ('[model]\nchannels = ["LLO"]\n', "corpus", "missing"),
     ('[corpus]\nfiles = ["a.c3d", "b.c3d"]\nlabels = ["a.lab"]\n', "corpus.labels", "2 data files"),
     (BASE + '[staging]\nstages = [["target"], ["speed"]]\n', "staging.stages", "speed"),
+    # issue 21's hostile specs: each names the file, the key, and the phoneme by name
+    (BASE + '[[override]]\nphonemes = ["b"]\nfixed = { theta_bw = -3.0 }\n', "override #1.fixed.theta_bw",
+     "theta_bw = -3 (of b) is outside (0, inf), the model's domain"),
+    (BASE + '[[override]]\nphonemes = ["p"]\nstart = { k_r = 1.5 }\n', "override #1.start.k_r", "outside [0, 1]"),
+    (BASE + '[parameters]\nstart = { alpha = 0.0 }\n', "parameters.start.alpha", "outside (0, inf)"),
+    (BASE + '[model]\nbeta = nan\n', "model.beta", "beta = nan is not finite"),
+    (BASE + '[model]\nbeta = inf\n', "model.beta", "beta = inf is not finite (β, how steeply"),
+    (BASE + '[model]\nbeta = -1.0\n', "model.beta", "beta = -1.0 is outside [0, inf) (β"),
+    (BASE + '[model]\napex_fraction = nan\n', "model.apex_fraction", "apex_fraction = nan is not finite"),
+    (BASE + '[model]\nedge_extent = 0.0\n', "model.edge_extent", "edge_extent = 0.0 is outside (0, inf)"),
+    (BASE + '[model]\nplateau_fraction = 1.5\n', "model.plateau_fraction", "is outside [0, 1] (h, the half-width"),
+    (BASE + '[model]\ndominance = "flat"\n', "model.dominance", "dominance = 'flat' is not one of centre, plateau"),
+    (BASE + '[model]\nhandover = 1\n', "model.handover", "handover = 1 is not true or false"),
 ])
 def test_errors_name_file_and_key(tmp_path: Path, text: str, key: str, words: str) -> None:
     p = write(tmp_path, text)
@@ -54,6 +67,7 @@ def test_errors_name_file_and_key(tmp_path: Path, text: str, key: str, words: st
         load_spec(p)
     msg = str(e.value)
     assert str(p) in msg and f"[{key}]" in msg and words in msg
+    assert e.value.file == p and e.value.key == key  # the place without parsing the message
 
 
 def test_the_mcmc_table_is_left_to_coartic_mcmc(tmp_path: Path) -> None:
@@ -76,3 +90,16 @@ def test_paths_relative_to_spec_and_overrides(tmp_path: Path) -> None:
     o = s.overrides[0]
     assert o.applies("p", "LLO") and not o.applies("p", "ULP") and not o.applies("t", "LLO")
     assert o.fixed == {"k_r": 1.0} and o.bounds == {"target": (-5.0, 0.0)}
+
+
+def test_a_spec_that_is_not_utf8_names_file_line_and_encoding(tmp_path: Path) -> None:
+    p = tmp_path / "spec.toml"
+    p.write_bytes((BASE + "# caf\u00e9\n").encode("latin-1"))
+    with pytest.raises(SpecError) as e:
+        load_spec(p)
+    assert str(e.value) == (f"{p}: line 3, column 6: byte 0xe9 is not UTF-8; this fit spec must be UTF-8 text, and it "
+                            "decodes as cp1252: save it as UTF-8 (e.g. `iconv -f cp1252 -t utf-8`)")
+    d = tmp_path / "dir.toml"
+    d.mkdir()
+    with pytest.raises(SpecError, match="is a directory, not a fit spec"):
+        load_spec(d)

@@ -106,3 +106,15 @@ def test_channels_png_work_is_bounded(tmp_path: Path, monkeypatch: pytest.Monkey
         plot_channels(anim, tmp_path / f"c{n}.png", title="t")
     assert drawn[0] == 6 + 6 + 6  # 6 traces, a boundary collection per axis, the 6 labels /a/
     assert drawn[1] == 6 and titles[1] == "t   (3000 segments: boundaries and labels not drawn)"
+
+
+def test_a_frame_rate_at_which_no_phoneme_lasts_a_frame_is_refused(tmp_path: Path) -> None:
+    # issue 21: --fps 1e-9 turned 0.8 s of speech into one frame "lasting" 1e9 s
+    table = tmp_path / "t.json"
+    make_table().save(table)
+    labels = tmp_path / "l.tsv"
+    labels.write_text(LABELS)
+    code, out = _run(["animate", str(labels), "--table", str(table), "--out", str(tmp_path / "o"),
+                      "--fps", "1e-9", "--preview", "none"])
+    assert code == 1 and "at 1e-09 fps a frame lasts 1e+09 s, longer than every phoneme" in out
+    assert not (tmp_path / "o").exists()

@@ -47,7 +47,7 @@ def base_doc() -> dict[str, Any]:
 
 def test_names_follow_the_contract() -> None:
     assert CHANNELS == ("ULO", "LLO", "ULP", "LLP", "LR", "JO")
-    assert ALL_CHANNELS == CHANNELS + ("LA",)
+    assert ALL_CHANNELS == CHANNELS + ("LA", "TTH", "TTA", "TBH", "TBA")
     assert PARAMETERS[0] == "target" and PARAMETERS[6] == "k_r" and PARAMETERS[9] == "delta"
     assert N_PARAMS == 10 and set(DEFAULT_BOUNDS) == set(PARAMETERS)
     assert DEFAULT_BOUNDS["k_r"] == (0.0, 1.0) and DEFAULT_BOUNDS["c_bw"] == (0.5, 3.0)
@@ -283,3 +283,66 @@ def test_strict_loading_duplicates_encoding_depth_and_huge_numbers(tmp_path: Pat
     with pytest.raises(TableError, match=rf"t\.csv: line {len(lines) + 1}: .*target is given twice \(first "
                                          rf"on line {lines.index(row) + 1}\)"):
         ParameterTable.load(c)
+
+
+def test_bounds_wider_than_the_model_cannot_let_a_value_outside_its_domain_through(tmp_path: Path) -> None:
+    # issue 21: such a table used to load, and the core's refusal was then blamed on the label file
+    doc = base_doc()
+    doc["bounds"]["LLO"]["k_r"] = [0.0, 2.0]
+    doc["phonemes"]["p"]["LLO"]["k_r"] = 1.5
+    file = tmp_path / "table.json"
+    file.write_text(json.dumps(doc))
+    with pytest.raises(TableError, match=rf"^{file}: phoneme 'p', channel 'LLO': k_r = 1.5 is outside \[0, 1\], "
+                                         r"the model's domain of k_r \(MODEL.md §1\), whatever the table's bounds say"):
+        ParameterTable.load(file)
+    doc["bounds"]["LLO"]["c_bw"] = [0.1, 5.0]  # wider than the default box, inside the model's domain: fine
+    doc["phonemes"]["p"]["LLO"].update(k_r=1.0, c_bw=4.0)
+    file.write_text(json.dumps(doc))
+    assert ParameterTable.load(file).values["p"]["LLO"]["c_bw"] == 4.0
+
+
+@pytest.mark.parametrize("name", PARAMETERS)
+def test_the_model_domain_is_the_one_the_core_checks(name: str) -> None:
+    """MODEL_DOMAIN (Python: specs and tables) and validate_params (Rust) refuse the same values."""
+    from coartic import _core
+    from coartic.table import MODEL_DOMAIN, domain_problem
+
+    corpus = _core.Corpus(np.array([0, 2]), np.array([0, 1]), np.array([0.0, 0.1]), np.array([0.1, 0.2]),
+                          np.array([0, 3]), np.array([0.05, 0.1, 0.15]), 2)
+    lo, hi, _ = MODEL_DOMAIN[name]
+    probes = [v for b in (lo, hi) if math.isfinite(b) for v in (b - 1e-9, b, b + 1e-9)] + [1e300, -1e300]
+    for v in probes:
+        params = np.array([[ROW[p] for p in PARAMETERS]] * 2, dtype=np.float64)
+        params[1, PARAMETERS.index(name)] = v
+        try:
+            _core.evaluate(corpus, params, 1.0, _core.ModelOptions("modified"))
+            core_accepts = True
+        except ValueError:
+            core_accepts = False
+        assert core_accepts == (domain_problem(name, v) is None), (name, v)
+
+
+@pytest.mark.parametrize("name", ["beta", "edge_extent", "apex_fraction", "plateau_fraction"])
+def test_the_channel_settings_ranges_are_the_ones_the_core_checks(name: str) -> None:
+    """coartic.settings (specs, tables, [choose]) and the core's ModelOptions / β check agree."""
+    from coartic import _core
+    from coartic.settings import CHANNEL_SETTINGS
+
+    setting = CHANNEL_SETTINGS[name]
+    corpus = _core.Corpus(np.array([0, 1]), np.array([0]), np.array([0.0]), np.array([0.1]),
+                          np.array([0, 1]), np.array([0.05]), 1)
+    params = np.array([[ROW[p] for p in PARAMETERS]], dtype=np.float64)
+    probes = [v for b in (setting.low, setting.high) if math.isfinite(b) for v in (b - 1e-9, b, b + 1e-9)]
+    for v in probes + [math.nan, math.inf]:
+        kwargs: dict[str, Any] = {"dominance": "plateau"} if name == "plateau_fraction" else {}
+        try:
+            if name == "beta":
+                _core.evaluate(corpus, params, v, _core.ModelOptions("modified"))
+            elif name == "plateau_fraction":
+                _core.evaluate(corpus, params, 1.0, _core.ModelOptions("modified", plateau_fraction=v, **kwargs))
+            else:
+                _core.evaluate(corpus, params, 1.0, _core.ModelOptions("modified", **{name: v}))
+            core_accepts = True
+        except ValueError:
+            core_accepts = False
+        assert core_accepts == (setting.problem(v) is None), (name, v)

@@ -3,6 +3,8 @@ headless Chromium (Debian's chromium, software WebGL): lips closed at /p b m/, o
 
 from __future__ import annotations
 
+import html
+import json
 import math
 import re
 import shutil
@@ -18,7 +20,7 @@ from PIL import Image
 from typer.testing import CliRunner
 
 from coartic.cli import app
-from coartic.face.viewer import chromium_program, make_server, screenshot, write_page
+from coartic.face.viewer import chromium_program, make_server, page_query, screenshot, view_yaw, write_page
 from coartic.io.labels import read_labels
 from coartic.runtime.animate import target_times
 from coartic.runtime.fap import read_fap
@@ -165,3 +167,47 @@ def test_playing_follows_the_sound(run: Path, chromium: str, tmp_path: Path) -> 
     # the frame drawn is the sound's frame (held at the last one if the sound ran on while the page was dumped)
     # (JavaScript's Math.round rounds halves up; Python's round would round them to even)
     assert int(frame.group(1)) == min(math.floor(float(clock.group(1)) * 25 + 0.5), last)
+
+
+def test_frame_out_of_range_and_view_presets_are_checked(run: Path) -> None:
+    res = CliRunner().invoke(app, ["view", str(run), "--frame", "999"])
+    n = read_fap(run / "apamaba.fap").n_frames
+    assert res.exit_code == 1 and f"--frame 999 is outside 0..{n - 1}" in " ".join(res.output.split())
+    res = CliRunner().invoke(app, ["view", str(run), "--frame", "-1"])
+    assert res.exit_code == 1 and "outside" in res.output
+    res = CliRunner().invoke(app, ["view", str(run), "--view", "profile", "--yaw", "10"])
+    assert res.exit_code == 1 and "not both" in res.output
+    res = CliRunner().invoke(app, ["view", str(run), "--view", "back"])
+    assert res.exit_code == 1 and "front, three-quarter, profile" in " ".join(res.output.split())
+    assert view_yaw("profile", None) == 90.0 and view_yaw(None, -20.0) == -20.0 and view_yaw(None, None) is None
+    assert page_query(3, 90.0) == f"?frame=3&yaw={math.pi / 2!r}"
+
+
+def test_labels_of_a_long_utterance_stay_readable(tmp_path: Path, chromium: str) -> None:
+    """20 s of speech: the plot scrolls at >= 110 px/s and no two labels of a row overlap."""
+    cycle = ["a", "p", "i", "t", "u", "m", "a", "l", "i", "f", "a", "k"]
+    rows, t = ["start\tend\tlabel", "0.0\t0.2\t#"], 0.2
+    k = 0
+    while t < 19.6:
+        rows.append(f"{t:.3f}\t{t + 0.08:.3f}\t{cycle[k % len(cycle)]}")
+        t += 0.08
+        k += 1
+    rows.append(f"{t:.3f}\t20.0\t#")
+    (tmp_path / "long.tsv").write_text("\n".join(rows) + "\n")
+    out = tmp_path / "out"
+    res = CliRunner().invoke(app, ["animate", str(tmp_path / "long.tsv"), "-t", str(GROUND_TRUTH), "-o", str(out),
+                                   "--preview", "none", "--gltf"])
+    assert res.exit_code == 0, res.output
+    page = write_page(out)
+    dom = subprocess.run([chromium, "--headless", "--no-sandbox", "--disable-gpu", "--use-angle=swiftshader",
+                          "--enable-unsafe-swiftshader", f"--user-data-dir={tmp_path / 'profile'}",
+                          "--virtual-time-budget=5000", "--dump-dom", page.resolve().as_uri() + "?frame=250"],
+                         capture_output=True, text=True, timeout=90).stdout
+    found = re.search(r'data-labels="([^"]*)"', dom)
+    assert found, dom[:300]
+    placed = json.loads(html.unescape(found.group(1)))
+    assert len(placed) >= 0.9 * k  # nearly every phoneme keeps its label
+    for row in (0, 1):
+        xs = sorted((x, w) for x, w, r in placed if r == row)
+        assert all(a[0] + a[1] < b[0] for a, b in zip(xs, xs[1:])), f"labels overlap in row {row}"
+    assert '<div id="error"></div>' in dom

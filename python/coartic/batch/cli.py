@@ -23,6 +23,12 @@ def batch_command(
     serial: bool = typer.Option(False, "--serial", help="no Dask: every unit in this process, one after another"),
     force: bool = typer.Option(False, "--force", help="replace an output folder that holds another run's results"),
     report: bool = typer.Option(True, "--report/--no-report", help="write the figures and report.html"),
+    tls_ca_file: Optional[Path] = typer.Option(None, "--tls-ca-file", help="for a tls:// scheduler: the CA certificate "
+                                               "(default: the Dask configuration's distributed.comm.tls.ca-file)"),
+    tls_cert: Optional[Path] = typer.Option(None, "--tls-cert", help="for a tls:// scheduler: this client's certificate "
+                                            "(default: distributed.comm.tls.client.cert)"),
+    tls_key: Optional[Path] = typer.Option(None, "--tls-key", help="for a tls:// scheduler: its private key, unless in "
+                                           "the certificate file (default: distributed.comm.tls.client.key)"),
 ) -> None:
     """Fit every speaker/session (and all of them pooled), with \\[posteriors] sample each one's posteriors: one Dask task
     per speaker and channel; rerun the same command to continue after an interruption."""
@@ -35,10 +41,10 @@ def batch_command(
 
     try:
         s = load_batch_spec(spec)
-        from coartic.batch.run import run_batch
+        from coartic.batch.run import Tls, run_batch
 
         outcome = run_batch(s, out, scheduler=scheduler, workers=workers, serial=serial, force=force, report=report,
-                              console=err)
+                            console=err, tls=Tls(tls_ca_file, tls_cert, tls_key))
     except (ValueError, OSError) as e:  # SpecError, OutputError, DataError: messages name the culprit
         print_error(err, e)
         raise typer.Exit(2) from None

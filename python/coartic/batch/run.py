@@ -14,7 +14,9 @@ Schedulers:
 - no ``scheduler``: a ``distributed.LocalCluster`` of worker processes on this machine, one task at
   a time each, the core's rayon threads capped at cores // workers;
 - ``scheduler="tcp://host:8786"``: a running Dask scheduler (``dask scheduler`` and ``dask worker``,
-  or dask-jobqueue on SLURM; docs/BATCH.md). Workers must read the recordings at the same paths.
+  or dask-jobqueue on SLURM; docs/BATCH.md). Workers must read the recordings at the same paths:
+  the batch spec gives them absolute (``load_batch_spec``), whatever the workers' directory.
+  ``tls://host:8786`` with Dask's own TLS (``Tls``, ``cluster_security``).
 """
 
 from __future__ import annotations
@@ -157,19 +159,66 @@ def cluster_threads(client: Any) -> int | None:
     return min(max(1, have[h] // used[h]) for h in used)
 
 
+@dataclass(frozen=True)
+class Tls:
+    """Certificates for a ``tls://`` scheduler (``--tls-ca-file``, ``--tls-cert``, ``--tls-key``).
+    Any left out comes from the Dask configuration (``distributed.comm.tls.ca-file``,
+    ``distributed.comm.tls.client.cert`` and ``.key``), as ``dask worker`` reads them."""
+
+    ca_file: Path | None = None
+    cert: Path | None = None
+    key: Path | None = None
+
+
+def cluster_security(scheduler: str, tls: Tls | None) -> Any:
+    """The ``distributed.Security`` for reaching ``scheduler``: Dask's own TLS (encryption
+    required) for a ``tls://`` address, certificates from ``tls`` or else the Dask configuration;
+    None (Dask's default) for other protocols, which take no certificates."""
+    import dask.config
+    from distributed.security import Security
+
+    given = tls is not None and any(v is not None for v in (tls.ca_file, tls.cert, tls.key))
+    if not scheduler.startswith("tls://"):
+        if given:
+            raise ClusterError(f"--scheduler {scheduler}: TLS certificates were given, but the address is not tls://; "
+                               "start the scheduler with --protocol tls and pass its tls:// address")
+        return None
+    t = tls or Tls()
+    conf = {k: dask.config.get(f"distributed.comm.tls.{k}", None) for k in ("ca-file", "client.cert", "client.key")}
+    ca = str(t.ca_file) if t.ca_file is not None else conf["ca-file"]
+    cert = str(t.cert) if t.cert is not None else conf["client.cert"]
+    key = str(t.key) if t.key is not None else conf["client.key"]
+    if not ca or not cert:
+        missing = " and ".join(n for n, v in (("--tls-ca-file", ca), ("--tls-cert", cert)) if not v)
+        raise ClusterError(f"--scheduler {scheduler}: a tls:// scheduler needs the CA certificate and this client's "
+                           f"certificate: give {missing}, or set distributed.comm.tls.ca-file and "
+                           "distributed.comm.tls.client.cert (and .key) in the Dask configuration")
+    for what, f in (("CA certificate", ca), ("certificate", cert), ("key", key)):
+        if f and not Path(f).is_file():
+            raise ClusterError(f"--scheduler {scheduler}: the TLS {what} {f} does not exist")
+    return Security(tls_ca_file=ca, tls_client_cert=cert, tls_client_key=key or None, require_encryption=True)
+
+
+# The local cluster's dashboard (and the scheduler's HTTP server under it) listens on loopback only,
+# on a free port: it shows task names and file paths, which are nobody else's business.
+LOCAL_DASHBOARD = "127.0.0.1:0"
+
+
 def run_batch(spec: BatchSpec, out: str | Path, *, scheduler: str | None = None, workers: int | None = None,
               serial: bool = False, force: bool = False, report: bool = True, console: Console | None = None,
-              quiet: bool = False, before: Callable[[UnitKey], None] | None = None) -> BatchOutcome:
+              quiet: bool = False, before: Callable[[UnitKey], None] | None = None,
+              tls: Tls | None = None) -> BatchOutcome:
     """Run every unfinished unit of ``spec`` into ``out``, then write the tables and the report.
 
     ``before`` is called on the worker before each fit unit (fault injection in tests). Ctrl-C and
     SIGTERM (a job's time limit) stop the run after the units that have finished; a unit being
-    landed is landed first.
+    landed is landed first. ``tls``: certificates for a ``tls://`` scheduler (``cluster_security``).
     """
     out = Path(out)
     console = console or Console(stderr=True, quiet=quiet)
     keys = plan_units(spec)
     t0 = time.perf_counter()
+    security = cluster_security(scheduler, tls) if scheduler is not None and not serial else None  # refused before any output
     od = output_dir(spec, out, force)
     with DeferredSignals() as signals, od:
         # Temporary folders of a run killed mid-landing: never a finished unit.
@@ -197,7 +246,7 @@ def run_batch(spec: BatchSpec, out: str | Path, *, scheduler: str | None = None,
                 if todo and serial:
                     _run_serial(spec, out, todo, landed, failed, before)
                 elif todo:
-                    _run_dask(spec, out, todo, landed, failed, before, scheduler, workers, outcome, console)
+                    _run_dask(spec, out, todo, landed, failed, before, scheduler, workers, outcome, console, security)
             except KeyboardInterrupt:
                 outcome.interrupted = True
         from coartic.batch.report import write_outputs
@@ -254,7 +303,8 @@ def fitted_table(out: Path, key: UnitKey) -> dict[str, Any]:
 
 def _run_dask(spec: BatchSpec, out: Path, todo: list[UnitKey], landed: Callable[[UnitOutput], None],
               failed: Callable[[UnitKey, BaseException], None], before: Callable[[UnitKey], None] | None,
-              scheduler: str | None, workers: int | None, outcome: BatchOutcome, console: Console) -> None:
+              scheduler: str | None, workers: int | None, outcome: BatchOutcome, console: Console,
+              security: Any = None) -> None:
     from distributed import Client, LocalCluster, as_completed
 
     cluster = None
@@ -264,7 +314,7 @@ def _run_dask(spec: BatchSpec, out: Path, todo: list[UnitKey], landed: Callable[
             threads: int | None = local_threads(n)
             # One task per worker process; the core's threads capped in each (the nanny sets the
             # variable before the worker process starts, and again when it restarts a lost one).
-            cluster = LocalCluster(n_workers=n, threads_per_worker=1, processes=True, dashboard_address=":0",
+            cluster = LocalCluster(n_workers=n, threads_per_worker=1, processes=True, dashboard_address=LOCAL_DASHBOARD,
                                    env={"RAYON_NUM_THREADS": str(threads)},
                                    # units report their errors through their futures; the workers' own
                                    # messages at shutdown (heartbeats to a closed scheduler) are noise
@@ -272,7 +322,7 @@ def _run_dask(spec: BatchSpec, out: Path, todo: list[UnitKey], landed: Callable[
             client = Client(cluster)
             outcome.workers = n
         else:
-            client = Client(scheduler, timeout="30s")
+            client = Client(scheduler, timeout="30s", security=security)
             threads = cluster_threads(client)
             outcome.workers = len(client.scheduler_info().get("workers", {}))
     except KeyboardInterrupt:

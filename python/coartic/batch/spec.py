@@ -27,12 +27,13 @@ from __future__ import annotations
 import csv
 import glob
 import hashlib
+import os
 import re
 from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
-from coartic.fit.spec import CorpusSpec, FitSpec, SpecError, load_spec, read_document
+from coartic.fit.spec import CorpusSpec, FitSpec, SpecError, load_spec, read_document, synth_hint
 
 # A group's name is a folder name in the output: plain characters only, and never one of ours.
 GROUP_NAME = re.compile(r"[A-Za-z0-9][A-Za-z0-9._-]*")
@@ -89,8 +90,7 @@ def _manifest_groups(manifest: Path, columns: tuple[str, ...], select: dict[str,
                      path: Path) -> list[tuple[str, tuple[str, ...]]]:
     """(group name, values of ``columns``) for every distinct combination, in order of appearance."""
     if not manifest.is_file():
-        raise _err(path, "corpus.manifest", f"{manifest} does not exist (for the synthetic speakers run "
-                   "`coartic corpus synth build/speakers --speakers N`)")
+        raise _err(path, "corpus.manifest", f"{manifest} does not exist{synth_hint(manifest)}")
     try:
         with manifest.open(newline="", encoding="utf-8") as f:
             reader = csv.DictReader(f)
@@ -124,8 +124,12 @@ def _manifest_groups(manifest: Path, columns: tuple[str, ...], select: dict[str,
 
 
 def load_batch_spec(path: str | Path) -> BatchSpec:
-    """Read and check a batch spec; SpecError naming the file and key on any problem."""
-    path = Path(path)
+    """Read and check a batch spec; SpecError naming the file and key on any problem.
+
+    Every path of the result is absolute: units run on Dask workers whose working directory is not
+    the client's (a scheduler and workers started elsewhere), so a path relative to the client's
+    directory would name another file, or none, there."""
+    path = Path(os.path.abspath(path))
     raw = read_document(path)
     base = path.parent
     allowed = {"name", "fit", "channels", "corpus", "pooled", "posteriors"}

@@ -100,6 +100,12 @@ def load_group(spec: FitSpec, group: str | None, threads: int | None = None) -> 
     cap_threads(threads)
     from coartic.fit.data import load_utterances, manifest_rows
 
+    manifest = spec.corpus.manifest
+    if manifest is not None and not manifest.is_file():
+        # the usual cause on a cluster: the recordings are not where the client read them
+        raise UnitFailed(f"group {group}: {manifest} is not readable on the worker at {socket.gethostname()} "
+                         f"(working directory {os.getcwd()}); every worker must read the recordings at the "
+                         f"paths the client gives (spec {spec.path})")
     utts = load_utterances(spec, manifest_rows(spec))
     if group is not None:
         for u in utts:  # the pooled fit and the report tell the groups apart by this

@@ -23,6 +23,8 @@ def view_command(
     port: Annotated[int, typer.Option("--port", help="Port for --serve (0: any free port).")] = 8000,
     screenshot: Annotated[Path | None, typer.Option("--screenshot", help="Also save a PNG of the page from headless Chromium.")] = None,
     frame: Annotated[int | None, typer.Option("--frame", help="Frame shown in the screenshot (default 0).")] = None,
+    yaw: Annotated[float | None, typer.Option("--yaw", help="Turn the face by this many degrees (+: its left side towards you).")] = None,
+    view: Annotated[str | None, typer.Option("--view", help="Camera preset: front, three-quarter or profile.")] = None,
     face_only: Annotated[int | None, typer.Option("--face-only", help="Screenshot only the face, N x N pixels.")] = None,
     open_page: Annotated[bool, typer.Option("--open", help="Open the page in the default browser.")] = False,
 ) -> None:
@@ -30,20 +32,24 @@ def view_command(
 
     The page needs no network: open it from disk in a browser, or use --serve.
     """
-    from coartic.face.viewer import make_server, screenshot as take_screenshot, write_page
+    from coartic.face.viewer import (check_frame, make_server, page_query, screenshot as take_screenshot, view_yaw,
+                                     write_page)
 
     try:
+        turn = view_yaw(view, yaw)
         page = write_page(out_dir, name)
+        if frame is not None:
+            check_frame(page, frame)
         _out.print(f"viewer: {escape(str(page))}", highlight=False)
         if screenshot is not None:
             size = (face_only, face_only) if face_only else (1130, 580)
-            png = take_screenshot(page, screenshot, frame=frame, face_only=face_only, size=size)
+            png = take_screenshot(page, screenshot, frame=frame, face_only=face_only, size=size, yaw=turn)
             _out.print(f"screenshot: {escape(str(png))}", highlight=False)
-        url = page.resolve().as_uri()
+        url = page.resolve().as_uri() + page_query(frame, turn)
         if serve:
             server = make_server(out_dir, port)
             host, used = str(server.server_address[0]), int(server.server_address[1])
-            url = f"http://{host}:{used}/{page.name}"
+            url = f"http://{host}:{used}/{page.name}" + page_query(frame, turn)
             _out.print(f"serving on {url} (Ctrl-C stops)", highlight=False)
         if open_page:
             import webbrowser

@@ -207,58 +207,108 @@ class FaceView {
 }
 
 // --- the channels plot -----------------------------------------------------------------------------
-const CH_COLORS = {ULO: "#1f77b4", LLO: "#2ca02c", ULP: "#9467bd", LLP: "#8c564b", LR: "#e377c2", JO: "#7f7f7f"};
+const CH_COLORS = {ULO: "#1f77b4", LLO: "#2ca02c", ULP: "#9467bd", LLP: "#8c564b", LR: "#e377c2", JO: "#7f7f7f",
+                   TTH: "#d62728", TTA: "#ff7f0e", TBH: "#17becf", TBA: "#bcbd22"};
+const PLOT = {left: 44, right: 8, top: 8, bottom: 34};
+// Fewer pixels a second than this and the phoneme labels of ordinary speech (~12 a second) crowd
+// into a band: a longer utterance scrolls under a fixed window instead.
+const MIN_PX_PER_S = 110;
 
-// The curves and labels are drawn once into a hidden canvas; each frame copies it and adds the cursor,
-// so playing stays cheap however long the utterance.
+// Where the phoneme labels go: in two staggered rows, each label where it does not overlap the one
+// before it in its row, else left out (its boundary line stays). `width(text)` measures a label.
+function layoutLabels(segments, X, width) {
+  const ends = [-Infinity, -Infinity], placed = [];
+  let omitted = 0;
+  for (const seg of segments) {
+    if (seg[2] === "#") continue;
+    const w = width(seg[2]), x = X((seg[0] + seg[1]) / 2) - w / 2;
+    const row = ends[0] <= ends[1] ? 0 : 1;
+    const use = x >= ends[row] + 2 ? row : (x >= ends[1 - row] + 2 ? 1 - row : -1);
+    if (use < 0) { omitted++; continue; }
+    ends[use] = x + w;
+    placed.push({text: seg[2], x, w, row: use});
+  }
+  return {placed, omitted};
+}
+
+// The plot's time axis: the whole utterance if it fits at MIN_PX_PER_S, else a window that scrolls.
+function plotScale(W, duration) {
+  const inner = W - PLOT.left - PLOT.right;
+  const pxPerS = Math.max(inner / duration, MIN_PX_PER_S);
+  return {pxPerS, window: inner / pxPerS, scrolls: inner / duration < MIN_PX_PER_S};
+}
+
+// The curves and labels are drawn once into a hidden canvas as wide as the utterance needs; each
+// frame copies the part around the cursor and adds the cursor, so playing stays cheap.
 let plotCache = null;
+
+function plotStart(scale, duration, t) {  // first second shown: the cursor a third of the way in
+  return scale.scrolls ? Math.max(0, Math.min(duration - scale.window, t - scale.window / 3)) : 0;
+}
 
 function drawPlot(canvas, data, t) {
   const W = canvas.width, H = canvas.height;
-  const left = 44, right = 8, top = 8;
-  const X = s => left + (W - left - right) * s / data.duration;
-  if (!plotCache || plotCache.width !== W || plotCache.height !== H) {
-    plotCache = document.createElement("canvas");
-    plotCache.width = W;
-    plotCache.height = H;
-    drawCurves(plotCache, data);
+  const scale = plotScale(W, data.duration);
+  if (!plotCache || plotCache.key !== `${W}x${H}`) {
+    const c = document.createElement("canvas");
+    c.width = Math.min(32000, Math.ceil(PLOT.left + data.duration * scale.pxPerS + PLOT.right));
+    c.height = H;
+    const info = drawCurves(c, data, scale.pxPerS);
+    plotCache = {canvas: c, key: `${W}x${H}`, info};
+    // what was drawn where, for the tests: [x, width, row] of each label, and how many were left out
+    document.body.dataset.labels = JSON.stringify(info.placed.map(l => [Math.round(l.x * 10) / 10, Math.round(l.w * 10) / 10, l.row]));
+    document.body.dataset.labelsOmitted = String(info.omitted);
   }
+  const t0 = plotStart(scale, data.duration, t);
   const ctx = canvas.getContext("2d");
-  ctx.drawImage(plotCache, 0, 0);
+  ctx.fillStyle = "#ffffff";
+  ctx.fillRect(0, 0, W, H);
+  const sx = Math.round(t0 * scale.pxPerS);
+  ctx.drawImage(plotCache.canvas, PLOT.left + sx, 0, W - PLOT.left, H, PLOT.left, 0, W - PLOT.left, H);
+  ctx.drawImage(plotCache.canvas, 0, 0, PLOT.left, H, 0, 0, PLOT.left, H);  // the channel names
+  const x = PLOT.left + t * scale.pxPerS - sx;  // where the cache drew time t, shifted like the copy
   ctx.strokeStyle = "#d62728";  // cursor
   ctx.lineWidth = 2;
-  ctx.beginPath(); ctx.moveTo(X(t), top); ctx.lineTo(X(t), H - 20); ctx.stroke();
+  ctx.beginPath(); ctx.moveTo(x, PLOT.top); ctx.lineTo(x, H - PLOT.bottom + 6); ctx.stroke();
 }
 
-function drawCurves(canvas, data) {
+function drawCurves(canvas, data, pxPerS) {
   const ctx = canvas.getContext("2d");
   const W = canvas.width, H = canvas.height;
   ctx.fillStyle = "#ffffff";
   ctx.fillRect(0, 0, W, H);
   const times = data.times, names = Object.keys(data.channels);
-  const t1 = data.duration, left = 44, right = 8, top = 8, band = (H - top - 28) / names.length;
-  const X = s => left + (W - left - right) * s / t1;
+  const band = (H - PLOT.top - PLOT.bottom) / names.length;
+  const X = s => PLOT.left + pxPerS * s;
   ctx.font = "11px sans-serif";
-  for (const seg of data.segments) {  // phoneme boundaries and labels
-    ctx.strokeStyle = "#dddddd";
-    ctx.beginPath(); ctx.moveTo(X(seg[0]), top); ctx.lineTo(X(seg[0]), H - 20); ctx.stroke();
-    ctx.fillStyle = ["p", "b", "m"].includes(seg[2]) ? "#b00020" : "#333333";
-    if (seg[2] !== "#") ctx.fillText(seg[2], X((seg[0] + seg[1]) / 2) - 3, H - 6);
+  ctx.strokeStyle = "#dddddd";
+  for (const seg of data.segments) {  // phoneme boundaries
+    ctx.beginPath(); ctx.moveTo(X(seg[0]), PLOT.top); ctx.lineTo(X(seg[0]), H - PLOT.bottom + 6); ctx.stroke();
+  }
+  const labels = layoutLabels(data.segments, X, text => ctx.measureText(text).width);
+  for (const l of labels.placed) {
+    ctx.fillStyle = ["p", "b", "m"].includes(l.text) ? "#b00020" : "#333333";
+    ctx.fillText(l.text, l.x, H - PLOT.bottom + 18 + 13 * l.row);
   }
   names.forEach((name, j) => {
     const y = data.channels[name];
     let lo = Infinity, hi = -Infinity;
     for (const v of y) { lo = Math.min(lo, v); hi = Math.max(hi, v); }
     if (hi - lo < 1e-6) { hi += 0.5; lo -= 0.5; }
-    const y0 = top + j * band, Y = v => y0 + band - 3 - (band - 6) * (v - lo) / (hi - lo);
+    const y0 = PLOT.top + j * band, Y = v => y0 + band - 3 - (band - 6) * (v - lo) / (hi - lo);
     ctx.strokeStyle = CH_COLORS[name] || "#000";
     ctx.lineWidth = 1.5;
     ctx.beginPath();
     y.forEach((v, i) => (i ? ctx.lineTo(X(times[i]), Y(v)) : ctx.moveTo(X(times[i]), Y(v))));
     ctx.stroke();
-    ctx.fillStyle = CH_COLORS[name] || "#000";
-    ctx.fillText(name, 4, y0 + band / 2 + 4);
   });
+  ctx.fillStyle = "#ffffff";
+  ctx.fillRect(0, 0, PLOT.left - 1, H);
+  names.forEach((name, j) => {
+    ctx.fillStyle = CH_COLORS[name] || "#000";
+    ctx.fillText(name, 4, PLOT.top + j * band + band / 2 + 4);
+  });
+  return labels;
 }
 
 // --- the page ----------------------------------------------------------------------------------------
@@ -321,23 +371,30 @@ function start() {
   window.addEventListener("pointerup", () => { drag = null; });
   window.addEventListener("pointermove", e => {
     if (!drag) return;
-    view.yaw = Math.max(-1.0, Math.min(1.0, drag[2] - (e.clientX - drag[0]) * 0.01));  // a mask: no back
+    view.yaw = drag[2] - (e.clientX - drag[0]) * 0.01;  // a whole head: all the way round
     view.pitch = Math.max(-1.2, Math.min(1.2, drag[3] + (e.clientY - drag[1]) * 0.01));
     show(t);
   });
   plot.addEventListener("click", e => {
     const r = plot.getBoundingClientRect();
-    const s = (e.clientX - r.left - 44) / (r.width - 52) * data.duration;
+    const scale = plotScale(plot.width, data.duration);
+    const s = plotStart(scale, data.duration, t) + (e.clientX - r.left - PLOT.left) / scale.pxPerS;
     stop(); show(s);
   });
   if (params.has("yaw")) view.yaw = Number(params.get("yaw"));
+  if (params.has("frame")) {
+    const k = Number(params.get("frame"));
+    // a frame the animation does not have is said so, not shown as the nearest one
+    if (!(Number.isInteger(k) && k >= 0 && k < nFrames)) throw new Error(`frame ${params.get("frame")} is outside 0..${nFrames - 1}`);
+  }
   show(params.has("frame") ? Number(params.get("frame")) / fps : params.has("t") ? Number(params.get("t")) : 0);
   window.coarticView = {show, play, stop, nFrames, fps};
   if (params.get("play") === "1") play();  // ?play=1 starts at once (a browser may ask for a click first)
   document.title = `${data.name} - coartic view`;
 }
 
-window.addEventListener("load", () => {
+if (typeof module !== "undefined") module.exports = {layoutLabels, plotScale, weightsAt};  // node: the tests
+else window.addEventListener("load", () => {
   try { start(); } catch (err) {
     document.getElementById("error").textContent = "coartic view: " + err.message;
     throw err;

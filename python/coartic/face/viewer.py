@@ -17,6 +17,7 @@ import functools
 import html
 import http.server
 import json
+import math
 import os
 import shutil
 import subprocess
@@ -34,6 +35,8 @@ from coartic.runtime.errors import AnimationError
 from coartic.outputs import atomic_path, atomic_write_text
 
 PAGE_NAME = "view.html"
+# --view presets: how far the face is turned, in degrees (+: its left side towards the camera)
+VIEW_PRESETS: dict[str, float] = {"front": 0.0, "three-quarter": 35.0, "profile": 90.0}
 CHROMIUM_NAMES = ("chromium", "chromium-browser", "google-chrome", "google-chrome-stable")
 
 
@@ -154,6 +157,44 @@ def write_page(out_dir: str | os.PathLike[str], name: str | None = None) -> Path
     return page
 
 
+def view_yaw(view: str | None, yaw: float | None) -> float | None:
+    """The turn (degrees) for --view PRESET or --yaw DEG (not both); None for the page's default."""
+    if view is not None and yaw is not None:
+        raise AnimationError("give --view or --yaw, not both")
+    if view is not None:
+        if view not in VIEW_PRESETS:
+            raise AnimationError(f"--view must be one of {', '.join(VIEW_PRESETS)}, got {view!r}")
+        return VIEW_PRESETS[view]
+    if yaw is not None and not (math.isfinite(yaw) and -180.0 <= yaw <= 180.0):
+        raise AnimationError(f"--yaw must be an angle in degrees within -180..180, got {yaw!r}")
+    return yaw
+
+
+def page_frames(page: str | os.PathLike[str]) -> int:
+    """How many frames the page's animation has (its frame times)."""
+    text = Path(page).read_text(encoding="utf-8")
+    start = text.index("window.COARTIC = ") + len("window.COARTIC = ")
+    data = json.loads(text[start:text.index(";</script>", start)])  # JSON reads its "<\\/" as "</"
+    return len(data["times"])
+
+
+def check_frame(page: str | os.PathLike[str], frame: int) -> None:
+    """Refuse a frame the page does not have (the page itself would show the nearest one)."""
+    n = page_frames(page)
+    if not 0 <= frame < n:
+        raise AnimationError(f"--frame {frame} is outside 0..{n - 1}: {page} has {n} frames")
+
+
+def page_query(frame: int | None, yaw: float | None) -> str:
+    """The page URL's query for a frame and a turn (degrees), '' for neither."""
+    query: dict[str, str] = {}
+    if frame is not None:
+        query["frame"] = str(int(frame))
+    if yaw is not None:
+        query["yaw"] = repr(math.radians(float(yaw)))
+    return "?" + urllib.parse.urlencode(query) if query else ""
+
+
 def chromium_program() -> str:
     for prog in CHROMIUM_NAMES:
         found = shutil.which(prog)
@@ -167,16 +208,12 @@ def screenshot(page: str | os.PathLike[str], png: str | os.PathLike[str], *, fra
                timeout: float = 60.0) -> Path:
     """A PNG of `page` at `frame` (or its first frame) from a headless Chromium with software WebGL.
 
-    `face_only=N` shows only the face, on an N x N canvas at the top left.
+    `face_only=N` shows only the face, on an N x N canvas at the top left; `yaw` turns it (degrees).
     """
-    query: dict[str, str] = {}
-    if frame is not None:
-        query["frame"] = str(int(frame))
+    query = page_query(frame, yaw)
     if face_only is not None:
-        query["face"] = str(int(face_only))
-    if yaw is not None:
-        query["yaw"] = repr(float(yaw))
-    url = Path(page).resolve().as_uri() + ("?" + urllib.parse.urlencode(query) if query else "")
+        query += ("&" if query else "?") + f"face={int(face_only)}"
+    url = Path(page).resolve().as_uri() + query
     png = Path(png)
     with tempfile.TemporaryDirectory(prefix="coartic-chromium-") as profile:
         shot = Path(profile) / "shot.png"

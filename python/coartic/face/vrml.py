@@ -54,8 +54,11 @@ def _parts(rig: FaceRig) -> Iterable[tuple[str, NDArray[np.int64], NDArray[np.in
 
 
 def vrml_text(rig: FaceRig, weights: NDArray[np.float64], fps: float, name: str, *,
-              audio: str | None = None) -> str:
-    """A VRML97 world: one frame if `weights` is one row, else the animation at `fps`."""
+              audio: str | None = None, audio_seconds: float | None = None) -> str:
+    """A VRML97 world: one frame if `weights` is one row, else the animation at `fps`.
+
+    With `audio_seconds` (the WAV's length) the loop lasts exactly as long as the sound, so that
+    both restart together: a loop of n_frames / fps would drift against the clip every cycle."""
     w = np.atleast_2d(np.asarray(weights, dtype=float))
     if w.shape[1] != rig.targets.shape[0] or not np.isfinite(w).all():
         raise AnimationError(f"VRML weights must be finite (frames, {rig.targets.shape[0]}), got {w.shape}")
@@ -84,8 +87,14 @@ def vrml_text(rig: FaceRig, weights: NDArray[np.float64], fps: float, name: str,
         ]
     out.append("] }")
     if animated:
-        duration = w.shape[0] / fps
-        keys = np.arange(w.shape[0]) / fps / duration
+        duration = w.shape[0] / fps if audio_seconds is None else float(audio_seconds)
+        if not (np.isfinite(duration) and duration > 0):
+            raise AnimationError(f"{name}: the sound's length must be positive, got {audio_seconds!r} s")
+        # frames after the end of the sound cannot be shown within its loop: the last key is the
+        # last frame that starts before the sound ends
+        n_keys = min(w.shape[0], int(np.floor(duration * fps - 1e-9)) + 1)
+        keys = np.arange(n_keys) / fps / duration
+        poses = poses[:n_keys]
         out.append(f"DEF clock TimeSensor {{ cycleInterval {_fmt(duration)} loop TRUE }}")
         for part, sel, _ in _parts(rig):
             if np.ptp(poses[:, sel], axis=0).max() == 0.0:
@@ -107,22 +116,22 @@ def _string(s: str) -> str:
 
 
 def write_vrml(path: str | PathLike[str], rig: FaceRig, weights: NDArray[np.float64], fps: float, name: str, *,
-               audio: str | None = None) -> Path:
+               audio: str | None = None, audio_seconds: float | None = None) -> Path:
     """Write `vrml_text(...)` to `path` atomically."""
     path = Path(path)
-    atomic_write_text(path, vrml_text(rig, weights, fps, name, audio=audio))
+    atomic_write_text(path, vrml_text(rig, weights, fps, name, audio=audio, audio_seconds=audio_seconds))
     return path
 
 
 def write_face_vrml(path: str | PathLike[str], faps: FapSequence, *, frames: Iterable[int] | None = None,
-                    audio: str | None = None) -> list[Path]:
+                    audio: str | None = None, audio_seconds: float | None = None) -> list[Path]:
     """The project's face played by `faps`: the animation in `path`, or with `frames`, the face at
     each of those frames in PATH_STEM_fK.wrl (static worlds, as LUCIA's snapshots)."""
     rig = default_rig()
     weights = rig.weights(faps)
     path = Path(path)
     if frames is None:
-        return [write_vrml(path, rig, weights, faps.fps, faps.name, audio=audio)]
+        return [write_vrml(path, rig, weights, faps.fps, faps.name, audio=audio, audio_seconds=audio_seconds)]
     written = []
     for k in frames:
         if not 0 <= k < faps.n_frames:

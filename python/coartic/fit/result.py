@@ -229,7 +229,11 @@ class FitResult:
                                       **{key: {ch: m[key] for ch, m in per.items()} for key in ("coefficients", "targets")
                                          if any(key in m for m in per.values())}}
         if s.shrinks:  # the shrinkage the fit had (sd as the spec gives it; a [choose]n one in "choice")
-            t.metadata["shrinkage"] = [{"key": g.key, "phonemes": list(g.phonemes), "parameters": list(g.parameters),
+            # the members it was applied to: those present in a fitted channel's data
+            applied = {(grp.key, m) for f in self.channels.values() for grp in f.problem.shrink_groups
+                       for m in grp.phonemes}
+            t.metadata["shrinkage"] = [{"key": g.key, "phonemes": [p for p in g.phonemes if (g.key, p) in applied],
+                                        "parameters": list(g.parameters),
                                         "sd": g.sd, "scale": "log" if g.log else "natural", "prior_noise": s.prior_noise,
                                         "channels": list(g.channels) if g.channels else "all"} for g in s.shrinks]
         if self.choice is not None:

@@ -185,17 +185,24 @@ def check_engine_options(spec: FitSpec) -> None:
 
 
 def check_overrides(spec: FitSpec, utterances: Sequence[Utterance]) -> list[str]:
-    """An ``[[override]]`` whose phonemes occur nowhere in the corpus would change nothing without a
-    word: refused. One naming some absent phonemes (e.g. /b/ of "p b m" in a corpus cut by
-    ``select`` or ``limit``) applies to the others; the returned notes say which were absent.
-    Checked on the whole corpus, not on a validation split, which may lack a phoneme legitimately."""
+    """Every ``[[override]]``, ``[[tie]]`` and ``[[shrink]]`` against the phonemes of the corpus: one
+    that could change nothing is refused (an override none of whose phonemes occurs; a tie or shrink
+    with fewer than two members present, which would have nothing to share or pull together); one
+    naming some absent phonemes (e.g. /b/ of "p b m" in a corpus cut by ``select`` or ``limit``)
+    applies to the others, and the returned notes say which were absent. Checked on the whole
+    corpus, not on a validation split, which may lack a phoneme legitimately."""
     present = {lab for u in utterances for lab in u.labels}
+    inventory = f"(phonemes: {' '.join(sorted(present))})"
     notes = []
-    for i, o in enumerate(spec.overrides):
-        missing = [p for p in o.phonemes if p not in present]
-        if len(missing) == len(o.phonemes):
-            raise SpecError(f"{spec.path}: [override #{i + 1}] phonemes {missing}: none occurs in the corpus "
-                            f"(phonemes: {' '.join(sorted(present))})")
+    groups = ([(f"override #{i + 1}", o.phonemes, 1) for i, o in enumerate(spec.overrides)]
+              + [(f"tie #{i + 1}", t.phonemes, 2) for i, t in enumerate(spec.ties)]
+              + [(s.key, s.phonemes, 2) for s in spec.shrinks])
+    for key, phonemes, needed in groups:
+        missing = [p for p in phonemes if p not in present]
+        if len(phonemes) - len(missing) < needed:
+            what = "none occurs" if needed == 1 else "fewer than two occur"
+            raise SpecError(f"{spec.path}: [{key}] phonemes {list(phonemes)}: {what} in the corpus, so it "
+                            f"would change nothing {inventory}")
         if missing:
-            notes.append(f"[override #{i + 1}] phonemes {missing} do not occur in the corpus: not applied to them")
+            notes.append(f"[{key}] phonemes {missing} do not occur in the corpus: not applied to them")
     return notes

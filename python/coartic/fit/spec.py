@@ -15,9 +15,11 @@ from pathlib import Path
 from typing import Any
 
 from coartic.errors import CoarticError
+from coartic.textfile import TextDecodeError, read_text
 from coartic.io.errors import DataError
 from coartic.io.roles import RoleMap
-from coartic.table import ALL_CHANNELS, CHANNELS, DOMINANCES, PARAMETERS, VARIANTS, ChannelSettings
+from coartic.settings import CHANNEL_SETTINGS, default
+from coartic.table import ALL_CHANNELS, CHANNELS, PARAMETERS, VARIANTS, ChannelSettings, domain_problem
 
 ENGINES: tuple[str, ...] = ("scipy", "nlopt", "casadi")
 # [validate] group: what a k-fold validation holds out together (manifest columns, or the file).
@@ -45,7 +47,19 @@ DEFAULT_STAGES: tuple[tuple[str, ...], ...] = (
 
 
 class SpecError(CoarticError, ValueError):
-    """A fit specification that cannot be used; the message names the file and the key."""
+    """A fit specification that cannot be used; the message names the file and the key, and so do
+    the attributes ``file`` (the spec's path), ``key`` (``"model.beta"``, ``"override #2.fixed.k_r"``)
+    and, where one is at fault, ``phoneme`` (its name), for programs that must not parse prose."""
+
+    file: Path | None = None
+    key: str | None = None
+
+    @classmethod
+    def at(cls, file: Path, key: str, message: str, phoneme: str | None = None) -> SpecError:
+        """``file: [key] message``, with the place in the attributes as well."""
+        err = cls(f"{file}: [{key}] {message}")
+        err.file, err.key, err.phoneme = file, key, phoneme
+        return err
 
 
 @dataclass(frozen=True)
@@ -126,13 +140,13 @@ class FitSpec:
     channels: tuple[str, ...]
     variant: str = "modified"
     reference_phoneme: str = "a"
-    apex_fraction: float = 0.5
-    edge_extent: float = 1.0
+    apex_fraction: float = default("apex_fraction")
+    edge_extent: float = default("edge_extent")
     # the rate-aware options of docs/MODEL.md §2.1 (defaults: today's model)
-    dominance: str = "centre"
-    plateau_fraction: float = 0.5
-    handover: bool = False
-    beta: float = 1.0
+    dominance: str = default("dominance")
+    plateau_fraction: float = default("plateau_fraction")
+    handover: bool = default("handover")
+    beta: float = default("beta")
     fit_beta: bool = False
     beta_bounds: tuple[float, float] = DEFAULT_BETA_BOUNDS
     free: tuple[str, ...] = PARAMETERS
@@ -181,7 +195,7 @@ class FitSpec:
 
 
 def _err(path: Path, key: str, msg: str) -> SpecError:
-    return SpecError(f"{path}: [{key}] {msg}")
+    return SpecError.at(path, key, msg)
 
 
 def _array_of_tables(raw: dict[str, Any], name: str, path: Path) -> list[tuple[str, dict[str, Any]]]:
@@ -213,9 +227,20 @@ def _str_list(v: Any, path: Path, key: str) -> tuple[str, ...]:
 
 
 def _float(v: Any, path: Path, key: str) -> float:
-    if isinstance(v, bool) or not isinstance(v, (int, float)):
+    # TOML has nan: refused here, once, so that no comparison downstream lets it through
+    if isinstance(v, bool) or not isinstance(v, (int, float)) or math.isnan(v):
         raise _err(path, key, f"expected a number, got {v!r}")
     return float(v)
+
+
+def _setting(m: dict[str, Any], name: str, path: Path) -> Any:
+    """A ``[model]`` channel setting (coartic.settings): its default when absent, else checked."""
+    setting = CHANNEL_SETTINGS[name]
+    v = m.get(name, setting.default)
+    problem = setting.problem(v)
+    if problem is not None:
+        raise _err(path, f"model.{name}", f"{name} = {v!r} {problem} ({setting.meaning})")
+    return v if setting.flag or setting.choices else float(v)
 
 
 def _param_names(names: tuple[str, ...], path: Path, key: str, allow_beta: bool = False) -> tuple[str, ...]:
@@ -226,11 +251,19 @@ def _param_names(names: tuple[str, ...], path: Path, key: str, allow_beta: bool 
     return names
 
 
-def _param_values(d: Any, path: Path, key: str) -> dict[str, float]:
+def _param_values(d: Any, path: Path, key: str, phonemes: tuple[str, ...] = ()) -> dict[str, float]:
+    """``parameter = value`` pairs (starts, fixed values), each in its parameter's model domain
+    (MODEL.md §1); errors name the key and, for an ``[[override]]``, its phonemes."""
     if not isinstance(d, dict):
         raise _err(path, key, f"expected a table of parameter = value, got {d!r}")
     _param_names(tuple(d), path, key)
-    return {k: _float(v, path, f"{key}.{k}") for k, v in d.items()}
+    out = {k: _float(v, path, f"{key}.{k}") for k, v in d.items()}
+    for k, v in out.items():
+        problem = domain_problem(k, v)
+        if problem is not None:
+            whose = f" (of {', '.join(phonemes)})" if phonemes else ""
+            raise _err(path, f"{key}.{k}", f"{k} = {v:g}{whose} {problem}, the model's domain of {k}")
+    return out
 
 
 def _bounds(d: Any, path: Path, key: str) -> dict[str, tuple[float, float]]:
@@ -255,6 +288,13 @@ def _channels(names: tuple[str, ...], path: Path, key: str) -> tuple[str, ...]:
         if c not in ALL_CHANNELS:
             raise _err(path, key, f"unknown channel {c!r}; known: {', '.join(ALL_CHANNELS)}")
     return names
+
+
+def synth_hint(manifest: Path) -> str:
+    """What to run when ``manifest`` is absent, naming that very corpus (the session and the
+    speakers' corpus are both made by ``coartic corpus synth``, which one is not known here)."""
+    return (f" (if it is a synthetic corpus: `coartic corpus synth {manifest.parent}`, with `--speakers N` for "
+            "several speakers)")
 
 
 def _path(base: Path, v: Any, key: str, spec_path: Path) -> Path:
@@ -362,8 +402,9 @@ def make_choose(path: Path, key: Any, values: Any, group: Any, folds: Any, rule:
     low = 0.0
     if any(not math.isfinite(v) or v <= low for v in vals) and base != "plateau_fraction":
         raise _err(path, f"{where}.values", f"{key} takes positive numbers, got {list(vals)}")
-    if base == "plateau_fraction" and any(not 0.0 <= v <= 1.0 for v in vals):
-        raise _err(path, f"{where}.values", f"plateau_fraction takes values in [0, 1], got {list(vals)}")
+    if base == "plateau_fraction" and any(CHANNEL_SETTINGS[base].problem(v) for v in vals):
+        raise _err(path, f"{where}.values", f"plateau_fraction takes values in {CHANNEL_SETTINGS[base].allowed}, "
+                   f"got {list(vals)}")
     if group not in VALIDATE_GROUPS:
         raise _err(path, f"{where}.group", f"{group!r}: expected one of {', '.join(VALIDATE_GROUPS)}")
     if isinstance(folds, bool) or not isinstance(folds, int) or folds < 2:
@@ -400,9 +441,13 @@ def choose_base(key: str) -> str | None:
 def read_document(path: Path) -> dict[str, Any]:
     """The TOML document of a spec file, or a SpecError naming the file."""
     try:
-        return tomllib.loads(path.read_text(encoding="utf-8"))
+        return tomllib.loads(read_text(path, "fit spec"))
     except FileNotFoundError:
         raise SpecError(f"{path}: no such fit spec") from None
+    except IsADirectoryError:
+        raise SpecError(f"{path}: is a directory, not a fit spec (.toml) file") from None
+    except TextDecodeError as e:
+        raise SpecError(str(e)) from None
     except tomllib.TOMLDecodeError as e:
         raise SpecError(f"{path}: not valid TOML: {e}") from None
 
@@ -493,24 +538,16 @@ def parse_spec(raw: dict[str, Any], path: Path) -> FitSpec:
         beta_bounds = (_float(bb[0], path, "model.beta_bounds"), _float(bb[1], path, "model.beta_bounds"))
         if not 0.0 <= beta_bounds[0] < beta_bounds[1]:
             raise _err(path, "model.beta_bounds", f"need 0 <= low < high, got {beta_bounds}")
-    apex = _float(m.get("apex_fraction", 0.5), path, "model.apex_fraction")
-    if not 0.0 <= apex <= 1.0:
-        raise _err(path, "model.apex_fraction", f"{apex} is outside [0, 1]")
-    edge = _float(m.get("edge_extent", 1.0), path, "model.edge_extent")
-    if not edge > 0:
-        raise _err(path, "model.edge_extent", f"{edge} must be positive")
+    apex = _setting(m, "apex_fraction", path)
+    edge = _setting(m, "edge_extent", path)
     fit_beta = m.get("fit_beta", False)
     if not isinstance(fit_beta, bool):
         raise _err(path, "model.fit_beta", f"expected true or false, got {fit_beta!r}")
-    dominance = m.get("dominance", "centre")
-    if dominance not in DOMINANCES:
-        raise _err(path, "model.dominance", f"{dominance!r}: expected one of {DOMINANCES}")
-    plateau = _float(m.get("plateau_fraction", 0.5), path, "model.plateau_fraction")
-    if not 0.0 <= plateau <= 1.0:
-        raise _err(path, "model.plateau_fraction", f"{plateau} is outside [0, 1]")
-    handover = m.get("handover", False)
-    if not isinstance(handover, bool):
-        raise _err(path, "model.handover", f"expected true or false, got {handover!r}")
+    dominance = _setting(m, "dominance", path)
+    plateau = _setting(m, "plateau_fraction", path)
+    handover = _setting(m, "handover", path)
+
+    beta = _setting(m, "beta", path)
 
     p = raw.get("parameters", {})
     _take(p, path, "parameters", {"free", "start", "start_table", "bounds", "target_margin", "prior", "prior_noise"})
@@ -543,11 +580,12 @@ def parse_spec(raw: dict[str, Any], path: Path) -> FitSpec:
             raise _err(path, key, "missing phonemes = [...]")
         chans = _channels(_str_list(table["channels"], path, f"{key}.channels"), path, f"{key}.channels") \
             if "channels" in table else None
+        o_phonemes = _str_list(table["phonemes"], path, f"{key}.phonemes")
         overrides.append(Override(
-            phonemes=_str_list(table["phonemes"], path, f"{key}.phonemes"), channels=chans,
-            fixed=_param_values(table.get("fixed", {}), path, f"{key}.fixed"),
+            phonemes=o_phonemes, channels=chans,
+            fixed=_param_values(table.get("fixed", {}), path, f"{key}.fixed", o_phonemes),
             free=_param_names(_str_list(table.get("free", []), path, f"{key}.free"), path, f"{key}.free"),
-            start=_param_values(table.get("start", {}), path, f"{key}.start"),
+            start=_param_values(table.get("start", {}), path, f"{key}.start", o_phonemes),
             bounds=_bounds(table.get("bounds", {}), path, f"{key}.bounds")))
 
     reference = str(m.get("reference_phoneme", "a"))
@@ -618,7 +656,7 @@ def parse_spec(raw: dict[str, Any], path: Path) -> FitSpec:
         path=path, name=str(name), corpus=corpus, channels=channels, variant=variant,
         reference_phoneme=reference, apex_fraction=apex, edge_extent=edge, dominance=dominance,
         plateau_fraction=plateau, handover=handover,
-        beta=_float(m.get("beta", 1.0), path, "model.beta"), fit_beta=fit_beta, beta_bounds=beta_bounds,
+        beta=beta, fit_beta=fit_beta, beta_bounds=beta_bounds,
         free=free, start_table=start_table, start=start, start_given=frozenset(start_given), bounds=bounds,
         priors=priors, prior_noise=prior_noise, offsets=offsets if isinstance(offsets, str) else float(offsets),
         speakers=str(speakers), speaker_column=speaker_column, channel_bounds=channel_bounds,

@@ -23,9 +23,9 @@ from coartic.mcmc.posterior import LogPosterior, SpeakerTerms, channel_posterior
 from coartic.mcmc.sampler import SamplerSettings, SamplingResult
 from coartic.mcmc.summary import ParameterSummary
 from coartic.outputs import atomic_write_text
+from coartic.table import PAUSE
 
 SCOPES = ("phonemes", "channel")
-PAUSE = "#"
 
 
 class McmcConfigError(CoarticError, ValueError):

@@ -181,6 +181,13 @@ def animate(
     """
     total = segments.end_time if duration is None else duration
     times = frame_times(total, fps)
+    longest = float(np.max(segments.ends - segments.starts)) if len(segments) else 0.0
+    if longest * fps < 1.0:
+        # every phoneme would fall between two frames: the frames would show none of them
+        raise AnimationError(
+            f"{segments.source}: at {fps:g} fps a frame lasts {1 / fps:.3g} s, longer than every phoneme "
+            f"(the longest lasts {longest:.3g} s): no phoneme would be shown; use --fps {math.ceil(1 / longest) if longest > 0 else 25} "
+            "or more (25 is usual)")
     if channels is None:
         modelled = table_channels(table)
         at_rest = tuple(c for c in CHANNELS if c not in modelled)

@@ -167,7 +167,8 @@ def _write_outputs(
     if vrml:
         from coartic.face.vrml import write_face_vrml
 
-        files["vrml"] = write_face_vrml(out / f"{name}.wrl", faps, audio=audio.name if audio else None)[0]
+        files["vrml"] = write_face_vrml(out / f"{name}.wrl", faps, audio=audio.name if audio else None,
+                                        audio_seconds=wav_duration(audio) if audio else None)[0]
     files["plot"] = plot_channels(animation, out / "channels.png", title=name)
     if preview != "none":
         files["strip"] = render_strip(animation, table, out / "strip.png", speaker=mapping)
