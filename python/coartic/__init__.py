@@ -11,7 +11,7 @@ from typing import TYPE_CHECKING, Any
 if TYPE_CHECKING:
     from coartic.io.trial import Trial, load_trial
     from coartic.model import build_corpus, trajectories
-    from coartic.table import ALL_CHANNELS, CHANNELS, PARAMETERS, ParameterTable
+    from coartic.table import ALL_CHANNELS, CHANNELS, PARAMETERS, TONGUE_CHANNELS, ParameterTable
 
 __version__ = "0.1.0"
 
@@ -21,6 +21,7 @@ _LAZY: dict[str, str] = {
     "CHANNELS": "coartic.table",
     "PARAMETERS": "coartic.table",
     "ParameterTable": "coartic.table",
+    "TONGUE_CHANNELS": "coartic.table",
     "Trial": "coartic.io.trial",
     "build_corpus": "coartic.model",
     "load_trial": "coartic.io.trial",

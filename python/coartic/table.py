@@ -24,10 +24,15 @@ import numpy.typing as npt
 
 from coartic.errors import CoarticError
 from coartic.outputs import atomic_write_text
+from coartic.settings import CHANNEL_SETTINGS, DOMINANCES, RATE_SETTINGS
+
 
 SCHEMA = "coartic.table/1"
 CHANNELS: tuple[str, ...] = ("ULO", "LLO", "ULP", "LLP", "LR", "JO")
-ALL_CHANNELS: tuple[str, ...] = CHANNELS + ("LA",)
+# Tongue-tip and tongue-body height and advancement from EMA TT and TB sensors (docs/DATA.md):
+# fitted like any channel (the model is per channel), driven as tongue FAPs by the face.
+TONGUE_CHANNELS: tuple[str, ...] = ("TTH", "TTA", "TBH", "TBA")
+ALL_CHANNELS: tuple[str, ...] = CHANNELS + ("LA",) + TONGUE_CHANNELS
 PARAMETERS: tuple[str, ...] = (
     "target",
     "alpha",
@@ -42,8 +47,6 @@ PARAMETERS: tuple[str, ...] = (
 )
 N_PARAMS = len(PARAMETERS)
 VARIANTS: tuple[str, ...] = ("original", "modified")
-# Dominance time scale (docs/MODEL.md §2.1): "centre" is the model of §2, "plateau" the rate-aware one.
-DOMINANCES: tuple[str, ...] = ("centre", "plateau")
 QUANTILES: tuple[str, ...] = ("q2.5", "q16", "q50", "q84", "q97.5")
 PAUSE = "#"
 
@@ -80,18 +83,7 @@ MODEL_DOMAIN: Mapping[str, tuple[float, float, bool]] = {
     "delta": (-INF, INF, False),
 }
 
-CHANNEL_DEFAULTS: Mapping[str, Any] = {
-    "unit": "mm",
-    "beta": 1.0,
-    "edge_extent": 1.0,
-    "apex_fraction": 0.5,
-    "dominance": "centre",
-    "plateau_fraction": 0.5,
-    "handover": False,
-}
-# The rate-aware options of docs/MODEL.md §2.1: written to a table only when they differ from
-# the defaults, so a table of today's model reads and writes as before.
-RATE_SETTINGS: tuple[str, ...] = ("dominance", "plateau_fraction", "handover")
+CHANNEL_DEFAULTS: Mapping[str, Any] = {"unit": "mm", **{n: s.default for n, s in CHANNEL_SETTINGS.items()}}
 
 
 class TableError(CoarticError, ValueError):
@@ -105,12 +97,12 @@ class ChannelSettings:
 
     reference_phoneme: str
     unit: str = "mm"
-    beta: float = 1.0
-    edge_extent: float = 1.0
-    apex_fraction: float = 0.5
-    dominance: str = "centre"
-    plateau_fraction: float = 0.5
-    handover: bool = False
+    beta: float = CHANNEL_SETTINGS["beta"].default
+    edge_extent: float = CHANNEL_SETTINGS["edge_extent"].default
+    apex_fraction: float = CHANNEL_SETTINGS["apex_fraction"].default
+    dominance: str = CHANNEL_SETTINGS["dominance"].default
+    plateau_fraction: float = CHANNEL_SETTINGS["plateau_fraction"].default
+    handover: bool = CHANNEL_SETTINGS["handover"].default
 
     def rate_settings(self) -> dict[str, Any]:
         """The rate-aware options that differ from the defaults (what a table file records)."""
@@ -236,14 +228,10 @@ class ParameterTable:
                 raise TableError(f"{src}: unknown channel {ch!r} (known: {', '.join(ALL_CHANNELS)})")
             if not isinstance(cs.unit, str) or not cs.unit:
                 raise TableError(f"{where}: unit must be a non-empty string, got {cs.unit!r}")
-            _check_number(where, "beta", cs.beta, 0.0, INF, open_lower=False)
-            _check_number(where, "edge_extent", cs.edge_extent, 0.0, INF, open_lower=True)
-            _check_number(where, "apex_fraction", cs.apex_fraction, 0.0, 1.0, open_lower=False)
-            if cs.dominance not in DOMINANCES:
-                raise TableError(f"{where}: dominance {cs.dominance!r} is not one of {', '.join(DOMINANCES)}")
-            _check_number(where, "plateau_fraction", cs.plateau_fraction, 0.0, 1.0, open_lower=False)
-            if not isinstance(cs.handover, bool):
-                raise TableError(f"{where}: handover = {cs.handover!r} is not true or false")
+            for name, setting in CHANNEL_SETTINGS.items():
+                problem = setting.problem(getattr(cs, name))
+                if problem is not None:
+                    raise TableError(f"{where}: {name} = {getattr(cs, name)!r} {problem}")
             if not isinstance(cs.reference_phoneme, str) or cs.reference_phoneme not in self.values or ch not in self.values[cs.reference_phoneme]:
                 raise TableError(
                     f"{where}: reference phoneme {cs.reference_phoneme!r} has no parameters for {ch}"

@@ -52,10 +52,14 @@ BASE = '[corpus]\nmanifest = "m.csv"\n'
      "theta_bw = -3 (of b) is outside (0, inf), the model's domain"),
     (BASE + '[[override]]\nphonemes = ["p"]\nstart = { k_r = 1.5 }\n', "override #1.start.k_r", "outside [0, 1]"),
     (BASE + '[parameters]\nstart = { alpha = 0.0 }\n', "parameters.start.alpha", "outside (0, inf)"),
-    (BASE + '[model]\nbeta = nan\n', "model.beta", "expected a number, got nan"),
-    (BASE + '[model]\nbeta = inf\n', "model.beta", "finite number >= 0"),
-    (BASE + '[model]\nbeta = -1.0\n', "model.beta", "finite number >= 0"),
-    (BASE + '[model]\napex_fraction = nan\n', "model.apex_fraction", "got nan"),
+    (BASE + '[model]\nbeta = nan\n', "model.beta", "beta = nan is not finite"),
+    (BASE + '[model]\nbeta = inf\n', "model.beta", "beta = inf is not finite (β, how steeply"),
+    (BASE + '[model]\nbeta = -1.0\n', "model.beta", "beta = -1.0 is outside [0, inf) (β"),
+    (BASE + '[model]\napex_fraction = nan\n', "model.apex_fraction", "apex_fraction = nan is not finite"),
+    (BASE + '[model]\nedge_extent = 0.0\n', "model.edge_extent", "edge_extent = 0.0 is outside (0, inf)"),
+    (BASE + '[model]\nplateau_fraction = 1.5\n', "model.plateau_fraction", "is outside [0, 1] (h, the half-width"),
+    (BASE + '[model]\ndominance = "flat"\n', "model.dominance", "dominance = 'flat' is not one of centre, plateau"),
+    (BASE + '[model]\nhandover = 1\n', "model.handover", "handover = 1 is not true or false"),
 ])
 def test_errors_name_file_and_key(tmp_path: Path, text: str, key: str, words: str) -> None:
     p = write(tmp_path, text)
@@ -63,6 +67,7 @@ def test_errors_name_file_and_key(tmp_path: Path, text: str, key: str, words: st
         load_spec(p)
     msg = str(e.value)
     assert str(p) in msg and f"[{key}]" in msg and words in msg
+    assert e.value.file == p and e.value.key == key  # the place without parsing the message
 
 
 def test_the_mcmc_table_is_left_to_coartic_mcmc(tmp_path: Path) -> None:

@@ -50,7 +50,7 @@ def test_ema_channels_follow_the_documented_mapping(tmp_path: Path) -> None:
     np.testing.assert_allclose(ch["JO"], -jaw[:, 0] * mm, atol=1e-9)
     np.testing.assert_allclose(ch["LR"], 2 * np.abs(lc[:, 1]) * mm, atol=1e-9)
     np.testing.assert_allclose(ch["LA"], np.linalg.norm(ul - ll, axis=1) * mm, atol=1e-9)
-    assert all(v.all() for v in ch.valid.values()) and not ch.unavailable
+    assert all(v.all() for v in ch.valid.values()) and set(ch.unavailable) == {"TTH", "TTA", "TBH", "TBA"}
     # a NOSE sensor makes JO the NOSE-JAW distance, as for marker sets
     ch2 = load_trial(p, role_map={**roles, "NOSE": "nz"}).channels(rest_frames=25)
     np.testing.assert_allclose(ch2["JO"], np.linalg.norm(nose - jaw, axis=1) * mm, atol=1e-9)
@@ -77,6 +77,46 @@ def test_ema_sensor_guess_and_missing_lips(tmp_path: Path) -> None:
 
 
 REAL = Path(__file__).parents[1] / "data/realdata/emu-ema-german/derived"
+
+
+def test_tongue_channels_are_heights_and_advancements_from_rest(tmp_path: Path) -> None:
+    n = 150
+    t = np.arange(n) / RATE
+    move = np.where(t < 0.1, 0.0, np.sin(2 * np.pi * 3 * (t - 0.1)))
+    ul = np.stack([np.zeros(n), -9.0 + 0 * move, 0.5 + move], axis=1)
+    ll = np.stack([np.zeros(n), -7.0 + 0 * move, -15.0 - 3 * move], axis=1)
+    # up = +z, forwards = -y (the default axes); the tip rises 4 mm and moves back 2 mm, the body
+    # lowers 3 mm and moves forwards 1 mm, each from its own rest position
+    tt = np.stack([np.zeros(n), 11.0 + 2.0 * move, -4.0 + 4.0 * move], axis=1)
+    tb = np.stack([np.zeros(n), 50.0 - 1.0 * move, 4.0 - 3.0 * move], axis=1)
+    p = tmp_path / "tongue.csv"
+    _write(p, {"ul": ul, "ll": ll, "t_tip": tt, "t_back": tb})
+    trial = load_trial(p)
+    assert dict(trial.roles.roles) == {"UL": "ul", "LL": "ll", "TT": "t_tip", "TB": "t_back"}
+    ch = trial.channels(rest_frames=25)
+    np.testing.assert_allclose(ch["TTH"], 4.0 * move, atol=1e-9)
+    np.testing.assert_allclose(ch["TTA"], -2.0 * move, atol=1e-9)
+    np.testing.assert_allclose(ch["TBH"], -3.0 * move, atol=1e-9)
+    np.testing.assert_allclose(ch["TBA"], 1.0 * move, atol=1e-9)
+    # without a TB sensor the body channels say why; asked for by name, an error naming it
+    q = tmp_path / "tip_only.csv"
+    _write(q, {"ul": ul, "ll": ll, "tt": tt})
+    ch = load_trial(q).channels()
+    assert "TTH" in ch and ch.unavailable["TBH"] == "no tongue-body sensor (role TB)"
+    with pytest.raises(DataError, match=r"channel TBA cannot be computed: no tongue-body sensor"):
+        load_trial(q).channels(["TTH", "TBA"])
+
+
+def test_tongue_channels_are_refused_by_name_on_face_markers(tmp_path: Path) -> None:
+    from coartic.io.trial import Trial
+
+    markers = np.zeros((10, 2, 3))
+    markers[:, 1, 1] = -10.0
+    trial = Trial(markers=markers, marker_names=("UL", "LL"), rate=100.0, source=tmp_path / "m.csv")
+    with pytest.raises(DataError, match=r"m\.csv: channel TTH cannot be computed: tongue channels "
+                                        r"come from EMA tongue sensors \(roles TT, TB\)"):
+        trial.channels(["LA", "TTH"])
+    assert "TTH" in trial.channels().unavailable
 
 
 def _x_anterior_copy(tmp_path: Path) -> tuple[Path, Path]:

@@ -44,11 +44,12 @@ def test_ema_loads_with_labels(stem: str) -> None:
     t = _load(stem)
     assert t.kind == "ema" and t.rate == 200.0 and t.n_frames == 800
     assert t.marker_names == ("ul", "ll", "jw", "tt", "tm", "tb")
-    assert dict(t.roles.roles) == {"UL": "ul", "LL": "ll", "JAW": "jw"}
+    assert dict(t.roles.roles) == {"UL": "ul", "LL": "ll", "JAW": "jw", "TT": "tt", "TB": "tb"}
     assert t.segments is not None and t.segments.labels[0] == "#" and t.segments.labels[-1] == "#"
     assert t.meta["raw_labels"][0] == "&p:"
     ch = t.channels()
-    assert set(ch) == {"ULO", "LLO", "ULP", "LLP", "JO", "LA"} and "LR" in ch.unavailable
+    assert set(ch) == {"ULO", "LLO", "ULP", "LLP", "JO", "LA", "TTH", "TTA", "TBH", "TBA"}
+    assert "LR" in ch.unavailable
     # the all-zero frames at the end (no data) are masked, not filled
     assert not ch.valid["LA"][-38:].any() and ch.valid["LA"][:700].all()
     assert [g.reason for g in ch.gaps] == ["at the end"] * 6

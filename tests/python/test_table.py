@@ -47,7 +47,7 @@ def base_doc() -> dict[str, Any]:
 
 def test_names_follow_the_contract() -> None:
     assert CHANNELS == ("ULO", "LLO", "ULP", "LLP", "LR", "JO")
-    assert ALL_CHANNELS == CHANNELS + ("LA",)
+    assert ALL_CHANNELS == CHANNELS + ("LA", "TTH", "TTA", "TBH", "TBA")
     assert PARAMETERS[0] == "target" and PARAMETERS[6] == "k_r" and PARAMETERS[9] == "delta"
     assert N_PARAMS == 10 and set(DEFAULT_BOUNDS) == set(PARAMETERS)
     assert DEFAULT_BOUNDS["k_r"] == (0.0, 1.0) and DEFAULT_BOUNDS["c_bw"] == (0.5, 3.0)
@@ -320,3 +320,29 @@ def test_the_model_domain_is_the_one_the_core_checks(name: str) -> None:
         except ValueError:
             core_accepts = False
         assert core_accepts == (domain_problem(name, v) is None), (name, v)
+
+
+@pytest.mark.parametrize("name", ["beta", "edge_extent", "apex_fraction", "plateau_fraction"])
+def test_the_channel_settings_ranges_are_the_ones_the_core_checks(name: str) -> None:
+    """coartic.settings (specs, tables, [choose]) and the core's ModelOptions / β check agree."""
+    from coartic import _core
+    from coartic.settings import CHANNEL_SETTINGS
+
+    setting = CHANNEL_SETTINGS[name]
+    corpus = _core.Corpus(np.array([0, 1]), np.array([0]), np.array([0.0]), np.array([0.1]),
+                          np.array([0, 1]), np.array([0.05]), 1)
+    params = np.array([[ROW[p] for p in PARAMETERS]], dtype=np.float64)
+    probes = [v for b in (setting.low, setting.high) if math.isfinite(b) for v in (b - 1e-9, b, b + 1e-9)]
+    for v in probes + [math.nan, math.inf]:
+        kwargs: dict[str, Any] = {"dominance": "plateau"} if name == "plateau_fraction" else {}
+        try:
+            if name == "beta":
+                _core.evaluate(corpus, params, v, _core.ModelOptions("modified"))
+            elif name == "plateau_fraction":
+                _core.evaluate(corpus, params, 1.0, _core.ModelOptions("modified", plateau_fraction=v, **kwargs))
+            else:
+                _core.evaluate(corpus, params, 1.0, _core.ModelOptions("modified", **{name: v}))
+            core_accepts = True
+        except ValueError:
+            core_accepts = False
+        assert core_accepts == (setting.problem(v) is None), (name, v)

@@ -349,7 +349,7 @@ def target_gap(problem: ChannelProblem, fitted: FloatArray, row: dict[str, float
     """Mean |F(t_i) − T·(1 + σ)| over the phoneme's segments (t_i its target time, MODEL.md §1, at the
     nearest valid sample) and their number: whether the fit reaches the phoneme's target."""
     d = problem.data
-    a = float(getattr(problem.options, "apex_fraction", 0.5))
+    a = float(problem.options.apex_fraction)
     goal = row.get("target", math.nan) * (1.0 + row.get("sigma", 0.0))
     gaps: list[float] = []
     for u, utt in enumerate(d.utterances):
@@ -414,7 +414,7 @@ def reading(parameter: str, side: str, value: float, phoneme: str, problem: Chan
         span = f"reach θ^(−1/c) = {reach:.3g} ms{edge} with {'c_bw' if bw else 'c_fw'} = {c:.3g}{unit}"
         if up:
             if bw and plateau:
-                h = float(getattr(opts, "plateau_fraction", 0.5))
+                h = float(opts.plateau_fraction)
                 return (f"θ_bw = {value:.4g} s^-c, {span}: {ph}'s dominance switches on about as fast as allowed "
                         f"where its plateau begins ({h:g} of its segment's duration before its target time): "
                         "little anticipation before that, as at a gesture's onset.")

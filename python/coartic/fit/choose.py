@@ -48,7 +48,7 @@ def set_value(spec: FitSpec, key: str, value: float) -> FitSpec:
         return replace(spec, prior_noise=float(value), choose=None)
     if base == "plateau_fraction":
         return replace(spec, plateau_fraction=float(value), choose=None)
-    raise SpecError(f"{spec.path}: [choose.key] {key!r}: not a setting cross-validation can choose")
+    raise SpecError.at(spec.path, "choose.key", f"{key!r}: not a setting cross-validation can choose")
 
 
 def parse_choose(spec: FitSpec, text: str) -> FitSpec:
@@ -217,8 +217,8 @@ def cross_validate(spec: FitSpec, utterances: Sequence[Utterance], progress: Pro
         folds = kfold_splits(replace(spec, validate_group=c.group, validate_folds=c.folds), utterances)
     except SpecError as e:  # named by [choose], where the grouping came from
         why = str(e).partition("] ")[2] or str(e)
-        raise SpecError(f"{spec.path}: [choose] group = {c.group!r}, in {len(utterances)} training utterances: "
-                        f"{why}") from None
+        raise SpecError.at(spec.path, "choose", f"group = {c.group!r}, in {len(utterances)} training utterances: "
+                           f"{why}") from None
     points = {(v, ch): CurvePoint(v, ch, [], []) for v in c.values for ch in spec.channels}
     scored: list[str] = []
     notes: list[str] = []
@@ -261,8 +261,8 @@ def cross_validate(spec: FitSpec, utterances: Sequence[Utterance], progress: Pro
         if own:
             progress.stop()
     if not scored:
-        raise SpecError(f"{spec.path}: [choose] no {c.group} fold can be scored (each holds out phonemes its "
-                        f"training lacks: {'; '.join(notes)}); group by something else or give more utterances")
+        raise SpecError.at(spec.path, "choose", f"no {c.group} fold can be scored (each holds out phonemes its "
+                           f"training lacks: {'; '.join(notes)}); group by something else or give more utterances")
     choice = Choice(c, [p for p in points.values() if p.fold_rmse], scored, len(folds), notes=notes)
     choice.pick()
     return choice

@@ -34,7 +34,7 @@ from numpy.typing import NDArray
 from coartic import _core
 from coartic.fit.spec import FitSpec
 from coartic.model import JacobianBuffer, Utterance, build_corpus, channel_options, core_error
-from coartic.table import N_PARAMS, PARAMETERS
+from coartic.table import N_PARAMS, PARAMETERS, PAUSE
 
 if TYPE_CHECKING:
     from coartic.fit.parameters import ParameterSet
@@ -42,7 +42,6 @@ if TYPE_CHECKING:
 __all__ = ["Utterance", "ChannelData", "Packing", "ChannelProblem", "build_problem", "build_packing",
            "phoneme_inventory", "Shrinkage", "ShrinkGroup", "shrink_groups", "Speakers", "affine_coefficients"]
 
-PAUSE = "#"
 # Columns fitted on a log scale (MODEL.md §1: "fit log α", "fit log θ"; ψ > 0 likewise).
 LOG_PARAMETERS: frozenset[str] = frozenset({"alpha", "theta_bw", "theta_fw", "psi"})
 LOG_COLUMNS: NDArray[np.bool_] = np.array([p in LOG_PARAMETERS for p in PARAMETERS])
@@ -421,8 +420,8 @@ def shrink_groups(spec: FitSpec, channel: str, phonemes: Sequence[str], free: Bo
         for name in s.parameters:
             k = PARAMETERS.index(name)
             if not free[list(rows), k].any():
-                raise SpecError(f"{spec.path}: [{s.key}] {name} is free for none of {list(s.phonemes)} on {channel}: "
-                                "nothing to shrink")
+                raise SpecError.at(spec.path, f"{s.key}", f"{name} is free for none of {list(s.phonemes)} on {channel}: "
+                                   "nothing to shrink")
             members = tuple(phonemes[i] for i in rows)
             out.append(ShrinkGroup(s.key, members, rows, k, s.sd, s.log))
     return out
@@ -893,8 +892,8 @@ class SpeakerRows:
         out = []
         for g in groups:
             if g.parameter == "target":
-                raise SpecError(f"{spec.path}: [{g.key}] shrinks target, but [model] speakers = \"targets\" gives "
-                                "every speaker its own targets: shrink the dynamics only")
+                raise SpecError.at(spec.path, f"{g.key}", f"shrinks target, but [model] speakers = \"targets\" gives "
+                                   "every speaker its own targets: shrink the dynamics only")
             out.append(replace(g, rows=tuple(self.leader(i) for i in g.rows)))
         return out
 
@@ -915,8 +914,8 @@ def expand_speaker_targets(spec: FitSpec, data: ChannelData, ps: ParameterSet, d
     spk = utterance_speakers(data.utterances, "targets", column, names)
     bad = [n for n in spk if SPEAKER_SEP in n]
     if bad:
-        raise SpecError(f"{spec.path}: [model] speakers = \"targets\": speaker name {bad[0]!r} contains "
-                        f"{SPEAKER_SEP!r}")
+        raise SpecError.at(spec.path, "model", f"speakers = \"targets\": speaker name {bad[0]!r} contains "
+                           f"{SPEAKER_SEP!r}")
     kt = PARAMETERS.index("target")
     for f, ld in ps.ties:
         if f % N_PARAMS == kt:

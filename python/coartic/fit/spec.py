@@ -18,7 +18,8 @@ from coartic.errors import CoarticError
 from coartic.textfile import TextDecodeError, read_text
 from coartic.io.errors import DataError
 from coartic.io.roles import RoleMap
-from coartic.table import ALL_CHANNELS, CHANNELS, DOMINANCES, PARAMETERS, VARIANTS, ChannelSettings, domain_problem
+from coartic.settings import CHANNEL_SETTINGS, default
+from coartic.table import ALL_CHANNELS, CHANNELS, PARAMETERS, VARIANTS, ChannelSettings, domain_problem
 
 ENGINES: tuple[str, ...] = ("scipy", "nlopt", "casadi")
 # [validate] group: what a k-fold validation holds out together (manifest columns, or the file).
@@ -46,7 +47,19 @@ DEFAULT_STAGES: tuple[tuple[str, ...], ...] = (
 
 
 class SpecError(CoarticError, ValueError):
-    """A fit specification that cannot be used; the message names the file and the key."""
+    """A fit specification that cannot be used; the message names the file and the key, and so do
+    the attributes ``file`` (the spec's path), ``key`` (``"model.beta"``, ``"override #2.fixed.k_r"``)
+    and, where one is at fault, ``phoneme`` (its name), for programs that must not parse prose."""
+
+    file: Path | None = None
+    key: str | None = None
+
+    @classmethod
+    def at(cls, file: Path, key: str, message: str, phoneme: str | None = None) -> SpecError:
+        """``file: [key] message``, with the place in the attributes as well."""
+        err = cls(f"{file}: [{key}] {message}")
+        err.file, err.key, err.phoneme = file, key, phoneme
+        return err
 
 
 @dataclass(frozen=True)
@@ -127,13 +140,13 @@ class FitSpec:
     channels: tuple[str, ...]
     variant: str = "modified"
     reference_phoneme: str = "a"
-    apex_fraction: float = 0.5
-    edge_extent: float = 1.0
+    apex_fraction: float = default("apex_fraction")
+    edge_extent: float = default("edge_extent")
     # the rate-aware options of docs/MODEL.md §2.1 (defaults: today's model)
-    dominance: str = "centre"
-    plateau_fraction: float = 0.5
-    handover: bool = False
-    beta: float = 1.0
+    dominance: str = default("dominance")
+    plateau_fraction: float = default("plateau_fraction")
+    handover: bool = default("handover")
+    beta: float = default("beta")
     fit_beta: bool = False
     beta_bounds: tuple[float, float] = DEFAULT_BETA_BOUNDS
     free: tuple[str, ...] = PARAMETERS
@@ -182,7 +195,7 @@ class FitSpec:
 
 
 def _err(path: Path, key: str, msg: str) -> SpecError:
-    return SpecError(f"{path}: [{key}] {msg}")
+    return SpecError.at(path, key, msg)
 
 
 def _array_of_tables(raw: dict[str, Any], name: str, path: Path) -> list[tuple[str, dict[str, Any]]]:
@@ -218,6 +231,16 @@ def _float(v: Any, path: Path, key: str) -> float:
     if isinstance(v, bool) or not isinstance(v, (int, float)) or math.isnan(v):
         raise _err(path, key, f"expected a number, got {v!r}")
     return float(v)
+
+
+def _setting(m: dict[str, Any], name: str, path: Path) -> Any:
+    """A ``[model]`` channel setting (coartic.settings): its default when absent, else checked."""
+    setting = CHANNEL_SETTINGS[name]
+    v = m.get(name, setting.default)
+    problem = setting.problem(v)
+    if problem is not None:
+        raise _err(path, f"model.{name}", f"{name} = {v!r} {problem} ({setting.meaning})")
+    return v if setting.flag or setting.choices else float(v)
 
 
 def _param_names(names: tuple[str, ...], path: Path, key: str, allow_beta: bool = False) -> tuple[str, ...]:
@@ -379,8 +402,9 @@ def make_choose(path: Path, key: Any, values: Any, group: Any, folds: Any, rule:
     low = 0.0
     if any(not math.isfinite(v) or v <= low for v in vals) and base != "plateau_fraction":
         raise _err(path, f"{where}.values", f"{key} takes positive numbers, got {list(vals)}")
-    if base == "plateau_fraction" and any(not 0.0 <= v <= 1.0 for v in vals):
-        raise _err(path, f"{where}.values", f"plateau_fraction takes values in [0, 1], got {list(vals)}")
+    if base == "plateau_fraction" and any(CHANNEL_SETTINGS[base].problem(v) for v in vals):
+        raise _err(path, f"{where}.values", f"plateau_fraction takes values in {CHANNEL_SETTINGS[base].allowed}, "
+                   f"got {list(vals)}")
     if group not in VALIDATE_GROUPS:
         raise _err(path, f"{where}.group", f"{group!r}: expected one of {', '.join(VALIDATE_GROUPS)}")
     if isinstance(folds, bool) or not isinstance(folds, int) or folds < 2:
@@ -514,28 +538,16 @@ def parse_spec(raw: dict[str, Any], path: Path) -> FitSpec:
         beta_bounds = (_float(bb[0], path, "model.beta_bounds"), _float(bb[1], path, "model.beta_bounds"))
         if not 0.0 <= beta_bounds[0] < beta_bounds[1]:
             raise _err(path, "model.beta_bounds", f"need 0 <= low < high, got {beta_bounds}")
-    apex = _float(m.get("apex_fraction", 0.5), path, "model.apex_fraction")
-    if not 0.0 <= apex <= 1.0:
-        raise _err(path, "model.apex_fraction", f"{apex} is outside [0, 1]")
-    edge = _float(m.get("edge_extent", 1.0), path, "model.edge_extent")
-    if not edge > 0:
-        raise _err(path, "model.edge_extent", f"{edge} must be positive")
+    apex = _setting(m, "apex_fraction", path)
+    edge = _setting(m, "edge_extent", path)
     fit_beta = m.get("fit_beta", False)
     if not isinstance(fit_beta, bool):
         raise _err(path, "model.fit_beta", f"expected true or false, got {fit_beta!r}")
-    dominance = m.get("dominance", "centre")
-    if dominance not in DOMINANCES:
-        raise _err(path, "model.dominance", f"{dominance!r}: expected one of {DOMINANCES}")
-    plateau = _float(m.get("plateau_fraction", 0.5), path, "model.plateau_fraction")
-    if not 0.0 <= plateau <= 1.0:
-        raise _err(path, "model.plateau_fraction", f"{plateau} is outside [0, 1]")
-    handover = m.get("handover", False)
-    if not isinstance(handover, bool):
-        raise _err(path, "model.handover", f"expected true or false, got {handover!r}")
+    dominance = _setting(m, "dominance", path)
+    plateau = _setting(m, "plateau_fraction", path)
+    handover = _setting(m, "handover", path)
 
-    beta = _float(m.get("beta", 1.0), path, "model.beta")
-    if not (math.isfinite(beta) and beta >= 0.0):
-        raise _err(path, "model.beta", f"{beta} must be a finite number >= 0 (MODEL.md §3.1)")
+    beta = _setting(m, "beta", path)
 
     p = raw.get("parameters", {})
     _take(p, path, "parameters", {"free", "start", "start_table", "bounds", "target_margin", "prior", "prior_noise"})

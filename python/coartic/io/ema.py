@@ -24,7 +24,13 @@ from coartic.io.trial import Trial
 from coartic.io.units import to_mm
 
 _POS = re.compile(r"^(?P<sensor>.+)_pos(?P<axis>[xyzXYZ])$")
-EMA_ROLES_USED = ("UL", "LL", "JAW", "LC", "LC_L", "LC_R", "NOSE")
+EMA_ROLES_USED = ("UL", "LL", "JAW", "LC", "LC_L", "LC_R", "NOSE", "TT", "TB")
+# channel -> (role, coordinate): height along the vertical, advancement along the anterior axis
+TONGUE_SENSORS: dict[str, tuple[str, str]] = {
+    "TTH": ("TT", "vertical"), "TTA": ("TT", "anterior"),
+    "TBH": ("TB", "vertical"), "TBA": ("TB", "anterior"),
+}
+_TONGUE_NAMES = {"TT": "tongue-tip", "TB": "tongue-body"}
 # The lips' motion along the axis taken as lateral may exceed their motion along the anterior axis
 # by this factor before the axes are called implausible (German EMA, right axes: 0.7).
 LATERAL_MOTION_RATIO = 2.0
@@ -125,6 +131,20 @@ def ema_channels(
     else:
         out["JO"] = -vs * jaw[:, vi]
     out["LA"] = np.linalg.norm(ul - ll, axis=1)
+    for channel, (role, along) in TONGUE_SENSORS.items():
+        s = sensor(role)
+        if s is None:
+            why[channel] = f"no {_TONGUE_NAMES[role]} sensor (role {role})"
+            continue
+        k, sign = (vi, vs) if along == "vertical" else (ai, asg)
+        coord = sign * s[:, k]
+        # relative to the sensor's rest position, as ULO/LLO are to y_0: sensor placement differs
+        # between sessions, the motion does not
+        at_rest = coord[rest & np.isfinite(coord)]
+        if at_rest.size == 0:
+            why[channel] = f"no valid {role} sample in the rest frames: its rest position is undefined"
+            continue
+        out[channel] = coord - float(at_rest.mean())
     return out, why
 
 

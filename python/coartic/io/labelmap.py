@@ -26,11 +26,11 @@ from typing import TYPE_CHECKING, Any
 
 from coartic.io.errors import DataError, parse_json
 from coartic.io.labels import Segments
+from coartic.table import PAUSE
 
 if TYPE_CHECKING:
     from coartic.table import ParameterTable
 
-PAUSE = "#"
 KEEP = "="
 PAUSE_LABELS = frozenset(
     {"", "#", "sil", "SIL", "pau", "PAU", "_", "&p:", "<p:>", "<sil>", "sp", "h#", "silence"}

@@ -17,14 +17,18 @@ from typing import Any
 from coartic.io.errors import DataError, parse_json
 
 MARKER_ROLES = ("NOSE", "EAR_L", "EAR_R", "UL", "LL", "LC_L", "LC_R", "CHIN")
-EMA_ROLES = ("UL", "LL", "JAW", "LC", "LC_L", "LC_R")
-ROLES = (*MARKER_ROLES, "JAW", "LC")
+EMA_ROLES = ("UL", "LL", "JAW", "LC", "LC_L", "LC_R", "TT", "TB")
+# TT: tongue tip; TB: tongue body (the dorsum sensor behind the tip): the tongue channels' sensors.
+ROLES = (*MARKER_ROLES, "JAW", "LC", "TT", "TB")
 # Usual sensor names on EMA systems (Carstens AG50x, NDI Wave), lower case.
 EMA_SENSOR_GUESSES: dict[str, tuple[str, ...]] = {
     "UL": ("ul", "upper_lip", "upperlip", "ulip"),
     "LL": ("ll", "lower_lip", "lowerlip", "llip"),
     "JAW": ("jw", "jaw", "li", "ji", "lower_incisor", "lowerincisor", "mand"),
     "LC": ("lc", "lip_corner", "lipcorner", "corner"),
+    "TT": ("tt", "t_tip", "tongue_tip", "tonguetip", "ttip", "tip"),
+    # German EMU data: tt, tm (mid), tb (back); MOCHA: tt, tb (body), td (dorsum)
+    "TB": ("tb", "t_back", "tongue_body", "tonguebody", "tongue_back", "tback", "tbody", "tdor"),
 }
 _AXES = ("x", "y", "z")
 AXIS_KEYS = ("vertical", "anterior")

@@ -23,7 +23,10 @@ from coartic.io.labelmap import PAUSE, LabelMap, resolve_label_map
 from coartic.io.labels import Segments, read_labels
 from coartic.io.roles import MARKER_ROLES, RoleMap, guess_ema_roles, resolve_role_map
 
-ALL_CHANNELS = ("ULO", "LLO", "ULP", "LLP", "LR", "JO", "LA")
+from coartic.table import ALL_CHANNELS, TONGUE_CHANNELS
+
+# The channels a marker (face) set gives; the tongue channels need EMA sensors.
+MARKER_CHANNELS = ("ULO", "LLO", "ULP", "LLP", "LR", "JO", "LA")
 HEAD_ROLES = ("NOSE", "EAR_L", "EAR_R")
 # Markers each channel needs (MODEL.md §6): heights and protrusions are read in the head frame
 # (and y_0 needs UL and LL); the distances LR, JO, LA need no head frame.
@@ -39,6 +42,8 @@ DISTANCE_CHANNELS = ("LR", "JO", "LA")  # |a - b| of two markers: no head frame,
 PLAUSIBLE_POSITION_MM = 10_000.0
 PLAUSIBLE_CHANNEL_MM: dict[str, float] = {
     "ULO": 100.0, "LLO": 100.0, "LA": 150.0, "LR": 150.0, "JO": 300.0, "ULP": 500.0, "LLP": 500.0,
+    # a tongue sensor moves a few centimetres from its rest position
+    "TTH": 100.0, "TTA": 100.0, "TBH": 100.0, "TBA": 100.0,
 }
 
 
@@ -215,8 +220,15 @@ class Trial:
         self, wanted: Sequence[str], strict: bool, rest: NDArray[np.bool_]
     ) -> tuple[dict[str, NDArray[np.float64]], dict[str, str]]:
         idx = self.roles.resolve(MARKER_ROLES, self.marker_names, self.source)
+        tongue = [c for c in wanted if c in TONGUE_CHANNELS]
+        if strict and tongue:
+            raise DataError(f"channel {tongue[0]} cannot be computed: tongue channels come from EMA "
+                            f"tongue sensors (roles TT, TB), and this file was read as face markers "
+                            f"{list(self.marker_names)}", path=self.source, item=tongue[0])
         needed: set[str] = set()
         for c in wanted:
+            if c in TONGUE_CHANNELS:
+                continue
             if strict or all(idx[r] is not None for r in CHANNEL_ROLES[c]):
                 needed.update(CHANNEL_ROLES[c])
         lacking = [r for r in MARKER_ROLES if r in needed and idx[r] is None]
@@ -228,8 +240,9 @@ class Trial:
                 (f" (role map names {named})" if named else "") +
                 f"; the file has {list(self.marker_names)}; pass role_map={{'NOSE': '<name>', ...}}"
                 " to say which marker is which", path=self.source, item=lacking[0])
-        why: dict[str, str] = {}
-        for c in ALL_CHANNELS:
+        why: dict[str, str] = {c: "tongue channels come from EMA tongue sensors (roles TT, TB), "
+                               "not from a face marker set" for c in TONGUE_CHANNELS}
+        for c in MARKER_CHANNELS:
             absent = [r for r in CHANNEL_ROLES[c] if idx[r] is None]
             if absent:
                 why[c] = f"no marker for role(s) {absent}"
@@ -287,7 +300,7 @@ class Trial:
             cols = np.asarray(_core.marker_channels(np.ascontiguousarray(stack), core_rest))
         except ValueError as e:
             raise DataError(f"marker geometry: {e}", path=self.source) from None
-        return {c: cols[:, j] for j, c in enumerate(ALL_CHANNELS) if c not in why}
+        return {c: cols[:, j] for j, c in enumerate(MARKER_CHANNELS) if c not in why}
 
 
 def _reader_for(p: Path) -> str:
