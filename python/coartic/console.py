@@ -76,6 +76,7 @@ class LineProgress(Progress):
         self.every = every
         self._last: dict[TaskID, float] = {}
         self._said: set[TaskID] = set()
+        self._text: dict[TaskID, str] = {}
 
     def line(self, task_id: TaskID) -> Text:
         """The task's state as one line: description, count, fields, elapsed time."""
@@ -96,7 +97,10 @@ class LineProgress(Progress):
 
     def _say(self, task_id: TaskID) -> None:
         self._last[task_id] = time.monotonic()
-        self.console.print(self.line(task_id), soft_wrap=True, highlight=False)
+        line = self.line(task_id)
+        if line.plain != self._text.get(task_id):  # e.g. a task stopped right after its last update
+            self._text[task_id] = line.plain
+            self.console.print(line, soft_wrap=True, highlight=False)
 
     def add_task(self, description: str, start: bool = True, total: float | None = 100.0, completed: int = 0,
                  visible: bool = True, **fields: Any) -> TaskID:
@@ -142,7 +146,8 @@ def print_table(console: Console, table: Table, keys: int = 1) -> None:
     block per row: its first ``keys`` cells as a heading, then "column value" pairs filling lines,
     a pair never split (a lone pair wider than the console is soft-wrapped, not cut). A status
     word is never cut and a row never wraps over many lines, whatever the width."""
-    if console.measure(table).maximum <= console.width:
+    # measured unclamped: rich clamps a table's measure to the width it is given
+    if console.measure(table, options=console.options.update_width(1 << 20)).maximum <= console.width:
         console.print(table)
         return
     if table.title:
