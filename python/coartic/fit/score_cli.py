@@ -11,7 +11,7 @@ from rich.console import Console
 from rich.markup import escape
 from rich.table import Table
 
-from coartic.console import print_error
+from coartic.console import print_error, print_table
 from coartic.fit.result import BAR_MM
 
 
@@ -53,7 +53,7 @@ def score_command(
     except (ValueError, OSError) as e:  # DataError, TableError, ModelInputError, OutputError
         print_error(console, e)
         raise typer.Exit(2) from None
-    console.print(score_table(score))
+    print_table(console, score_table(score), keys=2)
     for note in score.notes:
         console.print(f"note: {escape(note)}", soft_wrap=True, highlight=False)
     for flag in score.flags():
@@ -84,6 +84,6 @@ def score_table(score: object) -> Table:
                   f"{r['rmse_calibrated_mm']:.3f}", f"{wu['rmse_mm']:.3f} ({escape(wu['utterance'])})",
                   f"{wp['rmse_mm']:.3f} ({escape(wp['phoneme'])})" if wp else "–", str(r["samples"]))
         for b in (x for x in score.baseline_rows() if x["channel"] == ch and x["model"] != "table"):
-            t.add_row("", f"[dim]{b['model']}[/dim]", f"{b['rmse_mm']:.3f}", f"{b['rmse_offset_removed_mm']:.3f}",
+            t.add_row(ch, f"[dim]{b['model']}[/dim]", f"{b['rmse_mm']:.3f}", f"{b['rmse_offset_removed_mm']:.3f}",
                       f"{b['rmse_calibrated_mm']:.3f}", "", "", str(b["samples"]))
     return t
