@@ -12,6 +12,10 @@ from coartic.io.labels import Segments, read_labels
 from coartic.io.roles import RoleMap
 from coartic.io.trial import ALL_CHANNELS, Channels, Trial, common_rate, load_trial
 
+# The readers register themselves with coartic.io.registry when imported (load_trial asks the
+# registry, not each module); this is the list of formats. Order within a priority is kept.
+from coartic.io import c3d, ema, emu, est, markers_csv, mview, xrmb  # noqa: E402,F401  (registration)
+
 __all__ = [
     "ALL_CHANNELS",
     "DEFAULT_MAX_GAP",
