@@ -325,8 +325,9 @@ def test_a_tie_over_a_member_an_override_fixes_is_refused(tmp_path: Path, utts: 
                 tie=[{"phonemes": ["p", "t"], "parameters": ["theta_bw"]}],
                 override=[{"phonemes": ["t"], "fixed": {"theta_bw": 30.0}}])
     with pytest.raises(SpecError, match=r"\[tie #1\] ties theta_bw of \['p', 't'\] on LLO, but t.theta_bw is fixed "
-                       r"\(\[override #1.fixed.theta_bw\]\)"):
+                       r"\(\[override #1.fixed.theta_bw\]\)") as e:
         build_packing(s, ChannelData.build(utts, "LLO", PHONEMES))
+    assert e.value.key == "tie #1" and e.value.phoneme == "t" and e.value.file == tmp_path / "spec.toml"
 
 
 @pytest.mark.parametrize("kind, table", [

@@ -67,6 +67,7 @@ def test_errors_name_file_and_key(tmp_path: Path, text: str, key: str, words: st
         load_spec(p)
     msg = str(e.value)
     assert str(p) in msg and f"[{key}]" in msg and words in msg
+    assert e.value.file == p and e.value.key == key  # the place without parsing the message
 
 
 def test_the_mcmc_table_is_left_to_coartic_mcmc(tmp_path: Path) -> None:

@@ -33,6 +33,7 @@ import numpy as np
 from rich.console import Console
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
+from coartic.console import LineProgress
 from coartic.fit.problem import Utterance
 from coartic.fit.spec import CHOOSABLE, Choose, FitSpec, SpecError, choose_base, make_choose, parse_grid
 
@@ -48,7 +49,7 @@ def set_value(spec: FitSpec, key: str, value: float) -> FitSpec:
         return replace(spec, prior_noise=float(value), choose=None)
     if base == "plateau_fraction":
         return replace(spec, plateau_fraction=float(value), choose=None)
-    raise SpecError(f"{spec.path}: [choose.key] {key!r}: not a setting cross-validation can choose")
+    raise SpecError.at(spec.path, "choose.key", f"{key!r}: not a setting cross-validation can choose")
 
 
 def parse_choose(spec: FitSpec, text: str) -> FitSpec:
@@ -217,8 +218,8 @@ def cross_validate(spec: FitSpec, utterances: Sequence[Utterance], progress: Pro
         folds = kfold_splits(replace(spec, validate_group=c.group, validate_folds=c.folds), utterances)
     except SpecError as e:  # named by [choose], where the grouping came from
         why = str(e).partition("] ")[2] or str(e)
-        raise SpecError(f"{spec.path}: [choose] group = {c.group!r}, in {len(utterances)} training utterances: "
-                        f"{why}") from None
+        raise SpecError.at(spec.path, "choose", f"group = {c.group!r}, in {len(utterances)} training utterances: "
+                           f"{why}") from None
     points = {(v, ch): CurvePoint(v, ch, [], []) for v in c.values for ch in spec.channels}
     scored: list[str] = []
     notes: list[str] = []
@@ -226,7 +227,7 @@ def cross_validate(spec: FitSpec, utterances: Sequence[Utterance], progress: Pro
     if progress is None:
         columns = (TextColumn("[bold]{task.description}"), BarColumn(), MofNCompleteColumn(),
                    TextColumn("{task.fields[info]}"), TimeElapsedColumn())
-        progress = Progress(*columns, console=console or Console(stderr=True), disable=console is None)
+        progress = LineProgress(*columns, console=console or Console(stderr=True), quiet=console is None)
         progress.start()
     try:
         task = progress.add_task(f"choosing {c.key}", total=len(c.values) * len(folds), info="")
@@ -257,12 +258,13 @@ def cross_validate(spec: FitSpec, utterances: Sequence[Utterance], progress: Pro
             if ok:
                 scored.append(name)
         progress.update(task, info="done")
+        progress.stop_task(task)
     finally:
         if own:
             progress.stop()
     if not scored:
-        raise SpecError(f"{spec.path}: [choose] no {c.group} fold can be scored (each holds out phonemes its "
-                        f"training lacks: {'; '.join(notes)}); group by something else or give more utterances")
+        raise SpecError.at(spec.path, "choose", f"no {c.group} fold can be scored (each holds out phonemes its "
+                           f"training lacks: {'; '.join(notes)}); group by something else or give more utterances")
     choice = Choice(c, [p for p in points.values() if p.fold_rmse], scored, len(folds), notes=notes)
     choice.pick()
     return choice

@@ -23,14 +23,14 @@ def manifest_rows(spec: FitSpec) -> list[dict[str, str]]:
                 for f, lab in zip(c.files, c.labels)]
     else:
         if c.manifest.is_dir():
-            raise SpecError(f"{spec.path}: [corpus.manifest] {c.manifest} is a directory: name the manifest "
-                            f"file in it (e.g. {c.manifest / 'manifest.csv'})")
+            raise SpecError.at(spec.path, "corpus.manifest", f"{c.manifest} is a directory: name the manifest "
+                               f"file in it (e.g. {c.manifest / 'manifest.csv'})")
         if not c.manifest.is_file():
-            raise SpecError(f"{spec.path}: [corpus.manifest] {c.manifest} does not exist{synth_hint(c.manifest)}")
+            raise SpecError.at(spec.path, "corpus.manifest", f"{c.manifest} does not exist{synth_hint(c.manifest)}")
         try:
             text = read_text(c.manifest, "manifest")
         except TextDecodeError as e:
-            raise SpecError(f"{spec.path}: [corpus.manifest] {e}") from None
+            raise SpecError.at(spec.path, "corpus.manifest", f"{e}") from None
         with io.StringIO(text, newline="") as f:
             reader = csv.DictReader(f)
             rows = []
@@ -48,12 +48,12 @@ def manifest_rows(spec: FitSpec) -> list[dict[str, str]]:
             cols = reader.fieldnames or []
         for need in (c.file_column, "labels"):
             if need not in cols:
-                raise SpecError(f"{spec.path}: [corpus] manifest {c.manifest} has no column {need!r} "
-                                f"(columns: {', '.join(cols)})")
+                raise SpecError.at(spec.path, "corpus", f"manifest {c.manifest} has no column {need!r} "
+                                   f"(columns: {', '.join(cols)})")
         for k in c.select:
             if k not in cols:
-                raise SpecError(f"{spec.path}: [corpus.select] {k!r} is not a manifest column "
-                                f"(columns: {', '.join(cols)})")
+                raise SpecError.at(spec.path, "corpus.select", f"{k!r} is not a manifest column "
+                                   f"(columns: {', '.join(cols)})")
         base = c.manifest.parent
         for line, r in zip(lines, rows):
             for need in (c.file_column, "labels"):
@@ -66,7 +66,7 @@ def manifest_rows(spec: FitSpec) -> list[dict[str, str]]:
     if c.limit is not None:
         rows = rows[: c.limit]
     if not rows:
-        raise SpecError(f"{spec.path}: [corpus] no trial left after select = {c.select}")
+        raise SpecError.at(spec.path, "corpus", f"no trial left after select = {c.select}")
     return rows
 
 

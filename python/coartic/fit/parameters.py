@@ -195,8 +195,8 @@ class ParameterSet(Mapping[str, Parameter]):
                     base[i, k], free[i, k], origin[i, k] = val, False, f"override #{j + 1}.fixed.{name}"
 
         if spec.reference_phoneme not in phon:
-            raise SpecError(f"{spec.path}: [model.reference_phoneme] {spec.reference_phoneme!r} does not occur in "
-                            f"the {ch} data (phonemes: {' '.join(phon)})")
+            raise SpecError.at(spec.path, "model.reference_phoneme", f"{spec.reference_phoneme!r} does not occur in "
+                               f"the {ch} data (phonemes: {' '.join(phon)})")
         r = phon.index(spec.reference_phoneme)
         ka = PARAMETERS.index("alpha")
         free[r, ka], base[r, ka] = False, 1.0
@@ -210,15 +210,16 @@ class ParameterSet(Mapping[str, Parameter]):
                 k = PARAMETERS.index(name)
                 members = [i for i in rows if free[i, k]]
                 if len(rows) >= 2 and not members:
-                    raise SpecError(f"{spec.path}: [tie #{j + 1}] {name} is free for none of {list(t.phonemes)} "
-                                    f"on {ch}: nothing to tie")
+                    raise SpecError.at(spec.path, f"tie #{j + 1}", f"{name} is free for none of {list(t.phonemes)} "
+                                       f"on {ch}: nothing to tie")
                 held = [i for i in rows if not free[i, k]]
                 if members and held:
                     # a tie means one shared value: a member held at its own value would silently not share it
                     i = held[0]
                     by = f"[{origin[i, k]}]" if origin[i, k] else f"{name} is not in [parameters] free for it"
-                    raise SpecError(f"{spec.path}: [tie #{j + 1}] ties {name} of {list(t.phonemes)} on {ch}, but "
-                                    f"{phon[i]}.{name} is fixed ({by}): free it, or take {phon[i]} out of the tie")
+                    raise SpecError.at(spec.path, f"tie #{j + 1}", f"ties {name} of {list(t.phonemes)} on {ch}, but "
+                                       f"{phon[i]}.{name} is fixed ({by}): free it, or take {phon[i]} out of the tie",
+                                       phoneme=phon[i])
                 if len(members) < 2:
                     continue  # fewer than two present (and free) here: nothing to share
                 leader = members[0]
@@ -235,8 +236,8 @@ class ParameterSet(Mapping[str, Parameter]):
         outside = free & ((base < lower) | (base > upper)) & (origin != "")
         if outside.any():
             i, k = map(int, np.argwhere(outside)[0])
-            raise SpecError(f"{spec.path}: [{origin[i, k]}] start {base[i, k]:g} of {phon[i]}.{PARAMETERS[k]} on {ch} "
-                            f"is outside its bounds [{lower[i, k]:g}, {upper[i, k]:g}]")
+            raise SpecError.at(spec.path, str(origin[i, k]), f"start {base[i, k]:g} of {phon[i]}.{PARAMETERS[k]} on {ch} "
+                               f"is outside its bounds [{lower[i, k]:g}, {upper[i, k]:g}]", phoneme=phon[i])
         # A default (or data, or start-table) value outside a box starts on its nearest bound.
         base = np.where(free, np.clip(base, lower, upper), base)
         beta_free = spec.fit_beta and spec.variant == "modified"
@@ -327,7 +328,7 @@ def expand_priors(spec: FitSpec, channel: str, phonemes: tuple[str, ...], free: 
         phoneme, _, name = key.rpartition(".")
         if name == BETA:
             if not beta_free:
-                raise SpecError(f"{spec.path}: [parameters.prior.{key}] beta is not fitted ([model] fit_beta)")
+                raise SpecError.at(spec.path, f"parameters.prior.{key}", f"beta is not fitted ([model] fit_beta)")
             out[BETA] = Prior(mean, sd, log)
             continue
         k = PARAMETERS.index(name)
@@ -335,12 +336,12 @@ def expand_priors(spec: FitSpec, channel: str, phonemes: tuple[str, ...], free: 
             if phoneme not in phonemes:
                 continue
             if not free[phonemes.index(phoneme), k]:
-                raise SpecError(f"{spec.path}: [parameters.prior.{key}] {key} is not free on {channel}: a prior on "
-                                "a fixed value would do nothing")
+                raise SpecError.at(spec.path, f"parameters.prior.{key}", f"{key} is not free on {channel}: a prior on "
+                                   "a fixed value would do nothing")
             out[key] = Prior(mean, sd, log)
         else:
             if not free[:, k].any():
-                raise SpecError(f"{spec.path}: [parameters.prior.{key}] {name} is free for no phoneme on {channel}")
+                raise SpecError.at(spec.path, f"parameters.prior.{key}", f"{name} is free for no phoneme on {channel}")
             for i, p in enumerate(phonemes):
                 if free[i, k]:
                     out[f"{p}.{name}"] = Prior(mean, sd, log)

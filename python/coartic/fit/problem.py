@@ -420,8 +420,8 @@ def shrink_groups(spec: FitSpec, channel: str, phonemes: Sequence[str], free: Bo
         for name in s.parameters:
             k = PARAMETERS.index(name)
             if not free[list(rows), k].any():
-                raise SpecError(f"{spec.path}: [{s.key}] {name} is free for none of {list(s.phonemes)} on {channel}: "
-                                "nothing to shrink")
+                raise SpecError.at(spec.path, f"{s.key}", f"{name} is free for none of {list(s.phonemes)} on {channel}: "
+                                   "nothing to shrink")
             members = tuple(phonemes[i] for i in rows)
             out.append(ShrinkGroup(s.key, members, rows, k, s.sd, s.log))
     return out
@@ -892,8 +892,8 @@ class SpeakerRows:
         out = []
         for g in groups:
             if g.parameter == "target":
-                raise SpecError(f"{spec.path}: [{g.key}] shrinks target, but [model] speakers = \"targets\" gives "
-                                "every speaker its own targets: shrink the dynamics only")
+                raise SpecError.at(spec.path, f"{g.key}", f"shrinks target, but [model] speakers = \"targets\" gives "
+                                   "every speaker its own targets: shrink the dynamics only")
             out.append(replace(g, rows=tuple(self.leader(i) for i in g.rows)))
         return out
 
@@ -914,8 +914,8 @@ def expand_speaker_targets(spec: FitSpec, data: ChannelData, ps: ParameterSet, d
     spk = utterance_speakers(data.utterances, "targets", column, names)
     bad = [n for n in spk if SPEAKER_SEP in n]
     if bad:
-        raise SpecError(f"{spec.path}: [model] speakers = \"targets\": speaker name {bad[0]!r} contains "
-                        f"{SPEAKER_SEP!r}")
+        raise SpecError.at(spec.path, "model", f"speakers = \"targets\": speaker name {bad[0]!r} contains "
+                           f"{SPEAKER_SEP!r}")
     kt = PARAMETERS.index("target")
     for f, ld in ps.ties:
         if f % N_PARAMS == kt:

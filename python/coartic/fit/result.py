@@ -246,6 +246,23 @@ class FitResult:
         """``parameters.csv``: every channel's parameter set (value, stderr, free, bounds, flags)."""
         return [row for fit in self.channels.values() for row in fit.parameters.rows()]
 
+    def to_dataframe(self, what: str = "parameters") -> Any:
+        """pandas DataFrame of ``parameters.csv`` (``what="parameters"``: one row per channel,
+        phoneme and parameter with value, standard error, free, tie, bounds and flags; NaN where a
+        number does not apply) or of ``rmse.csv`` (``"rmse"``: per channel and group)."""
+        import pandas as pd
+
+        if what == "rmse":
+            return pd.DataFrame(self.rmse_rows(), columns=["channel", "group", "value", "rmse_mm", "samples",
+                                                           "below_bar"])
+        if what != "parameters":
+            raise ValueError(f"to_dataframe({what!r}): expected 'parameters' or 'rmse'")
+        df = pd.DataFrame(self.parameter_rows())
+        for col in ("value", "stderr", "lower", "upper", "prior_mean", "prior_sd"):
+            if col in df:  # "" (no standard error, no prior) is a missing number
+                df[col] = pd.to_numeric(df[col].replace("", float("nan")), errors="raise").astype("float64")
+        return df
+
     def report_text(self, max_corr: int = 10) -> str:
         """An lmfit-like fit report: statistics, warnings, strongest correlations, per channel."""
         lines = [f"[[Fit]] {self.spec.name} ({self.spec.path})", f"    engine: {self.spec.engine}, "

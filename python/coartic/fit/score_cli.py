@@ -11,7 +11,7 @@ from rich.console import Console
 from rich.markup import escape
 from rich.table import Table
 
-from coartic.console import print_error
+from coartic.console import print_error, print_table
 from coartic.fit.result import BAR_MM
 
 
@@ -47,7 +47,7 @@ def score_command(
     except (ValueError, OSError) as e:  # DataError, TableError, ModelInputError, OutputError
         print_error(console, e)
         raise typer.Exit(2) from None
-    console.print(score_table(score))
+    print_table(console, score_table(score))
     for note in score.notes:
         console.print(f"note: {escape(note)}", soft_wrap=True, highlight=False)
     if out is not None:

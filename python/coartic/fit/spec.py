@@ -47,7 +47,19 @@ DEFAULT_STAGES: tuple[tuple[str, ...], ...] = (
 
 
 class SpecError(CoarticError, ValueError):
-    """A fit specification that cannot be used; the message names the file and the key."""
+    """A fit specification that cannot be used; the message names the file and the key, and so do
+    the attributes ``file`` (the spec's path), ``key`` (``"model.beta"``, ``"override #2.fixed.k_r"``)
+    and, where one is at fault, ``phoneme`` (its name), for programs that must not parse prose."""
+
+    file: Path | None = None
+    key: str | None = None
+
+    @classmethod
+    def at(cls, file: Path, key: str, message: str, phoneme: str | None = None) -> SpecError:
+        """``file: [key] message``, with the place in the attributes as well."""
+        err = cls(f"{file}: [{key}] {message}")
+        err.file, err.key, err.phoneme = file, key, phoneme
+        return err
 
 
 @dataclass(frozen=True)
@@ -183,7 +195,7 @@ class FitSpec:
 
 
 def _err(path: Path, key: str, msg: str) -> SpecError:
-    return SpecError(f"{path}: [{key}] {msg}")
+    return SpecError.at(path, key, msg)
 
 
 def _array_of_tables(raw: dict[str, Any], name: str, path: Path) -> list[tuple[str, dict[str, Any]]]:

@@ -1,15 +1,18 @@
 """Which reader reads a file: a registry keyed by extension and, where extensions are shared or
 absent, by the file's first bytes.
 
-Each reader module registers itself at import (`register(Reader(...))`); `coartic.io` imports the
-reader modules, so `load_trial` finds every format without importing each reader by name. A new
-format is one module with one `register` call, plus its line in `coartic/io/__init__.py`.
+Each reader module registers itself at import (`register(Reader(...))`); the registry imports the
+built-in reader modules the first time a file's reader is asked for (not before: reading labels
+alone loads none of them), so `load_trial` finds every format without importing each reader by
+name. A new format is one module with one `register` call, plus its name in `BUILTIN_READERS`
+(or an import of the module by whoever adds it).
 """
 
 from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass
+from importlib import import_module
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -56,6 +59,14 @@ class Reader:
 
 
 _READERS: list[Reader] = []
+# the modules of the built-in readers, imported on first use
+BUILTIN_READERS = ("coartic.io.c3d", "coartic.io.ema", "coartic.io.emu", "coartic.io.est",
+                   "coartic.io.markers_csv", "coartic.io.mview", "coartic.io.xrmb")
+
+
+def _load_builtin() -> None:
+    for module in BUILTIN_READERS:
+        import_module(module)
 
 
 def register(reader: Reader) -> Reader:
@@ -70,6 +81,7 @@ def register(reader: Reader) -> Reader:
 
 
 def readers() -> tuple[Reader, ...]:
+    _load_builtin()
     return tuple(_READERS)
 
 
@@ -77,6 +89,7 @@ def reader_for(p: Path) -> Reader:
     """The reader of `p`: among the readers of its extension, the first whose sniffer accepts the
     content, else the extension's default reader; for an unknown extension, the first reader
     whose sniffer accepts the content."""
+    _load_builtin()
     try:
         with p.open("rb") as f:
             head = f.read(HEAD_BYTES)
