@@ -40,6 +40,8 @@ EMA_SENSOR_GUESSES: dict[str, tuple[str, ...]] = {
 }
 _AXES = ("x", "y", "z")
 AXIS_KEYS = ("vertical", "anterior")
+# The key of the table metadata that holds the role map (and axes) a table was fitted with.
+ROLE_RECORD_KEY = "role_map"
 
 
 def _axis(spec: str, what: str, source: str) -> tuple[int, float]:
@@ -109,6 +111,30 @@ class RoleMap:
             roles[k.upper()] = v
         return cls(roles, str(axes.get("vertical", "+z")), str(axes.get("anterior", "-y")), source,
                    "axes" in d)
+
+    def to_record(self) -> dict[str, Any]:
+        """What a fitted table stores (metadata["role_map"]): the roles and axes the fit read its
+        recordings with, so that scoring reads new recordings of the same system alike."""
+        return {"source": self.source, "roles": dict(self.roles),
+                "axes": {"vertical": self.vertical, "anterior": self.anterior}}
+
+    @classmethod
+    def recorded(cls, table: Any) -> RoleMap | None:
+        """The role map ``table`` (a ParameterTable) was fitted with, or None if it records none; a
+        malformed record is the table's TableError."""
+        rec = table.metadata.get(ROLE_RECORD_KEY)
+        if rec is None:
+            return None
+        from coartic.table import TableError
+
+        where = f"{table.source}: metadata.{ROLE_RECORD_KEY}"
+        if not isinstance(rec, Mapping) or not isinstance(rec.get("roles", {}), Mapping):
+            raise TableError(f"{where} must be an object with 'roles' and 'axes', found {str(rec)[:80]!r}")
+        try:
+            return cls.from_dict({**rec.get("roles", {}), "axes": rec.get("axes", {})},
+                                 f"the role map recorded in {table.source} ({rec.get('source', 'no source')})")
+        except DataError as e:
+            raise TableError(f"{where}: {e}") from None
 
     @classmethod
     def from_file(cls, path: str | PathLike[str]) -> RoleMap:
