@@ -32,7 +32,8 @@ from coartic.runtime.animate import (
     write_segments_tsv,
 )
 from coartic.runtime.errors import AnimationError, MissingPhonemeError
-from coartic.runtime.fap import FaceUnits, FapSequence, channels_to_faps, write_fap
+from coartic.runtime.fap import FaceUnits, FapSequence, add_blinks, add_tongue_faps, channels_to_faps, write_fap
+from coartic.runtime.tongue import tongue_channels
 from coartic.runtime.festival import DEFAULT_VOICE, FestivalUtterance, PhoneMap, synthesize, wav_duration
 from coartic.runtime.preview import plot_channels, render_preview, render_strip
 from coartic.speakers import SpeakerMapping, speaker_mapping
@@ -147,6 +148,8 @@ def _write_outputs(
 ) -> RuntimeOutput:
     neutral = speaker_neutral(table, mapping)
     faps = channels_to_faps(animation.channels, neutral, face, name, animation.fps)
+    tongue, tongue_rest, _ = tongue_channels(table, animation)
+    faps = add_blinks(add_tongue_faps(faps, tongue, tongue_rest, face))
     out.mkdir(parents=True, exist_ok=True)
     files: dict[str, Path] = {}
     files["channels"] = out / "channels.csv"
