@@ -9,11 +9,16 @@ import math
 from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 from numpy.typing import NDArray
 
 from coartic.runtime.errors import AnimationError, FapFormatError
+
+if TYPE_CHECKING:
+    from coartic.runtime.animate import Animation
+    from coartic.runtime.exporters import ExportSettings
 
 N_FAPS = 68
 
@@ -364,3 +369,22 @@ def add_blinks(seq: FapSequence) -> FapSequence:
         values[:, fap - 1] = closed
         mask[:, fap - 1] = True
     return FapSequence(name=seq.name, fps=seq.fps, mask=mask, values=values, first_frame=seq.first_frame)
+
+
+def animation_faps(animation: Animation, face: FaceUnits, name: str) -> FapSequence:
+    """The animation's FAPs in `face`'s units: lips and jaw from its channels and neutral face, the
+    tongue from its table's tongue channels or the default (coartic.runtime.tongue), and blinks."""
+    from coartic.runtime.tongue import tongue_channels
+
+    faps = channels_to_faps(animation.channels, animation.neutral, face, name, animation.fps)
+    tongue, rest, _ = tongue_channels(animation)
+    return add_blinks(add_tongue_faps(faps, tongue, rest, face))
+
+
+def export_fap(animation: Animation, settings: ExportSettings) -> dict[str, Path]:
+    """Exporter (coartic.runtime.exporters): NAME.fap."""
+    path = settings.out / f"{settings.name}.fap"
+    tmp = settings.out / f"{settings.name}.fap.part"
+    write_fap(tmp, animation_faps(animation, settings.face, settings.name))
+    tmp.replace(path)
+    return {"fap": path}

@@ -69,15 +69,15 @@ def default_tongue_table(phonemes: list[str], source: str = "coartic default ton
     return ParameterTable.from_json_dict(doc, source)
 
 
-def tongue_channels(table: ParameterTable, animation: Animation) -> tuple[dict[str, NDArray[np.float64]],
-                                                                          dict[str, float], list[str]]:
+def tongue_channels(animation: Animation) -> tuple[dict[str, NDArray[np.float64]], dict[str, float], list[str]]:
     """The tongue channels at the animation's frames, their rest values, and which of them came from
-    `table` (the others from the default table)."""
-    have = [c for c in TONGUE_CHANNELS if c in table.channels
+    the animation's table (the others from the default table)."""
+    table = animation.table
+    have = [c for c in TONGUE_CHANNELS if table is not None and c in table.channels
             and all(c in table.values.get(p, {}) for p in set(animation.segments.labels))]
     out: dict[str, NDArray[np.float64]] = {}
     rest: dict[str, float] = {}
-    if have:
+    if table is not None and have:
         anim = animate(table, animation.segments, animation.fps, duration=animation.duration, channels=have)
         out.update(anim.channels)
         rest.update(neutral_posture(table, have))
