@@ -56,17 +56,29 @@ def comparison_table(cmp: object) -> Table:
     from coartic.fit.compare import Comparison
 
     assert isinstance(cmp, Comparison)
-    t = Table(title=f"Model comparison (RMSE in mm, bar {BAR_MM} mm; lower AIC/BIC is better)")
-    for c in ("model", "channel", "free", "RMSE", "held-out", "held-out, no offsets", "AIC", "BIC", "status"):
+    t = Table(title=f"Model comparison (RMSE in mm, bar {BAR_MM} mm; lower AIC/BIC is better)",
+              caption="step model: each phoneme's training mean on the same held-out samples (as measured / no "
+                      "offsets); ✗ = the table does not beat it")
+    for c in ("model", "channel", "free", "RMSE", "held-out", "held-out, no offsets", "step model", "AIC", "BIC",
+              "status"):
         t.add_column(c, justify="left" if c in ("model", "channel", "status") else "right")
 
     def f(v: float, fmt: str, best: bool = False) -> str:
         s = "–" if not math.isfinite(v) else format(v, fmt)
         return f"[bold green]{s}[/bold green]" if best else s
 
+    def step(r: object) -> str:
+        from coartic.fit.compare import Row
+
+        assert isinstance(r, Row)
+        if "step" not in r.baselines:
+            return "–"
+        s = f"{r.baselines['step'][0]:.3f} / {r.baselines['step'][1]:.3f}"
+        return s if r.beats_step else f"{s} [bold red]✗[/bold red]"
+
     for r in cmp.rows:
         t.add_row(escape(r.model), r.channel, str(r.n_free), f(r.rmse, ".3f"),
                   f(r.heldout_rmse, ".3f", cmp.best(r.channel, "heldout_rmse") == r.model),
-                  f(r.heldout_rmse_offset_removed, ".3f"), f(r.aic, ".1f"),
+                  f(r.heldout_rmse_offset_removed, ".3f"), step(r), f(r.aic, ".1f"),
                   f(r.bic, ".1f", cmp.best(r.channel, "bic") == r.model), escape(r.status))
     return t

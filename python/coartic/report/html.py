@@ -102,12 +102,15 @@ def write_report(result: FitResult, out: str | Path, console: Console | None = N
     if result.validation:
         add(plots.heldout_figure(result), "heldout.png",
             "RMSE per channel on the samples the fit did not see (every split pooled), as measured and with each "
-            f"utterance's offset removed, beside the fit's own RMSE (dashed: the {BAR_MM} mm bar).", "heldout")
+            "utterance's offset removed, beside the fit's own RMSE and the baselines' held-out RMSE on the same "
+            f"samples (dashed: the {BAR_MM} mm bar).", "heldout")
     if result.choice is not None and (out / "choose.png").is_file():  # written by result.save (choose.csv beside it)
         figures["other"].append({"src": "choose.png", "caption": f"{result.choice.choose.key} chosen by "
                                  "cross-validation on the training data: mean held-out RMSE ± one SE over the folds; "
                                  f"star: the chosen value (rule {result.choice.choose.rule}). The numbers are in "
                                  "choose.csv and the fit report below."})
+    from coartic.fit.validate import flags
+
     truth = _ground_truth(result)
     if truth is not None:
         add(plots.truth_figure(result, truth), "truth.png",
@@ -121,7 +124,8 @@ def write_report(result: FitResult, out: str | Path, console: Console | None = N
         result=result, spec=result.spec, bar=BAR_MM, figures=figures, sections=SECTIONS,
         group_rows=[r for r in result.rmse_rows() if r["group"] != "all"],
         channels=result.channels, report_text=result.report_text(), extras=extras,
-        validation=_validation_rows(out), heldout=_heldout_summary(result), bounds=bounds,
+        validation=_validation_rows(out), validation_flags=flags(result.validation or []),
+        heldout=_heldout_summary(result), bounds=bounds,
         bound_counts={c: summary_counts(f.stats.bounds) if f.stats else "" for c, f in result.channels.items()})
     path = out / "report.html"
     atomic_write_text(path, html)

@@ -156,15 +156,22 @@ def substitute(
 
     A phoneme with no usable fallback stays, so that check_phonemes names it.
     """
+    used = substitutions(segments.labels, table, channels, fallbacks)
+    return (segments.with_labels([used.get(ph, ph) for ph in segments.labels]) if used else segments), used
+
+
+def substitutions(
+    labels: Sequence[str], table: ParameterTable, channels: Sequence[str], fallbacks: Mapping[str, Sequence[str]]
+) -> dict[str, str]:
+    """Each of `labels` the table lacks (on any of `channels`) → its first fallback the table has
+    (the phonetic class's, e.g. phones_italian.tsv); a phoneme with none is left out."""
     complete = {p for p, per in table.values.items() if all(c in per for c in channels)}
     used: dict[str, str] = {}
-    labels = []
-    for ph in segments.labels:
+    for ph in labels:
         choice = _first_available(ph, fallbacks.get(ph, ()), complete)
         if choice != ph:
             used[ph] = choice
-        labels.append(choice)
-    return (segments.with_labels(labels) if used else segments), used
+    return used
 
 
 def _first_available(phoneme: str, fallbacks: Sequence[str], available: Container[str]) -> str:
