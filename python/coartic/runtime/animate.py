@@ -181,6 +181,31 @@ def _first_available(phoneme: str, fallbacks: Sequence[str], available: Containe
     return phoneme
 
 
+# How long the pause after the last word lasts for the model (s). A pause's target time lies in
+# its middle (MODEL.md §1), so the longer the silence a WAV or label file carries after the last
+# word, the later the model aims the return to rest, and the mouth went on opening after the voice
+# had stopped (44 ms after the last /a/ of "Il babbo mangia la pappa.", Festival's 0.43-s final
+# pause). Silence is not articulation: the final pause is given this span and the rest of the
+# silence is a second pause, held at rest. bench/runtime_lag.py measures it over sentences and rates.
+FINAL_PAUSE_S = 0.1
+
+
+def split_final_pause(segments: Segments, span: float = FINAL_PAUSE_S) -> tuple[Segments, list[int]]:
+    """The segments with an utterance-final pause longer than `span` split in two, the first part
+    lasting `span`; and for each new segment the index of the one it came from (to carry
+    per-segment columns along). Without a final pause after speech, the segments as they are."""
+    n = len(segments)
+    origin = list(range(n))
+    speech = [i for i, p in enumerate(segments.labels) if p != PAUSE]
+    if not speech or speech[-1] != n - 2 or segments.ends[-1] - segments.starts[-1] <= span:
+        return segments, origin
+    cut = float(segments.starts[-1]) + span
+    out = Segments((*segments.labels, PAUSE), np.append(segments.starts, cut),
+                   np.append(np.append(segments.ends[:-1], cut), segments.ends[-1]), source=segments.source,
+                   lines=(*segments.lines, segments.lines[-1]), tier=segments.tier)
+    return out, [*origin, n - 1]
+
+
 def evaluate(
     table: ParameterTable, segments: Segments, times: NDArray[np.float64], channels: Sequence[str] = CHANNELS
 ) -> dict[str, NDArray[np.float64]]:
