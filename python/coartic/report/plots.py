@@ -367,6 +367,39 @@ def truth_figure(result: FitResult, truth: ParameterTable) -> Figure | None:
     return fig
 
 
+def heldout_figure(result: FitResult) -> Figure | None:
+    """Per channel: the fit's own RMSE and the held-out RMSE (every split's test samples pooled), as
+    measured and with each utterance's offset removed, then each baseline's held-out RMSE on the
+    same samples (``coartic.fit.baselines``, those the validation computed), the bar dashed."""
+    from coartic.fit.baselines import BASELINES, TITLES
+    from coartic.fit.validate import pooled
+
+    scores = result.validation or []
+    held = pooled(scores)
+    chans = [ch for ch in result.channels if ch in held]
+    if not chans:
+        return None
+    nan = (float("nan"), float("nan"), 0)
+    bars = [("fit (in-sample)", [result.channels[ch].rmse for ch in chans], "0.6"),
+            ("held out", [held[ch][0] for ch in chans], "C0"),
+            ("held out, offset removed", [held[ch][1] for ch in chans], "C9")]
+    for b, colour in zip(BASELINES, ("C1", "C2", "C4")):  # (C3, red, is the bar's)
+        base = pooled(scores, b)
+        if base:
+            bars.append((f"baseline: {TITLES[b]}", [base.get(ch, nan)[0] for ch in chans], colour))
+    fig, ax = plt.subplots(figsize=(4.0 + (0.25 + 0.2 * len(bars)) * len(chans), 2.8))  # legend on the right
+    x = np.arange(len(chans))
+    w = 0.8 / len(bars)
+    for k, (label, values, colour) in enumerate(bars):
+        ax.bar(x - 0.4 + w * (k + 0.5), values, w, color=colour, label=label)
+    ax.axhline(BAR_MM, color="C3", ls="--", lw=0.8)
+    ax.set_xticks(x, chans)
+    ax.set_ylabel("RMSE (mm)")
+    ax.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.0, 1.0))
+    fig.tight_layout()
+    return fig
+
+
 def save(fig: Figure, path: Path) -> Path:
     fig.savefig(path, dpi=110)
     plt.close(fig)
