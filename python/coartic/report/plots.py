@@ -11,6 +11,8 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 from matplotlib.figure import Figure  # noqa: E402
+from matplotlib.lines import Line2D  # noqa: E402
+from matplotlib.patches import Rectangle  # noqa: E402
 from numpy.typing import NDArray  # noqa: E402
 
 from coartic.fit.result import BAR_MM, ChannelFit, FitResult  # noqa: E402
@@ -195,7 +197,7 @@ def trajectory_figure(fit: ChannelFit, table: ParameterTable, utterances: Sequen
         if _long(utts):  # one utterance per row: the time axis is labelled under the weights only
             top.tick_params(labelbottom=False)
         titles.append(f"{utterance_title(utt)}   RMSE {rm:.2f} mm")
-    handles = [plt.Line2D([], [], color=c, lw=2) for c in colours.values()]
+    handles = [Line2D([], [], color=c, lw=2) for c in colours.values()]
     _bottom_legend(fig, handles, list(colours), "weight of each phoneme's target (lower panels)")
     _label_and_title(axes[0], utts, titles, width_in)
     return fig
@@ -327,7 +329,7 @@ def rmse_map_figure(result: FitResult) -> Figure | None:
                 grid[cons.index(c), vows.index(v)] = rm
         im = ax.imshow(grid, aspect="auto", cmap="viridis", vmin=0, vmax=vmax)
         for i, j in np.argwhere(grid >= BAR_MM):
-            ax.add_patch(plt.Rectangle((j - 0.5, i - 0.5), 1, 1, fill=False, ec="red", lw=1.5))
+            ax.add_patch(Rectangle((j - 0.5, i - 0.5), 1, 1, fill=False, ec="red", lw=1.5))
         ax.set_xticks(range(len(vows)), vows)
         ax.set_yticks(range(len(cons)), cons if ax is axes[0, 0] else [], fontsize=7)
         ax.set_title(ch, fontsize=9)
