@@ -265,3 +265,31 @@ def test_inspect_fit_and_score_read_every_format(files, tmp_path: Path) -> None:
     r = CliRunner().invoke(app, ["score", str(out / "table.json"), *rec, *lab], env=COLUMNS)
     assert r.exit_code == 0, r.output
     assert "TTH" in r.output and "TBA" in r.output
+
+
+def test_registry_unknown_format_and_a_new_reader(tmp_path: Path) -> None:
+    from coartic.io.registry import Reader, ReadRequest, readers, register
+    from coartic.io.trial import Trial
+
+    p = tmp_path / "x.weird"
+    p.write_bytes(b"\x00\x01nothing known")
+    with pytest.raises(DataError, match=r"x\.weird: cannot tell the format of this file \(extension "
+                                        r"'\.weird'\); coartic reads C3D \(\.c3d\); .*MOCHA-TIMIT"):
+        load_trial(p)
+    names = [r.name for r in readers()]
+    assert {"c3d", "ema-csv", "markers-csv", "emu", "est", "xrmb", "mview"} <= set(names)
+    assert names.index("ema-csv") < names.index("markers-csv")  # the generic sniffer asks last
+
+    def read(path: Path, req: ReadRequest) -> tuple[Trial, None]:
+        m = np.zeros((3, 2, 3))
+        m[:, 1, 2] = -10.0
+        return Trial(m, ("UL", "LL"), 100.0, source=path, kind="ema", meta={"notes": []}), None
+
+    try:
+        register(Reader("weird", "weird test format", (".weird",), read))
+        t = load_trial(p)
+        assert t.marker_names == ("UL", "LL") and "sensors" not in " ".join(t.meta["notes"])
+    finally:
+        from coartic.io import registry
+
+        registry._READERS[:] = [r for r in registry._READERS if r.name != "weird"]

@@ -21,8 +21,10 @@ from coartic.runtime.animate import Animation, target_times
 from coartic.runtime.errors import AnimationError
 from coartic.runtime.exporters import parse_exports
 from coartic.runtime.pipeline import RuntimeOutput, animate_file, speaker_face
+from coartic.runtime.fap import animation_faps, blink_profile
 from coartic.runtime.rigs import (
     ARKIT_BASIS,
+    ARKIT_DRIVEN,
     ARKIT_NAMES,
     JAW_OPEN_MM,
     VISEMES,
@@ -74,10 +76,12 @@ def test_arkit_csv_and_json_carry_all_52_names(run: RuntimeOutput) -> None:
     np.testing.assert_array_equal(w, np.array([[float(x) for x in r[2:]] for r in rows[1:]]))
     assert w.min() >= 0.0 and w.max() <= 1.0
     # what coartic does not drive stays at 0; what it drives moves
-    driven = [ARKIT_NAMES.index(n) for n in ARKIT_BASIS]
+    driven = [ARKIT_NAMES.index(n) for n in ARKIT_DRIVEN]
     others = [k for k in range(52) if k not in driven]
     assert not w[:, others].any()
-    for name in ("jawOpen", "mouthPressLeft", "mouthRollLower", "mouthPucker", "mouthLowerDownLeft"):
+    # the blinks are the FAP file's: the same schedule (the first comes 0.6 s in)
+    np.testing.assert_array_equal(w[:, ARKIT_NAMES.index("eyeBlinkLeft")], blink_profile(run.animation.times))
+    for name in ("jawOpen", "mouthPressLeft", "mouthRollLower", "mouthPucker", "mouthLowerDownLeft", "eyeBlinkRight"):
         assert w[:, ARKIT_NAMES.index(name)].max() > 0.1, name
 
 
@@ -204,12 +208,35 @@ def test_arkit_gltf_morph_set(run: RuntimeOutput) -> None:
     chin = rig.mesh.feature_points["2.1"]
     jaw = fields[names.index("jawOpen")]
     assert jaw[chin, 1] < -10.0  # mm: the chin drops
-    assert not fields[names.index("eyeBlinkLeft")].any()
+    assert not fields[names.index("eyeLookUpLeft")].any()
+    lid = fields[names.index("eyeBlinkLeft")]
+    assert np.linalg.norm(lid, axis=1).max() > 5.0  # the lid shuts (mm)
     # a Left/Right pair adds up to the symmetric movement, each side mostly on its own half
     left, right = fields[names.index("mouthStretchLeft")], fields[names.index("mouthStretchRight")]
     corner_l, corner_r = rig.mesh.feature_points["2.4"], rig.mesh.feature_points["2.5"]
     assert left[corner_l, 0] > 5.0 and abs(left[corner_r, 0]) < 1e-9
     assert right[corner_r, 0] < -5.0 and abs(right[corner_l, 0]) < 1e-9
+
+
+def test_arkit_face_follows_the_fap_face(run: RuntimeOutput) -> None:
+    """Posed by its ARKit weights, the ARKit-named face is where the FAP face is: the same lips,
+    jaw and blinks up to the linear blend of the jaw's, lids' and lower lip's turns and what a
+    blendshape cannot follow (the lip roll that fades as the lip opens). The tongue is left out:
+    ARKit has no shape for it inside the mouth."""
+    anim = run.animation
+    table = ParameterTable.load(GROUND_TRUTH)
+    rig = default_rig()
+    face = speaker_face(table)
+    names, fields = arkit_morphs(rig, anim.neutral, face)
+    fap_pose = rig.pose(rig.weights(animation_faps(anim, face, "x")))
+    ark_pose = rig.mesh.vertices + np.tensordot(arkit_weights(anim), fields, axes=(1, 0))
+    for part, within in (("skin", 5.5), ("lower_teeth", 1.0), ("eyelids", 2.0)):
+        sel = rig.mesh.in_part(part)
+        moved = np.linalg.norm(fap_pose[:, sel] - rig.mesh.vertices[sel], axis=2).max()
+        off = np.linalg.norm(fap_pose[:, sel] - ark_pose[:, sel], axis=2)
+        assert moved > 5.0, part  # a part that moves ...
+        assert off.max() < within, part  # ... and the ARKit face follows it (mm)
+        assert np.median(off.max(axis=1)) < 0.5 * within, part
 
 
 def test_three_js_retargets_the_arkit_glb_by_name(run: RuntimeOutput, tmp_path: Path) -> None:

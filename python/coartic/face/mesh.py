@@ -82,7 +82,7 @@ class FaceMesh:
         return mask
 
     def point(self, fp: str) -> NDArray[np.float64]:
-        return self.vertices[self.feature_points[fp]]
+        return np.asarray(self.vertices[self.feature_points[fp]], dtype=np.float64)
 
     @property
     def mns(self) -> float:

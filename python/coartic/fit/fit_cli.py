@@ -11,7 +11,7 @@ from rich.markup import escape
 from rich.table import Table
 
 from coartic.fit.bounds import summary_counts
-from coartic.fit.result import BAR_MM, FitResult
+from coartic.fit.result import BAR_MM, UNIDENTIFIED_ADVICE, FitResult
 from coartic.fit.spec import ENGINES, FitSpec, SpecError, load_spec
 from coartic.console import print_error, print_table
 from coartic.table import ALL_CHANNELS
@@ -126,7 +126,12 @@ def warning_lines(result: FitResult) -> list[str]:
                          f"{escape(summary_counts(st.bounds))} (why: fit_report.txt, report.html)")
         if st and st.unidentified:
             lines.append(f"[yellow]{escape(ch)}: {len(st.unidentified)} parameter(s) not identified[/yellow] "
-                         "(see fit_report.txt)")
+                         "(why and what to do: fit_report.txt, summary.json)")
+            why = [(nm, st.unidentified_why[nm].partition(": ")[0]) for nm in st.unidentified if nm in st.unidentified_why]
+            lines += [f"    {escape(nm)}: {escape(w)}" for nm, w in why[:5]]
+            if why:
+                lines.append(f"    {escape(UNIDENTIFIED_ADVICE)}" + (f" ({len(why) - 5} more in fit_report.txt)"
+                                                                   if len(why) > 5 else ""))
     return lines
 
 

@@ -50,6 +50,8 @@ class ParameterStats:
     dof: int
     # why each parameter in at_bound is there, computed from the fit (coartic.fit.bounds)
     bounds: dict[str, BoundNote] = field(default_factory=dict)
+    # why each parameter in unidentified is not identified, and what to do (unidentified_reasons)
+    unidentified_why: dict[str, str] = field(default_factory=dict)
 
 
 def parameter_stats(problem: ChannelProblem, x: FloatArray, rtol: float = 1e-10) -> ParameterStats:
@@ -80,8 +82,44 @@ def parameter_stats(problem: ChannelProblem, x: FloatArray, rtol: float = 1e-10)
     near = (np.abs(x - lo) <= 1e-6 * width) | (np.abs(hi - x) <= 1e-6 * width)
     at_bound = [nm for nm, b in zip(names, near) if b]
     notes = explain_bounds(problem, x, at_bound, jac, r, s2, corr)
+    why = unidentified_reasons(names, jtj, v[:, ~keep], unident)
     return ParameterStats(names, values, stderr, corr, at_bound, [nm for nm, b in zip(names, unident) if b], s2, dof,
-                          notes)
+                          notes, why)
+
+
+# A Jacobian column whose norm is below this fraction of the largest one: the fit does not depend on it.
+ZERO_COLUMN = 1e-8
+UNIDENTIFIED_ADVICE = ("fix it (leave it out of [parameters] free, or an [[override]] with a fixed value), tie it to "
+                       "a like phoneme's ([[tie]]), pull it towards one ([[shrink]] or a prior), or add recordings "
+                       "that carry it")
+
+
+def unidentified_reasons(names: Sequence[str], jtj: FloatArray, null: FloatArray,
+                         unident: NDArray[np.bool_]) -> dict[str, str]:
+    """Why each parameter the data leave undetermined is so, in the terms a user can act on: the
+    data do not depend on it at all (a zero Jacobian column; every parameter of its phoneme so: no
+    measured sample within the phoneme's reach), or only a combination with others is determined
+    (the null direction it loads on names the partner); each with the alternatives."""
+    col = np.sqrt(np.clip(np.diag(jtj), 0.0, None))
+    zero = col <= ZERO_COLUMN * max(float(col.max(initial=0.0)), 1e-300)
+    phoneme = [nm.rpartition(".")[0] for nm in names]
+    out: dict[str, str] = {}
+    for i in np.flatnonzero(unident):
+        nm = names[int(i)]
+        if zero[i]:
+            all_zero = all(zero[j] for j in range(len(names)) if phoneme[j] == phoneme[i])
+            what = (f"no measured sample lies within /{phoneme[i]}/'s reach (every one of its parameters has a zero "
+                    "Jacobian column)" if all_zero and phoneme[i] else
+                    "the fitted trajectories do not depend on it (a zero Jacobian column)")
+        else:
+            load = null @ null[i]  # how the others move with it along the undetermined directions
+            load[i] = 0.0
+            k = int(np.argmax(np.abs(load)))
+            partner = names[k] if abs(load[k]) > 1e-6 else None
+            what = ("only a combination with " + partner + " is determined by the data (they trade off exactly)"
+                    if partner else "only a combination with other parameters is determined by the data")
+        out[nm] = f"{what}: {UNIDENTIFIED_ADVICE}"
+    return out
 
 
 @dataclass
@@ -302,6 +340,7 @@ class FitResult:
             if st.unidentified:
                 lines.append(f"    warning: {len(st.unidentified)} parameter(s) not identified by the data "
                              f"(no standard error): {', '.join(st.unidentified)}")
+                lines += [f"        {nm}: {st.unidentified_why[nm]}" for nm in st.unidentified if nm in st.unidentified_why]
             lines.append("    [[Variables]]")
             for prm in fit.parameters.values():
                 if not prm.free:
@@ -368,7 +407,8 @@ class FitResult:
                                      # why each is at its bound (coartic.fit.bounds.BoundNote fields)
                                      "at_bound_explained": [b.as_dict() for b in f.stats.bounds.values()]
                                      if f.stats else [],
-                                     "unidentified": f.stats.unidentified if f.stats else []}
+                                     "unidentified": f.stats.unidentified if f.stats else [],
+                                     "unidentified_explained": f.stats.unidentified_why if f.stats else {}}
                                 for ch, f in self.channels.items()}}
         if self.validation:
             from coartic.fit.validate import baseline_summary

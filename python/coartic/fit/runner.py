@@ -129,6 +129,9 @@ def run(spec: FitSpec | str | Path, out: str | Path | None = None, *, utterances
                 result.notes.append("interrupted while loading the trials: nothing was fitted")
                 return result
             result.notes += check_overrides(spec, utterances)
+        from coartic.fit.guards import small_data_notes
+
+        result.notes += small_data_notes(spec, utterances)  # settings the data cannot support: refused or warned
         if spec.choose is not None:  # the setting first, by k-fold CV on these (training) utterances
             from coartic.fit.choose import cross_validate
 

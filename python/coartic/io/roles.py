@@ -29,7 +29,8 @@ EMA_SENSOR_GUESSES: dict[str, tuple[str, ...]] = {
     "LL": ("ll", "lower_lip", "lowerlip", "llip"),
     # li: lower incisor (MOCHA); mi: mandible incisor pellet (X-ray Microbeam)
     "JAW": ("jw", "jaw", "li", "ji", "lower_incisor", "lowerincisor", "mand", "mi"),
-    "LC": ("lc", "lip_corner", "lipcorner", "corner"),
+    # ml: "mouth left", the lip-corner sensor of the Haskins IEEE rate database
+    "LC": ("lc", "lip_corner", "lipcorner", "corner", "ml", "mouth_left"),
     # t1: the X-ray Microbeam pellet nearest the tip
     "TT": ("tt", "t_tip", "tongue_tip", "tonguetip", "ttip", "tip", "t1"),
     # German EMU data: tt, tm (mid), tb (back); MOCHA: tt, tb (body), td (dorsum); Haskins: tt,

@@ -247,7 +247,7 @@ class LogPosterior:
 
     def in_support(self, x: FloatArray) -> NDArray[np.bool_]:
         x = np.atleast_2d(x)
-        return np.all((x >= self.lower) & (x <= self.upper), axis=1)
+        return np.asarray(np.all((x >= self.lower) & (x <= self.upper), axis=1), dtype=np.bool_)
 
     def matrices(self, x: FloatArray) -> tuple[FloatArray, FloatArray]:
         """Parameter matrices (walkers, n_phonemes, 10) and β values (walkers,) for x (walkers, dim)."""
@@ -396,7 +396,7 @@ class LogPosterior:
         width = self.upper - self.lower
         lo, hi = self.lower + 1e-6 * width, self.upper - 1e-6 * width
         pos = np.clip(center, lo, hi) + scale * width * rng.standard_normal((n, self.dim))
-        return np.clip(pos, lo, hi)
+        return np.asarray(np.clip(pos, lo, hi), dtype=np.float64)
 
     def predict(self, x: FloatArray) -> FloatArray:
         """Model trajectories (draws, n_samples) for parameter draws, through ``evaluate_batch`` (each

@@ -4,7 +4,7 @@ the dominance weights of its segments).
 
 - **ARKit** (`arkit_weights`): Apple's 52 blendshape names, all present; the mouth and jaw ones
   are driven from the channel displacements d_C = C − C_neutral (mm), each by the part of the
-  movement it stands for, the rest are 0. `ARKIT_BASIS` is what weight 1 of each driven shape
+  movement it stands for, eyeBlinkLeft/Right by the FAP file's blinks, the rest are 0. `ARKIT_BASIS` is what weight 1 of each driven shape
   means in channel millimetres, so that the weights are a decomposition of the channels (tested:
   jaw and lip opening rebuilt from the weights to 1e-9 mm where no weight saturates) and the
   ARKit morph set of the glTF (coartic.face.gltf, `--gltf-morphs arkit`) poses the face from them.
@@ -31,6 +31,7 @@ from numpy.typing import NDArray
 from coartic.outputs import atomic_write_text
 from coartic.runtime.animate import Animation
 from coartic.runtime.errors import AnimationError
+from coartic.runtime.fap import blink_profile
 from coartic.table import CHANNELS, PAUSE
 
 if TYPE_CHECKING:
@@ -79,7 +80,9 @@ ARKIT_BASIS: dict[str, dict[str, float]] = {
     "mouthRollLower": {"LLP": -ROLL_MM},
     "mouthRollUpper": {"ULP": -ROLL_MM},
 }
-ARKIT_DRIVEN: tuple[str, ...] = tuple(n for n in ARKIT_NAMES if n in ARKIT_BASIS)
+# the blinks of the FAP file (coartic.runtime.fap.blink_profile: the same schedule), eyelid FAPs 19, 20
+ARKIT_BLINKS: dict[str, int] = {"eyeBlinkLeft": 19, "eyeBlinkRight": 20}
+ARKIT_DRIVEN: tuple[str, ...] = tuple(n for n in ARKIT_NAMES if n in ARKIT_BASIS or n in ARKIT_BLINKS)
 
 # Meta (Oculus) Lipsync's 15 visemes, in its order.
 VISEMES: tuple[str, ...] = ("sil", "PP", "FF", "TH", "DD", "kk", "CH", "SS", "nn", "RR", "aa", "E", "ih", "oh", "ou")
@@ -145,6 +148,8 @@ def arkit_weights(animation: Animation) -> NDArray[np.float64]:
         w[f"mouthLowerDown{side}"] = np.clip(lower / LOWER_DOWN_MM, 0.0, 1.0)
         w[f"mouthPress{side}"] = press
         w[f"mouthStretch{side}"] = np.clip(d["LR"] / (2.0 * STRETCH_MM), 0.0, 1.0)
+    for name in ARKIT_BLINKS:
+        w[name] = blink_profile(animation.times)
     w["mouthRollLower"] = np.clip(-d["LLP"] / ROLL_MM, 0.0, 1.0)
     w["mouthRollUpper"] = np.clip(-d["ULP"] / ROLL_MM, 0.0, 1.0)
     return np.column_stack([w[name] for name in ARKIT_NAMES])

@@ -52,7 +52,7 @@ def minimize(problem: ChannelProblem, x0: NDArray[np.float64], options: dict[str
     jac = problem.jacobian
     if tr_solver == "exact":
         def jac(x: NDArray[np.float64]) -> NDArray[np.float64]:
-            return problem.jacobian(x).toarray()
+            return np.asarray(problem.jacobian(x).toarray(), dtype=np.float64)
     # No evaluation cap of our own: least_squares' default (100 x free parameters) lets a fit end
     # converged. A cap of 200 ended one-utterance fits of real EMA at max-evaluations (stage 2
     # needed 690-950 evaluations; docs/FITTING.md), while whole corpora converge in ~110.
