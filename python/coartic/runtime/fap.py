@@ -313,12 +313,12 @@ TONGUE_ZERO_FAPS: tuple[int, ...] = (43, 47)
 # Blinks: close_t_l_eyelid (19) and close_t_r_eyelid (20), IRISD units (iris diameter / 1024). A
 # blink lowers the lid by BLINK_CLOSED (a little more than an iris: the eye shuts), closing in
 # 80 ms, shut for 40 ms, opening in 160 ms, every 2.4-5 s (a fixed sequence of intervals, so
-# that every run of the same input gives the same file); the first comes 2 s in.
+# that every run of the same input gives the same file); the first comes 0.6 s in.
 BLINK_FAPS: tuple[int, int] = (19, 20)
 BLINK_CLOSED = 1100
 BLINK_SHAPE_S = (0.08, 0.04, 0.16)
 BLINK_INTERVALS_S = (3.2, 4.1, 2.6, 4.8, 3.5, 2.4, 4.4)
-BLINK_FIRST_S = 2.0
+BLINK_FIRST_S = 0.6
 
 
 def add_tongue_faps(seq: FapSequence, channels: Mapping[str, NDArray[np.float64]], neutral: Mapping[str, float],
