@@ -173,7 +173,32 @@ def test_a_phoneme_without_viseme_is_named(run: RuntimeOutput) -> None:
     odd = Animation(anim.fps, anim.times, anim.channels, anim.segments.with_labels(labels), neutral=anim.neutral,
                     table=anim.table)
     with pytest.raises(AnimationError, match="'@@' has no Meta viseme"):
-        viseme_weights(odd, np.ones((anim.n_frames, len(anim.segments))) / len(anim.segments))
+        viseme_weights(odd)
+
+
+def test_long_utterances_take_the_nearby_segments(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """Shares from the segments within SHARE_MARGIN_S of a block of frames equal those from all of
+    them (to 1e-6), block by block: a long file costs frames x nearby segments."""
+    import coartic.runtime.animate as animate_mod
+    import coartic.runtime.rigs as rigs_mod
+
+    rng = np.random.default_rng(3)
+    phones = ["a", "p", "i", "f", "u", "t", "a", "m", "l", "s"]
+    t, rows = 0.0, ["0.0 0.3 #"]
+    t = 0.3
+    for k in range(60):  # 60 phones, about 6 s of speech
+        d = float(rng.uniform(0.06, 0.16))
+        rows.append(f"{t:.4f} {t + d:.4f} {phones[k % len(phones)]}")
+        t += d
+    rows.append(f"{t:.4f} {t + 0.3:.4f} #")
+    (tmp_path / "long.tsv").write_text("\n".join(rows) + "\n")
+    anim = animate_file(tmp_path / "long.tsv", ParameterTable.load(GROUND_TRUTH), tmp_path / "o", preview="none").animation
+    near = viseme_weights(anim)
+    assert anim.segment_shares("LLO", 0, 10)[:, 40:].max() == 0.0  # far segments are not computed
+    monkeypatch.setattr(animate_mod, "SHARE_MARGIN_S", 1e9)
+    monkeypatch.setattr(rigs_mod, "SHARE_FRAMES", 7)
+    every = viseme_weights(anim)
+    np.testing.assert_allclose(near, every, atol=1e-6)
 
 
 def test_export_names_are_checked() -> None:
@@ -289,3 +314,15 @@ new THREE.GLTFLoader().parse(buf, "", gltf => {{
     skin = min(meshes.values(), key=lambda m: m["lowest0"])
     assert skin["lowest1"] < skin["lowest0"] - 0.01
     assert skin["moved"] > 0.01
+
+
+def test_a_table_without_pause_is_named_before_any_export(tmp_path: Path) -> None:
+    from coartic.runtime.errors import MissingPhonemeError
+    from coartic.runtime.fap import FaceUnits
+
+    table = ParameterTable.load(GROUND_TRUTH)
+    del table.values["#"]
+    (tmp_path / "l.tsv").write_text("0 0.2 a\n0.2 0.3 p\n0.3 0.5 a\n")
+    with pytest.raises(MissingPhonemeError, match="has no pause phoneme '#': its targets are the neutral face"):
+        animate_file(tmp_path / "l.tsv", table, tmp_path / "o", preview="none", face=FaceUnits(30.0, 50.0),
+                     exports="arkit")

@@ -87,9 +87,11 @@ def test_score_command_writes_tables_and_figures(ema_fit: tuple[Path, float], tm
     other = EMA / "dfgspp_mo1_prosody_0024_ema.csv"
     res = CliRunner().invoke(app, ["score", str(table_path), str(other), "-l",
                                    str(EMA / "dfgspp_mo1_prosody_0024_Segment.tsv"), "--channels", "JO"])
-    # (m is scored as its bilabial fallback b; O has no fallback the table has): the corpus label named too
+    # (m, O, N are scored as their class's fallbacks b, a, n; /u/ has none the table has): the corpus
+    # label (German SAMPA U, line 9) named beside the phoneme
     assert res.exit_code == 2 and "Traceback" not in res.output
-    assert "corpus label 'O'" in " ".join(res.output.split()) and "has no 'O'" in " ".join(res.output.split())
+    said = " ".join(res.output.split())
+    assert "segment 8, corpus label 'U' (phoneme 'u'" in said and "has no 'u'" in said
     res = CliRunner().invoke(app, ["score", str(table_path), str(U20[0]), "--channels", "JO"])
     assert res.exit_code == 2 and "give its label file" in res.output
 
