@@ -231,7 +231,7 @@ def test_chromium_shows_f_with_teeth_on_the_lip_and_u_narrowed(tmp_path: Path, c
     /p/ shows no tooth and no dark pixel; /f/ shows the upper incisors with the lower lip right
     under their edge in every central column (no dark gap: the lip is above the edge, behind the
     teeth); /a/ shows teeth and the dark mouth; /u/ is visibly narrower than rest (the table's
-    LR)."""
+    LR). In profile, the lower lip's front is behind the upper lip's at /f/ and not at /p/."""
     (tmp_path / "v.tsv").write_text(VISEMES)
     out = tmp_path / "out"
     res = CliRunner().invoke(app, ["animate", str(tmp_path / "v.tsv"), "-t", str(GROUND_TRUTH), "-o", str(out),
@@ -268,3 +268,12 @@ def test_chromium_shows_f_with_teeth_on_the_lip_and_u_narrowed(tmp_path: Path, c
     width = {ph: int(np.ptp(np.nonzero(px[ph]["lip"][rows])[1])) for ph in ("rest", "u")}
     assert table.values["u"]["LR"]["target"] / table.values["#"]["LR"]["target"] == 0.9
     assert width["u"] <= 0.95 * width["rest"], width
+    # in profile the lower lip's front sits back behind the upper lip's at /f/ (tucked in), not at /p/
+    setback = {}
+    for ph in ("p", "f"):
+        lip = mouth_pixels(screenshot(page, tmp_path / f"{ph}_profile.png", frame=shots[ph], face_only=400,
+                                      size=(400, 400), zoom=2.5, yaw=90.0))["lip"]
+        ys, xs = np.nonzero(lip)
+        mid = (ys.min() + ys.max()) // 2
+        setback[ph] = int(xs[ys >= mid].min() - xs[ys < mid].min())  # the face looks left
+    assert setback["f"] - setback["p"] >= 5, setback
