@@ -114,6 +114,20 @@ def test_est_reader_details(tmp_path: Path) -> None:
         load_trial(asc)
 
 
+def test_est_mngu0_style_is_3d_in_mm(tmp_path: Path) -> None:
+    m = ff.motion(200.0)
+    t = load_trial(ff.write_mngu0_est(tmp_path / "mngu0_s1_0001.ema", m))
+    assert t.marker_names == ("T1", "T2", "T3", "jaw", "upperlip", "lowerlip")
+    assert t.planar_axis is None and "positions read in mm" in " ".join(t.meta["notes"])
+    assert dict(t.roles.roles) == {"UL": "upperlip", "LL": "lowerlip", "JAW": "jaw", "TT": "T1",
+                                   "TB": "T3"}
+    assert "up = +z, forwards = -x" in " ".join(t.meta["notes"])
+    ch = t.channels()
+    want = _expected(m, t.rest_frames())
+    for c in ("LA", "ULO", "TTH", "TBA"):
+        np.testing.assert_allclose(ch[c], want[c], atol=1e-4, err_msg=c)
+
+
 def test_txy_reader_details(tmp_path: Path) -> None:
     m = ff.xrmb_motion()
     p = ff.write_txy(tmp_path / "tp002.txy", m, lost={"LL": (0, 1), "T3": (50,)})

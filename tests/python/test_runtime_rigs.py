@@ -314,3 +314,15 @@ new THREE.GLTFLoader().parse(buf, "", gltf => {{
     skin = min(meshes.values(), key=lambda m: m["lowest0"])
     assert skin["lowest1"] < skin["lowest0"] - 0.01
     assert skin["moved"] > 0.01
+
+
+def test_a_table_without_pause_is_named_before_any_export(tmp_path: Path) -> None:
+    from coartic.runtime.errors import MissingPhonemeError
+    from coartic.runtime.fap import FaceUnits
+
+    table = ParameterTable.load(GROUND_TRUTH)
+    del table.values["#"]
+    (tmp_path / "l.tsv").write_text("0 0.2 a\n0.2 0.3 p\n0.3 0.5 a\n")
+    with pytest.raises(MissingPhonemeError, match="has no pause phoneme '#': its targets are the neutral face"):
+        animate_file(tmp_path / "l.tsv", table, tmp_path / "o", preview="none", face=FaceUnits(30.0, 50.0),
+                     exports="arkit")

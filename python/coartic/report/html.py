@@ -12,6 +12,7 @@ with their own values escaped (coartic.mcmc.plots.html_fragment), are passed as 
 from __future__ import annotations
 
 import csv
+import re
 from pathlib import Path
 from typing import Any
 
@@ -46,12 +47,14 @@ SECTIONS = (("trajectories", "Trajectories and dominance"), ("residuals", "Resid
 
 
 def one_line(reading: str) -> str:
-    """The first clause of an at-bound reading ("k_R = 1: full resistance"): the row's summary;
-    the whole reading opens on demand."""
-    head = reading.split(" — ", 1)[0]
-    if head == reading:
-        head = reading.split(". ", 1)[0].rstrip(".")
-    return head
+    """The gist of an at-bound reading, for its row: the clause after the numbers ("T = 2 mm at the
+    top of its box: /e/ heads for a value beyond anything measured on LA: …" gives "/e/ heads for a
+    value beyond anything measured on LA"), asides in parentheses dropped. The whole reading opens
+    on demand."""
+    text = re.sub(r"\s*\([^()]*\)", "", reading)
+    parts = text.split(": ")
+    gist = parts[1] if len(parts) > 1 else parts[0]
+    return gist.split(" — ")[0].split(". ")[0].rstrip(".")
 
 
 def write_report(result: FitResult, out: str | Path, console: Console | None = None,
