@@ -307,3 +307,21 @@ def test_registry_unknown_format_and_a_new_reader(tmp_path: Path) -> None:
         from coartic.io import registry
 
         registry._READERS[:] = [r for r in registry._READERS if r.name != "weird"]
+
+
+def test_a_recorded_role_map_without_axes_keeps_the_formats_axes(files) -> None:  # type: ignore[no-untyped-def]
+    from types import SimpleNamespace
+
+    from coartic.io.roles import RoleMap
+
+    rec = RoleMap.from_dict({"UL": "ul", "LL": "ll", "JAW": "li", "TT": "tt"}).to_record()
+    assert "axes" not in rec  # the fit's map gave none: the guess applies again when scoring
+    table = SimpleNamespace(metadata={"role_map": rec}, source="t.json")
+    back = RoleMap.recorded(table)
+    assert back is not None and not back.axes_given
+    data, labels, lmap = files["mocha-binary"]
+    t = load_trial(data, labels=labels, label_map=lmap, role_map=back)
+    assert (t.roles.vertical, t.roles.anterior) == ("+y", "-x") and "LA" in t.channels()
+    given = RoleMap.from_dict({"UL": "ul", "axes": {"vertical": "+y", "anterior": "-x"}})
+    assert RoleMap.recorded(SimpleNamespace(metadata={"role_map": given.to_record()},
+                                            source="t.json")).axes_given  # type: ignore[union-attr]
