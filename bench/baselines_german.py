@@ -8,11 +8,11 @@ tests/data/realdata/emu-ema-german (speaker mo1, LA and JO):
 
 1. **Another sentence**: fit utterance 0024 alone (fit/ema_german_0024.toml), predict 0020. This is
    what ``coartic fit fit/ema_german_0024.toml`` then ``coartic score TABLE 0020 --labels ...``
-   print. The reverse (fit 0020, predict 0024) cannot be scored: 0024 has /O u v/, which 0020 lacks
-   and whose phonetic classes it lacks too.
+   print. The reverse (fit 0020, predict 0024) cannot be scored: 0024 has /u v/, which 0020 lacks,
+   and 0020 lacks their fallbacks /o f/ too.
 2. **Split in time**: each utterance cut at its middle segment; fit the first halves of both,
    predict the second halves. Phonemes the first halves lack are scored as their phonetic class's
-   fallback (as ``coartic score`` does; listed in the output).
+   fallback of the german_sampa label map (as ``coartic score`` does; listed in the output).
 
 There is no other token of either sentence (no repetition, no other rate), so the warped-token
 baseline does not apply here. Output in bench/results/baselines_german.txt:

@@ -150,3 +150,21 @@ def test_score_falls_back_to_the_phonetic_class_unless_strict(ema_fit: tuple[Pat
     assert any("/b/ (scored as /p/)" in n for n in sc.notes)
     with pytest.raises(ValueError, match=r"corpus label 'b' \(phoneme 'b' by the label map"):
         score_recordings(other, [U20[0]], [U20[1]], channels=["JO"], strict=True)
+
+
+def test_baselines_from_the_recorded_spec_or_train(ema_fit: tuple[Path, float], tmp_path: Path) -> None:
+    table_path, _ = ema_fit
+    t = ParameterTable.load(table_path)
+    gone = tmp_path / "gone.toml"  # a spec whose corpus is no longer there
+    gone.write_text('[corpus]\nfiles = ["nothere.csv"]\nlabels = ["nothere.tsv"]\n[model]\nchannels = ["JO"]\n')
+    t.metadata["spec"] = str(gone)
+    moved = tmp_path / "moved.json"
+    t.save(moved)
+    sc = score_recordings(moved, [U20[0]], [U20[1]], channels=["JO"])
+    assert sc.baselines == {} and any(n.startswith("no baselines: the training corpus of") for n in sc.notes)
+    with pytest.raises(ValueError, match="nothere"):  # named by --train: its errors are the user's to see
+        score_recordings(moved, [U20[0]], [U20[1]], channels=["JO"], train=gone)
+    t.metadata["spec"] = str(tmp_path / "never.toml")
+    t.save(moved)
+    sc = score_recordings(moved, [U20[0]], [U20[1]], channels=["JO"])
+    assert any(n.startswith("no baselines: the table records no fit spec") for n in sc.notes)

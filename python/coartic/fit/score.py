@@ -336,8 +336,15 @@ def score_recordings(table: ParameterTable | str | PathLike[str], files: Sequenc
         from coartic.fit.data import load_utterances
         from coartic.fit.spec import load_spec
 
-        spec = load_spec(spec_path)
-        train_utts = load_utterances(spec.with_options(channels=chans))
+        try:
+            train_utts = load_utterances(load_spec(spec_path).with_options(channels=chans))
+        except (ValueError, OSError) as e:  # the recorded spec's corpus moved or changed: said, not fatal
+            if train is not None:
+                raise
+            notes.append(f"no baselines: the training corpus of {spec_path} (recorded in the table) could not be "
+                         f"loaded ({e}); give --train SPEC")
+            spec_path = None
+    if train_utts is not None:
         seen = {Path(u.meta.get("file", "")).resolve() for u in train_utts}
         inside = [Path(f).name for f in files if Path(f).resolve() in seen]
         if inside:
@@ -350,7 +357,7 @@ def score_recordings(table: ParameterTable | str | PathLike[str], files: Sequenc
         score.notes.append(f"sensors read with the table's recorded role map ({rmap.source})")
     if spec_path is not None:
         score.notes.append(f"baselines fitted on the training corpus of {spec_path}")
-    else:
+    elif not any(n.startswith("no baselines") for n in score.notes):
         score.notes.append("no baselines: the table records no fit spec that exists here; give --train SPEC")
     return score
 
@@ -370,7 +377,7 @@ def with_fallbacks(utterances: Sequence[Utterance], table: ParameterTable, chann
     from coartic.runtime.festival import PhoneMap
 
     own = getattr(label_map, "fallbacks", None)
-    fallbacks, source = (own, f"the label map ({label_map.source})") if own else (
+    fallbacks, source = (own, str(label_map.source)) if own else (
         PhoneMap.load().fallbacks, "phones_italian.tsv")
     used = substitutions([lab for u in utterances for lab in u.labels], table, channels, fallbacks)
     if not used:
