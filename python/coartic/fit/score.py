@@ -377,7 +377,7 @@ def with_fallbacks(utterances: Sequence[Utterance], table: ParameterTable, chann
     from coartic.runtime.festival import PhoneMap
 
     own = getattr(label_map, "fallbacks", None)
-    fallbacks, source = (own, f"the label map ({label_map.source})") if own else (
+    fallbacks, source = (own, str(label_map.source)) if own else (
         PhoneMap.load().fallbacks, "phones_italian.tsv")
     used = substitutions([lab for u in utterances for lab in u.labels], table, channels, fallbacks)
     if not used:
