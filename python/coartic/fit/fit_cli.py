@@ -13,6 +13,7 @@ from rich.table import Table
 from coartic.fit.bounds import summary_counts
 from coartic.fit.result import BAR_MM, FitResult
 from coartic.fit.spec import ENGINES, FitSpec, SpecError, load_spec
+from coartic.fit.staged import UNCONFIRMED_STATUSES
 from coartic.console import print_error
 from coartic.table import ALL_CHANNELS
 from coartic.outputs import OutputDir
@@ -23,8 +24,12 @@ def rmse_table(result: FitResult, title: str = "RMSE (mm)") -> Table:
     t = Table(title=f"{title} — the paper's bar is {BAR_MM} mm")
     # only the groupings the corpus has (a manifest without 'rate' has no worst rate)
     groups = [g for g in ("vowel", "consonant", "repetition", "rate") if result.worst(g)]
-    for col in ("channel", "all", *(f"worst {g}" for g in groups), "status"):
-        t.add_column(col, justify="left" if col in ("channel", "status") else "right")
+    for col in ("channel", "all", *(f"worst {g}" for g in groups)):
+        t.add_column(col, justify="left" if col == "channel" else "right")
+    # A status word is never cut or wrapped: the column is as wide as its longest word; the
+    # other columns give way (and status_lines repeat every status that is not "converged").
+    width = max((len(f.status) for f in result.channels.values()), default=6)
+    t.add_column("status", justify="left", no_wrap=True, min_width=width, overflow="ignore")
     worst = {g: result.worst(g) for g in groups}
 
     def cell(v: float, label: str = "") -> str:
@@ -36,10 +41,35 @@ def rmse_table(result: FitResult, title: str = "RMSE (mm)") -> Table:
         for g in groups:
             w = worst[g].get(ch)
             row.append(cell(w[1], w[0]) if w else "–")
-        row.append(fit.status)
+        colour = "green" if fit.status == "converged" else "red" if fit.status in UNCONFIRMED_STATUSES else "yellow"
+        row.append(f"[{colour}]{escape(fit.status)}[/{colour}]")
         t.add_row(*row)
     return t
 
+
+def status_lines(result: FitResult) -> list[str]:
+    """Per channel (rich markup, printed soft-wrapped: never cut): the multi-start's optima, and
+    every status other than "converged" with the reason, the exit status it gives, and what to do."""
+    lines = []
+    for ch, fit in result.channels.items():
+        if fit.multistart is not None:
+            colour = "yellow" if fit.multistart.best_found_once else "green"
+            lines.append(f"[{colour}]{escape(ch)}[/{colour}]: {escape(fit.multistart.summary_line(fit.problem.data.n_valid))}")
+        if fit.status != "converged":
+            colour = "red" if fit.status in UNCONFIRMED_STATUSES else "yellow"
+            lines.append(f"[{colour}]{escape(ch)}: {escape(fit.status)}[/{colour}]: {escape(fit.message)}"
+                         + (f" ({escape(STATUS_ADVICE[fit.status])})" if fit.status in STATUS_ADVICE else ""))
+    return lines
+
+
+STATUS_ADVICE = {
+    "max-evaluations": "the fit stopped at its limit: raise [engine.options] max_nfev (scipy), local_maxeval "
+                       "(nlopt) or max_iter (casadi); exit status 3",
+    "stage-failed": "a stage failed and the next one went on from its best point: try another engine or more "
+                    "[fit] starts; exit status 3",
+    "best-found-once": "raise [fit] starts or keep until the best is reached more than once; exit status 3",
+}
+EXIT_UNCONFIRMED = 3  # written, but a limit was reached, a stage failed, or the best optimum was found once
 
 def fit_command(
     spec: Path = typer.Argument(..., help="fit spec (TOML), e.g. fit/synthetic.toml"),
@@ -55,12 +85,22 @@ def fit_command(
                                          "cross-validation on the training data, then fit with it (e.g. "
                                          "shrink.sd=0.03,0.1,0.3,1; replaces the spec's [choose] grid; "
                                          "docs/FITTING.md)"),
+    starts: Optional[int] = typer.Option(None, "--starts", min=1, help="multi-start: local fits from this many "
+                                         "quasi-random starts (default the spec's [fit] starts, 32; 1: one fit from "
+                                         "[parameters.start])"),
+    seed: Optional[int] = typer.Option(None, "--seed", min=0, help="seed of the starts (default [fit] seed, 0)"),
     force: bool = typer.Option(False, "--force", help="replace --out even if it holds another run's output "
                                "(a rerun of the same spec and channels replaces its own output without it)"),
 ) -> None:
     """Fit the coarticulation model to a corpus by least squares (MODEL.md §5).
 
-    The outputs are written beside --out and swapped in whole when the fit ends (docs/OUTPUTS.md).
+    By default from 32 quasi-random starts ([fit] starts; docs/FITTING.md). The outputs are
+    written beside --out and swapped in whole when the fit ends (docs/OUTPUTS.md).
+
+    Exit status: 0 every channel converged; 3 written, but a channel reached its evaluation or
+    iteration limit (max-evaluations), had a failed stage (stage-failed) or a best optimum that one
+    start only reached (best-found-once); 2 an error (spec, data, output) or an engine that failed
+    outright (nothing written); 1 nothing fitted; 130 interrupted (Ctrl-C).
     """
     console = Console()
     try:
@@ -81,6 +121,12 @@ def fit_command(
             changes["channels"] = chs
         if no_staging:
             changes["staging"] = False
+        if starts is not None:
+            changes["starts"] = starts
+            if s.keep is not None and s.keep > starts:
+                changes["keep"] = starts
+        if seed is not None:
+            changes["seed"] = seed
         s = s.with_options(**changes)
         if choose is not None:
             from coartic.fit.choose import parse_choose
@@ -108,6 +154,8 @@ def fit_command(
     if result.interrupted:
         console.print("[yellow]interrupted: the partial result above was written[/yellow]")
         raise typer.Exit(130)
+    if any(f.status in UNCONFIRMED_STATUSES for f in result.channels.values()):
+        raise typer.Exit(EXIT_UNCONFIRMED)
 
 
 def warning_lines(result: FitResult) -> list[str]:
@@ -159,6 +207,8 @@ def _fit_into(s: FitSpec, out: Path, console: Console, validate: bool, report: b
         console.print(escape(f"{c.choose.key} chosen by cross-validation on the training data (rule {c.choose.rule}): "
                              + ", ".join(f"{ch} {v:g}" for ch, v in c.chosen.items())
                              + " (curve: choose.csv, choose.png, fit_report.txt)"), soft_wrap=True, highlight=False)
+    for line in status_lines(result):
+        console.print(line, soft_wrap=True, highlight=False)
     for line in warning_lines(result):
         console.print(line, soft_wrap=True)
     for note in result.notes:
