@@ -262,6 +262,6 @@ def fit_multistart(problem: ChannelProblem, engine: str, options: dict[str, Any]
 
 
 def default_keep(n_starts: int) -> int:
-    """Starts continued after the probe: a quarter, at least 4 (so that reaching the best twice
-    can be seen), at most all."""
-    return min(n_starts, max(4, math.ceil(n_starts / 4)))
+    """Starts continued after the probe: an eighth, at least 4 (so that reaching the best more
+    than once can be seen), at most all (bench/multistart.py: the cost is mostly the continued ones)."""
+    return min(n_starts, max(4, math.ceil(n_starts / 8)))
