@@ -3,7 +3,7 @@
 #               checks), write the report, and check the fit against the session's ground truth
 #   make test   set up everything, run every test (Rust core without Python, then Python)
 PY := .venv/bin/python
-.PHONY: setup fit test test-rust test-python stubtest typecheck bench clean
+.PHONY: setup fit test test-rust test-python stubtest typecheck bench clean wheel
 
 setup:
 	./scripts/setup.sh
@@ -15,6 +15,11 @@ fit: setup
 	$(PY) fit/check_recovery.py results/synthetic
 
 test: setup test-rust stubtest typecheck test-python
+
+# dist/coartic-VERSION-cp311-abi3-PLATFORM.whl: one wheel for every CPython >= 3.11 (pyo3's
+# abi3-py311), installed by pip without Rust (tests/python/test_wheel.py). Reuses make setup's build.
+wheel: setup
+	$(PY) -m maturin build --release -o dist
 
 test-rust:
 	cargo test --release --quiet

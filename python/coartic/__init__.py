@@ -1,14 +1,17 @@
 """coartic: labial coarticulation modelling (Cohen-Massaro as modified by Cosi & Perin).
 
 The model lives in the Rust core ``coartic._core``; ``ParameterTable`` holds its parameters and
-``trajectories`` evaluates them for a segment list. Every name below is imported on first use,
-so ``import coartic`` (and ``coartic --help``) loads neither the core nor SciPy.
+``trajectories`` evaluates them for a segment list; ``Coarticulation`` is the estimator-style
+entry point (``fit``, ``predict``, ``score`` on trials: ``coartic.estimator``). Every name below
+is imported on first use, so ``import coartic`` (and ``coartic --help``) loads neither the core
+nor SciPy.
 """
 
 from importlib import import_module
 from typing import TYPE_CHECKING, Any
 
 if TYPE_CHECKING:
+    from coartic.estimator import Coarticulation
     from coartic.io.trial import Trial, load_trial
     from coartic.model import build_corpus, trajectories
     from coartic.table import ALL_CHANNELS, CHANNELS, PARAMETERS, TONGUE_CHANNELS, ParameterTable
@@ -19,6 +22,7 @@ __version__ = "0.1.0"
 _LAZY: dict[str, str] = {
     "ALL_CHANNELS": "coartic.table",
     "CHANNELS": "coartic.table",
+    "Coarticulation": "coartic.estimator",
     "PARAMETERS": "coartic.table",
     "ParameterTable": "coartic.table",
     "TONGUE_CHANNELS": "coartic.table",

@@ -11,10 +11,10 @@ from rich.markup import escape
 from rich.table import Table
 
 from coartic.fit.bounds import summary_counts
-from coartic.fit.result import BAR_MM, FitResult
+from coartic.fit.result import BAR_MM, UNIDENTIFIED_ADVICE, FitResult
 from coartic.fit.spec import ENGINES, FitSpec, SpecError, load_spec
 from coartic.fit.staged import UNCONFIRMED_STATUSES
-from coartic.console import print_error
+from coartic.console import print_error, print_table
 from coartic.table import ALL_CHANNELS
 from coartic.outputs import OutputDir
 
@@ -24,12 +24,8 @@ def rmse_table(result: FitResult, title: str = "RMSE (mm)") -> Table:
     t = Table(title=f"{title} — the paper's bar is {BAR_MM} mm")
     # only the groupings the corpus has (a manifest without 'rate' has no worst rate)
     groups = [g for g in ("vowel", "consonant", "repetition", "rate") if result.worst(g)]
-    for col in ("channel", "all", *(f"worst {g}" for g in groups)):
-        t.add_column(col, justify="left" if col == "channel" else "right")
-    # A status word is never cut or wrapped: the column is as wide as its longest word; the
-    # other columns give way (and status_lines repeat every status that is not "converged").
-    width = max((len(f.status) for f in result.channels.values()), default=6)
-    t.add_column("status", justify="left", no_wrap=True, min_width=width, overflow="ignore")
+    for col in ("channel", "all", *(f"worst {g}" for g in groups), "status"):
+        t.add_column(col, justify="left" if col in ("channel", "status") else "right")
     worst = {g: result.worst(g) for g in groups}
 
     def cell(v: float, label: str = "") -> str:
@@ -91,11 +87,14 @@ def fit_command(
     seed: Optional[int] = typer.Option(None, "--seed", min=0, help="seed of the starts (default [fit] seed, 0)"),
     force: bool = typer.Option(False, "--force", help="replace --out even if it holds another run's output "
                                "(a rerun of the same spec and channels replaces its own output without it)"),
+    quiet: bool = typer.Option(False, "--quiet", "-q", help="no progress (bars in a terminal, lines elsewhere, on "
+                               "stderr); the result tables, warnings and errors are still printed"),
 ) -> None:
     """Fit the coarticulation model to a corpus by least squares (MODEL.md §5).
 
     By default from 32 quasi-random starts ([fit] starts; docs/FITTING.md). The outputs are
     written beside --out and swapped in whole when the fit ends (docs/OUTPUTS.md).
+    Progress goes to stderr (live in a terminal, a line per stage, channel and 15 s elsewhere).
 
     Exit status: 0 every channel converged; 3 written, but a channel reached its evaluation or
     iteration limit (max-evaluations), had a failed stage (stage-failed) or a best optimum that one
@@ -103,6 +102,7 @@ def fit_command(
     outright (nothing written); 1 nothing fitted; 130 interrupted (Ctrl-C).
     """
     console = Console()
+    err = Console(stderr=True)
     try:
         s = load_spec(spec)
         changes: dict[str, object] = {}
@@ -134,7 +134,7 @@ def fit_command(
             s = parse_choose(s, choose)
         output = fit_output(s, out, force)
         with output as staging:
-            result = _fit_into(s, staging, console, validate, report)
+            result = _fit_into(s, staging, console, err, validate, report, quiet)
             if not result.channels:  # nothing to show for it: the previous output stays
                 output.abandon()
             elif result.interrupted:
@@ -170,7 +170,12 @@ def warning_lines(result: FitResult) -> list[str]:
                          f"{escape(summary_counts(st.bounds))} (why: fit_report.txt, report.html)")
         if st and st.unidentified:
             lines.append(f"[yellow]{escape(ch)}: {len(st.unidentified)} parameter(s) not identified[/yellow] "
-                         "(see fit_report.txt)")
+                         "(why and what to do: fit_report.txt, summary.json)")
+            why = [(nm, st.unidentified_why[nm].partition(": ")[0]) for nm in st.unidentified if nm in st.unidentified_why]
+            lines += [f"    {escape(nm)}: {escape(w)}" for nm, w in why[:5]]
+            if why:
+                lines.append(f"    {escape(UNIDENTIFIED_ADVICE)}" + (f" ({len(why) - 5} more in fit_report.txt)"
+                                                                   if len(why) > 5 else ""))
     return lines
 
 
@@ -193,15 +198,16 @@ def fit_output(spec: FitSpec, out: Path, force: bool = False) -> OutputDir:
                      force=force, protect=inputs, recognise=legacy)
 
 
-def _fit_into(s: FitSpec, out: Path, console: Console, validate: bool, report: bool) -> FitResult:
+def _fit_into(s: FitSpec, out: Path, console: Console, err: Console, validate: bool, report: bool,
+              quiet: bool) -> FitResult:
     """The fit, its validation and report, written into ``out`` (the staging directory) by
-    ``coartic.fit.run``; printed here."""
+    ``coartic.fit.run`` (progress on ``err``); the results printed on ``console``."""
     from coartic.fit.runner import run
 
-    result = run(s, out, console=console, validate=validate, report=report)
+    result = run(s, out, console=err, quiet=quiet, validate=validate, report=report)
     if not result.channels:
         return result
-    console.print(rmse_table(result))
+    print_table(console, rmse_table(result))
     if result.choice is not None:
         c = result.choice
         console.print(escape(f"{c.choose.key} chosen by cross-validation on the training data (rule {c.choose.rule}): "
@@ -214,7 +220,9 @@ def _fit_into(s: FitSpec, out: Path, console: Console, validate: bool, report: b
     for note in result.notes:
         console.print(f"[yellow]note:[/yellow] {escape(note)}", soft_wrap=True)
     if result.validation:
-        from coartic.fit.validate import validation_table
+        from coartic.fit.validate import flags, validation_table
 
-        console.print(validation_table(result.validation))
+        print_table(console, validation_table(result.validation), keys=2)
+        for f in flags(result.validation):
+            console.print(f"[bold red]WORSE THAN THE STEP MODEL[/bold red] {escape(f)}", soft_wrap=True, highlight=False)
     return result

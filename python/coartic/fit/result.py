@@ -30,6 +30,7 @@ from coartic.fit.spec import FitSpec
 from coartic.fit.multistart import MultiStart
 from coartic.fit.staged import StageResult
 from coartic.io.labelmap import resolve_label_map
+from coartic.io.roles import ROLE_RECORD_KEY, resolve_role_map
 from coartic.outputs import atomic_path, atomic_write_text
 from coartic.table import PARAMETERS, ParameterTable
 
@@ -50,6 +51,8 @@ class ParameterStats:
     dof: int
     # why each parameter in at_bound is there, computed from the fit (coartic.fit.bounds)
     bounds: dict[str, BoundNote] = field(default_factory=dict)
+    # why each parameter in unidentified is not identified, and what to do (unidentified_reasons)
+    unidentified_why: dict[str, str] = field(default_factory=dict)
 
 
 def parameter_stats(problem: ChannelProblem, x: FloatArray, rtol: float = 1e-10) -> ParameterStats:
@@ -80,8 +83,44 @@ def parameter_stats(problem: ChannelProblem, x: FloatArray, rtol: float = 1e-10)
     near = (np.abs(x - lo) <= 1e-6 * width) | (np.abs(hi - x) <= 1e-6 * width)
     at_bound = [nm for nm, b in zip(names, near) if b]
     notes = explain_bounds(problem, x, at_bound, jac, r, s2, corr)
+    why = unidentified_reasons(names, jtj, v[:, ~keep], unident)
     return ParameterStats(names, values, stderr, corr, at_bound, [nm for nm, b in zip(names, unident) if b], s2, dof,
-                          notes)
+                          notes, why)
+
+
+# A Jacobian column whose norm is below this fraction of the largest one: the fit does not depend on it.
+ZERO_COLUMN = 1e-8
+UNIDENTIFIED_ADVICE = ("fix it (leave it out of [parameters] free, or an [[override]] with a fixed value), tie it to "
+                       "a like phoneme's ([[tie]]), pull it towards one ([[shrink]] or a prior), or add recordings "
+                       "that carry it")
+
+
+def unidentified_reasons(names: Sequence[str], jtj: FloatArray, null: FloatArray,
+                         unident: NDArray[np.bool_]) -> dict[str, str]:
+    """Why each parameter the data leave undetermined is so, in the terms a user can act on: the
+    data do not depend on it at all (a zero Jacobian column; every parameter of its phoneme so: no
+    measured sample within the phoneme's reach), or only a combination with others is determined
+    (the null direction it loads on names the partner); each with the alternatives."""
+    col = np.sqrt(np.clip(np.diag(jtj), 0.0, None))
+    zero = col <= ZERO_COLUMN * max(float(col.max(initial=0.0)), 1e-300)
+    phoneme = [nm.rpartition(".")[0] for nm in names]
+    out: dict[str, str] = {}
+    for i in np.flatnonzero(unident):
+        nm = names[int(i)]
+        if zero[i]:
+            all_zero = all(zero[j] for j in range(len(names)) if phoneme[j] == phoneme[i])
+            what = (f"no measured sample lies within /{phoneme[i]}/'s reach (every one of its parameters has a zero "
+                    "Jacobian column)" if all_zero and phoneme[i] else
+                    "the fitted trajectories do not depend on it (a zero Jacobian column)")
+        else:
+            load = null @ null[i]  # how the others move with it along the undetermined directions
+            load[i] = 0.0
+            k = int(np.argmax(np.abs(load)))
+            partner = names[k] if abs(load[k]) > 1e-6 else None
+            what = ("only a combination with " + partner + " is determined by the data (they trade off exactly)"
+                    if partner else "only a combination with other parameters is determined by the data")
+        out[nm] = f"{what}: {UNIDENTIFIED_ADVICE}"
+    return out
 
 
 @dataclass
@@ -242,6 +281,8 @@ class FitResult:
             t.metadata["choice"] = self.choice.metadata()
         # the map the corpus labels went through, so trajectories/animate/score read labels alike
         resolve_label_map(s.corpus.label_map).record_in(t)
+        if s.corpus.role_map is not None:  # and the sensors' roles and axes, so that score reads alike
+            t.metadata[ROLE_RECORD_KEY] = resolve_role_map(s.corpus.role_map).to_record()
         return t
 
     def parameter_rows(self) -> list[dict[str, Any]]:
@@ -255,6 +296,23 @@ class FitResult:
                     row["spread_between_optima"] = ms.spread.get(name, 0.0 if name in ms.names else "")
                 rows.append(row)
         return rows
+
+    def to_dataframe(self, what: str = "parameters") -> Any:
+        """pandas DataFrame of ``parameters.csv`` (``what="parameters"``: one row per channel,
+        phoneme and parameter with value, standard error, free, tie, bounds and flags; NaN where a
+        number does not apply) or of ``rmse.csv`` (``"rmse"``: per channel and group)."""
+        import pandas as pd
+
+        if what == "rmse":
+            return pd.DataFrame(self.rmse_rows(), columns=["channel", "group", "value", "rmse_mm", "samples",
+                                                           "below_bar"])
+        if what != "parameters":
+            raise ValueError(f"to_dataframe({what!r}): expected 'parameters' or 'rmse'")
+        df = pd.DataFrame(self.parameter_rows())
+        for col in ("value", "stderr", "lower", "upper", "prior_mean", "prior_sd"):
+            if col in df:  # "" (no standard error, no prior) is a missing number
+                df[col] = pd.to_numeric(df[col].replace("", float("nan")), errors="raise").astype("float64")
+        return df
 
     def report_text(self, max_corr: int = 10) -> str:
         """An lmfit-like fit report: statistics, warnings, strongest correlations, per channel."""
@@ -295,6 +353,7 @@ class FitResult:
             if st.unidentified:
                 lines.append(f"    warning: {len(st.unidentified)} parameter(s) not identified by the data "
                              f"(no standard error): {', '.join(st.unidentified)}")
+                lines += [f"        {nm}: {st.unidentified_why[nm]}" for nm in st.unidentified if nm in st.unidentified_why]
             lines.append("    [[Variables]]")
             for prm in fit.parameters.values():
                 if not prm.free:
@@ -319,6 +378,17 @@ class FitResult:
             if strong:
                 lines.append("    [[Correlations]] (|r| > 0.5, strongest first)")
                 lines += [f"        C({a}, {b}) = {r:+.3f}" for a, b, r in strong]
+        if self.validation:
+            from coartic.fit.validate import flags
+
+            lines += ["", "[[Validation]] (held-out RMSE in mm as measured / offset removed; baselines on the same "
+                      "samples: constant = training mean, step = each phoneme's training mean, warped = another "
+                      "token of the sentence)"]
+            for sc in self.validation:
+                base = "".join(f", {b} {v[0]:.4f} / {v[1]:.4f}" for b, v in sc.baselines.items())
+                lines.append(f"    {sc.split}, {sc.channel}: table {sc.test_rmse:.4f} / "
+                             f"{sc.test_rmse_offset_removed:.4f}{base}")
+            lines += [f"    WARNING: {f}" for f in flags(self.validation)]
         return "\n".join(lines) + "\n"
 
     # ---------------------------------------------------------------- output
@@ -344,13 +414,14 @@ class FitResult:
                    for ch, f in self.channels.items()}
         with atomic_path(paths["fitted"]) as tmp:
             np.savez_compressed(tmp, **arrays)
-        summary = {"spec": str(self.spec.path), "interrupted": self.interrupted, "started": self.started,
+        summary: dict[str, Any] = {"spec": str(self.spec.path), "interrupted": self.interrupted, "started": self.started,
                    "channels": {ch: {"rmse_mm": f.rmse, "status": f.status, "message": f.message, "nfev": f.nfev,
                                      "wall_time_s": f.wall_time, "at_bound": f.stats.at_bound if f.stats else [],
                                      # why each is at its bound (coartic.fit.bounds.BoundNote fields)
                                      "at_bound_explained": [b.as_dict() for b in f.stats.bounds.values()]
                                      if f.stats else [],
                                      "unidentified": f.stats.unidentified if f.stats else [],
+                                     "unidentified_explained": f.stats.unidentified_why if f.stats else {},
                                      "stages": [{"parameters": list(sr.parameters), "n_free": sr.n_free,
                                                  "sse_start": sr.sse_start, "sse_end": sr.sse_end,
                                                  "status": sr.engine.status, "probe": sr.probe,
@@ -358,6 +429,10 @@ class FitResult:
                                      "multistart": None if f.multistart is None
                                      else f.multistart.as_dict(f.problem.data.n_valid)}
                                 for ch, f in self.channels.items()}}
+        if self.validation:
+            from coartic.fit.validate import baseline_summary
+
+            summary["validation"] = baseline_summary(self.validation)
         atomic_write_text(paths["summary"], json.dumps(summary, indent=2))
         if self.choice is not None:
             paths |= self.choice.save(out)

@@ -10,11 +10,10 @@ from typing import Optional
 import typer
 from rich.console import Console
 from rich.markup import escape
-from rich.panel import Panel
 from rich.table import Table
 
 from coartic.mcmc.run import PosteriorRun, phoneme_dir, verdict_lines
-from coartic.console import print_error
+from coartic.console import print_error, print_table
 
 console = Console(stderr=True)
 
@@ -70,17 +69,23 @@ def mcmc_command(
         print_error(console, e)
         raise typer.Exit(1) from None
     runs, interrupted = result.runs, result.interrupted
-    console.print(_status_table(runs))
+    print_table(console, _status_table(runs))
     bad = verdict_lines(runs)
+    # Verdicts as soft-wrapped lines (not a panel, whose title is cut at a narrow width).
     if interrupted:
-        console.print(Panel(f"Interrupted; every finished step is saved in {out}.\nRun the same command again to resume.", style="yellow"))
+        console.print(escape(f"Interrupted; every finished step is saved in {out}. Run the same command again to "
+                             "resume."), style="yellow", soft_wrap=True, highlight=False)
         raise typer.Exit(130)
     if bad:
-        console.print(Panel(escape("\n".join(bad)), title=f"{len(bad)} of {len(runs)} posteriors have NOT CONVERGED: their intervals are not trustworthy", style="bold red"))
+        console.print(f"{len(bad)} of {len(runs)} posteriors have NOT CONVERGED: their intervals are not trustworthy",
+                      style="bold red", soft_wrap=True, highlight=False)
+        for line in bad:
+            console.print(escape(f"  {line}"), style="red", soft_wrap=True, highlight=False)
         if strict:
             raise typer.Exit(2)
     else:
-        console.print(f"[green]All {len(runs)} posteriors converged.[/] Table with uncertainty: {out / 'table.json'}")
+        console.print(f"[green]All {len(runs)} posteriors converged.[/] Table with uncertainty: "
+                      f"{escape(str(out / 'table.json'))}", soft_wrap=True, highlight=False)
 
 
 def _names(csv: str | None) -> tuple[str, ...] | None:
