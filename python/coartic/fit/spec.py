@@ -656,7 +656,7 @@ def parse_spec(raw: dict[str, Any], path: Path) -> FitSpec:
     starts, seed, probe = (_count(fit, key, default, low, path) for key, default, low in
                            (("starts", DEFAULT_STARTS, 1), ("seed", 0, 0), ("probe", DEFAULT_PROBE, 1)))
     keep = _count(fit, "keep", None, 1, path)
-    if keep is not None and keep > starts:
+    if keep is not None and starts > 1 and keep > starts:
         raise _err(path, "fit.keep", f"{keep}: more than the {starts} starts")
 
     g = raw.get("gaps", {})
