@@ -98,20 +98,26 @@ def workers() -> list[str]:
 
 def main(parts: Sequence[str]) -> None:
     lines: list[str] = []
-    if "synthetic" in parts:
-        spec, utts = synthetic_data()
-        lines += compare(f"synthetic session, LLO, {len(utts)} trials of /p f t l s/ (fit/synthetic.toml)", spec, utts,
-                         ["LLO"])
-    if "german" in parts:
-        spec, utts = german_data()
-        lines += compare("German EMA, two utterances, LA and JO (fit/ema_german.toml)", spec, utts, ["LA", "JO"])
-    if "workers" in parts:
-        lines += workers()
-    text = "\n".join(lines) + "\n"
     name = "multistart.txt" if set(parts) >= {"synthetic", "german", "workers"} else f"multistart_{'_'.join(parts)}.txt"
-    (ROOT / "bench/results" / name).write_text(text, encoding="utf-8")
+
+    def save() -> None:  # after every part: a long run keeps what it measured
+        (ROOT / "bench/results" / name).write_text("\n".join(lines) + "\n", encoding="utf-8")
+
+    for part in parts:
+        if part == "synthetic":
+            spec, utts = synthetic_data()
+            lines += compare(f"synthetic session, LLO, {len(utts)} trials of /p f t l s/ (fit/synthetic.toml)", spec,
+                             utts, ["LLO"])
+        elif part == "german":
+            spec, utts = german_data()
+            lines += compare("German EMA, two utterances, LA and JO (fit/ema_german.toml)", spec, utts, ["LA", "JO"])
+        elif part == "workers":
+            lines += workers()
+        else:
+            raise SystemExit(f"unknown part {part!r} (synthetic, german, workers)")
+        save()
     print(f"saved bench/results/{name}")
 
 
 if __name__ == "__main__":
-    main(sys.argv[1:] or ["synthetic", "german", "workers"])
+    main(sys.argv[1:] or ["synthetic", "workers", "german"])

@@ -203,3 +203,23 @@ def test_status_words_are_never_cut(width: int) -> None:
     for st in statuses.values():
         assert sum(w.strip("│|:") == st for w in words) >= (1 if st == "converged" else 2), (st, text)
     assert "…" not in text
+
+
+@pytest.mark.multistart
+def test_validation_scores_every_optimum_held_out(tmp_path: Path) -> None:
+    """--validate: each split's multi-start optima are scored on its held-out data (validation.csv,
+    the split's fit_report.txt)."""
+    from coartic.fit.simulate import vcv_utterances
+    from coartic.fit.spec import parse_spec
+    from coartic.fit.validate import validate_all
+
+    utts = vcv_utterances(np.random.default_rng(2), repetitions=2, noise=0.1)
+    raw = {"corpus": {"files": ["x"], "labels": ["y"]}, "model": {"channels": ["LLO"]},
+           "parameters": {"free": ["target", "theta_bw"]}, "staging": {"enabled": False},
+           "fit": {"starts": 3, "probe": 3, "keep": 2}, "validate": {"holdout_repetition": 2, "test_rate": None}}
+    scores = validate_all(parse_spec(raw, tmp_path / "spec.toml"), tmp_path / "val", utterances=utts)
+    sc = scores[0]
+    assert 1 <= len(sc.optima_test_rmse) <= 2 and sc.optima_test_rmse[0] == pytest.approx(sc.test_rmse)
+    assert "optima_test_rmse_mm" in (tmp_path / "val" / "validation.csv").read_text().splitlines()[0]
+    report = next((tmp_path / "val").glob("*/fit_report.txt")).read_text()
+    assert f"held out {sc.split}: {sc.test_rmse:.4f} mm" in report
