@@ -14,7 +14,7 @@ from typing import Literal, overload
 
 import numpy as np
 import numpy.typing as npt
-import scipy.sparse as sp  # type: ignore[import-untyped]
+import scipy.sparse as sp
 
 from coartic import _core
 from coartic.errors import CoarticError

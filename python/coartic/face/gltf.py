@@ -28,9 +28,9 @@ from numpy.typing import NDArray
 from coartic.face.deform import FaceRig, default_rig
 from coartic.face.mesh import MOUTH_HALF_WIDTH, PART_NAMES, vertex_normals
 from coartic.runtime.errors import AnimationError
-from coartic.runtime.fap import FaceUnits, FapSequence, animation_faps, channels_to_faps
+from coartic.runtime.fap import BLINK_CLOSED, N_FAPS, FaceUnits, FapSequence, animation_faps, channels_to_faps
 from coartic.outputs import atomic_write_bytes
-from coartic.runtime.rigs import ARKIT_BASIS, ARKIT_NAMES, arkit_weights
+from coartic.runtime.rigs import ARKIT_BASIS, ARKIT_BLINKS, ARKIT_NAMES, arkit_weights
 
 if TYPE_CHECKING:
     from coartic.runtime.animate import Animation
@@ -451,7 +451,8 @@ def arkit_morphs(rig: FaceRig, neutral: dict[str, float], face: FaceUnits) -> tu
     rig as the FAP morph set; the jaw's turn taken at its full angle, as a blendshape is linear).
     A Left/Right pair is the pair's symmetric movement split between the face's sides
     (`_side_share`; Left = the face's own left), so the two at equal weights add up to it. The
-    shapes coartic does not drive (eyes, brows, cheeks, nose, tongue) are present and move nothing."""
+    eyeBlinkLeft/Right shut the lid of FAP 19/20 as the FAP file's blinks do. The shapes coartic
+    does not drive (gaze, brows, cheeks, nose, tongueOut) are present and move nothing."""
     fields = np.zeros((len(ARKIT_NAMES), rig.mesh.n_vertices, 3))
     left = _side_share(rig.mesh.vertices[:, 0])[:, None]
 
@@ -462,6 +463,12 @@ def arkit_morphs(rig: FaceRig, neutral: dict[str, float], face: FaceUnits) -> tu
         return out
 
     for k, name in enumerate(ARKIT_NAMES):
+        if name in ARKIT_BLINKS:  # the lid shut as the FAP file's blinks shut it
+            mask = np.zeros((1, N_FAPS), dtype=bool)
+            mask[0, ARKIT_BLINKS[name] - 1] = True
+            shut = FapSequence("arkit", 25.0, mask, np.where(mask, BLINK_CLOSED, 0))
+            fields[k] = rig.pose(rig.weights(shut)[0]) - rig.mesh.vertices
+            continue
         if name not in ARKIT_BASIS:
             continue
         for side, share in (("Left", left), ("Right", 1.0 - left)):

@@ -82,7 +82,7 @@ class FaceMesh:
         return mask
 
     def point(self, fp: str) -> NDArray[np.float64]:
-        return self.vertices[self.feature_points[fp]]
+        return np.asarray(self.vertices[self.feature_points[fp]], dtype=np.float64)
 
     @property
     def mns(self) -> float:
@@ -199,6 +199,14 @@ def _skin() -> tuple[NDArray[np.float64], NDArray[np.bool_], NDArray[np.int64], 
                 tris += [(a, b, d), (b, cc, d)]
     xy = np.concatenate(verts)
     z = skin_depth(xy[:, 0], xy[:, 1])
+    # the mask's outermost columns and top row dip 1.8 mm under the skull's surface, so that its
+    # edge tucks in instead of standing out as a step in profile
+    dip = np.zeros(z.size)
+    dip[index[:, [1, -2]].ravel()] = 1.0  # the next columns in part: no thin triangle between
+    dip[index[-2]] = 1.0
+    dip[index[:, [0, -1]].ravel()] = 1.8
+    dip[index[-1]] = 1.8
+    z = z - dip
     vertices = np.column_stack([xy, z])
     upper = np.concatenate([upper, np.zeros(cut_cols.size, dtype=bool)])
     # the lips' inner surfaces: rows going in from the cut (up and back for the upper lip, down and

@@ -51,7 +51,7 @@ def warp_times(test: Utterance, token: Utterance) -> F64:
     t = test.times
     tau = np.interp(t, k_test, k_tok)
     tau = np.where(t < k_test[0], t - k_test[0] + k_tok[0], tau)
-    return np.where(t > k_test[-1], t - k_test[-1] + k_tok[-1], tau)
+    return np.asarray(np.where(t > k_test[-1], t - k_test[-1] + k_tok[-1], tau), dtype=np.float64)
 
 
 @dataclass

@@ -476,7 +476,7 @@ class Offsets:
 
     def profiled_sse(self, sse: FloatArray, sums: FloatArray) -> FloatArray:
         """From the core's SSE [W] and Σ_u w (y − F) [W, n_utt]: the SSE with the offsets profiled out."""
-        return sse - np.sum(sums**2 * self.inv[None, :], axis=1)
+        return np.asarray(sse - np.sum(sums**2 * self.inv[None, :], axis=1), dtype=np.float64)
 
 
 def utterance_speakers(utterances: Sequence[Utterance], mode: str, column: str,

@@ -19,12 +19,12 @@ import warnings
 
 from coartic.io.errors import DataError, DataWarning
 from coartic.io.gaps import DEFAULT_MAX_GAP, Gap, fill_gaps, resample
-from coartic.io.labelmap import PAUSE, LabelMap, resolve_label_map
+from coartic.io.labelmap import LabelMap, resolve_label_map
 from coartic.io.labels import Segments, read_labels
 from coartic.io.registry import ReadRequest, reader_for
 from coartic.io.roles import MARKER_ROLES, RoleMap, guess_axes, guess_ema_roles, resolve_role_map
 
-from coartic.table import ALL_CHANNELS, TONGUE_CHANNELS
+from coartic.table import ALL_CHANNELS, PAUSE, TONGUE_CHANNELS
 
 # The channels a marker (face) set gives; the tongue channels need EMA sensors.
 MARKER_CHANNELS = ("ULO", "LLO", "ULP", "LLP", "LR", "JO", "LA")

@@ -150,6 +150,8 @@ def _write_outputs(
     gltf_morphs: str = "fap",
 ) -> RuntimeOutput:
     """Every exporter fed the one animation: the exact outputs first, the pictures last."""
+    if not animation.neutral:
+        neutral_posture(table)  # raises, naming the table: no pause phoneme, no neutral face
     settings = ExportSettings(out=out, name=name, face=face, table=table, requested=requested, source=source,
                               audio=audio, progress=progress, mapping=mapping, gltf_morphs=gltf_morphs,
                               preview=preview)

@@ -138,7 +138,7 @@ class Unit:
     def x(self, z: NDArray[np.float64]) -> NDArray[np.float64]:
         # Clipped: interior-point methods relax bounds by ~1e-8 and lo + width*1 can round past hi;
         # the core rightly refuses k_R = 1 + 1e-16.
-        return np.clip(self.lo + self.width * np.asarray(z), self.bound_lo, self.bound_hi)
+        return np.asarray(np.clip(self.lo + self.width * np.asarray(z), self.bound_lo, self.bound_hi), dtype=np.float64)
 
     def z(self, x: NDArray[np.float64]) -> NDArray[np.float64]:
         return (np.asarray(x) - self.lo) / self.width

@@ -43,7 +43,7 @@ def check_options(options: dict[str, Any]) -> None:
             raise OptionError(key, f"{value!r}: IPOPT refuses it ({why})") from None
 
 
-class _Objective(ca.Callback):  # type: ignore[misc]
+class _Objective(ca.Callback):
     """f(z) = SSE(x(z)), with a Jacobian (the gradient) callback below."""
 
     def __init__(self, name: str, problem: ChannelProblem, unit: Unit, state: dict[str, Any]) -> None:
@@ -65,7 +65,7 @@ class _Objective(ca.Callback):  # type: ignore[misc]
     def get_sparsity_out(self, i: int) -> ca.Sparsity:
         return ca.Sparsity.dense(1, 1)
 
-    def eval(self, arg: Sequence[Any]) -> list[Any]:  # type: ignore[override]
+    def eval(self, arg: Sequence[Any]) -> list[Any]:
         try:
             sse = self.problem.sse(self.unit.x(np.asarray(arg[0]).ravel()))
         except KeyboardInterrupt:
@@ -82,7 +82,7 @@ class _Objective(ca.Callback):  # type: ignore[misc]
         return self._grad
 
 
-class _Gradient(ca.Callback):  # type: ignore[misc]
+class _Gradient(ca.Callback):
     def __init__(self, name: str, problem: ChannelProblem, unit: Unit, state: dict[str, Any],
                  opts: dict[str, Any]) -> None:
         ca.Callback.__init__(self)
@@ -102,7 +102,7 @@ class _Gradient(ca.Callback):  # type: ignore[misc]
     def get_sparsity_out(self, i: int) -> ca.Sparsity:
         return ca.Sparsity.dense(1, self.n)
 
-    def eval(self, arg: Sequence[Any]) -> list[Any]:  # type: ignore[override]
+    def eval(self, arg: Sequence[Any]) -> list[Any]:
         try:
             _, g = self.problem.sse_gradient(self.unit.x(np.asarray(arg[0]).ravel()))
         except KeyboardInterrupt:
