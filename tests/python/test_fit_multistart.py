@@ -112,9 +112,11 @@ def test_multistart_is_deterministic_and_reports_its_optima(tmp_path: Path) -> N
 def test_cli_reports_optima_everywhere_and_exits_3_when_the_best_was_found_once(tmp_path: Path) -> None:
     spec = german_utterance_spec(tmp_path / "s.toml", SMALL.format(theta=40.0, starts=4))
     out = tmp_path / "out"
-    res = CliRunner().invoke(app, ["fit", str(spec), "--out", str(out), "--no-report"])
+    res = CliRunner().invoke(app, ["fit", str(spec), "--out", str(out)])
     summary = json.loads((out / "summary.json").read_text())
     ms = summary["channels"]["JO"]["multistart"]
+    html = (out / "report.html").read_text()
+    assert "Multi-start: distinct optima" in html and f"of {ms['continued']} continued (4 started)" in html
     assert ms["starts"] == 4 and ms["continued"] == 2 and ms["optima"]
     text = (out / "fit_report.txt").read_text()
     assert "multi-start: 4 starts (seed 0)" in text and "optimum 1: SSE" in text

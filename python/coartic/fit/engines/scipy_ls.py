@@ -53,19 +53,11 @@ def minimize(problem: ChannelProblem, x0: NDArray[np.float64], options: dict[str
     jac = problem.jacobian
     if tr_solver == "exact":
         def jac(x: NDArray[np.float64]) -> NDArray[np.float64]:
-<<<<<<< HEAD
-            return problem.jacobian(x).toarray()
+            return np.asarray(problem.jacobian(x).toarray(), dtype=np.float64)
     # The cap scales with the problem (evaluation_budget): a fixed cap of 200 ended one-utterance
     # fits of real EMA at max-evaluations (stage 2 needed 690-950 evaluations; docs/FITTING.md).
     kw: dict[str, Any] = dict(method="trf", x_scale="jac", ftol=1e-8, xtol=1e-8, gtol=1e-8, tr_solver=tr_solver,
                               max_nfev=evaluation_budget(problem))
-=======
-            return np.asarray(problem.jacobian(x).toarray(), dtype=np.float64)
-    # No evaluation cap of our own: least_squares' default (100 x free parameters) lets a fit end
-    # converged. A cap of 200 ended one-utterance fits of real EMA at max-evaluations (stage 2
-    # needed 690-950 evaluations; docs/FITTING.md), while whole corpora converge in ~110.
-    kw: dict[str, Any] = dict(method="trf", x_scale="jac", ftol=1e-8, xtol=1e-8, gtol=1e-8, tr_solver=tr_solver)
->>>>>>> main
     kw.update(opts)
     try:
         res = least_squares(problem.residuals, x0, jac=jac, bounds=(lo, hi), **kw)
