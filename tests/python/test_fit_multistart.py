@@ -26,7 +26,8 @@ from coartic.table import PARAMETERS
 from fit_helpers import EMA, german_utterance_spec
 
 SMALL = ('[model]\nchannels = ["JO"]\n[parameters]\nfree = ["target", "theta_bw", "theta_fw"]\n'
-         'start = {{ theta_bw = {theta}, theta_fw = {theta} }}\n[fit]\nstarts = {starts}\nprobe = 5\nkeep = 2\n')
+         'start = {{ theta_bw = {theta}, theta_fw = {theta} }}\n[fit]\nstarts = {starts}\nprobe = 5\nkeep = 2\n'
+         'include_start = {inc}\n')
 
 
 def utterance_0024_spec(path: Path, rest: str) -> Path:
@@ -37,8 +38,9 @@ def utterance_0024_spec(path: Path, rest: str) -> Path:
     return path
 
 
-def small_problem(tmp_path: Path, theta: float = 40.0, starts: int = 4):
-    spec = load_spec(utterance_0024_spec(tmp_path / f"s{theta}_{starts}.toml", SMALL.format(theta=theta, starts=starts)))
+def small_problem(tmp_path: Path, theta: float = 40.0, starts: int = 4, inc: str = "true"):
+    spec = load_spec(utterance_0024_spec(tmp_path / f"s{theta}_{starts}_{inc}.toml",
+                                         SMALL.format(theta=theta, starts=starts, inc=inc)))
     utts = load_utterances(spec, manifest_rows(spec))
     return spec, utts, build_problem(spec, utts, "JO")
 
@@ -75,12 +77,14 @@ def test_cluster_groups_end_points_by_sse_and_distance() -> None:
 def test_fit_is_independent_of_the_start_held_out_on_real_ema(tmp_path: Path) -> None:
     """Fit utterance 0024 of the German EMA from θ starts of 15 and 100 and predict utterance 0020
     (held out; its /p t/, unseen in 0024, by their class fallbacks): one start gives different held-out
-    errors, the multi-start the same to 0.05 mm (issue 19)."""
-    held = {}
+    errors, the multi-start without the spec's start (include_start = false) the same to 0.05 mm
+    (issue 19)."""
+    held, rmse = {}, {}
     for starts in (1, 4):
         for theta in (15.0, 100.0):
-            spec, utts, _ = small_problem(tmp_path, theta, starts)
+            spec, utts, _ = small_problem(tmp_path, theta, starts, inc="false")
             result = run(spec, tmp_path / f"out{starts}_{theta}", quiet=True, report=False)
+            rmse[starts, theta] = result.channels["JO"].rmse
             sc = score_recordings(tmp_path / f"out{starts}_{theta}" / "table.json",
                                   [EMA / "dfgspp_mo1_prosody_0020_ema.csv"], [EMA / "dfgspp_mo1_prosody_0020_Segment.tsv"],
                                   channels=["JO"])
@@ -89,6 +93,11 @@ def test_fit_is_independent_of_the_start_held_out_on_real_ema(tmp_path: Path) ->
             assert (fit.multistart is None) == (starts == 1)
     assert abs(held[1, 15.0] - held[1, 100.0]) > 0.05, held  # the test can fail: one start depends on it
     assert abs(held[4, 15.0] - held[4, 100.0]) <= 0.05, held
+    # the default (include_start = true) also continues [parameters.start]: never worse than one fit
+    spec, _, _ = small_problem(tmp_path, 15.0, 4, inc="true")
+    both = run(spec, tmp_path / "both", quiet=True, report=False).channels["JO"]
+    assert both.multistart is not None and 0 in both.multistart.continued
+    assert both.rmse <= min(rmse[1, 15.0], rmse[4, 15.0]) * (1 + 1e-6)
 
 
 @pytest.mark.multistart
@@ -100,7 +109,8 @@ def test_multistart_is_deterministic_and_reports_its_optima(tmp_path: Path) -> N
     np.testing.assert_array_equal(a[1].x, b[1].x)  # threads or not, the same answer
     ms = a[3]
     assert len(ms.probe_sse) == 4 and len(ms.continued) == 2
-    assert ms.continued == sorted(range(4), key=lambda i: ms.probe_sse[i])[:2]  # the best probes go on
+    # [parameters.start] is start 0 and always goes on, with the best of the other probes
+    assert ms.continued == [0, min(range(1, 4), key=lambda i: ms.probe_sse[i])] and ms.include_start
     assert sum(o.hits for o in ms.optima) == 2
     assert ms.best.sse == min(ms.final_sse.values()) == pytest.approx(prob.with_packing(a[0].packing).sse(a[1].x))
     assert [s.probe for s in a[2]] == [True] * (len(a[2]) - 1) + [False]
@@ -110,7 +120,7 @@ def test_multistart_is_deterministic_and_reports_its_optima(tmp_path: Path) -> N
 
 @pytest.mark.multistart
 def test_cli_reports_optima_everywhere_and_exits_3_when_the_best_was_found_once(tmp_path: Path) -> None:
-    spec = german_utterance_spec(tmp_path / "s.toml", SMALL.format(theta=40.0, starts=4))
+    spec = german_utterance_spec(tmp_path / "s.toml", SMALL.format(theta=40.0, starts=4, inc="true"))
     out = tmp_path / "out"
     res = CliRunner().invoke(app, ["fit", str(spec), "--out", str(out)])
     summary = json.loads((out / "summary.json").read_text())
@@ -119,7 +129,7 @@ def test_cli_reports_optima_everywhere_and_exits_3_when_the_best_was_found_once(
     assert "Multi-start: distinct optima" in html and f"of {ms['continued']} continued (4 started)" in html
     assert ms["starts"] == 4 and ms["continued"] == 2 and ms["optima"]
     text = (out / "fit_report.txt").read_text()
-    assert "multi-start: 4 starts (seed 0)" in text and "optimum 1: SSE" in text
+    assert "multi-start: 4 starts (seed 0, start 0 [parameters.start])" in text and "optimum 1: SSE" in text
     assert "spread_between_optima" in (out / "parameters.csv").read_text().splitlines()[0]
     status = summary["channels"]["JO"]["status"]
     assert status == ("best-found-once" if ms["best_hits"] == 1 else "converged")
@@ -129,7 +139,7 @@ def test_cli_reports_optima_everywhere_and_exits_3_when_the_best_was_found_once(
 
 def test_fit_section_is_checked(tmp_path: Path) -> None:
     for body, key in (("starts = 0", "fit.starts"), ("seed = -1", "fit.seed"), ("starts = 2\nkeep = 3", "fit.keep"),
-                      ("start = 4", "fit")):
+                      ("start = 4", "fit"), ("include_start = 1", "fit.include_start")):
         with pytest.raises(SpecError, match=key.replace(".", r"\.")):
             load_spec(german_utterance_spec(tmp_path / "s.toml", f'[model]\nchannels = ["JO"]\n[fit]\n{body}\n'))
     spec = load_spec(german_utterance_spec(tmp_path / "d.toml", '[model]\nchannels = ["JO"]\n'))

@@ -80,7 +80,8 @@ def fit_channel(spec: FitSpec, utterances: Sequence[Utterance], channel: str,
 
             final, res, stages, multi = fit_multistart(problem, spec.engine, spec.engine_options, stage_names,
                                                        spec.starts, spec.seed, spec.probe, spec.keep,
-                                                       workers=MULTISTART_WORKERS, on_start=on_start)
+                                                       workers=MULTISTART_WORKERS, on_start=on_start,
+                                                       include_start=spec.include_start)
         else:
             final, res, stages = fit_staged(problem, spec.engine, spec.engine_options, stage_names, on_stage)
     status, message = channel_status(res, stages, multi is not None and multi.best_found_once)

@@ -183,6 +183,7 @@ class FitSpec:
     seed: int = 0
     probe: int = DEFAULT_PROBE
     keep: int | None = None  # starts continued after the probe (None: multistart.default_keep)
+    include_start: bool = True  # start 0 is [parameters.start] (always continued)
     max_gap: float = 0.05  # s: gaps up to this are interpolated by the reader, longer ones masked
     validate_group: str | None = None  # k-fold validation by this grouping (VALIDATE_GROUPS)
     validate_folds: int | None = None  # None: one fold per group (leave one group out)
@@ -652,7 +653,10 @@ def parse_spec(raw: dict[str, Any], path: Path) -> FitSpec:
     fit = raw.get("fit", {})
     if not isinstance(fit, dict):
         raise _err(path, "fit", f"expected a table, got {fit!r}")
-    _take(fit, path, "fit", {"starts", "seed", "probe", "keep"})
+    _take(fit, path, "fit", {"starts", "seed", "probe", "keep", "include_start"})
+    include_start = fit.get("include_start", True)
+    if not isinstance(include_start, bool):
+        raise _err(path, "fit.include_start", f"expected true or false, got {include_start!r}")
     starts, seed, probe = (_count(fit, key, default, low, path) for key, default, low in
                            (("starts", DEFAULT_STARTS, 1), ("seed", 0, 0), ("probe", DEFAULT_PROBE, 1)))
     keep = _count(fit, "keep", None, 1, path)
@@ -689,6 +693,7 @@ def parse_spec(raw: dict[str, Any], path: Path) -> FitSpec:
         speakers=str(speakers), speaker_column=speaker_column, channel_bounds=channel_bounds,
         target_margin=margin, overrides=tuple(overrides), ties=tuple(ties), shrinks=shrinks, choose=choose,
         engine=engine, engine_options=dict(engine_options),
-        staging=staging, stages=stages, starts=starts, seed=seed, probe=probe, keep=keep, max_gap=max_gap, holdout_repetition=hold, validate_group=group,
+        staging=staging, stages=stages, starts=starts, seed=seed, probe=probe, keep=keep, include_start=include_start,
+        max_gap=max_gap, holdout_repetition=hold, validate_group=group,
         validate_folds=folds,
         train_rate=v.get("train_rate", "normal"), test_rate=v.get("test_rate", "fast"))
