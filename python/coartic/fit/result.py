@@ -415,6 +415,7 @@ class FitResult:
         with atomic_path(paths["fitted"]) as tmp:
             np.savez_compressed(tmp, **arrays)
         summary: dict[str, Any] = {"spec": str(self.spec.path), "interrupted": self.interrupted, "started": self.started,
+                   "notes": list(self.notes),  # the small-data warnings among them (coartic.fit.guards)
                    "channels": {ch: {"rmse_mm": f.rmse, "status": f.status, "message": f.message, "nfev": f.nfev,
                                      "wall_time_s": f.wall_time, "at_bound": f.stats.at_bound if f.stats else [],
                                      # why each is at its bound (coartic.fit.bounds.BoundNote fields)

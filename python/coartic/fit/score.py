@@ -31,6 +31,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from coartic.errors import CoarticError
+from coartic.fit.baselines import Baselines, beats_step, flag_text
 from coartic.model import Utterance, evaluate_corpus
 from coartic.table import ParameterTable
 
@@ -98,7 +99,7 @@ class Score:
             acc: dict[str, list[float]] = {}
             for u, utt in enumerate(self.utterances):
                 r, ro = self.residuals(ch, u), self.residuals(ch, u, offset=True)
-                seg = segment_of(utt)
+                seg = utt.sample_segments()
                 for i, lab in enumerate(utt.labels):
                     m = (seg == i) & np.isfinite(r)
                     a = acc.setdefault(lab, [0.0, 0.0, 0.0])
@@ -144,7 +145,6 @@ class Score:
 
     def flags(self) -> list[str]:
         """One line per channel on which the table does not beat the step model."""
-        from coartic.fit.baselines import beats_step, flag_text
 
         out = []
         for ch in self.channels:
@@ -159,7 +159,6 @@ class Score:
 
     def add_baselines(self, train: Sequence[Utterance]) -> None:
         """Fit the baselines on ``train`` (the table's training utterances) and predict these samples."""
-        from coartic.fit.baselines import Baselines
 
         b = Baselines.fit(train, self.channels)
         self.baselines = {}
@@ -223,13 +222,6 @@ class Score:
         if figures:
             paths |= score_figures(self, out)
         return paths
-
-
-def segment_of(utt: Utterance) -> NDArray[np.int64]:
-    """For each sample of ``utt``, the index of the segment it lies in (−1 outside every segment)."""
-    i = np.searchsorted(utt.starts, utt.times, side="right") - 1
-    inside = (i >= 0) & (utt.times < utt.ends[np.clip(i, 0, None)])
-    return np.where(inside, i, -1).astype(np.int64)
 
 
 def score_utterances(table: ParameterTable, utterances: Sequence[Utterance],
@@ -377,7 +369,7 @@ def with_fallbacks(utterances: Sequence[Utterance], table: ParameterTable, chann
     from coartic.runtime.festival import PhoneMap
 
     own = getattr(label_map, "fallbacks", None)
-    fallbacks, source = (own, f"the label map ({label_map.source})") if own else (
+    fallbacks, source = (own, str(label_map.source)) if own else (
         PhoneMap.load().fallbacks, "phones_italian.tsv")
     used = substitutions([lab for u in utterances for lab in u.labels], table, channels, fallbacks)
     if not used:

@@ -30,16 +30,12 @@ from coartic.io.markers_csv import (
     time_column,
 )
 from coartic.io.registry import Reader, ReadRequest, register
-from coartic.io.roles import RoleMap
+from coartic.io.roles import RoleMap, ema_sensor_names
 from coartic.io.trial import Trial
 from coartic.io.units import to_mm
 
 _POS = re.compile(r"^(?P<sensor>.+)_pos(?P<axis>[xyzXYZ])$")
 _PLAIN = re.compile(r"^(?P<sensor>.+)_(?P<axis>[xyzXYZ])$")
-# Names only a face marker set has, and names only an EMA lab gives (jaw, incisor, tongue sensors).
-_FACE_ONLY = frozenset({"nose", "ear_l", "ear_r", "chin"})
-_EMA_ONLY = frozenset({"jaw", "jw", "li", "mi", "tt", "tb", "td", "tr", "tm", "t1", "t2", "t3",
-                       "t4", "t_tip", "t_mid", "t_back"})
 EMA_ROLES_USED = ("UL", "LL", "JAW", "LC", "LC_L", "LC_R", "NOSE", "TT", "TB")
 # channel -> (role, coordinate): height along the vertical, advancement along the anterior axis
 TONGUE_SENSORS: dict[str, tuple[str, str]] = {
@@ -58,10 +54,7 @@ def looks_like_ema(header: Sequence[str]) -> bool:
     both, and the face-marker reading would then ask for NOSE and CHIN."""
     if any(_POS.match(h) for h in header):
         return True
-    names = {m.group("sensor").lower() for h in header if (m := _PLAIN.match(h))}
-    if names & _FACE_ONLY or not {"ul", "ll"} <= names:
-        return False
-    return bool(names & _EMA_ONLY)
+    return ema_sensor_names([m.group("sensor") for h in header if (m := _PLAIN.match(h))])
 
 
 def read_ema_csv(path: str | PathLike[str], units: str | None = None) -> Trial:

@@ -22,7 +22,14 @@ from coartic.io.gaps import DEFAULT_MAX_GAP, Gap, fill_gaps, resample
 from coartic.io.labelmap import LabelMap, resolve_label_map
 from coartic.io.labels import Segments, read_labels
 from coartic.io.registry import ReadRequest, reader_for
-from coartic.io.roles import MARKER_ROLES, RoleMap, guess_axes, guess_ema_roles, resolve_role_map
+from coartic.io.roles import (
+    MARKER_ROLES,
+    RoleMap,
+    ema_sensor_names,
+    guess_axes,
+    guess_ema_roles,
+    resolve_role_map,
+)
 
 from coartic.table import ALL_CHANNELS, PAUSE, TONGUE_CHANNELS
 
@@ -360,6 +367,13 @@ def load_trial(
     roles = resolve_role_map(role_map)
     if reader.sensors:
         roles = _sensor_roles(trial, roles, role_map is None, reader.axes)
+    elif trial.kind == "markers" and ema_sensor_names(trial.marker_names):
+        # e.g. a C3D export of an EMA system: its sensors, not a face marker set
+        trial = replace(trial, kind="ema")
+        trial.meta.setdefault("notes", []).append(
+            "markers named as EMA sensors (UL, LL, jaw or tongue; no NOSE, EARs or CHIN): read as "
+            "EMA sensors")
+        roles = _sensor_roles(trial, roles, role_map is None, None)
     trial = replace(trial, roles=roles, meta={**trial.meta, **(dict(meta) if meta else {})})
     _warn_implausible_positions(trial)
     if labels is not None:
