@@ -109,6 +109,21 @@ def prepare_start(
                             problem.nfev, problem.njev)
 
 
+def evaluation_budget(problem: ChannelProblem) -> int:
+    """Default cap on model evaluations (SciPy, nlopt) for one local fit, scaled with the problem:
+    100 per free parameter (SciPy's own rule for least_squares), plus one per 100 residual rows
+    (more samples, more curvature to follow; a whole rate-aware session has ~1e5), at least 1000.
+    A fit that reaches it is reported as "max-evaluations" (exit status 3), never as converged."""
+    return max(1000, 100 * problem.packing.n_free + problem.n_residuals // 100)
+
+
+def iteration_budget(problem: ChannelProblem) -> int:
+    """Default cap on IPOPT iterations (each several evaluations): a tenth of the evaluation budget,
+    at least 300 (IPOPT's limited-memory Hessian needs more iterations per parameter than SciPy's
+    Gauss-Newton steps)."""
+    return max(300, evaluation_budget(problem) // 10)
+
+
 class Unit:
     """Map x to z in [0, 1]^n by its bounds: gradient engines (L-BFGS, IPOPT) see one scale."""
 
