@@ -33,7 +33,8 @@ from numpy.typing import NDArray
 
 from coartic import _core
 from coartic.fit.spec import FitSpec
-from coartic.model import JacobianBuffer, Utterance, build_corpus, channel_options, core_error
+from coartic.jacobian import JacobianBuffer
+from coartic.model import Utterance, build_corpus, channel_options, core_error
 from coartic.table import N_PARAMS, PARAMETERS, PAUSE
 
 if TYPE_CHECKING:
