@@ -7,12 +7,12 @@
 //! (§3.1) and, for δ, the target time t_i; those go through the reverse-mode derivative of the
 //! extent recursion ([`Resistance::extents_adjoint`]), O(N) per sample.
 
-use crate::dominance::{backward, log_dominance, log_dominance_grad, Side};
-use crate::model::{Prepared, LANES};
+use crate::dominance::{log_dominance_grad, LogDominance, Side};
+use crate::model::{value_pass, KeepPieces, Prepared, LANES};
 use crate::params::{Param, N_PARAMS};
-use crate::resistance::{cutoff_grad, cutoff_log_value, LogResistance, Resistance};
-use crate::shape::{gaussian_exp, gaussian_shape, Shape};
-use crate::vector_math::{exp_lanes, Lanes};
+use crate::resistance::{cutoff_grad, CutoffValue, LogResistance, Resistance};
+use crate::shape::Shape;
+use crate::vector_math::Lanes;
 #[cfg(target_arch = "x86_64")]
 use crate::vector_math::{simd_enabled, F64x4};
 
@@ -83,26 +83,54 @@ impl UtteranceGrads {
     }
 }
 
-/// Per-worker scratch for the derivative passes: the value pass runs [`LANES`] samples at a time
-/// through the lane kernels of [`crate::vector_math`] (like [`Prepared::evaluate`], so the
-/// values agree bit for bit) and keeps, per (segment, lane), the pieces the scalar derivative
-/// pass needs, so no transcendental function is computed twice.
+/// The pieces of the value pass that the scalar derivative pass needs, per (segment, lane),
+/// segment-major with [`LANES`] per segment, so no transcendental function is computed twice.
 #[derive(Clone, Debug, Default)]
-pub(crate) struct GradScratch {
-    /// Per (segment, lane), segment-major with [`LANES`] per segment: τ.
+struct Pieces {
+    /// τ.
     tau: Vec<f64>,
     /// ln|τ|, 0 at τ = 0 (where it only multiplies |τ|^c = 0).
     ln_abs_tau: Vec<f64>,
     /// |τ|^c.
     power: Vec<f64>,
-    /// ln(R D) during the value pass, then the normalised weight P_i; 0 where the pair is
-    /// skipped (beyond the extent) or its weight underflowed (its derivative factors may be huge).
-    p: Vec<f64>,
     /// u = |τ|/Δ and q = 1/(1 − u) of the sample's side (cut-off resistance only).
     u: Vec<f64>,
     q: Vec<f64>,
     /// exp(−ψ τ²) (Gaussian shape only).
     shape_exp: Vec<f64>,
+}
+
+impl KeepPieces for Pieces {
+    const KEEP: bool = true;
+    #[inline(always)]
+    fn tau<V: Lanes>(&mut self, o: usize, tau: V) {
+        tau.store(&mut self.tau[o..]);
+    }
+    #[inline(always)]
+    fn cutoff<V: Lanes>(&mut self, o: usize, value: &CutoffValue<V>) {
+        value.u.store(&mut self.u[o..]);
+        value.q().store(&mut self.q[o..]);
+    }
+    #[inline(always)]
+    fn dominance<V: Lanes>(&mut self, o: usize, value: &LogDominance<V>) {
+        value.ln_abs_tau.store(&mut self.ln_abs_tau[o..]);
+        value.power.store(&mut self.power[o..]);
+    }
+    #[inline(always)]
+    fn shape_exp<V: Lanes>(&mut self, o: usize, e: V) {
+        e.store(&mut self.shape_exp[o..]);
+    }
+}
+
+/// Per-worker scratch for the derivative passes: the value pass ([`value_pass`], the evaluator's
+/// own, so the values agree bit for bit) runs [`LANES`] samples at a time and keeps the
+/// [`Pieces`] the scalar derivative pass needs.
+#[derive(Clone, Debug, Default)]
+pub(crate) struct GradScratch {
+    pieces: Pieces,
+    /// The normalised weight P_i per (segment, lane); 0 where the pair is skipped (beyond the
+    /// extent) or its weight underflowed (its derivative factors may be huge).
+    p: Vec<f64>,
     /// F at each lane of the last block.
     values: [f64; LANES],
 }
@@ -122,14 +150,15 @@ impl GradScratch {
         let m = times.len();
         debug_assert!((1..=LANES).contains(&m));
         let len = prep.seg.len() * LANES;
+        let k = &mut self.pieces;
         for v in [
-            &mut self.tau,
-            &mut self.ln_abs_tau,
-            &mut self.power,
+            &mut k.tau,
+            &mut k.ln_abs_tau,
+            &mut k.power,
             &mut self.p,
-            &mut self.u,
-            &mut self.q,
-            &mut self.shape_exp,
+            &mut k.u,
+            &mut k.q,
+            &mut k.shape_exp,
         ] {
             v.resize(len, 0.0);
         }
@@ -171,8 +200,7 @@ impl GradScratch {
         self.lanes_at::<F64x4, RATE>(prep, F64x4::load(t), 0, beta, res, shape)
     }
 
-    /// The value pass for the lanes `at..at + V::N`: the operation sequence of
-    /// [`Prepared::evaluate`]'s lane evaluator, keeping the pieces.
+    /// The value pass for the lanes `at..at + V::N`, keeping F and the pieces.
     #[inline(always)]
     fn lanes_at<V: Lanes, const RATE: bool>(
         &mut self,
@@ -183,75 +211,17 @@ impl GradScratch {
         res: Resistance,
         shape: Shape,
     ) -> u32 {
-        let s = V::splat;
-        let zero = s(0.0);
-        let one = s(1.0);
-        let neg_inf = s(f64::NEG_INFINITY);
-        let mut max_lw = neg_inf;
-        for (i, g) in prep.seg.iter().enumerate() {
-            let o = i * LANES + at;
-            let tau = time.sub(s(g.t));
-            tau.store(&mut self.tau[o..]);
-            let a = tau.abs();
-            let bw = backward(tau);
-            let lr = match res {
-                Resistance::None => zero,
-                Resistance::Cutoff => {
-                    let ext = V::select(bw, s(g.ext_bwd), s(g.ext_fwd));
-                    let cv = cutoff_log_value(a, ext, beta);
-                    cv.u.store(&mut self.u[o..]);
-                    cv.q().store(&mut self.q[o..]);
-                    cv.log_r
-                }
-            };
-            let active = lr.ne(neg_inf);
-            if !V::any(active) {
-                neg_inf.store(&mut self.p[o..]);
-                continue;
-            }
-            // ln|τ| always (∂/∂c needs it even where c = 1).
-            let ld = log_dominance::<V, RATE>(&g.dom, bw, a);
-            ld.ln_abs_tau.store(&mut self.ln_abs_tau[o..]);
-            ld.power.store(&mut self.power[o..]);
-            let lw = V::select(active, lr.add(ld.log_d), neg_inf);
-            max_lw = V::select(lw.gt(max_lw), lw, max_lw);
-            lw.store(&mut self.p[o..]);
-        }
-        let degenerate = max_lw.eq(neg_inf);
-        let mut num = zero;
-        let mut den = zero;
-        for (i, g) in prep.seg.iter().enumerate() {
-            let o = i * LANES + at;
-            let lw = V::load(&self.p[o..]);
-            let active = lw.ne(neg_inf);
-            if !V::any(active) {
-                zero.store(&mut self.p[o..]);
-                continue;
-            }
-            let w = exp_lanes(lw.sub(max_lw));
-            let sv = match shape {
-                Shape::Gaussian => {
-                    // e even where σ = 0: ∂S/∂σ = e.
-                    let e = gaussian_exp(g.psi, V::load(&self.tau[o..]));
-                    e.store(&mut self.shape_exp[o..]);
-                    if g.sigma != 0.0 {
-                        gaussian_shape(g.sigma, e)
-                    } else {
-                        one
-                    }
-                }
-                Shape::None => one,
-            };
-            num = V::select(active, num.add(w.mul(s(g.target)).mul(sv)), num);
-            den = V::select(active, den.add(w), den);
-            V::select(active, w, zero).store(&mut self.p[o..]);
-        }
-        num.div(den).store(&mut self.values[at..]);
-        let inv_den = V::select(degenerate, zero, one.div(den));
-        for i in 0..prep.seg.len() {
-            let o = i * LANES + at;
-            V::load(&self.p[o..]).mul(inv_den).store(&mut self.p[o..]);
-        }
+        let (f, degenerate) = value_pass::<V, RATE, Pieces>(
+            &prep.seg,
+            time,
+            beta,
+            res,
+            shape,
+            &mut self.p,
+            at,
+            &mut self.pieces,
+        );
+        f.store(&mut self.values[at..]);
         V::bits(degenerate)
     }
 
@@ -305,7 +275,7 @@ impl GradScratch {
             if p == 0.0 {
                 continue;
             }
-            let tau = self.tau[o];
+            let tau = self.pieces.tau[o];
             let side = Side::of(tau);
             let (theta, c, inv_ext) = match side {
                 Side::Backward => (s.dom.theta_bw, s.dom.c_bw, s.inv_bwd),
@@ -314,12 +284,12 @@ impl GradScratch {
             let lr = if res.is_none() || tau == 0.0 {
                 LogResistance::default()
             } else {
-                match cutoff_grad(self.u[o], self.q[o], inv_ext, beta) {
+                match cutoff_grad(self.pieces.u[o], self.pieces.q[o], inv_ext, beta) {
                     Some(lr) => lr,
                     None => continue,
                 }
             };
-            let sv = shape.value_grad_from_exp(tau, s.sigma, s.psi, self.shape_exp[o]);
+            let sv = shape.value_grad_from_exp(tau, s.sigma, s.psi, self.pieces.shape_exp[o]);
             let sp = scale * p;
             // ∂F/∂(ln w_i), scaled.
             let a = sp * (s.target * sv.s - f);
@@ -328,8 +298,8 @@ impl GradScratch {
                 theta,
                 c,
                 s.dom.signed_reach::<RATE>(tau),
-                self.power[o],
-                self.ln_abs_tau[o],
+                self.pieces.power[o],
+                self.pieces.ln_abs_tau[o],
             );
             let sign = if tau > 0.0 {
                 1.0

@@ -2,10 +2,12 @@
 //! and the evaluation of F(t) at its samples, MODEL.md eq. 1 / eq. 3, normalised in the log
 //! domain (log-sum-exp over segments) so that underflowing dominance never gives 0/0.
 
-use crate::dominance::{backward, log_dominance_value, DominanceParams};
+use crate::dominance::{
+    backward, log_dominance, log_dominance_value, DominanceParams, LogDominance,
+};
 use crate::params::{Dominance, ModelOptions, Param, N_PARAMS};
-use crate::resistance::Resistance;
-use crate::shape::{gaussian_exp, Shape};
+use crate::resistance::{cutoff_log_value, CutoffValue, Resistance};
+use crate::shape::{gaussian_exp, gaussian_shape, Shape};
 use crate::targets::target_time;
 use crate::vector_math::{exp_lanes, Lanes};
 #[cfg(target_arch = "x86_64")]
@@ -35,6 +37,129 @@ pub(crate) struct SegmentModel {
     /// 1/Δ⁻_i and 1/Δ⁺_i (0 where Δ = +∞), for the derivatives.
     pub inv_bwd: f64,
     pub inv_fwd: f64,
+}
+
+/// What a value pass keeps of each (segment, lane) for a derivative pass, at the position `o` of
+/// the segment-major scratch ([`LANES`] per segment). The evaluator keeps nothing (`()`: every
+/// hook compiles away); the derivative passes' scratch keeps the pieces
+/// ([`crate::gradient::GradScratch`]). Hooks are inlined into the caller, so they run under its
+/// AVX2 target feature.
+pub(crate) trait KeepPieces {
+    /// Whether pieces are kept: then ln|τ| is taken even where c = 1 (∂/∂c needs it), exp(−ψτ²)
+    /// even where σ = 0 (∂S/∂σ), and the pass leaves the normalised weights P_i in its `log_w`.
+    const KEEP: bool;
+    #[inline(always)]
+    fn tau<V: Lanes>(&mut self, _o: usize, _tau: V) {}
+    #[inline(always)]
+    fn cutoff<V: Lanes>(&mut self, _o: usize, _value: &CutoffValue<V>) {}
+    #[inline(always)]
+    fn dominance<V: Lanes>(&mut self, _o: usize, _value: &LogDominance<V>) {}
+    #[inline(always)]
+    fn shape_exp<V: Lanes>(&mut self, _o: usize, _e: V) {}
+}
+
+impl KeepPieces for () {
+    const KEEP: bool = false;
+}
+
+/// The value pass, written once for the evaluator and the derivative passes: F at the lanes of
+/// `time` (eq. 1 or eq. 3) and the lanes where every segment's weight is zero (degenerate: F
+/// undefined there). `log_w` is per-(segment, lane) scratch, segment-major with [`LANES`] per
+/// segment, these lanes starting at `at`: ln(R·D) during the pass (−∞ where the pair is
+/// skipped); with `K::KEEP`, the normalised weights P_i after it (0 where the pair is skipped or
+/// its weight underflowed). The same operation sequence per lane whatever the lane count and
+/// whatever is kept, so every instantiation agrees bit for bit.
+#[allow(clippy::too_many_arguments)]
+#[inline(always)]
+pub(crate) fn value_pass<V: Lanes, const RATE: bool, K: KeepPieces>(
+    seg: &[SegmentModel],
+    time: V,
+    beta: f64,
+    res: Resistance,
+    shape: Shape,
+    log_w: &mut [f64],
+    at: usize,
+    keep: &mut K,
+) -> (V, V::Mask) {
+    let s = V::splat;
+    let zero = s(0.0);
+    let one = s(1.0);
+    let neg_inf = s(f64::NEG_INFINITY);
+    let mut max_lw = neg_inf;
+    for (i, g) in seg.iter().enumerate() {
+        let o = i * LANES + at;
+        let tau = time.sub(s(g.t));
+        keep.tau(o, tau);
+        let a = tau.abs();
+        let bw = backward(tau);
+        let lr = match res {
+            Resistance::None => zero,
+            Resistance::Cutoff => {
+                // The side's extent selected inside this arm: hoisted above the match, the mask
+                // stays live across the branches and costs a conversion per pair.
+                let ext = V::select(bw, s(g.ext_bwd), s(g.ext_fwd));
+                let cv = cutoff_log_value(a, ext, beta);
+                keep.cutoff(o, &cv);
+                cv.log_r
+            }
+        };
+        let active = lr.ne(neg_inf);
+        if !V::any(active) {
+            // Every lane beyond the extent: no transcendental function for this segment.
+            neg_inf.store(&mut log_w[o..]);
+            continue;
+        }
+        let ld = if K::KEEP {
+            let ld = log_dominance::<V, RATE>(&g.dom, bw, a);
+            keep.dominance(o, &ld);
+            ld.log_d
+        } else {
+            log_dominance_value::<V, RATE>(&g.dom, bw, a)
+        };
+        let lw = V::select(active, lr.add(ld), neg_inf);
+        max_lw = V::select(lw.gt(max_lw), lw, max_lw);
+        lw.store(&mut log_w[o..]);
+    }
+    let degenerate = max_lw.eq(neg_inf);
+    let mut num = zero;
+    let mut den = zero;
+    for (i, g) in seg.iter().enumerate() {
+        let o = i * LANES + at;
+        let lw = V::load(&log_w[o..]);
+        let active = lw.ne(neg_inf);
+        if !V::any(active) {
+            if K::KEEP {
+                zero.store(&mut log_w[o..]);
+            }
+            continue;
+        }
+        let w = exp_lanes(lw.sub(max_lw));
+        let sv = match shape {
+            Shape::Gaussian if K::KEEP => {
+                let e = gaussian_exp(g.psi, time.sub(s(g.t)));
+                keep.shape_exp(o, e);
+                if g.sigma != 0.0 {
+                    gaussian_shape(g.sigma, e)
+                } else {
+                    one
+                }
+            }
+            _ => shape.value(time.sub(s(g.t)), g.sigma, g.psi),
+        };
+        num = V::select(active, num.add(w.mul(s(g.target)).mul(sv)), num);
+        den = V::select(active, den.add(w), den);
+        if K::KEEP {
+            V::select(active, w, zero).store(&mut log_w[o..]);
+        }
+    }
+    if K::KEEP {
+        let inv_den = V::select(degenerate, zero, one.div(den));
+        for i in 0..seg.len() {
+            let o = i * LANES + at;
+            V::load(&log_w[o..]).mul(inv_den).store(&mut log_w[o..]);
+        }
+    }
+    (num.div(den), degenerate)
 }
 
 /// Per-utterance precomputation, reused from utterance to utterance by one worker so the inner
@@ -149,56 +274,6 @@ impl Prepared {
         }
     }
 
-    /// F at the lanes of `time` (eq. 1 or eq. 3), with the lanes where every segment's weight is
-    /// zero (degenerate: F undefined there). The same operation sequence per lane whatever the
-    /// lane count, so the scalar and AVX2 instantiations agree bit for bit with each other and
-    /// with [`crate::gradient::GradScratch::values_at`].
-    #[inline(always)]
-    fn lanes_at<V: Lanes, const RATE: bool>(
-        &mut self,
-        time: V,
-        beta: f64,
-        res: Resistance,
-        shape: Shape,
-    ) -> (V, V::Mask) {
-        let s = V::splat;
-        let zero = s(0.0);
-        let neg_inf = s(f64::NEG_INFINITY);
-        let mut max_lw = neg_inf;
-        for (i, g) in self.seg.iter().enumerate() {
-            let tau = time.sub(s(g.t));
-            let a = tau.abs();
-            let bw = backward(tau);
-            let lr = res.log_value(bw, a, g.ext_bwd, g.ext_fwd, beta);
-            let active = lr.ne(neg_inf);
-            let out = &mut self.log_w[i * LANES..];
-            if !V::any(active) {
-                // Every lane beyond the extent: no transcendental function for this segment.
-                neg_inf.store(out);
-                continue;
-            }
-            let ld = log_dominance_value::<V, RATE>(&g.dom, bw, a);
-            let lw = V::select(active, lr.add(ld), neg_inf);
-            max_lw = V::select(lw.gt(max_lw), lw, max_lw);
-            lw.store(out);
-        }
-        let degenerate = max_lw.eq(neg_inf);
-        let mut num = zero;
-        let mut den = zero;
-        for (i, g) in self.seg.iter().enumerate() {
-            let lw = V::load(&self.log_w[i * LANES..]);
-            let active = lw.ne(neg_inf);
-            if !V::any(active) {
-                continue;
-            }
-            let w = exp_lanes(lw.sub(max_lw));
-            let sv = shape.value(time.sub(s(g.t)), g.sigma, g.psi);
-            num = V::select(active, num.add(w.mul(s(g.target)).mul(sv)), num);
-            den = V::select(active, den.add(w), den);
-        }
-        (num.div(den), degenerate)
-    }
-
     /// Evaluates F at `times` into `out`, [`LANES`] samples at a time where AVX2 is available.
     /// A degenerate sample (every weight zero) gets NaN and is reported to `bad` with its local
     /// index, in order; `bad` decides whether that is an error.
@@ -260,7 +335,16 @@ impl Prepared {
             // A short last block repeats its last time in the spare lanes (results dropped).
             let mut t = [times[k + m - 1]; LANES];
             t[..m].copy_from_slice(&times[k..k + m]);
-            let (f, degenerate) = self.lanes_at::<V, RATE>(V::load(&t), beta, res, shape);
+            let (f, degenerate) = value_pass::<V, RATE, ()>(
+                &self.seg,
+                V::load(&t),
+                beta,
+                res,
+                shape,
+                &mut self.log_w,
+                0,
+                &mut (),
+            );
             let mut v = [0.0; LANES];
             f.store(&mut v);
             let deg = V::bits(degenerate);

@@ -94,29 +94,6 @@ impl Resistance {
         matches!(self, Resistance::None)
     }
 
-    /// ln R on the lanes of |τ| = `abs_tau`, each lane against the extent of its side (`bw`:
-    /// τ ≤ 0, Δ⁻ = `ext_bwd`, else Δ⁺ = `ext_fwd`; +∞ where R ≡ 1 on that side). −∞ where R = 0
-    /// (u ≥ 1, including Δ = 0): the caller skips that pair.
-    #[inline(always)]
-    pub(crate) fn log_value<V: Lanes>(
-        self,
-        bw: V::Mask,
-        abs_tau: V,
-        ext_bwd: f64,
-        ext_fwd: f64,
-        beta: f64,
-    ) -> V {
-        match self {
-            Resistance::None => V::splat(0.0),
-            Resistance::Cutoff => {
-                // The side's extent selected inside this arm: hoisted above the match, the mask
-                // stays live across the evaluator's branches and costs a conversion per pair.
-                let extent = V::select(bw, V::splat(ext_bwd), V::splat(ext_fwd));
-                cutoff_log_value(abs_tau, extent, beta).log_r
-            }
-        }
-    }
-
     /// ln R and its derivatives at one pair; `None` where R = 0 (u ≥ 1), where ρ is C∞ and every
     /// derivative is 0. `inv_extent` is 1/Δ (0 for Δ = +∞), precomputed per segment. The
     /// composition of [`cutoff_log_value`] and [`cutoff_grad`] that the gradient makes.
@@ -224,7 +201,10 @@ mod tests {
 
     /// ln R at one pair, both sides with the same extent.
     fn lv(r: Resistance, abs_tau: f64, extent: f64, beta: f64) -> f64 {
-        r.log_value::<f64>(true, abs_tau, extent, extent, beta)
+        match r {
+            Resistance::None => 0.0,
+            Resistance::Cutoff => cutoff_log_value::<f64>(abs_tau, extent, beta).log_r,
+        }
     }
 
     #[test]

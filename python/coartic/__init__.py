@@ -1,34 +1,41 @@
 """coartic: labial coarticulation modelling (Cohen-Massaro as modified by Cosi & Perin).
 
 The model lives in the Rust core ``coartic._core``; ``ParameterTable`` holds its parameters and
-``trajectories`` evaluates them for a segment list. ``Trial`` and ``load_trial`` (the data
-readers) are imported on first use, so ``import coartic`` stays light.
+``trajectories`` evaluates them for a segment list; ``Coarticulation`` is the estimator-style
+entry point (``fit``, ``predict``, ``score`` on trials: ``coartic.estimator``). Every name below
+is imported on first use, so ``import coartic`` (and ``coartic --help``) loads neither the core
+nor SciPy.
 """
 
-from typing import Any
+from importlib import import_module
+from typing import TYPE_CHECKING, Any
 
-from coartic.model import build_corpus, trajectories
-from coartic.table import ALL_CHANNELS, CHANNELS, PARAMETERS, TONGUE_CHANNELS, ParameterTable
+if TYPE_CHECKING:
+    from coartic.estimator import Coarticulation
+    from coartic.io.trial import Trial, load_trial
+    from coartic.model import build_corpus, trajectories
+    from coartic.table import ALL_CHANNELS, CHANNELS, PARAMETERS, TONGUE_CHANNELS, ParameterTable
 
 __version__ = "0.1.0"
 
-__all__ = [
-    "ALL_CHANNELS",
-    "CHANNELS",
-    "PARAMETERS",
-    "TONGUE_CHANNELS",
-    "ParameterTable",
-    "Trial",
-    "build_corpus",
-    "load_trial",
-    "trajectories",
-    "__version__",
-]
+# name -> the module that defines it
+_LAZY: dict[str, str] = {
+    "ALL_CHANNELS": "coartic.table",
+    "CHANNELS": "coartic.table",
+    "Coarticulation": "coartic.estimator",
+    "PARAMETERS": "coartic.table",
+    "ParameterTable": "coartic.table",
+    "TONGUE_CHANNELS": "coartic.table",
+    "Trial": "coartic.io.trial",
+    "build_corpus": "coartic.model",
+    "load_trial": "coartic.io.trial",
+    "trajectories": "coartic.model",
+}
+
+__all__ = [*_LAZY, "__version__"]
 
 
 def __getattr__(name: str) -> Any:
-    if name in ("Trial", "load_trial"):
-        from coartic.io import trial
-
-        return getattr(trial, name)
+    if name in _LAZY:
+        return getattr(import_module(_LAZY[name]), name)
     raise AttributeError(f"module 'coartic' has no attribute {name!r}")

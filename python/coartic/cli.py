@@ -1,45 +1,117 @@
-"""The `coartic` command. Each sub-command lives beside the code it drives and is registered here."""
+"""The `coartic` command. Each sub-command lives beside the code it drives and is registered here.
+
+Sub-commands are loaded when they run (or when their own --help is asked for), not when `coartic`
+starts: `coartic --help` and `coartic --version` import none of SciPy, matplotlib, the MCMC stack,
+Dask, CasADi, nlopt or ezc3d, which the commands that use them import themselves
+(tests/python/test_cli_startup.py; measured by bench/startup.py). The listing shown by
+`coartic --help` comes from `COMMANDS` below, checked equal to each command's own first help line.
+"""
+
+from __future__ import annotations
+
+import importlib
+from typing import Annotated, Any
 
 import typer
+from typer.core import TyperCommand, TyperGroup
 
-from coartic import synthetic_cli
+from coartic import __version__
 from coartic.console import show_data_warnings
-from coartic.batch.cli import batch_command
-from coartic.demo import demo_command
-from coartic.face.view_cli import view_command
-from coartic.fit.fit_cli import fit_command
-from coartic.fit.compare_cli import compare_command
-from coartic.fit.score_cli import score_command
-from coartic.io.inspect_cli import inspect_command
-from coartic.mcmc.mcmc_cli import mcmc_command
-from coartic.runtime.runtime_cli import animate_command, speak_command
+
+# name -> (module, attribute, the help's first paragraph, shown by `coartic --help`). The attribute is a command
+# function or a typer sub-app (`corpus`).
+COMMANDS: dict[str, tuple[str, str, str]] = {
+    "inspect": ("coartic.io.inspect_cli", "inspect_command",
+                "Summarise a recording: markers, rate, frames, gaps per marker, labels, channels."),
+    "fit": ("coartic.fit.fit_cli", "fit_command",
+            "Fit the coarticulation model to a corpus by least squares (MODEL.md §5)."),
+    "score": ("coartic.fit.score_cli", "score_command",
+              "Predict recordings the fit did not see and report the RMSE (also after removing a per-utterance "
+              "offset, and after calibrating the speaker's offset and scale on these recordings)."),
+    "compare": ("coartic.fit.compare_cli", "compare_command",
+                "Fit every spec on its data and compare: free parameters, RMSE, held-out RMSE, AIC, BIC."),
+    "mcmc": ("coartic.mcmc.mcmc_cli", "mcmc_command",
+             "Sample the posterior of the fitted parameters with emcee, check convergence, write intervals."),
+    "animate": ("coartic.runtime.runtime_cli", "animate_command",
+                "Animate a label file: channel trajectories (CSV), an MPEG-4 FAP file and a preview."),
+    "speak": ("coartic.runtime.runtime_cli", "speak_command",
+              "Say Italian text with Festival: WAV, channel trajectories, FAP file and preview, all as long as "
+              "the WAV."),
+    "demo": ("coartic.demo", "demo_command",
+             "Plot the model on /a p a/, /a f a/, /a t a/ at a normal and a 3x faster rate (illustrative table)."),
+    "view": ("coartic.face.view_cli", "view_command",
+             "Write OUT_DIR/view.html: the face (glTF) playing with its WAV in sync, the channels and a cursor."),
+    "batch": ("coartic.batch.cli", "batch_command",
+              "Fit every speaker/session (and all of them pooled), with \\[posteriors] sample each one's posteriors: "
+              "one Dask task per speaker and channel; rerun the same command to continue after an interruption."),
+    "corpus": ("coartic.synthetic_cli", "app", "The synthetic ELITE-style session (corpus-synthetic/)."),
+}
+
+
+def load_command(name: str) -> Any:
+    """The (click) command `name`, its module imported now."""
+    module, attr, _ = COMMANDS[name]
+    obj: Any = getattr(importlib.import_module(module), attr)
+    if isinstance(obj, typer.Typer):
+        cmd: Any = typer.main.get_group(obj)
+    else:
+        single = typer.Typer(add_completion=False)
+        single.command(name)(obj)
+        cmd = typer.main.get_command(single)
+    cmd.name = name
+    return cmd
+
+
+class LazyGroup(TyperGroup):
+    """A typer group whose sub-commands are imported on first use. While the group's own help is
+    formatted, each sub-command is a placeholder carrying the one-line help of `COMMANDS`."""
+
+    _listing = False
+
+    # (typer's click types are its private vendored copy: the overrides take them as Any)
+    def list_commands(self, ctx: Any) -> list[str]:
+        return [*super().list_commands(ctx), *(n for n in COMMANDS if n not in self.commands)]
+
+    def get_command(self, ctx: Any, cmd_name: str) -> Any:
+        if cmd_name in self.commands or cmd_name not in COMMANDS:
+            return super().get_command(ctx, cmd_name)
+        if self._listing:
+            return TyperCommand(cmd_name, short_help=COMMANDS[cmd_name][2])
+        self.commands[cmd_name] = load_command(cmd_name)
+        return self.commands[cmd_name]
+
+    def format_help(self, ctx: Any, formatter: Any) -> None:
+        self._listing = True
+        try:
+            super().format_help(ctx, formatter)
+        finally:
+            self._listing = False
+
 
 app = typer.Typer(
     name="coartic",
+    cls=LazyGroup,
     help="Fit, sample and animate the Cohen-Massaro / Cosi-Perin coarticulation model.",
     no_args_is_help=True,
     add_completion=False,
 )
 
 
+def _version(value: bool) -> None:
+    if value:
+        typer.echo(f"coartic {__version__}")
+        raise typer.Exit()
+
+
 @app.callback()
-def _main() -> None:
+def _main(
+    version: Annotated[bool, typer.Option("--version", is_eager=True, callback=_version,
+                                          help="Print coartic's version and exit.")] = False,
+) -> None:
     """Fit, sample and animate the Cohen-Massaro / Cosi-Perin coarticulation model."""
     # data that reads but looks wrong (swapped EMA axes, metres taken for mm) is said by every command
     show_data_warnings()
 
-
-app.add_typer(synthetic_cli.app, name="corpus")  # coartic corpus synth OUT
-app.command("inspect")(inspect_command)
-app.command("fit")(fit_command)
-app.command("score")(score_command)
-app.command("compare")(compare_command)
-app.command("mcmc")(mcmc_command)
-app.command("animate")(animate_command)
-app.command("speak")(speak_command)
-app.command("demo")(demo_command)
-app.command("view")(view_command)
-app.command("batch")(batch_command)
 
 if __name__ == "__main__":
     app()

@@ -1,7 +1,9 @@
 """The parameter table: per phoneme, per channel, the ten model parameters of MODEL.md §1.
 
-The canonical file is JSON (schema ``coartic.table/1``, see docs/ARCHITECTURE.md); a long CSV
-(``phoneme,channel,parameter,value[,q2.5,q16,q50,q84,q97.5]``) is offered for spreadsheets.
+The canonical file is JSON (schema ``coartic.table/1``, see docs/ARCHITECTURE.md); a tidy CSV
+(``channel,phoneme,parameter,value[,q2.5,q16,q50,q84,q97.5]``, numbers only after the first three
+columns) and ``to_dataframe()`` (pandas) are offered for spreadsheets and analysis; the CSV's
+settings stay in the JSON beside it. The long CSV of earlier versions is still read.
 Every float is written with ``repr`` so that ``load(save(table))`` gives back the same bits.
 Loading validates everything and names the file, phoneme, channel and parameter at fault.
 """
@@ -48,6 +50,7 @@ PARAMETERS: tuple[str, ...] = (
 N_PARAMS = len(PARAMETERS)
 VARIANTS: tuple[str, ...] = ("original", "modified")
 QUANTILES: tuple[str, ...] = ("q2.5", "q16", "q50", "q84", "q97.5")
+TIDY_HEADER = ["channel", "phoneme", "parameter", "value"]  # table.csv's first columns (then QUANTILES)
 PAUSE = "#"
 
 INF = math.inf
@@ -426,7 +429,8 @@ class ParameterTable:
 
     @classmethod
     def load(cls, path: str | Path) -> ParameterTable:
-        """Read and validate a table from JSON or (by suffix ``.csv``) long CSV."""
+        """Read and validate a table from JSON or (by suffix ``.csv``) CSV: a tidy CSV's settings
+        come from the JSON of the same name beside it (``from_csv``)."""
         path = Path(path)
         try:
             raw = path.read_bytes()
@@ -439,56 +443,84 @@ class ParameterTable:
             raise TableError(f"{path}: line {line}: not UTF-8 text (byte {raw[exc.start]:#04x} at offset "
                              f"{exc.start}); tables are written in UTF-8") from None
         if path.suffix.lower() == ".csv":
-            return cls.from_csv(text, source=str(path))
+            beside = path.with_suffix(".json")
+            tidy = text.startswith(",".join(TIDY_HEADER))
+            return cls.from_csv(text, source=str(path), settings=cls.load(beside) if tidy and beside.is_file() else None)
         return cls.from_json_dict(parse_json(text, str(path)), source=str(path))
 
-    # ----------------------------------------------------------------------- CSV
+    # ----------------------------------------------------------------------- CSV and pandas
+
+    def tidy_rows(self) -> list[tuple[str, str, str, float, list[float | None]]]:
+        """(channel, phoneme, parameter, value, quantiles or None each) for every value: the rows of
+        ``table.csv`` and of ``to_dataframe``, channel by channel, phonemes as in the table."""
+        rows = []
+        for ch in self.channels:
+            for ph, chans in self.values.items():
+                if ch not in chans:
+                    continue
+                for name in PARAMETERS:
+                    qs = self.uncertainty.get(ph, {}).get(ch, {}).get(name, {})
+                    rows.append((ch, ph, name, float(chans[ch][name]), [qs.get(q) for q in QUANTILES]))
+        return rows
 
     def to_csv(self) -> str:
-        """Long CSV: one row per phoneme, channel and parameter; uncertainty columns when present.
-
-        Channel settings are rows with phoneme ``*`` (``unit``, ``beta``, ``edge_extent``,
-        ``apex_fraction``, ``reference_phoneme``, and ``dominance``, ``plateau_fraction``,
-        ``handover`` when not the defaults); the variant is the row ``*,*,variant,<name>``.
-        Bounds, reasons and metadata are not carried by the CSV (the JSON is the canonical file).
-        """
+        """Tidy CSV: ``channel,phoneme,parameter,value`` and, when the table has any uncertainty,
+        the quantile columns (empty where none), one row per channel, phoneme and parameter. Every
+        cell after the first three is a number (``repr``: read back bit for bit), so pandas reads
+        them as float64. The channel settings (reference phoneme, β, unit, ...), the variant,
+        bounds and metadata are not in it: they are in ``table.json`` beside it, which ``load``
+        reads with it (``from_csv``)."""
         buf = io.StringIO()
         w = csv.writer(buf, lineterminator="\n")
         with_q = bool(self.uncertainty)
-        w.writerow(["phoneme", "channel", "parameter", "value"] + (list(QUANTILES) if with_q else []))
-        pad = [""] * len(QUANTILES) if with_q else []
-        w.writerow(["*", "*", "variant", self.variant] + pad)
-        for ch, cs in self.channels.items():
-            w.writerow(["*", ch, "unit", cs.unit] + pad)
-            for name in ("beta", "edge_extent", "apex_fraction"):
-                w.writerow(["*", ch, name, repr(float(getattr(cs, name)))] + pad)
-            w.writerow(["*", ch, "reference_phoneme", cs.reference_phoneme] + pad)
-            for name, v in cs.rate_settings().items():
-                text = repr(float(v)) if name == "plateau_fraction" else str(v).lower() if name == "handover" else v
-                w.writerow(["*", ch, name, text] + pad)
-        for ph, chans in self.values.items():
-            for ch, row in chans.items():
-                for name in PARAMETERS:
-                    qs = self.uncertainty.get(ph, {}).get(ch, {}).get(name, {})
-                    extra = [repr(qs[q]) if q in qs else "" for q in QUANTILES] if with_q else []
-                    w.writerow([ph, ch, name, repr(float(row[name]))] + extra)
+        w.writerow(TIDY_HEADER + (list(QUANTILES) if with_q else []))
+        for ch, ph, name, value, qs in self.tidy_rows():
+            extra = ["" if q is None else repr(float(q)) for q in qs] if with_q else []
+            w.writerow([ch, ph, name, repr(value)] + extra)
         return buf.getvalue()
 
+    def to_dataframe(self) -> Any:
+        """The values (and quantiles, NaN where none) as a pandas DataFrame, the rows and columns
+        of ``table.csv``; the quantile columns are always there.
+
+        >>> from coartic.demo import illustrative_table   # /# a p f t/ on LLO
+        >>> df = illustrative_table().to_dataframe()
+        >>> df.shape                                         # 5 phonemes x 10 parameters; 4 + 5 columns
+        (50, 9)
+        >>> df.query("phoneme == 'p' and parameter == 'k_r'")[["channel", "value"]].values.tolist()
+        [['LLO', 1.0]]
+        >>> str(df["value"].dtype), str(df["q50"].dtype)
+        ('float64', 'float64')
+        """
+        import pandas as pd
+
+        rows = [(ch, ph, name, value, *[math.nan if q is None else float(q) for q in qs])
+                for ch, ph, name, value, qs in self.tidy_rows()]
+        return pd.DataFrame(rows, columns=[*TIDY_HEADER, *QUANTILES])
+
     @classmethod
-    def from_csv(cls, text: str, source: str = "<csv>") -> ParameterTable:
-        """Read the long CSV written by ``to_csv`` and validate it."""
+    def from_csv(cls, text: str, source: str = "<csv>", settings: ParameterTable | None = None) -> ParameterTable:
+        """Read a table's CSV and validate it.
+
+        The tidy CSV (``to_csv``) carries the values and quantiles only; ``settings`` (the table
+        of ``table.json`` beside it) gives the variant, channel settings, bounds and metadata, and
+        must have the CSV's channels. The long CSV of earlier versions (``phoneme,channel,...``
+        with ``*`` rows for the settings) is read on its own.
+        """
         reader = csv.reader(io.StringIO(text))
         try:
             header = next(reader)
         except StopIteration:
             raise TableError(f"{source}: empty CSV file") from None
+        if header[:4] == TIDY_HEADER:
+            return cls._from_tidy_csv(header, reader, source, settings)
         base = ["phoneme", "channel", "parameter", "value"]
         if header not in (base, base + list(QUANTILES)):
             raise TableError(
-                f"{source}: line 1: header must be {','.join(base)}[,{','.join(QUANTILES)}], got {','.join(header)}"
+                f"{source}: line 1: header must be {','.join(TIDY_HEADER)}[,{','.join(QUANTILES)}], got {','.join(header)}"
             )
         variant = "modified"
-        settings: dict[str, dict[str, str]] = {}
+        settings_: dict[str, dict[str, str]] = {}
         values: dict[str, dict[str, dict[str, float]]] = {}
         uncertainty: dict[str, dict[str, dict[str, dict[str, float]]]] = {}
         seen: dict[tuple[str, str, str], int] = {}
@@ -512,7 +544,7 @@ class ParameterTable:
                     if name not in ("unit", "beta", "edge_extent", "apex_fraction", "reference_phoneme",
                                     *RATE_SETTINGS):
                         raise TableError(f"{where}: unknown channel setting {name!r}")
-                    settings.setdefault(ch, {})[name] = value
+                    settings_.setdefault(ch, {})[name] = value
                 continue
             values.setdefault(ph, {}).setdefault(ch, {})[name] = _parse_float(where, name, value)
             for q, cell in zip(QUANTILES, rec[4:]):
@@ -521,7 +553,7 @@ class ParameterTable:
                         where, f"{name} {q}", cell
                     )
         channels: dict[str, ChannelSettings] = {}
-        for ch, s in settings.items():
+        for ch, s in settings_.items():
             where = f"{source}: channel {ch!r}"
             if "reference_phoneme" not in s:
                 raise TableError(f"{where}: missing the row '*,{ch},reference_phoneme,<phoneme>'")
@@ -536,6 +568,43 @@ class ParameterTable:
                 handover=_parse_bool(where, "handover", s.get("handover", "false")),
             )
         table = cls(variant=variant, channels=channels, values=values, uncertainty=uncertainty, source=source)
+        table.validate()
+        return table
+
+    @classmethod
+    def _from_tidy_csv(cls, header: list[str], reader: Any, source: str,
+                       settings: ParameterTable | None) -> ParameterTable:
+        if header not in (TIDY_HEADER, TIDY_HEADER + list(QUANTILES)):
+            raise TableError(f"{source}: line 1: header must be {','.join(TIDY_HEADER)}[,{','.join(QUANTILES)}], "
+                             f"got {','.join(header)}")
+        if settings is None:
+            raise TableError(f"{source}: a table CSV holds the values only; its variant and channel settings are "
+                             "in the table JSON written beside it (same name, .json), which is missing: load that")
+        values: dict[str, dict[str, dict[str, float]]] = {}
+        uncertainty: dict[str, dict[str, dict[str, dict[str, float]]]] = {}
+        seen: dict[tuple[str, str, str], int] = {}
+        for lineno, rec in enumerate(reader, start=2):
+            if not rec:
+                continue
+            if len(rec) != len(header):
+                raise TableError(f"{source}: line {lineno}: expected {len(header)} fields, got {len(rec)}")
+            ch, ph, name, value = rec[:4]
+            where = f"{source}: line {lineno}: phoneme {ph!r}, channel {ch!r}"
+            if name not in PARAMETERS:
+                raise TableError(f"{where}: unknown parameter {name!r} (parameters: {', '.join(PARAMETERS)})")
+            if ch not in settings.channels:
+                raise TableError(f"{where}: channel {ch!r} is not in {settings.source} "
+                                 f"(channels: {', '.join(settings.channels)})")
+            if (ch, ph, name) in seen:
+                raise TableError(f"{where}: {name} is given twice (first on line {seen[ch, ph, name]})")
+            seen[ch, ph, name] = lineno
+            values.setdefault(ph, {}).setdefault(ch, {})[name] = _parse_float(where, name, value)
+            for q, cell in zip(QUANTILES, rec[4:]):
+                if cell != "":
+                    uncertainty.setdefault(ph, {}).setdefault(ch, {}).setdefault(name, {})[q] = _parse_float(
+                        where, f"{name} {q}", cell)
+        table = copy.deepcopy(settings)
+        table.values, table.uncertainty, table.source = values, uncertainty, source
         table.validate()
         return table
 

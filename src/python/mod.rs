@@ -467,20 +467,52 @@ fn params_of<'py>(
     Ok(a)
 }
 
-/// observed and weights, one per sample of the corpus.
-fn samples_of<'py>(
-    obj: &Bound<'py, PyAny>,
-    name: &str,
-    corpus: &Corpus,
-) -> PyResult<PyReadonlyArrayDyn<'py, f64>> {
-    let a = array::<f64>(obj, name, "float64")?;
-    check_shape(
-        &a,
-        name,
-        &[Some(corpus.inner.n_samples())],
-        "[n_samples of the corpus]",
-    )?;
-    Ok(a)
+/// (observed, weights) as slices.
+type ObservedWeights<'a> = (Cow<'a, [f64]>, Cow<'a, [f64]>);
+
+/// observed and weights, one per sample of the corpus: the data of the SSE and the batches,
+/// checked and read once here.
+struct Observations<'py> {
+    observed: PyReadonlyArrayDyn<'py, f64>,
+    weights: PyReadonlyArrayDyn<'py, f64>,
+}
+
+impl<'py> Observations<'py> {
+    fn of(
+        observed: &Bound<'py, PyAny>,
+        weights: &Bound<'py, PyAny>,
+        corpus: &Corpus,
+    ) -> PyResult<Self> {
+        let one = |obj: &Bound<'py, PyAny>, name: &str| -> PyResult<PyReadonlyArrayDyn<'py, f64>> {
+            let a = array::<f64>(obj, name, "float64")?;
+            check_shape(
+                &a,
+                name,
+                &[Some(corpus.inner.n_samples())],
+                "[n_samples of the corpus]",
+            )?;
+            Ok(a)
+        };
+        Ok(Observations {
+            observed: one(observed, "observed")?,
+            weights: one(weights, "weights")?,
+        })
+    }
+
+    /// (observed, weights) as slices, without a copy when C-contiguous.
+    fn slices(&self) -> PyResult<ObservedWeights<'_>> {
+        Ok((
+            data(&self.observed, "observed")?,
+            data(&self.weights, "weights")?,
+        ))
+    }
+}
+
+/// A zeroed W × n output of a batch, allocated fallibly (the sizes named when it does not fit).
+fn batch_output(n_walkers: usize, n: usize, of: &str) -> PyResult<Vec<f64>> {
+    let what = || crate::corpus::batch_what(n_walkers, n, of);
+    let len = product::<f64>(n_walkers, n, what).map_err(model_err)?;
+    try_filled(len, 0.0, what).map_err(model_err)
 }
 
 /// The trajectory at every sample of the corpus: ndarray[n_samples].
@@ -594,10 +626,8 @@ fn sse_gradient<'py>(
 ) -> PyResult<(f64, Bound<'py, PyArray1<f64>>, f64)> {
     let p = params_of(params, corpus)?;
     let p = data(&p, "params")?;
-    let y = samples_of(observed, "observed", corpus)?;
-    let y = data(&y, "observed")?;
-    let w = samples_of(weights, "weights", corpus)?;
-    let w = data(&w, "weights")?;
+    let obs = Observations::of(observed, weights, corpus)?;
+    let (y, w) = obs.slices()?;
     let mut grad = vec![0.0; corpus.inner.n_phonemes() * N_PARAMS];
     let (sse, dbeta) = py
         .detach(|| crate::sse_gradient(&corpus.inner, &p, beta, &options.inner, &y, &w, &mut grad))
@@ -645,9 +675,7 @@ fn evaluate_batch<'py>(
     let (p, b, n_walkers) = batch_of(params, betas, corpus)?;
     let (p, b) = (data(&p, "params")?, data(&b, "betas")?);
     let n = corpus.inner.n_samples();
-    let what = || crate::corpus::batch_what(n_walkers, n, "samples");
-    let len = product::<f64>(n_walkers, n, what).map_err(model_err)?;
-    let mut out = try_filled(len, 0.0, what).map_err(model_err)?;
+    let mut out = batch_output(n_walkers, n, "samples")?;
     py.detach(|| crate::evaluate_batch(&corpus.inner, &p, &b, &options.inner, &mut out))
         .map_err(model_err)?;
     let out =
@@ -668,10 +696,8 @@ fn sse_batch<'py>(
 ) -> PyResult<Bound<'py, PyArray1<f64>>> {
     let (p, b, n_walkers) = batch_of(params, betas, corpus)?;
     let (p, b) = (data(&p, "params")?, data(&b, "betas")?);
-    let y = samples_of(observed, "observed", corpus)?;
-    let y = data(&y, "observed")?;
-    let w = samples_of(weights, "weights", corpus)?;
-    let w = data(&w, "weights")?;
+    let obs = Observations::of(observed, weights, corpus)?;
+    let (y, w) = obs.slices()?;
     let mut out = vec![0.0; n_walkers];
     py.detach(|| crate::sse_batch(&corpus.inner, &p, &b, &options.inner, &y, &w, &mut out))
         .map_err(model_err)?;
@@ -692,14 +718,10 @@ fn residual_sums_batch<'py>(
 ) -> PyResult<(Bound<'py, PyArray1<f64>>, Bound<'py, PyArray2<f64>>)> {
     let (p, b, n_walkers) = batch_of(params, betas, corpus)?;
     let (p, b) = (data(&p, "params")?, data(&b, "betas")?);
-    let y = samples_of(observed, "observed", corpus)?;
-    let y = data(&y, "observed")?;
-    let w = samples_of(weights, "weights", corpus)?;
-    let w = data(&w, "weights")?;
+    let obs = Observations::of(observed, weights, corpus)?;
+    let (y, w) = obs.slices()?;
     let nu = corpus.inner.n_utterances();
-    let what = || crate::corpus::batch_what(n_walkers, nu, "utterances");
-    let len = product::<f64>(n_walkers, nu, what).map_err(model_err)?;
-    let mut sums = try_filled(len, 0.0, what).map_err(model_err)?;
+    let mut sums = batch_output(n_walkers, nu, "utterances")?;
     let mut sse = vec![0.0; n_walkers];
     py.detach(|| {
         crate::residual_sums_batch(

@@ -253,6 +253,10 @@ def test_each_speaker_gets_posteriors_around_its_own_fit(serial: Path) -> None:
         assert set(with_q.uncertainty) == {"p"} and set(with_q.uncertainty["p"]) == {"LLO"}
         index = json.loads((serial / f"posteriors/{g}/LLO/posteriors.json").read_text())
         assert [r["label"] for r in index] == ["LLO /p/"]
+        import arviz as az  # the same InferenceData as coartic mcmc writes (coartic.mcmc.job.sample_table)
+
+        idata = az.from_netcdf(serial / f"posteriors/{g}/LLO" / index[0]["directory"] / "posterior.nc")
+        assert str(idata.posterior["channel"].values) == "LLO" and set(idata.posterior["phoneme"].values) == {"p", ""}
     # s01 speaks with targets 0.8x the truth, s02 1.2x: the /p/ closures (LLO < 0) differ beyond the intervals.
     q1 = ParameterTable.load(serial / "groups/s01/table_mcmc.json").uncertainty["p"]["LLO"]["target"]
     q2 = ParameterTable.load(serial / "groups/s02/table_mcmc.json").uncertainty["p"]["LLO"]["target"]

@@ -144,7 +144,6 @@ def test_rate_aware_options_go_from_spec_to_table_to_core(illustrative_table: Pa
 
     plain_json = illustrative_table.to_json_dict()
     assert "dominance" not in plain_json["channels"]["LLO"]  # today's tables are written as before
-    assert "dominance" not in illustrative_table.to_csv()
     before = trajectories(illustrative_table, LABELS, STARTS, ENDS, TIMES)["LLO"]
     settings = illustrative_table.channels["LLO"]
     settings.dominance, settings.plateau_fraction, settings.handover = cs.dominance, cs.plateau_fraction, cs.handover

@@ -88,3 +88,26 @@ def test_cli_reports_spec_errors(tmp_path: Path) -> None:
     spec.write_text('[corpus]\nmanifest = "none.csv"\n')
     res = CliRunner().invoke(app, ["fit", str(spec), "--out", str(tmp_path / "o")])
     assert res.exit_code == 2 and "corpus.manifest" in res.output and "does not exist" in res.output
+
+
+def test_cli_fit_progress_goes_to_stderr_as_lines_and_quiet_silences_it(quick_session: Path, tmp_path: Path) -> None:
+    spec = tmp_path / "spec.toml"
+    spec.write_text(f"""
+[corpus]
+manifest = "{quick_session / 'manifest.csv'}"
+select = {{ consonant = ["p"] }}
+[model]
+channels = ["LLO"]
+[parameters]
+free = ["target", "alpha"]
+""")
+    res = CliRunner().invoke(app, ["fit", str(spec), "--out", str(tmp_path / "a"), "--no-report"])
+    assert res.exit_code == 0, res.output
+    # not a terminal: a line per stage and channel, the last with the channel's status, nothing drawn
+    done = [line for line in res.stderr.splitlines() if line.startswith("LLO done")]
+    assert len(done) == 1 and " evaluations RMSE " in done[0] and "[converged]" in done[0], res.stderr
+    assert res.stderr.splitlines()[0].startswith("loading trials") and "\x1b" not in res.stderr
+    assert "RMSE (mm)" in res.stdout and "evaluations" not in res.stdout
+    quiet = CliRunner().invoke(app, ["fit", str(spec), "--out", str(tmp_path / "b"), "--no-report", "--quiet"])
+    assert quiet.exit_code == 0, quiet.output
+    assert quiet.stderr == "" and "RMSE (mm)" in quiet.stdout

@@ -29,7 +29,13 @@ def test_splits_and_scores(tmp_path: Path) -> None:
     for sc in scores:
         # the model made the data: held-out RMSE stays at the noise level
         assert sc.test_rmse < 0.15 and sc.train_rmse < 0.12 and sc.test_samples > 0
-    assert (tmp_path / "val" / "validation.csv").read_text().count("\n") == 3
+        # every baseline on the same samples (other repetitions / the other rate are tokens of each
+        # sentence), all beaten by the model that made the data; the warped token beats the step model
+        assert set(sc.baselines) == {"constant", "step", "warped"} and sc.beats_step
+        assert sc.baselines["warped"][0] < sc.baselines["step"][0] < sc.baselines["constant"][0]
+        assert sc.test_rmse < sc.baselines["warped"][0]
+    text = (tmp_path / "val" / "validation.csv").read_text()
+    assert text.count("\n") == 3 and "step_rmse_offset_removed_mm" in text.splitlines()[0]
 
 
 def test_nothing_to_hold_out(tmp_path: Path) -> None:

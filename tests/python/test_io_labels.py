@@ -147,7 +147,8 @@ def test_htk_lab(tmp_path: Path) -> None:
 
 
 def test_htk_lab_seconds_is_an_error(tmp_path: Path) -> None:
-    with pytest.raises(DataError, match=r"a\.lab, line 2: HTK times must be integers"):
+    with pytest.raises(DataError, match=r"a\.lab, line 2: line 1 has HTK times \(integers, 100 ns units\) "
+                                        r"and line 2 times in seconds: HTK times must be integers"):
         read_labels(_write(tmp_path, "a.lab", "0 3000000 sil\n0.3 0.45 a\n"))
 
 

@@ -121,11 +121,55 @@ def test_ctrl_c_in_the_command_saves_and_the_rerun_resumes(fitted: tuple[Path, P
     assert "Run the same command again to resume" in output.replace("\n", " ")
     saved = ChainStore(chains).load(0, 6, 14)[0]
     assert len(saved) >= 100
+    import arviz as az  # the chains so far as InferenceData too, marked as interrupted
+
+    assert az.from_netcdf(out / "LLO" / "p" / "posterior.nc").posterior.attrs["interrupted"] == 1
     r = CliRunner().invoke(app, ["mcmc", str(spec), "--fit", str(fit), "--out", str(out), "--max-steps", str(len(saved) + 100), "--quiet"])
     assert r.exit_code == 0, r.output
     resumed = ChainStore(chains).load(0, 6, 14)[0]
     assert len(resumed) == len(saved) + 100
     np.testing.assert_array_equal(resumed[: len(saved)], saved)
+
+
+def test_inference_data_and_dataframe_from_the_library_function(fitted: tuple[Path, Path], tmp_path: Path) -> None:
+    """coartic.mcmc.sample is the command's job; each posterior's posterior.nc is ArviZ's."""
+    import arviz as az
+    import pandas as pd
+
+    from coartic.mcmc import sample
+    from coartic.mcmc.convergence import walker_chains
+
+    spec, fit = fitted
+    out = tmp_path / "mcmc"
+    result = sample(spec, fit, out)
+    assert [r.label for r in result.runs] == ["LLO /p/"] and not result.interrupted and not result.converged
+    run = result.runs[0]
+    idata = az.from_netcdf(out / "LLO" / "p" / "posterior.nc")
+    assert {"posterior", "sample_stats", "observed_data"} <= set(idata.groups())
+    theta = idata.posterior["theta"]
+    assert theta.dims == ("chain", "draw", "entry") and theta.sizes["chain"] == 2 * 14
+    assert list(theta["entry"].values) == [s.name for s in run.summaries]
+    assert list(theta["parameter"].values) == ["target", "theta_bw", "theta_fw", "k_r", "sigma_n", "offset_sd"]
+    assert list(theta["phoneme"].values) == ["p"] * 4 + ["", ""] and str(theta["channel"].values) == "LLO"
+    burn, thin = run.result.report.burn_in, run.result.report.thin  # type: ignore[union-attr]
+    want = run.posterior.to_natural(walker_chains(run.result.chains, burn, thin))
+    np.testing.assert_array_equal(theta.values, want)
+    np.testing.assert_array_equal(idata.sample_stats["lp"].values[:, 0],
+                                  np.concatenate([lp[burn] for lp in run.result.log_probs]))
+    # the summaries are made of the same draws
+    q50 = float(np.percentile(theta.sel(entry="p.target").values, 50))
+    assert q50 == pytest.approx(run.summaries[0].quantiles["q50"], rel=1e-12)
+    assert idata.observed_data["y"].size == int(run.posterior.data.weights.sum())
+    assert idata.posterior.attrs["converged"] == 0 and idata.posterior.attrs["burn_in"] == burn
+    assert az.summary(idata, var_names=["theta"]).shape[0] == 6  # ArviZ's own tools read it
+    index = json.loads((out / "mcmc.json").read_text())
+    assert index[0]["inference_data"] == "LLO/p/posterior.nc"
+
+    df = result.to_dataframe()
+    assert isinstance(df, pd.DataFrame) and len(df) == 6
+    row = df[(df.phoneme == "p") & (df.parameter == "target")].iloc[0]
+    assert row["q50"] == run.summaries[0].quantiles["q50"] and row["channel"] == "LLO" and not row["converged"]
+    assert all(pd.api.types.is_float_dtype(df[c]) for c in ("start", "mean", "sd", "q2.5", "q97.5", "rhat"))
 
 
 def test_a_table_fitted_to_other_data_is_refused(fitted: tuple[Path, Path], tmp_path: Path) -> None:

@@ -53,6 +53,7 @@ def ema_fit(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, float]:
     out = tmp_path_factory.mktemp("fit")
     spec = out / "one.toml"
     spec.write_text(f'[corpus]\nfiles = ["{U20[0]}"]\nlabels = ["{U20[1]}"]\nlabel_map = "german_sampa"\n'
+                    'role_map = { UL = "ul", LL = "ll", JAW = "jw", axes = { vertical = "+z", anterior = "-y" } }\n'
                     '[model]\nchannels = ["JO"]\n[parameters]\nfree = ["target"]\n')
     result = run(spec, out / "fit", quiet=True, report=False)
     return out / "fit" / "table.json", result.channels["JO"].rmse
@@ -62,7 +63,8 @@ def test_score_applies_the_label_map_the_table_records(ema_fit: tuple[Path, floa
     table_path, fit_rmse = ema_fit
     sc = score_recordings(table_path, [U20[0]], [U20[1]], channels=["JO"])
     assert sc.rmse("JO") == pytest.approx(fit_rmse, rel=1e-9)  # the fitted recording, predicted as fitted
-    assert "recorded label map" in sc.notes[0]
+    assert any("recorded label map" in n for n in sc.notes)
+    assert any("in-sample" in n for n in sc.notes)  # the training recording itself, said so
     t = ParameterTable.load(table_path)
     t.metadata.pop("label_map")
     bare = tmp_path / "bare.json"
@@ -85,6 +87,64 @@ def test_score_command_writes_tables_and_figures(ema_fit: tuple[Path, float], tm
     other = EMA / "dfgspp_mo1_prosody_0024_ema.csv"
     res = CliRunner().invoke(app, ["score", str(table_path), str(other), "-l",
                                    str(EMA / "dfgspp_mo1_prosody_0024_Segment.tsv"), "--channels", "JO"])
-    assert res.exit_code == 2 and "is not a phoneme of" in res.output and "Traceback" not in res.output
+    # (m is scored as its bilabial fallback b; O has no fallback the table has): the corpus label named too
+    assert res.exit_code == 2 and "Traceback" not in res.output
+    assert "corpus label 'O'" in " ".join(res.output.split()) and "has no 'O'" in " ".join(res.output.split())
     res = CliRunner().invoke(app, ["score", str(table_path), str(U20[0]), "--channels", "JO"])
     assert res.exit_code == 2 and "give its label file" in res.output
+
+
+def test_the_table_records_the_role_map_and_score_applies_it(ema_fit: tuple[Path, float], tmp_path: Path) -> None:
+    from coartic.io.roles import RoleMap
+
+    table_path, fit_rmse = ema_fit
+    t = ParameterTable.load(table_path)
+    rec = RoleMap.recorded(t)
+    assert rec is not None and dict(rec.roles) == {"UL": "ul", "LL": "ll", "JAW": "jw"} and rec.vertical == "+z"
+    # a table whose recorded role map takes the tongue-mid sensor for the jaw: score reads JO from it
+    t.metadata["role_map"] = RoleMap.from_dict({"UL": "ul", "LL": "ll", "JAW": "tm"}).to_record()
+    other = tmp_path / "tm.json"
+    t.save(other)
+    sc = score_recordings(other, [U20[0]], [U20[1]], channels=["JO"])
+    assert abs(sc.rmse("JO") - fit_rmse) > 0.1 and any("recorded role map" in n for n in sc.notes)
+    # --role-map overrides the recorded one: back to the fit's reading
+    rm = tmp_path / "roles.json"
+    rm.write_text('{"UL": "ul", "LL": "ll", "JAW": "jw"}')
+    res = CliRunner().invoke(app, ["score", str(other), str(U20[0]), "-l", str(U20[1]), "--channels", "JO",
+                                   "--role-map", str(rm), "--out", str(tmp_path / "o")])
+    assert res.exit_code == 0, res.output
+    import json
+
+    summary = json.loads((tmp_path / "o" / "summary.json").read_text())
+    assert summary["channels"]["JO"]["table"]["rmse_mm"] == pytest.approx(fit_rmse, rel=1e-9)
+    assert {"constant", "step"} <= set(summary["channels"]["JO"])  # baselines from the recorded spec
+    t.metadata["role_map"] = {"roles": "jw"}
+    t.save(other)
+    with pytest.raises(ValueError, match="metadata.role_map"):
+        score_recordings(other, [U20[0]], [U20[1]], channels=["JO"])
+
+
+def test_score_refuses_a_channel_it_could_not_compute() -> None:
+    from coartic.fit.score import ScoreError
+
+    utts = vcv_utterances(np.random.default_rng(5), repetitions=1, rates={"normal": 1.0}, noise=0.1)
+    for u in utts:  # JO = 0 everywhere: what a missing jaw sensor once gave
+        u.observed["LLO"] = np.zeros_like(u.observed["LLO"])
+    with pytest.raises(ScoreError, match="LLO is 0 mm in every sample.*role-map"):
+        score_utterances(truth_table(), utts)
+    for u in utts:
+        u.valid["LLO"] = np.zeros_like(u.valid["LLO"])
+    with pytest.raises(ScoreError, match="no valid sample"):
+        score_utterances(truth_table(), utts)
+
+
+def test_score_falls_back_to_the_phonetic_class_unless_strict(ema_fit: tuple[Path, float], tmp_path: Path) -> None:
+    table_path, _ = ema_fit
+    t = ParameterTable.load(table_path)
+    t.values["m"] = t.values.pop("b")  # a table with /m/ but no /b/: 0020 has /p/, the first fallback of /b/
+    other = tmp_path / "nob.json"
+    t.save(other)
+    sc = score_recordings(other, [U20[0]], [U20[1]], channels=["JO"])
+    assert any("/b/ (scored as /p/)" in n for n in sc.notes)
+    with pytest.raises(ValueError, match=r"corpus label 'b' \(phoneme 'b' by the label map"):
+        score_recordings(other, [U20[0]], [U20[1]], channels=["JO"], strict=True)

@@ -128,20 +128,79 @@ def test_json_round_trip_is_bit_for_bit(tmp_path_factory: pytest.TempPathFactory
 def test_csv_round_trip_keeps_values_settings_and_uncertainty(tmp_path_factory: pytest.TempPathFactory,
                                                                table: ParameterTable) -> None:
     path = tmp_path_factory.mktemp("t") / "table.csv"
+    table.save(path.with_suffix(".json"))  # the settings, beside the values (as every command writes them)
     table.save(path)
     back = ParameterTable.load(path)
     assert back.values == table.values and back.channels == table.channels
     assert back.variant == table.variant and back.uncertainty == table.uncertainty
     for ch in table.channels:
         assert table.to_matrix(ch)[0].tobytes() == back.to_matrix(ch)[0].tobytes()
+    # a long CSV of earlier versions (settings in "*" rows) still reads alone, to the same table
+    old = tmp_path_factory.mktemp("old") / "table.csv"
+    old.write_text(long_csv(table))
+    back = ParameterTable.load(old)
+    assert back.values == table.values and back.channels == table.channels and back.uncertainty == table.uncertainty
 
 
-def test_csv_is_long_form(tmp_path: Path) -> None:
+def long_csv(table: ParameterTable) -> str:
+    """The long CSV earlier versions wrote (a fixed format: written out here, not by the package)."""
+    import csv
+    import io
+
+    from coartic.table import QUANTILES
+
+    buf = io.StringIO()
+    w = csv.writer(buf, lineterminator="\n")
+    with_q = bool(table.uncertainty)
+    pad = [""] * len(QUANTILES) if with_q else []
+    w.writerow(["phoneme", "channel", "parameter", "value"] + (list(QUANTILES) if with_q else []))
+    w.writerow(["*", "*", "variant", table.variant] + pad)
+    for ch, cs in table.channels.items():
+        w.writerow(["*", ch, "unit", cs.unit] + pad)
+        for name in ("beta", "edge_extent", "apex_fraction"):
+            w.writerow(["*", ch, name, repr(float(getattr(cs, name)))] + pad)
+        w.writerow(["*", ch, "reference_phoneme", cs.reference_phoneme] + pad)
+        for name, v in cs.rate_settings().items():
+            text = repr(float(v)) if name == "plateau_fraction" else str(v).lower() if name == "handover" else v
+            w.writerow(["*", ch, name, text] + pad)
+    for ph, chans in table.values.items():
+        for ch, row in chans.items():
+            for name in PARAMETERS:
+                qs = table.uncertainty.get(ph, {}).get(ch, {}).get(name, {})
+                w.writerow([ph, ch, name, repr(float(row[name]))] + ([repr(qs[q]) if q in qs else "" for q in QUANTILES]
+                                                                     if with_q else []))
+    return buf.getvalue()
+
+
+def test_csv_is_tidy_and_pandas_reads_numbers(tmp_path: Path) -> None:
+    import pandas as pd
+
     t = ParameterTable.from_json_dict(base_doc())
     lines = t.to_csv().splitlines()
-    assert lines[0] == "phoneme,channel,parameter,value,q2.5,q16,q50,q84,q97.5"
-    assert "a,LLO,target,12.0,11.8,11.9,12.0,12.1,12.2" in lines
-    assert "p,LLO,k_r,1.0,,,,," in lines
+    assert lines[0] == "channel,phoneme,parameter,value,q2.5,q16,q50,q84,q97.5"
+    assert "LLO,a,target,12.0,11.8,11.9,12.0,12.1,12.2" in lines
+    assert "LLO,p,k_r,1.0,,,,," in lines
+    assert len(lines) == 1 + sum(len(chans) for chans in t.values.values()) * len(PARAMETERS)  # values only
+    t.save(tmp_path / "table.json")
+    t.save(tmp_path / "table.csv")
+    df = pd.read_csv(tmp_path / "table.csv")
+    assert list(df.columns) == ["channel", "phoneme", "parameter", "value", "q2.5", "q16", "q50", "q84", "q97.5"]
+    assert all(pd.api.types.is_float_dtype(df[c]) for c in df.columns[3:])
+    pd.testing.assert_frame_equal(df, t.to_dataframe())  # the file and the DataFrame: same rows, same bits
+    row = df[(df.phoneme == "a") & (df.parameter == "target")].iloc[0]
+    assert row["value"] == 12.0 and row["q2.5"] == 11.8
+    # the CSV alone cannot be evaluated: its settings are in the JSON, and it says so
+    (tmp_path / "table.json").unlink()
+    with pytest.raises(TableError, match=r"table\.csv: a table CSV holds the values only.*\.json"):
+        ParameterTable.load(tmp_path / "table.csv")
+    # an edited value is read from the CSV, its settings from the JSON beside it
+    t.save(tmp_path / "table.json")
+    (tmp_path / "table.csv").write_text(t.to_csv().replace("LLO,a,target,12.0,", "LLO,a,target,12.5,"))
+    back = ParameterTable.load(tmp_path / "table.csv")
+    assert back.values["a"]["LLO"]["target"] == 12.5 and back.channels == t.channels
+    (tmp_path / "table.csv").write_text(t.to_csv().replace("LLO,a,target,12.0,", "JO,a,target,12.0,"))
+    with pytest.raises(TableError, match=r"line \d+: phoneme 'a', channel 'JO': channel 'JO' is not in"):
+        ParameterTable.load(tmp_path / "table.csv")
 
 
 def test_set_from_matrix_round_trip_and_rollback() -> None:
@@ -226,8 +285,9 @@ def test_nan_and_bad_json_and_bad_csv(tmp_path: Path) -> None:
     with pytest.raises(TableError, match=r"cannot read the table"):
         ParameterTable.load(tmp_path / "missing.json")
     csv_file = tmp_path / "t.csv"
+    ParameterTable.from_json_dict(base_doc()).save(tmp_path / "t.json")
     text = ParameterTable.from_json_dict(base_doc()).to_csv()
-    csv_file.write_text(text.replace("p,LLO,theta_fw,40.0", "p,LLO,theta_fw,fast"))
+    csv_file.write_text(text.replace("LLO,p,theta_fw,40.0", "LLO,p,theta_fw,fast"))
     with pytest.raises(TableError, match=r"t.csv: line \d+: phoneme 'p', channel 'LLO': theta_fw = 'fast' is not a number"):
         ParameterTable.load(csv_file)
     csv_file.write_text("phoneme;channel\n")
@@ -277,6 +337,7 @@ def test_strict_loading_duplicates_encoding_depth_and_huge_numbers(tmp_path: Pat
         ParameterTable.load(p)
     c = tmp_path / "t.csv"
     table = ParameterTable.from_json_dict(base_doc())
+    table.save(tmp_path / "t.json")
     lines = table.to_csv().splitlines()
     row = next(ln for ln in lines if ",target," in ln)
     c.write_text("\n".join([*lines, row.replace(row.split(",")[3], "99.0")]) + "\n")

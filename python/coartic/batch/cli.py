@@ -3,14 +3,18 @@
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Optional
+from typing import TYPE_CHECKING, Any, Optional
 
 import typer
 from rich.console import Console
+from rich.markup import escape
 from rich.table import Table
 
-from coartic.console import print_error
+from coartic.console import print_error, print_table
 from coartic.fit.result import BAR_MM
+
+if TYPE_CHECKING:
+    from coartic.batch.spec import BatchSpec
 
 
 def batch_command(
@@ -29,6 +33,8 @@ def batch_command(
                                             "(default: distributed.comm.tls.client.cert)"),
     tls_key: Optional[Path] = typer.Option(None, "--tls-key", help="for a tls:// scheduler: its private key, unless in "
                                            "the certificate file (default: distributed.comm.tls.client.key)"),
+    quiet: bool = typer.Option(False, "--quiet", "-q", help="no progress on stderr; the RMSE table, the outcome and "
+                               "errors are still printed"),
 ) -> None:
     """Fit every speaker/session (and all of them pooled), with \\[posteriors] sample each one's posteriors: one Dask task
     per speaker and channel; rerun the same command to continue after an interruption."""
@@ -44,25 +50,16 @@ def batch_command(
         from coartic.batch.run import Tls, run_batch
 
         outcome = run_batch(s, out, scheduler=scheduler, workers=workers, serial=serial, force=force, report=report,
-                            console=err, tls=Tls(tls_ca_file, tls_cert, tls_key))
+                            console=err, quiet=quiet, tls=Tls(tls_ca_file, tls_cert, tls_key))
     except (ValueError, OSError) as e:  # SpecError, OutputError, DataError: messages name the culprit
         print_error(err, e)
         raise typer.Exit(2) from None
     from coartic.batch.report import rmse_rows
 
-    rows = rmse_rows(s, out)
-    t = Table(title=f"RMSE (mm) per group and channel — the paper's bar is {BAR_MM} mm")
-    t.add_column("group")
-    for ch in s.channels:
-        t.add_column(ch, justify="right")
-    by = {(r["group"], r["channel"]): r["rmse_mm"] for r in rows}
-    for g in [*s.group_names, *(["pooled"] if s.pooled else [])]:
-        cells = [by.get((g, ch)) for ch in s.channels]
-        t.add_row(g, *[("–" if v is None else f"[{'green' if v < BAR_MM else 'red'}]{v:.3f}[/]") for v in cells])
-    console.print(t)
+    print_table(console, rmse_table(s, rmse_rows(s, out)))
     where = f"report: {out / 'report.html'}" if report else f"tables: {out / 'groups'}"
-    console.print(f"{len(outcome.landed)} unit(s) done now, {outcome.skipped} already done, of {outcome.total}; "
-                  f"{where}", soft_wrap=True)
+    console.print(escape(f"{len(outcome.landed)} unit(s) done now, {outcome.skipped} already done, of {outcome.total}; "
+                         f"{where}"), soft_wrap=True, highlight=False)
     for label, why in outcome.failed.items():
         print_error(err, f"unit {label}: {why}")
     if outcome.interrupted:
@@ -70,3 +67,16 @@ def batch_command(
         raise typer.Exit(130)
     if outcome.failed:
         raise typer.Exit(1)
+
+
+def rmse_table(spec: BatchSpec, rows: list[dict[str, Any]]) -> Table:
+    """Groups as rows, channels as columns (rows as ``batch.report.rmse_rows`` gives them)."""
+    t = Table(title=f"RMSE (mm) per group and channel — the paper's bar is {BAR_MM} mm")
+    t.add_column("group")
+    for ch in spec.channels:
+        t.add_column(ch, justify="right")
+    by = {(r["group"], r["channel"]): r["rmse_mm"] for r in rows}
+    for g in [*spec.group_names, *(["pooled"] if spec.pooled else [])]:
+        cells = [by.get((g, ch)) for ch in spec.channels]
+        t.add_row(escape(g), *[("–" if v is None else f"[{'green' if v < BAR_MM else 'red'}]{v:.3f}[/]") for v in cells])
+    return t

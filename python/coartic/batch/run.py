@@ -39,6 +39,7 @@ from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, T
 
 from coartic.batch.spec import BatchSpec
 from coartic.batch.tasks import UnitFailed, UnitKey, UnitOutput, fit_unit, load_group, posterior_unit
+from coartic.console import LineProgress
 from coartic.errors import CoarticError
 from coartic.fit.problem import Utterance
 from coartic.outputs import DeferredSignals, OutputDir
@@ -228,7 +229,7 @@ def run_batch(spec: BatchSpec, out: str | Path, *, scheduler: str | None = None,
         outcome = BatchOutcome(out, len(keys), len(keys) - len(todo))
         columns = (TextColumn("[bold]units"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(),
                    TextColumn("{task.description}"))
-        with Progress(*columns, console=console, transient=False, disable=quiet) as progress:
+        with LineProgress(*columns, console=console, quiet=quiet) as progress:
             task = progress.add_task("", total=len(keys), completed=outcome.skipped)
 
             def landed(result: UnitOutput) -> None:

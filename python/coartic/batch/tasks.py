@@ -156,10 +156,9 @@ def posterior_unit(spec: FitSpec, config: Any, table: dict[str, Any], utterance_
     """Sample ``key.channel``'s posteriors around the fitted ``table`` (its JSON document) with
     ``coartic.mcmc`` and return what it wrote, plus ``table.json`` with the posterior quantiles."""
     import json
+    from dataclasses import replace
 
-    from coartic.mcmc.mcmc_cli import check_fit_matches_data
-    from coartic.mcmc.run import channel_runs, spec_priors, spec_shrinkage, table_problem, table_speakers
-    from coartic.mcmc.summary import write_uncertainty
+    from coartic.mcmc.job import record_posterior, sample_table
     from coartic.table import ParameterTable
 
     cap_threads(threads)
@@ -172,25 +171,17 @@ def posterior_unit(spec: FitSpec, config: Any, table: dict[str, Any], utterance_
         fitted = tmp / "fit_table.json"
         tab = ParameterTable.from_json_dict(table, source=f"the fit of unit {key.fit.label}")
         tab.save(fitted)
-        data, packing, options = table_problem(spec, tab, fitted, key.channel, utts)
-        speakers = table_speakers(spec, tab, fitted, key.channel)
-        check_fit_matches_data(tab, fitted, key.channel, data, packing, options, speakers=speakers)
         t1 = time.perf_counter()
         c1 = time.process_time()
-        runs, interrupted = channel_runs(key.channel, data, packing, options, config, tmp / "mcmc", progress=False,
-                                         spec_priors=spec_priors(spec, packing, key.channel),
-                                         spec_shrinkage=spec_shrinkage(spec, tab, packing, key.channel),
-                                         speakers=speakers)
+        runs, interrupted = sample_table(spec, replace(config, channels=(key.channel,)), tab, fitted, utts,
+                                         tmp / "mcmc", progress=False)
         t2 = time.perf_counter()
         c2 = time.process_time()
         if interrupted:
             raise UnitFailed(f"unit {key.label}: sampling was interrupted")
-        not_converged = []
         for r in runs:
-            write_uncertainty(tab, key.channel, r.summaries)
-            if not r.result.converged:
-                not_converged.append(r.label)
-        tab.metadata["mcmc"] = {"not_converged": not_converged}
+            record_posterior(tab, r)
+        not_converged = [r.label for r in runs if not r.result.converged]
         tab.save(tmp / "table.json")
         index = [{"label": r.label, "phoneme": r.phoneme, "converged": bool(r.result.converged),
                   "directory": r.directory.relative_to(tmp).as_posix()} for r in runs]

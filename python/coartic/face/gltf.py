@@ -20,16 +20,21 @@ import json
 import struct
 from os import PathLike
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from numpy.typing import NDArray
 
 from coartic.face.deform import FaceRig, default_rig
-from coartic.face.mesh import PART_NAMES
+from coartic.face.mesh import MOUTH_HALF_WIDTH, PART_NAMES
 from coartic.runtime.errors import AnimationError
-from coartic.runtime.fap import FapSequence
+from coartic.runtime.fap import FaceUnits, FapSequence, animation_faps, channels_to_faps
 from coartic.outputs import atomic_write_bytes
+from coartic.runtime.rigs import ARKIT_BASIS, ARKIT_NAMES, arkit_weights
+
+if TYPE_CHECKING:
+    from coartic.runtime.animate import Animation
+    from coartic.runtime.exporters import ExportSettings
 
 GLB_MAGIC = 0x46546C67  # "glTF"
 CHUNK_JSON = 0x4E4F534A
@@ -126,16 +131,23 @@ def srgb_to_linear(c: NDArray[np.float64]) -> NDArray[np.float64]:
 
 
 def gltf_document(rig: FaceRig, weights: NDArray[np.float64], fps: float, name: str, *,
-                  audio: str | None = None, fap_file: str | None = None) -> tuple[dict[str, Any], bytes]:
-    """The glTF JSON and binary buffer for the face animated by `weights` (frames, targets) at `fps`."""
+                  audio: str | None = None, fap_file: str | None = None,
+                  morphs: tuple[tuple[str, ...], NDArray[np.float64]] | None = None) -> tuple[dict[str, Any], bytes]:
+    """The glTF JSON and binary buffer for the face animated by `weights` (frames, targets) at `fps`.
+
+    `morphs` = (names, fields (targets, vertices, 3) in mm) replaces the rig's FAP targets by another
+    morph set, e.g. ARKit's (`arkit_morphs`); its weights are used as they are (no sign split)."""
     weights = np.asarray(weights, dtype=np.float64)
-    n_targets = rig.targets.shape[0]
+    n_targets = rig.targets.shape[0] if morphs is None else len(morphs[0])
     if weights.ndim != 2 or weights.shape[1] != n_targets or weights.shape[0] < 1:
         raise AnimationError(f"glTF weights must be (frames >= 1, {n_targets}), got {weights.shape}")
     if not np.isfinite(weights).all():
         raise AnimationError("glTF weights are not finite")
     mesh = rig.mesh
-    names, fields, weights = split_signs(rig.target_names, rig.targets, weights)
+    if morphs is None:
+        names, fields, weights = split_signs(rig.target_names, rig.targets, weights)
+    else:
+        names, fields = list(morphs[0]), morphs[1]
     n_targets = len(names)
     b = _Builder()
     primitives = []
@@ -191,10 +203,11 @@ def glb_bytes(doc: dict[str, Any], blob: bytes) -> bytes:
 
 
 def write_glb(path: str | PathLike[str], rig: FaceRig, weights: NDArray[np.float64], fps: float, name: str, *,
-              audio: str | None = None, fap_file: str | None = None) -> Path:
+              audio: str | None = None, fap_file: str | None = None,
+              morphs: tuple[tuple[str, ...], NDArray[np.float64]] | None = None) -> Path:
     """Write the animated face to `path` (atomically), after checking it."""
     path = Path(path)
-    data = glb_bytes(*gltf_document(rig, weights, fps, name, audio=audio, fap_file=fap_file))
+    data = glb_bytes(*gltf_document(rig, weights, fps, name, audio=audio, fap_file=fap_file, morphs=morphs))
     check_glb_bytes(data, str(path))
     atomic_write_bytes(path, data)
     return path
@@ -419,3 +432,57 @@ def write_face_glb(path: str | PathLike[str], faps: FapSequence, *, audio: str |
     """The project's face played by a FAP sequence, as a .glb at `path` (the sequence's fps and name)."""
     rig = default_rig()
     return write_glb(path, rig, rig.weights(faps), faps.fps, faps.name, audio=audio, fap_file=fap_file)
+
+
+def _side_share(x: NDArray[np.float64]) -> NDArray[np.float64]:
+    """How much of a symmetric movement belongs to the face's left (x > 0): 1 beyond half the mouth's
+    half-width to the left, 0 as far to the right, a raised-cosine blend between (0.5 on the midline)."""
+    t = np.clip(x / MOUTH_HALF_WIDTH + 0.5, 0.0, 1.0)
+    out: NDArray[np.float64] = 0.5 - 0.5 * np.cos(np.pi * t)
+    return out
+
+
+def arkit_morphs(rig: FaceRig, neutral: dict[str, float], face: FaceUnits) -> tuple[tuple[str, ...], NDArray[np.float64]]:
+    """ARKit's 52 morph targets on the face: each driven shape is the face posed at the channel
+    movement its weight 1 stands for (coartic.runtime.rigs.ARKIT_BASIS, through the same FAPs and
+    rig as the FAP morph set; the jaw's turn taken at its full angle, as a blendshape is linear).
+    A Left/Right pair is the pair's symmetric movement split between the face's sides
+    (`_side_share`; Left = the face's own left), so the two at equal weights add up to it. The
+    shapes coartic does not drive (eyes, brows, cheeks, nose, tongue) are present and move nothing."""
+    fields = np.zeros((len(ARKIT_NAMES), rig.mesh.n_vertices, 3))
+    left = _side_share(rig.mesh.vertices[:, 0])[:, None]
+
+    def posed(delta: dict[str, float]) -> NDArray[np.float64]:
+        chans = {c: np.array([neutral[c] + delta.get(c, 0.0)]) for c in neutral}
+        faps = channels_to_faps(chans, neutral, face, "arkit", 25.0)
+        out: NDArray[np.float64] = rig.pose(rig.weights(faps)[0]) - rig.mesh.vertices
+        return out
+
+    for k, name in enumerate(ARKIT_NAMES):
+        if name not in ARKIT_BASIS:
+            continue
+        for side, share in (("Left", left), ("Right", 1.0 - left)):
+            if name.endswith(side):
+                twin = name[: -len(side)] + ("Right" if side == "Left" else "Left")
+                pair = {c: ARKIT_BASIS[name].get(c, 0.0) + ARKIT_BASIS[twin].get(c, 0.0)
+                        for c in {*ARKIT_BASIS[name], *ARKIT_BASIS[twin]}}
+                fields[k] = posed(pair) * share
+                break
+        else:
+            fields[k] = posed(ARKIT_BASIS[name])
+    return ARKIT_NAMES, fields
+
+
+def export_gltf(animation: Animation, settings: ExportSettings) -> dict[str, Path]:
+    """Exporter (coartic.runtime.exporters): NAME.glb with the FAP morph set, or ARKit's
+    (`settings.gltf_morphs == "arkit"`, weights from coartic.runtime.rigs.arkit_weights)."""
+    path = settings.out / f"{settings.name}.glb"
+    fap_file = settings.files["fap"].name if "fap" in settings.files else None
+    if settings.gltf_morphs == "arkit":
+        rig = default_rig()
+        write_glb(path, rig, arkit_weights(animation), animation.fps, settings.name, audio=settings.audio_name(),
+                  fap_file=fap_file, morphs=arkit_morphs(rig, animation.neutral, settings.face))
+    else:
+        write_face_glb(path, animation_faps(animation, settings.face, settings.name), audio=settings.audio_name(),
+                       fap_file=fap_file)
+    return {"gltf": path}

@@ -12,6 +12,7 @@ from __future__ import annotations
 from collections.abc import Iterable
 from os import PathLike
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 from numpy.typing import NDArray
@@ -20,8 +21,13 @@ from coartic.face.deform import FaceRig, default_rig
 from coartic.face.gltf import MM
 from coartic.face.mesh import PART_NAMES
 from coartic.runtime.errors import AnimationError
-from coartic.runtime.fap import FapSequence
+from coartic.runtime.fap import FapSequence, animation_faps
+from coartic.runtime.festival import wav_duration
 from coartic.outputs import atomic_write_text
+
+if TYPE_CHECKING:
+    from coartic.runtime.animate import Animation
+    from coartic.runtime.exporters import ExportSettings
 
 # An animated world keys every vertex of every moving part at every frame, ~58 kB of text per frame:
 # 1500 frames (a minute at 25 fps) is ~90 MB. Longer animations are refused (single frames are not).
@@ -139,3 +145,12 @@ def write_face_vrml(path: str | PathLike[str], faps: FapSequence, *, frames: Ite
         written.append(write_vrml(path.with_name(f"{path.stem}_f{k}.wrl"), rig, weights[k], faps.fps,
                                   f"{faps.name} frame {k}"))
     return written
+
+
+def export_vrml(animation: Animation, settings: ExportSettings) -> dict[str, Path]:
+    """Exporter (coartic.runtime.exporters): NAME.wrl, the face animated with the sound."""
+    faps = animation_faps(animation, settings.face, settings.name)
+    audio = settings.audio
+    path = write_face_vrml(settings.out / f"{settings.name}.wrl", faps, audio=settings.audio_name(),
+                           audio_seconds=wav_duration(audio) if audio is not None else None)[0]
+    return {"vrml": path}

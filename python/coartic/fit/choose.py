@@ -33,6 +33,7 @@ import numpy as np
 from rich.console import Console
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
+from coartic.console import LineProgress
 from coartic.fit.problem import Utterance
 from coartic.fit.spec import CHOOSABLE, Choose, FitSpec, SpecError, choose_base, make_choose, parse_grid
 
@@ -226,7 +227,7 @@ def cross_validate(spec: FitSpec, utterances: Sequence[Utterance], progress: Pro
     if progress is None:
         columns = (TextColumn("[bold]{task.description}"), BarColumn(), MofNCompleteColumn(),
                    TextColumn("{task.fields[info]}"), TimeElapsedColumn())
-        progress = Progress(*columns, console=console or Console(stderr=True), disable=console is None)
+        progress = LineProgress(*columns, console=console or Console(stderr=True), quiet=console is None)
         progress.start()
     try:
         task = progress.add_task(f"choosing {c.key}", total=len(c.values) * len(folds), info="")
@@ -257,6 +258,7 @@ def cross_validate(spec: FitSpec, utterances: Sequence[Utterance], progress: Pro
             if ok:
                 scored.append(name)
         progress.update(task, info="done")
+        progress.stop_task(task)
     finally:
         if own:
             progress.stop()

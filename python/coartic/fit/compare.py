@@ -26,6 +26,7 @@ from typing import Any, Sequence
 
 from rich.console import Console
 
+from coartic.fit.baselines import BASELINES
 from coartic.fit.result import BAR_MM, FitResult
 from coartic.fit.spec import FitSpec, load_spec
 
@@ -41,6 +42,16 @@ class Row:
     heldout_rmse: float = math.nan  # pooled over the validation splits, mm
     heldout_rmse_offset_removed: float = math.nan
     status: str = ""
+    # baseline -> pooled held-out (as measured, offset removed) on the same samples (coartic.fit.baselines)
+    baselines: dict[str, tuple[float, float]] = field(default_factory=dict)
+
+    @property
+    def beats_step(self) -> bool:
+        """Held out, the table beats the step model as measured and offset removed (or there is none)."""
+        from coartic.fit.baselines import beats_step
+
+        step = self.baselines.get("step")
+        return step is None or beats_step((self.heldout_rmse, self.heldout_rmse_offset_removed), step)
 
     @property
     def aic(self) -> float:
@@ -54,7 +65,10 @@ class Row:
         return {"model": self.model, "channel": self.channel, "free_parameters": self.n_free,
                 "samples": self.n_samples, "rmse_mm": self.rmse, "heldout_rmse_mm": self.heldout_rmse,
                 "heldout_rmse_offset_removed_mm": self.heldout_rmse_offset_removed, "aic": self.aic,
-                "bic": self.bic, "status": self.status}
+                "bic": self.bic, "status": self.status,
+                **{f"heldout_{b}_{k}": (self.baselines[b][i] if b in self.baselines else math.nan)
+                   for b in BASELINES for i, k in enumerate(("rmse_mm", "rmse_offset_removed_mm"))},
+                "beats_step_model": self.beats_step}
 
 
 @dataclass
@@ -81,7 +95,9 @@ class Comparison:
                 if r.channel == ch:
                     lines.append(f"    {r.model}: k {r.n_free}, RMSE {r.rmse:.4f} mm, held-out {r.heldout_rmse:.4f} mm "
                                  f"(offset removed {r.heldout_rmse_offset_removed:.4f}), AIC {r.aic:.1f}, "
-                                 f"BIC {r.bic:.1f} [{r.status}]")
+                                 f"BIC {r.bic:.1f} [{r.status}]"
+                                 + "".join(f"; {b} {v[0]:.4f} (offset removed {v[1]:.4f})" for b, v in r.baselines.items())
+                                 + ("" if r.beats_step else "; WARNING: does not beat the step model"))
         return "\n".join(lines) + "\n"
 
     def save(self, out: str | PathLike[str]) -> dict[str, Path]:
@@ -116,18 +132,23 @@ class Comparison:
 _PAGE = """<!doctype html>
 <html><head><meta charset="utf-8"><title>coartic: model comparison</title>
 <style>body{font-family:sans-serif;margin:2em}table{border-collapse:collapse}td,th{border:1px solid #ccc;
-padding:3px 8px;text-align:right}td:first-child,td:nth-child(2){text-align:left}.best{font-weight:bold}</style>
+padding:3px 8px;text-align:right}td:first-child,td:nth-child(2){text-align:left}.best{font-weight:bold}
+.worse{color:#b00;font-weight:bold}</style>
 </head><body>
 <h1>Model comparison</h1>
 <p>Held-out RMSE: pooled over the validation splits (data each fit did not see). AIC/BIC: of the fit to
-all data, Gaussian errors; lower is better, differences matter only on the same samples. The paper's bar: {{ bar }} mm.</p>
+all data, Gaussian errors; lower is better, differences matter only on the same samples. The paper's bar: {{ bar }} mm.
+Baselines on the same held-out samples (as measured / offset removed): the step model (each phoneme's training mean, no
+coarticulation; red where the table does not beat it) and the constant (the training mean).</p>
 {% for n in notes %}<p><em>note:</em> {{ n }}</p>{% endfor %}
 <table><tr><th>model</th><th>channel</th><th>free</th><th>samples</th><th>RMSE (mm)</th><th>held-out RMSE (mm)</th>
-<th>held-out, offset removed</th><th>AIC</th><th>BIC</th><th>status</th></tr>
+<th>held-out, offset removed</th><th>step model (held out)</th><th>constant (held out)</th><th>AIC</th><th>BIC</th><th>status</th></tr>
 {% for r in rows %}<tr><td>{{ r.model }}</td><td>{{ r.channel }}</td><td>{{ r.free_parameters }}</td><td>{{ r.samples }}</td>
 <td>{{ '%.4f' % r.rmse_mm }}</td>
 <td{% if best[r.channel][0] == r.model %} class="best"{% endif %}>{{ '%.4f' % r.heldout_rmse_mm }}</td>
-<td>{{ '%.4f' % r.heldout_rmse_offset_removed_mm }}</td><td>{{ '%.1f' % r.aic }}</td>
+<td>{{ '%.4f' % r.heldout_rmse_offset_removed_mm }}</td>
+<td{% if not r.beats_step_model %} class="worse"{% endif %}>{{ '%.4f' % r.heldout_step_rmse_mm }} / {{ '%.4f' % r.heldout_step_rmse_offset_removed_mm }}</td>
+<td>{{ '%.4f' % r.heldout_constant_rmse_mm }} / {{ '%.4f' % r.heldout_constant_rmse_offset_removed_mm }}</td><td>{{ '%.1f' % r.aic }}</td>
 <td{% if best[r.channel][1] == r.model %} class="best"{% endif %}>{{ '%.1f' % r.bic }}</td><td>{{ r.status }}</td></tr>
 {% endfor %}</table>
 <p><img src="{{ figure }}" alt="held-out and in-sample RMSE per model and channel"></p>
@@ -240,11 +261,17 @@ def compare(specs: Sequence[FitSpec | str | PathLike[str]], out: str | PathLike[
         results.append(res)
         cmp.notes += [f"{model}: {n}" for n in res.notes]
         held = pooled(res.validation or [])
+        held_base = {b: pooled(res.validation or [], b) for b in BASELINES}
         for ch, fit in res.channels.items():
             n = fit.problem.data.n_valid
             h = held.get(ch, (math.nan, math.nan, 0))
             # (+ the speakers' offsets and scales, profiled out of x but fitted all the same)
-            rows.append(Row(model, ch, fit.packing.n_free + fit.problem.n_profiled, n, fit.rmse**2 * n, fit.rmse, h[0], h[1], fit.status))
+            rows.append(Row(model, ch, fit.packing.n_free + fit.problem.n_profiled, n, fit.rmse**2 * n, fit.rmse, h[0], h[1],
+                            fit.status, {b: v[ch][:2] for b, v in held_base.items() if ch in v}))
+            if not rows[-1].beats_step:
+                cmp.notes.append(f"{model}: {ch}: held out, the table does not beat the step model (phoneme means, "
+                                 f"no coarticulation): {h[0]:.3f} vs {rows[-1].baselines['step'][0]:.3f} mm as "
+                                 f"measured, {h[1]:.3f} vs {rows[-1].baselines['step'][1]:.3f} mm offset removed")
         if res.interrupted:
             cmp.notes.append(f"interrupted while fitting {model}")
             break

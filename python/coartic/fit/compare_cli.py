@@ -11,7 +11,7 @@ from rich.console import Console
 from rich.markup import escape
 from rich.table import Table
 
-from coartic.console import print_error
+from coartic.console import print_error, print_table
 from coartic.fit.result import BAR_MM
 
 
@@ -24,6 +24,7 @@ def compare_command(
     vary: Optional[str] = typer.Option(None, "--vary", help="KEY=V1,V2,...: one model per value of a setting of "
                                        "each spec (e.g. prior_noise=0.1,0.3,1 to choose a prior strength by "
                                        "held-out RMSE)"),
+    quiet: bool = typer.Option(False, "--quiet", "-q", help="no progress on stderr; the comparison is still printed"),
 ) -> None:
     """Fit every spec on its data and compare: free parameters, RMSE, held-out RMSE, AIC, BIC."""
     from coartic.fit.compare import compare
@@ -32,6 +33,7 @@ def compare_command(
     from coartic.outputs import OutputDir
 
     console = Console()
+    err = Console(stderr=True)
     try:
         models: list[FitSpec | Path] = list(specs)
         if vary is not None:
@@ -39,11 +41,11 @@ def compare_command(
             models = [m for s in specs for m in vary_spec(load_spec(s), key, values)]
         identity = {"specs": ",".join(str(s.resolve()) for s in specs), "validate": validate, "vary": vary or ""}
         with OutputDir(out, "compare", identity, force=force, protect=specs) as d:
-            cmp = compare(models, d, validate=validate, console=console, quiet=False)
+            cmp = compare(models, d, validate=validate, console=err, quiet=quiet)
     except (ValueError, OSError) as e:  # SpecError, DataError, FitFailed, OutputError
         print_error(console, e)
         raise typer.Exit(2) from None
-    console.print(comparison_table(cmp))
+    print_table(console, comparison_table(cmp), keys=2)
     for n in cmp.notes:
         console.print(f"note: {escape(n)}", soft_wrap=True, highlight=False)
     console.print(escape(f"written: {out / 'compare.html'} (table and figure), compare.csv, one fit per spec"),
@@ -54,17 +56,29 @@ def comparison_table(cmp: object) -> Table:
     from coartic.fit.compare import Comparison
 
     assert isinstance(cmp, Comparison)
-    t = Table(title=f"Model comparison (RMSE in mm, bar {BAR_MM} mm; lower AIC/BIC is better)")
-    for c in ("model", "channel", "free", "RMSE", "held-out", "held-out, no offsets", "AIC", "BIC"):
-        t.add_column(c, justify="left" if c in ("model", "channel") else "right")
+    t = Table(title=f"Model comparison (RMSE in mm, bar {BAR_MM} mm; lower AIC/BIC is better)",
+              caption="step model: each phoneme's training mean on the same held-out samples (as measured / no "
+                      "offsets); ✗ = the table does not beat it")
+    for c in ("model", "channel", "free", "RMSE", "held-out", "held-out, no offsets", "step model", "AIC", "BIC",
+              "status"):
+        t.add_column(c, justify="left" if c in ("model", "channel", "status") else "right")
 
     def f(v: float, fmt: str, best: bool = False) -> str:
         s = "–" if not math.isfinite(v) else format(v, fmt)
         return f"[bold green]{s}[/bold green]" if best else s
 
+    def step(r: object) -> str:
+        from coartic.fit.compare import Row
+
+        assert isinstance(r, Row)
+        if "step" not in r.baselines:
+            return "–"
+        s = f"{r.baselines['step'][0]:.3f} / {r.baselines['step'][1]:.3f}"
+        return s if r.beats_step else f"{s} [bold red]✗[/bold red]"
+
     for r in cmp.rows:
         t.add_row(escape(r.model), r.channel, str(r.n_free), f(r.rmse, ".3f"),
                   f(r.heldout_rmse, ".3f", cmp.best(r.channel, "heldout_rmse") == r.model),
-                  f(r.heldout_rmse_offset_removed, ".3f"), f(r.aic, ".1f"),
-                  f(r.bic, ".1f", cmp.best(r.channel, "bic") == r.model))
+                  f(r.heldout_rmse_offset_removed, ".3f"), step(r), f(r.aic, ".1f"),
+                  f(r.bic, ".1f", cmp.best(r.channel, "bic") == r.model), escape(r.status))
     return t

@@ -13,7 +13,7 @@ from rich.table import Table
 from coartic.fit.bounds import summary_counts
 from coartic.fit.result import BAR_MM, FitResult
 from coartic.fit.spec import ENGINES, FitSpec, SpecError, load_spec
-from coartic.console import print_error
+from coartic.console import print_error, print_table
 from coartic.table import ALL_CHANNELS
 from coartic.outputs import OutputDir
 
@@ -57,12 +57,16 @@ def fit_command(
                                          "docs/FITTING.md)"),
     force: bool = typer.Option(False, "--force", help="replace --out even if it holds another run's output "
                                "(a rerun of the same spec and channels replaces its own output without it)"),
+    quiet: bool = typer.Option(False, "--quiet", "-q", help="no progress (bars in a terminal, lines elsewhere, on "
+                               "stderr); the result tables, warnings and errors are still printed"),
 ) -> None:
     """Fit the coarticulation model to a corpus by least squares (MODEL.md §5).
 
     The outputs are written beside --out and swapped in whole when the fit ends (docs/OUTPUTS.md).
+    Progress goes to stderr (live in a terminal, a line per stage, channel and 15 s elsewhere).
     """
     console = Console()
+    err = Console(stderr=True)
     try:
         s = load_spec(spec)
         changes: dict[str, object] = {}
@@ -88,7 +92,7 @@ def fit_command(
             s = parse_choose(s, choose)
         output = fit_output(s, out, force)
         with output as staging:
-            result = _fit_into(s, staging, console, validate, report)
+            result = _fit_into(s, staging, console, err, validate, report, quiet)
             if not result.channels:  # nothing to show for it: the previous output stays
                 output.abandon()
             elif result.interrupted:
@@ -145,15 +149,16 @@ def fit_output(spec: FitSpec, out: Path, force: bool = False) -> OutputDir:
                      force=force, protect=inputs, recognise=legacy)
 
 
-def _fit_into(s: FitSpec, out: Path, console: Console, validate: bool, report: bool) -> FitResult:
+def _fit_into(s: FitSpec, out: Path, console: Console, err: Console, validate: bool, report: bool,
+              quiet: bool) -> FitResult:
     """The fit, its validation and report, written into ``out`` (the staging directory) by
-    ``coartic.fit.run``; printed here."""
+    ``coartic.fit.run`` (progress on ``err``); the results printed on ``console``."""
     from coartic.fit.runner import run
 
-    result = run(s, out, console=console, validate=validate, report=report)
+    result = run(s, out, console=err, quiet=quiet, validate=validate, report=report)
     if not result.channels:
         return result
-    console.print(rmse_table(result))
+    print_table(console, rmse_table(result))
     if result.choice is not None:
         c = result.choice
         console.print(escape(f"{c.choose.key} chosen by cross-validation on the training data (rule {c.choose.rule}): "
@@ -164,7 +169,9 @@ def _fit_into(s: FitSpec, out: Path, console: Console, validate: bool, report: b
     for note in result.notes:
         console.print(f"[yellow]note:[/yellow] {escape(note)}", soft_wrap=True)
     if result.validation:
-        from coartic.fit.validate import validation_table
+        from coartic.fit.validate import flags, validation_table
 
-        console.print(validation_table(result.validation))
+        print_table(console, validation_table(result.validation), keys=2)
+        for f in flags(result.validation):
+            console.print(f"[bold red]WORSE THAN THE STEP MODEL[/bold red] {escape(f)}", soft_wrap=True, highlight=False)
     return result

@@ -29,6 +29,7 @@ from coartic.fit.problem import ChannelProblem, Packing
 from coartic.fit.spec import FitSpec
 from coartic.fit.staged import StageResult
 from coartic.io.labelmap import resolve_label_map
+from coartic.io.roles import ROLE_RECORD_KEY, resolve_role_map
 from coartic.outputs import atomic_path, atomic_write_text
 from coartic.table import PARAMETERS, ParameterTable
 
@@ -240,11 +241,30 @@ class FitResult:
             t.metadata["choice"] = self.choice.metadata()
         # the map the corpus labels went through, so trajectories/animate/score read labels alike
         resolve_label_map(s.corpus.label_map).record_in(t)
+        if s.corpus.role_map is not None:  # and the sensors' roles and axes, so that score reads alike
+            t.metadata[ROLE_RECORD_KEY] = resolve_role_map(s.corpus.role_map).to_record()
         return t
 
     def parameter_rows(self) -> list[dict[str, Any]]:
         """``parameters.csv``: every channel's parameter set (value, stderr, free, bounds, flags)."""
         return [row for fit in self.channels.values() for row in fit.parameters.rows()]
+
+    def to_dataframe(self, what: str = "parameters") -> Any:
+        """pandas DataFrame of ``parameters.csv`` (``what="parameters"``: one row per channel,
+        phoneme and parameter with value, standard error, free, tie, bounds and flags; NaN where a
+        number does not apply) or of ``rmse.csv`` (``"rmse"``: per channel and group)."""
+        import pandas as pd
+
+        if what == "rmse":
+            return pd.DataFrame(self.rmse_rows(), columns=["channel", "group", "value", "rmse_mm", "samples",
+                                                           "below_bar"])
+        if what != "parameters":
+            raise ValueError(f"to_dataframe({what!r}): expected 'parameters' or 'rmse'")
+        df = pd.DataFrame(self.parameter_rows())
+        for col in ("value", "stderr", "lower", "upper", "prior_mean", "prior_sd"):
+            if col in df:  # "" (no standard error, no prior) is a missing number
+                df[col] = pd.to_numeric(df[col].replace("", float("nan")), errors="raise").astype("float64")
+        return df
 
     def report_text(self, max_corr: int = 10) -> str:
         """An lmfit-like fit report: statistics, warnings, strongest correlations, per channel."""
@@ -306,6 +326,17 @@ class FitResult:
             if strong:
                 lines.append("    [[Correlations]] (|r| > 0.5, strongest first)")
                 lines += [f"        C({a}, {b}) = {r:+.3f}" for a, b, r in strong]
+        if self.validation:
+            from coartic.fit.validate import flags
+
+            lines += ["", "[[Validation]] (held-out RMSE in mm as measured / offset removed; baselines on the same "
+                      "samples: constant = training mean, step = each phoneme's training mean, warped = another "
+                      "token of the sentence)"]
+            for sc in self.validation:
+                base = "".join(f", {b} {v[0]:.4f} / {v[1]:.4f}" for b, v in sc.baselines.items())
+                lines.append(f"    {sc.split}, {sc.channel}: table {sc.test_rmse:.4f} / "
+                             f"{sc.test_rmse_offset_removed:.4f}{base}")
+            lines += [f"    WARNING: {f}" for f in flags(self.validation)]
         return "\n".join(lines) + "\n"
 
     # ---------------------------------------------------------------- output
@@ -331,7 +362,7 @@ class FitResult:
                    for ch, f in self.channels.items()}
         with atomic_path(paths["fitted"]) as tmp:
             np.savez_compressed(tmp, **arrays)
-        summary = {"spec": str(self.spec.path), "interrupted": self.interrupted, "started": self.started,
+        summary: dict[str, Any] = {"spec": str(self.spec.path), "interrupted": self.interrupted, "started": self.started,
                    "channels": {ch: {"rmse_mm": f.rmse, "status": f.status, "message": f.message, "nfev": f.nfev,
                                      "wall_time_s": f.wall_time, "at_bound": f.stats.at_bound if f.stats else [],
                                      # why each is at its bound (coartic.fit.bounds.BoundNote fields)
@@ -339,6 +370,10 @@ class FitResult:
                                      if f.stats else [],
                                      "unidentified": f.stats.unidentified if f.stats else []}
                                 for ch, f in self.channels.items()}}
+        if self.validation:
+            from coartic.fit.validate import baseline_summary
+
+            summary["validation"] = baseline_summary(self.validation)
         atomic_write_text(paths["summary"], json.dumps(summary, indent=2))
         if self.choice is not None:
             paths |= self.choice.save(out)

@@ -14,9 +14,11 @@ from typing import Sequence
 
 import numpy as np
 from rich.console import Console
+from rich.markup import escape
 from threadpoolctl import threadpool_limits
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
+from coartic.console import LineProgress
 from coartic.errors import CoarticError
 from coartic.fit.engines import OptionError, check_options
 from coartic.fit.problem import ChannelProblem, Utterance, build_problem
@@ -46,7 +48,7 @@ def fit_channel(spec: FitSpec, utterances: Sequence[Utterance], channel: str,
         problem = build_problem(spec, utterances, channel, start=start)
     task = None
     if progress is not None:
-        task = progress.add_task(f"{channel}", total=None, info="")
+        task = progress.add_task(f"{channel}", total=None, info="", unit="evaluations")
 
         def monitor(nfev: int, best: float) -> None:
             rmse = np.sqrt(best / max(problem.data.n_valid, 1))
@@ -70,7 +72,7 @@ def fit_channel(spec: FitSpec, utterances: Sequence[Utterance], channel: str,
         fit = finish_channel(final, res.x, "interrupted", "stopped by the user (Ctrl-C) after the fit",
                              time.perf_counter() - t0, stages)
     if progress is not None and task is not None:
-        progress.update(task, description=f"{channel} done", info=f"RMSE {fit.rmse:.3f} mm [{fit.status}]")
+        progress.update(task, description=f"{channel} done", info=escape(f"RMSE {fit.rmse:.3f} mm [{fit.status}]"))
         progress.stop_task(task)
     return fit
 
@@ -113,7 +115,7 @@ def run(spec: FitSpec | str | Path, out: str | Path | None = None, *, utterances
     result = FitResult(spec, {}, now())
     columns = (TextColumn("[bold]{task.description}"), BarColumn(), MofNCompleteColumn(),
                TextColumn("{task.fields[info]}"), TimeElapsedColumn())
-    with Progress(*columns, console=console, transient=False, disable=quiet) as progress:
+    with LineProgress(*columns, console=console, quiet=quiet) as progress:
         if utterances is None:
             from coartic.fit.data import load_utterances, manifest_rows
 
@@ -121,6 +123,7 @@ def run(spec: FitSpec | str | Path, out: str | Path | None = None, *, utterances
             task = progress.add_task("loading trials", total=len(rows), info="")
             try:
                 utterances = load_utterances(spec, rows, lambda i, n: progress.update(task, completed=i))
+                progress.stop_task(task)
             except KeyboardInterrupt:
                 result.interrupted = True
                 result.notes.append("interrupted while loading the trials: nothing was fitted")

@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import csv
 import io
+import json
 from dataclasses import dataclass, field
 from os import PathLike
 from pathlib import Path
@@ -29,10 +30,13 @@ from typing import Any, Sequence
 import numpy as np
 from numpy.typing import NDArray
 
+from coartic.errors import CoarticError
 from coartic.model import Utterance, evaluate_corpus
 from coartic.table import ParameterTable
 
 F64 = NDArray[np.float64]
+# A measured channel whose samples span less than this (mm) is constant: not computed from the recording.
+CONSTANT_MM = 1e-6
 
 
 @dataclass
@@ -45,24 +49,29 @@ class Score:
     predicted: dict[str, list[F64]]  # channel -> one array per utterance
     notes: list[str] = field(default_factory=list)
     speaker: str | None = None  # the table's speaker whose mapping the predictions carry
+    # baseline -> channel -> predictions per utterance (coartic.fit.baselines; add_baselines)
+    baselines: dict[str, dict[str, list[F64]]] = field(default_factory=dict)
 
-    def calibration(self, channel: str) -> tuple[float, float]:
+    def calibration(self, channel: str, predicted: list[F64] | None = None) -> tuple[float, float]:
         """(a, b) of measured ≈ a + b·predicted over every valid sample of ``channel``: the speaker
-        calibrated on its own data (``coartic.fit.problem.affine_coefficients``)."""
+        calibrated on its own data (``coartic.fit.problem.affine_coefficients``). ``predicted``:
+        other predictions of the same samples (a baseline's) instead of the table's."""
         from coartic.fit.problem import affine_coefficients
 
-        f = np.concatenate(self.predicted[channel])
+        f = np.concatenate(self.predicted[channel] if predicted is None else predicted)
         y = np.concatenate([u.observed[channel] for u in self.utterances]).astype(np.float64)
         ok = np.concatenate([u.valid[channel] for u in self.utterances]) & np.isfinite(y) & np.isfinite(f)
         a, b = affine_coefficients(np.zeros(f.size, dtype=np.int64), 1, ok.astype(np.float64),
                                    np.where(ok, f, 0.0), np.where(ok, y, 0.0))
         return float(a[0]), float(b[0])
 
-    def residuals(self, channel: str, u: int, offset: bool = False) -> F64:
+    def residuals(self, channel: str, u: int, offset: bool = False, predicted: list[F64] | None = None) -> F64:
         """Predicted − measured for utterance ``u`` (NaN where not measured); with ``offset``, minus
-        its mean over the utterance (the per-utterance offset removed)."""
+        its mean over the utterance (the per-utterance offset removed). ``predicted``: as in
+        ``calibration``."""
         utt = self.utterances[u]
-        r = np.where(utt.valid[channel], self.predicted[channel][u] - utt.observed[channel], np.nan)
+        f = (self.predicted[channel] if predicted is None else predicted)[u]
+        r = np.where(utt.valid[channel], f - utt.observed[channel], np.nan)
         if offset and np.isfinite(r).any():
             r = r - np.nanmean(r)
         return r
@@ -102,18 +111,71 @@ class Score:
                              "rmse_offset_removed_mm": float(np.sqrt(so / n)) if n else float("nan")})
         return rows
 
+    def _figures(self, ch: str, predicted: list[F64] | None = None) -> dict[str, Any]:
+        """RMSE as measured, offset removed and speaker-calibrated of the table's predictions of
+        ``ch`` (or of ``predicted``, a baseline's), on the same samples."""
+        n_u = range(len(self.utterances))
+        r = np.concatenate([self.residuals(ch, u, predicted=predicted) for u in n_u])
+        ro = np.concatenate([self.residuals(ch, u, offset=True, predicted=predicted) for u in n_u])
+        a, b = self.calibration(ch, predicted)
+        f = np.concatenate(self.predicted[ch] if predicted is None else predicted)
+        rc = np.where(np.isfinite(r), a + (b - 1.0) * f + r, np.nan)  # a + b·F − y
+        return {"samples": int(np.isfinite(r).sum()), "rmse_mm": _rms(r), "rmse_offset_removed_mm": _rms(ro),
+                "rmse_calibrated_mm": _rms(rc), "calibration_offset_mm": a, "calibration_scale": b}
+
     def channel_rows(self) -> list[dict[str, Any]]:
         rows = []
         for ch in self.channels:
-            r = np.concatenate([self.residuals(ch, u) for u in range(len(self.utterances))])
-            ro = np.concatenate([self.residuals(ch, u, offset=True) for u in range(len(self.utterances))])
-            a, b = self.calibration(ch)
-            f = np.concatenate(self.predicted[ch])
-            rc = np.where(np.isfinite(r), a + (b - 1.0) * f + r, np.nan)  # a + b·F − y
-            rows.append({"channel": ch, "utterances": len(self.utterances), "samples": int(np.isfinite(r).sum()),
-                         "rmse_mm": _rms(r), "rmse_offset_removed_mm": _rms(ro), "rmse_calibrated_mm": _rms(rc),
-                         "calibration_offset_mm": a, "calibration_scale": b})
+            fig = self._figures(ch)
+            rows.append({"channel": ch, "utterances": len(self.utterances), "samples": fig["samples"],
+                         **{k: v for k, v in fig.items() if k != "samples"}})
         return rows
+
+    def baseline_rows(self) -> list[dict[str, Any]]:
+        """Per channel, the table and each baseline (``coartic.fit.baselines``) on the same
+        samples: RMSE as measured, offset removed and speaker-calibrated."""
+        rows = []
+        for ch in self.channels:
+            rows.append({"channel": ch, "model": "table", **self._figures(ch)})
+            for name, per in self.baselines.items():
+                if ch in per:
+                    rows.append({"channel": ch, "model": name, **self._figures(ch, per[ch])})
+        return rows
+
+    def flags(self) -> list[str]:
+        """One line per channel on which the table does not beat the step model."""
+        from coartic.fit.baselines import beats_step, flag_text
+
+        out = []
+        for ch in self.channels:
+            if ch not in self.baselines.get("step", {}):
+                continue
+            t, s = self._figures(ch), self._figures(ch, self.baselines["step"][ch])
+            pair_t = (t["rmse_mm"], t["rmse_offset_removed_mm"])
+            pair_s = (s["rmse_mm"], s["rmse_offset_removed_mm"])
+            if not beats_step(pair_t, pair_s):
+                out.append(flag_text(ch, pair_t, pair_s))
+        return out
+
+    def add_baselines(self, train: Sequence[Utterance]) -> None:
+        """Fit the baselines on ``train`` (the table's training utterances) and predict these samples."""
+        from coartic.fit.baselines import Baselines
+
+        b = Baselines.fit(train, self.channels)
+        self.baselines = {}
+        for ch in self.channels:
+            for name, preds in b.predict(self.utterances, ch).items():
+                self.baselines.setdefault(name, {})[ch] = preds
+
+    def summary(self) -> dict[str, Any]:
+        """What ``summary.json`` holds: per channel the table's and the baselines' figures, the flags."""
+        return {"table": str(self.table.source), "utterances": [u.name for u in self.utterances],
+                "speaker": self.speaker, "notes": list(self.notes),
+                "channels": {ch: {r["model"]: {k: v for k, v in r.items() if k not in ("channel", "model")}
+                                  for r in self.baseline_rows() if r["channel"] == ch} for ch in self.channels},
+                "beats_step_model": {ch: not any(f.startswith(f"{ch}:") for f in self.flags())
+                                     for ch in self.channels if ch in self.baselines.get("step", {})},
+                "flags": self.flags()}
 
     def rmse(self, channel: str, offset: bool = False) -> float:
         row = next(r for r in self.channel_rows() if r["channel"] == channel)
@@ -127,6 +189,13 @@ class Score:
             lines.append(f"    {r['channel']}: RMSE {r['rmse_mm']:.4f} mm, offset removed {r['rmse_offset_removed_mm']:.4f} mm, "
                          f"speaker-calibrated {r['rmse_calibrated_mm']:.4f} mm (a = {r['calibration_offset_mm']:+.3f} mm, "
                          f"b = {r['calibration_scale']:.4f}) ({r['samples']} samples)")
+        base = [r for r in self.baseline_rows() if r["model"] != "table"]
+        if base:
+            lines.append("[[Baselines]] (fitted on the table's training data, scored on the same samples)")
+            for r in base:
+                lines.append(f"    {r['channel']} {r['model']}: RMSE {r['rmse_mm']:.4f} mm, offset removed "
+                             f"{r['rmse_offset_removed_mm']:.4f} mm, speaker-calibrated {r['rmse_calibrated_mm']:.4f} mm")
+        lines += [f"    WARNING: {f}" for f in self.flags()]
         lines.append("[[Utterances]]")
         for r in self.utterance_rows():
             lines.append(f"    {r['channel']} {r['utterance']}: RMSE {r['rmse_mm']:.4f} mm, offset removed "
@@ -135,7 +204,8 @@ class Score:
 
     # ------------------------------------------------------------------ output
     def save(self, out: str | PathLike[str], figures: bool = True) -> dict[str, Path]:
-        """Write the three CSVs, ``score.txt`` and (``figures``) the PNGs into ``out``, each file atomically."""
+        """Write the CSVs, ``score.txt``, ``summary.json`` and (``figures``) the PNGs into ``out``, each
+        file atomically."""
         from coartic.outputs import atomic_write_text
 
         out = Path(out)
@@ -146,6 +216,10 @@ class Score:
         atomic_write_text(paths["utterances"], _csv(self.utterance_rows()))
         atomic_write_text(paths["phonemes"], _csv(self.phoneme_rows()))
         atomic_write_text(paths["text"], self.text())
+        paths["baselines"] = out / "score_baselines.csv"
+        atomic_write_text(paths["baselines"], _csv(self.baseline_rows()))
+        paths["summary"] = out / "summary.json"
+        atomic_write_text(paths["summary"], json.dumps(self.summary(), indent=2))
         if figures:
             paths |= score_figures(self, out)
         return paths
@@ -159,11 +233,13 @@ def segment_of(utt: Utterance) -> NDArray[np.int64]:
 
 
 def score_utterances(table: ParameterTable, utterances: Sequence[Utterance],
-                     channels: Sequence[str] | None = None, speaker: str | None = None) -> Score:
+                     channels: Sequence[str] | None = None, speaker: str | None = None,
+                     train: Sequence[Utterance] | None = None) -> Score:
     """Evaluate ``table`` on utterances whose labels are model phonemes and compare with their
     observed channels (default: the table's channels the utterances carry); with ``speaker``, the
     predictions are that speaker's (``coartic.speakers.speaker_mapping``: an unknown name, or a
-    table without speakers, is an error)."""
+    table without speakers, is an error). With ``train`` (the utterances the table was fitted on),
+    the baselines too (``coartic.fit.baselines``, ``Score.baseline_rows``)."""
     from coartic.speakers import speaker_mapping, table_speakers
 
     mapping = speaker_mapping(table, speaker)
@@ -180,30 +256,55 @@ def score_utterances(table: ParameterTable, utterances: Sequence[Utterance],
         missing = [u.name for u in utts if c not in u.observed]
         if missing:
             raise ValueError(f"channel {c}: not measured in {', '.join(missing[:5])}")
+    for c in chans:  # a calibrated figure of a channel the recording did not give would be meaningless
+        y = np.concatenate([u.observed[c][u.valid[c]] for u in utts])
+        y = y[np.isfinite(y)]
+        if y.size == 0:
+            raise ScoreError(f"channel {c}: no valid sample in {', '.join(u.name for u in utts[:5])}: it could "
+                             "not be computed from the recordings; not scored")
+        if float(np.ptp(y)) < CONSTANT_MM:
+            raise ScoreError(f"channel {c} is {y[0]:.3g} mm in every sample of {', '.join(u.name for u in utts[:5])}: "
+                             "it was not computed from the recordings (a missing or misnamed sensor? give "
+                             "--role-map, or --channels without it); no RMSE, calibrated or not, is printed for it")
     if mapping is None:
         predicted = {c: evaluate_corpus(table, c, utts) for c in chans}
     else:
         own = mapping.evaluation_table(table)
         predicted = {c: [mapping.apply(c, v) for v in evaluate_corpus(own, c, utts)] for c in chans}
     score = Score(table, chans, utts, predicted, speaker=speaker)
+    if train is not None:
+        score.add_baselines(train)
     if mapping is None and table_speakers(table):
         score.notes.append(f"the table was fitted on speakers {', '.join(table_speakers(table))}; without --speaker "
                            "it predicts the population (a = 0, b = 1, the table's targets)")
     return score
 
 
+class ScoreError(CoarticError, ValueError):
+    """A recording cannot be scored as asked: a phoneme the table lacks (named by its corpus label
+    too), or a channel that was not computed from the recording."""
+
+
 def score_recordings(table: ParameterTable | str | PathLike[str], files: Sequence[str | PathLike[str]],
                      labels: Sequence[str | PathLike[str]] | None = None, *, label_map: Any = None,
                      role_map: Any = None, channels: Sequence[str] | None = None, max_gap: float = 0.05,
-                     speaker: str | None = None) -> Score:
+                     speaker: str | None = None, train: str | PathLike[str] | None = None,
+                     strict: bool = False) -> Score:
     """Load recordings (each with its label file, or an EMU bundle's own labels) and score the table.
 
     The labels are mapped by ``label_map`` if given, else by the map the table records (the fit's),
-    else they must be model phonemes.
+    else they must be model phonemes; the sensors are read with ``role_map`` if given, else with
+    the role map and axes the table records (``RoleMap.recorded``). A phoneme the table lacks is
+    replaced by its phonetic class's fallback the table has (phones_italian.tsv, as ``animate``
+    does; said in the notes) unless ``strict``; one with none is a ScoreError naming the corpus
+    label, the phoneme and the file. The baselines (``coartic.fit.baselines``) are fitted on the
+    training corpus of ``train`` (a fit spec), by default the spec the table records if it is found.
     """
     from coartic.fit.data import load_rows
-    from coartic.io.labelmap import LabelMap
-
+    from coartic.io.labelmap import LabelMap, resolve_label_map
+    from coartic.io.roles import RoleMap
+    from coartic.runtime.animate import substitutions
+    from coartic.runtime.festival import PhoneMap
     from coartic.speakers import speaker_mapping
 
     if not isinstance(table, ParameterTable):
@@ -211,15 +312,75 @@ def score_recordings(table: ParameterTable | str | PathLike[str], files: Sequenc
     speaker_mapping(table, speaker)  # an unknown speaker is refused before anything is read
     if labels is not None and len(labels) != len(files):
         raise ValueError(f"{len(labels)} label files for {len(files)} recordings: give one --labels per recording")
-    lmap = label_map if label_map is not None else LabelMap.recorded(table)
+    lmap = resolve_label_map(label_map) if label_map is not None else LabelMap.recorded(table)
+    rmap = role_map if role_map is not None else RoleMap.recorded(table)
     chans = tuple(channels) if channels is not None else tuple(table.channels)
     rows = [{"file": str(f), "labels": None if labels is None else str(labels[i]), "stimulus": Path(f).stem}
             for i, f in enumerate(files)]
-    utts = load_rows(rows, chans, label_map=lmap, role_map=role_map, max_gap=max_gap)
-    score = score_utterances(table, utts, chans, speaker)
+    utts = load_rows(rows, chans, label_map=lmap, role_map=rmap, max_gap=max_gap)
+    notes = []
+    used = {} if strict else substitutions([lab for u in utts for lab in u.labels], table, chans,
+                                           PhoneMap.load().fallbacks)
+    if used:
+        utts = [_relabelled(u, used) for u in utts]
+        notes.append("the table has no " + ", ".join(f"/{k}/ (scored as /{v}/)" for k, v in used.items())
+                     + ": the phonetic-class fallbacks of phones_italian.tsv (--strict refuses instead)")
+    for u, row in zip(utts, rows):
+        for i, lab in enumerate(u.labels):
+            if lab not in table.values or any(c not in table.values[lab] for c in chans):
+                corpus = _corpus_label(row, i, rmap)
+                raise ScoreError(f"{row['labels'] or row['file']}: segment {i + 1}, corpus label {corpus!r} "
+                                 f"(phoneme {lab!r} by "
+                                 f"{(lmap.source if lmap is not None else 'the model phonemes')}): the table "
+                                 f"{table.source} has no {lab!r}"
+                                 + ("" if strict else " and none of its fallbacks")
+                                 + f"; its phonemes are {' '.join(table.phonemes)}")
+    train_utts = None
+    spec_path = Path(train) if train is not None else _recorded_spec(table)
+    if spec_path is not None:
+        from coartic.fit.data import load_utterances
+        from coartic.fit.spec import load_spec
+
+        spec = load_spec(spec_path)
+        train_utts = load_utterances(spec.with_options(channels=chans))
+        seen = {Path(u.meta.get("file", "")).resolve() for u in train_utts}
+        inside = [Path(f).name for f in files if Path(f).resolve() in seen]
+        if inside:
+            notes.append(f"{', '.join(inside)} is in the table's training corpus: its figures are in-sample")
+    score = score_utterances(table, utts, chans, speaker, train=train_utts)
+    score.notes += notes
     if label_map is None and lmap is not None:
         score.notes.append(f"labels mapped by the table's recorded label map ({lmap.source})")
+    if role_map is None and rmap is not None:
+        score.notes.append(f"sensors read with the table's recorded role map ({rmap.source})")
+    if spec_path is not None:
+        score.notes.append(f"baselines fitted on the training corpus of {spec_path}")
+    else:
+        score.notes.append("no baselines: the table records no fit spec that exists here; give --train SPEC")
     return score
+
+
+def _recorded_spec(table: ParameterTable) -> Path | None:
+    spec = table.metadata.get("spec")
+    return Path(spec) if isinstance(spec, str) and Path(spec).is_file() else None
+
+
+def _relabelled(u: Utterance, used: dict[str, str]) -> Utterance:
+    return Utterance([used.get(lab, lab) for lab in u.labels], u.starts, u.ends, u.times, u.name, u.observed,
+                     u.valid, u.meta)
+
+
+def _corpus_label(row: dict[str, Any], i: int, role_map: Any) -> str:
+    """The label as the corpus writes it of segment ``i`` of ``row``'s recording (read again, unmapped)."""
+    from coartic.io import load_trial
+    from coartic.io.labelmap import LabelMap
+
+    try:
+        trial = load_trial(Path(str(row["file"])), labels=row["labels"], label_map=LabelMap({}, keep_unmapped=True),
+                           role_map=role_map)
+        return trial.segments.labels[i] if trial.segments is not None else "?"
+    except (ValueError, OSError, IndexError):
+        return "?"
 
 
 # ---------------------------------------------------------------------------------- figures

@@ -11,7 +11,7 @@ from rich.console import Console
 from rich.markup import escape
 from rich.table import Table
 
-from coartic.console import print_error
+from coartic.console import print_error, print_table
 from coartic.fit.result import BAR_MM
 
 
@@ -23,6 +23,12 @@ def score_command(
     label_map: Optional[str] = typer.Option(None, "--label-map", help="corpus labels -> model phonemes (built-in "
                                             "name or file); default: the map the table records"),
     channels: Optional[str] = typer.Option(None, help="comma-separated channels (default: the table's)"),
+    role_map: Optional[Path] = typer.Option(None, "--role-map", help="which sensor/marker plays which role, and the "
+                                            "EMA axes (JSON file); default: the role map the table records"),
+    strict: bool = typer.Option(False, "--strict", help="refuse phonemes the table lacks instead of scoring them "
+                                "as their phonetic class's fallback (phones_italian.tsv), as animate does"),
+    train: Optional[Path] = typer.Option(None, "--train", help="fit spec of the table's training data, for the "
+                                         "baselines (default: the spec the table records, if it exists)"),
     speaker: Optional[str] = typer.Option(None, "--speaker", help="predict as this speaker of the table (a table "
                                           "fitted with [model] speakers): its offset and scale, or its own targets"),
     out: Optional[Path] = typer.Option(None, "--out", "-o", help="write CSVs, score.txt and figures here"),
@@ -36,7 +42,7 @@ def score_command(
     try:
         chans = [c.strip() for c in channels.split(",") if c.strip()] if channels else None
         score = score_recordings(table, recordings, labels or None, label_map=label_map, channels=chans,
-                                 speaker=speaker)
+                                 speaker=speaker, role_map=role_map, strict=strict, train=train)
         if out is not None:
             from coartic.outputs import OutputDir
 
@@ -47,11 +53,14 @@ def score_command(
     except (ValueError, OSError) as e:  # DataError, TableError, ModelInputError, OutputError
         print_error(console, e)
         raise typer.Exit(2) from None
-    console.print(score_table(score))
+    print_table(console, score_table(score), keys=2)
     for note in score.notes:
         console.print(f"note: {escape(note)}", soft_wrap=True, highlight=False)
+    for flag in score.flags():
+        console.print(f"[bold red]WORSE THAN THE STEP MODEL[/bold red] {escape(flag)}", soft_wrap=True, highlight=False)
     if out is not None:
-        console.print(escape(f"written: {out}/score_*.csv, score.txt, figures/"), soft_wrap=True, highlight=False)
+        console.print(escape(f"written: {out}/score_*.csv, score.txt, summary.json, figures/"), soft_wrap=True,
+                      highlight=False)
 
 
 def score_table(score: object) -> Table:
@@ -59,17 +68,22 @@ def score_table(score: object) -> Table:
 
     assert isinstance(score, Score)
     who = f" as speaker {score.speaker}" if score.speaker is not None else ""
-    t = Table(title=f"RMSE (mm){who} on {len(score.utterances)} recording(s) the fit did not see — bar {BAR_MM} mm")
-    for c in ("channel", "as measured", "offset removed", "speaker-calibrated", "worst utterance", "worst phoneme",
-              "samples"):
-        t.add_column(c, justify="left" if c == "channel" else "right")
+    t = Table(title=f"RMSE (mm){who} on {len(score.utterances)} recording(s) the fit did not see — bar {BAR_MM} mm",
+              caption="baselines on the same samples: constant = training mean; step = each phoneme's training "
+                      "mean; warped = another token of the sentence, time-warped")
+    for c in ("channel", "model", "as measured", "offset removed", "speaker-calibrated", "worst utterance",
+              "worst phoneme", "samples"):
+        t.add_column(c, justify="left" if c in ("channel", "model") else "right")
     utt = score.utterance_rows()
     ph = score.phoneme_rows()
     for r in score.channel_rows():
         ch = r["channel"]
         wu = max((x for x in utt if x["channel"] == ch), key=lambda x: x["rmse_mm"])
         wp = next((x for x in ph if x["channel"] == ch), None)  # sorted worst first
-        t.add_row(ch, f"{r['rmse_mm']:.3f}", f"{r['rmse_offset_removed_mm']:.3f}", f"{r['rmse_calibrated_mm']:.3f}",
-                  f"{wu['rmse_mm']:.3f} ({escape(wu['utterance'])})",
+        t.add_row(ch, "table", f"{r['rmse_mm']:.3f}", f"{r['rmse_offset_removed_mm']:.3f}",
+                  f"{r['rmse_calibrated_mm']:.3f}", f"{wu['rmse_mm']:.3f} ({escape(wu['utterance'])})",
                   f"{wp['rmse_mm']:.3f} ({escape(wp['phoneme'])})" if wp else "–", str(r["samples"]))
+        for b in (x for x in score.baseline_rows() if x["channel"] == ch and x["model"] != "table"):
+            t.add_row(ch, f"[dim]{b['model']}[/dim]", f"{b['rmse_mm']:.3f}", f"{b['rmse_offset_removed_mm']:.3f}",
+                      f"{b['rmse_calibrated_mm']:.3f}", "", "", str(b["samples"]))
     return t

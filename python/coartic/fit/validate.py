@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import csv
 import io
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Sequence
 
@@ -23,9 +23,14 @@ from rich.markup import escape
 from rich.table import Table
 
 from coartic.errors import CoarticError
+from coartic.fit.baselines import BASELINES
 from coartic.fit.problem import Utterance
 from coartic.fit.result import BAR_MM, FitResult
 from coartic.fit.spec import FitSpec, SpecError
+
+
+# the baselines' columns of validation.csv, each prefixed by the baseline's name
+BASELINE_COLUMNS = ("rmse_mm", "rmse_offset_removed_mm", "rmse_speaker_calibrated_mm")
 
 
 @dataclass
@@ -42,10 +47,30 @@ class SplitScore:
     n_free: int = 0
     # after calibrating the test speaker's offset and scale on the test data (coartic.fit.score)
     test_rmse_calibrated: float = float("nan")
+    # baseline -> (as measured, offset removed, speaker-calibrated) test RMSE on the same samples
+    baselines: dict[str, tuple[float, float, float]] = field(default_factory=dict)
+
+    @property
+    def beats_step(self) -> bool:
+        """The table beats the step model (as measured and offset removed), or there is none."""
+        from coartic.fit.baselines import beats_step
+
+        step = self.baselines.get("step")
+        return step is None or beats_step((self.test_rmse, self.test_rmse_offset_removed), step[:2])
+
+    def flag(self) -> str | None:
+        from coartic.fit.baselines import flag_text
+
+        if self.beats_step:
+            return None
+        return f"{self.split}: " + flag_text(self.channel, (self.test_rmse, self.test_rmse_offset_removed),
+                                             self.baselines["step"][:2])
 
 
-def score(result: FitResult, test: Sequence[Utterance], split: str) -> list[SplitScore]:
-    """RMSE of the fitted table on utterances the fit did not see (``coartic.fit.score``)."""
+def score(result: FitResult, test: Sequence[Utterance], split: str,
+          train: Sequence[Utterance] | None = None) -> list[SplitScore]:
+    """RMSE of the fitted table on utterances the fit did not see (``coartic.fit.score``); with
+    ``train`` (the split's training utterances), the baselines' on the same samples too."""
     from coartic.fit.score import score_utterances
 
     table = result.table()
@@ -54,7 +79,7 @@ def score(result: FitResult, test: Sequence[Utterance], split: str) -> list[Spli
         unknown = sorted({lab for u in test for lab in u.labels} - set(fit.problem.phonemes))
         if unknown:
             raise UnseenPhonemes(f"{split}: the test utterances contain phonemes the training fit never saw: {unknown}")
-        sc = score_utterances(table, test, [ch])
+        sc = score_utterances(table, test, [ch], train=train)
         by_vowel: dict[str, list[float]] = {}
         for u, utt in enumerate(sc.utterances):
             r = sc.residuals(ch, u)
@@ -65,8 +90,10 @@ def score(result: FitResult, test: Sequence[Utterance], split: str) -> list[Spli
         worst = max(vowel_rmse.items(), key=lambda kv: kv[1])
         row = sc.channel_rows()[0]
         n = fit.problem.data.n_valid
+        base = {r["model"]: (r["rmse_mm"], r["rmse_offset_removed_mm"], r["rmse_calibrated_mm"])
+                for r in sc.baseline_rows() if r["model"] != "table"}
         out.append(SplitScore(split, ch, fit.rmse, row["rmse_mm"], row["samples"], worst, row["rmse_offset_removed_mm"],
-                              fit.rmse**2 * n, n, fit.packing.n_free, row["rmse_calibrated_mm"]))
+                              fit.rmse**2 * n, n, fit.packing.n_free, row["rmse_calibrated_mm"], base))
     return out
 
 
@@ -169,7 +196,7 @@ def validate_all(spec: FitSpec, out: str | Path | None = None, utterances: Seque
         sub = Path(out) / _dirname(name) if out is not None else None
         res = run(spec, sub, utterances=train, console=console, quiet=quiet, report=False)
         try:
-            scores += score(res, test, name)
+            scores += score(res, test, name, train)
         except UnseenPhonemes as e:
             if notes is None:
                 raise
@@ -183,24 +210,59 @@ def validate_all(spec: FitSpec, out: str | Path | None = None, utterances: Seque
         buf = io.StringIO()
         w = csv.writer(buf, lineterminator="\n")
         w.writerow(["split", "channel", "train_rmse_mm", "test_rmse_mm", "test_rmse_offset_removed_mm", "test_samples",
-                    "worst_vowel", "worst_vowel_rmse_mm", "test_rmse_speaker_calibrated_mm"])
+                    "worst_vowel", "worst_vowel_rmse_mm", "test_rmse_speaker_calibrated_mm",
+                    *(f"{b}_{k}" for b in BASELINES for k in BASELINE_COLUMNS), "beats_step_model"])
+        nan = (float("nan"),) * 3
         for sc in scores:
             w.writerow([sc.split, sc.channel, repr(sc.train_rmse), repr(sc.test_rmse), repr(sc.test_rmse_offset_removed),
-                        sc.test_samples, sc.worst_vowel[0], repr(sc.worst_vowel[1]), repr(sc.test_rmse_calibrated)])
+                        sc.test_samples, sc.worst_vowel[0], repr(sc.worst_vowel[1]), repr(sc.test_rmse_calibrated),
+                        *(repr(v) for b in BASELINES for v in sc.baselines.get(b, nan)), sc.beats_step])
         atomic_write_text(Path(out) / "validation.csv", buf.getvalue())
     return scores
 
 
-def pooled(scores: Sequence[SplitScore]) -> dict[str, tuple[float, float, int]]:
+def pooled(scores: Sequence[SplitScore], model: str = "table") -> dict[str, tuple[float, float, int]]:
     """Per channel, the held-out RMSE over every split's test samples together (as measured,
-    offset removed, samples): the one number a k-fold validation gives."""
+    offset removed, samples): the one number a k-fold validation gives. ``model``: the table, or
+    a baseline (``coartic.fit.baselines``; a channel some split lacks it on is left out)."""
     acc: dict[str, list[float]] = {}
+    lacking: set[str] = set()
     for sc in scores:
+        if model == "table":
+            rm, ro = sc.test_rmse, sc.test_rmse_offset_removed
+        elif model in sc.baselines:
+            rm, ro = sc.baselines[model][:2]
+        else:
+            lacking.add(sc.channel)
+            continue
         a = acc.setdefault(sc.channel, [0.0, 0.0, 0.0])
-        a[0] += sc.test_rmse**2 * sc.test_samples
-        a[1] += sc.test_rmse_offset_removed**2 * sc.test_samples
+        a[0] += rm**2 * sc.test_samples
+        a[1] += ro**2 * sc.test_samples
         a[2] += sc.test_samples
-    return {ch: (float(np.sqrt(s / n)), float(np.sqrt(so / n)), int(n)) for ch, (s, so, n) in acc.items() if n}
+    return {ch: (float(np.sqrt(s / n)), float(np.sqrt(so / n)), int(n)) for ch, (s, so, n) in acc.items()
+            if n and ch not in lacking}
+
+
+def flags(scores: Sequence[SplitScore]) -> list[str]:
+    """The lines that say where the table does not beat the step model: each split, and pooled."""
+    from coartic.fit.baselines import beats_step, flag_text
+
+    out = [f for f in (sc.flag() for sc in scores) if f is not None]
+    if len({sc.split for sc in scores}) > 1:
+        table, step = pooled(scores), pooled(scores, "step")
+        out += [f"all splits pooled: {flag_text(ch, table[ch][:2], step[ch][:2])}" for ch in table
+                if ch in step and not beats_step(table[ch][:2], step[ch][:2])]
+    return out
+
+
+def baseline_summary(scores: Sequence[SplitScore]) -> dict[str, object]:
+    """summary.json's validation: per split and channel the table's and baselines' held-out RMSE, the flags."""
+    return {"splits": [{"split": sc.split, "channel": sc.channel, "samples": sc.test_samples,
+                        "table": {"rmse_mm": sc.test_rmse, "rmse_offset_removed_mm": sc.test_rmse_offset_removed,
+                                  "rmse_speaker_calibrated_mm": sc.test_rmse_calibrated},
+                        **{b: dict(zip(BASELINE_COLUMNS, v)) for b, v in sc.baselines.items()},
+                        "beats_step_model": sc.beats_step} for sc in scores],
+            "flags": flags(scores)}
 
 
 def _dirname(split: str) -> str:
@@ -208,18 +270,28 @@ def _dirname(split: str) -> str:
 
 
 def validation_table(scores: Sequence[SplitScore]) -> Table:
-    t = Table(title=f"Validation RMSE (mm) on data the fit did not see — bar {BAR_MM} mm")
-    for c in ("split", "channel", "train", "test", "test, offset removed", "worst vowel (test)"):
+    t = Table(title=f"Validation RMSE (mm) on data the fit did not see — bar {BAR_MM} mm",
+              caption="step, constant, warped: the baselines on the same test samples (as measured / offset "
+                      "removed); step = each phoneme's training mean; ✗ = the table does not beat the step model")
+    have = [b for b in ("step", "constant", "warped") if any(b in sc.baselines for sc in scores)]
+    for c in ("split", "channel", "train", "test", "test, offset removed", *have, "worst vowel (test)"):
         t.add_column(c, justify="left" if c in ("split", "channel") else "right")
+
+    def pair(v: tuple[float, ...] | None) -> str:
+        return "–" if v is None else f"{v[0]:.3f} / {v[1]:.3f}"
 
     def cell(v: float) -> str:
         col = "green" if v < BAR_MM else "red"
         return f"[{col}]{v:.3f}[/{col}]"
 
     for sc in scores:
-        t.add_row(escape(sc.split), sc.channel, f"{sc.train_rmse:.3f}", cell(sc.test_rmse),
-                  cell(sc.test_rmse_offset_removed), f"{sc.worst_vowel[1]:.3f} ({escape(sc.worst_vowel[0])})")
+        mark = "" if sc.beats_step else " [bold red]✗[/bold red]"
+        t.add_row(escape(sc.split), sc.channel + mark, f"{sc.train_rmse:.3f}", cell(sc.test_rmse),
+                  cell(sc.test_rmse_offset_removed), *(pair(sc.baselines.get(b)) for b in have),
+                  f"{sc.worst_vowel[1]:.3f} ({escape(sc.worst_vowel[0])})")
     if len({sc.split for sc in scores}) > 1:
+        per = {b: pooled(scores, b) for b in have}
         for ch, (rm, ro, _) in pooled(scores).items():
-            t.add_row("[bold]all splits pooled[/bold]", ch, "", cell(rm), cell(ro), "")
+            t.add_row("[bold]all splits pooled[/bold]", ch, "", cell(rm), cell(ro),
+                      *(pair(per[b].get(ch)) for b in have), "")
     return t

@@ -2,29 +2,43 @@
 
 `load_trial(path, labels=..., label_map=..., role_map=...)` is the entry point; every reader
 raises `DataError` (a ValueError) naming the file and the marker, label or line at fault.
-See docs/DATA.md.
+See docs/DATA.md. The names below are imported on first use: reading labels (coartic.io.labels)
+does not load SciPy's signal processing, which only gap filling (coartic.io.gaps) needs.
 """
 
-from coartic.io.errors import DataError, DataWarning
-from coartic.io.gaps import DEFAULT_MAX_GAP, Gap
-from coartic.io.labelmap import PAUSE, LabelMap
-from coartic.io.labels import Segments, read_labels
-from coartic.io.roles import RoleMap
-from coartic.io.trial import ALL_CHANNELS, Channels, Trial, common_rate, load_trial
+from importlib import import_module
+from typing import TYPE_CHECKING, Any
 
-__all__ = [
-    "ALL_CHANNELS",
-    "DEFAULT_MAX_GAP",
-    "PAUSE",
-    "Channels",
-    "DataError",
-    "DataWarning",
-    "Gap",
-    "LabelMap",
-    "RoleMap",
-    "Segments",
-    "Trial",
-    "common_rate",
-    "load_trial",
-    "read_labels",
-]
+if TYPE_CHECKING:
+    from coartic.io.errors import DataError, DataWarning
+    from coartic.io.gaps import DEFAULT_MAX_GAP, Gap
+    from coartic.io.labelmap import PAUSE, LabelMap
+    from coartic.io.labels import Segments, read_labels
+    from coartic.io.roles import RoleMap
+    from coartic.io.trial import ALL_CHANNELS, Channels, Trial, common_rate, load_trial
+
+# name -> the module that defines it
+_LAZY: dict[str, str] = {
+    "ALL_CHANNELS": "coartic.io.trial",
+    "DEFAULT_MAX_GAP": "coartic.io.gaps",
+    "PAUSE": "coartic.io.labelmap",
+    "Channels": "coartic.io.trial",
+    "DataError": "coartic.io.errors",
+    "DataWarning": "coartic.io.errors",
+    "Gap": "coartic.io.gaps",
+    "LabelMap": "coartic.io.labelmap",
+    "RoleMap": "coartic.io.roles",
+    "Segments": "coartic.io.labels",
+    "Trial": "coartic.io.trial",
+    "common_rate": "coartic.io.trial",
+    "load_trial": "coartic.io.trial",
+    "read_labels": "coartic.io.labels",
+}
+
+__all__ = list(_LAZY)
+
+
+def __getattr__(name: str) -> Any:
+    if name in _LAZY:
+        return getattr(import_module(_LAZY[name]), name)
+    raise AttributeError(f"module 'coartic.io' has no attribute {name!r}")

@@ -24,6 +24,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from coartic.io.errors import DataError
+from coartic.io.registry import Reader, ReadRequest, register
 from coartic.io.trial import Trial
 from coartic.io.units import to_mm
 
@@ -308,3 +309,13 @@ def _declared_frames(p: Path) -> int | None:
     except Exception:  # an unreadable header was already reported by the reader that succeeded
         return None
     return n if n > 0 else None
+
+
+def _read(p: Path, req: ReadRequest) -> tuple[Trial, None]:
+    return read_c3d(p, units=req.units, allow_truncated=req.allow_truncated), None
+
+
+# Byte 2 of every C3D header is 0x50: how a C3D file without its extension is recognised.
+register(Reader("c3d", "C3D", (".c3d",), _read,
+                sniff=lambda p, head: len(head) >= 2 and head[1] == 0x50
+                and p.suffix.lower() not in (".csv", ".tsv", ".txt")))

@@ -18,12 +18,28 @@ import numpy as np
 from numpy.typing import NDArray
 
 from coartic.io.errors import DataError, DataWarning
-from coartic.io.markers_csv import parse_numbers, rate_from_times, read_table, time_column
+from coartic.io.markers_csv import (
+    first_line,
+    axis_columns,
+    midsagittal_note,
+    parse_numbers,
+    planar_axis,
+    rate_from_times,
+    read_table,
+    stack_axes,
+    time_column,
+)
+from coartic.io.registry import Reader, ReadRequest, register
 from coartic.io.roles import RoleMap
 from coartic.io.trial import Trial
 from coartic.io.units import to_mm
 
 _POS = re.compile(r"^(?P<sensor>.+)_pos(?P<axis>[xyzXYZ])$")
+_PLAIN = re.compile(r"^(?P<sensor>.+)_(?P<axis>[xyzXYZ])$")
+# Names only a face marker set has, and names only an EMA lab gives (jaw, incisor, tongue sensors).
+_FACE_ONLY = frozenset({"nose", "ear_l", "ear_r", "chin"})
+_EMA_ONLY = frozenset({"jaw", "jw", "li", "mi", "tt", "tb", "td", "tr", "tm", "t1", "t2", "t3",
+                       "t4", "t_tip", "t_mid", "t_back"})
 EMA_ROLES_USED = ("UL", "LL", "JAW", "LC", "LC_L", "LC_R", "NOSE", "TT", "TB")
 # channel -> (role, coordinate): height along the vertical, advancement along the anterior axis
 TONGUE_SENSORS: dict[str, tuple[str, str]] = {
@@ -37,56 +53,59 @@ LATERAL_MOTION_RATIO = 2.0
 
 
 def looks_like_ema(header: Sequence[str]) -> bool:
-    return any(_POS.match(h) for h in header)
+    """`<sensor>_posx` columns, or `<name>_x` columns whose names are EMA sensors (UL, LL and a
+    jaw or tongue sensor) with no face head marker (NOSE, EAR_L, EAR_R, CHIN): EMA labs write
+    both, and the face-marker reading would then ask for NOSE and CHIN."""
+    if any(_POS.match(h) for h in header):
+        return True
+    names = {m.group("sensor").lower() for h in header if (m := _PLAIN.match(h))}
+    if names & _FACE_ONLY or not {"ul", "ll"} <= names:
+        return False
+    return bool(names & _EMA_ONLY)
 
 
 def read_ema_csv(path: str | PathLike[str], units: str | None = None) -> Trial:
     """Read an EMA sensor table as a Trial (kind 'ema', no labels), positions in mm.
 
-    Frames where every sensor is exactly 0 are 'no data' on Carstens systems and become NaN.
+    Columns `<sensor>_posx, _posy, _posz` (orientation columns are ignored), or `<sensor>_x, _y,
+    _z`; midsagittal tables give the same two axes for every sensor. Frames where every sensor is
+    exactly 0 are 'no data' on Carstens systems and become NaN.
     """
     p = Path(path)
     header, rows, lines, file_unit = read_table(p)
     tcol, scale = time_column(header, p)
-    cols: dict[str, dict[str, int]] = {}
-    names: list[str] = []
-    for i, h in enumerate(header):
-        m = _POS.match(h)
-        if m is None:
-            continue
-        s, a = m.group("sensor"), m.group("axis").lower()
-        if s not in cols:
-            cols[s] = {}
-            names.append(s)
-        cols[s][a] = i
+    pattern = _POS if any(_POS.match(h) for h in header) else _PLAIN
+    names, cols = axis_columns(header, pattern, p, skip=tcol)
     if not names:
         raise DataError(f"no EMA sensor columns named <sensor>_posx, _posy, _posz; the columns "
                         f"are {header[:8]}...", path=p)
-    for s in names:
-        lacking = [a for a in "xyz" if a not in cols[s]]
-        if lacking:
-            raise DataError(f"sensor {s!r} has no column " + ", ".join(f"{s}_pos{a}" for a in lacking),
-                            path=p, item=s)
+    sep = "_pos" if pattern is _POS else "_"
+    planar = planar_axis(names, cols, p, sep)
     if not rows:
         raise DataError("a header but no data rows", path=p)
     data = parse_numbers(rows, lines, header, p)
     times = data[:, tcol] * scale
     rate = rate_from_times(times, p, lines, header[tcol])
-    xyz = np.stack([data[:, [cols[s]["x"], cols[s]["y"], cols[s]["z"]]] for s in names], axis=1)
-    zero = np.all(xyz == 0.0, axis=(1, 2))
+    xyz = stack_axes(data, names, cols, planar)
+    kept = [k for k in range(3) if k != planar]
+    zero = np.all(xyz[:, :, kept] == 0.0, axis=(1, 2))
     xyz[zero] = np.nan
+    if planar is not None:
+        xyz[zero, :, planar] = np.nan
     xyz, note = to_mm(xyz, units or file_unit or "mm", p, "sensor positions", names)
     notes = [note] if note else []
     if zero.any():
         notes.append(f"{int(zero.sum())} all-zero frames (no data) set to NaN")
+    if planar is not None:
+        notes.append(midsagittal_note(planar))
     return Trial(markers=np.ascontiguousarray(xyz), marker_names=tuple(names), rate=rate,
                  units="mm", source=p, meta={"notes": notes}, start_time=float(times[0]),
-                 kind="ema")
+                 kind="ema", planar_axis=planar)
 
 
 def ema_channels(
     markers: NDArray[np.float64], names: Sequence[str], roles: RoleMap, rest: NDArray[np.bool_],
-    source: Path | None,
+    source: Path | None, *, planar_axis: int | None = None,
 ) -> tuple[dict[str, NDArray[np.float64]], dict[str, str]]:
     """Channels from EMA sensors, and for each channel that cannot be made, why not."""
     vi, vs = roles.vertical_axis
@@ -106,7 +125,9 @@ def ema_channels(
         raise DataError(f"EMA channels need the UL and LL roles; the sensors are {list(names)} "
                         "and the role map names " + (str(dict(roles.roles)) or "none") +
                         " (pass role_map={'UL': ..., 'LL': ...})", path=source, item="UL/LL")
-    check_axes(ul, ll, sensor("JAW"), roles, source)
+    ll_k, jaw_k = idx["LL"], idx["JAW"]
+    check_axes(ul, ll, sensor("JAW"), roles, source,
+               names=(names[ll_k], names[jaw_k]) if ll_k is not None and jaw_k is not None else None)
     mid = 0.5 * (ul[:, vi] + ll[:, vi]) * vs
     rest_mid = mid[rest & np.isfinite(mid)]
     if rest_mid.size == 0:
@@ -117,7 +138,11 @@ def ema_channels(
     out["ULP"] = asg * ul[:, ai]
     out["LLP"] = asg * ll[:, ai]
     lcl, lcr, lc = sensor("LC_L"), sensor("LC_R"), sensor("LC")
-    if lcl is not None and lcr is not None:
+    if planar_axis is not None:
+        from coartic.io.trial import planar_reason
+
+        why["LR"] = planar_reason(planar_axis)
+    elif lcl is not None and lcr is not None:
         out["LR"] = np.linalg.norm(lcl - lcr, axis=1)
     elif lc is not None:
         out["LR"] = 2.0 * np.abs(lc[:, li] - 0.5 * (ul[:, li] + ll[:, li]))
@@ -151,14 +176,16 @@ def ema_channels(
 
 def check_axes(
     ul: NDArray[np.float64], ll: NDArray[np.float64], jaw: NDArray[np.float64] | None, roles: RoleMap,
-    source: Path | None,
+    source: Path | None, names: tuple[str, str] | None = None,
 ) -> None:
     """Warn (DataWarning) when the role map's axes do not fit the sensors' geometry.
 
     Three things hold on every speaker: the upper lip is above the lower lip, mostly along the
     vertical; the lips sit in front of the lower incisors (the jaw sensor), more along the anterior
     axis than sideways; and midline sensors move less sideways than forwards. Wrong axes give
-    wrong channels without an error, e.g. ULP and LLP read along the lateral axis.
+    wrong channels without an error, e.g. ULP and LLP read along the lateral axis. A lower-lip
+    sensor behind the jaw sensor while the upper lip is in front of both is named as a swapped
+    pair of sensors (`names`: the LL and JAW sensors' names), not as an axis problem.
     """
     vi, vs = roles.vertical_axis
     ai, asg = roles.anterior_axis
@@ -180,6 +207,22 @@ def check_axes(
                         "(the vertical sign, or UL/LL swapped?)")
     if jaw is not None and ok_jaw.sum() >= 2:
         front = np.median(ll[ok_jaw] - jaw[ok_jaw], axis=0)
+        ul_front = np.median(ul[ok_jaw] - ll[ok_jaw], axis=0)
+        if (not problems and abs(front[ai]) >= abs(front[li]) and front[ai] * asg < 0
+                and ul_front[ai] * asg > 0
+                and abs(ul_front[ai]) > abs(front[ai]) / 2):
+            # The LL sensor is the farthest back of the three while UL is in front of it: the
+            # lips are where the axes say, and the LL and JAW sensors trade places (e.g. speaker
+            # F01 of the Haskins rate database), not an axis sign.
+            ll_name, jaw_name = names if names is not None else ("<LL sensor>", "<JAW sensor>")
+            warnings.warn(
+                f"{where}the LL and JAW sensors look swapped {axes}: the sensor taken as LL "
+                f"({ll_name!r}) is {abs(front[ai]):.1f} mm behind the one taken as JAW "
+                f"({jaw_name!r}) and {abs(ul_front[ai]):.1f} mm behind UL along "
+                f"{roles.anterior!r}, where a lower lip sits in front of the lower incisors. If the "
+                f"sensors were swapped when recorded, give the role map "
+                f'{{"LL": "{jaw_name}", "JAW": "{ll_name}"}}', DataWarning, stacklevel=3)
+            return
         if abs(front[li]) > abs(front[ai]):
             problems.append(f"LL is {abs(front[li]):.1f} mm from the jaw sensor along {'xyz'[li]} "
                             f"(taken as lateral) and {abs(front[ai]):.1f} mm along the anterior axis "
@@ -198,3 +241,15 @@ def check_axes(
         warnings.warn(f"{where}the EMA axes look wrong {axes}: " + "; ".join(problems)
                       + ". Give the axes in the role map, e.g. "
                       '{"axes": {"vertical": "+z", "anterior": "+x"}}', DataWarning, stacklevel=3)
+
+
+def _read(p: Path, req: ReadRequest) -> tuple[Trial, None]:
+    return read_ema_csv(p, units=req.units), None
+
+
+def _sniff(p: Path, head: bytes) -> bool:
+    return looks_like_ema(re.split(r"[,;\t\s]+", first_line(head).strip()))
+
+
+register(Reader("ema-csv", "EMA CSV/TSV", (".csv", ".tsv", ".txt"), _read, sniff=_sniff,
+                axes=("+z", "-y"), sensors=True, default=False))

@@ -22,6 +22,7 @@ from numpy.typing import NDArray
 
 from coartic.io.errors import DataError
 from coartic.io.labels import Segments
+from coartic.io.registry import Reader, ReadRequest, register
 from coartic.io.trial import Trial
 from coartic.io.units import to_mm
 
@@ -182,3 +183,10 @@ def _segments(annotation: Any, level: str | None, p: Path) -> Segments | None:
     if not labels:
         raise DataError(f"level {lv.get('name')!r} has no items", path=p)
     return Segments(tuple(labels), np.array(starts), np.array(ends), p, (), str(lv.get("name")))
+
+
+def _read(p: Path, req: ReadRequest) -> tuple[Trial, Segments | None]:
+    return read_emu_bundle(p, level=req.level, units=req.units)
+
+
+register(Reader("emu", "EMU bundle", (".json",), _read, axes=("+z", "-y"), sensors=True))

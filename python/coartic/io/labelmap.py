@@ -39,8 +39,11 @@ MODEL_VOWELS = ("i", "e", "E", "a", "O", "o", "u")
 MODEL_CONSONANTS = ("p", "b", "m", "f", "v", "t", "d", "n", "l", "r", "s", "z", "ts", "dz",
                     "tS", "dZ", "S", "k", "g", "J", "L", "j", "w")
 MODEL_PHONEMES = (PAUSE, *MODEL_VOWELS, *MODEL_CONSONANTS)
-BUILTIN = ("model", "german_sampa", "english_arpabet")
+BUILTIN = ("model", "german_sampa", "english_arpabet", "mocha", "timit")
 PATTERN_PREFIX = "re:"
+# `fallback:<phoneme>` → comma-separated phonemes that stand in for it when a table lacks it
+FALLBACK_PREFIX = "fallback:"
+CLASS_FALLBACKS = "fallbacks"  # labelmaps/fallbacks.tsv: every built-in map but 'model' has them
 # The key of the table metadata that holds the label map a table was fitted with.
 RECORD_KEY = "label_map"
 
@@ -56,6 +59,8 @@ class LabelMap:
     # (regex, phoneme) in the map's order, tried after the literal labels; keys keep the "re:" text
     patterns: tuple[tuple[str, str], ...] = ()
     name: str | None = None  # the built-in map's name
+    # model phoneme → the phonemes that stand in for it, in order, when a table lacks it
+    fallbacks: Mapping[str, tuple[str, ...]] = field(default_factory=dict)
     _compiled: tuple[tuple[re.Pattern[str], str], ...] = field(
         init=False, repr=False, compare=False, default=())
 
@@ -84,12 +89,16 @@ class LabelMap:
             raise DataError(f"no built-in label map {name!r}; built-in maps: {list(BUILTIN)}")
         res = resources.files("coartic.io").joinpath("labelmaps", f"{name}.tsv")
         m = cls._parse_tsv(res.read_text(encoding="utf-8"), f"builtin map {name!r} ({name}.tsv)")
-        return cls(m.mapping, m.keep_unmapped, m.source, m.lines, m.patterns, name)
+        classes = resources.files("coartic.io").joinpath("labelmaps", f"{CLASS_FALLBACKS}.tsv")
+        shared = cls._parse_tsv(classes.read_text(encoding="utf-8"), f"{CLASS_FALLBACKS}.tsv")
+        return cls(m.mapping, m.keep_unmapped, m.source, m.lines, m.patterns, name,
+                   {**shared.fallbacks, **m.fallbacks})
 
     @classmethod
     def from_dict(cls, d: Mapping[str, str], source: str = "<dict>") -> LabelMap:
         mapping: dict[str, str] = {}
         patterns: list[tuple[str, str]] = []
+        fallbacks: dict[str, tuple[str, ...]] = {}
         keep = False
         for k, v in d.items():
             if not isinstance(k, str) or not isinstance(v, str):
@@ -102,9 +111,11 @@ class LabelMap:
                 continue
             if k.startswith(PATTERN_PREFIX):
                 patterns.append((k, v))
+            elif k.startswith(FALLBACK_PREFIX):
+                fallbacks[_fallback_key(k, source, None)] = _fallback_list(v, k, source, None)
             else:
                 mapping[k] = v
-        return cls(mapping, keep, source, patterns=tuple(patterns))
+        return cls(mapping, keep, source, patterns=tuple(patterns), fallbacks=fallbacks)
 
     @classmethod
     def from_file(cls, path: str | PathLike[str]) -> LabelMap:
@@ -125,6 +136,7 @@ class LabelMap:
         mapping: dict[str, str] = {}
         lines: dict[str, int] = {}
         patterns: list[tuple[str, str]] = []
+        fallbacks: dict[str, tuple[str, ...]] = {}
         keep = False
         for no, raw in enumerate(text.splitlines(), start=1):
             if not raw.strip() or raw.startswith("#"):
@@ -143,17 +155,20 @@ class LabelMap:
                 keep = True
             elif label.startswith(PATTERN_PREFIX):
                 patterns.append((label, phoneme))
+            elif label.startswith(FALLBACK_PREFIX):
+                fallbacks[_fallback_key(label, source, no)] = _fallback_list(phoneme, label, source, no)
             else:
                 mapping[label] = phoneme
             lines[label] = no
-        return cls(mapping, keep, source, lines, tuple(patterns))
+        return cls(mapping, keep, source, lines, tuple(patterns), fallbacks=fallbacks)
 
     # ------------------------------------------------------------- the table's record
 
     def to_record(self) -> dict[str, Any]:
         """What a fitted table stores (metadata["label_map"]): the whole map, not just its name
         or path, so that the table maps labels the same way after the file or built-in changed."""
-        entries = [[k, v] for k, v in self.mapping.items()] + [[k, v] for k, v in self.patterns]
+        entries = ([[k, v] for k, v in self.mapping.items()] + [[k, v] for k, v in self.patterns]
+                   + [[FALLBACK_PREFIX + k, ",".join(v)] for k, v in self.fallbacks.items()])
         if self.keep_unmapped:
             entries.append(["*", KEEP])
         rec: dict[str, Any] = {"source": self.source, "entries": entries}
@@ -181,7 +196,7 @@ class LabelMap:
         m = cls.from_dict(pairs, f"the label map recorded in {source} "
                                  f"({record.get('source', 'no source')})")
         return cls(m.mapping, m.keep_unmapped, m.source, m.lines, m.patterns,
-                   name if isinstance(name, str) else None)
+                   name if isinstance(name, str) else None, m.fallbacks)
 
     def record_in(self, table: ParameterTable) -> None:
         """Store this map in the table's metadata (what `coartic fit` does with its spec's map)."""
@@ -238,12 +253,31 @@ class LabelMap:
             phoneme = self.map_label(label)
             if phoneme is None:
                 raise DataError(
-                    f"phone {label!r} (segment {i + 1}) has no mapping in {self.source}; add a "
+                    f"phone {label!r} (segment {i + 1}{segments.tier_note()}) "
+                    f"has no mapping in {self.source}; add a "
                     f"line '{label}<TAB>phoneme' (or '{label}<TAB>=' to keep it as a phoneme of "
                     "its own) to the label map",
                     path=segments.source, line=segments.lines[i], item=label)
             out.append(phoneme)
         return segments.with_labels(out)
+
+
+def _fallback_key(key: str, source: str, line: int | None) -> str:
+    phoneme = key[len(FALLBACK_PREFIX):].strip()
+    if not phoneme:
+        where = f", line {line}" if line is not None else ""
+        raise DataError(f"{source}{where}: {key!r} names no phoneme (write 'fallback:<phoneme>')",
+                        line=line, item=key)
+    return phoneme
+
+
+def _fallback_list(value: str, key: str, source: str, line: int | None) -> tuple[str, ...]:
+    out = tuple(v.strip() for v in value.split(","))
+    if not all(out):
+        where = f", line {line}" if line is not None else ""
+        raise DataError(f"{source}{where}: {key} {value!r}: expected phonemes separated by commas",
+                        line=line, item=key)
+    return out
 
 
 def resolve_label_map(spec: LabelMap | Mapping[str, str] | str | PathLike[str] | None) -> LabelMap:

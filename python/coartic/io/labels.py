@@ -1,4 +1,5 @@
-"""Phone labels: Praat TextGrid (long and short text), HTK and Festival/xlabel .lab, plain TSV.
+"""Phone labels: Praat TextGrid (long and short text), HTK, MOCHA and Festival/xlabel .lab, TIMIT
+.phn/.wrd, plain TSV.
 
 Every reader returns `Segments` (label, start, end in seconds, with the source line of each
 segment) and checks them: sorted, non-overlapping, positive durations. Labels are the corpus'
@@ -26,6 +27,11 @@ from coartic.io.errors import DataError
 # Two segments may touch with this much rounding (labels are often written with 5-6 decimals).
 TIME_TOLERANCE = 1e-6
 HTK_UNITS_PER_SECOND = 1e7  # HTK times are in 100 ns units
+TIMIT_SAMPLE_RATE = 16000.0  # TIMIT .phn/.wrd times are sample numbers of its 16 kHz audio
+# A TextGrid tier whose name says it holds phones (Montreal Forced Aligner: "phones", or
+# "<speaker> - phones"; WebMAUS: "MAU"; EMU: "Segment") is taken before the first interval tier
+# (MFA writes the words tier first).
+PHONE_TIER = re.compile(r"(?i)(^|[^a-z])(phones?|phonemes?|segments?|mau)$")
 
 
 @dataclass(frozen=True)
@@ -38,6 +44,7 @@ class Segments:
     source: Path | None = None
     lines: tuple[int | None, ...] = field(default=())
     tier: str | None = None
+    tiers: tuple[str, ...] = ()  # every tier of the TextGrid it came from (for messages)
 
     def __post_init__(self) -> None:
         n = len(self.labels)
@@ -80,11 +87,26 @@ class Segments:
 
     def with_labels(self, labels: Sequence[str]) -> Segments:
         """The same segments with other labels (the label map's output)."""
-        return Segments(tuple(labels), self.starts, self.ends, self.source, self.lines, self.tier)
+        return Segments(tuple(labels), self.starts, self.ends, self.source, self.lines, self.tier,
+                        self.tiers)
 
     def shifted(self, offset: float) -> Segments:
         return Segments(self.labels, self.starts + offset, self.ends + offset, self.source,
-                        self.lines, self.tier)
+                        self.lines, self.tier, self.tiers)
+
+    def clipped(self, end: float) -> Segments:
+        """The same segments with the last one ending at `end` (a label a few ms past the data)."""
+        ends = self.ends.copy()
+        ends[-1] = end
+        return Segments(self.labels, self.starts, ends, self.source, self.lines, self.tier,
+                        self.tiers)
+
+    def tier_note(self) -> str:
+        """", tier 'words' of ['words', 'phones']" for messages ('' without tiers): a map that
+        does not know a label may have been given the wrong tier."""
+        if self.tier is None:
+            return ""
+        return f", tier {self.tier!r}" + (f" of {list(self.tiers)}" if len(self.tiers) > 1 else "")
 
 
 def read_labels(path: str | PathLike[str], tier: str | None = None) -> Segments:
@@ -100,6 +122,8 @@ def read_labels(path: str | PathLike[str], tier: str | None = None) -> Segments:
         return parse_textgrid(text, p, tier)
     if tier is not None:
         raise DataError(f"tier {tier!r} was asked for, but this is not a TextGrid", path=p)
+    if suffix in (".phn", ".wrd"):
+        return parse_timit(text, p)
     if suffix in (".lab", ".htk", ".mlf") or _looks_like_lab(text):
         return parse_lab(text, p)
     return parse_tsv(text, p)
@@ -239,7 +263,7 @@ def parse_textgrid(text: str, path: Path, tier: str | None = None) -> Segments:
     limit = len(ts.toks)
     n_tiers = ts.count("the number of tiers", limit)
     names: list[str] = []
-    chosen: Segments | None = None
+    interval: list[tuple[str, list[str], list[float], list[float], list[int]]] = []
     for t in range(n_tiers):
         if not ts.at_end() and ts.peek().kind != "str":
             hint = f" (does the size of tier {names[-1]!r} count all its items?)" if names else ""
@@ -261,9 +285,8 @@ def parse_textgrid(text: str, path: Path, tier: str | None = None) -> Segments:
                 starts.append(s)
                 ends.append(e)
                 lines.append(line)
-            if chosen is None and (tier is None or tier == name):
-                chosen = Segments(tuple(labels), np.array(starts), np.array(ends), path,
-                                  tuple(lines), name)
+            if tier is None or tier == name:
+                interval.append((name, labels, starts, ends, lines))
         elif cls.value == "TextTier":
             n = ts.count(f"the number of points of tier {name!r}", limit)
             for k in range(n):
@@ -281,19 +304,28 @@ def parse_textgrid(text: str, path: Path, tier: str | None = None) -> Segments:
                 else f"the TextGrid has more than the {n_tiers} tier(s) its size says")
         raise DataError(f"{what}: unexpected {extra.value!r} after the last item", path=path,
                         line=extra.line)
-    if chosen is None:
+    if not interval:
         if tier is not None:
             raise DataError(f"no interval tier named {tier!r}; the tiers are {names}", path=path,
                             item=tier)
         raise DataError(f"no interval tier (tiers: {names})", path=path)
-    return chosen
+    pick = next((t for t in interval if PHONE_TIER.search(t[0].strip())), interval[0])
+    name, labels, starts, ends, lines = pick
+    return Segments(tuple(labels), np.array(starts), np.array(ends), path, tuple(lines), name,
+                    tuple(names))
+
+
+_INTEGER = re.compile(r"[-+]?\d+")
+# An integer time this large is HTK's 100 ns units (1 ms), not seconds (2.8 hours).
+HTK_EVIDENCE = 10_000
 
 
 # --- HTK and Festival/xlabel .lab ---------------------------------------------------------------
 
 
 def parse_lab(text: str, path: Path) -> Segments:
-    """HTK (`start end label`, 100 ns units) or, if a lone `#` line ends a header, xlabel."""
+    """HTK (`start end label`, integers in 100 ns units), the same in seconds (MOCHA-TIMIT: any
+    time with a decimal point), or, if a lone `#` line ends a header, xlabel."""
     lines = text.splitlines()
     hash_line = next((i for i, s in enumerate(lines) if s.strip() == "#"), None)
     if hash_line is not None:
@@ -302,6 +334,9 @@ def parse_lab(text: str, path: Path) -> Segments:
     starts: list[float] = []
     ends: list[float] = []
     where: list[int | None] = []
+    integers = True
+    htk_line: int | None = None
+    seconds_line: int | None = None
     for no, raw in enumerate(lines, start=1):
         s = raw.strip()
         if not s or s == ".":  # "." ends an utterance in an MLF
@@ -314,13 +349,49 @@ def parse_lab(text: str, path: Path) -> Segments:
             raise DataError(f"expected 'start end label' (HTK, 100 ns units), found {s!r}",
                             path=path, line=no)
         try:
-            start, end = int(fields[0]), int(fields[1])
+            start, end = float(fields[0]), float(fields[1])
         except ValueError:
-            raise DataError(f"HTK times must be integers in 100 ns units, found {fields[0]!r} "
-                            f"{fields[1]!r}", path=path, line=no) from None
+            raise DataError(f"expected times 'start end label' (HTK integers in 100 ns units, or "
+                            f"seconds), found {fields[0]!r} {fields[1]!r}", path=path,
+                            line=no) from None
+        if all(_INTEGER.fullmatch(f) for f in fields[:2]):
+            if end >= HTK_EVIDENCE and htk_line is None:
+                htk_line = no
+        else:
+            integers = False
+            seconds_line = seconds_line or no
+        if htk_line is not None and seconds_line is not None:
+            raise DataError(f"line {htk_line} has HTK times (integers, 100 ns units) and line "
+                            f"{seconds_line} times in seconds: HTK times must be integers on "
+                            "every line", path=path, line=max(htk_line, seconds_line))
         labels.append(fields[2])
-        starts.append(start / HTK_UNITS_PER_SECOND)
-        ends.append(end / HTK_UNITS_PER_SECOND)
+        starts.append(start)
+        ends.append(end)
+        where.append(no)
+    if not labels:
+        raise DataError("no labels found", path=path)
+    # HTK writes integers (100 ns); MOCHA-TIMIT and others write seconds ("0.3500 0.4200 dh")
+    scale = 1.0 / HTK_UNITS_PER_SECOND if integers else 1.0
+    return Segments(tuple(labels), np.array(starts) * scale, np.array(ends) * scale, path,
+                    tuple(where))
+
+
+def parse_timit(text: str, path: Path, rate: float = TIMIT_SAMPLE_RATE) -> Segments:
+    """TIMIT .phn/.wrd: `start_sample end_sample label`, samples of the 16 kHz audio."""
+    labels: list[str] = []
+    starts: list[float] = []
+    ends: list[float] = []
+    where: list[int | None] = []
+    for no, raw in enumerate(text.splitlines(), start=1):
+        fields = raw.split()
+        if not fields:
+            continue
+        if len(fields) < 3 or not all(_INTEGER.fullmatch(f) for f in fields[:2]):
+            raise DataError(f"expected 'start_sample end_sample label' (TIMIT, integer samples at "
+                            f"{rate:g} Hz), found {raw.strip()!r}", path=path, line=no)
+        labels.append(fields[2])
+        starts.append(int(fields[0]) / rate)
+        ends.append(int(fields[1]) / rate)
         where.append(no)
     if not labels:
         raise DataError("no labels found", path=path)

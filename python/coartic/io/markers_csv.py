@@ -10,12 +10,14 @@ from __future__ import annotations
 
 import csv
 import re
+from collections.abc import Sequence
 from os import PathLike
 from pathlib import Path
 
 import numpy as np
 
 from coartic.io.errors import DataError
+from coartic.io.registry import Reader, ReadRequest, register
 from coartic.io.trial import Trial
 from coartic.io.units import to_mm
 
@@ -119,7 +121,7 @@ def time_column(header: list[str], path: Path) -> tuple[int, float]:
     return found[0], TIME_COLUMNS[header[found[0]].lower()]
 
 
-def rate_from_times(times: np.ndarray, path: Path, lines: list[int], column: str) -> float:
+def rate_from_times(times: np.ndarray, path: Path, lines: Sequence[int | None], column: str) -> float:
     if times.size < 2:
         raise DataError("fewer than two frames: no frame rate", path=path)
     if not np.all(np.isfinite(times)):
@@ -145,35 +147,90 @@ def read_markers_csv(path: str | PathLike[str], units: str | None = None) -> Tri
     p = Path(path)
     header, rows, lines, file_unit = read_table(p)
     tcol, scale = time_column(header, p)
+    names, cols = axis_columns(header, _AXIS, p, skip=tcol)
+    if not names:
+        raise DataError(f"no marker columns named <MARKER>_x, _y, _z; the columns are {header}",
+                        path=p)
+    planar = planar_axis(names, cols, p, "_")
+    if not rows:
+        raise DataError("a header but no data rows", path=p)
+    data = parse_numbers(rows, lines, header, p)
+    times = data[:, tcol] * scale
+    rate = rate_from_times(times, p, lines, header[tcol])
+    xyz = stack_axes(data, names, cols, planar)
+    unit = units or file_unit or "mm"
+    xyz, note = to_mm(xyz, unit, p, "marker positions", names)
+    meta = {"notes": [note] if note else []}
+    if planar is not None:
+        meta["notes"].append(midsagittal_note(planar))
+    return Trial(markers=np.ascontiguousarray(xyz), marker_names=tuple(names), rate=rate,
+                 units="mm", source=p, meta=meta, start_time=float(times[0]), planar_axis=planar)
+
+
+def axis_columns(
+    header: list[str], pattern: re.Pattern[str], p: Path, skip: int | None = None
+) -> tuple[list[str], dict[str, dict[str, int]]]:
+    """The markers (in column order) and, for each, its axis → column index, from the columns
+    `pattern` matches (groups `marker` or `sensor`, and `axis`); a column given twice is an error."""
     names: list[str] = []
     cols: dict[str, dict[str, int]] = {}
     for i, h in enumerate(header):
-        m = _AXIS.match(h)
-        if i == tcol or m is None:
+        m = pattern.match(h)
+        if i == skip or m is None:
             continue
-        marker, axis = m.group("marker"), m.group("axis").lower()
+        groups = m.groupdict()
+        marker, axis = groups.get("marker") or groups["sensor"], m.group("axis").lower()
         if marker not in cols:
             cols[marker] = {}
             names.append(marker)
         if axis in cols[marker]:
             raise DataError(f"column {h!r} appears twice", path=p, item=h)
         cols[marker][axis] = i
-    if not names:
-        raise DataError(f"no marker columns named <MARKER>_x, _y, _z; the columns are {header}",
-                        path=p)
-    for name in names:
-        lacking = [a for a in "xyz" if a not in cols[name]]
+    return names, cols
+
+
+def planar_axis(names: list[str], cols: dict[str, dict[str, int]], p: Path, sep: str) -> int | None:
+    """None when every marker has x, y and z; the missing axis when every marker has the same two
+    (midsagittal data); else a DataError naming the marker that lacks a column."""
+    if all(len(cols[n]) == 3 for n in names):
+        return None
+    have = {frozenset(cols[n]) for n in names}
+    if len(have) == 1 and len(next(iter(have))) == 2:
+        return next(k for k, a in enumerate("xyz") if a not in cols[names[0]])
+    for n in names:
+        lacking = [a for a in "xyz" if a not in cols[n]]
         if lacking:
-            raise DataError(f"marker {name!r} has no column " +
-                            ", ".join(f"{name}_{a}" for a in lacking), path=p, item=name)
-    if not rows:
-        raise DataError("a header but no data rows", path=p)
-    data = parse_numbers(rows, lines, header, p)
-    times = data[:, tcol] * scale
-    rate = rate_from_times(times, p, lines, header[tcol])
-    xyz = np.stack([data[:, [cols[n]["x"], cols[n]["y"], cols[n]["z"]]] for n in names], axis=1)
-    unit = units or file_unit or "mm"
-    xyz, note = to_mm(xyz, unit, p, "marker positions", names)
-    meta = {"notes": [note] if note else []}
-    return Trial(markers=np.ascontiguousarray(xyz), marker_names=tuple(names), rate=rate,
-                 units="mm", source=p, meta=meta, start_time=float(times[0]))
+            raise DataError(f"marker {n!r} has no column " + ", ".join(f"{n}{sep}{a}" for a in lacking)
+                            + " (midsagittal data gives the same two axes for every marker)",
+                            path=p, item=n)
+    raise AssertionError("unreachable")
+
+
+def stack_axes(data: np.ndarray, names: list[str], cols: dict[str, dict[str, int]],
+               planar: int | None) -> np.ndarray:
+    """frames x markers x 3 from the table's columns; the missing axis of midsagittal data is 0."""
+    xyz = np.zeros((data.shape[0], len(names), 3))
+    for j, n in enumerate(names):
+        for k, a in enumerate("xyz"):
+            if k != planar:
+                xyz[:, j, k] = data[:, cols[n][a]]
+    return xyz
+
+
+def midsagittal_note(planar: int) -> str:
+    kept = " and ".join(a for k, a in enumerate("xyz") if k != planar)
+    return (f"midsagittal data ({kept} only): channels that need the lateral axis are not "
+            "computed")
+
+
+def _read(p: Path, req: ReadRequest) -> tuple[Trial, None]:
+    return read_markers_csv(p, units=req.units), None
+
+
+def first_line(head: bytes) -> str:
+    lines = head.decode("utf-8", errors="replace").lstrip("\ufeff").splitlines()
+    return next((line for line in lines if line.strip() and not line.startswith("#")), "")
+
+
+register(Reader("markers-csv", "marker CSV/TSV", (".csv", ".tsv", ".txt"), _read,
+                sniff=lambda p, head: "_x" in first_line(head).lower(), priority=90))

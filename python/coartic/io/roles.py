@@ -14,6 +14,9 @@ from os import PathLike
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+from numpy.typing import NDArray
+
 from coartic.io.errors import DataError, parse_json
 
 MARKER_ROLES = ("NOSE", "EAR_L", "EAR_R", "UL", "LL", "LC_L", "LC_R", "CHIN")
@@ -24,14 +27,21 @@ ROLES = (*MARKER_ROLES, "JAW", "LC", "TT", "TB")
 EMA_SENSOR_GUESSES: dict[str, tuple[str, ...]] = {
     "UL": ("ul", "upper_lip", "upperlip", "ulip"),
     "LL": ("ll", "lower_lip", "lowerlip", "llip"),
-    "JAW": ("jw", "jaw", "li", "ji", "lower_incisor", "lowerincisor", "mand"),
+    # li: lower incisor (MOCHA); mi: mandible incisor pellet (X-ray Microbeam)
+    "JAW": ("jw", "jaw", "li", "ji", "lower_incisor", "lowerincisor", "mand", "mi"),
     "LC": ("lc", "lip_corner", "lipcorner", "corner"),
-    "TT": ("tt", "t_tip", "tongue_tip", "tonguetip", "ttip", "tip"),
-    # German EMU data: tt, tm (mid), tb (back); MOCHA: tt, tb (body), td (dorsum)
-    "TB": ("tb", "t_back", "tongue_body", "tonguebody", "tongue_back", "tback", "tbody", "tdor"),
+    # t1: the X-ray Microbeam pellet nearest the tip
+    "TT": ("tt", "t_tip", "tongue_tip", "tonguetip", "ttip", "tip", "t1"),
+    # German EMU data: tt, tm (mid), tb (back); MOCHA: tt, tb (body), td (dorsum); Haskins: tt,
+    # tb, tr (rear); X-ray Microbeam: t1..t4, t3 on the dorsum. A dorsum sensor stands in for TB
+    # only when there is no body sensor.
+    "TB": ("tb", "t_back", "tongue_body", "tonguebody", "tongue_back", "tback", "tbody", "t3",
+           "td", "tdor"),
 }
 _AXES = ("x", "y", "z")
 AXIS_KEYS = ("vertical", "anterior")
+# The key of the table metadata that holds the role map (and axes) a table was fitted with.
+ROLE_RECORD_KEY = "role_map"
 
 
 def _axis(spec: str, what: str, source: str) -> tuple[int, float]:
@@ -52,6 +62,7 @@ class RoleMap:
     vertical: str = "+z"
     anterior: str = "-y"
     source: str = "<dict>"
+    axes_given: bool = False  # the map says the axes (else the format's own, or a guess, apply)
 
     def __post_init__(self) -> None:
         for r in self.roles:
@@ -98,7 +109,32 @@ class RoleMap:
             if k.upper() in roles:
                 raise DataError(f"{source}: role {k.upper()!r} is given twice", item=k)
             roles[k.upper()] = v
-        return cls(roles, str(axes.get("vertical", "+z")), str(axes.get("anterior", "-y")), source)
+        return cls(roles, str(axes.get("vertical", "+z")), str(axes.get("anterior", "-y")), source,
+                   "axes" in d)
+
+    def to_record(self) -> dict[str, Any]:
+        """What a fitted table stores (metadata["role_map"]): the roles and axes the fit read its
+        recordings with, so that scoring reads new recordings of the same system alike."""
+        return {"source": self.source, "roles": dict(self.roles),
+                "axes": {"vertical": self.vertical, "anterior": self.anterior}}
+
+    @classmethod
+    def recorded(cls, table: Any) -> RoleMap | None:
+        """The role map ``table`` (a ParameterTable) was fitted with, or None if it records none; a
+        malformed record is the table's TableError."""
+        rec = table.metadata.get(ROLE_RECORD_KEY)
+        if rec is None:
+            return None
+        from coartic.table import TableError
+
+        where = f"{table.source}: metadata.{ROLE_RECORD_KEY}"
+        if not isinstance(rec, Mapping) or not isinstance(rec.get("roles", {}), Mapping):
+            raise TableError(f"{where} must be an object with 'roles' and 'axes', found {str(rec)[:80]!r}")
+        try:
+            return cls.from_dict({**rec.get("roles", {}), "axes": rec.get("axes", {})},
+                                 f"the role map recorded in {table.source} ({rec.get('source', 'no source')})")
+        except DataError as e:
+            raise TableError(f"{where}: {e}") from None
 
     @classmethod
     def from_file(cls, path: str | PathLike[str]) -> RoleMap:
@@ -163,4 +199,56 @@ def guess_ema_roles(names: Sequence[str], base: RoleMap) -> RoleMap:
         hit = next((lower[g] for g in guesses if g in lower), None)
         if hit is not None:
             roles[role] = hit
-    return RoleMap(roles, base.vertical, base.anterior, base.source)
+    return RoleMap(roles, base.vertical, base.anterior, base.source, base.axes_given)
+
+
+# Sensors that sit behind the lips on the midline, in the order they define "forwards".
+_BEHIND_THE_LIPS = ("TT", "JAW", "TB")
+
+
+def guess_axes(
+    markers: NDArray[np.float64], names: Sequence[str], roles: RoleMap, planar_axis: int | None,
+    path: str | PathLike[str] | None = None,
+) -> tuple[str, str, str]:
+    """(vertical, anterior, why) from the sensors: up is the axis along which UL and LL lie
+    farthest apart, signed so that UL is above LL; forwards is, of the remaining axes (the one
+    other axis of midsagittal data), the one along which the lips lie farthest in front of the
+    tongue tip (else the jaw sensor, else the tongue body), signed so that the lips are in front.
+    Without UL and LL, or with no frame holding them, a DataError says to give the axes."""
+    axes = [k for k in range(3) if k != planar_axis]
+    idx = roles.resolve(("UL", "LL", *_BEHIND_THE_LIPS), names, path)
+    ul_k, ll_k = idx["UL"], idx["LL"]
+    hint = ' (give them in a role map: {"axes": {"vertical": "+y", "anterior": "-x"}})'
+    if ul_k is None or ll_k is None:
+        raise DataError("the axes of this format differ between labs and are guessed from the UL "
+                        f"and LL sensors, which were not found among {list(names)}" + hint,
+                        path=path, item="UL/LL")
+    ul, ll = markers[:, ul_k, :], markers[:, ll_k, :]
+    ok = np.isfinite(ul).all(axis=1) & np.isfinite(ll).all(axis=1)
+    if not ok.any():
+        raise DataError("no frame holds both UL and LL, so the axes cannot be guessed" + hint,
+                        path=path, item="UL/LL")
+    sep = np.median(ul[ok] - ll[ok], axis=0)
+    v = max(axes, key=lambda k: abs(float(sep[k])))
+    vertical = ("+" if sep[v] >= 0 else "-") + "xyz"[v]
+    why = f"UL {abs(float(sep[v])):.1f} mm above LL"
+    rest = [k for k in axes if k != v]
+    lips = 0.5 * (ul + ll)
+    for role in _BEHIND_THE_LIPS:
+        k = idx[role]
+        if k is None:
+            continue
+        s = markers[:, k, :]
+        both = ok & np.isfinite(s).all(axis=1)
+        if not both.any():
+            continue
+        front = np.median(lips[both] - s[both], axis=0)
+        a = max(rest, key=lambda j: abs(float(front[j])))
+        anterior = ("+" if front[a] >= 0 else "-") + "xyz"[a]
+        return vertical, anterior, f"{why}; the lips {abs(float(front[a])):.1f} mm in front of {role}"
+    if len(rest) == 1:
+        return vertical, "+" + "xyz"[rest[0]], (f"{why}; no sensor behind the lips (TT, JAW, TB) "
+                                                "to tell forwards from backwards: + assumed")
+    raise DataError("the axes of this format differ between labs and are guessed from the "
+                    "sensors, but no sensor behind the lips (TT, JAW, TB) tells forwards from "
+                    "sideways" + hint, path=path)

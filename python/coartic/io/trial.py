@@ -21,7 +21,8 @@ from coartic.io.errors import DataError, DataWarning
 from coartic.io.gaps import DEFAULT_MAX_GAP, Gap, fill_gaps, resample
 from coartic.io.labelmap import PAUSE, LabelMap, resolve_label_map
 from coartic.io.labels import Segments, read_labels
-from coartic.io.roles import MARKER_ROLES, RoleMap, guess_ema_roles, resolve_role_map
+from coartic.io.registry import ReadRequest, reader_for
+from coartic.io.roles import MARKER_ROLES, RoleMap, guess_axes, guess_ema_roles, resolve_role_map
 
 from coartic.table import ALL_CHANNELS, TONGUE_CHANNELS
 
@@ -35,6 +36,9 @@ CHANNEL_ROLES: dict[str, tuple[str, ...]] = {
     "ULP": (*HEAD_ROLES, "UL"), "LLP": (*HEAD_ROLES, "LL"),
     "LR": ("LC_L", "LC_R"), "JO": ("NOSE", "CHIN"), "LA": ("UL", "LL"),
 }
+# Midsagittal (2-D) face markers: the head frame needs the ears, which lie off the midline, and
+# the lip width the lateral axis; the distances JO and LA are still computed.
+PLANAR_MARKER_REFUSED = ("ULO", "LLO", "ULP", "LLP", "LR")
 DEFAULT_REST_FRAMES = 20
 DISTANCE_CHANNELS = ("LR", "JO", "LA")  # |a - b| of two markers: no head frame, no y_0
 # Beyond these a value is not a face: a unit mistake or a broken file (DataWarning). Positions: a
@@ -90,6 +94,8 @@ class Trial:
     start_time: float = 0.0
     kind: Literal["markers", "ema"] = "markers"
     roles: RoleMap = field(default_factory=RoleMap)
+    # midsagittal (2-D) data: the index of the axis the file lacks (stored as 0), else None
+    planar_axis: int | None = None
 
     def __post_init__(self) -> None:
         m = self.markers
@@ -126,15 +132,24 @@ class Trial:
     def with_labels(self, segments: Segments, label_map: LabelMap | None = None) -> Trial:
         """This trial with `segments` (mapped through `label_map`), checked against the data."""
         lm = label_map if label_map is not None else LabelMap.model()
-        mapped = lm.apply(segments)
         end = self.start_time + self.duration
         tol = 1e-6
+        last = len(segments) - 1
+        if last >= 0 and end + tol < segments.ends[last] <= end + 1.0 / self.rate + tol \
+                and segments.starts[last] < end:
+            # a last label a few ms past the data (audio and sensors stop apart): clipped
+            warnings.warn(f"{segments.source}: the last label {segments.labels[last]!r} ends at "
+                          f"{segments.ends[last]:g} s, within one frame after the data of "
+                          f"{self.source} end ({end:g} s): clipped to {end:g} s", DataWarning,
+                          stacklevel=2)
+            segments = segments.clipped(end)
         for i, (lab, s, e) in enumerate(zip(segments.labels, segments.starts, segments.ends)):
             if e > end + tol or s < self.start_time - 1.0 / self.rate - tol:
                 src = f" of {self.source}" if self.source else ""
                 raise DataError(f"label {lab!r} ({s:g}-{e:g} s) lies beyond the data{src} "
                                 f"({self.start_time:g}-{end:g} s)", path=segments.source,
                                 line=segments.lines[i], item=lab)
+        mapped = lm.apply(segments)
         meta = dict(self.meta)
         meta["raw_labels"] = segments.labels
         meta["label_map"] = lm.source
@@ -196,7 +211,7 @@ class Trial:
             from coartic.io.ema import ema_channels
 
             values, why = ema_channels(filled.markers, self.marker_names, self.roles, rest,
-                                       self.source)
+                                       self.source, planar_axis=self.planar_axis)
         else:
             values, why = filled._marker_channels(wanted, channels is not None, rest)
         if channels is not None:
@@ -225,9 +240,15 @@ class Trial:
             raise DataError(f"channel {tongue[0]} cannot be computed: tongue channels come from EMA "
                             f"tongue sensors (roles TT, TB), and this file was read as face markers "
                             f"{list(self.marker_names)}", path=self.source, item=tongue[0])
+        flat = planar_reason(self.planar_axis) if self.planar_axis is not None else None
+        if flat is not None:
+            three_d = [c for c in wanted if c in PLANAR_MARKER_REFUSED]
+            if strict and three_d:
+                raise DataError(f"channel {three_d[0]} cannot be computed: {flat}",
+                                path=self.source, item=three_d[0])
         needed: set[str] = set()
         for c in wanted:
-            if c in TONGUE_CHANNELS:
+            if c in TONGUE_CHANNELS or (flat is not None and c in PLANAR_MARKER_REFUSED):
                 continue
             if strict or all(idx[r] is not None for r in CHANNEL_ROLES[c]):
                 needed.update(CHANNEL_ROLES[c])
@@ -246,7 +267,10 @@ class Trial:
             absent = [r for r in CHANNEL_ROLES[c] if idx[r] is None]
             if absent:
                 why[c] = f"no marker for role(s) {absent}"
-        if all(idx[r] is not None for r in (*HEAD_ROLES, "UL", "LL")):
+        if flat is not None:
+            values = {}
+            why.update({c: flat for c in PLANAR_MARKER_REFUSED})
+        elif all(idx[r] is not None for r in (*HEAD_ROLES, "UL", "LL")):
             values = self._head_frame_channels(idx, wanted, strict, rest, why)
         else:
             values = {}
@@ -303,29 +327,6 @@ class Trial:
         return {c: cols[:, j] for j, c in enumerate(MARKER_CHANNELS) if c not in why}
 
 
-def _reader_for(p: Path) -> str:
-    try:
-        with p.open("rb") as f:
-            head = f.read(4096)
-    except OSError as e:
-        raise DataError(f"cannot read: {e.strerror or e}", path=p) from None
-    suffix = p.suffix.lower()
-    if suffix == ".c3d":
-        return "c3d"
-    if suffix == ".json":
-        return "emu"
-    if len(head) >= 2 and head[1] == 0x50 and suffix not in (".csv", ".tsv", ".txt"):
-        return "c3d"
-    first = head.decode("utf-8", errors="replace").lstrip("\ufeff").splitlines()
-    header = next((line for line in first if line.strip() and not line.startswith("#")), "")
-    if "_pos" in header.lower():
-        return "ema"
-    if suffix in (".csv", ".tsv", ".txt") or "_x" in header.lower():
-        return "csv"
-    raise DataError(f"cannot tell the format of this file (extension {suffix!r}); coartic reads "
-                    "C3D, marker CSV/TSV and EMA CSV", path=p)
-
-
 def load_trial(
     path: str | PathLike[str],
     labels: str | PathLike[str] | Segments | None = None,
@@ -351,32 +352,14 @@ def load_trial(
     p = Path(path)
     if not p.is_file():
         raise DataError("no such file", path=p)
-    kind = _reader_for(p)
+    reader = reader_for(p)
+    trial, own_labels = reader.read(p, ReadRequest(units=units, allow_truncated=allow_truncated,
+                                                   level=tier if labels is None else None))
+    if labels is None:
+        labels = own_labels
     roles = resolve_role_map(role_map)
-    trial: Trial
-    if kind == "c3d":
-        from coartic.io.c3d import read_c3d
-
-        trial = read_c3d(p, units=units, allow_truncated=allow_truncated)
-    elif kind == "ema":
-        from coartic.io.ema import read_ema_csv
-
-        trial = read_ema_csv(p, units=units)
-        if role_map is None:
-            roles = _guess(trial)
-    elif kind == "emu":
-        from coartic.io.emu import read_emu_bundle
-
-        trial, bundle_segments = read_emu_bundle(p, level=tier if labels is None else None,
-                                                 units=units)
-        if role_map is None:
-            roles = _guess(trial)
-        if labels is None:
-            labels = bundle_segments
-    else:
-        from coartic.io.markers_csv import read_markers_csv
-
-        trial = read_markers_csv(p, units=units)
+    if reader.sensors:
+        roles = _sensor_roles(trial, roles, role_map is None, reader.axes)
     trial = replace(trial, roles=roles, meta={**trial.meta, **(dict(meta) if meta else {})})
     _warn_implausible_positions(trial)
     if labels is not None:
@@ -396,14 +379,46 @@ def _warn_implausible_positions(trial: Trial) -> None:
                       "units", DataWarning, stacklevel=3)
 
 
-def _guess(trial: Trial) -> RoleMap:
-    """Without a role map: sensors by their usual names, the EMU axes; both said in the notes."""
-    roles = guess_ema_roles(trial.marker_names, RoleMap(source="guessed role map"))
-    trial.meta["notes"].append(
-        "no role map: sensors guessed by name (" +
-        (", ".join(f"{r}={n}" for r, n in roles.roles.items()) or "none found") +
-        "), axes assumed up = +z, forwards = -y; pass a role map to change")
+def _sensor_roles(trial: Trial, given: RoleMap, guess: bool, axes: tuple[str, str] | None) -> RoleMap:
+    """The roles of sensor data: a role map given is taken as it is, else the sensors are guessed
+    from their usual names; axes the role map does not give are the format's, or (formats whose
+    axes differ between labs) guessed from the sensors' geometry. What was guessed goes to the
+    notes (printed by `coartic inspect`)."""
+    roles = guess_ema_roles(trial.marker_names, RoleMap(source="guessed role map")) if guess else given
+    said = []
+    if guess:
+        said.append("sensors guessed by name (" +
+                    (", ".join(f"{r}={n}" for r, n in roles.roles.items()) or "none found") + ")")
+    if not given.axes_given:
+        if axes is None:
+            vertical, anterior, why = guess_axes(trial.markers, trial.marker_names, roles,
+                                                 trial.planar_axis, trial.source)
+            roles = replace(roles, vertical=vertical, anterior=anterior)
+            said.append(f"axes guessed from the sensors: up = {vertical}, forwards = {anterior} ({why})")
+        else:
+            roles = replace(roles, vertical=axes[0], anterior=axes[1])
+            said.append(f"axes assumed up = {axes[0]}, forwards = {axes[1]}")
+    if said:
+        trial.meta["notes"].append(("no role map: " if guess else "role map without axes: ")
+                                   + "; ".join(said) + "; pass a role map to change")
+    if trial.planar_axis is not None:
+        lateral = 3 - roles.vertical_axis[0] - roles.anterior_axis[0]
+        if lateral != trial.planar_axis:
+            raise DataError(f"this file is midsagittal (axes {_axes_of(trial)} only), but the role "
+                            f"map ({roles.source}) puts the vertical and anterior axes on "
+                            f"{roles.vertical!r} and {roles.anterior!r}: they must be the two axes "
+                            "the file has", path=trial.source)
     return roles
+
+
+def planar_reason(planar_axis: int) -> str:
+    """Why a channel that needs the third axis is not computed from midsagittal data."""
+    kept = " and ".join(a for k, a in enumerate("xyz") if k != planar_axis)
+    return (f"it needs the third (lateral) axis, and this file is midsagittal ({kept} only)")
+
+
+def _axes_of(trial: Trial) -> str:
+    return " and ".join(a for k, a in enumerate("xyz") if k != trial.planar_axis)
 
 
 def common_rate(trials: Sequence[Trial], rate: float | None = None) -> list[Trial]:

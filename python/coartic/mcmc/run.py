@@ -18,7 +18,7 @@ from numpy.typing import NDArray
 
 from coartic.errors import CoarticError
 from coartic.fit.problem import SPEAKER_SEP
-from coartic.mcmc import plots, sampler, summary
+from coartic.mcmc import idata, plots, sampler, summary
 from coartic.mcmc.posterior import LogPosterior, SpeakerTerms, channel_posterior, phoneme_posterior
 from coartic.mcmc.sampler import SamplerSettings, SamplingResult
 from coartic.mcmc.summary import ParameterSummary
@@ -308,6 +308,8 @@ def sample_posterior(
         progress=progress,
         label=label,
     )
+    # ArviZ's form of the chains so far, for the ecosystem's tools; the chunks stay what resumes
+    idata.write_inference_data(directory, posterior, result, label)
     # An interrupted posterior keeps its chains (to resume) but gives no intervals: a partial chain
     # would put unchecked numbers into the table.
     summaries = [] if result.interrupted else summary.summarize(posterior, result, x0)

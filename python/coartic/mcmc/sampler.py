@@ -403,7 +403,10 @@ def run(
         history.append({"steps": float(n), "tau_max": r.tau_max})
         return r
 
-    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
+    from rich.console import Console
+    from rich.progress import BarColumn, MofNCompleteColumn, TextColumn, TimeElapsedColumn, TimeRemainingColumn
+
+    from coartic.console import LineProgress
 
     columns = [
         TextColumn("[bold]{task.description}"),
@@ -413,7 +416,7 @@ def run(
         TimeElapsedColumn(),
         TimeRemainingColumn(),
     ]
-    with Progress(*columns, disable=not progress, transient=False) as bar, DeferredSignals() as signals:
+    with LineProgress(*columns, console=Console(stderr=True), quiet=not progress) as bar, DeferredSignals() as signals:
         task = bar.add_task(label or "sampling", total=E * settings.max_steps, completed=sum(len(c) for c in chains), status="")
 
         def loop() -> bool:

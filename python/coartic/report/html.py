@@ -80,6 +80,8 @@ def write_report(result: FitResult, out: str | Path, console: Console | None = N
         figures.append({"src": "choose.png", "caption": f"{result.choice.choose.key} chosen by cross-validation on the "
                         f"training data: mean held-out RMSE ± one SE over the folds; star: the chosen value "
                         f"(rule {result.choice.choose.rule}). The numbers are in choose.csv and the fit report below."})
+    from coartic.fit.validate import flags
+
     truth = _ground_truth(result)
     if truth is not None:
         add(plots.truth_figure(result, truth), "truth.png",
@@ -91,7 +93,7 @@ def write_report(result: FitResult, out: str | Path, console: Console | None = N
     html = env.get_template("fit_report.html.j2").render(
         result=result, spec=result.spec, bar=BAR_MM, figures=figures, rmse_rows=rmse_rows,
         channels=result.channels, report_text=result.report_text(), extras=extras,
-        validation=_validation_rows(out),
+        validation=_validation_rows(out), validation_flags=flags(result.validation or []),
         bound_notes={c: list(f.stats.bounds.values()) for c, f in result.channels.items() if f.stats and f.stats.bounds},
         bound_counts={c: summary_counts(f.stats.bounds) if f.stats else "" for c, f in result.channels.items()})
     path = out / "report.html"

@@ -12,6 +12,7 @@ import math
 from collections.abc import Container, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 from numpy.typing import NDArray
@@ -22,6 +23,9 @@ from coartic.runtime.errors import AnimationError, MissingPhonemeError
 from coartic.table import CHANNELS, PAUSE, ParameterTable
 from coartic.outputs import atomic_write_text
 
+if TYPE_CHECKING:
+    from coartic.runtime.exporters import ExportSettings
+
 # The most frames one animation may have (11 hours at 25 fps): channels, FAP text (~200 bytes a
 # frame) and preview grow with it, so a mistaken --fps 1e9 or a label ending at 1e6 s is refused
 # before anything is allocated. docs/LIMITS.md.
@@ -31,6 +35,8 @@ MAX_FRAMES = 1_000_000
 CONTACT_K_R_TOLERANCE = 1e-3
 # A channel the table does not have is held at rest; only LR's absolute value matters to the
 # preview (the mouth's width), and FAPs are displacements from it, i.e. 0.
+# frames x segments computed at once by Animation.segment_shares (16 MB of float64)
+SHARE_BLOCK = 2_000_000
 REST_DEFAULTS_MM: dict[str, float] = {"ULO": 0.0, "LLO": 0.0, "ULP": 0.0, "LLP": 0.0, "LR": 50.0, "JO": 0.0}
 
 
@@ -47,6 +53,11 @@ class Animation:
     sample_times: dict[str, NDArray[np.float64]] = field(default_factory=dict)
     # channels the table does not have: held at the neutral posture in `channels`, not modelled
     at_rest: tuple[str, ...] = ()
+    # the face at rest (the pause's targets, mm) that FAPs, rig weights and cues are measured from
+    neutral: dict[str, float] = field(default_factory=dict)
+    # the table that animated it (a speaker's own with --speaker): its dominance functions give
+    # each segment's share of every frame (`segment_shares`)
+    table: ParameterTable | None = None
 
     @property
     def modelled(self) -> list[str]:
@@ -56,6 +67,26 @@ class Animation:
     @property
     def n_frames(self) -> int:
         return int(self.times.size)
+
+    def segment_shares(self, channel: str) -> NDArray[np.float64]:
+        """(frames, segments): each segment's share of `channel` at every frame, its dominance
+        weight w_i = S_i R_i D_i / Σ_j R_j D_j (coartic.model.segment_weights) normalised to sum 1,
+        at the instants the frames sampled. Computed in blocks of frames so that a long animation
+        never holds a dense frames × segments Jacobian."""
+        from coartic.model import segment_weights
+
+        if self.table is None:
+            raise AnimationError("this animation does not carry the table that made it: no dominance weights")
+        times = self.sample_times.get(channel, self.times)
+        n_seg = len(self.segments)
+        out = np.empty((times.size, n_seg))
+        block = max(1, SHARE_BLOCK // max(n_seg, 1))
+        for a in range(0, times.size, block):
+            w = segment_weights(self.table, channel, list(self.segments.labels), self.segments.starts,
+                                self.segments.ends, times[a:a + block]).T
+            w = np.maximum(w, 0.0)
+            out[a:a + block] = w / np.maximum(w.sum(axis=1, keepdims=True), np.finfo(float).tiny)
+        return out
 
     @property
     def duration(self) -> float:
@@ -132,23 +163,34 @@ def substitute(
     A phoneme with no usable fallback stays, so that check_phonemes names it. The fallback
     ``NEXT_PHONEME`` takes the neighbouring segment's phoneme (reported as ``NEXT_PHONEME``).
     """
-    complete = {p for p, per in table.values.items() if all(c in per for c in channels)}
-    used: dict[str, str] = {}
-    labels = []
-    for ph in segments.labels:
-        choice = _first_available(ph, fallbacks.get(ph, ()), complete | {NEXT_PHONEME})
-        if choice != ph:
-            used[ph] = choice
-        labels.append(choice)
-    # the segment after decides (resolved from the end, so a run of them takes the same phoneme);
-    # before a pause or at the end, the segment before (resolved from the start)
+    used = substitutions(segments.labels, table, channels, fallbacks)
+    if not used:
+        return segments, used
+    labels = [used.get(ph, ph) for ph in segments.labels]
+    # NEXT_PHONEME: the segment after decides (resolved from the end, so a run of them takes the same
+    # phoneme); before a pause or at the end, the segment before (resolved from the start)
     for i in reversed(range(len(labels))):
         if labels[i] == NEXT_PHONEME and i + 1 < len(labels) and labels[i + 1] not in (PAUSE, NEXT_PHONEME):
             labels[i] = labels[i + 1]
     for i, ph in enumerate(labels):
         if ph == NEXT_PHONEME:
             labels[i] = labels[i - 1] if i > 0 else PAUSE
-    return (segments.with_labels(labels) if used else segments), used
+    return segments.with_labels(labels), used
+
+
+def substitutions(
+    labels: Sequence[str], table: ParameterTable, channels: Sequence[str], fallbacks: Mapping[str, Sequence[str]]
+) -> dict[str, str]:
+    """Each of `labels` the table lacks (on any of `channels`) → its first fallback the table has
+    (the phonetic class's, e.g. phones_italian.tsv); a phoneme with none is left out."""
+    complete = {p for p, per in table.values.items() if all(c in per for c in channels)}
+    used: dict[str, str] = {}
+    for ph in labels:
+        # NEXT_PHONEME is not a phoneme of any table: it is available wherever a phone map names it
+        choice = _first_available(ph, fallbacks.get(ph, ()), complete | {NEXT_PHONEME})
+        if choice != ph:
+            used[ph] = choice
+    return used
 
 
 def _first_available(phoneme: str, fallbacks: Sequence[str], available: Container[str]) -> str:
@@ -212,6 +254,7 @@ def animate(
     values: dict[str, NDArray[np.float64]] = {}
     snapped: dict[str, NDArray[np.float64]] = {}
     rest = neutral_posture(table, at_rest) if at_rest else {}
+    neutral = neutral_posture(table, [*modelled, *at_rest]) if PAUSE in table.values else {}
     for ch in (CHANNELS if channels is None else channels):
         if ch in at_rest:
             values[ch] = np.full(times.size, rest[ch])
@@ -221,7 +264,8 @@ def animate(
         if not np.array_equal(sample, times):
             snapped[ch] = sample
     return Animation(fps=float(fps), times=times, channels=values, segments=segments,
-                     substitutions=dict(substitutions or {}), sample_times=snapped, at_rest=at_rest)
+                     substitutions=dict(substitutions or {}), sample_times=snapped, at_rest=at_rest,
+                     neutral=neutral, table=table)
 
 
 def contact_sample_times(
@@ -306,3 +350,18 @@ def write_segments_tsv(path: str | Path, segments: Segments, requested: Sequence
     for i, (shown, s, e) in enumerate(zip(segments.labels, segments.starts, segments.ends)):
         lines.append(f"{float(s)!r}\t{float(e)!r}\t{requested[i]}\t{shown}\t{source[i]}")
     atomic_write_text(path, "\n".join(lines) + "\n")
+
+
+def export_channels(animation: Animation, settings: ExportSettings) -> dict[str, Path]:
+    """Exporter (coartic.runtime.exporters): channels.csv."""
+    path = settings.out / "channels.csv"
+    write_channels_csv(path, animation)
+    return {"channels": path}
+
+
+def export_segments(animation: Animation, settings: ExportSettings) -> dict[str, Path]:
+    """Exporter: segments.tsv, the phonemes asked for, shown and their source labels."""
+    path = settings.out / "segments.tsv"
+    write_segments_tsv(path, animation.segments, settings.requested or animation.segments.labels,
+                       settings.source or animation.segments.labels)
+    return {"segments": path}

@@ -9,11 +9,16 @@ import math
 from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 from numpy.typing import NDArray
 
 from coartic.runtime.errors import AnimationError, FapFormatError
+
+if TYPE_CHECKING:
+    from coartic.runtime.animate import Animation
+    from coartic.runtime.exporters import ExportSettings
 
 N_FAPS = 68
 
@@ -297,3 +302,17 @@ def read_fap(path: str | Path) -> FapSequence:
         mask[f] = m
         values[f, m] = ints[1:]
     return FapSequence(name=name, fps=fps, mask=mask, values=values, first_frame=first_frame)
+
+
+def animation_faps(animation: Animation, face: FaceUnits, name: str) -> FapSequence:
+    """The animation's lip and jaw FAPs, from its channels and neutral face, in `face`'s units."""
+    return channels_to_faps(animation.channels, animation.neutral, face, name, animation.fps)
+
+
+def export_fap(animation: Animation, settings: ExportSettings) -> dict[str, Path]:
+    """Exporter (coartic.runtime.exporters): NAME.fap."""
+    path = settings.out / f"{settings.name}.fap"
+    tmp = settings.out / f"{settings.name}.fap.part"
+    write_fap(tmp, animation_faps(animation, settings.face, settings.name))
+    tmp.replace(path)
+    return {"fap": path}

@@ -12,7 +12,7 @@ import re
 import shutil
 import unicodedata
 import wave
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from os import PathLike
 from pathlib import Path
 
@@ -28,13 +28,11 @@ from coartic.runtime.animate import (
     neutral_posture,
     substitute,
     table_channels,
-    write_channels_csv,
-    write_segments_tsv,
 )
 from coartic.runtime.errors import AnimationError, MissingPhonemeError
-from coartic.runtime.fap import FaceUnits, FapSequence, channels_to_faps, write_fap
+from coartic.runtime.exporters import ExportSettings, parse_exports, run_exports
+from coartic.runtime.fap import FaceUnits, FapSequence, animation_faps
 from coartic.runtime.festival import FestivalUtterance, PhoneMap, synthesize, wav_duration
-from coartic.runtime.preview import plot_channels, render_preview, render_strip
 from coartic.speakers import SpeakerMapping, speaker_mapping
 from coartic.table import PAUSE, ParameterTable
 
@@ -70,11 +68,14 @@ def speaker_neutral(table: ParameterTable, mapping: SpeakerMapping | None,
     return {c: float(mapping.apply(c, np.array([v]))[0]) if c in own.channels else v for c, v in rest.items()}
 
 
-def speak_as(animation: Animation, mapping: SpeakerMapping | None) -> Animation:
-    """The animation's modelled channels as the speaker says them (a + b·F; coartic.speakers)."""
+def speak_as(animation: Animation, mapping: SpeakerMapping | None, table: ParameterTable | None = None) -> Animation:
+    """The animation's modelled channels as the speaker says them (a + b·F; coartic.speakers), with
+    that speaker's neutral face (from `table`, the multi-speaker table)."""
     if mapping is not None:
         for c in animation.modelled:
             animation.channels[c] = mapping.apply(c, animation.channels[c])
+        if table is not None:
+            return replace(animation, neutral=speaker_neutral(table, mapping))
     return animation
 
 
@@ -144,36 +145,19 @@ def _write_outputs(
     gltf: bool = False,
     vrml: bool = False,
     mapping: SpeakerMapping | None = None,
+    exports: tuple[str, ...] = (),
+    gltf_morphs: str = "fap",
 ) -> RuntimeOutput:
-    neutral = speaker_neutral(table, mapping)
-    faps = channels_to_faps(animation.channels, neutral, face, name, animation.fps)
-    out.mkdir(parents=True, exist_ok=True)
-    files: dict[str, Path] = {}
-    files["channels"] = out / "channels.csv"
-    write_channels_csv(files["channels"], animation)
-    files["fap"] = out / f"{name}.fap"
-    tmp = out / f"{name}.fap.part"
-    write_fap(tmp, faps)
-    tmp.replace(files["fap"])
-    files["segments"] = out / "segments.tsv"
-    write_segments_tsv(files["segments"], animation.segments, requested, source)
+    """Every exporter fed the one animation: the exact outputs first, the pictures last."""
+    settings = ExportSettings(out=out, name=name, face=face, table=table, requested=requested, source=source,
+                              audio=audio, progress=progress, mapping=mapping, gltf_morphs=gltf_morphs,
+                              preview=preview)
     if audio is not None:
-        files["wav"] = audio
-    if gltf:
-        from coartic.face.gltf import write_face_glb
-
-        files["gltf"] = write_face_glb(out / f"{name}.glb", faps, audio=audio.name if audio else None,
-                                       fap_file=files["fap"].name)
-    if vrml:
-        from coartic.face.vrml import write_face_vrml
-
-        files["vrml"] = write_face_vrml(out / f"{name}.wrl", faps, audio=audio.name if audio else None,
-                                        audio_seconds=wav_duration(audio) if audio else None)[0]
-    files["plot"] = plot_channels(animation, out / "channels.png", title=name)
-    if preview != "none":
-        files["strip"] = render_strip(animation, table, out / "strip.png", speaker=mapping)
-        files["preview"] = render_preview(animation, neutral, out / f"preview.{preview}", title=name,
-                                          progress=progress, audio=audio)
+        settings.files["wav"] = audio
+    names = ["channels", "fap", "segments", *(["gltf"] if gltf else []), *(["vrml"] if vrml else []), *exports,
+             *(["plot", "preview"] if preview != "none" else [])]
+    files = run_exports(animation, settings, names)
+    faps = animation_faps(animation, face, name)
     return RuntimeOutput(animation=animation, faps=faps, files=files)
 
 
@@ -196,6 +180,8 @@ def animate_file(
     gltf: bool = False,
     vrml: bool = False,
     speaker: str | None = None,
+    exports: str | tuple[str, ...] | list[str] | None = None,
+    gltf_morphs: str = "fap",
 ) -> RuntimeOutput:
     """A label file (.lab / TextGrid / TSV) → channels, FAP file and preview in `out`.
 
@@ -204,10 +190,12 @@ def animate_file(
     unless `strict`. With `audio` (the recording the labels describe), the WAV is copied beside
     the FAP file under its name (Greta loads `name.fap` with `name.wav`), the animation lasts as
     long as the sound, and the MP4 preview and the glTF bundle carry it. `name` defaults to the
-    label file's stem. `speaker`: one of the speakers of a table fitted with `[model] speakers`
+    label file's stem. `exports`: the rigs' curves and cues ("arkit", "visemes", "rhubarb"; a list
+    or comma-separated); `gltf_morphs`: the glTF's morph set, "fap" or "arkit" (coartic.runtime.exporters). `speaker`: one of the speakers of a table fitted with `[model] speakers`
     (its offset and scale, or its own targets; coartic.speakers).
     """
     _check_preview(preview)
+    wanted = parse_exports(exports)
     mapping = speaker_mapping(table, speaker)
     out = Path(out)
     name = check_name(name) if name is not None else _name_from(Path(labels).stem)
@@ -230,9 +218,10 @@ def animate_file(
         duration = max(duration, 1.0 / fps)
     own = table if mapping is None else mapping.evaluation_table(table)
     animation = speak_as(animate(own, segments, fps, duration=duration, snap_contacts=snap_contacts,
-                                 substitutions=used), mapping)
+                                 substitutions=used), mapping, table)
     return _write_outputs(animation, table, out, name, face or speaker_face(table, speaker=speaker),
-                          preview, requested, raw.labels, progress, audio=wav, gltf=gltf, vrml=vrml, mapping=mapping)
+                          preview, requested, raw.labels, progress, audio=wav, gltf=gltf, vrml=vrml, mapping=mapping,
+                          exports=wanted, gltf_morphs=gltf_morphs)
 
 
 def speak_text(
@@ -254,6 +243,8 @@ def speak_text(
     gltf: bool = False,
     vrml: bool = False,
     speaker: str | None = None,
+    exports: str | tuple[str, ...] | list[str] | None = None,
+    gltf_morphs: str = "fap",
     lang: str = "it",
 ) -> RuntimeOutput:
     """Text → Festival's WAV, and channels, FAP file and preview lasting as long as the WAV.
@@ -267,6 +258,7 @@ def speak_text(
     `animation.substitutions`) unless `strict`. `speaker`: as in `animate_file`.
     """
     _check_preview(preview)
+    wanted = parse_exports(exports)
     mapping = speaker_mapping(table, speaker)
     check_text(text)
     out = Path(out)
@@ -285,13 +277,14 @@ def speak_text(
         segments, used = substitute(segments, table, table_channels(table), pmap.fallbacks)
     try:
         animation = speak_as(animate(table if mapping is None else mapping.evaluation_table(table), segments, fps,
-                                     duration=utt.duration, substitutions=used, snap_contacts=snap_contacts), mapping)
+                                     duration=utt.duration, substitutions=used, snap_contacts=snap_contacts), mapping, table)
     except MissingPhonemeError as err:
         if err.segment is None:
             raise
         raise MissingPhonemeError(f"{err} (Festival phone {utt.phones[err.segment]!r} of {utt.text!r})",
                                   err.segment) from None
     result = _write_outputs(animation, table, out, name, face or speaker_face(table, speaker=speaker), preview,
-                            requested, utt.phones, progress, audio=utt.wav, gltf=gltf, vrml=vrml, mapping=mapping)
+                            requested, utt.phones, progress, audio=utt.wav, gltf=gltf, vrml=vrml, mapping=mapping,
+                            exports=wanted, gltf_morphs=gltf_morphs)
     result.utterance = utt
     return result

@@ -17,6 +17,7 @@ import shutil
 import subprocess
 from collections.abc import Callable, Iterator, Mapping, Sequence
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 from pathlib import Path
 
 import matplotlib
@@ -37,6 +38,9 @@ from coartic.outputs import atomic_path  # noqa: E402
 from coartic.runtime.errors import AnimationError  # noqa: E402
 from coartic.speakers import SpeakerMapping  # noqa: E402
 from coartic.table import CHANNELS, PAUSE, ParameterTable  # noqa: E402
+
+if TYPE_CHECKING:
+    from coartic.runtime.exporters import ExportSettings
 
 # Half the vermilion height (mm) of an adult's upper and lower lip: the channels give where the lip
 # markers go, not how thick the lips are.
@@ -429,3 +433,16 @@ def mark_segments(
     else:
         left_out.append("labels")
     return f"({n} segments: {' and '.join(left_out)} not drawn)" if left_out else ""
+
+
+def export_plot(animation: Animation, settings: ExportSettings) -> dict[str, Path]:
+    """Exporter (coartic.runtime.exporters): channels.png."""
+    return {"plot": plot_channels(animation, settings.out / "channels.png", title=settings.name)}
+
+
+def export_preview(animation: Animation, settings: ExportSettings) -> dict[str, Path]:
+    """Exporter: strip.png and preview.gif / .mp4 (settings.preview), the MP4 with the sound."""
+    strip = render_strip(animation, settings.table, settings.out / "strip.png", speaker=settings.mapping)
+    preview = render_preview(animation, animation.neutral, settings.out / f"preview.{settings.preview}",
+                             title=settings.name, progress=settings.progress, audio=settings.audio)
+    return {"strip": strip, "preview": preview}

@@ -39,6 +39,8 @@ PreviewOpt = Annotated[str, typer.Option("--preview", help=f"Preview format: {',
 GltfOpt = Annotated[bool, typer.Option("--gltf", help="Also write NAME.glb: the face with morph targets per FAP and their animation (coartic view DIR plays it).")]
 VrmlOpt = Annotated[bool, typer.Option("--vrml", help="Also write NAME.wrl: the face animated in VRML97 (interpolators, the sound as an AudioClip).")]
 FapNameOpt = Annotated[str | None, typer.Option("--fap-name", help="Name of the FAP file and its header; the WAV and glTF get the same stem (Greta loads NAME.fap with NAME.wav).")]
+ExportOpt = Annotated[str | None, typer.Option("--export", help="Also write the rigs' curves and cues, comma-separated: arkit (NAME.arkit.csv/.json, ARKit's 52 blendshapes), visemes (NAME.visemes.csv/.json, Meta's 15), rhubarb (NAME.rhubarb.json/.tsv, Rhubarb Lip Sync's mouth cues).")]
+GltfMorphsOpt = Annotated[str, typer.Option("--gltf-morphs", help="The glTF's morph targets: fap (one per FAP) or arkit (ARKit's 52 blendshape names, to retarget by name); arkit implies --gltf.")]
 SpeakerOpt = Annotated[str | None, typer.Option("--speaker", help="Speak as this speaker of a table fitted with [model] speakers (its offset and scale, or its own targets).")]
 ForceOpt = Annotated[bool, typer.Option("--force", help="Replace --out even if it holds another run's output "
                                         "(the same labels or text replace their own output without it).")]
@@ -139,6 +141,8 @@ def animate_command(
     gltf: GltfOpt = False,
     vrml: VrmlOpt = False,
     speaker: SpeakerOpt = None,
+    export: ExportOpt = None,
+    gltf_morphs: GltfMorphsOpt = "fap",
     force: ForceOpt = False,
 ) -> None:
     """Animate a label file: channel trajectories (CSV), an MPEG-4 FAP file and a preview.
@@ -151,8 +155,9 @@ def animate_command(
     def make(t: ParameterTable, staging: Path, progress: Progress) -> RuntimeOutput:
         return animate_file(labels, t, staging, fps=fps, tier=tier, label_map=label_map,
                             face=speaker_face(t, mns, mw, speaker), preview=preview, snap_contacts=snap_contacts,
-                            strict=strict, progress=progress, audio=audio, name=fap_name, gltf=gltf,
-                            vrml=vrml, speaker=speaker)
+                            strict=strict, progress=progress, audio=audio, name=fap_name,
+                            gltf=gltf or gltf_morphs == "arkit", vrml=vrml, speaker=speaker, exports=export,
+                            gltf_morphs=gltf_morphs)
 
     _run_staged(table, out, "animate", {"labels": str(labels.resolve())}, force,
                 [labels, *([table] if table is not None else []), *([audio] if audio is not None else [])], make)
@@ -175,6 +180,8 @@ def speak_command(
     gltf: GltfOpt = False,
     vrml: VrmlOpt = False,
     speaker: SpeakerOpt = None,
+    export: ExportOpt = None,
+    gltf_morphs: GltfMorphsOpt = "fap",
     force: ForceOpt = False,
 ) -> None:
     """Say Italian (or English, --lang en) text with Festival: WAV, channel trajectories, FAP file and preview,
@@ -190,7 +197,8 @@ def speak_command(
     def make(t: ParameterTable, staging: Path, progress: Progress) -> RuntimeOutput:
         return speak_text(text, t, staging, fps=fps, stretch=stretch, voice=voice, strict=strict,
                           face=speaker_face(t, mns, mw, speaker), preview=preview, snap_contacts=snap_contacts,
-                          progress=progress, name=fap_name, gltf=gltf, vrml=vrml, speaker=speaker, lang=lang)
+                          progress=progress, name=fap_name, gltf=gltf or gltf_morphs == "arkit", vrml=vrml,
+                          speaker=speaker, exports=export, gltf_morphs=gltf_morphs, lang=lang)
 
     # the identity of an Italian run stays {"text": ...}: outputs written before --lang existed are its own
     identity = {"text": text} | ({"lang": lang} if lang != "it" else {})

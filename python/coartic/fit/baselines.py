@@ -1,0 +1,138 @@
+"""Baselines for every held-out figure: what a table must beat for the model to have helped (issue 19).
+
+Fitted on the training utterances, evaluated on exactly the samples the table is scored on:
+
+- ``constant``: the training mean of the channel (every valid training sample);
+- ``step``: each phoneme's training mean over the samples inside its segments, no coarticulation (a
+  phoneme the training never saw, and samples outside every segment, take the constant);
+- ``warped``: another token of the same sentence in the training data (same label sequence, another
+  file: another rate or repetition) warped onto the test labels by the piecewise-linear time map
+  through the segments' starts and centres (and the last end); with several such tokens, the mean of
+  their warped trajectories. Only where such a token exists.
+
+``Baselines.fit(train, channels)`` keeps what they need; ``predict(test, channel)`` gives each
+baseline's predictions, one array per test utterance, which ``coartic.fit.score`` scores like the
+table's (as measured, each utterance's offset removed, speaker-calibrated). ``beats_step`` is the
+flag the score, the validation and the comparison raise when the table does not beat the step model.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Sequence
+
+import numpy as np
+from numpy.typing import NDArray
+
+from coartic.fit.score import segment_of
+from coartic.model import Utterance
+
+F64 = NDArray[np.float64]
+
+BASELINES = ("constant", "step", "warped")
+TITLES = {"constant": "constant (training mean)", "step": "step (phoneme means)",
+          "warped": "same sentence, warped"}
+
+
+def _token_key(u: Utterance) -> tuple[str, ...]:
+    return tuple(u.labels)
+
+
+def _file(u: Utterance) -> str:
+    return u.meta.get("file") or u.name
+
+
+def warp_times(test: Utterance, token: Utterance) -> F64:
+    """The test utterance's sample times mapped into ``token``'s time: piecewise linear through
+    every segment's start and centre and the last segment's end (the two have the same labels);
+    outside the first and last knot, shifted by the nearest knot's offset (slope 1)."""
+    k_test = np.concatenate([np.column_stack([test.starts, 0.5 * (test.starts + test.ends)]).ravel(), test.ends[-1:]])
+    k_tok = np.concatenate([np.column_stack([token.starts, 0.5 * (token.starts + token.ends)]).ravel(), token.ends[-1:]])
+    t = test.times
+    tau = np.interp(t, k_test, k_tok)
+    tau = np.where(t < k_test[0], t - k_test[0] + k_tok[0], tau)
+    return np.where(t > k_test[-1], t - k_test[-1] + k_tok[-1], tau)
+
+
+@dataclass
+class Baselines:
+    """The training data's constant and step model per channel, and its tokens for warping."""
+
+    channels: tuple[str, ...]
+    constant: dict[str, float]
+    step: dict[str, dict[str, float]]
+    tokens: list[Utterance] = field(default_factory=list)
+
+    @classmethod
+    def fit(cls, train: Sequence[Utterance], channels: Sequence[str]) -> Baselines:
+        chans = tuple(channels)
+        constant: dict[str, float] = {}
+        step: dict[str, dict[str, float]] = {}
+        for ch in chans:
+            tot, n = 0.0, 0
+            acc: dict[str, list[float]] = {}
+            for u in train:
+                y = u.observed[ch]
+                ok = u.valid[ch] & np.isfinite(y)
+                tot += float(y[ok].sum())
+                n += int(ok.sum())
+                seg = segment_of(u)
+                for i, lab in enumerate(u.labels):
+                    m = ok & (seg == i)
+                    if m.any():
+                        a = acc.setdefault(lab, [0.0, 0.0])
+                        a[0] += float(y[m].sum())
+                        a[1] += float(m.sum())
+            constant[ch] = tot / n if n else float("nan")
+            step[ch] = {lab: s / k for lab, (s, k) in acc.items()}
+        return cls(chans, constant, step, list(train))
+
+    def same_sentence(self, test: Utterance) -> list[Utterance]:
+        """The training tokens of ``test``'s sentence: same label sequence, another file."""
+        return [u for u in self.tokens if _token_key(u) == _token_key(test) and _file(u) != _file(test)]
+
+    def predict_one(self, name: str, test: Utterance, channel: str) -> F64 | None:
+        """Baseline ``name``'s prediction of ``channel`` at ``test``'s samples (None: the warped
+        baseline of an utterance whose sentence has no other token in the training data)."""
+        c = self.constant[channel]
+        if name == "constant":
+            return np.full(test.times.size, c)
+        if name == "step":
+            means = self.step[channel]
+            per_segment = np.array([means.get(lab, c) for lab in test.labels] + [c])
+            return per_segment[segment_of(test)]  # −1 (outside every segment) picks the constant
+        if name == "warped":
+            tokens = self.same_sentence(test)
+            if not tokens:
+                return None
+            out = np.zeros(test.times.size)
+            for tok in tokens:
+                y, ok = tok.observed[channel], tok.valid[channel] & np.isfinite(tok.observed[channel])
+                if not ok.any():
+                    return None
+                out += np.interp(warp_times(test, tok), tok.times[ok], y[ok])
+            return out / len(tokens)
+        raise ValueError(f"unknown baseline {name!r} (known: {', '.join(BASELINES)})")
+
+    def predict(self, test: Sequence[Utterance], channel: str) -> dict[str, list[F64]]:
+        """Each baseline's predictions of ``channel``, one array per test utterance; the warped
+        baseline only if every test utterance has another token of its sentence in the training."""
+        out: dict[str, list[F64]] = {}
+        for name in BASELINES:
+            preds = [self.predict_one(name, u, channel) for u in test]
+            if all(p is not None for p in preds):
+                out[name] = [p for p in preds if p is not None]
+        return out
+
+
+def beats_step(table_rmse: tuple[float, float], step_rmse: tuple[float, float]) -> bool:
+    """Whether the table beats the step model both as measured and with the offsets removed
+    ((raw, offset removed) RMSE of each on the same samples)."""
+    return all(t < s for t, s in zip(table_rmse, step_rmse) if np.isfinite(s))
+
+
+def flag_text(channel: str, table_rmse: tuple[float, float], step_rmse: tuple[float, float]) -> str:
+    """The console's and report's words for a table that does not beat the step model."""
+    return (f"{channel}: the table does not beat the step model (phoneme means, no coarticulation): "
+            f"{table_rmse[0]:.3f} vs {step_rmse[0]:.3f} mm as measured, {table_rmse[1]:.3f} vs "
+            f"{step_rmse[1]:.3f} mm offset removed")

@@ -1,0 +1,97 @@
+"""Every output of `coartic animate` and `speak` is an exporter fed the same `Animation`.
+
+An exporter is a function `(animation, settings) -> {what: path}` that lives beside the code of its
+format (FAP in coartic.runtime.fap, glTF and VRML in coartic.face, the previews in
+coartic.runtime.preview, the rigs' curves and cues in coartic.runtime.rigs) and is named here by
+module, so that a run imports only the formats it writes (matplotlib only with a picture).
+`ExportSettings` holds how to write (names, face units, sound), never what: that is the animation.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+from importlib import import_module
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+from coartic.runtime.errors import AnimationError
+
+if TYPE_CHECKING:
+    from rich.progress import Progress
+
+    from coartic.runtime.animate import Animation
+    from coartic.runtime.fap import FaceUnits
+    from coartic.speakers import SpeakerMapping
+    from coartic.table import ParameterTable
+
+
+@dataclass
+class ExportSettings:
+    """How the exporters write one animation into `out`."""
+
+    out: Path
+    name: str  # the stem of the FAP, WAV, glTF and rig files (one ASCII word)
+    face: FaceUnits  # FAPU of the face the table describes
+    table: ParameterTable  # the table as given (the strip draws its targets)
+    requested: tuple[str, ...] = ()  # segments.tsv: the phonemes asked for, and their source labels
+    source: tuple[str, ...] = ()
+    audio: Path | None = None  # the WAV beside the outputs
+    progress: Progress | None = None
+    mapping: SpeakerMapping | None = None
+    gltf_morphs: str = "fap"  # the glTF's morph set: "fap" (one per FAP) or "arkit" (ARKit's 52 names)
+    preview: str = "gif"
+    files: dict[str, Path] = field(default_factory=dict)  # what earlier exporters wrote
+
+    def audio_name(self) -> str | None:
+        return self.audio.name if self.audio is not None else None
+
+
+Exporter = Callable[["Animation", ExportSettings], dict[str, Path]]
+
+# name -> (module, function). Always written: channels, fap, segments; the others on request.
+EXPORTERS: dict[str, tuple[str, str]] = {
+    "channels": ("coartic.runtime.animate", "export_channels"),
+    "fap": ("coartic.runtime.fap", "export_fap"),
+    "segments": ("coartic.runtime.animate", "export_segments"),
+    "gltf": ("coartic.face.gltf", "export_gltf"),
+    "vrml": ("coartic.face.vrml", "export_vrml"),
+    "arkit": ("coartic.runtime.rigs", "export_arkit"),
+    "visemes": ("coartic.runtime.rigs", "export_visemes"),
+    "rhubarb": ("coartic.runtime.rigs", "export_rhubarb"),
+    "plot": ("coartic.runtime.preview", "export_plot"),
+    "preview": ("coartic.runtime.preview", "export_preview"),
+}
+# what `--export` accepts: the rigs' curves and cues
+RIG_EXPORTS: tuple[str, ...] = ("arkit", "visemes", "rhubarb")
+GLTF_MORPH_SETS: tuple[str, ...] = ("fap", "arkit")
+
+
+def parse_exports(spec: str | Sequence[str] | None) -> tuple[str, ...]:
+    """`--export arkit,visemes,rhubarb` (or a list) → the names, checked, in RIG_EXPORTS order."""
+    if spec is None:
+        return ()
+    items = spec.split(",") if isinstance(spec, str) else list(spec)
+    names = [s.strip() for s in items if s.strip()]
+    bad = [n for n in names if n not in RIG_EXPORTS]
+    if bad:
+        raise AnimationError(f"--export {', '.join(bad)}: unknown; choose among {', '.join(RIG_EXPORTS)} "
+                             "(comma-separated)")
+    return tuple(n for n in RIG_EXPORTS if n in names)
+
+
+def load_exporter(name: str) -> Exporter:
+    module, function = EXPORTERS[name]
+    fn: Exporter = getattr(import_module(module), function)
+    return fn
+
+
+def run_exports(animation: Animation, settings: ExportSettings, names: Sequence[str]) -> dict[str, Path]:
+    """Run the exporters `names` in order on one animation; every file is written atomically, the
+    exact outputs first (an interrupted preview loses nothing else). Returns {what: path}."""
+    if settings.gltf_morphs not in GLTF_MORPH_SETS:
+        raise AnimationError(f"--gltf-morphs {settings.gltf_morphs!r}: choose {' or '.join(GLTF_MORPH_SETS)}")
+    settings.out.mkdir(parents=True, exist_ok=True)
+    for name in names:
+        settings.files.update(load_exporter(name)(animation, settings))
+    return settings.files

@@ -1,0 +1,327 @@
+"""The rigs people already have, driven by the model: ARKit blendshape weights, Meta (Oculus) visemes
+and Rhubarb Lip Sync mouth cues, each computed from one `Animation` (its channels, neutral face and
+the dominance weights of its segments).
+
+- **ARKit** (`arkit_weights`): Apple's 52 blendshape names, all present; the mouth and jaw ones
+  are driven from the channel displacements d_C = C − C_neutral (mm), each by the part of the
+  movement it stands for, the rest are 0. `ARKIT_BASIS` is what weight 1 of each driven shape
+  means in channel millimetres, so that the weights are a decomposition of the channels (tested:
+  jaw and lip opening rebuilt from the weights to 1e-9 mm where no weight saturates) and the
+  ARKit morph set of the glTF (coartic.face.gltf, `--gltf-morphs arkit`) poses the face from them.
+- **Meta visemes** (`viseme_weights`): the 15 visemes sil PP FF TH DD kk CH SS nn RR aa E ih oh
+  ou; each frame's weights are the dominance shares of the segments (how much each segment's target
+  counts in the model at that frame, averaged over the modelled channels) summed by viseme.
+- **Rhubarb** (`mouth_cues`): shapes A–H and X per frame from the viseme in control and the
+  mouth's opening and rounding, merged into cues.
+
+The mapping and why each weight is what it is: docs/RUNTIME.md, "The rigs people have".
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from dataclasses import dataclass
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+import numpy as np
+from numpy.typing import NDArray
+
+from coartic.outputs import atomic_write_text
+from coartic.runtime.animate import Animation
+from coartic.runtime.errors import AnimationError
+from coartic.table import CHANNELS, PAUSE
+
+if TYPE_CHECKING:
+    from coartic.runtime.exporters import ExportSettings
+
+# Apple ARKit ARFaceAnchor.BlendShapeLocation, in Apple's documentation order.
+ARKIT_NAMES: tuple[str, ...] = (
+    "eyeBlinkLeft", "eyeLookDownLeft", "eyeLookInLeft", "eyeLookOutLeft", "eyeLookUpLeft", "eyeSquintLeft",
+    "eyeWideLeft", "eyeBlinkRight", "eyeLookDownRight", "eyeLookInRight", "eyeLookOutRight", "eyeLookUpRight",
+    "eyeSquintRight", "eyeWideRight", "jawForward", "jawLeft", "jawRight", "jawOpen", "mouthClose",
+    "mouthFunnel", "mouthPucker", "mouthLeft", "mouthRight", "mouthSmileLeft", "mouthSmileRight",
+    "mouthFrownLeft", "mouthFrownRight", "mouthDimpleLeft", "mouthDimpleRight", "mouthStretchLeft",
+    "mouthStretchRight", "mouthRollLower", "mouthRollUpper", "mouthShrugLower", "mouthShrugUpper",
+    "mouthPressLeft", "mouthPressRight", "mouthLowerDownLeft", "mouthLowerDownRight", "mouthUpperUpLeft",
+    "mouthUpperUpRight", "browDownLeft", "browDownRight", "browInnerUp", "browOuterUpLeft", "browOuterUpRight",
+    "cheekPuff", "cheekSquintLeft", "cheekSquintRight", "noseSneerLeft", "noseSneerRight", "tongueOut",
+)
+assert len(ARKIT_NAMES) == 52 and len(set(ARKIT_NAMES)) == 52
+
+# Channel movement (mm) that weight 1 of a shape stands for. The ranges are the extent of each
+# movement in speech and beyond it, so that ordinary speech stays well inside 0..1 and a rig's
+# extreme pose is an extreme of the mouth (docs/RUNTIME.md gives the reasons):
+JAW_OPEN_MM = 20.0  # nose-chin distance gained at jawOpen 1 (an /a/ of the synthetic speaker: +10 mm)
+LIP_PER_JAW = 1.0  # the lower lip drops with the chin when only the jaw opens
+LOWER_DOWN_MM = 10.0  # lower lip pulled down from the jaw (per side; the midline moves the mean of both)
+UPPER_UP_MM = 8.0  # upper lip raised
+PRESS_MM = 5.0  # lips pressed together past contact (sum of both lips)
+STRETCH_MM = 8.0  # one corner pulled outwards (LR changes by twice this with both sides)
+NARROW_MM = 15.0  # mouth width lost to rounding
+PROTRUDE_MM = 8.0  # lips pushed forwards
+ROLL_MM = 4.0  # a lip drawn back (rolled in: the lower lip under the upper teeth at /f v/)
+FUNNEL_OPEN_MM = 6.0  # lip opening at which a rounded mouth is all funnel and no pucker
+# ARKit shape -> channel displacement (mm) at weight 1; the L/R shapes each carry half of the
+# midline's movement (the rig's side FAPs move fully, coartic.face.gltf)
+ARKIT_BASIS: dict[str, dict[str, float]] = {
+    "jawOpen": {"JO": JAW_OPEN_MM, "LLO": JAW_OPEN_MM * LIP_PER_JAW},
+    "mouthClose": {"LLO": -JAW_OPEN_MM * LIP_PER_JAW},
+    "mouthLowerDownLeft": {"LLO": LOWER_DOWN_MM / 2}, "mouthLowerDownRight": {"LLO": LOWER_DOWN_MM / 2},
+    "mouthUpperUpLeft": {"ULO": UPPER_UP_MM / 2}, "mouthUpperUpRight": {"ULO": UPPER_UP_MM / 2},
+    "mouthPressLeft": {"ULO": -PRESS_MM / 4, "LLO": -PRESS_MM / 4},
+    "mouthPressRight": {"ULO": -PRESS_MM / 4, "LLO": -PRESS_MM / 4},
+    "mouthStretchLeft": {"LR": STRETCH_MM}, "mouthStretchRight": {"LR": STRETCH_MM},
+    "mouthPucker": {"LR": -NARROW_MM, "ULP": PROTRUDE_MM, "LLP": PROTRUDE_MM},
+    "mouthFunnel": {"LR": -NARROW_MM, "ULP": PROTRUDE_MM, "LLP": PROTRUDE_MM, "ULO": FUNNEL_OPEN_MM / 2,
+                    "LLO": FUNNEL_OPEN_MM / 2},
+    "mouthRollLower": {"LLP": -ROLL_MM},
+    "mouthRollUpper": {"ULP": -ROLL_MM},
+}
+ARKIT_DRIVEN: tuple[str, ...] = tuple(n for n in ARKIT_NAMES if n in ARKIT_BASIS)
+
+# Meta (Oculus) Lipsync's 15 visemes, in its order.
+VISEMES: tuple[str, ...] = ("sil", "PP", "FF", "TH", "DD", "kk", "CH", "SS", "nn", "RR", "aa", "E", "ih", "oh", "ou")
+# Model phonemes (docs/ARCHITECTURE.md, SAMPA-like) -> viseme, by place and manner as Meta defines
+# them: PP bilabials, FF labiodentals, TH dentals, DD alveolar stops, kk velars, CH postalveolars,
+# SS sibilants (and the affricates /ts dz/, which end in one), nn nasals and laterals, RR /r/.
+PHONEME_VISEME: dict[str, str] = {
+    PAUSE: "sil", "p": "PP", "b": "PP", "m": "PP", "f": "FF", "v": "FF", "T": "TH", "D": "TH",
+    "t": "DD", "d": "DD", "k": "kk", "g": "kk", "N": "kk", "tS": "CH", "dZ": "CH", "S": "CH", "Z": "CH",
+    "s": "SS", "z": "SS", "ts": "SS", "dz": "SS", "n": "nn", "l": "nn", "J": "nn", "L": "nn", "r": "RR",
+    "R": "RR", "a": "aa", "A": "aa", "e": "E", "E": "E", "i": "ih", "I": "ih", "j": "ih", "o": "oh", "O": "oh",
+    "u": "ou", "U": "ou", "w": "ou", "y": "ou", "h": "sil",
+}
+
+RHUBARB_SHAPES: tuple[str, ...] = ("A", "B", "C", "D", "E", "F", "G", "H", "X")
+# Opening (ULO + LLO from neutral) as a fraction of the table's widest phoneme target, below which
+# the mouth is shape B (teeth together, lips slightly apart) and C (open); above C it is D (wide).
+RHUBARB_B_BELOW = 0.5
+RHUBARB_C_BELOW = 0.75
+# a pause in control with the lips within this fraction of closed is the idle mouth X
+RHUBARB_REST_BELOW = 0.25
+# rounding (mouthPucker + mouthFunnel) from which the mouth is F (puckered) or E (slightly rounded)
+RHUBARB_ROUND_FROM = 0.25
+# the lateral phonemes that Rhubarb's H (tongue raised behind the upper teeth) is drawn for
+RHUBARB_H_PHONEMES = frozenset({"l", "L"})
+
+
+def _deltas(animation: Animation) -> dict[str, NDArray[np.float64]]:
+    missing = [c for c in CHANNELS if c not in animation.neutral]
+    if missing:
+        raise AnimationError(f"no neutral posture for channel(s) {', '.join(missing)}: the table needs a pause "
+                             f"phoneme {PAUSE!r}, whose targets are the face at rest that rig weights start from")
+    return {c: np.asarray(animation.channels[c], dtype=float) - animation.neutral[c] for c in CHANNELS}
+
+
+def arkit_weights(animation: Animation) -> NDArray[np.float64]:
+    """(frames, 52) ARKit blendshape weights in 0..1, columns in ARKIT_NAMES order."""
+    d = _deltas(animation)
+    n = animation.n_frames
+    w = {name: np.zeros(n) for name in ARKIT_NAMES}
+    jaw = np.clip(d["JO"] / JAW_OPEN_MM, 0.0, 1.0)
+    w["jawOpen"] = jaw
+    carried = jaw * JAW_OPEN_MM * LIP_PER_JAW  # the lower lip's drop that the jaw gives it
+    lower = d["LLO"] - carried  # the lower lip's own movement, positive down, from the jaw
+    # lips held closer than the jaw would put them: first closed against the open jaw (mouthClose,
+    # at most as much as the jaw opened), then whatever is left presses them together
+    close = np.minimum(np.maximum(-lower, 0.0) / (JAW_OPEN_MM * LIP_PER_JAW), jaw)
+    lower = lower + close * JAW_OPEN_MM * LIP_PER_JAW
+    w["mouthClose"] = close
+    opening = d["ULO"] + d["LLO"]
+    # rounding: narrowing or protrusion, whichever is further along; open lips make it a funnel
+    protrusion = np.maximum((d["ULP"] + d["LLP"]) / 2.0, 0.0)
+    rounding = np.clip(np.maximum(np.maximum(-d["LR"], 0.0) / NARROW_MM, protrusion / PROTRUDE_MM), 0.0, 1.0)
+    funnel_share = np.clip(opening / FUNNEL_OPEN_MM, 0.0, 1.0)
+    w["mouthFunnel"] = rounding * funnel_share
+    w["mouthPucker"] = rounding * (1.0 - funnel_share)
+    # the funnel's own opening is part of the lips' movement: take it out before the lip shapes
+    fo = w["mouthFunnel"] * FUNNEL_OPEN_MM / 2.0
+    upper, lower = d["ULO"] - fo, lower - fo
+    press = np.clip((np.maximum(-upper, 0.0) + np.maximum(-lower, 0.0)) / PRESS_MM, 0.0, 1.0)
+    for side in ("Left", "Right"):
+        w[f"mouthUpperUp{side}"] = np.clip(upper / UPPER_UP_MM, 0.0, 1.0)
+        w[f"mouthLowerDown{side}"] = np.clip(lower / LOWER_DOWN_MM, 0.0, 1.0)
+        w[f"mouthPress{side}"] = press
+        w[f"mouthStretch{side}"] = np.clip(d["LR"] / (2.0 * STRETCH_MM), 0.0, 1.0)
+    w["mouthRollLower"] = np.clip(-d["LLP"] / ROLL_MM, 0.0, 1.0)
+    w["mouthRollUpper"] = np.clip(-d["ULP"] / ROLL_MM, 0.0, 1.0)
+    return np.column_stack([w[name] for name in ARKIT_NAMES])
+
+
+def arkit_channels(weights: NDArray[np.float64]) -> dict[str, NDArray[np.float64]]:
+    """Channel displacements (mm) that ARKit weights stand for: Σ_k w_k ARKIT_BASIS[k]."""
+    out = {c: np.zeros(weights.shape[0]) for c in CHANNELS}
+    for k, name in enumerate(ARKIT_NAMES):
+        for c, mm in ARKIT_BASIS.get(name, {}).items():
+            out[c] += weights[:, k] * mm
+    return out
+
+
+def _viseme_of(phoneme: str) -> str:
+    v = PHONEME_VISEME.get(phoneme) or PHONEME_VISEME.get(phoneme.rstrip(":"))  # long vowels as short
+    if v is None:
+        raise AnimationError(f"phoneme {phoneme!r} has no Meta viseme (coartic.runtime.rigs.PHONEME_VISEME "
+                             f"maps {' '.join(sorted(PHONEME_VISEME))})")
+    return v
+
+
+def segment_shares(animation: Animation) -> NDArray[np.float64]:
+    """(frames, segments): each segment's dominance share, averaged over the modelled channels."""
+    chans = animation.modelled
+    total = np.zeros((animation.n_frames, len(animation.segments)))
+    for c in chans:
+        total += animation.segment_shares(c)
+    out: NDArray[np.float64] = total / len(chans)
+    return out
+
+
+def viseme_weights(animation: Animation, shares: NDArray[np.float64] | None = None) -> NDArray[np.float64]:
+    """(frames, 15) Meta viseme weights (VISEMES order), each row summing to 1."""
+    shares = segment_shares(animation) if shares is None else shares
+    column = np.array([VISEMES.index(_viseme_of(p)) for p in animation.segments.labels], dtype=np.int64)
+    onehot = np.zeros((column.size, len(VISEMES)))
+    onehot[np.arange(column.size), column] = 1.0
+    out: NDArray[np.float64] = shares @ onehot
+    return out
+
+
+@dataclass(frozen=True)
+class MouthCue:
+    start: float
+    end: float
+    value: str
+
+
+def widest_opening(animation: Animation) -> float:
+    """The widest lip opening (ULO + LLO from neutral, mm) among the table's phoneme targets."""
+    table = animation.table
+    if table is None:
+        raise AnimationError("this animation does not carry the table that made it: no mouth cues")
+    have = [c for c in ("ULO", "LLO") if c in table.channels]
+    widest = max((sum(per[c]["target"] - animation.neutral[c] for c in have)
+                  for per in table.values.values() if all(c in per for c in have)), default=0.0)
+    if not have or not widest > 0.0:
+        raise AnimationError(f"{table.source}: no phoneme opens the lips (ULO + LLO above the pause's): "
+                             "Rhubarb's open shapes B-D cannot be scaled")
+    return float(widest)
+
+
+def mouth_shapes(animation: Animation, shares: NDArray[np.float64] | None = None,
+                 arkit: NDArray[np.float64] | None = None) -> list[str]:
+    """Rhubarb's shape (A-H, X) at every frame."""
+    shares = segment_shares(animation) if shares is None else shares
+    arkit = arkit_weights(animation) if arkit is None else arkit
+    d = _deltas(animation)
+    opening = (d["ULO"] + d["LLO"]) / widest_opening(animation)
+    rounding = arkit[:, ARKIT_NAMES.index("mouthPucker")] + arkit[:, ARKIT_NAMES.index("mouthFunnel")]
+    labels = animation.segments.labels
+    top = np.argmax(shares, axis=1)
+    shapes = []
+    for k in range(animation.n_frames):
+        ph = labels[int(top[k])]
+        vis = _viseme_of(ph)
+        if vis == "sil" and opening[k] < RHUBARB_REST_BELOW:
+            shapes.append("X")
+        elif vis == "FF":
+            shapes.append("G")
+        elif vis == "PP" or opening[k] <= 0.0:
+            shapes.append("A")
+        elif ph in RHUBARB_H_PHONEMES:
+            shapes.append("H")
+        elif rounding[k] >= RHUBARB_ROUND_FROM:
+            shapes.append("F" if opening[k] < RHUBARB_B_BELOW else "E")
+        elif opening[k] < RHUBARB_B_BELOW:
+            shapes.append("B")
+        elif opening[k] < RHUBARB_C_BELOW:
+            shapes.append("C")
+        else:
+            shapes.append("D")
+    return shapes
+
+
+def mouth_cues(animation: Animation, shapes: list[str] | None = None) -> list[MouthCue]:
+    """Runs of one shape as cues; frame k lasts from k/fps to (k+1)/fps, the last cue to the end.
+    Times are on Rhubarb's 0.01-s grid; a run shorter than that joins the cue before it."""
+    shapes = mouth_shapes(animation) if shapes is None else shapes
+    cues: list[MouthCue] = []
+    start = 0
+    for k in range(1, len(shapes) + 1):
+        if k == len(shapes) or shapes[k] != shapes[start]:
+            t0 = round(start / animation.fps, 2)
+            t1 = round(k / animation.fps, 2) if k < len(shapes) else round(animation.duration, 2)
+            if cues and (t1 <= t0 or cues[-1].value == shapes[start]):
+                cues[-1] = MouthCue(cues[-1].start, t1, cues[-1].value)
+            elif t1 > t0:
+                cues.append(MouthCue(t0, t1, shapes[start]))
+            start = k
+    return cues
+
+
+def _num(x: float) -> str:
+    return repr(float(x))
+
+
+def write_curves_csv(path: Path, animation: Animation, names: tuple[str, ...], weights: NDArray[np.float64]) -> Path:
+    """`frame,time,<name>...`, one row per frame, floats with repr (read back bit for bit)."""
+    rows = [",".join(("frame", "time", *names))]
+    for k in range(animation.n_frames):
+        rows.append(",".join((str(k), _num(animation.times[k]), *(_num(v) for v in weights[k]))))
+    atomic_write_text(path, "\n".join(rows) + "\n")
+    return path
+
+
+def write_arkit_json(path: Path, animation: Animation, weights: NDArray[np.float64], audio: str | None) -> Path:
+    """The layout of NVIDIA Audio2Face's blendshape export (exportFps, numPoses, numFrames,
+    facsNames, weightMat), which Omniverse, Unreal and Blender importers read."""
+    doc = {"exportFps": animation.fps, "trackPath": audio or "", "numPoses": len(ARKIT_NAMES),
+           "numFrames": animation.n_frames, "facsNames": list(ARKIT_NAMES),
+           "weightMat": [[float(v) for v in row] for row in weights]}
+    atomic_write_text(path, json.dumps(doc) + "\n")
+    return path
+
+
+def write_visemes_json(path: Path, animation: Animation, weights: NDArray[np.float64], audio: str | None) -> Path:
+    """`{"fps", "frames", "visemes": [15 names], "weights": [[15 per frame]], "audio"}`."""
+    doc = {"fps": animation.fps, "frames": animation.n_frames, "audio": audio, "visemes": list(VISEMES),
+           "weights": [[float(v) for v in row] for row in weights]}
+    atomic_write_text(path, json.dumps(doc) + "\n")
+    return path
+
+
+def write_rhubarb(json_path: Path, tsv_path: Path, animation: Animation, cues: list[MouthCue],
+                  audio: str | None) -> tuple[Path, Path]:
+    """Rhubarb Lip Sync's JSON (`metadata`, `mouthCues`) and TSV (start and shape per line, the last
+    line the end of the recording with X), times truncated to 0.01 s as Rhubarb writes them."""
+    duration = math.floor(animation.duration * 100.0 + 1e-9) / 100.0
+    body = ",\n".join(f'    {{ "start": {c.start:.2f}, "end": {min(c.end, duration):.2f}, "value": "{c.value}" }}'
+                      for c in cues)
+    meta = f'{{\n    "soundFile": {json.dumps(audio or "")},\n    "duration": {duration:.2f}\n  }}'
+    atomic_write_text(json_path, f'{{\n  "metadata": {meta},\n  "mouthCues": [\n{body}\n  ]\n}}\n')
+    lines = [f"{c.start:.2f}\t{c.value}" for c in cues] + [f"{duration:.2f}\tX"]
+    atomic_write_text(tsv_path, "\n".join(lines) + "\n")
+    return json_path, tsv_path
+
+
+def export_arkit(animation: Animation, settings: ExportSettings) -> dict[str, Path]:
+    """Exporter (coartic.runtime.exporters): NAME.arkit.csv and NAME.arkit.json."""
+    w = arkit_weights(animation)
+    return {"arkit_csv": write_curves_csv(settings.out / f"{settings.name}.arkit.csv", animation, ARKIT_NAMES, w),
+            "arkit_json": write_arkit_json(settings.out / f"{settings.name}.arkit.json", animation, w,
+                                           settings.audio_name())}
+
+
+def export_visemes(animation: Animation, settings: ExportSettings) -> dict[str, Path]:
+    """Exporter: NAME.visemes.csv and NAME.visemes.json (Meta's 15 visemes)."""
+    w = viseme_weights(animation)
+    return {"visemes_csv": write_curves_csv(settings.out / f"{settings.name}.visemes.csv", animation, VISEMES, w),
+            "visemes_json": write_visemes_json(settings.out / f"{settings.name}.visemes.json", animation, w,
+                                               settings.audio_name())}
+
+
+def export_rhubarb(animation: Animation, settings: ExportSettings) -> dict[str, Path]:
+    """Exporter: NAME.rhubarb.json and NAME.rhubarb.tsv (Rhubarb Lip Sync's mouth cues)."""
+    j, t = write_rhubarb(settings.out / f"{settings.name}.rhubarb.json", settings.out / f"{settings.name}.rhubarb.tsv",
+                         animation, mouth_cues(animation), settings.audio_name())
+    return {"rhubarb_json": j, "rhubarb_tsv": t}

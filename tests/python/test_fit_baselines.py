@@ -1,0 +1,133 @@
+"""Baselines of every held-out figure (coartic.fit.baselines, issue 19 item 4): hand-computed values
+on a tiny corpus, and the flag raised when a table does not beat the step model."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from coartic.fit.baselines import Baselines, beats_step, warp_times
+from coartic.fit.compare import Row
+from coartic.fit.score import Score
+from coartic.fit.validate import SplitScore, flags, pooled
+from coartic.model import Utterance
+from coartic.table import ParameterTable
+
+T = np.arange(30) / 100.0  # 0.00 .. 0.29 s
+
+
+def utt(labels: list[str], starts: list[float], ends: list[float], y: np.ndarray, name: str,
+        valid: np.ndarray | None = None) -> Utterance:
+    v = np.ones(y.size, dtype=bool) if valid is None else valid
+    return Utterance(labels, starts, ends, np.arange(y.size) / 100.0, name, {"LA": y.astype(float)}, {"LA": v},
+                     {"file": name})
+
+
+def train_apa() -> Utterance:
+    # /a p a/: a = 10 mm (samples 0-9 and 20-29), p = 2 mm (10-19); sample 25 not measured (and 99 there)
+    y = np.r_[np.full(10, 10.0), np.full(10, 2.0), np.full(10, 10.0)]
+    y[25] = 99.0
+    valid = np.ones(30, dtype=bool)
+    valid[25] = False
+    return utt(["a", "p", "a"], [0.0, 0.1, 0.2], [0.1, 0.2, 0.3], y, "apa", valid)
+
+
+def test_constant_and_step_by_hand() -> None:
+    b = Baselines.fit([train_apa()], ["LA"])
+    assert b.constant["LA"] == pytest.approx((19 * 10.0 + 10 * 2.0) / 29)  # the invalid sample left out
+    assert b.step["LA"] == pytest.approx({"a": 10.0, "p": 2.0})
+    # a test utterance /a m a/ ending before its last sample: m unseen -> the constant, and so the sample
+    # outside every segment
+    test = utt(["a", "m", "a"], [0.0, 0.1, 0.2], [0.1, 0.2, 0.29], np.zeros(30), "ama")
+    step = b.predict_one("step", test, "LA")
+    assert step is not None
+    np.testing.assert_allclose(step[:10], 10.0)
+    np.testing.assert_allclose(step[10:20], b.constant["LA"])
+    np.testing.assert_allclose(step[20:29], 10.0)
+    assert step[29] == pytest.approx(b.constant["LA"])
+    const = b.predict_one("constant", test, "LA")
+    assert const is not None and np.all(const == b.constant["LA"])
+    # no other token of /a m a/: no warped baseline
+    assert b.predict_one("warped", test, "LA") is None
+    assert set(b.predict([test], "LA")) == {"constant", "step"}
+
+
+def test_warped_token_by_hand() -> None:
+    # the training token: /a p a/ slower (0-0.2, 0.2-0.3, 0.3-0.6 s), measured = its own time in mm
+    t_tok = np.arange(61) / 100.0
+    token = Utterance(["a", "p", "a"], [0.0, 0.2, 0.3], [0.2, 0.3, 0.6], t_tok, "slow", {"LA": t_tok.copy()},
+                      {"LA": np.ones(61, dtype=bool)}, {"file": "slow.csv"})
+    test = utt(["a", "p", "a"], [0.0, 0.1, 0.2], [0.1, 0.2, 0.3], np.zeros(30), "fast")
+    # knots: test 0 .05 .1 .15 .2 .25 .3  <->  token 0 .1 .2 .25 .3 .45 .6
+    tau = warp_times(test, token)
+    assert tau[5] == pytest.approx(0.10)  # the centre of the first a
+    assert tau[10] == pytest.approx(0.20)  # the start of p
+    assert tau[12] == pytest.approx(0.20 + 0.02 * (0.05 / 0.05))  # within p's first half: slope 1
+    assert tau[22] == pytest.approx(0.30 + 0.02 * (0.15 / 0.05))  # within the last a's first half: slope 3
+    b = Baselines.fit([token], ["LA"])
+    warped = b.predict_one("warped", test, "LA")
+    assert warped is not None
+    np.testing.assert_allclose(warped, tau, atol=1e-12)  # the token's value (its time) at the mapped time
+    # the same file is not "another token" of its sentence
+    assert b.predict_one("warped", utt(["a", "p", "a"], [0.0, 0.2, 0.3], [0.2, 0.3, 0.6], t_tok, "slow.csv"),
+                         "LA") is None
+    # two tokens: the mean of their warped trajectories
+    other = Utterance(["a", "p", "a"], [0.0, 0.2, 0.3], [0.2, 0.3, 0.6], t_tok, "slow2", {"LA": t_tok + 1.0},
+                      {"LA": np.ones(61, dtype=bool)}, {"file": "slow2.csv"})
+    both = Baselines.fit([token, other], ["LA"]).predict_one("warped", test, "LA")
+    assert both is not None
+    np.testing.assert_allclose(both, tau + 0.5, atol=1e-12)
+
+
+def score_with(pred: float, measured: np.ndarray) -> Score:
+    test = utt(["a", "p", "a"], [0.0, 0.1, 0.2], [0.1, 0.2, 0.3], measured, "test")
+    sc = Score(ParameterTable(variant="modified", source="<t>"), ("LA",), [test], {"LA": [np.full(30, pred)]})
+    sc.add_baselines([train_apa()])
+    return sc
+
+
+def test_score_reports_baselines_on_the_same_samples_and_flags() -> None:
+    # measured exactly the step model: the step baseline is perfect, a constant table is not
+    measured = np.r_[np.full(10, 10.0), np.full(10, 2.0), np.full(10, 10.0)]
+    sc = score_with(7.0, measured)
+    rows = {r["model"]: r for r in sc.baseline_rows()}
+    assert set(rows) == {"table", "constant", "step", "warped"}  # /a p a/ is also the training sentence
+    assert rows["step"]["rmse_mm"] == pytest.approx(0.0, abs=1e-12)
+    assert rows["warped"]["rmse_mm"] == pytest.approx(0.0, abs=1e-12)  # same timing; its gap interpolated
+    c = (19 * 10.0 + 20) / 29
+    assert rows["constant"]["rmse_mm"] == pytest.approx(math.sqrt((20 * (10 - c) ** 2 + 10 * (2 - c) ** 2) / 30))
+    assert rows["table"]["rmse_mm"] == pytest.approx(math.sqrt((20 * 9 + 10 * 25) / 30))
+    assert all(r["samples"] == 30 for r in rows.values())
+    assert len(sc.flags()) == 1 and sc.flags()[0].startswith("LA: the table does not beat the step model")
+    assert sc.summary()["beats_step_model"] == {"LA": False}
+    assert "WARNING: LA: the table does not beat the step model" in sc.text()
+    # a table better than the step model is not flagged (measured: the step model + 1 mm on p only)
+    measured2 = measured.copy()
+    measured2[10:20] += 1.0
+    sc2 = Score(sc.table, ("LA",), [utt(["a", "p", "a"], [0.0, 0.1, 0.2], [0.1, 0.2, 0.3], measured2, "t")],
+                {"LA": [measured2 + 0.01]})
+    sc2.add_baselines([train_apa()])
+    assert sc2.flags() == [] and sc2.summary()["beats_step_model"] == {"LA": True}
+
+
+def test_beats_step_needs_both_figures() -> None:
+    assert beats_step((1.0, 0.5), (1.1, 0.6))
+    assert not beats_step((1.0, 0.7), (1.1, 0.6))  # worse once the offset is removed
+    assert not beats_step((1.2, 0.5), (1.1, 0.6))
+
+
+def test_validation_and_compare_flags() -> None:
+    good = SplitScore("fold 1", "LA", 0.1, 1.0, 100, ("a", 1.0), 0.8, baselines={"step": (1.5, 1.2, 1.1)})
+    bad = SplitScore("fold 2", "LA", 0.1, 2.0, 100, ("a", 2.0), 1.9, baselines={"step": (1.5, 1.2, 1.1)})
+    assert good.beats_step and not bad.beats_step
+    out = flags([good, bad])
+    assert out[0].startswith("fold 2: LA: the table does not beat the step model")
+    # pooled: table sqrt((1 + 4) / 2) = 1.58 against the step model's 1.5: flagged too
+    assert pooled([good, bad], "step")["LA"][0] == pytest.approx(1.5)
+    assert any(f.startswith("all splits pooled: LA") for f in out)
+    assert flags([good]) == []
+    row = Row("m", "LA", 3, 100, 1.0, 0.1, 2.0, 1.9, "converged", {"step": (1.5, 1.2)})
+    assert not row.beats_step and row.as_dict()["beats_step_model"] is False
+    assert row.as_dict()["heldout_step_rmse_mm"] == 1.5 and math.isnan(row.as_dict()["heldout_warped_rmse_mm"])
