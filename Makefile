@@ -5,7 +5,7 @@
 # and, for maintainers, the table the package ships:
 #   make table-italian   regenerate python/coartic/runtime/italian_table.json (and its provenance)
 PY := .venv/bin/python
-.PHONY: setup fit test test-rust test-python stubtest typecheck bench clean table-italian
+.PHONY: setup fit test test-rust test-python stubtest typecheck bench clean wheel table-italian
 
 setup:
 	./scripts/setup.sh
@@ -26,6 +26,11 @@ table-italian: setup
 	$(PY) fit/ship_table.py results/italian build/italian
 
 test: setup test-rust stubtest typecheck test-python
+
+# dist/coartic-VERSION-cp311-abi3-PLATFORM.whl: one wheel for every CPython >= 3.11 (pyo3's
+# abi3-py311), installed by pip without Rust (tests/python/test_wheel.py). Reuses make setup's build.
+wheel: setup
+	$(PY) -m maturin build --release -o dist
 
 test-rust:
 	cargo test --release --quiet

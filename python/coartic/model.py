@@ -14,7 +14,7 @@ from typing import Literal, overload
 
 import numpy as np
 import numpy.typing as npt
-import scipy.sparse as sp  # type: ignore[import-untyped]
+import scipy.sparse as sp
 
 from coartic import _core
 from coartic.errors import CoarticError
@@ -101,6 +101,12 @@ class Utterance:
     def __repr__(self) -> str:
         return (f"Utterance({self.name!r}, {len(self.labels)} segments, {self.times.size} samples, "
                 f"channels {sorted(self.observed)})")
+
+    def sample_segments(self) -> npt.NDArray[np.int64]:
+        """For each sample, the index of the segment it lies in (−1 outside every segment)."""
+        i = np.searchsorted(self.starts, self.times, side="right") - 1
+        inside = (i >= 0) & (self.times < self.ends[np.clip(i, 0, None)])
+        return np.where(inside, i, -1).astype(np.int64)
 
 
 def build_corpus(utterances: Sequence[Utterance], phonemes: Sequence[str]) -> _core.Corpus:

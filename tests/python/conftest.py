@@ -100,3 +100,15 @@ def illustrative_table() -> Any:
     from coartic.demo import illustrative_table as make
 
     return make()
+
+
+@pytest.fixture(autouse=True)
+def single_start_fits(request: pytest.FixtureRequest, monkeypatch: pytest.MonkeyPatch) -> None:
+    """Fits in the tests start once from ``[parameters.start]`` (``[fit] starts = 1``, the old
+    behaviour) unless a spec sets ``[fit] starts`` or the test is marked ``multistart``: the
+    default 32 starts would make every fit test 5-10 times slower without testing anything more.
+    The multi-start itself is tested in test_fit_multistart.py."""
+    if request.node.get_closest_marker("multistart") is None:
+        import coartic.fit.spec
+
+        monkeypatch.setattr(coartic.fit.spec, "DEFAULT_STARTS", 1)

@@ -132,6 +132,28 @@ def write_mocha_est(path: Path, m: Motion, binary: bool = True, byte_order: str 
     return path
 
 
+MNGU0_SENSORS = {"T1": "TT", "T2": None, "T3": "TB", "jaw": "JAW", "upperlip": "UL",
+                 "lowerlip": "LL"}
+
+
+def write_mngu0_est(path: Path, m: Motion) -> Path:
+    """An mngu0-style EST track: `<sensor>_px/_py/_pz` in mm (x backwards, y lateral, z up) and
+    the angles `_ph`, `_pt`, big-endian binary."""
+    names, cols = [], []
+    for sensor, role in MNGU0_SENSORS.items():
+        a, v = m.sensors[role].T if role is not None else (np.full(m.times.size, -25.0),
+                                                          np.full(m.times.size, -2.0))
+        for suffix, value in (("px", -a), ("py", 0.2 + 0 * a), ("pz", v), ("ph", 0 * a), ("pt", 0 * a)):
+            names.append(f"{sensor}_{suffix}")
+            cols.append(value)
+    frames = np.column_stack([m.times, np.ones(m.times.size), *cols])
+    head = ["EST_File Track", "DataType binary", "ByteOrder 10", f"NumFrames {m.times.size}",
+            f"NumChannels {len(names)}", "NumAuxChannels 0", "EqualSpace 1", "BreaksPresent true"]
+    head += [f"Channel_{i} {c}" for i, c in enumerate(names)] + ["EST_Header_End"]
+    path.write_bytes(("\n".join(head) + "\n").encode("ascii") + frames.astype(">f4").tobytes())
+    return path
+
+
 def write_mocha_lab(path: Path, m: Motion) -> Path:
     """MOCHA-TIMIT .lab: `start end label` in seconds."""
     path.write_text("".join(f"{s:.4f} {e:.4f} {lab}\n"

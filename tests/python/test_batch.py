@@ -21,7 +21,8 @@ import pytest
 from typer.testing import CliRunner
 
 from coartic.batch import load_batch_spec
-from coartic.batch.run import is_done, plan_units, run_batch, unit_dir
+from coartic.batch.layout import is_done, unit_dir
+from coartic.batch.run import plan_units, run_batch
 from coartic.batch.tasks import UnitKey
 from coartic.cli import app
 from coartic.fit.spec import SpecError

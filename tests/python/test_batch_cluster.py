@@ -22,7 +22,8 @@ import pytest
 from typer.testing import CliRunner
 
 from coartic.batch import load_batch_spec
-from coartic.batch.run import ClusterError, Tls, cluster_security, run_batch, unit_dir
+from coartic.batch.layout import unit_dir
+from coartic.batch.run import ClusterError, Tls, cluster_security, run_batch
 from coartic.batch.tasks import UnitKey
 from coartic.cli import app
 from coartic.synthetic_cli import load_generator

@@ -74,3 +74,19 @@ def test_mistakes_are_named(trials: list) -> None:  # type: ignore[type-arg]
     with pytest.raises(TypeError, match="got ndarray"):
         Coarticulation().fit([np.zeros(3)])  # type: ignore[list-item]
     assert "not fitted" in repr(Coarticulation())
+
+
+@pytest.mark.slow
+def test_trials_from_a_manifest_and_a_spec_file(tmp_path) -> None:  # type: ignore[no-untyped-def]
+    """fit(manifest path) reads the recordings as a fit spec's [corpus] does; from_spec takes a file."""
+    from coartic.synthetic_cli import load_generator
+
+    manifest = load_generator().generate(tmp_path / "session", quick=True, progress=False, consonants=["p"])
+    model = Coarticulation(channels=["LLO"], staging=False, free=FREE).fit(manifest)
+    assert model.result_ is not None and model.result_.channels["LLO"].rmse < 0.3
+    assert model.score(manifest) == pytest.approx(model.result_.channels["LLO"].rmse, rel=1e-9)
+    spec = tmp_path / "spec.toml"
+    spec.write_text(f'[corpus]\nmanifest = "{manifest}"\n[model]\nchannels = ["LLO"]\n[parameters]\n'
+                    f'free = {FREE!r}\n[staging]\nenabled = false\n'.replace("'", '"'))
+    again = Coarticulation.from_spec(spec).fit(None)
+    assert again.table_ is not None and model.table_ is not None and again.table_.values == model.table_.values

@@ -82,7 +82,12 @@ def test_glb_reads_back_with_pygltflib(run: Path) -> None:
     faps = read_fap(run / "base.fap")
     names, _, expected = split_signs(TARGET_NAMES, rig.targets, rig.weights(faps))
     assert mesh.extras["targetNames"] == names
-    assert names[:3] == ["lower_t_midlip", "lower_t_midlip_neg", "raise_b_midlip"] and len(names) == 47
+    assert names[:3] == ["lower_t_midlip", "lower_t_midlip_neg", "raise_b_midlip"]
+    # every signed field twice, the four turns' 1 - cos θ once
+    assert len(names) == 2 * len(TARGET_NAMES) - 4 and "raise_tongue_tip" in names and "close_t_l_eyelid_sin" in names
+    for p in mesh.primitives:  # smooth normals, unit length
+        normals = accessor_array(g.to_dict(), g.binary_blob(), p.attributes.NORMAL)
+        np.testing.assert_allclose(np.linalg.norm(normals, axis=1), 1.0, atol=1e-5)
     assert all(len(p.targets) == len(names) for p in mesh.primitives)
     (anim,) = g.animations
     (channel,) = anim.channels

@@ -12,13 +12,14 @@ from coartic.face.deform import (
     LIP_FAPS,
     TARGET_NAMES,
     TARGET_VALUE,
+    TONGUE_ZONES,
     ZONES,
     FaceRig,
     build_rig,
     held_values,
     raised_cosine,
 )
-from coartic.face.mesh import PART_NAMES, build_face
+from coartic.face.mesh import EYE_X, PART_NAMES, build_face, eye_centre, min_angles
 from coartic.io.labels import Segments
 from coartic.runtime.animate import animate, neutral_posture, target_times
 from coartic.runtime.fap import N_FAPS, FapSequence, channels_to_faps
@@ -59,11 +60,14 @@ def test_mesh_is_a_closed_mouth_face(rig: FaceRig) -> None:
     np.testing.assert_array_equal(m.vertices[m.slit[:, 0]], m.vertices[m.slit[:, 1]])
     assert 25.0 < m.mns < 35.0 and 40.0 < m.mw < 60.0
     assert m.upper[m.slit[:, 0]].all() and not m.upper[m.slit[:, 1]].any()
-    # teeth and mouth cavity lie behind the skin (hidden while the lips are closed)
+    # teeth, gums, tongue and mouth cavity lie behind the skin (hidden while the lips are closed)
     from coartic.face.mesh import skin_depth
-    for part in ("upper_teeth", "lower_teeth", "cavity"):
+    for part in ("upper_teeth", "lower_teeth", "cavity", "tongue"):
         v = m.vertices[m.in_part(part)]
-        assert (skin_depth(v[:, 0], v[:, 1]) - v[:, 2]).min() > 3.0, part
+        assert (skin_depth(v[:, 0], v[:, 1]) - v[:, 2]).min() > 1.5, part
+    # the lips have thickness: their inner surfaces run 7-11 mm back from the lip line
+    inner = m.in_part("skin") & (m.vertices[:, 2] < skin_depth(m.vertices[:, 0], m.vertices[:, 1]) - 1.0)
+    assert inner.sum() > 100 and (skin_depth(np.zeros(1), np.zeros(1))[0] - m.vertices[inner, 2]).max() > 7.0
     # deterministic: the same face every time
     np.testing.assert_array_equal(build_face().vertices, m.vertices)
 
@@ -73,7 +77,7 @@ def test_single_feature_point_zone_is_the_raised_cosine(rig: FaceRig) -> None:
     m = rig.mesh
     zone = next(z for z in ZONES if z.fap == 17)
     value = 400
-    d = displaced(rig, {17: value})
+    d = rig.targets[TARGET_NAMES.index("push_t_lip")] * value / TARGET_VALUE  # its field alone (no rounding)
     fp = m.vertices[m.feature_points[zone.point]]
     dist = np.linalg.norm(m.vertices - fp, axis=1)
     expected = value * rig.fapu(17) * raised_cosine(dist, zone.d_max)
@@ -202,3 +206,109 @@ def test_the_readme_sentence_closes_every_p_b_m(rig: FaceRig, tmp_path: Path, st
     for i, ph in enumerate(segs.labels):
         if ph == "a":
             assert gaps[frames[i], gaps.shape[1] // 2] > 3.0, f"/a/ at frame {frames[i]}"
+
+
+def test_no_slivers_and_a_closed_head(rig: FaceRig) -> None:
+    """Every triangle of every part has all its angles >= 8.5 degrees (the old mask had 318 slivers,
+    down to 0.2 degrees); the skull is a closed surface (every edge shared by two triangles)."""
+    m = rig.mesh
+    for name, tris in m.triangles.items():
+        angles = min_angles(m.vertices, tris)
+        assert angles.min() >= 8.5, f"{name}: a triangle with a {angles.min():.1f} degree angle"
+    skull = m.triangles["skull"]
+    first = int(np.flatnonzero(m.in_part("skull"))[0])
+    head = skull[(skull < first + 642).all(axis=1)]  # the subdivided icosahedron, without the neck
+    assert head.shape[0] == 1280
+    edges = np.sort(np.concatenate([head[:, [0, 1]], head[:, [1, 2]], head[:, [2, 0]]]), axis=1)
+    _, counts = np.unique(edges, axis=0, return_counts=True)
+    assert (counts == 2).all()
+    # normals are consistent: the skull's all point away from the head's centre
+    p = m.vertices[skull]
+    n = np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0])
+    assert ((n * (p.mean(axis=1) - np.array([0.0, 40.0, 0.0]))).sum(axis=1) > 0).mean() > 0.95
+
+
+def pipeline_faps(tmp_path: Path, labels: str, table: Path = GROUND_TRUTH) -> tuple[FapSequence, list[int], list[str]]:
+    """FAPs of `labels` (TSV text) through coartic animate's pipeline, and the target frame of each
+    segment (of LLO) with its label."""
+    from coartic.runtime.pipeline import animate_file
+
+    (tmp_path / "u.tsv").write_text(labels)
+    t = ParameterTable.load(table)
+    out = animate_file(tmp_path / "u.tsv", t, tmp_path / "out", preview="none")
+    segs = out.animation.segments
+    frames = np.rint(target_times(t, segs, "LLO") * out.faps.fps).astype(int).tolist()
+    return out.faps, frames, list(segs.labels)
+
+
+AFATAKA = ("start\tend\tlabel\n0.0\t0.20\t#\n0.20\t0.36\ta\n0.36\t0.48\tf\n0.48\t0.64\ta\n0.64\t0.74\tt\n"
+           "0.74\t0.90\ta\n0.90\t1.00\tk\n1.00\t1.16\ta\n1.16\t1.36\tl\n1.36\t1.50\ta\n1.50\t1.70\t#\n")
+
+
+def test_f_tucks_the_lower_lip_under_the_upper_incisors(rig: FaceRig, tmp_path: Path) -> None:
+    """At /f/ the lower lip rolls in (pulled back 2.5 mm and up 1 mm by the table): its inner edge
+    goes behind the upper incisors' labial face, above their edge, and touches the edge. At /a/ it
+    is centimetres away."""
+    faps, frames, labels = pipeline_faps(tmp_path, AFATAKA)
+    pose = rig.pose(rig.weights(faps))
+    m = rig.mesh
+    teeth = m.in_part("upper_teeth")
+    central = teeth & (np.abs(m.vertices[:, 0]) < 4.0)
+    edge = central & (m.vertices[:, 1] < m.vertices[central, 1].min() + 0.3)
+    lip = m.in_part("skin") & ~m.upper & (np.abs(m.vertices[:, 0]) < 4.0)
+    for ph in ("f", "a"):
+        k = frames[labels.index(ph)]
+        inner = pose[k, m.feature_points["2.3"]]
+        gap = np.linalg.norm(pose[k, lip][:, None] - pose[k, edge][None], axis=2).min()
+        if ph == "f":
+            assert inner[2] < pose[k, edge, 2].max() - 2.0  # behind the incisors' labial face
+            assert inner[1] > pose[k, edge, 1].max()  # above their edge
+            assert gap < 1.0, gap  # in contact (within a millimetre)
+        else:
+            assert gap > 8.0, gap
+
+
+def test_tongue_faps_move_the_tongue_and_touch_at_t_and_k(rig: FaceRig, tmp_path: Path) -> None:
+    """Each tongue FAP moves its feature point by exactly its value (relative to the jaw); the
+    default tongue (the ground truth has no tongue channels) touches the upper teeth's back at /t/
+    and /l/ and the roof of the mouth at /k/, and is far from both at /a/."""
+    m = rig.mesh
+    for fap, (point, direction, _) in TONGUE_ZONES.items():
+        d = displaced(rig, {fap: 300, JAW_FAP: 0})
+        np.testing.assert_allclose(d[m.feature_points[point]], 300 * rig.fapu(fap) * direction, atol=1e-9)
+        assert np.abs(d[~m.in_part("tongue")]).max() == 0.0
+    # on an open jaw, raise_tongue_tip 0 keeps the tip where it was in the head
+    assert np.abs(displaced(rig, {JAW_FAP: 300, 44: 0, 45: 0})[m.feature_points["6.1"], 1:]).max() < 1e-9
+    faps, frames, labels = pipeline_faps(tmp_path, AFATAKA)
+    assert faps.mask[:, [42, 43, 44, 45, 46]].all()
+    pose = rig.pose(rig.weights(faps))
+    upper_teeth, roof = m.in_part("upper_teeth"), m.in_part("cavity") & (m.vertices[:, 1] > 5.0)
+
+    def gap(k: int, point: str, part: np.ndarray) -> float:
+        return float(np.linalg.norm(pose[k, part] - pose[k, m.feature_points[point]], axis=1).min())
+
+    assert gap(frames[labels.index("t")], "6.1", upper_teeth) < 2.0
+    assert gap(frames[labels.index("l")], "6.1", upper_teeth) < 2.0
+    assert gap(frames[labels.index("k")], "6.2", roof) < 2.0
+    a = frames[labels.index("a")]
+    assert gap(a, "6.1", upper_teeth) > 10.0 and gap(a, "6.2", roof) > 10.0
+
+
+def test_blinks_close_the_eyes(rig: FaceRig, tmp_path: Path) -> None:
+    """The FAP stream blinks (FAPs 19, 20): at a blink's peak the upper lids' edges are below the
+    pupils; between blinks they are above the irises."""
+    from coartic.runtime.fap import BLINK_FIRST_S, BLINK_SHAPE_S
+
+    faps, _, _ = pipeline_faps(tmp_path, AFATAKA.replace("1.50\t1.70\t#", "1.50\t3.00\t#"))
+    assert faps.mask[:, 18:20].all()
+    pose = rig.pose(rig.weights(faps))
+    peak = int(round((BLINK_FIRST_S + BLINK_SHAPE_S[0] + BLINK_SHAPE_S[1] / 2) * faps.fps))
+    assert faps.values[peak, 18] > 1000 and faps.values[0, 18] == 0
+    for side, fp in (("l", "3.1"), ("r", "3.2")):
+        pupil = eye_centre(EYE_X if side == "l" else -EYE_X)[1]
+        assert pose[peak, m_fp(rig, fp), 1] < pupil - 5.0
+        assert pose[0, m_fp(rig, fp), 1] > pupil + 3.0
+
+
+def m_fp(rig: FaceRig, fp: str) -> int:
+    return rig.mesh.feature_points[fp]

@@ -3,7 +3,9 @@ on a tiny corpus, and the flag raised when a table does not beat the step model.
 
 from __future__ import annotations
 
+import json
 import math
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -131,3 +133,58 @@ def test_validation_and_compare_flags() -> None:
     row = Row("m", "LA", 3, 100, 1.0, 0.1, 2.0, 1.9, "converged", {"step": (1.5, 1.2)})
     assert not row.beats_step and row.as_dict()["beats_step_model"] is False
     assert row.as_dict()["heldout_step_rmse_mm"] == 1.5 and math.isnan(row.as_dict()["heldout_warped_rmse_mm"])
+
+
+def test_fit_validate_writes_the_baselines_into_summary_report_and_csv(tmp_path: Path) -> None:
+    from coartic.fit import run
+    from coartic.fit.simulate import vcv_utterances
+    from coartic.fit.spec import parse_spec
+
+    utts = vcv_utterances(np.random.default_rng(2), repetitions=2, rates={"normal": 1.0}, noise=0.1)
+    raw = {"corpus": {"files": ["x"], "labels": ["y"]}, "model": {"channels": ["LLO"]},
+           "parameters": {"free": ["target"]}, "staging": {"enabled": False}, "validate": {"holdout_repetition": 2}}
+    res = run(parse_spec(raw, tmp_path / "spec.toml"), tmp_path / "out", utterances=utts, validate=True,
+              quiet=True, report=True)
+    assert res.validation and set(res.validation[0].baselines) == {"constant", "step", "warped"}
+    summary = json.loads((tmp_path / "out" / "summary.json").read_text())
+    split = summary["validation"]["splits"][0]
+    assert split["split"] == "repetition 2 held out" and {"table", "step", "constant", "warped"} <= set(split)
+    assert split["beats_step_model"] is True and summary["validation"]["flags"] == []
+    assert "[[Validation]]" in (tmp_path / "out" / "fit_report.txt").read_text()
+    html = (tmp_path / "out" / "report.html").read_text()
+    assert "beats the step model" in html and "Worse than the step model" not in html
+    header = (tmp_path / "out" / "validation" / "validation.csv").read_text().splitlines()[0]
+    assert "warped_rmse_mm" in header and header.endswith("beats_step_model")
+    # a table worse than the step model: flagged in the report
+    from coartic.report.html import write_report
+
+    res.validation[0].test_rmse = 99.0
+    write_report(res, tmp_path / "out")
+    html = (tmp_path / "out" / "report.html").read_text()
+    assert "Worse than the step model: repetition 2 held out: LLO: the table does not beat the step model" in html
+
+
+def test_compare_reports_the_step_model_held_out(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    import coartic.fit.runner as runner
+    from coartic.fit.compare import compare
+    from coartic.fit.simulate import vcv_utterances
+    from coartic.fit.spec import parse_spec
+
+    utts = vcv_utterances(np.random.default_rng(2), repetitions=2, rates={"normal": 1.0}, noise=0.1)
+    real_run = runner.run
+
+    def run_on_vcv(spec, out=None, **kw):  # type: ignore[no-untyped-def]
+        kw.setdefault("utterances", utts)  # the specs' corpus: these utterances, not files
+        return real_run(spec, out, **kw)
+
+    monkeypatch.setattr(runner, "run", run_on_vcv)
+    raw = {"corpus": {"files": ["x"], "labels": ["y"]}, "model": {"channels": ["LLO"]},
+           "parameters": {"free": ["target"]}, "staging": {"enabled": False}, "validate": {"holdout_repetition": 2}}
+    cmp = compare([parse_spec(raw, tmp_path / "spec.toml")], tmp_path / "out")
+    row = cmp.rows[0]
+    assert set(row.baselines) == {"constant", "step", "warped"} and row.beats_step
+    assert row.heldout_rmse < row.baselines["step"][0] < row.baselines["constant"][0]
+    header = (tmp_path / "out" / "compare.csv").read_text().splitlines()[0]
+    assert "heldout_step_rmse_mm" in header and "beats_step_model" in header
+    assert "step model (held out)" in (tmp_path / "out" / "compare.html").read_text()
+    assert "step " in (tmp_path / "out" / "compare.txt").read_text()

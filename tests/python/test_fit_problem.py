@@ -117,17 +117,12 @@ def test_best_point_tracked(utts) -> None:  # type: ignore[no-untyped-def]
     assert s1 < s0 and p.best_sse == pytest.approx(s1) and np.array_equal(p.best_x, x1)
 
 
-def test_a_refused_start_value_is_named_by_its_spec_key_and_phoneme(utts) -> None:  # type: ignore[no-untyped-def]
-    from coartic.fit.engines import prepare_start
-
-    p = build_problem(spec(parameters={"start": {"alpha": float("nan")}}), utts, "LLO", phonemes=PHONEMES)
-    _, res = prepare_start(p, p.packing.pack())
-    assert res is not None and res.status == "non-finite start"
-    first = PHONEMES[0] if PHONEMES[0] != "a" else PHONEMES[1]  # the reference phoneme's alpha is 1
-    assert res.message.endswith(
-        f"[parameters.start] alpha = nan for phoneme {first!r} on channel LLO: the value is not finite"), res.message
-    p = build_problem(spec(override=[{"phonemes": ["p"], "fixed": {"theta_fw": -3.0}}]), utts, "LLO",
-                      phonemes=PHONEMES)
-    p.residuals(p.packing.pack())
-    assert p.last_error == ("[override #1.fixed] theta_fw = -3.0 for phoneme 'p' on channel LLO: "
-                            "the value is outside its domain > 0")
+def test_a_refused_start_value_is_named_by_its_spec_key_and_phoneme() -> None:
+    # refused where the spec is read (it used to reach the engines, which named the key in prose)
+    with pytest.raises(SpecError, match=r"\[parameters.start.alpha\] expected a number, got nan") as e:
+        spec(parameters={"start": {"alpha": float("nan")}})
+    assert e.value.key == "parameters.start.alpha"
+    with pytest.raises(SpecError, match=r"\[override #1.fixed.theta_fw\] theta_fw = -3 \(of p\) is outside "
+                                        r"\(0, inf\), the model's domain of theta_fw") as e:
+        spec(override=[{"phonemes": ["p"], "fixed": {"theta_fw": -3.0}}])
+    assert e.value.key == "override #1.fixed.theta_fw"

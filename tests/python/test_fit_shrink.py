@@ -206,7 +206,8 @@ def test_a_choice_without_folds_is_refused_naming_choose(tmp_path: Path, utts: l
     s = spec_of(tmp_path, shrink=[{"phonemes": ["p", "t"], "parameters": ["target"], "sd": 1.0}],
                 choose={"key": "shrink.sd", "values": [1.0, 0.1], "group": "repetition"})
     one = [u for u in utts if u.meta["repetition"] == "1"]
-    with pytest.raises(SpecError, match=r"\[choose\] group = 'repetition', in 4 training utterances: .*only one repetition"):
+    with pytest.raises(SpecError, match=r"\[choose\] group = 'repetition': the 4 training utterance\(s\) form 1 "
+                                        r"repetition group.*set the value in the spec"):
         run(s, utterances=one, quiet=True)
 
 

@@ -114,6 +114,20 @@ def test_est_reader_details(tmp_path: Path) -> None:
         load_trial(asc)
 
 
+def test_est_mngu0_style_is_3d_in_mm(tmp_path: Path) -> None:
+    m = ff.motion(200.0)
+    t = load_trial(ff.write_mngu0_est(tmp_path / "mngu0_s1_0001.ema", m))
+    assert t.marker_names == ("T1", "T2", "T3", "jaw", "upperlip", "lowerlip")
+    assert t.planar_axis is None and "positions read in mm" in " ".join(t.meta["notes"])
+    assert dict(t.roles.roles) == {"UL": "upperlip", "LL": "lowerlip", "JAW": "jaw", "TT": "T1",
+                                   "TB": "T3"}
+    assert "up = +z, forwards = -x" in " ".join(t.meta["notes"])
+    ch = t.channels()
+    want = _expected(m, t.rest_frames())
+    for c in ("LA", "ULO", "TTH", "TBA"):
+        np.testing.assert_allclose(ch[c], want[c], atol=1e-4, err_msg=c)
+
+
 def test_txy_reader_details(tmp_path: Path) -> None:
     m = ff.xrmb_motion()
     p = ff.write_txy(tmp_path / "tp002.txy", m, lost={"LL": (0, 1), "T3": (50,)})
@@ -265,3 +279,72 @@ def test_inspect_fit_and_score_read_every_format(files, tmp_path: Path) -> None:
     r = CliRunner().invoke(app, ["score", str(out / "table.json"), *rec, *lab], env=COLUMNS)
     assert r.exit_code == 0, r.output
     assert "TTH" in r.output and "TBA" in r.output
+
+
+def test_registry_unknown_format_and_a_new_reader(tmp_path: Path) -> None:
+    from coartic.io.registry import Reader, ReadRequest, readers, register
+    from coartic.io.trial import Trial
+
+    p = tmp_path / "x.weird"
+    p.write_bytes(b"\x00\x01nothing known")
+    with pytest.raises(DataError, match=r"x\.weird: cannot tell the format of this file \(extension "
+                                        r"'\.weird'\); coartic reads C3D \(\.c3d\); .*MOCHA-TIMIT"):
+        load_trial(p)
+    names = [r.name for r in readers()]
+    assert {"c3d", "ema-csv", "markers-csv", "emu", "est", "xrmb", "mview"} <= set(names)
+    assert names.index("ema-csv") < names.index("markers-csv")  # the generic sniffer asks last
+
+    def read(path: Path, req: ReadRequest) -> tuple[Trial, None]:
+        m = np.zeros((3, 2, 3))
+        m[:, 1, 2] = -10.0
+        return Trial(m, ("UL", "LL"), 100.0, source=path, kind="ema", meta={"notes": []}), None
+
+    try:
+        register(Reader("weird", "weird test format", (".weird",), read))
+        t = load_trial(p)
+        assert t.marker_names == ("UL", "LL") and "sensors" not in " ".join(t.meta["notes"])
+    finally:
+        from coartic.io import registry
+
+        registry._READERS[:] = [r for r in registry._READERS if r.name != "weird"]
+
+
+def test_a_recorded_role_map_without_axes_keeps_the_formats_axes(files) -> None:  # type: ignore[no-untyped-def]
+    from types import SimpleNamespace
+
+    from coartic.io.roles import RoleMap
+
+    rec = RoleMap.from_dict({"UL": "ul", "LL": "ll", "JAW": "li", "TT": "tt"}).to_record()
+    assert "axes" not in rec  # the fit's map gave none: the guess applies again when scoring
+    table = SimpleNamespace(metadata={"role_map": rec}, source="t.json")
+    back = RoleMap.recorded(table)
+    assert back is not None and not back.axes_given
+    data, labels, lmap = files["mocha-binary"]
+    t = load_trial(data, labels=labels, label_map=lmap, role_map=back)
+    assert (t.roles.vertical, t.roles.anterior) == ("+y", "-x") and "LA" in t.channels()
+    given = RoleMap.from_dict({"UL": "ul", "axes": {"vertical": "+y", "anterior": "-x"}})
+    assert RoleMap.recorded(SimpleNamespace(metadata={"role_map": given.to_record()},
+                                            source="t.json")).axes_given  # type: ignore[union-attr]
+
+
+def test_c3d_of_ema_sensors_is_read_as_ema(tmp_path: Path) -> None:
+    import ezc3d
+
+    m = ff.motion(200.0)
+    names = ("UL", "LL", "JAW", "TT", "TB")
+    c = ezc3d.c3d()
+    c["parameters"]["POINT"]["RATE"]["value"] = [200.0]
+    c["parameters"]["POINT"]["LABELS"]["value"] = names
+    c["parameters"]["POINT"]["UNITS"]["value"] = ["mm"]
+    pts = np.ones((4, len(names), m.times.size))
+    for j, n in enumerate(names):  # x forwards, y lateral, z up
+        pts[0, j], pts[1, j], pts[2, j] = m.sensors[n][:, 0], 0.1, m.sensors[n][:, 1]
+    c["data"]["points"] = pts
+    c.write(str(tmp_path / "wave.c3d"))
+    t = load_trial(tmp_path / "wave.c3d")
+    notes = " ".join(t.meta["notes"])
+    assert t.kind == "ema" and "read as EMA sensors" in notes and "up = +z, forwards = +x" in notes
+    ch = t.channels()
+    want = _expected(m, t.rest_frames())
+    for c_ in ("LA", "LLO", "TTH", "TBA"):
+        np.testing.assert_allclose(ch[c_], want[c_], atol=1e-3, err_msg=c_)

@@ -190,3 +190,50 @@ def test_emu_bundle_fuzz(data: bytes) -> None:
 @given(data=_text_cases("aa\ta\tlong a\nQ\t=\n*\t=\n"))
 def test_label_map_fuzz(data: bytes) -> None:
     _only_data_error(data, ".tsv", LabelMap.from_file)
+
+
+def _fixture_bytes(write: Callable[[Path], Path]) -> bytes:
+    with tempfile.TemporaryDirectory() as d:
+        return write(Path(d)).read_bytes()
+
+
+def _read_quietly(p: Path) -> None:
+    import warnings
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # implausible values warn; only exceptions matter here
+        load_trial(p).channels()
+
+
+def _formats() -> dict[str, bytes]:
+    import format_fixtures as ff
+
+    m = ff.motion(50.0)
+    return {
+        ".ema": _fixture_bytes(lambda d: ff.write_mocha_est(d / "a.ema", m)),
+        ".est": _fixture_bytes(lambda d: ff.write_mocha_est(d / "a.est", m, binary=False)),
+        ".txy": _fixture_bytes(lambda d: ff.write_txy(d / "a.txy", m, lost={"T4": (2,)})),
+        ".mat": _fixture_bytes(lambda d: ff.write_mview(d / "a.mat", m, audio_rate=100.0)),
+        "lab.csv": _fixture_bytes(lambda d: ff.write_lab_csv(d / "a.csv", m, planar=True)),
+    }
+
+
+FORMATS = _formats()
+
+
+@pytest.mark.parametrize("suffix", sorted(FORMATS))
+def test_corpus_formats_fuzz(suffix: str) -> None:
+    # the header (text) is kept intact in part of the cases so that the frames are reached
+    @FUZZ
+    @given(data=st.one_of(mutated(FORMATS[suffix]), mutated(FORMATS[suffix], protect=200),
+                          st.binary(max_size=600)))
+    def fuzz(data: bytes) -> None:
+        _only_data_error(data, suffix if suffix != "lab.csv" else ".csv", _read_quietly)
+
+    fuzz()
+
+
+@FUZZ
+@given(data=_text_cases("0 3050 h#\n3050 4559 sh\n4559 5723 ix\n"))
+def test_timit_phn_fuzz(data: bytes) -> None:
+    _only_data_error(data, ".phn", lambda p: LabelMap.builtin("timit").apply(read_labels(p)))

@@ -164,6 +164,7 @@ def test_inference_data_and_dataframe_from_the_library_function(fitted: tuple[Pa
     assert az.summary(idata, var_names=["theta"]).shape[0] == 6  # ArviZ's own tools read it
     index = json.loads((out / "mcmc.json").read_text())
     assert index[0]["inference_data"] == "LLO/p/posterior.nc"
+    assert not list((out / "LLO" / "p").glob(".posterior.tmp-*"))  # written aside, then renamed
 
     df = result.to_dataframe()
     assert isinstance(df, pd.DataFrame) and len(df) == 6

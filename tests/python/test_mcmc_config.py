@@ -6,7 +6,8 @@ from pathlib import Path
 
 import pytest
 
-from coartic.mcmc.run import McmcConfigError, parse_config, phoneme_dir, walkers_for
+from coartic.mcmc.errors import McmcConfigError
+from coartic.mcmc.run import parse_config, phoneme_dir, walkers_for
 
 SPEC = Path("fit/x.toml")
 

@@ -167,6 +167,24 @@ def test_empty_or_truncated_chunk_is_named(tmp_path: Path, damage: str) -> None:
         sampler.run(gaussian, ball, NAMES, tmp_path / "c", settings(max_steps=400), progress=False)
 
 
+def test_a_chunk_with_nan_positions_is_named_not_resumed(tmp_path: Path) -> None:
+    # issue 21: such a chunk used to end in emcee's message about condition numbers
+    from coartic.errors import CoarticError
+    from coartic.mcmc.errors import ChainError
+
+    sampler.run(gaussian, ball, NAMES, tmp_path / "c", settings(chunk_steps=100, min_steps=100, max_steps=200),
+                progress=False, stop_when_converged=False)
+    victim = tmp_path / "c" / "ens00_chunk00001.npz"
+    with np.load(victim) as z:
+        parts = {k: z[k] for k in z.files}
+    parts["chain"][3, 5, 1] = np.nan
+    np.savez(victim, **parts)
+    with pytest.raises(ChainError, match=r"ens00_chunk00001.npz: damaged chain chunk \(non-finite walker positions, "
+                                         r"the first at step 3, walker 5\); delete it to resume") as e:
+        sampler.run(gaussian, ball, NAMES, tmp_path / "c", settings(max_steps=400), progress=False)
+    assert isinstance(e.value, CoarticError)
+
+
 def test_chains_too_large_for_memory_are_refused_naming_the_keys() -> None:
     with pytest.raises(ValueError, match=r"max_steps = 1000000000 x walkers = 16 x ensembles = 2 .* lower \[mcmc\] max_steps"):
         settings(max_steps=10**9).validate(3)

@@ -185,3 +185,15 @@ def test_report_of_a_very_long_utterance_is_bounded(tmp_path: Path) -> None:
     assert plots.residual_time_figure(result, [utts[0].name]) is not None
     per = plots.phoneme_rmse(result.channels["LLO"])
     assert sum(n for _, n in per.values()) == len(utts[0].times)
+
+
+def test_an_at_bound_row_reads_in_one_line() -> None:
+    from coartic.report.html import one_line
+
+    assert one_line("k_R = 1: full resistance — the neighbours' R ends at /p/'s target time, so /p/ reaches "
+                    "its target exactly") == "full resistance"
+    assert one_line("θ_fw = 2000 s^-c, reach θ^(−1/c) = 0.5 ms from its target time with c_fw = 1 (θ is in s^-c: "
+                    "the box's 2000 allows reaches down to 0.5 ms at c = 1): the carry-over dominance of /z/ ends "
+                    "as fast as allowed after its target: little carry-over into the next segment") == \
+        "the carry-over dominance of /z/ ends as fast as allowed after its target"
+    assert one_line("Nothing to split here. Second sentence.") == "Nothing to split here"

@@ -339,7 +339,8 @@ def test_recorded_label_map_is_applied_by_trajectories_and_animate(tmp_path: Pat
     labels = tmp_path / "arpa.tsv"
     labels.write_text("0\t0.3\tsil\n0.3\t0.45\tAA1\n0.45\t0.53\tP\n0.53\t0.68\tIY0\n0.68\t0.9\tsil\n")
     a = animate_file(labels, table, tmp_path / "o", fps=25.0, preview="none").animation
-    assert a.segments.labels == ("#", "a", "p", "i", "#")
+    # the final pause's first FINAL_PAUSE_S is the model's pause, the rest a second one (held at rest)
+    assert a.segments.labels == ("#", "a", "p", "i", "#", "#")
 
 
 def test_table_without_runtime_channels_is_named(tmp_path: Path, labels: Path) -> None:

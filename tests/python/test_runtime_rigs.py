@@ -21,8 +21,10 @@ from coartic.runtime.animate import Animation, target_times
 from coartic.runtime.errors import AnimationError
 from coartic.runtime.exporters import parse_exports
 from coartic.runtime.pipeline import RuntimeOutput, animate_file, speaker_face
+from coartic.runtime.fap import animation_faps, blink_profile
 from coartic.runtime.rigs import (
     ARKIT_BASIS,
+    ARKIT_DRIVEN,
     ARKIT_NAMES,
     JAW_OPEN_MM,
     VISEMES,
@@ -74,10 +76,12 @@ def test_arkit_csv_and_json_carry_all_52_names(run: RuntimeOutput) -> None:
     np.testing.assert_array_equal(w, np.array([[float(x) for x in r[2:]] for r in rows[1:]]))
     assert w.min() >= 0.0 and w.max() <= 1.0
     # what coartic does not drive stays at 0; what it drives moves
-    driven = [ARKIT_NAMES.index(n) for n in ARKIT_BASIS]
+    driven = [ARKIT_NAMES.index(n) for n in ARKIT_DRIVEN]
     others = [k for k in range(52) if k not in driven]
     assert not w[:, others].any()
-    for name in ("jawOpen", "mouthPressLeft", "mouthRollLower", "mouthPucker", "mouthLowerDownLeft"):
+    # the blinks are the FAP file's: the same schedule (the first comes 0.6 s in)
+    np.testing.assert_array_equal(w[:, ARKIT_NAMES.index("eyeBlinkLeft")], blink_profile(run.animation.times))
+    for name in ("jawOpen", "mouthPressLeft", "mouthRollLower", "mouthPucker", "mouthLowerDownLeft", "eyeBlinkRight"):
         assert w[:, ARKIT_NAMES.index(name)].max() > 0.1, name
 
 
@@ -164,10 +168,37 @@ def test_rhubarb_cues_as_rhubarb_writes_them(run: RuntimeOutput) -> None:
 
 def test_a_phoneme_without_viseme_is_named(run: RuntimeOutput) -> None:
     anim = run.animation
-    odd = Animation(anim.fps, anim.times, anim.channels, anim.segments.with_labels(
-        ["#", "a", "p", "a", "f", "u", "l", "@@", "#"]), neutral=anim.neutral, table=anim.table)
+    labels = list(anim.segments.labels)
+    labels[labels.index("l")] = "@@"
+    odd = Animation(anim.fps, anim.times, anim.channels, anim.segments.with_labels(labels), neutral=anim.neutral,
+                    table=anim.table)
     with pytest.raises(AnimationError, match="'@@' has no Meta viseme"):
-        viseme_weights(odd, np.ones((anim.n_frames, len(anim.segments))) / len(anim.segments))
+        viseme_weights(odd)
+
+
+def test_long_utterances_take_the_nearby_segments(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """Shares from the segments within SHARE_MARGIN_S of a block of frames equal those from all of
+    them (to 1e-6), block by block: a long file costs frames x nearby segments."""
+    import coartic.runtime.animate as animate_mod
+    import coartic.runtime.rigs as rigs_mod
+
+    rng = np.random.default_rng(3)
+    phones = ["a", "p", "i", "f", "u", "t", "a", "m", "l", "s"]
+    t, rows = 0.0, ["0.0 0.3 #"]
+    t = 0.3
+    for k in range(60):  # 60 phones, about 6 s of speech
+        d = float(rng.uniform(0.06, 0.16))
+        rows.append(f"{t:.4f} {t + d:.4f} {phones[k % len(phones)]}")
+        t += d
+    rows.append(f"{t:.4f} {t + 0.3:.4f} #")
+    (tmp_path / "long.tsv").write_text("\n".join(rows) + "\n")
+    anim = animate_file(tmp_path / "long.tsv", ParameterTable.load(GROUND_TRUTH), tmp_path / "o", preview="none").animation
+    near = viseme_weights(anim)
+    assert anim.segment_shares("LLO", 0, 10)[:, 40:].max() == 0.0  # far segments are not computed
+    monkeypatch.setattr(animate_mod, "SHARE_MARGIN_S", 1e9)
+    monkeypatch.setattr(rigs_mod, "SHARE_FRAMES", 7)
+    every = viseme_weights(anim)
+    np.testing.assert_allclose(near, every, atol=1e-6)
 
 
 def test_export_names_are_checked() -> None:
@@ -202,12 +233,35 @@ def test_arkit_gltf_morph_set(run: RuntimeOutput) -> None:
     chin = rig.mesh.feature_points["2.1"]
     jaw = fields[names.index("jawOpen")]
     assert jaw[chin, 1] < -10.0  # mm: the chin drops
-    assert not fields[names.index("eyeBlinkLeft")].any()
+    assert not fields[names.index("eyeLookUpLeft")].any()
+    lid = fields[names.index("eyeBlinkLeft")]
+    assert np.linalg.norm(lid, axis=1).max() > 5.0  # the lid shuts (mm)
     # a Left/Right pair adds up to the symmetric movement, each side mostly on its own half
     left, right = fields[names.index("mouthStretchLeft")], fields[names.index("mouthStretchRight")]
     corner_l, corner_r = rig.mesh.feature_points["2.4"], rig.mesh.feature_points["2.5"]
     assert left[corner_l, 0] > 5.0 and abs(left[corner_r, 0]) < 1e-9
     assert right[corner_r, 0] < -5.0 and abs(right[corner_l, 0]) < 1e-9
+
+
+def test_arkit_face_follows_the_fap_face(run: RuntimeOutput) -> None:
+    """Posed by its ARKit weights, the ARKit-named face is where the FAP face is: the same lips,
+    jaw and blinks up to the linear blend of the jaw's, lids' and lower lip's turns and what a
+    blendshape cannot follow (the lip roll that fades as the lip opens). The tongue is left out:
+    ARKit has no shape for it inside the mouth."""
+    anim = run.animation
+    table = ParameterTable.load(GROUND_TRUTH)
+    rig = default_rig()
+    face = speaker_face(table)
+    names, fields = arkit_morphs(rig, anim.neutral, face)
+    fap_pose = rig.pose(rig.weights(animation_faps(anim, face, "x")))
+    ark_pose = rig.mesh.vertices + np.tensordot(arkit_weights(anim), fields, axes=(1, 0))
+    for part, within in (("skin", 5.5), ("lower_teeth", 1.0), ("eyelids", 2.0)):
+        sel = rig.mesh.in_part(part)
+        moved = np.linalg.norm(fap_pose[:, sel] - rig.mesh.vertices[sel], axis=2).max()
+        off = np.linalg.norm(fap_pose[:, sel] - ark_pose[:, sel], axis=2)
+        assert moved > 5.0, part  # a part that moves ...
+        assert off.max() < within, part  # ... and the ARKit face follows it (mm)
+        assert np.median(off.max(axis=1)) < 0.5 * within, part
 
 
 def test_three_js_retargets_the_arkit_glb_by_name(run: RuntimeOutput, tmp_path: Path) -> None:
@@ -260,3 +314,15 @@ new THREE.GLTFLoader().parse(buf, "", gltf => {{
     skin = min(meshes.values(), key=lambda m: m["lowest0"])
     assert skin["lowest1"] < skin["lowest0"] - 0.01
     assert skin["moved"] > 0.01
+
+
+def test_a_table_without_pause_is_named_before_any_export(tmp_path: Path) -> None:
+    from coartic.runtime.errors import MissingPhonemeError
+    from coartic.runtime.fap import FaceUnits
+
+    table = ParameterTable.load(GROUND_TRUTH)
+    del table.values["#"]
+    (tmp_path / "l.tsv").write_text("0 0.2 a\n0.2 0.3 p\n0.3 0.5 a\n")
+    with pytest.raises(MissingPhonemeError, match="has no pause phoneme '#': its targets are the neutral face"):
+        animate_file(tmp_path / "l.tsv", table, tmp_path / "o", preview="none", face=FaceUnits(30.0, 50.0),
+                     exports="arkit")

@@ -10,7 +10,7 @@ from typer.testing import CliRunner
 
 from coartic.cli import app
 from coartic.fit import run
-from coartic.fit.score import score_recordings, score_utterances, segment_of
+from coartic.fit.score import score_recordings, score_utterances
 from coartic.fit.simulate import PHONEMES, TRUTH, vcv_utterances
 from coartic.table import ParameterTable
 
@@ -44,7 +44,7 @@ def test_rmse_per_utterance_phoneme_channel_with_and_without_offsets() -> None:
     phon = {r["phoneme"] for r in sc.phoneme_rows()}
     assert phon == {"#", "a", "i", "p", "t", "l"}
     # every sample inside a segment is counted once, by the segment it lies in
-    seg = segment_of(utts[0])
+    seg = utts[0].sample_segments()
     assert seg[0] == 0 and seg[-1] == len(utts[0].labels) - 1
 
 
@@ -87,9 +87,11 @@ def test_score_command_writes_tables_and_figures(ema_fit: tuple[Path, float], tm
     other = EMA / "dfgspp_mo1_prosody_0024_ema.csv"
     res = CliRunner().invoke(app, ["score", str(table_path), str(other), "-l",
                                    str(EMA / "dfgspp_mo1_prosody_0024_Segment.tsv"), "--channels", "JO"])
-    # (m is scored as its bilabial fallback b; O has no fallback the table has): the corpus label named too
+    # (m, O, N are scored as their class's fallbacks b, a, n; /u/ has none the table has): the corpus
+    # label (German SAMPA U, line 9) named beside the phoneme
     assert res.exit_code == 2 and "Traceback" not in res.output
-    assert "corpus label 'O'" in " ".join(res.output.split()) and "has no 'O'" in " ".join(res.output.split())
+    said = " ".join(res.output.split())
+    assert "segment 8, corpus label 'U' (phoneme 'u'" in said and "has no 'u'" in said
     res = CliRunner().invoke(app, ["score", str(table_path), str(U20[0]), "--channels", "JO"])
     assert res.exit_code == 2 and "give its label file" in res.output
 
@@ -148,3 +150,21 @@ def test_score_falls_back_to_the_phonetic_class_unless_strict(ema_fit: tuple[Pat
     assert any("/b/ (scored as /p/)" in n for n in sc.notes)
     with pytest.raises(ValueError, match=r"corpus label 'b' \(phoneme 'b' by the label map"):
         score_recordings(other, [U20[0]], [U20[1]], channels=["JO"], strict=True)
+
+
+def test_baselines_from_the_recorded_spec_or_train(ema_fit: tuple[Path, float], tmp_path: Path) -> None:
+    table_path, _ = ema_fit
+    t = ParameterTable.load(table_path)
+    gone = tmp_path / "gone.toml"  # a spec whose corpus is no longer there
+    gone.write_text('[corpus]\nfiles = ["nothere.csv"]\nlabels = ["nothere.tsv"]\n[model]\nchannels = ["JO"]\n')
+    t.metadata["spec"] = str(gone)
+    moved = tmp_path / "moved.json"
+    t.save(moved)
+    sc = score_recordings(moved, [U20[0]], [U20[1]], channels=["JO"])
+    assert sc.baselines == {} and any(n.startswith("no baselines: the training corpus of") for n in sc.notes)
+    with pytest.raises(ValueError, match="nothere"):  # named by --train: its errors are the user's to see
+        score_recordings(moved, [U20[0]], [U20[1]], channels=["JO"], train=gone)
+    t.metadata["spec"] = str(tmp_path / "never.toml")
+    t.save(moved)
+    sc = score_recordings(moved, [U20[0]], [U20[1]], channels=["JO"])
+    assert any(n.startswith("no baselines: the table records no fit spec") for n in sc.notes)

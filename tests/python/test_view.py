@@ -130,18 +130,19 @@ def chromium() -> str:
         pytest.skip(str(err))
 
 
-def test_chromium_shows_lips_closed_at_p_b_m_and_open_at_a(run: Path, chromium: str, tmp_path: Path) -> None:
+def test_chromium_shows_lips_closed_at_m_and_open_at_a(run: Path, chromium: str, tmp_path: Path) -> None:
     page = write_page(run)
     table = ParameterTable.load(GROUND_TRUTH)
     segs = read_labels(run / "segments.tsv")
     frames = np.rint(target_times(table, segs, "LLO") * 25).astype(int)
     labels = list(segs.labels)
-    shown = {"p": frames[labels.index("p")], "m": frames[labels.index("m")], "a": frames[labels.index("a")]}
+    # /p/ and /a/ close up: test_chromium_shows_f_with_teeth_on_the_lip_and_u_narrowed
+    shown = {"m": frames[labels.index("m")], "a": frames[labels.index("a")]}
     opening = {}
     for ph, k in shown.items():
         png = screenshot(page, tmp_path / f"{ph}.png", frame=int(k), face_only=400, size=(400, 400))
         opening[ph] = mouth_opening(png)
-    assert opening["p"] == 0 and opening["m"] == 0, opening
+    assert opening["m"] == 0, opening
     assert opening["a"] >= 8, opening  # ~12 mm of opening is ~16 px here
     # the page ran without error and shows the frame asked for
     dom = subprocess.run([chromium, "--headless", "--no-sandbox", "--disable-gpu", "--use-angle=swiftshader",
@@ -211,3 +212,68 @@ def test_labels_of_a_long_utterance_stay_readable(tmp_path: Path, chromium: str)
         xs = sorted((x, w) for x, w, r in placed if r == row)
         assert all(a[0] + a[1] < b[0] for a, b in zip(xs, xs[1:])), f"labels overlap in row {row}"
     assert '<div id="error"></div>' in dom
+
+
+VISEMES = ("start\tend\tlabel\n0.0\t0.20\t#\n0.20\t0.36\ta\n0.36\t0.46\tp\n0.46\t0.62\ta\n0.62\t0.76\tf\n0.76\t0.92\ta\n"
+           "0.92\t1.12\tu\n1.12\t1.30\t#\n")
+
+
+def mouth_pixels(png: Path) -> dict[str, np.ndarray]:
+    """Masks of lip-coloured, tooth-coloured and dark (mouth cavity) pixels."""
+    img = np.asarray(Image.open(png).convert("RGB")).astype(int)
+    return {"lip": (img[..., 0] - img[..., 1] > 70) & (img[..., 0] > 100),
+            "teeth": (img.min(axis=-1) > 170) & (img.max(axis=-1) - img.min(axis=-1) < 45),
+            "dark": img.max(axis=-1) < 70}
+
+
+def test_chromium_shows_f_with_teeth_on_the_lip_and_u_narrowed(tmp_path: Path, chromium: str) -> None:
+    """Close-up screenshots (zoom 2.5, 400 x 400) at rest and at the target frames of /p f a u/:
+    /p/ shows no tooth and no dark pixel; /f/ shows the upper incisors with the lower lip right
+    under their edge in every central column (no dark gap: the lip is above the edge, behind the
+    teeth); /a/ shows teeth and the dark mouth; /u/ is visibly narrower than rest (the table's
+    LR). In profile, the lower lip's front is behind the upper lip's at /f/ and not at /p/."""
+    (tmp_path / "v.tsv").write_text(VISEMES)
+    out = tmp_path / "out"
+    res = CliRunner().invoke(app, ["animate", str(tmp_path / "v.tsv"), "-t", str(GROUND_TRUTH), "-o", str(out),
+                                   "--preview", "none", "--gltf"])
+    assert res.exit_code == 0, res.output
+    page = write_page(out)
+    table = ParameterTable.load(GROUND_TRUTH)
+    segs = read_labels(out / "segments.tsv")
+    frames = np.rint(target_times(table, segs, "LLO") * 25).astype(int)
+    labels = list(segs.labels)
+    shots = {"rest": 0} | {ph: int(frames[labels.index(ph)]) for ph in ("p", "f", "a", "u")}
+    px = {ph: mouth_pixels(screenshot(page, tmp_path / f"{ph}.png", frame=k, face_only=400, size=(400, 400),
+                                      zoom=2.5)) for ph, k in shots.items()}
+    ys, xs = np.nonzero(px["rest"]["lip"])
+    x0, x1 = int(xs.min()), int(xs.max())
+    centre = slice((2 * x0 + x1) // 3, (x0 + 2 * x1) // 3)  # the central third of the mouth
+    rows = slice(int(ys.min()) - 20, int(ys.max()) + 40)
+    for ph in ("rest", "p"):
+        assert px[ph]["teeth"][rows, centre].sum() == 0 and px[ph]["dark"][rows, centre].sum() == 0, ph
+    f = px["f"]
+    assert f["teeth"][rows, centre].sum() > 150  # the upper incisors show
+    assert f["dark"][rows, centre].sum() == 0
+    under = 0
+    for x in range(centre.start, centre.stop):
+        teeth = np.flatnonzero(f["teeth"][:, x])
+        if teeth.size:
+            below = f["lip"][teeth.max() + 1:teeth.max() + 4, x]
+            under += bool(below.any())
+    assert under >= 0.9 * sum(bool(f["teeth"][:, x].any()) for x in range(centre.start, centre.stop))
+    a = px["a"]
+    assert a["teeth"][rows, centre].sum() > 500 and a["dark"][rows].sum() > 200
+    # /u/'s LR is 45 mm against 50 at rest in this table, 90 %; the lip colour reaching a little
+    # past the corners makes the ratio of pixel widths closer to 1 (93 % measured)
+    width = {ph: int(np.ptp(np.nonzero(px[ph]["lip"][rows])[1])) for ph in ("rest", "u")}
+    assert table.values["u"]["LR"]["target"] / table.values["#"]["LR"]["target"] == 0.9
+    assert width["u"] <= 0.95 * width["rest"], width
+    # in profile the lower lip's front sits back behind the upper lip's at /f/ (tucked in), not at /p/
+    setback = {}
+    for ph in ("p", "f"):
+        lip = mouth_pixels(screenshot(page, tmp_path / f"{ph}_profile.png", frame=shots[ph], face_only=400,
+                                      size=(400, 400), zoom=2.5, yaw=90.0))["lip"]
+        ys, xs = np.nonzero(lip)
+        mid = (ys.min() + ys.max()) // 2
+        setback[ph] = int(xs[ys >= mid].min() - xs[ys < mid].min())  # the face looks left
+    assert setback["f"] - setback["p"] >= 5, setback

@@ -23,6 +23,7 @@ from typing import TYPE_CHECKING, Any
 import jinja2
 import numpy as np
 
+from coartic.batch.layout import is_done, land_dir, unit_dir
 from coartic.batch.spec import BatchSpec
 from coartic.batch.tasks import UnitKey
 from coartic.fit.result import BAR_MM
@@ -102,7 +103,6 @@ def assemble(out: Path, dirs: Sequence[Path], target: Path, source: str,
     """Write the group's (or pooled) files into ``target`` from its units' folders; with
     ``posterior_dirs`` (one per channel: the posterior unit's folder, or the fit's where the
     channel has no posteriors) also ``table_mcmc.json``/``.csv``, the table with the quantiles."""
-    from coartic.batch.run import land_dir
 
     tables = [ParameterTable.load(d / "table.json") for d in dirs]
     table = merge_tables(tables, source)
@@ -135,7 +135,6 @@ def _rmse_all(unit: Path) -> tuple[float, int]:
 
 
 def rmse_rows(spec: BatchSpec, out: Path) -> list[dict[str, Any]]:
-    from coartic.batch.run import is_done, unit_dir
 
     rows = []
     for name in [*spec.group_names, *([None] if spec.pooled else [])]:
@@ -284,7 +283,6 @@ the posterior quantiles: <code>groups/&lt;group&gt;/table_mcmc.json</code>.</p>{
 def write_outputs(spec: BatchSpec, out: Path, outcome: BatchOutcome, report: bool = True) -> None:
     """The per-group and pooled tables of every complete group, the summary files and (``report``)
     the figures and report.html."""
-    from coartic.batch.run import is_done, land_dir, unit_dir
 
     tables: dict[str, ParameterTable] = {}
     missing: list[str] = []

@@ -26,7 +26,6 @@ import json
 import logging
 import os
 import shutil
-import tempfile
 import time
 from collections import defaultdict
 from collections.abc import Callable, Iterator
@@ -37,6 +36,7 @@ from typing import Any
 from rich.console import Console
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
+from coartic.batch.layout import UNIT_FILE, is_done, land_dir, unit_dir
 from coartic.batch.spec import BatchSpec
 from coartic.batch.tasks import UnitFailed, UnitKey, UnitOutput, fit_unit, load_group, posterior_unit
 from coartic.console import LineProgress
@@ -44,7 +44,6 @@ from coartic.errors import CoarticError
 from coartic.fit.problem import Utterance
 from coartic.outputs import DeferredSignals, OutputDir
 
-UNIT_FILE = "unit.json"
 
 
 class ClusterError(CoarticError, ValueError):
@@ -75,43 +74,6 @@ def plan_units(spec: BatchSpec) -> list[UnitKey]:
         keys += [UnitKey(None, ch) for ch in spec.channels]
     keys += [UnitKey(g.name, ch, "posterior") for g in spec.groups for ch in spec.posterior_channels]
     return keys
-
-
-def unit_dir(out: Path, key: UnitKey) -> Path:
-    # "_pooled" cannot be a group's name (spec.GROUP_NAME starts with a letter or digit).
-    tree = "units" if key.kind == "fit" else "posteriors"
-    return out / tree / (key.group if key.group is not None else "_pooled") / key.channel
-
-
-def is_done(out: Path, key: UnitKey) -> bool:
-    return (unit_dir(out, key) / UNIT_FILE).is_file()
-
-
-# ----------------------------------------------------------------------------- the output folder
-
-
-def land_dir(target: Path, files: dict[str, bytes]) -> None:
-    """Put ``files`` into the folder ``target`` whole: written into a temporary sibling folder,
-    fsynced, then renamed; an existing ``target`` (an earlier assembly) is swapped out first."""
-    target.parent.mkdir(parents=True, exist_ok=True)
-    tmp = Path(tempfile.mkdtemp(prefix=f".{target.name}.tmp-", dir=target.parent))
-    try:
-        for name, data in files.items():
-            (tmp / name).parent.mkdir(parents=True, exist_ok=True)  # a posterior's chains sit in sub-folders
-            with open(tmp / name, "wb") as f:
-                f.write(data)
-                f.flush()
-                os.fsync(f.fileno())
-        if target.exists():
-            old = Path(tempfile.mkdtemp(prefix=f".{target.name}.old-", dir=target.parent))
-            os.rename(target, old / target.name)
-            os.rename(tmp, target)
-            shutil.rmtree(old)
-        else:
-            os.rename(tmp, target)
-    except BaseException:
-        shutil.rmtree(tmp, ignore_errors=True)
-        raise
 
 
 def output_dir(spec: BatchSpec, out: Path, force: bool = False) -> OutputDir:

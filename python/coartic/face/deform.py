@@ -31,7 +31,8 @@ from functools import lru_cache
 import numpy as np
 from numpy.typing import NDArray
 
-from coartic.face.mesh import JAW_PIVOT, MOUTH_HALF_WIDTH, FaceMesh, build_face
+from coartic.face.mesh import (EYE_RADIUS, EYE_X, JAW_PIVOT, LID_OPEN_ELEVATION, MOUTH_HALF_WIDTH, FaceMesh, build_face,
+                               eye_centre, skin_depth)
 from coartic.runtime.errors import AnimationError
 from coartic.runtime.fap import FAP_NAMES, MW_FAPS, N_FAPS, FapSequence
 
@@ -89,10 +90,44 @@ ZONES: tuple[FapZone, ...] = (
     _z(60, "8.4", Y, "lower", "lower_y", _VERTICAL),
 )
 LIP_FAPS: tuple[int, ...] = tuple(sorted({z.fap for z in ZONES}))
+# The tongue (ISO/IEC 14496-2 FAPs 43-47): feature point, direction, and how far along the tongue
+# from that point the movement reaches (mm, raised cosine). 43 and 45 are in MW, 44 and 46 in MNS;
+# tongue_roll (47, angle units of 1e-5 rad) lifts both borders (6.3, 6.4) about the midline.
+TONGUE_ZONES: dict[int, tuple[str, NDArray[np.float64], float]] = {
+    43: ("6.1", -X, 16.0),  # shift_tongue_tip: to the face's right
+    44: ("6.1", Y, 16.0),  # raise_tongue_tip
+    45: ("6.1", Z, 22.0),  # thrust_tongue_tip
+    46: ("6.2", Y, 20.0),  # raise_tongue
+}
+TONGUE_ROLL = 47
+TONGUE_FAPS: tuple[int, ...] = (43, 44, 45, 46, TONGUE_ROLL)
+# tongue_roll's target is the tongue rolled by this many angle units (0.5 rad), not 1024 (0.01 rad)
+TONGUE_ROLL_TARGET = 50000.0
 # FAPs whose feature point rides on the jaw: applied relative to it (module docstring).
 LOWER_LIP_FAPS: frozenset[int] = frozenset(z.fap for z in ZONES if z.region == "lower" and z.point in
                                            ("2.3", "2.8", "2.9", "8.2", "8.7", "8.8"))
-TARGET_NAMES: tuple[str, ...] = (*(FAP_NAMES[f - 1] for f in LIP_FAPS), "open_jaw_sin", "open_jaw_1mcos")
+ON_JAW_FAPS: frozenset[int] = LOWER_LIP_FAPS | {44, 45, 46}
+# Eyelids: close_t_l_eyelid (19) and close_t_r_eyelid (20) turn the upper lid down about the eye's
+# centre, in IRISD (iris diameter / 1024) of the lid's edge midpoint 3.1 / 3.2.
+LID_FAPS: dict[int, tuple[str, str]] = {19: ("l", "3.1"), 20: ("r", "3.2")}
+# A lower lip pulled back and up rolls in (its inner edge goes back and down, behind the upper
+# incisors, as at /f v/): at ROLL_MAX when it is ROLL_FULL_MM behind rest and not lowered, none
+# once it has dropped ROLL_OPEN_MM from the upper lip's level (an open mouth does not roll its lip).
+ROLL_MAX = math.radians(55.0)
+ROLL_FULL_MM = 2.0
+ROLL_OPEN_MM = 3.0
+ROLL_CENTRE = (-6.0, -2.5)  # (y, z from the lip line) of the roll's axis, inside the lower lip
+# Protruded lips round (orbicularis oris): per mm the lips push forward (mean of FAPs 16 and 17),
+# their lateral halves bunch towards the midline, the slit closes at the sides (the opening becomes
+# an oval) and the inner lip surfaces turn out. The corners stay where FAPs 6/7 (53/54) put them.
+FUNNEL_MEDIAL_MM = 0.9  # at the middle of each half of the mouth, per mm of protrusion
+FUNNEL_CLOSE_MM = 0.45  # each lip towards the lip line there, per mm
+FUNNEL_EVERT_MM = 0.8  # the inner lip surface forwards, per mm
+TARGET_NAMES: tuple[str, ...] = (*(FAP_NAMES[f - 1] for f in LIP_FAPS), *(FAP_NAMES[f - 1] for f in TONGUE_FAPS),
+                                 "funnel_lips",
+                                 "open_jaw_sin", "open_jaw_1mcos", "roll_b_lip_sin", "roll_b_lip_1mcos",
+                                 "close_t_l_eyelid_sin", "close_t_l_eyelid_1mcos",
+                                 "close_t_r_eyelid_sin", "close_t_r_eyelid_1mcos")
 # A morph target is the displacement at FAP value 1024 (one whole MNS or MW), so that the weights,
 # value / 1024, stay within ±1 for speech and a rig's sliders (Blender clamps to 0..1 by default
 # but the animation plays any value).
@@ -123,8 +158,13 @@ def jaw_weights(mesh: FaceMesh) -> NDArray[np.float64]:
     lateral = _smooth01((72.0 - np.abs(x)) / 30.0)
     w[skin_lower] = (lateral * (at_line + (1.0 - at_line) * depth))[skin_lower]
     w[mesh.in_part("lower_teeth")] = 1.0
+    w[mesh.in_part("tongue")] = 1.0
     cav = mesh.in_part("cavity")
     w[cav] = _smooth01((4.0 - y) / 12.0)[cav]
+    # under the chin the skull closes the head: its front below the mouth goes with the jaw too
+    skull = mesh.in_part("skull")
+    z = mesh.vertices[:, 2]
+    w[skull] = (_smooth01(-y / 22.0) * _smooth01((72.0 - np.abs(x)) / 30.0) * _smooth01(z / 30.0))[skull]
     return w
 
 
@@ -141,8 +181,29 @@ class FaceRig:
         return TARGET_NAMES
 
     def fapu(self, fap: int) -> float:
-        """This face's FAPU (mm) for a lip or jaw FAP."""
+        """This face's FAPU (mm) for a lip, jaw, tongue or eyelid FAP."""
+        if fap in LID_FAPS:
+            return self.mesh.irisd / 1024.0
         return (self.mesh.mw if fap in MW_FAPS else self.mesh.mns) / 1024.0
+
+    def index(self, name: str) -> int:
+        return TARGET_NAMES.index(name)
+
+    def lid_angle(self, close: NDArray[np.float64]) -> NDArray[np.float64]:
+        """Rotation (rad) of an upper lid that drops its edge midpoint by close × IRISD / 1024."""
+        r = EYE_RADIUS + 0.8
+        drop = np.asarray(close, dtype=float) * self.mesh.irisd / 1024.0
+        e0 = LID_OPEN_ELEVATION
+        theta: NDArray[np.float64] = e0 - np.arcsin(np.clip(math.sin(e0) - drop / r, -1.0, 1.0))
+        return theta
+
+    def roll_angle(self, values: NDArray[np.float64]) -> NDArray[np.float64]:
+        """The lower lip's roll (rad) per frame from the held FAP values (see ROLL_MAX)."""
+        back = -values[:, 16 - 1] * self.fapu(16)
+        drop = np.maximum(-values[:, 5 - 1] * self.fapu(5), 0.0)
+        phi: NDArray[np.float64] = (ROLL_MAX * np.clip(back / ROLL_FULL_MM, 0.0, 1.0)
+                                    * np.clip(1.0 - drop / ROLL_OPEN_MM, 0.0, 1.0))
+        return phi
 
     def jaw_angle(self, open_jaw: NDArray[np.float64]) -> NDArray[np.float64]:
         """Rotation (rad) that drops the chin point 2.1 by open_jaw × MNS / 1024."""
@@ -159,21 +220,33 @@ class FaceRig:
         """Morph-target weights per frame, (n_frames, n_targets). Unsent FAPs hold their last value."""
         values = held_values(faps)
         ever_sent = np.maximum.accumulate(faps.mask, axis=0)
-        lip = values[:, [f - 1 for f in LIP_FAPS]] / TARGET_VALUE
+        sent = (*LIP_FAPS, *TONGUE_FAPS)
+        scale = np.array([TONGUE_ROLL_TARGET if f == TONGUE_ROLL else TARGET_VALUE for f in sent])
+        lip = values[:, [f - 1 for f in sent]] / scale
         theta = self.jaw_angle(values[:, JAW_FAP - 1])
         s, c = np.sin(theta), 1.0 - np.cos(theta)
-        # lower-lip FAPs relative to the jaw: subtract the jaw's share at their feature points
-        jaw_sin, jaw_cos = self.targets[-2], self.targets[-1]
-        for k, fap in enumerate(LIP_FAPS):
-            if fap not in LOWER_LIP_FAPS:
+        # lower-lip and tongue FAPs relative to the jaw: subtract the jaw's share at their points
+        jaw_sin, jaw_cos = self.targets[self.index("open_jaw_sin")], self.targets[self.index("open_jaw_1mcos")]
+        for k, fap in enumerate(sent):
+            if fap not in ON_JAW_FAPS:
                 continue
-            zone = next(z for z in ZONES if z.fap == fap and z.region == "lower")
-            v = self.mesh.feature_points[zone.point]
-            along = np.asarray(zone.direction) @ np.stack([jaw_sin[v], jaw_cos[v]], axis=1)  # (2,)
+            if fap in TONGUE_ZONES:
+                point, direction = TONGUE_ZONES[fap][0], TONGUE_ZONES[fap][1]
+            else:
+                zone = next(z for z in ZONES if z.fap == fap and z.region == "lower")
+                point, direction = zone.point, np.asarray(zone.direction)
+            v = self.mesh.feature_points[point]
+            along = direction @ np.stack([jaw_sin[v], jaw_cos[v]], axis=1)  # (2,)
             full = self.fapu(fap) * TARGET_VALUE  # mm moved by weight 1
-            # a stream that never sends this FAP leaves the lip riding on the jaw
+            # a stream that never sends this FAP leaves the lip (tongue) riding on the jaw
             lip[:, k] -= ever_sent[:, fap - 1] * (s * along[0] + c * along[1]) / full
-        out: NDArray[np.float64] = np.column_stack([lip, s, c])
+        roll = self.roll_angle(values) * ever_sent[:, 16 - 1]
+        push = 0.5 * (values[:, 16 - 1] * self.fapu(16) + values[:, 17 - 1] * self.fapu(17))
+        cols = [lip, np.maximum(push, 0.0), s, c, np.sin(roll), 1.0 - np.cos(roll)]
+        for fap in LID_FAPS:
+            lid = self.lid_angle(values[:, fap - 1])
+            cols += [np.sin(lid), 1.0 - np.cos(lid)]
+        out: NDArray[np.float64] = np.column_stack(cols)
         return out
 
     def pose(self, weights: NDArray[np.float64]) -> NDArray[np.float64]:
@@ -203,7 +276,7 @@ def _region_mask(mesh: FaceMesh, region: str) -> NDArray[np.bool_]:
 
 def build_rig(mesh: FaceMesh) -> FaceRig:
     """Displacement fields of every lip FAP and of the jaw on `mesh`."""
-    for fp in {z.point for z in ZONES} | {"2.1", "9.15"}:
+    for fp in {z.point for z in ZONES} | {"2.1", "9.15", "6.1", "6.2", "3.1", "3.2"}:
         if fp not in mesh.feature_points:
             raise AnimationError(f"the face mesh has no feature point {fp}, needed by the FAP zones")
     verts = mesh.vertices
@@ -229,14 +302,77 @@ def build_rig(mesh: FaceMesh) -> FaceRig:
                 # FAPs on one vertex (inner and outer corner) share it: coartic sends them equal
                 sharing = sum(1 for o in zones if mesh.feature_points[o.point] == v and o.region == region)
                 fields[z.fap][mask] += np.outer(interp[:, points.index(v)] / sharing, z.direction)
-    jaw = jaw_weights(mesh)
-    r = verts - np.array([0.0, JAW_PIVOT[0], JAW_PIVOT[1]])
-    cross = np.column_stack([np.zeros(len(r)), -r[:, 2], r[:, 1]])  # x̂ × r
-    cross2 = np.column_stack([np.zeros(len(r)), -r[:, 1], -r[:, 2]])  # x̂ × (x̂ × r)
-    fapu = {f: (mesh.mw if f in MW_FAPS else mesh.mns) / 1024.0 for f in LIP_FAPS}
+    fapu = {f: (mesh.mw if f in MW_FAPS else mesh.mns) / 1024.0 for f in (*LIP_FAPS, *TONGUE_FAPS)}
     targets = [fields[f] * fapu[f] * TARGET_VALUE for f in LIP_FAPS]
-    targets += [jaw[:, None] * cross, jaw[:, None] * cross2]
+    targets += _tongue_targets(mesh, fapu)
+    targets.append(funnel_field(mesh))
+    jaw = jaw_weights(mesh)
+    targets += _rotation(verts, (JAW_PIVOT[0], JAW_PIVOT[1]), jaw)
+    lip_z = float(skin_depth(np.zeros(1), np.zeros(1))[0])
+    targets += _rotation(verts, (ROLL_CENTRE[0], lip_z + ROLL_CENTRE[1]), roll_weights(mesh), backwards=True)
+    for side in ("l", "r"):
+        centre = eye_centre(EYE_X if side == "l" else -EYE_X)
+        targets += _rotation(verts, (centre[1], centre[2]), mesh.upper_lid[side].astype(float))
     return FaceRig(mesh=mesh, targets=np.stack(targets), jaw=jaw)
+
+
+def _rotation(verts: NDArray[np.float64], axis_yz: tuple[float, float], weight: NDArray[np.float64],
+              backwards: bool = False) -> list[NDArray[np.float64]]:
+    """The two fields of a turn about an x-parallel axis through (y, z), sin θ and 1 − cos θ
+    (module docstring), scaled per vertex by `weight`. A positive turn moves what is in front of the
+    axis down (the jaw opening, a lid closing); `backwards` moves what is above the axis back."""
+    r = verts - np.array([0.0, axis_yz[0], axis_yz[1]])
+    sign = -1.0 if backwards else 1.0
+    cross = sign * np.column_stack([np.zeros(len(r)), -r[:, 2], r[:, 1]])  # ω × r, ω = ±x̂
+    cross2 = np.column_stack([np.zeros(len(r)), -r[:, 1], -r[:, 2]])  # ω × (ω × r)
+    return [weight[:, None] * cross, weight[:, None] * cross2]
+
+
+def funnel_field(mesh: FaceMesh) -> NDArray[np.float64]:
+    """The lips' rounding per mm of protrusion (FUNNEL_*): zero at the corners and the midline."""
+    x, y = mesh.vertices[:, 0], mesh.vertices[:, 1]
+    skin = mesh.in_part("skin")
+    lateral = np.sin(np.pi * np.clip(np.abs(x) / MOUTH_HALF_WIDTH, 0.0, 1.0))  # 0 mid and at corners
+    near = _smooth01((16.0 - np.abs(y)) / 10.0) * _smooth01((MOUTH_HALF_WIDTH + 8.0 - np.abs(x)) / 8.0)
+    out = np.zeros((mesh.n_vertices, 3))
+    out[:, 0] = -np.sign(x) * FUNNEL_MEDIAL_MM * lateral * near
+    at_cut = _smooth01((8.0 - np.abs(y)) / 6.0)
+    out[:, 1] = np.where(mesh.upper, -1.0, 1.0) * FUNNEL_CLOSE_MM * lateral ** 0.5 * at_cut * near
+    lip_z = float(skin_depth(np.zeros(1), np.zeros(1))[0])
+    inside = np.clip((lip_z - mesh.vertices[:, 2]) / 4.0, 0.0, 1.0) * (np.abs(x) < MOUTH_HALF_WIDTH)
+    out[:, 2] = FUNNEL_EVERT_MM * inside * np.sqrt(np.clip(1 - (x / MOUTH_HALF_WIDTH) ** 2, 0, 1))
+    out[~skin] = 0.0
+    return out
+
+
+def roll_weights(mesh: FaceMesh) -> NDArray[np.float64]:
+    """How much of the lower lip rolls: its upper part between the corners, fading out towards the
+    outer vermilion border (which stays where the FAPs put it) and the corners."""
+    x, y = mesh.vertices[:, 0], mesh.vertices[:, 1]
+    w = np.zeros(mesh.n_vertices)
+    lower = mesh.in_part("skin") & ~mesh.upper
+    at_line = _smooth01((MOUTH_HALF_WIDTH - np.abs(x)) / (0.3 * MOUTH_HALF_WIDTH))
+    w[lower] = (at_line * _smooth01((y + 9.0) / 5.0))[lower]
+    return w
+
+
+def _tongue_targets(mesh: FaceMesh, fapu: dict[int, float]) -> list[NDArray[np.float64]]:
+    """Fields of the tongue FAPs (TONGUE_ZONES, and the roll), on the tongue's vertices only."""
+    verts = mesh.vertices
+    on = mesh.in_part("tongue").astype(float)
+    out = []
+    for fap in TONGUE_FAPS:
+        if fap == TONGUE_ROLL:
+            # both borders up about the midline: a point |x| from it rises |x| × angle
+            tip = verts[mesh.feature_points["6.1"]]
+            reach = raised_cosine(np.abs(verts[:, 2] - tip[2]), 30.0)
+            field = np.outer(on * reach * np.abs(verts[:, 0]) * TONGUE_ROLL_TARGET * 1e-5, Y)
+        else:
+            point, direction, d_max = TONGUE_ZONES[fap]
+            d = np.linalg.norm(verts - verts[mesh.feature_points[point]], axis=1)
+            field = np.outer(on * raised_cosine(d, d_max), direction) * fapu[fap] * TARGET_VALUE
+        out.append(field)
+    return out
 
 
 @lru_cache(maxsize=1)

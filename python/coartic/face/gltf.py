@@ -26,11 +26,11 @@ import numpy as np
 from numpy.typing import NDArray
 
 from coartic.face.deform import FaceRig, default_rig
-from coartic.face.mesh import MOUTH_HALF_WIDTH, PART_NAMES
+from coartic.face.mesh import MOUTH_HALF_WIDTH, PART_NAMES, vertex_normals
 from coartic.runtime.errors import AnimationError
-from coartic.runtime.fap import FaceUnits, FapSequence, animation_faps, channels_to_faps
+from coartic.runtime.fap import BLINK_CLOSED, N_FAPS, FaceUnits, FapSequence, animation_faps, channels_to_faps
 from coartic.outputs import atomic_write_bytes
-from coartic.runtime.rigs import ARKIT_BASIS, ARKIT_NAMES, arkit_weights
+from coartic.runtime.rigs import ARKIT_BASIS, ARKIT_BLINKS, ARKIT_NAMES, arkit_weights
 
 if TYPE_CHECKING:
     from coartic.runtime.animate import Animation
@@ -109,7 +109,7 @@ def split_signs(names: tuple[str, ...], targets: NDArray[np.float64], weights: N
     """Each signed field as two targets, NAME for positive weights and NAME_neg (the field negated)
     for negative ones, so that every weight lies in 0..1: Blender's importer keeps a shape key
     within 0..1 unless the first keyframe says otherwise, and would flatten negative FAPs to 0.
-    A field whose weight is never negative (open_jaw_1mcos) stays one target. Exact, also between
+    A field whose weight is never negative (the turns' NAME_1mcos) stays one target. Exact, also between
     frames: linear interpolation of w+ and w- adds up to that of w."""
     out_names, out_t, out_w = [], [], []
     for k, name in enumerate(names):
@@ -117,7 +117,7 @@ def split_signs(names: tuple[str, ...], targets: NDArray[np.float64], weights: N
         out_names.append(name)
         out_t.append(targets[k])
         out_w.append(np.maximum(w, 0.0))
-        if name != "open_jaw_1mcos":
+        if not name.endswith("_1mcos"):  # 1 - cos θ is never negative
             out_names.append(f"{name}_neg")
             out_t.append(-targets[k])
             out_w.append(np.maximum(-w, 0.0))
@@ -158,6 +158,9 @@ def gltf_document(rig: FaceRig, weights: NDArray[np.float64], fps: float, name: 
         tris = remap[mesh.triangles[part]]
         pos = b.add((mesh.vertices[sel] * MM).astype(np.float32), "VEC3", FLOAT, ARRAY_BUFFER, bounds=True)
         col = b.add(srgb_to_linear(mesh.colors[sel]).astype(np.float32), "VEC3", FLOAT, ARRAY_BUFFER)
+        # smooth normals of the face at rest (a renderer recomputes them as the targets move it,
+        # or uses these: glTF's morph targets may carry NORMAL deltas, these do not)
+        nrm = b.add(vertex_normals(mesh.vertices[sel], tris).astype(np.float32), "VEC3", FLOAT, ARRAY_BUFFER)
         idx_type, comp = (np.uint16, UINT16) if sel.size < 65535 else (np.uint32, UINT32)
         ind = b.add(tris.reshape(-1).astype(idx_type), "SCALAR", comp, ELEMENT_ARRAY_BUFFER)
         b.accessors[ind]["min"] = [int(tris.min())]
@@ -165,7 +168,7 @@ def gltf_document(rig: FaceRig, weights: NDArray[np.float64], fps: float, name: 
         zeros = b.zeros(sel.size)
         targets = [{"POSITION": b.add_sparse_vec3((fields[k][sel] * MM).astype(np.float32), zeros)}
                    for k in range(n_targets)]
-        primitives.append({"attributes": {"POSITION": pos, "COLOR_0": col}, "indices": ind, "material": 0,
+        primitives.append({"attributes": {"POSITION": pos, "NORMAL": nrm, "COLOR_0": col}, "indices": ind, "material": 0,
                            "mode": 4, "targets": targets, "extras": {"part": part}})
     times = (np.arange(weights.shape[0]) / fps).astype(np.float32)
     t_in = b.add(times, "SCALAR", FLOAT, bounds=True)
@@ -448,7 +451,8 @@ def arkit_morphs(rig: FaceRig, neutral: dict[str, float], face: FaceUnits) -> tu
     rig as the FAP morph set; the jaw's turn taken at its full angle, as a blendshape is linear).
     A Left/Right pair is the pair's symmetric movement split between the face's sides
     (`_side_share`; Left = the face's own left), so the two at equal weights add up to it. The
-    shapes coartic does not drive (eyes, brows, cheeks, nose, tongue) are present and move nothing."""
+    eyeBlinkLeft/Right shut the lid of FAP 19/20 as the FAP file's blinks do. The shapes coartic
+    does not drive (gaze, brows, cheeks, nose, tongueOut) are present and move nothing."""
     fields = np.zeros((len(ARKIT_NAMES), rig.mesh.n_vertices, 3))
     left = _side_share(rig.mesh.vertices[:, 0])[:, None]
 
@@ -459,6 +463,12 @@ def arkit_morphs(rig: FaceRig, neutral: dict[str, float], face: FaceUnits) -> tu
         return out
 
     for k, name in enumerate(ARKIT_NAMES):
+        if name in ARKIT_BLINKS:  # the lid shut as the FAP file's blinks shut it
+            mask = np.zeros((1, N_FAPS), dtype=bool)
+            mask[0, ARKIT_BLINKS[name] - 1] = True
+            shut = FapSequence("arkit", 25.0, mask, np.where(mask, BLINK_CLOSED, 0))
+            fields[k] = rig.pose(rig.weights(shut)[0]) - rig.mesh.vertices
+            continue
         if name not in ARKIT_BASIS:
             continue
         for side, share in (("Left", left), ("Right", 1.0 - left)):

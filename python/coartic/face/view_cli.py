@@ -25,6 +25,8 @@ def view_command(
     frame: Annotated[int | None, typer.Option("--frame", help="Frame shown in the screenshot (default 0).")] = None,
     yaw: Annotated[float | None, typer.Option("--yaw", help="Turn the face by this many degrees (+: its left side towards you).")] = None,
     view: Annotated[str | None, typer.Option("--view", help="Camera preset: front, three-quarter or profile.")] = None,
+    section: Annotated[bool, typer.Option("--section", help="Cut the head along the midline (with --view profile: lips, teeth, tongue).")] = False,
+    zoom: Annotated[float | None, typer.Option("--zoom", help="Bring the camera closer by this factor (2: the mouth twice as large).")] = None,
     face_only: Annotated[int | None, typer.Option("--face-only", help="Screenshot only the face, N x N pixels.")] = None,
     open_page: Annotated[bool, typer.Option("--open", help="Open the page in the default browser.")] = False,
 ) -> None:
@@ -43,13 +45,13 @@ def view_command(
         _out.print(f"viewer: {escape(str(page))}", highlight=False)
         if screenshot is not None:
             size = (face_only, face_only) if face_only else (1130, 580)
-            png = take_screenshot(page, screenshot, frame=frame, face_only=face_only, size=size, yaw=turn)
+            png = take_screenshot(page, screenshot, frame=frame, face_only=face_only, size=size, yaw=turn, zoom=zoom, section=section)
             _out.print(f"screenshot: {escape(str(png))}", highlight=False)
-        url = page.resolve().as_uri() + page_query(frame, turn)
+        url = page.resolve().as_uri() + page_query(frame, turn, zoom, section)
         if serve:
             server = make_server(out_dir, port)
             host, used = str(server.server_address[0]), int(server.server_address[1])
-            url = f"http://{host}:{used}/{page.name}" + page_query(frame, turn)
+            url = f"http://{host}:{used}/{page.name}" + page_query(frame, turn, zoom, section)
             _out.print(f"serving on {url} (Ctrl-C stops)", highlight=False)
         if open_page:
             import webbrowser

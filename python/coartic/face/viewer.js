@@ -101,16 +101,20 @@ function weightsAt(face, t) {
 
 // --- rendering -------------------------------------------------------------------------------------
 const VS = `#version 300 es
-in vec3 position; in vec3 color;
-uniform mat4 mvp; out vec3 vPos; out vec3 vColor;
-void main() { vPos = position; vColor = color; gl_Position = mvp * vec4(position, 1.0); }`;
-// Flat shading from screen-space derivatives: the normal of each triangle as it is now, morphed.
+in vec3 position; in vec3 color; in vec3 normal;
+uniform mat4 mvp; out vec3 vPos; out vec3 vColor; out vec3 vNormal;
+void main() { vPos = position; vColor = color; vNormal = normal; gl_Position = mvp * vec4(position, 1.0); }`;
+// Smooth shading: vertex normals of the morphed face (recomputed every frame), turned towards the
+// eye where a surface is seen from behind (the mouth's inside).
 const FS = `#version 300 es
 precision highp float;
-in vec3 vPos; in vec3 vColor; uniform vec3 eye; out vec4 outColor;
+in vec3 vPos; in vec3 vColor; in vec3 vNormal; uniform vec3 eye; uniform float section; out vec4 outColor;
 void main() {
-  vec3 n = normalize(cross(dFdx(vPos), dFdy(vPos)));
-  if (dot(n, eye - vPos) < 0.0) n = -n;
+  if (section > 0.0 && vPos.x > 0.0) discard;  // the midsagittal section: the face's left half cut away
+  vec3 n = normalize(vNormal);
+  vec3 flat_n = normalize(cross(dFdx(vPos), dFdy(vPos)));
+  if (dot(flat_n, eye - vPos) < 0.0) flat_n = -flat_n;
+  if (dot(n, flat_n) < 0.0) n = -n;
   vec3 key = normalize(vec3(0.55, 0.65, 0.75)), fill = normalize(vec3(-0.7, 0.0, 0.5));
   float light = 0.22 + 0.78 * max(dot(n, key), 0.0) + 0.2 * max(dot(n, fill), 0.0);
   outColor = vec4(pow(vColor * light, vec3(1.0 / 2.2)), 1.0);
@@ -142,6 +146,19 @@ function multiply(a, b) {  // column-major 4x4: a * b
   return o;
 }
 
+// Area-weighted vertex normals of the triangles as they are now (out: zeroed and filled); the
+// mesh's triangles are wound alike (coartic.face.mesh.orient), so the normals agree.
+function vertexNormals(p, indices, out) {
+  out.fill(0);
+  for (let t = 0; t < indices.length; t += 3) {
+    const a = 3 * indices[t], b = 3 * indices[t + 1], c = 3 * indices[t + 2];
+    const ux = p[b] - p[a], uy = p[b + 1] - p[a + 1], uz = p[b + 2] - p[a + 2];
+    const vx = p[c] - p[a], vy = p[c + 1] - p[a + 1], vz = p[c + 2] - p[a + 2];
+    const nx = uy * vz - uz * vy, ny = uz * vx - ux * vz, nz = ux * vy - uy * vx;
+    for (const i of [a, b, c]) { out[i] += nx; out[i + 1] += ny; out[i + 2] += nz; }
+  }
+}
+
 class FaceView {
   constructor(canvas, face) {
     this.canvas = canvas;
@@ -170,11 +187,20 @@ class FaceView {
     const locCol = gl.getAttribLocation(prog, "color");
     gl.enableVertexAttribArray(locCol);
     gl.vertexAttribPointer(locCol, 3, gl.FLOAT, false, 0, 0);
+    this.normals = new Float32Array(face.base.length);
+    this.normBuf = gl.createBuffer();
+    gl.bindBuffer(gl.ARRAY_BUFFER, this.normBuf);
+    gl.bufferData(gl.ARRAY_BUFFER, this.normals, gl.DYNAMIC_DRAW);
+    const locNorm = gl.getAttribLocation(prog, "normal");
+    gl.enableVertexAttribArray(locNorm);
+    gl.vertexAttribPointer(locNorm, 3, gl.FLOAT, false, 0, 0);
     const idxBuf = gl.createBuffer();
     gl.bindBuffer(gl.ELEMENT_ARRAY_BUFFER, idxBuf);
     gl.bufferData(gl.ELEMENT_ARRAY_BUFFER, face.indices, gl.STATIC_DRAW);
     this.yaw = 0.0;
     this.pitch = 0.08;
+    this.zoom = 1.0;
+    this.section = false;
   }
   draw(t) {
     const {gl, face} = this;
@@ -189,18 +215,22 @@ class FaceView {
     }
     gl.bindBuffer(gl.ARRAY_BUFFER, this.posBuf);
     gl.bufferSubData(gl.ARRAY_BUFFER, 0, p);
+    vertexNormals(p, face.indices, this.normals);
+    gl.bindBuffer(gl.ARRAY_BUFFER, this.normBuf);
+    gl.bufferSubData(gl.ARRAY_BUFFER, 0, this.normals);
     const width = this.canvas.width, height = this.canvas.height;
     gl.viewport(0, 0, width, height);
     gl.clearColor(0.93, 0.94, 0.96, 1);
     gl.clear(gl.COLOR_BUFFER_BIT | gl.DEPTH_BUFFER_BIT);
     gl.enable(gl.DEPTH_TEST);
     gl.useProgram(this.prog);
-    const dist = 0.5, at = [0, 0.02, 0.05];
+    const dist = 0.5 / this.zoom, at = [0, 0.0, 0.07];
     const eye = [at[0] + dist * Math.sin(this.yaw) * Math.cos(this.pitch), at[1] + dist * Math.sin(this.pitch),
                  at[2] + dist * Math.cos(this.yaw) * Math.cos(this.pitch)];
     const mvp = multiply(perspective(0.52, width / height, 0.05, 2.0), lookAt(eye, at, [0, 1, 0]));
     gl.uniformMatrix4fv(gl.getUniformLocation(this.prog, "mvp"), false, mvp);
     gl.uniform3fv(gl.getUniformLocation(this.prog, "eye"), eye);
+    gl.uniform1f(gl.getUniformLocation(this.prog, "section"), this.section ? 1.0 : 0.0);
     gl.bindVertexArray(this.vao);
     gl.drawElements(gl.TRIANGLES, face.indices.length, gl.UNSIGNED_INT, 0);
   }
@@ -382,6 +412,8 @@ function start() {
     stop(); show(s);
   });
   if (params.has("yaw")) view.yaw = Number(params.get("yaw"));
+  if (params.get("section") === "1") view.section = true;  // ?section=1: cut along the midline
+  if (params.has("zoom")) view.zoom = Math.max(0.2, Math.min(10, Number(params.get("zoom")) || 1));
   if (params.has("frame")) {
     const k = Number(params.get("frame"));
     // a frame the animation does not have is said so, not shown as the nearest one

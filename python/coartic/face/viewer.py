@@ -185,13 +185,19 @@ def check_frame(page: str | os.PathLike[str], frame: int) -> None:
         raise AnimationError(f"--frame {frame} is outside 0..{n - 1}: {page} has {n} frames")
 
 
-def page_query(frame: int | None, yaw: float | None) -> str:
-    """The page URL's query for a frame and a turn (degrees), '' for neither."""
+def page_query(frame: int | None, yaw: float | None, zoom: float | None = None, section: bool = False) -> str:
+    """The page URL's query for a frame, a turn (degrees), a zoom and the midline section."""
     query: dict[str, str] = {}
     if frame is not None:
         query["frame"] = str(int(frame))
     if yaw is not None:
         query["yaw"] = repr(math.radians(float(yaw)))
+    if zoom is not None:
+        if not (math.isfinite(zoom) and 0.2 <= zoom <= 10.0):
+            raise AnimationError(f"--zoom must be within 0.2..10, got {zoom!r}")
+        query["zoom"] = repr(float(zoom))
+    if section:
+        query["section"] = "1"
     return "?" + urllib.parse.urlencode(query) if query else ""
 
 
@@ -205,12 +211,12 @@ def chromium_program() -> str:
 
 def screenshot(page: str | os.PathLike[str], png: str | os.PathLike[str], *, frame: int | None = None,
                face_only: int | None = None, size: tuple[int, int] = (1130, 580), yaw: float | None = None,
-               timeout: float = 60.0) -> Path:
+               zoom: float | None = None, section: bool = False, timeout: float = 60.0) -> Path:
     """A PNG of `page` at `frame` (or its first frame) from a headless Chromium with software WebGL.
 
     `face_only=N` shows only the face, on an N x N canvas at the top left; `yaw` turns it (degrees).
     """
-    query = page_query(frame, yaw)
+    query = page_query(frame, yaw, zoom, section)
     if face_only is not None:
         query += ("&" if query else "?") + f"face={int(face_only)}"
     url = Path(page).resolve().as_uri() + query

@@ -24,7 +24,6 @@ from typing import Sequence
 import numpy as np
 from numpy.typing import NDArray
 
-from coartic.fit.score import segment_of
 from coartic.model import Utterance
 
 F64 = NDArray[np.float64]
@@ -51,7 +50,7 @@ def warp_times(test: Utterance, token: Utterance) -> F64:
     t = test.times
     tau = np.interp(t, k_test, k_tok)
     tau = np.where(t < k_test[0], t - k_test[0] + k_tok[0], tau)
-    return np.where(t > k_test[-1], t - k_test[-1] + k_tok[-1], tau)
+    return np.asarray(np.where(t > k_test[-1], t - k_test[-1] + k_tok[-1], tau), dtype=np.float64)
 
 
 @dataclass
@@ -76,7 +75,7 @@ class Baselines:
                 ok = u.valid[ch] & np.isfinite(y)
                 tot += float(y[ok].sum())
                 n += int(ok.sum())
-                seg = segment_of(u)
+                seg = u.sample_segments()
                 for i, lab in enumerate(u.labels):
                     m = ok & (seg == i)
                     if m.any():
@@ -100,7 +99,7 @@ class Baselines:
         if name == "step":
             means = self.step[channel]
             per_segment = np.array([means.get(lab, c) for lab in test.labels] + [c])
-            return per_segment[segment_of(test)]  # −1 (outside every segment) picks the constant
+            return per_segment[test.sample_segments()]  # −1 (outside every segment) picks the constant
         if name == "warped":
             tokens = self.same_sentence(test)
             if not tokens:

@@ -39,7 +39,7 @@ def manifest_rows(spec: FitSpec) -> list[dict[str, str]]:
                 # A short row leaves None in its last columns, a long one puts the excess under None:
                 # either way the row cannot be read as the header says (line numbers as an editor's).
                 if None in r or any(v is None for v in r.values()):
-                    extra = r.pop(None, None) or []  # type: ignore[call-overload]
+                    extra = r.pop(None, None) or []
                     n = sum(v is not None for v in r.values()) + len(extra)
                     raise SpecError(f"{c.manifest}, line {reader.line_num}: {n} cells, the header has "
                                     f"{len(reader.fieldnames or [])} ({', '.join(reader.fieldnames or [])})")

@@ -27,6 +27,7 @@ from coartic.fit.bounds import CATEGORY_TITLES, BoundNote, explain_bounds, summa
 from coartic.fit.parameters import ParameterSet, psd_pseudo_inverse
 from coartic.fit.problem import ChannelProblem, Packing
 from coartic.fit.spec import FitSpec
+from coartic.fit.multistart import MultiStart
 from coartic.fit.staged import StageResult
 from coartic.io.labelmap import resolve_label_map
 from coartic.io.roles import ROLE_RECORD_KEY, resolve_role_map
@@ -50,6 +51,8 @@ class ParameterStats:
     dof: int
     # why each parameter in at_bound is there, computed from the fit (coartic.fit.bounds)
     bounds: dict[str, BoundNote] = field(default_factory=dict)
+    # why each parameter in unidentified is not identified, and what to do (unidentified_reasons)
+    unidentified_why: dict[str, str] = field(default_factory=dict)
 
 
 def parameter_stats(problem: ChannelProblem, x: FloatArray, rtol: float = 1e-10) -> ParameterStats:
@@ -80,8 +83,44 @@ def parameter_stats(problem: ChannelProblem, x: FloatArray, rtol: float = 1e-10)
     near = (np.abs(x - lo) <= 1e-6 * width) | (np.abs(hi - x) <= 1e-6 * width)
     at_bound = [nm for nm, b in zip(names, near) if b]
     notes = explain_bounds(problem, x, at_bound, jac, r, s2, corr)
+    why = unidentified_reasons(names, jtj, v[:, ~keep], unident)
     return ParameterStats(names, values, stderr, corr, at_bound, [nm for nm, b in zip(names, unident) if b], s2, dof,
-                          notes)
+                          notes, why)
+
+
+# A Jacobian column whose norm is below this fraction of the largest one: the fit does not depend on it.
+ZERO_COLUMN = 1e-8
+UNIDENTIFIED_ADVICE = ("fix it (leave it out of [parameters] free, or an [[override]] with a fixed value), tie it to "
+                       "a like phoneme's ([[tie]]), pull it towards one ([[shrink]] or a prior), or add recordings "
+                       "that carry it")
+
+
+def unidentified_reasons(names: Sequence[str], jtj: FloatArray, null: FloatArray,
+                         unident: NDArray[np.bool_]) -> dict[str, str]:
+    """Why each parameter the data leave undetermined is so, in the terms a user can act on: the
+    data do not depend on it at all (a zero Jacobian column; every parameter of its phoneme so: no
+    measured sample within the phoneme's reach), or only a combination with others is determined
+    (the null direction it loads on names the partner); each with the alternatives."""
+    col = np.sqrt(np.clip(np.diag(jtj), 0.0, None))
+    zero = col <= ZERO_COLUMN * max(float(col.max(initial=0.0)), 1e-300)
+    phoneme = [nm.rpartition(".")[0] for nm in names]
+    out: dict[str, str] = {}
+    for i in np.flatnonzero(unident):
+        nm = names[int(i)]
+        if zero[i]:
+            all_zero = all(zero[j] for j in range(len(names)) if phoneme[j] == phoneme[i])
+            what = (f"no measured sample lies within /{phoneme[i]}/'s reach (every one of its parameters has a zero "
+                    "Jacobian column)" if all_zero and phoneme[i] else
+                    "the fitted trajectories do not depend on it (a zero Jacobian column)")
+        else:
+            load = null @ null[i]  # how the others move with it along the undetermined directions
+            load[i] = 0.0
+            k = int(np.argmax(np.abs(load)))
+            partner = names[k] if abs(load[k]) > 1e-6 else None
+            what = ("only a combination with " + partner + " is determined by the data (they trade off exactly)"
+                    if partner else "only a combination with other parameters is determined by the data")
+        out[nm] = f"{what}: {UNIDENTIFIED_ADVICE}"
+    return out
 
 
 @dataclass
@@ -100,6 +139,7 @@ class ChannelFit:
     stages: list[StageResult] = field(default_factory=list)
     stats: ParameterStats | None = None
     fitted: FloatArray | None = None  # model on every sample of the channel's corpus
+    multistart: MultiStart | None = None  # the optima a multi-start found ([fit] starts > 1)
 
     @property
     def phonemes(self) -> tuple[str, ...]:
@@ -247,7 +287,15 @@ class FitResult:
 
     def parameter_rows(self) -> list[dict[str, Any]]:
         """``parameters.csv``: every channel's parameter set (value, stderr, free, bounds, flags)."""
-        return [row for fit in self.channels.values() for row in fit.parameters.rows()]
+        rows = []
+        for fit in self.channels.values():
+            ms = fit.multistart
+            for row in fit.parameters.rows():
+                if ms is not None:  # how far the other optima put it: a large spread, a weakly determined value
+                    name = "beta" if row["parameter"] == "beta" else f"{row['phoneme']}.{row['parameter']}"
+                    row["spread_between_optima"] = ms.spread.get(name, 0.0 if name in ms.names else "")
+                rows.append(row)
+        return rows
 
     def to_dataframe(self, what: str = "parameters") -> Any:
         """pandas DataFrame of ``parameters.csv`` (``what="parameters"``: one row per channel,
@@ -290,11 +338,14 @@ class FitResult:
             for spk, (a_s, b_s) in fit.problem.speaker_coefficients(fit.x).items():
                 lines.append(f"    speaker {spk} ([model] speakers = {self.spec.speakers!r}): "
                              f"offset a = {a_s:+.4f} mm, scale b = {b_s:.4f}")
+            if fit.multistart is not None:
+                lines += multistart_lines(fit.multistart, fit.problem.data.n_valid)
             for s_i, sr in enumerate(fit.stages):
-                lines.append(f"    stage {s_i + 1}: {sr.n_free} free ({', '.join(sr.parameters)}): "
+                what = "probe stage" if sr.probe else "stage"
+                lines.append(f"    {what} {s_i + 1}: {sr.n_free} free ({', '.join(sr.parameters)}): "
                              f"SSE {sr.sse_start:.4g} -> {sr.sse_end:.4g} [{sr.engine.status}]"
                              # a stage that did not converge says why, in the engine's own words
-                             + ("" if sr.engine.status == "converged" else f": {sr.engine.message}"))
+                             + ("" if sr.engine.status == "converged" or sr.probe else f": {sr.engine.message}"))
             lines += shrinkage_lines(fit.problem, fit.x)
             if st.at_bound:
                 lines.append(f"    warning: {len(st.at_bound)} parameter(s) at a bound: {', '.join(st.at_bound)}")
@@ -302,6 +353,7 @@ class FitResult:
             if st.unidentified:
                 lines.append(f"    warning: {len(st.unidentified)} parameter(s) not identified by the data "
                              f"(no standard error): {', '.join(st.unidentified)}")
+                lines += [f"        {nm}: {st.unidentified_why[nm]}" for nm in st.unidentified if nm in st.unidentified_why]
             lines.append("    [[Variables]]")
             for prm in fit.parameters.values():
                 if not prm.free:
@@ -363,12 +415,20 @@ class FitResult:
         with atomic_path(paths["fitted"]) as tmp:
             np.savez_compressed(tmp, **arrays)
         summary: dict[str, Any] = {"spec": str(self.spec.path), "interrupted": self.interrupted, "started": self.started,
+                   "notes": list(self.notes),  # the small-data warnings among them (coartic.fit.guards)
                    "channels": {ch: {"rmse_mm": f.rmse, "status": f.status, "message": f.message, "nfev": f.nfev,
                                      "wall_time_s": f.wall_time, "at_bound": f.stats.at_bound if f.stats else [],
                                      # why each is at its bound (coartic.fit.bounds.BoundNote fields)
                                      "at_bound_explained": [b.as_dict() for b in f.stats.bounds.values()]
                                      if f.stats else [],
-                                     "unidentified": f.stats.unidentified if f.stats else []}
+                                     "unidentified": f.stats.unidentified if f.stats else [],
+                                     "unidentified_explained": f.stats.unidentified_why if f.stats else {},
+                                     "stages": [{"parameters": list(sr.parameters), "n_free": sr.n_free,
+                                                 "sse_start": sr.sse_start, "sse_end": sr.sse_end,
+                                                 "status": sr.engine.status, "probe": sr.probe,
+                                                 "message": sr.engine.message} for sr in f.stages],
+                                     "multistart": None if f.multistart is None
+                                     else f.multistart.as_dict(f.problem.data.n_valid)}
                                 for ch, f in self.channels.items()}}
         if self.validation:
             from coartic.fit.validate import baseline_summary
@@ -378,6 +438,25 @@ class FitResult:
         if self.choice is not None:
             paths |= self.choice.save(out)
         return paths
+
+
+def multistart_lines(ms: MultiStart, n_valid: int) -> list[str]:
+    """fit_report.txt: the multi-start's optima (SSE, RMSE, how many starts reached each, held-out
+    RMSE where validation scored them) and the parameters that differ most between them."""
+    lines = [f"    multi-start: {ms.summary_line(n_valid)}",
+             f"        {ms.nfev} evaluations in {ms.wall_time:.1f} s ({ms.workers} worker(s)); probe: "
+             f"{ms.probe} evaluations per stage from every start, then the best {len(ms.continued)} continued"]
+    for k, o in enumerate(ms.optima):
+        held = "".join(f"; held out {sp}: {v:.4f} mm" for sp, v in o.heldout_rmse.items())
+        lines.append(f"        optimum {k + 1}: SSE {o.sse:.6g}, RMSE {np.sqrt(o.sse / max(n_valid, 1)):.4f} mm, "
+                     f"reached by {o.hits} start(s) {o.starts} [{o.status}]{held}")
+    if ms.best_found_once:
+        lines.append("        warning: the best optimum was reached by one start only: more starts may find a better one")
+    if ms.spread:
+        top = sorted(ms.spread.items(), key=lambda kv: -kv[1])[:5]
+        lines.append("        largest differences from the best among the optima: "
+                     + ", ".join(f"{nm} {d:.4g}" for nm, d in top))
+    return lines
 
 
 def shrinkage_lines(problem: ChannelProblem, x: FloatArray) -> list[str]:

@@ -31,6 +31,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from coartic.errors import CoarticError
+from coartic.fit.baselines import Baselines, beats_step, flag_text
 from coartic.model import Utterance, evaluate_corpus
 from coartic.table import ParameterTable
 
@@ -98,7 +99,7 @@ class Score:
             acc: dict[str, list[float]] = {}
             for u, utt in enumerate(self.utterances):
                 r, ro = self.residuals(ch, u), self.residuals(ch, u, offset=True)
-                seg = segment_of(utt)
+                seg = utt.sample_segments()
                 for i, lab in enumerate(utt.labels):
                     m = (seg == i) & np.isfinite(r)
                     a = acc.setdefault(lab, [0.0, 0.0, 0.0])
@@ -144,7 +145,6 @@ class Score:
 
     def flags(self) -> list[str]:
         """One line per channel on which the table does not beat the step model."""
-        from coartic.fit.baselines import beats_step, flag_text
 
         out = []
         for ch in self.channels:
@@ -159,7 +159,6 @@ class Score:
 
     def add_baselines(self, train: Sequence[Utterance]) -> None:
         """Fit the baselines on ``train`` (the table's training utterances) and predict these samples."""
-        from coartic.fit.baselines import Baselines
 
         b = Baselines.fit(train, self.channels)
         self.baselines = {}
@@ -225,13 +224,6 @@ class Score:
         return paths
 
 
-def segment_of(utt: Utterance) -> NDArray[np.int64]:
-    """For each sample of ``utt``, the index of the segment it lies in (−1 outside every segment)."""
-    i = np.searchsorted(utt.starts, utt.times, side="right") - 1
-    inside = (i >= 0) & (utt.times < utt.ends[np.clip(i, 0, None)])
-    return np.where(inside, i, -1).astype(np.int64)
-
-
 def score_utterances(table: ParameterTable, utterances: Sequence[Utterance],
                      channels: Sequence[str] | None = None, speaker: str | None = None,
                      train: Sequence[Utterance] | None = None) -> Score:
@@ -295,16 +287,14 @@ def score_recordings(table: ParameterTable | str | PathLike[str], files: Sequenc
     The labels are mapped by ``label_map`` if given, else by the map the table records (the fit's),
     else they must be model phonemes; the sensors are read with ``role_map`` if given, else with
     the role map and axes the table records (``RoleMap.recorded``). A phoneme the table lacks is
-    replaced by its phonetic class's fallback the table has (phones_italian.tsv, as ``animate``
-    does; said in the notes) unless ``strict``; one with none is a ScoreError naming the corpus
+    replaced by its phonetic class's fallback the table has (the label map's, ``with_fallbacks``;
+    said in the notes) unless ``strict``; one with none is a ScoreError naming the corpus
     label, the phoneme and the file. The baselines (``coartic.fit.baselines``) are fitted on the
     training corpus of ``train`` (a fit spec), by default the spec the table records if it is found.
     """
     from coartic.fit.data import load_rows
     from coartic.io.labelmap import LabelMap, resolve_label_map
     from coartic.io.roles import RoleMap
-    from coartic.runtime.animate import substitutions
-    from coartic.runtime.festival import PhoneMap
     from coartic.speakers import speaker_mapping
 
     if not isinstance(table, ParameterTable):
@@ -319,12 +309,9 @@ def score_recordings(table: ParameterTable | str | PathLike[str], files: Sequenc
             for i, f in enumerate(files)]
     utts = load_rows(rows, chans, label_map=lmap, role_map=rmap, max_gap=max_gap)
     notes = []
-    used = {} if strict else substitutions([lab for u in utts for lab in u.labels], table, chans,
-                                           PhoneMap.load().fallbacks)
-    if used:
-        utts = [_relabelled(u, used) for u in utts]
-        notes.append("the table has no " + ", ".join(f"/{k}/ (scored as /{v}/)" for k, v in used.items())
-                     + ": the phonetic-class fallbacks of phones_italian.tsv (--strict refuses instead)")
+    if not strict:
+        utts, note = with_fallbacks(utts, table, chans, lmap)
+        notes += [note] if note else []
     for u, row in zip(utts, rows):
         for i, lab in enumerate(u.labels):
             if lab not in table.values or any(c not in table.values[lab] for c in chans):
@@ -341,8 +328,15 @@ def score_recordings(table: ParameterTable | str | PathLike[str], files: Sequenc
         from coartic.fit.data import load_utterances
         from coartic.fit.spec import load_spec
 
-        spec = load_spec(spec_path)
-        train_utts = load_utterances(spec.with_options(channels=chans))
+        try:
+            train_utts = load_utterances(load_spec(spec_path).with_options(channels=chans))
+        except (ValueError, OSError) as e:  # the recorded spec's corpus moved or changed: said, not fatal
+            if train is not None:
+                raise
+            notes.append(f"no baselines: the training corpus of {spec_path} (recorded in the table) could not be "
+                         f"loaded ({e}); give --train SPEC")
+            spec_path = None
+    if train_utts is not None:
         seen = {Path(u.meta.get("file", "")).resolve() for u in train_utts}
         inside = [Path(f).name for f in files if Path(f).resolve() in seen]
         if inside:
@@ -355,7 +349,7 @@ def score_recordings(table: ParameterTable | str | PathLike[str], files: Sequenc
         score.notes.append(f"sensors read with the table's recorded role map ({rmap.source})")
     if spec_path is not None:
         score.notes.append(f"baselines fitted on the training corpus of {spec_path}")
-    else:
+    elif not any(n.startswith("no baselines") for n in score.notes):
         score.notes.append("no baselines: the table records no fit spec that exists here; give --train SPEC")
     return score
 
@@ -365,9 +359,25 @@ def _recorded_spec(table: ParameterTable) -> Path | None:
     return Path(spec) if isinstance(spec, str) and Path(spec).is_file() else None
 
 
-def _relabelled(u: Utterance, used: dict[str, str]) -> Utterance:
-    return Utterance([used.get(lab, lab) for lab in u.labels], u.starts, u.ends, u.times, u.name, u.observed,
-                     u.valid, u.meta)
+def with_fallbacks(utterances: Sequence[Utterance], table: ParameterTable, channels: Sequence[str],
+                   label_map: Any = None) -> tuple[list[Utterance], str | None]:
+    """The utterances with each phoneme the table lacks replaced by its phonetic class's first
+    fallback the table has, and the note that says which (None if none was); a phoneme with no such
+    fallback stays, for the caller to refuse. The fallbacks are the label map's (every built-in map
+    but ``model`` has them: labelmaps/fallbacks.tsv), else those ``animate`` uses (phones_italian.tsv)."""
+    from coartic.runtime.animate import substitutions
+    from coartic.runtime.festival import PhoneMap
+
+    own = getattr(label_map, "fallbacks", None)
+    fallbacks, source = (own, str(label_map.source)) if own else (
+        PhoneMap.load().fallbacks, "phones_italian.tsv")
+    used = substitutions([lab for u in utterances for lab in u.labels], table, channels, fallbacks)
+    if not used:
+        return list(utterances), None
+    out = [Utterance([used.get(lab, lab) for lab in u.labels], u.starts, u.ends, u.times, u.name, u.observed,
+                     u.valid, u.meta) for u in utterances]
+    return out, ("the table has no " + ", ".join(f"/{k}/ (scored as /{v}/)" for k, v in used.items())
+                 + f": the phonetic-class fallbacks of {source} (--strict refuses instead)")
 
 
 def _corpus_label(row: dict[str, Any], i: int, role_map: Any) -> str:

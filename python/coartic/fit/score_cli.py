@@ -26,7 +26,7 @@ def score_command(
     role_map: Optional[Path] = typer.Option(None, "--role-map", help="which sensor/marker plays which role, and the "
                                             "EMA axes (JSON file); default: the role map the table records"),
     strict: bool = typer.Option(False, "--strict", help="refuse phonemes the table lacks instead of scoring them "
-                                "as their phonetic class's fallback (phones_italian.tsv), as animate does"),
+                                "as their phonetic class's fallback (the label map's, e.g. labelmaps/fallbacks.tsv)"),
     train: Optional[Path] = typer.Option(None, "--train", help="fit spec of the table's training data, for the "
                                          "baselines (default: the spec the table records, if it exists)"),
     speaker: Optional[str] = typer.Option(None, "--speaker", help="predict as this speaker of the table (a table "
@@ -85,5 +85,5 @@ def score_table(score: object) -> Table:
                   f"{wp['rmse_mm']:.3f} ({escape(wp['phoneme'])})" if wp else "–", str(r["samples"]))
         for b in (x for x in score.baseline_rows() if x["channel"] == ch and x["model"] != "table"):
             t.add_row(ch, f"[dim]{b['model']}[/dim]", f"{b['rmse_mm']:.3f}", f"{b['rmse_offset_removed_mm']:.3f}",
-                      f"{b['rmse_calibrated_mm']:.3f}", "", "", str(b["samples"]))
+                      f"{b['rmse_calibrated_mm']:.3f}", "–", "–", str(b["samples"]))
     return t

@@ -49,6 +49,8 @@ class SplitScore:
     test_rmse_calibrated: float = float("nan")
     # baseline -> (as measured, offset removed, speaker-calibrated) test RMSE on the same samples
     baselines: dict[str, tuple[float, float, float]] = field(default_factory=dict)
+    # a multi-start's distinct optima ([fit] starts > 1): each one's test RMSE, best in-sample first
+    optima_test_rmse: tuple[float, ...] = ()
 
     @property
     def beats_step(self) -> bool:
@@ -94,6 +96,13 @@ def score(result: FitResult, test: Sequence[Utterance], split: str,
                 for r in sc.baseline_rows() if r["model"] != "table"}
         out.append(SplitScore(split, ch, fit.rmse, row["rmse_mm"], row["samples"], worst, row["rmse_offset_removed_mm"],
                               fit.rmse**2 * n, n, fit.packing.n_free, row["rmse_calibrated_mm"], base))
+        if fit.multistart is not None:  # how much the held-out error differs between the optima found
+            for o in fit.multistart.optima:
+                params, beta = fit.packing.unpack(o.x)
+                t = result.table()
+                t.set_from_matrix(ch, list(fit.problem.phonemes), fit.problem.table_matrix(params), beta)
+                o.heldout_rmse[split] = float(score_utterances(t, test, [ch]).channel_rows()[0]["rmse_mm"])
+            out[-1].optima_test_rmse = tuple(o.heldout_rmse[split] for o in fit.multistart.optima)
     return out
 
 
@@ -201,6 +210,9 @@ def validate_all(spec: FitSpec, out: str | Path | None = None, utterances: Seque
             if notes is None:
                 raise
             notes.append(f"validation: {e}; not scored")
+        else:
+            if sub is not None and any(f.multistart is not None for f in res.channels.values()):
+                res.save(sub)  # its fit_report.txt and summary.json now give each optimum's held-out RMSE
         if res.interrupted:
             break
     if out is not None:
@@ -211,12 +223,15 @@ def validate_all(spec: FitSpec, out: str | Path | None = None, utterances: Seque
         w = csv.writer(buf, lineterminator="\n")
         w.writerow(["split", "channel", "train_rmse_mm", "test_rmse_mm", "test_rmse_offset_removed_mm", "test_samples",
                     "worst_vowel", "worst_vowel_rmse_mm", "test_rmse_speaker_calibrated_mm",
-                    *(f"{b}_{k}" for b in BASELINES for k in BASELINE_COLUMNS), "beats_step_model"])
+                    *(f"{b}_{k}" for b in BASELINES for k in BASELINE_COLUMNS), "beats_step_model",
+                    "optima_test_rmse_mm"])
         nan = (float("nan"),) * 3
         for sc in scores:
             w.writerow([sc.split, sc.channel, repr(sc.train_rmse), repr(sc.test_rmse), repr(sc.test_rmse_offset_removed),
                         sc.test_samples, sc.worst_vowel[0], repr(sc.worst_vowel[1]), repr(sc.test_rmse_calibrated),
-                        *(repr(v) for b in BASELINES for v in sc.baselines.get(b, nan)), sc.beats_step])
+                        *(repr(v) for b in BASELINES for v in sc.baselines.get(b, nan)), sc.beats_step,
+                        # each multi-start optimum's held-out RMSE, best (in-sample) first
+                        ";".join(f"{v:.6g}" for v in sc.optima_test_rmse)])
         atomic_write_text(Path(out) / "validation.csv", buf.getvalue())
     return scores
 

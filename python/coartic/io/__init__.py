@@ -9,13 +9,15 @@ does not load SciPy's signal processing, which only gap filling (coartic.io.gaps
 from importlib import import_module
 from typing import TYPE_CHECKING, Any
 
-if TYPE_CHECKING:
-    from coartic.io.errors import DataError, DataWarning
-    from coartic.io.gaps import DEFAULT_MAX_GAP, Gap
-    from coartic.io.labelmap import PAUSE, LabelMap
-    from coartic.io.labels import Segments, read_labels
-    from coartic.io.roles import RoleMap
-    from coartic.io.trial import ALL_CHANNELS, Channels, Trial, common_rate, load_trial
+if TYPE_CHECKING:  # "X as X": re-exported for the type checker (__all__ below is built at run time)
+    from coartic.io.errors import DataError as DataError, DataWarning as DataWarning
+    from coartic.io.gaps import DEFAULT_MAX_GAP as DEFAULT_MAX_GAP, Gap as Gap
+    from coartic.io.labelmap import LabelMap as LabelMap
+    from coartic.io.labels import Segments as Segments, read_labels as read_labels
+    from coartic.io.roles import RoleMap as RoleMap
+    from coartic.io.trial import Channels as Channels, Trial as Trial, common_rate as common_rate
+    from coartic.io.trial import load_trial as load_trial
+    from coartic.table import ALL_CHANNELS as ALL_CHANNELS, PAUSE as PAUSE
 
 # name -> the module that defines it
 _LAZY: dict[str, str] = {

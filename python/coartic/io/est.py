@@ -26,9 +26,10 @@ from coartic.io.units import to_mm
 
 MAGIC = b"EST_File Track"
 END = "EST_Header_End"
-# MOCHA-TIMIT and mngu0 EMA: 1/100 mm (the EST header carries no unit)
+# The EST header carries no unit. MOCHA-TIMIT's channels (`ul_x`) are in 1/100 mm; mngu0's
+# (`T1_px`, AG500 positions with `_ph`/`_pt` angles beside them) in mm.
 EST_UNIT_MM = 0.01
-_CHANNEL = re.compile(r"^(?P<sensor>[A-Za-z0-9]+?)_(?:p)?(?P<axis>[xyzXYZ])$")
+_CHANNEL = re.compile(r"^(?P<sensor>[A-Za-z0-9]+?)_(?P<p>p)?(?P<axis>[xyzXYZ])$")
 MAX_HEADER_LINES = 10_000
 FLOAT32_RATE_ERROR = 1e-6  # relative: a float32 time's rounding over a few thousand frames
 
@@ -84,8 +85,9 @@ def _int(keys: dict[str, str], key: str, p: Path, default: int | None = None) ->
 def read_est(path: str | Path, units: str | None = None) -> Trial:
     """Read an EST track of EMA sensors as a Trial (kind 'ema'), positions in mm.
 
-    Sensor channels are `<sensor>_x/_y/_z` (also `_px` ...); other channels are ignored. Break
-    frames and NaN samples are missing data. `units` overrides the 1/100 mm of MOCHA/mngu0.
+    Sensor channels are `<sensor>_x/_y/_z` (MOCHA-TIMIT, 1/100 mm) or `<sensor>_px/_py/_pz`
+    (mngu0, mm); other channels (angles, velum...) are ignored. Break frames and NaN samples are
+    missing data. `units` overrides the unit.
     """
     p = Path(path)
     try:
@@ -129,6 +131,7 @@ def read_est(path: str | Path, units: str | None = None) -> Trial:
         raise DataError(f"{n_frames} frame(s): no frame rate", path=p)
     names: list[str] = []
     cols: dict[str, dict[str, int]] = {}
+    mngu0 = False
     for i in sorted(channels):
         m = _CHANNEL.match(channels[i])
         if m is None:
@@ -140,6 +143,7 @@ def read_est(path: str | Path, units: str | None = None) -> Trial:
         if axis in cols[sensor]:
             raise DataError(f"channel {channels[i]!r} appears twice", path=p, item=channels[i])
         cols[sensor][axis] = 2 + i
+        mngu0 = mngu0 or m.group("p") is not None
     if not names:
         raise DataError(f"no sensor channels named <sensor>_x, _y (the channels are "
                         f"{[channels[i] for i in sorted(channels)][:12]})", path=p)
@@ -154,9 +158,12 @@ def read_est(path: str | Path, units: str | None = None) -> Trial:
     xyz = stack_axes(data, names, cols, planar)
     breaks = data[:, 1] == 0.0
     xyz[breaks] = np.nan
-    if units is None:
+    if units is None and mngu0:
+        notes = ["positions read in mm (channels named <sensor>_px as mngu0 writes them)"]
+    elif units is None:
         xyz = xyz * EST_UNIT_MM
-        notes = ["positions read in 1/100 mm (MOCHA-TIMIT/mngu0 EST tracks) and converted to mm"]
+        notes = ["positions read in 1/100 mm (channels named <sensor>_x as MOCHA-TIMIT writes "
+                 "them) and converted to mm"]
     else:
         xyz, note = to_mm(xyz, units, p, "sensor positions", names)
         notes = [note] if note else []

@@ -18,13 +18,17 @@ from coartic.console import print_error
 
 
 def inspect_command(
-    file: Annotated[Path, typer.Argument(help="C3D, marker CSV/TSV or EMA CSV file.")],
-    labels: Annotated[Optional[Path], typer.Option(help="Label file: TextGrid, .lab or TSV.")] = None,
+    file: Annotated[Path, typer.Argument(
+        help="C3D, marker or EMA CSV/TSV, EMU bundle, MOCHA EST track, XRMB .txy or mview .mat file.")],
+    labels: Annotated[Optional[Path], typer.Option(
+        help="Label file: TextGrid, .lab, TIMIT .phn or TSV.")] = None,
     label_map: Annotated[Optional[str], typer.Option(
-        help="Label map: a built-in name (model, german_sampa, english_arpabet) or a TSV/JSON file.")] = None,
+        help="Label map: a built-in name (model, german_sampa, english_arpabet, mocha, timit) or a "
+             "TSV/JSON file.")] = None,
     role_map: Annotated[Optional[Path], typer.Option(
         help="JSON role map: which marker/sensor is NOSE, UL, LL, JAW...; EMA axes.")] = None,
-    tier: Annotated[Optional[str], typer.Option(help="TextGrid tier (default: first interval tier).")] = None,
+    tier: Annotated[Optional[str], typer.Option(
+        help="TextGrid tier (default: a phones tier, else the first interval tier).")] = None,
     units: Annotated[Optional[str], typer.Option(help="Override the file's length unit (mm, cm, m).")] = None,
     max_gap: Annotated[float, typer.Option(help="Longest gap (s) filled by interpolation.")] = DEFAULT_MAX_GAP,
     plot: Annotated[Optional[Path], typer.Option(help="Write a PNG of the channels here.")] = None,

@@ -38,9 +38,11 @@ def read_mview(path: str | Path, units: str | None = None) -> Trial:
                         "with save(..., '-v7')", path=p)
     try:
         contents = scipy.io.loadmat(p, squeeze_me=False, struct_as_record=True)
-    except (ValueError, TypeError, OSError, NotImplementedError, MemoryError, IndexError,
-            KeyError) as e:
-        raise DataError(f"not a readable MATLAB file: {e}", path=p) from None
+    except MemoryError:
+        raise
+    except Exception as e:  # noqa: BLE001 - scipy's parser raises a dozen types on corrupt bytes
+        # (MatReadError, struct.error, zlib.error, UnicodeDecodeError, ...): all mean "unreadable"
+        raise DataError(f"not a readable MATLAB file ({type(e).__name__}: {e})", path=p) from None
     candidates = [(k, v) for k, v in contents.items()
                   if not k.startswith("__") and isinstance(v, np.ndarray) and v.dtype.names
                   and all(f in v.dtype.names for f in FIELDS)]

@@ -29,7 +29,8 @@ EMA_SENSOR_GUESSES: dict[str, tuple[str, ...]] = {
     "LL": ("ll", "lower_lip", "lowerlip", "llip"),
     # li: lower incisor (MOCHA); mi: mandible incisor pellet (X-ray Microbeam)
     "JAW": ("jw", "jaw", "li", "ji", "lower_incisor", "lowerincisor", "mand", "mi"),
-    "LC": ("lc", "lip_corner", "lipcorner", "corner"),
+    # ml: "mouth left", the lip-corner sensor of the Haskins IEEE rate database
+    "LC": ("lc", "lip_corner", "lipcorner", "corner", "ml", "mouth_left"),
     # t1: the X-ray Microbeam pellet nearest the tip
     "TT": ("tt", "t_tip", "tongue_tip", "tonguetip", "ttip", "tip", "t1"),
     # German EMU data: tt, tm (mid), tb (back); MOCHA: tt, tb (body), td (dorsum); Haskins: tt,
@@ -115,8 +116,10 @@ class RoleMap:
     def to_record(self) -> dict[str, Any]:
         """What a fitted table stores (metadata["role_map"]): the roles and axes the fit read its
         recordings with, so that scoring reads new recordings of the same system alike."""
-        return {"source": self.source, "roles": dict(self.roles),
-                "axes": {"vertical": self.vertical, "anterior": self.anterior}}
+        rec: dict[str, Any] = {"source": self.source, "roles": dict(self.roles)}
+        if self.axes_given:  # else the format's axes (or the guess from the sensors) apply again
+            rec["axes"] = {"vertical": self.vertical, "anterior": self.anterior}
+        return rec
 
     @classmethod
     def recorded(cls, table: Any) -> RoleMap | None:
@@ -131,7 +134,8 @@ class RoleMap:
         if not isinstance(rec, Mapping) or not isinstance(rec.get("roles", {}), Mapping):
             raise TableError(f"{where} must be an object with 'roles' and 'axes', found {str(rec)[:80]!r}")
         try:
-            return cls.from_dict({**rec.get("roles", {}), "axes": rec.get("axes", {})},
+            axes = {"axes": rec["axes"]} if "axes" in rec else {}
+            return cls.from_dict({**rec.get("roles", {}), **axes},
                                  f"the role map recorded in {table.source} ({rec.get('source', 'no source')})")
         except DataError as e:
             raise TableError(f"{where}: {e}") from None
@@ -200,6 +204,19 @@ def guess_ema_roles(names: Sequence[str], base: RoleMap) -> RoleMap:
         if hit is not None:
             roles[role] = hit
     return RoleMap(roles, base.vertical, base.anterior, base.source, base.axes_given)
+
+
+# Names only a face marker set has, and names only an EMA lab gives (jaw, incisor, tongue sensors).
+_FACE_ONLY = frozenset({"nose", "ear_l", "ear_r", "chin"})
+_EMA_ONLY = frozenset({"jaw", "jw", "li", "mi", "tt", "tb", "td", "tr", "tm", "t1", "t2", "t3",
+                       "t4", "t_tip", "t_mid", "t_back"})
+
+
+def ema_sensor_names(names: Sequence[str]) -> bool:
+    """Names as EMA labs give their sensors: UL, LL and a jaw or tongue sensor, and no face head
+    marker (NOSE, EAR_L, EAR_R, CHIN). Read as face markers, such a file would ask for NOSE/CHIN."""
+    lower = {n.lower() for n in names}
+    return not lower & _FACE_ONLY and {"ul", "ll"} <= lower and bool(lower & _EMA_ONLY)
 
 
 # Sensors that sit behind the lips on the midline, in the order they define "forwards".

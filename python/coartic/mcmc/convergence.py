@@ -26,6 +26,7 @@ from typing import Any, Sequence
 
 import numpy as np
 from numpy.typing import NDArray
+from coartic.mcmc.errors import McmcError
 
 MIN_TAU_MULTIPLE = 50.0
 MAX_TAU_CHANGE = 0.01
@@ -146,7 +147,7 @@ def check(
 ) -> ConvergenceReport:
     """Diagnose a set of independent ensembles, each chain shaped (steps, walkers, dim)."""
     if not chains:
-        raise ValueError("convergence check: no ensembles given")
+        raise McmcError("convergence check: no ensembles given")
     n_steps = min(c.shape[0] for c in chains)
     dim = chains[0].shape[2]
     names = list(names) if names is not None else [f"x{j}" for j in range(dim)]

@@ -20,11 +20,12 @@ from typing import Any, Callable, Sequence
 from coartic.fit.data import load_utterances
 from coartic.mcmc import plots
 from coartic.mcmc.idata import split_name
-from coartic.mcmc.run import (SCOPES, McmcConfig, McmcConfigError, PosteriorRun, channel_runs, fixed_noise, read_spec,
-                              spec_priors, spec_shrinkage, table_problem, table_speakers)
+from coartic.mcmc.run import (SCOPES, McmcConfig, PosteriorRun, channel_runs, fixed_noise, read_spec, spec_priors,
+                              spec_shrinkage, table_problem, table_speakers)
 from coartic.mcmc.summary import QUANTILE_LEVELS, write_uncertainty
 from coartic.outputs import OutputDir, OutputError, atomic_write_text, read_marker
 from coartic.table import ParameterTable
+from coartic.mcmc.errors import McmcConfigError, McmcError
 
 
 def find_table(fit: Path) -> Path:
@@ -85,7 +86,7 @@ def check_fit_matches_data(table: Any, table_path: Path, channel: str, data: Any
         return
     now = fixed_noise(data, packing, options, speakers=speakers)
     if abs(now - recorded) > STALE_TOLERANCE * recorded:
-        raise ValueError(
+        raise McmcError(
             f"{table_path}: fitted to other data than the spec gives now: on {channel} the RMSE at the table's "
             f"values is {now:.4f} mm, the fit recorded {recorded:.4f} mm (metadata.rmse). Refit with coartic fit, "
             "or pass --allow-stale-fit to sample anyway"

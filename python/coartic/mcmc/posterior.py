@@ -40,6 +40,7 @@ from typing import TYPE_CHECKING, Any, Callable, Mapping, Sequence
 
 import numpy as np
 from numpy.typing import NDArray
+from coartic.mcmc.errors import McmcError
 
 if TYPE_CHECKING:
     from coartic.fit.problem import ChannelData, Packing, ShrinkGroup, Speakers
@@ -106,15 +107,15 @@ class LogPosterior:
         self.channel = data.channel
         self.n_data = int(np.count_nonzero(data.weights > 0))
         if self.n_data == 0:
-            raise ValueError(f"channel {data.channel}: no valid sample to sample a posterior from")
+            raise McmcError(f"channel {data.channel}: no valid sample to sample a posterior from")
         if packing.n_free == 0:
-            raise ValueError(f"channel {data.channel}: no free parameter to sample")
+            raise McmcError(f"channel {data.channel}: no free parameter to sample")
         self.noise = None if noise is None else float(noise)
         if self.noise is not None and not (self.noise > 0 and math.isfinite(self.noise)):
-            raise ValueError(f"channel {data.channel}: a fixed noise level sigma_n must be positive and finite, got {noise}")
+            raise McmcError(f"channel {data.channel}: a fixed noise level sigma_n must be positive and finite, got {noise}")
         self.offset_sd = None if offset_sd is None else float(offset_sd)
         if self.offset_sd is not None and not (self.offset_sd >= 0 and math.isfinite(self.offset_sd)):
-            raise ValueError(f"channel {data.channel}: a fixed offset_sd must be >= 0 and finite, got {offset_sd}")
+            raise McmcError(f"channel {data.channel}: a fixed offset_sd must be >= 0 and finite, got {offset_sd}")
         self.utterance_weight = np.array([data.weights[data.utterance_samples(k)].sum() for k in range(len(data.utterances))])
 
         free_names = packing.names()
@@ -124,15 +125,15 @@ class LogPosterior:
             k: (float(v[0]), float(v[1])) + ((True,) if len(v) > 2 and v[2] else ()) for k, v in (priors or {}).items()}
         for key, (mu, sd, *_) in self.priors.items():
             if key not in free_names:
-                raise ValueError(
+                raise McmcError(
                     f"Gaussian prior on {key!r}: not a free parameter of this {data.channel} posterior "
                     f"(free: {', '.join(free_names)})"
                 )
             if not (sd > 0 and math.isfinite(sd) and math.isfinite(mu)):
-                raise ValueError(f"Gaussian prior on {key!r}: needs a finite mean and a positive sd, got ({mu}, {sd})")
+                raise McmcError(f"Gaussian prior on {key!r}: needs a finite mean and a positive sd, got ({mu}, {sd})")
         for key, v in self.priors.items():
             if len(v) > 2 and not v[0] > 0:
-                raise ValueError(f"Gaussian prior on log {key!r}: needs a positive median, got {v[0]}")
+                raise McmcError(f"Gaussian prior on log {key!r}: needs a positive median, got {v[0]}")
         # the same penalty as least squares, on the unpacked matrix (members outside this packing's
         # free set count in the class mean at their fitted values)
         self.shrinkage = Shrinkage(packing, shrinkage, 1.0)
@@ -147,9 +148,9 @@ class LogPosterior:
                 lo[j] = lo[j] if np.isfinite(lo[j]) else f_lo
                 hi[j] = hi[j] if np.isfinite(hi[j]) else f_hi
             if not (np.isfinite(lo[j]) and np.isfinite(hi[j])):
-                raise ValueError(f"{where}: the prior needs finite bounds, got [{lo[j]}, {hi[j]}]")
+                raise McmcError(f"{where}: the prior needs finite bounds, got [{lo[j]}, {hi[j]}]")
             if not lo[j] < hi[j]:
-                raise ValueError(f"{where}: empty prior support [{lo[j]}, {hi[j]}]")
+                raise McmcError(f"{where}: empty prior support [{lo[j]}, {hi[j]}]")
         # speakers ([model] speakers): every non-reference speaker with data here gets a_s (and log b_s)
         self.speakers = speakers
         self._spk_a = np.zeros(0)
@@ -247,7 +248,7 @@ class LogPosterior:
 
     def in_support(self, x: FloatArray) -> NDArray[np.bool_]:
         x = np.atleast_2d(x)
-        return np.all((x >= self.lower) & (x <= self.upper), axis=1)
+        return np.asarray(np.all((x >= self.lower) & (x <= self.upper), axis=1), dtype=np.bool_)
 
     def matrices(self, x: FloatArray) -> tuple[FloatArray, FloatArray]:
         """Parameter matrices (walkers, n_phonemes, 10) and β values (walkers,) for x (walkers, dim)."""
@@ -373,7 +374,7 @@ class LogPosterior:
         sse_a, sums_a = self.residual_sums(x[None])
         sse, sums = float(sse_a[0]), sums_a[0]
         if not np.isfinite(sse):
-            raise ValueError(f"channel {self.channel}: the starting point (least-squares optimum) is rejected by the model core")
+            raise McmcError(f"channel {self.channel}: the starting point (least-squares optimum) is rejected by the model core")
         sigma = max(math.sqrt(sse / self.n_data), math.exp(LOG_SIGMA_RANGE[0] + 1.0))
         extra = []
         if self._sigma_col is not None:
@@ -392,11 +393,11 @@ class LogPosterior:
         """
         center = np.asarray(center, dtype=np.float64)
         if center.shape != (self.dim,):
-            raise ValueError(f"initial point has shape {center.shape}, expected ({self.dim},)")
+            raise McmcError(f"initial point has shape {center.shape}, expected ({self.dim},)")
         width = self.upper - self.lower
         lo, hi = self.lower + 1e-6 * width, self.upper - 1e-6 * width
         pos = np.clip(center, lo, hi) + scale * width * rng.standard_normal((n, self.dim))
-        return np.clip(pos, lo, hi)
+        return np.asarray(np.clip(pos, lo, hi), dtype=np.float64)
 
     def predict(self, x: FloatArray) -> FloatArray:
         """Model trajectories (draws, n_samples) for parameter draws, through ``evaluate_batch`` (each
@@ -443,12 +444,12 @@ def phoneme_posterior(
     from coartic.fit.problem import ChannelData as _ChannelData
 
     if phoneme not in data.phonemes:
-        raise ValueError(f"channel {data.channel}: phoneme {phoneme!r} does not occur (phonemes: {' '.join(data.phonemes)})")
+        raise McmcError(f"channel {data.channel}: phoneme {phoneme!r} does not occur (phonemes: {' '.join(data.phonemes)})")
     row = data.phonemes.index(phoneme)
     free = np.zeros_like(packing.free)
     free[row] = packing.free[row]
     if not free.any():
-        raise ValueError(f"channel {data.channel}: phoneme {phoneme!r} has no free parameter (all fixed by the spec)")
+        raise McmcError(f"channel {data.channel}: phoneme {phoneme!r} has no free parameter (all fixed by the spec)")
     # the utterances of the phoneme and of every phoneme whose entries follow its free ones
     # ([[tie]], or the speakers' rows of [model] speakers = "targets"): the others do not depend on it
     free_flat = packing.free.reshape(-1)

@@ -16,7 +16,6 @@ from typing import Any, Callable, Mapping, Sequence
 import numpy as np
 from numpy.typing import NDArray
 
-from coartic.errors import CoarticError
 from coartic.fit.problem import SPEAKER_SEP
 from coartic.mcmc import idata, plots, sampler, summary
 from coartic.mcmc.posterior import LogPosterior, SpeakerTerms, channel_posterior, phoneme_posterior
@@ -24,12 +23,9 @@ from coartic.mcmc.sampler import SamplerSettings, SamplingResult
 from coartic.mcmc.summary import ParameterSummary
 from coartic.outputs import atomic_write_text
 from coartic.table import PAUSE
+from coartic.mcmc.errors import McmcConfigError, McmcError
 
 SCOPES = ("phonemes", "channel")
-
-
-class McmcConfigError(CoarticError, ValueError):
-    """A bad ``[mcmc]`` section; the message names the file and key."""
 
 
 @dataclass
@@ -169,9 +165,9 @@ def table_problem(fit_spec: Any, table: Any, table_path: Path, channel: str,
     from coartic.model import model_options
 
     if channel not in table.channels:
-        raise ValueError(f"{table_path}: the table has no channel {channel!r} (channels: {', '.join(table.channels)})")
+        raise McmcError(f"{table_path}: the table has no channel {channel!r} (channels: {', '.join(table.channels)})")
     if table.variant != fit_spec.variant:
-        raise ValueError(f"{table_path}: a table of the {table.variant!r} model, but {fit_spec.path} [model] variant = "
+        raise McmcError(f"{table_path}: a table of the {table.variant!r} model, but {fit_spec.path} [model] variant = "
                          f"{fit_spec.variant!r}: sample with the spec the table was fitted with")
     data = ChannelData.build(utterances, channel)
     ps = ParameterSet.from_spec(fit_spec, data, table.to_matrix(channel, data.phonemes))
@@ -179,7 +175,7 @@ def table_problem(fit_spec: Any, table: Any, table_path: Path, channel: str,
     if fit_spec.speakers == "targets":
         own = (meta.get("targets") or {}).get(channel)
         if not own:
-            raise ValueError(f"{table_path}: metadata.speakers has no targets for channel {channel}")
+            raise McmcError(f"{table_path}: metadata.speakers has no targets for channel {channel}")
         data, ps, _ = expand_speaker_targets(fit_spec, data, ps, data_start=False, names=tuple(own),
                                              start_targets=own)
     return data, ps.packing(), model_options(table, channel)
@@ -193,11 +189,11 @@ def _speaker_meta(fit_spec: Any, table: Any, table_path: Path) -> dict[str, Any]
     told = meta.get("mode")
     if mode == "none":
         if told:
-            raise ValueError(f"{table_path}: fitted with [model] speakers = {told!r}, but {fit_spec.path} has none: "
+            raise McmcError(f"{table_path}: fitted with [model] speakers = {told!r}, but {fit_spec.path} has none: "
                              "sample with the spec the table was fitted with")
         return meta
     if told != mode or meta.get("column") != fit_spec.speaker_column:
-        raise ValueError(f"{table_path}: {fit_spec.path} has [model] speakers = {mode!r} (column "
+        raise McmcError(f"{table_path}: {fit_spec.path} has [model] speakers = {mode!r} (column "
                          f"{fit_spec.speaker_column!r}), but the table was fitted with "
                          f"{'no speakers' if not told else repr(told) + ' (column ' + repr(meta.get('column')) + ')'}: "
                          "sample with the spec the table was fitted with")
@@ -214,7 +210,7 @@ def table_speakers(fit_spec: Any, table: Any, table_path: Path, channel: str) ->
         return None
     coefs = (meta.get("coefficients") or {}).get(channel)
     if not coefs:
-        raise ValueError(f"{table_path}: metadata.speakers has no coefficients for channel {channel}")
+        raise McmcError(f"{table_path}: metadata.speakers has no coefficients for channel {channel}")
     start = {str(s): (float(c["offset_mm"]), float(c["scale"])) for s, c in coefs.items()}
     return SpeakerTerms(fit_spec.speakers, fit_spec.speaker_column, tuple(start), start)
 
@@ -297,7 +293,7 @@ def sample_posterior(
     directory.mkdir(parents=True, exist_ok=True)
     x0 = posterior.start_point() if start is None else np.asarray(start, dtype=np.float64)
     if not np.isfinite(posterior(x0[None])[0]):
-        raise ValueError(f"{label}: the least-squares optimum has zero posterior density (outside the bounds or rejected by the core)")
+        raise McmcError(f"{label}: the least-squares optimum has zero posterior density (outside the bounds or rejected by the core)")
     result = sampler.run(
         posterior,
         lambda rng, n: posterior.initial_ball(x0, n, rng, settings.ball),

@@ -30,6 +30,7 @@ from numpy.typing import NDArray
 
 from coartic.mcmc import convergence
 from coartic.mcmc.convergence import ConvergenceReport
+from coartic.mcmc.errors import ChainError, McmcConfigError, McmcError
 from coartic.outputs import DeferredSignals, atomic_path, atomic_write_text
 
 LogProb = Callable[[NDArray[np.float64]], NDArray[np.float64]]
@@ -62,9 +63,9 @@ def make_moves(name: str) -> Any:
 
 def check_moves(name: str) -> None:
     if name in REMOVED_MOVES:
-        raise ValueError(f"moves = {name!r} is no longer offered: {REMOVED_MOVES[name]}; use \"de\"")
+        raise McmcConfigError(f"moves = {name!r} is no longer offered: {REMOVED_MOVES[name]}; use \"de\"")
     if name not in MOVES:
-        raise ValueError(f"unknown moves {name!r}; expected one of {', '.join(MOVES)}")
+        raise McmcConfigError(f"unknown moves {name!r}; expected one of {', '.join(MOVES)}")
 
 
 @dataclass
@@ -82,15 +83,15 @@ class SamplerSettings:
 
     def validate(self, dim: int) -> None:
         if self.n_walkers < 2 * dim + 2:
-            raise ValueError(f"n_walkers = {self.n_walkers} is too few for {dim} dimensions (emcee needs > 2 x dim; use >= {2 * dim + 2})")
+            raise McmcConfigError(f"n_walkers = {self.n_walkers} is too few for {dim} dimensions (emcee needs > 2 x dim; use >= {2 * dim + 2})")
         if self.n_walkers % 2:
-            raise ValueError(f"n_walkers = {self.n_walkers} must be even (emcee's stretch move splits walkers in halves)")
+            raise McmcConfigError(f"n_walkers = {self.n_walkers} must be even (emcee's stretch move splits walkers in halves)")
         for name in ("n_ensembles", "chunk_steps", "max_steps"):
             if getattr(self, name) < 1:
-                raise ValueError(f"{name} must be >= 1, got {getattr(self, name)}")
+                raise McmcConfigError(f"{name} must be >= 1, got {getattr(self, name)}")
         check_moves(self.moves)
         if self.min_steps > self.max_steps:
-            raise ValueError(f"min_steps = {self.min_steps} exceeds max_steps = {self.max_steps}")
+            raise McmcConfigError(f"min_steps = {self.min_steps} exceeds max_steps = {self.max_steps}")
         self.check_memory(dim)
 
     def check_memory(self, dim: int, limit: int | None = None) -> None:
@@ -103,12 +104,12 @@ class SamplerSettings:
         whole = self.n_ensembles * self.max_steps * per_step
         chunk = 2 * min(self.chunk_steps, self.max_steps) * per_step  # emcee's backend + our copy
         if whole > limit:
-            raise ValueError(
+            raise McmcConfigError(
                 f"max_steps = {self.max_steps} x walkers = {self.n_walkers} x ensembles = {self.n_ensembles} in "
                 f"{dim} dimensions needs {_size(whole)} for the chains, more than the {_size(limit)} this machine "
                 "allows; lower [mcmc] max_steps, walkers or ensembles")
         if chunk > limit:
-            raise ValueError(
+            raise McmcConfigError(
                 f"chunk_steps = {self.chunk_steps} x walkers = {self.n_walkers} in {dim} dimensions needs "
                 f"{_size(chunk)} per chunk, more than the {_size(limit)} this machine allows; lower [mcmc] chunk_steps or walkers")
 
@@ -152,7 +153,7 @@ class ChainStore:
         try:
             return dict(json.loads(p.read_text()))
         except (OSError, json.JSONDecodeError) as exc:
-            raise ValueError(f"{p}: unreadable chain metadata ({exc}); delete the directory to start over") from exc
+            raise ChainError(f"{p}: unreadable chain metadata ({exc}); delete the directory to start over") from exc
 
     def open(self, meta: dict[str, Any]) -> None:
         """Create the store, or check that an existing one holds chains of the same posterior and settings."""
@@ -163,7 +164,7 @@ class ChainStore:
             return
         for key in ("fingerprint", "coordinates", "n_walkers", "n_ensembles", "seed", "moves"):
             if old.get(key) != meta.get(key):
-                raise ValueError(
+                raise ChainError(
                     f"{self.directory}: holds chains of a different run ({key}: saved {old.get(key)!r}, now {meta.get(key)!r}); "
                     "use another output directory, or delete this one to start over"
                 )
@@ -181,7 +182,7 @@ class ChainStore:
         for expected, (k, p) in enumerate(found):
             if k != expected:
                 later = [q.name for j, q in found if j > expected]
-                raise ValueError(
+                raise ChainError(
                     f"{self.directory / f'ens{ensemble:02d}_chunk{expected:05d}.npz'}: missing, but later chunks exist "
                     f"({', '.join(later)}); the chain cannot continue across the gap. Delete the later chunks to resume "
                     f"from chunk {expected - 1}, or delete {self.directory} to start over" if expected else
@@ -193,7 +194,7 @@ class ChainStore:
         k = len(self.chunk_paths(ensemble))  # no gaps, so the next number is free
         path = self.directory / f"ens{ensemble:02d}_chunk{k:05d}.npz"
         if path.exists():  # pragma: no cover - only if another process writes the same store
-            raise ValueError(f"{path}: already exists; another run is writing {self.directory}")
+            raise ChainError(f"{path}: already exists; another run is writing {self.directory}")
         rs = chunk.random_state
         with atomic_path(path) as tmp:  # fsync, then rename: a chunk on disk is whole after a crash
             np.savez(
@@ -218,7 +219,7 @@ class ChainStore:
         for i, p in enumerate(paths):
             try:
                 if p.stat().st_size == 0:
-                    raise ValueError("the file is empty")
+                    raise ChainError("the file is empty")
                 with np.load(p) as z:
                     last = Chunk(
                         chain=z["chain"],
@@ -232,10 +233,20 @@ class ChainStore:
                 # (an empty .npz raises EOFError, which the command line would turn into a bare "Aborted!")
                 after = [q.name for q in paths[i + 1:]]
                 what = f"delete it and the {len(after)} chunk(s) after it ({', '.join(after)})" if after else "delete it"
-                raise ValueError(f"{p}: damaged chain chunk ({type(exc).__name__}: {exc}); {what} to resume from "
+                raise ChainError(f"{p}: damaged chain chunk ({type(exc).__name__}: {exc}); {what} to resume from "
                                  "the chunk before, or delete the directory to start over") from exc
             if last.chain.ndim != 3 or last.chain.shape[1:] != (n_walkers, dim):
-                raise ValueError(f"{p}: chain shaped {last.chain.shape}, expected (steps, {n_walkers}, {dim})")
+                raise ChainError(f"{p}: chain shaped {last.chain.shape}, expected (steps, {n_walkers}, {dim})")
+            bad = ~np.isfinite(last.chain)
+            if bad.any() or not np.isfinite(last.coords).all():
+                # a walker is always at a finite point: NaN is damage (emcee would resume from it and
+                # fail on the ensemble's covariance with a message about condition numbers)
+                step, walker, _ = (int(v) for v in np.argwhere(bad)[0]) if bad.any() else (last.chain.shape[0], 0, 0)
+                after = [q.name for q in paths[i + 1:]]
+                what = f"delete it and the {len(after)} chunk(s) after it ({', '.join(after)})" if after else "delete it"
+                raise ChainError(f"{p}: damaged chain chunk (non-finite walker positions, the first at step {step}, "
+                                 f"walker {walker}); {what} to resume from the chunk before, or delete the directory "
+                                 "to start over")
             chains.append(last.chain)
             lps.append(last.log_prob)
             accepted += last.accepted
@@ -384,7 +395,7 @@ def run(
             rng = np.random.default_rng([settings.seed, e])
             coords = np.asarray(initial(rng, W), dtype=np.float64)
             if coords.shape != (W, dim):
-                raise ValueError(f"initial positions shaped {coords.shape}, expected ({W}, {dim})")
+                raise McmcError(f"initial positions shaped {coords.shape}, expected ({W}, {dim})")
             rs = np.random.RandomState(np.random.SeedSequence([settings.seed, e, 1]).generate_state(4)).get_state()
             states.append((coords, None, rs))
         else:

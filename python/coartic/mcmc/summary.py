@@ -7,6 +7,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from numpy.typing import NDArray
+from coartic.mcmc.errors import McmcError
 
 if TYPE_CHECKING:
     from coartic.mcmc.posterior import LogPosterior
@@ -41,7 +42,7 @@ def summarize(posterior: LogPosterior, result: SamplingResult, start: NDArray[np
     """One summary per coordinate, from the post-burn-in thinned draws of every ensemble."""
     draws = result.draws()
     if draws.shape[0] < 2:
-        raise ValueError("too few posterior draws to summarise; sample longer")
+        raise McmcError("too few posterior draws to summarise; sample longer")
     natural = posterior.to_natural(draws)
     q_nat = quantiles(natural)
     q_coord = quantiles(draws)

@@ -12,6 +12,7 @@ with their own values escaped (coartic.mcmc.plots.html_fragment), are passed as 
 from __future__ import annotations
 
 import csv
+import re
 from pathlib import Path
 from typing import Any
 
@@ -39,20 +40,41 @@ def _ground_truth(result: FitResult) -> ParameterTable | None:
         return None
 
 
+# The page's figure sections, in the order a phonetician reads them: what the model does against
+# the measurements, where it misses, how it does on data it did not see, then the rest.
+SECTIONS = (("trajectories", "Trajectories and dominance"), ("residuals", "Residuals"),
+            ("heldout", "Held out: data the fit did not see"), ("other", "More figures"))
+
+
+def one_line(reading: str) -> str:
+    """The gist of an at-bound reading, for its row: the clause after the numbers ("T = 2 mm at the
+    top of its box: /e/ heads for a value beyond anything measured on LA: …" gives "/e/ heads for a
+    value beyond anything measured on LA"), asides in parentheses dropped. The whole reading opens
+    on demand."""
+    text = re.sub(r"\s*\([^()]*\)", "", reading)
+    parts = text.split(": ")
+    gist = parts[1] if len(parts) > 1 else parts[0]
+    return gist.split(" — ")[0].split(". ")[0].rstrip(".")
+
+
 def write_report(result: FitResult, out: str | Path, console: Console | None = None,
                  channel_for_trials: str = "LLO") -> Path:
-    """Write ``out/report.html`` and its PNGs; return the HTML path."""
+    """Write ``out/report.html`` and its PNGs; return the HTML path.
+
+    The page leads with the RMSE summary (held-out RMSE beside it when validated), then the
+    figures, then the compact at-bound table whose explanations open on demand; sections with
+    nothing to show are left out."""
     out = Path(out)
     fig_dir = out / "figures"
     fig_dir.mkdir(parents=True, exist_ok=True)
     table = result.table()
-    figures: list[dict[str, str]] = []
+    figures: dict[str, list[dict[str, str]]] = {name: [] for name, _ in SECTIONS}
 
-    def add(fig: Any, name: str, caption: str) -> None:
+    def add(fig: Any, name: str, caption: str, section: str) -> None:
         if fig is None:
             return
         plots.save(fig, fig_dir / name)
-        figures.append({"src": f"figures/{name}", "caption": caption})
+        figures[section].append({"src": f"figures/{name}", "caption": caption})
 
     ch = channel_for_trials if channel_for_trials in result.channels else next(iter(result.channels))
     fit = result.channels[ch]
@@ -61,46 +83,67 @@ def write_report(result: FitResult, out: str | Path, console: Console | None = N
         idx = list(range(min(3, len(fit.problem.data.utterances))))
     add(plots.trajectory_figure(fit, table, idx), f"trajectories_{ch}.png",
         f"{ch}: measured (dots) and modelled (line) trajectories, with each segment's weight "
-        "S·R·D/ΣR·D underneath (the dominance functions, as in the paper's Figure 1), one colour per phoneme.")
+        "S·R·D/ΣR·D underneath (the dominance functions, as in the paper's Figure 1), one colour per phoneme.",
+        "trajectories")
     for other in result.channels:
         if other == ch:
             continue
         o = result.channels[other]
         j = plots.pick_utterances(o, ("a p a", "u f u", "i t i")) or list(range(min(3, len(o.problem.data.utterances))))
-        add(plots.trajectory_figure(o, table, j), f"trajectories_{other}.png", f"{other}: measured and modelled.")
-    add(plots.residual_figure(result), "residuals.png",
-        f"Residual distributions per channel (dashed: ±{BAR_MM} mm; black: normal with the same spread).")
+        add(plots.trajectory_figure(o, table, j), f"trajectories_{other}.png",
+            f"{other}: measured and modelled, with the segments' weights.", "trajectories")
     add(plots.residual_time_figure(result, [fit.problem.data.utterances[i].name for i in idx]), "residuals_time.png",
-        f"Model − measured over time in the utterances above, every channel (dashed: ±{BAR_MM} mm).")
+        f"Model − measured over time in the utterances above, every channel (dashed: ±{BAR_MM} mm).", "residuals")
+    add(plots.residual_figure(result), "residuals.png",
+        f"Residual distributions per channel (dashed: ±{BAR_MM} mm; black: normal with the same spread).",
+        "residuals")
     add(plots.phoneme_rmse_figure(result), "rmse_phonemes.png",
-        f"RMSE of the samples inside each phoneme's segments, per channel (dashed: the {BAR_MM} mm bar).")
+        f"RMSE of the samples inside each phoneme's segments, per channel (dashed: the {BAR_MM} mm bar).",
+        "residuals")
     add(plots.rmse_map_figure(result), "rmse_map.png",
-        f"RMSE per consonant and vowel context; red outline: at or above the {BAR_MM} mm bar.")
+        f"RMSE per consonant and vowel context; red outline: at or above the {BAR_MM} mm bar.", "residuals")
+    if result.validation:
+        add(plots.heldout_figure(result), "heldout.png",
+            "RMSE per channel on the samples the fit did not see (every split pooled), as measured and with each "
+            "utterance's offset removed, beside the fit's own RMSE and the baselines' held-out RMSE on the same "
+            f"samples (dashed: the {BAR_MM} mm bar).", "heldout")
     if result.choice is not None and (out / "choose.png").is_file():  # written by result.save (choose.csv beside it)
-        figures.append({"src": "choose.png", "caption": f"{result.choice.choose.key} chosen by cross-validation on the "
-                        f"training data: mean held-out RMSE ± one SE over the folds; star: the chosen value "
-                        f"(rule {result.choice.choose.rule}). The numbers are in choose.csv and the fit report below."})
+        figures["other"].append({"src": "choose.png", "caption": f"{result.choice.choose.key} chosen by "
+                                 "cross-validation on the training data: mean held-out RMSE ± one SE over the folds; "
+                                 f"star: the chosen value (rule {result.choice.choose.rule}). The numbers are in "
+                                 "choose.csv and the fit report below."})
     from coartic.fit.validate import flags
 
     truth = _ground_truth(result)
     if truth is not None:
         add(plots.truth_figure(result, truth), "truth.png",
-            "Synthetic session: fitted against ground-truth targets and resistances (grey: identity).")
+            "Synthetic session: fitted against ground-truth targets and resistances (grey: identity).", "other")
 
-    rmse_rows = result.rmse_rows()
+    bounds = [{"channel": c, "note": n, "line": one_line(n.reading)}
+              for c, f in result.channels.items() if f.stats and f.stats.bounds for n in f.stats.bounds.values()]
     extras = [markupsafe.Markup(p.read_text(encoding="utf-8")) for p in sorted(out.glob("report_*.html"))]
     env = jinja2.Environment(loader=jinja2.FileSystemLoader(_TEMPLATES), autoescape=True)
     html = env.get_template("fit_report.html.j2").render(
-        result=result, spec=result.spec, bar=BAR_MM, figures=figures, rmse_rows=rmse_rows,
+        result=result, spec=result.spec, bar=BAR_MM, figures=figures, sections=SECTIONS,
+        group_rows=[r for r in result.rmse_rows() if r["group"] != "all"],
         channels=result.channels, report_text=result.report_text(), extras=extras,
         validation=_validation_rows(out), validation_flags=flags(result.validation or []),
-        bound_notes={c: list(f.stats.bounds.values()) for c, f in result.channels.items() if f.stats and f.stats.bounds},
+        heldout=_heldout_summary(result), bounds=bounds,
         bound_counts={c: summary_counts(f.stats.bounds) if f.stats else "" for c, f in result.channels.items()})
     path = out / "report.html"
     atomic_write_text(path, html)
+    n_figures = sum(len(v) for v in figures.values())
     if console is not None:
-        console.print(f"wrote the report with {len(figures)} figures")  # (no path: it may be a staging directory)
+        console.print(f"wrote the report with {n_figures} figures")  # (no path: it may be a staging directory)
     return path
+
+
+def _heldout_summary(result: FitResult) -> dict[str, tuple[float, float, int]]:
+    """Per channel, the held-out RMSE over every split's test samples (as measured, offset
+    removed, samples): the summary table's column."""
+    from coartic.fit.validate import pooled
+
+    return pooled(result.validation or [])
 
 
 def _validation_rows(out: Path) -> list[dict[str, str]]:

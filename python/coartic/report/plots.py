@@ -11,6 +11,8 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 from matplotlib.figure import Figure  # noqa: E402
+from matplotlib.lines import Line2D  # noqa: E402
+from matplotlib.patches import Rectangle  # noqa: E402
 from numpy.typing import NDArray  # noqa: E402
 
 from coartic.fit.result import BAR_MM, ChannelFit, FitResult  # noqa: E402
@@ -195,7 +197,7 @@ def trajectory_figure(fit: ChannelFit, table: ParameterTable, utterances: Sequen
         if _long(utts):  # one utterance per row: the time axis is labelled under the weights only
             top.tick_params(labelbottom=False)
         titles.append(f"{utterance_title(utt)}   RMSE {rm:.2f} mm")
-    handles = [plt.Line2D([], [], color=c, lw=2) for c in colours.values()]
+    handles = [Line2D([], [], color=c, lw=2) for c in colours.values()]
     _bottom_legend(fig, handles, list(colours), "weight of each phoneme's target (lower panels)")
     _label_and_title(axes[0], utts, titles, width_in)
     return fig
@@ -327,7 +329,7 @@ def rmse_map_figure(result: FitResult) -> Figure | None:
                 grid[cons.index(c), vows.index(v)] = rm
         im = ax.imshow(grid, aspect="auto", cmap="viridis", vmin=0, vmax=vmax)
         for i, j in np.argwhere(grid >= BAR_MM):
-            ax.add_patch(plt.Rectangle((j - 0.5, i - 0.5), 1, 1, fill=False, ec="red", lw=1.5))
+            ax.add_patch(Rectangle((j - 0.5, i - 0.5), 1, 1, fill=False, ec="red", lw=1.5))
         ax.set_xticks(range(len(vows)), vows)
         ax.set_yticks(range(len(cons)), cons if ax is axes[0, 0] else [], fontsize=7)
         ax.set_title(ch, fontsize=9)
@@ -363,6 +365,39 @@ def truth_figure(result: FitResult, truth: ParameterTable) -> Figure | None:
         ax.set_xlabel(f"true {name}")
         ax.set_ylabel(f"fitted {name}")
     a.legend(fontsize=7)
+    fig.tight_layout()
+    return fig
+
+
+def heldout_figure(result: FitResult) -> Figure | None:
+    """Per channel: the fit's own RMSE and the held-out RMSE (every split's test samples pooled), as
+    measured and with each utterance's offset removed, then each baseline's held-out RMSE on the
+    same samples (``coartic.fit.baselines``, those the validation computed), the bar dashed."""
+    from coartic.fit.baselines import BASELINES, TITLES
+    from coartic.fit.validate import pooled
+
+    scores = result.validation or []
+    held = pooled(scores)
+    chans = [ch for ch in result.channels if ch in held]
+    if not chans:
+        return None
+    nan = (float("nan"), float("nan"), 0)
+    bars = [("fit (in-sample)", [result.channels[ch].rmse for ch in chans], "0.6"),
+            ("held out", [held[ch][0] for ch in chans], "C0"),
+            ("held out, offset removed", [held[ch][1] for ch in chans], "C9")]
+    for b, colour in zip(BASELINES, ("C1", "C2", "C4")):  # (C3, red, is the bar's)
+        base = pooled(scores, b)
+        if base:
+            bars.append((f"baseline: {TITLES[b]}", [base.get(ch, nan)[0] for ch in chans], colour))
+    fig, ax = plt.subplots(figsize=(4.0 + (0.25 + 0.2 * len(bars)) * len(chans), 2.8))  # legend on the right
+    x = np.arange(len(chans))
+    w = 0.8 / len(bars)
+    for k, (label, values, colour) in enumerate(bars):
+        ax.bar(x - 0.4 + w * (k + 0.5), values, w, color=colour, label=label)
+    ax.axhline(BAR_MM, color="C3", ls="--", lw=0.8)
+    ax.set_xticks(x, chans)
+    ax.set_ylabel("RMSE (mm)")
+    ax.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.0, 1.0))
     fig.tight_layout()
     return fig
 

@@ -35,8 +35,10 @@ MAX_FRAMES = 1_000_000
 CONTACT_K_R_TOLERANCE = 1e-3
 # A channel the table does not have is held at rest; only LR's absolute value matters to the
 # preview (the mouth's width), and FAPs are displacements from it, i.e. 0.
-# frames x segments computed at once by Animation.segment_shares (16 MB of float64)
-SHARE_BLOCK = 2_000_000
+# Animation.segment_shares takes the segments this close (s) to its frames; callers go through an
+# animation SHARE_FRAMES frames at a time (memory: frames x segments of one block)
+SHARE_MARGIN_S = 2.0
+SHARE_FRAMES = 250
 REST_DEFAULTS_MM: dict[str, float] = {"ULO": 0.0, "LLO": 0.0, "ULP": 0.0, "LLP": 0.0, "LR": 50.0, "JO": 0.0}
 
 
@@ -68,24 +70,28 @@ class Animation:
     def n_frames(self) -> int:
         return int(self.times.size)
 
-    def segment_shares(self, channel: str) -> NDArray[np.float64]:
-        """(frames, segments): each segment's share of `channel` at every frame, its dominance
-        weight w_i = S_i R_i D_i / Σ_j R_j D_j (coartic.model.segment_weights) normalised to sum 1,
-        at the instants the frames sampled. Computed in blocks of frames so that a long animation
-        never holds a dense frames × segments Jacobian."""
+    def segment_shares(self, channel: str, start: int = 0, stop: int | None = None) -> NDArray[np.float64]:
+        """(frames, segments) for frames start..stop: each segment's share of `channel`, its
+        dominance weight w_i = S_i R_i D_i / Σ_j R_j D_j (coartic.model.segment_weights)
+        normalised to sum 1, at the instants the frames sampled. Only the segments within
+        SHARE_MARGIN_S of those frames enter (a dominance function that far away is below 1e-4
+        of its peak for any θ ≥ 5 /s), so a long animation costs frames × nearby segments."""
         from coartic.model import segment_weights
 
         if self.table is None:
             raise AnimationError("this animation does not carry the table that made it: no dominance weights")
-        times = self.sample_times.get(channel, self.times)
-        n_seg = len(self.segments)
-        out = np.empty((times.size, n_seg))
-        block = max(1, SHARE_BLOCK // max(n_seg, 1))
-        for a in range(0, times.size, block):
-            w = segment_weights(self.table, channel, list(self.segments.labels), self.segments.starts,
-                                self.segments.ends, times[a:a + block]).T
-            w = np.maximum(w, 0.0)
-            out[a:a + block] = w / np.maximum(w.sum(axis=1, keepdims=True), np.finfo(float).tiny)
+        times = self.sample_times.get(channel, self.times)[start:stop]
+        seg = self.segments
+        out = np.zeros((times.size, len(seg)))
+        if times.size == 0:
+            return out
+        near = np.flatnonzero((seg.ends >= times[0] - SHARE_MARGIN_S) & (seg.starts <= times[-1] + SHARE_MARGIN_S))
+        if near.size == 0:  # frames past the last segment: the nearest one holds
+            near = np.array([int(np.argmin(np.abs(seg.starts - times[0])))])
+        w = segment_weights(self.table, channel, [seg.labels[i] for i in near], seg.starts[near], seg.ends[near],
+                            times).T
+        w = np.maximum(w, 0.0)
+        out[:, near] = w / np.maximum(w.sum(axis=1, keepdims=True), np.finfo(float).tiny)
         return out
 
     @property
@@ -198,6 +204,31 @@ def _first_available(phoneme: str, fallbacks: Sequence[str], available: Containe
         if candidate in available:
             return candidate
     return phoneme
+
+
+# How long the pause after the last word lasts for the model (s). A pause's target time lies in
+# its middle (MODEL.md §1), so the longer the silence a WAV or label file carries after the last
+# word, the later the model aims the return to rest, and the mouth went on opening after the voice
+# had stopped (44 ms after the last /a/ of "Il babbo mangia la pappa.", Festival's 0.43-s final
+# pause). Silence is not articulation: the final pause is given this span and the rest of the
+# silence is a second pause, held at rest. bench/runtime_lag.py measures it over sentences and rates.
+FINAL_PAUSE_S = 0.1
+
+
+def split_final_pause(segments: Segments, span: float = FINAL_PAUSE_S) -> tuple[Segments, list[int]]:
+    """The segments with an utterance-final pause longer than `span` split in two, the first part
+    lasting `span`; and for each new segment the index of the one it came from (to carry
+    per-segment columns along). Without a final pause after speech, the segments as they are."""
+    n = len(segments)
+    origin = list(range(n))
+    speech = [i for i, p in enumerate(segments.labels) if p != PAUSE]
+    if not speech or speech[-1] != n - 2 or segments.ends[-1] - segments.starts[-1] <= span:
+        return segments, origin
+    cut = float(segments.starts[-1]) + span
+    out = Segments((*segments.labels, PAUSE), np.append(segments.starts, cut),
+                   np.append(np.append(segments.ends[:-1], cut), segments.ends[-1]), source=segments.source,
+                   lines=(*segments.lines, segments.lines[-1]), tier=segments.tier)
+    return out, [*origin, n - 1]
 
 
 def evaluate(

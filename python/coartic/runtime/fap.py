@@ -73,7 +73,7 @@ CORNER_LIFTS: tuple[int, ...] = (12, 13)
 # Viseme and expression carry several values each (selects, blend, intensities); coartic drives
 # the low-level lip and jaw FAPs instead and does not read or write them.
 HIGH_LEVEL_FAPS: tuple[int, ...] = (1, 2)
-MW_FAPS: frozenset[int] = frozenset({6, 7, 53, 54})
+MW_FAPS: frozenset[int] = frozenset({6, 7, 53, 54, 43, 45})
 LIP_JAW_FAPS: tuple[int, ...] = tuple(sorted({*_INNER, *CORNER_LIFTS, *OUTER_TWIN}))
 FAP_CHANNELS: tuple[str, ...] = ("ULO", "LLO", "ULP", "LLP", "LR", "JO")
 # FAP values are integers that players read as 32-bit; beyond that a value wraps (the int64 cast of
@@ -304,9 +304,81 @@ def read_fap(path: str | Path) -> FapSequence:
     return FapSequence(name=name, fps=fps, mask=mask, values=values, first_frame=first_frame)
 
 
+# Tongue channels (docs/DATA.md: EMA tongue tip and body, head frame, mm from rest) → MPEG-4 tongue
+# FAPs: raise_tongue_tip (44, MNS, up), thrust_tongue_tip (45, MW, forwards), raise_tongue (46, MNS,
+# up). Tongue-body advancement (TBA) has no MPEG-4 FAP; shift_tongue_tip (43) and tongue_roll (47)
+# have no channel and are sent as 0.
+TONGUE_FAP_CHANNELS: dict[int, str] = {44: "TTH", 45: "TTA", 46: "TBH"}
+TONGUE_ZERO_FAPS: tuple[int, ...] = (43, 47)
+# Blinks: close_t_l_eyelid (19) and close_t_r_eyelid (20), IRISD units (iris diameter / 1024). A
+# blink lowers the lid by BLINK_CLOSED (a little more than an iris: the eye shuts), closing in
+# 80 ms, shut for 40 ms, opening in 160 ms, every 2.4-5 s (a fixed sequence of intervals, so
+# that every run of the same input gives the same file); the first comes 0.6 s in.
+BLINK_FAPS: tuple[int, int] = (19, 20)
+BLINK_CLOSED = 1100
+BLINK_SHAPE_S = (0.08, 0.04, 0.16)
+BLINK_INTERVALS_S = (3.2, 4.1, 2.6, 4.8, 3.5, 2.4, 4.4)
+BLINK_FIRST_S = 0.6
+
+
+def add_tongue_faps(seq: FapSequence, channels: Mapping[str, NDArray[np.float64]], neutral: Mapping[str, float],
+                    face: FaceUnits) -> FapSequence:
+    """`seq` with the tongue FAPs 43-47 from the tongue channels (TONGUE_FAP_CHANNELS), mm in the
+    head frame, measured from `neutral` (the face at rest)."""
+    mask, values = seq.mask.copy(), seq.values.copy()
+    for fap, channel in TONGUE_FAP_CHANNELS.items():
+        y = np.asarray(channels[channel], dtype=float)
+        if y.shape != (seq.n_frames,):
+            raise AnimationError(f"tongue channel {channel} has shape {y.shape}, expected ({seq.n_frames},)")
+        bad = np.flatnonzero(~np.isfinite(y))
+        if bad.size:
+            raise AnimationError(f"tongue channel {channel} is not finite at frame {int(bad[0])}")
+        fapu = np.rint((y - float(neutral[channel])) / face.unit_of(fap))
+        if not (np.abs(fapu) <= FAP_VALUE_LIMIT).all():
+            raise AnimationError(f"FAP {fap} ({FAP_NAMES[fap - 1]}) from {channel} is beyond ±{FAP_VALUE_LIMIT} FAPU: "
+                                 f"check the table's {channel} targets")
+        values[:, fap - 1] = fapu.astype(np.int64)
+        mask[:, fap - 1] = True
+    for fap in TONGUE_ZERO_FAPS:
+        values[:, fap - 1] = 0
+        mask[:, fap - 1] = True
+    return FapSequence(name=seq.name, fps=seq.fps, mask=mask, values=values, first_frame=seq.first_frame)
+
+
+def blink_profile(times: NDArray[np.float64]) -> NDArray[np.float64]:
+    """How closed the eyelids are (0 open .. 1 shut) at `times` (s) under the blink schedule."""
+    close, hold, opening = BLINK_SHAPE_S
+    out = np.zeros(np.shape(times))
+    t0, k = BLINK_FIRST_S, 0
+    end = float(np.max(times)) if np.size(times) else 0.0
+    while t0 <= end:
+        d = np.asarray(times) - t0
+        shape = np.where(d < 0, 0.0, np.where(d < close, d / close, np.where(
+            d < close + hold, 1.0, np.clip(1.0 - (d - close - hold) / opening, 0.0, 1.0))))
+        out = np.maximum(out, 0.5 - 0.5 * np.cos(np.pi * shape))  # eased in and out
+        t0 += BLINK_INTERVALS_S[k % len(BLINK_INTERVALS_S)]
+        k += 1
+    return out
+
+
+def add_blinks(seq: FapSequence) -> FapSequence:
+    """`seq` with both upper eyelids (FAPs 19, 20) blinking on the fixed schedule (BLINK_*)."""
+    mask, values = seq.mask.copy(), seq.values.copy()
+    closed = np.rint(BLINK_CLOSED * blink_profile(np.arange(seq.n_frames) / seq.fps)).astype(np.int64)
+    for fap in BLINK_FAPS:
+        values[:, fap - 1] = closed
+        mask[:, fap - 1] = True
+    return FapSequence(name=seq.name, fps=seq.fps, mask=mask, values=values, first_frame=seq.first_frame)
+
+
 def animation_faps(animation: Animation, face: FaceUnits, name: str) -> FapSequence:
-    """The animation's lip and jaw FAPs, from its channels and neutral face, in `face`'s units."""
-    return channels_to_faps(animation.channels, animation.neutral, face, name, animation.fps)
+    """The animation's FAPs in `face`'s units: lips and jaw from its channels and neutral face, the
+    tongue from its table's tongue channels or the default (coartic.runtime.tongue), and blinks."""
+    from coartic.runtime.tongue import tongue_channels
+
+    faps = channels_to_faps(animation.channels, animation.neutral, face, name, animation.fps)
+    tongue, rest, _ = tongue_channels(animation)
+    return add_blinks(add_tongue_faps(faps, tongue, rest, face))
 
 
 def export_fap(animation: Animation, settings: ExportSettings) -> dict[str, Path]:

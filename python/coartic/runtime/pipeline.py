@@ -26,6 +26,7 @@ from coartic.runtime.animate import (
     Animation,
     animate,
     neutral_posture,
+    split_final_pause,
     substitute,
     table_channels,
 )
@@ -149,6 +150,8 @@ def _write_outputs(
     gltf_morphs: str = "fap",
 ) -> RuntimeOutput:
     """Every exporter fed the one animation: the exact outputs first, the pictures last."""
+    if not animation.neutral:
+        neutral_posture(table)  # raises, naming the table: no pause phoneme, no neutral face
     settings = ExportSettings(out=out, name=name, face=face, table=table, requested=requested, source=source,
                               audio=audio, progress=progress, mapping=mapping, gltf_morphs=gltf_morphs,
                               preview=preview)
@@ -216,11 +219,13 @@ def animate_file(
             raise AnimationError(f"{labels}: the labels run to {segments.end_time:.3f} s but {audio} lasts "
                                  f"{duration:.3f} s; are they for this recording?")
         duration = max(duration, 1.0 / fps)
+    segments, origin = split_final_pause(segments)
     own = table if mapping is None else mapping.evaluation_table(table)
     animation = speak_as(animate(own, segments, fps, duration=duration, snap_contacts=snap_contacts,
                                  substitutions=used), mapping, table)
     return _write_outputs(animation, table, out, name, face or speaker_face(table, speaker=speaker),
-                          preview, requested, raw.labels, progress, audio=wav, gltf=gltf, vrml=vrml, mapping=mapping,
+                          preview, tuple(requested[i] for i in origin), tuple(raw.labels[i] for i in origin),
+                          progress, audio=wav, gltf=gltf, vrml=vrml, mapping=mapping,
                           exports=wanted, gltf_morphs=gltf_morphs)
 
 
@@ -275,16 +280,18 @@ def speak_text(
     used: dict[str, str] = {}
     if not strict:
         segments, used = substitute(segments, table, table_channels(table), pmap.fallbacks)
+    segments, origin = split_final_pause(segments)
     try:
         animation = speak_as(animate(table if mapping is None else mapping.evaluation_table(table), segments, fps,
                                      duration=utt.duration, substitutions=used, snap_contacts=snap_contacts), mapping, table)
     except MissingPhonemeError as err:
         if err.segment is None:
             raise
-        raise MissingPhonemeError(f"{err} (Festival phone {utt.phones[err.segment]!r} of {utt.text!r})",
-                                  err.segment) from None
+        raise MissingPhonemeError(f"{err} (Festival phone {utt.phones[origin[err.segment]]!r} of {utt.text!r})",
+                                  origin[err.segment]) from None
     result = _write_outputs(animation, table, out, name, face or speaker_face(table, speaker=speaker), preview,
-                            requested, utt.phones, progress, audio=utt.wav, gltf=gltf, vrml=vrml, mapping=mapping,
+                            tuple(requested[i] for i in origin), tuple(utt.phones[i] for i in origin), progress,
+                            audio=utt.wav, gltf=gltf, vrml=vrml, mapping=mapping,
                             exports=wanted, gltf_morphs=gltf_morphs)
     result.utterance = utt
     return result

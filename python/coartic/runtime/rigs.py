@@ -4,7 +4,7 @@ the dominance weights of its segments).
 
 - **ARKit** (`arkit_weights`): Apple's 52 blendshape names, all present; the mouth and jaw ones
   are driven from the channel displacements d_C = C − C_neutral (mm), each by the part of the
-  movement it stands for, the rest are 0. `ARKIT_BASIS` is what weight 1 of each driven shape
+  movement it stands for, eyeBlinkLeft/Right by the FAP file's blinks, the rest are 0. `ARKIT_BASIS` is what weight 1 of each driven shape
   means in channel millimetres, so that the weights are a decomposition of the channels (tested:
   jaw and lip opening rebuilt from the weights to 1e-9 mm where no weight saturates) and the
   ARKit morph set of the glTF (coartic.face.gltf, `--gltf-morphs arkit`) poses the face from them.
@@ -29,8 +29,9 @@ import numpy as np
 from numpy.typing import NDArray
 
 from coartic.outputs import atomic_write_text
-from coartic.runtime.animate import Animation
+from coartic.runtime.animate import SHARE_FRAMES, Animation
 from coartic.runtime.errors import AnimationError
+from coartic.runtime.fap import blink_profile
 from coartic.table import CHANNELS, PAUSE
 
 if TYPE_CHECKING:
@@ -79,7 +80,9 @@ ARKIT_BASIS: dict[str, dict[str, float]] = {
     "mouthRollLower": {"LLP": -ROLL_MM},
     "mouthRollUpper": {"ULP": -ROLL_MM},
 }
-ARKIT_DRIVEN: tuple[str, ...] = tuple(n for n in ARKIT_NAMES if n in ARKIT_BASIS)
+# the blinks of the FAP file (coartic.runtime.fap.blink_profile: the same schedule), eyelid FAPs 19, 20
+ARKIT_BLINKS: dict[str, int] = {"eyeBlinkLeft": 19, "eyeBlinkRight": 20}
+ARKIT_DRIVEN: tuple[str, ...] = tuple(n for n in ARKIT_NAMES if n in ARKIT_BASIS or n in ARKIT_BLINKS)
 
 # Meta (Oculus) Lipsync's 15 visemes, in its order.
 VISEMES: tuple[str, ...] = ("sil", "PP", "FF", "TH", "DD", "kk", "CH", "SS", "nn", "RR", "aa", "E", "ih", "oh", "ou")
@@ -145,6 +148,8 @@ def arkit_weights(animation: Animation) -> NDArray[np.float64]:
         w[f"mouthLowerDown{side}"] = np.clip(lower / LOWER_DOWN_MM, 0.0, 1.0)
         w[f"mouthPress{side}"] = press
         w[f"mouthStretch{side}"] = np.clip(d["LR"] / (2.0 * STRETCH_MM), 0.0, 1.0)
+    for name in ARKIT_BLINKS:
+        w[name] = blink_profile(animation.times)
     w["mouthRollLower"] = np.clip(-d["LLP"] / ROLL_MM, 0.0, 1.0)
     w["mouthRollUpper"] = np.clip(-d["ULP"] / ROLL_MM, 0.0, 1.0)
     return np.column_stack([w[name] for name in ARKIT_NAMES])
@@ -167,23 +172,36 @@ def _viseme_of(phoneme: str) -> str:
     return v
 
 
-def segment_shares(animation: Animation) -> NDArray[np.float64]:
-    """(frames, segments): each segment's dominance share, averaged over the modelled channels."""
+def segment_shares(animation: Animation, start: int = 0, stop: int | None = None) -> NDArray[np.float64]:
+    """(frames, segments) for frames start..stop: each segment's dominance share, averaged over
+    the modelled channels."""
     chans = animation.modelled
-    total = np.zeros((animation.n_frames, len(animation.segments)))
-    for c in chans:
-        total += animation.segment_shares(c)
-    out: NDArray[np.float64] = total / len(chans)
+    total = sum(animation.segment_shares(c, start, stop) for c in chans)
+    out: NDArray[np.float64] = np.asarray(total) / len(chans)
     return out
 
 
-def viseme_weights(animation: Animation, shares: NDArray[np.float64] | None = None) -> NDArray[np.float64]:
+def _blocks(animation: Animation) -> list[tuple[int, int]]:
+    n = animation.n_frames
+    return [(a, min(a + SHARE_FRAMES, n)) for a in range(0, n, SHARE_FRAMES)]
+
+
+def viseme_weights(animation: Animation) -> NDArray[np.float64]:
     """(frames, 15) Meta viseme weights (VISEMES order), each row summing to 1."""
-    shares = segment_shares(animation) if shares is None else shares
     column = np.array([VISEMES.index(_viseme_of(p)) for p in animation.segments.labels], dtype=np.int64)
     onehot = np.zeros((column.size, len(VISEMES)))
     onehot[np.arange(column.size), column] = 1.0
-    out: NDArray[np.float64] = shares @ onehot
+    out = np.empty((animation.n_frames, len(VISEMES)))
+    for a, b in _blocks(animation):
+        out[a:b] = segment_shares(animation, a, b) @ onehot
+    return out
+
+
+def dominant_segments(animation: Animation) -> NDArray[np.int64]:
+    """The index of the segment with the largest dominance share at every frame."""
+    out = np.empty(animation.n_frames, dtype=np.int64)
+    for a, b in _blocks(animation):
+        out[a:b] = np.argmax(segment_shares(animation, a, b), axis=1)
     return out
 
 
@@ -208,16 +226,14 @@ def widest_opening(animation: Animation) -> float:
     return float(widest)
 
 
-def mouth_shapes(animation: Animation, shares: NDArray[np.float64] | None = None,
-                 arkit: NDArray[np.float64] | None = None) -> list[str]:
+def mouth_shapes(animation: Animation, arkit: NDArray[np.float64] | None = None) -> list[str]:
     """Rhubarb's shape (A-H, X) at every frame."""
-    shares = segment_shares(animation) if shares is None else shares
     arkit = arkit_weights(animation) if arkit is None else arkit
     d = _deltas(animation)
     opening = (d["ULO"] + d["LLO"]) / widest_opening(animation)
     rounding = arkit[:, ARKIT_NAMES.index("mouthPucker")] + arkit[:, ARKIT_NAMES.index("mouthFunnel")]
     labels = animation.segments.labels
-    top = np.argmax(shares, axis=1)
+    top = dominant_segments(animation)
     shapes = []
     for k in range(animation.n_frames):
         ph = labels[int(top[k])]

@@ -19,7 +19,7 @@ from coartic.runtime.festival import LANGUAGES
 from coartic.runtime import PREVIEW_FORMATS
 from coartic.speakers import SpeakerError
 from coartic.table import ParameterTable, TableError
-from coartic.console import print_error
+from coartic.console import LineProgress, print_error
 from coartic.outputs import OutputDir, OutputError
 
 if TYPE_CHECKING:
@@ -52,8 +52,8 @@ def _fail(err: Exception) -> None:
 
 
 def _progress() -> Progress:
-    return Progress(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeRemainingColumn(),
-                    console=_err, transient=True)
+    return LineProgress(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeRemainingColumn(),
+                        console=_err)
 
 
 def fps_warnings(fps: float) -> list[str]:

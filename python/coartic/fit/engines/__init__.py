@@ -109,6 +109,21 @@ def prepare_start(
                             problem.nfev, problem.njev)
 
 
+def evaluation_budget(problem: ChannelProblem) -> int:
+    """Default cap on model evaluations (SciPy, nlopt) for one local fit, scaled with the problem:
+    100 per free parameter (SciPy's own rule for least_squares), plus one per 100 residual rows
+    (more samples, more curvature to follow; a whole rate-aware session has ~1e5), at least 1000.
+    A fit that reaches it is reported as "max-evaluations" (exit status 3), never as converged."""
+    return max(1000, 100 * problem.packing.n_free + problem.n_residuals // 100)
+
+
+def iteration_budget(problem: ChannelProblem) -> int:
+    """Default cap on IPOPT iterations (each several evaluations): a tenth of the evaluation budget,
+    at least 300 (IPOPT's limited-memory Hessian needs more iterations per parameter than SciPy's
+    Gauss-Newton steps)."""
+    return max(300, evaluation_budget(problem) // 10)
+
+
 class Unit:
     """Map x to z in [0, 1]^n by its bounds: gradient engines (L-BFGS, IPOPT) see one scale."""
 
@@ -123,7 +138,7 @@ class Unit:
     def x(self, z: NDArray[np.float64]) -> NDArray[np.float64]:
         # Clipped: interior-point methods relax bounds by ~1e-8 and lo + width*1 can round past hi;
         # the core rightly refuses k_R = 1 + 1e-16.
-        return np.clip(self.lo + self.width * np.asarray(z), self.bound_lo, self.bound_hi)
+        return np.asarray(np.clip(self.lo + self.width * np.asarray(z), self.bound_lo, self.bound_hi), dtype=np.float64)
 
     def z(self, x: NDArray[np.float64]) -> NDArray[np.float64]:
         return (np.asarray(x) - self.lo) / self.width

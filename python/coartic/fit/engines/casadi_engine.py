@@ -4,7 +4,7 @@ IPOPT is an interior-point method: it handles the bounds natively and is robust 
 optimum. The Hessian is approximated by L-BFGS (the Callback gives value and gradient only). x
 is scaled to the unit box by its bounds.
 
-Options: ``max_iter`` (default 300), ``tol`` (1e-6), ``print_level`` (0), and any other IPOPT
+Options: ``max_iter`` (default ``coartic.fit.engines.iteration_budget``, >= 300), ``tol`` (1e-6), ``print_level`` (0), and any other IPOPT
 option by name (passed through as ``ipopt.<name>``).
 """
 
@@ -16,11 +16,11 @@ import casadi as ca
 import numpy as np
 from numpy.typing import NDArray
 
-from coartic.fit.engines import EngineResult, OptionError, Unit, prepare_start
+from coartic.fit.engines import EngineResult, OptionError, Unit, iteration_budget, prepare_start
 from coartic.fit.problem import ChannelProblem
 
 
-IPOPT_DEFAULTS: dict[str, Any] = {"max_iter": 300, "tol": 1e-6, "acceptable_tol": 1e-4, "print_level": 0,
+IPOPT_DEFAULTS: dict[str, Any] = {"tol": 1e-6, "acceptable_tol": 1e-4, "print_level": 0,
                                   "hessian_approximation": "limited-memory", "sb": "yes"}
 
 
@@ -43,7 +43,7 @@ def check_options(options: dict[str, Any]) -> None:
             raise OptionError(key, f"{value!r}: IPOPT refuses it ({why})") from None
 
 
-class _Objective(ca.Callback):  # type: ignore[misc]
+class _Objective(ca.Callback):
     """f(z) = SSE(x(z)), with a Jacobian (the gradient) callback below."""
 
     def __init__(self, name: str, problem: ChannelProblem, unit: Unit, state: dict[str, Any]) -> None:
@@ -65,7 +65,7 @@ class _Objective(ca.Callback):  # type: ignore[misc]
     def get_sparsity_out(self, i: int) -> ca.Sparsity:
         return ca.Sparsity.dense(1, 1)
 
-    def eval(self, arg: Sequence[Any]) -> list[Any]:  # type: ignore[override]
+    def eval(self, arg: Sequence[Any]) -> list[Any]:
         try:
             sse = self.problem.sse(self.unit.x(np.asarray(arg[0]).ravel()))
         except KeyboardInterrupt:
@@ -82,7 +82,7 @@ class _Objective(ca.Callback):  # type: ignore[misc]
         return self._grad
 
 
-class _Gradient(ca.Callback):  # type: ignore[misc]
+class _Gradient(ca.Callback):
     def __init__(self, name: str, problem: ChannelProblem, unit: Unit, state: dict[str, Any],
                  opts: dict[str, Any]) -> None:
         ca.Callback.__init__(self)
@@ -102,7 +102,7 @@ class _Gradient(ca.Callback):  # type: ignore[misc]
     def get_sparsity_out(self, i: int) -> ca.Sparsity:
         return ca.Sparsity.dense(1, self.n)
 
-    def eval(self, arg: Sequence[Any]) -> list[Any]:  # type: ignore[override]
+    def eval(self, arg: Sequence[Any]) -> list[Any]:
         try:
             _, g = self.problem.sse_gradient(self.unit.x(np.asarray(arg[0]).ravel()))
         except KeyboardInterrupt:
@@ -120,7 +120,7 @@ def minimize(problem: ChannelProblem, x0: NDArray[np.float64], options: dict[str
     state: dict[str, Any] = {"interrupted": False}
     f = _Objective("coartic_sse", problem, unit, state)
     z = ca.MX.sym("z", unit.lo.size)
-    ipopt = dict(IPOPT_DEFAULTS)
+    ipopt = dict(IPOPT_DEFAULTS, max_iter=iteration_budget(problem))
     ipopt.update(options)
     nlp: dict[str, Any] = {"x": z, "f": f(z)}
     solver_opts: dict[str, Any] = {"ipopt": ipopt, "print_time": False, "error_on_fail": False}

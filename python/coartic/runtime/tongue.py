@@ -1,0 +1,92 @@
+"""The tongue's trajectories for an animation: from the table's tongue channels (TTH TTA TBH TBA,
+docs/DATA.md) where it has them, else from a default table by phoneme class, both through the
+model itself (coartic.runtime.animate), so the tongue coarticulates like the lips.
+
+The default targets are mm from rest in the head frame (what EMA measures): the tip up ~15 mm to
+the alveolar ridge at /t d n l/, the body up ~13 mm to the velum at /k g/, lowered with the jaw at
+/a/, forwards at /i/ and back at /o u/. Labials and sounds the table does not classify take little
+part (low dominance), so the tongue moves through them from one neighbour to the next.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from coartic.runtime.animate import Animation, animate, neutral_posture
+from coartic.table import PAUSE, TONGUE_CHANNELS, ParameterTable
+
+# (TTH, TTA, TBH, TBA) mm from rest, and whether the tongue makes a contact there (k_R 1, strong)
+_CLASSES: dict[str, tuple[tuple[float, float, float, float], str]] = {
+    "alveolar_stop": ((15.0, 1.0, 3.0, 0.0), "contact"),
+    "lateral": ((14.0, 2.0, 2.0, 0.0), "contact"),
+    "trill": ((13.0, 1.0, 2.0, 0.0), "strong"),
+    "sibilant": ((12.0, 1.0, 4.0, 0.0), "strong"),
+    "postalveolar": ((10.0, -2.0, 7.0, 0.0), "strong"),
+    "palatal": ((6.0, 0.0, 12.0, 0.0), "contact"),
+    "velar": ((-1.0, -2.0, 13.0, -3.0), "contact"),
+    "i": ((3.0, 2.0, 9.0, 2.0), "vowel"),
+    "e": ((2.0, 1.0, 6.0, 1.0), "vowel"),
+    "E": ((-2.0, 0.0, 1.0, 0.0), "vowel"),
+    "a": ((-12.0, -2.0, -10.0, -2.0), "vowel"),  # the jaw's ~10 mm takes the tongue down with it
+    "O": ((-8.0, -3.0, -6.0, -4.0), "vowel"),
+    "o": ((-3.0, -3.0, 0.0, -4.0), "vowel"),
+    "u": ((-1.0, -4.0, 4.0, -5.0), "vowel"),
+    "free": ((0.0, 0.0, 0.0, 0.0), "free"),
+}
+PHONEME_CLASS: dict[str, str] = {
+    **{p: "alveolar_stop" for p in ("t", "d", "n", "tt", "dd", "nn")},
+    **{p: "lateral" for p in ("l", "ll")},
+    **{p: "trill" for p in ("r", "rr")},
+    **{p: "sibilant" for p in ("s", "z", "ts", "dz", "ss")},
+    **{p: "postalveolar" for p in ("tS", "dZ", "S")},
+    **{p: "palatal" for p in ("J", "L", "j")},
+    **{p: "velar" for p in ("k", "g", "kk", "gg")},
+    **{v: v for v in ("i", "e", "E", "a", "O", "o", "u")},
+    "w": "u",
+}
+# dominance of each kind: alpha, theta (both sides), c (both sides), k_r
+_DOMINANCE: dict[str, tuple[float, float, float, float]] = {
+    "contact": (3.0, 40.0, 1.3, 1.0), "strong": (2.0, 35.0, 1.2, 0.8), "vowel": (1.0, 15.0, 1.0, 0.5),
+    "free": (0.05, 10.0, 1.0, 0.0), "rest": (1.0, 15.0, 1.0, 1.0),  # the pause is the reference: alpha 1
+}
+
+
+def default_tongue_table(phonemes: list[str], source: str = "coartic default tongue") -> ParameterTable:
+    """A table of the tongue channels for `phonemes`, by phoneme class (module docstring)."""
+    doc: dict[str, Any] = {"schema": "coartic.table/1", "variant": "modified",
+                           "channels": {c: {"unit": "mm", "reference_phoneme": PAUSE} for c in TONGUE_CHANNELS},
+                           "phonemes": {}, "metadata": {"method": "coartic.runtime.tongue default, by phoneme class"}}
+    for ph in phonemes:
+        kind = "rest" if ph == PAUSE else _CLASSES[PHONEME_CLASS.get(ph, "free")][1]
+        targets = (0.0, 0.0, 0.0, 0.0) if ph == PAUSE else _CLASSES[PHONEME_CLASS.get(ph, "free")][0]
+        alpha, theta, c, k_r = _DOMINANCE[kind]
+        doc["phonemes"][ph] = {ch: {"target": t, "alpha": alpha, "theta_bw": theta, "theta_fw": theta, "c_bw": c,
+                                    "c_fw": c, "k_r": k_r, "sigma": 0.0, "psi": 500.0, "delta": 0.0}
+                               for ch, t in zip(TONGUE_CHANNELS, targets)}
+    return ParameterTable.from_json_dict(doc, source)
+
+
+def tongue_channels(animation: Animation) -> tuple[dict[str, NDArray[np.float64]], dict[str, float], list[str]]:
+    """The tongue channels at the animation's frames, their rest values, and which of them came from
+    the animation's table (the others from the default table)."""
+    table = animation.table
+    have = [c for c in TONGUE_CHANNELS if table is not None and c in table.channels
+            and all(c in table.values.get(p, {}) for p in set(animation.segments.labels))]
+    out: dict[str, NDArray[np.float64]] = {}
+    rest: dict[str, float] = {}
+    if table is not None and have:
+        anim = animate(table, animation.segments, animation.fps, duration=animation.duration, channels=have)
+        out.update(anim.channels)
+        rest.update(neutral_posture(table, have))
+    missing = [c for c in TONGUE_CHANNELS if c not in have]
+    if missing:
+        default = default_tongue_table(sorted(set(animation.segments.labels) | {PAUSE}))
+        anim = animate(default, animation.segments, animation.fps, duration=animation.duration, channels=missing)
+        out.update(anim.channels)
+        rest.update({c: 0.0 for c in missing})
+    for c in out:
+        out[c] = out[c][: animation.n_frames]
+    return out, rest, have
