@@ -34,7 +34,8 @@ from numpy.typing import NDArray
 from coartic import _core
 from coartic.fit.packing import LOG_COLUMNS, LOG_PARAMETERS, Packing, Prior
 from coartic.fit.parameters import ParameterSet, data_targets
-from coartic.fit.spec import FitSpec
+from coartic.fit.spec import FitSpec, SpecError
+from coartic.io.errors import DataError
 from coartic.model import JacobianBuffer, Utterance, build_corpus, channel_options, core_error
 from coartic.table import N_PARAMS, PARAMETERS, PAUSE
 
@@ -76,7 +77,7 @@ class ChannelData:
               phonemes: Sequence[str] | None = None) -> ChannelData:
         utts = [u for u in utterances if channel in u.observed and np.any(u.valid[channel])]
         if not utts:
-            raise ValueError(f"channel {channel}: no utterance has a valid sample")
+            raise DataError(f"channel {channel}: no utterance has a valid sample")
         phon = tuple(phonemes) if phonemes is not None else phoneme_inventory(utts)
         y = np.concatenate([u.observed[channel] for u in utts]).astype(np.float64)
         valid = np.concatenate([u.valid[channel] for u in utts]) & np.isfinite(y)
@@ -253,8 +254,6 @@ def shrink_groups(spec: FitSpec, channel: str, phonemes: Sequence[str], free: Bo
     """The spec's ``[[shrink]]`` tables as groups of one channel: members present in its data; a
     class with two members or more present but the parameter free for none of them is refused (a
     shrinkage of fixed values would do nothing), one with fewer than two present applies to nothing."""
-    from coartic.fit.spec import SpecError
-
     out = []
     for s in spec.shrinks:
         if s.channels is not None and channel not in s.channels:
@@ -265,7 +264,7 @@ def shrink_groups(spec: FitSpec, channel: str, phonemes: Sequence[str], free: Bo
         for name in s.parameters:
             k = PARAMETERS.index(name)
             if not free[list(rows), k].any():
-                raise SpecError.at(spec.path, f"{s.key}", f"{name} is free for none of {list(s.phonemes)} on {channel}: "
+                raise SpecError.at(spec.path, s.key, f"{name} is free for none of {list(s.phonemes)} on {channel}: "
                                    "nothing to shrink")
             members = tuple(phonemes[i] for i in rows)
             out.append(ShrinkGroup(s.key, members, rows, k, s.sd, s.log))
@@ -331,14 +330,14 @@ def utterance_speakers(utterances: Sequence[Utterance], mode: str, column: str,
     seen: dict[str, None] = {}
     for u in utterances:
         if column not in u.meta or not str(u.meta[column]):
-            raise ValueError(f"[model] speakers = {mode!r}: utterance {u.name!r} has no {column!r} "
+            raise SpecError(f"[model] speakers = {mode!r}: utterance {u.name!r} has no {column!r} "
                              f"(manifest column named by [model] speaker_column)")
         seen.setdefault(str(u.meta[column]), None)
     if names is None:
         return tuple(seen)
     extra = [s for s in seen if s not in names]
     if extra:
-        raise ValueError(f"[model] speakers: speaker(s) {', '.join(extra)} not among {', '.join(names)}")
+        raise SpecError(f"[model] speakers: speaker(s) {', '.join(extra)} not among {', '.join(names)}")
     return tuple(names)
 
 
@@ -377,7 +376,7 @@ class Speakers:
 
     def __init__(self, data: ChannelData, mode: str, column: str, names: Sequence[str] | None = None) -> None:
         if mode not in ("offset", "offset_scale"):
-            raise ValueError(f"[model] speakers = {mode!r}: expected \"none\", \"offset\" or \"offset_scale\"")
+            raise SpecError(f"[model] speakers = {mode!r}: expected \"none\", \"offset\" or \"offset_scale\"")
         self.mode = mode
         # ``names`` fixes the order (the reference speaker first) when ``data`` is a subset of the
         # fit's utterances (an MCMC per-phoneme posterior): the reference must stay the fit's.
@@ -453,9 +452,9 @@ class ChannelProblem:
         # [model] speakers = "targets": the rows of the (expanded) matrix per speaker (expand_speaker_targets)
         self.speaker_rows = speaker_rows
         if (speakers == "targets") != (speaker_rows is not None):
-            raise ValueError("[model] speakers = \"targets\" needs the per-speaker rows (build_problem makes them)")
+            raise SpecError("[model] speakers = \"targets\" needs the per-speaker rows (build_problem makes them)")
         if self.speakers is not None and offset_sd is not None:
-            raise ValueError("[model] speakers and [model] offsets cannot be combined yet: choose one")
+            raise SpecError("[model] speakers and [model] offsets cannot be combined yet: choose one")
         self.packing = packing
         self.options = options
         # Per-utterance offsets (spec [model] offsets): None none, inf free, else their sd τ (mm).
@@ -731,12 +730,10 @@ class SpeakerRows:
 
     def shrink_groups(self, spec: FitSpec, groups: Sequence[ShrinkGroup]) -> list[ShrinkGroup]:
         """The base phonemes' [[shrink]] groups on the leader rows (targets are per speaker: refused)."""
-        from coartic.fit.spec import SpecError
-
         out = []
         for g in groups:
             if g.parameter == "target":
-                raise SpecError.at(spec.path, f"{g.key}", f"shrinks target, but [model] speakers = \"targets\" gives "
+                raise SpecError.at(spec.path, g.key, f"shrinks target, but [model] speakers = \"targets\" gives "
                                    "every speaker its own targets: shrink the dynamics only")
             out.append(replace(g, rows=tuple(self.leader(i) for i in g.rows)))
         return out
@@ -751,8 +748,6 @@ def expand_speaker_targets(spec: FitSpec, data: ChannelData, ps: ParameterSet, d
     row, targets per row. Targets start at each speaker's own data targets (``data_start``), at
     ``start_targets`` (speaker -> phoneme -> target: a fitted table's, for MCMC), or at the base
     start. ``names`` fixes the speakers' order (the reference first)."""
-    from coartic.fit.spec import SpecError
-
     column = spec.speaker_column
     spk = utterance_speakers(data.utterances, "targets", column, names)
     bad = [n for n in spk if SPEAKER_SEP in n]
