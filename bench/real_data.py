@@ -52,7 +52,7 @@ from coartic.fit import load_spec, run  # noqa: E402
 from coartic.fit.data import load_utterances  # noqa: E402
 from coartic.fit.problem import Utterance  # noqa: E402
 from coartic.fit.result import FitResult  # noqa: E402
-from coartic.fit.score import score_utterances, segment_of, with_fallbacks  # noqa: E402
+from coartic.fit.score import score_utterances, with_fallbacks  # noqa: E402
 from coartic.fit.spec import FitSpec, Override  # noqa: E402
 from coartic.io.labelmap import resolve_label_map  # noqa: E402
 from coartic.outputs import atomic_write_text  # noqa: E402
@@ -117,7 +117,7 @@ def splits(utts: Sequence[Utterance], which: Sequence[str] = ("loo", "time")) ->
 def masked(test: Utterance, original: Utterance, keep_labels: set[str]) -> Utterance:
     """``test`` (labels possibly mapped to fallbacks) with every sample outside a segment whose
     *original* phoneme is in ``keep_labels`` marked invalid: not scored. Pauses are never scored."""
-    keep = np.array([lab in keep_labels and lab != "#" for lab in original.labels] + [False])[segment_of(original)]
+    keep = np.array([lab in keep_labels and lab != "#" for lab in original.labels] + [False])[original.sample_segments()]
     return Utterance(test.labels, test.starts, test.ends, test.times, test.name, test.observed,
                      {c: v & keep for c, v in test.valid.items()}, test.meta)
 
@@ -243,6 +243,7 @@ def main() -> int:
                              ("reg", regs, REGULARISATION)):
         if set(got) - set(known):
             ap.error(f"--{what}: unknown {sorted(set(got) - set(known))} (known: {', '.join(known)})")
+    a.out.parent.mkdir(parents=True, exist_ok=True)
     t0, c0 = time.perf_counter(), time.process_time()
     lines = ["# bench/real_data.py: held-out RMSE (mm) of model variants x freedom x regularisation on real recordings",
              f"# command: nice -n 10 .venv/bin/python bench/real_data.py {' '.join(sys.argv[1:])}".rstrip()]
@@ -264,6 +265,9 @@ def main() -> int:
                         lines.append(row_line(r))
                         print(lines[-1], flush=True)
                     rows += got
+                    # after every cell, so an interrupted run keeps what it finished
+                    atomic_write_text(a.out.with_suffix(".json"), json.dumps(all_rows + rows))
+                    atomic_write_text(a.out, "\n".join(lines) + "\n")
         all_rows += rows
         notes = sorted({n for r in rows for n in r["notes"]})
         lines += [f"note: {n}" for n in notes]

@@ -15,7 +15,6 @@ import pytest
 from coartic.fit import load_spec
 from coartic.fit.baselines import Baselines
 from coartic.fit.data import load_utterances
-from coartic.fit.score import segment_of
 
 ROOT = Path(__file__).resolve().parents[2]
 
@@ -53,7 +52,7 @@ def test_scored_samples_and_step_by_hand(rows_and_data: tuple[ModuleType, list[d
     rd, rows, utts = rows_and_data
     train, held = utts[1], utts[0]  # "LOO 0020": fit 0024, predict 0020
     seen = set(train.labels)
-    seg = segment_of(held)
+    seg = held.sample_segments()
     keep = np.array([lab in seen and lab != "#" for lab in held.labels] + [False])[seg] & held.valid["JO"]
     r = rows[0]
     assert r["samples"] == int(keep.sum()) and 0 < int(keep.sum()) < held.times.size

@@ -154,7 +154,7 @@ def test_fit_validate_writes_the_baselines_into_summary_report_and_csv(tmp_path:
     html = (tmp_path / "out" / "report.html").read_text()
     assert "beats the step model" in html and "Worse than the step model" not in html
     header = (tmp_path / "out" / "validation" / "validation.csv").read_text().splitlines()[0]
-    assert "warped_rmse_mm" in header and header.endswith("beats_step_model")
+    assert {"warped_rmse_mm", "beats_step_model"} <= set(header.split(","))
     # a table worse than the step model: flagged in the report
     from coartic.report.html import write_report
 

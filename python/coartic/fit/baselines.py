@@ -24,6 +24,7 @@ from typing import Sequence
 import numpy as np
 from numpy.typing import NDArray
 
+from coartic.errors import UsageError
 from coartic.model import Utterance
 
 F64 = NDArray[np.float64]
@@ -111,7 +112,7 @@ class Baselines:
                     return None
                 out += np.interp(warp_times(test, tok), tok.times[ok], y[ok])
             return out / len(tokens)
-        raise ValueError(f"unknown baseline {name!r} (known: {', '.join(BASELINES)})")
+        raise UsageError(f"unknown baseline {name!r} (known: {', '.join(BASELINES)})")
 
     def predict(self, test: Sequence[Utterance], channel: str) -> dict[str, list[F64]]:
         """Each baseline's predictions of ``channel``, one array per test utterance; the warped

@@ -36,6 +36,7 @@ from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, T
 from coartic.console import LineProgress
 from coartic.fit.problem import Utterance
 from coartic.fit.spec import CHOOSABLE, Choose, FitSpec, SpecError, choose_base, make_choose, parse_grid
+from coartic.errors import UsageError
 
 
 def set_value(spec: FitSpec, key: str, value: float) -> FitSpec:
@@ -213,7 +214,7 @@ def cross_validate(spec: FitSpec, utterances: Sequence[Utterance], progress: Pro
 
     c = spec.choose
     if c is None:
-        raise ValueError("cross_validate needs a spec with [choose]")
+        raise UsageError("cross_validate needs a spec with [choose]")
     try:
         folds = kfold_splits(replace(spec, validate_group=c.group, validate_folds=c.folds), utterances)
     except SpecError as e:  # named by [choose], where the grouping came from

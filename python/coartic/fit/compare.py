@@ -29,6 +29,7 @@ from rich.console import Console
 from coartic.fit.baselines import BASELINES
 from coartic.fit.result import BAR_MM, FitResult
 from coartic.fit.spec import FitSpec, load_spec
+from coartic.errors import UsageError
 
 
 @dataclass
@@ -244,7 +245,7 @@ def compare(specs: Sequence[FitSpec | str | PathLike[str]], out: str | PathLike[
 
     loaded = [s if isinstance(s, FitSpec) else load_spec(Path(s)) for s in specs]
     if len(loaded) < 1:
-        raise ValueError("no spec to compare")
+        raise UsageError("no spec to compare")
     for s in loaded:  # every spec's mistakes before the first fit, not after it
         check_engine_options(s)
     models: list[str] = []

@@ -26,6 +26,7 @@ from coartic import __version__
 from coartic.fit.bounds import CATEGORY_TITLES, BoundNote, explain_bounds, summary_counts
 from coartic.fit.parameters import ParameterSet, psd_pseudo_inverse
 from coartic.fit.problem import ChannelProblem, Packing
+from coartic.errors import UsageError
 from coartic.fit.spec import FitSpec
 from coartic.fit.multistart import MultiStart
 from coartic.fit.staged import StageResult
@@ -307,7 +308,7 @@ class FitResult:
             return pd.DataFrame(self.rmse_rows(), columns=["channel", "group", "value", "rmse_mm", "samples",
                                                            "below_bar"])
         if what != "parameters":
-            raise ValueError(f"to_dataframe({what!r}): expected 'parameters' or 'rmse'")
+            raise UsageError(f"to_dataframe({what!r}): expected 'parameters' or 'rmse'")
         df = pd.DataFrame(self.parameter_rows())
         for col in ("value", "stderr", "lower", "upper", "prior_mean", "prior_sd"):
             if col in df:  # "" (no standard error, no prior) is a missing number

@@ -237,17 +237,17 @@ def score_utterances(table: ParameterTable, utterances: Sequence[Utterance],
     mapping = speaker_mapping(table, speaker)
     utts = list(utterances)
     if not utts:
-        raise ValueError("no utterance to score")
+        raise ScoreError("no utterance to score")
     chans = tuple(channels) if channels is not None else tuple(
         c for c in table.channels if all(c in u.observed for u in utts))
     if not chans:
-        raise ValueError(f"the utterances carry none of the table's channels ({', '.join(table.channels)})")
+        raise ScoreError(f"the utterances carry none of the table's channels ({', '.join(table.channels)})")
     for c in chans:
         if c not in table.channels:
-            raise ValueError(f"{table.source}: no channel {c!r} (channels: {', '.join(table.channels)})")
+            raise ScoreError(f"{table.source}: no channel {c!r} (channels: {', '.join(table.channels)})")
         missing = [u.name for u in utts if c not in u.observed]
         if missing:
-            raise ValueError(f"channel {c}: not measured in {', '.join(missing[:5])}")
+            raise ScoreError(f"channel {c}: not measured in {', '.join(missing[:5])}")
     for c in chans:  # a calibrated figure of a channel the recording did not give would be meaningless
         y = np.concatenate([u.observed[c][u.valid[c]] for u in utts])
         y = y[np.isfinite(y)]
@@ -301,7 +301,7 @@ def score_recordings(table: ParameterTable | str | PathLike[str], files: Sequenc
         table = ParameterTable.load(Path(table))
     speaker_mapping(table, speaker)  # an unknown speaker is refused before anything is read
     if labels is not None and len(labels) != len(files):
-        raise ValueError(f"{len(labels)} label files for {len(files)} recordings: give one --labels per recording")
+        raise ScoreError(f"{len(labels)} label files for {len(files)} recordings: give one --labels per recording")
     lmap = resolve_label_map(label_map) if label_map is not None else LabelMap.recorded(table)
     rmap = role_map if role_map is not None else RoleMap.recorded(table)
     chans = tuple(channels) if channels is not None else tuple(table.channels)

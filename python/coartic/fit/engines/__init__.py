@@ -13,7 +13,7 @@ from typing import Any, Callable, Mapping
 import numpy as np
 from numpy.typing import NDArray
 
-from coartic.errors import CoarticError
+from coartic.errors import CoarticError, UsageError
 from coartic.fit.problem import ChannelProblem
 
 
@@ -42,7 +42,7 @@ def get_engine(name: str) -> Minimizer:
     elif name == "casadi":
         from coartic.fit.engines.casadi_engine import minimize
     else:
-        raise ValueError(f"unknown engine {name!r} (scipy, nlopt, casadi)")
+        raise UsageError(f"unknown engine {name!r} (scipy, nlopt, casadi)")
     return minimize
 
 
@@ -66,7 +66,7 @@ def check_options(name: str, options: dict[str, Any]) -> None:
     elif name == "casadi":
         from coartic.fit.engines.casadi_engine import check_options as check
     else:
-        raise ValueError(f"unknown engine {name!r} (scipy, nlopt, casadi)")
+        raise UsageError(f"unknown engine {name!r} (scipy, nlopt, casadi)")
     check(options)
 
 
