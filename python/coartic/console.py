@@ -142,10 +142,11 @@ class LineProgress(Progress):
 
 
 def print_table(console: Console, table: Table, keys: int = 1) -> None:
-    """``table`` as a table when every cell fits on one line at the console's width; else one
-    block per row: its first ``keys`` cells as a heading, then "column value" pairs filling lines,
-    a pair never split (a lone pair wider than the console is soft-wrapped, not cut). A status
-    word is never cut and a row never wraps over many lines, whatever the width."""
+    """``table`` as a table when every cell fits on one line at the console's width; else its
+    title, one block per row (its first ``keys`` cells as a heading, then "column value" pairs
+    filling lines, a pair never split: a lone pair wider than the console is soft-wrapped, not
+    cut), and its caption. A status word is never cut and a row never wraps over many lines,
+    whatever the width."""
     # measured unclamped: rich clamps a table's measure to the width it is given
     if console.measure(table, options=console.options.update_width(1 << 20)).maximum <= console.width:
         console.print(table)
@@ -174,3 +175,7 @@ def print_table(console: Console, table: Table, keys: int = 1) -> None:
             width += w
         if line:
             console.print(Text(" " * indent) + Text("   ").join(line), soft_wrap=True, highlight=False)
+    if table.caption:
+        caption = table.caption if isinstance(table.caption, Text) else console.render_str(str(table.caption))
+        caption.stylize("dim")
+        console.print(caption, highlight=False)

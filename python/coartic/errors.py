@@ -41,3 +41,8 @@ class CoarticError(Exception):
     sample: int | None = None
     walker: int | None = None
     reason: str | None = None
+
+
+class UsageError(CoarticError, ValueError, TypeError):
+    """A library function called with arguments it does not take (a Python caller's mistake, not
+    bad data): both a ValueError and a TypeError, as Python's own functions raise either."""

@@ -35,7 +35,7 @@ from typing import Any, Sequence
 import numpy as np
 from numpy.typing import NDArray
 
-from coartic.errors import CoarticError
+from coartic.errors import CoarticError, UsageError
 from coartic.fit.result import FitResult
 from coartic.fit.spec import FitSpec, load_spec, parse_spec
 from coartic.model import Utterance, evaluate_corpus
@@ -114,9 +114,9 @@ class Coarticulation:
         utts = list(trials)
         bad = [type(u).__name__ for u in utts if not isinstance(u, Utterance)]
         if bad:
-            raise TypeError(f"trials: expected coartic.model.Utterance objects or a manifest path, got {bad[0]}")
+            raise UsageError(f"trials: expected coartic.model.Utterance objects or a manifest path, got {bad[0]}")
         if not utts:
-            raise ValueError("trials: no trial given")
+            raise UsageError("trials: no trial given")
         return utts
 
     def _fitted(self) -> ParameterTable:
@@ -148,7 +148,7 @@ class Coarticulation:
         report = self.score_report(trials)
         rows = [r for r in report.channel_rows() if channel is None or r["channel"] == channel]
         if not rows:
-            raise ValueError(f"channel {channel!r}: not fitted (channels: {', '.join(self.channels)})")
+            raise UsageError(f"channel {channel!r}: not fitted (channels: {', '.join(self.channels)})")
         n = sum(r["samples"] for r in rows)
         return math.sqrt(sum(r["rmse_mm"] ** 2 * r["samples"] for r in rows) / n) if n else math.nan
 

@@ -103,6 +103,12 @@ class Utterance:
         return (f"Utterance({self.name!r}, {len(self.labels)} segments, {self.times.size} samples, "
                 f"channels {sorted(self.observed)})")
 
+    def sample_segments(self) -> npt.NDArray[np.int64]:
+        """For each sample, the index of the segment it lies in (−1 outside every segment)."""
+        i = np.searchsorted(self.starts, self.times, side="right") - 1
+        inside = (i >= 0) & (self.times < self.ends[np.clip(i, 0, None)])
+        return np.where(inside, i, -1).astype(np.int64)
+
 
 def build_corpus(utterances: Sequence[Utterance], phonemes: Sequence[str]) -> _core.Corpus:
     """Validate utterances and pack them into a ``_core.Corpus``.

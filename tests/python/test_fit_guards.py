@@ -72,9 +72,12 @@ def test_a_phoneme_without_samples_is_said(tmp_path: Path) -> None:
     for u in us:
         if "l" in u.labels:
             u.valid["LLO"] = np.zeros_like(u.valid["LLO"])
-    res = run(spec(tmp_path), utterances=us, quiet=True, report=False)
+    res = run(spec(tmp_path), tmp_path / "out", utterances=us, quiet=True, report=False)
     assert "l" not in res.channels["LLO"].problem.phonemes
-    assert any(n.startswith("LLO: phoneme(s) l occur only in utterances with no valid LLO sample") for n in res.notes)
+    said = "LLO: phoneme(s) l occur only in utterances with no valid LLO sample"
+    assert any(n.startswith(said) for n in res.notes)
+    assert any(n.startswith(said) for n in json.loads((tmp_path / "out" / "summary.json").read_text())["notes"])
+    assert said in (tmp_path / "out" / "fit_report.txt").read_text()
 
 
 def test_a_parameter_the_fit_does_not_depend_on_is_explained(tmp_path: Path) -> None:
@@ -88,3 +91,17 @@ def test_a_parameter_the_fit_does_not_depend_on_is_explained(tmp_path: Path) -> 
     summary = json.loads((tmp_path / "out" / "summary.json").read_text())
     assert set(summary["channels"]["LLO"]["unidentified_explained"]) == set(st.unidentified)
     assert "a.psi: the fitted trajectories do not depend on it" in (tmp_path / "out" / "fit_report.txt").read_text()
+
+
+def test_coartic_fit_refuses_free_offsets_on_one_recording_exit_2(tmp_path: Path) -> None:
+    from typer.testing import CliRunner
+
+    from coartic.cli import app
+    from fit_helpers import german_utterance_spec
+
+    s = german_utterance_spec(tmp_path / "one.toml", '[model]\nchannels = ["JO"]\noffsets = "free"\n'
+                                                     '[parameters]\nfree = ["target"]\n')
+    res = CliRunner().invoke(app, ["fit", str(s), "--out", str(tmp_path / "out")])
+    said = " ".join(res.output.split())
+    assert res.exit_code == 2 and "Traceback" not in res.output
+    assert "[model.offsets] \"free\" on 1 utterance" in said and "use offsets = \"none\"" in said

@@ -325,3 +325,26 @@ def test_a_recorded_role_map_without_axes_keeps_the_formats_axes(files) -> None:
     given = RoleMap.from_dict({"UL": "ul", "axes": {"vertical": "+y", "anterior": "-x"}})
     assert RoleMap.recorded(SimpleNamespace(metadata={"role_map": given.to_record()},
                                             source="t.json")).axes_given  # type: ignore[union-attr]
+
+
+def test_c3d_of_ema_sensors_is_read_as_ema(tmp_path: Path) -> None:
+    import ezc3d
+
+    m = ff.motion(200.0)
+    names = ("UL", "LL", "JAW", "TT", "TB")
+    c = ezc3d.c3d()
+    c["parameters"]["POINT"]["RATE"]["value"] = [200.0]
+    c["parameters"]["POINT"]["LABELS"]["value"] = names
+    c["parameters"]["POINT"]["UNITS"]["value"] = ["mm"]
+    pts = np.ones((4, len(names), m.times.size))
+    for j, n in enumerate(names):  # x forwards, y lateral, z up
+        pts[0, j], pts[1, j], pts[2, j] = m.sensors[n][:, 0], 0.1, m.sensors[n][:, 1]
+    c["data"]["points"] = pts
+    c.write(str(tmp_path / "wave.c3d"))
+    t = load_trial(tmp_path / "wave.c3d")
+    notes = " ".join(t.meta["notes"])
+    assert t.kind == "ema" and "read as EMA sensors" in notes and "up = +z, forwards = +x" in notes
+    ch = t.channels()
+    want = _expected(m, t.rest_frames())
+    for c_ in ("LA", "LLO", "TTH", "TBA"):
+        np.testing.assert_allclose(ch[c_], want[c_], atol=1e-3, err_msg=c_)

@@ -10,7 +10,7 @@ from typer.testing import CliRunner
 
 from coartic.cli import app
 from coartic.fit import run
-from coartic.fit.score import score_recordings, score_utterances, segment_of
+from coartic.fit.score import score_recordings, score_utterances
 from coartic.fit.simulate import PHONEMES, TRUTH, vcv_utterances
 from coartic.table import ParameterTable
 
@@ -44,7 +44,7 @@ def test_rmse_per_utterance_phoneme_channel_with_and_without_offsets() -> None:
     phon = {r["phoneme"] for r in sc.phoneme_rows()}
     assert phon == {"#", "a", "i", "p", "t", "l"}
     # every sample inside a segment is counted once, by the segment it lies in
-    seg = segment_of(utts[0])
+    seg = utts[0].sample_segments()
     assert seg[0] == 0 and seg[-1] == len(utts[0].labels) - 1
 
 

@@ -25,7 +25,7 @@ import numpy as np
 
 from coartic.batch.layout import is_done, land_dir, unit_dir
 from coartic.batch.spec import BatchSpec
-from coartic.batch.tasks import UnitKey
+from coartic.batch.tasks import UnitFailed, UnitKey
 from coartic.fit.result import BAR_MM
 from coartic.outputs import atomic_write_bytes
 from coartic.table import PARAMETERS, ParameterTable
@@ -86,7 +86,7 @@ def _concat_csv(texts: Sequence[str]) -> str:
         if not lines:
             continue
         if header and lines[0] != header:
-            raise ValueError(f"CSV headers differ: {header!r} and {lines[0]!r}")
+            raise UnitFailed(f"CSV headers differ: {header!r} and {lines[0]!r}")
         header = lines[0]
         body += lines[1:]
     return header + "".join(body)

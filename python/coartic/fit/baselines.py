@@ -24,7 +24,7 @@ from typing import Sequence
 import numpy as np
 from numpy.typing import NDArray
 
-from coartic.fit.score import segment_of
+from coartic.errors import UsageError
 from coartic.model import Utterance
 
 F64 = NDArray[np.float64]
@@ -76,7 +76,7 @@ class Baselines:
                 ok = u.valid[ch] & np.isfinite(y)
                 tot += float(y[ok].sum())
                 n += int(ok.sum())
-                seg = segment_of(u)
+                seg = u.sample_segments()
                 for i, lab in enumerate(u.labels):
                     m = ok & (seg == i)
                     if m.any():
@@ -100,7 +100,7 @@ class Baselines:
         if name == "step":
             means = self.step[channel]
             per_segment = np.array([means.get(lab, c) for lab in test.labels] + [c])
-            return per_segment[segment_of(test)]  # −1 (outside every segment) picks the constant
+            return per_segment[test.sample_segments()]  # −1 (outside every segment) picks the constant
         if name == "warped":
             tokens = self.same_sentence(test)
             if not tokens:
@@ -112,7 +112,7 @@ class Baselines:
                     return None
                 out += np.interp(warp_times(test, tok), tok.times[ok], y[ok])
             return out / len(tokens)
-        raise ValueError(f"unknown baseline {name!r} (known: {', '.join(BASELINES)})")
+        raise UsageError(f"unknown baseline {name!r} (known: {', '.join(BASELINES)})")
 
     def predict(self, test: Sequence[Utterance], channel: str) -> dict[str, list[F64]]:
         """Each baseline's predictions of ``channel``, one array per test utterance; the warped

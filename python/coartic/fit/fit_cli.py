@@ -13,6 +13,7 @@ from rich.table import Table
 from coartic.fit.bounds import summary_counts
 from coartic.fit.result import BAR_MM, UNIDENTIFIED_ADVICE, FitResult
 from coartic.fit.spec import ENGINES, FitSpec, SpecError, load_spec
+from coartic.fit.staged import UNCONFIRMED_STATUSES
 from coartic.console import print_error, print_table
 from coartic.table import ALL_CHANNELS
 from coartic.outputs import OutputDir
@@ -36,10 +37,35 @@ def rmse_table(result: FitResult, title: str = "RMSE (mm)") -> Table:
         for g in groups:
             w = worst[g].get(ch)
             row.append(cell(w[1], w[0]) if w else "–")
-        row.append(fit.status)
+        colour = "green" if fit.status == "converged" else "red" if fit.status in UNCONFIRMED_STATUSES else "yellow"
+        row.append(f"[{colour}]{escape(fit.status)}[/{colour}]")
         t.add_row(*row)
     return t
 
+
+def status_lines(result: FitResult) -> list[str]:
+    """Per channel (rich markup, printed soft-wrapped: never cut): the multi-start's optima, and
+    every status other than "converged" with the reason, the exit status it gives, and what to do."""
+    lines = []
+    for ch, fit in result.channels.items():
+        if fit.multistart is not None:
+            colour = "yellow" if fit.multistart.best_found_once else "green"
+            lines.append(f"[{colour}]{escape(ch)}[/{colour}]: {escape(fit.multistart.summary_line(fit.problem.data.n_valid))}")
+        if fit.status != "converged":
+            colour = "red" if fit.status in UNCONFIRMED_STATUSES else "yellow"
+            lines.append(f"[{colour}]{escape(ch)}: {escape(fit.status)}[/{colour}]: {escape(fit.message)}"
+                         + (f" ({escape(STATUS_ADVICE[fit.status])})" if fit.status in STATUS_ADVICE else ""))
+    return lines
+
+
+STATUS_ADVICE = {
+    "max-evaluations": "the fit stopped at its limit: raise [engine.options] max_nfev (scipy), local_maxeval "
+                       "(nlopt) or max_iter (casadi); exit status 3",
+    "stage-failed": "a stage failed and the next one went on from its best point: try another engine or more "
+                    "[fit] starts; exit status 3",
+    "best-found-once": "raise [fit] starts or keep until the best is reached more than once; exit status 3",
+}
+EXIT_UNCONFIRMED = 3  # written, but a limit was reached, a stage failed, or the best optimum was found once
 
 def fit_command(
     spec: Path = typer.Argument(..., help="fit spec (TOML), e.g. fit/synthetic.toml"),
@@ -55,6 +81,10 @@ def fit_command(
                                          "cross-validation on the training data, then fit with it (e.g. "
                                          "shrink.sd=0.03,0.1,0.3,1; replaces the spec's [choose] grid; "
                                          "docs/FITTING.md)"),
+    starts: Optional[int] = typer.Option(None, "--starts", min=1, help="multi-start: local fits from this many "
+                                         "quasi-random starts (default the spec's \\[fit] starts, 32; 1: one fit from "
+                                         "\\[parameters.start])"),
+    seed: Optional[int] = typer.Option(None, "--seed", min=0, help="seed of the starts (default \\[fit] seed, 0)"),
     force: bool = typer.Option(False, "--force", help="replace --out even if it holds another run's output "
                                "(a rerun of the same spec and channels replaces its own output without it)"),
     quiet: bool = typer.Option(False, "--quiet", "-q", help="no progress (bars in a terminal, lines elsewhere, on "
@@ -62,8 +92,14 @@ def fit_command(
 ) -> None:
     """Fit the coarticulation model to a corpus by least squares (MODEL.md §5).
 
-    The outputs are written beside --out and swapped in whole when the fit ends (docs/OUTPUTS.md).
+    By default from 32 quasi-random starts (\\[fit] starts; docs/FITTING.md). The outputs are
+    written beside --out and swapped in whole when the fit ends (docs/OUTPUTS.md).
     Progress goes to stderr (live in a terminal, a line per stage, channel and 15 s elsewhere).
+
+    Exit status: 0 every channel converged; 3 written, but a channel reached its evaluation or
+    iteration limit (max-evaluations), had a failed stage (stage-failed) or a best optimum that one
+    start only reached (best-found-once); 2 an error (spec, data, output) or an engine that failed
+    outright (nothing written); 1 nothing fitted; 130 interrupted (Ctrl-C).
     """
     console = Console()
     err = Console(stderr=True)
@@ -85,6 +121,12 @@ def fit_command(
             changes["channels"] = chs
         if no_staging:
             changes["staging"] = False
+        if starts is not None:
+            changes["starts"] = starts
+            if s.keep is not None and s.keep > starts:
+                changes["keep"] = starts
+        if seed is not None:
+            changes["seed"] = seed
         s = s.with_options(**changes)
         if choose is not None:
             from coartic.fit.choose import parse_choose
@@ -112,6 +154,8 @@ def fit_command(
     if result.interrupted:
         console.print("[yellow]interrupted: the partial result above was written[/yellow]")
         raise typer.Exit(130)
+    if any(f.status in UNCONFIRMED_STATUSES for f in result.channels.values()):
+        raise typer.Exit(EXIT_UNCONFIRMED)
 
 
 def warning_lines(result: FitResult) -> list[str]:
@@ -169,12 +213,15 @@ def _fit_into(s: FitSpec, out: Path, console: Console, err: Console, validate: b
         console.print(escape(f"{c.choose.key} chosen by cross-validation on the training data (rule {c.choose.rule}): "
                              + ", ".join(f"{ch} {v:g}" for ch, v in c.chosen.items())
                              + " (curve: choose.csv, choose.png, fit_report.txt)"), soft_wrap=True, highlight=False)
+    for line in status_lines(result):
+        console.print(line, soft_wrap=True, highlight=False)
     for line in warning_lines(result):
         console.print(line, soft_wrap=True)
     for note in result.notes:
         console.print(f"[yellow]note:[/yellow] {escape(note)}", soft_wrap=True)
     if result.validation:
-        from coartic.fit.validate import flags, validation_table
+        from coartic.fit.heldout import flags
+        from coartic.fit.validate import validation_table
 
         print_table(console, validation_table(result.validation), keys=2)
         for f in flags(result.validation):

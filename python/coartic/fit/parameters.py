@@ -21,13 +21,14 @@ from typing import TYPE_CHECKING, Iterator, Mapping
 import numpy as np
 from numpy.typing import NDArray
 
-from coartic.fit.spec import FitSpec, SpecError
+from coartic.fit.packing import Packing, Prior
+from coartic.fit.spec import DEFAULT_BETA_BOUNDS, DEFAULT_FIT_BOUNDS, FitSpec, SpecError
 from coartic.table import N_PARAMS, PARAMETERS
 
 
 if TYPE_CHECKING:
     from coartic.fit.bounds import BoundNote
-    from coartic.fit.problem import ChannelData, Packing, Prior
+    from coartic.fit.problem import ChannelData
 
 FloatArray = NDArray[np.float64]
 BoolArray = NDArray[np.bool_]
@@ -253,8 +254,6 @@ class ParameterSet(Mapping[str, Parameter]):
 
     def packing(self) -> Packing:
         """The engines' view: the free entries, their bounds and the transform to x."""
-        from coartic.fit.problem import Packing
-
         return Packing(self.phonemes, self.free.copy(), self.beta_free, self.lower.copy(), self.upper.copy(),
                        self.beta_bounds, self.matrix.copy(), self.beta, self.origins, self.ties,
                        dict(self.bound_sources))
@@ -301,8 +300,6 @@ class ParameterSet(Mapping[str, Parameter]):
 def default_bound_source(spec: FitSpec, parameter: str) -> str:
     """Where the box of ``parameter`` comes from when no channel bound or override sets it: the
     spec key that changed it, the data range (targets), or the defaults in coartic/fit/spec.py."""
-    from coartic.fit.spec import DEFAULT_BETA_BOUNDS, DEFAULT_FIT_BOUNDS
-
     if parameter == BETA:
         return ("[model] beta_bounds" if tuple(spec.beta_bounds) != DEFAULT_BETA_BOUNDS
                 else "the default beta_bounds (DEFAULT_BETA_BOUNDS, coartic/fit/spec.py)")
@@ -320,8 +317,6 @@ def expand_priors(spec: FitSpec, channel: str, phonemes: tuple[str, ...], free: 
     """``[parameters.prior]`` per free entry of one channel: "theta_bw" applies to every phoneme whose
     θ_bw is free, "p.k_r" to one (a more specific key wins). A prior on nothing free is refused; one
     on a phoneme absent from this channel's data applies to nothing here."""
-    from coartic.fit.problem import Prior
-
     out: dict[str, Prior] = {}
     for key in sorted(spec.priors, key=lambda k: "." in k):  # global keys first, specific ones override
         mean, sd, log = spec.priors[key]

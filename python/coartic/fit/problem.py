@@ -10,7 +10,7 @@ sampler (``coartic.mcmc``) share. Its pieces:
     every utterance of one channel packed into a ``coartic._core.Corpus`` (CSR), with the observed
     values (NaN replaced by 0) and weights (1 valid, 0 masked). MODEL.md §5: all utterances
     jointly, so a phoneme's parameters are shared by every context it occurs in.
-``Packing``
+``Packing`` (``coartic.fit.packing``, below this module and ``coartic.fit.parameters``)
     which entries of the parameter matrix ``params[n_phonemes, 10]`` (and ``beta``) are free, their
     bounds, and the transform to the internal vector ``x`` the engines see: ``log`` for the
     positive scale parameters (alpha, theta_bw, theta_fw, psi, and beta), identity for the others,
@@ -25,27 +25,24 @@ sampler (``coartic.mcmc``) share. Its pieces:
 from __future__ import annotations
 
 from dataclasses import dataclass, replace
-from typing import TYPE_CHECKING, Any, Callable, Mapping, Sequence
+from typing import Any, Callable, Mapping, Sequence
 
 import numpy as np
 import scipy.sparse as sp
 from numpy.typing import NDArray
 
 from coartic import _core
-from coartic.fit.spec import FitSpec
+from coartic.fit.packing import LOG_COLUMNS, LOG_PARAMETERS, Packing, Prior
+from coartic.fit.parameters import ParameterSet, data_targets
+from coartic.fit.spec import FitSpec, SpecError
+from coartic.io.errors import DataError
 from coartic.jacobian import JacobianBuffer
 from coartic.model import Utterance, build_corpus, channel_options, core_error
 from coartic.table import N_PARAMS, PARAMETERS, PAUSE
 
-if TYPE_CHECKING:
-    from coartic.fit.parameters import ParameterSet
-
-__all__ = ["Utterance", "ChannelData", "Packing", "ChannelProblem", "build_problem", "build_packing",
+__all__ = ["Utterance", "ChannelData", "Packing", "Prior", "LOG_COLUMNS", "LOG_PARAMETERS", "ChannelProblem",
+           "build_problem", "build_packing",
            "phoneme_inventory", "Shrinkage", "ShrinkGroup", "shrink_groups", "Speakers", "affine_coefficients"]
-
-# Columns fitted on a log scale (MODEL.md §1: "fit log α", "fit log θ"; ψ > 0 likewise).
-LOG_PARAMETERS: frozenset[str] = frozenset({"alpha", "theta_bw", "theta_fw", "psi"})
-LOG_COLUMNS: NDArray[np.bool_] = np.array([p in LOG_PARAMETERS for p in PARAMETERS])
 
 FloatArray = NDArray[np.float64]
 BoolArray = NDArray[np.bool_]
@@ -81,7 +78,7 @@ class ChannelData:
               phonemes: Sequence[str] | None = None) -> ChannelData:
         utts = [u for u in utterances if channel in u.observed and np.any(u.valid[channel])]
         if not utts:
-            raise ValueError(f"channel {channel}: no utterance has a valid sample")
+            raise DataError(f"channel {channel}: no utterance has a valid sample")
         phon = tuple(phonemes) if phonemes is not None else phoneme_inventory(utts)
         y = np.concatenate([u.observed[channel] for u in utts]).astype(np.float64)
         valid = np.concatenate([u.valid[channel] for u in utts]) & np.isfinite(y)
@@ -97,162 +94,11 @@ class ChannelData:
         return int(self.weights.sum())
 
 
-@dataclass
-class Packing:
-    """Free entries of (params[n_phonemes, 10], beta), their bounds, and the transform to x.
-
-    ``base`` holds every value (fixed ones and the current/start value of free ones). ``x`` lists
-    the free entries in row-major order (phoneme by phoneme, parameters in PARAMETERS order), then
-    beta if free. Internal x is log(value) for LOG_PARAMETERS and beta, the value otherwise.
-    """
-
-    phonemes: tuple[str, ...]
-    free: BoolArray  # [n_phonemes, 10]
-    beta_free: bool
-    lower: FloatArray  # [n_phonemes, 10] natural units
-    upper: FloatArray
-    beta_bounds: tuple[float, float]
-    base: FloatArray  # [n_phonemes, 10]
-    base_beta: float
-    # [n_phonemes, 10]: the spec key each base value came from ("parameters.start.alpha",
-    # "override #2.fixed.k_r"; "" for defaults, data and start tables): ParameterSet.origins.
-    origins: NDArray[np.object_] | None = None
-    # (follower, leader) flat indices into params.ravel(): a tied entry ([[tie]] in the spec) is not
-    # free itself but always takes its leader's value; the leader's Jacobian column is the sum.
-    ties: tuple[tuple[int, int], ...] = ()
-    # "phoneme.parameter" (and "beta") -> the spec key or default its box came from, so that a
-    # parameter at a bound is explained by where the bound comes from (coartic.fit.bounds).
-    bound_sources: Mapping[str, str] | None = None
-
-    def __post_init__(self) -> None:
-        self._idx = np.flatnonzero(self.free.ravel())
-        self._log = np.tile(LOG_COLUMNS, len(self.phonemes))[self._idx]
-        self._followers = np.array([f for f, _ in self.ties], dtype=np.int64)
-        self._leaders = np.array([ld for _, ld in self.ties], dtype=np.int64)
-        self._tmap = self._column_map() if self.ties else None
-
-    def column_map(self) -> sp.csr_matrix | None:
-        """With ties, the (n_phonemes*10 + 1, n_free) 0/1 matrix taking the core's full Jacobian (or
-        gradient) to x's: each free column plus the columns of the entries tied to it; None without."""
-        return self._tmap
-
-    def _column_map(self) -> sp.csr_matrix:
-        col_of = {int(c): j for j, c in enumerate(self.free_columns)}
-        rows = list(col_of)
-        cols = list(col_of.values())
-        for f, ld in self.ties:
-            if ld in col_of:  # a leader held fixed in this stage: its followers follow a constant
-                rows.append(f)
-                cols.append(col_of[ld])
-        n_full = len(self.phonemes) * N_PARAMS + 1
-        return sp.csr_matrix((np.ones(len(rows)), (rows, cols)), shape=(n_full, self.n_free))
-
-    @property
-    def n_free(self) -> int:
-        return int(self._idx.size) + int(self.beta_free)
-
-    @property
-    def free_columns(self) -> NDArray[np.int64]:
-        """Columns of the core's full Jacobian (n_phonemes*10 + 1) that x maps to."""
-        cols = self._idx
-        if self.beta_free:
-            cols = np.append(cols, len(self.phonemes) * N_PARAMS)
-        return cols.astype(np.int64)
-
-    @property
-    def log_mask(self) -> BoolArray:
-        return np.append(self._log, True) if self.beta_free else self._log.copy()
-
-    def names(self) -> list[str]:
-        """'phoneme.parameter' for each entry of x (and 'beta')."""
-        out = [f"{self.phonemes[i // N_PARAMS]}.{PARAMETERS[i % N_PARAMS]}" for i in self._idx]
-        return out + (["beta"] if self.beta_free else [])
-
-    def entries(self) -> list[tuple[str, str]]:
-        """(phoneme, parameter) for each entry of x; beta is ('*', 'beta')."""
-        out = [(self.phonemes[i // N_PARAMS], PARAMETERS[i % N_PARAMS]) for i in self._idx]
-        return out + ([("*", "beta")] if self.beta_free else [])
-
-    def natural(self, x: FloatArray) -> FloatArray:
-        """The free values in natural units for an internal x."""
-        x = np.asarray(x, dtype=np.float64)
-        lm = self.log_mask
-        return np.where(lm, np.exp(np.where(lm, x, 0.0)), x)
-
-    def pack(self, params: FloatArray | None = None, beta: float | None = None) -> FloatArray:
-        params = self.base if params is None else np.asarray(params, dtype=np.float64)
-        beta = self.base_beta if beta is None else float(beta)
-        v = params.ravel()[self._idx]
-        if self.beta_free:
-            v = np.append(v, beta)
-        lm = self.log_mask
-        return np.where(lm, np.log(np.where(lm, np.maximum(v, 1e-300), 1.0)), v)
-
-    def unpack(self, x: FloatArray) -> tuple[FloatArray, float]:
-        v = self.natural(x)
-        params = self.base.copy()
-        flat = params.reshape(-1)
-        flat[self._idx] = v[: self._idx.size]
-        if self.ties:
-            flat[self._followers] = flat[self._leaders]
-        beta = float(v[-1]) if self.beta_free else self.base_beta
-        return params, beta
-
-    def unpack_batch(self, xs: FloatArray) -> tuple[FloatArray, FloatArray]:
-        """Many x at once (rows) -> params [W, n_phonemes, 10], betas [W] (for _core.sse_batch)."""
-        xs = np.atleast_2d(np.asarray(xs, dtype=np.float64))
-        lm = self.log_mask
-        v = np.where(lm, np.exp(np.where(lm, xs, 0.0)), xs)
-        params = np.broadcast_to(self.base, (xs.shape[0],) + self.base.shape).copy()
-        flat = params.reshape(xs.shape[0], -1)
-        flat[:, self._idx] = v[:, : self._idx.size]
-        if self.ties:
-            flat[:, self._followers] = flat[:, self._leaders]
-        betas = v[:, -1].copy() if self.beta_free else np.full(xs.shape[0], self.base_beta)
-        return params, betas
-
-    def bounds(self) -> tuple[FloatArray, FloatArray]:
-        """Bounds of x (internal units)."""
-        lo = self.lower.ravel()[self._idx]
-        hi = self.upper.ravel()[self._idx]
-        if self.beta_free:
-            lo, hi = np.append(lo, self.beta_bounds[0]), np.append(hi, self.beta_bounds[1])
-        lm = self.log_mask
-        with np.errstate(divide="ignore", invalid="ignore"):
-            return np.where(lm, np.log(lo), lo), np.where(lm, np.log(hi), hi)
-
-    def dvalue_dx(self, x: FloatArray) -> FloatArray:
-        """d(natural value)/dx per entry of x: the chain-rule factor of each Jacobian column."""
-        return np.where(self.log_mask, self.natural(x), 1.0)
-
-    def clip(self, x: FloatArray) -> FloatArray:
-        lo, hi = self.bounds()
-        return np.clip(x, lo, hi)
-
-    def with_free(self, free: BoolArray, beta_free: bool, base: FloatArray | None = None,
-                  base_beta: float | None = None) -> Packing:
-        """The same bounds with another free set (and optionally other current values)."""
-        return replace(self, free=free.copy(), beta_free=beta_free,
-                       base=(self.base if base is None else base).copy(),
-                       base_beta=self.base_beta if base_beta is None else float(base_beta))
-
-
 def build_packing(spec: FitSpec, data: ChannelData, start: tuple[FloatArray, float] | None = None) -> Packing:
     """Free set, bounds and starting values of one channel from the spec (and an optional start):
     ``coartic.fit.parameters.ParameterSet.from_spec`` as the engines see it."""
-    from coartic.fit.parameters import ParameterSet
 
     return ParameterSet.from_spec(spec, data, start).packing()
-
-
-@dataclass(frozen=True)
-class Prior:
-    """A Gaussian prior on one parameter: on its natural value, or (``log``) on its logarithm
-    (``mean`` is then still given in natural units: the prior's median)."""
-
-    mean: float
-    sd: float
-    log: bool = False
 
 
 class PenaltyRows:
@@ -409,8 +255,6 @@ def shrink_groups(spec: FitSpec, channel: str, phonemes: Sequence[str], free: Bo
     """The spec's ``[[shrink]]`` tables as groups of one channel: members present in its data; a
     class with two members or more present but the parameter free for none of them is refused (a
     shrinkage of fixed values would do nothing), one with fewer than two present applies to nothing."""
-    from coartic.fit.spec import SpecError
-
     out = []
     for s in spec.shrinks:
         if s.channels is not None and channel not in s.channels:
@@ -421,7 +265,7 @@ def shrink_groups(spec: FitSpec, channel: str, phonemes: Sequence[str], free: Bo
         for name in s.parameters:
             k = PARAMETERS.index(name)
             if not free[list(rows), k].any():
-                raise SpecError.at(spec.path, f"{s.key}", f"{name} is free for none of {list(s.phonemes)} on {channel}: "
+                raise SpecError.at(spec.path, s.key, f"{name} is free for none of {list(s.phonemes)} on {channel}: "
                                    "nothing to shrink")
             members = tuple(phonemes[i] for i in rows)
             out.append(ShrinkGroup(s.key, members, rows, k, s.sd, s.log))
@@ -487,14 +331,14 @@ def utterance_speakers(utterances: Sequence[Utterance], mode: str, column: str,
     seen: dict[str, None] = {}
     for u in utterances:
         if column not in u.meta or not str(u.meta[column]):
-            raise ValueError(f"[model] speakers = {mode!r}: utterance {u.name!r} has no {column!r} "
+            raise SpecError(f"[model] speakers = {mode!r}: utterance {u.name!r} has no {column!r} "
                              f"(manifest column named by [model] speaker_column)")
         seen.setdefault(str(u.meta[column]), None)
     if names is None:
         return tuple(seen)
     extra = [s for s in seen if s not in names]
     if extra:
-        raise ValueError(f"[model] speakers: speaker(s) {', '.join(extra)} not among {', '.join(names)}")
+        raise SpecError(f"[model] speakers: speaker(s) {', '.join(extra)} not among {', '.join(names)}")
     return tuple(names)
 
 
@@ -533,7 +377,7 @@ class Speakers:
 
     def __init__(self, data: ChannelData, mode: str, column: str, names: Sequence[str] | None = None) -> None:
         if mode not in ("offset", "offset_scale"):
-            raise ValueError(f"[model] speakers = {mode!r}: expected \"none\", \"offset\" or \"offset_scale\"")
+            raise SpecError(f"[model] speakers = {mode!r}: expected \"none\", \"offset\" or \"offset_scale\"")
         self.mode = mode
         # ``names`` fixes the order (the reference speaker first) when ``data`` is a subset of the
         # fit's utterances (an MCMC per-phoneme posterior): the reference must stay the fit's.
@@ -609,9 +453,9 @@ class ChannelProblem:
         # [model] speakers = "targets": the rows of the (expanded) matrix per speaker (expand_speaker_targets)
         self.speaker_rows = speaker_rows
         if (speakers == "targets") != (speaker_rows is not None):
-            raise ValueError("[model] speakers = \"targets\" needs the per-speaker rows (build_problem makes them)")
+            raise SpecError("[model] speakers = \"targets\" needs the per-speaker rows (build_problem makes them)")
         if self.speakers is not None and offset_sd is not None:
-            raise ValueError("[model] speakers and [model] offsets cannot be combined yet: choose one")
+            raise SpecError("[model] speakers and [model] offsets cannot be combined yet: choose one")
         self.packing = packing
         self.options = options
         # Per-utterance offsets (spec [model] offsets): None none, inf free, else their sd τ (mm).
@@ -829,7 +673,6 @@ def build_problem(spec: FitSpec, utterances: Sequence[Utterance], channel: str,
     data = ChannelData.build(utterances, channel, phonemes)
     # Options from the settings the fitted table will record (spec.channel_settings): one source.
     options = channel_options(spec.variant, spec.channel_settings(channel))
-    from coartic.fit.parameters import ParameterSet
 
     ps = ParameterSet.from_spec(spec, data, start)
     offset_sd = {"none": None, "free": np.inf}.get(str(spec.offsets), spec.offsets)
@@ -888,12 +731,10 @@ class SpeakerRows:
 
     def shrink_groups(self, spec: FitSpec, groups: Sequence[ShrinkGroup]) -> list[ShrinkGroup]:
         """The base phonemes' [[shrink]] groups on the leader rows (targets are per speaker: refused)."""
-        from coartic.fit.spec import SpecError
-
         out = []
         for g in groups:
             if g.parameter == "target":
-                raise SpecError.at(spec.path, f"{g.key}", f"shrinks target, but [model] speakers = \"targets\" gives "
+                raise SpecError.at(spec.path, g.key, f"shrinks target, but [model] speakers = \"targets\" gives "
                                    "every speaker its own targets: shrink the dynamics only")
             out.append(replace(g, rows=tuple(self.leader(i) for i in g.rows)))
         return out
@@ -908,9 +749,6 @@ def expand_speaker_targets(spec: FitSpec, data: ChannelData, ps: ParameterSet, d
     row, targets per row. Targets start at each speaker's own data targets (``data_start``), at
     ``start_targets`` (speaker -> phoneme -> target: a fitted table's, for MCMC), or at the base
     start. ``names`` fixes the speakers' order (the reference first)."""
-    from coartic.fit.parameters import ParameterSet, data_targets
-    from coartic.fit.spec import SpecError
-
     column = spec.speaker_column
     spk = utterance_speakers(data.utterances, "targets", column, names)
     bad = [n for n in spk if SPEAKER_SEP in n]

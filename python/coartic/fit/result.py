@@ -26,7 +26,10 @@ from coartic import __version__
 from coartic.fit.bounds import CATEGORY_TITLES, BoundNote, explain_bounds, summary_counts
 from coartic.fit.parameters import ParameterSet, psd_pseudo_inverse
 from coartic.fit.problem import ChannelProblem, Packing
+from coartic.errors import UsageError
 from coartic.fit.spec import FitSpec
+from coartic.fit.heldout import baseline_summary, flags
+from coartic.fit.multistart import MultiStart
 from coartic.fit.staged import StageResult
 from coartic.io.labelmap import resolve_label_map
 from coartic.io.roles import ROLE_RECORD_KEY, resolve_role_map
@@ -138,6 +141,7 @@ class ChannelFit:
     stages: list[StageResult] = field(default_factory=list)
     stats: ParameterStats | None = None
     fitted: FloatArray | None = None  # model on every sample of the channel's corpus
+    multistart: MultiStart | None = None  # the optima a multi-start found ([fit] starts > 1)
 
     @property
     def phonemes(self) -> tuple[str, ...]:
@@ -285,7 +289,15 @@ class FitResult:
 
     def parameter_rows(self) -> list[dict[str, Any]]:
         """``parameters.csv``: every channel's parameter set (value, stderr, free, bounds, flags)."""
-        return [row for fit in self.channels.values() for row in fit.parameters.rows()]
+        rows = []
+        for fit in self.channels.values():
+            ms = fit.multistart
+            for row in fit.parameters.rows():
+                if ms is not None:  # how far the other optima put it: a large spread, a weakly determined value
+                    name = "beta" if row["parameter"] == "beta" else f"{row['phoneme']}.{row['parameter']}"
+                    row["spread_between_optima"] = ms.spread.get(name, 0.0 if name in ms.names else "")
+                rows.append(row)
+        return rows
 
     def to_dataframe(self, what: str = "parameters") -> Any:
         """pandas DataFrame of ``parameters.csv`` (``what="parameters"``: one row per channel,
@@ -297,7 +309,7 @@ class FitResult:
             return pd.DataFrame(self.rmse_rows(), columns=["channel", "group", "value", "rmse_mm", "samples",
                                                            "below_bar"])
         if what != "parameters":
-            raise ValueError(f"to_dataframe({what!r}): expected 'parameters' or 'rmse'")
+            raise UsageError(f"to_dataframe({what!r}): expected 'parameters' or 'rmse'")
         df = pd.DataFrame(self.parameter_rows())
         for col in ("value", "stderr", "lower", "upper", "prior_mean", "prior_sd"):
             if col in df:  # "" (no standard error, no prior) is a missing number
@@ -328,11 +340,14 @@ class FitResult:
             for spk, (a_s, b_s) in fit.problem.speaker_coefficients(fit.x).items():
                 lines.append(f"    speaker {spk} ([model] speakers = {self.spec.speakers!r}): "
                              f"offset a = {a_s:+.4f} mm, scale b = {b_s:.4f}")
+            if fit.multistart is not None:
+                lines += multistart_lines(fit.multistart, fit.problem.data.n_valid)
             for s_i, sr in enumerate(fit.stages):
-                lines.append(f"    stage {s_i + 1}: {sr.n_free} free ({', '.join(sr.parameters)}): "
+                what = "probe stage" if sr.probe else "stage"
+                lines.append(f"    {what} {s_i + 1}: {sr.n_free} free ({', '.join(sr.parameters)}): "
                              f"SSE {sr.sse_start:.4g} -> {sr.sse_end:.4g} [{sr.engine.status}]"
                              # a stage that did not converge says why, in the engine's own words
-                             + ("" if sr.engine.status == "converged" else f": {sr.engine.message}"))
+                             + ("" if sr.engine.status == "converged" or sr.probe else f": {sr.engine.message}"))
             lines += shrinkage_lines(fit.problem, fit.x)
             if st.at_bound:
                 lines.append(f"    warning: {len(st.at_bound)} parameter(s) at a bound: {', '.join(st.at_bound)}")
@@ -366,7 +381,6 @@ class FitResult:
                 lines.append("    [[Correlations]] (|r| > 0.5, strongest first)")
                 lines += [f"        C({a}, {b}) = {r:+.3f}" for a, b, r in strong]
         if self.validation:
-            from coartic.fit.validate import flags
 
             lines += ["", "[[Validation]] (held-out RMSE in mm as measured / offset removed; baselines on the same "
                       "samples: constant = training mean, step = each phoneme's training mean, warped = another "
@@ -402,22 +416,47 @@ class FitResult:
         with atomic_path(paths["fitted"]) as tmp:
             np.savez_compressed(tmp, **arrays)
         summary: dict[str, Any] = {"spec": str(self.spec.path), "interrupted": self.interrupted, "started": self.started,
+                   "notes": list(self.notes),  # the small-data warnings among them (coartic.fit.guards)
                    "channels": {ch: {"rmse_mm": f.rmse, "status": f.status, "message": f.message, "nfev": f.nfev,
                                      "wall_time_s": f.wall_time, "at_bound": f.stats.at_bound if f.stats else [],
                                      # why each is at its bound (coartic.fit.bounds.BoundNote fields)
                                      "at_bound_explained": [b.as_dict() for b in f.stats.bounds.values()]
                                      if f.stats else [],
                                      "unidentified": f.stats.unidentified if f.stats else [],
-                                     "unidentified_explained": f.stats.unidentified_why if f.stats else {}}
+                                     "unidentified_explained": f.stats.unidentified_why if f.stats else {},
+                                     "stages": [{"parameters": list(sr.parameters), "n_free": sr.n_free,
+                                                 "sse_start": sr.sse_start, "sse_end": sr.sse_end,
+                                                 "status": sr.engine.status, "probe": sr.probe,
+                                                 "message": sr.engine.message} for sr in f.stages],
+                                     "multistart": None if f.multistart is None
+                                     else f.multistart.as_dict(f.problem.data.n_valid)}
                                 for ch, f in self.channels.items()}}
         if self.validation:
-            from coartic.fit.validate import baseline_summary
 
             summary["validation"] = baseline_summary(self.validation)
         atomic_write_text(paths["summary"], json.dumps(summary, indent=2))
         if self.choice is not None:
             paths |= self.choice.save(out)
         return paths
+
+
+def multistart_lines(ms: MultiStart, n_valid: int) -> list[str]:
+    """fit_report.txt: the multi-start's optima (SSE, RMSE, how many starts reached each, held-out
+    RMSE where validation scored them) and the parameters that differ most between them."""
+    lines = [f"    multi-start: {ms.summary_line(n_valid)}",
+             f"        {ms.nfev} evaluations in {ms.wall_time:.1f} s ({ms.workers} worker(s)); probe: "
+             f"{ms.probe} evaluations per stage from every start, then the best {len(ms.continued)} continued"]
+    for k, o in enumerate(ms.optima):
+        held = "".join(f"; held out {sp}: {v:.4f} mm" for sp, v in o.heldout_rmse.items())
+        lines.append(f"        optimum {k + 1}: SSE {o.sse:.6g}, RMSE {np.sqrt(o.sse / max(n_valid, 1)):.4f} mm, "
+                     f"reached by {o.hits} start(s) {o.starts} [{o.status}]{held}")
+    if ms.best_found_once:
+        lines.append("        warning: the best optimum was reached by one start only: more starts may find a better one")
+    if ms.spread:
+        top = sorted(ms.spread.items(), key=lambda kv: -kv[1])[:5]
+        lines.append("        largest differences from the best among the optima: "
+                     + ", ".join(f"{nm} {d:.4g}" for nm, d in top))
+    return lines
 
 
 def shrinkage_lines(problem: ChannelProblem, x: FloatArray) -> list[str]:

@@ -24,8 +24,14 @@ from coartic.fit.engines import OptionError, check_options
 from coartic.fit.problem import ChannelProblem, Utterance, build_problem
 from coartic.fit.result import ChannelFit, FitResult, finish_channel, now
 from coartic.fit.spec import FitSpec, SpecError, load_spec
-from coartic.fit.staged import fit_staged
+from coartic.fit.multistart import MultiStart, fit_multistart
+from coartic.fit.staged import channel_status, fit_staged
 from coartic.table import ParameterTable
+
+
+# Starts one after the other, each using both cores through the core's rayon: on the 2-core
+# machine, two starts at once in threads were slower (bench/multistart.py, docs/FITTING.md).
+MULTISTART_WORKERS = 1
 
 
 def start_values(spec: FitSpec, channel: str, phonemes: Sequence[str]) -> tuple[np.ndarray, float] | None:
@@ -63,14 +69,28 @@ def fit_channel(spec: FitSpec, utterances: Sequence[Utterance], channel: str,
 
     # One BLAS thread: the dense solves are small, and the machine's cores are better spent in the
     # Rust core; a multi-threaded BLAS on busy cores made them 10-30x slower.
+    stage_names = spec.stages if spec.staging else None
+    multi: MultiStart | None = None
     with threadpool_limits(limits=1, user_api="blas"):
-        final, res, stages = fit_staged(problem, spec.engine, spec.engine_options,
-                                        spec.stages if spec.staging else None, on_stage)
+        if spec.starts > 1:
+            def on_start(done: int, total: int) -> None:
+                if progress is not None and task is not None:
+                    progress.update(task, description=f"{channel} start {min(done + 1, total)}/{total} "
+                                    f"({'probe' if done < spec.starts else 'continued'})")
+
+            final, res, stages, multi = fit_multistart(problem, spec.engine, spec.engine_options, stage_names,
+                                                       spec.starts, spec.seed, spec.probe, spec.keep,
+                                                       workers=MULTISTART_WORKERS, on_start=on_start,
+                                                       include_start=spec.include_start)
+        else:
+            final, res, stages = fit_staged(problem, spec.engine, spec.engine_options, stage_names, on_stage)
+    status, message = channel_status(res, stages, multi is not None and multi.best_found_once)
     try:
-        fit = finish_channel(final, res.x, res.status, res.message, time.perf_counter() - t0, stages)
+        fit = finish_channel(final, res.x, status, message, time.perf_counter() - t0, stages)
     except KeyboardInterrupt:  # Ctrl-C while the statistics were computed: keep the fitted point
         fit = finish_channel(final, res.x, "interrupted", "stopped by the user (Ctrl-C) after the fit",
                              time.perf_counter() - t0, stages)
+    fit.multistart = multi
     if progress is not None and task is not None:
         progress.update(task, description=f"{channel} done", info=escape(f"RMSE {fit.rmse:.3f} mm [{fit.status}]"))
         progress.stop_task(task)
@@ -136,7 +156,7 @@ def run(spec: FitSpec | str | Path, out: str | Path | None = None, *, utterances
             from coartic.fit.choose import cross_validate
 
             try:
-                result.choice = cross_validate(spec, utterances, progress)
+                result.choice = cross_validate(spec, utterances, progress, fit=run)
             except KeyboardInterrupt:
                 result.interrupted = True
                 result.notes.append(f"interrupted while choosing {spec.choose.key} by cross-validation: nothing was fitted")
@@ -168,7 +188,7 @@ def run(spec: FitSpec | str | Path, out: str | Path | None = None, *, utterances
         try:
             result.validation = validate_all(spec, None if out is None else Path(out) / "validation",
                                              utterances=utterances, console=console, quiet=quiet,
-                                             notes=result.notes)
+                                             notes=result.notes, fit=run)
         except KeyboardInterrupt:
             result.notes.append("validation interrupted by the user")
         except SpecError as e:  # e.g. no repetition or rate to hold out: said, not raised

@@ -31,6 +31,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from coartic.errors import CoarticError
+from coartic.fit.baselines import Baselines, beats_step, flag_text
 from coartic.model import Utterance, evaluate_corpus
 from coartic.table import ParameterTable
 
@@ -98,7 +99,7 @@ class Score:
             acc: dict[str, list[float]] = {}
             for u, utt in enumerate(self.utterances):
                 r, ro = self.residuals(ch, u), self.residuals(ch, u, offset=True)
-                seg = segment_of(utt)
+                seg = utt.sample_segments()
                 for i, lab in enumerate(utt.labels):
                     m = (seg == i) & np.isfinite(r)
                     a = acc.setdefault(lab, [0.0, 0.0, 0.0])
@@ -144,7 +145,6 @@ class Score:
 
     def flags(self) -> list[str]:
         """One line per channel on which the table does not beat the step model."""
-        from coartic.fit.baselines import beats_step, flag_text
 
         out = []
         for ch in self.channels:
@@ -159,7 +159,6 @@ class Score:
 
     def add_baselines(self, train: Sequence[Utterance]) -> None:
         """Fit the baselines on ``train`` (the table's training utterances) and predict these samples."""
-        from coartic.fit.baselines import Baselines
 
         b = Baselines.fit(train, self.channels)
         self.baselines = {}
@@ -225,13 +224,6 @@ class Score:
         return paths
 
 
-def segment_of(utt: Utterance) -> NDArray[np.int64]:
-    """For each sample of ``utt``, the index of the segment it lies in (−1 outside every segment)."""
-    i = np.searchsorted(utt.starts, utt.times, side="right") - 1
-    inside = (i >= 0) & (utt.times < utt.ends[np.clip(i, 0, None)])
-    return np.where(inside, i, -1).astype(np.int64)
-
-
 def score_utterances(table: ParameterTable, utterances: Sequence[Utterance],
                      channels: Sequence[str] | None = None, speaker: str | None = None,
                      train: Sequence[Utterance] | None = None) -> Score:
@@ -245,17 +237,17 @@ def score_utterances(table: ParameterTable, utterances: Sequence[Utterance],
     mapping = speaker_mapping(table, speaker)
     utts = list(utterances)
     if not utts:
-        raise ValueError("no utterance to score")
+        raise ScoreError("no utterance to score")
     chans = tuple(channels) if channels is not None else tuple(
         c for c in table.channels if all(c in u.observed for u in utts))
     if not chans:
-        raise ValueError(f"the utterances carry none of the table's channels ({', '.join(table.channels)})")
+        raise ScoreError(f"the utterances carry none of the table's channels ({', '.join(table.channels)})")
     for c in chans:
         if c not in table.channels:
-            raise ValueError(f"{table.source}: no channel {c!r} (channels: {', '.join(table.channels)})")
+            raise ScoreError(f"{table.source}: no channel {c!r} (channels: {', '.join(table.channels)})")
         missing = [u.name for u in utts if c not in u.observed]
         if missing:
-            raise ValueError(f"channel {c}: not measured in {', '.join(missing[:5])}")
+            raise ScoreError(f"channel {c}: not measured in {', '.join(missing[:5])}")
     for c in chans:  # a calibrated figure of a channel the recording did not give would be meaningless
         y = np.concatenate([u.observed[c][u.valid[c]] for u in utts])
         y = y[np.isfinite(y)]
@@ -309,7 +301,7 @@ def score_recordings(table: ParameterTable | str | PathLike[str], files: Sequenc
         table = ParameterTable.load(Path(table))
     speaker_mapping(table, speaker)  # an unknown speaker is refused before anything is read
     if labels is not None and len(labels) != len(files):
-        raise ValueError(f"{len(labels)} label files for {len(files)} recordings: give one --labels per recording")
+        raise ScoreError(f"{len(labels)} label files for {len(files)} recordings: give one --labels per recording")
     lmap = resolve_label_map(label_map) if label_map is not None else LabelMap.recorded(table)
     rmap = role_map if role_map is not None else RoleMap.recorded(table)
     chans = tuple(channels) if channels is not None else tuple(table.channels)
@@ -377,7 +369,7 @@ def with_fallbacks(utterances: Sequence[Utterance], table: ParameterTable, chann
     from coartic.runtime.festival import PhoneMap
 
     own = getattr(label_map, "fallbacks", None)
-    fallbacks, source = (own, f"the label map ({label_map.source})") if own else (
+    fallbacks, source = (own, str(label_map.source)) if own else (
         PhoneMap.load().fallbacks, "phones_italian.tsv")
     used = substitutions([lab for u in utterances for lab in u.labels], table, channels, fallbacks)
     if not used:

@@ -85,5 +85,5 @@ def score_table(score: object) -> Table:
                   f"{wp['rmse_mm']:.3f} ({escape(wp['phoneme'])})" if wp else "–", str(r["samples"]))
         for b in (x for x in score.baseline_rows() if x["channel"] == ch and x["model"] != "table"):
             t.add_row(ch, f"[dim]{b['model']}[/dim]", f"{b['rmse_mm']:.3f}", f"{b['rmse_offset_removed_mm']:.3f}",
-                      f"{b['rmse_calibrated_mm']:.3f}", "", "", str(b["samples"]))
+                      f"{b['rmse_calibrated_mm']:.3f}", "–", "–", str(b["samples"]))
     return t

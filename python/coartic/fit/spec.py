@@ -44,6 +44,9 @@ DEFAULT_STAGES: tuple[tuple[str, ...], ...] = (
     ("alpha", "theta_bw", "theta_fw", "c_bw", "c_fw", "delta"),
     ("k_r", "sigma", "psi", "beta"),
 )
+# [fit] defaults: multi-start estimation (coartic.fit.multistart; measured in bench/multistart.py)
+DEFAULT_STARTS = 32
+DEFAULT_PROBE = 10  # evaluations per stage in the probe every start gets
 
 
 class SpecError(CoarticError, ValueError):
@@ -174,6 +177,13 @@ class FitSpec:
     engine_options: dict[str, Any] = field(default_factory=dict)
     staging: bool = True
     stages: tuple[tuple[str, ...], ...] = DEFAULT_STAGES
+    # [fit]: global estimation by multi-start (coartic.fit.multistart); starts = 1 is one local fit
+    # from [parameters.start]
+    starts: int = DEFAULT_STARTS
+    seed: int = 0
+    probe: int = DEFAULT_PROBE
+    keep: int | None = None  # starts continued after the probe (None: multistart.default_keep)
+    include_start: bool = True  # start 0 is [parameters.start] (always continued)
     max_gap: float = 0.05  # s: gaps up to this are interpolated by the reader, longer ones masked
     validate_group: str | None = None  # k-fold validation by this grouping (VALIDATE_GROUPS)
     validate_folds: int | None = None  # None: one fold per group (leave one group out)
@@ -192,6 +202,14 @@ class FitSpec:
                                edge_extent=self.edge_extent, apex_fraction=self.apex_fraction,
                                dominance=self.dominance, plateau_fraction=self.plateau_fraction,
                                handover=self.handover)
+
+
+def _count(table: dict[str, Any], key: str, default: int | None, low: int, path: Path) -> Any:
+    """An integer >= ``low`` under ``[fit] key`` (or the default)."""
+    v = table.get(key, default)
+    if v is not None and (isinstance(v, bool) or not isinstance(v, int) or v < low):
+        raise _err(path, f"fit.{key}", f"expected an integer >= {low}, got {v!r}")
+    return v
 
 
 def _err(path: Path, key: str, msg: str) -> SpecError:
@@ -463,7 +481,7 @@ def parse_spec(raw: dict[str, Any], path: Path) -> FitSpec:
     base = path.parent
     # [mcmc] belongs to coartic.mcmc (docs/MCMC.md): one spec file serves both commands.
     _take(raw, path, "top level", {"name", "corpus", "model", "parameters", "override", "tie", "shrink",
-                                   "choose", "engine", "staging", "gaps", "validate", "mcmc"})
+                                   "choose", "engine", "staging", "gaps", "validate", "mcmc", "fit"})
     name = raw.get("name", path.stem)
 
     c = raw.get("corpus")
@@ -632,6 +650,19 @@ def parse_spec(raw: dict[str, Any], path: Path) -> FitSpec:
         stages = tuple(_param_names(_str_list(st, path, "staging.stages"), path, "staging.stages", allow_beta=True)
                        for st in s["stages"])
 
+    fit = raw.get("fit", {})
+    if not isinstance(fit, dict):
+        raise _err(path, "fit", f"expected a table, got {fit!r}")
+    _take(fit, path, "fit", {"starts", "seed", "probe", "keep", "include_start"})
+    include_start = fit.get("include_start", True)
+    if not isinstance(include_start, bool):
+        raise _err(path, "fit.include_start", f"expected true or false, got {include_start!r}")
+    starts, seed, probe = (_count(fit, key, default, low, path) for key, default, low in
+                           (("starts", DEFAULT_STARTS, 1), ("seed", 0, 0), ("probe", DEFAULT_PROBE, 1)))
+    keep = _count(fit, "keep", None, 1, path)
+    if keep is not None and starts > 1 and keep > starts:
+        raise _err(path, "fit.keep", f"{keep}: more than the {starts} starts")
+
     g = raw.get("gaps", {})
     _take(g, path, "gaps", {"max_gap"})
     max_gap = _float(g.get("max_gap", 0.05), path, "gaps.max_gap")
@@ -662,6 +693,7 @@ def parse_spec(raw: dict[str, Any], path: Path) -> FitSpec:
         speakers=str(speakers), speaker_column=speaker_column, channel_bounds=channel_bounds,
         target_margin=margin, overrides=tuple(overrides), ties=tuple(ties), shrinks=shrinks, choose=choose,
         engine=engine, engine_options=dict(engine_options),
-        staging=staging, stages=stages, max_gap=max_gap, holdout_repetition=hold, validate_group=group,
+        staging=staging, stages=stages, starts=starts, seed=seed, probe=probe, keep=keep, include_start=include_start,
+        max_gap=max_gap, holdout_repetition=hold, validate_group=group,
         validate_folds=folds,
         train_rate=v.get("train_rate", "normal"), test_rate=v.get("test_rate", "fast"))

@@ -27,6 +27,37 @@ class StageResult:
     sse_start: float
     sse_end: float
     engine: EngineResult
+    probe: bool = False  # a multi-start probe, capped on purpose: its limit is no finding
+
+
+# The statuses a fit can end with, in the order one outranks another in a channel's status:
+# - "interrupted": Ctrl-C; the best point so far was kept
+# - "failed", "non-finite start": the engine produced no fit (coartic fit stops, exit status 2)
+# - "max-evaluations": a stage or the final fit stopped at its evaluation or iteration limit
+# - "stage-failed": an earlier stage failed, the final fit went on from its best point and converged
+# - "best-found-once": a multi-start whose best optimum only one start reached
+# - "converged"
+STATUSES = ("interrupted", "failed", "non-finite start", "max-evaluations", "stage-failed", "best-found-once",
+            "converged")
+# The fit was written but is not to be trusted as it stands: `coartic fit` exits with status 3.
+UNCONFIRMED_STATUSES = ("max-evaluations", "stage-failed", "best-found-once")
+
+
+def channel_status(final: EngineResult, stages: Sequence[StageResult], best_found_once: bool = False) -> tuple[str, str]:
+    """A channel's status and message from its final result and every stage, honest about the
+    stages: a failed or limited stage shows even when the last one converged."""
+    if final.status != "converged":
+        return final.status, final.message
+    for i, st in enumerate(stages[:-1]):  # the last stage's status is the final one
+        if st.probe:
+            continue
+        if st.engine.status in ("failed", "max-evaluations"):
+            status = "stage-failed" if st.engine.status == "failed" else "max-evaluations"
+            return status, (f"stage {i + 1} ({', '.join(st.parameters)}) ended {st.engine.status}: "
+                            f"{st.engine.message}; the next stage went on from its best point")
+    if best_found_once:
+        return "best-found-once", "the best optimum was reached by one start only: more starts may find a better one"
+    return final.status, final.message
 
 
 def stage_free_sets(problem: ChannelProblem, stages: Sequence[Sequence[str]]) -> list[tuple[NDArray[np.bool_], bool, tuple[str, ...]]]:

@@ -97,7 +97,7 @@ def resample(
     down), NaN wherever the new grid falls in or beyond a gap.
     """
     if not (rate > 0 and new_rate > 0):
-        raise ValueError(f"rates must be positive, got {rate} and {new_rate}")
+        raise DataError(f"rates must be positive, got {rate} and {new_rate}")
     n = markers.shape[0]
     duration = (n - 1) / rate
     n_new = int(np.floor(duration * new_rate + 1e-9)) + 1

@@ -371,8 +371,8 @@ def parse_lab(text: str, path: Path) -> Segments:
     if not labels:
         raise DataError("no labels found", path=path)
     # HTK writes integers (100 ns); MOCHA-TIMIT and others write seconds ("0.3500 0.4200 dh")
-    scale = 1.0 / HTK_UNITS_PER_SECOND if integers else 1.0
-    return Segments(tuple(labels), np.array(starts) * scale, np.array(ends) * scale, path,
+    per_second = HTK_UNITS_PER_SECOND if integers else 1.0  # divided: 4262000 / 1e7 is 0.4262 exactly
+    return Segments(tuple(labels), np.array(starts) / per_second, np.array(ends) / per_second, path,
                     tuple(where))
 
 

@@ -206,6 +206,19 @@ def guess_ema_roles(names: Sequence[str], base: RoleMap) -> RoleMap:
     return RoleMap(roles, base.vertical, base.anterior, base.source, base.axes_given)
 
 
+# Names only a face marker set has, and names only an EMA lab gives (jaw, incisor, tongue sensors).
+_FACE_ONLY = frozenset({"nose", "ear_l", "ear_r", "chin"})
+_EMA_ONLY = frozenset({"jaw", "jw", "li", "mi", "tt", "tb", "td", "tr", "tm", "t1", "t2", "t3",
+                       "t4", "t_tip", "t_mid", "t_back"})
+
+
+def ema_sensor_names(names: Sequence[str]) -> bool:
+    """Names as EMA labs give their sensors: UL, LL and a jaw or tongue sensor, and no face head
+    marker (NOSE, EAR_L, EAR_R, CHIN). Read as face markers, such a file would ask for NOSE/CHIN."""
+    lower = {n.lower() for n in names}
+    return not lower & _FACE_ONLY and {"ul", "ll"} <= lower and bool(lower & _EMA_ONLY)
+
+
 # Sensors that sit behind the lips on the midline, in the order they define "forwards".
 _BEHIND_THE_LIPS = ("TT", "JAW", "TB")
 

@@ -18,11 +18,19 @@ from numpy.typing import NDArray
 import warnings
 
 from coartic.io.errors import DataError, DataWarning
+from coartic.io.ema_geometry import ema_channels, planar_reason
 from coartic.io.gaps import DEFAULT_MAX_GAP, Gap, fill_gaps, resample
 from coartic.io.labelmap import LabelMap, resolve_label_map
 from coartic.io.labels import Segments, read_labels
 from coartic.io.registry import ReadRequest, reader_for
-from coartic.io.roles import MARKER_ROLES, RoleMap, guess_axes, guess_ema_roles, resolve_role_map
+from coartic.io.roles import (
+    MARKER_ROLES,
+    RoleMap,
+    ema_sensor_names,
+    guess_axes,
+    guess_ema_roles,
+    resolve_role_map,
+)
 
 from coartic.table import ALL_CHANNELS, PAUSE, TONGUE_CHANNELS
 
@@ -208,8 +216,6 @@ class Trial:
         filled, gaps = self.fill_gaps(max_gap)
         rest = self.rest_frames(rest_frames)
         if self.kind == "ema":
-            from coartic.io.ema import ema_channels
-
             values, why = ema_channels(filled.markers, self.marker_names, self.roles, rest,
                                        self.source, planar_axis=self.planar_axis)
         else:
@@ -360,6 +366,13 @@ def load_trial(
     roles = resolve_role_map(role_map)
     if reader.sensors:
         roles = _sensor_roles(trial, roles, role_map is None, reader.axes)
+    elif trial.kind == "markers" and ema_sensor_names(trial.marker_names):
+        # e.g. a C3D export of an EMA system: its sensors, not a face marker set
+        trial = replace(trial, kind="ema")
+        trial.meta.setdefault("notes", []).append(
+            "markers named as EMA sensors (UL, LL, jaw or tongue; no NOSE, EARs or CHIN): read as "
+            "EMA sensors")
+        roles = _sensor_roles(trial, roles, role_map is None, None)
     trial = replace(trial, roles=roles, meta={**trial.meta, **(dict(meta) if meta else {})})
     _warn_implausible_positions(trial)
     if labels is not None:
@@ -409,12 +422,6 @@ def _sensor_roles(trial: Trial, given: RoleMap, guess: bool, axes: tuple[str, st
                             f"{roles.vertical!r} and {roles.anterior!r}: they must be the two axes "
                             "the file has", path=trial.source)
     return roles
-
-
-def planar_reason(planar_axis: int) -> str:
-    """Why a channel that needs the third axis is not computed from midsagittal data."""
-    kept = " and ".join(a for k, a in enumerate("xyz") if k != planar_axis)
-    return (f"it needs the third (lateral) axis, and this file is midsagittal ({kept} only)")
 
 
 def _axes_of(trial: Trial) -> str:

@@ -4,7 +4,7 @@ IPOPT is an interior-point method: it handles the bounds natively and is robust 
 optimum. The Hessian is approximated by L-BFGS (the Callback gives value and gradient only). x
 is scaled to the unit box by its bounds.
 
-Options: ``max_iter`` (default 300), ``tol`` (1e-6), ``print_level`` (0), and any other IPOPT
+Options: ``max_iter`` (default ``coartic.fit.engines.iteration_budget``, >= 300), ``tol`` (1e-6), ``print_level`` (0), and any other IPOPT
 option by name (passed through as ``ipopt.<name>``).
 """
 
@@ -16,11 +16,11 @@ import casadi as ca
 import numpy as np
 from numpy.typing import NDArray
 
-from coartic.fit.engines import EngineResult, OptionError, Unit, prepare_start
+from coartic.fit.engines.base import EngineResult, OptionError, Unit, iteration_budget, prepare_start
 from coartic.fit.problem import ChannelProblem
 
 
-IPOPT_DEFAULTS: dict[str, Any] = {"max_iter": 300, "tol": 1e-6, "acceptable_tol": 1e-4, "print_level": 0,
+IPOPT_DEFAULTS: dict[str, Any] = {"tol": 1e-6, "acceptable_tol": 1e-4, "print_level": 0,
                                   "hessian_approximation": "limited-memory", "sb": "yes"}
 
 
@@ -120,7 +120,7 @@ def minimize(problem: ChannelProblem, x0: NDArray[np.float64], options: dict[str
     state: dict[str, Any] = {"interrupted": False}
     f = _Objective("coartic_sse", problem, unit, state)
     z = ca.MX.sym("z", unit.lo.size)
-    ipopt = dict(IPOPT_DEFAULTS)
+    ipopt = dict(IPOPT_DEFAULTS, max_iter=iteration_budget(problem))
     ipopt.update(options)
     nlp: dict[str, Any] = {"x": z, "f": f(z)}
     solver_opts: dict[str, Any] = {"ipopt": ipopt, "print_time": False, "error_on_fail": False}

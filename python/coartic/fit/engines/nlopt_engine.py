@@ -5,7 +5,7 @@ search runs on x scaled to the unit box by its bounds (one scale for every param
 
 Options: ``global`` ('mlsl' = G_MLSL_LDS with a local L-BFGS from low-discrepancy starts,
 'crs2' = GN_CRS2_LM, 'none', or 'auto' (default): 'mlsl' up to 40 free parameters, else 'none'), ``global_maxeval`` (default 2000), ``local`` ('lbfgs' or
-'slsqp'; SLSQP's dense QP stalls on whole corpora), ``local_maxeval`` (default 5000), ``ftol_rel``
+'slsqp'; SLSQP's dense QP stalls on whole corpora), ``local_maxeval`` (default ``coartic.fit.engines.evaluation_budget``), ``ftol_rel``
 and ``xtol_rel`` (1e-15: L-BFGS then stops on round-off, not early),
 ``population`` (0 = nlopt's default), ``seed`` (0).
 """
@@ -18,7 +18,8 @@ import nlopt
 import numpy as np
 from numpy.typing import NDArray
 
-from coartic.fit.engines import Check, EngineResult, check_against, Unit, is_int, is_number, prepare_start
+from coartic.fit.engines.base import (Check, EngineResult, Unit, check_against, evaluation_budget, is_int,
+                                      is_number, prepare_start)
 from coartic.fit.problem import ChannelProblem
 
 _GLOBAL = {"mlsl": nlopt.G_MLSL_LDS, "crs2": nlopt.GN_CRS2_LM}
@@ -40,7 +41,7 @@ def _nlopt_message(opt: nlopt.opt, err: BaseException) -> str:
 
 # Tolerances far below what L-BFGS reaches: looser ones stopped it early on whole corpora
 # (RMSE 0.176 instead of 0.137 mm on 150 synthetic trials); it ends on round-off instead.
-DEFAULTS: dict[str, Any] = {"global": "auto", "global_maxeval": 2000, "local": "lbfgs", "local_maxeval": 5000,
+DEFAULTS: dict[str, Any] = {"global": "auto", "global_maxeval": 2000, "local": "lbfgs", "local_maxeval": None,
                             "ftol_rel": 1e-15, "xtol_rel": 1e-15, "population": 0, "seed": 0}
 
 
@@ -101,7 +102,7 @@ def minimize(problem: ChannelProblem, x0: NDArray[np.float64], options: dict[str
         loc.set_upper_bounds(unit.z_hi)
         loc.set_ftol_rel(o["ftol_rel"])
         loc.set_xtol_rel(o["xtol_rel"])
-        loc.set_maxeval(int(o["local_maxeval"]))
+        loc.set_maxeval(int(o["local_maxeval"]) if o["local_maxeval"] is not None else evaluation_budget(problem))
         return loc
 
     nlopt.srand(int(o["seed"]))
@@ -114,7 +115,8 @@ def minimize(problem: ChannelProblem, x0: NDArray[np.float64], options: dict[str
             g.set_upper_bounds(unit.z_hi)
             if o["global"] == "mlsl":
                 inner = local_opt()
-                inner.set_maxeval(max(50, int(o["local_maxeval"]) // 10))
+                inner.set_maxeval(max(50, (int(o["local_maxeval"]) if o["local_maxeval"] is not None
+                                           else evaluation_budget(problem)) // 10))
                 g.set_local_optimizer(inner)
             if int(o["population"]) > 0:
                 g.set_population(int(o["population"]))

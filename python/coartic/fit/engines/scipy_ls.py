@@ -1,7 +1,7 @@
 """SciPy ``least_squares`` (trust-region reflective) with the Rust core's sparse Jacobian.
 
-The fast default engine. Options (spec ``[engine.options]``): ``max_nfev`` (default SciPy's, 100 x
-the number of free parameters),
+The fast default engine. Options (spec ``[engine.options]``): ``max_nfev`` (default
+``coartic.fit.engines.evaluation_budget``: 100 per free parameter + 1 per 100 residuals, >= 1000),
 ``ftol``/``xtol``/``gtol`` (1e-8), ``loss`` ('linear'; 'soft_l1' etc. for outliers),
 ``tr_solver`` ('exact' densifies J, robust for the few hundred parameters of a channel; 'lsmr'
 keeps it sparse: much faster on a whole corpus, where J has ~1e5 rows; default 'lsmr', and
@@ -16,7 +16,8 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy.optimize import least_squares
 
-from coartic.fit.engines import Check, EngineResult, check_against, is_int, is_number, prepare_start
+from coartic.fit.engines.base import (Check, EngineResult, check_against, evaluation_budget, is_int, is_number,
+                                      prepare_start)
 from coartic.fit.problem import ChannelProblem
 
 _STATUS = {-1: "failed", 0: "max-evaluations", 1: "converged", 2: "converged", 3: "converged", 4: "converged"}
@@ -53,10 +54,10 @@ def minimize(problem: ChannelProblem, x0: NDArray[np.float64], options: dict[str
     if tr_solver == "exact":
         def jac(x: NDArray[np.float64]) -> NDArray[np.float64]:
             return np.asarray(problem.jacobian(x).toarray(), dtype=np.float64)
-    # No evaluation cap of our own: least_squares' default (100 x free parameters) lets a fit end
-    # converged. A cap of 200 ended one-utterance fits of real EMA at max-evaluations (stage 2
-    # needed 690-950 evaluations; docs/FITTING.md), while whole corpora converge in ~110.
-    kw: dict[str, Any] = dict(method="trf", x_scale="jac", ftol=1e-8, xtol=1e-8, gtol=1e-8, tr_solver=tr_solver)
+    # The cap scales with the problem (evaluation_budget): a fixed cap of 200 ended one-utterance
+    # fits of real EMA at max-evaluations (stage 2 needed 690-950 evaluations; docs/FITTING.md).
+    kw: dict[str, Any] = dict(method="trf", x_scale="jac", ftol=1e-8, xtol=1e-8, gtol=1e-8, tr_solver=tr_solver,
+                              max_nfev=evaluation_budget(problem))
     kw.update(opts)
     try:
         res = least_squares(problem.residuals, x0, jac=jac, bounds=(lo, hi), **kw)

@@ -1,0 +1,298 @@
+"""Which model to recommend for real recordings? Held-out error on every real recording we have
+(issue 19 item 3; the evidence in docs/REAL_DATA.md).
+
+Each *cell* is a fit spec: a model variant (original, modified, rate-aware = plateau dominance +
+handover, docs/VARIANTS.md), a *freedom* (which per-phoneme parameters are free) and a
+*regularisation* (none, or ``[[shrink]]`` of the free dynamics toward their phonetic class's mean,
+the classes and scales of bench/generalisation.py). Every cell is fitted with the product's own
+``coartic.fit.run`` (its global estimation included: the spec's default ``[fit] starts``) and
+scored with ``coartic.fit.score`` next to the baselines of ``coartic.fit.baselines`` (constant =
+training mean, step = each phoneme's training mean) on exactly the same samples:
+
+- **leave one utterance out**: fit one utterance, predict the other. The two German utterances
+  share only some phonemes, so the score is taken on the samples inside segments of phonemes the
+  training utterance has (pauses excluded; as bench/generalisation.py). To *predict* the held-out
+  utterance the model still needs every segment: a phoneme the training lacks takes its phonetic
+  class's fallback (the label map's, as ``coartic score`` does); one with none the training has
+  (0024's /u v/ from 0020) is fitted on the held-out utterance with every trained phoneme fixed
+  ("transfer", bench/generalisation.py) -- its own segments are not scored;
+- **split in time**: every utterance cut at its middle segment (bench/baselines_german.py's
+  ``halves``); fit the first halves together, predict the second halves, scored likewise on the
+  segments whose phonemes the first halves have.
+
+In-sample RMSE is the training RMSE of the same fits. The raw RMSE is as measured; "-offset" removes
+each test utterance's mean residual (a recording's rest reference is estimated once per utterance).
+
+Not part of `make test` (CPU minutes); its core, ``evaluate_cell``, is tested on a tiny case in
+tests/python/test_bench_real_data.py. Output in bench/results/real_data.txt:
+
+    nice -n 10 .venv/bin/python bench/real_data.py
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import json
+import math
+import sys
+import time
+from pathlib import Path
+from typing import Any, Sequence
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+
+from baselines_german import halves  # noqa: E402
+from generalisation import VARIANTS, shrink_options  # noqa: E402
+
+from coartic.fit import load_spec, run  # noqa: E402
+from coartic.fit.data import load_utterances  # noqa: E402
+from coartic.fit.problem import Utterance  # noqa: E402
+from coartic.fit.result import FitResult  # noqa: E402
+from coartic.fit.score import score_utterances, with_fallbacks  # noqa: E402
+from coartic.fit.spec import FitSpec, Override  # noqa: E402
+from coartic.io.labelmap import resolve_label_map  # noqa: E402
+from coartic.outputs import atomic_write_text  # noqa: E402
+from coartic.table import PARAMETERS  # noqa: E402
+
+# Which per-phoneme parameters are free (the others stay at their start values: c = 1, k_r = 0.5,
+# sigma = 0, psi = 500, delta = 0).
+TAT = ("target", "alpha", "theta_bw", "theta_fw")
+FREEDOM: dict[str, tuple[str, ...]] = {
+    "tat": TAT, "tat+k_r": (*TAT, "k_r"), "tat+k_r+c": (*TAT, "k_r", "c_bw", "c_fw"), "all": PARAMETERS,
+}
+REGULARISATION = ("none", "shrink")
+# sd of every [[shrink]] (log units for alpha and theta, natural for c and k_r). Not chosen by
+# [choose]: each training set here has one utterance (leave one out) or two halves, too few groups
+# to cross-validate over (coartic.fit.guards says so); 0.3 is the middle of generalisation.py's grid.
+SHRINK_SD = 0.3
+VARIANT_NAMES = ("original", "modified", "rate-aware")
+
+
+@dataclasses.dataclass(frozen=True)
+class Corpus:
+    """A real recording set: its fit spec (files, labels, label map, role map) and where it comes from."""
+
+    name: str
+    spec: Path
+    source: str
+    licence: str
+
+
+CORPORA = (
+    Corpus("German EMA, EMU demo (speaker mo1, 2 utterances)", ROOT / "fit" / "ema_german.toml",
+           "tests/data/realdata/emu-ema-german: the EMU-webApp demo database ema (IPS Munich, DFG SPP prosody, speaker mo1)",
+           "MIT (distributed in github.com/IPS-LMU/EMU-webApp; README.txt there)"),
+)
+
+
+def cell_spec(base: FitSpec, variant: str, freedom: Sequence[str], reg: str, starts: int | None = None) -> FitSpec:
+    """``base`` with the variant's model options, these free parameters and this regularisation."""
+    spec = base.with_options(**VARIANTS[variant], free=tuple(freedom))
+    if starts is not None and hasattr(spec, "starts"):
+        spec = spec.with_options(starts=starts)
+    if reg == "shrink":
+        spec = spec.with_options(**shrink_options(spec, SHRINK_SD, None))
+    elif reg != "none":
+        raise ValueError(f"unknown regularisation {reg!r} (known: {', '.join(REGULARISATION)})")
+    return spec
+
+
+def splits(utts: Sequence[Utterance], which: Sequence[str] = ("loo", "time")) -> list[tuple[str, list[Utterance], list[Utterance]]]:
+    """(name, train, test) of each held-out split: leave one utterance out, and split in time."""
+    out = []
+    if "loo" in which and len(utts) > 1:
+        for k, held in enumerate(utts):
+            out.append((f"LOO {held.name.replace('dfgspp_mo1_prosody_', '').replace('_ema', '')}",
+                        [u for j, u in enumerate(utts) if j != k], [held]))
+    if "time" in which:
+        first, second = zip(*(halves(u) for u in utts))
+        out.append(("time split", list(first), list(second)))
+    return out
+
+
+def masked(test: Utterance, original: Utterance, keep_labels: set[str]) -> Utterance:
+    """``test`` (labels possibly mapped to fallbacks) with every sample outside a segment whose
+    *original* phoneme is in ``keep_labels`` marked invalid: not scored. Pauses are never scored."""
+    keep = np.array([lab in keep_labels and lab != "#" for lab in original.labels] + [False])[original.sample_segments()]
+    return Utterance(test.labels, test.starts, test.ends, test.times, test.name, test.observed,
+                     {c: v & keep for c, v in test.valid.items()}, test.meta)
+
+
+def predict_channel(spec: FitSpec, trained: FitResult, channel: str, test: Sequence[Utterance],
+                    label_map: Any) -> tuple[Any, list[Utterance], list[str]]:
+    """The table that predicts ``test`` on ``channel``, the test utterances as it reads them, and
+    notes: trained phonemes as fitted, unseen ones by class fallback, the rest transferred."""
+    fit = trained.channels[channel]
+    table = trained.table()
+    mapped, note = with_fallbacks(test, table, (channel,), label_map)
+    notes = [note] if note else []
+    known = set(fit.phonemes)
+    unseen = sorted({lab for u in mapped for lab in u.labels} - known)
+    if not unseen:
+        return table, mapped, notes
+    row = {p: i for i, p in enumerate(fit.phonemes)}
+    fixes = tuple(Override(phonemes=(p,), channels=(channel,),
+                           fixed={par: float(fit.params[row[p], j]) for j, par in enumerate(PARAMETERS)})
+                  for p in sorted(known))
+    # the target box must hold the trained targets, which a box from the test data alone may not
+    y = np.concatenate([u.observed[channel][u.valid[channel]] for u in mapped])
+    targets = fit.params[:, PARAMETERS.index("target")]
+    box = (min(float(targets.min()), float(np.nanmin(y)) - spec.target_margin),
+           max(float(targets.max()), float(np.nanmax(y)) + spec.target_margin))
+    bounds = {**spec.channel_bounds, channel: {**spec.channel_bounds.get(channel, {}), "target": box}}
+    tspec = spec.with_options(channels=(channel,), overrides=spec.overrides + fixes, beta=fit.beta, channel_bounds=bounds,
+                              shrinks=tuple(g for g in spec.shrinks if set(g.phonemes) & set(unseen)))
+    if hasattr(tspec, "starts"):  # a handful of free parameters: one local fit
+        tspec = tspec.with_options(starts=1)
+    notes.append(f"{channel}: /{' '.join(unseen)}/ fitted on the test data (no fallback trained), not scored")
+    return run(tspec, utterances=list(mapped), quiet=True, report=False).table(), mapped, notes
+
+
+def evaluate_cell(base: FitSpec, utts: Sequence[Utterance], variant: str, freedom: Sequence[str], reg: str,
+                  which: Sequence[str] = ("loo", "time"), starts: int | None = None) -> list[dict[str, Any]]:
+    """One cell on every split: a row per (split, channel) with the table's held-out RMSE (raw and
+    offset removed), the constant's and step model's on the same samples, and the in-sample RMSE."""
+    spec = cell_spec(base, variant, freedom, reg, starts)
+    label_map = resolve_label_map(base.corpus.label_map) if base.corpus.label_map else None
+    rows = []
+    for name, train, test in splits(utts, which):
+        t0 = time.process_time()
+        trained = run(spec, utterances=train, quiet=True, report=False)
+        seen = {lab for u in train for lab in u.labels}
+        for ch in spec.channels:
+            fit = trained.channels[ch]
+            table, mapped, notes = predict_channel(spec, trained, ch, test, label_map)
+            sc = score_utterances(table, [masked(m, o, seen) for m, o in zip(mapped, test)], (ch,), train=train)
+            fig = {r["model"]: r for r in sc.baseline_rows()}
+            rows.append({"variant": variant, "freedom": freedom_name(freedom), "reg": reg, "split": name,
+                         "channel": ch, "samples": int(fig["table"]["samples"]), "in_sample": fit.rmse,
+                         **{f"{m}{suf}": float(fig[m][key]) for m in ("table", "constant", "step")
+                            for suf, key in (("", "rmse_mm"), ("_off", "rmse_offset_removed_mm"))},
+                         "status": fit.status, "notes": notes})
+        rows[-1]["cpu"] = time.process_time() - t0
+    return rows
+
+
+def freedom_name(freedom: Sequence[str]) -> str:
+    return next((k for k, v in FREEDOM.items() if tuple(v) == tuple(freedom)), "+".join(freedom))
+
+
+def pooled(rows: Sequence[dict[str, Any]], key: str) -> float:
+    """RMSE over every scored sample of ``rows`` (each row's RMSE weighted by its samples)."""
+    n = sum(r["samples"] for r in rows)
+    return math.sqrt(sum(r[key] ** 2 * r["samples"] for r in rows) / n) if n else float("nan")
+
+
+def summary_lines(rows: Sequence[dict[str, Any]]) -> list[str]:
+    """Per cell, pooled over splits and channels: held-out raw and -offset RMSE of the table and the
+    baselines, in-sample RMSE, how many (split, channel) pairs beat the step model; best first."""
+    cells: dict[tuple[str, str, str], list[dict[str, Any]]] = {}
+    for r in rows:
+        cells.setdefault((r["variant"], r["freedom"], r["reg"]), []).append(r)
+    ranked = sorted(cells.items(), key=lambda kv: pooled(kv[1], "table"))
+    out = [f"{'variant':11s} {'freedom':10s} {'reg':7s} {'held-out':>8s} {'-offset':>8s} {'const':>7s} {'-off':>6s} "
+           f"{'step':>6s} {'-off':>6s} {'in-smp':>6s}  beats step (raw/-off)  CPU s"]
+    for (v, f, g), rs in ranked:
+        beat = sum(r["table"] < r["step"] for r in rs), sum(r["table_off"] < r["step_off"] for r in rs)
+        insample = math.sqrt(np.mean([r["in_sample"] ** 2 for r in rs]))
+        out.append(f"{v:11s} {f:10s} {g:7s} {pooled(rs, 'table'):8.3f} {pooled(rs, 'table_off'):8.3f} "
+                   f"{pooled(rs, 'constant'):7.3f} {pooled(rs, 'constant_off'):6.3f} {pooled(rs, 'step'):6.3f} "
+                   f"{pooled(rs, 'step_off'):6.3f} {insample:6.3f}  {beat[0]}/{len(rs)} {beat[1]}/{len(rs)}"
+                   f"{sum(r.get('cpu', 0.0) for r in rs):13.0f}")
+    if len(ranked) > 1:
+        (best, b), (second, s2) = ranked[0], ranked[1]
+        key = lambda r: (r["split"], r["channel"])  # noqa: E731
+        diff = {key(r): r["table"] for r in b}
+        d = [diff[key(r)] - r["table"] for r in s2 if key(r) in diff]
+        out.append(f"best {' '.join(best)} vs next {' '.join(second)}: pooled {pooled(b, 'table'):.3f} vs "
+                   f"{pooled(s2, 'table'):.3f} mm; per (split, channel) differences {min(d):+.3f} .. {max(d):+.3f} mm, "
+                   f"{sum(x < 0 for x in d)} of {len(d)} in favour of the best")
+    return out
+
+
+def row_line(r: dict[str, Any]) -> str:
+    return (f"{r['variant']:11s} {r['freedom']:10s} {r['reg']:7s} {r['split']:11s} {r['channel']:4s}"
+            f"{r['table']:7.3f}{r['table_off']:8.3f}{r['constant']:7.3f}{r['constant_off']:7.3f}{r['step']:7.3f}"
+            f"{r['step_off']:7.3f}{r['in_sample']:8.3f}{r['samples']:6d}  {r['status']}")
+
+
+ROW_HEADER = (f"{'variant':11s} {'freedom':10s} {'reg':7s} {'split':11s} {'ch':4s}{'table':>7s}{'-off':>8s}"
+              f"{'const':>7s}{'-off':>7s}{'step':>7s}{'-off':>7s}{'in-smp':>8s}{'n':>6s}  status")
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--variants", default=",".join(VARIANT_NAMES))
+    ap.add_argument("--freedom", default=",".join(FREEDOM), help=f"among {', '.join(FREEDOM)}")
+    ap.add_argument("--reg", default=",".join(REGULARISATION))
+    ap.add_argument("--channels", default="LA,JO")
+    ap.add_argument("--splits", default="loo,time")
+    ap.add_argument("--starts", type=int, default=None, help="[fit] starts of every fit (default: the spec default)")
+    ap.add_argument("--out", type=Path, default=ROOT / "bench" / "results" / "real_data.txt")
+    ap.add_argument("--merge", type=Path, nargs="+", metavar="TXT",
+                    help="only merge earlier runs' outputs (parts of the grid run side by side) into --out")
+    a = ap.parse_args()
+    if a.merge:
+        return merge(a.merge, a.out)
+    variants, freedoms, regs = a.variants.split(","), a.freedom.split(","), a.reg.split(",")
+    for what, got, known in (("variants", variants, VARIANT_NAMES), ("freedom", freedoms, tuple(FREEDOM)),
+                             ("reg", regs, REGULARISATION)):
+        if set(got) - set(known):
+            ap.error(f"--{what}: unknown {sorted(set(got) - set(known))} (known: {', '.join(known)})")
+    a.out.parent.mkdir(parents=True, exist_ok=True)
+    t0, c0 = time.perf_counter(), time.process_time()
+    lines = ["# bench/real_data.py: held-out RMSE (mm) of model variants x freedom x regularisation on real recordings",
+             f"# command: nice -n 10 .venv/bin/python bench/real_data.py {' '.join(sys.argv[1:])}".rstrip()]
+    all_rows: list[dict[str, Any]] = []
+    for corpus in CORPORA:
+        base = load_spec(corpus.spec).with_options(channels=tuple(a.channels.split(",")))
+        starts = a.starts if a.starts is not None else getattr(base, "starts", 1)
+        utts = load_utterances(base)
+        lines += [f"## {corpus.name}: {corpus.spec.relative_to(ROOT)}, channels {a.channels}; source {corpus.source}; "
+                  f"licence {corpus.licence}", f"fits: [fit] starts = {starts}; shrink sd = {SHRINK_SD} when on",
+                  ROW_HEADER]
+        print("\n".join(lines), flush=True)
+        rows: list[dict[str, Any]] = []
+        for v in variants:
+            for f in freedoms:
+                for g in regs:
+                    got = evaluate_cell(base, utts, v, FREEDOM[f], g, a.splits.split(","), a.starts)
+                    for r in got:
+                        lines.append(row_line(r))
+                        print(lines[-1], flush=True)
+                    rows += got
+                    # after every cell, so an interrupted run keeps what it finished
+                    atomic_write_text(a.out.with_suffix(".json"), json.dumps(all_rows + rows))
+                    atomic_write_text(a.out, "\n".join(lines) + "\n")
+        all_rows += rows
+        notes = sorted({n for r in rows for n in r["notes"]})
+        lines += [f"note: {n}" for n in notes]
+        lines += ["", f"## summary, {corpus.name}: pooled over splits and channels, best held-out (raw) first",
+                  *summary_lines(rows), ""]
+    lines.append(f"({time.perf_counter() - t0:.0f} s wall, {time.process_time() - c0:.0f} s CPU of this process)")
+    print("\n".join(lines[-12:]))
+    a.out.parent.mkdir(parents=True, exist_ok=True)
+    atomic_write_text(a.out.with_suffix(".json"), json.dumps(all_rows))
+    atomic_write_text(a.out, "\n".join(lines) + "\n")
+    print(f"wrote {a.out}")
+    return 0
+
+
+def merge(parts: Sequence[Path], out: Path) -> int:
+    """One output from runs of parts of the grid: their texts, then the summary of all their rows."""
+    rows = [r for p in parts for r in json.loads(p.with_suffix(".json").read_text(encoding="utf-8"))]
+    lines = [line for p in parts for line in p.read_text(encoding="utf-8").splitlines()]
+    lines += ["", "## summary of all the parts above: pooled over splits and channels, best held-out (raw) first",
+              *summary_lines(rows)]
+    atomic_write_text(out.with_suffix(".json"), json.dumps(rows))
+    atomic_write_text(out, "\n".join(lines) + "\n")
+    print("\n".join(lines[-len(summary_lines(rows)) - 1:]))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
