@@ -2,8 +2,10 @@
 #   make fit    set up everything, generate the synthetic session, fit it end to end (with held-out
 #               checks), write the report, and check the fit against the session's ground truth
 #   make test   set up everything, run every test (Rust core without Python, then Python)
+# and, for maintainers, the table the package ships:
+#   make table-italian   regenerate python/coartic/runtime/italian_table.json (and its provenance)
 PY := .venv/bin/python
-.PHONY: setup fit test test-rust test-python stubtest typecheck bench clean wheel
+.PHONY: setup fit test test-rust test-python stubtest typecheck bench clean wheel table-italian
 
 setup:
 	./scripts/setup.sh
@@ -13,6 +15,15 @@ fit: setup
 	[ -f build/session/manifest.csv ] || $(PY) -m coartic.cli corpus synth build/session
 	$(PY) -m coartic.cli fit fit/synthetic.toml --out results/synthetic --validate
 	$(PY) fit/check_recovery.py results/synthetic
+
+# The Italian flavour of the synthetic session (every Italian phoneme), fitted with held-out checks,
+# checked for recovery, then shipped as package data with its provenance (fit/ship_table.py).
+# About 40 minutes on a busy 2-core machine; the result is committed, so only a change of
+# ground_truth_italian.json, session.toml or fit/italian.toml calls for it (a test says so).
+table-italian: setup
+	$(PY) -m coartic.cli corpus synth build/italian --flavour italian
+	$(PY) -m coartic.cli fit fit/italian.toml --out results/italian --validate
+	$(PY) fit/ship_table.py results/italian build/italian
 
 test: setup test-rust stubtest typecheck test-python
 

@@ -10,7 +10,9 @@ starts that reach the best optimum, against nlopt's global MLSL and against the 
   threads, on the synthetic LLO.
 
 Every line is measured in the same run: ratios are to the single start of the same data.
-Output saved in bench/results/multistart.txt.
+Output saved in bench/results/multistart.txt (all parts) or multistart_<parts>.txt;
+bench/results/multistart_synthetic_german.txt has the default [fit], and
+multistart_quasirandom_only.txt the same before start 0 was [parameters.start] (with the workers).
 """
 
 from __future__ import annotations

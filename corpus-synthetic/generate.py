@@ -1,6 +1,6 @@
 """Generate the synthetic ELITE-style session of CORPUS.md: VCV trials as C3D, CSV and labels.
 
-    coartic corpus synth OUT [--seed N] [--quick] [--flavour model|gestures]
+    coartic corpus synth OUT [--seed N] [--quick] [--flavour model|gestures|italian]
     python corpus-synthetic/generate.py OUT [...]            (the same)
 
 Every trial is # V C V # with V in {i, a, u} and C every Italian consonant, at a normal and a fast
@@ -9,6 +9,9 @@ with the ground-truth table ``ground_truth.json`` (or, ``--flavour gestures``, f
 gestures towards the same targets: gestures.py); the markers are then placed in a head frame so
 that MODEL.md §6 gives those channels back, moved rigidly (slow head motion), perturbed with
 Gaussian noise and occasional occlusions. All settings are in ``session.toml`` next to this file.
+
+``--flavour italian`` covers every Italian phoneme: all seven vowels /i e E a O o u/ in VCV, CV and
+VC contexts with every consonant (``session.toml [italian]``), from ``ground_truth_italian.json``.
 
 Each trial draws from its own random stream, seeded by (seed, vowel, consonant, rate, repetition):
 a trial is the same whether it is generated in the full session or in a ``--quick`` one.
@@ -40,9 +43,11 @@ from coartic.model import trajectories
 from coartic.table import CHANNELS, ParameterTable
 
 HERE = Path(__file__).resolve().parent
-FLAVOURS: tuple[str, ...] = ("model", "gestures")
+FLAVOURS: tuple[str, ...] = ("model", "gestures", "italian")
 SETTINGS = HERE / "session.toml"
 GROUND_TRUTH = HERE / "ground_truth.json"
+GROUND_TRUTH_ITALIAN = HERE / "ground_truth_italian.json"
+CONTEXTS: tuple[str, ...] = ("VCV", "CV", "VC")
 
 F64 = npt.NDArray[np.float64]
 PAUSE = "#"
@@ -52,9 +57,9 @@ MANIFEST_COLUMNS: tuple[str, ...] = (
     "file", "labels", "stimulus", "vowel", "consonant", "repetition", "rate",
     "csv", "lab", "truth", "n_frames", "duration_s", "dropout_frames", "y0_offset_mm",
 )
-# File names must stay distinct on case-insensitive file systems (S/s, L/l), so consonants are
-# spelled in plain lower-case ASCII there; the labels and the manifest keep the model phonemes.
-FILE_SPELLING = {"tS": "tsh", "dZ": "dzh", "S": "sh", "J": "gn", "L": "gli"}
+# File names must stay distinct on case-insensitive file systems (S/s, L/l, E/e, O/o), so phonemes
+# are spelled in plain lower-case ASCII there; the labels and the manifest keep the model phonemes.
+FILE_SPELLING = {"tS": "tsh", "dZ": "dzh", "S": "sh", "J": "gn", "L": "gli", "E": "eh", "O": "oh"}
 
 
 class SessionError(ValueError):
@@ -69,16 +74,24 @@ class TrialPlan:
     consonant: str
     rate: str
     repetition: int  # 1-based
-    key: tuple[int, int, int, int]  # (vowel, consonant, rate, repetition) indices: the RNG stream
+    # (vowel, consonant, rate, repetition) indices, and the context's for the Italian flavour: the RNG stream
+    key: tuple[int, ...]
+    context: str = "VCV"  # VCV, or (Italian flavour) CV or VC between pauses
+
+    @property
+    def phonemes(self) -> tuple[str, ...]:
+        """The stimulus between its pauses."""
+        v, c = self.vowel, self.consonant
+        return {"VCV": (v, c, v), "CV": (c, v), "VC": (v, c)}[self.context]
 
     @property
     def name(self) -> str:
-        c = FILE_SPELLING.get(self.consonant, self.consonant)
-        return f"{self.vowel}{c}{self.vowel}_{self.rate}_{self.repetition:02d}"
+        spelt = "".join(FILE_SPELLING.get(p, p) for p in self.phonemes)
+        return f"{spelt}_{self.rate}_{self.repetition:02d}"
 
     @property
     def stimulus(self) -> str:
-        return f"{self.vowel} {self.consonant} {self.vowel}"
+        return " ".join(self.phonemes)
 
 
 @dataclass
@@ -110,15 +123,25 @@ def load_settings(path: Path = SETTINGS) -> dict[str, Any]:
     except tomllib.TOMLDecodeError as exc:
         raise SessionError(f"{path}: invalid TOML: {exc}") from None
     for key in ("seed", "rate_hz", "repetitions", "quick_repetitions", "vowels", "consonants",
-                "pause_label", "time_resolution", "durations", "geometry", "head_motion", "noise", "gestures"):
+                "pause_label", "time_resolution", "durations", "geometry", "head_motion", "noise", "gestures",
+                "italian"):
         if key not in s:
             raise SessionError(f"{path}: missing setting {key!r}")
+    it = s["italian"]
+    for key in ("vowels", "consonants", "contexts", "repetitions", "quick_repetitions"):
+        if key not in it:
+            raise SessionError(f"{path}: missing setting 'italian.{key}'")
+    bad = [c for c in it["contexts"] if c not in CONTEXTS]
+    if bad or not it["contexts"]:
+        raise SessionError(f"{path}: italian.contexts must be some of {list(CONTEXTS)}, got {it['contexts']!r}")
+    if not 0 < it["quick_repetitions"] <= it["repetitions"]:
+        raise SessionError(f"{path}: italian.quick_repetitions must be in 1..italian.repetitions")
     d = s["durations"]
-    for v in s["vowels"]:
+    for v in dict.fromkeys([*s["vowels"], *it["vowels"]]):
         for part in ("first_vowel", "second_vowel"):
             if v not in d.get(part, {}):
                 raise SessionError(f"{path}: [durations.{part}] has no duration for vowel {v!r}")
-    for c in s["consonants"]:
+    for c in dict.fromkeys([*s["consonants"], *it["consonants"]]):
         if c not in d.get("consonant", {}):
             raise SessionError(f"{path}: [durations.consonant] has no duration for consonant {c!r}")
     if not 0 < s["quick_repetitions"] <= s["repetitions"]:
@@ -126,8 +149,21 @@ def load_settings(path: Path = SETTINGS) -> dict[str, Any]:
     return s
 
 
-def plan_trials(settings: dict[str, Any], quick: bool = False) -> list[TrialPlan]:
-    """Every trial of the session (``quick``: the first ``quick_repetitions`` repetitions only)."""
+def plan_trials(settings: dict[str, Any], quick: bool = False, flavour: str = "model") -> list[TrialPlan]:
+    """Every trial of the session (``quick``: the first ``quick_repetitions`` repetitions only).
+
+    The Italian flavour: every vowel of ``[italian]`` in each of its contexts with every consonant."""
+    if flavour == "italian":
+        it = settings["italian"]
+        reps = it["quick_repetitions"] if quick else it["repetitions"]
+        return [
+            TrialPlan(v, c, rate, rep + 1, (vi, ci, ri, rep, CONTEXTS.index(ctx)), ctx)
+            for ctx in it["contexts"]
+            for vi, v in enumerate(it["vowels"])
+            for ci, c in enumerate(it["consonants"])
+            for ri, rate in enumerate(RATES)
+            for rep in range(reps)
+        ]
     reps = settings["quick_repetitions"] if quick else settings["repetitions"]
     return [
         TrialPlan(v, c, rate, rep + 1, (vi, ci, ri, rep))
@@ -150,21 +186,21 @@ def trial_rng(seed: int, plan: TrialPlan, stream: tuple[int, ...] = ()) -> np.ra
 def draw_segments(
     settings: dict[str, Any], plan: TrialPlan, rng: np.random.Generator
 ) -> tuple[list[str], F64, F64, F64]:
-    """Labels, starts, ends (s) and sample times of ``# V C V #``.
+    """Labels, starts, ends (s) and sample times of ``# V C V #`` (or ``# C V #``, ``# V C #``).
 
-    Boundaries are rounded to ``time_resolution`` so that TextGrid and HTK .lab hold them
+    A vowel before the consonant is the stressed first vowel of /'VCV/, after it the unstressed
+    second one; the vowel of a CV or VC syllable said alone is stressed. Boundaries are rounded to ``time_resolution`` so that TextGrid and HTK .lab hold them
     exactly, and the last pause is stretched (by less than one frame) to end on a frame.
     """
     d = settings["durations"]
     scale = d["fast_factor"] if plan.rate == "fast" else 1.0
     v, c = plan.vowel, plan.consonant
-    nominal = [
-        d["lead_pause"],
-        d["first_vowel"][v] * scale,
-        d["consonant"][c] * scale,
-        d["second_vowel"][v] * scale,
-        d["final_pause"],
-    ]
+    stimulus = {
+        "VCV": [d["first_vowel"][v], d["consonant"][c], d["second_vowel"][v]],
+        "CV": [d["consonant"][c], d["first_vowel"][v]],
+        "VC": [d["first_vowel"][v], d["consonant"][c]],
+    }[plan.context]
+    nominal = [d["lead_pause"], *(x * scale for x in stimulus), d["final_pause"]]
     jitter = rng.uniform(1.0 - d["jitter"], 1.0 + d["jitter"], size=len(nominal))
     # Dividing by an integer gives the float nearest to the decimal k / scale, which is what a
     # TextGrid (decimal text) and an HTK .lab (integer 100 ns units) read back to.
@@ -175,7 +211,7 @@ def draw_segments(
     bounds[-1] = (n_frames - 1) / rate
     bounds = np.round(bounds * scale) / scale
     times = np.arange(n_frames, dtype=np.float64) / rate
-    return [PAUSE, v, c, v, PAUSE], bounds[:-1].copy(), bounds[1:].copy(), times
+    return [PAUSE, *plan.phonemes, PAUSE], bounds[:-1].copy(), bounds[1:].copy(), times
 
 
 # ----------------------------------------------------------------------------- markers
@@ -278,10 +314,10 @@ def make_trial(
     flavour: str = "model",
     stream: tuple[int, ...] = (),
 ) -> Trial:
-    """One trial; ``flavour`` "model" (MODEL.md §3 with the table) or "gestures" (gestures.py)."""
+    """One trial; ``flavour`` "model" or "italian" (MODEL.md §3 with the table) or "gestures" (gestures.py)."""
     rng = trial_rng(seed, plan, stream)
     labels, starts, ends, times = draw_segments(settings, plan, rng)
-    if flavour == "model":
+    if flavour in ("model", "italian"):
         traj = trajectories(table, labels, starts, ends, times, channels=list(CHANNELS))
     elif flavour == "gestures":
         traj = _gestures().gesture_trajectories(table, labels, starts, ends, times, settings["gestures"])
@@ -467,8 +503,10 @@ def generate(
 ) -> Path:
     """Write the session into ``out``; return the path of its manifest.
 
-    ``flavour``: "model" (the channels are the model's, with the ground truth) or "gestures"
-    (critically damped gestures towards the same targets: data the model did not make).
+    ``flavour``: "model" (the channels are the model's, with the ground truth), "gestures"
+    (critically damped gestures towards the same targets: data the model did not make) or
+    "italian" (the model with ``ground_truth_italian.json``, every Italian vowel in VCV, CV and VC
+    contexts: ``session.toml [italian]``).
     ``consonants``: only the trials of these consonants (default: all of session.toml).
     ``speakers``: more than 1 writes one session per speaker into ``out/s01``, ``out/s02``...
     (speakers differ in target scale and speaking rate, ``speakers.toml``; each folder holds its
@@ -486,19 +524,30 @@ def generate(
         raise SessionError(f"seed must be a non-negative integer, got {seed}")
     if isinstance(speakers, bool) or not isinstance(speakers, int) or speakers < 1:
         raise SessionError(f"--speakers must be a positive integer, got {speakers!r}")
-    table = ParameterTable.load(GROUND_TRUTH)
     if flavour not in FLAVOURS:
         raise SessionError(f"unknown flavour {flavour!r} (known: {', '.join(FLAVOURS)})")
-    plans = plan_trials(settings, quick)
+    table = ParameterTable.load(truth_path(flavour))
+    plans = plan_trials(settings, quick, flavour)
     if consonants is not None:
-        unknown = sorted(set(consonants) - set(settings["consonants"]))
+        known = settings["italian"]["consonants"] if flavour == "italian" else settings["consonants"]
+        unknown = sorted(set(consonants) - set(known))
         if unknown:
             raise SessionError(f"{SETTINGS}: consonant(s) {unknown} are not in the session")
         plans = [p for p in plans if p.consonant in set(consonants)]
-    n_session = len(plan_trials(settings, quick=False))
+    n_session = len(plan_trials(settings, quick=False, flavour=flavour))
     if speakers == 1:
         return _write_session(out, settings, table, plans, seed, quick, progress, flavour, n_session)
     return _write_speakers(out, settings, table, plans, seed, quick, progress, flavour, n_session, speakers)
+
+
+def truth_path(flavour: str) -> Path:
+    """The ground-truth table a flavour is generated from."""
+    return GROUND_TRUTH_ITALIAN if flavour == "italian" else GROUND_TRUTH
+
+
+def manifest_columns(flavour: str) -> tuple[str, ...]:
+    """The manifest's columns; the Italian flavour adds the stimulus's ``context`` (VCV, CV, VC)."""
+    return (*MANIFEST_COLUMNS, "context") if flavour == "italian" else MANIFEST_COLUMNS
 
 
 def _write_session(
@@ -552,13 +601,13 @@ def _write_session(
                     "duration_s": f"{trial.ends[-1]:.2f}",
                     "dropout_frames": sum(n for _, _, n in trial.dropouts),
                     "y0_offset_mm": f"{trial.y0_offset:.4f}",
-                }
+                } | ({"context": plan.context} if flavour == "italian" else {})
             )
             bar.update(task, advance=1, description=name)
     if stream:  # a speaker of a multi-speaker corpus: its own (scaled) truth
         table.save(out / "ground_truth.json")
     else:
-        shutil.copyfile(GROUND_TRUTH, out / "ground_truth.json")
+        shutil.copyfile(truth_path(flavour), out / "ground_truth.json")
     shutil.copyfile(SETTINGS, out / "session.toml")
     (out / "session.json").write_text(
         json.dumps(
@@ -571,7 +620,7 @@ def _write_session(
     plot_overview(out, settings["geometry"]["rest_gap"], flavour)
     manifest = out / "manifest.csv"
     with open(manifest, "w", newline="", encoding="utf-8") as fh:
-        w = csv.DictWriter(fh, fieldnames=MANIFEST_COLUMNS)
+        w = csv.DictWriter(fh, fieldnames=manifest_columns(flavour))
         w.writeheader()
         w.writerows(rows)
     return manifest
@@ -688,7 +737,7 @@ def _write_speakers(
     )
     manifest = out / "manifest.csv"
     with open(manifest, "w", newline="", encoding="utf-8") as fh:
-        w = csv.DictWriter(fh, fieldnames=("speaker", *MANIFEST_COLUMNS))
+        w = csv.DictWriter(fh, fieldnames=("speaker", *manifest_columns(flavour)))
         w.writeheader()
         w.writerows(rows)
     return manifest

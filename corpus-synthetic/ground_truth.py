@@ -1,6 +1,7 @@
-"""The ground-truth parameter table of the synthetic session, with the reason for every value.
+"""The ground-truth parameter tables of the synthetic session, with the reason for every value.
 
-Run it to (re)write ``ground_truth.json`` next to this file::
+Run it to (re)write ``ground_truth.json`` (the default session: vowels /i a u/) and
+``ground_truth_italian.json`` (``--flavour italian``: all seven Italian vowels) next to this file::
 
     python corpus-synthetic/ground_truth.py
 
@@ -20,11 +21,18 @@ from coartic.table import CHANNELS, PARAMETERS, ChannelSettings, ParameterTable
 
 HERE = Path(__file__).resolve().parent
 OUT = HERE / "ground_truth.json"
+OUT_ITALIAN = HERE / "ground_truth_italian.json"
 
 VOWELS = ("i", "a", "u")
+# The seven vowels of standard Italian (docs/ARCHITECTURE.md phone set): close, close-mid and
+# open-mid front vowels, open /a/, open-mid, close-mid and close rounded back vowels.
+ITALIAN_VOWELS = ("i", "e", "E", "a", "O", "o", "u")
 CONSONANTS = (
     "p b m f v t d n l r s z ts dz tS dZ S k g J L".split()
 )
+# The Italian flavour also has the semivowels /j w/ ("ieri", "uomo"), so that ordinary Italian text
+# needs no fallback (Festival's Italian voice writes them as phones of their own).
+SEMIVOWELS = ("j", "w")
 PAUSE = "#"
 REFERENCE = "a"
 
@@ -106,37 +114,83 @@ def pause(table: Table) -> None:
         table[PAUSE][ch] = s
 
 
-def vowels(table: Table) -> None:
+# The literature the Italian vowel postures follow (corpus-synthetic/README.md, docs/DATA.md):
+#   [MC95] Magno Caldognetto, Vagges & Zmarich (1995), Visible articulatory characteristics of the
+#          Italian stressed and unstressed vowels, ICPhS 95 (Stockholm), vol. 1, 366-369;
+#   [MC98] Magno Caldognetto, Zmarich & Cosi (1998), Statistical definition of visual information
+#          for Italian vowels and consonants, AVSP'98 (Terrigal), 135-140;
+#   [FA99] Farnetani (1999), Labial coarticulation, in Hardcastle & Hewlett (eds), Coarticulation:
+#          theory, data and techniques, CUP, 144-163;
+#   [CA92] Canepari (1992), Manuale di pronuncia italiana, Zanichelli (lip and jaw settings of the
+#          seven vowels);
+#   [LS71] Lindblom & Sundberg (1971), Acoustical consequences of lip, tongue, jaw and larynx
+#          movement, JASA 50, 1166-1179 (jaw opening grows with vowel openness).
+# What they give is the ordering and the rough proportions (ELITE measurements of one or a few
+# speakers: lip opening /a/ > /E/ > /O/ > /e/ > /o/ > /i/ > /u/; mouth width /i/ > /e/ > /E/ > /a/ >
+# /O/ > /o/ > /u/; protrusion /u/ > /o/ > /O/, the front vowels retracted); the millimetres below are
+# placed on that ordering between the values of /i a u/ of the default session, not copied from a
+# table of those papers.
+VOWEL_TARGETS: dict[str, dict[str, float]] = {
+    "a": {"ULO": 2.5, "LLO": 12.0, "ULP": 97.5, "LLP": 94.0, "LR": 52.0, "JO": 125.0},
+    "i": {"ULO": 1.5, "LLO": 5.0, "ULP": 96.5, "LLP": 93.5, "LR": 55.0, "JO": 117.0},
+    "u": {"ULO": 0.5, "LLO": 3.5, "ULP": 101.0, "LLP": 98.0, "LR": 45.0, "JO": 116.5},
+    "e": {"ULO": 2.0, "LLO": 7.5, "ULP": 96.8, "LLP": 93.6, "LR": 54.0, "JO": 119.5},
+    "E": {"ULO": 2.3, "LLO": 10.0, "ULP": 97.2, "LLP": 93.8, "LR": 53.0, "JO": 122.5},
+    "O": {"ULO": 1.5, "LLO": 8.5, "ULP": 99.5, "LLP": 96.5, "LR": 47.5, "JO": 121.5},
+    "o": {"ULO": 1.0, "LLO": 5.5, "ULP": 100.3, "LLP": 97.3, "LR": 46.0, "JO": 118.5},
+}
+VOWEL_WHY: dict[tuple[str, str], str] = {
+    ("a", "ULO"): "open vowel: the upper lip lifts a little with the open mouth",
+    ("a", "LLO"): "open vowel: the largest lower-lip opening, the lip rides on the lowered jaw (~12 mm)",
+    ("a", "ULP"): "open vowel: lips neither rounded nor spread, slightly drawn back by the open jaw",
+    ("a", "LLP"): "open vowel: the lowered jaw pulls the lower lip back ~1 mm",
+    ("a", "LR"): "open vowel: the open mouth widens a little (+2 mm)",
+    ("a", "JO"): "open vowel: the jaw lowers ~10 mm",
+    ("i", "ULO"): "close front vowel: the spread lips part a little",
+    ("i", "LLO"): "close front vowel: small opening (jaw high), larger than /u/ because unrounded",
+    ("i", "ULP"): "spread vowel: the upper lip is retracted ~1.5 mm",
+    ("i", "LLP"): "spread vowel: the lower lip is retracted ~1.5 mm",
+    ("i", "LR"): "spread vowel: the widest mouth (+5 mm)",
+    ("i", "JO"): "close vowel: the jaw nearly at rest (+2 mm)",
+    ("u", "ULO"): "rounded close vowel: the narrow rounded opening hardly lifts the upper lip",
+    ("u", "LLO"): "rounded close vowel: the smallest vowel opening",
+    ("u", "ULP"): "rounded vowel: the upper lip protrudes ~3 mm",
+    ("u", "LLP"): "rounded vowel: the lower lip protrudes ~3 mm",
+    ("u", "LR"): "rounded vowel: the narrowest mouth (-5 mm)",
+    ("u", "JO"): "close vowel: the jaw nearly at rest (+1.5 mm)",
+    ("e", "ULO"): "close-mid front vowel: the upper lip lifts between /i/ and /E/ [MC95, MC98]",
+    ("e", "LLO"): "close-mid front vowel: lip opening above /i/ and /o/, below /O/ (7.5 mm) [MC95, MC98]",
+    ("e", "ULP"): "unrounded front vowel: the upper lip retracted, less than for /i/ (-1.2 mm) [MC98, CA92]",
+    ("e", "LLP"): "unrounded front vowel: the lower lip retracted, less than for /i/ [MC98, CA92]",
+    ("e", "LR"): "spread front vowel: mouth width second only to /i/ (+4 mm) [MC98, CA92]",
+    ("e", "JO"): "close-mid vowel: the jaw a step lower than for /i/ (+4.5 mm) [LS71, CA92]",
+    ("E", "ULO"): "open-mid front vowel: the upper lip lifts almost as for /a/ [MC95, MC98]",
+    ("E", "LLO"): "open-mid front vowel: the largest opening after /a/ (10 mm) [MC95, MC98]",
+    ("E", "ULP"): "unrounded front vowel: the upper lip slightly retracted, nearer rest than /e/ [MC98]",
+    ("E", "LLP"): "unrounded front vowel: the lower lip slightly retracted, the open jaw draws it back [MC98]",
+    ("E", "LR"): "front vowel, mildly spread: wider than /a/, narrower than /e/ (+3 mm) [MC98, CA92]",
+    ("E", "JO"): "open-mid vowel: the jaw between /e/ and /a/ (+7.5 mm) [LS71, CA92]",
+    ("O", "ULO"): "open-mid rounded vowel: rounding keeps the upper lip lower than for /E/ [MC95, MC98]",
+    ("O", "LLO"): "open-mid back vowel: opening below /E/ (rounding narrows it), above /e/ (8.5 mm) [MC95, MC98]",
+    ("O", "ULP"): "open-mid rounded vowel: the least protruded of the rounded vowels (+1.5 mm) [MC98, FA99]",
+    ("O", "LLP"): "open-mid rounded vowel: the lower lip protrudes +1.5 mm [MC98, FA99]",
+    ("O", "LR"): "open-mid rounded vowel: narrower than rest, wider than /o u/ (-2.5 mm) [MC98, CA92]",
+    ("O", "JO"): "open-mid vowel: the jaw about as low as for /E/, a little higher (+6.5 mm) [LS71, CA92]",
+    ("o", "ULO"): "close-mid rounded vowel: a small rounded opening [MC95, MC98]",
+    ("o", "LLO"): "close-mid rounded vowel: opening between /u/ and /e/ (5.5 mm) [MC95, MC98]",
+    ("o", "ULP"): "close-mid rounded vowel: protruded, nearly as much as /u/ (+2.3 mm) [MC98, FA99]",
+    ("o", "LLP"): "close-mid rounded vowel: the lower lip protrudes +2.3 mm [MC98, FA99]",
+    ("o", "LR"): "close-mid rounded vowel: narrow, 1 mm wider than /u/ (-4 mm) [MC98, CA92]",
+    ("o", "JO"): "close-mid vowel: the jaw as for /e/, a little higher (+3.5 mm) [LS71, CA92]",
+}
+
+
+def vowels(table: Table, vowel_set: tuple[str, ...] = VOWELS) -> None:
     # Targets: open /a/ > /i/ > /u/ in lip and jaw opening; /i/ spread (wide, retracted),
-    # /u/ rounded (narrow, protruded).
-    t = {
-        "a": {"ULO": 2.5, "LLO": 12.0, "ULP": 97.5, "LLP": 94.0, "LR": 52.0, "JO": 125.0},
-        "i": {"ULO": 1.5, "LLO": 5.0, "ULP": 96.5, "LLP": 93.5, "LR": 55.0, "JO": 117.0},
-        "u": {"ULO": 0.5, "LLO": 3.5, "ULP": 101.0, "LLP": 98.0, "LR": 45.0, "JO": 116.5},
-    }
-    why = {
-        ("a", "ULO"): "open vowel: the upper lip lifts a little with the open mouth",
-        ("a", "LLO"): "open vowel: the largest lower-lip opening, the lip rides on the lowered jaw (~12 mm)",
-        ("a", "ULP"): "open vowel: lips neither rounded nor spread, slightly drawn back by the open jaw",
-        ("a", "LLP"): "open vowel: the lowered jaw pulls the lower lip back ~1 mm",
-        ("a", "LR"): "open vowel: the open mouth widens a little (+2 mm)",
-        ("a", "JO"): "open vowel: the jaw lowers ~10 mm",
-        ("i", "ULO"): "close front vowel: the spread lips part a little",
-        ("i", "LLO"): "close front vowel: small opening (jaw high), larger than /u/ because unrounded",
-        ("i", "ULP"): "spread vowel: the upper lip is retracted ~1.5 mm",
-        ("i", "LLP"): "spread vowel: the lower lip is retracted ~1.5 mm",
-        ("i", "LR"): "spread vowel: the widest mouth (+5 mm)",
-        ("i", "JO"): "close vowel: the jaw nearly at rest (+2 mm)",
-        ("u", "ULO"): "rounded close vowel: the narrow rounded opening hardly lifts the upper lip",
-        ("u", "LLO"): "rounded close vowel: the smallest vowel opening",
-        ("u", "ULP"): "rounded vowel: the upper lip protrudes ~3 mm",
-        ("u", "LLP"): "rounded vowel: the lower lip protrudes ~3 mm",
-        ("u", "LR"): "rounded vowel: the narrowest mouth (-5 mm)",
-        ("u", "JO"): "close vowel: the jaw nearly at rest (+1.5 mm)",
-    }
-    for v in VOWELS:
+    # /u/ rounded (narrow, protruded); the mid vowels of Italian between them (VOWEL_TARGETS).
+    for v in vowel_set:
         for ch in CHANNELS:
-            s = Spec().set(why[(v, ch)], target=t[v][ch])
+            s = Spec().set(VOWEL_WHY[(v, ch)], target=VOWEL_TARGETS[v][ch])
             s.set("vowels are the long, dominant gestures of a VCV: long reach (1/theta = 50 ms)",
                   theta_bw=20.0, theta_fw=20.0)
             s.set("vowels yield to neighbouring consonants (moderate resistance)", k_r=0.4)
@@ -161,6 +215,32 @@ def vowels(table: Table) -> None:
     a = table["a"]["LLO"]
     a.set("the jaw-lip opening of /a/ peaks at the nucleus: 8 % overshoot at the target time", sigma=0.08)
     a.set("the overshoot lasts about the vowel nucleus (1/sqrt(psi) = 50 ms)", psi=400.0)
+    if "o" in vowel_set:
+        mid_vowels(table)
+
+
+def mid_vowels(table: Table) -> None:
+    """The dynamics of the Italian mid vowels /e E O o/: graded between /a/ and /i u/."""
+    # Rounding: Italian /o/ is rounded and protruded almost like /u/, /O/ less [MC98, FA99]; their
+    # anticipation into a preceding consonant is graded the same way (Farnetani's Italian data:
+    # anticipatory rounding starts within the consonant, later for the less rounded vowel).
+    for v, alpha, theta, delta, k_r in (("o", 1.7, 14.0, -0.015, 0.45), ("O", 1.4, 16.0, -0.01, 0.4)):
+        for ch in ("ULP", "LLP", "LR"):
+            s = table[v][ch]
+            s.set(f"rounding defines /{v}/ too, less than /u/: dominant on the lip-shape channels [MC98, FA99]",
+                  alpha=alpha)
+            s.set(f"anticipatory rounding of /{v}/ reaches back into the consonant, less far than /u/'s "
+                  f"(1/theta ~ {1000 / theta:.0f} ms) [FA99]", theta_bw=theta)
+            s.set(f"anticipatory rounding: the target of /{v}/ is aimed {-delta * 1000:.0f} ms before the "
+                  "acoustic midpoint, less early than /u/ [FA99]", delta=delta)
+            s.set(f"the rounding of /{v}/ resists the consonant's lip shape, less than /u/", k_r=k_r)
+    # Spreading: /e/ spread less than /i/, /E/ barely [MC98, CA92].
+    table["e"]["LR"].set("spreading defines /e/ less than /i/: somewhat dominant on mouth width [MC98]", alpha=1.3)
+    table["e"]["LR"].set("the spreading of /e/ resists the consonant's lip shape a little", k_r=0.45)
+    table["E"]["LR"].set("/E/ is only mildly spread: a little more dominant than /a/ on mouth width [MC98]",
+                         alpha=1.1)
+    for ch in ("ULP", "LLP"):
+        table["e"][ch].set("lip retraction goes with spreading, less than for /i/", alpha=1.1)
 
 
 # Consonant classes: displacement from the rest posture per channel, dominance per channel, and the
@@ -384,8 +464,61 @@ def consonant_classes() -> list[Cls]:
     ]
 
 
-def consonants(table: Table) -> None:
-    for cls in consonant_classes():
+def semivowel_classes() -> list[Cls]:
+    """/j w/ of the Italian flavour: the lips of /i/ and /u/, closer and briefer [CA92, FA99]."""
+    return [
+        Cls(
+            "palatal approximant",
+            ("j",),
+            target={
+                "ULO": (1.0, "the lips of /i/, a little closer: the tongue body is nearer the palate than for /i/ [CA92]"),
+                "LLO": (3.0, "a closer /i/: small opening on a high jaw [CA92]"),
+                "ULP": (96.5, "spread like /i/: the upper lip retracted ~1.5 mm [CA92]"),
+                "LLP": (93.5, "spread like /i/: the lower lip retracted ~1.5 mm [CA92]"),
+                "LR": (54.0, "spread like /i/, slightly less wide (+4 mm) [CA92]"),
+                "JO": (116.0, "high jaw for the palatal approximant (+1 mm)"),
+            },
+            alpha={
+                "ULO": (0.8, WEAK_LIPS),
+                "LLO": (0.8, WEAK_LIPS),
+                "ULP": (0.8, "retraction goes with the spreading, weakly"),
+                "LLP": (0.8, "retraction goes with the spreading, weakly"),
+                "LR": (1.0, "the spreading of /j/ is as dominant as a vowel's"),
+                "JO": (1.2, "the tongue body near the palate needs a high jaw"),
+            },
+            theta=(35.0, "a glide: a brief gesture between consonant and vowel (1/theta ~ 29 ms)"),
+            k_r={ch: (0.3, "a glide yields to its vowel context: low resistance") for ch in CHANNELS},
+        ),
+        Cls(
+            "labial-velar approximant",
+            ("w",),
+            target={
+                "ULO": (0.3, "the narrowest rounded opening: closer than /u/ [CA92, FA99]"),
+                "LLO": (2.0, "the narrowest rounded opening: closer than /u/ [CA92, FA99]"),
+                "ULP": (101.5, "protruded as much as /u/ or a little more (+3.5 mm) [FA99]"),
+                "LLP": (98.5, "protruded as much as /u/ or a little more (+3.5 mm) [FA99]"),
+                "LR": (43.5, "the narrowest mouth of all (-6.5 mm): a labial constriction [CA92, FA99]"),
+                "JO": (116.0, "high jaw, as for /u/ (+1 mm)"),
+            },
+            alpha={
+                "ULO": (1.2, "the labial constriction is part of /w/"),
+                "LLO": (1.2, "the labial constriction is part of /w/"),
+                "ULP": (2.0, "rounding is the defining gesture of /w/, as of /u/: dominant"),
+                "LLP": (2.0, "rounding is the defining gesture of /w/, as of /u/: dominant"),
+                "LR": (2.0, "rounding is the defining gesture of /w/, as of /u/: dominant"),
+                "JO": (0.8, "the jaw is free for /w/"),
+            },
+            theta=(30.0, "a glide whose rounding is anticipated (1/theta ~ 33 ms) [FA99]"),
+            k_r={ch: (0.6 if ch in ("ULP", "LLP", "LR") else 0.3,
+                      "the rounding resists the vowel context" if ch in ("ULP", "LLP", "LR")
+                      else "the opening yields to the vowel context")
+                 for ch in CHANNELS},
+        ),
+    ]
+
+
+def consonants(table: Table, semivowels: bool = False) -> None:
+    for cls in consonant_classes() + (semivowel_classes() if semivowels else []):
         for c in cls.members:
             for ch in CHANNELS:
                 s = Spec()
@@ -437,12 +570,15 @@ def consonants(table: Table) -> None:
                   theta_fw=s.values["theta_bw"] * 1.25)
 
 
-def build() -> ParameterTable:
-    phonemes = [PAUSE, *VOWELS, *CONSONANTS]
+def build(vowel_set: tuple[str, ...] = VOWELS) -> ParameterTable:
+    """The default session's table (/i a u/), or with ``ITALIAN_VOWELS`` the Italian flavour's."""
+    italian = vowel_set == ITALIAN_VOWELS
+    out = OUT_ITALIAN if italian else OUT
+    phonemes = [PAUSE, *vowel_set, *CONSONANTS, *(SEMIVOWELS if italian else ())]
     specs: Table = {p: {} for p in phonemes}
     pause(specs)
-    vowels(specs)
-    consonants(specs)
+    vowels(specs, vowel_set)
+    consonants(specs, semivowels=italian)
     values = {p: {ch: specs[p][ch].complete().values for ch in CHANNELS} for p in phonemes}
     reasons = {p: {ch: specs[p][ch].reasons for ch in CHANNELS} for p in phonemes}
     table = ParameterTable(
@@ -456,10 +592,12 @@ def build() -> ParameterTable:
         reasons=reasons,
         metadata={
             "method": "ground truth (hand-chosen, see reasons)",
-            "corpus": "coartic synthetic ELITE-style session (corpus-synthetic/)",
+            "corpus": ("coartic synthetic ELITE-style session, --flavour italian: every Italian phoneme "
+                       "(corpus-synthetic/)" if italian else "coartic synthetic ELITE-style session (corpus-synthetic/)"),
             "note": "beta = 1, edge extent 1 s, apex fraction 0.5 on every channel; reference phoneme /a/",
-        },
-        source=str(OUT),
+        } | ({"literature": "vowel postures: Magno Caldognetto et al. 1995, 1998; Farnetani 1999; Canepari 1992; "
+                            "Lindblom & Sundberg 1971 (corpus-synthetic/README.md)"} if italian else {}),
+        source=str(out),
     )
     table.validate()
     return table
@@ -468,6 +606,8 @@ def build() -> ParameterTable:
 def main() -> None:
     build().save(OUT)
     print(f"wrote {OUT}")
+    build(ITALIAN_VOWELS).save(OUT_ITALIAN)
+    print(f"wrote {OUT_ITALIAN}")
 
 
 if __name__ == "__main__":

@@ -1,6 +1,6 @@
 #!/usr/bin/env bash
 # Everything coartic needs on a fresh Debian machine: system packages (Festival with its Italian
-# voice, ffmpeg for previews, chromium and checkers for the face's files), a virtual environment
+# and English voices, ffmpeg for previews, chromium and checkers for the face's files), a virtual environment
 # with the Python dependencies, and the Rust extension built in release mode. Idempotent: a second
 # run only rebuilds what changed.
 set -euo pipefail
@@ -9,6 +9,8 @@ cd "$(dirname "$0")/.."
 need_apt=()
 command -v festival >/dev/null 2>&1 || need_apt+=(festival)
 [ -d /usr/share/festival/voices/italian ] || need_apt+=(festvox-italp16k)
+# English voice (kal_diphone, with the CMU lexicon) for `coartic speak --lang en`
+[ -d /usr/share/festival/voices/english/kal_diphone ] || need_apt+=(festvox-kallpc16k)
 command -v ffmpeg >/dev/null 2>&1 || need_apt+=(ffmpeg)
 # the face: viewer test and screenshots (headless Chromium, software WebGL), glTF checks (gltfpack's
 # cgltf validator, three.js's GLTFLoader), VRML97 check (tovrmlx3d from view3dscene)

@@ -4,17 +4,18 @@ This is what the animation runtime, the corpus generator and the fitting code ca
 lifting is in the Rust core (``coartic._core``); this module turns labels into phoneme rows,
 checks segment lists with messages that name the utterance and label at fault (utterances and
 segments counted from 1, as everywhere in coartic), turns the core's ``_core.CoarticError`` into
-a ``ModelInputError`` naming the channel and phoneme, and wraps the core's CSR Jacobian as a ``scipy.sparse.csr_matrix`` (``JacobianBuffer``, refilled in place).
+a ``ModelInputError`` naming the channel and phoneme. It imports no SciPy, so that the runtime
+(``animate``, ``speak``) starts without it: the Jacobian as a ``scipy.sparse`` matrix, which fitting
+uses, is in ``coartic.jacobian``.
 """
 
 from __future__ import annotations
 
-from collections.abc import Mapping, Sequence
-from typing import Literal, overload
+from collections.abc import Iterator, Mapping, Sequence
+from dataclasses import dataclass
 
 import numpy as np
 import numpy.typing as npt
-import scipy.sparse as sp
 
 from coartic import _core
 from coartic.errors import CoarticError
@@ -205,44 +206,6 @@ def model_options(table: ParameterTable, channel: str) -> _core.ModelOptions:
     return channel_options(table.variant, table.channels[channel])
 
 
-class JacobianBuffer:
-    """The Jacobian of one corpus as a ``scipy.sparse.csr_matrix``, refilled in place.
-
-    The sparsity pattern depends only on the corpus, so it is built once here; every
-    ``compute`` writes the values and the Jacobian's entries into the same arrays
-    (``_core.jacobian_values``), allocating nothing: an optimiser's loop then costs about two
-    evaluations per Jacobian instead of allocating tens of MB each time.
-
-    ``compute`` returns ``(values, matrix)``: the buffer's own arrays, overwritten by the next
-    ``compute`` (copy them to keep them). Treat ``matrix`` as read-only; operations that change
-    its structure in place (``eliminate_zeros``, ``sum_duplicates``) would detach its data from
-    the buffer.
-
-    Examples
-    --------
-    >>> buf = JacobianBuffer(corpus)
-    >>> for params, beta in steps:                      # doctest: +SKIP
-    ...     values, jac = buf.compute(params, beta, options)
-    """
-
-    def __init__(self, corpus: _core.Corpus) -> None:
-        self.corpus = corpus
-        indptr, indices = corpus.jacobian_pattern()
-        self.values: F64 = np.empty(corpus.n_samples)
-        self.data: F64 = np.empty(corpus.jacobian_nnz)
-        shape = (corpus.n_samples, corpus.n_phonemes * N_PARAMS + 1)
-        self.matrix = sp.csr_matrix((self.data, indices, indptr), shape=shape)
-        # SciPy may keep a view or a copy of the data; the buffer must be the matrix's storage.
-        self.matrix.data = self.data
-
-    def compute(self, params: F64, beta: float, options: _core.ModelOptions) -> tuple[F64, sp.csr_matrix]:
-        """Values F [n_samples] and the Jacobian (n_samples, n_phonemes*10 + 1) at ``params``
-        [n_phonemes, 10] and ``beta``; the core's ValueError if they are invalid (the buffer then
-        holds partial results)."""
-        _core.jacobian_values(self.corpus, params, beta, options, self.values, self.data)
-        return self.values, self.matrix
-
-
 def jacobian_columns(phonemes: Sequence[str]) -> list[str]:
     """Names of the Jacobian columns: ``"<phoneme>.<parameter>"`` for every row, then ``"beta"``."""
     return [f"{p}.{name}" for p in phonemes for name in PARAMETERS] + ["beta"]
@@ -296,19 +259,6 @@ def _channel_phonemes(table: ParameterTable, channel: str, labels: Sequence[str]
     return phonemes
 
 
-@overload
-def trajectories(
-    table: ParameterTable,
-    labels: Sequence[str],
-    starts: npt.ArrayLike,
-    ends: npt.ArrayLike,
-    times: npt.ArrayLike,
-    channels: Sequence[str] | None = None,
-    jacobian: Literal[False] = False,
-    *,
-    label_map: LabelMap | Mapping[str, str] | str | None = None,
-) -> dict[str, F64]: ...
-@overload
 def trajectories(
     table: ParameterTable,
     labels: Sequence[str],
@@ -317,20 +267,8 @@ def trajectories(
     times: npt.ArrayLike,
     channels: Sequence[str] | None = None,
     *,
-    jacobian: Literal[True],
     label_map: LabelMap | Mapping[str, str] | str | None = None,
-) -> dict[str, tuple[F64, sp.csr_matrix]]: ...
-def trajectories(
-    table: ParameterTable,
-    labels: Sequence[str],
-    starts: npt.ArrayLike,
-    ends: npt.ArrayLike,
-    times: npt.ArrayLike,
-    channels: Sequence[str] | None = None,
-    jacobian: bool = False,
-    *,
-    label_map: LabelMap | Mapping[str, str] | str | None = None,
-) -> dict[str, F64] | dict[str, tuple[F64, sp.csr_matrix]]:
+) -> dict[str, F64]:
     """Channel trajectories of one utterance under the table's model.
 
     Parameters
@@ -347,8 +285,6 @@ def trajectories(
         Times (s) at which to evaluate, e.g. ``np.arange(n) / fps``.
     channels : sequence of str, optional
         Channels to compute; default every channel of the table.
-    jacobian : bool, default False
-        Also return each channel's Jacobian.
     label_map : LabelMap, dict, built-in name or file, optional
         Labels → phonemes. Default: the map the table was fitted with
         (``LabelMap.recorded(table)``; for a table that records none, the labels are its phonemes).
@@ -357,11 +293,7 @@ def trajectories(
     Returns
     -------
     dict
-        ``channel -> ndarray[len(times)]``, or with ``jacobian=True``
-        ``channel -> (values, J)`` where ``J`` is a ``scipy.sparse.csr_matrix`` of shape
-        ``(len(times), 10 * n + 1)``: column ``10 k + j`` is ∂F/∂(parameter j of phoneme k), with
-        phonemes ordered as ``table.phonemes_for(channel)`` (see ``jacobian_columns``) and the
-        last column ∂F/∂β.
+        ``channel -> ndarray[len(times)]``. Their Jacobians: ``coartic.jacobian.trajectory_jacobians``.
 
     Raises
     ------
@@ -376,6 +308,43 @@ def trajectories(
     >>> out["LLO"].shape
     (60,)
     """
+    out: dict[str, F64] = {}
+    for problem in channel_problems(table, labels, starts, ends, times, channels, label_map=label_map):
+        try:
+            out[problem.channel] = _core.evaluate(problem.corpus, problem.params, problem.beta, problem.options)
+        except ValueError as err:
+            raise problem.error(err) from None
+    return out
+
+
+@dataclass(frozen=True)
+class ChannelProblem:
+    """One channel of one utterance as the core takes it: the corpus, the parameter rows (in
+    ``phonemes`` order), beta and the options."""
+
+    channel: str
+    phonemes: list[str]
+    corpus: _core.Corpus
+    params: F64
+    beta: float
+    options: _core.ModelOptions
+
+    def error(self, err: ValueError) -> ModelInputError:
+        return core_error(err, self.channel, self.phonemes)
+
+
+def channel_problems(
+    table: ParameterTable,
+    labels: Sequence[str],
+    starts: npt.ArrayLike,
+    ends: npt.ArrayLike,
+    times: npt.ArrayLike,
+    channels: Sequence[str] | None = None,
+    *,
+    label_map: LabelMap | Mapping[str, str] | str | None = None,
+) -> Iterator[ChannelProblem]:
+    """The labels mapped and checked, channel by channel (arguments as ``trajectories``); channels
+    with the same phoneme rows share one corpus."""
     chans = list(table.channels) if channels is None else list(channels)
     # a table without a recorded map takes its phonemes as they are (the checks below name them)
     lmap = LabelMap.recorded(table) if label_map is None else resolve_label_map(label_map)
@@ -385,8 +354,6 @@ def trajectories(
         except DataError as err:
             raise ModelInputError(str(err)) from None
     utt = Utterance(labels, starts, ends, times)
-    out: dict[str, F64] = {}
-    out_j: dict[str, tuple[F64, sp.csr_matrix]] = {}
     corpora: dict[tuple[str, ...], _core.Corpus] = {}
     for ch in chans:
         table._check_channel(ch)
@@ -394,17 +361,8 @@ def trajectories(
         key = tuple(phonemes)
         if key not in corpora:
             corpora[key] = build_corpus([utt], phonemes)
-        corpus = corpora[key]
         params, beta = table.to_matrix(ch, phonemes)
-        opts = model_options(table, ch)
-        try:
-            if jacobian:
-                out_j[ch] = JacobianBuffer(corpus).compute(params, beta, opts)
-            else:
-                out[ch] = _core.evaluate(corpus, params, beta, opts)
-        except ValueError as err:
-            raise core_error(err, ch, phonemes) from None
-    return out_j if jacobian else out
+        yield ChannelProblem(ch, phonemes, corpora[key], params, beta, model_options(table, ch))
 
 
 def evaluate_corpus(table: ParameterTable, channel: str, utterances: Sequence[Utterance]) -> list[F64]:
@@ -445,7 +403,12 @@ def segment_weights(
     seg_names = [f"{lab}@{i}" for i, lab in enumerate(labels)]
     corpus = build_corpus([Utterance(seg_names, starts, ends, times)], seg_names)
     try:
-        _, jac = JacobianBuffer(corpus).compute(per_segment, beta, model_options(table, channel))
+        _, indptr, indices, data = _core.jacobian(corpus, per_segment, beta, model_options(table, channel))
     except ValueError as err:
         raise core_error(err, channel, seg_names) from None
-    return np.asarray(jac[:, 0 : len(labels) * N_PARAMS : N_PARAMS].toarray().T)
+    # the target columns (every N_PARAMS-th, beta's last column aside) of the core's CSR Jacobian
+    rows = np.repeat(np.arange(indptr.size - 1), np.diff(indptr))
+    target = (indices % N_PARAMS == 0) & (indices < len(labels) * N_PARAMS)
+    weights = np.zeros((len(labels), indptr.size - 1))
+    weights[indices[target] // N_PARAMS, rows[target]] = data[target]
+    return weights

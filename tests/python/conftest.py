@@ -102,13 +102,26 @@ def illustrative_table() -> Any:
     return make()
 
 
-@pytest.fixture(autouse=True)
-def single_start_fits(request: pytest.FixtureRequest, monkeypatch: pytest.MonkeyPatch) -> None:
+@pytest.fixture(autouse=True, scope="session")
+def single_start_fits() -> Any:
     """Fits in the tests start once from ``[parameters.start]`` (``[fit] starts = 1``, the old
     behaviour) unless a spec sets ``[fit] starts`` or the test is marked ``multistart``: the
-    default 32 starts would make every fit test 5-10 times slower without testing anything more.
-    The multi-start itself is tested in test_fit_multistart.py."""
-    if request.node.get_closest_marker("multistart") is None:
+    default 32 starts would make every fit test several times slower without testing anything
+    more. Session-wide, so module-scoped fixtures that fit see it too; the multi-start itself is
+    tested in test_fit_multistart.py. (Fits in other processes, e.g. dask workers, do not see it:
+    their specs set ``[fit] starts``.)"""
+    import coartic.fit.spec
+
+    default = coartic.fit.spec.DEFAULT_STARTS
+    coartic.fit.spec.DEFAULT_STARTS = 1
+    yield default
+    coartic.fit.spec.DEFAULT_STARTS = default
+
+
+@pytest.fixture(autouse=True)
+def multistart_default(request: pytest.FixtureRequest, single_start_fits: int, monkeypatch: pytest.MonkeyPatch) -> None:
+    """A test marked ``multistart`` sees the real default ``[fit] starts``."""
+    if request.node.get_closest_marker("multistart") is not None:
         import coartic.fit.spec
 
-        monkeypatch.setattr(coartic.fit.spec, "DEFAULT_STARTS", 1)
+        monkeypatch.setattr(coartic.fit.spec, "DEFAULT_STARTS", single_start_fits)

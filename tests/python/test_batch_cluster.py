@@ -40,6 +40,8 @@ channels = ["JO"]
 free = ["target", "alpha", "theta_bw", "theta_fw", "k_r"]
 [staging]
 enabled = false
+[fit]
+starts = 1  # (the remote workers do not see conftest's single-start default)
 """
 BATCH_SPEC = """name = "two speakers"
 fit = "fit.toml"

@@ -54,6 +54,24 @@ def test_the_probe_sees_heavy_imports() -> None:
     assert "scipy" in _imported_by(["fit", "--help"])
 
 
+GROUND_TRUTH = Path(__file__).resolve().parents[2] / "corpus-synthetic" / "ground_truth.json"
+
+
+@pytest.mark.festival
+@pytest.mark.parametrize("preview", ["gif", "none"])
+def test_speak_runs_without_scipy(tmp_path: Path, preview: str) -> None:
+    # the runtime path (Festival, the model, the FAP file, the pictures) evaluates the model only:
+    # SciPy, which fitting needs for the Jacobian (coartic.jacobian), is not loaded
+    out = tmp_path / "o"
+    heavy = _imported_by(["speak", "Il babbo mangia la pappa.", "--table", str(GROUND_TRUTH), "--out", str(out),
+                          "--preview", preview])
+    assert (out / "channels.csv").exists() and (out / "segments.tsv").exists()  # it did speak
+    assert not [m for m in heavy if m.split(".")[0] == "scipy"], heavy
+    assert "coartic._core" in heavy  # the model did run
+    # matplotlib only for the pictures
+    assert ("matplotlib" in heavy) == (preview != "none") and (out / "channels.png").exists() == (preview != "none")
+
+
 def test_version() -> None:
     from coartic import __version__
 

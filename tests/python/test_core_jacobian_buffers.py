@@ -1,5 +1,5 @@
 """The Jacobian's pattern/values split: ``Corpus.jacobian_pattern`` once, ``jacobian_values`` into
-the caller's buffers, and ``model.JacobianBuffer`` on top. Equal bit for bit to ``jacobian``;
+the caller's buffers, and ``coartic.jacobian.JacobianBuffer`` on top. Equal bit for bit to ``jacobian``;
 buffers really filled in place; every unusable buffer refused with a message naming it."""
 
 from __future__ import annotations
@@ -13,7 +13,7 @@ import scipy.sparse as sp  # type: ignore[import-untyped]
 from conftest import random_corpus_arrays, random_params
 
 from coartic import _core
-from coartic.model import JacobianBuffer
+from coartic.jacobian import JacobianBuffer
 
 OPTS = _core.ModelOptions()
 

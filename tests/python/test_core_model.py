@@ -8,6 +8,7 @@ import scipy.sparse as sp  # type: ignore[import-untyped]
 
 import numpy_model as nm
 from coartic import _core
+from coartic.jacobian import trajectory_jacobians
 from coartic.model import (
     ModelInputError,
     Utterance,
@@ -39,8 +40,9 @@ def test_trajectories_match_the_reference(illustrative_table: ParameterTable) ->
 
 
 def test_trajectories_with_jacobian(illustrative_table: ParameterTable) -> None:
-    out = trajectories(illustrative_table, LABELS, STARTS, ENDS, TIMES, channels=["LLO"], jacobian=True)
+    out = trajectory_jacobians(illustrative_table, LABELS, STARTS, ENDS, TIMES, channels=["LLO"])
     values, jac = out["LLO"]
+    np.testing.assert_array_equal(values, trajectories(illustrative_table, LABELS, STARTS, ENDS, TIMES)["LLO"])
     phonemes = illustrative_table.phonemes_for("LLO")
     assert isinstance(jac, sp.csr_matrix) and jac.shape == (70, 10 * len(phonemes) + 1)
     cols = jacobian_columns(phonemes)

@@ -13,7 +13,7 @@ import pytest
 from coartic.fit.baselines import Baselines, beats_step, warp_times
 from coartic.fit.compare import Row
 from coartic.fit.score import Score
-from coartic.fit.validate import SplitScore, flags, pooled
+from coartic.fit.heldout import SplitScore, flags, pooled
 from coartic.model import Utterance
 from coartic.table import ParameterTable
 

@@ -229,9 +229,18 @@ def test_validation_scores_every_optimum_held_out(tmp_path: Path) -> None:
     raw = {"corpus": {"files": ["x"], "labels": ["y"]}, "model": {"channels": ["LLO"]},
            "parameters": {"free": ["target", "theta_bw"]}, "staging": {"enabled": False},
            "fit": {"starts": 3, "probe": 3, "keep": 2}, "validate": {"holdout_repetition": 2, "test_rate": None}}
-    scores = validate_all(parse_spec(raw, tmp_path / "spec.toml"), tmp_path / "val", utterances=utts)
+    scores = validate_all(parse_spec(raw, tmp_path / "spec.toml"), tmp_path / "val", utterances=utts, fit=run)
     sc = scores[0]
     assert 1 <= len(sc.optima_test_rmse) <= 2 and sc.optima_test_rmse[0] == pytest.approx(sc.test_rmse)
     assert "optima_test_rmse_mm" in (tmp_path / "val" / "validation.csv").read_text().splitlines()[0]
     report = next((tmp_path / "val").glob("*/fit_report.txt")).read_text()
     assert f"held out {sc.split}: {sc.test_rmse:.4f} mm" in report
+
+
+def test_help_documents_the_exit_statuses_and_the_starts() -> None:
+    res = CliRunner().invoke(app, ["fit", "--help"], terminal_width=100)
+    text = " ".join(res.output.replace("│", " ").split())
+    assert res.exit_code == 0
+    for words in ("Exit status: 0 every channel converged; 3", "best-found-once", "max-evaluations", "stage-failed",
+                  "[fit] starts", "--starts", "--seed"):
+        assert words in text, words

@@ -174,12 +174,12 @@ def test_shrinkage_of_fixed_values_and_bad_choose_options_are_refused(tmp_path: 
 
 def test_ctrl_c_while_choosing_writes_no_fit(tmp_path: Path, utts: list[model.Utterance],
                                             monkeypatch: pytest.MonkeyPatch) -> None:
-    import coartic.fit.validate as validate
+    import coartic.fit.choose as choose
 
     def interrupted(*args: Any, **kwargs: Any) -> Any:
         raise KeyboardInterrupt
 
-    monkeypatch.setattr(validate, "score", interrupted)
+    monkeypatch.setattr(choose, "score", interrupted)  # the scoring of a fold, as [choose] calls it
     s = spec_of(tmp_path, shrink=[{"phonemes": ["p", "t"], "parameters": ["target"], "sd": 1.0}],
                 choose={"key": "shrink.sd", "values": [100.0, 0.001], "group": "repetition", "folds": 2})
     res = run(s, tmp_path / "out", utterances=utts, quiet=True, report=False)

@@ -288,6 +288,7 @@ def test_speaker_targets_table_score_and_mcmc(two_speakers, tmp_path: Path) -> N
 def test_held_out_speaker_validation(utts, mode: str, tmp_path: Path) -> None:  # type: ignore[no-untyped-def]
     """[validate] group = "speaker": leave one speaker out, scored with the population mapping and
     after calibrating the held-out speaker's offset and scale on its own data."""
+    from coartic.fit.runner import run
     from coartic.fit.validate import validate_all
 
     three = list(utts)
@@ -300,7 +301,7 @@ def test_held_out_speaker_validation(utts, mode: str, tmp_path: Path) -> None:  
     raw = {"corpus": {"files": ["x"], "labels": ["y"]}, "model": {"channels": ["LLO"], "speakers": mode},
            "parameters": {"free": ["target", "theta_bw"]}, "validate": {"group": "speaker"}}
     s = parse_spec(raw, Path("/tmp/test_spec.toml"))
-    scores = validate_all(s, tmp_path / "validation", utterances=three)
+    scores = validate_all(s, tmp_path / "validation", utterances=three, fit=run)
     assert [sc.split for sc in scores] == [f"fold {i}/3 (speaker s{i} held out)" for i in (1, 2, 3)]
     for sc in scores:
         # a speaker the table never saw: calibrating its offset and scale on its own data removes

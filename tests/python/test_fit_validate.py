@@ -9,6 +9,7 @@ import pytest
 
 from coartic.fit.simulate import vcv_utterances
 from coartic.fit.spec import SpecError, parse_spec
+from coartic.fit.runner import run
 from coartic.fit.validate import splits, validate_all
 
 
@@ -24,7 +25,7 @@ def test_splits_and_scores(tmp_path: Path) -> None:
     s = spec(tmp_path, holdout_repetition=3)
     names = [(n, len(tr), len(te)) for n, tr, te in splits(s, utts)]
     assert names == [("repetition 3 held out", 24, 12), ("fit normal rate, test fast rate", 18, 18)]
-    scores = validate_all(s, tmp_path / "val", utterances=utts)
+    scores = validate_all(s, tmp_path / "val", utterances=utts, fit=run)
     assert [sc.split for sc in scores] == ["repetition 3 held out", "fit normal rate, test fast rate"]
     for sc in scores:
         # the model made the data: held-out RMSE stays at the noise level
@@ -63,13 +64,13 @@ def test_kfold_by_any_grouping_without_a_manifest(tmp_path: Path) -> None:
 
 
 def test_kfold_scores_pooled_with_and_without_offsets(tmp_path: Path) -> None:
-    from coartic.fit.validate import pooled
+    from coartic.fit.heldout import pooled
 
     utts = vcv_utterances(np.random.default_rng(4), repetitions=2, rates={"normal": 1.0}, noise=0.1)
     raw = {"corpus": {"files": ["x"], "labels": ["y"]}, "model": {"channels": ["LLO"]},
            "parameters": {"free": ["target"]}, "validate": {"group": "repetition"}}
     s = parse_spec(raw, tmp_path / "spec.toml")
-    scores = validate_all(s, tmp_path / "val", utterances=utts)
+    scores = validate_all(s, tmp_path / "val", utterances=utts, fit=run)
     assert len(scores) == 2 and all(np.isfinite(sc.test_rmse_offset_removed) for sc in scores)
     rm, ro, n = pooled(scores)["LLO"]
     assert n == sum(sc.test_samples for sc in scores) and ro <= rm + 1e-12

@@ -352,7 +352,7 @@ def test_ground_truth_is_valid_complete_and_reasoned(gen: ModuleType) -> None:
     )
 
 
-def _build_ground_truth() -> ParameterTable:
+def _build_ground_truth(italian: bool = False) -> ParameterTable:
     import importlib.util
 
     spec = importlib.util.spec_from_file_location("coartic_gt_rules", corpus_dir() / "ground_truth.py")
@@ -360,7 +360,7 @@ def _build_ground_truth() -> ParameterTable:
     mod = importlib.util.module_from_spec(spec)
     sys.modules[spec.name] = mod  # dataclasses look their module up there
     spec.loader.exec_module(mod)
-    table: ParameterTable = mod.build()
+    table: ParameterTable = mod.build(mod.ITALIAN_VOWELS) if italian else mod.build()
     return table
 
 
@@ -458,4 +458,94 @@ def test_bad_flavour_or_consonant_is_refused_before_writing(gen: ModuleType, tmp
         gen.generate(tmp_path / "a", quick=True, progress=False, flavour="spline")
     with pytest.raises(ValueError, match=r"consonant\(s\) \['x'\]"):
         gen.generate(tmp_path / "b", quick=True, progress=False, consonants=["p", "x"])
+    assert not (tmp_path / "a").exists() and not (tmp_path / "b").exists()
+
+
+# ----------------------------------------------------------------------------- Italian flavour
+
+ITALIAN_VOWELS = ("i", "e", "E", "a", "O", "o", "u")
+
+
+@pytest.fixture(scope="module")
+def italian(tmp_path_factory: pytest.TempPathFactory, gen: ModuleType) -> tuple[Path, list[dict[str, str]]]:
+    out = tmp_path_factory.mktemp("italian")
+    gen.generate(out, quick=True, progress=False, flavour="italian", consonants=["p", "f"])
+    with open(out / "manifest.csv", newline="", encoding="utf-8") as fh:
+        return out, list(csv.DictReader(fh))
+
+
+def test_italian_flavour_has_every_vowel_in_vcv_cv_and_vc(
+    italian: tuple[Path, list[dict[str, str]]], settings: dict[str, Any]
+) -> None:
+    out, rows = italian
+    assert json.loads((out / "session.json").read_text())["flavour"] == "italian"
+    assert settings["italian"]["consonants"] == [*settings["consonants"], "j", "w"]
+    assert len(rows) == 3 * 7 * 2 * 2 * settings["italian"]["quick_repetitions"]
+    assert {r["vowel"] for r in rows} == set(ITALIAN_VOWELS)
+    # file names stay distinct where case is not (E/e, O/o): lower-case ASCII spellings
+    names = [Path(r["file"]).stem for r in rows]
+    assert len({n.lower() for n in names}) == len(rows) and all(n == n.lower() for n in names)
+    for r in rows:
+        labels = read_labels(out / r["labels"]).labels
+        v, c = r["vowel"], r["consonant"]
+        expected = {"VCV": ("sil", v, c, v, "sil"), "CV": ("sil", c, v, "sil"), "VC": ("sil", v, c, "sil")}[r["context"]]
+        assert labels == expected and r["stimulus"] == " ".join(expected[1:-1]), r["file"]
+    assert {r["file"] for r in rows if r["stimulus"] == "E p E"} == {"c3d/ehpeh_normal_01.c3d", "c3d/ehpeh_fast_01.c3d"}
+    assert filecmp.cmp(out / "ground_truth.json", corpus_dir() / "ground_truth_italian.json", shallow=False)
+    # the channels read back are the model's with the Italian truth, within the noise
+    check_channels_within_noise(out, rows[::6], settings["noise"]["sigma_mm"])
+
+
+def test_italian_flavour_closes_the_lips_in_every_context(italian: tuple[Path, list[dict[str, str]]]) -> None:
+    out, rows = italian
+    checked = 0
+    for r in rows:
+        if r["consonant"] not in ("p", "f"):
+            continue
+        t = truth(out, r)
+        k = list(t["labels"]).index(r["consonant"])
+        inside = (t["times"] >= t["starts"][k]) & (t["times"] <= t["ends"][k])
+        aperture = t["ULO"] + t["LLO"] + 1.0
+        if r["consonant"] == "p":
+            assert aperture[inside].min() < -1.0, r["file"]  # k_R = 1: closed in CV and VC too, at any rate
+        else:
+            assert aperture[inside].min() > 0.2, r["file"]
+        checked += 1
+    assert checked == 2 * 3 * 7 * 2
+
+
+def test_italian_ground_truth_is_reasoned_and_follows_the_literature() -> None:
+    table = ParameterTable.load(corpus_dir() / "ground_truth_italian.json")
+    phonemes = ["#", *ITALIAN_VOWELS, *"p b m f v t d n l r s z ts dz tS dZ S k g J L j w".split()]
+    assert sorted(table.phonemes) == sorted(phonemes)
+    for ph in phonemes:
+        for ch in CHANNELS:
+            for p in PARAMETERS:
+                assert len(table.reasons[ph][ch][p]) > 15, (ph, ch, p)
+    assert "Magno Caldognetto" in table.metadata["literature"]
+    assert json.loads((corpus_dir() / "ground_truth_italian.json").read_text()) == json.loads(
+        json.dumps(_build_ground_truth(italian=True).to_json_dict()))
+    # the default session's phonemes keep their values: the flavours share every rule
+    default = ParameterTable.load(corpus_dir() / "ground_truth.json")
+    for ph in default.phonemes:
+        assert table.values[ph] == default.values[ph], ph
+    T = {ph: {ch: table.values[ph][ch]["target"] for ch in CHANNELS} for ph in phonemes}
+    order = lambda ch: sorted(ITALIAN_VOWELS, key=lambda v: -T[v][ch])  # noqa: E731
+    assert order("LLO") == ["a", "E", "O", "e", "o", "i", "u"]  # lip opening (Magno Caldognetto et al.)
+    assert order("LR") == ["i", "e", "E", "a", "O", "o", "u"]  # mouth width: spread to rounded
+    assert order("JO") == ["a", "E", "O", "e", "o", "i", "u"]  # jaw opening grows with openness
+    assert T["u"]["ULP"] > T["o"]["ULP"] > T["O"]["ULP"] > T["#"]["ULP"] > T["E"]["ULP"] > T["e"]["ULP"] > T["i"]["ULP"]
+    assert T["w"]["LR"] < T["u"]["LR"] and T["j"]["LR"] > T["#"]["LR"]
+    # rounding dominates the lip-shape channels, graded /u/ > /o/ > /O/, anticipated likewise
+    for ch in ("ULP", "LLP", "LR"):
+        a = {v: table.values[v][ch]["alpha"] for v in ("u", "o", "O")}
+        assert a["u"] > a["o"] > a["O"] > 1.0
+        assert table.values["u"][ch]["delta"] < table.values["o"][ch]["delta"] < table.values["O"][ch]["delta"] < 0
+
+
+def test_italian_flavour_refuses_consonants_it_lacks(gen: ModuleType, tmp_path: Path) -> None:
+    with pytest.raises(ValueError, match=r"consonant\(s\) \['h'\]"):
+        gen.generate(tmp_path / "a", quick=True, progress=False, flavour="italian", consonants=["p", "h"])
+    with pytest.raises(ValueError, match=r"consonant\(s\) \['j'\]"):  # the default session has no glides
+        gen.generate(tmp_path / "b", quick=True, progress=False, consonants=["j"])
     assert not (tmp_path / "a").exists() and not (tmp_path / "b").exists()

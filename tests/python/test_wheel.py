@@ -36,7 +36,10 @@ from coartic.demo import illustrative_table
 times = np.arange(70) / 100
 out = coartic.trajectories(illustrative_table(), ["#", "a", "p", "a", "#"], np.array([0.0, 0.15, 0.29, 0.39, 0.55]),
                            np.array([0.15, 0.29, 0.39, 0.55, 0.70]), times)
-print(json.dumps({"coartic": coartic.__file__, "core": coartic._core.__file__, "LLO": out["LLO"].tolist()}))
+from coartic.runtime.shipped import load_shipped_table
+shipped = load_shipped_table()
+print(json.dumps({"coartic": coartic.__file__, "core": coartic._core.__file__, "LLO": out["LLO"].tolist(),
+                  "shipped": [str(shipped.source), len(shipped.phonemes)]}))
 """
 
 
@@ -64,6 +67,9 @@ def test_wheel_installs_into_a_fresh_venv_without_rust_and_evaluates(tmp_path: P
     names = zipfile.ZipFile(wheel).namelist()
     assert [n for n in names if n.endswith(".so")] == ["coartic/_core.abi3.so"] and "coartic/_core.pyi" in names
     assert "coartic/py.typed" in names and "coartic/estimator.py" in names
+    # package data: the shipped Italian table (the default of speak/animate) and the phone maps
+    assert {"coartic/runtime/italian_table.json", "coartic/runtime/italian_table.provenance.json",
+            "coartic/runtime/phones_italian.tsv", "coartic/runtime/phones_english.tsv"} <= set(names)
 
     venv = tmp_path / "venv"
     subprocess.run([sys.executable, "-m", "venv", "--without-pip", str(venv)], check=True, timeout=120)
@@ -85,6 +91,7 @@ def test_wheel_installs_into_a_fresh_venv_without_rust_and_evaluates(tmp_path: P
     assert run.returncode == 0, run.stderr[-3000:]
     got = json.loads(run.stdout)
     assert Path(got["coartic"]).is_relative_to(fresh) and Path(got["core"]).is_relative_to(fresh)
+    assert Path(got["shipped"][0]).is_relative_to(fresh) and got["shipped"][1] == 31  # every Italian phoneme
 
     import coartic
     from coartic.demo import illustrative_table

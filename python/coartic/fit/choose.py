@@ -35,6 +35,7 @@ from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, T
 
 from coartic.console import LineProgress
 from coartic.fit.problem import Utterance
+from coartic.fit.validate import FitFunction, UnseenPhonemes, kfold_splits, score
 from coartic.fit.spec import CHOOSABLE, Choose, FitSpec, SpecError, choose_base, make_choose, parse_grid
 from coartic.errors import UsageError
 
@@ -202,16 +203,14 @@ def curve_figure(choice: Choice, path: Path) -> Path:
 
 
 def cross_validate(spec: FitSpec, utterances: Sequence[Utterance], progress: Progress | None = None,
-                   console: Console | None = None) -> Choice:
-    """Fit and score every (value, fold) of ``spec.choose`` on ``utterances`` and pick the values.
+                   console: Console | None = None, *, fit: FitFunction) -> Choice:
+    """Fit (with ``fit``: ``coartic.fit.run``) and score every (value, fold) of ``spec.choose`` on
+    ``utterances`` and pick the values.
 
     A fold whose held-out utterances have a phoneme its training lacks cannot be scored: it is
     left out (said in ``notes``); none scorable is an error naming ``[choose]``. Ctrl-C propagates
     (KeyboardInterrupt): the caller writes nothing of a half-made choice.
     """
-    from coartic.fit.runner import run
-    from coartic.fit.validate import UnseenPhonemes, kfold_splits, score
-
     c = spec.choose
     if c is None:
         raise UsageError("cross_validate needs a spec with [choose]")
@@ -242,7 +241,7 @@ def cross_validate(spec: FitSpec, utterances: Sequence[Utterance], progress: Pro
             ok = True
             for v in c.values:
                 progress.update(task, info=f"{c.key} = {v:g}, {name}")
-                res = run(set_value(spec, c.key, v), utterances=train, quiet=True, report=False)
+                res = fit(set_value(spec, c.key, v), utterances=train, quiet=True, report=False)
                 if res.interrupted:
                     raise KeyboardInterrupt
                 try:

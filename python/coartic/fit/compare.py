@@ -27,6 +27,7 @@ from typing import Any, Sequence
 from rich.console import Console
 
 from coartic.fit.baselines import BASELINES
+from coartic.fit.heldout import pooled
 from coartic.fit.result import BAR_MM, FitResult
 from coartic.fit.spec import FitSpec, load_spec
 from coartic.errors import UsageError
@@ -241,7 +242,6 @@ def compare(specs: Sequence[FitSpec | str | PathLike[str]], out: str | PathLike[
             validate: bool = True, console: Console | None = None, quiet: bool = True) -> Comparison:
     """Fit each spec (with its validation) and compare them; with ``out``, write everything there."""
     from coartic.fit.runner import check_engine_options, run
-    from coartic.fit.validate import pooled
 
     loaded = [s if isinstance(s, FitSpec) else load_spec(Path(s)) for s in specs]
     if len(loaded) < 1:

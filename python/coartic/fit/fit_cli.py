@@ -82,9 +82,9 @@ def fit_command(
                                          "shrink.sd=0.03,0.1,0.3,1; replaces the spec's [choose] grid; "
                                          "docs/FITTING.md)"),
     starts: Optional[int] = typer.Option(None, "--starts", min=1, help="multi-start: local fits from this many "
-                                         "quasi-random starts (default the spec's [fit] starts, 32; 1: one fit from "
-                                         "[parameters.start])"),
-    seed: Optional[int] = typer.Option(None, "--seed", min=0, help="seed of the starts (default [fit] seed, 0)"),
+                                         "quasi-random starts (default the spec's \\[fit] starts, 32; 1: one fit from "
+                                         "\\[parameters.start])"),
+    seed: Optional[int] = typer.Option(None, "--seed", min=0, help="seed of the starts (default \\[fit] seed, 0)"),
     force: bool = typer.Option(False, "--force", help="replace --out even if it holds another run's output "
                                "(a rerun of the same spec and channels replaces its own output without it)"),
     quiet: bool = typer.Option(False, "--quiet", "-q", help="no progress (bars in a terminal, lines elsewhere, on "
@@ -92,7 +92,7 @@ def fit_command(
 ) -> None:
     """Fit the coarticulation model to a corpus by least squares (MODEL.md §5).
 
-    By default from 32 quasi-random starts ([fit] starts; docs/FITTING.md). The outputs are
+    By default from 32 quasi-random starts (\\[fit] starts; docs/FITTING.md). The outputs are
     written beside --out and swapped in whole when the fit ends (docs/OUTPUTS.md).
     Progress goes to stderr (live in a terminal, a line per stage, channel and 15 s elsewhere).
 
@@ -220,7 +220,8 @@ def _fit_into(s: FitSpec, out: Path, console: Console, err: Console, validate: b
     for note in result.notes:
         console.print(f"[yellow]note:[/yellow] {escape(note)}", soft_wrap=True)
     if result.validation:
-        from coartic.fit.validate import flags, validation_table
+        from coartic.fit.heldout import flags
+        from coartic.fit.validate import validation_table
 
         print_table(console, validation_table(result.validation), keys=2)
         for f in flags(result.validation):

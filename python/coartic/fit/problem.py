@@ -36,7 +36,8 @@ from coartic.fit.packing import LOG_COLUMNS, LOG_PARAMETERS, Packing, Prior
 from coartic.fit.parameters import ParameterSet, data_targets
 from coartic.fit.spec import FitSpec, SpecError
 from coartic.io.errors import DataError
-from coartic.model import JacobianBuffer, Utterance, build_corpus, channel_options, core_error
+from coartic.jacobian import JacobianBuffer
+from coartic.model import Utterance, build_corpus, channel_options, core_error
 from coartic.table import N_PARAMS, PARAMETERS, PAUSE
 
 __all__ = ["Utterance", "ChannelData", "Packing", "Prior", "LOG_COLUMNS", "LOG_PARAMETERS", "ChannelProblem",

@@ -28,6 +28,7 @@ from coartic.fit.parameters import ParameterSet, psd_pseudo_inverse
 from coartic.fit.problem import ChannelProblem, Packing
 from coartic.errors import UsageError
 from coartic.fit.spec import FitSpec
+from coartic.fit.heldout import baseline_summary, flags
 from coartic.fit.multistart import MultiStart
 from coartic.fit.staged import StageResult
 from coartic.io.labelmap import resolve_label_map
@@ -380,7 +381,6 @@ class FitResult:
                 lines.append("    [[Correlations]] (|r| > 0.5, strongest first)")
                 lines += [f"        C({a}, {b}) = {r:+.3f}" for a, b, r in strong]
         if self.validation:
-            from coartic.fit.validate import flags
 
             lines += ["", "[[Validation]] (held-out RMSE in mm as measured / offset removed; baselines on the same "
                       "samples: constant = training mean, step = each phoneme's training mean, warped = another "
@@ -432,7 +432,6 @@ class FitResult:
                                      else f.multistart.as_dict(f.problem.data.n_valid)}
                                 for ch, f in self.channels.items()}}
         if self.validation:
-            from coartic.fit.validate import baseline_summary
 
             summary["validation"] = baseline_summary(self.validation)
         atomic_write_text(paths["summary"], json.dumps(summary, indent=2))

@@ -156,7 +156,7 @@ def run(spec: FitSpec | str | Path, out: str | Path | None = None, *, utterances
             from coartic.fit.choose import cross_validate
 
             try:
-                result.choice = cross_validate(spec, utterances, progress)
+                result.choice = cross_validate(spec, utterances, progress, fit=run)
             except KeyboardInterrupt:
                 result.interrupted = True
                 result.notes.append(f"interrupted while choosing {spec.choose.key} by cross-validation: nothing was fitted")
@@ -188,7 +188,7 @@ def run(spec: FitSpec | str | Path, out: str | Path | None = None, *, utterances
         try:
             result.validation = validate_all(spec, None if out is None else Path(out) / "validation",
                                              utterances=utterances, console=console, quiet=quiet,
-                                             notes=result.notes)
+                                             notes=result.notes, fit=run)
         except KeyboardInterrupt:
             result.notes.append("validation interrupted by the user")
         except SpecError as e:  # e.g. no repetition or rate to hold out: said, not raised

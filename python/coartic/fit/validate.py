@@ -13,9 +13,8 @@ from __future__ import annotations
 
 import csv
 import io
-from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Sequence
+from typing import Protocol, Sequence
 
 import numpy as np
 from rich.console import Console
@@ -25,48 +24,9 @@ from rich.table import Table
 from coartic.errors import CoarticError
 from coartic.fit.baselines import BASELINES
 from coartic.fit.problem import Utterance
+from coartic.fit.heldout import BASELINE_COLUMNS, SplitScore, pooled
 from coartic.fit.result import BAR_MM, FitResult
 from coartic.fit.spec import FitSpec, SpecError
-
-
-# the baselines' columns of validation.csv, each prefixed by the baseline's name
-BASELINE_COLUMNS = ("rmse_mm", "rmse_offset_removed_mm", "rmse_speaker_calibrated_mm")
-
-
-@dataclass
-class SplitScore:
-    split: str  # e.g. "repetition 5 held out"
-    channel: str
-    train_rmse: float
-    test_rmse: float
-    test_samples: int
-    worst_vowel: tuple[str, float]
-    test_rmse_offset_removed: float = float("nan")  # after removing each test utterance's offset
-    train_sse: float = float("nan")
-    train_samples: int = 0
-    n_free: int = 0
-    # after calibrating the test speaker's offset and scale on the test data (coartic.fit.score)
-    test_rmse_calibrated: float = float("nan")
-    # baseline -> (as measured, offset removed, speaker-calibrated) test RMSE on the same samples
-    baselines: dict[str, tuple[float, float, float]] = field(default_factory=dict)
-    # a multi-start's distinct optima ([fit] starts > 1): each one's test RMSE, best in-sample first
-    optima_test_rmse: tuple[float, ...] = ()
-
-    @property
-    def beats_step(self) -> bool:
-        """The table beats the step model (as measured and offset removed), or there is none."""
-        from coartic.fit.baselines import beats_step
-
-        step = self.baselines.get("step")
-        return step is None or beats_step((self.test_rmse, self.test_rmse_offset_removed), step[:2])
-
-    def flag(self) -> str | None:
-        from coartic.fit.baselines import flag_text
-
-        if self.beats_step:
-            return None
-        return f"{self.split}: " + flag_text(self.channel, (self.test_rmse, self.test_rmse_offset_removed),
-                                             self.baselines["step"][:2])
 
 
 def score(result: FitResult, test: Sequence[Utterance], split: str,
@@ -186,14 +146,21 @@ def _rep(u: Utterance) -> str | None:
         return str(r)
 
 
+class FitFunction(Protocol):
+    """What validation and ``[choose]`` fit each split with: ``coartic.fit.run`` (passed in by the
+    runner, so that this module does not import the module that calls it)."""
+
+    def __call__(self, spec: FitSpec, out: str | Path | None = None, *, utterances: Sequence[Utterance] | None = ...,
+                 console: Console | None = ..., quiet: bool = ..., report: bool = ...) -> FitResult: ...
+
+
 def validate_all(spec: FitSpec, out: str | Path | None = None, utterances: Sequence[Utterance] | None = None,
                  console: Console | None = None, quiet: bool = False,
-                 notes: list[str] | None = None) -> list[SplitScore]:
-    """Fit each split's training utterances and score its held-out ones; ``out`` receives one
-    directory per split and ``validation.csv``. A fold whose held-out utterances have a phoneme
-    its training lacks cannot be scored: it is skipped with a note (in ``notes``)."""
-    from coartic.fit.runner import run
-
+                 notes: list[str] | None = None, *, fit: FitFunction) -> list[SplitScore]:
+    """Fit each split's training utterances with ``fit`` (``coartic.fit.run``) and score its
+    held-out ones; ``out`` receives one directory per split and ``validation.csv``. A fold whose
+    held-out utterances have a phoneme its training lacks cannot be scored: it is skipped with a
+    note (in ``notes``)."""
     if utterances is None:
         from coartic.fit.data import load_utterances
 
@@ -203,7 +170,7 @@ def validate_all(spec: FitSpec, out: str | Path | None = None, utterances: Seque
         if console is not None and not quiet:
             console.print(f"[bold]validation[/bold]: {escape(name)} ({len(train)} trials to fit, {len(test)} to test)")
         sub = Path(out) / _dirname(name) if out is not None else None
-        res = run(spec, sub, utterances=train, console=console, quiet=quiet, report=False)
+        res = fit(spec, sub, utterances=train, console=console, quiet=quiet, report=False)
         try:
             scores += score(res, test, name, train)
         except UnseenPhonemes as e:
@@ -234,50 +201,6 @@ def validate_all(spec: FitSpec, out: str | Path | None = None, utterances: Seque
                         ";".join(f"{v:.6g}" for v in sc.optima_test_rmse)])
         atomic_write_text(Path(out) / "validation.csv", buf.getvalue())
     return scores
-
-
-def pooled(scores: Sequence[SplitScore], model: str = "table") -> dict[str, tuple[float, float, int]]:
-    """Per channel, the held-out RMSE over every split's test samples together (as measured,
-    offset removed, samples): the one number a k-fold validation gives. ``model``: the table, or
-    a baseline (``coartic.fit.baselines``; a channel some split lacks it on is left out)."""
-    acc: dict[str, list[float]] = {}
-    lacking: set[str] = set()
-    for sc in scores:
-        if model == "table":
-            rm, ro = sc.test_rmse, sc.test_rmse_offset_removed
-        elif model in sc.baselines:
-            rm, ro = sc.baselines[model][:2]
-        else:
-            lacking.add(sc.channel)
-            continue
-        a = acc.setdefault(sc.channel, [0.0, 0.0, 0.0])
-        a[0] += rm**2 * sc.test_samples
-        a[1] += ro**2 * sc.test_samples
-        a[2] += sc.test_samples
-    return {ch: (float(np.sqrt(s / n)), float(np.sqrt(so / n)), int(n)) for ch, (s, so, n) in acc.items()
-            if n and ch not in lacking}
-
-
-def flags(scores: Sequence[SplitScore]) -> list[str]:
-    """The lines that say where the table does not beat the step model: each split, and pooled."""
-    from coartic.fit.baselines import beats_step, flag_text
-
-    out = [f for f in (sc.flag() for sc in scores) if f is not None]
-    if len({sc.split for sc in scores}) > 1:
-        table, step = pooled(scores), pooled(scores, "step")
-        out += [f"all splits pooled: {flag_text(ch, table[ch][:2], step[ch][:2])}" for ch in table
-                if ch in step and not beats_step(table[ch][:2], step[ch][:2])]
-    return out
-
-
-def baseline_summary(scores: Sequence[SplitScore]) -> dict[str, object]:
-    """summary.json's validation: per split and channel the table's and baselines' held-out RMSE, the flags."""
-    return {"splits": [{"split": sc.split, "channel": sc.channel, "samples": sc.test_samples,
-                        "table": {"rmse_mm": sc.test_rmse, "rmse_offset_removed_mm": sc.test_rmse_offset_removed,
-                                  "rmse_speaker_calibrated_mm": sc.test_rmse_calibrated},
-                        **{b: dict(zip(BASELINE_COLUMNS, v)) for b, v in sc.baselines.items()},
-                        "beats_step_model": sc.beats_step} for sc in scores],
-            "flags": flags(scores)}
 
 
 def _dirname(split: str) -> str:

@@ -21,6 +21,7 @@ import markupsafe
 from rich.console import Console
 
 from coartic.fit.bounds import summary_counts
+from coartic.fit.heldout import flags, pooled
 from coartic.fit.result import BAR_MM, FitResult
 from coartic.report import plots
 from coartic.outputs import atomic_write_text
@@ -112,7 +113,6 @@ def write_report(result: FitResult, out: str | Path, console: Console | None = N
                                  "cross-validation on the training data: mean held-out RMSE ± one SE over the folds; "
                                  f"star: the chosen value (rule {result.choice.choose.rule}). The numbers are in "
                                  "choose.csv and the fit report below."})
-    from coartic.fit.validate import flags
 
     truth = _ground_truth(result)
     if truth is not None:
@@ -141,7 +141,6 @@ def write_report(result: FitResult, out: str | Path, console: Console | None = N
 def _heldout_summary(result: FitResult) -> dict[str, tuple[float, float, int]]:
     """Per channel, the held-out RMSE over every split's test samples (as measured, offset
     removed, samples): the summary table's column."""
-    from coartic.fit.validate import pooled
 
     return pooled(result.validation or [])
 

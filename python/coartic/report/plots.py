@@ -15,6 +15,7 @@ from matplotlib.lines import Line2D  # noqa: E402
 from matplotlib.patches import Rectangle  # noqa: E402
 from numpy.typing import NDArray  # noqa: E402
 
+from coartic.fit.heldout import pooled  # noqa: E402
 from coartic.fit.result import BAR_MM, ChannelFit, FitResult  # noqa: E402
 from coartic.model import Utterance, segment_weights  # noqa: E402
 from coartic.runtime.preview import MAX_SEGMENT_BOUNDARIES, MAX_SEGMENT_LABELS  # noqa: E402
@@ -374,7 +375,6 @@ def heldout_figure(result: FitResult) -> Figure | None:
     measured and with each utterance's offset removed, then each baseline's held-out RMSE on the
     same samples (``coartic.fit.baselines``, those the validation computed), the bar dashed."""
     from coartic.fit.baselines import BASELINES, TITLES
-    from coartic.fit.validate import pooled
 
     scores = result.validation or []
     held = pooled(scores)

@@ -152,6 +152,12 @@ def check_phonemes(table: ParameterTable, segments: Segments, channels: Sequence
             )
 
 
+# A fallback that is no phoneme: the segment shows the phoneme of the segment after it (the one
+# before it when a pause or the end follows). For sounds with no oral posture of their own, such as
+# English /h/, a voiceless onset of the vowel that follows (phones_english.tsv).
+NEXT_PHONEME = ">"
+
+
 def substitute(
     segments: Segments,
     table: ParameterTable,
@@ -160,10 +166,22 @@ def substitute(
 ) -> tuple[Segments, dict[str, str]]:
     """Replace phonemes the table lacks by their first fallback it has; report what was replaced.
 
-    A phoneme with no usable fallback stays, so that check_phonemes names it.
+    A phoneme with no usable fallback stays, so that check_phonemes names it. The fallback
+    ``NEXT_PHONEME`` takes the neighbouring segment's phoneme (reported as ``NEXT_PHONEME``).
     """
     used = substitutions(segments.labels, table, channels, fallbacks)
-    return (segments.with_labels([used.get(ph, ph) for ph in segments.labels]) if used else segments), used
+    if not used:
+        return segments, used
+    labels = [used.get(ph, ph) for ph in segments.labels]
+    # NEXT_PHONEME: the segment after decides (resolved from the end, so a run of them takes the same
+    # phoneme); before a pause or at the end, the segment before (resolved from the start)
+    for i in reversed(range(len(labels))):
+        if labels[i] == NEXT_PHONEME and i + 1 < len(labels) and labels[i + 1] not in (PAUSE, NEXT_PHONEME):
+            labels[i] = labels[i + 1]
+    for i, ph in enumerate(labels):
+        if ph == NEXT_PHONEME:
+            labels[i] = labels[i - 1] if i > 0 else PAUSE
+    return segments.with_labels(labels), used
 
 
 def substitutions(
@@ -174,7 +192,8 @@ def substitutions(
     complete = {p for p, per in table.values.items() if all(c in per for c in channels)}
     used: dict[str, str] = {}
     for ph in labels:
-        choice = _first_available(ph, fallbacks.get(ph, ()), complete)
+        # NEXT_PHONEME is not a phoneme of any table: it is available wherever a phone map names it
+        choice = _first_available(ph, fallbacks.get(ph, ()), complete | {NEXT_PHONEME})
         if choice != ph:
             used[ph] = choice
     return used

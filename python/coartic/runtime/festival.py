@@ -1,8 +1,8 @@
-"""Italian text through the Festival speech synthesiser: a WAV and its Segment relation (phones, times).
+"""Italian (or English) text through the Festival speech synthesiser: a WAV and its Segment relation.
 
 Festival is run as a program (`festival -b script.scm`) with a generated Scheme script, because
 that is how the Debian package is used everywhere; its Italian phone set is mapped to the model's
-phonemes by phones_italian.tsv.
+phonemes by phones_italian.tsv, its English (radio, ARPAbet) phone set by phones_english.tsv.
 """
 
 from __future__ import annotations
@@ -26,11 +26,24 @@ from numpy.typing import NDArray
 from coartic.runtime.errors import FestivalError, PhoneMapError
 
 DEFAULT_VOICE = "pc_diphone"
+# Per language: the Festival voice used when none is named, the phone map of its phone set, and the
+# Debian packages that install it.
+LANGUAGES: dict[str, tuple[str, str, str]] = {
+    "it": ("pc_diphone", "phones_italian.tsv", "festival and festvox-italp16k"),
+    "en": ("kal_diphone", "phones_english.tsv", "festival and festvox-kallpc16k"),
+}
 _VOICE_NAME = re.compile(r"^[A-Za-z0-9_]+$")
 # Typographic punctuation an Italian text editor produces; the Italian voice reads ISO-8859-1 only.
 _TYPOGRAPHIC = str.maketrans({"\u2019": "'", "\u2018": "'", "\u201c": '"', "\u201d": '"',
                               "\u00ab": '"', "\u00bb": '"', "\u2013": "-", "\u2014": "-", "\u2026": "..."})
-_INSTALL_HINT = "install the Debian packages festival and festvox-italp16k"
+_INSTALL_HINT = "install the Debian packages festival and festvox-italp16k (Italian), festvox-kallpc16k (English)"
+
+
+def language(lang: str) -> tuple[str, str, str]:
+    """(default voice, phone map file, Debian packages) of a language code, or an error listing the known ones."""
+    if lang not in LANGUAGES:
+        raise FestivalError(f"language {lang!r} is not one coartic can speak (known: {', '.join(LANGUAGES)})")
+    return LANGUAGES[lang]
 
 
 @dataclass(frozen=True)
@@ -42,11 +55,13 @@ class PhoneMap:
     source: str
 
     @classmethod
-    def load(cls, path: str | Path | None = None) -> PhoneMap:
-        """Read a phone map TSV (`festival, phoneme, fallbacks, why`); default: phones_italian.tsv."""
+    def load(cls, path: str | Path | None = None, lang: str = "it") -> PhoneMap:
+        """Read a phone map TSV (`festival, phoneme, fallbacks, why`); default: the one of `lang`
+        (phones_italian.tsv, or phones_english.tsv for "en")."""
         if path is None:
-            ref = resources.files("coartic.runtime").joinpath("phones_italian.tsv")
-            text, source = ref.read_text(encoding="utf-8"), "phones_italian.tsv"
+            name = language(lang)[1]
+            ref = resources.files("coartic.runtime").joinpath(name)
+            text, source = ref.read_text(encoding="utf-8"), name
         else:
             try:
                 text, source = Path(path).read_text(encoding="utf-8"), str(path)
@@ -112,7 +127,7 @@ def prepare_text(text: str) -> str:
         if ord(ch) > 0xFF:
             raise FestivalError(
                 f"character {ch!r} (U+{ord(ch):04X}) at position {i} of the text cannot be read by "
-                "Festival's Italian voice (ISO-8859-1 only)"
+                "Festival's voices (ISO-8859-1 only)"
             )
     return cleaned
 
@@ -173,16 +188,21 @@ def synthesize(
     wav_path: str | Path,
     *,
     stretch: float = 1.0,
-    voice: str = DEFAULT_VOICE,
+    voice: str | None = None,
     festival: str = "festival",
     timeout: float = 300.0,
+    lang: str = "it",
 ) -> FestivalUtterance:
-    """Synthesise `text` with Festival's Italian voice into `wav_path` and return its segments.
+    """Synthesise `text` with Festival into `wav_path` and return its segments.
+
+    `voice` defaults to the language's (`LANGUAGES`: pc_diphone for "it", kal_diphone for "en").
 
     `stretch` is Festival's Duration_Stretch: 1 the voice's own rate, 0.6 about 1.7 times faster.
     Zero-length segments (Festival gives a few) have no time for a target and are dropped; their
     names are kept in `dropped`.
     """
+    default_voice, _, packages = language(lang)
+    voice = default_voice if voice is None else voice
     cleaned = prepare_text(text)
     if not (math.isfinite(stretch) and stretch > 0):
         raise FestivalError(f"speaking-rate stretch must be a positive number, got {stretch!r}")
@@ -207,7 +227,7 @@ def synthesize(
                            if not ln.startswith("closing a file left open"))
         if proc.returncode != 0 or not segs.exists() or not wav.exists():
             detail = stderr.splitlines()[-3:] if stderr else ["(no message)"]
-            hint = f"; is voice {voice!r} installed ({_INSTALL_HINT})?" if "voice_" in stderr else ""
+            hint = f"; is voice {voice!r} installed (the Debian packages {packages})?" if "voice_" in stderr else ""
             raise FestivalError(
                 f"Festival failed (exit code {proc.returncode}) on {cleaned!r}: {' | '.join(detail)}{hint}"
             )

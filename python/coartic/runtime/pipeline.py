@@ -1,4 +1,4 @@
-"""The two things the runtime does end to end: animate a label file, and speak an Italian text.
+"""The two things the runtime does end to end: animate a label file, and speak an Italian (or English) text.
 
 Each writes into one output directory: the channels (CSV), the FAP file, the segments animated,
 and (optionally) the preview; `speak` adds Festival's WAV. The cheap, exact outputs are written
@@ -33,7 +33,7 @@ from coartic.runtime.animate import (
 from coartic.runtime.errors import AnimationError, MissingPhonemeError
 from coartic.runtime.exporters import ExportSettings, parse_exports, run_exports
 from coartic.runtime.fap import FaceUnits, FapSequence, animation_faps
-from coartic.runtime.festival import DEFAULT_VOICE, FestivalUtterance, PhoneMap, synthesize, wav_duration
+from coartic.runtime.festival import FestivalUtterance, PhoneMap, synthesize, wav_duration
 from coartic.speakers import SpeakerMapping, speaker_mapping
 from coartic.table import PAUSE, ParameterTable
 
@@ -236,7 +236,7 @@ def speak_text(
     *,
     fps: float = 25.0,
     stretch: float = 1.0,
-    voice: str = DEFAULT_VOICE,
+    voice: str | None = None,
     face: FaceUnits | None = None,
     strict: bool = False,
     phone_map: PhoneMap | None = None,
@@ -250,11 +250,14 @@ def speak_text(
     speaker: str | None = None,
     exports: str | tuple[str, ...] | list[str] | None = None,
     gltf_morphs: str = "fap",
+    lang: str = "it",
 ) -> RuntimeOutput:
-    """Italian text → Festival's WAV, and channels, FAP file and preview lasting as long as the WAV.
+    """Text → Festival's WAV, and channels, FAP file and preview lasting as long as the WAV.
 
-    The WAV is written as `name.wav` beside `name.fap` (Greta loads them by the shared name);
-    `name` defaults to a word made of the text.
+    `lang` "it" (Festival's Italian voice, phones_italian.tsv) or "en" (its English voice,
+    phones_english.tsv: ARPAbet phones onto the model's phonemes); `voice` defaults to the
+    language's. The WAV is written as `name.wav` beside `name.fap` (Greta loads them by the shared
+    name); `name` defaults to a word made of the text.
 
     Phonemes the table lacks are replaced by the phone map's fallbacks (reported in
     `animation.substitutions`) unless `strict`. `speaker`: as in `animate_file`.
@@ -264,9 +267,9 @@ def speak_text(
     mapping = speaker_mapping(table, speaker)
     check_text(text)
     out = Path(out)
-    pmap = phone_map or PhoneMap.load()
+    pmap = phone_map or PhoneMap.load(lang=lang)
     name = check_name(name) if name is not None else _name_from(text)
-    utt = synthesize(text, out / f"{name}.wav", stretch=stretch, voice=voice, festival=festival)
+    utt = synthesize(text, out / f"{name}.wav", stretch=stretch, voice=voice, festival=festival, lang=lang)
     phonemes = pmap.to_phonemes(utt.phones)
     ends = utt.ends.copy()
     # Festival's WAV runs a few ms past the last segment: the final pause lasts to the end of the sound.

@@ -17,27 +17,28 @@ import shutil
 import subprocess
 from collections.abc import Callable, Iterator, Mapping, Sequence
 from dataclasses import dataclass
-from typing import TYPE_CHECKING
+from functools import lru_cache
 from pathlib import Path
+from typing import TYPE_CHECKING
 
-import matplotlib
+import numpy as np
+from matplotlib.axes import Axes
+from matplotlib.backends.backend_agg import FigureCanvasAgg
+from matplotlib.colors import to_rgb
+from matplotlib.figure import Figure
+from matplotlib.font_manager import FontProperties, findfont
+from matplotlib.patches import Polygon, Rectangle
+from matplotlib.transforms import offset_copy
+from numpy.typing import NDArray
+from PIL import Image, ImageDraw, ImageFont
+from rich.progress import Progress
 
-matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402
-import numpy as np  # noqa: E402
-from matplotlib.axes import Axes  # noqa: E402
-from matplotlib.figure import Figure  # noqa: E402
-from matplotlib.patches import Polygon  # noqa: E402
-from numpy.typing import NDArray  # noqa: E402
-from PIL import Image  # noqa: E402
-from rich.progress import Progress  # noqa: E402
-
-from coartic.io.labels import Segments  # noqa: E402
-from coartic.runtime.animate import Animation, neutral_posture, target_times  # noqa: E402
-from coartic.outputs import atomic_path  # noqa: E402
-from coartic.runtime.errors import AnimationError  # noqa: E402
-from coartic.speakers import SpeakerMapping  # noqa: E402
-from coartic.table import CHANNELS, PAUSE, ParameterTable  # noqa: E402
+from coartic.io.labels import Segments
+from coartic.outputs import atomic_path
+from coartic.runtime.animate import Animation, neutral_posture, target_times
+from coartic.runtime.errors import AnimationError
+from coartic.speakers import SpeakerMapping
+from coartic.table import CHANNELS, PAUSE, ParameterTable
 
 if TYPE_CHECKING:
     from coartic.runtime.exporters import ExportSettings
@@ -50,6 +51,8 @@ CHIN_BELOW_LIPS = 35.0  # mm, neutral lip midline to chin
 NOSE_ABOVE_LIPS = 30.0  # mm, the default MNS
 _N = 41  # points per contour
 GIF_MAX_FRAMES = 1500  # one minute at 25 fps
+STRIP_CELL = (1.3, 1.6)  # inches per phoneme in the strip
+STRIP_PANEL = (1.13, 0.95)  # inches at most for a panel's front view
 # Segment marks on a time axis: boundaries as one line collection per axis, labels as text. Past
 # these counts they are not drawn (and the figure says so): 5000 segments drawn one artist each took
 # 42 s per figure, a million hung in Agg beyond the reach of Ctrl-C. docs/LIMITS.md.
@@ -124,20 +127,27 @@ def mouth_shape(posture: Mapping[str, float], neutral: Mapping[str, float]) -> M
     )
 
 
+def front_outlines(s: MouthShape) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
+    """The front view's closed polygons: upper lip, lower lip and the mouth opening between them."""
+    return (np.vstack([s.upper_outer, s.upper_inner[::-1]]), np.vstack([s.lower_inner, s.lower_outer[::-1]]),
+            np.vstack([s.upper_inner, s.lower_inner[::-1]]))
+
+
+def _front_half_width(neutral: Mapping[str, float]) -> float:
+    return 0.9 * max(neutral["LR"], 20.0) + 10.0
+
+
 class FaceArtist:
     """Front and side view on two axes, updated in place frame after frame."""
 
-    def __init__(self, front: Axes, side: Axes | None, neutral: Mapping[str, float]) -> None:
+    def __init__(self, front: Axes, side: Axes, neutral: Mapping[str, float]) -> None:
         self.neutral = dict(neutral)
-        w = max(neutral["LR"], 20.0)
-        front.set_xlim(-0.9 * w - 10, 0.9 * w + 10)
+        half = _front_half_width(neutral)
+        front.set_xlim(-half, half)
         front.set_ylim(-CHIN_BELOW_LIPS - 35, NOSE_ABOVE_LIPS + 10)
-        views = [(front, "front")]
-        if side is not None:
-            side.set_xlim(-60, 30)
-            side.set_ylim(-CHIN_BELOW_LIPS - 35, NOSE_ABOVE_LIPS + 10)
-            views.append((side, "side"))
-        for ax, title in views:
+        side.set_xlim(-60, 30)
+        side.set_ylim(-CHIN_BELOW_LIPS - 35, NOSE_ABOVE_LIPS + 10)
+        for ax, title in ((front, "front"), (side, "side")):
             ax.set_aspect("equal")
             ax.set_xticks([])
             ax.set_yticks([])
@@ -153,21 +163,17 @@ class FaceArtist:
         for patch in (self.upper, self.lower, self.mouth):
             front.add_patch(patch)
         (self.chin,) = front.plot([], [], color=EDGE, lw=1.5)
-        self.profile = self.markers = None
-        if side is not None:
-            (self.profile,) = side.plot([], [], color=EDGE, lw=1.5)
-            (self.markers,) = side.plot([], [], "o", color=LIP, ms=3)
+        (self.profile,) = side.plot([], [], color=EDGE, lw=1.5)
+        (self.markers,) = side.plot([], [], "o", color=LIP, ms=3)
 
     def update(self, posture: Mapping[str, float]) -> MouthShape:
         s = mouth_shape(posture, self.neutral)
-        self.upper.set_xy(np.vstack([s.upper_outer, s.upper_inner[::-1]]))
-        self.lower.set_xy(np.vstack([s.lower_inner, s.lower_outer[::-1]]))
-        self.mouth.set_xy(np.vstack([s.upper_inner, s.lower_inner[::-1]]))
+        for patch, xy in zip((self.upper, self.lower, self.mouth), front_outlines(s)):
+            patch.set_xy(xy)
         self.chin.set_data(s.chin[:, 0], s.chin[:, 1])
-        if self.profile is not None and self.markers is not None:
-            smooth = _smooth_profile(s.profile)
-            self.profile.set_data(smooth[:, 0], smooth[:, 1])
-            self.markers.set_data(s.profile[[4, 7], 0], s.profile[[4, 7], 1])
+        smooth = _smooth_profile(s.profile)
+        self.profile.set_data(smooth[:, 0], smooth[:, 1])
+        self.markers.set_data(s.profile[[4, 7], 0], s.profile[[4, 7], 1])
         return s
 
 
@@ -197,10 +203,24 @@ def _require_channels(animation: Animation) -> None:
         raise AnimationError(f"the preview needs all six channels; missing {', '.join(missing)}")
 
 
-def _frames(animation: Animation, neutral: Mapping[str, float], title: str) -> Iterator[NDArray[np.uint8]]:
+def _agg_figure(width: float, height: float, dpi: float) -> Figure:
+    """A figure drawn by Agg, without pyplot (whose import and figure bookkeeping the pictures need not)."""
+    fig = Figure(figsize=(width, height), dpi=dpi)
+    FigureCanvasAgg(fig)
+    return fig
+
+
+@lru_cache(maxsize=4)
+def _caption_font(size_px: float) -> ImageFont.FreeTypeFont:
+    # matplotlib's own default font (DejaVu Sans, shipped with it), so the caption matches the rest
+    return ImageFont.truetype(findfont(FontProperties()), size_px)
+
+
+def _frames(animation: Animation, neutral: Mapping[str, float], title: str) -> Iterator[Image.Image]:
     """RGB frames of the preview: front and side view over a trace of lip aperture with a cursor."""
     _require_channels(animation)
-    fig = plt.figure(figsize=(6.4, 4.0), dpi=80)
+    fig = _agg_figure(6.4, 4.0, 80)
+    canvas = fig.canvas
     gs = fig.add_gridspec(2, 2, height_ratios=[3, 1], hspace=0.25, wspace=0.05)
     face = FaceArtist(fig.add_subplot(gs[0, 0]), fig.add_subplot(gs[0, 1]), neutral)
     trace = fig.add_subplot(gs[1, :])
@@ -211,29 +231,31 @@ def _frames(animation: Animation, neutral: Mapping[str, float], title: str) -> I
     trace.set_xlim(0, max(animation.duration, 1e-3))
     mark_segments([trace], animation.segments, color="0.8", fontsize=6, label_y=1.0)
     cursor = trace.axvline(0.0, color="k", lw=1)
-    caption = fig.suptitle("", fontsize=9)
     # Blitting: everything that does not move (axes, trace, labels, nose) is drawn once and kept as a
-    # background; each frame restores it and draws only the moving artists, a few times faster than
-    # redrawing the whole figure (bench/runtime_speed.py).
-    moving = [a for a in (face.upper, face.lower, face.mouth, face.chin, face.profile, face.markers, cursor, caption)
-              if a is not None]
+    # background; each frame restores it and draws only the moving artists. The caption, new text
+    # every frame, is set by Pillow in matplotlib's font where it puts a suptitle (top centre, 2 %
+    # below the edge): matplotlib lays out and renders text anew on each draw, which took half of
+    # the frame's time (bench/runtime_speed.py).
+    moving = [face.upper, face.lower, face.mouth, face.chin, face.profile, face.markers, cursor]
     for a in moving:
         a.set_animated(True)
-    fig.canvas.draw()
-    background = fig.canvas.copy_from_bbox(fig.bbox)  # type: ignore[attr-defined]
-    try:
-        for k in range(animation.n_frames):
-            t = float(animation.times[k])
-            face.update(_posture(animation, k))
-            cursor.set_xdata([t, t])
-            caption.set_text(f"{title}   t = {t:6.3f} s   /{_label_at(animation, t)}/")
-            fig.canvas.restore_region(background)  # type: ignore[attr-defined]
-            for a in moving:
-                fig.draw_artist(a)
-            rgba = np.asarray(fig.canvas.buffer_rgba())  # type: ignore[attr-defined]
-            yield np.ascontiguousarray(rgba[:, :, :3])
-    finally:
-        plt.close(fig)
+    canvas.draw()
+    background = canvas.copy_from_bbox(fig.bbox)  # type: ignore[attr-defined]
+    size = canvas.get_width_height()
+    font = _caption_font(9 * fig.dpi / 72)
+    at = (0.5 * size[0], 0.02 * size[1])
+    for k in range(animation.n_frames):
+        t = float(animation.times[k])
+        face.update(_posture(animation, k))
+        cursor.set_xdata([t, t])
+        canvas.restore_region(background)  # type: ignore[attr-defined]
+        for a in moving:
+            fig.draw_artist(a)
+        rgba = canvas.buffer_rgba()  # type: ignore[attr-defined]
+        frame = Image.frombuffer("RGBA", size, rgba, "raw", "RGBA", 0, 1).convert("RGB")
+        ImageDraw.Draw(frame).text(at, f"{title}   t = {t:6.3f} s   /{_label_at(animation, t)}/", fill="black",
+                                   font=font, anchor="ma")
+        yield frame
 
 
 def gif_palette() -> Image.Image:
@@ -242,8 +264,6 @@ def gif_palette() -> Image.Image:
     The preview draws with a handful of fixed colours, so mapping each frame to them (no dither)
     takes well under a millisecond, against ~15 ms for a median-cut palette per frame.
     """
-    from matplotlib.colors import to_rgb
-
     base = [np.array(to_rgb(c)) for c in (SKIN, LIP, MOUTH, EDGE, "white", "black", "0.8", "0.5")]
     colors = list(base)
     for i in range(len(base)):
@@ -289,8 +309,8 @@ def render_preview(
         if suffix == ".gif":
             palette = gif_palette()
             images = []
-            for rgb in frames:
-                images.append(Image.fromarray(rgb).quantize(palette=palette, dither=Image.Dither.NONE))
+            for frame in frames:
+                images.append(frame.quantize(palette=palette, dither=Image.Dither.NONE))
                 advance()
             images[0].save(tmp, save_all=True, append_images=images[1:], loop=0,
                            duration=round(1000.0 / animation.fps), optimize=False)
@@ -300,13 +320,13 @@ def render_preview(
 
 
 def _write_mp4(
-    path: Path, frames: Iterator[NDArray[np.uint8]], fps: float, advance: Callable[[], None], audio: Path | None
+    path: Path, frames: Iterator[Image.Image], fps: float, advance: Callable[[], None], audio: Path | None
 ) -> None:
     ffmpeg = shutil.which("ffmpeg")
     if ffmpeg is None:
         raise AnimationError("ffmpeg is not on PATH: write the preview as .gif, or install ffmpeg")
     first = next(frames)
-    h, w = first.shape[:2]
+    w, h = first.size
     cmd = [ffmpeg, "-y", "-loglevel", "error", "-f", "rawvideo", "-pix_fmt", "rgb24", "-s", f"{w}x{h}",
            "-r", repr(float(fps)), "-i", "-"]
     # "file:" makes every path a path: ffmpeg reads "-odd/x.mp4" as an option and "take:2/x.mp4"
@@ -319,8 +339,8 @@ def _write_mp4(
     proc = subprocess.Popen(cmd, stdin=subprocess.PIPE, stderr=subprocess.PIPE)
     assert proc.stdin is not None
     try:
-        for rgb in _chain(first, frames):
-            proc.stdin.write(rgb.tobytes())
+        for frame in _chain(first, frames):
+            proc.stdin.write(frame.tobytes())
             advance()
     except BrokenPipeError:
         pass  # ffmpeg stopped reading: its exit code and message say why, below
@@ -335,7 +355,7 @@ def _write_mp4(
         raise AnimationError(f"ffmpeg failed writing {path} (exit {code}): {err.strip()[-300:] or 'no message'}")
 
 
-def _chain(first: NDArray[np.uint8], rest: Iterator[NDArray[np.uint8]]) -> Iterator[NDArray[np.uint8]]:
+def _chain(first: Image.Image, rest: Iterator[Image.Image]) -> Iterator[Image.Image]:
     yield first
     yield from rest
 
@@ -370,28 +390,47 @@ def render_strip(
     values.update({c: np.full(t.size, neutral[c]) for c in CHANNELS if c not in values})
     cols = min(len(idx), per_row)
     rows = -(-len(idx) // per_row)
-    fig: Figure = plt.figure(figsize=(1.3 * cols, 1.6 * rows + 0.2), dpi=100)
+    # One axes for the whole strip, in inches from the top left corner, a panel per phoneme drawn
+    # into it: an axes each (with its ticks machinery) and tight_layout made the strip cost as much
+    # as the whole GIF. Each panel is the front view's window (a preview frame's, cut below the nose).
+    fig = _agg_figure(STRIP_CELL[0] * cols, STRIP_CELL[1] * rows + 0.2, 100)
+    width, height = fig.get_size_inches()
+    ax = fig.add_axes((0.0, 0.0, 1.0, 1.0))
+    ax.set_axis_off()
+    ax.set_xlim(0.0, width)
+    ax.set_ylim(-height, 0.0)
+    half, bottom, top = _front_half_width(neutral), -CHIN_BELOW_LIPS - 20.0, 25.0
+    scale = min(STRIP_PANEL[0] / (2 * half), STRIP_PANEL[1] / (top - bottom))  # inches per mm
+    pw, ph = 2 * half * scale, (top - bottom) * scale
+    title_at = offset_copy(ax.transData, fig=fig, y=6, units="points")  # an axes title's pad
     for j, i in enumerate(idx):
-        ax = fig.add_subplot(rows, cols, j + 1)
-        artist = FaceArtist(ax, None, neutral)  # the strip shows the front view only
-        artist.update({c: float(values[c][j]) for c in CHANNELS})
-        ax.set_title(f"/{seg.labels[i]}/ {t[j]:.2f}s", fontsize=8)
-        ax.set_ylim(-CHIN_BELOW_LIPS - 20, 25)
-    fig.tight_layout()
+        row, col = divmod(j, per_row)
+        cx = (col + 0.5) * STRIP_CELL[0]
+        y_top = -0.1 - row * STRIP_CELL[1] - 0.5 * (STRIP_CELL[1] - ph) - 0.06  # room for the title above
+        window = Rectangle((cx - 0.5 * pw, y_top - ph), pw, ph, fc=SKIN, ec="none", zorder=0)
+        ax.add_patch(window)
+        s = mouth_shape({c: float(values[c][j]) for c in CHANNELS}, neutral)
+        origin = np.array([cx, y_top - scale * top])  # mm on the face -> inches on the strip
+        upper, lower, mouth = front_outlines(s)
+        for xy, style in ((upper, {"fc": LIP, "ec": EDGE, "lw": 1}), (lower, {"fc": LIP, "ec": EDGE, "lw": 1}),
+                          (mouth, {"fc": MOUTH, "ec": "none"})):
+            ax.add_patch(Polygon(origin + scale * xy, closed=True, clip_path=window, **style))
+        chin = origin + scale * s.chin
+        ax.plot(chin[:, 0], chin[:, 1], color=EDGE, lw=1.5, clip_path=window)
+        ax.add_patch(Rectangle((cx - 0.5 * pw, y_top - ph), pw, ph, fc="none", ec="black", lw=0.8, zorder=3))
+        ax.text(cx, y_top, f"/{seg.labels[i]}/ {t[j]:.2f}s", transform=title_at, ha="center", va="baseline",
+                fontsize=8)
     path = Path(path)
-    try:
-        with atomic_path(path) as tmp:
-            fig.savefig(tmp)
-    finally:
-        plt.close(fig)
+    with atomic_path(path) as tmp:
+        fig.savefig(tmp)
     return path
 
 
 def plot_channels(animation: Animation, path: str | Path, title: str = "") -> Path:
     """The six channels over time with the segment labels: the numbers behind the preview."""
     names: Sequence[str] = [c for c in CHANNELS if c in animation.modelled]
-    fig, axes = plt.subplots(len(names), 1, figsize=(8, 1.3 * len(names) + 0.6), sharex=True, dpi=100)
-    axes = np.atleast_1d(axes)
+    fig = _agg_figure(8, 1.3 * len(names) + 0.6, 100)
+    axes = np.atleast_1d(fig.subplots(len(names), 1, sharex=True))
     for ax, c in zip(axes, names):
         ax.plot(animation.times, animation.channels[c], color=LIP, lw=1.2)
         ax.set_ylabel(f"{c} (mm)", fontsize=8)
@@ -400,14 +439,25 @@ def plot_channels(animation: Animation, path: str | Path, title: str = "") -> Pa
     axes[-1].set_xlabel("time (s)")
     if title or note:
         fig.suptitle("   ".join(t for t in (title, note) if t), fontsize=9)
-    fig.tight_layout()
+    _fit_margins(fig, list(axes))
     path = Path(path)
-    try:
-        with atomic_path(path) as tmp:
-            fig.savefig(tmp)
-    finally:
-        plt.close(fig)
+    with atomic_path(path) as tmp:
+        fig.savefig(tmp)
     return path
+
+
+def _fit_margins(fig: Figure, axes: list[Axes]) -> None:
+    """Margins for a column of axes sharing x, with labels above the first (mark_segments) and a
+    suptitle: fixed in inches where the text has a fixed size, the left one from the widest
+    y-axis (its tick labels depend on the data). What tight_layout gives, without its second full
+    layout of every text (a third of the figure's cost)."""
+    width, height = fig.get_size_inches()
+    left, pad = 0.75, 0.09  # inches; the ink then starts where tight_layout put it
+    fig.subplots_adjust(left=left / width, right=1 - 0.15 / width, top=1 - 0.56 / height, bottom=0.54 / height,
+                        hspace=0.22 / ((height - 1.1 - 0.22 * (len(axes) - 1)) / len(axes)))
+    renderer = fig.canvas.get_renderer()  # type: ignore[attr-defined]
+    x0 = min(b.x0 for b in (ax.yaxis.get_tightbbox(renderer) for ax in axes) if b is not None) / fig.dpi
+    fig.subplots_adjust(left=(left + pad - x0) / width)
 
 
 def mark_segments(

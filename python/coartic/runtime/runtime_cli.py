@@ -1,4 +1,6 @@
-"""`coartic animate` and `coartic speak`: tables to moving lips, from label files or Italian text."""
+"""`coartic animate` and `coartic speak`: tables to moving lips, from label files or Italian/English text.
+
+Without --table both use the table shipped in the package (coartic.runtime.shipped), and say so."""
 
 from __future__ import annotations
 
@@ -13,7 +15,7 @@ from rich.table import Table
 
 from coartic.io.errors import DataError
 from coartic.runtime.errors import AnimationError
-from coartic.runtime.festival import DEFAULT_VOICE
+from coartic.runtime.festival import LANGUAGES
 from coartic.runtime import PREVIEW_FORMATS
 from coartic.speakers import SpeakerError
 from coartic.table import ParameterTable, TableError
@@ -26,13 +28,13 @@ if TYPE_CHECKING:
 _err = Console(stderr=True)
 _out = Console()
 
-TableOpt = Annotated[Path, typer.Option("--table", "-t", help="Parameter table (JSON or long CSV).")]
+TableOpt = Annotated[Path | None, typer.Option("--table", "-t", help="Parameter table (JSON or long CSV). Default: the Italian table shipped with coartic (every Italian phoneme, fitted on the synthetic session).")]
 OutOpt = Annotated[Path, typer.Option("--out", "-o", help="Output directory (created if needed).")]
 FpsOpt = Annotated[float, typer.Option("--fps", help="Frames per second of the channels, FAP file and preview.")]
 MnsOpt = Annotated[float | None, typer.Option("--mns", help="The speaker's neutral mouth-nose separation, mm (FAPU = MNS/1024). Default 30 mm.")]
 MwOpt = Annotated[float | None, typer.Option("--mw", help="The speaker's neutral mouth width, mm (FAPU = MW/1024). Default: the table's rest LR.")]
 SnapOpt = Annotated[bool, typer.Option("--snap-contacts/--no-snap-contacts", help="Show each k_R = 1 target (lip closure, lip-teeth contact) on its nearest frame.")]
-StrictOpt = Annotated[bool, typer.Option("--strict", help="Refuse phonemes the table lacks instead of using the fallbacks of phones_italian.tsv.")]
+StrictOpt = Annotated[bool, typer.Option("--strict", help="Refuse phonemes the table lacks instead of using the phone map's fallbacks (phones_italian.tsv, phones_english.tsv).")]
 PreviewOpt = Annotated[str, typer.Option("--preview", help=f"Preview format: {', '.join(PREVIEW_FORMATS)}.")]
 GltfOpt = Annotated[bool, typer.Option("--gltf", help="Also write NAME.glb: the face with morph targets per FAP and their animation (coartic view DIR plays it).")]
 VrmlOpt = Annotated[bool, typer.Option("--vrml", help="Also write NAME.wrl: the face animated in VRML97 (interpolators, the sound as an AudioClip).")]
@@ -70,7 +72,7 @@ def _warn_fps(fps: float) -> None:
         _err.print(f"[yellow]warning:[/] {escape(msg)}", highlight=False)
 
 
-def _report(result: RuntimeOutput) -> None:
+def _report(result: RuntimeOutput, phone_map: str = "phones_italian.tsv") -> None:
     a = result.animation
     summary = Table(title=f"{a.n_frames} frames at {a.fps:g} fps = {a.duration:.3f} s", show_header=False)
     summary.add_column("what")
@@ -83,13 +85,23 @@ def _report(result: RuntimeOutput) -> None:
                    "(the neutral face) in the FAP file and preview, left out of channels.csv", highlight=False,
                    soft_wrap=True)
     if a.substitutions:
-        subs = ", ".join(f"/{k}/ (shown as /{v}/)" for k, v in a.substitutions.items())
-        _err.print(f"[yellow]note:[/] the table has no {subs}: the fallbacks of phones_italian.tsv "
-                   "(--strict refuses instead)", highlight=False)
+        from coartic.runtime.animate import NEXT_PHONEME
+
+        subs = ", ".join(f"/{k}/ (shown as " + ("the phoneme after it" if v == NEXT_PHONEME else f"/{v}/") + ")"
+                         for k, v in a.substitutions.items())
+        _err.print(f"[yellow]note:[/] the table has no {escape(subs)}: the fallbacks of {phone_map} "
+                   "(--strict refuses instead)", highlight=False, soft_wrap=True)
 
 
-def _load_table(path: Path) -> ParameterTable:
-    return ParameterTable.load(path)
+def _load_table(path: Path | None) -> ParameterTable:
+    if path is not None:
+        return ParameterTable.load(path)
+    from coartic.runtime.shipped import load_shipped_table
+
+    table = load_shipped_table()
+    _err.print(f"[cyan]table:[/] {escape(str(table.source))} (shipped with coartic: every Italian phoneme, fitted "
+               "on the synthetic session; --table to use another)", highlight=False, soft_wrap=True)
+    return table
 
 
 def _moved(result: RuntimeOutput, staging: Path, out: Path) -> RuntimeOutput:
@@ -98,8 +110,9 @@ def _moved(result: RuntimeOutput, staging: Path, out: Path) -> RuntimeOutput:
     return result
 
 
-def _run_staged(table: Path, out: Path, command: str, identity: dict[str, str], force: bool, protect: list[Path],
-                make: Callable[[ParameterTable, Path, Progress], RuntimeOutput]) -> None:
+def _run_staged(table: Path | None, out: Path, command: str, identity: dict[str, str], force: bool,
+                protect: list[Path], make: Callable[[ParameterTable, Path, Progress], RuntimeOutput],
+                phone_map: str = "phones_italian.tsv") -> None:
     """Load the table, run ``make`` into the staging directory of ``out`` with a progress bar, and
     report what was written (where it is once swapped in); any failure is one clear error."""
     try:
@@ -108,13 +121,13 @@ def _run_staged(table: Path, out: Path, command: str, identity: dict[str, str], 
             result = make(t, staging, progress)
     except (AnimationError, DataError, TableError, OutputError, SpeakerError, OSError) as err:
         _fail(err)
-    _report(_moved(result, staging, out))
+    _report(_moved(result, staging, out), phone_map)
 
 
 def animate_command(
     labels: Annotated[Path, typer.Argument(help="Label file: Praat TextGrid, HTK/Festival .lab or TSV 'start end label'.")],
-    table: TableOpt,
     out: OutOpt,
+    table: TableOpt = None,
     fps: FpsOpt = 25.0,
     tier: Annotated[str | None, typer.Option("--tier", help="TextGrid tier with the phones (default: the first interval tier).")] = None,
     label_map: Annotated[str | None, typer.Option("--label-map", help="Corpus labels → model phonemes: a built-in map name or a TSV/JSON file (default: the map the table was fitted with).")] = None,
@@ -147,16 +160,17 @@ def animate_command(
                             gltf_morphs=gltf_morphs)
 
     _run_staged(table, out, "animate", {"labels": str(labels.resolve())}, force,
-                [labels, table, *([audio] if audio is not None else [])], make)
+                [labels, *([table] if table is not None else []), *([audio] if audio is not None else [])], make)
 
 
 def speak_command(
-    text: Annotated[str, typer.Argument(help="Italian text to say, e.g. \"Il babbo mangia la pappa.\"")],
-    table: TableOpt,
+    text: Annotated[str, typer.Argument(help="Text to say, e.g. \"Il babbo mangia la pappa.\" (Italian; --lang en for English)")],
     out: OutOpt,
+    table: TableOpt = None,
     fps: FpsOpt = 25.0,
+    lang: Annotated[str, typer.Option("--lang", help=f"Language of the text: {', '.join(LANGUAGES)} (Festival's Italian or English voice; English phones are mapped onto the model's Italian phonemes by phones_english.tsv).")] = "it",
     stretch: Annotated[float, typer.Option("--stretch", help="Festival's Duration_Stretch: 1 = normal rate, 0.6 = fast.")] = 1.0,
-    voice: Annotated[str, typer.Option("--voice", help="Festival Italian voice (pc_diphone, lp_diphone).")] = DEFAULT_VOICE,
+    voice: Annotated[str | None, typer.Option("--voice", help="Festival voice (Italian: pc_diphone (default), lp_diphone; English: kal_diphone (default)).")] = None,
     strict: StrictOpt = False,
     mns: MnsOpt = None,
     mw: MwOpt = None,
@@ -170,17 +184,23 @@ def speak_command(
     gltf_morphs: GltfMorphsOpt = "fap",
     force: ForceOpt = False,
 ) -> None:
-    """Say Italian text with Festival: WAV, channel trajectories, FAP file and preview, all as long as the WAV.
+    """Say Italian (or English, --lang en) text with Festival: WAV, channel trajectories, FAP file and preview,
+    all as long as the WAV.
 
     The files are written beside --out and swapped in together when all are done (docs/OUTPUTS.md)."""
     from coartic.runtime.pipeline import speak_text, speaker_face
 
+    if lang not in LANGUAGES:
+        _fail(AnimationError(f"--lang {lang!r} is not a language coartic can speak (known: {', '.join(LANGUAGES)})"))
     _warn_fps(fps)
 
     def make(t: ParameterTable, staging: Path, progress: Progress) -> RuntimeOutput:
         return speak_text(text, t, staging, fps=fps, stretch=stretch, voice=voice, strict=strict,
                           face=speaker_face(t, mns, mw, speaker), preview=preview, snap_contacts=snap_contacts,
                           progress=progress, name=fap_name, gltf=gltf or gltf_morphs == "arkit", vrml=vrml,
-                          speaker=speaker, exports=export, gltf_morphs=gltf_morphs)
+                          speaker=speaker, exports=export, gltf_morphs=gltf_morphs, lang=lang)
 
-    _run_staged(table, out, "speak", {"text": text}, force, [table], make)
+    # the identity of an Italian run stays {"text": ...}: outputs written before --lang existed are its own
+    identity = {"text": text} | ({"lang": lang} if lang != "it" else {})
+    _run_staged(table, out, "speak", identity, force, [table] if table is not None else [], make,
+                LANGUAGES[lang][1])

@@ -16,7 +16,7 @@ import casadi as ca
 import numpy as np
 from numpy.typing import NDArray
 
-from coartic.fit.engines import EngineResult, OptionError, Unit, iteration_budget, prepare_start
+from coartic.fit.engines.base import EngineResult, OptionError, Unit, iteration_budget, prepare_start
 from coartic.fit.problem import ChannelProblem
 
 

@@ -18,8 +18,8 @@ import nlopt
 import numpy as np
 from numpy.typing import NDArray
 
-from coartic.fit.engines import (Check, EngineResult, check_against, evaluation_budget, Unit, is_int, is_number,
-                                 prepare_start)
+from coartic.fit.engines.base import (Check, EngineResult, Unit, check_against, evaluation_budget, is_int,
+                                      is_number, prepare_start)
 from coartic.fit.problem import ChannelProblem
 
 _GLOBAL = {"mlsl": nlopt.G_MLSL_LDS, "crs2": nlopt.GN_CRS2_LM}

@@ -1,0 +1,92 @@
+"""Held-out scores and what is said of them: one split's scores (``SplitScore``), the RMSE pooled
+over splits, the flags where the table does not beat the step model, and summary.json's part.
+
+Below ``coartic.fit.validate`` (which makes the scores by fitting and scoring splits), the fit's
+result and the report, which all read them.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Sequence
+
+import numpy as np
+
+from coartic.fit.baselines import beats_step, flag_text
+
+# the baselines' columns of validation.csv, each prefixed by the baseline's name
+BASELINE_COLUMNS = ("rmse_mm", "rmse_offset_removed_mm", "rmse_speaker_calibrated_mm")
+
+
+@dataclass
+class SplitScore:
+    split: str  # e.g. "repetition 5 held out"
+    channel: str
+    train_rmse: float
+    test_rmse: float
+    test_samples: int
+    worst_vowel: tuple[str, float]
+    test_rmse_offset_removed: float = float("nan")  # after removing each test utterance's offset
+    train_sse: float = float("nan")
+    train_samples: int = 0
+    n_free: int = 0
+    # after calibrating the test speaker's offset and scale on the test data (coartic.fit.score)
+    test_rmse_calibrated: float = float("nan")
+    # baseline -> (as measured, offset removed, speaker-calibrated) test RMSE on the same samples
+    baselines: dict[str, tuple[float, float, float]] = field(default_factory=dict)
+    # a multi-start's distinct optima ([fit] starts > 1): each one's test RMSE, best in-sample first
+    optima_test_rmse: tuple[float, ...] = ()
+
+    @property
+    def beats_step(self) -> bool:
+        """The table beats the step model (as measured and offset removed), or there is none."""
+        step = self.baselines.get("step")
+        return step is None or beats_step((self.test_rmse, self.test_rmse_offset_removed), step[:2])
+
+    def flag(self) -> str | None:
+        if self.beats_step:
+            return None
+        return f"{self.split}: " + flag_text(self.channel, (self.test_rmse, self.test_rmse_offset_removed),
+                                             self.baselines["step"][:2])
+
+
+def pooled(scores: Sequence[SplitScore], model: str = "table") -> dict[str, tuple[float, float, int]]:
+    """Per channel, the held-out RMSE over every split's test samples together (as measured,
+    offset removed, samples): the one number a k-fold validation gives. ``model``: the table, or
+    a baseline (``coartic.fit.baselines``; a channel some split lacks it on is left out)."""
+    acc: dict[str, list[float]] = {}
+    lacking: set[str] = set()
+    for sc in scores:
+        if model == "table":
+            rm, ro = sc.test_rmse, sc.test_rmse_offset_removed
+        elif model in sc.baselines:
+            rm, ro = sc.baselines[model][:2]
+        else:
+            lacking.add(sc.channel)
+            continue
+        a = acc.setdefault(sc.channel, [0.0, 0.0, 0.0])
+        a[0] += rm**2 * sc.test_samples
+        a[1] += ro**2 * sc.test_samples
+        a[2] += sc.test_samples
+    return {ch: (float(np.sqrt(s / n)), float(np.sqrt(so / n)), int(n)) for ch, (s, so, n) in acc.items()
+            if n and ch not in lacking}
+
+
+def flags(scores: Sequence[SplitScore]) -> list[str]:
+    """The lines that say where the table does not beat the step model: each split, and pooled."""
+    out = [f for f in (sc.flag() for sc in scores) if f is not None]
+    if len({sc.split for sc in scores}) > 1:
+        table, step = pooled(scores), pooled(scores, "step")
+        out += [f"all splits pooled: {flag_text(ch, table[ch][:2], step[ch][:2])}" for ch in table
+                if ch in step and not beats_step(table[ch][:2], step[ch][:2])]
+    return out
+
+
+def baseline_summary(scores: Sequence[SplitScore]) -> dict[str, object]:
+    """summary.json's validation: per split and channel the table's and baselines' held-out RMSE, the flags."""
+    return {"splits": [{"split": sc.split, "channel": sc.channel, "samples": sc.test_samples,
+                        "table": {"rmse_mm": sc.test_rmse, "rmse_offset_removed_mm": sc.test_rmse_offset_removed,
+                                  "rmse_speaker_calibrated_mm": sc.test_rmse_calibrated},
+                        **{b: dict(zip(BASELINE_COLUMNS, v)) for b, v in sc.baselines.items()},
+                        "beats_step_model": sc.beats_step} for sc in scores],
+            "flags": flags(scores)}
