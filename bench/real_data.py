@@ -195,14 +195,16 @@ def summary_lines(rows: Sequence[dict[str, Any]]) -> list[str]:
         cells.setdefault((r["variant"], r["freedom"], r["reg"]), []).append(r)
     ranked = sorted(cells.items(), key=lambda kv: pooled(kv[1], "table"))
     out = [f"{'variant':11s} {'freedom':10s} {'reg':7s} {'held-out':>8s} {'-offset':>8s} {'const':>7s} {'-off':>6s} "
-           f"{'step':>6s} {'-off':>6s} {'in-smp':>6s}  beats step (raw/-off)  CPU s"]
+           f"{'step':>6s} {'-off':>6s} {'in-smp':>6s}  beats step (raw/-off)  CPU s  held-out per channel (raw)"]
     for (v, f, g), rs in ranked:
         beat = sum(r["table"] < r["step"] for r in rs), sum(r["table_off"] < r["step_off"] for r in rs)
         insample = math.sqrt(np.mean([r["in_sample"] ** 2 for r in rs]))
         out.append(f"{v:11s} {f:10s} {g:7s} {pooled(rs, 'table'):8.3f} {pooled(rs, 'table_off'):8.3f} "
                    f"{pooled(rs, 'constant'):7.3f} {pooled(rs, 'constant_off'):6.3f} {pooled(rs, 'step'):6.3f} "
                    f"{pooled(rs, 'step_off'):6.3f} {insample:6.3f}  {beat[0]}/{len(rs)} {beat[1]}/{len(rs)}"
-                   f"{sum(r.get('cpu', 0.0) for r in rs):13.0f}")
+                   f"{sum(r.get('cpu', 0.0) for r in rs):13.0f}  "
+                   + " ".join(f"{ch} {pooled([r for r in rs if r['channel'] == ch], 'table'):.3f}"
+                              for ch in dict.fromkeys(r["channel"] for r in rs)))
     if len(ranked) > 1:
         (best, b), (second, s2) = ranked[0], ranked[1]
         key = lambda r: (r["split"], r["channel"])  # noqa: E731
