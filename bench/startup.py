@@ -58,7 +58,7 @@ def main() -> None:
             "coartic --version": [*coartic, "--version"],
             "coartic speak --preview none": [*coartic, "speak", SENTENCE, "--table", args.table, "--out",
                                             f"{tmp}/none", "--preview", "none", "--force"],
-            "coartic speak (GIF preview)": [*coartic, "speak", SENTENCE, "--table", args.table, "--out",
+            "coartic speak (default: GIF)": [*coartic, "speak", SENTENCE, "--table", args.table, "--out",
                                            f"{tmp}/gif", "--force"],
         }
         walls: dict[str, list[float]] = {k: [] for k in cases}
