@@ -35,7 +35,7 @@ COMMANDS: dict[str, tuple[str, str, str]] = {
     "animate": ("coartic.runtime.runtime_cli", "animate_command",
                 "Animate a label file: channel trajectories (CSV), an MPEG-4 FAP file and a preview."),
     "speak": ("coartic.runtime.runtime_cli", "speak_command",
-              "Say Italian text with Festival: WAV, channel trajectories, FAP file and preview, all as long as "
+              "Say Italian (or English, --lang en) text with Festival: WAV, channel trajectories, FAP file and preview, all as long as "
               "the WAV."),
     "demo": ("coartic.demo", "demo_command",
              "Plot the model on /a p a/, /a f a/, /a t a/ at a normal and a 3x faster rate (illustrative table)."),
