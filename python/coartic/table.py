@@ -16,7 +16,7 @@ import io
 import json
 import math
 import re
-from collections.abc import Mapping, Sequence
+from collections.abc import Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -523,18 +523,7 @@ class ParameterTable:
         settings_: dict[str, dict[str, str]] = {}
         values: dict[str, dict[str, dict[str, float]]] = {}
         uncertainty: dict[str, dict[str, dict[str, dict[str, float]]]] = {}
-        seen: dict[tuple[str, str, str], int] = {}
-        for lineno, rec in enumerate(reader, start=2):
-            if not rec:
-                continue
-            if len(rec) != len(header):
-                raise TableError(f"{source}: line {lineno}: expected {len(header)} fields, got {len(rec)}")
-            ph, ch, name, value = rec[:4]
-            where = f"{source}: line {lineno}: phoneme {ph!r}, channel {ch!r}"
-            if (ph, ch, name) in seen:
-                # the later row would silently win: which value is meant cannot be known
-                raise TableError(f"{where}: {name} is given twice (first on line {seen[ph, ch, name]})")
-            seen[ph, ch, name] = lineno
+        for where, ph, ch, name, value, cells in _csv_records(reader, header, source, phoneme_first=True):
             if ph == "*":
                 if ch == "*":
                     if name != "variant":
@@ -546,12 +535,7 @@ class ParameterTable:
                         raise TableError(f"{where}: unknown channel setting {name!r}")
                     settings_.setdefault(ch, {})[name] = value
                 continue
-            values.setdefault(ph, {}).setdefault(ch, {})[name] = _parse_float(where, name, value)
-            for q, cell in zip(QUANTILES, rec[4:]):
-                if cell != "":
-                    uncertainty.setdefault(ph, {}).setdefault(ch, {}).setdefault(name, {})[q] = _parse_float(
-                        where, f"{name} {q}", cell
-                    )
+            _put_value(values, uncertainty, where, ph, ch, name, value, cells)
         channels: dict[str, ChannelSettings] = {}
         for ch, s in settings_.items():
             where = f"{source}: channel {ch!r}"
@@ -582,27 +566,13 @@ class ParameterTable:
                              "in the table JSON written beside it (same name, .json), which is missing: load that")
         values: dict[str, dict[str, dict[str, float]]] = {}
         uncertainty: dict[str, dict[str, dict[str, dict[str, float]]]] = {}
-        seen: dict[tuple[str, str, str], int] = {}
-        for lineno, rec in enumerate(reader, start=2):
-            if not rec:
-                continue
-            if len(rec) != len(header):
-                raise TableError(f"{source}: line {lineno}: expected {len(header)} fields, got {len(rec)}")
-            ch, ph, name, value = rec[:4]
-            where = f"{source}: line {lineno}: phoneme {ph!r}, channel {ch!r}"
+        for where, ph, ch, name, value, cells in _csv_records(reader, header, source, phoneme_first=False):
             if name not in PARAMETERS:
                 raise TableError(f"{where}: unknown parameter {name!r} (parameters: {', '.join(PARAMETERS)})")
             if ch not in settings.channels:
                 raise TableError(f"{where}: channel {ch!r} is not in {settings.source} "
                                  f"(channels: {', '.join(settings.channels)})")
-            if (ch, ph, name) in seen:
-                raise TableError(f"{where}: {name} is given twice (first on line {seen[ch, ph, name]})")
-            seen[ch, ph, name] = lineno
-            values.setdefault(ph, {}).setdefault(ch, {})[name] = _parse_float(where, name, value)
-            for q, cell in zip(QUANTILES, rec[4:]):
-                if cell != "":
-                    uncertainty.setdefault(ph, {}).setdefault(ch, {}).setdefault(name, {})[q] = _parse_float(
-                        where, f"{name} {q}", cell)
+            _put_value(values, uncertainty, where, ph, ch, name, value, cells)
         table = copy.deepcopy(settings)
         table.values, table.uncertainty, table.source = values, uncertainty, source
         table.validate()
@@ -752,6 +722,36 @@ def domain_problem(name: str, v: Any) -> str | None:
     """Why ``v`` is not a value of parameter ``name`` in the model's domain (MODEL_DOMAIN), or None."""
     lo, hi, open_lower = MODEL_DOMAIN[name]
     return number_problem(v, lo, hi, open_lower)
+
+
+def _csv_records(reader: Any, header: list[str], source: str,
+                 phoneme_first: bool) -> Iterator[tuple[str, str, str, str, str, list[str]]]:
+    """A table CSV's rows after the header, each once: (where, phoneme, channel, parameter, value,
+    quantile cells), for the tidy form (channel first) and the long form of earlier versions."""
+    seen: dict[tuple[str, str, str], int] = {}
+    for lineno, rec in enumerate(reader, start=2):
+        if not rec:
+            continue
+        if len(rec) != len(header):
+            raise TableError(f"{source}: line {lineno}: expected {len(header)} fields, got {len(rec)}")
+        ph, ch, name, value = rec[:4] if phoneme_first else (rec[1], rec[0], rec[2], rec[3])
+        where = f"{source}: line {lineno}: phoneme {ph!r}, channel {ch!r}"
+        if (ph, ch, name) in seen:
+            # the later row would silently win: which value is meant cannot be known
+            raise TableError(f"{where}: {name} is given twice (first on line {seen[ph, ch, name]})")
+        seen[ph, ch, name] = lineno
+        yield where, ph, ch, name, value, rec[4:]
+
+
+def _put_value(values: dict[str, dict[str, dict[str, float]]],
+               uncertainty: dict[str, dict[str, dict[str, dict[str, float]]]],
+               where: str, ph: str, ch: str, name: str, value: str, cells: list[str]) -> None:
+    """One CSV row's value and its quantiles (empty cells: none) into the table's dicts."""
+    values.setdefault(ph, {}).setdefault(ch, {})[name] = _parse_float(where, name, value)
+    for q, cell in zip(QUANTILES, cells):
+        if cell != "":
+            uncertainty.setdefault(ph, {}).setdefault(ch, {}).setdefault(name, {})[q] = _parse_float(
+                where, f"{name} {q}", cell)
 
 
 def _check_number(where: str, name: str, v: Any, lo: float, hi: float, open_lower: bool) -> None:
