@@ -19,7 +19,7 @@ from pathlib import Path
 import numpy as np
 
 from coartic.io.errors import DataError
-from coartic.io.markers_csv import midsagittal_note, planar_axis, rate_from_times, stack_axes
+from coartic.io.markers_csv import float_fields, midsagittal_note, planar_axis, rate_from_times, stack_axes
 from coartic.io.registry import Reader, ReadRequest, register
 from coartic.io.trial import Trial
 from coartic.io.units import to_mm
@@ -192,20 +192,8 @@ def _ascii(
         if len(fields) != width:
             raise DataError(f"{len(fields)} fields where time, flag and {width - 2} channels "
                             f"make {width}", path=p, line=no)
-        try:
-            out[r] = [float(f) for f in fields]
-        except ValueError:
-            bad = next(f for f in fields if not _is_float(f))
-            raise DataError(f"{bad!r} is not a number", path=p, line=no, item=bad) from None
+        out[r] = float_fields(fields, p, no)
     return out, [no for no, _ in rows]
-
-
-def _is_float(s: str) -> bool:
-    try:
-        float(s)
-    except ValueError:
-        return False
-    return True
 
 
 def _read(p: Path, req: ReadRequest) -> tuple[Trial, None]:

@@ -70,6 +70,18 @@ def read_table(path: Path) -> tuple[list[str], list[list[str]], list[int], str |
     return rows[0], rows[1:], numbers[1:], unit
 
 
+def float_fields(fields: Sequence[str], path: Path, line: int) -> list[float]:
+    """One row of numbers (a whitespace-separated text format's frame), or a DataError naming the
+    first field that is not a number, its file and line."""
+    values = []
+    for f in fields:
+        try:
+            values.append(float(f))
+        except ValueError:
+            raise DataError(f"{f!r} is not a number", path=path, line=line, item=f) from None
+    return values
+
+
 def parse_numbers(
     rows: list[list[str]], lines: list[int], header: list[str], path: Path
 ) -> np.ndarray:

@@ -13,7 +13,7 @@ from pathlib import Path
 import numpy as np
 
 from coartic.io.errors import DataError
-from coartic.io.markers_csv import midsagittal_note, rate_from_times
+from coartic.io.markers_csv import float_fields, midsagittal_note, rate_from_times
 from coartic.io.registry import Reader, ReadRequest, register
 from coartic.io.trial import Trial
 from coartic.io.units import to_mm
@@ -44,11 +44,7 @@ def read_txy(path: str | Path, units: str | None = None) -> Trial:
         if len(fields) != width:
             raise DataError(f"{len(fields)} fields where the time and x, y of the pellets "
                             f"{' '.join(PELLETS)} make {width}", path=p, line=no)
-        try:
-            rows.append([float(f) for f in fields])
-        except ValueError:
-            bad = next(f for f in fields if not _number(f))
-            raise DataError(f"{bad!r} is not a number", path=p, line=no, item=bad) from None
+        rows.append(float_fields(fields, p, no))
         lines.append(no)
     if not rows:
         raise DataError("no frames", path=p)
@@ -78,14 +74,6 @@ def read_txy(path: str | Path, units: str | None = None) -> Trial:
     return Trial(markers=np.ascontiguousarray(xyz), marker_names=PELLETS, rate=rate, units="mm",
                  source=p, meta={"notes": notes}, start_time=float(times[0]), kind="ema",
                  planar_axis=2)
-
-
-def _number(s: str) -> bool:
-    try:
-        float(s)
-    except ValueError:
-        return False
-    return True
 
 
 def _read(p: Path, req: ReadRequest) -> tuple[Trial, None]:
