@@ -23,18 +23,19 @@ from rich.table import Table
 
 from coartic.errors import CoarticError
 from coartic.fit.baselines import BASELINES
+from coartic.fit.data import load_utterances
 from coartic.fit.problem import Utterance
 from coartic.fit.heldout import BASELINE_COLUMNS, SplitScore, pooled
 from coartic.fit.result import BAR_MM, FitResult
+from coartic.fit.score import score_utterances
 from coartic.fit.spec import FitSpec, SpecError
+from coartic.outputs import atomic_write_text
 
 
 def score(result: FitResult, test: Sequence[Utterance], split: str,
           train: Sequence[Utterance] | None = None) -> list[SplitScore]:
     """RMSE of the fitted table on utterances the fit did not see (``coartic.fit.score``); with
     ``train`` (the split's training utterances), the baselines' on the same samples too."""
-    from coartic.fit.score import score_utterances
-
     table = result.table()
     out = []
     for ch, fit in result.channels.items():
@@ -162,8 +163,6 @@ def validate_all(spec: FitSpec, out: str | Path | None = None, utterances: Seque
     held-out utterances have a phoneme its training lacks cannot be scored: it is skipped with a
     note (in ``notes``)."""
     if utterances is None:
-        from coartic.fit.data import load_utterances
-
         utterances = load_utterances(spec)
     scores: list[SplitScore] = []
     for name, train, test in splits(spec, utterances):
@@ -183,8 +182,6 @@ def validate_all(spec: FitSpec, out: str | Path | None = None, utterances: Seque
         if res.interrupted:
             break
     if out is not None:
-        from coartic.outputs import atomic_write_text
-
         Path(out).mkdir(parents=True, exist_ok=True)
         buf = io.StringIO()
         w = csv.writer(buf, lineterminator="\n")
