@@ -15,7 +15,7 @@ from coartic import model
 from fit_helpers import check_problem_derivatives, spec_of
 from coartic.fit import run
 from coartic.fit.choose import Choice, CurvePoint, parse_choose, set_value
-from coartic.fit.problem import build_problem
+from coartic.estimation.problem import build_problem
 from coartic.fit.simulate import PHONEMES, vcv_utterances
 from coartic.fit.spec import Choose, SpecError
 from coartic.table import PARAMETERS
