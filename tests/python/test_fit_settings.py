@@ -14,10 +14,10 @@ from typer.testing import CliRunner
 from fit_helpers import check_problem_derivatives, german_utterance_spec, spec_of
 from coartic import model
 from coartic.cli import app
-from coartic.fit import problem, run
+from coartic.fit import run
 from coartic.fit.data import manifest_rows
-from coartic.fit.parameters import ParameterSet
-from coartic.fit.problem import ChannelData, build_packing
+from coartic.estimation.parameters import ParameterSet
+from coartic.estimation.data import ChannelData
 from coartic.fit.runner import FitFailed, check_overrides
 from coartic.fit.simulate import PHONEMES, vcv_utterances
 from coartic.fit.spec import SpecError, load_spec, parse_spec
@@ -31,7 +31,6 @@ def utts() -> list[model.Utterance]:
 
 
 def test_one_utterance_type() -> None:
-    assert problem.Utterance is model.Utterance
     u = model.Utterance(["#", "a"], [0, 0.1], [0.1, 0.2], [0.05, 0.15], name="u")
     assert u.starts.dtype == np.float64 and u.observed == {} and u.meta == {}
     with pytest.raises(model.ModelInputError, match=r"utterance 'u': times\[1\] = nan is not finite"):
@@ -42,11 +41,11 @@ def test_settings_the_spec_gives_are_honoured(tmp_path: Path, utts: list[model.U
     data = ChannelData.build(utts, "LLO", PHONEMES)
     # global target box and target start: today both were replaced by the data's
     s = spec_of(tmp_path, parameters={"free": ["target"], "bounds": {"target": [-3.0, 14.0]}, "start": {"target": 1.0}})
-    pk = build_packing(s, data)
+    pk = ParameterSet.from_spec(s, data).packing()
     assert np.all(pk.lower[:, 0] == -3.0) and np.all(pk.upper[:, 0] == 14.0)
     assert np.all(pk.base[:, 0] == 1.0)
     # without them: the data range widened by target_margin, and data targets
-    pk = build_packing(spec_of(tmp_path), data)
+    pk = ParameterSet.from_spec(spec_of(tmp_path), data).packing()
     assert pk.lower[0, 0] == pytest.approx(data.observed[data.weights > 0].min() - 5.0)
 
 
@@ -60,13 +59,13 @@ def test_a_start_outside_its_bounds_is_refused(tmp_path: Path, utts: list[model.
                                                sections: dict[str, Any], key: str) -> None:
     data = ChannelData.build(utts, "LLO", PHONEMES)
     with pytest.raises(SpecError, match="outside its bounds") as e:
-        build_packing(spec_of(tmp_path, **sections), data)
+        ParameterSet.from_spec(spec_of(tmp_path, **sections), data).packing()
     assert key in str(e.value) and "spec.toml" in str(e.value)
 
 
 def test_a_default_start_outside_narrowed_bounds_starts_on_the_bound(tmp_path: Path, utts: list[model.Utterance]) -> None:
     s = spec_of(tmp_path, parameters={"free": ["target", "theta_bw"], "bounds": {"theta_bw": [50.0, 100.0]}})
-    pk = build_packing(s, ChannelData.build(utts, "LLO", PHONEMES))
+    pk = ParameterSet.from_spec(s, ChannelData.build(utts, "LLO", PHONEMES)).packing()
     assert np.all(pk.base[1:, PARAMETERS.index("theta_bw")] == 50.0)
 
 
@@ -203,7 +202,7 @@ def test_the_default_budget_ends_a_one_utterance_real_fit_converged(tmp_path: Pa
 
 
 def prior_problem(tmp_path: Path, utts: list[model.Utterance], prior: dict[str, Any], noise: float = 0.5) -> Any:
-    from coartic.fit.problem import build_problem
+    from coartic.estimation.problem import build_problem
 
     s = spec_of(tmp_path, parameters={"free": ["target", "theta_bw", "theta_fw", "k_r"], "prior": prior,
                                       "prior_noise": noise})
@@ -243,7 +242,7 @@ def test_bad_priors_are_refused(tmp_path: Path, utts: list[model.Utterance], pri
 @pytest.mark.parametrize("offsets", ["free", 0.5])
 def test_per_utterance_offsets_are_profiled_with_exact_derivatives(tmp_path: Path, utts: list[model.Utterance],
                                                                    offsets: Any) -> None:
-    from coartic.fit.problem import build_problem
+    from coartic.estimation.problem import build_problem
 
     s = spec_of(tmp_path, parameters={"free": ["target", "theta_bw", "k_r"], "prior_noise": 0.3},
                 model={"channels": ["LLO"], "offsets": offsets})
@@ -278,7 +277,7 @@ def test_a_stage_that_did_not_converge_says_why(tmp_path: Path, utts: list[model
 
 
 def test_tied_parameters_share_one_value_with_exact_derivatives(tmp_path: Path, utts: list[model.Utterance]) -> None:
-    from coartic.fit.problem import build_problem
+    from coartic.estimation.problem import build_problem
 
     free = ["target", "theta_bw", "theta_fw", "k_r"]
     ties = [{"phonemes": ["p", "t"], "parameters": ["theta_bw", "theta_fw"]}, {"phonemes": ["a", "i"], "parameters": ["k_r"]}]
@@ -316,7 +315,7 @@ def test_bad_ties_are_refused(tmp_path: Path, tie: dict[str, Any], words: str) -
 def test_a_tie_of_fixed_values_is_refused(tmp_path: Path, utts: list[model.Utterance]) -> None:
     s = spec_of(tmp_path, tie=[{"phonemes": ["p", "t"], "parameters": ["k_r"]}])  # k_r is not free
     with pytest.raises(SpecError, match=r"\[tie #1\] k_r is free for none of"):
-        build_packing(s, ChannelData.build(utts, "LLO", PHONEMES))
+        ParameterSet.from_spec(s, ChannelData.build(utts, "LLO", PHONEMES)).packing()
 
 
 def test_a_tie_over_a_member_an_override_fixes_is_refused(tmp_path: Path, utts: list[model.Utterance]) -> None:
@@ -326,7 +325,7 @@ def test_a_tie_over_a_member_an_override_fixes_is_refused(tmp_path: Path, utts: 
                 override=[{"phonemes": ["t"], "fixed": {"theta_bw": 30.0}}])
     with pytest.raises(SpecError, match=r"\[tie #1\] ties theta_bw of \['p', 't'\] on LLO, but t.theta_bw is fixed "
                        r"\(\[override #1.fixed.theta_bw\]\)") as e:
-        build_packing(s, ChannelData.build(utts, "LLO", PHONEMES))
+        ParameterSet.from_spec(s, ChannelData.build(utts, "LLO", PHONEMES)).packing()
     assert e.value.key == "tie #1" and e.value.phoneme == "t" and e.value.file == tmp_path / "spec.toml"
 
 

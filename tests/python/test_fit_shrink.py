@@ -15,7 +15,7 @@ from coartic import model
 from fit_helpers import check_problem_derivatives, spec_of
 from coartic.fit import run
 from coartic.fit.choose import Choice, CurvePoint, parse_choose, set_value
-from coartic.fit.problem import build_problem
+from coartic.estimation.problem import build_problem
 from coartic.fit.simulate import PHONEMES, vcv_utterances
 from coartic.fit.spec import Choose, SpecError
 from coartic.table import PARAMETERS
@@ -136,7 +136,7 @@ def test_mcmc_has_the_shrinkage_of_the_fit_spec(tmp_path: Path, utts: list[model
 @pytest.mark.parametrize("sections, key, words", [
     ({"shrink": [{"phonemes": ["p"], "parameters": ["k_r"], "sd": 0.1}]}, "shrink #1.phonemes", "two distinct"),
     ({"shrink": [{"phonemes": ["p", "t"], "parameters": ["speed"], "sd": 0.1}]}, "shrink #1.parameters", "unknown parameter"),
-    ({"shrink": [{"phonemes": ["p", "t"], "parameters": ["k_r"]}]}, "shrink #1", "needs phonemes"),
+    ({"shrink": [{"phonemes": ["p", "t"], "parameters": ["k_r"]}]}, "shrink #1", "missing key 'sd'"),
     ({"shrink": [{"phonemes": ["p", "t"], "parameters": ["k_r"], "sd": 0.1},
                  {"phonemes": ["p", "t"], "parameters": ["k_r"], "sd": -1.0}]}, "shrink #2.sd", "positive"),
     ({"shrink": [{"phonemes": ["p", "t"], "parameters": ["theta_bw", "k_r"], "sd": 0.1, "scale": "log"}]},

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 from scipy.optimize import least_squares
 
-from coartic.fit.problem import build_problem
+from coartic.estimation.problem import build_problem
 from coartic.fit.simulate import PHONEMES, TRUTH, vcv_utterances
 from coartic.fit.spec import SpecError, parse_spec
 from coartic.table import PARAMETERS

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from coartic import _core
-from coartic.fit.problem import ChannelProblem
+from coartic.estimation.problem import ChannelProblem
 from coartic.model import Utterance, build_corpus
 from coartic.fit.result import FitResult
 from coartic.fit.runner import run
@@ -167,7 +167,7 @@ def test_report_of_a_very_long_utterance_is_bounded(tmp_path: Path) -> None:
     """5000 segments: boundaries, labels and weights left out (and said) instead of minutes of drawing."""
     from coartic.report import plots
 
-    from coartic.fit.problem import build_problem
+    from coartic.estimation.problem import build_problem
     from coartic.fit.result import ChannelFit
 
     utts = sentence(np.random.default_rng(4), n_words=2500)

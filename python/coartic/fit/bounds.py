@@ -44,10 +44,10 @@ from typing import TYPE_CHECKING, Any, Sequence
 import numpy as np
 from numpy.typing import NDArray
 
-from coartic.fit.parameters import psd_pseudo_inverse
+from coartic.estimation.parameters import psd_pseudo_inverse
 
 if TYPE_CHECKING:
-    from coartic.fit.problem import ChannelProblem
+    from coartic.estimation.problem import ChannelProblem
 
 FloatArray = NDArray[np.float64]
 

@@ -24,8 +24,9 @@ from numpy.typing import NDArray
 
 from coartic import __version__
 from coartic.fit.bounds import CATEGORY_TITLES, BoundNote, explain_bounds, summary_counts
-from coartic.fit.parameters import ParameterSet, psd_pseudo_inverse
-from coartic.fit.problem import ChannelProblem, Packing
+from coartic.estimation.parameters import ParameterSet, psd_pseudo_inverse
+from coartic.estimation.packing import Packing
+from coartic.estimation.problem import ChannelProblem
 from coartic.errors import UsageError
 from coartic.fit.spec import FitSpec
 from coartic.fit.heldout import baseline_summary, flags

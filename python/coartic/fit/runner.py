@@ -21,7 +21,8 @@ from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, T
 from coartic.console import LineProgress
 from coartic.errors import CoarticError
 from coartic.fit.engines import OptionError, check_options
-from coartic.fit.problem import ChannelProblem, Utterance, build_problem
+from coartic.estimation.problem import ChannelProblem, build_problem
+from coartic.model import Utterance
 from coartic.fit.result import ChannelFit, FitResult, finish_channel, now
 from coartic.fit.spec import FitSpec, SpecError, load_spec
 from coartic.fit.multistart import MultiStart, fit_multistart

@@ -24,7 +24,7 @@ from rich.table import Table
 from coartic.errors import CoarticError
 from coartic.fit.baselines import BASELINES
 from coartic.fit.data import load_utterances
-from coartic.fit.problem import Utterance
+from coartic.model import Utterance
 from coartic.fit.heldout import BASELINE_COLUMNS, SplitScore, pooled
 from coartic.fit.result import BAR_MM, FitResult
 from coartic.fit.score import score_utterances

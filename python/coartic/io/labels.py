@@ -400,7 +400,8 @@ def parse_timit(text: str, path: Path, rate: float = TIMIT_SAMPLE_RATE) -> Segme
 
 def _parse_xlabel(lines: list[str], hash_line: int, path: Path) -> Segments:
     # Festival/xlabel: each line is `end_time colour label`; a segment starts where the
-    # previous one ended, the first at 0.
+    # previous one ended, the first at 0. A first entry at time 0 (EMU's `H#`) marks the start
+    # of the utterance, not a segment.
     labels: list[str] = []
     starts: list[float] = []
     ends: list[float] = []
@@ -421,6 +422,8 @@ def _parse_xlabel(lines: list[str], hash_line: int, path: Path) -> Segments:
             raise DataError(f"expected 'end_time colour label' (xlabel), found {s!r}: no label",
                             path=path, line=no)
         label = fields[2].strip()
+        if not labels and end == 0.0:
+            continue
         labels.append(label)
         starts.append(previous)
         ends.append(end)

@@ -16,7 +16,7 @@ from typing import Any, Callable, Mapping, Sequence
 import numpy as np
 from numpy.typing import NDArray
 
-from coartic.fit.problem import SPEAKER_SEP
+from coartic.estimation.speakers import SPEAKER_SEP
 from coartic.mcmc import idata, plots, sampler, summary
 from coartic.mcmc.posterior import LogPosterior, SpeakerTerms, channel_posterior, phoneme_posterior
 from coartic.mcmc.sampler import SamplerSettings, SamplingResult
@@ -158,10 +158,11 @@ def table_problem(fit_spec: Any, table: Any, table_path: Path, channel: str,
     model the table was fitted with. The free set, bounds and ties are the spec's (its
     ``ParameterSet``), so a table of another variant than the spec's ``[model] variant`` is
     refused (its free set would not match). With ``[model] speakers = "targets"`` the problem is
-    the fit's per-speaker one (``coartic.fit.problem.expand_speaker_targets``), each speaker's
+    the fit's per-speaker one (``coartic.estimation.speakers.expand_speaker_targets``), each speaker's
     targets starting at the table's (metadata.speakers.targets)."""
-    from coartic.fit.parameters import ParameterSet
-    from coartic.fit.problem import ChannelData, expand_speaker_targets
+    from coartic.estimation.parameters import ParameterSet
+    from coartic.estimation.data import ChannelData
+    from coartic.estimation.speakers import expand_speaker_targets
     from coartic.model import model_options
 
     if channel not in table.channels:
@@ -219,7 +220,7 @@ def spec_priors(fit_spec: Any, packing: Any, channel: str) -> dict[str, tuple[An
     """The fit spec's ``[parameters.prior]`` on the free entries of ``packing``, as ``LogPosterior``
     takes them ((mean, sd), or (mean, sd, True) on log values): the posterior has the priors the
     least-squares fit had (``[mcmc] priors`` add to and override them)."""
-    from coartic.fit.parameters import expand_priors
+    from coartic.estimation.parameters import expand_priors
 
     if fit_spec.speakers != "targets":
         pri = expand_priors(fit_spec, channel, tuple(packing.phonemes), packing.free, packing.beta_free)
@@ -249,7 +250,8 @@ def spec_shrinkage(fit_spec: Any, table: Any, packing: Any, channel: str) -> lis
     by cross-validation (``[choose]``) is read from the table's metadata ("choice"), so the posterior
     has the penalty the least-squares fit had."""
     from coartic.fit.choose import set_value
-    from coartic.fit.problem import moving, shrink_groups
+    from coartic.estimation.packing import moving
+    from coartic.estimation.penalties import shrink_groups
 
     choice = (table.metadata or {}).get("choice") or {}
     if choice.get("key") and channel in choice.get("chosen", {}):

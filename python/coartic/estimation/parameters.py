@@ -2,7 +2,7 @@
 is free, its bounds, its prior and (after a fit) its standard error.
 
 ``ParameterSet.from_spec`` is where a fit spec becomes numbers (the one place: least squares, MCMC
-and the report all start from it); ``packing()`` gives the engines' view (``coartic.fit.problem.
+and the report all start from it); ``packing()`` gives the engines' view (``coartic.estimation.packing.
 Packing``: the free entries as an internal vector x), and ``ChannelFit.parameters`` the fitted set
 with standard errors, which ``parameters.csv`` and ``fit_report.txt`` print.
 
@@ -21,14 +21,14 @@ from typing import TYPE_CHECKING, Iterator, Mapping
 import numpy as np
 from numpy.typing import NDArray
 
-from coartic.fit.packing import Packing, Prior
+from coartic.estimation.packing import Packing, Prior
 from coartic.fit.spec import DEFAULT_BETA_BOUNDS, DEFAULT_FIT_BOUNDS, FitSpec, SpecError
 from coartic.table import N_PARAMS, PARAMETERS
 
 
 if TYPE_CHECKING:
     from coartic.fit.bounds import BoundNote
-    from coartic.fit.problem import ChannelData
+    from coartic.estimation.data import ChannelData
 
 FloatArray = NDArray[np.float64]
 BoolArray = NDArray[np.bool_]
