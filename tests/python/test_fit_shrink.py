@@ -137,7 +137,7 @@ def test_mcmc_has_the_shrinkage_of_the_fit_spec(tmp_path: Path, utts: list[model
 @pytest.mark.parametrize("sections, key, words", [
     ({"shrink": [{"phonemes": ["p"], "parameters": ["k_r"], "sd": 0.1}]}, "shrink #1.phonemes", "two distinct"),
     ({"shrink": [{"phonemes": ["p", "t"], "parameters": ["speed"], "sd": 0.1}]}, "shrink #1.parameters", "unknown parameter"),
-    ({"shrink": [{"phonemes": ["p", "t"], "parameters": ["k_r"]}]}, "shrink #1", "needs phonemes"),
+    ({"shrink": [{"phonemes": ["p", "t"], "parameters": ["k_r"]}]}, "shrink #1", "missing key 'sd'"),
     ({"shrink": [{"phonemes": ["p", "t"], "parameters": ["k_r"], "sd": 0.1},
                  {"phonemes": ["p", "t"], "parameters": ["k_r"], "sd": -1.0}]}, "shrink #2.sd", "positive"),
     ({"shrink": [{"phonemes": ["p", "t"], "parameters": ["theta_bw", "k_r"], "sd": 0.1, "scale": "log"}]},
