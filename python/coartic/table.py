@@ -27,6 +27,7 @@ import numpy.typing as npt
 from coartic.errors import CoarticError
 from coartic.outputs import atomic_write_text
 from coartic.settings import CHANNEL_SETTINGS, DOMINANCES, RATE_SETTINGS
+from coartic.textfile import TextDecodeError, read_text
 
 
 SCHEMA = "coartic.table/1"
@@ -433,15 +434,11 @@ class ParameterTable:
         come from the JSON of the same name beside it (``from_csv``)."""
         path = Path(path)
         try:
-            raw = path.read_bytes()
+            text = read_text(path, "table")
         except OSError as exc:
             raise TableError(f"{path}: cannot read the table: {exc.strerror}") from None
-        try:
-            text = raw.decode("utf-8")
-        except UnicodeDecodeError as exc:
-            line = raw[: exc.start].count(b"\n") + 1
-            raise TableError(f"{path}: line {line}: not UTF-8 text (byte {raw[exc.start]:#04x} at offset "
-                             f"{exc.start}); tables are written in UTF-8") from None
+        except TextDecodeError as exc:
+            raise TableError(str(exc)) from None
         if path.suffix.lower() == ".csv":
             beside = path.with_suffix(".json")
             tidy = text.startswith(",".join(TIDY_HEADER))

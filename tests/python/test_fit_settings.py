@@ -108,7 +108,8 @@ def test_engine_options_are_checked_before_the_fit(tmp_path: Path, engine: str, 
     s = spec_of(tmp_path, engine={"name": engine, "options": options})
     with pytest.raises(SpecError, match=words) as e:
         run(s, quiet=True)  # refused before the (missing) data are loaded
-    assert f"[engine.options] {key} ({engine} engine)" in str(e.value) and "spec.toml" in str(e.value)
+    assert f"[engine.options.{key}] ({engine} engine)" in str(e.value) and "spec.toml" in str(e.value)
+    assert e.value.key == f"engine.options.{key}" and e.value.section == "engine" and e.value.parameter == key
 
 
 @pytest.mark.filterwarnings("ignore:Setting .* below the machine epsilon")
@@ -338,8 +339,11 @@ def test_ties_and_shrinks_of_phonemes_absent_from_the_corpus(tmp_path: Path, utt
     # one member present: nothing to share or pull together, refused (it used to be accepted, and a
     # shrink recorded in the table as applied)
     s = spec_of(tmp_path, parameters={"free": ["target", "theta_bw"]}, **{kind: [table]})
-    with pytest.raises(SpecError, match=rf"\[{kind} #1\] phonemes .*: fewer than two occur in the corpus"):
+    with pytest.raises(SpecError, match=rf"\[{kind} #1\] phonemes .*: fewer than two occur in the corpus") as e:
         check_overrides(s, utts)
+    absent = [p for p in table["phonemes"] if p not in PHONEMES]
+    assert (e.value.file, e.value.section, e.value.entry, e.value.key) == (tmp_path / "spec.toml", kind, 0, f"{kind} #1")
+    assert e.value.phoneme == ", ".join(absent)  # the absent ones, by name
     # two present: applied to them, the absent ones named
     some = spec_of(tmp_path, parameters={"free": ["target", "theta_bw"]},
                    **{kind: [{**table, "phonemes": ["p", "t", "f"]}]})

@@ -27,6 +27,7 @@ from __future__ import annotations
 import csv
 import glob
 import hashlib
+import io
 import os
 import re
 from dataclasses import dataclass, replace
@@ -34,6 +35,7 @@ from pathlib import Path
 from typing import Any
 
 from coartic.fit.spec import CorpusSpec, FitSpec, SpecError, load_spec, read_document, synth_hint
+from coartic.textfile import TextDecodeError, read_text
 
 # A group's name is a folder name in the output: plain characters only, and never one of ours.
 GROUP_NAME = re.compile(r"[A-Za-z0-9][A-Za-z0-9._-]*")
@@ -92,11 +94,12 @@ def _manifest_groups(manifest: Path, columns: tuple[str, ...], select: dict[str,
     if not manifest.is_file():
         raise _err(path, "corpus.manifest", f"{manifest} does not exist{synth_hint(manifest)}")
     try:
-        with manifest.open(newline="", encoding="utf-8") as f:
-            reader = csv.DictReader(f)
-            rows = list(reader)
-            cols = reader.fieldnames or []
-    except (OSError, UnicodeDecodeError, csv.Error) as e:
+        reader = csv.DictReader(io.StringIO(read_text(manifest, "manifest"), newline=""))
+        rows = list(reader)
+        cols = reader.fieldnames or []
+    except TextDecodeError as e:
+        raise _err(path, "corpus.manifest", str(e)) from None
+    except (OSError, csv.Error) as e:
         raise _err(path, "corpus.manifest", f"{manifest}: cannot read: {e}") from None
     for c in (*columns, *select):
         if c not in cols:

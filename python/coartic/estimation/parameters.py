@@ -232,8 +232,9 @@ class ParameterSet(Mapping[str, Parameter]):
         bad = lower > upper
         if bad.any():
             i, k = map(int, np.argwhere(bad)[0])
-            raise SpecError(f"{spec.path}: bounds of {phon[i]}.{PARAMETERS[k]} on {ch}: "
-                            f"low {lower[i, k]} > high {upper[i, k]}")
+            raise SpecError.at(spec.path, f"parameters.bounds.{PARAMETERS[k]}", f"bounds of {phon[i]}.{PARAMETERS[k]} on "
+                               f"{ch}: low {lower[i, k]} > high {upper[i, k]} (with the overrides)", phon[i],
+                               parameter=PARAMETERS[k])
         outside = free & ((base < lower) | (base > upper)) & (origin != "")
         if outside.any():
             i, k = map(int, np.argwhere(outside)[0])

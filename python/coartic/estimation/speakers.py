@@ -203,8 +203,9 @@ def expand_speaker_targets(spec: FitSpec, data: ChannelData, ps: ParameterSet, d
     kt = PARAMETERS.index("target")
     for f, ld in ps.ties:
         if f % N_PARAMS == kt:
-            raise SpecError(f"{spec.path}: [[tie]] of target cannot be combined with [model] speakers = \"targets\" "
-                            "(every speaker has its own targets)")
+            tie = next((f"tie #{i + 1}.parameters" for i, t in enumerate(spec.ties) if "target" in t.parameters), "tie")
+            raise SpecError.at(spec.path, tie, "a tie of target cannot be combined with "
+                               "[model] speakers = \"targets\" (every speaker has its own targets)", parameter="target")
     base = tuple(data.phonemes)
     occurs = {(base.index(lab), spk.index(str(u.meta[column]))) for u in data.utterances for lab in u.labels}
     rows = tuple((p, s) for s in range(len(spk)) for p in range(len(base)) if (p, s) in occurs)

@@ -28,6 +28,7 @@ from coartic.io.labels import Segments
 from coartic.io.registry import Reader, ReadRequest, register
 from coartic.io.trial import Trial
 from coartic.io.units import to_mm
+from coartic.textfile import TextDecodeError, read_text
 
 _SSFF_TYPES = {"DOUBLE": "f8", "FLOAT": "f4", "LONG": "i4", "SHORT": "i2", "BYTE": "u1",
                "CHAR": "S1"}
@@ -89,9 +90,11 @@ def read_emu_bundle(
     """
     p = Path(path)
     try:
-        bundle = json.loads(p.read_text(encoding="utf-8"))
-    except (OSError, UnicodeDecodeError) as e:
-        raise DataError(f"cannot read the bundle: {e}", path=p) from None
+        bundle = json.loads(read_text(p, "bundle"))
+    except OSError as e:
+        raise DataError(f"cannot read the bundle: {e.strerror or e}", path=p) from None
+    except TextDecodeError as e:
+        raise DataError(e.detail, path=p) from None
     except json.JSONDecodeError as e:
         raise DataError(f"not valid JSON: {e.msg}", path=p, line=e.lineno) from None
     except RecursionError:
