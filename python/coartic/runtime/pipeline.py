@@ -185,7 +185,7 @@ def animate_file(
     the FAP file under its name (Greta loads `name.fap` with `name.wav`), the animation lasts as
     long as the sound, and the MP4 preview and the glTF bundle carry it. `name` defaults to the
     label file's stem. `exports`: the rigs' curves and cues ("arkit", "visemes", "rhubarb"; a list
-    or comma-separated); `gltf_morphs`: the glTF's morph set, "fap" or "arkit" (coartic.runtime.exporters). `speaker`: one of the speakers of a table fitted with `[model] speakers`
+    or comma-separated); `gltf_morphs`: the glTF's morph set, "fap", "arkit" or "eight" (coartic.runtime.exporters). `speaker`: one of the speakers of a table fitted with `[model] speakers`
     (its offset and scale, or its own targets; coartic.speakers).
     """
     _check_preview(preview)

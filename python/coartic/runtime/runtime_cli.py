@@ -39,7 +39,7 @@ GltfOpt = Annotated[bool, typer.Option("--gltf", help="Also write NAME.glb: the 
 VrmlOpt = Annotated[bool, typer.Option("--vrml", help="Also write NAME.wrl: the face animated in VRML97 (interpolators, the sound as an AudioClip).")]
 FapNameOpt = Annotated[str | None, typer.Option("--fap-name", help="Name of the FAP file and its header; the WAV and glTF get the same stem (Greta loads NAME.fap with NAME.wav).")]
 ExportOpt = Annotated[str | None, typer.Option("--export", help="Also write the rigs' curves and cues, comma-separated: arkit (NAME.arkit.csv/.json, ARKit's 52 blendshapes), visemes (NAME.visemes.csv/.json, Meta's 15), rhubarb (NAME.rhubarb.json/.tsv, Rhubarb Lip Sync's mouth cues).")]
-GltfMorphsOpt = Annotated[str, typer.Option("--gltf-morphs", help="The glTF's morph targets: fap (one per FAP) or arkit (ARKit's 52 blendshape names, to retarget by name); arkit implies --gltf.")]
+GltfMorphsOpt = Annotated[str, typer.Option("--gltf-morphs", help="The glTF's morph targets: fap (one per FAP), arkit (ARKit's 52 blendshape names, to retarget by name) or eight (at most 8 per mesh, all blended by three.js up to r132); arkit and eight imply --gltf.")]
 SpeakerOpt = Annotated[str | None, typer.Option("--speaker", help="Speak as this speaker of a table fitted with [model] speakers (its offset and scale, or its own targets).")]
 ForceOpt = Annotated[bool, typer.Option("--force", help="Replace --out even if it holds another run's output "
                                         "(the same labels or text replace their own output without it).")]
@@ -162,7 +162,7 @@ def animate_command(
         return animate_file(labels, t, staging, fps=fps, tier=tier, label_map=label_map,
                             face=speaker_face(t, mns, mw, speaker), preview=preview, snap_contacts=snap_contacts,
                             strict=strict, progress=progress, audio=audio, name=fap_name,
-                            gltf=gltf or gltf_morphs == "arkit", vrml=vrml, speaker=speaker, exports=export,
+                            gltf=gltf or gltf_morphs != "fap", vrml=vrml, speaker=speaker, exports=export,
                             gltf_morphs=gltf_morphs)
 
     _run_staged(table, out, "animate", {"labels": str(labels.resolve())}, force,
@@ -208,7 +208,7 @@ def speak_command(
         def make(t: ParameterTable, staging: Path, progress: Progress) -> RuntimeOutput:
             return speak_text(text, t, staging, fps=fps, stretch=stretch, voice=voice, strict=strict,
                               face=speaker_face(t, mns, mw, speaker), preview=preview, snap_contacts=snap_contacts,
-                              progress=progress, name=fap_name, gltf=gltf or gltf_morphs == "arkit", vrml=vrml,
+                              progress=progress, name=fap_name, gltf=gltf or gltf_morphs != "fap", vrml=vrml,
                               speaker=speaker, exports=export, gltf_morphs=gltf_morphs, lang=lang,
                               synthesis=synthesis)
 
