@@ -21,7 +21,7 @@ from coartic.estimation.data import ChannelData
 from coartic.fit.runner import FitFailed, check_overrides
 from coartic.fit.simulate import PHONEMES, vcv_utterances
 from coartic.fit.spec import SpecError, load_spec, parse_spec
-from coartic.table import PARAMETERS
+from coartic.table import PARAMETERS, TableError
 
 
 
@@ -184,11 +184,12 @@ def test_mcmc_takes_the_options_from_the_table(tmp_path: Path, utts: list[model.
     table = run(s, None, utterances=utts, quiet=True).table()
     table.channels["LLO"].edge_extent = 0.25
     table.channels["LLO"].apex_fraction = 0.4
-    _, _, opts = table_problem(s, table, tmp_path / "t.json", "LLO", utts)
+    table.source = str(tmp_path / "t.json")
+    opts = table_problem(s, table, "LLO", utts).options
     assert (opts.edge_extent, opts.apex_fraction) == (0.25, 0.4)  # not the spec's 1.0 and 0.5
     table.variant = "original"
-    with pytest.raises(ValueError, match=r"t\.json: a table of the 'original' model, but .*variant = 'modified'"):
-        table_problem(s, table, tmp_path / "t.json", "LLO", utts)
+    with pytest.raises(TableError, match=r"t\.json: a table of the 'original' model, but .*variant = 'modified'"):
+        table_problem(s, table, "LLO", utts)
 
 
 def test_the_default_budget_ends_a_one_utterance_real_fit_converged(tmp_path: Path) -> None:
@@ -365,14 +366,15 @@ def test_a_manifest_that_is_a_directory_or_not_utf8_is_named(tmp_path: Path) -> 
 
 def test_mcmc_has_the_priors_of_the_fit_spec(tmp_path: Path, utts: list[model.Utterance]) -> None:
     from coartic.mcmc.posterior import LogPosterior
-    from coartic.mcmc.run import spec_priors, table_problem
+    from coartic.mcmc.run import problem_priors, table_problem
 
     s = spec_of(tmp_path, parameters={"free": ["target", "theta_bw", "k_r"],
                                       "prior": {"theta_bw": {"mean": 30.0, "sd": 0.5, "scale": "log"},
                                                 "p.k_r": [0.9, 0.05]}})
     table = run(s, None, utterances=utts, quiet=True).table()
-    data, packing, opts = table_problem(s, table, tmp_path / "t.json", "LLO", utts)
-    pri = spec_priors(s, packing, "LLO")
+    problem = table_problem(s, table, "LLO", utts)
+    data, packing, opts = problem.data, problem.packing, problem.options
+    pri = problem_priors(problem)
     assert pri["p.k_r"] == (0.9, 0.05) and pri["t.theta_bw"] == (30.0, 0.5, True)
     with_p = LogPosterior(data, packing, opts, noise=0.1, priors=pri)
     without = LogPosterior(data, packing, opts, noise=0.1)

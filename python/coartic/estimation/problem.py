@@ -32,11 +32,11 @@ from coartic.estimation.offsets import Offsets
 from coartic.estimation.packing import Packing, Prior, moving
 from coartic.estimation.parameters import ParameterSet
 from coartic.estimation.penalties import Penalty, ShrinkGroup, Shrinkage, shrink_groups
-from coartic.estimation.speakers import SpeakerRows, Speakers, expand_speaker_targets
+from coartic.estimation.speakers import SpeakerRows, Speakers, expand_speaker_targets, table_speaker_meta
 from coartic.fit.spec import FitSpec, SpecError
 from coartic.jacobian import JacobianBuffer
-from coartic.model import Utterance, channel_options, core_error
-from coartic.table import PARAMETERS
+from coartic.model import Utterance, channel_options, core_error, model_options
+from coartic.table import PARAMETERS, ParameterTable, TableError
 
 FloatArray = NDArray[np.float64]
 
@@ -274,21 +274,52 @@ class ChannelProblem:
         return p
 
 
-def build_problem(spec: FitSpec, utterances: Sequence[Utterance], channel: str,
-                  start: tuple[FloatArray, float] | None = None,
+def build_problem(spec: FitSpec, utterances: Sequence[Utterance], channel: str, table: ParameterTable | None = None,
+                  *, start: tuple[FloatArray, float] | None = None,
                   phonemes: Sequence[str] | None = None) -> ChannelProblem:
-    """The channel's problem from a spec and loaded utterances (the one entry point others use)."""
-    data = ChannelData.build(utterances, channel, phonemes)
-    # Options from the settings the fitted table will record (spec.channel_settings): one source.
-    options = channel_options(spec.variant, spec.channel_settings(channel))
+    """The channel's problem from a spec and loaded utterances: the one constructor that least
+    squares (and through it validation, ``[choose]``, compare and batch) and MCMC use.
 
+    Without ``table`` it is the problem a fit solves: the model options from the settings the fitted
+    table will record (``spec.channel_settings``), values from ``start`` (a matrix and β, e.g. a
+    ``[parameters] start_table``'s) or the spec's starts and the data's targets. With ``table`` (a
+    fitted table) it is that table's problem, as MCMC samples around it:
+    the options from the table's own channel settings (the model it was fitted with), its values
+    as the start, with ``[model] speakers = "targets"`` each speaker's own targets from its
+    metadata; a table of another variant than the spec's, or fitted with other speakers, is refused
+    (``TableError`` naming the table). The free set, bounds, ties, priors and shrinkage are the
+    spec's either way (the spec's ``[choose]``-able values as given: apply a table's chosen value to
+    the spec first).
+    """
+    where = table.source if table is not None and table.source else "the table"
+    if table is not None:
+        if channel not in table.channels:
+            raise TableError(f"{where}: the table has no channel {channel!r} (channels: {', '.join(table.channels)})")
+        if table.variant != spec.variant:
+            raise TableError(f"{where}: a table of the {table.variant!r} model, but {spec.path} [model] variant = "
+                             f"{spec.variant!r}: use the spec the table was fitted with")
+    data = ChannelData.build(utterances, channel, phonemes)
+    if table is None:
+        # Options from the settings the fitted table will record (spec.channel_settings): one source.
+        options = channel_options(spec.variant, spec.channel_settings(channel))
+    else:
+        options = model_options(table, channel)
+        start = table.to_matrix(channel, data.phonemes)
     ps = ParameterSet.from_spec(spec, data, start)
     offset_sd = {"none": None, "free": np.inf}.get(str(spec.offsets), spec.offsets)
     shrink = shrink_groups(spec, channel, data.phonemes, moving(ps.free, ps.ties))
     rows = None
+    meta = None if table is None else table_speaker_meta(spec, table)
     if spec.speakers == "targets":
-        data, ps, rows = expand_speaker_targets(spec, data, ps, data_start=start is None and
-                                                "target" not in spec.start_given)
+        if meta is None:
+            data, ps, rows = expand_speaker_targets(spec, data, ps, data_start=start is None and
+                                                    "target" not in spec.start_given)
+        else:
+            own = (meta.get("targets") or {}).get(channel)
+            if not own:
+                raise TableError(f"{where}: metadata.speakers has no targets for channel {channel}")
+            data, ps, rows = expand_speaker_targets(spec, data, ps, data_start=False, names=tuple(own),
+                                                    start_targets=own)
         shrink = rows.shrink_groups(spec, shrink)
     return ChannelProblem(data, ps.packing(), options, ps.priors, spec.prior_noise,
                           None if offset_sd is None else float(offset_sd), spec.speakers, spec.speaker_column,

@@ -6,7 +6,7 @@ out of least squares (``Speakers``), or every speaker's own targets as rows of t
 from __future__ import annotations
 
 from dataclasses import dataclass, replace
-from typing import Mapping, Sequence
+from typing import Any, Mapping, Sequence
 
 import numpy as np
 import scipy.sparse as sp
@@ -18,7 +18,7 @@ from coartic.estimation.parameters import ParameterSet, data_targets
 from coartic.estimation.penalties import ShrinkGroup
 from coartic.fit.spec import FitSpec, SpecError
 from coartic.model import Utterance
-from coartic.table import N_PARAMS, PARAMETERS
+from coartic.table import N_PARAMS, PARAMETERS, ParameterTable, TableError
 
 FloatArray = NDArray[np.float64]
 
@@ -254,3 +254,23 @@ def expand_speaker_targets(spec: FitSpec, data: ChannelData, ps: ParameterSet, d
                        priors=priors, origins=origins)
     out.ties = tuple(ties)
     return data_x, out, sr
+
+
+def table_speaker_meta(spec: FitSpec, table: ParameterTable) -> dict[str, Any]:
+    """A fitted table's ``metadata.speakers``, refused (``TableError`` naming the table and the spec)
+    unless the spec has the same ``[model] speakers`` and column: a problem around the table must be
+    the model it was fitted with. ``{}`` for a table fitted without speakers."""
+    raw = (table.metadata or {}).get("speakers")
+    meta: dict[str, Any] = raw if isinstance(raw, dict) else {}
+    mode, told = spec.speakers, meta.get("mode")
+    if mode == "none":
+        if told:
+            raise TableError(f"{table.source}: fitted with [model] speakers = {told!r}, but {spec.path} has none: "
+                             "use the spec the table was fitted with")
+        return meta
+    if told != mode or meta.get("column") != spec.speaker_column:
+        raise TableError(f"{table.source}: {spec.path} has [model] speakers = {mode!r} (column "
+                         f"{spec.speaker_column!r}), but the table was fitted with "
+                         f"{'no speakers' if not told else repr(told) + ' (column ' + repr(meta.get('column')) + ')'}: "
+                         "use the spec the table was fitted with")
+    return meta
