@@ -373,8 +373,7 @@ class ParameterTable:
         for ch, cdoc in _obj(doc["channels"], f"{source}: channels").items():
             where = f"{source}: channel {ch!r}"
             cdoc = _obj(cdoc, where)
-            extra = sorted(set(cdoc) - {"unit", "beta", "edge_extent", "apex_fraction", "reference_phoneme",
-                                        *RATE_SETTINGS})
+            extra = sorted(set(cdoc) - {"unit", "reference_phoneme", *CHANNEL_SETTINGS})
             if extra:
                 raise TableError(f"{where}: unknown key {extra[0]!r}")
             if "reference_phoneme" not in cdoc:
@@ -527,8 +526,7 @@ class ParameterTable:
                         raise TableError(f"{where}: unknown table setting {name!r}")
                     variant = value
                 else:
-                    if name not in ("unit", "beta", "edge_extent", "apex_fraction", "reference_phoneme",
-                                    *RATE_SETTINGS):
+                    if name not in ("unit", "reference_phoneme", *CHANNEL_SETTINGS):
                         raise TableError(f"{where}: unknown channel setting {name!r}")
                     settings_.setdefault(ch, {})[name] = value
                 continue
@@ -538,16 +536,13 @@ class ParameterTable:
             where = f"{source}: channel {ch!r}"
             if "reference_phoneme" not in s:
                 raise TableError(f"{where}: missing the row '*,{ch},reference_phoneme,<phoneme>'")
-            channels[ch] = ChannelSettings(
-                reference_phoneme=s["reference_phoneme"],
-                unit=s.get("unit", CHANNEL_DEFAULTS["unit"]),
-                beta=_parse_float(where, "beta", s.get("beta", "1.0")),
-                edge_extent=_parse_float(where, "edge_extent", s.get("edge_extent", "1.0")),
-                apex_fraction=_parse_float(where, "apex_fraction", s.get("apex_fraction", "0.5")),
-                dominance=s.get("dominance", CHANNEL_DEFAULTS["dominance"]),
-                plateau_fraction=_parse_float(where, "plateau_fraction", s.get("plateau_fraction", "0.5")),
-                handover=_parse_bool(where, "handover", s.get("handover", "false")),
-            )
+            # a setting's cell parsed as its kind (coartic.settings), absent ones at their defaults
+            given: dict[str, Any] = {
+                name: (_parse_bool(where, name, s[name]) if setting.flag else s[name] if setting.choices
+                       else _parse_float(where, name, s[name]))
+                for name, setting in CHANNEL_SETTINGS.items() if name in s}
+            channels[ch] = ChannelSettings(reference_phoneme=s["reference_phoneme"],
+                                           unit=s.get("unit", CHANNEL_DEFAULTS["unit"]), **given)
         table = cls(variant=variant, channels=channels, values=values, uncertainty=uncertainty, source=source)
         table.validate()
         return table
@@ -591,7 +586,7 @@ class ParameterTable:
         ``reference[channel]`` names the reference phoneme; ``settings[channel]`` may set
         unit, beta, edge_extent, apex_fraction, dominance, plateau_fraction, handover.
         """
-        allowed = {"unit", "beta", "edge_extent", "apex_fraction", *RATE_SETTINGS}
+        allowed = {"unit", *CHANNEL_SETTINGS}
         for ch, given in (settings or {}).items():
             extra = sorted(set(given) - allowed)
             if extra:

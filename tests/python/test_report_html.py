@@ -68,6 +68,14 @@ def test_html_report(fitted: tuple[FitResult, Path]) -> None:
     for f in ("trajectories_LLO.png", "residuals.png", "rmse_map.png"):
         assert (out / "figures" / f).stat().st_size > 5000 and f"figures/{f}" in html
     assert "RMSE per channel" in html and "Posterior section" in html and "LLO" in html
+    # the model settings as fitted, each with its default and meaning from coartic.settings (one home)
+    import markupsafe
+
+    from coartic.settings import CHANNEL_SETTINGS
+
+    settings = html[html.index('id="settings"'):html.index('id="report"')]
+    for name, setting in CHANNEL_SETTINGS.items():
+        assert f"<td class=\"l\">{name}</td>" in settings and str(markupsafe.escape(setting.meaning)) in settings
 
 
 def test_interrupted_run_keeps_best_point(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
