@@ -7,7 +7,8 @@ from pathlib import Path
 
 import pytest
 
-from coartic.fit.spec import DEFAULT_STAGES, FIELD_KEYS, FitSpec, Override, SpecError, load_spec
+from coartic.errors import SpecError
+from coartic.fit.spec import DEFAULT_STAGES, FIELD_KEYS, FitSpec, Override, load_spec
 
 ROOT = Path(__file__).resolve().parents[2]
 
