@@ -509,7 +509,7 @@ class CorpusSpec:
     manifest: Annotated[Path | None, BeforeValidator(_optional(_path))] = None
     files: Annotated[tuple[Path, ...], BeforeValidator(_paths)] = ()
     labels: Annotated[tuple[Path, ...], BeforeValidator(_paths)] = ()
-    file_column: Annotated[str, BeforeValidator(str)] = "file"  # manifest column holding the data file
+    file_column: Text = "file"  # manifest column holding the data file
     label_map: Annotated[str | None, BeforeValidator(_label_map)] = None  # a label-map name or path; None: model phonemes
     # role -> marker/sensor name; EMA: "axes" = {vertical, anterior}
     role_map: Annotated[dict[str, Any] | None, BeforeValidator(_optional(_role_map))] = None
@@ -532,11 +532,11 @@ class CorpusSpec:
 @dataclass(frozen=True, config=_STRICT)
 class FitSpec:
     path: Path  # the spec file (errors and relative paths refer to it)
-    name: Annotated[str, BeforeValidator(str)]
+    name: Text
     corpus: CorpusSpec
     channels: Channels = CHANNELS
     variant: Annotated[str, BeforeValidator(_one_of(VARIANTS))] = "modified"
-    reference_phoneme: Annotated[str, BeforeValidator(str)] = "a"
+    reference_phoneme: Text = "a"
     # the model's channel settings: defaults and ranges from coartic.settings
     apex_fraction: Annotated[float, BeforeValidator(_setting("apex_fraction"))] = default("apex_fraction")
     edge_extent: Annotated[float, BeforeValidator(_setting("edge_extent"))] = default("edge_extent")
