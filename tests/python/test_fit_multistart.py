@@ -19,7 +19,8 @@ from coartic.fit.multistart import Optimum, cluster, fit_multistart, sobol_start
 from coartic.estimation.problem import build_problem
 from coartic.fit.runner import run
 from coartic.fit.score import score_recordings
-from coartic.fit.spec import SpecError, load_spec
+from coartic.errors import SpecError
+from coartic.fit.spec import load_spec
 from coartic.fit.staged import StageResult, channel_status
 from coartic.table import PARAMETERS
 

@@ -34,7 +34,8 @@ from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
-from coartic.fit.spec import CorpusSpec, FitSpec, SpecError, load_spec, read_document, synth_hint
+from coartic.errors import SpecError
+from coartic.fit.spec import CorpusSpec, FitSpec, load_spec, read_document, synth_hint
 from coartic.textfile import TextDecodeError, read_text
 
 # A group's name is a folder name in the output: plain characters only, and never one of ours.
