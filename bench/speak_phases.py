@@ -3,7 +3,7 @@
 Each round runs `coartic speak` of the 2-s sentence of bench/startup.py in a fresh interpreter,
 with timers put around the functions that bound its phases (nothing else changed), and reports the
 median wall and CPU time of each phase over the rounds, against the speech's duration:
-Python's own start-up (the interpreter and site), the command line (coartic.cli, typer and its
+Python's own start-up and exit (the interpreter, site, the finalisation), the command line (coartic.cli, typer and its
 option parsing) until Festival is started, what runs while Festival synthesises (NumPy, the model,
 the table, the output directory), the wait for Festival, the animation, each exporter (its import
 included), and the rest (the swap of the output directory, the summary). Festival's own CPU time
@@ -58,9 +58,12 @@ def run_exports_timed(*a, **k):
     return run_exports(*a, **k)
 festival.start_synthesis, festival.Synthesis.result = start_synthesis, wait
 exporters.load_exporter, exporters.run_exports = load_exporter, run_exports_timed
-from coartic.cli import app
+from coartic.cli import main
+sys.argv[0] = "coartic"
 try:
-    app(sys.argv[1:], standalone_mode=False)
+    main()  # the program as its console script runs it
+except SystemExit:
+    pass
 finally:
     mark("output dir swapped in, summary")
     child = resource.getrusage(resource.RUSAGE_CHILDREN)
@@ -90,7 +93,7 @@ def main() -> None:
             marks = got["marks"]
             cpu_all = (c1.children_user - c0.children_user) + (c1.children_system - c0.children_system)
             inside_wall, inside_cpu = marks[-1][1] - marks[0][1], marks[-1][2] - marks[0][2]
-            rows = [("Python start-up (interpreter, site)", wall - inside_wall,
+            rows = [("Python start-up and exit (interpreter, site, finalisation)", wall - inside_wall,
                      cpu_all - inside_cpu - got["festival_cpu"])]
             rows += [(name, t - marks[i][1], c - marks[i][2]) for i, (name, t, c) in enumerate(marks[1:])]
             rows += [("Festival (its own CPU, in parallel)", 0.0, got["festival_cpu"]), ("total", wall, cpu_all)]
@@ -102,11 +105,11 @@ def main() -> None:
              f"medians of {args.rounds} fresh runs",
              f"machine: {platform.machine()}, {os.cpu_count()} cores, Python {platform.python_version()}, "
              f"load average {load0:.1f} at the start, {os.getloadavg()[0]:.1f} at the end (other jobs share the cores)",
-             "", f"{'phase':52s} {'wall s':>7s} {'CPU s':>7s} {'wall/speech':>11s} {'CPU/speech':>10s}"]
+             "", f"{'phase':60s} {'wall s':>7s} {'CPU s':>7s} {'wall/speech':>11s} {'CPU/speech':>10s}"]
     for name, vals in phases.items():
         w = statistics.median(v[0] for v in vals)
         c = statistics.median(v[1] for v in vals)
-        lines.append(f"{name:52s} {w:7.3f} {c:7.3f} {w / speech:11.3f} {c / speech:10.3f}")
+        lines.append(f"{name:60s} {w:7.3f} {c:7.3f} {w / speech:11.3f} {c / speech:10.3f}")
     text = "\n".join(lines) + "\n"
     print(text, end="")
     Path(args.out).write_text(text)
