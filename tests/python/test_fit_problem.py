@@ -12,10 +12,12 @@ from coartic.fit.simulate import PHONEMES, TRUTH, vcv_utterances
 from coartic.fit.spec import SpecError, parse_spec
 from coartic.table import PARAMETERS
 
+from fit_helpers import paper
+
 
 def spec(**parameters: object):  # type: ignore[no-untyped-def]
     raw = {"corpus": {"files": ["x"], "labels": ["y"]}, "model": {"channels": ["LLO"]}, **parameters}
-    return parse_spec(raw, Path("/tmp/test_spec.toml"))
+    return parse_spec(paper(raw), Path("/tmp/test_spec.toml"))
 
 
 @pytest.fixture(scope="module")

@@ -39,10 +39,17 @@ DEFAULT_FIT_BOUNDS: dict[str, tuple[float, float]] = {
     "psi": (10.0, 1e5), "delta": (-0.08, 0.08),
 }
 DEFAULT_BETA_BOUNDS: tuple[float, float] = (0.05, 20.0)
-# [parameters] free of a spec that sets nothing: the freedom with the lowest held-out error on the
-# real recordings we have (bench/real_data.py, docs/REAL_DATA.md); every parameter free fits the
-# training data better and predicts held-out speech worse there.
-DEFAULT_FREE: tuple[str, ...] = ("target", "alpha", "theta_bw", "theta_fw")
+# The model of a spec that sets nothing: the one that beat the step model (each phoneme's mean) held
+# out on the real recordings we have (bench/real_data.py, docs/REAL_DATA.md): the rate-aware
+# dominance (plateau + handover), every phoneme's target free but one theta_bw and one theta_fw per
+# channel shared by every phoneme ([parameters] shared; only when [parameters] free is not given
+# either), and every target drawn toward the data's own mean over that phoneme's segments with sd
+# DEFAULT_TARGET_PRIOR mm ([parameters] target_prior). Per-phoneme dynamics fitted the training data
+# better and predicted held-out speech worse there.
+DEFAULT_FREE: tuple[str, ...] = ("target", "theta_bw", "theta_fw")
+DEFAULT_SHARED: tuple[str, ...] = ("theta_bw", "theta_fw")
+DEFAULT_TARGET_PRIOR: float | None = 0.3
+SPEC_MODEL_DEFAULTS: dict[str, Any] = {"dominance": "plateau", "handover": True}
 DEFAULT_STAGES: tuple[tuple[str, ...], ...] = (
     ("target",),
     ("alpha", "theta_bw", "theta_fw", "c_bw", "c_fw", "delta"),
@@ -112,7 +119,7 @@ class Shrink:
 # Settings ``[choose]`` / ``coartic fit --choose`` may choose by cross-validation, and which end of a
 # grid is the stronger regularisation (the one-standard-error rule moves toward it): -1 smaller values,
 # +1 larger values, 0 no such direction.
-CHOOSABLE: dict[str, int] = {"shrink.sd": -1, "prior_noise": +1, "plateau_fraction": 0}
+CHOOSABLE: dict[str, int] = {"shrink.sd": -1, "prior_noise": +1, "plateau_fraction": 0, "target_prior": -1}
 CHOOSE_RULES: tuple[str, ...] = ("min", "1se")
 
 
@@ -120,7 +127,7 @@ CHOOSE_RULES: tuple[str, ...] = ("min", "1se")
 class Choose:
     """``[choose]``: a setting chosen by k-fold cross-validation on the training data."""
 
-    key: str  # "shrink.sd" (every [[shrink]]), "shrink #2.sd" (one), "prior_noise", "plateau_fraction"
+    key: str  # "shrink.sd" (every [[shrink]]), "shrink #2.sd" (one), "prior_noise", "plateau_fraction", "target_prior"
     values: tuple[float, ...]
     group: str = "utterance"  # VALIDATE_GROUPS: what a fold holds out together
     folds: int = 5
@@ -150,13 +157,18 @@ class FitSpec:
     apex_fraction: float = default("apex_fraction")
     edge_extent: float = default("edge_extent")
     # the rate-aware options of docs/MODEL.md §2.1 (defaults: today's model)
-    dominance: str = default("dominance")
+    dominance: str = SPEC_MODEL_DEFAULTS["dominance"]
     plateau_fraction: float = default("plateau_fraction")
-    handover: bool = default("handover")
+    handover: bool = SPEC_MODEL_DEFAULTS["handover"]
     beta: float = default("beta")
     fit_beta: bool = False
     beta_bounds: tuple[float, float] = DEFAULT_BETA_BOUNDS
     free: tuple[str, ...] = DEFAULT_FREE
+    # free parameters with one value per channel, shared by every phoneme where they are free
+    shared: tuple[str, ...] = DEFAULT_SHARED
+    # sd (mm) of a Gaussian prior drawing every free target toward the mean of the channel over its
+    # phoneme's segments in the fitted data (the step model's value); None: no such prior
+    target_prior: float | None = DEFAULT_TARGET_PRIOR
     start_table: Path | None = None  # "from table": start values from a ParameterTable JSON
     start: dict[str, float] = field(default_factory=lambda: dict(DEFAULT_START))
     # Gaussian priors (penalties in least squares): "parameter" (every phoneme) or "phoneme.parameter"
@@ -258,7 +270,7 @@ def _float(v: Any, path: Path, key: str) -> float:
 def _setting(m: dict[str, Any], name: str, path: Path) -> Any:
     """A ``[model]`` channel setting (coartic.settings): its default when absent, else checked."""
     setting = CHANNEL_SETTINGS[name]
-    v = m.get(name, setting.default)
+    v = m.get(name, SPEC_MODEL_DEFAULTS.get(name, setting.default))
     problem = setting.problem(v)
     if problem is not None:
         raise _err(path, f"model.{name}", f"{name} = {v!r} {problem} ({setting.meaning})")
@@ -359,6 +371,16 @@ def _priors(d: Any, path: Path) -> dict[str, tuple[float, float, bool]]:
     return out
 
 
+def _target_prior(v: Any, path: Path) -> float | None:
+    """``[parameters] target_prior``: "none", or the prior's sd in mm (a positive number)."""
+    if v == "none":
+        return None
+    if isinstance(v, bool) or not isinstance(v, (int, float)) or not (math.isfinite(v) and v > 0):
+        raise _err(path, "parameters.target_prior", f"{v!r}: expected \"none\" or a positive number (the sd in mm "
+                   "of every target around its phoneme's mean in the data)")
+    return float(v)
+
+
 def _shrinks(raw: dict[str, Any], path: Path) -> tuple[Shrink, ...]:
     """``[[shrink]]`` tables: phonemes (a class of two or more), parameters, sd, scale, channels."""
     out = []
@@ -434,7 +456,7 @@ def make_choose(path: Path, key: Any, values: Any, group: Any, folds: Any, rule:
     if rule not in CHOOSE_RULES:
         raise _err(path, f"{where}.rule", f"{rule!r}: expected \"min\" or \"1se\"")
     if rule == "1se" and CHOOSABLE[base] == 0:
-        raise _err(path, f"{where}.rule", f"\"1se\" needs a regularisation strength (shrink.sd, prior_noise); "
+        raise _err(path, f"{where}.rule", f"\"1se\" needs a regularisation strength (shrink.sd, prior_noise, target_prior); "
                    f"{key} has no stronger end: use rule = \"min\"")
     return Choose(key, tuple(sorted(vals)), str(group), int(folds), str(rule))
 
@@ -572,8 +594,17 @@ def parse_spec(raw: dict[str, Any], path: Path) -> FitSpec:
     beta = _setting(m, "beta", path)
 
     p = raw.get("parameters", {})
-    _take(p, path, "parameters", {"free", "start", "start_table", "bounds", "target_margin", "prior", "prior_noise"})
+    _take(p, path, "parameters", {"free", "shared", "start", "start_table", "bounds", "target_margin", "prior",
+                                  "prior_noise", "target_prior"})
     free = _param_names(_str_list(p.get("free", list(DEFAULT_FREE)), path, "parameters.free"), path, "parameters.free")
+    # the shared dynamics belong to the default freedom: a spec that lists its own free set keeps
+    # per-phoneme values unless it says shared = [...] too
+    shared = _param_names(_str_list(p.get("shared", list(DEFAULT_SHARED) if "free" not in p else []), path,
+                                    "parameters.shared"), path, "parameters.shared")
+    if "target" in shared:
+        raise _err(path, "parameters.shared", "target cannot be shared: one target for every phoneme is the "
+                   "constant model")
+    target_prior = _target_prior(p.get("target_prior", DEFAULT_TARGET_PRIOR if DEFAULT_TARGET_PRIOR else "none"), path)
     start = dict(DEFAULT_START)
     start_given = _param_values(p.get("start", {}), path, "parameters.start")
     start.update(start_given)
@@ -626,6 +657,14 @@ def parse_spec(raw: dict[str, Any], path: Path) -> FitSpec:
             if "channels" in t else None
         ties.append(Tie(tph, tpar, tch))
     shrinks = _shrinks(raw, path)
+    tied = {q for t in ties for q in t.parameters} & set(shared)
+    if tied:
+        raise _err(path, "parameters.shared", f"{', '.join(sorted(tied))} is both shared by every phoneme and in a "
+                   "[[tie]]: one or the other")
+    freed = set(free) | {n for o in overrides for n in o.free}
+    if set(shared) - freed:
+        raise _err(path, "parameters.shared", f"{', '.join(sorted(set(shared) - freed))} is not free ([parameters] "
+                   "free or an [[override]] free): sharing a fixed value would do nothing")
     for i, o in enumerate(overrides):
         # alpha is scale-free: the reference phoneme's is 1 by definition (MODEL.md §1)
         if reference in o.phonemes and ("alpha" in o.free or "alpha" in o.start or "alpha" in o.bounds
@@ -692,7 +731,7 @@ def parse_spec(raw: dict[str, Any], path: Path) -> FitSpec:
         reference_phoneme=reference, apex_fraction=apex, edge_extent=edge, dominance=dominance,
         plateau_fraction=plateau, handover=handover,
         beta=beta, fit_beta=fit_beta, beta_bounds=beta_bounds,
-        free=free, start_table=start_table, start=start, start_given=frozenset(start_given), bounds=bounds,
+        free=free, shared=shared, target_prior=target_prior, start_table=start_table, start=start, start_given=frozenset(start_given), bounds=bounds,
         priors=priors, prior_noise=prior_noise, offsets=offsets if isinstance(offsets, str) else float(offsets),
         speakers=str(speakers), speaker_column=speaker_column, channel_bounds=channel_bounds,
         target_margin=margin, overrides=tuple(overrides), ties=tuple(ties), shrinks=shrinks, choose=choose,
