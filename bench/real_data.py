@@ -169,6 +169,47 @@ def fit_and_score(spec: FitSpec, train: Sequence[Utterance], test: Sequence[Utte
         out[f"samples{suffix}"] = int(fig["table"]["samples"])
         out.update({f"{m}{off}{suffix}": float(fig[m][key]) for m in ("table", "constant", "step")
                     for off, key in (("", "rmse_mm"), ("_off", "rmse_offset_removed_mm"))})
+        if not suffix:
+            out["segments"] = segment_losses(sc, channel, test)
+    return out
+
+
+def segment_losses(sc: Any, channel: str, test: Sequence[Utterance]) -> list[list[Any]]:
+    """Per scored test segment: [utterance, segment index, phoneme, samples, table RMSE, step RMSE,
+    table SSE - step SSE (mm^2)]: where the table loses to (> 0) or beats the step model."""
+    out = []
+    for k, u in enumerate(test):
+        rt = sc.residuals(channel, k)
+        rs = sc.residuals(channel, k, predicted=sc.baselines["step"][channel])
+        seg = u.sample_segments()
+        for i, lab in enumerate(u.labels):
+            m = (seg == i) & np.isfinite(rt)
+            if m.any():
+                out.append([u.name.replace("dfgspp_mo1_prosody_", "").replace("_ema", ""), i, lab, int(m.sum()),
+                            float(np.sqrt(np.mean(rt[m] ** 2))), float(np.sqrt(np.mean(rs[m] ** 2))),
+                            float(np.sum(rt[m] ** 2) - np.sum(rs[m] ** 2))])
+    return out
+
+
+def loss_lines(rows: Sequence[dict[str, Any]], worst: int = 3) -> list[str]:
+    """Where each cell loses to the step model: its share of the scored samples and of the table's
+    excess squared error in each test utterance's last segment, and the ``worst`` segments."""
+    out = [f"{'variant':11s} {'freedom':9s} {'reg':10s} {'split':11s} {'ch':3s} {'dSSE':>8s} {'last seg':>9s} "
+           f"{'of n':>6s}  worst segments (utterance #index /phoneme/ samples: table vs step RMSE, dSSE)"]
+    for r in rows:
+        segs = r.get("segments")
+        if not segs:
+            continue
+        total = sum(x[6] for x in segs)
+        last = {}
+        for x in segs:
+            last[x[0]] = x if x[1] >= last.get(x[0], x)[1] else last[x[0]]
+        d_last = sum(x[6] for x in last.values())
+        n_last = sum(x[3] for x in last.values())
+        top = sorted(segs, key=lambda x: -x[6])[:worst]
+        out.append(f"{r['variant']:11s} {r['freedom']:9s} {r['reg']:10s} {r['split']:11s} {r['channel']:3s} "
+                   f"{total:8.0f} {d_last:9.0f} {n_last / r['samples']:6.0%}  "
+                   + "; ".join(f"{x[0]} #{x[1]} /{x[2]}/ {x[3]}: {x[4]:.2f} vs {x[5]:.2f}, {x[6]:+.0f}" for x in top))
     return out
 
 
@@ -345,6 +386,9 @@ def main() -> int:
     ap.add_argument("--channels", default="LA,JO")
     ap.add_argument("--splits", default="loo,time")
     ap.add_argument("--starts", type=int, default=None, help="[fit] starts of every fit (default: the spec default)")
+    ap.add_argument("--theta-start", type=float, default=None,
+                    help="start of theta_bw and theta_fw (default: the corpus spec's): is the fit start-independent?")
+    ap.add_argument("--losses", action="store_true", help="also print where each cell loses to the step model")
     ap.add_argument("--unseen", default="constant", choices=("transfer", "constant"),
                     help="test phonemes with no class fallback trained: fitted on the test data (transfer) or "
                          "predicted at the training mean, as the step model does (constant)")
@@ -368,10 +412,12 @@ def main() -> int:
     all_rows: list[dict[str, Any]] = []
     for corpus in CORPORA:
         base = load_spec(corpus.spec).with_options(channels=tuple(a.channels.split(",")))
+        if a.theta_start is not None:
+            base = base.with_options(start={**base.start, "theta_bw": a.theta_start, "theta_fw": a.theta_start})
         starts = a.starts if a.starts is not None else getattr(base, "starts", 1)
         utts = load_utterances(base)
         lines += [f"## {corpus.name}: {corpus.spec.relative_to(ROOT)}, channels {a.channels}; source {corpus.source}; "
-                  f"licence {corpus.licence}", f"fits: [fit] starts = {starts}; shrink sd = {SHRINK_SD} when on; nolast: without each test "
+                  f"licence {corpus.licence}", f"fits: [fit] starts = {starts}; theta start {base.start['theta_bw']:g}; shrink sd = {SHRINK_SD} when on; nolast: without each test "
                   "utterance's last segment",
                   ROW_HEADER]
         print("\n".join(lines), flush=True)
@@ -390,6 +436,10 @@ def main() -> int:
         all_rows += rows
         notes = sorted({n for r in rows for n in r["notes"]})
         lines += [f"note: {n}" for n in notes]
+        if a.losses:
+            lines += ["", "## where the tables lose to the step model: dSSE = table SSE - step SSE (mm^2) over the "
+                      "scored samples; 'last seg': the part of it in each test utterance's last segment, 'of n' "
+                      "that segment's share of the samples", *loss_lines(rows)]
         lines += ["", f"## summary, {corpus.name}: pooled over splits and channels, best held-out (raw) first",
                   *summary_lines(rows), ""]
     lines.append(f"({time.perf_counter() - t0:.0f} s wall, {time.process_time() - c0:.0f} s CPU of this process)")
