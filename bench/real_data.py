@@ -311,7 +311,8 @@ def evaluate_cell(base: FitSpec, utts: Sequence[Utterance], variant: str, freedo
                 extra = {"tprior_sd": chosen, "cv": curve}
             got = fit_and_score(one, train, test, ch, label_map, unseen)
             rows.append({"variant": variant, "freedom": freedom_name(freedom), "reg": reg, "split": name,
-                         "channel": ch, "unseen": unseen, **got, **extra})
+                         "channel": ch, "unseen": unseen, "starts": spec.starts, "theta0": spec.start["theta_bw"],
+                         **got, **extra})
         rows[-1]["cpu"] = time.process_time() - t0
     return rows
 
@@ -329,7 +330,10 @@ def pooled(rows: Sequence[dict[str, Any]], key: str, suffix: str = "") -> float:
 
 
 def cell_key(r: dict[str, Any]) -> tuple[str, str, str, str]:
-    return r["variant"], r["freedom"], r["reg"], r.get("unseen", "transfer")
+    """What makes a cell: variant, freedom, regularisation, and how it was fitted (fallback of unseen
+    phonemes, starts, theta start: rows of earlier runs lack the last two, which were 1 and 40)."""
+    fitted = f"{r.get('unseen', 'transfer')} {r.get('starts', 1)}/{r.get('theta0', 40.0):g}"
+    return r["variant"], r["freedom"], r["reg"], fitted
 
 
 def summary_lines(rows: Sequence[dict[str, Any]]) -> list[str]:
@@ -340,13 +344,13 @@ def summary_lines(rows: Sequence[dict[str, Any]]) -> list[str]:
     for r in rows:
         cells.setdefault(cell_key(r), []).append(r)
     ranked = sorted(cells.items(), key=lambda kv: pooled(kv[1], "table"))
-    out = [f"{'variant':11s} {'freedom':9s} {'reg':10s} {'unseen':8s} {'held-out':>8s} {'-offset':>8s} {'const':>7s} "
+    out = [f"{'variant':11s} {'freedom':9s} {'reg':10s} {'unseen starts/θ0':17s} {'held-out':>8s} {'-offset':>8s} {'const':>7s} "
            f"{'-off':>6s} {'step':>6s} {'-off':>6s} {'in-smp':>6s} beats step (raw/-off) {'nolast':>7s} {'step':>6s}"
            "  CPU s  held-out per channel (raw)"]
     for (v, f, g, un), rs in ranked:
         beat = sum(r["table"] < r["step"] for r in rs), sum(r["table_off"] < r["step_off"] for r in rs)
         insample = math.sqrt(np.mean([r["in_sample"] ** 2 for r in rs]))
-        out.append(f"{v:11s} {f:9s} {g:10s} {un:8s} {pooled(rs, 'table'):8.3f} {pooled(rs, 'table_off'):8.3f} "
+        out.append(f"{v:11s} {f:9s} {g:10s} {un:17s} {pooled(rs, 'table'):8.3f} {pooled(rs, 'table_off'):8.3f} "
                    f"{pooled(rs, 'constant'):7.3f} {pooled(rs, 'constant_off'):6.3f} {pooled(rs, 'step'):6.3f} "
                    f"{pooled(rs, 'step_off'):6.3f} {insample:6.3f} {beat[0]}/{len(rs)} {beat[1]}/{len(rs)}"
                    f"{pooled(rs, 'table', '_nolast'):17.3f} {pooled(rs, 'step', '_nolast'):6.3f}"
