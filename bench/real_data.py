@@ -52,7 +52,7 @@ from generalisation import VARIANTS, shrink_options  # noqa: E402
 from coartic.fit import load_spec, run  # noqa: E402
 from coartic.fit.baselines import Baselines  # noqa: E402
 from coartic.fit.data import load_utterances  # noqa: E402
-from coartic.fit.problem import Utterance  # noqa: E402
+from coartic.model import Utterance  # noqa: E402
 from coartic.fit.result import FitResult  # noqa: E402
 from coartic.fit.score import score_utterances, with_fallbacks  # noqa: E402
 from coartic.fit.spec import FitSpec, Override  # noqa: E402
@@ -152,10 +152,12 @@ def choose_tprior_sd(spec: FitSpec, train: Sequence[Utterance], channel: str, la
 
 
 def fit_and_score(spec: FitSpec, train: Sequence[Utterance], test: Sequence[Utterance], channel: str,
-                  label_map: Any, unseen: str) -> dict[str, Any]:
-    """Fit ``spec`` (one channel) on ``train``, predict ``test``; the table's and baselines' RMSE on
-    the samples of the phonemes ``train`` has (raw and offset removed), and how it went."""
-    trained = run(spec, utterances=list(train), quiet=True, report=False)
+                  label_map: Any, unseen: str, trained: FitResult | None = None) -> dict[str, Any]:
+    """Fit ``spec`` (one channel) on ``train`` (or take its fit ``trained``), predict ``test``; the
+    table's and baselines' RMSE on the samples of the phonemes ``train`` has (raw and offset
+    removed), and how it went."""
+    if trained is None:
+        trained = run(spec, utterances=list(train), quiet=True, report=False)
     seen = {lab for u in train for lab in u.labels}
     fit = trained.channels[channel]
     table, mapped, notes = predict_channel(spec, trained, channel, test, label_map, unseen, train)

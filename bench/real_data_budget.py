@@ -27,14 +27,14 @@ from real_data import FREEDOM, cell_spec, fit_and_score, splits  # noqa: E402
 from coartic.fit import load_spec, run  # noqa: E402
 from coartic.fit.data import load_utterances  # noqa: E402
 from coartic.fit.engines.base import evaluation_budget  # noqa: E402
-from coartic.fit.problem import build_problem  # noqa: E402
+from coartic.estimation.problem import build_problem  # noqa: E402
 from coartic.io.labelmap import resolve_label_map  # noqa: E402
 from coartic.outputs import atomic_write_text  # noqa: E402
 
 
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--freedom", default="tat,t+shared")
+    ap.add_argument("--freedom", default="tat")
     ap.add_argument("--reg", default="none")
     ap.add_argument("--variant", default="rate-aware")
     ap.add_argument("--factor", type=int, default=4)
@@ -65,7 +65,7 @@ def main() -> int:
                         res = run(sp, utterances=train, quiet=True, report=False)
                         fit = res.channels[ch]
                         sse = fit.rmse ** 2 * fit.problem.data.n_valid
-                        got = fit_and_score(sp, train, test, ch, label_map, "constant")
+                        got = fit_and_score(sp, train, test, ch, label_map, "constant", trained=res)
                         stages = ", ".join(f"{st.engine.status} {st.engine.nfev}" for st in fit.stages)
                         lines.append(f"{f:9s} {reg:10s} {name:11s} {ch:3s} {label:>7s} {fit.status:16s} {fit.nfev:6d} "
                                      f"{sse:10.2f} {got['table']:8.3f}  {stages}")

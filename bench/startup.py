@@ -8,7 +8,10 @@ the reference (goal: `--help` within 3x), and for `speak` the wall and CPU time 
 Festival, user + system) against the duration of the speech it wrote (below 1 = faster than real
 time). CPU time is what the command costs; wall time also holds the waits for the shared cores.
 
-Run: .venv/bin/python bench/startup.py [--rounds 7] [--out bench/results/startup.txt]
+The table is the one shipped with coartic (what `coartic speak` uses without --table), unless
+--table names another.
+
+Run: .venv/bin/python bench/startup.py [--rounds 7] [--table T] [--out bench/results/startup.txt]
 """
 
 from __future__ import annotations
@@ -43,7 +46,7 @@ def run(cmd: list[str], env: dict[str, str]) -> tuple[float, float]:
 
 def main() -> None:
     ap = argparse.ArgumentParser()
-    ap.add_argument("--table", default=str(ROOT / "corpus-synthetic" / "ground_truth.json"))
+    ap.add_argument("--table", default=None, help="default: the shipped table (no --table)")
     ap.add_argument("--rounds", type=int, default=7)
     ap.add_argument("--out", default=str(ROOT / "bench" / "results" / "startup.txt"))
     args = ap.parse_args()
@@ -52,13 +55,14 @@ def main() -> None:
     coartic = [py, "-m", "coartic.cli"]
     load0 = os.getloadavg()[0]
     with tempfile.TemporaryDirectory() as tmp:
+        table = ["--table", args.table] if args.table else []
         cases: dict[str, list[str]] = {
             "python -c 'import numpy'": [py, "-c", "import numpy"],
             "coartic --help": [*coartic, "--help"],
             "coartic --version": [*coartic, "--version"],
-            "coartic speak --preview none": [*coartic, "speak", SENTENCE, "--table", args.table, "--out",
+            "coartic speak --preview none": [*coartic, "speak", SENTENCE, *table, "--out",
                                             f"{tmp}/none", "--preview", "none", "--force"],
-            "coartic speak (default: GIF)": [*coartic, "speak", SENTENCE, "--table", args.table, "--out",
+            "coartic speak (default: GIF)": [*coartic, "speak", SENTENCE, *table, "--out",
                                            f"{tmp}/gif", "--force"],
         }
         walls: dict[str, list[float]] = {k: [] for k in cases}
@@ -75,7 +79,8 @@ def main() -> None:
     ref = statistics.median(walls["python -c 'import numpy'"])
     ref_cpu = statistics.median(cpus["python -c 'import numpy'"])
     lines = [f"coartic start-up, {args.rounds} interleaved rounds, medians; sentence {SENTENCE!r} "
-             f"({speech:.3f} s of speech, Festival pc_diphone), table {Path(args.table).name}",
+             f"({speech:.3f} s of speech, Festival pc_diphone), table "
+             f"{Path(args.table).name if args.table else 'shipped (italian_table.json)'}",
              f"machine: {platform.machine()}, {os.cpu_count()} cores, Python {platform.python_version()}, "
              f"load average {load0:.1f} at the start, {os.getloadavg()[0]:.1f} at the end "
              "(other jobs share the cores)", "",

@@ -25,7 +25,7 @@ from coartic.batch.layout import is_done, unit_dir
 from coartic.batch.run import plan_units, run_batch
 from coartic.batch.tasks import UnitKey
 from coartic.cli import app
-from coartic.fit.spec import SpecError
+from coartic.errors import SpecError
 from coartic.outputs import OutputError
 from coartic.synthetic_cli import load_generator
 from coartic.table import CHANNELS, ParameterTable

@@ -11,11 +11,11 @@ import numpy as np
 import pytest
 
 from coartic import model
+from coartic.estimation.problem import build_problem
 from coartic.estimation.target_prior import segment_means
 from coartic.fit import run
 from coartic.fit.baselines import Baselines
 from coartic.fit.choose import set_value
-from coartic.fit.problem import build_problem
 from coartic.fit.simulate import PHONEMES, vcv_utterances
 from coartic.fit.spec import (DEFAULT_FREE, DEFAULT_SHARED, DEFAULT_TARGET_PRIOR, SpecError, load_spec,
                               parse_spec)

@@ -16,7 +16,7 @@ from typing import Mapping, Sequence
 import numpy as np
 from numpy.typing import NDArray
 
-from coartic.fit.packing import Prior
+from coartic.estimation.packing import Prior
 from coartic.model import Utterance
 from coartic.table import PARAMETERS
 
