@@ -361,7 +361,7 @@ def _spec_errors(cls: type[T]) -> type[T]:
         try:
             init(self, *args, **kwargs)
         except ValidationError as e:
-            file = kwargs.get("path") if cls is FitSpec else None
+            file = (kwargs["path"] if "path" in kwargs else args[0] if args else None) if cls is FitSpec else None
             raise spec_error(e, file, _ROOTS.get(cls.__name__, ())) from None
 
     cls.__init__ = __init__  # type: ignore[method-assign]
@@ -817,7 +817,10 @@ def spec_error(e: ValidationError, file: Path | str | None, root: tuple[str | in
         ctx.pop("error", None)
         problems.append((_key_of(loc), message, ctx))
     for loc, names in unknown.items():
-        part = _PARTS.get(str(loc[0]) if loc else "")
+        if not loc:  # FitSpec(...) or with_options given a name that is no field (a TOML key never gets here)
+            problems.append(("top level", f"FitSpec has no field(s) {sorted(names)}", {}))
+            continue
+        part = _PARTS.get(str(loc[0]))
         allowed = "" if part is None else f"; allowed: {sorted(_keys_of(part))}"
         problems.append((_key_of(loc), f"unknown key(s) {sorted(names)}{allowed}", {}))
     key, message, place = problems[0]
