@@ -40,7 +40,7 @@ from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, T
 from scipy.spatial.transform import Rotation
 
 from coartic.model import trajectories
-from coartic.table import CHANNELS, ParameterTable
+from coartic.table import CHANNELS, PAUSE, ParameterTable
 
 HERE = Path(__file__).resolve().parent
 FLAVOURS: tuple[str, ...] = ("model", "gestures", "italian")
@@ -50,7 +50,6 @@ GROUND_TRUTH_ITALIAN = HERE / "ground_truth_italian.json"
 CONTEXTS: tuple[str, ...] = ("VCV", "CV", "VC")
 
 F64 = npt.NDArray[np.float64]
-PAUSE = "#"
 MARKERS: tuple[str, ...] = ("NOSE", "EAR_L", "EAR_R", "UL", "LL", "LC_L", "LC_R", "CHIN")
 RATES: tuple[str, ...] = ("normal", "fast")
 MANIFEST_COLUMNS: tuple[str, ...] = (

@@ -385,7 +385,7 @@ def _spec_errors(cls: type[T]) -> type[T]:
         try:
             init(self, *args, **kwargs)
         except ValidationError as e:
-            file = kwargs.get("path") if cls is FitSpec else None
+            file = (kwargs["path"] if "path" in kwargs else args[0] if args else None) if cls is FitSpec else None
             raise spec_error(e, file, _ROOTS.get(cls.__name__, ())) from None
 
     cls.__init__ = __init__  # type: ignore[method-assign]
@@ -533,7 +533,7 @@ class CorpusSpec:
     manifest: Annotated[Path | None, BeforeValidator(_optional(_path))] = None
     files: Annotated[tuple[Path, ...], BeforeValidator(_paths)] = ()
     labels: Annotated[tuple[Path, ...], BeforeValidator(_paths)] = ()
-    file_column: Annotated[str, BeforeValidator(str)] = "file"  # manifest column holding the data file
+    file_column: Text = "file"  # manifest column holding the data file
     label_map: Annotated[str | None, BeforeValidator(_label_map)] = None  # a label-map name or path; None: model phonemes
     # role -> marker/sensor name; EMA: "axes" = {vertical, anterior}
     role_map: Annotated[dict[str, Any] | None, BeforeValidator(_optional(_role_map))] = None
@@ -556,11 +556,11 @@ class CorpusSpec:
 @dataclass(frozen=True, config=_STRICT)
 class FitSpec:
     path: Path  # the spec file (errors and relative paths refer to it)
-    name: Annotated[str, BeforeValidator(str)]
+    name: Text
     corpus: CorpusSpec
     channels: Channels = CHANNELS
     variant: Annotated[str, BeforeValidator(_one_of(VARIANTS))] = "modified"
-    reference_phoneme: Annotated[str, BeforeValidator(str)] = "a"
+    reference_phoneme: Text = "a"
     # the model's channel settings: defaults and ranges from coartic.settings
     apex_fraction: Annotated[float, BeforeValidator(_setting("apex_fraction"))] = default("apex_fraction")
     edge_extent: Annotated[float, BeforeValidator(_setting("edge_extent"))] = default("edge_extent")
@@ -863,7 +863,10 @@ def spec_error(e: ValidationError, file: Path | str | None, root: tuple[str | in
         ctx.pop("error", None)
         problems.append((_key_of(loc), message, ctx))
     for loc, names in unknown.items():
-        part = _PARTS.get(str(loc[0]) if loc else "")
+        if not loc:  # FitSpec(...) or with_options given a name that is no field (a TOML key never gets here)
+            problems.append(("top level", f"FitSpec has no field(s) {sorted(names)}", {}))
+            continue
+        part = _PARTS.get(str(loc[0]))
         allowed = "" if part is None else f"; allowed: {sorted(_keys_of(part))}"
         problems.append((_key_of(loc), f"unknown key(s) {sorted(names)}{allowed}", {}))
     key, message, place = problems[0]
