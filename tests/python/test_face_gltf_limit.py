@@ -229,8 +229,8 @@ function differ(a, b) {{  // the share of pixels whose colour differs by more th
 
 def test_coartic_view_plays_the_eight_target_glb(runs: dict[str, RuntimeOutput], tmp_path: Path) -> None:
     """`coartic view` (its own renderer, every target blended on the CPU) reads the several meshes
-    and weights channels of the eight-target file: its screenshots at /f/ and /a/ are those of
-    the FAP file's."""
+    and weights channels of the eight-target file, and joins the skin's halves by their `_VERTEX`
+    numbers: its screenshots at /f/ and /a/ are those of the FAP file's."""
     from PIL import Image
 
     from coartic.face.viewer import screenshot, write_page
@@ -242,6 +242,8 @@ def test_coartic_view_plays_the_eight_target_glb(runs: dict[str, RuntimeOutput],
             png = screenshot(write_page(runs[morphs].files["gltf"].parent), tmp_path / f"{morphs}_{ph}.png",
                              frame=frames[ph], face_only=300, size=(300, 300), zoom=2.5)
             shots[morphs] = np.asarray(Image.open(png).convert("RGB"), dtype=np.int16)
-        differ = (np.abs(shots["eight"] - shots["fap"]).max(axis=2) > 24).mean()
-        assert differ < 0.005, (ph, differ)
+        # pixels off by more than 8 of 255: 0.002-0.008 % measured; 0.1 % when the viewer did not join
+        # the two halves of the skin (their seam shaded by half a fan each)
+        differ = (np.abs(shots["eight"] - shots["fap"]).max(axis=2) > 8).mean()
+        assert differ < 0.0005, (ph, differ)
         assert shots["fap"].std() > 10  # a face, not a blank canvas
