@@ -547,8 +547,11 @@ class CorpusSpec:
             raise _bad("give either manifest = 'path/manifest.csv' or files = [...]")
         if self.manifest is not None and self.files:
             raise _bad("give manifest or files, not both")
-        if self.files and len(self.labels) != len(self.files):
-            raise _bad(f"{len(self.labels)} label files for {len(self.files)} data files", ("labels",))
+        # No labels at all: every file carries its own (an EMU bundle, a Haskins .mat); the loader
+        # names the first that does not.
+        if self.files and self.labels and len(self.labels) != len(self.files):
+            raise _bad(f"{len(self.labels)} label files for {len(self.files)} data files (give one per "
+                       "file, or none when every file carries its own labels)", ("labels",))
         return self
 
 
