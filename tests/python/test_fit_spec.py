@@ -211,3 +211,9 @@ def test_a_bad_value_in_any_corpus_field_is_a_spec_error(tmp_path: Path, field: 
     with pytest.raises(SpecError) as e:
         dataclasses.replace(s.corpus, **{field: _Odd()})
     assert e.value.key is not None and e.value.key.startswith("corpus")
+
+
+def test_with_options_names_a_field_that_does_not_exist(tmp_path: Path) -> None:
+    s = load_spec(write(tmp_path, BASE))
+    with pytest.raises(SpecError, match=r"FitSpec has no field\(s\) \['colour'\]"):
+        s.with_options(colour="red")
