@@ -16,7 +16,8 @@ real recordings the answer of one local fit depended more on its start than on t
 2. runs a short probe from every start (the staged fit with every stage capped at ``probe``
    evaluations) and ranks the probes by SSE; starts that fall clearly behind stop there;
 3. continues the best ``keep`` of them to convergence (one joint fit with the engine's full
-   budget), then *polishes* the best ``CHAINS`` continued optima not yet polished by perturbed
+   budget); unless two of them already ended in the best optimum, it then *polishes* the best
+   ``CHAINS`` continued optima not yet polished by perturbed
    restarts (monotonic basin hopping: the dynamics moved at random around the optimum, refitted,
    an improvement kept, until ``HOP_PATIENCE`` restarts in a row found nothing better). While the
    best optimum has been reached from one start only, another round continues the next ``keep``
@@ -373,7 +374,7 @@ def fit_multistart(problem: ChannelProblem, engine: str, options: dict[str, Any]
                 add_end(f.packing.pack(), sse, r.status, i)
             continued += batch
             finals += new
-            if interrupted:
+            if interrupted or settle()[0].hits >= 2:  # reached from two starts: no polish needed
                 break
             todo = [int(k) for k in np.argsort([s for _, _, s in finals], kind="stable")
                     if int(k) not in chained and np.isfinite(finals[int(k)][2])][:chains]
