@@ -91,7 +91,7 @@ def compare(title: str, spec: FitSpec, utts: Sequence[Utterance], channels: Sequ
             ("32 starts, seed 1", spec.with_options(starts=32, seed=1)),
             ("nlopt MLSL-LDS + L-BFGS, one start", s1.with_options(
                 engine="nlopt", engine_options={"global": "mlsl", "global_maxeval": 4000})),
-        ]:
+        ][: None if os.environ.get("MULTISTART_NLOPT", "1") == "1" else -1]:  # MULTISTART_NLOPT=0: without it
             with previous_default() if "previous" in label else contextlib.nullcontext():
                 fit, w = timed(s, utts, ch)
             rows.append(line(f"{ch} {label}", fit, w, w1))
