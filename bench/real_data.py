@@ -459,7 +459,12 @@ def main() -> int:
 
 def merge(parts: Sequence[Path], out: Path) -> int:
     """One output from runs of parts of the grid: their texts, then the summary of all their rows."""
-    rows = [r for p in parts for r in json.loads(p.with_suffix(".json").read_text(encoding="utf-8"))]
+    rows, seen = [], set()
+    for p in parts:  # a cell run in two parts counts once (the first part's rows)
+        for r in json.loads(p.with_suffix(".json").read_text(encoding="utf-8")):
+            if (cell_key(r), r["split"], r["channel"]) not in seen:
+                seen.add((cell_key(r), r["split"], r["channel"]))
+                rows.append(r)
     lines = [line for p in parts for line in p.read_text(encoding="utf-8").splitlines()]
     lines += ["", "## summary of all the parts above: pooled over splits and channels, best held-out (raw) first",
               *summary_lines(rows)]
