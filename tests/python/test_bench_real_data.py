@@ -4,6 +4,7 @@ German EMA's jaw channel, targets only, both held-out schemes; what is scored is
 from __future__ import annotations
 
 import importlib.util
+import json
 import math
 import sys
 from pathlib import Path
@@ -90,3 +91,17 @@ def test_cells_are_the_products_own_settings() -> None:
     assert rd.tprior_sd("tprior-cv") == "cv" and rd.tprior_sd("tprior:x") is None and rd.tprior_sd("shrink") is None
     with pytest.raises(ValueError, match="unknown regularisation"):
         rd.cell_spec(base, "modified", rd.FREEDOM["tat"], "tprior:-1")
+
+
+def test_merge_counts_a_cell_run_in_two_parts_once(tmp_path: Path) -> None:
+    rd = bench()
+    row = {"variant": "rate-aware", "freedom": "t+shared", "reg": "tprior:0.3", "unseen": "constant", "starts": 1,
+           "theta0": 40.0, "channel": "LA", "samples": 10, "in_sample": 0.1, "table": 1.0, "table_off": 1.0,
+           "constant": 3.0, "constant_off": 3.0, "step": 2.0, "step_off": 2.0, "notes": [], "status": "converged"}
+    rows = [{**row, "split": s} for s in ("LOO a", "LOO b")]
+    for name in ("a", "b"):
+        (tmp_path / f"{name}.txt").write_text("part\n")
+        (tmp_path / f"{name}.json").write_text(json.dumps(rows))
+    rd.merge([tmp_path / "a.txt", tmp_path / "b.txt"], tmp_path / "m.txt")
+    merged = json.loads((tmp_path / "m.json").read_text())
+    assert len(merged) == 2 and " 2/2 2/2 " in (tmp_path / "m.txt").read_text()
