@@ -19,8 +19,10 @@ continued, nothing more): ``CHAINS = 0`` and one round, set here for that line o
 
 Every line is measured in the same run: ratios are to the single start of the same data.
 Output saved in bench/results/multistart.txt (all parts) or multistart_<parts>.txt;
-bench/results/multistart_synthetic_german.txt has the default [fit], and
-multistart_quasirandom_only.txt the same before start 0 was [parameters.start] (with the workers).
+multistart_german.txt and multistart_heldout-default.txt the default with the polish and the
+rounds (MULTISTART_NLOPT=0 for the former); multistart_synthetic_german.txt the default before them
+(with nlopt), and multistart_quasirandom_only.txt before start 0 was [parameters.start] (with the
+workers).
 """
 
 from __future__ import annotations

@@ -81,8 +81,9 @@ MAX_HOPS = 8
 # (probes included; a single fit is start 0's, the fit from [parameters.start]): the issue's aim, 32
 # starts for at most 8 times one start. Without it, the polish and the rounds of the per-phoneme
 # German EMA fit of LA ran unfinished for 20 minutes where the previous default took 5. The cap is
-# checked between fits, so the first round, and a chain's last restart, may pass it: that fit took
-# 9.3 and 17.4 times one start with seeds 0 and 1 (bench/multistart.py).
+# checked between fits, so the first round, and a chain's last restart, may pass it: those fits took
+# 6.6-27.3 times one start (bench/results/multistart_german.txt). Fits whose best is reached from two
+# starts in the first round (the recommended model) are not polished and cost what they did.
 COST_CAP = 8.0
 # The engine option that caps one local run, per engine (the probe's budget).
 BUDGET_OPTION = {"scipy": "max_nfev", "nlopt": "local_maxeval", "casadi": "max_iter"}
