@@ -30,7 +30,7 @@ import numpy as np
 
 from coartic.fit import load_spec, run
 from coartic.fit.data import load_utterances
-from coartic.fit.problem import Utterance
+from coartic.model import Utterance
 from coartic.fit.score import Score, score_utterances, with_fallbacks
 from coartic.io.labelmap import LabelMap
 

@@ -22,7 +22,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "tests" / "python"))
 import numpy_model  # noqa: E402  (the NumPy reference of MODEL.md, written by B)
 
-from coartic.fit.problem import build_problem  # noqa: E402
+from coartic.estimation.problem import build_problem  # noqa: E402
 from coartic.fit.simulate import PHONEMES, vcv_utterances  # noqa: E402
 from coartic.fit.spec import parse_spec  # noqa: E402
 

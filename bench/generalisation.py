@@ -37,7 +37,8 @@ import numpy as np
 
 from coartic.fit import load_spec, run
 from coartic.fit.data import load_utterances
-from coartic.fit.problem import ChannelData, Utterance
+from coartic.estimation.data import ChannelData
+from coartic.model import Utterance
 from coartic.fit.spec import FitSpec, Override
 from coartic.fit.validate import score, splits
 from coartic.outputs import atomic_write_text

@@ -25,7 +25,7 @@ from typing import Any, Sequence
 
 from coartic.fit import runner
 from coartic.fit.data import load_utterances, manifest_rows
-from coartic.fit.problem import Utterance
+from coartic.model import Utterance
 from coartic.fit.runner import fit_channel
 from coartic.fit.spec import FitSpec, load_spec
 

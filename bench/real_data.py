@@ -50,7 +50,7 @@ from generalisation import VARIANTS, shrink_options  # noqa: E402
 
 from coartic.fit import load_spec, run  # noqa: E402
 from coartic.fit.data import load_utterances  # noqa: E402
-from coartic.fit.problem import Utterance  # noqa: E402
+from coartic.model import Utterance  # noqa: E402
 from coartic.fit.result import FitResult  # noqa: E402
 from coartic.fit.score import score_utterances, with_fallbacks  # noqa: E402
 from coartic.fit.spec import FitSpec, Override  # noqa: E402

@@ -27,6 +27,7 @@ import numpy.typing as npt
 from coartic.errors import CoarticError
 from coartic.outputs import atomic_write_text
 from coartic.settings import CHANNEL_SETTINGS, DOMINANCES, RATE_SETTINGS
+from coartic.textfile import TextDecodeError, read_text
 
 
 SCHEMA = "coartic.table/1"
@@ -372,8 +373,7 @@ class ParameterTable:
         for ch, cdoc in _obj(doc["channels"], f"{source}: channels").items():
             where = f"{source}: channel {ch!r}"
             cdoc = _obj(cdoc, where)
-            extra = sorted(set(cdoc) - {"unit", "beta", "edge_extent", "apex_fraction", "reference_phoneme",
-                                        *RATE_SETTINGS})
+            extra = sorted(set(cdoc) - {"unit", "reference_phoneme", *CHANNEL_SETTINGS})
             if extra:
                 raise TableError(f"{where}: unknown key {extra[0]!r}")
             if "reference_phoneme" not in cdoc:
@@ -433,15 +433,11 @@ class ParameterTable:
         come from the JSON of the same name beside it (``from_csv``)."""
         path = Path(path)
         try:
-            raw = path.read_bytes()
+            text = read_text(path, "table")
         except OSError as exc:
             raise TableError(f"{path}: cannot read the table: {exc.strerror}") from None
-        try:
-            text = raw.decode("utf-8")
-        except UnicodeDecodeError as exc:
-            line = raw[: exc.start].count(b"\n") + 1
-            raise TableError(f"{path}: line {line}: not UTF-8 text (byte {raw[exc.start]:#04x} at offset "
-                             f"{exc.start}); tables are written in UTF-8") from None
+        except TextDecodeError as exc:
+            raise TableError(str(exc)) from None
         if path.suffix.lower() == ".csv":
             beside = path.with_suffix(".json")
             tidy = text.startswith(",".join(TIDY_HEADER))
@@ -530,8 +526,7 @@ class ParameterTable:
                         raise TableError(f"{where}: unknown table setting {name!r}")
                     variant = value
                 else:
-                    if name not in ("unit", "beta", "edge_extent", "apex_fraction", "reference_phoneme",
-                                    *RATE_SETTINGS):
+                    if name not in ("unit", "reference_phoneme", *CHANNEL_SETTINGS):
                         raise TableError(f"{where}: unknown channel setting {name!r}")
                     settings_.setdefault(ch, {})[name] = value
                 continue
@@ -541,16 +536,13 @@ class ParameterTable:
             where = f"{source}: channel {ch!r}"
             if "reference_phoneme" not in s:
                 raise TableError(f"{where}: missing the row '*,{ch},reference_phoneme,<phoneme>'")
-            channels[ch] = ChannelSettings(
-                reference_phoneme=s["reference_phoneme"],
-                unit=s.get("unit", CHANNEL_DEFAULTS["unit"]),
-                beta=_parse_float(where, "beta", s.get("beta", "1.0")),
-                edge_extent=_parse_float(where, "edge_extent", s.get("edge_extent", "1.0")),
-                apex_fraction=_parse_float(where, "apex_fraction", s.get("apex_fraction", "0.5")),
-                dominance=s.get("dominance", CHANNEL_DEFAULTS["dominance"]),
-                plateau_fraction=_parse_float(where, "plateau_fraction", s.get("plateau_fraction", "0.5")),
-                handover=_parse_bool(where, "handover", s.get("handover", "false")),
-            )
+            # a setting's cell parsed as its kind (coartic.settings), absent ones at their defaults
+            given: dict[str, Any] = {
+                name: (_parse_bool(where, name, s[name]) if setting.flag else s[name] if setting.choices
+                       else _parse_float(where, name, s[name]))
+                for name, setting in CHANNEL_SETTINGS.items() if name in s}
+            channels[ch] = ChannelSettings(reference_phoneme=s["reference_phoneme"],
+                                           unit=s.get("unit", CHANNEL_DEFAULTS["unit"]), **given)
         table = cls(variant=variant, channels=channels, values=values, uncertainty=uncertainty, source=source)
         table.validate()
         return table
@@ -594,7 +586,7 @@ class ParameterTable:
         ``reference[channel]`` names the reference phoneme; ``settings[channel]`` may set
         unit, beta, edge_extent, apex_fraction, dominance, plateau_fraction, handover.
         """
-        allowed = {"unit", "beta", "edge_extent", "apex_fraction", *RATE_SETTINGS}
+        allowed = {"unit", *CHANNEL_SETTINGS}
         for ch, given in (settings or {}).items():
             extra = sorted(set(given) - allowed)
             if extra:

@@ -199,15 +199,30 @@ def xrmb_motion() -> Motion:
 MVIEW_SENSORS = ("TR", "TB", "TT", "UL", "LL", "JAW")
 
 
+def label_structs(starts: NDArray[np.float64], ends: NDArray[np.float64],
+                  labels: tuple[str, ...]) -> NDArray[np.void]:
+    """A 1 x n struct array of LABEL and OFFS ([start end], s), as the Haskins files' PHONES."""
+    dtype = [("LABEL", object), ("OFFS", object)]
+    return np.array([(lab, np.array([[float(s), float(e)]])) for s, e, lab in zip(starts, ends, labels)],
+                    dtype=dtype).reshape(1, -1)
+
+
 def write_mview(path: Path, m: Motion, planar: bool = False, swap_ll_jaw: bool = False,
-                audio_rate: float = 22050.0) -> Path:
+                audio_rate: float = 22050.0, phones: tuple[str, ...] | None = None) -> Path:
     """A struct array named after the file: AUDIO first, then the sensors (x forwards, y lateral,
-    z up; mm; columns x y z and three of orientation), or x and z only when `planar`."""
+    z up; mm; columns x y z and three of orientation), or x and z only when `planar`. With
+    `phones`, the Haskins IEEE database's fields too: the audio element carries the sentence and
+    its alignment (WORDS, PHONES: LABEL and OFFS), the sensors carry them empty."""
     import scipy.io
 
     rate = 1.0 / (m.times[1] - m.times[0])
     dtype = [("NAME", object), ("SRATE", object), ("SIGNAL", object), ("SOURCE", object)]
-    rows = [("AUDIO", audio_rate, np.zeros((int(m.times.size * audio_rate / rate), 1)), "synthetic")]
+    audio = ("AUDIO", audio_rate, np.zeros((int(m.times.size * audio_rate / rate), 1)), "synthetic")
+    if phones is not None:
+        dtype += [("SENTENCE", object), ("WORDS", object), ("PHONES", object), ("LABELS", object)]
+        words = label_structs(m.starts[1:2], m.ends[-2:-1], ("PAMITU",))
+        audio += ("Pa mi tu.", words, label_structs(m.starts, m.ends, phones), np.zeros((0, 0)))
+    rows = [audio]
     for name in MVIEW_SENSORS:
         role = {"TR": "TD", "JAW": "JAW"}.get(name, name)
         if swap_ll_jaw and name in ("LL", "JAW"):
@@ -218,7 +233,8 @@ def write_mview(path: Path, m: Motion, planar: bool = False, swap_ll_jaw: bool =
         else:
             lateral = 0.3 * np.sin(7 * m.times)
             sig = np.column_stack([a, lateral, v, np.zeros((m.times.size, 3))])
-        rows.append((name, rate, sig, "synthetic"))
+        empty = (np.zeros((0, 0)),) * 4 if phones is not None else ()
+        rows.append((name, rate, sig, "synthetic") + empty)
     arr = np.array(rows, dtype=dtype).reshape(1, -1)
     scipy.io.savemat(path, {path.stem: arr})
     return path

@@ -6,7 +6,9 @@ import numpy as np
 from numpy.typing import NDArray
 
 from coartic import _core
-from coartic.fit.problem import ChannelData, Packing, Utterance
+from coartic.estimation.data import ChannelData
+from coartic.estimation.packing import Packing
+from coartic.model import Utterance
 from coartic.fit.spec import DEFAULT_BETA_BOUNDS, DEFAULT_FIT_BOUNDS
 from coartic.table import PARAMETERS
 

@@ -19,7 +19,7 @@ from typer.testing import CliRunner
 from coartic.cli import COMMANDS, app, load_command
 
 HEAVY = ("scipy", "matplotlib", "emcee", "arviz", "dask", "distributed", "casadi", "nlopt", "ezc3d",
-         "coartic._core")
+         "coartic._core", "pydantic")  # pydantic: the fit spec's schema, for the commands that read a spec
 PYTHON_DIR = str(Path(__file__).resolve().parents[2] / "python")
 
 _PROBE = """

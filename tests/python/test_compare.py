@@ -47,7 +47,7 @@ def test_compare_command_reports_held_out_rmse_and_refuses_bad_specs(tmp_path: P
     bad = tmp_path / "bad.toml"
     bad.write_text('[corpus]\nmanifest = "none.csv"\n[engine.options]\nmax_nfev = 0\n')
     res = CliRunner().invoke(app, ["compare", str(a), str(bad), "--out", str(tmp_path / "d")])
-    assert res.exit_code == 2 and "[engine.options] max_nfev" in res.output
+    assert res.exit_code == 2 and "[engine.options.max_nfev]" in res.output
 
 
 def test_compare_varies_a_setting_to_choose_a_prior_strength(tmp_path: Path) -> None:

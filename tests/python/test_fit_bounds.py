@@ -121,7 +121,7 @@ def test_optimal_and_unexplained(built: tuple[FitResult, Path]) -> None:
     assert n.category == "optimal" and n.gain_gn_chi2 < 1 and "best value is the bound itself" in n.explanation
 
     s = spec(Path(result.spec.path).parent, ["target", "k_r"])
-    from coartic.fit.problem import build_problem
+    from coartic.estimation.problem import build_problem
 
     start = TRUTH.copy()
     start[ROW["t"], K["k_r"]] = 0.0
@@ -141,7 +141,7 @@ def test_saturated_direction_is_not_binding(tmp_path: Path) -> None:
     """/t/'s carry-over made as a step (θ_fw 1e8) and held at a box's 1e6 s^-1, where D is already a
     step between 100 Hz samples: past the bound nothing changes, into the box it costs → not binding.
     (At the default 2000 s^-1 it is not yet a step: samples 0.1 ms after t_i still see it: active.)"""
-    from coartic.fit.problem import build_problem
+    from coartic.estimation.problem import build_problem
 
     made = TRUTH.copy()
     made[ROW["t"], K["theta_fw"]] = 1e8

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from coartic.fit.engines import get_engine
-from coartic.fit.problem import ChannelProblem, build_problem
+from coartic.estimation.problem import ChannelProblem, build_problem
 from coartic.fit.simulate import PHONEMES, TRUTH, vcv_utterances
 from coartic.fit.spec import parse_spec
 from coartic.fit.staged import fit_staged, stage_free_sets

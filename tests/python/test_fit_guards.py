@@ -11,7 +11,7 @@ import pytest
 
 from coartic.fit import run
 from coartic.fit.guards import small_data_notes
-from coartic.fit.parameters import psd_pseudo_inverse
+from coartic.estimation.parameters import psd_pseudo_inverse
 from coartic.fit.result import unidentified_reasons
 from coartic.fit.simulate import vcv_utterances
 from coartic.fit.spec import SpecError, parse_spec

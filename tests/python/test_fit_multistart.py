@@ -16,7 +16,7 @@ from coartic.cli import app
 from coartic.fit.data import load_utterances, manifest_rows
 from coartic.fit.engines import EngineResult, evaluation_budget, iteration_budget
 from coartic.fit.multistart import Optimum, cluster, fit_multistart, sobol_starts
-from coartic.fit.problem import build_problem
+from coartic.estimation.problem import build_problem
 from coartic.fit.runner import run
 from coartic.fit.score import score_recordings
 from coartic.fit.spec import SpecError, load_spec

@@ -7,7 +7,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from coartic.fit.problem import LOG_COLUMNS, ChannelProblem, build_problem
+from coartic.estimation.packing import LOG_COLUMNS
+from coartic.estimation.problem import ChannelProblem, build_problem
 from coartic.fit.simulate import PHONEMES, TRUTH, vcv_utterances
 from coartic.fit.spec import SpecError, parse_spec
 from coartic.table import PARAMETERS

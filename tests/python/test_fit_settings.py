@@ -14,14 +14,14 @@ from typer.testing import CliRunner
 from fit_helpers import check_problem_derivatives, german_utterance_spec, spec_of
 from coartic import model
 from coartic.cli import app
-from coartic.fit import problem, run
+from coartic.fit import run
 from coartic.fit.data import manifest_rows
-from coartic.fit.parameters import ParameterSet
-from coartic.fit.problem import ChannelData, build_packing
+from coartic.estimation.parameters import ParameterSet
+from coartic.estimation.data import ChannelData
 from coartic.fit.runner import FitFailed, check_overrides
 from coartic.fit.simulate import PHONEMES, vcv_utterances
 from coartic.fit.spec import SpecError, load_spec, parse_spec
-from coartic.table import PARAMETERS
+from coartic.table import PARAMETERS, TableError
 
 
 
@@ -31,7 +31,6 @@ def utts() -> list[model.Utterance]:
 
 
 def test_one_utterance_type() -> None:
-    assert problem.Utterance is model.Utterance
     u = model.Utterance(["#", "a"], [0, 0.1], [0.1, 0.2], [0.05, 0.15], name="u")
     assert u.starts.dtype == np.float64 and u.observed == {} and u.meta == {}
     with pytest.raises(model.ModelInputError, match=r"utterance 'u': times\[1\] = nan is not finite"):
@@ -42,11 +41,11 @@ def test_settings_the_spec_gives_are_honoured(tmp_path: Path, utts: list[model.U
     data = ChannelData.build(utts, "LLO", PHONEMES)
     # global target box and target start: today both were replaced by the data's
     s = spec_of(tmp_path, parameters={"free": ["target"], "bounds": {"target": [-3.0, 14.0]}, "start": {"target": 1.0}})
-    pk = build_packing(s, data)
+    pk = ParameterSet.from_spec(s, data).packing()
     assert np.all(pk.lower[:, 0] == -3.0) and np.all(pk.upper[:, 0] == 14.0)
     assert np.all(pk.base[:, 0] == 1.0)
     # without them: the data range widened by target_margin, and data targets
-    pk = build_packing(spec_of(tmp_path), data)
+    pk = ParameterSet.from_spec(spec_of(tmp_path), data).packing()
     assert pk.lower[0, 0] == pytest.approx(data.observed[data.weights > 0].min() - 5.0)
 
 
@@ -60,13 +59,13 @@ def test_a_start_outside_its_bounds_is_refused(tmp_path: Path, utts: list[model.
                                                sections: dict[str, Any], key: str) -> None:
     data = ChannelData.build(utts, "LLO", PHONEMES)
     with pytest.raises(SpecError, match="outside its bounds") as e:
-        build_packing(spec_of(tmp_path, **sections), data)
+        ParameterSet.from_spec(spec_of(tmp_path, **sections), data).packing()
     assert key in str(e.value) and "spec.toml" in str(e.value)
 
 
 def test_a_default_start_outside_narrowed_bounds_starts_on_the_bound(tmp_path: Path, utts: list[model.Utterance]) -> None:
     s = spec_of(tmp_path, parameters={"free": ["target", "theta_bw"], "bounds": {"theta_bw": [50.0, 100.0]}})
-    pk = build_packing(s, ChannelData.build(utts, "LLO", PHONEMES))
+    pk = ParameterSet.from_spec(s, ChannelData.build(utts, "LLO", PHONEMES)).packing()
     assert np.all(pk.base[1:, PARAMETERS.index("theta_bw")] == 50.0)
 
 
@@ -109,7 +108,8 @@ def test_engine_options_are_checked_before_the_fit(tmp_path: Path, engine: str, 
     s = spec_of(tmp_path, engine={"name": engine, "options": options})
     with pytest.raises(SpecError, match=words) as e:
         run(s, quiet=True)  # refused before the (missing) data are loaded
-    assert f"[engine.options] {key} ({engine} engine)" in str(e.value) and "spec.toml" in str(e.value)
+    assert f"[engine.options.{key}] ({engine} engine)" in str(e.value) and "spec.toml" in str(e.value)
+    assert e.value.key == f"engine.options.{key}" and e.value.section == "engine" and e.value.parameter == key
 
 
 @pytest.mark.filterwarnings("ignore:Setting .* below the machine epsilon")
@@ -184,11 +184,12 @@ def test_mcmc_takes_the_options_from_the_table(tmp_path: Path, utts: list[model.
     table = run(s, None, utterances=utts, quiet=True).table()
     table.channels["LLO"].edge_extent = 0.25
     table.channels["LLO"].apex_fraction = 0.4
-    _, _, opts = table_problem(s, table, tmp_path / "t.json", "LLO", utts)
+    table.source = str(tmp_path / "t.json")
+    opts = table_problem(s, table, "LLO", utts).options
     assert (opts.edge_extent, opts.apex_fraction) == (0.25, 0.4)  # not the spec's 1.0 and 0.5
     table.variant = "original"
-    with pytest.raises(ValueError, match=r"t\.json: a table of the 'original' model, but .*variant = 'modified'"):
-        table_problem(s, table, tmp_path / "t.json", "LLO", utts)
+    with pytest.raises(TableError, match=r"t\.json: a table of the 'original' model, but .*variant = 'modified'"):
+        table_problem(s, table, "LLO", utts)
 
 
 def test_the_default_budget_ends_a_one_utterance_real_fit_converged(tmp_path: Path) -> None:
@@ -203,7 +204,7 @@ def test_the_default_budget_ends_a_one_utterance_real_fit_converged(tmp_path: Pa
 
 
 def prior_problem(tmp_path: Path, utts: list[model.Utterance], prior: dict[str, Any], noise: float = 0.5) -> Any:
-    from coartic.fit.problem import build_problem
+    from coartic.estimation.problem import build_problem
 
     s = spec_of(tmp_path, parameters={"free": ["target", "theta_bw", "theta_fw", "k_r"], "prior": prior,
                                       "prior_noise": noise})
@@ -243,7 +244,7 @@ def test_bad_priors_are_refused(tmp_path: Path, utts: list[model.Utterance], pri
 @pytest.mark.parametrize("offsets", ["free", 0.5])
 def test_per_utterance_offsets_are_profiled_with_exact_derivatives(tmp_path: Path, utts: list[model.Utterance],
                                                                    offsets: Any) -> None:
-    from coartic.fit.problem import build_problem
+    from coartic.estimation.problem import build_problem
 
     s = spec_of(tmp_path, parameters={"free": ["target", "theta_bw", "k_r"], "prior_noise": 0.3},
                 model={"channels": ["LLO"], "offsets": offsets})
@@ -278,7 +279,7 @@ def test_a_stage_that_did_not_converge_says_why(tmp_path: Path, utts: list[model
 
 
 def test_tied_parameters_share_one_value_with_exact_derivatives(tmp_path: Path, utts: list[model.Utterance]) -> None:
-    from coartic.fit.problem import build_problem
+    from coartic.estimation.problem import build_problem
 
     free = ["target", "theta_bw", "theta_fw", "k_r"]
     ties = [{"phonemes": ["p", "t"], "parameters": ["theta_bw", "theta_fw"]}, {"phonemes": ["a", "i"], "parameters": ["k_r"]}]
@@ -316,7 +317,7 @@ def test_bad_ties_are_refused(tmp_path: Path, tie: dict[str, Any], words: str) -
 def test_a_tie_of_fixed_values_is_refused(tmp_path: Path, utts: list[model.Utterance]) -> None:
     s = spec_of(tmp_path, tie=[{"phonemes": ["p", "t"], "parameters": ["k_r"]}])  # k_r is not free
     with pytest.raises(SpecError, match=r"\[tie #1\] k_r is free for none of"):
-        build_packing(s, ChannelData.build(utts, "LLO", PHONEMES))
+        ParameterSet.from_spec(s, ChannelData.build(utts, "LLO", PHONEMES)).packing()
 
 
 def test_a_tie_over_a_member_an_override_fixes_is_refused(tmp_path: Path, utts: list[model.Utterance]) -> None:
@@ -326,7 +327,7 @@ def test_a_tie_over_a_member_an_override_fixes_is_refused(tmp_path: Path, utts: 
                 override=[{"phonemes": ["t"], "fixed": {"theta_bw": 30.0}}])
     with pytest.raises(SpecError, match=r"\[tie #1\] ties theta_bw of \['p', 't'\] on LLO, but t.theta_bw is fixed "
                        r"\(\[override #1.fixed.theta_bw\]\)") as e:
-        build_packing(s, ChannelData.build(utts, "LLO", PHONEMES))
+        ParameterSet.from_spec(s, ChannelData.build(utts, "LLO", PHONEMES)).packing()
     assert e.value.key == "tie #1" and e.value.phoneme == "t" and e.value.file == tmp_path / "spec.toml"
 
 
@@ -339,8 +340,11 @@ def test_ties_and_shrinks_of_phonemes_absent_from_the_corpus(tmp_path: Path, utt
     # one member present: nothing to share or pull together, refused (it used to be accepted, and a
     # shrink recorded in the table as applied)
     s = spec_of(tmp_path, parameters={"free": ["target", "theta_bw"]}, **{kind: [table]})
-    with pytest.raises(SpecError, match=rf"\[{kind} #1\] phonemes .*: fewer than two occur in the corpus"):
+    with pytest.raises(SpecError, match=rf"\[{kind} #1\] phonemes .*: fewer than two occur in the corpus") as e:
         check_overrides(s, utts)
+    absent = [p for p in table["phonemes"] if p not in PHONEMES]
+    assert (e.value.file, e.value.section, e.value.entry, e.value.key) == (tmp_path / "spec.toml", kind, 0, f"{kind} #1")
+    assert e.value.phoneme == ", ".join(absent)  # the absent ones, by name
     # two present: applied to them, the absent ones named
     some = spec_of(tmp_path, parameters={"free": ["target", "theta_bw"]},
                    **{kind: [{**table, "phonemes": ["p", "t", "f"]}]})
@@ -362,14 +366,15 @@ def test_a_manifest_that_is_a_directory_or_not_utf8_is_named(tmp_path: Path) -> 
 
 def test_mcmc_has_the_priors_of_the_fit_spec(tmp_path: Path, utts: list[model.Utterance]) -> None:
     from coartic.mcmc.posterior import LogPosterior
-    from coartic.mcmc.run import spec_priors, table_problem
+    from coartic.mcmc.run import problem_priors, table_problem
 
     s = spec_of(tmp_path, parameters={"free": ["target", "theta_bw", "k_r"],
                                       "prior": {"theta_bw": {"mean": 30.0, "sd": 0.5, "scale": "log"},
                                                 "p.k_r": [0.9, 0.05]}})
     table = run(s, None, utterances=utts, quiet=True).table()
-    data, packing, opts = table_problem(s, table, tmp_path / "t.json", "LLO", utts)
-    pri = spec_priors(s, packing, "LLO")
+    problem = table_problem(s, table, "LLO", utts)
+    data, packing, opts = problem.data, problem.packing, problem.options
+    pri = problem_priors(problem)
     assert pri["p.k_r"] == (0.9, 0.05) and pri["t.theta_bw"] == (30.0, 0.5, True)
     with_p = LogPosterior(data, packing, opts, noise=0.1, priors=pri)
     without = LogPosterior(data, packing, opts, noise=0.1)

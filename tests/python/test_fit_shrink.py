@@ -15,7 +15,7 @@ from coartic import model
 from fit_helpers import check_problem_derivatives, spec_of
 from coartic.fit import run
 from coartic.fit.choose import Choice, CurvePoint, parse_choose, set_value
-from coartic.fit.problem import build_problem
+from coartic.estimation.problem import build_problem
 from coartic.fit.simulate import PHONEMES, vcv_utterances
 from coartic.fit.spec import Choose, SpecError
 from coartic.table import PARAMETERS
@@ -112,13 +112,14 @@ def test_the_one_standard_error_rule_moves_to_the_stronger_end() -> None:
 
 def test_mcmc_has_the_shrinkage_of_the_fit_spec(tmp_path: Path, utts: list[model.Utterance]) -> None:
     from coartic.mcmc.posterior import LogPosterior, phoneme_posterior
-    from coartic.mcmc.run import spec_shrinkage, table_problem
+    from coartic.mcmc.run import table_problem
 
     s = spec_of(tmp_path, parameters={"free": ["target", "theta_bw"]},
                 shrink=[{"phonemes": ["a", "i", "p", "t"], "parameters": ["theta_bw"], "sd": 0.5, "scale": "log"}])
     table = run(s, None, utterances=utts, quiet=True).table()
-    data, packing, opts = table_problem(s, table, tmp_path / "t.json", "LLO", utts)
-    groups = spec_shrinkage(s, table, packing, "LLO")
+    problem = table_problem(s, table, "LLO", utts)
+    data, packing, opts = problem.data, problem.packing, problem.options
+    groups = problem.shrink_groups
     x = packing.pack()[None]
     th = np.log(packing.base[[data.phonemes.index(p) for p in "aipt"], PARAMETERS.index("theta_bw")])
     expected = -0.5 * np.sum(((th - th.mean()) / 0.5) ** 2)
@@ -130,13 +131,13 @@ def test_mcmc_has_the_shrinkage_of_the_fit_spec(tmp_path: Path, utts: list[model
     assert one.log_prior(one.start_point()[None])[0] == pytest.approx(expected, rel=1e-9)
     # a value chosen by CV is what the posterior uses
     table.metadata["choice"] = {"key": "shrink.sd", "chosen": {"LLO": 0.25}}
-    assert spec_shrinkage(s, table, packing, "LLO")[0].sd == 0.25
+    assert table_problem(s, table, "LLO", utts).shrink_groups[0].sd == 0.25
 
 
 @pytest.mark.parametrize("sections, key, words", [
     ({"shrink": [{"phonemes": ["p"], "parameters": ["k_r"], "sd": 0.1}]}, "shrink #1.phonemes", "two distinct"),
     ({"shrink": [{"phonemes": ["p", "t"], "parameters": ["speed"], "sd": 0.1}]}, "shrink #1.parameters", "unknown parameter"),
-    ({"shrink": [{"phonemes": ["p", "t"], "parameters": ["k_r"]}]}, "shrink #1", "needs phonemes"),
+    ({"shrink": [{"phonemes": ["p", "t"], "parameters": ["k_r"]}]}, "shrink #1", "missing key 'sd'"),
     ({"shrink": [{"phonemes": ["p", "t"], "parameters": ["k_r"], "sd": 0.1},
                  {"phonemes": ["p", "t"], "parameters": ["k_r"], "sd": -1.0}]}, "shrink #2.sd", "positive"),
     ({"shrink": [{"phonemes": ["p", "t"], "parameters": ["theta_bw", "k_r"], "sd": 0.1, "scale": "log"}]},

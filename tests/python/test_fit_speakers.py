@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 from scipy.optimize import least_squares
 
-from coartic.fit.problem import build_problem
+from coartic.estimation.problem import build_problem
 from coartic.fit.simulate import PHONEMES, TRUTH, vcv_utterances
 from coartic.fit.spec import SpecError, parse_spec
 from coartic.table import PARAMETERS
@@ -117,8 +117,9 @@ def test_mcmc_log_posterior_uses_the_fits_speaker_mapping(utts, fitted) -> None:
 
     res, table = fitted
     s = spec("offset_scale")
-    data, packing, options = table_problem(s, table, Path("t.json"), "LLO", utts)
-    terms = table_speakers(s, table, Path("t.json"), "LLO")
+    problem = table_problem(s, table, "LLO", utts)
+    data, packing, options = problem.data, problem.packing, problem.options
+    terms = table_speakers(s, table, "LLO")
     assert terms is not None and terms.names == ("s1", "s2")
     fit = res.channels["LLO"]
     lsq_sse = fit.problem.sse(fit.x)
@@ -152,9 +153,9 @@ def test_mcmc_log_posterior_uses_the_fits_speaker_mapping(utts, fitted) -> None:
     assert pp.names[-2:] == ["speaker_offset:s2", "speaker_scale:s2"] and "speaker_offset:s1" not in pp.names
     # a spec without speakers cannot sample a table fitted with them (nor the other way round)
     with pytest.raises(ValueError, match="fitted with \\[model\\] speakers = 'offset_scale'"):
-        table_speakers(spec("none"), table, Path("t.json"), "LLO")
+        table_speakers(spec("none"), table, "LLO")
     with pytest.raises(ValueError, match="the table was fitted with 'offset_scale'"):
-        table_speakers(spec("offset"), table, Path("t.json"), "LLO")
+        table_speakers(spec("offset"), table, "LLO")
 
 
 def test_score_maps_by_the_tables_speaker_and_calibrates(utts, fitted, tmp_path: Path) -> None:  # type: ignore[no-untyped-def]
@@ -211,9 +212,9 @@ def two_speakers():  # type: ignore[no-untyped-def]
     return one + two, s2
 
 
-def targets_spec(mode: str = "targets"):  # type: ignore[no-untyped-def]
+def targets_spec(mode: str = "targets", **sections):  # type: ignore[no-untyped-def]
     raw = {"corpus": {"files": ["x"], "labels": ["y"]}, "model": {"channels": ["LLO"], "speakers": mode},
-           "parameters": {"free": ["target", "theta_bw", "k_r"]}}
+           "parameters": {"free": ["target", "theta_bw", "k_r"]}, **sections}
     return parse_spec(raw, Path("/tmp/test_spec.toml"))
 
 
@@ -254,7 +255,7 @@ def test_speaker_targets_table_score_and_mcmc(two_speakers, tmp_path: Path) -> N
     from coartic.fit.runner import run
     from coartic.fit.score import score_utterances
     from coartic.mcmc.posterior import phoneme_posterior
-    from coartic.mcmc.run import fixed_noise, spec_priors, table_problem, table_speakers
+    from coartic.mcmc.run import fixed_noise, problem_priors, table_problem, table_speakers
 
     utts, _ = two_speakers
     s = targets_spec()
@@ -274,14 +275,21 @@ def test_speaker_targets_table_score_and_mcmc(two_speakers, tmp_path: Path) -> N
     assert score_utterances(table, two, speaker="s2").rmse("LLO") == pytest.approx(
         float(np.sqrt(sse[mine].sum() / cnt[mine].sum())), rel=1e-9)
     # MCMC samples the same per-speaker problem, starting at the table's own targets
-    data, packing, options = table_problem(s, table, Path("t.json"), "LLO", utts)
-    assert table_speakers(s, table, Path("t.json"), "LLO") is None
+    problem = table_problem(s, table, "LLO", utts)
+    data, packing, options = problem.data, problem.packing, problem.options
+    assert table_speakers(s, table, "LLO") is None
     assert fixed_noise(data, packing, options) == pytest.approx(table.metadata["rmse"]["LLO"], rel=1e-9)
     post = phoneme_posterior(data, packing, options, "a|s1", noise=0.1, offset_sd=0.0)
     # its shared dynamics move s2's /a/ too, so s2's utterances are in its likelihood
     assert len(post.data.utterances) == sum("a" in u.labels for u in utts)
     assert {u.meta["speaker"] for u in post.data.utterances} == {"s1", "s2"}
-    assert spec_priors(s, packing, "LLO") == {}
+    assert problem_priors(problem) == {}
+    # the posterior's shrinkage is the fit's: one constructor gives both the groups on the leader rows
+    # (MCMC once looked the class up among the "p|s" rows, found none and sampled without it)
+    shrunk = targets_spec(shrink=[{"phonemes": ["p", "t"], "parameters": ["theta_bw"], "sd": 0.3, "scale": "log"}])
+    groups = table_problem(shrunk, table, "LLO", utts).shrink_groups
+    assert groups and groups == build_problem(shrunk, utts, "LLO").shrink_groups
+    assert [problem.data.phonemes[r] for r in groups[0].rows] == ["p|s1", "t|s1"]
 
 
 @pytest.mark.parametrize("mode", ["none", "offset_scale"])

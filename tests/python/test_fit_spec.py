@@ -2,11 +2,12 @@
 
 from __future__ import annotations
 
+import dataclasses
 from pathlib import Path
 
 import pytest
 
-from coartic.fit.spec import DEFAULT_STAGES, SpecError, load_spec
+from coartic.fit.spec import DEFAULT_STAGES, FIELD_KEYS, FitSpec, Override, SpecError, load_spec
 
 ROOT = Path(__file__).resolve().parents[2]
 
@@ -103,3 +104,79 @@ def test_a_spec_that_is_not_utf8_names_file_line_and_encoding(tmp_path: Path) ->
     d.mkdir()
     with pytest.raises(SpecError, match="is a directory, not a fit spec"):
         load_spec(d)
+
+
+def test_an_error_carries_file_section_entry_key_and_phoneme_name(tmp_path: Path) -> None:
+    # issue 21's `phoneme 2, parameter theta_bw: value -3 is outside its domain`: now the file, the
+    # third [[override]], the key and the phoneme by name, in the message and the attributes
+    p = write(tmp_path, BASE + '[[override]]\nphonemes = ["p"]\n[[override]]\nphonemes = ["m"]\n'
+              '[[override]]\nphonemes = ["b"]\nfixed = { theta_bw = -3 }\n')
+    with pytest.raises(SpecError) as e:
+        load_spec(p)
+    err = e.value
+    assert str(err) == (f"{p}: [override #3.fixed.theta_bw] theta_bw = -3 (of b) is outside (0, inf), "
+                        "the model's domain of theta_bw")
+    assert (err.file, err.section, err.entry, err.key) == (p, "override", 2, "override #3.fixed.theta_bw")
+    assert (err.phoneme, err.parameter, err.value) == ("b", "theta_bw", -3.0)
+
+
+@pytest.mark.parametrize("text, key, section", [
+    (BASE + '[model]\nbeta = nan\n', "model.beta", "model"),
+    (BASE + '[parameters]\nprior_noise = nan\n', "parameters.prior_noise", "parameters"),
+    (BASE + '[parameters.bounds]\nLLO = { k_r = [nan, 1.0] }\n', "parameters.bounds.LLO.k_r", "parameters"),
+    (BASE + '[parameters.prior]\n"p.k_r" = [nan, 0.1]\n', "parameters.prior.p.k_r", "parameters"),
+    (BASE + '[[shrink]]\nphonemes = ["p", "b"]\nparameters = ["target"]\nsd = nan\n', "shrink #1.sd", "shrink"),
+    (BASE + '[gaps]\nmax_gap = nan\n', "gaps.max_gap", "gaps"),
+])
+def test_nan_is_refused_everywhere_with_its_key(tmp_path: Path, text: str, key: str, section: str) -> None:
+    p = write(tmp_path, text)
+    with pytest.raises(SpecError, match="nan") as e:
+        load_spec(p)
+    assert str(e.value).startswith(f"{p}: [{key}] ")
+    assert (e.value.file, e.value.key, e.value.section) == (p, key, section)
+
+
+def test_every_problem_of_a_spec_is_listed_at_once(tmp_path: Path) -> None:
+    p = write(tmp_path, BASE + '[model]\nchannels = ["LLO", "Q"]\nbeta = "x"\n[fit]\nstarts = 0\n')
+    with pytest.raises(SpecError) as e:
+        load_spec(p)
+    assert [k for k, _ in e.value.problems] == ["model.channels", "model.beta", "fit.starts"]
+    assert str(e.value).count(f"{p}: [") == 3 and e.value.key == "model.channels"
+
+
+def test_unknown_keys_are_named_with_what_is_allowed(tmp_path: Path) -> None:
+    with pytest.raises(SpecError, match=r"\[override #1\] unknown key\(s\) \['colour'\]; allowed: \['bounds', "
+                       r"'channels', 'fixed', 'free', 'phonemes', 'start'\]") as e:
+        load_spec(write(tmp_path, BASE + '[[override]]\nphonemes = ["p"]\ncolour = 2\n'))
+    assert (e.value.section, e.value.entry) == ("override", 0)
+    with pytest.raises(SpecError, match=r"\[shrink #1\] unknown key\(s\) \['log'\]; allowed: .*'scale'"):
+        load_spec(write(tmp_path, BASE + '[[shrink]]\nphonemes = ["p", "b"]\nparameters = ["k_r"]\nsd = 1.0\n'
+                        'log = true\n'))
+
+
+def test_with_options_validates_as_loading_does(tmp_path: Path) -> None:
+    p = write(tmp_path, BASE)
+    s = load_spec(p)
+    assert s.with_options(plateau_fraction=0.3, starts=4).plateau_fraction == 0.3
+    for changes, key in (({"plateau_fraction": 2.0}, "model.plateau_fraction"),
+                         ({"beta": float("nan")}, "model.beta"),
+                         ({"free": ("target", "speed")}, "parameters.free"),
+                         ({"engine": "foo"}, "engine.name"),
+                         ({"validate_folds": 3}, "validate.folds"),  # needs a group
+                         ({"ties": ({"phonemes": ["a", "i"], "parameters": ["alpha"]},)}, "tie #1"),
+                         ({"keep": 8, "starts": 4}, "fit.keep")):
+        with pytest.raises(SpecError) as e:
+            s.with_options(**changes)
+        assert e.value.file == p and e.value.key == key, changes
+        assert str(e.value).startswith(f"{p}: [{key}] ")
+    with pytest.raises(SpecError, match=r"\[override.fixed.theta_bw\] theta_bw = -3 \(of b\)"):
+        Override(("b",), fixed={"theta_bw": -3.0})  # a part made in Python is checked too
+    with pytest.raises(SpecError, match=r"\[corpus\] give either manifest"):
+        dataclasses.replace(s.corpus, manifest=None)
+
+
+def test_the_document_table_covers_every_field() -> None:
+    # every FitSpec field is set by some spec key (or derived from one), so none escapes the schema's
+    # location of its errors
+    named = set(FIELD_KEYS) | {"path"}
+    assert {f.name for f in dataclasses.fields(FitSpec)} <= named

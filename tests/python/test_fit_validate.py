@@ -59,7 +59,7 @@ def test_kfold_by_any_grouping_without_a_manifest(tmp_path: Path) -> None:
     assert [n for n, _, _ in sp] == ["fold 1/2 (rate fast held out)", "fold 2/2 (rate normal held out)"]
     assert {u.meta["rate"] for u in sp[0][2]} == {"fast"} and {u.meta["rate"] for u in sp[0][1]} == {"normal"}
     # a grouping the corpus does not have
-    with pytest.raises(SpecError, match=r"\[validate\] group = 'speaker': the corpus has no 'speaker' column"):
+    with pytest.raises(SpecError, match=r"\[validate.group\] 'speaker': the corpus has no 'speaker' column"):
         splits(spec(tmp_path, group="speaker"), utts)
 
 

@@ -142,3 +142,40 @@ def test_emu_bundle_matches_the_derived_tables(stem: str) -> None:
     tt = load_trial(DATA.parent / f"dfgspp_mo1_prosody_{stem}_bndl.json", tier="TT",
                     label_map={"raise": "=", "lower": "="})
     assert tt.segments is not None and tt.segments.labels == ("raise", "lower")
+
+
+def test_emudb_bundle_directory_reads_as_the_bundle(tmp_path: Path) -> None:
+    """An emuDB keeps a bundle as a directory: `<b>_annot.json` and one SSFF file per track. The
+    same recording written that way (the demo bundle's own tracks and annotation) reads the same."""
+    import base64
+    import json
+
+    src = DATA.parent / "dfgspp_mo1_prosody_0020_bndl.json"
+    bundle = json.loads(src.read_text())
+    d = tmp_path / "dfgspp_mo1_prosody_0020_bndl"
+    d.mkdir()
+    name = "dfgspp_mo1_prosody_0020"
+    for f in bundle["ssffFiles"]:
+        (d / f"{name}.{f['fileExtension']}").write_bytes(base64.b64decode(f["data"]))
+    (d / f"{name}.wav").write_bytes(b"RIFF....WAVE")  # not a track: skipped
+    (d / f"{name}_annot.json").write_text(json.dumps(bundle["annotation"]))
+    a = load_trial(src, label_map="german_sampa")
+    b = load_trial(d / f"{name}_annot.json", label_map="german_sampa")
+    assert b.rate == a.rate and b.kind == "ema" and set(b.marker_names) == set(a.marker_names)
+    order = [b.marker_names.index(n) for n in a.marker_names]
+    np.testing.assert_array_equal(b.markers[:, order], a.markers)
+    assert b.segments is not None and a.segments is not None and b.segments.labels == a.segments.labels
+    ca, cb = a.channels(["LA", "JO"]), b.channels(["LA", "JO"])
+    for c in ("LA", "JO"):
+        np.testing.assert_array_equal(ca[c], cb[c])
+    # an annotation with no track beside it, and a bundle name that is not a file name
+    lone = tmp_path / "lone_annot.json"
+    lone.write_text(json.dumps(bundle["annotation"]))
+    with pytest.raises(DataError, match=r"lone_annot\.json: an emuDB annotation, but no SSFF track "
+                                        r"lone\.<ext> beside it"):
+        load_trial(lone)
+    odd = tmp_path / "odd.json"
+    odd.write_text(json.dumps({**bundle["annotation"], "name": "../dfgspp_mo1_prosody_0020"}))
+    with pytest.raises(DataError, match=r"odd\.json: an emuDB annotation whose bundle name "
+                                        r"'\.\./dfgspp_mo1_prosody_0020' is not a file name"):
+        load_trial(odd)

@@ -175,6 +175,63 @@ def test_mview_reader_details_and_a_swapped_sensor(tmp_path: Path) -> None:
         load_trial(tmp_path / "v73.mat")
 
 
+def test_mview_labels_embedded_as_in_the_haskins_files(files, tmp_path: Path) -> None:  # type: ignore[no-untyped-def]
+    """The Haskins IEEE rate database keeps its alignment in the audio element (WORDS, PHONES of
+    LABEL and OFFS): read as the file's own labels, as an EMU bundle's are."""
+    import scipy.io
+
+    # imported here: importing a reader module registers it, and test_registry_... expects the
+    # registry's own order
+    from coartic.io.mview import read_mview_labelled
+
+    m = ff.motion(100.0)
+    p = ff.write_mview(tmp_path / "M01_B01_S01_R01_F.mat", m, phones=ff.ARPABET_LABELS)
+    seg = read_mview_labelled(p)[1]
+    assert seg is not None and seg.tier == "PHONES" and seg.labels == ff.ARPABET_LABELS
+    np.testing.assert_allclose(seg.starts, m.starts)
+    np.testing.assert_allclose(seg.ends, m.ends)
+    trial = load_trial(p, label_map="english_arpabet")
+    assert trial.segments is not None and trial.segments.labels == ff.PHONEMES
+    assert "labels: the 8 PHONES embedded in the file" in trial.meta["notes"]
+    words = read_mview_labelled(p, tier="words")[1]
+    assert words is not None and words.labels == ("PAMITU",) and words.tier == "WORDS"
+    # a label file given beside it wins; a file without label fields has no labels of its own
+    other = ff.write_tsv_labels(tmp_path / "other.tsv", m, ff.PHONEMES)
+    segs = load_trial(p, labels=other).segments
+    assert segs is not None and segs.labels == ff.PHONEMES
+    assert load_trial(files["mview"][0]).segments is None
+    with pytest.raises(DataError, match=r"M01_B01_S01_R01_F\.mat: no label field 'SYLLABLES' in "
+                                        r"'M01_B01_S01_R01_F'; its label fields are \['WORDS', 'PHONES'\]"):
+        load_trial(p, tier="SYLLABLES")
+    with pytest.raises(DataError, match=r"no label field 'PHONES' in 'plain'; its label fields are none"):
+        load_trial(ff.write_mview(tmp_path / "plain.mat", m), tier="PHONES")
+    # a malformed entry is named: field, entry, element and label
+    bad = scipy.io.loadmat(p, squeeze_me=False, struct_as_record=True)["M01_B01_S01_R01_F"]
+    bad[0, 0]["PHONES"][0, 3]["OFFS"] = np.array([[0.5]])
+    scipy.io.savemat(tmp_path / "bad.mat", {"bad": bad})
+    with pytest.raises(DataError, match=r"bad\.mat: PHONES entry 4 of element 'AUDIO' \('M'\): OFFS "
+                                        r"is \[0\.5\], not \[start end\] in seconds"):
+        load_trial(tmp_path / "bad.mat")
+    # inspect and score read the file's own labels: no label file needed
+    r = CliRunner().invoke(app, ["inspect", str(p), "--label-map", "english_arpabet"], env=COLUMNS)
+    assert r.exit_code == 0, r.output
+    assert "8 PHONES embedded" in r.output and "AA1" in r.output
+    spec = tmp_path / "spec.toml"
+    tsv = ff.write_tsv_labels(tmp_path / "M01.tsv", m, ff.ARPABET_LABELS)
+    spec.write_text(
+        "[corpus]\n"
+        f"files = {json.dumps([str(p)])}\n"
+        f"labels = {json.dumps([str(tsv)])}\n"
+        'label_map = "english_arpabet"\n'
+        '[model]\nchannels = ["LA"]\nreference_phoneme = "a"\n'
+        '[parameters]\nfree = ["target"]\n')
+    r = CliRunner().invoke(app, ["fit", str(spec), "--out", str(tmp_path / "fit"), "--no-report"], env=COLUMNS)
+    assert r.exit_code == 0, r.output
+    r = CliRunner().invoke(app, ["score", str(tmp_path / "fit" / "table.json"), str(p)], env=COLUMNS)
+    assert r.exit_code == 0, r.output
+    assert "LA" in r.output
+
+
 def test_ema_csv_with_lab_names_is_ema_not_face_markers(tmp_path: Path) -> None:
     m = ff.motion(200.0)
     p = ff.write_lab_csv(tmp_path / "jw.csv", m, names={"UL": "UL", "LL": "LL", "JAW": "JW",

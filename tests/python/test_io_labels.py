@@ -158,6 +158,15 @@ def test_festival_xlabel(tmp_path: Path) -> None:
     assert s.labels == ("pau", "a", "p")
     np.testing.assert_allclose(s.starts, [0, 0.3, 0.45])
     assert s.lines == (4, 5, 6)
+    # EMU's xlabel files open with `0 125 H#`: the utterance's start, not a segment of no length
+    emu = read_labels(_write(tmp_path, "u.MAU", "signal u\nnfields 1\n#\n\t0.000000\t125\tH#\n"
+                                               "\t0.879940\t125\t<p:>\n\t0.939940\t125\tm\n"))
+    assert emu.labels == ("<p:>", "m") and emu.lines == (5, 6)
+    np.testing.assert_allclose(emu.starts, [0.0, 0.87994])
+    # a zero-length segment anywhere else is still an error
+    with pytest.raises(DataError, match=r"z\.lab, line 3: label 'a' \(segment 2\) ends at 0\.3 s, "
+                                        r"not after its start 0\.3 s"):
+        read_labels(_write(tmp_path, "z.lab", "#\n0.3 125 pau\n0.3 125 a\n"))
 
 
 def test_tsv_with_header_and_unsorted(tmp_path: Path) -> None:
@@ -194,6 +203,9 @@ def test_german_map_and_pauses() -> None:
     m = LabelMap.builtin("german_sampa")
     assert [m.map_label(x) for x in ("&p:", "aI", "6", "b", "N", "h", "")] == [
         "#", "a", "a", "b", "n", "h", "#"]
+    # MAUS also writes unstressed tense vowels without the length mark, and aspiration apart
+    assert [m.map_label(x) for x in ("e", "o", "i", "u", "y", "2", "kh", "ph", "th")] == [
+        "e", "o", "i", "u", "u", "o", "k", "p", "t"]
 
 
 def test_unmapped_label_names_label_file_and_line(tmp_path: Path) -> None:

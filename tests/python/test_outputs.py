@@ -239,7 +239,7 @@ def test_fit_output_written_before_markers_is_recognised(session: tuple[Path, Pa
 def test_ctrl_c_in_a_fit_keeps_the_best_point_and_while_loading_keeps_the_previous_output(
         session: tuple[Path, Path], tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     from coartic.fit import data
-    from coartic.fit.problem import ChannelProblem
+    from coartic.estimation.problem import ChannelProblem
 
     spec, _ = session
     out = tmp_path / "a" / "fit"  # parents created as needed (a fresh clone has no results/)

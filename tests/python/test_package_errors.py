@@ -12,7 +12,7 @@ BUILTIN = {"ValueError", "TypeError", "RuntimeError", "KeyError", "IndexError", 
 # (file, raised name, enclosing function)
 ALLOWED = {
     ("io/trial.py", "KeyError", "__getitem__"),  # Mapping protocol: `in`, .get() rely on KeyError
-    ("fit/parameters.py", "KeyError", "__getitem__"),
+    ("estimation/parameters.py", "KeyError", "__getitem__"),
     ("io/emu.py", "ValueError", "parse_ssff"),  # caught below and re-raised as DataError
     ("outputs.py", "OSError", "_exchange"),  # renameat2's errno, as os.rename would raise it
 }

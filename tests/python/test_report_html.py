@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from coartic import _core
-from coartic.fit.problem import ChannelProblem
+from coartic.estimation.problem import ChannelProblem
 from coartic.model import Utterance, build_corpus
 from coartic.fit.result import FitResult
 from coartic.fit.runner import run
@@ -68,6 +68,14 @@ def test_html_report(fitted: tuple[FitResult, Path]) -> None:
     for f in ("trajectories_LLO.png", "residuals.png", "rmse_map.png"):
         assert (out / "figures" / f).stat().st_size > 5000 and f"figures/{f}" in html
     assert "RMSE per channel" in html and "Posterior section" in html and "LLO" in html
+    # the model settings as fitted, each with its default and meaning from coartic.settings (one home)
+    import markupsafe
+
+    from coartic.settings import CHANNEL_SETTINGS
+
+    settings = html[html.index('id="settings"'):html.index('id="report"')]
+    for name, setting in CHANNEL_SETTINGS.items():
+        assert f"<td class=\"l\">{name}</td>" in settings and str(markupsafe.escape(setting.meaning)) in settings
 
 
 def test_interrupted_run_keeps_best_point(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
@@ -167,7 +175,7 @@ def test_report_of_a_very_long_utterance_is_bounded(tmp_path: Path) -> None:
     """5000 segments: boundaries, labels and weights left out (and said) instead of minutes of drawing."""
     from coartic.report import plots
 
-    from coartic.fit.problem import build_problem
+    from coartic.estimation.problem import build_problem
     from coartic.fit.result import ChannelFit
 
     utts = sentence(np.random.default_rng(4), n_words=2500)

@@ -166,3 +166,69 @@ def test_unknown_festival_phone_is_named_by_speak(tmp_path: Path, monkeypatch: p
     table = ParameterTable.load(Path(__file__).resolve().parents[2] / "corpus-synthetic" / "ground_truth.json")
     with pytest.raises(PhoneMapError, match=r"Festival phone 'QQ' \(segment 3\) is not in phones_italian.tsv"):
         speak_text("qq", table, tmp_path / "o", preview="none")
+
+
+def test_festival_gets_a_heap_sized_to_the_text(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    # the default heap (10 million cells) costs 0.2 s of page faults at every start; a text gets
+    # FESTIVAL_HEAP_CELLS and more as it grows (FESTIVAL_HEAP_CELLS_PER_CHAR)
+    from coartic.runtime.festival import FESTIVAL_HEAP_CELLS, FESTIVAL_HEAP_CELLS_PER_CHAR
+
+    fake_festival(tmp_path, monkeypatch, [("#", 0.2), ("a1", 0.35), ("#", 0.5)])
+    log = tmp_path / "argv.txt"
+    fake = tmp_path / "bin" / "festival"
+    fake.write_text(fake.read_text().replace("import re, sys, wave\n",
+                                             f"import re, sys, wave\nopen({str(log)!r}, 'a').write(' '.join(sys.argv[1:3]) + '\\n')\n"))
+    synthesize("pa", tmp_path / "x.wav")
+    synthesize("pa " * 1000, tmp_path / "y.wav")
+    short, long = log.read_text().splitlines()
+    assert short == f"--heap {FESTIVAL_HEAP_CELLS + 2 * FESTIVAL_HEAP_CELLS_PER_CHAR}"
+    assert long == f"--heap {FESTIVAL_HEAP_CELLS + len(prepare_text('pa ' * 1000)) * FESTIVAL_HEAP_CELLS_PER_CHAR}"
+
+
+def test_a_heap_too_small_is_named(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    fake = tmp_path / "festival"
+    fake.write_text("#!/bin/sh\necho 'SIOD ERROR: ran out of storage ' >&2\nexit 255\n")
+    fake.chmod(fake.stat().st_mode | stat.S_IEXEC)
+    monkeypatch.setenv("PATH", str(tmp_path))
+    with pytest.raises(FestivalError, match=r"ran out of storage.*Festival's heap of 1000400 cells was too small"):
+        synthesize("ciao", tmp_path / "x.wav")
+
+
+def test_festival_runs_while_the_caller_goes_on_and_stops_with_it(tmp_path: Path,
+                                                                  monkeypatch: pytest.MonkeyPatch) -> None:
+    import os
+    import shutil
+    import time
+
+    from coartic.runtime.festival import start_synthesis
+
+    fake = tmp_path / "festival"
+    pidfile = tmp_path / "pid"
+    fake.write_text(f"#!/bin/sh\necho $$ > {pidfile}\nexec {shutil.which('sleep')} 60\n")
+    fake.chmod(fake.stat().st_mode | stat.S_IEXEC)
+    monkeypatch.setenv("PATH", str(tmp_path))
+    t0 = time.monotonic()
+    with start_synthesis("ciao") as run:
+        assert time.monotonic() - t0 < 30  # returned while Festival still runs
+        while not pidfile.exists():
+            time.sleep(0.01)
+        pid = pidfile.read_text().strip()
+    # leaving the block (here without taking the result: an error elsewhere) stopped it
+    with pytest.raises(ProcessLookupError):
+        os.kill(int(pid), 0)
+    with pytest.raises(FestivalError, match="closed before its result"):
+        run.result(tmp_path / "x.wav")
+
+
+def test_speak_refuses_a_synthesis_of_another_text(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    from coartic.runtime.errors import AnimationError
+    from coartic.runtime.festival import start_synthesis
+    from coartic.runtime.pipeline import speak_text
+    from coartic.table import ParameterTable
+
+    fake_festival(tmp_path, monkeypatch, [("#", 0.2), ("a1", 0.35), ("#", 0.5)])
+    table = ParameterTable.load(Path(__file__).resolve().parents[2] / "corpus-synthetic" / "ground_truth.json")
+    with start_synthesis("pa") as run, pytest.raises(AnimationError, match="Festival was started on 'pa', not on 'ma'"):
+        speak_text("ma", table, tmp_path / "o", preview="none", synthesis=run)
+    with start_synthesis(" pa ") as run:  # the same text as Festival reads it
+        assert speak_text("pa", table, tmp_path / "o", preview="none", synthesis=run).utterance is not None

@@ -324,7 +324,8 @@ def test_strict_loading_duplicates_encoding_depth_and_huge_numbers(tmp_path: Pat
     with pytest.raises(TableError, match=r"t\.json: key 'alpha' appears twice in one object"):
         ParameterTable.load(p)
     p.write_bytes(text.replace('"variant"', '"var\xe9iant"').encode("latin-1"))
-    with pytest.raises(TableError, match=r"t\.json: line 3: not UTF-8 text \(byte 0xe9 at offset \d+\)"):
+    with pytest.raises(TableError, match=r"t\.json: line 3, column 7: byte 0xe9 is not UTF-8; this table must be UTF-8 text, and "
+                       r"it decodes as cp1252"):
         ParameterTable.load(p)
     p.write_text('{"metadata": ' + "[" * 100_000 + "]" * 100_000 + "}")
     with pytest.raises(TableError, match=r"t\.json: JSON nested 100001 levels deep"):
@@ -407,3 +408,19 @@ def test_the_channel_settings_ranges_are_the_ones_the_core_checks(name: str) -> 
         except ValueError:
             core_accepts = False
         assert core_accepts == (setting.problem(v) is None), (name, v)
+
+
+def test_the_core_defaults_are_the_channel_settings_defaults() -> None:
+    """The one place a default is written twice: Rust's ModelOptions signature (the core cannot
+    read Python). Its defaults are checked equal to coartic.settings'."""
+    import inspect
+
+    from coartic import _core
+    from coartic.settings import CHANNEL_SETTINGS
+
+    sig = inspect.signature(_core.ModelOptions).parameters
+    in_core = [n for n in CHANNEL_SETTINGS if n in sig]
+    assert in_core == ["edge_extent", "apex_fraction", "dominance", "plateau_fraction", "handover"]
+    for name in in_core:
+        assert sig[name].default == CHANNEL_SETTINGS[name].default, name
+        assert getattr(_core.ModelOptions(), name) == CHANNEL_SETTINGS[name].default, name

@@ -41,7 +41,7 @@ from coartic.batch.spec import BatchSpec
 from coartic.batch.tasks import UnitFailed, UnitKey, UnitOutput, fit_unit, load_group, posterior_unit
 from coartic.console import LineProgress
 from coartic.errors import CoarticError
-from coartic.fit.problem import Utterance
+from coartic.model import Utterance
 from coartic.outputs import DeferredSignals, OutputDir
 
 

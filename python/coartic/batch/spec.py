@@ -27,6 +27,7 @@ from __future__ import annotations
 import csv
 import glob
 import hashlib
+import io
 import os
 import re
 from dataclasses import dataclass, replace
@@ -34,6 +35,7 @@ from pathlib import Path
 from typing import Any
 
 from coartic.fit.spec import CorpusSpec, FitSpec, SpecError, load_spec, read_document, synth_hint
+from coartic.textfile import TextDecodeError, read_text
 
 # A group's name is a folder name in the output: plain characters only, and never one of ours.
 GROUP_NAME = re.compile(r"[A-Za-z0-9][A-Za-z0-9._-]*")
@@ -92,11 +94,12 @@ def _manifest_groups(manifest: Path, columns: tuple[str, ...], select: dict[str,
     if not manifest.is_file():
         raise _err(path, "corpus.manifest", f"{manifest} does not exist{synth_hint(manifest)}")
     try:
-        with manifest.open(newline="", encoding="utf-8") as f:
-            reader = csv.DictReader(f)
-            rows = list(reader)
-            cols = reader.fieldnames or []
-    except (OSError, UnicodeDecodeError, csv.Error) as e:
+        reader = csv.DictReader(io.StringIO(read_text(manifest, "manifest"), newline=""))
+        rows = list(reader)
+        cols = reader.fieldnames or []
+    except TextDecodeError as e:
+        raise _err(path, "corpus.manifest", str(e)) from None
+    except (OSError, csv.Error) as e:
         raise _err(path, "corpus.manifest", f"{manifest}: cannot read: {e}") from None
     for c in (*columns, *select):
         if c not in cols:
@@ -167,7 +170,9 @@ def load_batch_spec(path: str | Path) -> BatchSpec:
     select = {k: tuple(str(x) for x in (v if isinstance(v, list) else [v])) for k, v in select_raw.items()}
     # The fit spec's own reading of the data (label map, role map, file column) is kept; which rows
     # are read is the batch's.
-    template = replace(fit.corpus, manifest=None, files=(), labels=(), select=select, limit=None)
+    def corpus(**where: Any) -> CorpusSpec:
+        return replace(fit.corpus, **{"manifest": None, "files": (), "labels": (), "select": select, "limit": None,
+                                      **where})
 
     hashes = {"batch spec": _sha(path, "top level", path), "fit spec": _sha(fit_path, "fit", path)}
     groups: list[Group] = []
@@ -185,12 +190,12 @@ def load_batch_spec(path: str | Path) -> BatchSpec:
         for name_, values in _manifest_groups(manifest, columns, select, path):
             sel = dict(select)
             sel.update({col: (v,) for col, v in zip(columns, values)})
-            spec = fit.with_options(corpus=replace(template, manifest=manifest, select=sel), channels=channels,
+            spec = fit.with_options(corpus=corpus(manifest=manifest, select=sel), channels=channels,
                                     name=f"{name} / {name_}")
             where = ", ".join(f"{col} = {v}" for col, v in zip(columns, values))
             groups.append(Group(name_, spec, f"{where} in {manifest}"))
         hashes["manifest"] = _sha(manifest, "corpus.manifest", path)
-        pooled_corpus = replace(template, manifest=manifest)
+        pooled_corpus = corpus(manifest=manifest)
     else:
         if "group_by" in c:
             raise _err(path, "corpus.group_by", "only with manifest (with folders, each folder is a group)")
@@ -214,13 +219,14 @@ def load_batch_spec(path: str | Path) -> BatchSpec:
                            "(use letters, digits, '.', '_', '-'; not starting with '.')")
             if any(g.name == folder.name for g in groups):
                 raise _err(path, "corpus.folders", f"two folders are named {folder.name!r}: group names must differ")
-            spec = fit.with_options(corpus=replace(template, manifest=manifest), channels=channels,
+            spec = fit.with_options(corpus=corpus(manifest=manifest), channels=channels,
                                     name=f"{name} / {folder.name}")
             groups.append(Group(folder.name, spec, str(folder)))
             hashes[f"manifest {folder.name}"] = _sha(manifest, "corpus.folders", path)
-        # The pooled fit gets its data from the groups' loads; the manifests only name its corpus.
-        pooled_corpus = replace(template, files=tuple(g.spec.corpus.manifest for g in groups
-                                                      if g.spec.corpus.manifest is not None))
+        # The pooled fit gets its data from the groups' loads, never from these: the manifests only
+        # name its corpus (as data and label files both, which a corpus of files needs in pairs).
+        manifests = tuple(g.spec.corpus.manifest for g in groups if g.spec.corpus.manifest is not None)
+        pooled_corpus = corpus(files=manifests, labels=manifests)
     if len(groups) > MAX_GROUPS:
         raise _err(path, "corpus", f"{len(groups)} groups: at most {MAX_GROUPS}")
 

@@ -34,7 +34,7 @@ from pathlib import Path
 from typing import Any
 
 from coartic.errors import CoarticError
-from coartic.fit.problem import Utterance
+from coartic.model import Utterance
 from coartic.fit.spec import FitSpec
 
 RAYON_ENV = "RAYON_NUM_THREADS"

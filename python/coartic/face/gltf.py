@@ -9,6 +9,11 @@ interpolation. Units are metres (glTF's), so the face is 0.2 m tall. The sound i
 has no audio in its core); `asset.extras` names the WAV written beside the file, with the frame
 rate and the FAP file, and that is what `coartic view` plays.
 
+The eight-target set (`limited=True`, `--gltf-morphs eight`) is for three.js up to r132, which
+blends only the 8 largest morph influences of a mesh: one node and mesh per part (the skin in two,
+above and below the lip line), each with at most 8 targets of its own and its own weights channel
+(`limited_meshes`).
+
 `check_glb` is this module's own structural check against the specification (header and chunks,
 every index and byte range, accessor types and bounds, morph-target and animation consistency);
 the tests also read the file back with pygltflib and run Debian's gltfpack (cgltf's validator).
@@ -18,6 +23,7 @@ from __future__ import annotations
 
 import json
 import struct
+from dataclasses import dataclass
 from os import PathLike
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -130,13 +136,83 @@ def srgb_to_linear(c: NDArray[np.float64]) -> NDArray[np.float64]:
     return out
 
 
+# three.js up to r132 (Debian's libjs-three is r111) blends only the 8 largest morph-target influences
+# of a mesh (WebGL vertex attributes; later versions on WebGL2 use textures and blend all).
+MAX_BLENDED_TARGETS = 8
+# A mode below this fraction of its mesh's largest is numerical noise, not movement.
+_MODE_TOLERANCE = 1e-9
+
+
+@dataclass(frozen=True)
+class MorphMesh:
+    """One glTF mesh: primitives (part, triangles in the face's vertex numbering), morph targets
+    (names, displacement fields (targets, face vertices, 3) in mm) and their weights (frames, targets)."""
+
+    name: str
+    primitives: tuple[tuple[str, NDArray[np.int64]], ...]
+    names: tuple[str, ...]
+    fields: NDArray[np.float64]
+    weights: NDArray[np.float64]
+    max_error_mm: float = 0.0  # how far any vertex is from the exact face at a key (the limited set)
+
+
+def limited_meshes(rig: FaceRig, weights: NDArray[np.float64],
+                   max_targets: int = MAX_BLENDED_TARGETS) -> list[MorphMesh]:
+    """The face as one glTF mesh per part, each with at most `max_targets` morph targets, for three.js
+    up to r132 (MAX_BLENDED_TARGETS): then every target of a mesh is blended, at every key and
+    between keys. The skin is two meshes, above and below the lip line (a triangle across it goes
+    below): the upper lip, the lower lip with the jaw and the roll, move ~5 and ~10 ways.
+
+    A mesh's targets are the principal displacements of this animation on its vertices (the
+    singular vectors of the frames' displacements Σ_j w_j T_j, computed in the rig's weight space,
+    so a long animation costs frames × fields, not frames × vertices), each scaled to the largest
+    displacement it makes (weights within -1..1, the extreme frame at +1). A part that moves at most
+    `max_targets` ways (the teeth, the tongue, the eyelids, the skull: jaw, tongue FAPs, blinks) is
+    exact; otherwise the modes past the `max_targets`-th are left out and `max_error_mm` says how
+    far that leaves any vertex, at the worst key."""
+    mesh = rig.mesh
+    w = np.asarray(weights, dtype=np.float64)
+    groups: list[tuple[str, tuple[tuple[str, NDArray[np.int64]], ...]]] = []
+    for part in PART_NAMES:
+        tris = mesh.triangles[part]
+        if part == "skin":
+            above = mesh.upper[tris].all(axis=1)
+            groups += [("skin_upper", (("skin", tris[above]),)), ("skin_lower", (("skin", tris[~above]),))]
+        else:
+            groups.append((part, ((part, tris),)))
+    out = []
+    for name, prims in groups:
+        sel = np.unique(np.concatenate([t.reshape(-1) for _, t in prims]))
+        basis = rig.targets[:, sel, :].reshape(rig.targets.shape[0], -1)  # (fields, 3m)
+        q, r = np.linalg.qr(basis.T)  # basis = r.T q.T
+        u, sv, vt = np.linalg.svd(w @ r.T, full_matrices=False)  # displacements = u sv vt q.T
+        keep = int((sv > _MODE_TOLERANCE * sv[0]).sum()) if sv.size and sv[0] > 0 else 0
+        k = min(keep, max_targets)
+        modes = vt[:k] @ q.T  # (k, 3m), orthonormal rows
+        coef = u[:, :k] * sv[:k]
+        extreme = coef[np.argmax(np.abs(coef), axis=0), np.arange(k)]
+        coef, modes = coef / extreme, modes * extreme[:, None]
+        fields = np.zeros((k, mesh.n_vertices, 3))
+        fields[:, sel] = modes.reshape(k, sel.size, 3)
+        err = 0.0
+        if keep > k:  # the modes left out, frame by frame in chunks (frames × vertices at once could be large)
+            rest = vt[k:keep] @ q.T
+            for lo in range(0, w.shape[0], 256):
+                miss = (u[lo:lo + 256, k:keep] * sv[k:keep]) @ rest
+                err = max(err, float(np.linalg.norm(miss.reshape(miss.shape[0], sel.size, 3), axis=2).max()))
+        out.append(MorphMesh(name, prims, tuple(f"{name}_{j + 1}" for j in range(k)), fields, coef, err))
+    return out
+
+
 def gltf_document(rig: FaceRig, weights: NDArray[np.float64], fps: float, name: str, *,
                   audio: str | None = None, fap_file: str | None = None,
-                  morphs: tuple[tuple[str, ...], NDArray[np.float64]] | None = None) -> tuple[dict[str, Any], bytes]:
+                  morphs: tuple[tuple[str, ...], NDArray[np.float64]] | None = None,
+                  limited: bool = False) -> tuple[dict[str, Any], bytes]:
     """The glTF JSON and binary buffer for the face animated by `weights` (frames, targets) at `fps`.
 
     `morphs` = (names, fields (targets, vertices, 3) in mm) replaces the rig's FAP targets by another
-    morph set, e.g. ARKit's (`arkit_morphs`); its weights are used as they are (no sign split)."""
+    morph set, e.g. ARKit's (`arkit_morphs`); its weights are used as they are (no sign split).
+    `limited`: the rig's weights blended by at most 8 targets per mesh (`limited_meshes`)."""
     weights = np.asarray(weights, dtype=np.float64)
     n_targets = rig.targets.shape[0] if morphs is None else len(morphs[0])
     if weights.ndim != 2 or weights.shape[1] != n_targets or weights.shape[0] < 1:
@@ -144,55 +220,82 @@ def gltf_document(rig: FaceRig, weights: NDArray[np.float64], fps: float, name: 
     if not np.isfinite(weights).all():
         raise AnimationError("glTF weights are not finite")
     mesh = rig.mesh
-    if morphs is None:
-        names, fields, weights = split_signs(rig.target_names, rig.targets, weights)
+    whole = tuple((part, mesh.triangles[part]) for part in PART_NAMES)
+    if limited:
+        meshes = limited_meshes(rig, weights)
+    elif morphs is None:
+        names, fields, signed = split_signs(rig.target_names, rig.targets, weights)
+        meshes = [MorphMesh("face", whole, tuple(names), fields, signed)]
     else:
-        names, fields = list(morphs[0]), morphs[1]
-    n_targets = len(names)
-    b = _Builder()
-    primitives = []
+        meshes = [MorphMesh("face", whole, tuple(morphs[0]), morphs[1], weights)]
+    # smooth normals of the face at rest, each part's from all its triangles (so that the two halves
+    # of the limited set's skin shade alike along their seam); a renderer recomputes them as the
+    # targets move the face, or uses these: glTF's morph targets may carry NORMAL deltas, these do not
+    normals = np.zeros_like(mesh.vertices)
     for part in PART_NAMES:
-        sel = np.flatnonzero(mesh.in_part(part))
-        remap = np.full(mesh.n_vertices, -1, dtype=np.int64)
-        remap[sel] = np.arange(sel.size)
-        tris = remap[mesh.triangles[part]]
-        pos = b.add((mesh.vertices[sel] * MM).astype(np.float32), "VEC3", FLOAT, ARRAY_BUFFER, bounds=True)
-        col = b.add(srgb_to_linear(mesh.colors[sel]).astype(np.float32), "VEC3", FLOAT, ARRAY_BUFFER)
-        # smooth normals of the face at rest (a renderer recomputes them as the targets move it,
-        # or uses these: glTF's morph targets may carry NORMAL deltas, these do not)
-        nrm = b.add(vertex_normals(mesh.vertices[sel], tris).astype(np.float32), "VEC3", FLOAT, ARRAY_BUFFER)
-        idx_type, comp = (np.uint16, UINT16) if sel.size < 65535 else (np.uint32, UINT32)
-        ind = b.add(tris.reshape(-1).astype(idx_type), "SCALAR", comp, ELEMENT_ARRAY_BUFFER)
-        b.accessors[ind]["min"] = [int(tris.min())]
-        b.accessors[ind]["max"] = [int(tris.max())]
-        zeros = b.zeros(sel.size)
-        targets = [{"POSITION": b.add_sparse_vec3((fields[k][sel] * MM).astype(np.float32), zeros)}
-                   for k in range(n_targets)]
-        primitives.append({"attributes": {"POSITION": pos, "NORMAL": nrm, "COLOR_0": col}, "indices": ind, "material": 0,
-                           "mode": 4, "targets": targets, "extras": {"part": part}})
+        on = mesh.in_part(part)
+        normals[on] = vertex_normals(mesh.vertices, mesh.triangles[part])[on]
+    b = _Builder()
+    doc_meshes: list[dict[str, Any]] = []
+    nodes: list[dict[str, Any]] = []
+    channels: list[dict[str, Any]] = []
+    samplers: list[dict[str, Any]] = []
     times = (np.arange(weights.shape[0]) / fps).astype(np.float32)
     t_in = b.add(times, "SCALAR", FLOAT, bounds=True)
-    w_out = b.add(weights.astype(np.float32).reshape(-1), "SCALAR", FLOAT)
+    for m in meshes:
+        primitives = []
+        for part, part_tris in m.primitives:
+            sel = np.unique(part_tris)
+            remap = np.full(mesh.n_vertices, -1, dtype=np.int64)
+            remap[sel] = np.arange(sel.size)
+            tris = remap[part_tris]
+            pos = b.add((mesh.vertices[sel] * MM).astype(np.float32), "VEC3", FLOAT, ARRAY_BUFFER, bounds=True)
+            col = b.add(srgb_to_linear(mesh.colors[sel]).astype(np.float32), "VEC3", FLOAT, ARRAY_BUFFER)
+            nrm = b.add(normals[sel].astype(np.float32), "VEC3", FLOAT, ARRAY_BUFFER)
+            idx_type, comp = (np.uint16, UINT16) if sel.size < 65535 else (np.uint32, UINT32)
+            ind = b.add(tris.reshape(-1).astype(idx_type), "SCALAR", comp, ELEMENT_ARRAY_BUFFER)
+            b.accessors[ind]["min"] = [int(tris.min())]
+            b.accessors[ind]["max"] = [int(tris.max())]
+            prim: dict[str, Any] = {"attributes": {"POSITION": pos, "NORMAL": nrm, "COLOR_0": col}, "indices": ind,
+                                    "material": 0, "mode": 4, "extras": {"part": part}}
+            if m.names:
+                zeros = b.zeros(sel.size)
+                prim["targets"] = [{"POSITION": b.add_sparse_vec3((m.fields[k][sel] * MM).astype(np.float32), zeros)}
+                                   for k in range(len(m.names))]
+            primitives.append(prim)
+        doc_mesh: dict[str, Any] = {"name": m.name, "primitives": primitives}
+        if m.names:
+            doc_mesh["weights"] = [0.0] * len(m.names)
+            doc_mesh["extras"] = {"targetNames": list(m.names)}
+            if limited:
+                doc_mesh["extras"]["maxErrorMm"] = m.max_error_mm
+            w_out = b.add(m.weights.astype(np.float32).reshape(-1), "SCALAR", FLOAT)
+            channels.append({"sampler": len(samplers), "target": {"node": len(nodes), "path": "weights"}})
+            samplers.append({"input": t_in, "output": w_out, "interpolation": "LINEAR"})
+        nodes.append({"name": m.name, "mesh": len(doc_meshes)})
+        doc_meshes.append(doc_mesh)
     while len(b.blob) % 4:
         b.blob.append(0)
+    extras: dict[str, Any] = {"fps": float(fps), "frames": int(weights.shape[0]), "audio": audio,
+                              "fap_file": fap_file, "units": "m", "face": "coartic generated face"}
+    if limited:
+        extras["morphs"] = {"max_blended": MAX_BLENDED_TARGETS,
+                            "max_error_mm": max((m.max_error_mm for m in meshes), default=0.0)}
     doc: dict[str, Any] = {
-        "asset": {"version": "2.0", "generator": "coartic (coartic.face.gltf)",
-                  "extras": {"fps": float(fps), "frames": int(weights.shape[0]), "audio": audio,
-                             "fap_file": fap_file, "units": "m", "face": "coartic generated face"}},
+        "asset": {"version": "2.0", "generator": "coartic (coartic.face.gltf)", "extras": extras},
         "scene": 0,
-        "scenes": [{"name": name, "nodes": [0]}],
-        "nodes": [{"name": "face", "mesh": 0}],
-        "meshes": [{"name": "face", "primitives": primitives, "weights": [0.0] * n_targets,
-                    "extras": {"targetNames": names}}],
+        "scenes": [{"name": name, "nodes": list(range(len(nodes)))}],
+        "nodes": nodes,
+        "meshes": doc_meshes,
         "materials": [{"name": "face", "doubleSided": True,
                        "pbrMetallicRoughness": {"baseColorFactor": [1.0, 1.0, 1.0, 1.0], "metallicFactor": 0.0,
                                                 "roughnessFactor": 0.75}}],
-        "animations": [{"name": name, "channels": [{"sampler": 0, "target": {"node": 0, "path": "weights"}}],
-                        "samplers": [{"input": t_in, "output": w_out, "interpolation": "LINEAR"}]}],
         "buffers": [{"byteLength": len(b.blob)}],
         "bufferViews": b.views,
         "accessors": b.accessors,
     }
+    if channels:  # a face that nothing moves (a still pose) has no animation: glTF wants channels in one
+        doc["animations"] = [{"name": name, "channels": channels, "samplers": samplers}]
     return doc, bytes(b.blob)
 
 
@@ -207,10 +310,11 @@ def glb_bytes(doc: dict[str, Any], blob: bytes) -> bytes:
 
 def write_glb(path: str | PathLike[str], rig: FaceRig, weights: NDArray[np.float64], fps: float, name: str, *,
               audio: str | None = None, fap_file: str | None = None,
-              morphs: tuple[tuple[str, ...], NDArray[np.float64]] | None = None) -> Path:
+              morphs: tuple[tuple[str, ...], NDArray[np.float64]] | None = None, limited: bool = False) -> Path:
     """Write the animated face to `path` (atomically), after checking it."""
     path = Path(path)
-    data = glb_bytes(*gltf_document(rig, weights, fps, name, audio=audio, fap_file=fap_file, morphs=morphs))
+    data = glb_bytes(*gltf_document(rig, weights, fps, name, audio=audio, fap_file=fap_file, morphs=morphs,
+                                    limited=limited))
     check_glb_bytes(data, str(path))
     atomic_write_bytes(path, data)
     return path
@@ -431,10 +535,12 @@ def check_gltf(doc: dict[str, Any], blob: bytes, where: str = "<gltf>") -> None:
 
 
 def write_face_glb(path: str | PathLike[str], faps: FapSequence, *, audio: str | None = None,
-                   fap_file: str | None = None) -> Path:
-    """The project's face played by a FAP sequence, as a .glb at `path` (the sequence's fps and name)."""
+                   fap_file: str | None = None, limited: bool = False) -> Path:
+    """The project's face played by a FAP sequence, as a .glb at `path` (the sequence's fps and name);
+    `limited`: at most 8 morph targets per mesh (`limited_meshes`), for three.js up to r132."""
     rig = default_rig()
-    return write_glb(path, rig, rig.weights(faps), faps.fps, faps.name, audio=audio, fap_file=fap_file)
+    return write_glb(path, rig, rig.weights(faps), faps.fps, faps.name, audio=audio, fap_file=fap_file,
+                     limited=limited)
 
 
 def _side_share(x: NDArray[np.float64]) -> NDArray[np.float64]:
@@ -494,5 +600,5 @@ def export_gltf(animation: Animation, settings: ExportSettings) -> dict[str, Pat
                   fap_file=fap_file, morphs=arkit_morphs(rig, animation.neutral, settings.face))
     else:
         write_face_glb(path, animation_faps(animation, settings.face, settings.name), audio=settings.audio_name(),
-                       fap_file=fap_file)
+                       fap_file=fap_file, limited=settings.gltf_morphs == "eight")
     return {"gltf": path}

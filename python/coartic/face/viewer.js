@@ -44,40 +44,65 @@ function parseGlb(buffer) {
   return {json, accessor};
 }
 
-// One vertex array for all primitives (parts), base positions, colours, triangles, morph targets,
-// and the weights animation.
+// One vertex array for all primitives (parts) of every mesh, base positions, colours, triangles,
+// morph targets, and the weights animation. The FAP and ARKit morph sets are one mesh; the set for
+// three.js up to r132 (--gltf-morphs eight) is several, each with at most 8 targets of its own
+// vertices and its own weights channel: a target is kept with where its mesh's vertices start.
 function loadFace(buffer) {
   const {json, accessor} = parseGlb(buffer);
-  const mesh = json.meshes[0];
-  const nTargets = mesh.primitives[0].targets ? mesh.primitives[0].targets.length : 0;
+  const anim = (json.animations || [])[0];
   let nVerts = 0;
-  for (const p of mesh.primitives) nVerts += json.accessors[p.attributes.POSITION].count;
+  for (const mesh of json.meshes) for (const p of mesh.primitives) nVerts += json.accessors[p.attributes.POSITION].count;
   const base = new Float32Array(nVerts * 3);
   const color = new Float32Array(nVerts * 3).fill(0.8);
-  const targets = [];
-  for (let k = 0; k < nTargets; k++) targets.push(new Float32Array(nVerts * 3));
+  const targets = [], starts = [], names = [], channels = [];
   const indices = [];
   let offset = 0;
-  for (const p of mesh.primitives) {
-    const pos = accessor(p.attributes.POSITION);
-    base.set(pos, offset * 3);
-    if (p.attributes.COLOR_0 !== undefined) {
-      const c = accessor(p.attributes.COLOR_0);
-      const nc = TYPES[json.accessors[p.attributes.COLOR_0].type];
-      for (let i = 0; i < pos.length / 3; i++) for (let j = 0; j < 3; j++) color[(offset + i) * 3 + j] = c[i * nc + j];
+  json.nodes.forEach((node, n) => {
+    if (node.mesh === undefined) return;
+    const mesh = json.meshes[node.mesh];
+    const nt = mesh.primitives[0].targets ? mesh.primitives[0].targets.length : 0;
+    let meshVerts = 0;
+    for (const p of mesh.primitives) meshVerts += json.accessors[p.attributes.POSITION].count;
+    const own = [];
+    for (let k = 0; k < nt; k++) own.push(new Float32Array(meshVerts * 3));
+    const first = offset;
+    for (const p of mesh.primitives) {
+      const pos = accessor(p.attributes.POSITION);
+      base.set(pos, offset * 3);
+      if (p.attributes.COLOR_0 !== undefined) {
+        const c = accessor(p.attributes.COLOR_0);
+        const nc = TYPES[json.accessors[p.attributes.COLOR_0].type];
+        for (let i = 0; i < pos.length / 3; i++) for (let j = 0; j < 3; j++) color[(offset + i) * 3 + j] = c[i * nc + j];
+      }
+      for (let k = 0; k < nt; k++) own[k].set(accessor(p.targets[k].POSITION), (offset - first) * 3);
+      const idx = accessor(p.indices);
+      for (let i = 0; i < idx.length; i++) indices.push(idx[i] + offset);
+      offset += pos.length / 3;
     }
-    for (let k = 0; k < nTargets; k++) targets[k].set(accessor(p.targets[k].POSITION), offset * 3);
-    const idx = accessor(p.indices);
-    for (let i = 0; i < idx.length; i++) indices.push(idx[i] + offset);
-    offset += pos.length / 3;
+    if (nt === 0) return;
+    const ch = anim && anim.channels.find(c => c.target.path === "weights" && c.target.node === n);
+    if (!ch) return;  // targets that nothing animates stay at rest
+    const sampler = anim.samplers[ch.sampler];
+    channels.push({times: accessor(sampler.input), weights: accessor(sampler.output), nt, first: targets.length});
+    for (let k = 0; k < nt; k++) { targets.push(own[k]); starts.push(first * 3); }
+    const meshNames = (mesh.extras && mesh.extras.targetNames) || [];
+    for (let k = 0; k < nt; k++) names.push(meshNames[k] || `${mesh.name || node.mesh}.${k}`);
+  });
+  // one weights table (keys x all targets): coartic writes every channel at the same key times
+  const nTargets = targets.length;
+  const times = channels.length ? channels[0].times : new Float32Array([0]);
+  for (const c of channels) {
+    if (c.times.length !== times.length || c.times.some((t, i) => t !== times[i])) {
+      throw new Error("the weights channels of this glTF have different key times");
+    }
   }
-  const anim = json.animations[0];
-  const ch = anim.channels.find(c => c.target.path === "weights");
-  const sampler = anim.samplers[ch.sampler];
-  const times = accessor(sampler.input);
-  const weights = accessor(sampler.output);
-  return {base, color, targets, indices: new Uint32Array(indices), times, weights, nTargets,
-          names: (mesh.extras && mesh.extras.targetNames) || [], extras: json.asset.extras || {}};
+  const weights = new Float32Array(times.length * nTargets);
+  for (const c of channels) {
+    for (let i = 0; i < times.length; i++) for (let k = 0; k < c.nt; k++) weights[i * nTargets + c.first + k] = c.weights[i * c.nt + k];
+  }
+  return {base, color, targets, starts, indices: new Uint32Array(indices), times, weights, nTargets,
+          names, extras: json.asset.extras || {}};
 }
 
 // Weights at time t: linear between keys, held outside (glTF LINEAR sampler).
@@ -210,8 +235,8 @@ class FaceView {
     for (let k = 0; k < face.nTargets; k++) {
       const wk = w[k];
       if (wk === 0) continue;
-      const d = face.targets[k];
-      for (let i = 0; i < p.length; i++) p[i] += wk * d[i];
+      const d = face.targets[k], s = face.starts[k];
+      for (let i = 0; i < d.length; i++) p[s + i] += wk * d[i];
     }
     gl.bindBuffer(gl.ARRAY_BUFFER, this.posBuf);
     gl.bufferSubData(gl.ARRAY_BUFFER, 0, p);

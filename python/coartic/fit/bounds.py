@@ -44,10 +44,11 @@ from typing import TYPE_CHECKING, Any, Sequence
 import numpy as np
 from numpy.typing import NDArray
 
-from coartic.fit.parameters import psd_pseudo_inverse
+from coartic.estimation.parameters import psd_pseudo_inverse
+from coartic.settings import default
 
 if TYPE_CHECKING:
-    from coartic.fit.problem import ChannelProblem
+    from coartic.estimation.problem import ChannelProblem
 
 FloatArray = NDArray[np.float64]
 
@@ -377,7 +378,7 @@ def reading(parameter: str, side: str, value: float, phoneme: str, problem: Chan
     ``row`` is the phoneme's fitted parameters (for θ, the reach θ^(−1/c) uses its c)."""
     row = row or {}
     opts = problem.options
-    plateau = getattr(opts, "dominance", "centre") == "plateau"
+    plateau = getattr(opts, "dominance", default("dominance")) == "plateau"
     handover = bool(getattr(opts, "handover", False))
     ch = problem.data.channel
     up = side == "upper"

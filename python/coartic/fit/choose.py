@@ -34,7 +34,7 @@ from rich.console import Console
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
 from coartic.console import LineProgress
-from coartic.fit.problem import Utterance
+from coartic.model import Utterance
 from coartic.fit.validate import FitFunction, UnseenPhonemes, kfold_splits, score
 from coartic.fit.spec import CHOOSABLE, Choose, FitSpec, SpecError, choose_base, make_choose, parse_grid
 from coartic.errors import UsageError

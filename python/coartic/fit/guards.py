@@ -17,7 +17,7 @@ from __future__ import annotations
 
 from typing import Sequence
 
-from coartic.fit.problem import Utterance
+from coartic.model import Utterance
 from coartic.fit.spec import FitSpec, SpecError
 
 

@@ -40,7 +40,8 @@ from numpy.typing import NDArray
 from scipy.stats import qmc
 
 from coartic.fit.engines import EngineResult
-from coartic.fit.problem import ChannelProblem, Packing
+from coartic.estimation.packing import Packing
+from coartic.estimation.problem import ChannelProblem
 from coartic.fit.staged import StageResult, fit_staged
 from coartic.table import N_PARAMS, PARAMETERS
 

@@ -24,8 +24,9 @@ from numpy.typing import NDArray
 
 from coartic import __version__
 from coartic.fit.bounds import CATEGORY_TITLES, BoundNote, explain_bounds, summary_counts
-from coartic.fit.parameters import ParameterSet, psd_pseudo_inverse
-from coartic.fit.problem import ChannelProblem, Packing
+from coartic.estimation.parameters import ParameterSet, psd_pseudo_inverse
+from coartic.estimation.packing import Packing
+from coartic.estimation.problem import ChannelProblem
 from coartic.errors import UsageError
 from coartic.fit.spec import FitSpec
 from coartic.fit.heldout import baseline_summary, flags
@@ -34,7 +35,7 @@ from coartic.fit.staged import StageResult
 from coartic.io.labelmap import resolve_label_map
 from coartic.io.roles import ROLE_RECORD_KEY, resolve_role_map
 from coartic.outputs import atomic_path, atomic_write_text
-from coartic.table import PARAMETERS, ParameterTable
+from coartic.table import PARAMETERS, ChannelSettings, ParameterTable
 
 BAR_MM = 0.3  # the paper's bar: RMSE below 0.3 mm
 GROUP_KEYS = ("vowel", "consonant", "repetition", "rate")
@@ -242,14 +243,18 @@ class FitResult:
                 out[r["channel"]] = (r["value"], r["rmse_mm"])
         return out
 
+    def channel_settings(self, channel: str) -> ChannelSettings:
+        """The settings ``channel`` was fitted with: the spec's, a ``[choose]``n model option
+        (plateau_fraction) the chosen value, β the fitted one (what the table and report show)."""
+        fitted_with = self.spec if self.choice is None else self.choice.spec_for(self.spec, channel)
+        return fitted_with.channel_settings(channel, self.channels[channel].beta)
+
     def table(self) -> ParameterTable:
         """The fitted parameter table (coartic.table/1) with the fit's metadata."""
         s = self.spec
         t = ParameterTable(variant=s.variant, source=f"fit of {s.path}")
         for ch, fit in self.channels.items():
-            # the settings the channel was fitted with: a [choose]n model option (plateau_fraction) is the chosen one
-            fitted_with = s if self.choice is None else self.choice.spec_for(s, ch)
-            t.channels[ch] = fitted_with.channel_settings(ch, fit.beta)
+            t.channels[ch] = self.channel_settings(ch)
             lo, hi = fit.packing.lower[:, 0].min(), fit.packing.upper[:, 0].max()
             t.bounds[ch] = {"target": (float(lo), float(hi))}
             # (with per-speaker targets, the shared values and the population targets: ChannelProblem)

@@ -21,7 +21,8 @@ from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, T
 from coartic.console import LineProgress
 from coartic.errors import CoarticError
 from coartic.fit.engines import OptionError, check_options
-from coartic.fit.problem import ChannelProblem, Utterance, build_problem
+from coartic.estimation.problem import ChannelProblem, build_problem
+from coartic.model import Utterance
 from coartic.fit.result import ChannelFit, FitResult, finish_channel, now
 from coartic.fit.spec import FitSpec, SpecError, load_spec
 from coartic.fit.multistart import MultiStart, fit_multistart
@@ -42,7 +43,7 @@ def start_values(spec: FitSpec, channel: str, phonemes: Sequence[str]) -> tuple[
         table = ParameterTable.load(spec.start_table)
         return table.to_matrix(channel, phonemes)
     except ValueError as e:
-        raise SpecError(f"{spec.path}: [parameters.start_table] {e}") from None
+        raise SpecError.at(spec.path, "parameters.start_table", str(e)) from None
 
 
 def fit_channel(spec: FitSpec, utterances: Sequence[Utterance], channel: str,
@@ -207,7 +208,8 @@ def check_engine_options(spec: FitSpec) -> None:
     try:
         check_options(spec.engine, spec.engine_options)
     except OptionError as e:
-        raise SpecError(f"{spec.path}: [engine.options] {e.key} ({spec.engine} engine): {e.message}") from None
+        raise SpecError.at(spec.path, f"engine.options.{e.key}", f"({spec.engine} engine) {e.message}",
+                           parameter=e.key) from None
 
 
 def check_overrides(spec: FitSpec, utterances: Sequence[Utterance]) -> list[str]:
@@ -227,8 +229,8 @@ def check_overrides(spec: FitSpec, utterances: Sequence[Utterance]) -> list[str]
         missing = [p for p in phonemes if p not in present]
         if len(phonemes) - len(missing) < needed:
             what = "none occurs" if needed == 1 else "fewer than two occur"
-            raise SpecError(f"{spec.path}: [{key}] phonemes {list(phonemes)}: {what} in the corpus, so it "
-                            f"would change nothing {inventory}")
+            raise SpecError.at(spec.path, key, f"phonemes {list(phonemes)}: {what} in the corpus, so it would change "
+                               f"nothing {inventory}", ", ".join(missing))
         if missing:
             notes.append(f"[{key}] phonemes {missing} do not occur in the corpus: not applied to them")
     return notes

@@ -55,9 +55,9 @@ class Score:
 
     def calibration(self, channel: str, predicted: list[F64] | None = None) -> tuple[float, float]:
         """(a, b) of measured ≈ a + b·predicted over every valid sample of ``channel``: the speaker
-        calibrated on its own data (``coartic.fit.problem.affine_coefficients``). ``predicted``:
+        calibrated on its own data (``coartic.estimation.speakers.affine_coefficients``). ``predicted``:
         other predictions of the same samples (a baseline's) instead of the table's."""
-        from coartic.fit.problem import affine_coefficients
+        from coartic.estimation.speakers import affine_coefficients
 
         f = np.concatenate(self.predicted[channel] if predicted is None else predicted)
         y = np.concatenate([u.observed[channel] for u in self.utterances]).astype(np.float64)

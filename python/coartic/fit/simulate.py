@@ -10,6 +10,8 @@ from numpy.typing import NDArray
 
 from coartic import _core
 from coartic.model import Utterance, build_corpus
+from coartic.settings import default
+from coartic.table import PAUSE
 
 # A small, identifiable VCV model for one channel (rows: # a i p t l; columns in PARAMETERS order).
 PHONEMES: tuple[str, ...] = ("#", "a", "i", "p", "t", "l")
@@ -29,7 +31,7 @@ def vcv_utterances(rng: np.random.Generator, params: NDArray[np.float64] = TRUTH
                    phonemes: Sequence[str] = PHONEMES, vowels: Sequence[str] = ("a", "i"),
                    consonants: Sequence[str] = ("p", "t", "l"), repetitions: int = 3,
                    rates: dict[str, float] | None = None, noise: float = 0.1, channel: str = "LLO",
-                   rate_hz: float = 100.0, beta: float = 1.0) -> list[Utterance]:
+                   rate_hz: float = 100.0, beta: float = default("beta")) -> list[Utterance]:
     """# V C V # for every vowel, consonant, repetition and rate, evaluated by the Rust core + noise."""
     rates = rates or {"normal": 1.0, "fast": 0.6}
     out: list[Utterance] = []
@@ -38,7 +40,7 @@ def vcv_utterances(rng: np.random.Generator, params: NDArray[np.float64] = TRUTH
             for rate, factor in rates.items():
                 for rep in range(1, repetitions + 1):
                     labels = ("#", v, c, v, "#")
-                    d = np.array([DURATIONS[x] * (1.0 if x == "#" else factor) for x in labels])
+                    d = np.array([DURATIONS[x] * (1.0 if x == PAUSE else factor) for x in labels])
                     d *= rng.uniform(0.9, 1.1, d.size)
                     ends = np.cumsum(d)
                     starts = np.concatenate([[0.0], ends[:-1]])

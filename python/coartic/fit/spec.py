@@ -1,29 +1,45 @@
 """The fit specification: a TOML file (``fit/*.toml``) describing one least-squares fit.
 
 Every path in a spec is relative to the spec file. Every error names the spec file and the key at
-fault, e.g. ``fit/synthetic.toml: [engine] name = 'foo': unknown engine (scipy, nlopt, casadi)``.
+fault, e.g. ``fit/synthetic.toml: [engine.name] 'foo': unknown engine (scipy, nlopt, casadi)``, and
+carries the place as attributes (``SpecError``: file, section, entry, key, phoneme, parameter).
+
+The spec is a typed schema (pydantic v2 dataclasses, chosen by measurement: docs/FITTING.md, "The
+spec schema"; ``bench/spec_schema.py``): ``FitSpec`` and its parts check their own fields on every
+construction, so ``FitSpec.with_options`` and ``dataclasses.replace`` re-validate what they change
+as loading a file does. The TOML document maps onto ``FitSpec`` through one table, ``DOCUMENT``
+(section, key -> field), read both ways: to build the fields and to name a field's error by the key
+the user wrote. The model's channel settings (default, range, meaning) come from
+``coartic.settings``, the parameters' domains from ``coartic.table.MODEL_DOMAIN``.
 
 See ``fit/template.toml`` for a commented example of every key.
 """
 
 from __future__ import annotations
 
+import dataclasses
+import functools
 import math
 import tomllib
-from dataclasses import dataclass, field, replace
+from collections.abc import Callable, Iterable, Mapping
 from pathlib import Path
-from typing import Any
+from typing import Annotated, Any, TypeVar
+
+from pydantic import BeforeValidator, ConfigDict, ValidationError, ValidationInfo, model_validator
+from pydantic.dataclasses import dataclass
+from pydantic_core import ArgsKwargs, PydanticCustomError
 
 from coartic.errors import CoarticError
-from coartic.textfile import TextDecodeError, read_text
 from coartic.io.errors import DataError
 from coartic.io.roles import RoleMap
 from coartic.settings import CHANNEL_SETTINGS, default
 from coartic.table import ALL_CHANNELS, CHANNELS, PARAMETERS, VARIANTS, ChannelSettings, domain_problem
+from coartic.textfile import TextDecodeError, read_text
 
 ENGINES: tuple[str, ...] = ("scipy", "nlopt", "casadi")
 # [validate] group: what a k-fold validation holds out together (manifest columns, or the file).
 VALIDATE_GROUPS: tuple[str, ...] = ("utterance", "sentence", "rate", "speaker", "repetition")
+SPEAKER_MODES: tuple[str, ...] = ("none", "offset", "offset_scale", "targets")
 
 # Starting values of the dynamics; targets start from the data (mean value at the target times).
 DEFAULT_START: dict[str, float] = {
@@ -51,63 +67,8 @@ DEFAULT_STAGES: tuple[tuple[str, ...], ...] = (
 # [fit] defaults: multi-start estimation (coartic.fit.multistart; measured in bench/multistart.py)
 DEFAULT_STARTS = 32
 DEFAULT_PROBE = 10  # evaluations per stage in the probe every start gets
-
-
-class SpecError(CoarticError, ValueError):
-    """A fit specification that cannot be used; the message names the file and the key, and so do
-    the attributes ``file`` (the spec's path), ``key`` (``"model.beta"``, ``"override #2.fixed.k_r"``)
-    and, where one is at fault, ``phoneme`` (its name), for programs that must not parse prose."""
-
-    file: Path | None = None
-    key: str | None = None
-
-    @classmethod
-    def at(cls, file: Path, key: str, message: str, phoneme: str | None = None) -> SpecError:
-        """``file: [key] message``, with the place in the attributes as well."""
-        err = cls(f"{file}: [{key}] {message}")
-        err.file, err.key, err.phoneme = file, key, phoneme
-        return err
-
-
-@dataclass(frozen=True)
-class Override:
-    """Per-phoneme (optionally per-channel) changes to which parameters are free, their start and bounds."""
-
-    phonemes: tuple[str, ...]
-    channels: tuple[str, ...] | None = None  # None: every channel
-    fixed: dict[str, float] = field(default_factory=dict)  # fixed at this value
-    free: tuple[str, ...] = ()  # made free (even if not in the global list)
-    start: dict[str, float] = field(default_factory=dict)
-    bounds: dict[str, tuple[float, float]] = field(default_factory=dict)
-
-    def applies(self, phoneme: str, channel: str) -> bool:
-        return phoneme in self.phonemes and (self.channels is None or channel in self.channels)
-
-
-@dataclass(frozen=True)
-class Tie:
-    """Parameters shared by a group of phonemes (e.g. θ and c by place of articulation): the first
-    phoneme of the group present in a channel's data carries the value, the others take it."""
-
-    phonemes: tuple[str, ...]
-    parameters: tuple[str, ...]
-    channels: tuple[str, ...] | None = None  # None: every channel
-
-
-@dataclass(frozen=True)
-class Shrink:
-    """Shrinkage of a class of phonemes toward its class mean (``[[shrink]]``): for each parameter,
-    one penalty row per member, ``prior_noise · (v_i − mean_class(v)) / sd`` (v the value, or its
-    logarithm with ``log``), the mean over every member present in the channel's data (fixed ones
-    count in the mean)."""
-
-    phonemes: tuple[str, ...]
-    parameters: tuple[str, ...]
-    sd: float
-    log: bool = False
-    channels: tuple[str, ...] | None = None  # None: every channel
-    key: str = "shrink"  # the spec key its errors and reports are named by ("shrink #2")
-
+# Fitted on a log scale: their bounds and log-scale priors need positive values.
+LOG_SCALE_PARAMETERS = ("alpha", "theta_bw", "theta_fw", "psi", "beta")
 
 # Settings ``[choose]`` / ``coartic fit --choose`` may choose by cross-validation, and which end of a
 # grid is the stronger regularisation (the one-standard-error rule moves toward it): -1 smaller values,
@@ -116,87 +77,594 @@ CHOOSABLE: dict[str, int] = {"shrink.sd": -1, "prior_noise": +1, "plateau_fracti
 CHOOSE_RULES: tuple[str, ...] = ("min", "1se")
 
 
-@dataclass(frozen=True)
+class SpecError(CoarticError, ValueError):
+    """A fit specification that cannot be used. The message names the file and the key
+    (``spec.toml: [override #3.fixed.theta_bw] ...``); so do the attributes, for programs that must
+    not parse prose: ``file`` (the spec's path), ``key`` (the whole place: ``"model.beta"``,
+    ``"override #3.fixed.theta_bw"``), ``section`` (``"model"``, ``"override"``; None at the top
+    level), ``entry`` (the index of a ``[[override]]``, ``[[tie]]`` or ``[[shrink]]`` table, counted
+    from 0 as in the spec's lists: ``override #3`` is entry 2), and where one is at fault
+    ``phoneme`` (its name, never an index; several as "p, b"), ``parameter`` and ``value``.
+    ``problems`` lists every (key, message) when the schema found several at once."""
+
+    file: Path | None = None
+    key: str | None = None
+    section: str | None = None
+    entry: int | None = None
+    problems: tuple[tuple[str, str], ...] = ()
+
+    @classmethod
+    def at(cls, file: Path | str | None, key: str | None, message: str, phoneme: str | None = None, *,
+           parameter: str | None = None, value: Any = None) -> SpecError:
+        """``file: [key] message`` (``file: message`` for the file as a whole, key None), with the
+        place in the attributes as well."""
+        text = message if key is None else f"[{key}] {message}"
+        err = cls(text if file is None else f"{file}: {text}")
+        err.file = None if file is None else Path(file)
+        err.key, err.phoneme, err.parameter, err.value = key, phoneme, parameter, value
+        err.section, err.entry = _section_entry(key)
+        err.problems = ((key or "", message),)
+        return err
+
+
+def _section_entry(key: str | None) -> tuple[str | None, int | None]:
+    """("override", 2) of "override #3.fixed.theta_bw", ("model", None) of "model.beta"; (None,
+    None) at the top level."""
+    head = (key or "top level").split(".", 1)[0]
+    if head in ("top level", "name"):
+        return None, None
+    name, sep, number = head.partition(" #")
+    return name, int(number) - 1 if sep and number.isdigit() else None
+
+
+# --------------------------------------------------------------------------- field types
+# Each check raises a PydanticCustomError whose context may hold ``loc`` (a place below the field,
+# e.g. the parameter of a table) and ``phoneme``/``parameter``/``value``: spec_error() turns them
+# into the SpecError's key and attributes.
+
+
+def _bad(message: str, loc: tuple[str | int, ...] = (), **place: Any) -> PydanticCustomError:
+    return PydanticCustomError("coartic_spec", "{message}", {"message": message, "loc": loc, **place})
+
+
+def _number(v: Any) -> float:
+    # TOML has nan: refused here, once, so that no comparison downstream lets it through
+    if isinstance(v, bool) or not isinstance(v, (int, float)) or math.isnan(v):
+        raise _bad(f"expected a number, got {v!r}")
+    return float(v)
+
+
+def _positive(v: Any) -> float:
+    x = _number(v)
+    if not (x > 0 and math.isfinite(x)):
+        raise _bad(f"{x} must be a positive number")
+    return x
+
+
+def _flag(v: Any) -> bool:
+    if not isinstance(v, bool):
+        raise _bad(f"expected true or false, got {v!r}")
+    return v
+
+
+def _count(low: int) -> Callable[[Any], int]:
+    def check(v: Any) -> int:
+        if isinstance(v, bool) or not isinstance(v, int) or v < low:
+            raise _bad(f"expected {'a positive integer' if low == 1 else f'an integer >= {low}'}, got {v!r}")
+        return v
+    return check
+
+
+def _optional(check: Callable[[Any], Any]) -> Callable[[Any], Any]:
+    return lambda v: None if v is None else check(v)
+
+
+def _one_of(choices: tuple[str, ...], what: str = "") -> Callable[[Any], str]:
+    def check(v: Any) -> str:
+        if v not in choices:
+            raise _bad(f"{v!r}: {what or 'expected one of'} ({', '.join(choices)})" if what
+                       else f"{v!r}: expected one of {', '.join(choices)}")
+        return str(v)
+    return check
+
+
+def _names(v: Any) -> tuple[str, ...]:
+    """A string or a list of strings (``phonemes = "p"`` is ``["p"]``)."""
+    if isinstance(v, str):
+        return (v,)
+    if not isinstance(v, (list, tuple)) or not all(isinstance(s, str) for s in v):
+        raise _bad(f"expected a list of strings, got {v!r}")
+    return tuple(v)
+
+
+def _known(allowed: tuple[str, ...], what: str) -> Callable[[Any], tuple[str, ...]]:
+    def check(v: Any) -> tuple[str, ...]:
+        names = _names(v)
+        for n in names:
+            if n not in allowed:
+                raise _bad(f"unknown {what} {n!r}; known: {', '.join(allowed)}",
+                           parameter=n if what == "parameter" else None)
+        return names
+    return check
+
+
+_params = _known(PARAMETERS, "parameter")
+_params_or_beta = _known(PARAMETERS + ("beta",), "parameter")
+_channels = _known(ALL_CHANNELS, "channel")
+
+
+def _stages(v: Any) -> tuple[tuple[str, ...], ...]:
+    if not isinstance(v, (list, tuple)) or not v:
+        raise _bad("expected a list of parameter lists")
+    return tuple(_params_or_beta(st) for st in v)
+
+
+def _setting(name: str) -> Callable[[Any], Any]:
+    """A ``[model]`` channel setting checked against coartic.settings (its one definition)."""
+    setting = CHANNEL_SETTINGS[name]
+
+    def check(v: Any) -> Any:
+        problem = setting.problem(v)
+        if problem is not None:
+            raise _bad(f"{name} = {v!r} {problem} ({setting.meaning})", parameter=name, value=v)
+        return v if setting.flag or setting.choices else float(v)
+    return check
+
+
+def _param_values(v: Any, info: ValidationInfo) -> dict[str, float]:
+    """``parameter = value`` pairs (starts, fixed values), each in its parameter's model domain
+    (MODEL.md §1); in an ``[[override]]`` the errors name its phonemes."""
+    if not isinstance(v, Mapping):
+        raise _bad(f"expected a table of parameter = value, got {v!r}")
+    _params(tuple(v))
+    phonemes: tuple[str, ...] = tuple((info.data or {}).get("phonemes", ()))
+    out: dict[str, float] = {}
+    for k, x in v.items():
+        try:
+            out[k] = _number(x)
+        except PydanticCustomError:
+            raise _bad(f"expected a number, got {x!r}", (k,), parameter=k) from None
+        problem = domain_problem(k, out[k])
+        if problem is not None:
+            whose = f" (of {', '.join(phonemes)})" if phonemes else ""
+            raise _bad(f"{k} = {out[k]:g}{whose} {problem}, the model's domain of {k}", (k,), parameter=k,
+                       value=out[k], phoneme=", ".join(phonemes) or None)
+    return out
+
+
+def _interval(v: Any, loc: tuple[str | int, ...] = ()) -> tuple[float, float]:
+    if not isinstance(v, (list, tuple)) or len(v) != 2:
+        raise _bad(f"expected [low, high], got {v!r}", loc)
+    try:
+        return _number(v[0]), _number(v[1])
+    except PydanticCustomError as e:
+        raise _bad(str(e), loc) from None
+
+
+def _bounds(v: Any) -> dict[str, tuple[float, float]]:
+    """``parameter = [low, high]`` boxes; a log-scale parameter's low must be positive."""
+    if not isinstance(v, Mapping):
+        raise _bad(f"expected a table of parameter = [low, high], got {v!r}")
+    _params(tuple(v))
+    out: dict[str, tuple[float, float]] = {}
+    for k, x in v.items():
+        lo, hi = _interval(x, (k,))
+        if not lo < hi:
+            raise _bad(f"low {lo} must be below high {hi}", (k,), parameter=k)
+        if k in LOG_SCALE_PARAMETERS and lo <= 0:
+            raise _bad(f"low {lo} must be > 0 (fitted on a log scale)", (k,), parameter=k, value=lo)
+        out[k] = (lo, hi)
+    return out
+
+
+def _channel_bounds(v: Any) -> dict[str, dict[str, tuple[float, float]]]:
+    if not isinstance(v, Mapping):
+        raise _bad(f"expected a table channel = {{ parameter = [low, high] }}, got {v!r}")
+    _channels(tuple(v))
+    out = {}
+    for ch, b in v.items():
+        try:
+            out[ch] = _bounds(b)
+        except PydanticCustomError as e:
+            ctx = e.context or {}
+            raise _bad(str(e), (ch, *ctx.get("loc", ())), parameter=ctx.get("parameter")) from None
+    return out
+
+
+def _beta_bounds(v: Any) -> tuple[float, float]:
+    lo, hi = _interval(v)
+    if not 0.0 <= lo < hi:
+        raise _bad(f"need 0 <= low < high, got {(lo, hi)}")
+    return lo, hi
+
+
+def _prior(key: str, v: Any) -> tuple[float, float, bool]:
+    """[mean, sd] on the natural value, or { mean = m, sd = s, scale = "log" } on its logarithm (m
+    its median); (mean, sd, log) as given back by a FitSpec re-validated."""
+    name = key.rpartition(".")[2]
+    _params_or_beta((name,))
+    if isinstance(v, (list, tuple)) and len(v) == 2:
+        mean, sd, scale = _number(v[0]), _number(v[1]), "natural"
+    elif isinstance(v, tuple) and len(v) == 3 and isinstance(v[2], bool):
+        mean, sd, scale = _number(v[0]), _number(v[1]), "log" if v[2] else "natural"
+    elif isinstance(v, Mapping):
+        unknown = sorted(set(v) - {"mean", "sd", "scale"})
+        if unknown:
+            raise _bad(f"unknown key(s) {unknown}; allowed: ['mean', 'scale', 'sd']")
+        if "mean" not in v or "sd" not in v:
+            raise _bad("needs mean and sd")
+        mean, sd, scale = _number(v["mean"]), _number(v["sd"]), v.get("scale", "natural")
+    else:
+        raise _bad(f"expected [mean, sd] or {{ mean, sd, scale }}, got {v!r}")
+    if scale not in ("natural", "log"):
+        raise _bad(f"scale = {scale!r}: expected \"natural\" or \"log\"")
+    if not (math.isfinite(mean) and math.isfinite(sd) and sd > 0):
+        raise _bad(f"needs a finite mean and a positive sd, got mean {mean}, sd {sd}")
+    if scale == "log" and (name not in LOG_SCALE_PARAMETERS or mean <= 0):
+        raise _bad(f"a log-scale prior needs a positive parameter ({', '.join(LOG_SCALE_PARAMETERS)}) "
+                   f"and a positive mean, got {name} with mean {mean}")
+    return mean, sd, scale == "log"
+
+
+def _priors(v: Any) -> dict[str, tuple[float, float, bool]]:
+    """``[parameters.prior]``: key "parameter", "phoneme.parameter" or "beta"."""
+    if not isinstance(v, Mapping):
+        raise _bad(f"expected a table \"phoneme.parameter\" = [mean, sd], got {v!r}")
+    out = {}
+    for key, x in v.items():
+        try:
+            out[key] = _prior(key, x)
+        except PydanticCustomError as e:
+            raise _bad(str(e), (key,)) from None
+    return out
+
+
+def _offsets(v: Any) -> str | float:
+    if isinstance(v, bool) or not (v in ("none", "free") or (
+            isinstance(v, (int, float)) and math.isfinite(v) and v > 0)):
+        raise _bad(f"{v!r}: expected \"none\", \"free\" or a positive number (the offsets' sd in mm)")
+    return v if isinstance(v, str) else float(v)
+
+
+def _path(v: Any) -> Path:
+    if isinstance(v, Path) or (isinstance(v, str) and v):
+        return Path(v)
+    raise _bad(f"expected a path string, got {v!r}")
+
+
+def _paths(v: Any) -> tuple[Path, ...]:
+    if isinstance(v, (str, Path)):
+        return (_path(v),)
+    if not isinstance(v, (list, tuple)):
+        raise _bad(f"expected a list of path strings, got {v!r}")
+    return tuple(_path(p) for p in v)
+
+
+def _role_map(v: Any) -> dict[str, Any]:
+    if not isinstance(v, Mapping) or not all(
+            isinstance(x, str) or (k == "axes" and isinstance(x, Mapping)) for k, x in v.items()):
+        raise _bad("expected a table role = 'sensor' (and for EMA axes = { vertical = '+z', anterior = '-y' }), "
+                   f"got {v!r}")
+    try:  # the role map's own checks (roles, axes, one marker per role), named by the spec key
+        RoleMap.from_dict(v, "role map")
+    except DataError as bad:
+        raise _bad(str(bad)) from None
+    return dict(v)
+
+
+def _select(v: Any) -> dict[str, tuple[str, ...]]:
+    if not isinstance(v, Mapping):
+        raise _bad(f"expected a table column = [values], got {v!r}")
+    return {k: tuple(str(x) for x in (x if isinstance(x, (list, tuple)) else [x])) for k, x in v.items()}
+
+
+def _table(v: Any) -> dict[str, Any]:
+    if not isinstance(v, Mapping):
+        raise _bad(f"expected a table, got {v!r}")
+    return dict(v)
+
+
+def _text(v: Any) -> str:
+    if not isinstance(v, str) or not v:
+        raise _bad(f"{v!r}: expected a non-empty string")
+    return v
+
+
+def _optional_int(v: Any) -> int | None:
+    if v is not None and (isinstance(v, bool) or not isinstance(v, int)):
+        raise _bad(f"expected an integer, got {v!r}")
+    return v
+
+
+Number = Annotated[float, BeforeValidator(_number)]
+Positive = Annotated[float, BeforeValidator(_positive)]
+Flag = Annotated[bool, BeforeValidator(_flag)]
+Text = Annotated[str, BeforeValidator(_text)]
+Names = Annotated[tuple[str, ...], BeforeValidator(_names)]
+Parameters = Annotated[tuple[str, ...], BeforeValidator(_params)]
+Channels = Annotated[tuple[str, ...], BeforeValidator(_channels)]
+ParamValues = Annotated[dict[str, float], BeforeValidator(_param_values)]
+Bounds = Annotated[dict[str, tuple[float, float]], BeforeValidator(_bounds)]
+SpecPath = Annotated[Path, BeforeValidator(_path)]
+
+_STRICT = ConfigDict(extra="forbid", arbitrary_types_allowed=True)
+T = TypeVar("T")
+
+
+def _spec_errors(cls: type[T]) -> type[T]:
+    """Construction (and ``dataclasses.replace``) raises SpecError, named like a spec's own
+    errors, instead of pydantic's ValidationError: every coartic error is a CoarticError."""
+    init = cls.__init__
+
+    @functools.wraps(init)
+    def __init__(self: Any, *args: Any, **kwargs: Any) -> None:
+        try:
+            init(self, *args, **kwargs)
+        except ValidationError as e:
+            file = kwargs.get("path") if cls is FitSpec else None
+            raise spec_error(e, file, _ROOTS.get(cls.__name__, ())) from None
+
+    cls.__init__ = __init__  # type: ignore[method-assign]
+    return cls
+
+
+# --------------------------------------------------------------------------- the schema
+
+
+@_spec_errors
+@dataclass(frozen=True, config=_STRICT)
+class Override:
+    """Per-phoneme (optionally per-channel) changes to which parameters are free, their start and bounds."""
+
+    phonemes: Annotated[tuple[str, ...], BeforeValidator(_names)]
+    channels: Annotated[tuple[str, ...] | None, BeforeValidator(_optional(_channels))] = None  # None: every channel
+    fixed: ParamValues = dataclasses.field(default_factory=dict)  # fixed at this value
+    free: Parameters = ()  # made free (even if not in the global list)
+    start: ParamValues = dataclasses.field(default_factory=dict)
+    bounds: Bounds = dataclasses.field(default_factory=dict)
+
+    def applies(self, phoneme: str, channel: str) -> bool:
+        return phoneme in self.phonemes and (self.channels is None or channel in self.channels)
+
+
+def _group(v: Any) -> tuple[str, ...]:
+    names = _names(v)
+    if len(set(names)) < 2:
+        raise _bad(f"a tie needs two phonemes or more, got {list(names)}")
+    return names
+
+
+@_spec_errors
+@dataclass(frozen=True, config=_STRICT)
+class Tie:
+    """Parameters shared by a group of phonemes (e.g. θ and c by place of articulation): the first
+    phoneme of the group present in a channel's data carries the value, the others take it."""
+
+    phonemes: Annotated[tuple[str, ...], BeforeValidator(_group)]
+    parameters: Parameters
+    channels: Annotated[tuple[str, ...] | None, BeforeValidator(_optional(_channels))] = None  # None: every channel
+
+
+def _class(v: Any) -> tuple[str, ...]:
+    names = _names(v)
+    if len(set(names)) < 2 or len(set(names)) != len(names):
+        raise _bad(f"a class needs two distinct phonemes or more, got {list(names)}")
+    return names
+
+
+def _distinct_params(v: Any) -> tuple[str, ...]:
+    names = _params(v)
+    if not names or len(set(names)) != len(names):
+        raise _bad(f"expected distinct parameters, got {list(names)}")
+    return names
+
+
+@_spec_errors
+@dataclass(frozen=True, config=_STRICT)
+class Shrink:
+    """Shrinkage of a class of phonemes toward its class mean (``[[shrink]]``): for each parameter,
+    one penalty row per member, ``prior_noise · (v_i − mean_class(v)) / sd`` (v the value, or its
+    logarithm with ``log``), the mean over every member present in the channel's data (fixed ones
+    count in the mean). In the spec, ``scale = "log"`` is ``log = true``."""
+
+    phonemes: Annotated[tuple[str, ...], BeforeValidator(_class)]
+    parameters: Annotated[tuple[str, ...], BeforeValidator(_distinct_params)]
+    sd: Positive
+    log: Flag = False
+    channels: Annotated[tuple[str, ...] | None, BeforeValidator(_optional(_channels))] = None  # None: every channel
+    key: str = "shrink"  # the spec key its errors and reports are named by ("shrink #2")
+
+    @model_validator(mode="before")
+    @classmethod
+    def _scale(cls, data: Any) -> Any:
+        if isinstance(data, Mapping) and "scale" in data:
+            data = dict(data)
+            scale = data.pop("scale")
+            if scale not in ("natural", "log"):
+                raise _bad(f"{scale!r}: expected \"natural\" or \"log\"", ("scale",))
+            data["log"] = scale == "log"
+        return data
+
+    @model_validator(mode="after")
+    def _log_scale(self) -> Shrink:
+        bad = [p for p in self.parameters if p not in LOG_SCALE_PARAMETERS]
+        if self.log and bad:
+            raise _bad(f"log scale needs positive parameters ({', '.join(LOG_SCALE_PARAMETERS[:-1])}), "
+                       f"not {bad}: shrink those in another [[shrink]] on the natural scale", ("scale",))
+        return self
+
+
+def _grid(v: Any) -> tuple[float, ...]:
+    if not isinstance(v, (list, tuple)) or len(v) < 2:
+        raise _bad(f"expected a list of two values or more, got {v!r}")
+    vals = tuple(_number(x) for x in v)
+    if len(set(vals)) != len(vals):
+        raise _bad(f"repeated values in {list(vals)}")
+    return tuple(sorted(vals))
+
+
+@_spec_errors
+@dataclass(frozen=True, config=_STRICT)
 class Choose:
     """``[choose]``: a setting chosen by k-fold cross-validation on the training data."""
 
-    key: str  # "shrink.sd" (every [[shrink]]), "shrink #2.sd" (one), "prior_noise", "plateau_fraction"
-    values: tuple[float, ...]
-    group: str = "utterance"  # VALIDATE_GROUPS: what a fold holds out together
-    folds: int = 5
-    rule: str = "1se"  # "min": lowest mean held-out RMSE; "1se": the strongest within one SE of it
+    key: Annotated[str, BeforeValidator(lambda v: _choose_key(v))]  # "shrink.sd", "shrink #2.sd", ...
+    values: Annotated[tuple[float, ...], BeforeValidator(_grid)]
+    group: Annotated[str, BeforeValidator(_one_of(VALIDATE_GROUPS))] = "utterance"  # what a fold holds out
+    folds: Annotated[int, BeforeValidator(_count(2))] = 5
+    rule: Annotated[str, BeforeValidator(_one_of(CHOOSE_RULES))] = "1se"  # "min" or "1se" (strongest within 1 SE)
+
+    @model_validator(mode="after")
+    def _values_of_key(self) -> Choose:
+        base = choose_base(self.key)
+        setting = CHANNEL_SETTINGS.get(str(base))
+        if setting is not None and any(setting.problem(v) for v in self.values):
+            raise _bad(f"{base} takes values in {setting.allowed}, got {list(self.values)}", ("values",))
+        if setting is None and any(not math.isfinite(v) or v <= 0 for v in self.values):
+            raise _bad(f"{self.key} takes positive numbers, got {list(self.values)}", ("values",))
+        if self.rule == "1se" and CHOOSABLE[str(base)] == 0:
+            raise _bad(f"\"1se\" needs a regularisation strength (shrink.sd, prior_noise); {self.key} has no "
+                       "stronger end: use rule = \"min\"", ("rule",))
+        return self
 
 
-@dataclass(frozen=True)
+def _choose_key(v: Any) -> str:
+    if not isinstance(v, str):
+        raise _bad(f"expected a setting name, got {v!r}")
+    if choose_base(v) is None:
+        raise _bad(f"{v!r}: not a setting cross-validation can choose (known: {', '.join(CHOOSABLE)}, or "
+                   "\"shrink #N.sd\" for one [[shrink]])")
+    return v
+
+
+def _label_map(v: Any) -> str | None:
+    if v is not None and not isinstance(v, str):
+        raise _bad(f"expected a name or path, got {v!r}")
+    return v
+
+
+@_spec_errors
+@dataclass(frozen=True, config=_STRICT)
 class CorpusSpec:
-    manifest: Path | None = None
-    files: tuple[Path, ...] = ()
-    labels: tuple[Path, ...] = ()
-    file_column: str = "file"  # manifest column holding the data file
-    label_map: str | None = None  # a label-map name or path; None: labels are model phonemes
-    role_map: dict[str, Any] | None = None  # role -> marker/sensor name; EMA: "axes" = {vertical, anterior}
-    select: dict[str, tuple[str, ...]] = field(default_factory=dict)  # manifest column -> kept values
-    limit: int | None = None  # keep only the first N trials (quick looks)
+    manifest: Annotated[Path | None, BeforeValidator(_optional(_path))] = None
+    files: Annotated[tuple[Path, ...], BeforeValidator(_paths)] = ()
+    labels: Annotated[tuple[Path, ...], BeforeValidator(_paths)] = ()
+    file_column: Annotated[str, BeforeValidator(str)] = "file"  # manifest column holding the data file
+    label_map: Annotated[str | None, BeforeValidator(_label_map)] = None  # a label-map name or path; None: model phonemes
+    # role -> marker/sensor name; EMA: "axes" = {vertical, anterior}
+    role_map: Annotated[dict[str, Any] | None, BeforeValidator(_optional(_role_map))] = None
+    select: Annotated[dict[str, tuple[str, ...]], BeforeValidator(_select)] = dataclasses.field(
+        default_factory=dict)  # manifest column -> kept values
+    limit: Annotated[int | None, BeforeValidator(_optional(_count(1)))] = None  # only the first N trials (quick looks)
+
+    @model_validator(mode="after")
+    def _files_or_manifest(self) -> CorpusSpec:
+        if self.manifest is None and not self.files:
+            raise _bad("give either manifest = 'path/manifest.csv' or files = [...]")
+        if self.manifest is not None and self.files:
+            raise _bad("give manifest or files, not both")
+        if self.files and len(self.labels) != len(self.files):
+            raise _bad(f"{len(self.labels)} label files for {len(self.files)} data files", ("labels",))
+        return self
 
 
-@dataclass(frozen=True)
+@_spec_errors
+@dataclass(frozen=True, config=_STRICT)
 class FitSpec:
     path: Path  # the spec file (errors and relative paths refer to it)
-    name: str
+    name: Annotated[str, BeforeValidator(str)]
     corpus: CorpusSpec
-    channels: tuple[str, ...]
-    variant: str = "modified"
-    reference_phoneme: str = "a"
-    apex_fraction: float = default("apex_fraction")
-    edge_extent: float = default("edge_extent")
+    channels: Channels = CHANNELS
+    variant: Annotated[str, BeforeValidator(_one_of(VARIANTS))] = "modified"
+    reference_phoneme: Annotated[str, BeforeValidator(str)] = "a"
+    # the model's channel settings: defaults and ranges from coartic.settings
+    apex_fraction: Annotated[float, BeforeValidator(_setting("apex_fraction"))] = default("apex_fraction")
+    edge_extent: Annotated[float, BeforeValidator(_setting("edge_extent"))] = default("edge_extent")
     # the rate-aware options of docs/MODEL.md §2.1 (defaults: today's model)
-    dominance: str = default("dominance")
-    plateau_fraction: float = default("plateau_fraction")
-    handover: bool = default("handover")
-    beta: float = default("beta")
-    fit_beta: bool = False
-    beta_bounds: tuple[float, float] = DEFAULT_BETA_BOUNDS
-    free: tuple[str, ...] = DEFAULT_FREE
-    start_table: Path | None = None  # "from table": start values from a ParameterTable JSON
-    start: dict[str, float] = field(default_factory=lambda: dict(DEFAULT_START))
+    dominance: Annotated[str, BeforeValidator(_setting("dominance"))] = default("dominance")
+    plateau_fraction: Annotated[float, BeforeValidator(_setting("plateau_fraction"))] = default("plateau_fraction")
+    handover: Annotated[bool, BeforeValidator(_setting("handover"))] = default("handover")
+    beta: Annotated[float, BeforeValidator(_setting("beta"))] = default("beta")
+    fit_beta: Flag = False
+    beta_bounds: Annotated[tuple[float, float], BeforeValidator(_beta_bounds)] = DEFAULT_BETA_BOUNDS
+    free: Parameters = DEFAULT_FREE
+    start_table: Annotated[Path | None, BeforeValidator(_optional(_path))] = None  # start values from a table JSON
+    start: ParamValues = dataclasses.field(default_factory=lambda: dict(DEFAULT_START))
     # Gaussian priors (penalties in least squares): "parameter" (every phoneme) or "phoneme.parameter"
     # (or "beta") -> (mean, sd, on log values); weighed against prior_noise (mm)
-    priors: dict[str, tuple[float, float, bool]] = field(default_factory=dict)
-    prior_noise: float = 1.0
-    offsets: str | float = "none"  # per-utterance offsets in least squares: "none", "free" or their sd (mm)
+    priors: Annotated[dict[str, tuple[float, float, bool]], BeforeValidator(_priors)] = dataclasses.field(
+        default_factory=dict)
+    prior_noise: Positive = 1.0
+    # per-utterance offsets in least squares: "none", "free" or their sd (mm)
+    offsets: Annotated[str | float, BeforeValidator(_offsets)] = "none"
     # several speakers in one fit: "none", "offset" (a_s + F), "offset_scale" (a_s + b_s·F) or
     # "targets" (own targets per speaker), the speaker read from the manifest column speaker_column;
     # shared dynamics
-    speakers: str = "none"
-    speaker_column: str = "speaker"
+    speakers: Annotated[str, BeforeValidator(_one_of(SPEAKER_MODES))] = "none"
+    speaker_column: Text = "speaker"
     start_given: frozenset[str] = frozenset()  # the [parameters.start] keys the spec gives (checked against bounds)
-    bounds: dict[str, tuple[float, float]] = field(default_factory=lambda: dict(DEFAULT_FIT_BOUNDS))
-    channel_bounds: dict[str, dict[str, tuple[float, float]]] = field(default_factory=dict)
-    target_margin: float = 5.0  # mm beyond the observed range for the default target box
+    bounds: Bounds = dataclasses.field(default_factory=lambda: dict(DEFAULT_FIT_BOUNDS))
+    channel_bounds: Annotated[dict[str, dict[str, tuple[float, float]]], BeforeValidator(_channel_bounds)] = \
+        dataclasses.field(default_factory=dict)
+    target_margin: Number = 5.0  # mm beyond the observed range for the default target box
     overrides: tuple[Override, ...] = ()
     ties: tuple[Tie, ...] = ()
     shrinks: tuple[Shrink, ...] = ()
     choose: Choose | None = None
-    engine: str = "scipy"
-    engine_options: dict[str, Any] = field(default_factory=dict)
-    staging: bool = True
-    stages: tuple[tuple[str, ...], ...] = DEFAULT_STAGES
+    engine: Annotated[str, BeforeValidator(_one_of(ENGINES, "unknown engine"))] = "scipy"
+    engine_options: Annotated[dict[str, Any], BeforeValidator(_table)] = dataclasses.field(default_factory=dict)
+    staging: Flag = True
+    stages: Annotated[tuple[tuple[str, ...], ...], BeforeValidator(_stages)] = DEFAULT_STAGES
     # [fit]: global estimation by multi-start (coartic.fit.multistart); starts = 1 is one local fit
     # from [parameters.start]
-    starts: int = DEFAULT_STARTS
-    seed: int = 0
-    probe: int = DEFAULT_PROBE
-    keep: int | None = None  # starts continued after the probe (None: multistart.default_keep)
-    include_start: bool = True  # start 0 is [parameters.start] (always continued)
-    max_gap: float = 0.05  # s: gaps up to this are interpolated by the reader, longer ones masked
-    validate_group: str | None = None  # k-fold validation by this grouping (VALIDATE_GROUPS)
-    validate_folds: int | None = None  # None: one fold per group (leave one group out)
-    holdout_repetition: int | None = 5
+    starts: Annotated[int, BeforeValidator(_count(1))] = DEFAULT_STARTS
+    seed: Annotated[int, BeforeValidator(_count(0))] = 0
+    probe: Annotated[int, BeforeValidator(_count(1))] = DEFAULT_PROBE
+    # starts continued after the probe (None: multistart.default_keep)
+    keep: Annotated[int | None, BeforeValidator(_optional(_count(1)))] = None
+    include_start: Flag = True  # start 0 is [parameters.start] (always continued)
+    max_gap: Number = 0.05  # s: gaps up to this are interpolated by the reader, longer ones masked
+    # k-fold validation by this grouping (VALIDATE_GROUPS)
+    validate_group: Annotated[str | None, BeforeValidator(_optional(_one_of(VALIDATE_GROUPS)))] = None
+    # None: one fold per group (leave one group out)
+    validate_folds: Annotated[int | None, BeforeValidator(_optional(_count(2)))] = None
+    holdout_repetition: Annotated[int | None, BeforeValidator(_optional_int)] = 5
     train_rate: str | None = "normal"
     test_rate: str | None = "fast"
 
+    @model_validator(mode="after")
+    def _consistent(self) -> FitSpec:
+        """What no field can check alone."""
+        if not self.channels:
+            raise _bad("no channel to fit", ("channels",))
+        if self.speakers != "none" and self.offsets != "none":
+            raise _bad("cannot be combined with [model] offsets yet: choose one", ("speakers",))
+        ref = self.reference_phoneme
+        for i, t in enumerate(self.ties):
+            if ref in t.phonemes and "alpha" in t.parameters:
+                raise _bad(f"ties alpha of the reference phoneme {ref!r}, which is fixed at 1", ("ties", i),
+                           phoneme=ref, parameter="alpha")
+        for i, o in enumerate(self.overrides):
+            # alpha is scale-free: the reference phoneme's is 1 by definition (MODEL.md §1)
+            if ref in o.phonemes and ("alpha" in o.free or "alpha" in o.start or "alpha" in o.bounds
+                                      or o.fixed.get("alpha", 1.0) != 1.0):
+                raise _bad(f"sets alpha of the reference phoneme {ref!r}, which is fixed at 1 (alpha is "
+                           "scale-free); choose another [model] reference_phoneme to fit it", ("overrides", i),
+                           phoneme=ref, parameter="alpha")
+        if self.keep is not None and self.starts > 1 and self.keep > self.starts:
+            raise _bad(f"{self.keep}: more than the {self.starts} starts", ("keep",))
+        if self.validate_folds is not None and self.validate_group is None:
+            raise _bad("needs group = \"utterance\" (or sentence, rate, speaker, repetition)", ("validate_folds",))
+        if self.choose is not None:
+            problem = _choose_shrinks(self.choose.key, self.shrinks)
+            if problem is not None:
+                raise _bad(problem, ("choose", "key"))
+        return self
+
     def with_options(self, **changes: Any) -> FitSpec:
-        return replace(self, **changes)
+        """The spec with ``changes`` (field = value), checked as loading a file checks it: a
+        SpecError names the spec file and the key of the field at fault."""
+        return dataclasses.replace(self, **changes)
 
     def channel_settings(self, channel: str, beta: float | None = None) -> ChannelSettings:
         """The settings a fit of ``channel`` uses and writes into its table (``beta``: the fitted
@@ -208,108 +676,223 @@ class FitSpec:
                                handover=self.handover)
 
 
-def _count(table: dict[str, Any], key: str, default: int | None, low: int, path: Path) -> Any:
-    """An integer >= ``low`` under ``[fit] key`` (or the default)."""
-    v = table.get(key, default)
-    if v is not None and (isinstance(v, bool) or not isinstance(v, int) or v < low):
-        raise _err(path, f"fit.{key}", f"expected an integer >= {low}, got {v!r}")
-    return v
+def _choose_shrinks(key: str, shrinks: tuple[Shrink, ...]) -> str | None:
+    """Why a ``[choose]`` key does not fit the spec's ``[[shrink]]`` tables, or None."""
+    if choose_base(key) != "shrink.sd":
+        return None
+    if not shrinks:
+        return f"{key!r}: the spec has no [[shrink]] table"
+    if key != "shrink.sd" and not any(s.key == key[: -len(".sd")] for s in shrinks):
+        return f"{key!r}: no such table (the spec has {len(shrinks)} [[shrink]])"
+    return None
 
 
-def _err(path: Path, key: str, msg: str) -> SpecError:
-    return SpecError.at(path, key, msg)
+# --------------------------------------------------------------------------- the TOML document
+
+# Each section's keys and the FitSpec field each one sets ("" is the top level). [corpus] and
+# [choose] are CorpusSpec and Choose (same key names); [[override]], [[tie]], [[shrink]] lists of
+# Override, Tie, Shrink. [mcmc] belongs to coartic.mcmc (docs/MCMC.md): one spec file serves both
+# commands, so it is accepted here and not read.
+DOCUMENT: dict[str, dict[str, str]] = {
+    "": {"name": "name"},
+    "model": {k: k for k in ("variant", "channels", "reference_phoneme", "apex_fraction", "edge_extent", "beta",
+                             "fit_beta", "beta_bounds", "offsets", "dominance", "plateau_fraction", "handover",
+                             "speakers", "speaker_column")},
+    "parameters": {"free": "free", "start": "start", "start_table": "start_table", "bounds": "bounds",
+                   "target_margin": "target_margin", "prior": "priors", "prior_noise": "prior_noise"},
+    "engine": {"name": "engine", "options": "engine_options"},
+    "staging": {"enabled": "staging", "stages": "stages"},
+    "fit": {k: k for k in ("starts", "seed", "probe", "keep", "include_start")},
+    "gaps": {"max_gap": "max_gap"},
+    "validate": {"holdout_repetition": "holdout_repetition", "train_rate": "train_rate", "test_rate": "test_rate",
+                 "group": "validate_group", "folds": "validate_folds"},
+}
+TABLES: dict[str, str] = {"corpus": "corpus", "choose": "choose"}
+ARRAYS: dict[str, str] = {"override": "overrides", "tie": "ties", "shrink": "shrinks"}
+IGNORED: tuple[str, ...] = ("mcmc",)
+# field -> the key its errors are named by (read backwards from the tables above)
+FIELD_KEYS: dict[str, str] = {
+    **{f: (f"{s}.{k}" if s else k) for s, keys in DOCUMENT.items() for k, f in keys.items()},
+    **{f: s for s, f in TABLES.items()}, **{f: s for s, f in ARRAYS.items()},
+    "channel_bounds": "parameters.bounds", "start_given": "parameters.start",
+}
+# the key prefix of a part's own errors when it is built alone (a Choose by --choose, an Override in Python)
+# the part of a spec a location's head is
+_PARTS: dict[str, type] = {"overrides": Override, "override": Override, "ties": Tie, "tie": Tie, "shrinks": Shrink,
+                           "shrink": Shrink, "corpus": CorpusSpec, "choose": Choose, "--choose": Choose}
+_ROOTS: dict[str, tuple[str | int, ...]] = {"Choose": ("choose",), "CorpusSpec": ("corpus",), "Override": ("override",),
+                                             "Tie": ("tie",), "Shrink": ("shrink",)}
 
 
-def _array_of_tables(raw: dict[str, Any], name: str, path: Path) -> list[tuple[str, dict[str, Any]]]:
-    """The spec's [[name]] tables, each with the key its errors are named by ("tie #2")."""
-    items = raw.get(name, [])
-    if not isinstance(items, list):
-        raise _err(path, name, f"expected [[{name}]] tables")
-    out = []
-    for i, item in enumerate(items):
-        key = f"{name} #{i + 1}"
-        if not isinstance(item, dict):
-            raise _err(path, key, f"expected a table, got {item!r}")
-        out.append((key, item))
-    return out
-
-
-def _take(d: dict[str, Any], path: Path, section: str, allowed: set[str]) -> None:
-    unknown = sorted(set(d) - allowed)
+def _unknown(d: Mapping[str, Any], allowed: Iterable[str], key: str, path: Path) -> None:
+    unknown = sorted(set(d) - set(allowed))
     if unknown:
-        raise _err(path, section, f"unknown key(s) {unknown}; allowed: {sorted(allowed)}")
+        raise SpecError.at(path, key, f"unknown key(s) {unknown}; allowed: {sorted(allowed)}")
 
 
-def _str_list(v: Any, path: Path, key: str) -> tuple[str, ...]:
-    if isinstance(v, str):
-        return (v,)
-    if not isinstance(v, list) or not all(isinstance(s, str) for s in v):
-        raise _err(path, key, f"expected a list of strings, got {v!r}")
-    return tuple(v)
+def _relative(base: Path, v: Any) -> Any:
+    """A path string relative to the spec's folder (anything else is left to the schema's check)."""
+    return base / v if isinstance(v, str) and v and not Path(v).is_absolute() else v
 
 
-def _float(v: Any, path: Path, key: str) -> float:
-    # TOML has nan: refused here, once, so that no comparison downstream lets it through
-    if isinstance(v, bool) or not isinstance(v, (int, float)) or math.isnan(v):
-        raise _err(path, key, f"expected a number, got {v!r}")
-    return float(v)
+def document_fields(raw: Mapping[str, Any], path: Path) -> dict[str, Any]:
+    """The FitSpec fields a TOML document sets (unknown keys refused, relative paths made relative
+    to ``path``'s folder); the values are checked by FitSpec itself."""
+    sections = {s for s in DOCUMENT if s} | set(TABLES) | set(ARRAYS) | set(IGNORED)
+    _unknown(raw, sections | set(DOCUMENT[""]), "top level", path)
+    # DEFAULT_STARTS read when parsing, not when the class was made (the tests set it to 1)
+    fields: dict[str, Any] = {"path": path, "name": raw.get("name", path.stem), "starts": DEFAULT_STARTS}
+    for section, keys in DOCUMENT.items():
+        if not section or section not in raw:
+            continue
+        d = raw[section]
+        if not isinstance(d, Mapping):
+            raise SpecError.at(path, section, f"expected a table, got {d!r}")
+        _unknown(d, keys, section, path)
+        fields.update({keys[k]: v for k, v in d.items()})
+    base = path.parent
+    c = raw.get("corpus")
+    if c is None:
+        raise SpecError.at(path, "corpus", "missing: give a manifest or a list of files and labels")
+    if isinstance(c, Mapping):
+        c = dict(c)
+        for k in ("manifest",):
+            if k in c:
+                c[k] = _relative(base, c[k])
+        for k in ("files", "labels"):
+            if isinstance(c.get(k), list):
+                c[k] = [_relative(base, f) for f in c[k]]
+        lm = c.get("label_map")
+        if isinstance(lm, str) and ("/" in lm or lm.endswith((".tsv", ".json"))):
+            c["label_map"] = str(_relative(base, lm))
+    fields["corpus"] = c
+    if "choose" in raw:
+        fields["choose"] = raw["choose"]
+    if "start_table" in fields:
+        fields["start_table"] = _relative(base, fields["start_table"])
+    if isinstance(fields.get("start"), Mapping):
+        fields["start_given"] = frozenset(fields["start"])
+        fields["start"] = {**DEFAULT_START, **fields["start"]}
+    if isinstance(fields.get("bounds"), Mapping):
+        given = fields["bounds"]
+        fields["channel_bounds"] = {k: v for k, v in given.items() if isinstance(v, Mapping)}
+        fields["bounds"] = {**DEFAULT_FIT_BOUNDS, **{k: v for k, v in given.items() if not isinstance(v, Mapping)}}
+    for section, field in ARRAYS.items():
+        items = raw.get(section, [])
+        if not isinstance(items, list):
+            raise SpecError.at(path, section, f"expected [[{section}]] tables")
+        if section == "shrink":
+            for i, t in enumerate(items):  # log and key are a Shrink's fields, not keys of the spec
+                if isinstance(t, Mapping):
+                    _unknown(t, _keys_of(Shrink), f"shrink #{i + 1}", path)
+            # the key its errors and reports are named by
+            items = [{**t, "key": f"shrink #{i + 1}"} if isinstance(t, Mapping) else t for i, t in enumerate(items)]
+        fields[field] = items
+    return fields
 
 
-def _setting(m: dict[str, Any], name: str, path: Path) -> Any:
-    """A ``[model]`` channel setting (coartic.settings): its default when absent, else checked."""
-    setting = CHANNEL_SETTINGS[name]
-    v = m.get(name, setting.default)
-    problem = setting.problem(v)
+def _keys_of(part: type) -> list[str]:
+    """The keys a part's spec table may have (Shrink's ``log`` is ``scale`` there, its ``key`` no key)."""
+    names = [f.name for f in dataclasses.fields(part)]
+    return [{"log": "scale"}.get(n, n) for n in names if not (part is Shrink and n == "key")]
+
+
+def _key_of(loc: Iterable[str | int]) -> str:
+    """The spec key of a schema location: ("overrides", 2, "fixed", "theta_bw") ->
+    "override #3.fixed.theta_bw", ("plateau_fraction",) -> "model.plateau_fraction"."""
+    parts = list(loc)
+    if not parts:
+        return "top level"
+    head = str(parts.pop(0))
+    key = FIELD_KEYS.get(head, head)
+    if head in ARRAYS.values() and parts and isinstance(parts[0], int):
+        key += f" #{int(parts.pop(0)) + 1}"
+    for p in parts:
+        key += f".{p}"
+    return key
+
+
+_MESSAGES: dict[str, str] = {
+    "missing": "missing", "dict_type": "expected a table", "dataclass_type": "expected a table",
+    "dataclass_args_type": "expected a table", "tuple_type": "expected a list", "string_type": "expected a string",
+    "float_type": "expected a number", "int_type": "expected an integer", "bool_type": "expected true or false",
+}
+
+
+def spec_error(e: ValidationError, file: Path | str | None, root: tuple[str | int, ...] = ()) -> SpecError:
+    """One SpecError of a schema's ValidationError: every problem as ``file: [key] message``, the
+    first one's place in the attributes. ``root``: the location of the part validated (a Choose
+    alone is ``[choose]``)."""
+    problems: list[tuple[str, str, dict[str, Any]]] = []
+    unknown: dict[tuple[Any, ...], list[str]] = {}
+    for err in e.errors(include_url=False):
+        loc = (*root, *err["loc"])
+        ctx = dict(err.get("ctx") or {})
+        if err["type"] == "unexpected_keyword_argument":
+            unknown.setdefault(loc[:-1], []).append(str(loc[-1]))
+            continue
+        if err["type"] == "coartic_spec":
+            loc = (*loc, *ctx.pop("loc", ()))
+            message = str(ctx.pop("message"))
+        elif err["type"] == "missing":
+            loc, message = loc[:-1], f"missing key {loc[-1]!r}"
+        else:
+            message = f"{_MESSAGES.get(err['type'], err['msg'])}, got {err['input']!r}"
+        ctx.pop("error", None)
+        problems.append((_key_of(loc), message, ctx))
+    for loc, names in unknown.items():
+        part = _PARTS.get(str(loc[0]) if loc else "")
+        allowed = "" if part is None else f"; allowed: {sorted(_keys_of(part))}"
+        problems.append((_key_of(loc), f"unknown key(s) {sorted(names)}{allowed}", {}))
+    key, message, place = problems[0]
+    where = f"{file}: " if file is not None else ""
+    first = SpecError.at(file, key, message, place.get("phoneme"), parameter=place.get("parameter"),
+                         value=place.get("value"))
+    if len(problems) > 1:
+        first.args = ("\n".join(f"{where}[{k}] {m}" for k, m, _ in problems),)
+    first.problems = tuple((k, m) for k, m, _ in problems)
+    return first
+
+
+def read_document(path: Path) -> dict[str, Any]:
+    """The TOML document of a spec file, or a SpecError naming the file."""
+    try:
+        return tomllib.loads(read_text(path, "fit spec"))
+    except FileNotFoundError:
+        raise SpecError.at(path, None, "no such fit spec") from None
+    except IsADirectoryError:
+        raise SpecError.at(path, None, "is a directory, not a fit spec (.toml) file") from None
+    except TextDecodeError as e:
+        err = SpecError(str(e))
+        err.file = path
+        raise err from None
+    except tomllib.TOMLDecodeError as e:
+        raise SpecError.at(path, None, f"not valid TOML: {e}") from None
+
+
+def load_spec(path: str | Path) -> FitSpec:
+    """Read and check a fit spec. Raises SpecError naming the file and key on any problem."""
+    path = Path(path)
+    return parse_spec(read_document(path), path)
+
+
+def parse_spec(raw: Mapping[str, Any], path: Path) -> FitSpec:
+    """Build a FitSpec from an already parsed TOML document (``path`` locates relative paths)."""
+    return FitSpec(**document_fields(raw, path))
+
+
+def make_choose(path: Path, key: Any, values: Any, group: Any, folds: Any, rule: Any,
+                shrinks: tuple[Shrink, ...], where: str) -> Choose:
+    """A checked ``Choose`` (from ``[choose]`` or ``coartic fit --choose``); errors name ``where``."""
+    try:
+        made = Choose.__pydantic_validator__.validate_python(  # type: ignore[attr-defined]
+            ArgsKwargs((), {"key": key, "values": values, "group": group, "folds": folds, "rule": rule}))
+    except ValidationError as e:
+        raise spec_error(e, path, (where,)) from None
+    problem = _choose_shrinks(made.key, shrinks)
     if problem is not None:
-        raise _err(path, f"model.{name}", f"{name} = {v!r} {problem} ({setting.meaning})")
-    return v if setting.flag or setting.choices else float(v)
-
-
-def _param_names(names: tuple[str, ...], path: Path, key: str, allow_beta: bool = False) -> tuple[str, ...]:
-    allowed = PARAMETERS + (("beta",) if allow_beta else ())
-    for n in names:
-        if n not in allowed:
-            raise _err(path, key, f"unknown parameter {n!r}; known: {', '.join(allowed)}")
-    return names
-
-
-def _param_values(d: Any, path: Path, key: str, phonemes: tuple[str, ...] = ()) -> dict[str, float]:
-    """``parameter = value`` pairs (starts, fixed values), each in its parameter's model domain
-    (MODEL.md §1); errors name the key and, for an ``[[override]]``, its phonemes."""
-    if not isinstance(d, dict):
-        raise _err(path, key, f"expected a table of parameter = value, got {d!r}")
-    _param_names(tuple(d), path, key)
-    out = {k: _float(v, path, f"{key}.{k}") for k, v in d.items()}
-    for k, v in out.items():
-        problem = domain_problem(k, v)
-        if problem is not None:
-            whose = f" (of {', '.join(phonemes)})" if phonemes else ""
-            raise _err(path, f"{key}.{k}", f"{k} = {v:g}{whose} {problem}, the model's domain of {k}")
-    return out
-
-
-def _bounds(d: Any, path: Path, key: str) -> dict[str, tuple[float, float]]:
-    if not isinstance(d, dict):
-        raise _err(path, key, f"expected a table of parameter = [low, high], got {d!r}")
-    out: dict[str, tuple[float, float]] = {}
-    for k, v in d.items():
-        if isinstance(v, dict):
-            continue  # a per-channel sub-table, read by the caller
-        _param_names((k,), path, key)
-        if not isinstance(v, list) or len(v) != 2:
-            raise _err(path, f"{key}.{k}", f"expected [low, high], got {v!r}")
-        lo, hi = _float(v[0], path, f"{key}.{k}"), _float(v[1], path, f"{key}.{k}")
-        if not lo < hi:
-            raise _err(path, f"{key}.{k}", f"low {lo} must be below high {hi}")
-        out[k] = (lo, hi)
-    return out
-
-
-def _channels(names: tuple[str, ...], path: Path, key: str) -> tuple[str, ...]:
-    for c in names:
-        if c not in ALL_CHANNELS:
-            raise _err(path, key, f"unknown channel {c!r}; known: {', '.join(ALL_CHANNELS)}")
-    return names
+        raise SpecError.at(path, f"{where}.key", problem)
+    return made  # type: ignore[no-any-return]
 
 
 def synth_hint(manifest: Path) -> str:
@@ -317,126 +900,6 @@ def synth_hint(manifest: Path) -> str:
     speakers' corpus are both made by ``coartic corpus synth``, which one is not known here)."""
     return (f" (if it is a synthetic corpus: `coartic corpus synth {manifest.parent}`, with `--speakers N` for "
             "several speakers)")
-
-
-def _path(base: Path, v: Any, key: str, spec_path: Path) -> Path:
-    if not isinstance(v, str) or not v:
-        raise _err(spec_path, key, f"expected a path string, got {v!r}")
-    p = Path(v)
-    return p if p.is_absolute() else (base / p)
-
-
-LOG_SCALE_PARAMETERS = ("alpha", "theta_bw", "theta_fw", "psi", "beta")
-
-
-def _priors(d: Any, path: Path) -> dict[str, tuple[float, float, bool]]:
-    """``[parameters.prior]``: key "parameter", "phoneme.parameter" or "beta"; value [mean, sd] on
-    the natural value, or { mean = m, sd = s, scale = "log" } on its logarithm (m its median)."""
-    if not isinstance(d, dict):
-        raise _err(path, "parameters.prior", f"expected a table \"phoneme.parameter\" = [mean, sd], got {d!r}")
-    out: dict[str, tuple[float, float, bool]] = {}
-    for key, v in d.items():
-        where = f"parameters.prior.{key}"
-        name = key.rpartition(".")[2]
-        _param_names((name,), path, where, allow_beta=True)
-        if isinstance(v, list) and len(v) == 2:
-            mean, sd, scale = _float(v[0], path, where), _float(v[1], path, where), "natural"
-        elif isinstance(v, dict):
-            _take(v, path, where, {"mean", "sd", "scale"})
-            if "mean" not in v or "sd" not in v:
-                raise _err(path, where, "needs mean and sd")
-            mean, sd, scale = _float(v["mean"], path, where), _float(v["sd"], path, where), v.get("scale", "natural")
-        else:
-            raise _err(path, where, f"expected [mean, sd] or {{ mean, sd, scale }}, got {v!r}")
-        if scale not in ("natural", "log"):
-            raise _err(path, where, f"scale = {scale!r}: expected \"natural\" or \"log\"")
-        if not (math.isfinite(mean) and math.isfinite(sd) and sd > 0):
-            raise _err(path, where, f"needs a finite mean and a positive sd, got mean {mean}, sd {sd}")
-        if scale == "log" and (name not in LOG_SCALE_PARAMETERS or mean <= 0):
-            raise _err(path, where, f"a log-scale prior needs a positive parameter ({', '.join(LOG_SCALE_PARAMETERS)}) "
-                       f"and a positive mean, got {name} with mean {mean}")
-        out[key] = (mean, sd, scale == "log")
-    return out
-
-
-def _shrinks(raw: dict[str, Any], path: Path) -> tuple[Shrink, ...]:
-    """``[[shrink]]`` tables: phonemes (a class of two or more), parameters, sd, scale, channels."""
-    out = []
-    for key, t in _array_of_tables(raw, "shrink", path):
-        _take(t, path, key, {"phonemes", "parameters", "sd", "scale", "channels"})
-        if "phonemes" not in t or "parameters" not in t or "sd" not in t:
-            raise _err(path, key, "needs phonemes = [...], parameters = [...] and sd = ...")
-        ph = _str_list(t["phonemes"], path, f"{key}.phonemes")
-        if len(set(ph)) < 2 or len(set(ph)) != len(ph):
-            raise _err(path, f"{key}.phonemes", f"a class needs two distinct phonemes or more, got {list(ph)}")
-        par = _param_names(_str_list(t["parameters"], path, f"{key}.parameters"), path, f"{key}.parameters")
-        if not par or len(set(par)) != len(par):
-            raise _err(path, f"{key}.parameters", f"expected distinct parameters, got {list(par)}")
-        sd = _float(t["sd"], path, f"{key}.sd")
-        if not (sd > 0 and math.isfinite(sd)):
-            raise _err(path, f"{key}.sd", f"{sd} must be a positive number")
-        scale = t.get("scale", "natural")
-        if scale not in ("natural", "log"):
-            raise _err(path, f"{key}.scale", f"{scale!r}: expected \"natural\" or \"log\"")
-        if scale == "log":
-            bad = [p for p in par if p not in LOG_SCALE_PARAMETERS]
-            if bad:
-                raise _err(path, f"{key}.scale", f"log scale needs positive parameters ({', '.join(LOG_SCALE_PARAMETERS[:-1])}), "
-                           f"not {bad}: shrink those in another [[shrink]] on the natural scale")
-        ch = _channels(_str_list(t["channels"], path, f"{key}.channels"), path, f"{key}.channels") \
-            if "channels" in t else None
-        out.append(Shrink(ph, par, sd, scale == "log", ch, key))
-    return tuple(out)
-
-
-def _choose(c: Any, path: Path, shrinks: tuple[Shrink, ...]) -> Choose | None:
-    """``[choose]``: key, values (the grid), group, folds, rule."""
-    if c is None:
-        return None
-    if not isinstance(c, dict):
-        raise _err(path, "choose", f"expected a table, got {c!r}")
-    _take(c, path, "choose", {"key", "values", "group", "folds", "rule"})
-    if "key" not in c or "values" not in c:
-        raise _err(path, "choose", "needs key = \"shrink.sd\" (or another setting) and values = [...]")
-    return make_choose(path, c["key"], c["values"], c.get("group", "utterance"), c.get("folds", 5),
-                       c.get("rule", "1se"), shrinks, "choose")
-
-
-def make_choose(path: Path, key: Any, values: Any, group: Any, folds: Any, rule: Any,
-                shrinks: tuple[Shrink, ...], where: str) -> Choose:
-    """A checked ``Choose`` (from ``[choose]`` or ``coartic fit --choose``); errors name ``where``."""
-    if not isinstance(key, str):
-        raise _err(path, f"{where}.key", f"expected a setting name, got {key!r}")
-    base = choose_base(key)
-    if base is None:
-        raise _err(path, f"{where}.key", f"{key!r}: not a setting cross-validation can choose (known: "
-                   f"{', '.join(CHOOSABLE)}, or \"shrink #N.sd\" for one [[shrink]])")
-    if base == "shrink.sd":
-        if not shrinks:
-            raise _err(path, f"{where}.key", f"{key!r}: the spec has no [[shrink]] table")
-        if key != "shrink.sd" and not any(s.key == key[: -len(".sd")] for s in shrinks):
-            raise _err(path, f"{where}.key", f"{key!r}: no such table (the spec has {len(shrinks)} [[shrink]])")
-    if not isinstance(values, list) or len(values) < 2:
-        raise _err(path, f"{where}.values", f"expected a list of two values or more, got {values!r}")
-    vals = tuple(_float(v, path, f"{where}.values") for v in values)
-    if len(set(vals)) != len(vals):
-        raise _err(path, f"{where}.values", f"repeated values in {list(vals)}")
-    low = 0.0
-    if any(not math.isfinite(v) or v <= low for v in vals) and base != "plateau_fraction":
-        raise _err(path, f"{where}.values", f"{key} takes positive numbers, got {list(vals)}")
-    if base == "plateau_fraction" and any(CHANNEL_SETTINGS[base].problem(v) for v in vals):
-        raise _err(path, f"{where}.values", f"plateau_fraction takes values in {CHANNEL_SETTINGS[base].allowed}, "
-                   f"got {list(vals)}")
-    if group not in VALIDATE_GROUPS:
-        raise _err(path, f"{where}.group", f"{group!r}: expected one of {', '.join(VALIDATE_GROUPS)}")
-    if isinstance(folds, bool) or not isinstance(folds, int) or folds < 2:
-        raise _err(path, f"{where}.folds", f"expected an integer >= 2, got {folds!r}")
-    if rule not in CHOOSE_RULES:
-        raise _err(path, f"{where}.rule", f"{rule!r}: expected \"min\" or \"1se\"")
-    if rule == "1se" and CHOOSABLE[base] == 0:
-        raise _err(path, f"{where}.rule", f"\"1se\" needs a regularisation strength (shrink.sd, prior_noise); "
-                   f"{key} has no stronger end: use rule = \"min\"")
-    return Choose(key, tuple(sorted(vals)), str(group), int(folds), str(rule))
 
 
 def parse_grid(option: str, text: str, example: str = "") -> tuple[str, list[str]]:
@@ -458,246 +921,3 @@ def choose_base(key: str) -> str | None:
     if key.startswith("shrink #") and key.endswith(".sd") and key[len("shrink #"):-len(".sd")].isdigit():
         return "shrink.sd"
     return None
-
-
-def read_document(path: Path) -> dict[str, Any]:
-    """The TOML document of a spec file, or a SpecError naming the file."""
-    try:
-        return tomllib.loads(read_text(path, "fit spec"))
-    except FileNotFoundError:
-        raise SpecError(f"{path}: no such fit spec") from None
-    except IsADirectoryError:
-        raise SpecError(f"{path}: is a directory, not a fit spec (.toml) file") from None
-    except TextDecodeError as e:
-        raise SpecError(str(e)) from None
-    except tomllib.TOMLDecodeError as e:
-        raise SpecError(f"{path}: not valid TOML: {e}") from None
-
-
-def load_spec(path: str | Path) -> FitSpec:
-    """Read and check a fit spec. Raises SpecError naming the file and key on any problem."""
-    path = Path(path)
-    return parse_spec(read_document(path), path)
-
-
-def parse_spec(raw: dict[str, Any], path: Path) -> FitSpec:
-    """Build a FitSpec from an already parsed TOML document (``path`` locates relative paths)."""
-    base = path.parent
-    # [mcmc] belongs to coartic.mcmc (docs/MCMC.md): one spec file serves both commands.
-    _take(raw, path, "top level", {"name", "corpus", "model", "parameters", "override", "tie", "shrink",
-                                   "choose", "engine", "staging", "gaps", "validate", "mcmc", "fit"})
-    name = raw.get("name", path.stem)
-
-    c = raw.get("corpus")
-    if not isinstance(c, dict):
-        raise _err(path, "corpus", "missing: give a manifest or a list of files and labels")
-    _take(c, path, "corpus", {"manifest", "files", "labels", "file_column", "label_map", "role_map",
-                              "select", "limit"})
-    manifest = _path(base, c["manifest"], "corpus.manifest", path) if "manifest" in c else None
-    files = tuple(_path(base, f, "corpus.files", path) for f in _str_list(c.get("files", []), path, "corpus.files"))
-    labels = tuple(_path(base, f, "corpus.labels", path) for f in _str_list(c.get("labels", []), path, "corpus.labels"))
-    if manifest is None and not files:
-        raise _err(path, "corpus", "give either manifest = 'path/manifest.csv' or files = [...]")
-    if manifest is not None and files:
-        raise _err(path, "corpus", "give manifest or files, not both")
-    if files and len(labels) != len(files):
-        raise _err(path, "corpus.labels", f"{len(labels)} label files for {len(files)} data files")
-    label_map = c.get("label_map")
-    if label_map is not None and not isinstance(label_map, str):
-        raise _err(path, "corpus.label_map", f"expected a name or path, got {label_map!r}")
-    if label_map is not None and ("/" in label_map or label_map.endswith((".tsv", ".json"))):
-        label_map = str(_path(base, label_map, "corpus.label_map", path))
-    role_map = c.get("role_map")
-    if role_map is not None:
-        if not isinstance(role_map, dict) or not all(
-                isinstance(v, str) or (k == "axes" and isinstance(v, dict)) for k, v in role_map.items()):
-            raise _err(path, "corpus.role_map", "expected a table role = 'sensor' (and for EMA "
-                       f"axes = {{ vertical = '+z', anterior = '-y' }}), got {role_map!r}")
-        try:  # the role map's own checks (roles, axes, one marker per role), named by the spec key
-            RoleMap.from_dict(role_map, "role map")
-        except DataError as bad:
-            raise _err(path, "corpus.role_map", str(bad)) from None
-    select_raw = c.get("select", {})
-    if not isinstance(select_raw, dict):
-        raise _err(path, "corpus.select", f"expected a table column = [values], got {select_raw!r}")
-    select = {k: tuple(str(x) for x in (v if isinstance(v, list) else [v])) for k, v in select_raw.items()}
-    limit = c.get("limit")
-    if limit is not None and (isinstance(limit, bool) or not isinstance(limit, int) or limit < 1):
-        raise _err(path, "corpus.limit", f"expected a positive integer, got {limit!r}")
-    corpus = CorpusSpec(manifest=manifest, files=files, labels=labels,
-                        file_column=str(c.get("file_column", "file")), label_map=label_map,
-                        role_map=role_map, select=select, limit=limit)
-
-    m = raw.get("model", {})
-    _take(m, path, "model", {"variant", "channels", "reference_phoneme", "apex_fraction", "edge_extent",
-                             "beta", "fit_beta", "beta_bounds", "offsets", "dominance", "plateau_fraction",
-                             "handover", "speakers", "speaker_column"})
-    speakers = m.get("speakers", "none")
-    if speakers not in ("none", "offset", "offset_scale", "targets"):
-        raise _err(path, "model.speakers",
-                   f"{speakers!r}: expected \"none\", \"offset\", \"offset_scale\" or \"targets\"")
-    speaker_column = m.get("speaker_column", "speaker")
-    if not isinstance(speaker_column, str) or not speaker_column:
-        raise _err(path, "model.speaker_column", f"{speaker_column!r}: expected a manifest column name")
-    offsets = m.get("offsets", "none")
-    if isinstance(offsets, bool) or not (offsets in ("none", "free") or (
-            isinstance(offsets, (int, float)) and math.isfinite(offsets) and offsets > 0)):
-        raise _err(path, "model.offsets", f"{offsets!r}: expected \"none\", \"free\" or a positive number "
-                   "(the offsets' sd in mm)")
-    if speakers != "none" and offsets != "none":
-        raise _err(path, "model.speakers", "cannot be combined with [model] offsets yet: choose one")
-    variant = m.get("variant", "modified")
-    if variant not in VARIANTS:
-        raise _err(path, "model.variant", f"{variant!r}: expected one of {VARIANTS}")
-    channels = _channels(_str_list(m.get("channels", list(CHANNELS)), path, "model.channels"), path, "model.channels")
-    if not channels:
-        raise _err(path, "model.channels", "no channel to fit")
-    beta_bounds = DEFAULT_BETA_BOUNDS
-    if "beta_bounds" in m:
-        bb = m["beta_bounds"]
-        if not isinstance(bb, list) or len(bb) != 2:
-            raise _err(path, "model.beta_bounds", f"expected [low, high], got {bb!r}")
-        beta_bounds = (_float(bb[0], path, "model.beta_bounds"), _float(bb[1], path, "model.beta_bounds"))
-        if not 0.0 <= beta_bounds[0] < beta_bounds[1]:
-            raise _err(path, "model.beta_bounds", f"need 0 <= low < high, got {beta_bounds}")
-    apex = _setting(m, "apex_fraction", path)
-    edge = _setting(m, "edge_extent", path)
-    fit_beta = m.get("fit_beta", False)
-    if not isinstance(fit_beta, bool):
-        raise _err(path, "model.fit_beta", f"expected true or false, got {fit_beta!r}")
-    dominance = _setting(m, "dominance", path)
-    plateau = _setting(m, "plateau_fraction", path)
-    handover = _setting(m, "handover", path)
-
-    beta = _setting(m, "beta", path)
-
-    p = raw.get("parameters", {})
-    _take(p, path, "parameters", {"free", "start", "start_table", "bounds", "target_margin", "prior", "prior_noise"})
-    free = _param_names(_str_list(p.get("free", list(DEFAULT_FREE)), path, "parameters.free"), path, "parameters.free")
-    start = dict(DEFAULT_START)
-    start_given = _param_values(p.get("start", {}), path, "parameters.start")
-    start.update(start_given)
-    start_table = _path(base, p["start_table"], "parameters.start_table", path) if "start_table" in p else None
-    bounds_raw = p.get("bounds", {})
-    bounds = dict(DEFAULT_FIT_BOUNDS)
-    bounds.update(_bounds(bounds_raw, path, "parameters.bounds"))
-    channel_bounds: dict[str, dict[str, tuple[float, float]]] = {}
-    for k, v in bounds_raw.items():
-        if isinstance(v, dict):
-            _channels((k,), path, f"parameters.bounds.{k}")
-            channel_bounds[k] = _bounds(v, path, f"parameters.bounds.{k}")
-    for k, (lo, hi) in bounds.items():
-        if k in ("alpha", "theta_bw", "theta_fw", "psi") and lo <= 0:
-            raise _err(path, f"parameters.bounds.{k}", f"low {lo} must be > 0 (fitted on a log scale)")
-    margin = _float(p.get("target_margin", 5.0), path, "parameters.target_margin")
-    priors = _priors(p.get("prior", {}), path)
-    prior_noise = _float(p.get("prior_noise", 1.0), path, "parameters.prior_noise")
-    if not (prior_noise > 0 and math.isfinite(prior_noise)):
-        raise _err(path, "parameters.prior_noise", f"{prior_noise} must be a positive number (mm)")
-
-    overrides: list[Override] = []
-    for key, table in _array_of_tables(raw, "override", path):
-        _take(table, path, key, {"phonemes", "channels", "fixed", "free", "start", "bounds"})
-        if "phonemes" not in table:
-            raise _err(path, key, "missing phonemes = [...]")
-        chans = _channels(_str_list(table["channels"], path, f"{key}.channels"), path, f"{key}.channels") \
-            if "channels" in table else None
-        o_phonemes = _str_list(table["phonemes"], path, f"{key}.phonemes")
-        overrides.append(Override(
-            phonemes=o_phonemes, channels=chans,
-            fixed=_param_values(table.get("fixed", {}), path, f"{key}.fixed", o_phonemes),
-            free=_param_names(_str_list(table.get("free", []), path, f"{key}.free"), path, f"{key}.free"),
-            start=_param_values(table.get("start", {}), path, f"{key}.start", o_phonemes),
-            bounds=_bounds(table.get("bounds", {}), path, f"{key}.bounds")))
-
-    reference = str(m.get("reference_phoneme", "a"))
-    ties: list[Tie] = []
-    for key, t in _array_of_tables(raw, "tie", path):
-        _take(t, path, key, {"phonemes", "parameters", "channels"})
-        if "phonemes" not in t or "parameters" not in t:
-            raise _err(path, key, "needs phonemes = [...] and parameters = [...]")
-        tph = _str_list(t["phonemes"], path, f"{key}.phonemes")
-        if len(set(tph)) < 2:
-            raise _err(path, f"{key}.phonemes", f"a tie needs two phonemes or more, got {list(tph)}")
-        tpar = _param_names(_str_list(t["parameters"], path, f"{key}.parameters"), path, f"{key}.parameters")
-        if reference in tph and "alpha" in tpar:
-            raise _err(path, key, f"ties alpha of the reference phoneme {reference!r}, which is fixed at 1")
-        tch = _channels(_str_list(t["channels"], path, f"{key}.channels"), path, f"{key}.channels") \
-            if "channels" in t else None
-        ties.append(Tie(tph, tpar, tch))
-    shrinks = _shrinks(raw, path)
-    for i, o in enumerate(overrides):
-        # alpha is scale-free: the reference phoneme's is 1 by definition (MODEL.md §1)
-        if reference in o.phonemes and ("alpha" in o.free or "alpha" in o.start or "alpha" in o.bounds
-                                        or o.fixed.get("alpha", 1.0) != 1.0):
-            raise _err(path, f"override #{i + 1}", f"sets alpha of the reference phoneme {reference!r}, which is "
-                       "fixed at 1 (alpha is scale-free); choose another [model] reference_phoneme to fit it")
-
-    e = raw.get("engine", {})
-    _take(e, path, "engine", {"name", "options"})
-    engine = e.get("name", "scipy")
-    if engine not in ENGINES:
-        raise _err(path, "engine.name", f"{engine!r}: unknown engine ({', '.join(ENGINES)})")
-    engine_options = e.get("options", {})
-    if not isinstance(engine_options, dict):
-        raise _err(path, "engine.options", f"expected a table, got {engine_options!r}")
-
-    s = raw.get("staging", {})
-    _take(s, path, "staging", {"enabled", "stages"})
-    staging = s.get("enabled", True)
-    if not isinstance(staging, bool):
-        raise _err(path, "staging.enabled", f"expected true or false, got {staging!r}")
-    stages = DEFAULT_STAGES
-    if "stages" in s:
-        if not isinstance(s["stages"], list) or not s["stages"]:
-            raise _err(path, "staging.stages", "expected a list of parameter lists")
-        stages = tuple(_param_names(_str_list(st, path, "staging.stages"), path, "staging.stages", allow_beta=True)
-                       for st in s["stages"])
-
-    fit = raw.get("fit", {})
-    if not isinstance(fit, dict):
-        raise _err(path, "fit", f"expected a table, got {fit!r}")
-    _take(fit, path, "fit", {"starts", "seed", "probe", "keep", "include_start"})
-    include_start = fit.get("include_start", True)
-    if not isinstance(include_start, bool):
-        raise _err(path, "fit.include_start", f"expected true or false, got {include_start!r}")
-    starts, seed, probe = (_count(fit, key, default, low, path) for key, default, low in
-                           (("starts", DEFAULT_STARTS, 1), ("seed", 0, 0), ("probe", DEFAULT_PROBE, 1)))
-    keep = _count(fit, "keep", None, 1, path)
-    if keep is not None and starts > 1 and keep > starts:
-        raise _err(path, "fit.keep", f"{keep}: more than the {starts} starts")
-
-    g = raw.get("gaps", {})
-    _take(g, path, "gaps", {"max_gap"})
-    max_gap = _float(g.get("max_gap", 0.05), path, "gaps.max_gap")
-
-    v = raw.get("validate", {})
-    _take(v, path, "validate", {"holdout_repetition", "train_rate", "test_rate", "group", "folds"})
-    hold = v.get("holdout_repetition", 5)
-    if hold is not None and (isinstance(hold, bool) or not isinstance(hold, int)):
-        raise _err(path, "validate.holdout_repetition", f"expected an integer, got {hold!r}")
-    group = v.get("group")
-    if group is not None and group not in VALIDATE_GROUPS:
-        raise _err(path, "validate.group", f"{group!r}: expected one of {', '.join(VALIDATE_GROUPS)}")
-    folds = v.get("folds")
-    if folds is not None and (isinstance(folds, bool) or not isinstance(folds, int) or folds < 2):
-        raise _err(path, "validate.folds", f"expected an integer >= 2, got {folds!r}")
-    if folds is not None and group is None:
-        raise _err(path, "validate.folds", "needs group = \"utterance\" (or sentence, rate, speaker, repetition)")
-
-    choose = _choose(raw.get("choose"), path, shrinks)
-
-    return FitSpec(
-        path=path, name=str(name), corpus=corpus, channels=channels, variant=variant,
-        reference_phoneme=reference, apex_fraction=apex, edge_extent=edge, dominance=dominance,
-        plateau_fraction=plateau, handover=handover,
-        beta=beta, fit_beta=fit_beta, beta_bounds=beta_bounds,
-        free=free, start_table=start_table, start=start, start_given=frozenset(start_given), bounds=bounds,
-        priors=priors, prior_noise=prior_noise, offsets=offsets if isinstance(offsets, str) else float(offsets),
-        speakers=str(speakers), speaker_column=speaker_column, channel_bounds=channel_bounds,
-        target_margin=margin, overrides=tuple(overrides), ties=tuple(ties), shrinks=shrinks, choose=choose,
-        engine=engine, engine_options=dict(engine_options),
-        staging=staging, stages=stages, starts=starts, seed=seed, probe=probe, keep=keep, include_start=include_start,
-        max_gap=max_gap, holdout_repetition=hold, validate_group=group,
-        validate_folds=folds,
-        train_rate=v.get("train_rate", "normal"), test_rate=v.get("test_rate", "fast"))

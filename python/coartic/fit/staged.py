@@ -16,7 +16,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from coartic.fit.engines import EngineResult, get_engine
-from coartic.fit.problem import ChannelProblem
+from coartic.estimation.problem import ChannelProblem
 from coartic.table import PARAMETERS
 
 

@@ -24,7 +24,7 @@ from rich.table import Table
 from coartic.errors import CoarticError
 from coartic.fit.baselines import BASELINES
 from coartic.fit.data import load_utterances
-from coartic.fit.problem import Utterance
+from coartic.model import Utterance
 from coartic.fit.heldout import BASELINE_COLUMNS, SplitScore, pooled
 from coartic.fit.result import BAR_MM, FitResult
 from coartic.fit.score import score_utterances
@@ -81,8 +81,8 @@ def group_of(u: Utterance, group: str, spec: FitSpec) -> str:
         if k in u.meta:
             v = u.meta[k]
             return str(int(v)) if group == "repetition" and v.isdigit() else v
-    raise SpecError(f"{spec.path}: [validate] group = {group!r}: the corpus has no {' or '.join(map(repr, keys))} "
-                    "column (a manifest column), so its utterances cannot be grouped by it")
+    raise SpecError.at(spec.path, "validate.group", f"{group!r}: the corpus has no {' or '.join(map(repr, keys))} "
+                       "column (a manifest column), so its utterances cannot be grouped by it")
 
 
 def kfold_splits(spec: FitSpec, utterances: Sequence[Utterance]) -> list[tuple[str, list[Utterance], list[Utterance]]]:
@@ -93,8 +93,8 @@ def kfold_splits(spec: FitSpec, utterances: Sequence[Utterance]) -> list[tuple[s
     values = [group_of(u, group, spec) for u in utterances]
     groups = sorted(set(values), key=_natural)
     if len(groups) < 2:
-        raise SpecError(f"{spec.path}: [validate] group = {group!r}: the corpus has only one {group} "
-                        f"({groups[0] if groups else 'none'}), nothing to hold out")
+        raise SpecError.at(spec.path, "validate.group", f"{group!r}: the corpus has only one {group} "
+                           f"({groups[0] if groups else 'none'}), nothing to hold out")
     k = min(spec.validate_folds or len(groups), len(groups))
     out = []
     for j in range(k):
@@ -124,9 +124,9 @@ def splits(spec: FitSpec, utterances: Sequence[Utterance]) -> list[tuple[str, li
         if test and train:
             out.append((f"fit {spec.train_rate} rate, test {spec.test_rate} rate", train, test))
     if not out:
-        raise SpecError(f"{spec.path}: [validate] the corpus has no repetition {spec.holdout_repetition} / "
-                        f"rates {spec.train_rate!r}, {spec.test_rate!r} to hold out (manifest columns "
-                        "'repetition' and 'rate'); or give group = \"utterance\" (k-fold by any grouping)")
+        raise SpecError.at(spec.path, "validate", f"the corpus has no repetition {spec.holdout_repetition} / "
+                           f"rates {spec.train_rate!r}, {spec.test_rate!r} to hold out (manifest columns "
+                           "'repetition' and 'rate'); or give group = \"utterance\" (k-fold by any grouping)")
     return out
 
 

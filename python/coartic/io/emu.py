@@ -1,7 +1,9 @@
 """EMU-webApp / emuR bundles (`<bundle>_bndl.json`): EMA sensor tracks in SSFF and the annotation.
 
 A bundle holds base64 SSFF files (one per sensor: `<s>_posx, _posy, _posz`, orientation columns)
-and an annotation whose SEGMENT levels carry the phone labels. SSFF is the EMU/ASSP binary track
+and an annotation whose SEGMENT levels carry the phone labels. An emuDB on disk keeps the same
+bundle as a directory `<bundle>_bndl/`: the annotation `<bundle>_annot.json` and one SSFF file per
+track, `<bundle>.<extension>`; reading the `_annot.json` reads the sensor tracks beside it. SSFF is the EMU/ASSP binary track
 format: a text header (`Record_Freq`, `Start_Time`, `Column <name> <TYPE> <count>` lines, ended by
 a line of dashes) and then the records, little-endian on IBM-PC machines. No maintained PyPI
 package reads it, so the few lines below do.
@@ -14,6 +16,7 @@ import binascii
 import json
 import re
 from os import PathLike
+from glob import escape as glob_escape
 from pathlib import Path
 from typing import Any
 
@@ -25,6 +28,7 @@ from coartic.io.labels import Segments
 from coartic.io.registry import Reader, ReadRequest, register
 from coartic.io.trial import Trial
 from coartic.io.units import to_mm
+from coartic.textfile import TextDecodeError, read_text
 
 _SSFF_TYPES = {"DOUBLE": "f8", "FLOAT": "f4", "LONG": "i4", "SHORT": "i2", "BYTE": "u1",
                "CHAR": "S1"}
@@ -86,28 +90,66 @@ def read_emu_bundle(
     """
     p = Path(path)
     try:
-        bundle = json.loads(p.read_text(encoding="utf-8"))
-    except (OSError, UnicodeDecodeError) as e:
-        raise DataError(f"cannot read the bundle: {e}", path=p) from None
+        bundle = json.loads(read_text(p, "bundle"))
+    except OSError as e:
+        raise DataError(f"cannot read the bundle: {e.strerror or e}", path=p) from None
+    except TextDecodeError as e:
+        raise DataError(e.detail, path=p) from None
     except json.JSONDecodeError as e:
         raise DataError(f"not valid JSON: {e.msg}", path=p, line=e.lineno) from None
     except RecursionError:
         raise DataError("JSON nested too deeply to be an EMU bundle", path=p) from None
     except ValueError as e:  # e.g. an integer of more than 4300 digits
         raise DataError(f"not a usable JSON document: {e}", path=p) from None
+    if isinstance(bundle, dict) and "ssffFiles" not in bundle and isinstance(bundle.get("levels"), list):
+        # an emuDB bundle directory's annotation: its tracks are the SSFF files beside it
+        trial = _sensor_trial(_track_files(p, bundle), p, units, "the bundle directory")
+        return trial, _segments(bundle, level, p)
     if not isinstance(bundle, dict) or not isinstance(bundle.get("ssffFiles"), list):
-        raise DataError("not an EMU bundle (no 'ssffFiles' list)", path=p)
-    sensors: dict[str, dict[str, NDArray[Any]]] = {}
-    rate = start = None
-    n_records = None
+        raise DataError("not an EMU bundle (no 'ssffFiles' list, nor an emuDB annotation's "
+                        "'levels')", path=p)
+    tracks: list[tuple[str, bytes]] = []
     for k, f in enumerate(bundle["ssffFiles"]):
         if not isinstance(f, dict) or not isinstance(f.get("data"), str):
             raise DataError(f"ssffFiles[{k}] has no base64 'data'", path=p)
         ext = str(f.get("fileExtension", k))
         try:
-            raw = base64.b64decode(f["data"], validate=True)
+            tracks.append((ext, base64.b64decode(f["data"], validate=True)))
         except (binascii.Error, ValueError):
             raise DataError(f"track {ext!r}: data is not valid base64", path=p, item=ext) from None
+    return _sensor_trial(tracks, p, units, "the bundle"), _segments(bundle.get("annotation"), level, p)
+
+
+def _track_files(p: Path, annotation: dict[str, Any]) -> list[tuple[str, bytes]]:
+    """The SSFF tracks `<bundle>.<ext>` beside an emuDB `<bundle>_annot.json` (other files, the
+    audio and label files, skipped)."""
+    stem = p.name.removesuffix("_annot.json") if p.name.endswith("_annot.json") else str(
+        annotation.get("name") or p.stem)
+    if not stem or "/" in stem or "\\" in stem:
+        raise DataError(f"an emuDB annotation whose bundle name {stem!r} is not a file name", path=p)
+    tracks: list[tuple[str, bytes]] = []
+    for f in sorted(p.parent.glob(f"{glob_escape(stem)}.*")):
+        if not f.is_file():
+            continue
+        try:
+            with f.open("rb") as fh:
+                if fh.read(4) != b"SSFF":
+                    continue
+            tracks.append((f.suffix[1:], f.read_bytes()))
+        except OSError as e:
+            raise DataError(f"cannot read the track: {e.strerror or e}", path=f) from None
+    if not tracks:
+        raise DataError(f"an emuDB annotation, but no SSFF track {stem}.<ext> beside it in "
+                        f"{p.parent}", path=p)
+    return tracks
+
+
+def _sensor_trial(tracks: list[tuple[str, bytes]], p: Path, units: str | None, what: str) -> Trial:
+    """The sensors of the tracks with `<s>_posx/_posy/_posz` columns, as one Trial."""
+    sensors: dict[str, dict[str, NDArray[Any]]] = {}
+    rate = start = None
+    n_records = None
+    for ext, raw in tracks:
         cols, r, s = parse_ssff(raw, f"{p}: track {ext!r}")
         pos = {n: c for n, c in cols.items() if _POS.match(n)}
         if not pos:
@@ -127,7 +169,7 @@ def read_emu_bundle(
                                 "(CHAR), not numbers", path=p, item=name)
             sensors.setdefault(m.group("sensor"), {})[m.group("axis")] = c[:, 0].astype(np.float64)
     if not sensors or rate is None or start is None:
-        raise DataError("the bundle has no SSFF track with <sensor>_posx/_posy/_posz columns", path=p)
+        raise DataError(f"{what} has no SSFF track with <sensor>_posx/_posy/_posz columns", path=p)
     names = sorted(sensors, key=list(sensors).index)
     for s_name in names:
         lacking = [a for a in "xyz" if a not in sensors[s_name]]
@@ -141,9 +183,8 @@ def read_emu_bundle(
     notes = [note] if note else []
     if zero.any():
         notes.append(f"{int(zero.sum())} all-zero frames (no data) set to NaN")
-    trial = Trial(markers=np.ascontiguousarray(xyz), marker_names=tuple(names), rate=rate,
-                  units="mm", source=p, meta={"notes": notes}, start_time=start, kind="ema")
-    return trial, _segments(bundle.get("annotation"), level, p)
+    return Trial(markers=np.ascontiguousarray(xyz), marker_names=tuple(names), rate=rate,
+                 units="mm", source=p, meta={"notes": notes}, start_time=start, kind="ema")
 
 
 def _segments(annotation: Any, level: str | None, p: Path) -> Segments | None:

@@ -25,6 +25,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from coartic.io.errors import DataError, parse_json
+from coartic.textfile import TextDecodeError, read_text
 from coartic.io.labels import Segments
 from coartic.table import PAUSE
 
@@ -121,9 +122,11 @@ class LabelMap:
     def from_file(cls, path: str | PathLike[str]) -> LabelMap:
         p = Path(path)
         try:
-            text = p.read_text(encoding="utf-8")
-        except (OSError, UnicodeDecodeError) as e:
-            raise DataError(f"cannot read the label map: {e}", path=p) from None
+            text = read_text(p, "label map")
+        except OSError as e:
+            raise DataError(f"cannot read the label map: {e.strerror or e}", path=p) from None
+        except TextDecodeError as e:
+            raise DataError(e.detail, path=p) from None
         if p.suffix.lower() == ".json":
             d = parse_json(text, p)
             if not isinstance(d, dict):

@@ -12,7 +12,6 @@ skips the `name =` and `[n]:` decorations, so the long and the short text format
 
 from __future__ import annotations
 
-import codecs
 import re
 from collections.abc import Sequence
 from dataclasses import dataclass, field
@@ -23,6 +22,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from coartic.io.errors import DataError
+from coartic.textfile import TextDecodeError, read_text
 
 # Two segments may touch with this much rounding (labels are often written with 5-6 decimals).
 TIME_TOLERANCE = 1e-6
@@ -130,22 +130,13 @@ def read_labels(path: str | PathLike[str], tier: str | None = None) -> Segments:
 
 
 def _read_text(p: Path) -> str:
+    # coartic.textfile: UTF-8, or UTF-16 with its BOM (Praat's as soon as a label is not ASCII)
     try:
-        raw = p.read_bytes()
+        text = read_text(p, "label file")
     except OSError as e:
         raise DataError(f"cannot read the label file: {e.strerror or e}", path=p) from None
-    # Praat writes UTF-16 (with a BOM) as soon as a label is not ASCII.
-    for bom, enc in ((codecs.BOM_UTF8, "utf-8-sig"), (codecs.BOM_UTF16_LE, "utf-16"),
-                     (codecs.BOM_UTF16_BE, "utf-16")):
-        if raw.startswith(bom):
-            try:
-                return raw.decode(enc)
-            except UnicodeDecodeError as e:
-                raise DataError(f"not valid {enc} text at byte {e.start}", path=p) from None
-    try:
-        text = raw.decode("utf-8")
-    except UnicodeDecodeError as e:
-        raise DataError(f"not UTF-8 or UTF-16 text (bad byte at offset {e.start})", path=p) from None
+    except TextDecodeError as e:
+        raise DataError(e.detail, path=p) from None
     if "\x00" in text:
         raise DataError("contains NUL bytes: not a text label file", path=p)
     return text
@@ -400,7 +391,8 @@ def parse_timit(text: str, path: Path, rate: float = TIMIT_SAMPLE_RATE) -> Segme
 
 def _parse_xlabel(lines: list[str], hash_line: int, path: Path) -> Segments:
     # Festival/xlabel: each line is `end_time colour label`; a segment starts where the
-    # previous one ended, the first at 0.
+    # previous one ended, the first at 0. A first entry at time 0 (EMU's `H#`) marks the start
+    # of the utterance, not a segment.
     labels: list[str] = []
     starts: list[float] = []
     ends: list[float] = []
@@ -421,6 +413,8 @@ def _parse_xlabel(lines: list[str], hash_line: int, path: Path) -> Segments:
             raise DataError(f"expected 'end_time colour label' (xlabel), found {s!r}: no label",
                             path=path, line=no)
         label = fields[2].strip()
+        if not labels and end == 0.0:
+            continue
         labels.append(label)
         starts.append(previous)
         ends.append(end)

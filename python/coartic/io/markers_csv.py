@@ -17,6 +17,7 @@ from pathlib import Path
 import numpy as np
 
 from coartic.io.errors import DataError
+from coartic.textfile import TextDecodeError, read_text
 from coartic.io.registry import Reader, ReadRequest, register
 from coartic.io.trial import Trial
 from coartic.io.units import to_mm
@@ -31,9 +32,11 @@ RATE_JITTER = 0.05
 def read_table(path: Path) -> tuple[list[str], list[list[str]], list[int], str | None]:
     """Header, data rows, their line numbers and a `# units:` value, delimiter sniffed."""
     try:
-        text = path.read_text(encoding="utf-8-sig")
-    except (OSError, UnicodeDecodeError) as e:
-        raise DataError(f"cannot read the table as UTF-8 text: {e}", path=path) from None
+        text = read_text(path, "marker table")
+    except OSError as e:
+        raise DataError(f"cannot read the table: {e.strerror or e}", path=path) from None
+    except TextDecodeError as e:
+        raise DataError(e.detail, path=path) from None
     if "\x00" in text:
         raise DataError("contains NUL bytes: not a text table", path=path)
     unit = None

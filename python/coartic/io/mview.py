@@ -5,6 +5,11 @@ data). Read with scipy.io.loadmat (MATLAB 5 format; v7.3 HDF5 files are refused 
 
 Elements whose SIGNAL has one column (audio) are not sensors and are skipped; every sensor must
 share the first sensor's rate and length.
+
+The Haskins IEEE rate database carries its forced alignment inside the file: the audio element has
+the fields WORDS and PHONES, struct arrays of LABEL (ARPAbet, `sp` = pause) and OFFS ([start end]
+in seconds). These are the file's own labels (`PHONES` unless the tier `WORDS` is asked for), used
+when no label file is given, as an EMU bundle's are.
 """
 
 from __future__ import annotations
@@ -15,6 +20,7 @@ from typing import Any
 import numpy as np
 
 from coartic.io.errors import DataError
+from coartic.io.labels import Segments
 from coartic.io.markers_csv import midsagittal_note
 from coartic.io.registry import Reader, ReadRequest, register
 from coartic.io.trial import Trial
@@ -22,10 +28,20 @@ from coartic.io.units import to_mm
 
 FIELDS = ("NAME", "SRATE", "SIGNAL")
 MAGIC = b"MATLAB 5.0 MAT-file"
+# fields holding segment labels (struct arrays of LABEL and OFFS), the default first
+LABEL_FIELDS = ("PHONES", "WORDS")
 
 
 def read_mview(path: str | Path, units: str | None = None) -> Trial:
     """Read an mview struct-array .mat file as a Trial (kind 'ema'), positions in mm."""
+    return read_mview_labelled(path, units=units)[0]
+
+
+def read_mview_labelled(path: str | Path, units: str | None = None,
+                        tier: str | None = None) -> tuple[Trial, Segments | None]:
+    """The Trial of `read_mview` and the file's own segment labels: the `PHONES` field (or the
+    field named by `tier`, e.g. `WORDS`) of the first element that has one; None when the file
+    has no label field and no tier was asked for."""
     import scipy.io
 
     p = Path(path)
@@ -102,8 +118,68 @@ def read_mview(path: str | Path, units: str | None = None) -> Trial:
     notes = [f"mview struct {var!r}: {len(names)} sensors at {rate:g} Hz"] + ([note] if note else [])
     if planar is not None:
         notes.append(midsagittal_note(planar))
-    return Trial(markers=np.ascontiguousarray(xyz), marker_names=tuple(names), rate=float(rate),
-                 units="mm", source=p, meta={"notes": notes}, kind="ema", planar_axis=planar)
+    segments = _embedded_segments(structs, var, tier, p)
+    if segments is not None:
+        notes.append(f"labels: the {len(segments)} {segments.tier} embedded in the file")
+    trial = Trial(markers=np.ascontiguousarray(xyz), marker_names=tuple(names), rate=float(rate),
+                  units="mm", source=p, meta={"notes": notes}, kind="ema", planar_axis=planar)
+    return trial, segments
+
+
+def _embedded_segments(structs: np.ndarray, var: str, tier: str | None,
+                       p: Path) -> Segments | None:
+    fields = [f for f in (structs.dtype.names or ()) if f not in FIELDS]
+    offered = [f for f in fields if f.upper() in LABEL_FIELDS]
+    if tier is not None:
+        wanted = [f for f in offered if f.upper() == tier.upper()]
+        if not wanted:
+            raise DataError(f"no label field {tier!r} in {var!r}; its label fields are "
+                            f"{offered or 'none'} (of {fields or 'no fields'} beyond "
+                            f"{', '.join(FIELDS)})", path=p, item=tier)
+        field = wanted[0]
+    else:
+        default = next((f for want in LABEL_FIELDS for f in offered if f.upper() == want), None)
+        if default is None:
+            return None
+        field = default
+    holder = next((el for el in structs.ravel() if _entries(el[field]).size), None)
+    if holder is None:
+        if tier is not None:
+            raise DataError(f"the label field {field!r} of {var!r} is empty in every element",
+                            path=p, item=field)
+        return None
+    owner = _text(holder["NAME"])
+    labels: list[str] = []
+    starts: list[float] = []
+    ends: list[float] = []
+    for i, entry in enumerate(_entries(holder[field])):
+        where = f"{field} entry {i + 1} of element {owner!r}"
+        names = entry.dtype.names or ()
+        if "LABEL" not in names or "OFFS" not in names:
+            raise DataError(f"{where} has the fields {list(names)}, not LABEL and OFFS", path=p,
+                            item=field)
+        offs = np.asarray(entry["OFFS"], dtype=object).ravel()
+        while offs.size == 1 and isinstance(offs[0], np.ndarray):
+            offs = offs[0].ravel()
+        try:
+            s, e = (float(x) for x in offs)
+        except (TypeError, ValueError):
+            raise DataError(f"{where} ({_text(entry['LABEL'])!r}): OFFS is {offs.tolist()!r}, not "
+                            "[start end] in seconds", path=p, item=field) from None
+        labels.append(_text(entry["LABEL"]))
+        starts.append(s)
+        ends.append(e)
+    return Segments(tuple(labels), np.array(starts), np.array(ends), p, (), field.upper())
+
+
+def _entries(v: Any) -> np.ndarray:
+    """A label field's entries (a struct array, possibly wrapped in object arrays by loadmat)."""
+    a = np.asarray(v)
+    while a.dtype == object and a.size == 1:
+        a = np.asarray(a.ravel()[0])
+    if a.dtype.names is None:
+        return np.empty(0)
+    return a.ravel()
 
 
 def _text(v: Any) -> str:
@@ -128,8 +204,8 @@ def _scalar(v: Any, what: str, p: Path) -> float:
         raise DataError(f"{what} is not one number", path=p) from None
 
 
-def _read(p: Path, req: ReadRequest) -> tuple[Trial, None]:
-    return read_mview(p, units=req.units), None
+def _read(p: Path, req: ReadRequest) -> tuple[Trial, Segments | None]:
+    return read_mview_labelled(p, units=req.units, tier=req.level)
 
 
 register(Reader("mview", "mview MATLAB .mat EMA", (".mat",), _read,

@@ -18,6 +18,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from coartic.io.errors import DataError, parse_json
+from coartic.textfile import TextDecodeError, read_text
 
 MARKER_ROLES = ("NOSE", "EAR_L", "EAR_R", "UL", "LL", "LC_L", "LC_R", "CHIN")
 EMA_ROLES = ("UL", "LL", "JAW", "LC", "LC_L", "LC_R", "TT", "TB")
@@ -144,9 +145,11 @@ class RoleMap:
     def from_file(cls, path: str | PathLike[str]) -> RoleMap:
         p = Path(path)
         try:
-            text = p.read_text(encoding="utf-8")
-        except (OSError, UnicodeDecodeError) as e:
-            raise DataError(f"cannot read the role map: {e}", path=p) from None
+            text = read_text(p, "role map")
+        except OSError as e:
+            raise DataError(f"cannot read the role map: {e.strerror or e}", path=p) from None
+        except TextDecodeError as e:
+            raise DataError(e.detail, path=p) from None
         d = parse_json(text, p)
         if not isinstance(d, dict):
             raise DataError('a role map is a JSON object {"UL": "<marker>", ...}', path=p)

@@ -20,8 +20,8 @@ from typing import Any, Callable, Sequence
 from coartic.fit.data import load_utterances
 from coartic.mcmc import plots
 from coartic.mcmc.idata import split_name
-from coartic.mcmc.run import (SCOPES, McmcConfig, PosteriorRun, channel_runs, fixed_noise, read_spec, spec_priors,
-                              spec_shrinkage, table_problem, table_speakers)
+from coartic.mcmc.run import (SCOPES, McmcConfig, PosteriorRun, channel_runs, fixed_noise, problem_priors, read_spec,
+                              table_problem, table_speakers)
 from coartic.mcmc.summary import QUANTILE_LEVELS, write_uncertainty
 from coartic.outputs import OutputDir, OutputError, atomic_write_text, read_marker
 from coartic.table import ParameterTable
@@ -131,13 +131,13 @@ def sample_table(fit_spec: Any, cfg: McmcConfig, table: Any, table_path: Path, u
     posteriors after it are not started)."""
     runs: list[PosteriorRun] = []
     for channel in cfg.channels or fit_spec.channels:
-        data, packing, options = table_problem(fit_spec, table, table_path, channel, utterances)
-        speakers = table_speakers(fit_spec, table, table_path, channel)
+        problem = table_problem(fit_spec, table, channel, utterances)
+        data, packing, options = problem.data, problem.packing, problem.options
+        speakers = table_speakers(fit_spec, table, channel)
         check_fit_matches_data(table, table_path, channel, data, packing, options, allow_stale, speakers)
         done, interrupted = channel_runs(channel, data, packing, options, cfg, out, progress, on_done=on_done,
-                                         spec_priors=spec_priors(fit_spec, packing, channel),
-                                         spec_shrinkage=spec_shrinkage(fit_spec, table, packing, channel),
-                                         speakers=speakers)
+                                         spec_priors=problem_priors(problem),
+                                         spec_shrinkage=problem.shrink_groups, speakers=speakers)
         runs += done
         if interrupted:
             return runs, True

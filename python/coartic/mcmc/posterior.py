@@ -1,14 +1,14 @@
 """The log-posterior of one channel's free parameters, evaluated for all walkers in one Rust call.
 
 Sampling coordinates are the least-squares problem's own internal vector x
-(``coartic.fit.problem.Packing``: log for α, θ_bw, θ_fw, ψ and β, natural units for T, c, k_R, σ,
+(``coartic.estimation.packing.Packing``: log for α, θ_bw, θ_fw, ψ and β, natural units for T, c, k_R, σ,
 δ), plus ``log_sigma_n`` when the noise level is sampled. The prior (docs/MCMC.md):
 
 * uniform in x inside the packing's bounds, so log-uniform for the scale parameters; a side left
   open by the bounds (α, θ, ψ have (0, ∞) by default) is closed with ``PRIOR_RANGE`` so that the
   prior is proper;
 * times optional Gaussian priors on natural values, keyed ``"phoneme.parameter"`` (or ``"beta"``);
-* times the fit spec's shrinkage toward class means (``[[shrink]]``: ``coartic.fit.problem.Shrinkage``,
+* times the fit spec's shrinkage toward class means (``[[shrink]]``: ``coartic.estimation.penalties.Shrinkage``,
   the least-squares rows divided by prior_noise, so −½ Σ z²);
 * ``-inf`` outside the support (those walkers are not even sent to the core).
 
@@ -23,7 +23,7 @@ With S_u = Σ w r and W_u = Σ w over utterance u, and the SSE Σ w r²:
 
     log L = −½ (SSE − Σ_u τ² S_u² / (σ² + τ² W_u)) / σ² − ½ Σ_u log(1 + τ² W_u / σ²) − N log σ − (N/2) log 2π
 
-With the fit spec's ``[model] speakers`` (``coartic.fit.problem.Speakers``), speaker s's samples
+With the fit spec's ``[model] speakers`` (``coartic.estimation.speakers.Speakers``), speaker s's samples
 are predicted as a_s + b_s·F: every speaker but the reference (a = 0, b = 1, as in least squares)
 adds the coordinates ``speaker_offset:s`` (a_s, mm; prior N(0, SPEAKER_OFFSET_SD²)) and, with
 ``offset_scale``, ``log speaker_scale:s`` (prior log b_s ~ N(0, SPEAKER_LOG_SCALE_SD²)). The
@@ -43,7 +43,10 @@ from numpy.typing import NDArray
 from coartic.mcmc.errors import McmcError
 
 if TYPE_CHECKING:
-    from coartic.fit.problem import ChannelData, Packing, ShrinkGroup, Speakers
+    from coartic.estimation.data import ChannelData
+    from coartic.estimation.packing import Packing
+    from coartic.estimation.penalties import ShrinkGroup
+    from coartic.estimation.speakers import Speakers
 
 FloatArray = NDArray[np.float64]
 BatchFn = Callable[..., FloatArray]
@@ -96,7 +99,7 @@ class LogPosterior:
         speaker_start: Mapping[str, tuple[float, float]] | None = None,
     ) -> None:
         from coartic import _core
-        from coartic.fit.problem import Shrinkage
+        from coartic.estimation.penalties import Shrinkage
 
         self.sse_batch = sse_batch or _core.sse_batch
         self.evaluate_batch = evaluate_batch or _core.evaluate_batch
@@ -441,7 +444,7 @@ def phoneme_posterior(
     ``speakers``, the offset/scale of every speaker with such utterances is sampled too (a nuisance
     for the phoneme; the reference speaker stays the fit's).
     """
-    from coartic.fit.problem import ChannelData as _ChannelData
+    from coartic.estimation.data import ChannelData as _ChannelData
 
     if phoneme not in data.phonemes:
         raise McmcError(f"channel {data.channel}: phoneme {phoneme!r} does not occur (phonemes: {' '.join(data.phonemes)})")
@@ -491,7 +494,7 @@ class SpeakerTerms:
 
     def on(self, data: ChannelData) -> Speakers:
         """The least-squares problem's speaker mapping on ``data`` (all utterances or a subset)."""
-        from coartic.fit.problem import Speakers
+        from coartic.estimation.speakers import Speakers
 
         return Speakers(data, self.mode, self.column, self.names)
 

@@ -16,7 +16,8 @@ from typing import Any, Callable, Mapping, Sequence
 import numpy as np
 from numpy.typing import NDArray
 
-from coartic.fit.problem import SPEAKER_SEP
+from coartic.estimation.problem import ChannelProblem, build_problem
+from coartic.estimation.speakers import SPEAKER_SEP, table_speaker_meta
 from coartic.mcmc import idata, plots, sampler, summary
 from coartic.mcmc.posterior import LogPosterior, SpeakerTerms, channel_posterior, phoneme_posterior
 from coartic.mcmc.sampler import SamplerSettings, SamplingResult
@@ -149,112 +150,40 @@ def read_spec(path: str | Path) -> tuple[Any, McmcConfig]:
     return spec, parse_config(raw.get("mcmc"), path, spec)
 
 
-def table_problem(fit_spec: Any, table: Any, table_path: Path, channel: str,
-                  utterances: Sequence[Any]) -> tuple[Any, Any, Any]:
-    """The data, packing and model options of one channel for sampling around a fitted table.
-
-    The options come from the table's own channel settings (variant, apex fraction, edge extent:
-    ``coartic.model.model_options``), never rebuilt from the spec: the posterior is the one of the
-    model the table was fitted with. The free set, bounds and ties are the spec's (its
-    ``ParameterSet``), so a table of another variant than the spec's ``[model] variant`` is
-    refused (its free set would not match). With ``[model] speakers = "targets"`` the problem is
-    the fit's per-speaker one (``coartic.fit.problem.expand_speaker_targets``), each speaker's
-    targets starting at the table's (metadata.speakers.targets)."""
-    from coartic.fit.parameters import ParameterSet
-    from coartic.fit.problem import ChannelData, expand_speaker_targets
-    from coartic.model import model_options
-
-    if channel not in table.channels:
-        raise McmcError(f"{table_path}: the table has no channel {channel!r} (channels: {', '.join(table.channels)})")
-    if table.variant != fit_spec.variant:
-        raise McmcError(f"{table_path}: a table of the {table.variant!r} model, but {fit_spec.path} [model] variant = "
-                         f"{fit_spec.variant!r}: sample with the spec the table was fitted with")
-    data = ChannelData.build(utterances, channel)
-    ps = ParameterSet.from_spec(fit_spec, data, table.to_matrix(channel, data.phonemes))
-    meta = _speaker_meta(fit_spec, table, table_path)
-    if fit_spec.speakers == "targets":
-        own = (meta.get("targets") or {}).get(channel)
-        if not own:
-            raise McmcError(f"{table_path}: metadata.speakers has no targets for channel {channel}")
-        data, ps, _ = expand_speaker_targets(fit_spec, data, ps, data_start=False, names=tuple(own),
-                                             start_targets=own)
-    return data, ps.packing(), model_options(table, channel)
-
-
-def _speaker_meta(fit_spec: Any, table: Any, table_path: Path) -> dict[str, Any]:
-    """The table's metadata.speakers, refused unless the fit spec has the same [model] speakers."""
-    raw = (table.metadata or {}).get("speakers")
-    meta: dict[str, Any] = raw if isinstance(raw, dict) else {}
-    mode = fit_spec.speakers
-    told = meta.get("mode")
-    if mode == "none":
-        if told:
-            raise McmcError(f"{table_path}: fitted with [model] speakers = {told!r}, but {fit_spec.path} has none: "
-                             "sample with the spec the table was fitted with")
-        return meta
-    if told != mode or meta.get("column") != fit_spec.speaker_column:
-        raise McmcError(f"{table_path}: {fit_spec.path} has [model] speakers = {mode!r} (column "
-                         f"{fit_spec.speaker_column!r}), but the table was fitted with "
-                         f"{'no speakers' if not told else repr(told) + ' (column ' + repr(meta.get('column')) + ')'}: "
-                         "sample with the spec the table was fitted with")
-    return meta
-
-
-def table_speakers(fit_spec: Any, table: Any, table_path: Path, channel: str) -> SpeakerTerms | None:
-    """The speakers ([model] speakers) the table was fitted with on ``channel``, for the posterior:
-    mode and column must be the spec's (else refused: the posterior would not be the fit's model),
-    the speakers and their least-squares (a_s, b_s) come from the table's metadata. None without
-    speakers, and with per-speaker targets (sampled as the packing's own rows: ``table_problem``)."""
-    meta = _speaker_meta(fit_spec, table, table_path)
-    if fit_spec.speakers in ("none", "targets"):
-        return None
-    coefs = (meta.get("coefficients") or {}).get(channel)
-    if not coefs:
-        raise McmcError(f"{table_path}: metadata.speakers has no coefficients for channel {channel}")
-    start = {str(s): (float(c["offset_mm"]), float(c["scale"])) for s, c in coefs.items()}
-    return SpeakerTerms(fit_spec.speakers, fit_spec.speaker_column, tuple(start), start)
-
-
-def spec_priors(fit_spec: Any, packing: Any, channel: str) -> dict[str, tuple[Any, ...]]:
-    """The fit spec's ``[parameters.prior]`` on the free entries of ``packing``, as ``LogPosterior``
-    takes them ((mean, sd), or (mean, sd, True) on log values): the posterior has the priors the
-    least-squares fit had (``[mcmc] priors`` add to and override them)."""
-    from coartic.fit.parameters import expand_priors
-
-    if fit_spec.speakers != "targets":
-        pri = expand_priors(fit_spec, channel, tuple(packing.phonemes), packing.free, packing.beta_free)
-        return {k: (p.mean, p.sd) + ((True,) if p.log else ()) for k, p in pri.items()}
-    # per-speaker rows "p|s": the priors of phoneme p, on its first row (shared entries) and on
-    # every row's own target, as expand_speaker_targets gives them to least squares
-    rows: dict[str, list[int]] = {}
-    for i, lab in enumerate(packing.phonemes):
-        rows.setdefault(lab.rpartition(SPEAKER_SEP)[0], []).append(i)
-    base = tuple(rows)
-    free = np.array([packing.free[r[0]] for r in rows.values()])
-    kt = 0  # PARAMETERS[0] is the target
-    free[:, kt] = [packing.free[r, kt].any() for r in rows.values()]
-    out: dict[str, tuple[Any, ...]] = {}
-    for key, p in expand_priors(fit_spec, channel, base, free, packing.beta_free).items():
-        v = (p.mean, p.sd) + ((True,) if p.log else ())
-        phoneme, _, name = key.rpartition(".")
-        if not phoneme:
-            out[key] = v
-        for r in rows.get(phoneme, [])[: None if name == "target" else 1]:
-            out[f"{packing.phonemes[r]}.{name}"] = v
-    return out
-
-
-def spec_shrinkage(fit_spec: Any, table: Any, packing: Any, channel: str) -> list[Any]:
-    """The fit spec's ``[[shrink]]`` groups on ``channel``, with the sd the fit used: a value chosen
-    by cross-validation (``[choose]``) is read from the table's metadata ("choice"), so the posterior
-    has the penalty the least-squares fit had."""
+def table_problem(fit_spec: Any, table: Any, channel: str, utterances: Sequence[Any]) -> ChannelProblem:
+    """The problem of one channel for sampling around a fitted table: the one constructor
+    (``coartic.estimation.problem.build_problem`` with the table: its options, values and speakers'
+    targets; the spec's free set, bounds, ties, priors and shrinkage), with the value ``[choose]``
+    chose for the channel (the table's metadata "choice") put into the spec first, so that the
+    posterior has the penalties the least-squares fit had."""
     from coartic.fit.choose import set_value
-    from coartic.fit.problem import moving, shrink_groups
 
     choice = (table.metadata or {}).get("choice") or {}
     if choice.get("key") and channel in choice.get("chosen", {}):
         fit_spec = set_value(fit_spec, choice["key"], float(choice["chosen"][channel]))
-    return shrink_groups(fit_spec, channel, tuple(packing.phonemes), moving(packing.free, packing.ties))
+    return build_problem(fit_spec, utterances, channel, table)
+
+
+def table_speakers(fit_spec: Any, table: Any, channel: str) -> SpeakerTerms | None:
+    """The speakers ([model] speakers) the table was fitted with on ``channel``, for the posterior:
+    mode and column must be the spec's (else refused: the posterior would not be the fit's model),
+    the speakers and their least-squares (a_s, b_s) come from the table's metadata. None without
+    speakers, and with per-speaker targets (sampled as the problem's own rows: ``table_problem``)."""
+    meta = table_speaker_meta(fit_spec, table)
+    if fit_spec.speakers in ("none", "targets"):
+        return None
+    coefs = (meta.get("coefficients") or {}).get(channel)
+    if not coefs:
+        raise McmcError(f"{table.source}: metadata.speakers has no coefficients for channel {channel}")
+    start = {str(s): (float(c["offset_mm"]), float(c["scale"])) for s, c in coefs.items()}
+    return SpeakerTerms(fit_spec.speakers, fit_spec.speaker_column, tuple(start), start)
+
+
+def problem_priors(problem: ChannelProblem) -> dict[str, tuple[Any, ...]]:
+    """The problem's priors (the spec's ``[parameters.prior]`` on its free entries, per speaker row
+    with per-speaker targets) as ``LogPosterior`` takes them: (mean, sd), or (mean, sd, True) on log
+    values. ``[mcmc] priors`` add to and override them."""
+    return {k: (p.mean, p.sd) + ((True,) if p.log else ()) for k, p in problem.priors.items()}
 
 
 def walkers_for(dim: int, requested: int) -> int:

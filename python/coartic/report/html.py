@@ -25,6 +25,7 @@ from coartic.fit.heldout import flags, pooled
 from coartic.fit.result import BAR_MM, FitResult
 from coartic.report import plots
 from coartic.outputs import atomic_write_text
+from coartic.settings import CHANNEL_SETTINGS
 from coartic.table import ParameterTable
 
 _TEMPLATES = Path(__file__).with_name("templates")
@@ -119,6 +120,14 @@ def write_report(result: FitResult, out: str | Path, console: Console | None = N
         add(plots.truth_figure(result, truth), "truth.png",
             "Synthetic session: fitted against ground-truth targets and resistances (grey: identity).", "other")
 
+    # each model setting as the fit used it, with its default and meaning (coartic.settings)
+    used = {ch: result.channel_settings(ch) for ch in result.channels}
+    def shown(v: Any) -> str:
+        return str(v).lower() if isinstance(v, bool) else f"{v:.4g}" if isinstance(v, float) else str(v)
+
+    settings = [{"name": name, "meaning": s.meaning, "default": shown(s.default),
+                 "values": {ch: shown(getattr(cs, name)) for ch, cs in used.items()}}
+                for name, s in CHANNEL_SETTINGS.items()]
     bounds = [{"channel": c, "note": n, "line": one_line(n.reading)}
               for c, f in result.channels.items() if f.stats and f.stats.bounds for n in f.stats.bounds.values()]
     extras = [markupsafe.Markup(p.read_text(encoding="utf-8")) for p in sorted(out.glob("report_*.html"))]
@@ -128,7 +137,7 @@ def write_report(result: FitResult, out: str | Path, console: Console | None = N
         group_rows=[r for r in result.rmse_rows() if r["group"] != "all"],
         channels=result.channels, report_text=result.report_text(), extras=extras,
         validation=_validation_rows(out), validation_flags=flags(result.validation or []),
-        heldout=_heldout_summary(result), bounds=bounds,
+        heldout=_heldout_summary(result), bounds=bounds, settings=settings,
         bound_counts={c: summary_counts(f.stats.bounds) if f.stats else "" for c, f in result.channels.items()})
     path = out / "report.html"
     atomic_write_text(path, html)

@@ -39,7 +39,7 @@ class ExportSettings:
     audio: Path | None = None  # the WAV beside the outputs
     progress: Progress | None = None
     mapping: SpeakerMapping | None = None
-    gltf_morphs: str = "fap"  # the glTF's morph set: "fap" (one per FAP) or "arkit" (ARKit's 52 names)
+    gltf_morphs: str = "fap"  # the glTF's morph set: "fap" (one per FAP), "arkit" (ARKit's 52 names) or "eight"
     preview: str = "gif"
     files: dict[str, Path] = field(default_factory=dict)  # what earlier exporters wrote
 
@@ -64,7 +64,9 @@ EXPORTERS: dict[str, tuple[str, str]] = {
 }
 # what `--export` accepts: the rigs' curves and cues
 RIG_EXPORTS: tuple[str, ...] = ("arkit", "visemes", "rhubarb")
-GLTF_MORPH_SETS: tuple[str, ...] = ("fap", "arkit")
+# the glTF's morph sets: one target per FAP (the default), ARKit's 52 names, or at most 8 per mesh
+# (three.js up to r132 blends 8; coartic.face.gltf.limited_meshes)
+GLTF_MORPH_SETS: tuple[str, ...] = ("fap", "arkit", "eight")
 
 
 def parse_exports(spec: str | Sequence[str] | None) -> tuple[str, ...]:
@@ -90,7 +92,7 @@ def run_exports(animation: Animation, settings: ExportSettings, names: Sequence[
     """Run the exporters `names` in order on one animation; every file is written atomically, the
     exact outputs first (an interrupted preview loses nothing else). Returns {what: path}."""
     if settings.gltf_morphs not in GLTF_MORPH_SETS:
-        raise AnimationError(f"--gltf-morphs {settings.gltf_morphs!r}: choose {' or '.join(GLTF_MORPH_SETS)}")
+        raise AnimationError(f"--gltf-morphs {settings.gltf_morphs!r}: choose {', '.join(GLTF_MORPH_SETS)}")
     settings.out.mkdir(parents=True, exist_ok=True)
     for name in names:
         settings.files.update(load_exporter(name)(animation, settings))

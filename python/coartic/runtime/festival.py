@@ -14,16 +14,20 @@ import re
 import shutil
 import subprocess
 import tempfile
+import time
+import unicodedata
 import wave
 from collections.abc import Sequence
 from dataclasses import dataclass
 from importlib import resources
 from pathlib import Path
-
-import numpy as np
-from numpy.typing import NDArray
+from typing import TYPE_CHECKING
 
 from coartic.runtime.errors import FestivalError, PhoneMapError
+
+if TYPE_CHECKING:  # NumPy is imported when a result is read: `coartic speak` starts Festival before it
+    import numpy as np
+    from numpy.typing import NDArray
 
 DEFAULT_VOICE = "pc_diphone"
 # Per language: the Festival voice used when none is named, the phone map of its phone set, and the
@@ -183,6 +187,137 @@ def _parse_segments(path: Path) -> tuple[list[str], list[float]]:
     return phones, ends
 
 
+# Festival's Scheme heap, in cells: its default, 10 million (320 MB), costs 0.2 s of page faults at
+# every start, longer than a short sentence takes to synthesise. The voice loads in under 150 000
+# cells; 1 million speaks a 4000-character paragraph to the same bytes as the default (and 17 000
+# characters with no error), and the heap grows with the text beyond that.
+FESTIVAL_HEAP_CELLS = 1_000_000
+FESTIVAL_HEAP_CELLS_PER_CHAR = 100
+
+
+def festival_heap(text: str) -> int:
+    """The heap (cells) Festival is started with for `text` (FESTIVAL_HEAP_CELLS)."""
+    return FESTIVAL_HEAP_CELLS + FESTIVAL_HEAP_CELLS_PER_CHAR * len(text)
+
+
+def check_text(text: str) -> str:
+    """Text Festival can be given whole: a NUL ends a C string (Festival said only what came before
+    it), and other control characters are not speech; tabs and line breaks are spaces."""
+    for i, ch in enumerate(text):
+        if unicodedata.category(ch) == "Cc" and ch not in "\t\n\r":
+            raise FestivalError(f"the text to speak holds the control character {ch!r} at position {i + 1}: "
+                                "Festival would cut or garble it; remove it")
+    return text
+
+
+class Synthesis:
+    """Festival started on a text (`start_synthesis`) and running while the caller goes on: `coartic
+    speak` starts it before importing the model and loading the table. `result` waits for it; leaving
+    the `with` block stops it if it still runs and removes its files."""
+
+    def __init__(self, text: str, voice: str, packages: str, program: str, stretch: float, timeout: float) -> None:
+        self.text, self.voice, self._packages, self._timeout = text, voice, packages, timeout
+        self._tmp = tempfile.TemporaryDirectory(prefix="coartic-festival-")
+        tmp = Path(self._tmp.name)
+        self._segs, self._wav, self._stderr = tmp / "segments.tsv", tmp / "speech.wav", tmp / "stderr.txt"
+        script = tmp / "say.scm"
+        script.write_bytes(_script(text, voice, stretch, self._segs, self._wav).encode("latin-1"))
+        self._started = time.monotonic()
+        # stderr to a file, not a pipe: nothing reads it while Festival runs
+        with open(self._stderr, "wb") as err:
+            try:
+                self._proc: subprocess.Popen[bytes] | None = subprocess.Popen(
+                    [program, "--heap", str(festival_heap(text)), "-b", str(script)], stdin=subprocess.DEVNULL,
+                    stdout=subprocess.DEVNULL, stderr=err, cwd=tmp, env={**os.environ, "LC_ALL": "C"},
+                )
+            except OSError as e:
+                self._tmp.cleanup()
+                raise FestivalError(f"Festival ({program}) could not be started: {e.strerror}") from None
+
+    def __enter__(self) -> Synthesis:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    def close(self) -> None:
+        if self._proc is not None and self._proc.poll() is None:
+            self._proc.kill()
+            self._proc.wait()
+        self._proc = None
+        self._tmp.cleanup()
+
+    def result(self, wav_path: str | Path) -> FestivalUtterance:
+        """Wait for Festival, copy its WAV to `wav_path` and return its segments (zero-length ones
+        dropped, their names kept in `dropped`)."""
+        import numpy as np
+
+        if self._proc is None:
+            raise FestivalError("this Festival run was closed before its result was taken")
+        cleaned = self.text
+        try:
+            code = self._proc.wait(timeout=max(self._timeout - (time.monotonic() - self._started), 0.0))
+        except subprocess.TimeoutExpired:
+            self.close()
+            raise FestivalError(f"Festival did not finish within {self._timeout:g} s on {cleaned!r}") from None
+        # Festival always complains that `festival -b` left its own script open: not news.
+        stderr = "\n".join(ln for ln in self._stderr.read_bytes().decode("latin-1", "replace").strip().splitlines()
+                           if not ln.startswith("closing a file left open"))
+        if code != 0 or not self._segs.exists() or not self._wav.exists():
+            detail = stderr.splitlines()[-3:] if stderr else ["(no message)"]
+            hint = (f"; is voice {self.voice!r} installed (the Debian packages {self._packages})?"
+                    if "voice_" in stderr else "")
+            if "ran out of storage" in stderr:
+                hint = f"; Festival's heap of {festival_heap(cleaned)} cells was too small for this text"
+            self.close()
+            raise FestivalError(f"Festival failed (exit code {code}) on {cleaned!r}: {' | '.join(detail)}{hint}")
+        phones, ends = _parse_segments(self._segs)
+        wav_path = Path(wav_path)
+        wav_path.parent.mkdir(parents=True, exist_ok=True)
+        shutil.copyfile(self._wav, wav_path)
+        self.close()
+        if not phones:
+            raise FestivalError(f"Festival returned no segments for {cleaned!r}")
+        duration = wav_duration(wav_path)
+        starts = np.concatenate([[0.0], ends[:-1]])
+        ends_a = np.asarray(ends, dtype=float)
+        keep = ends_a > starts
+        return FestivalUtterance(
+            text=cleaned,
+            phones=tuple(p for p, k in zip(phones, keep) if k),
+            starts=np.ascontiguousarray(starts[keep]),
+            ends=np.ascontiguousarray(ends_a[keep]),
+            wav=wav_path,
+            duration=duration,
+            dropped=tuple(p for p, k in zip(phones, keep) if not k),
+        )
+
+
+def start_synthesis(
+    text: str,
+    *,
+    stretch: float = 1.0,
+    voice: str | None = None,
+    festival: str = "festival",
+    timeout: float = 300.0,
+    lang: str = "it",
+) -> Synthesis:
+    """Start Festival on `text` and return at once (`Synthesis.result` waits); the text, rate and
+    voice are checked first, so that a bad one is an error before anything runs.
+
+    `voice` defaults to the language's (`LANGUAGES`: pc_diphone for "it", kal_diphone for "en").
+    `stretch` is Festival's Duration_Stretch: 1 the voice's own rate, 0.6 about 1.7 times faster.
+    """
+    default_voice, _, packages = language(lang)
+    voice = default_voice if voice is None else voice
+    cleaned = prepare_text(check_text(text))
+    if not (math.isfinite(stretch) and stretch > 0):
+        raise FestivalError(f"speaking-rate stretch must be a positive number, got {stretch!r}")
+    if not _VOICE_NAME.match(voice):
+        raise FestivalError(f"voice name {voice!r} is not a Festival voice name (letters, digits, _)")
+    return Synthesis(cleaned, voice, packages, festival_program(festival), float(stretch), timeout)
+
+
 def synthesize(
     text: str,
     wav_path: str | Path,
@@ -193,61 +328,11 @@ def synthesize(
     timeout: float = 300.0,
     lang: str = "it",
 ) -> FestivalUtterance:
-    """Synthesise `text` with Festival into `wav_path` and return its segments.
+    """Synthesise `text` with Festival into `wav_path` and return its segments (`start_synthesis`,
+    then its result).
 
-    `voice` defaults to the language's (`LANGUAGES`: pc_diphone for "it", kal_diphone for "en").
-
-    `stretch` is Festival's Duration_Stretch: 1 the voice's own rate, 0.6 about 1.7 times faster.
     Zero-length segments (Festival gives a few) have no time for a target and are dropped; their
     names are kept in `dropped`.
     """
-    default_voice, _, packages = language(lang)
-    voice = default_voice if voice is None else voice
-    cleaned = prepare_text(text)
-    if not (math.isfinite(stretch) and stretch > 0):
-        raise FestivalError(f"speaking-rate stretch must be a positive number, got {stretch!r}")
-    if not _VOICE_NAME.match(voice):
-        raise FestivalError(f"voice name {voice!r} is not a Festival voice name (letters, digits, _)")
-    program = festival_program(festival)
-    wav_path = Path(wav_path)
-    with tempfile.TemporaryDirectory(prefix="coartic-festival-") as tmp:
-        segs, wav, script = Path(tmp, "segments.tsv"), Path(tmp, "speech.wav"), Path(tmp, "say.scm")
-        script.write_bytes(_script(cleaned, voice, float(stretch), segs, wav).encode("latin-1"))
-        try:
-            proc = subprocess.run(
-                [program, "-b", str(script)], capture_output=True, timeout=timeout, cwd=tmp,
-                env={**os.environ, "LC_ALL": "C"},
-            )
-        except subprocess.TimeoutExpired:
-            raise FestivalError(f"Festival did not finish within {timeout:g} s on {cleaned!r}") from None
-        except OSError as err:
-            raise FestivalError(f"Festival ({program}) could not be started: {err.strerror}") from None
-        # Festival always complains that `festival -b` left its own script open: not news.
-        stderr = "\n".join(ln for ln in proc.stderr.decode("latin-1", "replace").strip().splitlines()
-                           if not ln.startswith("closing a file left open"))
-        if proc.returncode != 0 or not segs.exists() or not wav.exists():
-            detail = stderr.splitlines()[-3:] if stderr else ["(no message)"]
-            hint = f"; is voice {voice!r} installed (the Debian packages {packages})?" if "voice_" in stderr else ""
-            raise FestivalError(
-                f"Festival failed (exit code {proc.returncode}) on {cleaned!r}: {' | '.join(detail)}{hint}"
-            )
-        phones, ends = _parse_segments(segs)
-        wav_path.parent.mkdir(parents=True, exist_ok=True)
-        shutil.copyfile(wav, wav_path)
-    if not phones:
-        raise FestivalError(f"Festival returned no segments for {cleaned!r}")
-    duration = wav_duration(wav_path)
-    starts = np.concatenate([[0.0], ends[:-1]])
-    ends_a = np.asarray(ends, dtype=float)
-    keep = ends_a > starts
-    dropped = tuple(p for p, k in zip(phones, keep) if not k)
-    phones_kept = tuple(p for p, k in zip(phones, keep) if k)
-    return FestivalUtterance(
-        text=cleaned,
-        phones=phones_kept,
-        starts=np.ascontiguousarray(starts[keep]),
-        ends=np.ascontiguousarray(ends_a[keep]),
-        wav=wav_path,
-        duration=duration,
-        dropped=dropped,
-    )
+    with start_synthesis(text, stretch=stretch, voice=voice, festival=festival, timeout=timeout, lang=lang) as run:
+        return run.result(wav_path)

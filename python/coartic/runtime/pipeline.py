@@ -33,7 +33,8 @@ from coartic.runtime.animate import (
 from coartic.runtime.errors import AnimationError, MissingPhonemeError
 from coartic.runtime.exporters import ExportSettings, parse_exports, run_exports
 from coartic.runtime.fap import FaceUnits, FapSequence, animation_faps
-from coartic.runtime.festival import FestivalUtterance, PhoneMap, synthesize, wav_duration
+from coartic.runtime.festival import (FestivalUtterance, PhoneMap, Synthesis, check_text, prepare_text,
+                                      start_synthesis, wav_duration)
 from coartic.speakers import SpeakerMapping, speaker_mapping
 from coartic.table import PAUSE, ParameterTable
 
@@ -117,16 +118,6 @@ def copy_audio(src: str | PathLike[str], dest: Path) -> tuple[Path, float]:
     return dest, wav_duration(dest)
 
 
-def check_text(text: str) -> str:
-    """Text Festival can be given whole: a NUL ends a C string (Festival said only what came before
-    it), and other control characters are not speech; tabs and line breaks are spaces."""
-    for i, ch in enumerate(text):
-        if unicodedata.category(ch) == "Cc" and ch not in "\t\n\r":
-            raise AnimationError(f"the text to speak holds the control character {ch!r} at position {i + 1}: "
-                                 "Festival would cut or garble it; remove it")
-    return text
-
-
 def _check_preview(preview: str) -> None:
     if preview not in PREVIEW_FORMATS:
         raise AnimationError(f"preview must be one of {', '.join(PREVIEW_FORMATS)}, got {preview!r}")
@@ -194,7 +185,7 @@ def animate_file(
     the FAP file under its name (Greta loads `name.fap` with `name.wav`), the animation lasts as
     long as the sound, and the MP4 preview and the glTF bundle carry it. `name` defaults to the
     label file's stem. `exports`: the rigs' curves and cues ("arkit", "visemes", "rhubarb"; a list
-    or comma-separated); `gltf_morphs`: the glTF's morph set, "fap" or "arkit" (coartic.runtime.exporters). `speaker`: one of the speakers of a table fitted with `[model] speakers`
+    or comma-separated); `gltf_morphs`: the glTF's morph set, "fap", "arkit" or "eight" (coartic.runtime.exporters). `speaker`: one of the speakers of a table fitted with `[model] speakers`
     (its offset and scale, or its own targets; coartic.speakers).
     """
     _check_preview(preview)
@@ -251,6 +242,7 @@ def speak_text(
     exports: str | tuple[str, ...] | list[str] | None = None,
     gltf_morphs: str = "fap",
     lang: str = "it",
+    synthesis: Synthesis | None = None,
 ) -> RuntimeOutput:
     """Text → Festival's WAV, and channels, FAP file and preview lasting as long as the WAV.
 
@@ -260,7 +252,9 @@ def speak_text(
     name); `name` defaults to a word made of the text.
 
     Phonemes the table lacks are replaced by the phone map's fallbacks (reported in
-    `animation.substitutions`) unless `strict`. `speaker`: as in `animate_file`.
+    `animation.substitutions`) unless `strict`. `speaker`: as in `animate_file`. `synthesis`: Festival
+    already started on this text (`start_synthesis`, with the same rate, voice and language), so that
+    it ran while the caller imported and loaded; by default it is started here.
     """
     _check_preview(preview)
     wanted = parse_exports(exports)
@@ -269,7 +263,11 @@ def speak_text(
     out = Path(out)
     pmap = phone_map or PhoneMap.load(lang=lang)
     name = check_name(name) if name is not None else _name_from(text)
-    utt = synthesize(text, out / f"{name}.wav", stretch=stretch, voice=voice, festival=festival, lang=lang)
+    if synthesis is not None and synthesis.text != prepare_text(text):
+        raise AnimationError(f"Festival was started on {synthesis.text!r}, not on {prepare_text(text)!r}")
+    run = synthesis or start_synthesis(text, stretch=stretch, voice=voice, festival=festival, lang=lang)
+    with run:
+        utt = run.result(out / f"{name}.wav")
     phonemes = pmap.to_phonemes(utt.phones)
     ends = utt.ends.copy()
     # Festival's WAV runs a few ms past the last segment: the final pause lasts to the end of the sound.

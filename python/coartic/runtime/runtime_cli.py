@@ -13,17 +13,16 @@ from rich.markup import escape
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
 from rich.table import Table
 
-from coartic.io.errors import DataError
 from coartic.runtime.errors import AnimationError
-from coartic.runtime.festival import LANGUAGES
+from coartic.runtime.festival import LANGUAGES, start_synthesis
 from coartic.runtime import PREVIEW_FORMATS
-from coartic.speakers import SpeakerError
-from coartic.table import ParameterTable, TableError
 from coartic.console import LineProgress, print_error
-from coartic.outputs import OutputDir, OutputError
 
+# NumPy, the table, the model and the outputs are imported in the commands, after `speak` has
+# started Festival: the imports then run while it synthesises (bench/startup.py).
 if TYPE_CHECKING:
     from coartic.runtime.pipeline import RuntimeOutput
+    from coartic.table import ParameterTable
 
 _err = Console(stderr=True)
 _out = Console()
@@ -40,7 +39,7 @@ GltfOpt = Annotated[bool, typer.Option("--gltf", help="Also write NAME.glb: the 
 VrmlOpt = Annotated[bool, typer.Option("--vrml", help="Also write NAME.wrl: the face animated in VRML97 (interpolators, the sound as an AudioClip).")]
 FapNameOpt = Annotated[str | None, typer.Option("--fap-name", help="Name of the FAP file and its header; the WAV and glTF get the same stem (Greta loads NAME.fap with NAME.wav).")]
 ExportOpt = Annotated[str | None, typer.Option("--export", help="Also write the rigs' curves and cues, comma-separated: arkit (NAME.arkit.csv/.json, ARKit's 52 blendshapes), visemes (NAME.visemes.csv/.json, Meta's 15), rhubarb (NAME.rhubarb.json/.tsv, Rhubarb Lip Sync's mouth cues).")]
-GltfMorphsOpt = Annotated[str, typer.Option("--gltf-morphs", help="The glTF's morph targets: fap (one per FAP) or arkit (ARKit's 52 blendshape names, to retarget by name); arkit implies --gltf.")]
+GltfMorphsOpt = Annotated[str, typer.Option("--gltf-morphs", help="The glTF's morph targets: fap (one per FAP), arkit (ARKit's 52 blendshape names, to retarget by name) or eight (at most 8 per mesh, all blended by three.js up to r132); arkit and eight imply --gltf.")]
 SpeakerOpt = Annotated[str | None, typer.Option("--speaker", help="Speak as this speaker of a table fitted with [model] speakers (its offset and scale, or its own targets).")]
 ForceOpt = Annotated[bool, typer.Option("--force", help="Replace --out even if it holds another run's output "
                                         "(the same labels or text replace their own output without it).")]
@@ -94,6 +93,8 @@ def _report(result: RuntimeOutput, phone_map: str = "phones_italian.tsv") -> Non
 
 
 def _load_table(path: Path | None) -> ParameterTable:
+    from coartic.table import ParameterTable
+
     if path is not None:
         return ParameterTable.load(path)
     from coartic.runtime.shipped import load_shipped_table
@@ -115,6 +116,11 @@ def _run_staged(table: Path | None, out: Path, command: str, identity: dict[str,
                 phone_map: str = "phones_italian.tsv") -> None:
     """Load the table, run ``make`` into the staging directory of ``out`` with a progress bar, and
     report what was written (where it is once swapped in); any failure is one clear error."""
+    from coartic.io.errors import DataError
+    from coartic.outputs import OutputDir, OutputError
+    from coartic.speakers import SpeakerError
+    from coartic.table import TableError
+
     try:
         t = _load_table(table)
         with OutputDir(out, command, identity, force=force, protect=protect) as staging, _progress() as progress:
@@ -156,7 +162,7 @@ def animate_command(
         return animate_file(labels, t, staging, fps=fps, tier=tier, label_map=label_map,
                             face=speaker_face(t, mns, mw, speaker), preview=preview, snap_contacts=snap_contacts,
                             strict=strict, progress=progress, audio=audio, name=fap_name,
-                            gltf=gltf or gltf_morphs == "arkit", vrml=vrml, speaker=speaker, exports=export,
+                            gltf=gltf or gltf_morphs != "fap", vrml=vrml, speaker=speaker, exports=export,
                             gltf_morphs=gltf_morphs)
 
     _run_staged(table, out, "animate", {"labels": str(labels.resolve())}, force,
@@ -188,19 +194,25 @@ def speak_command(
     all as long as the WAV.
 
     The files are written beside --out and swapped in together when all are done (docs/OUTPUTS.md)."""
-    from coartic.runtime.pipeline import speak_text, speaker_face
-
     if lang not in LANGUAGES:
         _fail(AnimationError(f"--lang {lang!r} is not a language coartic can speak (known: {', '.join(LANGUAGES)})"))
     _warn_fps(fps)
+    # Festival first: it synthesises while NumPy, the model and the table load (stopped on any error)
+    try:
+        synthesis = start_synthesis(text, stretch=stretch, voice=voice, lang=lang)
+    except AnimationError as err:
+        _fail(err)
+    with synthesis:
+        from coartic.runtime.pipeline import speak_text, speaker_face
 
-    def make(t: ParameterTable, staging: Path, progress: Progress) -> RuntimeOutput:
-        return speak_text(text, t, staging, fps=fps, stretch=stretch, voice=voice, strict=strict,
-                          face=speaker_face(t, mns, mw, speaker), preview=preview, snap_contacts=snap_contacts,
-                          progress=progress, name=fap_name, gltf=gltf or gltf_morphs == "arkit", vrml=vrml,
-                          speaker=speaker, exports=export, gltf_morphs=gltf_morphs, lang=lang)
+        def make(t: ParameterTable, staging: Path, progress: Progress) -> RuntimeOutput:
+            return speak_text(text, t, staging, fps=fps, stretch=stretch, voice=voice, strict=strict,
+                              face=speaker_face(t, mns, mw, speaker), preview=preview, snap_contacts=snap_contacts,
+                              progress=progress, name=fap_name, gltf=gltf or gltf_morphs != "fap", vrml=vrml,
+                              speaker=speaker, exports=export, gltf_morphs=gltf_morphs, lang=lang,
+                              synthesis=synthesis)
 
-    # the identity of an Italian run stays {"text": ...}: outputs written before --lang existed are its own
-    identity = {"text": text} | ({"lang": lang} if lang != "it" else {})
-    _run_staged(table, out, "speak", identity, force, [table] if table is not None else [], make,
-                LANGUAGES[lang][1])
+        # the identity of an Italian run stays {"text": ...}: outputs written before --lang existed are its own
+        identity = {"text": text} | ({"lang": lang} if lang != "it" else {})
+        _run_staged(table, out, "speak", identity, force, [table] if table is not None else [], make,
+                    LANGUAGES[lang][1])

@@ -12,7 +12,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from coartic.errors import CoarticError
-from coartic.fit.problem import ChannelProblem
+from coartic.estimation.problem import ChannelProblem
 
 
 @dataclass

@@ -17,7 +17,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from coartic.fit.engines.base import EngineResult, OptionError, Unit, iteration_budget, prepare_start
-from coartic.fit.problem import ChannelProblem
+from coartic.estimation.problem import ChannelProblem
 
 
 IPOPT_DEFAULTS: dict[str, Any] = {"tol": 1e-6, "acceptable_tol": 1e-4, "print_level": 0,

@@ -20,7 +20,7 @@ from numpy.typing import NDArray
 
 from coartic.fit.engines.base import (Check, EngineResult, Unit, check_against, evaluation_budget, is_int,
                                       is_number, prepare_start)
-from coartic.fit.problem import ChannelProblem
+from coartic.estimation.problem import ChannelProblem
 
 _GLOBAL = {"mlsl": nlopt.G_MLSL_LDS, "crs2": nlopt.GN_CRS2_LM}
 _LOCAL = {"lbfgs": nlopt.LD_LBFGS, "slsqp": nlopt.LD_SLSQP}

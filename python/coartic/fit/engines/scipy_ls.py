@@ -18,7 +18,7 @@ from scipy.optimize import least_squares
 
 from coartic.fit.engines.base import (Check, EngineResult, check_against, evaluation_budget, is_int, is_number,
                                       prepare_start)
-from coartic.fit.problem import ChannelProblem
+from coartic.estimation.problem import ChannelProblem
 
 _STATUS = {-1: "failed", 0: "max-evaluations", 1: "converged", 2: "converged", 3: "converged", 4: "converged"}
 LOSSES = ("linear", "soft_l1", "huber", "cauchy", "arctan")

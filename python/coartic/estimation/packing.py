@@ -1,14 +1,15 @@
 """Which entries of a channel's parameter matrix are free, their boxes, and the transform to the
-vector x the engines see (``Packing``); a Gaussian prior on one entry (``Prior``).
+vector x the engines see (``Packing``); a Gaussian prior on one entry (``Prior``); which entries
+move with x (``moving``).
 
-The packing is below both the spec's numbers (``coartic.fit.parameters.ParameterSet`` builds one)
-and the least-squares problem (``coartic.fit.problem``, which evaluates through one).
+The packing is below both the spec's numbers (``coartic.estimation.parameters.ParameterSet`` builds
+one) and the least-squares problem (``coartic.estimation.problem``, which evaluates through one).
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass, replace
-from typing import Mapping
+from typing import Mapping, Sequence
 
 import numpy as np
 import scipy.sparse as sp
@@ -172,3 +173,12 @@ class Prior:
     mean: float
     sd: float
     log: bool = False
+
+
+def moving(free: BoolArray, ties: Sequence[tuple[int, int]]) -> BoolArray:
+    """Entries that move with x: the free ones and those tied to a free one."""
+    out = free.copy()
+    flat = out.reshape(-1)
+    for f, ld in ties:
+        flat[f] = flat[f] or free.reshape(-1)[ld]
+    return out

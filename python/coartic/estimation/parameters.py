@@ -2,7 +2,7 @@
 is free, its bounds, its prior and (after a fit) its standard error.
 
 ``ParameterSet.from_spec`` is where a fit spec becomes numbers (the one place: least squares, MCMC
-and the report all start from it); ``packing()`` gives the engines' view (``coartic.fit.problem.
+and the report all start from it); ``packing()`` gives the engines' view (``coartic.estimation.packing.
 Packing``: the free entries as an internal vector x), and ``ChannelFit.parameters`` the fitted set
 with standard errors, which ``parameters.csv`` and ``fit_report.txt`` print.
 
@@ -21,14 +21,14 @@ from typing import TYPE_CHECKING, Iterator, Mapping
 import numpy as np
 from numpy.typing import NDArray
 
-from coartic.fit.packing import Packing, Prior
+from coartic.estimation.packing import Packing, Prior
 from coartic.fit.spec import DEFAULT_BETA_BOUNDS, DEFAULT_FIT_BOUNDS, FitSpec, SpecError
 from coartic.table import N_PARAMS, PARAMETERS
 
 
 if TYPE_CHECKING:
     from coartic.fit.bounds import BoundNote
-    from coartic.fit.problem import ChannelData
+    from coartic.estimation.data import ChannelData
 
 FloatArray = NDArray[np.float64]
 BoolArray = NDArray[np.bool_]
@@ -232,8 +232,9 @@ class ParameterSet(Mapping[str, Parameter]):
         bad = lower > upper
         if bad.any():
             i, k = map(int, np.argwhere(bad)[0])
-            raise SpecError(f"{spec.path}: bounds of {phon[i]}.{PARAMETERS[k]} on {ch}: "
-                            f"low {lower[i, k]} > high {upper[i, k]}")
+            raise SpecError.at(spec.path, f"parameters.bounds.{PARAMETERS[k]}", f"bounds of {phon[i]}.{PARAMETERS[k]} on "
+                               f"{ch}: low {lower[i, k]} > high {upper[i, k]} (with the overrides)", phon[i],
+                               parameter=PARAMETERS[k])
         outside = free & ((base < lower) | (base > upper)) & (origin != "")
         if outside.any():
             i, k = map(int, np.argwhere(outside)[0])

@@ -1,0 +1,191 @@
+"""Extra least-squares residual rows on the packed vector x: Gaussian priors (``Penalty``, spec
+``[parameters] prior``) and shrinkage of a class of phonemes toward its class mean (``Shrinkage``,
+spec ``[[shrink]]``), each with its exact Jacobian."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Mapping, Sequence
+
+import numpy as np
+import scipy.sparse as sp
+from numpy.typing import NDArray
+
+from coartic.estimation.packing import Packing, Prior
+from coartic.fit.spec import FitSpec, SpecError
+from coartic.table import N_PARAMS, PARAMETERS
+
+FloatArray = NDArray[np.float64]
+BoolArray = NDArray[np.bool_]
+
+
+class PenaltyRows:
+    """Extra least-squares residual rows on the packed vector x (priors, shrinkage): the residuals
+    and their exact Jacobian come from the subclass; Σ rows² and its gradient, for the engines that
+    take a fused SSE and gradient (nlopt, CasADi), are computed from them here, once."""
+
+    packing: Packing
+    size: int
+
+    def residuals(self, x: FloatArray) -> FloatArray:
+        raise NotImplementedError
+
+    def jacobian(self, x: FloatArray) -> sp.csr_matrix:
+        raise NotImplementedError
+
+    def gradient(self, x: FloatArray) -> tuple[float, FloatArray]:
+        """Σ rows² and its gradient in x."""
+        r = self.residuals(x)
+        g = np.zeros(self.packing.n_free)
+        if self.size:
+            g += 2.0 * (self.jacobian(x).T @ r)
+        return float(r @ r), g
+
+
+class Penalty(PenaltyRows):
+    """Gaussian priors as extra least-squares residuals ``noise · (value − mean) / sd`` (or on log
+    values), one row per prior on a free entry: minimising SSE + Σ rows² is the MAP estimate when
+    the measurement noise has sd ``noise`` (mm). Exact derivatives: d row / dx = noise ·
+    d(value)/dx / sd (natural) or noise / sd (log prior on a log-fitted parameter)."""
+
+    def __init__(self, packing: Packing, priors: Mapping[str, Prior], noise: float) -> None:
+        names = packing.names()
+        keys = [k for k in priors if k in names]
+        self.names = keys
+        self.idx = np.array([names.index(k) for k in keys], dtype=np.int64)
+        self.mean = np.array([priors[k].mean for k in keys], dtype=np.float64)
+        self.sd = np.array([priors[k].sd for k in keys], dtype=np.float64)
+        self.log = np.array([priors[k].log for k in keys], dtype=bool)
+        self.noise = float(noise)
+        self.packing = packing
+        self.size = int(self.idx.size)
+
+    def residuals(self, x: FloatArray) -> FloatArray:
+        v = self.packing.natural(x)[self.idx]
+        with np.errstate(divide="ignore", invalid="ignore"):
+            z = np.where(self.log, (np.log(np.where(self.log, v, 1.0)) - np.log(np.where(self.log, self.mean, 1.0))),
+                         v - self.mean) / self.sd
+        return self.noise * z
+
+    def jacobian(self, x: FloatArray) -> sp.csr_matrix:
+        v = self.packing.natural(x)[self.idx]
+        dv = self.packing.dvalue_dx(x)[self.idx]
+        with np.errstate(divide="ignore", invalid="ignore"):
+            d = self.noise * np.where(self.log, dv / v, dv) / self.sd
+        return sp.csr_matrix((d, (np.arange(self.size), self.idx)), shape=(self.size, self.packing.n_free))
+
+
+
+@dataclass(frozen=True)
+class ShrinkGroup:
+    """One class and parameter of a ``[[shrink]]``: member rows (phonemes present in the channel's
+    data), the parameter's column, its scale and sd, and the spec key (for reports)."""
+
+    key: str
+    phonemes: tuple[str, ...]  # the members present, in the channel's phoneme order
+    rows: tuple[int, ...]
+    column: int
+    sd: float
+    log: bool = False
+
+    @property
+    def parameter(self) -> str:
+        return PARAMETERS[self.column]
+
+
+class Shrinkage(PenaltyRows):
+    """Shrinkage toward class means as extra least-squares residuals: for each group (a class of
+    phonemes and one parameter), one row per member ``noise · (u_i − ū) / sd`` with u the value
+    (or its logarithm) and ū the class mean over every member present, fixed ones included.
+    Minimising SSE + Σ rows² is the MAP estimate under a Gaussian prior on the members' deviations
+    from their common mean (the class mean itself is not penalised).
+
+    Each row depends on every member: d row_i / d u_j = noise (δ_ij − 1/n) / sd, and d u_j / dx
+    comes from the packing (d value/dx of the free entry carrying it, through a [[tie]] leader when
+    tied, times 1/v on the log scale; nothing for a fixed member). Rows are computed from the
+    unpacked parameter matrix, so the same groups serve any packing (a stage's, MCMC's per-phoneme
+    one)."""
+
+    def __init__(self, packing: Packing, groups: Sequence[ShrinkGroup], noise: float) -> None:
+        self.packing = packing
+        self.groups = [g for g in groups if len(g.rows) >= 2]
+        self.noise = float(noise)
+        self.size = sum(len(g.rows) for g in self.groups)
+        # the x index carrying each member entry (free itself, or its tie leader free), else -1
+        col_of = {int(c): j for j, c in enumerate(packing.free_columns)}
+        leader = dict(packing.ties)
+        self._xcol = []
+        for g in self.groups:
+            cols = []
+            for i in g.rows:
+                e = i * N_PARAMS + g.column
+                cols.append(col_of.get(e, col_of.get(leader.get(e, -1), -1)))
+            self._xcol.append(np.array(cols, dtype=np.int64))
+
+    def z(self, params: FloatArray) -> FloatArray:
+        """Standardised deviations (u_i − ū)/sd for parameter matrices [..., n_phonemes, 10]."""
+        out = []
+        for g in self.groups:
+            v = params[..., list(g.rows), g.column]
+            with np.errstate(divide="ignore", invalid="ignore"):
+                u = np.log(v) if g.log else v
+            out.append((u - u.mean(axis=-1, keepdims=True)) / g.sd)
+        if not out:
+            return np.zeros(params.shape[:-2] + (0,))
+        return np.concatenate(out, axis=-1)
+
+    def residuals(self, x: FloatArray) -> FloatArray:
+        params, _ = self.packing.unpack(x)
+        return self.noise * self.z(params)
+
+    def jacobian(self, x: FloatArray) -> sp.csr_matrix:
+        params, _ = self.packing.unpack(x)
+        dv = self.packing.dvalue_dx(x)
+        rows: list[NDArray[np.int64]] = []
+        cols: list[NDArray[np.int64]] = []
+        vals: list[FloatArray] = []
+        r0 = 0
+        for g, xc in zip(self.groups, self._xcol):
+            n = len(g.rows)
+            live = np.flatnonzero(xc >= 0)
+            if live.size:
+                v = params[list(g.rows), g.column][live]
+                du = dv[xc[live]] / v if g.log else dv[xc[live]]
+                # d row_i / d x_(member j) = noise (δ_ij − 1/n) du_j / sd, for every row i
+                d = self.noise * ((np.eye(n)[:, live] - 1.0 / n) * du[None, :]) / g.sd
+                ii, jj = np.meshgrid(np.arange(n), live, indexing="ij")
+                rows.append(r0 + ii.ravel())
+                cols.append(xc[jj.ravel()])
+                vals.append(d.ravel())
+            r0 += n
+        if not rows:
+            return sp.csr_matrix((self.size, self.packing.n_free))
+        # duplicates (two tied members carried by one x entry) are summed by the COO -> CSR step
+        return sp.coo_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))),
+                             shape=(self.size, self.packing.n_free)).tocsr()
+
+
+    def with_packing(self, packing: Packing) -> Shrinkage:
+        return Shrinkage(packing, self.groups, self.noise)
+
+
+def shrink_groups(spec: FitSpec, channel: str, phonemes: Sequence[str], free: BoolArray) -> list[ShrinkGroup]:
+    """The spec's ``[[shrink]]`` tables as groups of one channel: members present in its data; a
+    class with two members or more present but the parameter free for none of them is refused (a
+    shrinkage of fixed values would do nothing), one with fewer than two present applies to nothing."""
+    out = []
+    for s in spec.shrinks:
+        if s.channels is not None and channel not in s.channels:
+            continue
+        rows = tuple(phonemes.index(p) for p in s.phonemes if p in phonemes)
+        if len(rows) < 2:
+            continue
+        for name in s.parameters:
+            k = PARAMETERS.index(name)
+            if not free[list(rows), k].any():
+                raise SpecError.at(spec.path, s.key, f"{name} is free for none of {list(s.phonemes)} on {channel}: "
+                                   "nothing to shrink")
+            members = tuple(phonemes[i] for i in rows)
+            out.append(ShrinkGroup(s.key, members, rows, k, s.sd, s.log))
+    return out
+
