@@ -8,7 +8,14 @@ the reference (goal: `--help` within 3x), and for `speak` the wall and CPU time 
 Festival, user + system) against the duration of the speech it wrote (below 1 = faster than real
 time). CPU time is what the command costs; wall time also holds the waits for the shared cores.
 
-Run: .venv/bin/python bench/startup.py [--rounds 7] [--out bench/results/startup.txt]
+The table is the one shipped with coartic (what `coartic speak` uses without --table), unless
+--table names another.
+
+`--before DIR` adds, in the same rounds, the two `speak` commands run from another checkout's
+python/ directory (e.g. a `git worktree` of an earlier commit, with the Rust extension copied in):
+the change and what it is compared with see the same load.
+
+Run: .venv/bin/python bench/startup.py [--rounds 7] [--table T] [--before DIR] [--out bench/results/startup.txt]
 """
 
 from __future__ import annotations
@@ -43,8 +50,9 @@ def run(cmd: list[str], env: dict[str, str]) -> tuple[float, float]:
 
 def main() -> None:
     ap = argparse.ArgumentParser()
-    ap.add_argument("--table", default=str(ROOT / "corpus-synthetic" / "ground_truth.json"))
+    ap.add_argument("--table", default=None, help="default: the shipped table (no --table)")
     ap.add_argument("--rounds", type=int, default=7)
+    ap.add_argument("--before", default=None, help="another checkout's python/ directory, run alongside")
     ap.add_argument("--out", default=str(ROOT / "bench" / "results" / "startup.txt"))
     args = ap.parse_args()
     env = {**os.environ, "PYTHONPATH": str(ROOT / "python"), "COLUMNS": "100"}
@@ -52,21 +60,30 @@ def main() -> None:
     coartic = [py, "-m", "coartic.cli"]
     load0 = os.getloadavg()[0]
     with tempfile.TemporaryDirectory() as tmp:
+        table = ["--table", args.table] if args.table else []
+
+        def speak(out: str, *extra: str) -> list[str]:
+            return [*coartic, "speak", SENTENCE, *table, "--out", f"{tmp}/{out}", *extra, "--force"]
+
         cases: dict[str, list[str]] = {
             "python -c 'import numpy'": [py, "-c", "import numpy"],
             "coartic --help": [*coartic, "--help"],
             "coartic --version": [*coartic, "--version"],
-            "coartic speak --preview none": [*coartic, "speak", SENTENCE, "--table", args.table, "--out",
-                                            f"{tmp}/none", "--preview", "none", "--force"],
-            "coartic speak (default: GIF)": [*coartic, "speak", SENTENCE, "--table", args.table, "--out",
-                                           f"{tmp}/gif", "--force"],
+            "coartic speak --preview none": speak("none", "--preview", "none"),
+            "coartic speak (default: GIF)": speak("gif"),
         }
+        envs = {name: env for name in cases}
+        if args.before:
+            before_env = {**env, "PYTHONPATH": str(Path(args.before).resolve())}
+            cases["coartic speak --preview none BEFORE"] = speak("before_none", "--preview", "none")
+            cases["coartic speak (default: GIF) BEFORE"] = speak("before_gif")
+            envs["coartic speak --preview none BEFORE"] = envs["coartic speak (default: GIF) BEFORE"] = before_env
         walls: dict[str, list[float]] = {k: [] for k in cases}
         cpus: dict[str, list[float]] = {k: [] for k in cases}
         run(cases["coartic --help"], env)  # warm the file cache once
         for _ in range(args.rounds):
             for name, cmd in cases.items():
-                w, c = run(cmd, env)
+                w, c = run(cmd, envs[name])
                 walls[name].append(w)
                 cpus[name].append(c)
         wav = next(Path(f"{tmp}/none").glob("*.wav"))
@@ -75,16 +92,18 @@ def main() -> None:
     ref = statistics.median(walls["python -c 'import numpy'"])
     ref_cpu = statistics.median(cpus["python -c 'import numpy'"])
     lines = [f"coartic start-up, {args.rounds} interleaved rounds, medians; sentence {SENTENCE!r} "
-             f"({speech:.3f} s of speech, Festival pc_diphone), table {Path(args.table).name}",
+             f"({speech:.3f} s of speech, Festival pc_diphone), table "
+             f"{Path(args.table).name if args.table else 'shipped (italian_table.json)'}",
              f"machine: {platform.machine()}, {os.cpu_count()} cores, Python {platform.python_version()}, "
              f"load average {load0:.1f} at the start, {os.getloadavg()[0]:.1f} at the end "
              "(other jobs share the cores)", "",
-             f"{'command':32s} {'wall s':>8s} {'x numpy':>8s} {'CPU s':>8s} {'x numpy':>8s} {'wall/speech':>12s} "
+             *([f"BEFORE: the same speak commands from {args.before}"] if args.before else []), "",
+             f"{'command':39s} {'wall s':>8s} {'x numpy':>8s} {'CPU s':>8s} {'x numpy':>8s} {'wall/speech':>12s} "
              f"{'CPU/speech':>11s}"]
     for name in cases:
         w, c = statistics.median(walls[name]), statistics.median(cpus[name])
         per_speech = f"{w / speech:12.2f} {c / speech:11.2f}" if name.startswith("coartic speak") else ""
-        lines.append(f"{name:32s} {w:8.3f} {w / ref:8.2f} {c:8.3f} {c / ref_cpu:8.2f} {per_speech}")
+        lines.append(f"{name:39s} {w:8.3f} {w / ref:8.2f} {c:8.3f} {c / ref_cpu:8.2f} {per_speech}")
     lines += ["", "goals (issue 20): --help within 3x numpy's import; speak of a 2-s sentence, start-up included, "
               "faster than real time (wall/speech < 1)"]
     text = "\n".join(lines) + "\n"

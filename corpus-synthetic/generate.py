@@ -43,7 +43,7 @@ from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, T
 from scipy.spatial.transform import Rotation
 
 from coartic.model import trajectories
-from coartic.table import CHANNELS, TONGUE_CHANNELS, ParameterTable
+from coartic.table import CHANNELS, PAUSE, TONGUE_CHANNELS, ParameterTable
 
 HERE = Path(__file__).resolve().parent
 FLAVOURS: tuple[str, ...] = ("model", "gestures", "italian")
@@ -53,7 +53,6 @@ GROUND_TRUTH_ITALIAN = HERE / "ground_truth_italian.json"
 CONTEXTS: tuple[str, ...] = ("VCV", "CV", "VC")
 
 F64 = npt.NDArray[np.float64]
-PAUSE = "#"
 MARKERS: tuple[str, ...] = ("NOSE", "EAR_L", "EAR_R", "UL", "LL", "LC_L", "LC_R", "CHIN")
 # The EMA recording of the Italian flavour: sensors named as EMA labs name them (docs/DATA.md).
 EMA_SENSORS: tuple[str, ...] = ("UL", "LL", "JAW", "TT", "TB")

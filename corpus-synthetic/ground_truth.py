@@ -17,7 +17,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from coartic.table import CHANNELS, PARAMETERS, TONGUE_CHANNELS, ChannelSettings, ParameterTable
+from coartic.table import CHANNELS, PARAMETERS, PAUSE, TONGUE_CHANNELS, ChannelSettings, ParameterTable
 
 HERE = Path(__file__).resolve().parent
 OUT = HERE / "ground_truth.json"
@@ -33,7 +33,6 @@ CONSONANTS = (
 # The Italian flavour also has the semivowels /j w/ ("ieri", "uomo"), so that ordinary Italian text
 # needs no fallback (Festival's Italian voice writes them as phones of their own).
 SEMIVOWELS = ("j", "w")
-PAUSE = "#"
 REFERENCE = "a"
 
 # The rest posture (the pause target): lips lightly together at the rest line (ULO = LLO = 0 by

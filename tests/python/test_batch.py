@@ -25,7 +25,7 @@ from coartic.batch.layout import is_done, unit_dir
 from coartic.batch.run import plan_units, run_batch
 from coartic.batch.tasks import UnitKey
 from coartic.cli import app
-from coartic.fit.spec import SpecError
+from coartic.errors import SpecError
 from coartic.outputs import OutputError
 from coartic.synthetic_cli import load_generator
 from coartic.table import CHANNELS, ParameterTable
@@ -318,3 +318,17 @@ def test_folders_name_the_groups(corpus: Path) -> None:
     by_column = load_batch_spec(corpus / "batch.toml")
     assert spec.groups[0].spec.corpus.manifest == corpus / "corpus/s01/manifest.csv"
     assert by_column.groups[0].spec.corpus.select == {"speaker": ("s01",)}
+
+
+def test_a_manifest_or_fit_spec_that_is_a_directory_is_named_as_such(tmp_path: Path) -> None:
+    # issue 21: a manifest that is a directory "does not exist"
+    (tmp_path / "fit.toml").write_text('[corpus]\nmanifest = "m.csv"\n')
+    (tmp_path / "session").mkdir()
+    b = tmp_path / "batch.toml"
+    b.write_text('fit = "fit.toml"\n[corpus]\nmanifest = "session"\ngroup_by = ["speaker"]\n')
+    with pytest.raises(SpecError, match=r"\[corpus.manifest\] .*session is a directory: name the manifest file") as e:
+        load_batch_spec(b)
+    assert (e.value.file, e.value.key, e.value.section) == (b, "corpus.manifest", "corpus")
+    b.write_text('fit = "session"\n[corpus]\nmanifest = "m.csv"\ngroup_by = ["speaker"]\n')
+    with pytest.raises(SpecError, match=r"\[fit\] .*session: is a directory, not a fit spec"):
+        load_batch_spec(b)

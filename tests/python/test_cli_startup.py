@@ -94,3 +94,23 @@ def test_unknown_command_is_refused() -> None:
     result = CliRunner().invoke(app, ["spake"])
     assert result.exit_code != 0
     assert "spake" in result.output
+
+
+def test_the_program_tunes_the_collector_for_a_short_process() -> None:
+    # the console script (pyproject) and `python -m coartic.cli` run main(): a larger young generation
+    # and gc.freeze as the last exit handler (bench/startup.py measures what they save)
+    import tomllib
+
+    from coartic.cli import YOUNG_GENERATION
+
+    scripts = tomllib.loads((Path(PYTHON_DIR).parent / "pyproject.toml").read_text())["project"]["scripts"]
+    assert scripts["coartic"] == "coartic.cli:main"
+    code = ("import atexit, gc, sys\nfrom coartic.cli import main\nsys.argv = ['coartic', '--version']\n"
+            "try:\n    main()\nexcept SystemExit:\n    pass\nprint(gc.get_threshold()[0], gc.get_freeze_count())\n"
+            "atexit._run_exitfuncs()\nprint(gc.get_freeze_count() > 0)")
+    env = {**os.environ, "PYTHONPATH": PYTHON_DIR}
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env, timeout=120)
+    assert out.returncode == 0, out.stderr
+    lines = out.stdout.split("\n")
+    assert lines[0] == f"coartic {__import__('coartic').__version__}"
+    assert lines[1] == f"{YOUNG_GENERATION} 0" and lines[2] == "True"

@@ -132,7 +132,8 @@ def test_rate_aware_options_go_from_spec_to_table_to_core(illustrative_table: Pa
     table records them (JSON and CSV, only when not the defaults) and evaluates with them."""
     from pathlib import Path
 
-    from coartic.fit.spec import SpecError, parse_spec
+    from coartic.errors import SpecError
+    from coartic.fit.spec import parse_spec
 
     raw = {"corpus": {"files": ["x"], "labels": ["y"]}, "model": {"channels": ["LLO"], "dominance": "plateau",
                                                                "plateau_fraction": 0.4, "handover": True}}

@@ -10,7 +10,7 @@ from coartic import Coarticulation
 from coartic.estimator import NotFittedError
 from coartic.fit import run
 from coartic.fit.simulate import vcv_utterances
-from coartic.fit.spec import SpecError
+from coartic.errors import SpecError
 
 FREE = ["target", "alpha", "theta_bw", "theta_fw", "k_r"]
 

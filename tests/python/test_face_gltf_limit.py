@@ -7,6 +7,7 @@ from __future__ import annotations
 import base64
 import dataclasses
 import json
+import shutil
 import subprocess
 from pathlib import Path
 
@@ -103,6 +104,15 @@ def test_every_mesh_has_at_most_eight_targets_and_the_face_is_the_rigs(runs: dic
     sampler = fap_doc["animations"][0]["samplers"][0]
     fap_w = accessor_array(fap_doc, fap_blob, sampler["output"]).reshape(n_frames, -1)
     assert (np.abs(fap_w) > 0).sum(axis=1).max() > 2 * MAX_BLENDED_TARGETS
+
+
+def test_the_eight_target_glb_passes_gltfpack_validation(runs: dict[str, RuntimeOutput], tmp_path: Path) -> None:
+    """Debian's gltfpack loads through cgltf's validator: nine meshes, seven weights channels."""
+    if shutil.which("gltfpack") is None:
+        pytest.skip("gltfpack (Debian package, installed by scripts/setup.sh) is not on PATH")
+    ok = subprocess.run(["gltfpack", "-i", str(runs["eight"].files["gltf"]), "-o", str(tmp_path / "ok.glb")],
+                        capture_output=True, text=True)
+    assert ok.returncode == 0, ok.stderr
 
 
 def test_cli_writes_the_eight_target_glb(tmp_path: Path) -> None:
@@ -219,19 +229,21 @@ function differ(a, b) {{  // the share of pixels whose colour differs by more th
 
 def test_coartic_view_plays_the_eight_target_glb(runs: dict[str, RuntimeOutput], tmp_path: Path) -> None:
     """`coartic view` (its own renderer, every target blended on the CPU) reads the several meshes
-    and weights channels of the eight-target file: its screenshots at /f/ and /a/ are those of
-    the FAP file's."""
+    and weights channels of the eight-target file, and joins the skin's halves by their `_VERTEX`
+    numbers: its screenshot at /a/ (jaw, both lips and the skin around them moving) is the FAP file's."""
     from PIL import Image
 
     from coartic.face.viewer import screenshot, write_page
 
     frames = _frames(runs["eight"])
-    for ph in ("f", "a"):
+    for ph in ("a",):
         shots = {}
         for morphs in ("eight", "fap"):
             png = screenshot(write_page(runs[morphs].files["gltf"].parent), tmp_path / f"{morphs}_{ph}.png",
                              frame=frames[ph], face_only=300, size=(300, 300), zoom=2.5)
             shots[morphs] = np.asarray(Image.open(png).convert("RGB"), dtype=np.int16)
-        differ = (np.abs(shots["eight"] - shots["fap"]).max(axis=2) > 24).mean()
-        assert differ < 0.005, (ph, differ)
+        # pixels off by more than 8 of 255: 0.002-0.008 % measured; 0.1 % when the viewer did not join
+        # the two halves of the skin (their seam shaded by half a fan each)
+        differ = (np.abs(shots["eight"] - shots["fap"]).max(axis=2) > 8).mean()
+        assert differ < 0.0005, (ph, differ)
         assert shots["fap"].std() > 10  # a face, not a blank canvas

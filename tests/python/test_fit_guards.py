@@ -14,7 +14,8 @@ from coartic.fit.guards import small_data_notes
 from coartic.estimation.parameters import psd_pseudo_inverse
 from coartic.fit.result import unidentified_reasons
 from coartic.fit.simulate import vcv_utterances
-from coartic.fit.spec import SpecError, parse_spec
+from coartic.errors import SpecError
+from coartic.fit.spec import parse_spec
 
 
 def spec(tmp_path: Path, **sections: object):  # type: ignore[no-untyped-def]

@@ -15,11 +15,12 @@ from typer.testing import CliRunner
 from coartic.cli import app
 from coartic.fit.data import load_utterances, manifest_rows
 from coartic.fit.engines import EngineResult, evaluation_budget, iteration_budget
-from coartic.fit.multistart import Optimum, cluster, fit_multistart, sobol_starts
+from coartic.fit.multistart import Optimum, cluster, fit_multistart, sobol_starts, spread_within, trajectory
 from coartic.estimation.problem import build_problem
 from coartic.fit.runner import run
 from coartic.fit.score import score_recordings
-from coartic.fit.spec import SpecError, load_spec
+from coartic.errors import SpecError
+from coartic.fit.spec import load_spec
 from coartic.fit.staged import StageResult, channel_status
 from coartic.table import PARAMETERS
 
@@ -63,41 +64,62 @@ def test_sobol_starts_cover_the_boxes_in_log_scale_and_keep_the_data_targets(tmp
     assert np.exp(xs[:, theta]).min() < 5 and np.exp(xs[:, theta]).max() > 200
 
 
-def test_cluster_groups_end_points_by_sse_and_distance() -> None:
-    lo, hi = np.zeros(2), np.ones(2)
-    xs = [np.array([0.5, 0.5]), np.array([0.5005, 0.5]), np.array([0.9, 0.1]), np.array([0.2, 0.2])]
-    sses = [10.0, 10.00001, 10.0, 12.0]  # the third: same SSE, elsewhere (another optimum)
-    optima = cluster(xs, sses, lo, hi, [3, 5, 7, 9], ["converged"] * 4)
+def test_cluster_groups_end_points_by_fit_and_reports_what_the_data_leave_free(tmp_path: Path) -> None:
+    """Two end points with the same fitted curve whose parameter g.theta_fw differs across its box
+    (deliberately non-identifiable: the curves are made equal) are one optimum, g.theta_fw reported
+    as not identified inside it; the same SSE with another curve, or the same curve with an SSE
+    more than the residual variance worse, are distinct optima."""
+    _, _, prob = small_problem(tmp_path)
+    pk = prob.packing
+    x = pk.pack()
+    names = pk.names()
+    k = names.index("g.theta_fw")
+    lo, hi = pk.bounds()
+    x_free = x.copy()
+    x_free[k] = lo[k] + 0.9 * (hi[k] - lo[k])  # far across its (log) box
+    tr = trajectory(prob, x)
+    n = prob.data.n_valid
+    rmse = float(np.sqrt(np.sum(tr**2) / n))
+    other = tr + 0.5 * rmse  # same SSE below, but a fitted curve half the noise away: another optimum
+    sse = float(tr @ tr)
+    xs = [x, x_free, x.copy(), x.copy()]
+    sses = [sse, sse * (1 + 0.1 / n), sse, sse * (1 + 5.0 / n)]  # the last: Δχ² about 5 worse
+    optima = cluster(xs, sses, [tr, tr, other, tr], n, [3, 5, 7, 9], ["converged"] * 4, n_free=pk.n_free)
     assert [o.starts for o in optima] == [[3, 5], [7], [9]]
     assert [o.hits for o in optima] == [2, 1, 1]
-    assert isinstance(optima[0], Optimum) and optima[0].sse == 10.0
+    assert isinstance(optima[0], Optimum) and optima[0].sse == sse
+    free = spread_within(optima[0], pk)
+    assert list(free) == ["g.theta_fw"]
+    assert free["g.theta_fw"] == pytest.approx(abs(pk.natural(x_free)[k] - pk.natural(x)[k]))
+    assert spread_within(optima[1], pk) == {}
+    # a start counts once however many of its end points (polishing restarts) fall in one optimum
+    again = cluster([x, x], [sse, sse], [tr, tr], n, [4, 4], ["converged"] * 2, n_free=pk.n_free)
+    assert len(again) == 1 and again[0].hits == 1 and len(again[0].members) == 2
 
 
+@pytest.mark.slow
 @pytest.mark.multistart
 def test_fit_is_independent_of_the_start_held_out_on_real_ema(tmp_path: Path) -> None:
-    """Fit utterance 0024 of the German EMA from θ starts of 15 and 100 and predict utterance 0020
-    (held out; its /p t/, unseen in 0024, by their class fallbacks): one start gives different held-out
-    errors, the multi-start without the spec's start (include_start = false) the same to 0.05 mm
-    (issue 19)."""
+    """Fit utterance 0024 of the German EMA (JO; targets and θ free) from θ starts of 15 and 100 and
+    predict utterance 0020 (held out; its /p t/, unseen in 0024, by their class fallbacks): one start
+    gives held-out errors 1 mm apart; the default multi-start (32 starts, [parameters.start] among
+    them) the same to 0.05 mm, even with another seed (issue 19)."""
     held, rmse = {}, {}
-    for starts in (1, 4):
-        for theta in (15.0, 100.0):
-            spec, utts, _ = small_problem(tmp_path, theta, starts, inc="false")
-            result = run(spec, tmp_path / f"out{starts}_{theta}", quiet=True, report=False)
-            rmse[starts, theta] = result.channels["JO"].rmse
-            sc = score_recordings(tmp_path / f"out{starts}_{theta}" / "table.json",
-                                  [EMA / "dfgspp_mo1_prosody_0020_ema.csv"], [EMA / "dfgspp_mo1_prosody_0020_Segment.tsv"],
-                                  channels=["JO"])
-            held[starts, theta] = sc.channel_rows()[0]["rmse_mm"]
-            fit = result.channels["JO"]
-            assert (fit.multistart is None) == (starts == 1)
+    for starts, theta, seed in ((1, 15.0, 0), (1, 100.0, 0), (32, 15.0, 0), (32, 100.0, 1)):
+        spec, utts, _ = small_problem(tmp_path, theta, starts)
+        spec = spec.with_options(seed=seed, keep=None, probe=10)  # the default [fit] but for the start
+        out = tmp_path / f"out{starts}_{theta}"
+        fit = run(spec, out, quiet=True, report=False).channels["JO"]
+        rmse[starts, theta] = fit.rmse
+        sc = score_recordings(out / "table.json", [EMA / "dfgspp_mo1_prosody_0020_ema.csv"],
+                              [EMA / "dfgspp_mo1_prosody_0020_Segment.tsv"], channels=["JO"])
+        held[starts, theta] = sc.channel_rows()[0]["rmse_mm"]
+        assert (fit.multistart is None) == (starts == 1)
+        if fit.multistart is not None:
+            assert 0 in fit.multistart.continued  # [parameters.start] is start 0, always continued
     assert abs(held[1, 15.0] - held[1, 100.0]) > 0.05, held  # the test can fail: one start depends on it
-    assert abs(held[4, 15.0] - held[4, 100.0]) <= 0.05, held
-    # the default (include_start = true) also continues [parameters.start]: never worse than one fit
-    spec, _, _ = small_problem(tmp_path, 15.0, 4, inc="true")
-    both = run(spec, tmp_path / "both", quiet=True, report=False).channels["JO"]
-    assert both.multistart is not None and 0 in both.multistart.continued
-    assert both.rmse <= min(rmse[1, 15.0], rmse[4, 15.0]) * (1 + 1e-6)
+    assert abs(held[32, 15.0] - held[32, 100.0]) <= 0.05, held
+    assert rmse[32, 15.0] <= rmse[1, 15.0] * (1 + 1e-6) and rmse[32, 100.0] <= rmse[1, 100.0] * (1 + 1e-6)
 
 
 @pytest.mark.multistart
@@ -111,7 +133,9 @@ def test_multistart_is_deterministic_and_reports_its_optima(tmp_path: Path) -> N
     assert len(ms.probe_sse) == 4 and len(ms.continued) == 2
     # [parameters.start] is start 0 and always goes on, with the best of the other probes
     assert ms.continued == [0, min(range(1, 4), key=lambda i: ms.probe_sse[i])] and ms.include_start
-    assert sum(o.hits for o in ms.optima) == 2
+    # every continued start ended in some optimum (its polishing restarts may reach others too)
+    assert set().union(*(o.starts for o in ms.optima)) == set(ms.continued)
+    assert ms.hops == sum(len(o.members) for o in ms.optima) - 2 and set(ms.chains) <= set(ms.continued)
     assert ms.best.sse == min(ms.final_sse.values()) == pytest.approx(prob.with_packing(a[0].packing).sse(a[1].x))
     assert [s.probe for s in a[2]] == [True] * (len(a[2]) - 1) + [False]
     d = ms.as_dict(prob.data.n_valid)

@@ -10,7 +10,8 @@ import pytest
 from coartic.estimation.packing import LOG_COLUMNS
 from coartic.estimation.problem import ChannelProblem, build_problem
 from coartic.fit.simulate import PHONEMES, TRUTH, vcv_utterances
-from coartic.fit.spec import SpecError, parse_spec
+from coartic.errors import SpecError
+from coartic.fit.spec import parse_spec
 from coartic.table import PARAMETERS
 
 

@@ -20,7 +20,8 @@ from coartic.estimation.parameters import ParameterSet
 from coartic.estimation.data import ChannelData
 from coartic.fit.runner import FitFailed, check_overrides
 from coartic.fit.simulate import PHONEMES, vcv_utterances
-from coartic.fit.spec import SpecError, load_spec, parse_spec
+from coartic.errors import SpecError
+from coartic.fit.spec import load_spec, parse_spec
 from coartic.table import PARAMETERS, TableError
 
 

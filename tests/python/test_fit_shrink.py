@@ -17,7 +17,8 @@ from coartic.fit import run
 from coartic.fit.choose import Choice, CurvePoint, parse_choose, set_value
 from coartic.estimation.problem import build_problem
 from coartic.fit.simulate import PHONEMES, vcv_utterances
-from coartic.fit.spec import Choose, SpecError
+from coartic.errors import SpecError
+from coartic.fit.spec import Choose
 from coartic.table import PARAMETERS
 
 

@@ -12,7 +12,8 @@ from scipy.optimize import least_squares
 
 from coartic.estimation.problem import build_problem
 from coartic.fit.simulate import PHONEMES, TRUTH, vcv_utterances
-from coartic.fit.spec import SpecError, parse_spec
+from coartic.errors import SpecError
+from coartic.fit.spec import parse_spec
 from coartic.table import PARAMETERS
 
 TARGET = PARAMETERS.index("target")

@@ -7,7 +7,8 @@ from pathlib import Path
 
 import pytest
 
-from coartic.fit.spec import DEFAULT_STAGES, FIELD_KEYS, FitSpec, Override, SpecError, load_spec
+from coartic.errors import SpecError
+from coartic.fit.spec import DEFAULT_STAGES, FIELD_KEYS, CorpusSpec, FitSpec, Override, load_spec
 
 ROOT = Path(__file__).resolve().parents[2]
 
@@ -180,3 +181,39 @@ def test_the_document_table_covers_every_field() -> None:
     # location of its errors
     named = set(FIELD_KEYS) | {"path"}
     assert {f.name for f in dataclasses.fields(FitSpec)} <= named
+
+
+class _Odd:
+    """A value no field takes."""
+
+
+@pytest.mark.parametrize("field", [f.name for f in dataclasses.fields(FitSpec) if f.name != "path"])
+def test_a_bad_value_in_any_field_is_a_spec_error_naming_its_key(tmp_path: Path, field: str) -> None:
+    # never pydantic's own ValidationError (not a CoarticError) nor a crash: the schema's errors
+    # all pass through spec_error, keyed by the spec's names
+    s = load_spec(write(tmp_path, BASE))
+    with pytest.raises(SpecError) as e:
+        s.with_options(**{field: _Odd()})
+    assert e.value.file == tmp_path / "spec.toml" and e.value.key == FIELD_KEYS[field]
+
+
+def test_the_file_of_an_unreadable_spec_is_an_attribute(tmp_path: Path) -> None:
+    p = tmp_path / "spec.toml"
+    p.write_bytes(b'[corpus]\nmanifest = "caf\xe9.csv"\n')
+    with pytest.raises(SpecError) as e:
+        load_spec(p)
+    assert e.value.file == p and "line 2, column 16" in str(e.value)
+
+
+@pytest.mark.parametrize("field", [f.name for f in dataclasses.fields(CorpusSpec)])
+def test_a_bad_value_in_any_corpus_field_is_a_spec_error(tmp_path: Path, field: str) -> None:
+    s = load_spec(write(tmp_path, BASE))
+    with pytest.raises(SpecError) as e:
+        dataclasses.replace(s.corpus, **{field: _Odd()})
+    assert e.value.key is not None and e.value.key.startswith("corpus")
+
+
+def test_with_options_names_a_field_that_does_not_exist(tmp_path: Path) -> None:
+    s = load_spec(write(tmp_path, BASE))
+    with pytest.raises(SpecError, match=r"FitSpec has no field\(s\) \['colour'\]"):
+        s.with_options(colour="red")

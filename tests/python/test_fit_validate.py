@@ -8,7 +8,8 @@ import numpy as np
 import pytest
 
 from coartic.fit.simulate import vcv_utterances
-from coartic.fit.spec import SpecError, parse_spec
+from coartic.errors import SpecError
+from coartic.fit.spec import parse_spec
 from coartic.fit.runner import run
 from coartic.fit.validate import splits, validate_all
 

@@ -173,7 +173,7 @@ channels = ["ULP", "LLP"]
     utt = load_utterances(load_spec(spec))[0]
     np.testing.assert_allclose(utt.observed["LLP"], truth["LLP"], atol=1e-9)
     spec.write_text(spec.read_text().replace('anterior = "+x"', 'lateral = "+y"'))
-    from coartic.fit.spec import SpecError
+    from coartic.errors import SpecError
 
     with pytest.raises(SpecError, match=r"\[corpus\.role_map\] role map: unknown axis 'lateral'"):
         load_spec(spec)

@@ -34,7 +34,8 @@ from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
-from coartic.fit.spec import CorpusSpec, FitSpec, SpecError, load_spec, read_document, synth_hint
+from coartic.errors import SpecError
+from coartic.fit.spec import CorpusSpec, FitSpec, load_spec, read_document, synth_hint
 from coartic.textfile import TextDecodeError, read_text
 
 # A group's name is a folder name in the output: plain characters only, and never one of ours.
@@ -70,7 +71,7 @@ class BatchSpec:
 
 
 def _err(path: Path, key: str, msg: str) -> SpecError:
-    return SpecError(f"{path}: [{key}] {msg}")
+    return SpecError.at(path, key, msg)
 
 
 def _strings(v: Any, path: Path, key: str) -> tuple[str, ...]:
@@ -91,6 +92,9 @@ def _sha(path: Path, key: str, spec_path: Path) -> str:
 def _manifest_groups(manifest: Path, columns: tuple[str, ...], select: dict[str, tuple[str, ...]],
                      path: Path) -> list[tuple[str, tuple[str, ...]]]:
     """(group name, values of ``columns``) for every distinct combination, in order of appearance."""
+    if manifest.is_dir():
+        raise _err(path, "corpus.manifest", f"{manifest} is a directory: name the manifest file in it (e.g. "
+                   f"{manifest / 'manifest.csv'}), or give folders = [...] for one group per folder")
     if not manifest.is_file():
         raise _err(path, "corpus.manifest", f"{manifest} does not exist{synth_hint(manifest)}")
     try:
@@ -143,7 +147,7 @@ def load_batch_spec(path: str | Path) -> BatchSpec:
         raise _err(path, "fit", "missing: the fit spec every unit uses, e.g. fit = 'synthetic.toml'")
     fit_path = Path(raw["fit"]) if Path(raw["fit"]).is_absolute() else base / raw["fit"]
     if not fit_path.is_file():
-        raise _err(path, "fit", f"{fit_path}: no such fit spec")
+        raise _err(path, "fit", f"{fit_path}: {'is a directory, not a' if fit_path.is_dir() else 'no such'} fit spec")
     fit = load_spec(fit_path)  # its own errors name the fit spec file and key
     name = raw.get("name", path.stem)
     if not isinstance(name, str):

@@ -1,8 +1,9 @@
 """The estimation problem that least squares (``coartic.fit``), MCMC (``coartic.mcmc``) and the
 batch share, below all of them: one channel's data, its parameters and their packing, priors and
 shrinkage, per-utterance offsets and speakers, and the problem they make (``problem.build_problem``,
-the one constructor). Nothing here imports ``coartic.fit`` or ``coartic.mcmc`` except the spec's
-types (``coartic.fit.spec``, until the spec has a schema of its own).
+the one constructor). Nothing here imports ``coartic.fit`` or ``coartic.mcmc``
+(tests/python/test_import_graph.py): the spec (``coartic.fit.spec.FitSpec``) is read through its
+attributes and named in annotations only, and its errors are ``coartic.errors.SpecError``.
 
 Modules (imported by name; this package imports none of them, so that importing one loads only
 what it needs):

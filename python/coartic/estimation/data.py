@@ -8,7 +8,7 @@ the observed values (NaN replaced by 0) and the weights (1 valid, 0 masked).
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Sequence
+from typing import Collection, Sequence
 
 import numpy as np
 from numpy.typing import NDArray
@@ -58,6 +58,12 @@ class ChannelData:
         offsets = np.cumsum([0] + [len(u.times) for u in utts]).astype(np.int64)
         return cls(channel, phon, utts, build_corpus(utts, phon),
                    np.where(valid, y, 0.0), valid.astype(np.float64), offsets)
+
+    def subset(self, labels: Collection[str]) -> ChannelData:
+        """The utterances that contain any of ``labels``, with the same phoneme rows (a per-phoneme
+        posterior evaluates only the utterances its phoneme's parameters act on)."""
+        return ChannelData.build([u for u in self.utterances if not set(labels).isdisjoint(u.labels)], self.channel,
+                                 self.phonemes)
 
     def utterance_samples(self, u: int) -> slice:
         return slice(int(self.sample_offsets[u]), int(self.sample_offsets[u + 1]))

@@ -22,13 +22,14 @@ import numpy as np
 from numpy.typing import NDArray
 
 from coartic.estimation.packing import Packing, Prior
-from coartic.fit.spec import DEFAULT_BETA_BOUNDS, DEFAULT_FIT_BOUNDS, FitSpec, SpecError
+from coartic.errors import SpecError
 from coartic.table import N_PARAMS, PARAMETERS
 
 
-if TYPE_CHECKING:
-    from coartic.fit.bounds import BoundNote
+if TYPE_CHECKING:  # annotations only: the spec and the at-bound notes are fit's, above this package
     from coartic.estimation.data import ChannelData
+    from coartic.fit.bounds import BoundNote
+    from coartic.fit.spec import FitSpec
 
 FloatArray = NDArray[np.float64]
 BoolArray = NDArray[np.bool_]
@@ -151,7 +152,7 @@ class ParameterSet(Mapping[str, Parameter]):
         lower = np.array([spec.bounds.get(p, inf)[0] for p in PARAMETERS])[None, :].repeat(n, 0)
         upper = np.array([spec.bounds.get(p, inf)[1] for p in PARAMETERS])[None, :].repeat(n, 0)
         # where each box comes from (coartic.fit.bounds explains a parameter at a bound by it)
-        source = np.array([default_bound_source(spec, p) for p in PARAMETERS], dtype=object)[None, :].repeat(n, 0)
+        source = np.array([spec.bound_source(p) for p in PARAMETERS], dtype=object)[None, :].repeat(n, 0)
         if "target" not in spec.bounds:  # no global target box: the data range, widened
             valid_y = data.observed[data.weights > 0]
             lower[:, 0] = float(valid_y.min()) - spec.target_margin
@@ -250,7 +251,7 @@ class ParameterSet(Mapping[str, Parameter]):
         ps.bound_sources = {f"{p}.{q}": str(source[i, k])
                             for i, p in enumerate(phon) for k, q in enumerate(PARAMETERS) if free[i, k]}
         if beta_free:
-            ps.bound_sources[BETA] = default_bound_source(spec, BETA)
+            ps.bound_sources[BETA] = spec.bound_source(BETA)
         return ps
 
     def packing(self) -> Packing:
@@ -296,21 +297,6 @@ class ParameterSet(Mapping[str, Parameter]):
                         "prior_mean": p.prior.mean if p.prior else "", "prior_sd": p.prior.sd if p.prior else "",
                         "prior_scale": ("log" if p.prior.log else "natural") if p.prior else ""})
         return out
-
-
-def default_bound_source(spec: FitSpec, parameter: str) -> str:
-    """Where the box of ``parameter`` comes from when no channel bound or override sets it: the
-    spec key that changed it, the data range (targets), or the defaults in coartic/fit/spec.py."""
-    if parameter == BETA:
-        return ("[model] beta_bounds" if tuple(spec.beta_bounds) != DEFAULT_BETA_BOUNDS
-                else "the default beta_bounds (DEFAULT_BETA_BOUNDS, coartic/fit/spec.py)")
-    if parameter == "target" and "target" not in spec.bounds:
-        return f"the data range widened by [parameters] target_margin = {spec.target_margin:g} mm"
-    if parameter in spec.bounds and tuple(spec.bounds[parameter]) != DEFAULT_FIT_BOUNDS.get(parameter):
-        return f"[parameters.bounds] {parameter}"
-    if parameter in ("alpha", "theta_bw", "theta_fw", "psi"):
-        return "the default box (DEFAULT_FIT_BOUNDS, coartic/fit/spec.py; MODEL.md §1 allows (0, inf))"
-    return "the default box (DEFAULT_FIT_BOUNDS, coartic/fit/spec.py; MODEL.md §1's default bounds)"
 
 
 def expand_priors(spec: FitSpec, channel: str, phonemes: tuple[str, ...], free: BoolArray,

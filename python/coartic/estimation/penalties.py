@@ -5,15 +5,18 @@ spec ``[[shrink]]``), each with its exact Jacobian."""
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Mapping, Sequence
+from typing import TYPE_CHECKING, Mapping, Sequence
 
 import numpy as np
 import scipy.sparse as sp
 from numpy.typing import NDArray
 
 from coartic.estimation.packing import Packing, Prior
-from coartic.fit.spec import FitSpec, SpecError
+from coartic.errors import SpecError
 from coartic.table import N_PARAMS, PARAMETERS
+
+if TYPE_CHECKING:  # annotations only: the spec is fit's, above this package
+    from coartic.fit.spec import FitSpec
 
 FloatArray = NDArray[np.float64]
 BoolArray = NDArray[np.bool_]

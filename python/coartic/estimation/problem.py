@@ -20,7 +20,7 @@ gradient, and a tracker of the best point seen (so Ctrl-C can keep it).
 
 from __future__ import annotations
 
-from typing import Any, Callable, Mapping, Sequence
+from typing import TYPE_CHECKING, Any, Callable, Mapping, Sequence
 
 import numpy as np
 import scipy.sparse as sp
@@ -33,10 +33,13 @@ from coartic.estimation.packing import Packing, Prior, moving
 from coartic.estimation.parameters import ParameterSet
 from coartic.estimation.penalties import Penalty, ShrinkGroup, Shrinkage, shrink_groups
 from coartic.estimation.speakers import SpeakerRows, Speakers, expand_speaker_targets, table_speaker_meta
-from coartic.fit.spec import FitSpec, SpecError
+from coartic.errors import SpecError
 from coartic.jacobian import JacobianBuffer
 from coartic.model import Utterance, channel_options, core_error, model_options
 from coartic.table import PARAMETERS, ParameterTable, TableError
+
+if TYPE_CHECKING:  # annotations only: the spec is fit's, above this package
+    from coartic.fit.spec import FitSpec
 
 FloatArray = NDArray[np.float64]
 

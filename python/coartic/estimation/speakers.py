@@ -6,7 +6,7 @@ out of least squares (``Speakers``), or every speaker's own targets as rows of t
 from __future__ import annotations
 
 from dataclasses import dataclass, replace
-from typing import Any, Mapping, Sequence
+from typing import TYPE_CHECKING, Any, Mapping, Sequence
 
 import numpy as np
 import scipy.sparse as sp
@@ -16,9 +16,12 @@ from coartic.estimation.data import ChannelData
 from coartic.estimation.packing import Prior, moving
 from coartic.estimation.parameters import ParameterSet, data_targets
 from coartic.estimation.penalties import ShrinkGroup
-from coartic.fit.spec import FitSpec, SpecError
+from coartic.errors import SpecError
 from coartic.model import Utterance
 from coartic.table import N_PARAMS, PARAMETERS, ParameterTable, TableError
+
+if TYPE_CHECKING:  # annotations only: the spec is fit's, above this package
+    from coartic.fit.spec import FitSpec
 
 FloatArray = NDArray[np.float64]
 

@@ -12,7 +12,9 @@ rate and the FAP file, and that is what `coartic view` plays.
 The eight-target set (`limited=True`, `--gltf-morphs eight`) is for three.js up to r132, which
 blends only the 8 largest morph influences of a mesh: one node and mesh per part (the skin in two,
 above and below the lip line), each with at most 8 targets of its own and its own weights channel
-(`limited_meshes`).
+(`limited_meshes`). Its primitives carry `_VERTEX`, each vertex's number in the face (an
+application-specific attribute, float), so that a renderer that recomputes normals (`coartic view`)
+joins the two halves of the skin where they share vertices.
 
 `check_glb` is this module's own structural check against the specification (header and chunks,
 every index and byte range, accessor types and bounds, morph-target and animation consistency);
@@ -256,8 +258,11 @@ def gltf_document(rig: FaceRig, weights: NDArray[np.float64], fps: float, name: 
             ind = b.add(tris.reshape(-1).astype(idx_type), "SCALAR", comp, ELEMENT_ARRAY_BUFFER)
             b.accessors[ind]["min"] = [int(tris.min())]
             b.accessors[ind]["max"] = [int(tris.max())]
-            prim: dict[str, Any] = {"attributes": {"POSITION": pos, "NORMAL": nrm, "COLOR_0": col}, "indices": ind,
-                                    "material": 0, "mode": 4, "extras": {"part": part}}
+            attributes = {"POSITION": pos, "NORMAL": nrm, "COLOR_0": col}
+            if limited:  # the face's vertex numbers: a renderer that recomputes normals welds the skin's seam
+                attributes["_VERTEX"] = b.add(sel.astype(np.float32), "SCALAR", FLOAT, ARRAY_BUFFER)
+            prim: dict[str, Any] = {"attributes": attributes, "indices": ind, "material": 0, "mode": 4,
+                                    "extras": {"part": part}}
             if m.names:
                 zeros = b.zeros(sel.size)
                 prim["targets"] = [{"POSITION": b.add_sparse_vec3((m.fields[k][sel] * MM).astype(np.float32), zeros)}

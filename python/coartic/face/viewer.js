@@ -57,6 +57,7 @@ function loadFace(buffer) {
   const color = new Float32Array(nVerts * 3).fill(0.8);
   const targets = [], starts = [], names = [], channels = [];
   const indices = [];
+  const same = new Map();  // a face vertex -> its copies in several meshes (the skin's seam)
   let offset = 0;
   json.nodes.forEach((node, n) => {
     if (node.mesh === undefined) return;
@@ -76,6 +77,14 @@ function loadFace(buffer) {
         for (let i = 0; i < pos.length / 3; i++) for (let j = 0; j < 3; j++) color[(offset + i) * 3 + j] = c[i * nc + j];
       }
       for (let k = 0; k < nt; k++) own[k].set(accessor(p.targets[k].POSITION), (offset - first) * 3);
+      if (p.attributes._VERTEX !== undefined) {  // the face's vertex numbers (the eight-target set)
+        const ids = accessor(p.attributes._VERTEX);
+        for (let i = 0; i < ids.length; i++) {
+          const copies = same.get(ids[i]) || [];
+          copies.push(offset + i);
+          same.set(ids[i], copies);
+        }
+      }
       const idx = accessor(p.indices);
       for (let i = 0; i < idx.length; i++) indices.push(idx[i] + offset);
       offset += pos.length / 3;
@@ -101,8 +110,9 @@ function loadFace(buffer) {
   for (const c of channels) {
     for (let i = 0; i < times.length; i++) for (let k = 0; k < c.nt; k++) weights[i * nTargets + c.first + k] = c.weights[i * c.nt + k];
   }
+  const welds = [...same.values()].filter(c => c.length > 1);
   return {base, color, targets, starts, indices: new Uint32Array(indices), times, weights, nTargets,
-          names, extras: json.asset.extras || {}};
+          names, welds, extras: json.asset.extras || {}};
 }
 
 // Weights at time t: linear between keys, held outside (glTF LINEAR sampler).
@@ -241,6 +251,14 @@ class FaceView {
     gl.bindBuffer(gl.ARRAY_BUFFER, this.posBuf);
     gl.bufferSubData(gl.ARRAY_BUFFER, 0, p);
     vertexNormals(p, face.indices, this.normals);
+    // a vertex that two meshes share is one point of the surface: the sum of both fans' normals
+    for (const copies of face.welds) {
+      for (let j = 0; j < 3; j++) {
+        let sum = 0;
+        for (const v of copies) sum += this.normals[3 * v + j];
+        for (const v of copies) this.normals[3 * v + j] = sum;
+      }
+    }
     gl.bindBuffer(gl.ARRAY_BUFFER, this.normBuf);
     gl.bufferSubData(gl.ARRAY_BUFFER, 0, this.normals);
     const width = this.canvas.width, height = this.canvas.height;

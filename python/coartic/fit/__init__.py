@@ -5,7 +5,8 @@
 
 from typing import TYPE_CHECKING
 
-from coartic.fit.spec import FitSpec, SpecError, load_spec
+from coartic.errors import SpecError
+from coartic.fit.spec import FitSpec, load_spec
 
 if TYPE_CHECKING:  # the type of the lazy attribute below, for type checkers
     from coartic.fit.runner import run

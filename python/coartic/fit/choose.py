@@ -36,7 +36,8 @@ from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, T
 from coartic.console import LineProgress
 from coartic.model import Utterance
 from coartic.fit.validate import FitFunction, UnseenPhonemes, kfold_splits, score
-from coartic.fit.spec import CHOOSABLE, Choose, FitSpec, SpecError, choose_base, make_choose, parse_grid
+from coartic.errors import SpecError
+from coartic.fit.spec import CHOOSABLE, Choose, FitSpec, choose_base, make_choose, parse_grid
 from coartic.errors import UsageError
 
 

@@ -194,7 +194,8 @@ VARIABLE: dict[str, type] = {"prior_noise": float, "target_margin": float, "apex
 def vary(spec: FitSpec, key: str, values: Sequence[str]) -> list[FitSpec]:
     """One spec per value of the setting ``key`` (one of ``VARIABLE``), named after it; the values
     are checked as the spec's own would be (by parsing the spec with each)."""
-    from coartic.fit.spec import SpecError, parse_spec, read_document
+    from coartic.errors import SpecError
+    from coartic.fit.spec import parse_spec, read_document
 
     from coartic.fit.spec import choose_base
 

@@ -10,7 +10,8 @@ from typing import Any, Callable, Mapping, Sequence
 import numpy as np
 
 from coartic.model import Utterance
-from coartic.fit.spec import FitSpec, SpecError, synth_hint
+from coartic.errors import SpecError
+from coartic.fit.spec import FitSpec, synth_hint
 from coartic.io import DataError, load_trial
 from coartic.textfile import TextDecodeError, read_text
 

@@ -12,7 +12,8 @@ from rich.table import Table
 
 from coartic.fit.bounds import summary_counts
 from coartic.fit.result import BAR_MM, UNIDENTIFIED_ADVICE, FitResult
-from coartic.fit.spec import ENGINES, FitSpec, SpecError, load_spec
+from coartic.errors import SpecError
+from coartic.fit.spec import ENGINES, FitSpec, load_spec
 from coartic.fit.staged import UNCONFIRMED_STATUSES
 from coartic.console import print_error, print_table
 from coartic.table import ALL_CHANNELS

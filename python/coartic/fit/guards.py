@@ -18,7 +18,8 @@ from __future__ import annotations
 from typing import Sequence
 
 from coartic.model import Utterance
-from coartic.fit.spec import FitSpec, SpecError
+from coartic.errors import SpecError
+from coartic.fit.spec import FitSpec
 
 
 def small_data_notes(spec: FitSpec, utterances: Sequence[Utterance]) -> list[str]:

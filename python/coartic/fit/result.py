@@ -301,6 +301,8 @@ class FitResult:
                 if ms is not None:  # how far the other optima put it: a large spread, a weakly determined value
                     name = "beta" if row["parameter"] == "beta" else f"{row['phoneme']}.{row['parameter']}"
                     row["spread_between_optima"] = ms.spread.get(name, 0.0 if name in ms.names else "")
+                    # its range inside the best optimum: the data leave it free (same fit within the noise)
+                    row["not_identified_range"] = ms.best.unidentified.get(name, 0.0 if name in ms.names else "")
                 rows.append(row)
         return rows
 
@@ -446,20 +448,27 @@ class FitResult:
 
 
 def multistart_lines(ms: MultiStart, n_valid: int) -> list[str]:
-    """fit_report.txt: the multi-start's optima (SSE, RMSE, how many starts reached each, held-out
-    RMSE where validation scored them) and the parameters that differ most between them."""
+    """fit_report.txt: the multi-start's optima (SSE, RMSE, the starts that reached each, held-out
+    RMSE where validation scored them), the parameters the data leave free inside an optimum, and
+    those that differ most between the optima."""
+    hops = f", then {ms.hops} polishing restarts from the best of starts {ms.chains}" if ms.hops else ""
     lines = [f"    multi-start: {ms.summary_line(n_valid)}",
              f"        {ms.nfev} evaluations in {ms.wall_time:.1f} s ({ms.workers} worker(s)); probe: "
-             f"{ms.probe} evaluations per stage from every start, then the best {len(ms.continued)} continued"]
+             f"{ms.probe} evaluations per stage from every start, then the best {len(ms.continued)} continued{hops}"]
     for k, o in enumerate(ms.optima):
         held = "".join(f"; held out {sp}: {v:.4f} mm" for sp, v in o.heldout_rmse.items())
         lines.append(f"        optimum {k + 1}: SSE {o.sse:.6g}, RMSE {np.sqrt(o.sse / max(n_valid, 1)):.4f} mm, "
-                     f"reached by {o.hits} start(s) {o.starts} [{o.status}]{held}")
+                     f"reached from {o.hits} start(s) {sorted(set(o.starts))} ({len(o.members)} end point(s)) "
+                     f"[{o.status}]{held}")
+        if o.unidentified:
+            top = sorted(o.unidentified.items(), key=lambda kv: -kv[1])
+            lines.append(f"            not identified (same fit within the noise, these parameters differ; range): "
+                         + ", ".join(f"{nm} {d:.4g}" for nm, d in top))
     if ms.best_found_once:
-        lines.append("        warning: the best optimum was reached by one start only: more starts may find a better one")
+        lines.append("        warning: the best optimum was reached from one start only: more starts may find a better one")
     if ms.spread:
         top = sorted(ms.spread.items(), key=lambda kv: -kv[1])[:5]
-        lines.append("        largest differences from the best among the optima: "
+        lines.append("        largest differences from the best among the distinct optima: "
                      + ", ".join(f"{nm} {d:.4g}" for nm, d in top))
     return lines
 

@@ -24,7 +24,8 @@ from coartic.fit.engines import OptionError, check_options
 from coartic.estimation.problem import ChannelProblem, build_problem
 from coartic.model import Utterance
 from coartic.fit.result import ChannelFit, FitResult, finish_channel, now
-from coartic.fit.spec import FitSpec, SpecError, load_spec
+from coartic.errors import SpecError
+from coartic.fit.spec import FitSpec, load_spec
 from coartic.fit.multistart import MultiStart, fit_multistart
 from coartic.fit.staged import channel_status, fit_staged
 from coartic.table import ParameterTable

@@ -29,7 +29,7 @@ from pydantic import BeforeValidator, ConfigDict, ValidationError, ValidationInf
 from pydantic.dataclasses import dataclass
 from pydantic_core import ArgsKwargs, PydanticCustomError
 
-from coartic.errors import CoarticError
+from coartic.errors import SpecError
 from coartic.io.errors import DataError
 from coartic.io.roles import RoleMap
 from coartic.settings import CHANNEL_SETTINGS, default
@@ -75,46 +75,6 @@ LOG_SCALE_PARAMETERS = ("alpha", "theta_bw", "theta_fw", "psi", "beta")
 # +1 larger values, 0 no such direction.
 CHOOSABLE: dict[str, int] = {"shrink.sd": -1, "prior_noise": +1, "plateau_fraction": 0}
 CHOOSE_RULES: tuple[str, ...] = ("min", "1se")
-
-
-class SpecError(CoarticError, ValueError):
-    """A fit specification that cannot be used. The message names the file and the key
-    (``spec.toml: [override #3.fixed.theta_bw] ...``); so do the attributes, for programs that must
-    not parse prose: ``file`` (the spec's path), ``key`` (the whole place: ``"model.beta"``,
-    ``"override #3.fixed.theta_bw"``), ``section`` (``"model"``, ``"override"``; None at the top
-    level), ``entry`` (the index of a ``[[override]]``, ``[[tie]]`` or ``[[shrink]]`` table, counted
-    from 0 as in the spec's lists: ``override #3`` is entry 2), and where one is at fault
-    ``phoneme`` (its name, never an index; several as "p, b"), ``parameter`` and ``value``.
-    ``problems`` lists every (key, message) when the schema found several at once."""
-
-    file: Path | None = None
-    key: str | None = None
-    section: str | None = None
-    entry: int | None = None
-    problems: tuple[tuple[str, str], ...] = ()
-
-    @classmethod
-    def at(cls, file: Path | str | None, key: str | None, message: str, phoneme: str | None = None, *,
-           parameter: str | None = None, value: Any = None) -> SpecError:
-        """``file: [key] message`` (``file: message`` for the file as a whole, key None), with the
-        place in the attributes as well."""
-        text = message if key is None else f"[{key}] {message}"
-        err = cls(text if file is None else f"{file}: {text}")
-        err.file = None if file is None else Path(file)
-        err.key, err.phoneme, err.parameter, err.value = key, phoneme, parameter, value
-        err.section, err.entry = _section_entry(key)
-        err.problems = ((key or "", message),)
-        return err
-
-
-def _section_entry(key: str | None) -> tuple[str | None, int | None]:
-    """("override", 2) of "override #3.fixed.theta_bw", ("model", None) of "model.beta"; (None,
-    None) at the top level."""
-    head = (key or "top level").split(".", 1)[0]
-    if head in ("top level", "name"):
-        return None, None
-    name, sep, number = head.partition(" #")
-    return name, int(number) - 1 if sep and number.isdigit() else None
 
 
 # --------------------------------------------------------------------------- field types
@@ -401,7 +361,7 @@ def _spec_errors(cls: type[T]) -> type[T]:
         try:
             init(self, *args, **kwargs)
         except ValidationError as e:
-            file = kwargs.get("path") if cls is FitSpec else None
+            file = (kwargs["path"] if "path" in kwargs else args[0] if args else None) if cls is FitSpec else None
             raise spec_error(e, file, _ROOTS.get(cls.__name__, ())) from None
 
     cls.__init__ = __init__  # type: ignore[method-assign]
@@ -549,7 +509,7 @@ class CorpusSpec:
     manifest: Annotated[Path | None, BeforeValidator(_optional(_path))] = None
     files: Annotated[tuple[Path, ...], BeforeValidator(_paths)] = ()
     labels: Annotated[tuple[Path, ...], BeforeValidator(_paths)] = ()
-    file_column: Annotated[str, BeforeValidator(str)] = "file"  # manifest column holding the data file
+    file_column: Text = "file"  # manifest column holding the data file
     label_map: Annotated[str | None, BeforeValidator(_label_map)] = None  # a label-map name or path; None: model phonemes
     # role -> marker/sensor name; EMA: "axes" = {vertical, anterior}
     role_map: Annotated[dict[str, Any] | None, BeforeValidator(_optional(_role_map))] = None
@@ -572,11 +532,11 @@ class CorpusSpec:
 @dataclass(frozen=True, config=_STRICT)
 class FitSpec:
     path: Path  # the spec file (errors and relative paths refer to it)
-    name: Annotated[str, BeforeValidator(str)]
+    name: Text
     corpus: CorpusSpec
     channels: Channels = CHANNELS
     variant: Annotated[str, BeforeValidator(_one_of(VARIANTS))] = "modified"
-    reference_phoneme: Annotated[str, BeforeValidator(str)] = "a"
+    reference_phoneme: Text = "a"
     # the model's channel settings: defaults and ranges from coartic.settings
     apex_fraction: Annotated[float, BeforeValidator(_setting("apex_fraction"))] = default("apex_fraction")
     edge_extent: Annotated[float, BeforeValidator(_setting("edge_extent"))] = default("edge_extent")
@@ -674,6 +634,22 @@ class FitSpec:
                                edge_extent=self.edge_extent, apex_fraction=self.apex_fraction,
                                dominance=self.dominance, plateau_fraction=self.plateau_fraction,
                                handover=self.handover)
+
+    def bound_source(self, parameter: str) -> str:
+        """Where the box of ``parameter`` (or ``"beta"``) comes from when no channel bound or
+        override sets it: the spec key that changed it, the data range (targets), or the defaults
+        here (``DEFAULT_FIT_BOUNDS``, ``DEFAULT_BETA_BOUNDS``). ``ParameterSet.from_spec`` records
+        it for each free entry, so that a parameter at a bound is explained by it (coartic.fit.bounds)."""
+        if parameter == "beta":
+            return ("[model] beta_bounds" if tuple(self.beta_bounds) != DEFAULT_BETA_BOUNDS
+                    else "the default beta_bounds (DEFAULT_BETA_BOUNDS, coartic/fit/spec.py)")
+        if parameter == "target" and "target" not in self.bounds:
+            return f"the data range widened by [parameters] target_margin = {self.target_margin:g} mm"
+        if parameter in self.bounds and tuple(self.bounds[parameter]) != DEFAULT_FIT_BOUNDS.get(parameter):
+            return f"[parameters.bounds] {parameter}"
+        if parameter in ("alpha", "theta_bw", "theta_fw", "psi"):
+            return "the default box (DEFAULT_FIT_BOUNDS, coartic/fit/spec.py; MODEL.md §1 allows (0, inf))"
+        return "the default box (DEFAULT_FIT_BOUNDS, coartic/fit/spec.py; MODEL.md §1's default bounds)"
 
 
 def _choose_shrinks(key: str, shrinks: tuple[Shrink, ...]) -> str | None:
@@ -841,7 +817,10 @@ def spec_error(e: ValidationError, file: Path | str | None, root: tuple[str | in
         ctx.pop("error", None)
         problems.append((_key_of(loc), message, ctx))
     for loc, names in unknown.items():
-        part = _PARTS.get(str(loc[0]) if loc else "")
+        if not loc:  # FitSpec(...) or with_options given a name that is no field (a TOML key never gets here)
+            problems.append(("top level", f"FitSpec has no field(s) {sorted(names)}", {}))
+            continue
+        part = _PARTS.get(str(loc[0]))
         allowed = "" if part is None else f"; allowed: {sorted(_keys_of(part))}"
         problems.append((_key_of(loc), f"unknown key(s) {sorted(names)}{allowed}", {}))
     key, message, place = problems[0]

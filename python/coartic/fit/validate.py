@@ -28,7 +28,8 @@ from coartic.model import Utterance
 from coartic.fit.heldout import BASELINE_COLUMNS, SplitScore, pooled
 from coartic.fit.result import BAR_MM, FitResult
 from coartic.fit.score import score_utterances
-from coartic.fit.spec import FitSpec, SpecError
+from coartic.errors import SpecError
+from coartic.fit.spec import FitSpec
 from coartic.outputs import atomic_write_text
 
 

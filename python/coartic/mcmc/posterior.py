@@ -444,8 +444,6 @@ def phoneme_posterior(
     ``speakers``, the offset/scale of every speaker with such utterances is sampled too (a nuisance
     for the phoneme; the reference speaker stays the fit's).
     """
-    from coartic.estimation.data import ChannelData as _ChannelData
-
     if phoneme not in data.phonemes:
         raise McmcError(f"channel {data.channel}: phoneme {phoneme!r} does not occur (phonemes: {' '.join(data.phonemes)})")
     row = data.phonemes.index(phoneme)
@@ -458,7 +456,7 @@ def phoneme_posterior(
     free_flat = packing.free.reshape(-1)
     n_par = packing.free.shape[1]
     labels = {phoneme} | {data.phonemes[f // n_par] for f, ld in packing.ties if ld // n_par == row and free_flat[ld]}
-    sub = _ChannelData.build([u for u in data.utterances if labels & set(u.labels)], data.channel, data.phonemes)
+    sub = data.subset(labels)
     names = set(packing.with_free(free, False).names())
     mine = {k: v for k, v in (priors or {}).items() if k in names}
     return LogPosterior(sub, packing.with_free(free, False), options, noise, mine, offset_sd=offset_sd,

@@ -403,21 +403,23 @@ def render_strip(
     scale = min(STRIP_PANEL[0] / (2 * half), STRIP_PANEL[1] / (top - bottom))  # inches per mm
     pw, ph = 2 * half * scale, (top - bottom) * scale
     title_at = offset_copy(ax.transData, fig=fig, y=6, units="points")  # an axes title's pad
+    # add_artist, not add_patch: the limits are fixed above, and add_patch walked every patch's
+    # Bézier segments to widen them (a fifth of the strip's time)
     for j, i in enumerate(idx):
         row, col = divmod(j, per_row)
         cx = (col + 0.5) * STRIP_CELL[0]
         y_top = -0.1 - row * STRIP_CELL[1] - 0.5 * (STRIP_CELL[1] - ph) - 0.06  # room for the title above
         window = Rectangle((cx - 0.5 * pw, y_top - ph), pw, ph, fc=SKIN, ec="none", zorder=0)
-        ax.add_patch(window)
+        ax.add_artist(window)
         s = mouth_shape({c: float(values[c][j]) for c in CHANNELS}, neutral)
         origin = np.array([cx, y_top - scale * top])  # mm on the face -> inches on the strip
         upper, lower, mouth = front_outlines(s)
         for xy, style in ((upper, {"fc": LIP, "ec": EDGE, "lw": 1}), (lower, {"fc": LIP, "ec": EDGE, "lw": 1}),
                           (mouth, {"fc": MOUTH, "ec": "none"})):
-            ax.add_patch(Polygon(origin + scale * xy, closed=True, clip_path=window, **style))
+            ax.add_artist(Polygon(origin + scale * xy, closed=True, clip_path=window, **style))
         chin = origin + scale * s.chin
         ax.plot(chin[:, 0], chin[:, 1], color=EDGE, lw=1.5, clip_path=window)
-        ax.add_patch(Rectangle((cx - 0.5 * pw, y_top - ph), pw, ph, fc="none", ec="black", lw=0.8, zorder=3))
+        ax.add_artist(Rectangle((cx - 0.5 * pw, y_top - ph), pw, ph, fc="none", ec="black", lw=0.8, zorder=3))
         ax.text(cx, y_top, f"/{seg.labels[i]}/ {t[j]:.2f}s", transform=title_at, ha="center", va="baseline",
                 fontsize=8)
     path = Path(path)
