@@ -236,8 +236,9 @@ def main(lips_dir: Path, tongue_dir: Path, session: Path, keep_unchanged: bool) 
                    "changed_channels": record} if kept else
                   {"fitted_now": order, "kept": []}),
         "rmse_mm": {ch: rmse[ch] for ch in order},
-        "held_out_rmse_mm": {split: {"fitted_table": {ch: per[ch] for ch in order if ch in per},
-                                     **baselines.get(split, {})} for split, per in held_fitted.items()},
+        "held_out_rmse_mm": {split: {name: {ch: values[ch] for ch in order if ch in values}
+                                     for name, values in {"fitted_table": per, **baselines.get(split, {})}.items()}
+                             for split, per in held_fitted.items()},
         "recovery_check": recovery,
     }
     PACKAGE.mkdir(parents=True, exist_ok=True)

@@ -150,3 +150,9 @@ def test_a_table_without_tongue_takes_the_shipped_tongue(tmp_path: Path) -> None
     assert got["TTH"][k["t"]] > 7.0 and got["TBH"][k["k"]] > 9.0 and got["TTH"][k["a"]] < -5.0
     _, _, own = tongue_channels(animate(shipped, segs, 100.0))
     assert own == list(TONGUE_CHANNELS)
+    # an utterance without the tongue channels' reference phoneme /a/ (alpha = 1) is animated too
+    (tmp_path / "iti.tsv").write_text("start\tend\tlabel\n0\t0.3\t#\n0.3\t0.46\ti\n0.46\t0.56\tt\n0.56\t0.72\ti\n"
+                                      "0.72\t1.0\t#\n")
+    iti = animate(lips, read_labels(tmp_path / "iti.tsv"), 100.0)
+    got, _, _ = tongue_channels(iti)
+    assert got["TTH"].max() > 7.0

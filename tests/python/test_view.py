@@ -24,6 +24,7 @@ from coartic.face.viewer import chromium_program, make_server, page_query, scree
 from coartic.io.labels import read_labels
 from coartic.runtime.animate import target_times
 from coartic.runtime.fap import read_fap
+from coartic.runtime.shipped import load_shipped_table, shipped_table_path
 from coartic.table import ParameterTable
 
 GROUND_TRUTH = Path(__file__).resolve().parents[2] / "corpus-synthetic" / "ground_truth.json"
@@ -279,7 +280,6 @@ def test_chromium_shows_f_with_teeth_on_the_lip_and_u_narrowed(tmp_path: Path, c
     assert setback["f"] - setback["p"] >= 5, setback
 
 
-ITALIAN_TRUTH = GROUND_TRUTH.with_name("ground_truth_italian.json")
 TONGUE_UTTERANCE = ("start\tend\tlabel\n0.0\t0.20\t#\n0.20\t0.36\ta\n0.36\t0.46\tt\n0.46\t0.62\ta\n0.62\t0.72\tk\n"
                     "0.72\t0.88\ta\n0.88\t0.98\tl\n0.98\t1.14\ta\n1.14\t1.34\tu\n1.34\t1.50\t#\n")
 
@@ -291,12 +291,12 @@ def tongue_pixels(png: Path) -> np.ndarray:
 
 
 def test_chromium_shows_the_tongue_at_t_l_k_and_u_rounded(tmp_path: Path, chromium: str) -> None:
-    """With the Italian table (tongue channels; /u/ rounded): at the target frames of /t l k/ (/d n/
+    """With the shipped Italian table (tongue channels; /u/ rounded): at the target frames of /t l k/ (/d n/
     and /g/ share their tongue targets), in profile cut along the midline, the tongue shows where a
     still tongue (the same table with every tongue target at rest: same lips, jaw and teeth) does
     not, and higher up (measured: t 1191 px 21 rows up, l 692 px 17, k 2840 px 30); at /a/ it
     drops (24 rows down). From the front the lips at /u/ are at most 80 % of their width at rest."""
-    table = ParameterTable.load(ITALIAN_TRUTH)
+    table = load_shipped_table()
     doc = table.to_json_dict()
     for per in doc["phonemes"].values():
         for ch in ("TTH", "TTA", "TBH", "TBA"):
@@ -305,7 +305,7 @@ def test_chromium_shows_the_tongue_at_t_l_k_and_u_rounded(tmp_path: Path, chromi
     still.write_text(json.dumps(doc))
     (tmp_path / "u.tsv").write_text(TONGUE_UTTERANCE)
     pages = {}
-    for name, t in (("moving", ITALIAN_TRUTH), ("still", still)):
+    for name, t in (("moving", shipped_table_path()), ("still", still)):
         res = CliRunner().invoke(app, ["animate", str(tmp_path / "u.tsv"), "-t", str(t), "-o", str(tmp_path / name),
                                        "--preview", "none", "--gltf"])
         assert res.exit_code == 0, res.output

@@ -76,8 +76,11 @@ def default_tongue_table(phonemes: list[str], source: str = "coartic default ton
 def shipped_tongue_table(phonemes: list[str]) -> ParameterTable:
     """The default tongue for `phonemes`: the shipped table's tongue channels, and for a phoneme
     it lacks (or a shipped table without them) the class default of `default_tongue_table`."""
-    doc = default_tongue_table(phonemes).to_json_dict()
     shipped = load_shipped_table()
+    if all(c in shipped.channels for c in TONGUE_CHANNELS):
+        # the channels' reference phoneme (alpha = 1) comes along, said or not
+        phonemes = sorted(set(phonemes) | {shipped.channels[c].reference_phoneme for c in TONGUE_CHANNELS})
+    doc = default_tongue_table(phonemes).to_json_dict()
     if all(c in shipped.channels for c in TONGUE_CHANNELS):
         sdoc = shipped.to_json_dict()
         doc["channels"] = {c: sdoc["channels"][c] for c in TONGUE_CHANNELS}
