@@ -1,13 +1,21 @@
 """Multi-start estimation (coartic.fit.multistart): its cost as a ratio to one start, the share of
 starts that reach the best optimum, against nlopt's global MLSL and against the single start.
 
-    .venv/bin/python bench/multistart.py [synthetic|german|workers ...]   (default: all)
+    .venv/bin/python bench/multistart.py [synthetic|german|workers|heldout ...]   (default: all)
 
 - synthetic: LLO of the synthetic session, the 150 trials of /p f t l s/ (fit/synthetic.toml;
   `coartic corpus synth build/session` first), as in fit/compare_engines.py;
 - german: LA and JO of the two German EMA utterances (fit/ema_german.toml);
 - workers: 8 starts one after the other (rayon inside each evaluation) against two at once in
-  threads, on the synthetic LLO.
+  threads, on the synthetic LLO;
+- heldout: start independence held out on the German EMA, as bench/real_data.py splits it (the
+  time split; fit 0024, predict 0020): one start from θ = 15 and from θ = 100, the previous default
+  and the default from θ = 15 (seed 0) and θ = 100 (seed 1); the table's held-out RMSE and the step
+  model's on the same samples. heldout-one-start, heldout-previous-default, heldout-default: one
+  kind of fit only (a CPU hour in all on the shared machine).
+
+"previous default" is the multi-start before the polish and the rounds (the best 4 of 32 probes
+continued, nothing more): ``CHAINS = 0`` and one round, set here for that line only.
 
 Every line is measured in the same run: ratios are to the single start of the same data.
 Output saved in bench/results/multistart.txt (all parts) or multistart_<parts>.txt;
@@ -17,12 +25,15 @@ multistart_quasirandom_only.txt the same before start 0 was [parameters.start] (
 
 from __future__ import annotations
 
+import contextlib
 import math
+import os
 import sys
 import time
 from pathlib import Path
-from typing import Any, Sequence
+from typing import Any, Iterator, Sequence
 
+import coartic.fit.multistart as multistart
 from coartic.fit import runner
 from coartic.fit.data import load_utterances, manifest_rows
 from coartic.model import Utterance
@@ -30,6 +41,7 @@ from coartic.fit.runner import fit_channel
 from coartic.fit.spec import FitSpec, load_spec
 
 ROOT = Path(__file__).resolve().parent.parent
+sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 
 def line(label: str, fit: Any, wall: float, ref_wall: float | None) -> str:
@@ -39,8 +51,9 @@ def line(label: str, fit: Any, wall: float, ref_wall: float | None) -> str:
     if ms is not None:
         n = fit.problem.data.n_valid
         rm = ", ".join(f"{math.sqrt(o.sse / n):.4f}" for o in ms.optima[:4])
-        extra = (f"; {len(ms.optima)} optima (RMSE {rm}{' ...' if len(ms.optima) > 4 else ''}), best reached by "
-                 f"{ms.best.hits}/{len(ms.continued)} continued of {ms.n_starts}")
+        extra = (f"; {len(ms.optima)} optima (RMSE {rm}{' ...' if len(ms.optima) > 4 else ''}), best reached from "
+                 f"{ms.best.hits}/{len(ms.continued)} continued of {ms.n_starts}, {ms.hops} polishing restarts, "
+                 f"{len(ms.best.unidentified)} parameters not identified in the best")
     return (f"  {label:<34} RMSE {fit.rmse:.4f} mm  {fit.nfev:6d} evals  {wall:7.1f} s  {ratio}  "
             f"[{fit.status}]{extra}")
 
@@ -51,6 +64,20 @@ def timed(spec: FitSpec, utts: Sequence[Utterance], ch: str) -> tuple[Any, float
     return fit, time.perf_counter() - t0
 
 
+@contextlib.contextmanager
+def previous_default() -> Iterator[None]:
+    """The multi-start as it was before the polish and the rounds: the best `keep` probes
+    continued, no polishing restarts, no further round."""
+    chains, limit = multistart.CHAINS, multistart.max_continued
+    multistart.CHAINS = 0
+    setattr(multistart, "max_continued", lambda n, keep: keep)
+    try:
+        yield
+    finally:
+        multistart.CHAINS = chains
+        setattr(multistart, "max_continued", limit)
+
+
 def compare(title: str, spec: FitSpec, utts: Sequence[Utterance], channels: Sequence[str]) -> list[str]:
     out = [title]
     print(title, flush=True)
@@ -59,12 +86,14 @@ def compare(title: str, spec: FitSpec, utts: Sequence[Utterance], channels: Sequ
         one, w1 = timed(s1, utts, ch)
         rows = [line(f"{ch} one start ([parameters.start])", one, w1, None)]
         for label, s in [
+            ("32 starts, previous default", spec.with_options(starts=32, seed=0)),
             ("32 starts, seed 0 (default)", spec.with_options(starts=32, seed=0)),
             ("32 starts, seed 1", spec.with_options(starts=32, seed=1)),
             ("nlopt MLSL-LDS + L-BFGS, one start", s1.with_options(
                 engine="nlopt", engine_options={"global": "mlsl", "global_maxeval": 4000})),
         ]:
-            fit, w = timed(s, utts, ch)
+            with previous_default() if "previous" in label else contextlib.nullcontext():
+                fit, w = timed(s, utts, ch)
             rows.append(line(f"{ch} {label}", fit, w, w1))
             print(rows[-1], flush=True)
         print(rows[0], flush=True)
@@ -98,6 +127,65 @@ def workers() -> list[str]:
     return out
 
 
+# fit 0024, predict 0020 (the test's case on the whole spec); the time split too with
+# MULTISTART_SPLITS="LOO 0020,time split" (each multi-start fit of both channels is CPU minutes)
+HELDOUT_SPLITS = tuple(os.environ.get("MULTISTART_SPLITS", "LOO 0020").split(","))
+
+
+def heldout(which: Sequence[str] = ("one start", "previous default", "default")) -> list[str]:
+    """Start independence held out (module docstring): per split and channel, the held-out RMSE of
+    each fit (those whose label starts with one of ``which``), the step model's, and the spread
+    between the two fits of each kind."""
+    import real_data  # bench/real_data.py: its splits, prediction (fallbacks, transfer) and masking
+
+    from coartic.fit.score import score_utterances
+    from coartic.io.labelmap import resolve_label_map
+    from coartic.fit import run
+
+    spec, utts = german_data()
+    label_map = resolve_label_map(spec.corpus.label_map) if spec.corpus.label_map else None
+    out = [f"start independence held out, German EMA (fit/ema_german.toml: {', '.join(spec.free)} free), "
+           "RMSE mm: table, step model on the same samples, in-sample"]
+    print(out[0], flush=True)
+
+    def started(theta: float, **kw: Any) -> FitSpec:
+        return spec.with_options(start={**spec.start, "theta_bw": theta, "theta_fw": theta}, **kw)
+
+    fits = [("one start, θ 15", started(15.0, starts=1), False), ("one start, θ 100", started(100.0, starts=1), False),
+            ("previous default, θ 15, seed 0", started(15.0, starts=32, seed=0), True),
+            ("previous default, θ 100, seed 1", started(100.0, starts=32, seed=1), True),
+            ("default, θ 15, seed 0", started(15.0, starts=32, seed=0), False),
+            ("default, θ 100, seed 1", started(100.0, starts=32, seed=1), False)]
+    fits = [f for f in fits if f[0].split(",")[0] in which]
+    for name, train, test in real_data.splits(utts):
+        if name not in HELDOUT_SPLITS:
+            continue
+        seen = {lab for u in train for lab in u.labels}
+        held: dict[tuple[str, str], float] = {}
+        for label, s, previous in fits:
+            t0 = time.perf_counter()
+            with previous_default() if previous else contextlib.nullcontext():
+                trained = run(s, utterances=train, quiet=True, report=False)
+            wall = time.perf_counter() - t0
+            for ch in s.channels:
+                fit = trained.channels[ch]
+                table, mapped, _ = real_data.predict_channel(s, trained, ch, test, label_map)
+                sc = score_utterances(table, [real_data.masked(m, o, seen) for m, o in zip(mapped, test)], (ch,),
+                                      train=train)
+                fig = {r["model"]: r for r in sc.baseline_rows()}
+                held[label, ch] = float(fig["table"]["rmse_mm"])
+                out.append(f"  {name:11s} {ch:3s} {label:32s} held-out {held[label, ch]:7.3f}  step "
+                           f"{fig['step']['rmse_mm']:6.3f}  in-sample {fit.rmse:.4f}  {fit.nfev:6d} evals "
+                           f"{wall:7.1f} s (both channels)  [{fit.status}]")
+                print(out[-1], flush=True)
+        for ch in spec.channels:
+            for what in which:
+                a, b = [v for (lab, c), v in held.items() if c == ch and lab.startswith(what + ",")]
+                out.append(f"  {name:11s} {ch:3s} {what}: the two fits' held-out RMSE differ by {abs(a - b):.3f} mm")
+                print(out[-1], flush=True)
+    return out
+
+
 def main(parts: Sequence[str]) -> None:
     lines: list[str] = []
     name = "multistart.txt" if set(parts) >= {"synthetic", "german", "workers"} else f"multistart_{'_'.join(parts)}.txt"
@@ -115,11 +203,15 @@ def main(parts: Sequence[str]) -> None:
             lines += compare("German EMA, two utterances, LA and JO (fit/ema_german.toml)", spec, utts, ["LA", "JO"])
         elif part == "workers":
             lines += workers()
+        elif part == "heldout":
+            lines += heldout()
+        elif part.startswith("heldout-"):  # one kind of fit only, e.g. heldout-default (the run is long)
+            lines += heldout([part.removeprefix("heldout-").replace("-", " ")])
         else:
-            raise SystemExit(f"unknown part {part!r} (synthetic, german, workers)")
+            raise SystemExit(f"unknown part {part!r} (synthetic, german, workers, heldout)")
         save()
     print(f"saved bench/results/{name}")
 
 
 if __name__ == "__main__":
-    main(sys.argv[1:] or ["synthetic", "workers", "german"])
+    main(sys.argv[1:] or ["synthetic", "workers", "german", "heldout"])

@@ -32,6 +32,7 @@ tests/python/test_bench_real_data.py. Output in bench/results/real_data.txt:
 from __future__ import annotations
 
 import argparse
+import copy
 import dataclasses
 import json
 import math
@@ -49,6 +50,7 @@ from baselines_german import halves  # noqa: E402
 from generalisation import VARIANTS, shrink_options  # noqa: E402
 
 from coartic.fit import load_spec, run  # noqa: E402
+from coartic.fit.baselines import Baselines  # noqa: E402
 from coartic.fit.data import load_utterances  # noqa: E402
 from coartic.model import Utterance  # noqa: E402
 from coartic.fit.result import FitResult  # noqa: E402
@@ -63,8 +65,17 @@ from coartic.table import PARAMETERS  # noqa: E402
 TAT = ("target", "alpha", "theta_bw", "theta_fw")
 FREEDOM: dict[str, tuple[str, ...]] = {
     "tat": TAT, "tat+k_r": (*TAT, "k_r"), "tat+k_r+c": (*TAT, "k_r", "c_bw", "c_fw"), "all": PARAMETERS,
+    # targets per phoneme, one theta_bw and one theta_fw shared by every phoneme ([parameters] shared; alpha = 1)
+    "t+shared": ("target", "theta_bw", "theta_fw"),
+    # targets only (alpha = 1, theta at its start): the fewest parameters a coarticulation model has
+    "t": ("target",),
 }
-REGULARISATION = ("none", "shrink")
+SHARED = {"t+shared": ("theta_bw", "theta_fw")}
+# "none"; "shrink" (the dynamics toward class means); "tprior:SD": every target toward the training
+# data's own mean of its phoneme (the step model's value) with sd SD mm; "tprior-cv": that sd chosen
+# by cross-validation inside the training data (TPRIOR_GRID; folds: the training utterances' halves in time)
+REGULARISATION = ("none", "shrink", "tprior-cv")
+TPRIOR_GRID = (0.03, 0.1, 0.3, 1.0, 3.0)
 # sd of every [[shrink]] (log units for alpha and theta, natural for c and k_r). Not chosen by
 # [choose]: each training set here has one utterance (leave one out) or two halves, too few groups
 # to cross-validate over (coartic.fit.guards says so); 0.3 is the middle of generalisation.py's grid.
@@ -90,15 +101,126 @@ CORPORA = (
 
 
 def cell_spec(base: FitSpec, variant: str, freedom: Sequence[str], reg: str, starts: int | None = None) -> FitSpec:
-    """``base`` with the variant's model options, these free parameters and this regularisation."""
-    spec = base.with_options(**VARIANTS[variant], free=tuple(freedom))
+    """``base`` with the variant's model options, these free parameters (some shared by every
+    phoneme: SHARED) and this regularisation; the product's own spec fields, so what is measured is
+    what a spec with these settings fits. A "tprior:SD" sets [parameters] target_prior = SD; for
+    "tprior-cv" ``evaluate_cell`` chooses SD per channel."""
+    model = {"dominance": "centre", "handover": False, **VARIANTS[variant]}
+    spec = base.with_options(**model, free=tuple(freedom), shared=SHARED.get(freedom_name(freedom), ()),
+                             target_prior=None)
     if starts is not None and hasattr(spec, "starts"):
         spec = spec.with_options(starts=starts)
+    sd = tprior_sd(reg)
     if reg == "shrink":
         spec = spec.with_options(**shrink_options(spec, SHRINK_SD, None))
-    elif reg != "none":
-        raise ValueError(f"unknown regularisation {reg!r} (known: {', '.join(REGULARISATION)})")
+    elif isinstance(sd, float):
+        spec = spec.with_options(target_prior=sd)
+    elif reg != "none" and sd is None:
+        raise ValueError(f"unknown regularisation {reg!r} (known: {', '.join(REGULARISATION)}, tprior:SD)")
     return spec
+
+
+def tprior_sd(reg: str) -> float | str | None:
+    """The sd (mm) of a "tprior:SD" regularisation, "cv" for "tprior-cv", None for any other."""
+    if reg == "tprior-cv":
+        return "cv"
+    if reg.startswith("tprior:"):
+        try:
+            sd = float(reg.split(":", 1)[1])
+        except ValueError:
+            return None
+        return sd if sd > 0 and math.isfinite(sd) else None
+    return None
+
+
+def choose_tprior_sd(spec: FitSpec, train: Sequence[Utterance], channel: str, label_map: Any,
+                     unseen: str, grid: Sequence[float] = TPRIOR_GRID) -> tuple[float, list[tuple[float, float]]]:
+    """The target prior's sd by cross-validation inside ``train``: two folds, every training
+    utterance's first half in time -> its second half and the reverse; the sd of the lowest pooled
+    held-out RMSE (ties: the smaller sd, the stronger prior). Returns (sd, [(sd, cv RMSE)])."""
+    first, second = zip(*(halves(u) for u in train))
+    curve = []
+    for sd in grid:
+        sse, n = 0.0, 0
+        for a, b in ((list(first), list(second)), (list(second), list(first))):
+            got = fit_and_score(spec.with_options(target_prior=sd), a, b, channel, label_map, unseen)
+            sse += got["table"] ** 2 * got["samples"]
+            n += got["samples"]
+        curve.append((sd, math.sqrt(sse / n) if n else math.inf))
+    best = min(curve, key=lambda c: (round(c[1], 9), c[0]))
+    return best[0], curve
+
+
+def fit_and_score(spec: FitSpec, train: Sequence[Utterance], test: Sequence[Utterance], channel: str,
+                  label_map: Any, unseen: str, trained: FitResult | None = None) -> dict[str, Any]:
+    """Fit ``spec`` (one channel) on ``train`` (or take its fit ``trained``), predict ``test``; the
+    table's and baselines' RMSE on the samples of the phonemes ``train`` has (raw and offset
+    removed), and how it went."""
+    if trained is None:
+        trained = run(spec, utterances=list(train), quiet=True, report=False)
+    seen = {lab for u in train for lab in u.labels}
+    fit = trained.channels[channel]
+    table, mapped, notes = predict_channel(spec, trained, channel, test, label_map, unseen, train)
+    scored = [masked(m, o, seen) for m, o in zip(mapped, test)]
+    out: dict[str, Any] = {"in_sample": fit.rmse, "status": fit.status, "notes": notes}
+    # every figure twice: on all scored samples, and without each test utterance's last segment
+    # (on the German EMA a final /n/ that runs 1.3-1.8 s to the end of the file: mostly rest)
+    for suffix, test_set in (("", scored), ("_nolast", [drop_last(u) for u in scored])):
+        sc = score_utterances(table, test_set, (channel,), train=train)
+        fig = {r["model"]: r for r in sc.baseline_rows()}
+        out[f"samples{suffix}"] = int(fig["table"]["samples"])
+        out.update({f"{m}{off}{suffix}": float(fig[m][key]) for m in ("table", "constant", "step")
+                    for off, key in (("", "rmse_mm"), ("_off", "rmse_offset_removed_mm"))})
+        if not suffix:
+            out["segments"] = segment_losses(sc, channel, test)
+    return out
+
+
+def segment_losses(sc: Any, channel: str, test: Sequence[Utterance]) -> list[list[Any]]:
+    """Per scored test segment: [utterance, segment index, phoneme, samples, table RMSE, step RMSE,
+    table SSE - step SSE (mm^2)]: where the table loses to (> 0) or beats the step model."""
+    out = []
+    for k, u in enumerate(test):
+        rt = sc.residuals(channel, k)
+        rs = sc.residuals(channel, k, predicted=sc.baselines["step"][channel])
+        seg = u.sample_segments()
+        for i, lab in enumerate(u.labels):
+            m = (seg == i) & np.isfinite(rt)
+            if m.any():
+                out.append([u.name.replace("dfgspp_mo1_prosody_", "").replace("_ema", ""), i, lab, int(m.sum()),
+                            float(np.sqrt(np.mean(rt[m] ** 2))), float(np.sqrt(np.mean(rs[m] ** 2))),
+                            float(np.sum(rt[m] ** 2) - np.sum(rs[m] ** 2))])
+    return out
+
+
+def loss_lines(rows: Sequence[dict[str, Any]], worst: int = 3) -> list[str]:
+    """Where each cell loses to the step model: its share of the scored samples and of the table's
+    excess squared error in each test utterance's last segment, and the ``worst`` segments."""
+    out = [f"{'variant':11s} {'freedom':9s} {'reg':10s} {'split':11s} {'ch':3s} {'dSSE':>8s} {'last seg':>9s} "
+           f"{'of n':>6s}  worst segments (utterance #index /phoneme/ samples: table vs step RMSE, dSSE)"]
+    for r in rows:
+        segs = r.get("segments")
+        if not segs:
+            continue
+        total = sum(x[6] for x in segs)
+        last = {}
+        for x in segs:
+            last[x[0]] = x if x[1] >= last.get(x[0], x)[1] else last[x[0]]
+        d_last = sum(x[6] for x in last.values())
+        n_last = sum(x[3] for x in last.values())
+        top = sorted(segs, key=lambda x: -x[6])[:worst]
+        out.append(f"{r['variant']:11s} {r['freedom']:9s} {r['reg']:10s} {r['split']:11s} {r['channel']:3s} "
+                   f"{total:8.0f} {d_last:9.0f} {n_last / r['samples']:6.0%}  "
+                   + "; ".join(f"{x[0]} #{x[1]} /{x[2]}/ {x[3]}: {x[4]:.2f} vs {x[5]:.2f}, {x[6]:+.0f}" for x in top))
+    return out
+
+
+def drop_last(u: Utterance) -> Utterance:
+    """``u`` with the samples of its last non-pause segment not scored."""
+    last = max(i for i, lab in enumerate(u.labels) if lab != "#")
+    keep = u.sample_segments() != last
+    return Utterance(u.labels, u.starts, u.ends, u.times, u.name, u.observed,
+                     {c: v & keep for c, v in u.valid.items()}, u.meta)
 
 
 def splits(utts: Sequence[Utterance], which: Sequence[str] = ("loo", "time")) -> list[tuple[str, list[Utterance], list[Utterance]]]:
@@ -123,21 +245,38 @@ def masked(test: Utterance, original: Utterance, keep_labels: set[str]) -> Utter
 
 
 def predict_channel(spec: FitSpec, trained: FitResult, channel: str, test: Sequence[Utterance],
-                    label_map: Any) -> tuple[Any, list[Utterance], list[str]]:
+                    label_map: Any, unseen: str = "transfer",
+                    train: Sequence[Utterance] = ()) -> tuple[Any, list[Utterance], list[str]]:
     """The table that predicts ``test`` on ``channel``, the test utterances as it reads them, and
-    notes: trained phonemes as fitted, unseen ones by class fallback, the rest transferred."""
+    notes: trained phonemes as fitted, unseen ones by class fallback; those with no fallback trained
+    either fitted on the test data with every trained phoneme fixed (``unseen="transfer"``), or
+    given the step model's fallback (``"constant"``: target = the training mean of the channel,
+    dynamics = the median over the trained phonemes; nothing is taken from the test data)."""
     fit = trained.channels[channel]
     table = trained.table()
     mapped, note = with_fallbacks(test, table, (channel,), label_map)
     notes = [note] if note else []
     known = set(fit.phonemes)
-    unseen = sorted({lab for u in mapped for lab in u.labels} - known)
-    if not unseen:
+    missing = sorted({lab for u in mapped for lab in u.labels} - known)
+    if not missing:
+        return table, mapped, notes
+    if unseen == "constant":
+        table = copy.deepcopy(table)
+        mean = Baselines.fit(train, (channel,)).constant[channel]
+        typical = {par: float(np.median(fit.params[:, j])) for j, par in enumerate(PARAMETERS)}
+        for p in missing:
+            table.values.setdefault(p, {})[channel] = {**typical, "target": mean}
+        notes.append(f"{channel}: /{' '.join(missing)}/ (no fallback trained) predicted at the training mean "
+                     "with the median dynamics, not scored")
         return table, mapped, notes
     row = {p: i for i, p in enumerate(fit.phonemes)}
     fixes = tuple(Override(phonemes=(p,), channels=(channel,),
                            fixed={par: float(fit.params[row[p], j]) for j, par in enumerate(PARAMETERS)})
                   for p in sorted(known))
+    # a parameter tied across phonemes ("t+shared") keeps its trained shared value for the unseen too
+    tied = {par: float(fit.params[0, PARAMETERS.index(par)]) for par in spec.shared}
+    if tied:
+        fixes += (Override(phonemes=tuple(missing), channels=(channel,), fixed=tied),)
     # the target box must hold the trained targets, which a box from the test data alone may not
     y = np.concatenate([u.observed[channel][u.valid[channel]] for u in mapped])
     targets = fit.params[:, PARAMETERS.index("target")]
@@ -145,34 +284,37 @@ def predict_channel(spec: FitSpec, trained: FitResult, channel: str, test: Seque
            max(float(targets.max()), float(np.nanmax(y)) + spec.target_margin))
     bounds = {**spec.channel_bounds, channel: {**spec.channel_bounds.get(channel, {}), "target": box}}
     tspec = spec.with_options(channels=(channel,), overrides=spec.overrides + fixes, beta=fit.beta, channel_bounds=bounds,
-                              shrinks=tuple(g for g in spec.shrinks if set(g.phonemes) & set(unseen)))
+                              shrinks=tuple(g for g in spec.shrinks if set(g.phonemes) & set(missing)),
+                              shared=(), target_prior=None)
     if hasattr(tspec, "starts"):  # a handful of free parameters: one local fit
         tspec = tspec.with_options(starts=1)
-    notes.append(f"{channel}: /{' '.join(unseen)}/ fitted on the test data (no fallback trained), not scored")
+    notes.append(f"{channel}: /{' '.join(missing)}/ fitted on the test data (no fallback trained), not scored")
     return run(tspec, utterances=list(mapped), quiet=True, report=False).table(), mapped, notes
 
 
 def evaluate_cell(base: FitSpec, utts: Sequence[Utterance], variant: str, freedom: Sequence[str], reg: str,
-                  which: Sequence[str] = ("loo", "time"), starts: int | None = None) -> list[dict[str, Any]]:
+                  which: Sequence[str] = ("loo", "time"), starts: int | None = None,
+                  unseen: str = "constant") -> list[dict[str, Any]]:
     """One cell on every split: a row per (split, channel) with the table's held-out RMSE (raw and
-    offset removed), the constant's and step model's on the same samples, and the in-sample RMSE."""
+    offset removed), the constant's and step model's on the same samples, and the in-sample RMSE.
+    Each channel is fitted on its own (as ``coartic fit`` does), so a target prior can be per channel."""
     spec = cell_spec(base, variant, freedom, reg, starts)
     label_map = resolve_label_map(base.corpus.label_map) if base.corpus.label_map else None
+    sd = tprior_sd(reg)
     rows = []
     for name, train, test in splits(utts, which):
         t0 = time.process_time()
-        trained = run(spec, utterances=train, quiet=True, report=False)
-        seen = {lab for u in train for lab in u.labels}
         for ch in spec.channels:
-            fit = trained.channels[ch]
-            table, mapped, notes = predict_channel(spec, trained, ch, test, label_map)
-            sc = score_utterances(table, [masked(m, o, seen) for m, o in zip(mapped, test)], (ch,), train=train)
-            fig = {r["model"]: r for r in sc.baseline_rows()}
+            one = spec.with_options(channels=(ch,))
+            extra: dict[str, Any] = {}
+            if sd == "cv":
+                chosen, curve = choose_tprior_sd(one, train, ch, label_map, unseen)
+                one = one.with_options(target_prior=chosen)
+                extra = {"tprior_sd": chosen, "cv": curve}
+            got = fit_and_score(one, train, test, ch, label_map, unseen)
             rows.append({"variant": variant, "freedom": freedom_name(freedom), "reg": reg, "split": name,
-                         "channel": ch, "samples": int(fig["table"]["samples"]), "in_sample": fit.rmse,
-                         **{f"{m}{suf}": float(fig[m][key]) for m in ("table", "constant", "step")
-                            for suf, key in (("", "rmse_mm"), ("_off", "rmse_offset_removed_mm"))},
-                         "status": fit.status, "notes": notes})
+                         "channel": ch, "unseen": unseen, "starts": spec.starts, "theta0": spec.start["theta_bw"],
+                         **got, **extra})
         rows[-1]["cpu"] = time.process_time() - t0
     return rows
 
@@ -181,28 +323,40 @@ def freedom_name(freedom: Sequence[str]) -> str:
     return next((k for k, v in FREEDOM.items() if tuple(v) == tuple(freedom)), "+".join(freedom))
 
 
-def pooled(rows: Sequence[dict[str, Any]], key: str) -> float:
-    """RMSE over every scored sample of ``rows`` (each row's RMSE weighted by its samples)."""
-    n = sum(r["samples"] for r in rows)
-    return math.sqrt(sum(r[key] ** 2 * r["samples"] for r in rows) / n) if n else float("nan")
+def pooled(rows: Sequence[dict[str, Any]], key: str, suffix: str = "") -> float:
+    """RMSE over every scored sample of ``rows`` (each row's RMSE weighted by its samples);
+    ``suffix`` "_nolast": the figures without each test utterance's last segment."""
+    rows = [r for r in rows if f"{key}{suffix}" in r]
+    n = sum(r[f"samples{suffix}"] for r in rows)
+    return math.sqrt(sum(r[f"{key}{suffix}"] ** 2 * r[f"samples{suffix}"] for r in rows) / n) if n else float("nan")
+
+
+def cell_key(r: dict[str, Any]) -> tuple[str, str, str, str]:
+    """What makes a cell: variant, freedom, regularisation, and how it was fitted (fallback of unseen
+    phonemes, starts, theta start: rows of earlier runs lack the last two, which were 1 and 40)."""
+    fitted = f"{r.get('unseen', 'transfer')} {r.get('starts', 1)}/{r.get('theta0', 40.0):g}"
+    return r["variant"], r["freedom"], r["reg"], fitted
 
 
 def summary_lines(rows: Sequence[dict[str, Any]]) -> list[str]:
     """Per cell, pooled over splits and channels: held-out raw and -offset RMSE of the table and the
-    baselines, in-sample RMSE, how many (split, channel) pairs beat the step model; best first."""
-    cells: dict[tuple[str, str, str], list[dict[str, Any]]] = {}
+    baselines, in-sample RMSE, how many (split, channel) pairs beat the step model, and the table's
+    and step model's RMSE without each test utterance's last segment; best first."""
+    cells: dict[tuple[str, str, str, str], list[dict[str, Any]]] = {}
     for r in rows:
-        cells.setdefault((r["variant"], r["freedom"], r["reg"]), []).append(r)
+        cells.setdefault(cell_key(r), []).append(r)
     ranked = sorted(cells.items(), key=lambda kv: pooled(kv[1], "table"))
-    out = [f"{'variant':11s} {'freedom':10s} {'reg':7s} {'held-out':>8s} {'-offset':>8s} {'const':>7s} {'-off':>6s} "
-           f"{'step':>6s} {'-off':>6s} {'in-smp':>6s}  beats step (raw/-off)  CPU s  held-out per channel (raw)"]
-    for (v, f, g), rs in ranked:
+    out = [f"{'variant':11s} {'freedom':9s} {'reg':10s} {'unseen starts/θ0':17s} {'held-out':>8s} {'-offset':>8s} {'const':>7s} "
+           f"{'-off':>6s} {'step':>6s} {'-off':>6s} {'in-smp':>6s} beats step (raw/-off) {'nolast':>7s} {'step':>6s}"
+           "  CPU s  held-out per channel (raw)"]
+    for (v, f, g, un), rs in ranked:
         beat = sum(r["table"] < r["step"] for r in rs), sum(r["table_off"] < r["step_off"] for r in rs)
         insample = math.sqrt(np.mean([r["in_sample"] ** 2 for r in rs]))
-        out.append(f"{v:11s} {f:10s} {g:7s} {pooled(rs, 'table'):8.3f} {pooled(rs, 'table_off'):8.3f} "
+        out.append(f"{v:11s} {f:9s} {g:10s} {un:17s} {pooled(rs, 'table'):8.3f} {pooled(rs, 'table_off'):8.3f} "
                    f"{pooled(rs, 'constant'):7.3f} {pooled(rs, 'constant_off'):6.3f} {pooled(rs, 'step'):6.3f} "
-                   f"{pooled(rs, 'step_off'):6.3f} {insample:6.3f}  {beat[0]}/{len(rs)} {beat[1]}/{len(rs)}"
-                   f"{sum(r.get('cpu', 0.0) for r in rs):13.0f}  "
+                   f"{pooled(rs, 'step_off'):6.3f} {insample:6.3f} {beat[0]}/{len(rs)} {beat[1]}/{len(rs)}"
+                   f"{pooled(rs, 'table', '_nolast'):17.3f} {pooled(rs, 'step', '_nolast'):6.3f}"
+                   f"{sum(r.get('cpu', 0.0) for r in rs):7.0f}  "
                    + " ".join(f"{ch} {pooled([r for r in rs if r['channel'] == ch], 'table'):.3f}"
                               for ch in dict.fromkeys(r["channel"] for r in rs)))
     if len(ranked) > 1:
@@ -217,13 +371,17 @@ def summary_lines(rows: Sequence[dict[str, Any]]) -> list[str]:
 
 
 def row_line(r: dict[str, Any]) -> str:
-    return (f"{r['variant']:11s} {r['freedom']:10s} {r['reg']:7s} {r['split']:11s} {r['channel']:4s}"
-            f"{r['table']:7.3f}{r['table_off']:8.3f}{r['constant']:7.3f}{r['constant_off']:7.3f}{r['step']:7.3f}"
-            f"{r['step_off']:7.3f}{r['in_sample']:8.3f}{r['samples']:6d}  {r['status']}")
+    sd = f"  sd {r['tprior_sd']:g}" if "tprior_sd" in r else ""
+    last = (f"{r['table_nolast']:8.3f}{r['step_nolast']:7.3f}{r['samples_nolast']:6d}" if "table_nolast" in r
+            else f"{'':21s}")
+    return (f"{r['variant']:11s} {r['freedom']:9s} {r['reg']:10s} {r.get('unseen', 'transfer'):8s} {r['split']:11s} "
+            f"{r['channel']:4s}{r['table']:7.3f}{r['table_off']:8.3f}{r['constant']:7.3f}{r['constant_off']:7.3f}"
+            f"{r['step']:7.3f}{r['step_off']:7.3f}{r['in_sample']:8.3f}{r['samples']:6d}{last}  {r['status']}{sd}")
 
 
-ROW_HEADER = (f"{'variant':11s} {'freedom':10s} {'reg':7s} {'split':11s} {'ch':4s}{'table':>7s}{'-off':>8s}"
-              f"{'const':>7s}{'-off':>7s}{'step':>7s}{'-off':>7s}{'in-smp':>8s}{'n':>6s}  status")
+ROW_HEADER = (f"{'variant':11s} {'freedom':9s} {'reg':10s} {'unseen':8s} {'split':11s} {'ch':4s}{'table':>7s}{'-off':>8s}"
+              f"{'const':>7s}{'-off':>7s}{'step':>7s}{'-off':>7s}{'in-smp':>8s}{'n':>6s}{'nolast':>8s}{'step':>7s}"
+              f"{'n':>6s}  status")
 
 
 def main() -> int:
@@ -234,6 +392,12 @@ def main() -> int:
     ap.add_argument("--channels", default="LA,JO")
     ap.add_argument("--splits", default="loo,time")
     ap.add_argument("--starts", type=int, default=None, help="[fit] starts of every fit (default: the spec default)")
+    ap.add_argument("--theta-start", type=float, default=None,
+                    help="start of theta_bw and theta_fw (default: the corpus spec's): is the fit start-independent?")
+    ap.add_argument("--losses", action="store_true", help="also print where each cell loses to the step model")
+    ap.add_argument("--unseen", default="constant", choices=("transfer", "constant"),
+                    help="test phonemes with no class fallback trained: fitted on the test data (transfer) or "
+                         "predicted at the training mean, as the step model does (constant)")
     ap.add_argument("--out", type=Path, default=ROOT / "bench" / "results" / "real_data.txt")
     ap.add_argument("--merge", type=Path, nargs="+", metavar="TXT",
                     help="only merge earlier runs' outputs (parts of the grid run side by side) into --out")
@@ -243,6 +407,8 @@ def main() -> int:
     variants, freedoms, regs = a.variants.split(","), a.freedom.split(","), a.reg.split(",")
     for what, got, known in (("variants", variants, VARIANT_NAMES), ("freedom", freedoms, tuple(FREEDOM)),
                              ("reg", regs, REGULARISATION)):
+        if what == "reg":
+            got = [g for g in got if tprior_sd(g) is None]
         if set(got) - set(known):
             ap.error(f"--{what}: unknown {sorted(set(got) - set(known))} (known: {', '.join(known)})")
     a.out.parent.mkdir(parents=True, exist_ok=True)
@@ -252,17 +418,20 @@ def main() -> int:
     all_rows: list[dict[str, Any]] = []
     for corpus in CORPORA:
         base = load_spec(corpus.spec).with_options(channels=tuple(a.channels.split(",")))
+        if a.theta_start is not None:
+            base = base.with_options(start={**base.start, "theta_bw": a.theta_start, "theta_fw": a.theta_start})
         starts = a.starts if a.starts is not None else getattr(base, "starts", 1)
         utts = load_utterances(base)
         lines += [f"## {corpus.name}: {corpus.spec.relative_to(ROOT)}, channels {a.channels}; source {corpus.source}; "
-                  f"licence {corpus.licence}", f"fits: [fit] starts = {starts}; shrink sd = {SHRINK_SD} when on",
+                  f"licence {corpus.licence}", f"fits: [fit] starts = {starts}; theta start {base.start['theta_bw']:g}; shrink sd = {SHRINK_SD} when on; nolast: without each test "
+                  "utterance's last segment",
                   ROW_HEADER]
         print("\n".join(lines), flush=True)
         rows: list[dict[str, Any]] = []
         for v in variants:
             for f in freedoms:
                 for g in regs:
-                    got = evaluate_cell(base, utts, v, FREEDOM[f], g, a.splits.split(","), a.starts)
+                    got = evaluate_cell(base, utts, v, FREEDOM[f], g, a.splits.split(","), a.starts, a.unseen)
                     for r in got:
                         lines.append(row_line(r))
                         print(lines[-1], flush=True)
@@ -273,6 +442,10 @@ def main() -> int:
         all_rows += rows
         notes = sorted({n for r in rows for n in r["notes"]})
         lines += [f"note: {n}" for n in notes]
+        if a.losses:
+            lines += ["", "## where the tables lose to the step model: dSSE = table SSE - step SSE (mm^2) over the "
+                      "scored samples; 'last seg': the part of it in each test utterance's last segment, 'of n' "
+                      "that segment's share of the samples", *loss_lines(rows)]
         lines += ["", f"## summary, {corpus.name}: pooled over splits and channels, best held-out (raw) first",
                   *summary_lines(rows), ""]
     lines.append(f"({time.perf_counter() - t0:.0f} s wall, {time.process_time() - c0:.0f} s CPU of this process)")
@@ -286,7 +459,12 @@ def main() -> int:
 
 def merge(parts: Sequence[Path], out: Path) -> int:
     """One output from runs of parts of the grid: their texts, then the summary of all their rows."""
-    rows = [r for p in parts for r in json.loads(p.with_suffix(".json").read_text(encoding="utf-8"))]
+    rows, seen = [], set()
+    for p in parts:  # a cell run in two parts counts once (the first part's rows)
+        for r in json.loads(p.with_suffix(".json").read_text(encoding="utf-8")):
+            if (cell_key(r), r["split"], r["channel"]) not in seen:
+                seen.add((cell_key(r), r["split"], r["channel"]))
+                rows.append(r)
     lines = [line for p in parts for line in p.read_text(encoding="utf-8").splitlines()]
     lines += ["", "## summary of all the parts above: pooled over splits and channels, best held-out (raw) first",
               *summary_lines(rows)]

@@ -13,8 +13,9 @@ channels), or the path of a manifest CSV, read as a fit spec's ``[corpus] manife
 >>> from coartic import Coarticulation
 >>> from coartic.fit.simulate import vcv_utterances   # /aCa/, /iCi/ made by the model, 0.1 mm noise
 >>> trials = vcv_utterances(np.random.default_rng(0), repetitions=2)
->>> model = Coarticulation(variant="modified", channels=["LLO"], staging=False,
-...                        free=["target", "alpha", "theta_bw", "theta_fw", "k_r"])
+>>> model = Coarticulation(variant="modified", dominance="centre", handover=False,   # the model they are made with
+...                        channels=["LLO"], staging=False, free=["target", "alpha", "theta_bw", "theta_fw", "k_r"],
+...                        spec={"parameters": {"target_prior": "none"}})
 >>> sorted(model.fit(trials[::2]).table_.phonemes)
 ['#', 'a', 'i', 'l', 'p', 't']
 >>> round(model.score(trials[1::2]), 2)   # RMSE (mm) on the trials it did not see

@@ -38,7 +38,10 @@ FIT_SPEC = """name = "tiny"
 manifest = "unused.csv"   # replaced by the batch's groups
 [model]
 channels = ["LLO", "JO"]
+dominance = "centre"      # the paper's model, which the synthetic speakers are made with
+handover = false
 [parameters]
+target_prior = "none"
 free = ["target", "alpha", "theta_bw", "theta_fw", "k_r"]
 [staging]
 enabled = false

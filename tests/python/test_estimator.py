@@ -12,7 +12,11 @@ from coartic.fit import run
 from coartic.fit.simulate import vcv_utterances
 from coartic.errors import SpecError
 
+from fit_helpers import PAPER_TOML
+
 FREE = ["target", "alpha", "theta_bw", "theta_fw", "k_r"]
+# the paper's model, which the synthetic trials are made with (fit_helpers.PAPER)
+PAPER_KW: dict = {"dominance": "centre", "handover": False, "spec": {"parameters": {"target_prior": "none"}}}  # type: ignore[type-arg]
 
 
 @pytest.fixture(scope="module")
@@ -22,7 +26,7 @@ def trials() -> list:  # type: ignore[type-arg]
 
 @pytest.fixture(scope="module")
 def fitted(trials: list) -> Coarticulation:  # type: ignore[type-arg]
-    return Coarticulation(channels=["LLO"], staging=False, free=FREE).fit(trials[::2])
+    return Coarticulation(channels=["LLO"], staging=False, free=FREE, **PAPER_KW).fit(trials[::2])
 
 
 def test_fit_is_coartic_fit_run_bit_for_bit(fitted: Coarticulation, trials: list) -> None:  # type: ignore[type-arg]
@@ -82,11 +86,11 @@ def test_trials_from_a_manifest_and_a_spec_file(tmp_path) -> None:  # type: igno
     from coartic.synthetic_cli import load_generator
 
     manifest = load_generator().generate(tmp_path / "session", quick=True, progress=False, consonants=["p"])
-    model = Coarticulation(channels=["LLO"], staging=False, free=FREE).fit(manifest)
+    model = Coarticulation(channels=["LLO"], staging=False, free=FREE, **PAPER_KW).fit(manifest)
     assert model.result_ is not None and model.result_.channels["LLO"].rmse < 0.3
     assert model.score(manifest) == pytest.approx(model.result_.channels["LLO"].rmse, rel=1e-9)
     spec = tmp_path / "spec.toml"
-    spec.write_text(f'[corpus]\nmanifest = "{manifest}"\n[model]\nchannels = ["LLO"]\n[parameters]\n'
-                    f'free = {FREE!r}\n[staging]\nenabled = false\n'.replace("'", '"'))
+    spec.write_text(f'[corpus]\nmanifest = "{manifest}"\n[model]\nchannels = ["LLO"]\n{PAPER_TOML[0]}[parameters]\n'
+                    f'{PAPER_TOML[1]}free = {FREE!r}\n[staging]\nenabled = false\n'.replace("'", '"'))
     again = Coarticulation.from_spec(spec).fit(None)
     assert again.table_ is not None and model.table_ is not None and again.table_.values == model.table_.values

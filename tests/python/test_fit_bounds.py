@@ -23,6 +23,8 @@ from coartic.model import Utterance
 from coartic.report.html import write_report
 from coartic.table import PARAMETERS
 
+from fit_helpers import paper
+
 K = {p: i for i, p in enumerate(PARAMETERS)}
 ROW = {p: i for i, p in enumerate(PHONEMES)}
 
@@ -33,7 +35,7 @@ def spec(tmp: Path, free: list[str], parameters: dict[str, Any] | None = None,
                            "parameters": {"free": free, **(parameters or {})}, "staging": {"enabled": False}}
     if override:
         raw["override"] = override
-    return parse_spec(raw, tmp / "spec.toml")
+    return parse_spec(paper(raw), tmp / "spec.toml")
 
 
 def utterances(seed: int, params: np.ndarray = TRUTH) -> list[Utterance]:

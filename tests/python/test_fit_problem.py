@@ -14,10 +14,12 @@ from coartic.errors import SpecError
 from coartic.fit.spec import parse_spec
 from coartic.table import PARAMETERS
 
+from fit_helpers import paper
+
 
 def spec(**parameters: object):  # type: ignore[no-untyped-def]
     raw = {"corpus": {"files": ["x"], "labels": ["y"]}, "model": {"channels": ["LLO"]}, **parameters}
-    return parse_spec(raw, Path("/tmp/test_spec.toml"))
+    return parse_spec(paper(raw), Path("/tmp/test_spec.toml"))
 
 
 @pytest.fixture(scope="module")

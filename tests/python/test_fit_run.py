@@ -15,6 +15,8 @@ from coartic.fit import run
 from coartic.fit.spec import load_spec
 from coartic.table import ParameterTable
 
+from fit_helpers import PAPER_TOML
+
 ROOT = Path(__file__).resolve().parents[2]
 
 
@@ -35,8 +37,8 @@ manifest = "{quick_session / 'manifest.csv'}"
 select = {{ consonant = ["p", "f", "t"] }}
 [model]
 channels = ["LLO"]
-[parameters]
-free = ["target", "alpha", "theta_bw", "theta_fw", "c_bw", "c_fw", "k_r", "delta"]
+{PAPER_TOML[0]}[parameters]
+{PAPER_TOML[1]}free = ["target", "alpha", "theta_bw", "theta_fw", "c_bw", "c_fw", "k_r", "delta"]
 [[override]]
 phonemes = ["a", "p", "b", "m"]
 free = ["sigma", "psi"]

@@ -15,7 +15,8 @@ from fit_helpers import check_problem_derivatives, german_utterance_spec, spec_o
 from coartic import model
 from coartic.cli import app
 from coartic.fit import run
-from coartic.fit.data import manifest_rows
+from coartic.fit.data import load_utterances, manifest_rows
+from coartic.io import DataError
 from coartic.estimation.parameters import ParameterSet
 from coartic.estimation.data import ChannelData
 from coartic.fit.runner import FitFailed, check_overrides
@@ -152,9 +153,33 @@ def test_a_manifest_row_with_missing_cells_names_file_and_line(tmp_path: Path) -
     s = parse_spec({"corpus": {"manifest": "m.csv"}}, tmp_path / "spec.toml")
     with pytest.raises(SpecError, match=r"m\.csv, line 3: 2 cells, the header has 3"):
         manifest_rows(s)
-    m.write_text("file,labels,vowel\na.c3d,,a\n")
-    with pytest.raises(SpecError, match=r"m\.csv, line 2: the 'labels' cell is empty"):
+    m.write_text("file,labels,vowel\n,a.lab,a\n")
+    with pytest.raises(SpecError, match=r"m\.csv, line 2: the 'file' cell is empty"):
         manifest_rows(s)
+
+
+GERMAN = Path(__file__).resolve().parents[1] / "data" / "realdata" / "emu-ema-german"
+
+
+def test_files_that_carry_their_own_labels_need_no_label_file(tmp_path: Path) -> None:
+    bundle = GERMAN / "dfgspp_mo1_prosody_0020_bndl.json"
+    with_files = parse_spec({"corpus": {"files": [str(bundle)], "label_map": "german_sampa"},
+                             "model": {"channels": ["LA"]}}, tmp_path / "spec.toml")
+    m = tmp_path / "m.csv"
+    m.write_text(f"file,labels,stimulus\n{bundle},,s20\n")  # an empty labels cell: the file's own
+    in_manifest = parse_spec({"corpus": {"manifest": "m.csv", "label_map": "german_sampa"},
+                              "model": {"channels": ["LA"]}}, tmp_path / "spec.toml")
+    for s in (with_files, in_manifest):
+        assert manifest_rows(s)[0]["labels"] is None
+        (u,) = load_utterances(s)
+        assert len(u.labels) > 20 and u.labels[0] == "#" and np.all(np.diff(u.starts) > 0)
+    # a file without labels of its own is named, with the way out
+    csv_file = GERMAN / "derived" / "dfgspp_mo1_prosody_0020_ema.csv"
+    bare = parse_spec({"corpus": {"files": [str(csv_file)]}, "model": {"channels": ["LA"]}}, tmp_path / "spec.toml")
+    with pytest.raises(DataError, match=r"dfgspp_mo1_prosody_0020_ema\.csv: no labels .*carries none of its own"):
+        load_utterances(bare)
+    with pytest.raises(SpecError, match=r"1 label files for 2 data files"):
+        parse_spec({"corpus": {"files": [str(bundle), str(bundle)], "labels": ["a.lab"]}}, tmp_path / "spec.toml")
 
 
 def test_run_writes_what_the_command_writes_and_the_parameter_set(tmp_path: Path, utts: list[model.Utterance]) -> None:

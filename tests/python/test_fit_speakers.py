@@ -16,13 +16,15 @@ from coartic.errors import SpecError
 from coartic.fit.spec import parse_spec
 from coartic.table import PARAMETERS
 
+from fit_helpers import paper
+
 TARGET = PARAMETERS.index("target")
 
 
 def spec(speakers: str):  # type: ignore[no-untyped-def]
     raw = {"corpus": {"files": ["x"], "labels": ["y"]},
            "model": {"channels": ["LLO"], "speakers": speakers}, "parameters": {"free": ["target", "theta_bw"]}}
-    return parse_spec(raw, Path("/tmp/test_spec.toml"))
+    return parse_spec(paper(raw), Path("/tmp/test_spec.toml"))
 
 
 @pytest.fixture(scope="module")
@@ -216,7 +218,7 @@ def two_speakers():  # type: ignore[no-untyped-def]
 def targets_spec(mode: str = "targets", **sections):  # type: ignore[no-untyped-def]
     raw = {"corpus": {"files": ["x"], "labels": ["y"]}, "model": {"channels": ["LLO"], "speakers": mode},
            "parameters": {"free": ["target", "theta_bw", "k_r"]}, **sections}
-    return parse_spec(raw, Path("/tmp/test_spec.toml"))
+    return parse_spec(paper(raw), Path("/tmp/test_spec.toml"))
 
 
 def test_speaker_targets_gradient_and_recovery(two_speakers) -> None:  # type: ignore[no-untyped-def]

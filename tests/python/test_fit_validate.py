@@ -13,12 +13,14 @@ from coartic.fit.spec import parse_spec
 from coartic.fit.runner import run
 from coartic.fit.validate import splits, validate_all
 
+from fit_helpers import paper
+
 
 def spec(tmp_path: Path, **validate: object):  # type: ignore[no-untyped-def]
     raw = {"corpus": {"files": ["x"], "labels": ["y"]}, "model": {"channels": ["LLO"]},
            "parameters": {"free": ["target", "alpha", "theta_bw", "theta_fw", "k_r"]},
            "staging": {"enabled": False}, "validate": validate}
-    return parse_spec(raw, tmp_path / "spec.toml")
+    return parse_spec(paper(raw), tmp_path / "spec.toml")
 
 
 def test_splits_and_scores(tmp_path: Path) -> None:

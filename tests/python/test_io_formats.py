@@ -21,6 +21,8 @@ from coartic.io import DataError, LabelMap, load_trial, read_labels
 from coartic.io.errors import DataWarning
 from coartic.io.registry import reader_for
 
+from fit_helpers import PAPER_TOML
+
 COLUMNS = {"COLUMNS": "200"}
 
 
@@ -323,8 +325,8 @@ def test_inspect_fit_and_score_read_every_format(files, tmp_path: Path) -> None:
         f"files = {json.dumps([str(files[n][0]) for n in names])}\n"
         f"labels = {json.dumps([str(files[n][1]) for n in names])}\n"
         f'label_map = "{both}"\n'
-        '[model]\nchannels = ["LA", "TTH", "TBA"]\nreference_phoneme = "a"\n'
-        '[parameters]\nfree = ["target", "alpha"]\n')
+        '[model]\nchannels = ["LA", "TTH", "TBA"]\nreference_phoneme = "a"\n' + PAPER_TOML[0] +
+        '[parameters]\nfree = ["target", "alpha"]\n' + PAPER_TOML[1])  # the model the files are made with
     out = tmp_path / "fit"
     r = CliRunner().invoke(app, ["fit", str(spec), "--out", str(out), "--no-report"], env=COLUMNS)
     assert r.exit_code == 0, r.output

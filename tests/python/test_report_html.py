@@ -19,13 +19,15 @@ from coartic.fit.spec import parse_spec
 from coartic.report.html import write_report
 from coartic.table import ParameterTable
 
+from fit_helpers import paper
+
 
 def make_spec(tmp_path: Path, free: list[str]) -> Any:
     raw = {"corpus": {"files": ["x"], "labels": ["y"]}, "model": {"channels": ["LLO"]},
            "parameters": {"free": free}, "staging": {"enabled": False},
            # /p/ reaches its target (k_R = 1 in the truth): a box below that pins it on the bound
            "override": [{"phonemes": ["p"], "bounds": {"k_r": [0.0, 0.8]}}]}
-    return parse_spec(raw, tmp_path / "spec.toml")
+    return parse_spec(paper(raw), tmp_path / "spec.toml")
 
 
 @pytest.fixture(scope="module")

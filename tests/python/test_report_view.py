@@ -29,7 +29,7 @@ window.addEventListener("load", () => {
   b.dataset.firstFigure = fig ? top(fig) : -1;
   const bounds = document.getElementById("bounds");
   b.dataset.bounds = bounds ? top(bounds) : -1;
-  const rows = [...document.querySelectorAll("#bounds ~ table tr")].slice(1);
+  const rows = [...document.querySelectorAll("#bound-table tr")].slice(1);
   b.dataset.boundRows = rows.length;
   b.dataset.tallestBoundRow = Math.max(0, ...rows.map(r => r.getBoundingClientRect().height));
   b.dataset.lineHeight = parseFloat(getComputedStyle(document.querySelector("td")).lineHeight) || 20;

@@ -22,6 +22,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from coartic.estimation.packing import Packing, Prior
+from coartic.estimation.target_prior import target_priors
 from coartic.errors import SpecError
 from coartic.table import N_PARAMS, PARAMETERS
 
@@ -229,7 +230,15 @@ class ParameterSet(Mapping[str, Parameter]):
                     free[i, k] = False
                     base[i, k] = base[leader, k]
                     ties.append((i * N_PARAMS + k, leader * N_PARAMS + k))
+        for name in spec.shared:  # one value per channel: every phoneme where it is free takes the first's
+            k = PARAMETERS.index(name)
+            members = [i for i in range(n) if free[i, k]]
+            for i in members[1:]:
+                free[i, k] = False
+                base[i, k] = base[members[0], k]
+                ties.append((i * N_PARAMS + k, members[0] * N_PARAMS + k))
         priors = expand_priors(spec, ch, tuple(phon), free, spec.fit_beta and spec.variant == "modified")
+        priors.update(target_priors(spec.target_prior, data.utterances, ch, phon, free, priors))
         bad = lower > upper
         if bad.any():
             i, k = map(int, np.argwhere(bad)[0])

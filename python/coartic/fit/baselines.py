@@ -25,6 +25,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from coartic.errors import UsageError
+from coartic.estimation.target_prior import segment_means
 from coartic.model import Utterance
 
 F64 = NDArray[np.float64]
@@ -70,21 +71,13 @@ class Baselines:
         step: dict[str, dict[str, float]] = {}
         for ch in chans:
             tot, n = 0.0, 0
-            acc: dict[str, list[float]] = {}
             for u in train:
                 y = u.observed[ch]
                 ok = u.valid[ch] & np.isfinite(y)
                 tot += float(y[ok].sum())
                 n += int(ok.sum())
-                seg = u.sample_segments()
-                for i, lab in enumerate(u.labels):
-                    m = ok & (seg == i)
-                    if m.any():
-                        a = acc.setdefault(lab, [0.0, 0.0])
-                        a[0] += float(y[m].sum())
-                        a[1] += float(m.sum())
             constant[ch] = tot / n if n else float("nan")
-            step[ch] = {lab: s / k for lab, (s, k) in acc.items()}
+            step[ch] = segment_means(train, ch)
         return cls(chans, constant, step, list(train))
 
     def same_sentence(self, test: Utterance) -> list[Utterance]:

@@ -52,6 +52,8 @@ def set_value(spec: FitSpec, key: str, value: float) -> FitSpec:
         return replace(spec, prior_noise=float(value), choose=None)
     if base == "plateau_fraction":
         return replace(spec, plateau_fraction=float(value), choose=None)
+    if base == "target_prior":
+        return replace(spec, target_prior=float(value), choose=None)
     raise SpecError.at(spec.path, "choose.key", f"{key!r}: not a setting cross-validation can choose")
 
 

@@ -16,12 +16,13 @@ from coartic.io import DataError, load_trial
 from coartic.textfile import TextDecodeError, read_text
 
 
-def manifest_rows(spec: FitSpec) -> list[dict[str, str]]:
+def manifest_rows(spec: FitSpec) -> list[dict[str, str | None]]:
     """The manifest's rows, kept by ``[corpus] select`` and ``limit``; paths made absolute."""
     c = spec.corpus
     if c.manifest is None:
-        rows = [{c.file_column: str(f), "labels": str(lab), "stimulus": f.stem}
-                for f, lab in zip(c.files, c.labels)]
+        labels: Sequence[Path | None] = c.labels or [None] * len(c.files)
+        rows = [{c.file_column: str(f), "labels": None if lab is None else str(lab), "stimulus": f.stem}
+                for f, lab in zip(c.files, labels)]
     else:
         if c.manifest.is_dir():
             raise SpecError.at(spec.path, "corpus.manifest", f"{c.manifest} is a directory: name the manifest "
@@ -34,7 +35,7 @@ def manifest_rows(spec: FitSpec) -> list[dict[str, str]]:
             raise SpecError.at(spec.path, "corpus.manifest", f"{e}") from None
         with io.StringIO(text, newline="") as f:
             reader = csv.DictReader(f)
-            rows = []
+            read: list[dict[str, str]] = []
             lines = []
             for r in reader:
                 # A short row leaves None in its last columns, a long one puts the excess under None:
@@ -44,10 +45,11 @@ def manifest_rows(spec: FitSpec) -> list[dict[str, str]]:
                     n = sum(v is not None for v in r.values()) + len(extra)
                     raise SpecError(f"{c.manifest}, line {reader.line_num}: {n} cells, the header has "
                                     f"{len(reader.fieldnames or [])} ({', '.join(reader.fieldnames or [])})")
-                rows.append(r)
+                read.append(r)
                 lines.append(reader.line_num)
             cols = reader.fieldnames or []
-        for need in (c.file_column, "labels"):
+        # A manifest without a labels column, or with an empty cell, means the data file's own labels.
+        for need in (c.file_column,):
             if need not in cols:
                 raise SpecError.at(spec.path, "corpus", f"manifest {c.manifest} has no column {need!r} "
                                    f"(columns: {', '.join(cols)})")
@@ -56,13 +58,12 @@ def manifest_rows(spec: FitSpec) -> list[dict[str, str]]:
                 raise SpecError.at(spec.path, "corpus.select", f"{k!r} is not a manifest column "
                                    f"(columns: {', '.join(cols)})")
         base = c.manifest.parent
-        for line, r in zip(lines, rows):
-            for need in (c.file_column, "labels"):
-                if not r[need].strip():
-                    raise SpecError(f"{c.manifest}, line {line}: the {need!r} cell is empty")
-        for r in rows:
-            r[c.file_column] = str(base / r[c.file_column])
-            r["labels"] = str(base / r["labels"])
+        for line, r in zip(lines, read):
+            if not r[c.file_column].strip():
+                raise SpecError(f"{c.manifest}, line {line}: the {c.file_column!r} cell is empty")
+        rows = [{**r, c.file_column: str(base / r[c.file_column]),
+                 "labels": str(base / r["labels"]) if (r.get("labels") or "").strip() else None}
+                for r in read]
     rows = [r for r in rows if all(r.get(k, "") in v for k, v in c.select.items())]
     if c.limit is not None:
         rows = rows[: c.limit]
@@ -71,7 +72,7 @@ def manifest_rows(spec: FitSpec) -> list[dict[str, str]]:
     return rows
 
 
-def load_utterances(spec: FitSpec, rows: list[dict[str, str]] | None = None,
+def load_utterances(spec: FitSpec, rows: Sequence[Mapping[str, str | None]] | None = None,
                     progress: Callable[[int, int], None] | None = None) -> list[Utterance]:
     """One Utterance per trial with the spec's channels (gaps filled up to max_gap, longer ones masked)."""
     rows = manifest_rows(spec) if rows is None else rows
@@ -96,7 +97,8 @@ def load_rows(rows: Sequence[Mapping[str, str | None]], channels: Sequence[str],
             raise DataError(f"{e} (trial {i + 1} of {where})") from None
         seg = trial.segments
         if seg is None:
-            raise DataError(f"{path}: no labels (trial {i + 1} of {where}): give its label file")
+            raise DataError(f"{path}: no labels (trial {i + 1} of {where}): the file carries none of its "
+                            "own, give its label file")
         meta = {k: str(v) for k, v in r.items() if k not in (file_column, "labels") and v is not None}
         out.append(Utterance(
             name=meta.get("stimulus", path.stem) + (f"#{meta['repetition']}" if "repetition" in meta else "")

@@ -64,7 +64,8 @@ STATUS_ADVICE = {
                        "(nlopt) or max_iter (casadi); exit status 3",
     "stage-failed": "a stage failed and the next one went on from its best point: try another engine or more "
                     "[fit] starts; exit status 3",
-    "best-found-once": "raise [fit] starts or keep until the best is reached more than once; exit status 3",
+    "best-found-once": "no other start reached a fit as good (within the noise): raise [fit] starts or keep, "
+                       "or fix or tie what the data leave free (fit_report.txt); exit status 3",
 }
 EXIT_UNCONFIRMED = 3  # written, but a limit was reached, a stage failed, or the best optimum was found once
 

@@ -55,10 +55,17 @@ DEFAULT_FIT_BOUNDS: dict[str, tuple[float, float]] = {
     "psi": (10.0, 1e5), "delta": (-0.08, 0.08),
 }
 DEFAULT_BETA_BOUNDS: tuple[float, float] = (0.05, 20.0)
-# [parameters] free of a spec that sets nothing: the freedom with the lowest held-out error on the
-# real recordings we have (bench/real_data.py, docs/REAL_DATA.md); every parameter free fits the
-# training data better and predicts held-out speech worse there.
-DEFAULT_FREE: tuple[str, ...] = ("target", "alpha", "theta_bw", "theta_fw")
+# The model of a spec that sets nothing: the one that beat the step model (each phoneme's mean) held
+# out on the real recordings we have (bench/real_data.py, docs/REAL_DATA.md): the rate-aware
+# dominance (plateau + handover), every phoneme's target free but one theta_bw and one theta_fw per
+# channel shared by every phoneme ([parameters] shared; only when [parameters] free is not given
+# either), and every target drawn toward the data's own mean over that phoneme's segments with sd
+# DEFAULT_TARGET_PRIOR mm ([parameters] target_prior). Per-phoneme dynamics fitted the training data
+# better and predicted held-out speech worse there.
+DEFAULT_FREE: tuple[str, ...] = ("target", "theta_bw", "theta_fw")
+DEFAULT_SHARED: tuple[str, ...] = ("theta_bw", "theta_fw")
+DEFAULT_TARGET_PRIOR: float | None = 0.3
+SPEC_MODEL_DEFAULTS: dict[str, Any] = {"dominance": "plateau", "handover": True}
 DEFAULT_STAGES: tuple[tuple[str, ...], ...] = (
     ("target",),
     ("alpha", "theta_bw", "theta_fw", "c_bw", "c_fw", "delta"),
@@ -73,7 +80,7 @@ LOG_SCALE_PARAMETERS = ("alpha", "theta_bw", "theta_fw", "psi", "beta")
 # Settings ``[choose]`` / ``coartic fit --choose`` may choose by cross-validation, and which end of a
 # grid is the stronger regularisation (the one-standard-error rule moves toward it): -1 smaller values,
 # +1 larger values, 0 no such direction.
-CHOOSABLE: dict[str, int] = {"shrink.sd": -1, "prior_noise": +1, "plateau_fraction": 0}
+CHOOSABLE: dict[str, int] = {"shrink.sd": -1, "prior_noise": +1, "plateau_fraction": 0, "target_prior": -1}
 CHOOSE_RULES: tuple[str, ...] = ("min", "1se")
 
 
@@ -277,6 +284,23 @@ def _priors(v: Any) -> dict[str, tuple[float, float, bool]]:
         except PydanticCustomError as e:
             raise _bad(str(e), (key,)) from None
     return out
+
+
+def _target_prior(v: Any) -> float | None:
+    """``[parameters] target_prior``: "none" (or None), or the prior's sd in mm."""
+    if v is None or v == "none":
+        return None
+    if isinstance(v, bool) or not isinstance(v, (int, float)) or not (math.isfinite(v) and v > 0):
+        raise _bad(f"{v!r}: expected \"none\" or a positive number (the sd in mm of every target around its "
+                   "phoneme's mean in the data)")
+    return float(v)
+
+
+def _shared(v: Any) -> tuple[str, ...]:
+    names = _params(v)
+    if "target" in names:
+        raise _bad("target cannot be shared: one target for every phoneme is the constant model", parameter="target")
+    return names
 
 
 def _offsets(v: Any) -> str | float:
@@ -483,7 +507,7 @@ class Choose:
         if setting is None and any(not math.isfinite(v) or v <= 0 for v in self.values):
             raise _bad(f"{self.key} takes positive numbers, got {list(self.values)}", ("values",))
         if self.rule == "1se" and CHOOSABLE[str(base)] == 0:
-            raise _bad(f"\"1se\" needs a regularisation strength (shrink.sd, prior_noise); {self.key} has no "
+            raise _bad(f"\"1se\" needs a regularisation strength (shrink.sd, prior_noise, target_prior); {self.key} has no "
                        "stronger end: use rule = \"min\"", ("rule",))
         return self
 
@@ -523,8 +547,11 @@ class CorpusSpec:
             raise _bad("give either manifest = 'path/manifest.csv' or files = [...]")
         if self.manifest is not None and self.files:
             raise _bad("give manifest or files, not both")
-        if self.files and len(self.labels) != len(self.files):
-            raise _bad(f"{len(self.labels)} label files for {len(self.files)} data files", ("labels",))
+        # No labels at all: every file carries its own (an EMU bundle, a Haskins .mat); the loader
+        # names the first that does not.
+        if self.files and self.labels and len(self.labels) != len(self.files):
+            raise _bad(f"{len(self.labels)} label files for {len(self.files)} data files (give one per "
+                       "file, or none when every file carries its own labels)", ("labels",))
         return self
 
 
@@ -541,13 +568,18 @@ class FitSpec:
     apex_fraction: Annotated[float, BeforeValidator(_setting("apex_fraction"))] = default("apex_fraction")
     edge_extent: Annotated[float, BeforeValidator(_setting("edge_extent"))] = default("edge_extent")
     # the rate-aware options of docs/MODEL.md §2.1 (defaults: today's model)
-    dominance: Annotated[str, BeforeValidator(_setting("dominance"))] = default("dominance")
+    dominance: Annotated[str, BeforeValidator(_setting("dominance"))] = SPEC_MODEL_DEFAULTS["dominance"]
     plateau_fraction: Annotated[float, BeforeValidator(_setting("plateau_fraction"))] = default("plateau_fraction")
-    handover: Annotated[bool, BeforeValidator(_setting("handover"))] = default("handover")
+    handover: Annotated[bool, BeforeValidator(_setting("handover"))] = SPEC_MODEL_DEFAULTS["handover"]
     beta: Annotated[float, BeforeValidator(_setting("beta"))] = default("beta")
     fit_beta: Flag = False
     beta_bounds: Annotated[tuple[float, float], BeforeValidator(_beta_bounds)] = DEFAULT_BETA_BOUNDS
     free: Parameters = DEFAULT_FREE
+    # free parameters with one value per channel, shared by every phoneme where they are free
+    shared: Annotated[tuple[str, ...], BeforeValidator(_shared)] = DEFAULT_SHARED
+    # sd (mm) of a Gaussian prior drawing every free target toward the mean of the channel over its
+    # phoneme's segments in the fitted data (the step model's value); None: no such prior
+    target_prior: Annotated[float | None, BeforeValidator(_target_prior)] = DEFAULT_TARGET_PRIOR
     start_table: Annotated[Path | None, BeforeValidator(_optional(_path))] = None  # start values from a table JSON
     start: ParamValues = dataclasses.field(default_factory=lambda: dict(DEFAULT_START))
     # Gaussian priors (penalties in least squares): "parameter" (every phoneme) or "phoneme.parameter"
@@ -611,6 +643,10 @@ class FitSpec:
                 raise _bad(f"sets alpha of the reference phoneme {ref!r}, which is fixed at 1 (alpha is "
                            "scale-free); choose another [model] reference_phoneme to fit it", ("overrides", i),
                            phoneme=ref, parameter="alpha")
+        tied = {q for t in self.ties for q in t.parameters} & set(self.shared)
+        if tied:
+            raise _bad(f"{', '.join(sorted(tied))} is both shared by every phoneme and in a [[tie]]: one or the other",
+                       ("shared",))
         if self.keep is not None and self.starts > 1 and self.keep > self.starts:
             raise _bad(f"{self.keep}: more than the {self.starts} starts", ("keep",))
         if self.validate_folds is not None and self.validate_group is None:
@@ -675,7 +711,8 @@ DOCUMENT: dict[str, dict[str, str]] = {
                              "fit_beta", "beta_bounds", "offsets", "dominance", "plateau_fraction", "handover",
                              "speakers", "speaker_column")},
     "parameters": {"free": "free", "start": "start", "start_table": "start_table", "bounds": "bounds",
-                   "target_margin": "target_margin", "prior": "priors", "prior_noise": "prior_noise"},
+                   "target_margin": "target_margin", "prior": "priors", "prior_noise": "prior_noise",
+                   "shared": "shared", "target_prior": "target_prior"},
     "engine": {"name": "engine", "options": "engine_options"},
     "staging": {"enabled": "staging", "stages": "stages"},
     "fit": {k: k for k in ("starts", "seed", "probe", "keep", "include_start")},
@@ -744,6 +781,18 @@ def document_fields(raw: Mapping[str, Any], path: Path) -> dict[str, Any]:
     fields["corpus"] = c
     if "choose" in raw:
         fields["choose"] = raw["choose"]
+    p = raw.get("parameters", {})
+    if isinstance(p, Mapping) and "free" in p and "shared" not in p:
+        # the shared dynamics belong to the default freedom: a spec that lists its own free set keeps
+        # per-phoneme values unless it says shared = [...] too
+        fields["shared"] = ()
+    if isinstance(p, Mapping) and "shared" in p and isinstance(p["shared"], list):
+        frees = [p.get("free", list(DEFAULT_FREE))] + [o.get("free", []) for o in raw.get("override", [])
+                                                       if isinstance(o, Mapping)]
+        freed = {n for f in frees for n in (f if isinstance(f, list) else [f])}
+        if set(p["shared"]) - freed:
+            raise SpecError.at(path, "parameters.shared", f"{', '.join(sorted(set(p['shared']) - freed))} is not "
+                               "free ([parameters] free or an [[override]] free): sharing a fixed value would do nothing")
     if "start_table" in fields:
         fields["start_table"] = _relative(base, fields["start_table"])
     if isinstance(fields.get("start"), Mapping):

@@ -56,7 +56,8 @@ def channel_status(final: EngineResult, stages: Sequence[StageResult], best_foun
             return status, (f"stage {i + 1} ({', '.join(st.parameters)}) ended {st.engine.status}: "
                             f"{st.engine.message}; the next stage went on from its best point")
     if best_found_once:
-        return "best-found-once", "the best optimum was reached by one start only: more starts may find a better one"
+        return "best-found-once", ("the best optimum was reached from one start only (no other ended within the "
+                                   "noise of it): more starts may find a better one")
     return final.status, final.message
 
 
