@@ -294,7 +294,7 @@ def test_chromium_shows_the_tongue_at_t_l_k_and_u_rounded(tmp_path: Path, chromi
     """With the shipped Italian table (tongue channels; /u/ rounded): at the target frames of /t l k/ (/d n/
     and /g/ share their tongue targets), in profile cut along the midline, the tongue shows where a
     still tongue (the same table with every tongue target at rest: same lips, jaw and teeth) does
-    not, and higher up (measured: t 1191 px 21 rows up, l 692 px 17, k 2840 px 30); at /a/ it
+    not, and higher up (measured: t 1197 px 21 rows up, l 692 px 17, k 2840 px 30); at /a/ it
     drops (24 rows down). From the front the lips at /u/ are at most 80 % of their width at rest."""
     table = load_shipped_table()
     doc = table.to_json_dict()
