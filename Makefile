@@ -20,7 +20,7 @@ fit: setup
 # The Italian flavour of the synthetic session (every Italian phoneme): its lip and jaw channels
 # (face markers, fit/italian.toml) and its tongue channels (EMA files, fit/italian_tongue.toml) fitted
 # with held-out checks, checked for recovery, then shipped as one table with its provenance
-# (fit/ship_table.py). About an hour and a half on a busy 2-core machine; the result is committed, so
+# (fit/ship_table.py). About an hour and a quarter on a busy 2-core machine; the result is committed, so
 # only a change of ground_truth_italian.json, session.toml or the two specs calls for it (a test says so).
 table-italian: setup
 	$(PY) -m coartic.cli corpus synth build/italian --flavour italian
