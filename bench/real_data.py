@@ -2,9 +2,11 @@
 (issue 19 item 3; the evidence in docs/REAL_DATA.md).
 
 Each *cell* is a fit spec: a model variant (original, modified, rate-aware = plateau dominance +
-handover, docs/VARIANTS.md), a *freedom* (which per-phoneme parameters are free) and a
-*regularisation* (none, or ``[[shrink]]`` of the free dynamics toward their phonetic class's mean,
-the classes and scales of bench/generalisation.py). Every cell is fitted with the product's own
+handover, docs/VARIANTS.md), a *freedom* (which per-phoneme parameters are free; "t+shared": one
+theta_bw and theta_fw per channel for every phoneme, ``[parameters] shared``) and a
+*regularisation* (none; ``[[shrink]]`` of the free dynamics toward their phonetic class's mean, the
+classes and scales of bench/generalisation.py; "tprior:SD", ``[parameters] target_prior = SD``;
+"tprior-cv", that sd chosen by CV inside the training data). Every cell is fitted with the product's own
 ``coartic.fit.run`` (its global estimation included: the spec's default ``[fit] starts``) and
 scored with ``coartic.fit.score`` next to the baselines of ``coartic.fit.baselines`` (constant =
 training mean, step = each phoneme's training mean) on exactly the same samples:
@@ -14,19 +16,23 @@ training mean, step = each phoneme's training mean) on exactly the same samples:
   training utterance has (pauses excluded; as bench/generalisation.py). To *predict* the held-out
   utterance the model still needs every segment: a phoneme the training lacks takes its phonetic
   class's fallback (the label map's, as ``coartic score`` does); one with none the training has
-  (0024's /u v/ from 0020) is fitted on the held-out utterance with every trained phoneme fixed
-  ("transfer", bench/generalisation.py) -- its own segments are not scored;
+  (0024's /u v/ from 0020) gets the step model's own fallback, the training mean (``--unseen
+  constant``, the default), or is fitted on the held-out utterance with every trained phoneme fixed
+  (``--unseen transfer``, bench/generalisation.py) -- its own segments are not scored;
 - **split in time**: every utterance cut at its middle segment (bench/baselines_german.py's
   ``halves``); fit the first halves together, predict the second halves, scored likewise on the
   segments whose phonemes the first halves have.
 
 In-sample RMSE is the training RMSE of the same fits. The raw RMSE is as measured; "-offset" removes
-each test utterance's mean residual (a recording's rest reference is estimated once per utterance).
+each test utterance's mean residual (a recording's rest reference is estimated once per utterance);
+"nolast" is every figure again without each test utterance's last segment, and ``--losses`` prints
+where each table loses to the step model, segment by segment.
 
 Not part of `make test` (CPU minutes); its core, ``evaluate_cell``, is tested on a tiny case in
-tests/python/test_bench_real_data.py. Output in bench/results/real_data.txt:
+tests/python/test_bench_real_data.py. Output in bench/results/real_data.txt (the parts of the grid
+that were run, and their commands: docs/REAL_DATA.md):
 
-    nice -n 10 .venv/bin/python bench/real_data.py
+    nice -n 10 .venv/bin/python bench/real_data.py --variants rate-aware --freedom t+shared --reg tprior:0.3 --starts 1
 """
 
 from __future__ import annotations
