@@ -12,6 +12,9 @@ Gaussian noise and occasional occlusions. All settings are in ``session.toml`` n
 
 ``--flavour italian`` covers every Italian phoneme: all seven vowels /i e E a O o u/ in VCV, CV and
 VC contexts with every consonant (``session.toml [italian]``), from ``ground_truth_italian.json``.
+Its truth also has the tongue channels TTH TTA TBH TBA, which a face-marker set cannot carry, so
+each of its trials is written a second time as an EMA recording (``ema/<trial>.csv``: the lips,
+the jaw and two tongue sensors, head-corrected as EMA systems deliver them; ``session.toml [ema]``).
 
 Each trial draws from its own random stream, seeded by (seed, vowel, consonant, rate, repetition):
 a trial is the same whether it is generated in the full session or in a ``--quick`` one.
@@ -40,7 +43,7 @@ from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, T
 from scipy.spatial.transform import Rotation
 
 from coartic.model import trajectories
-from coartic.table import CHANNELS, PAUSE, ParameterTable
+from coartic.table import CHANNELS, PAUSE, TONGUE_CHANNELS, ParameterTable
 
 HERE = Path(__file__).resolve().parent
 FLAVOURS: tuple[str, ...] = ("model", "gestures", "italian")
@@ -51,6 +54,8 @@ CONTEXTS: tuple[str, ...] = ("VCV", "CV", "VC")
 
 F64 = npt.NDArray[np.float64]
 MARKERS: tuple[str, ...] = ("NOSE", "EAR_L", "EAR_R", "UL", "LL", "LC_L", "LC_R", "CHIN")
+# The EMA recording of the Italian flavour: sensors named as EMA labs name them (docs/DATA.md).
+EMA_SENSORS: tuple[str, ...] = ("UL", "LL", "JAW", "TT", "TB")
 RATES: tuple[str, ...] = ("normal", "fast")
 MANIFEST_COLUMNS: tuple[str, ...] = (
     "file", "labels", "stimulus", "vowel", "consonant", "repetition", "rate",
@@ -107,6 +112,7 @@ class Trial:
     markers: F64  # [F, 8, 3] lab frame, noise and NaN dropouts
     dropouts: list[tuple[str, int, int]]  # (marker, first frame, n frames)
     y0_offset: float  # how far §6's y_0 (mean over the first pause) lies from the rest line, mm
+    ema: F64 | None = None  # [F, 5, 3] EMA sensors (EMA_SENSORS; x lateral, y backwards, z up), noisy
 
 
 # ----------------------------------------------------------------------------- settings
@@ -245,6 +251,34 @@ def place_markers(settings: dict[str, Any], channels: dict[str, F64], jaw_rest: 
     return m
 
 
+def place_ema_sensors(settings: dict[str, Any], channels: dict[str, F64], jaw_rest: float) -> F64:
+    """EMA sensors [F, 5, 3] (EMA_SENSORS) whose docs/DATA.md channels are ``channels``.
+
+    Head-corrected, as EMA systems deliver them, in the axes of an EMA CSV: x lateral, y backwards,
+    z up (forwards = -y). The lip sensors sit on the vermilion, ``lip_sensor_offset`` above and below
+    the face markers (y_0 is their mean, so ULO and LLO come back);
+    the jaw sensor on the lower incisors drops as JO grows; the tongue sensors sit at their rest
+    positions (``[ema]``) moved by the tongue channels, up and forwards.
+    """
+    g, e = settings["geometry"], settings["ema"]
+    n = len(channels["ULO"])
+    zero = np.zeros(n)
+
+    def at(up: F64, forwards: F64) -> F64:
+        return np.stack([zero, -forwards, up], axis=1)
+
+    y0 = g["lip_line_y"]
+    tt, tb, jaw = e["tongue_tip_rest"], e["tongue_body_rest"], e["jaw_rest"]  # [up, forwards] head frame
+    lip = e["lip_sensor_offset"]  # on the vermilion, above and below the rest line (ULO, LLO keep y_0)
+    return np.stack([
+        at(y0 + lip + channels["ULO"], channels["ULP"]),
+        at(y0 - lip - channels["LLO"], channels["LLP"]),
+        at(jaw[0] - (channels["JO"] - jaw_rest), np.full(n, jaw[1])),
+        at(tt[0] + channels["TTH"], tt[1] + channels["TTA"]),
+        at(tb[0] + channels["TBH"], tb[1] + channels["TBA"]),
+    ], axis=1)
+
+
 def head_pose(settings: dict[str, Any], times: F64, rng: np.random.Generator) -> tuple[F64, F64]:
     """Rotation matrices [F, 3, 3] and translations [F, 3] taking the head frame to the lab.
 
@@ -328,7 +362,16 @@ def make_trial(
     markers, dropouts = record(settings, head, times, rng, n_session)
     rest = (times >= starts[0]) & (times <= ends[0])
     y0_offset = float(np.mean(channels["ULO"][rest] - channels["LLO"][rest]) / 2.0)
-    return Trial(plan, labels, starts, ends, times, channels, head, markers, dropouts, y0_offset)
+    ema = None
+    if flavour == "italian" and all(ch in table.channels for ch in TONGUE_CHANNELS):
+        # After everything above, and from a stream of its own: the face markers, and so every lip
+        # and jaw channel, are the same bytes with or without the tongue.
+        tongue = trajectories(table, labels, starts, ends, times, channels=list(TONGUE_CHANNELS))
+        channels |= {ch: np.asarray(tongue[ch], dtype=np.float64) for ch in TONGUE_CHANNELS}
+        ema_rng = np.random.default_rng(np.random.SeedSequence([seed, *plan.key, *stream], spawn_key=(1,)))
+        ema = place_ema_sensors(settings, channels, jaw_rest)
+        ema = ema + ema_rng.normal(0.0, settings["ema"]["sigma_mm"], size=ema.shape)
+    return Trial(plan, labels, starts, ends, times, channels, head, markers, dropouts, y0_offset, ema)
 
 
 # ----------------------------------------------------------------------------- writers
@@ -361,6 +404,13 @@ def write_csv(path: Path, times: F64, markers: F64) -> None:
 
 def _spell(label: str, pause_label: str) -> str:
     return pause_label if label == PAUSE else label
+
+
+def write_ema_csv(path: Path, times: F64, sensors: F64) -> None:
+    """An EMA CSV (docs/DATA.md): ``time_s,<SENSOR>_posx,_posy,_posz,...`` in mm, 4 decimals."""
+    header = ",".join(["time_s"] + [f"{s}_pos{a}" for s in EMA_SENSORS for a in "xyz"])
+    table = np.column_stack([times, sensors.reshape(len(times), -1)])
+    np.savetxt(path, table, fmt="%.4f", delimiter=",", header=header, comments="", encoding="utf-8")
 
 
 def write_textgrid(path: Path, labels: Sequence[str], starts: F64, ends: F64, pause_label: str) -> None:
@@ -411,7 +461,7 @@ def write_truth(path: Path, trial: Trial) -> None:
         "marker_names": np.asarray(MARKERS),
         "dropout_mask": np.asarray(np.isnan(trial.markers).any(axis=2), dtype=bool),
     }
-    arrays.update({ch: trial.channels[ch] for ch in CHANNELS})
+    arrays.update(trial.channels)
     np.savez_compressed(path, **arrays)  # type: ignore[arg-type]  # numpy stubs mix **kwds with allow_pickle
 
 
@@ -482,7 +532,7 @@ def _prepare(out: Path) -> None:
             )
         if (out / "manifest.csv").is_file():
             (out / "manifest.csv").unlink()  # first: an interrupted rewrite leaves no stale manifest
-        for sub in SUBDIRS:
+        for sub in (*SUBDIRS, "ema"):  # ema/: the Italian flavour's EMA recordings
             if (out / sub).is_dir():
                 shutil.rmtree(out / sub)
     out.mkdir(parents=True, exist_ok=True)
@@ -545,8 +595,9 @@ def truth_path(flavour: str) -> Path:
 
 
 def manifest_columns(flavour: str) -> tuple[str, ...]:
-    """The manifest's columns; the Italian flavour adds the stimulus's ``context`` (VCV, CV, VC)."""
-    return (*MANIFEST_COLUMNS, "context") if flavour == "italian" else MANIFEST_COLUMNS
+    """The manifest's columns; the Italian flavour adds the stimulus's ``context`` (VCV, CV, VC) and
+    its EMA recording (``ema``: the file column of fit/italian_tongue.toml)."""
+    return (*MANIFEST_COLUMNS, "context", "ema") if flavour == "italian" else MANIFEST_COLUMNS
 
 
 def _write_session(
@@ -584,6 +635,9 @@ def _write_session(
             write_textgrid(out / "labels" / f"{name}.TextGrid", trial.labels, trial.starts, trial.ends, pause_label)
             write_lab(out / "labels" / f"{name}.lab", trial.labels, trial.starts, trial.ends, pause_label)
             write_truth(out / "truth" / f"{name}.npz", trial)
+            if trial.ema is not None:
+                (out / "ema").mkdir(exist_ok=True)
+                write_ema_csv(out / "ema" / f"{name}.csv", trial.times, trial.ema)
             rows.append(
                 {
                     "file": f"c3d/{name}.c3d",
@@ -600,7 +654,8 @@ def _write_session(
                     "duration_s": f"{trial.ends[-1]:.2f}",
                     "dropout_frames": sum(n for _, _, n in trial.dropouts),
                     "y0_offset_mm": f"{trial.y0_offset:.4f}",
-                } | ({"context": plan.context} if flavour == "italian" else {})
+                } | ({"context": plan.context, "ema": f"ema/{name}.csv" if trial.ema is not None else ""}
+                     if flavour == "italian" else {})
             )
             bar.update(task, advance=1, description=name)
     if stream:  # a speaker of a multi-speaker corpus: its own (scaled) truth

@@ -17,7 +17,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from coartic.table import CHANNELS, PARAMETERS, PAUSE, ChannelSettings, ParameterTable
+from coartic.table import CHANNELS, PARAMETERS, PAUSE, TONGUE_CHANNELS, ChannelSettings, ParameterTable
 
 HERE = Path(__file__).resolve().parent
 OUT = HERE / "ground_truth.json"
@@ -38,7 +38,7 @@ REFERENCE = "a"
 # The rest posture (the pause target): lips lightly together at the rest line (ULO = LLO = 0 by
 # the definition of y_0), upper lip ~3 mm ahead of the lower lip, a neutral mouth width and the
 # jaw at its rest distance. Every other target below is this rest plus a phonetic displacement.
-REST = {"ULO": 0.0, "LLO": 0.0, "ULP": 98.0, "LLP": 95.0, "LR": 50.0, "JO": 115.0}
+REST = {"ULO": 0.0, "LLO": 0.0, "ULP": 98.0, "LLP": 95.0, "LR": 50.0, "JO": 115.0} | {ch: 0.0 for ch in TONGUE_CHANNELS}
 REST_WHY = {
     "ULO": "rest posture: the upper lip at the rest line, which defines y_0",
     "LLO": "rest posture: the lower lip at the rest line, which defines y_0",
@@ -46,6 +46,10 @@ REST_WHY = {
     "LLP": "rest posture: lower lip ~3 mm behind the upper lip",
     "LR": "rest posture: neutral mouth width 50 mm",
     "JO": "rest posture: nose-chin distance 115 mm with the teeth lightly apart",
+    "TTH": "rest posture: the tongue tip at its rest height, which the channel is measured from (docs/DATA.md)",
+    "TTA": "rest posture: the tongue tip at its rest advancement, which the channel is measured from",
+    "TBH": "rest posture: the tongue body at its rest height, which the channel is measured from",
+    "TBA": "rest posture: the tongue body at its rest advancement, which the channel is measured from",
 }
 
 # Plausible ranges for the fitter (targets only; the other parameters keep the default bounds).
@@ -56,7 +60,7 @@ TARGET_BOUNDS = {
     "LLP": (82.0, 110.0),
     "LR": (35.0, 65.0),
     "JO": (100.0, 140.0),
-}
+} | {ch: (-25.0, 25.0) for ch in TONGUE_CHANNELS}
 
 DEFAULTS: dict[str, tuple[float, str]] = {
     "c_bw": (1.0, "c = 1, the original model's activation exponent; nothing asks for another shape"),
@@ -93,8 +97,8 @@ class Spec:
 Table = dict[str, dict[str, Spec]]
 
 
-def pause(table: Table) -> None:
-    for ch in CHANNELS:
+def pause(table: Table, channels: tuple[str, ...] = CHANNELS) -> None:
+    for ch in channels:
         s = Spec()
         s.set(REST_WHY[ch], target=REST[ch])
         s.set("the rest posture dominates the pause (alpha at the top of the range, 3): the speaker "
@@ -569,25 +573,181 @@ def consonants(table: Table, semivowels: bool = False) -> None:
                   theta_fw=s.values["theta_bw"] * 1.25)
 
 
+# ----------------------------------------------------------------------------- Italian flavour only
+
+# Rounding, Italian flavour. The default session keeps /u/ at 45 mm (its table is the one `make fit`
+# recovers and the paper's /i a u/ corpus supports); the Italian flavour, whose table the package ships
+# and the face shows, narrows its rounded sounds as the lip-rounding literature measures them:
+#   [FR64] Fromkin (1964), Lip positions in American English vowels, Language and Speech 7, 215-225
+#          (photographs and casts: the distance between the mouth corners is the lip dimension that
+#          separates rounded from unrounded vowels most, /u/ the narrowest);
+#   [LI82] Linker (1982), Articulatory and acoustic correlates of labial activity in vowels: a
+#          cross-linguistic study, UCLA Working Papers in Phonetics 56 (horizontal lip width of
+#          rounded vowels far below the spread and neutral ones in every language measured);
+#   [MC95], [MC98] (above): the same ordering in ELITE's LR for the seven Italian vowels;
+#   [CA92]: Italian /S tS dZ/ are said with protruded, rounded lips, less than /u/.
+# The millimetres are placed on that ordering (not read off a table of those papers): /u/ a quarter
+# narrower than rest, /o/ and /O/ graded between, /w/ a little narrower than /u/, /S tS dZ/ rounded
+# about as /O/; so the face shows a rounded /u/ from the front (docs/FACE.md).
+ITALIAN_LR: dict[str, tuple[float, str]] = {
+    "u": (38.0, "rounded close vowel: the narrowest vowel, the corners drawn in a quarter of the rest "
+                "width (-12 mm) [FR64, LI82, MC95, MC98]"),
+    "o": (41.0, "close-mid rounded vowel: narrow, 3 mm wider than /u/ (-9 mm) [FR64, MC95, MC98]"),
+    "O": (44.5, "open-mid rounded vowel: narrower than rest, wider than /o u/ (-5.5 mm) [MC95, MC98, CA92]"),
+    "w": (37.0, "labial-velar approximant: the narrowest mouth of all, a closer /u/ (-13 mm) [CA92, FA99]"),
+    "S": (45.0, "postalveolar: rounded with the protrusion, about as narrow as /O/ (-5 mm) [CA92, FA99]"),
+    "tS": (45.0, "postalveolar: rounded with the protrusion, about as narrow as /O/ (-5 mm) [CA92, FA99]"),
+    "dZ": (45.0, "postalveolar: rounded with the protrusion, about as narrow as /O/ (-5 mm) [CA92, FA99]"),
+}
+
+
+def italian_rounding(table: Table) -> None:
+    for ph, (target, why) in ITALIAN_LR.items():
+        table[ph]["LR"].set(why, target=target)
+
+
+# The tongue, Italian flavour: the channels TTH TTA TBH TBA of docs/DATA.md (height and advancement
+# of the tongue tip and body, mm from their rest position in the head frame, positive up and
+# forwards), which the session writes as EMA sensor files. Places of articulation and what the
+# tongue does at each, from:
+#   [CA92]: Italian /t d n/ dental (laminal, the tip against the upper incisors), /l r s z ts dz/
+#          alveolar (/r/ a trill), /S tS dZ/ postalveolar (the tip raised behind the ridge, the front
+#          of the body raised), /J L/ palatal (the dorsum against the hard palate), /k g/ velar;
+#   [FA90] Farnetani (1990), V-C-V lingual coarticulation and its spatiotemporal domain, in
+#          Hardcastle & Marchal (eds), Speech production and speech modelling, Kluwer, 93-110
+#          (Italian EPG: contact at the teeth-ridge for /t d n l/, palatal contact for /J L/, the
+#          velar closure moving with the vowel);
+#   [RE97] Recasens, Pallares & Fontdevila (1997), A model of lingual coarticulation based on
+#          articulatory constraints, JASA 102, 544-561 (degree of articulatory constraint: palatals
+#          and the dorsum of trills and sibilants resist coarticulation most, dentals and alveolars
+#          on the tip, velars on the body height but not its advancement, labials least);
+#   [LS71] (above): the tongue lowers with the jaw from close to open vowels.
+# Sizes: the tip rises 7-9.5 mm from rest to a dental or alveolar closure and the body 11-11.5 mm to
+# the velum or the palate; open /a/ takes both ~8-9 mm down with the jaw (10 mm lower here); front vowels
+# advance the body, back vowels retract it. Like the lip millimetres, placed on those descriptions.
+TONGUE_TARGETS: dict[str, tuple[tuple[float, float, float, float], str]] = {
+    "i": ((2.0, 2.0, 8.0, 3.0), "close front vowel: the body high and forward, the tip behind the lower incisors"),
+    "e": ((0.0, 1.5, 5.0, 2.0), "close-mid front vowel: the body raised and forward, less than for /i/"),
+    "E": ((-3.0, 0.5, 1.0, 1.0), "open-mid front vowel: the body near rest, lowered with the jaw"),
+    "a": ((-9.0, -1.5, -8.0, -2.0), "open vowel: the tongue lowered with the jaw, the body a little back"),
+    "O": ((-6.0, -3.0, -3.0, -5.0), "open-mid back vowel: the body low and back"),
+    "o": ((-3.5, -3.5, 1.0, -5.5), "close-mid back vowel: the body back, nearly at rest height"),
+    "u": ((-2.0, -4.0, 5.0, -6.0), "close back vowel: the body raised towards the velum, the most retracted"),
+    "p": ((-1.0, 0.0, -0.5, 0.0), "bilabial: the tongue is free, near rest, lowered a little with the jaw"),
+    "b": ((-1.0, 0.0, -0.5, 0.0), "bilabial: the tongue is free, near rest, lowered a little with the jaw"),
+    "m": ((-1.0, 0.0, -0.5, 0.0), "bilabial: the tongue is free, near rest, lowered a little with the jaw"),
+    "f": ((-0.5, 0.0, -0.3, 0.0), "labiodental: the tongue is free, near rest"),
+    "v": ((-0.5, 0.0, -0.3, 0.0), "labiodental: the tongue is free, near rest"),
+    "t": ((9.0, 2.5, 2.0, 0.5), "dental stop: the tip up and forward to the upper incisors [CA92, FA90]"),
+    "d": ((9.0, 2.5, 2.0, 0.5), "dental stop: the tip up and forward to the upper incisors [CA92, FA90]"),
+    "n": ((8.5, 2.0, 2.0, 0.5), "dental nasal: the tip against the upper incisors, a little lower jaw [CA92, FA90]"),
+    "l": ((9.5, 1.0, 0.5, -0.5), "alveolar lateral: the tip on the ridge, higher than for the dentals, the "
+                                 "body lowered for the side channels [CA92, FA90]"),
+    "r": ((7.5, 0.5, 1.0, -1.0), "alveolar trill: the tip raised at the ridge, the dorsum held back [CA92, RE97]"),
+    "s": ((7.0, 1.5, 3.0, 0.5), "alveolar sibilant: the tip close to the ridge, grooved, the body raised "
+                                "[CA92, RE97]"),
+    "z": ((7.0, 1.5, 3.0, 0.5), "alveolar sibilant: the tip close to the ridge, grooved, the body raised "
+                                "[CA92, RE97]"),
+    "ts": ((8.5, 2.0, 3.0, 0.5), "alveolar affricate: the stop phase closes the tip at the ridge [CA92]"),
+    "dz": ((8.5, 2.0, 3.0, 0.5), "alveolar affricate: the stop phase closes the tip at the ridge [CA92]"),
+    "S": ((6.5, -2.0, 6.0, 0.0), "postalveolar fricative: the tip raised behind the ridge, the front of the "
+                                 "body raised [CA92]"),
+    "tS": ((7.0, -1.5, 6.0, 0.0), "postalveolar affricate: the tip closes behind the ridge, the body raised [CA92]"),
+    "dZ": ((7.0, -1.5, 6.0, 0.0), "postalveolar affricate: the tip closes behind the ridge, the body raised [CA92]"),
+    "k": ((-1.5, -2.0, 11.5, -3.0), "velar stop: the body closes against the velum, the tip down [CA92, FA90]"),
+    "g": ((-1.5, -2.0, 11.5, -3.0), "velar stop: the body closes against the velum, the tip down [CA92, FA90]"),
+    "J": ((3.0, 0.5, 11.0, 2.0), "palatal nasal: the dorsum against the hard palate, forward [CA92, FA90]"),
+    "L": ((4.0, 0.0, 10.5, 1.5), "palatal lateral: the dorsum against the hard palate, the sides lowered "
+                                "[CA92, FA90]"),
+    "j": ((2.5, 2.0, 9.0, 3.0), "palatal approximant: a closer, more forward /i/ [CA92]"),
+    "w": ((-2.0, -4.0, 6.0, -6.0), "labial-velar approximant: a closer /u/, the body raised and back [CA92]"),
+}
+# Dominance by degree of articulatory constraint [RE97]: per channel (alpha, k_R); theta per class.
+_CONTACT = "the closure or contact is the sound's goal: strongly dominant, always reached [RE97, FA90]"
+_HELD = "the constriction is critical for the sound: dominant and resistant [RE97]"
+_LOOSE = "this part of the tongue is loosely constrained: it follows the context [RE97]"
+_FREE = "the tongue is free for a labial: weak dominance, the vowels shape it [RE97]"
+_VOWEL = "a vowel's tongue posture yields to the consonants (moderate resistance) [RE97]"
+TONGUE_DOMINANCE: dict[str, tuple[dict[str, tuple[float, float, str]], float]] = {
+    # class: ({channel: (alpha, k_r, why)}, theta)
+    "dental": ({"TTH": (2.5, 1.0, _CONTACT), "TTA": (1.5, 0.7, _HELD), "TBH": (1.0, 0.5, _LOOSE),
+                "TBA": (0.8, 0.4, _LOOSE)}, 40.0),
+    "lateral": ({"TTH": (2.0, 0.9, _CONTACT), "TTA": (1.2, 0.6, _HELD), "TBH": (0.8, 0.3, _LOOSE),
+                 "TBA": (0.8, 0.3, _LOOSE)}, 40.0),
+    "trill": ({"TTH": (2.0, 0.9, _HELD), "TTA": (1.5, 0.7, _HELD), "TBH": (1.5, 0.7, _HELD),
+               "TBA": (1.2, 0.6, _HELD)}, 40.0),
+    "sibilant": ({"TTH": (2.0, 0.9, _HELD), "TTA": (1.5, 0.8, _HELD), "TBH": (1.5, 0.7, _HELD),
+                  "TBA": (1.2, 0.6, _HELD)}, 40.0),
+    "postalveolar": ({"TTH": (2.0, 0.9, _HELD), "TTA": (1.5, 0.8, _HELD), "TBH": (2.0, 0.8, _HELD),
+                      "TBA": (1.2, 0.6, _HELD)}, 35.0),
+    "palatal": ({"TTH": (1.5, 0.6, _LOOSE), "TTA": (1.5, 0.7, _HELD), "TBH": (2.5, 1.0, _CONTACT),
+                 "TBA": (2.0, 0.9, _HELD)}, 30.0),
+    "velar": ({"TTH": (0.8, 0.3, _LOOSE), "TTA": (0.8, 0.3, _LOOSE), "TBH": (2.5, 1.0, _CONTACT),
+               "TBA": (1.0, 0.4, "the velar closure moves along the velum with the vowel: loose advancement "
+                                 "[FA90, RE97]")}, 45.0),
+    "glide": ({"TTH": (1.0, 0.4, _LOOSE), "TTA": (1.0, 0.4, _LOOSE), "TBH": (1.5, 0.6, _HELD),
+               "TBA": (1.2, 0.5, _HELD)}, 35.0),
+    "labial": ({ch: (0.6, 0.1, _FREE) for ch in TONGUE_CHANNELS}, 40.0),
+    "vowel": ({ch: (1.0, 0.4, _VOWEL) for ch in TONGUE_CHANNELS}, 20.0),
+}
+TONGUE_CLASS: dict[str, str] = {
+    **{p: "dental" for p in ("t", "d", "n")}, "l": "lateral", "r": "trill",
+    **{p: "sibilant" for p in ("s", "z", "ts", "dz")}, **{p: "postalveolar" for p in ("S", "tS", "dZ")},
+    **{p: "palatal" for p in ("J", "L")}, **{p: "velar" for p in ("k", "g")}, "j": "glide", "w": "glide",
+    **{p: "labial" for p in ("p", "b", "m", "f", "v")}, **{v: "vowel" for v in ITALIAN_VOWELS},
+}
+
+
+def tongue(table: Table) -> None:
+    """The tongue channels of every phoneme of the Italian flavour (TONGUE_TARGETS, TONGUE_DOMINANCE)."""
+    pause(table, TONGUE_CHANNELS)
+    for ph, (targets, why) in TONGUE_TARGETS.items():
+        dominance, theta = TONGUE_DOMINANCE[TONGUE_CLASS[ph]]
+        for ch, target in zip(TONGUE_CHANNELS, targets):
+            alpha, k_r, dwhy = dominance[ch]
+            s = Spec().set(why, target=target)
+            if ph == REFERENCE:
+                s.set("reference phoneme: alpha fixed to 1 on every channel (the scale of dominance)", alpha=1.0)
+            else:
+                s.set(dwhy, alpha=alpha)
+            s.set(dwhy, k_r=k_r)
+            if TONGUE_CLASS[ph] == "vowel":
+                s.set("vowels are the long, dominant gestures of a VCV: long reach (1/theta = 50 ms)",
+                      theta_bw=theta, theta_fw=theta)
+            else:
+                s.set(f"a consonant gesture: shorter reach than a vowel (1/theta ~ {1000 / theta:.0f} ms)",
+                      theta_bw=theta, theta_fw=theta)
+            if ph in ("t", "d", "k", "g"):
+                s.set("stop release is quicker than its closing: shorter forward reach", theta_fw=theta * 1.25)
+            table[ph][ch] = s
+    # /i/ holds its high front body more firmly than the other vowels [RE97]
+    table["i"]["TBH"].set("the high front dorsum of /i/ is the most constrained vowel posture [RE97]",
+                          alpha=1.3, k_r=0.5)
+
+
 def build(vowel_set: tuple[str, ...] = VOWELS) -> ParameterTable:
     """The default session's table (/i a u/), or with ``ITALIAN_VOWELS`` the Italian flavour's."""
     italian = vowel_set == ITALIAN_VOWELS
     out = OUT_ITALIAN if italian else OUT
     phonemes = [PAUSE, *vowel_set, *CONSONANTS, *(SEMIVOWELS if italian else ())]
+    channels = CHANNELS + TONGUE_CHANNELS if italian else CHANNELS
     specs: Table = {p: {} for p in phonemes}
     pause(specs)
     vowels(specs, vowel_set)
     consonants(specs, semivowels=italian)
-    values = {p: {ch: specs[p][ch].complete().values for ch in CHANNELS} for p in phonemes}
-    reasons = {p: {ch: specs[p][ch].reasons for ch in CHANNELS} for p in phonemes}
+    if italian:
+        italian_rounding(specs)
+        tongue(specs)
+    values = {p: {ch: specs[p][ch].complete().values for ch in channels} for p in phonemes}
+    reasons = {p: {ch: specs[p][ch].reasons for ch in channels} for p in phonemes}
     table = ParameterTable(
         variant="modified",
         channels={
             ch: ChannelSettings(reference_phoneme=REFERENCE, unit="mm", beta=1.0, edge_extent=1.0, apex_fraction=0.5)
-            for ch in CHANNELS
+            for ch in channels
         },
         values=values,
-        bounds={ch: {"target": TARGET_BOUNDS[ch]} for ch in CHANNELS},
+        bounds={ch: {"target": TARGET_BOUNDS[ch]} for ch in channels},
         reasons=reasons,
         metadata={
             "method": "ground truth (hand-chosen, see reasons)",
@@ -595,7 +755,8 @@ def build(vowel_set: tuple[str, ...] = VOWELS) -> ParameterTable:
                        "(corpus-synthetic/)" if italian else "coartic synthetic ELITE-style session (corpus-synthetic/)"),
             "note": "beta = 1, edge extent 1 s, apex fraction 0.5 on every channel; reference phoneme /a/",
         } | ({"literature": "vowel postures: Magno Caldognetto et al. 1995, 1998; Farnetani 1999; Canepari 1992; "
-                            "Lindblom & Sundberg 1971 (corpus-synthetic/README.md)"} if italian else {}),
+                            "Lindblom & Sundberg 1971; rounding: Fromkin 1964, Linker 1982; tongue: Canepari 1992, "
+                            "Farnetani 1990, Recasens et al. 1997 (corpus-synthetic/README.md)"} if italian else {}),
         source=str(out),
     )
     table.validate()

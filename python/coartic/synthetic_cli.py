@@ -69,7 +69,8 @@ def synth(
         str,
         typer.Option(help="model: the channels are the model's (ground truth known); gestures: critically "
                      "damped gestures towards the same targets, data the model did not make; italian: the model "
-                     "with every Italian phoneme (seven vowels and /j w/ in VCV, CV and VC, ground_truth_italian.json)."),
+                     "with every Italian phoneme (seven vowels and /j w/ in VCV, CV and VC, ground_truth_italian.json), "
+                     "each trial also as an EMA file with the tongue (ema/)."),
     ] = "model",
     speakers: Annotated[
         int,

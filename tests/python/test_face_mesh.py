@@ -270,7 +270,7 @@ def test_f_tucks_the_lower_lip_under_the_upper_incisors(rig: FaceRig, tmp_path: 
 
 def test_tongue_faps_move_the_tongue_and_touch_at_t_and_k(rig: FaceRig, tmp_path: Path) -> None:
     """Each tongue FAP moves its feature point by exactly its value (relative to the jaw); the
-    default tongue (the ground truth has no tongue channels) touches the upper teeth's back at /t/
+    default tongue (the shipped table's: this ground truth has no tongue) touches the upper teeth's back at /t/
     and /l/ and the roof of the mouth at /k/, and is far from both at /a/."""
     m = rig.mesh
     for fap, (point, direction, _) in TONGUE_ZONES.items():

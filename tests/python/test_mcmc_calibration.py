@@ -70,9 +70,12 @@ manifest = "{manifest}"
 [model]
 channels = ["LLO", "JO"]
 reference_phoneme = "a"
+dominance = "centre"      # the generator's model (the paper's), not the default for real recordings
+handover = false
 [parameters]
 # The parameters under test are free; the others start, and stay, at the generator's values, so the
 # model is the one that made the data.
+target_prior = "none"
 free = ["target", "theta_bw", "theta_fw", "k_r"]
 start_table = "{truth}"
 [staging]

@@ -16,7 +16,7 @@ from coartic.face.viewer import chromium_program
 from coartic.fit.runner import run
 from coartic.fit.simulate import vcv_utterances
 from coartic.fit.spec import load_spec, parse_spec
-from fit_helpers import german_utterance_spec
+from fit_helpers import PAPER_TOML, german_utterance_spec, paper
 
 SCREEN = (1280, 800)
 
@@ -74,7 +74,8 @@ def check_reads_well(m: dict[str, float], html: str) -> None:
 
 def test_report_of_a_real_sentence_leads_with_the_figures(chromium: str, tmp_path: Path) -> None:
     spec = german_utterance_spec(tmp_path / "german.toml", '[model]\nvariant = "modified"\nchannels = ["LA"]\n'
-                                 'reference_phoneme = "a"\n[parameters]\nfree = ["target", "alpha", "k_r"]\n'
+                                 'reference_phoneme = "a"\n' + PAPER_TOML[0] + '[parameters]\n' + PAPER_TOML[1] +
+                                 'free = ["target", "alpha", "k_r"]\n'
                                  '[staging]\nenabled = false\n', name="German EMA, one sentence")
     result = run(load_spec(spec), tmp_path / "out", quiet=True)
     html = (tmp_path / "out" / "report.html").read_text(encoding="utf-8")
@@ -92,7 +93,7 @@ def test_report_of_synthetic_vcvs_shows_the_held_out_figure_with_baselines(chrom
     raw = {"name": "synthetic VCVs", "corpus": {"files": ["x"], "labels": ["y"]}, "model": {"channels": ["LLO"]},
            "parameters": {"free": ["target", "alpha", "theta_bw", "theta_fw", "k_r"]},
            "staging": {"enabled": False}, "override": [{"phonemes": ["p"], "bounds": {"k_r": [0.0, 0.8]}}]}
-    result = run(parse_spec(raw, tmp_path / "spec.toml"), tmp_path / "out", utterances=utts, quiet=True,
+    result = run(parse_spec(paper(raw), tmp_path / "spec.toml"), tmp_path / "out", utterances=utts, quiet=True,
                  validate=True)
     assert result.validation
     html = (tmp_path / "out" / "report.html").read_text(encoding="utf-8")

@@ -25,7 +25,7 @@ from coartic import _core
 from coartic.cli import app
 from coartic.io import load_trial, read_labels
 from coartic.synthetic_cli import corpus_dir, load_generator
-from coartic.table import CHANNELS, PARAMETERS, ParameterTable
+from coartic.table import CHANNELS, PARAMETERS, TONGUE_CHANNELS, ParameterTable
 
 F64 = npt.NDArray[np.float64]
 
@@ -496,6 +496,56 @@ def test_italian_flavour_has_every_vowel_in_vcv_cv_and_vc(
     check_channels_within_noise(out, rows[::6], settings["noise"]["sigma_mm"])
 
 
+def test_italian_flavour_writes_the_tongue_as_ema(
+    italian: tuple[Path, list[dict[str, str]]], settings: dict[str, Any]
+) -> None:
+    """Each trial again as an EMA CSV (the manifest's `ema` column): read through coartic.io as EMA
+    sensors, its tongue channels are the truth's within the sensor noise."""
+    out, rows = italian
+    sigma = settings["ema"]["sigma_mm"]
+    for r in rows[::5]:
+        trial = load_trial(out / r["ema"], out / r["labels"])
+        assert trial.kind == "ema" and not [n for n in trial.meta["notes"] if "look wrong" in n]
+        got = trial.channels(list(TONGUE_CHANNELS))
+        t = truth(out, r)
+        for ch in TONGUE_CHANNELS:
+            err = got[ch] - t[ch]
+            # the rest (the first half of the pause) is averaged from noisy samples: its error adds a little
+            assert float(np.sqrt(np.mean(err**2))) < 1.6 * sigma and abs(float(np.mean(err))) < 0.1, (r["ema"], ch)
+    k = next(r for r in rows if r["stimulus"] == "a p a" and r["rate"] == "normal")
+    assert truth(out, k)["TTH"].min() < -8.0  # the tongue lowers with the jaw at /a/
+
+
+def test_changed_channels_finds_the_channels_whose_data_differ(
+    italian: tuple[Path, list[dict[str, str]]], tmp_path: Path
+) -> None:
+    """fit/changed_channels.py compares two sessions channel by channel, bit for bit: a copy is
+    unchanged; moving one lip corner in one trial changes LR there and nothing else."""
+    import shutil
+
+    sys.path.insert(0, str(corpus_dir().parent / "fit"))
+    import changed_channels
+
+    out, rows = italian
+    copy = tmp_path / "copy"
+    shutil.copytree(out, copy)
+    same = changed_channels.compare(out, copy)
+    assert same["changed"] == [] and same["trials"] == len(rows)
+    import ezc3d
+
+    name = rows[3]["file"]
+    c = ezc3d.c3d(str(copy / name))
+    labels = c["parameters"]["POINT"]["LABELS"]["value"]
+    pts = c["data"]["points"]
+    pts[0, labels.index("LC_L"), 40] += 0.5
+    c["data"]["points"] = pts
+    c.write(str(copy / name))
+    moved = changed_channels.compare(out, copy)
+    assert moved["changed"] == ["LR"] and moved["trials_changed"]["LR"] == 1, moved
+    (copy / rows[0]["labels"]).write_text((copy / rows[0]["labels"]).read_text().replace("sil", "#", 1))
+    assert changed_channels.compare(out, copy)["changed"] == list(CHANNELS)
+
+
 def test_italian_flavour_closes_the_lips_in_every_context(italian: tuple[Path, list[dict[str, str]]]) -> None:
     out, rows = italian
     checked = 0
@@ -518,18 +568,42 @@ def test_italian_ground_truth_is_reasoned_and_follows_the_literature() -> None:
     table = ParameterTable.load(corpus_dir() / "ground_truth_italian.json")
     phonemes = ["#", *ITALIAN_VOWELS, *"p b m f v t d n l r s z ts dz tS dZ S k g J L j w".split()]
     assert sorted(table.phonemes) == sorted(phonemes)
+    assert tuple(table.channels) == CHANNELS + TONGUE_CHANNELS
     for ph in phonemes:
-        for ch in CHANNELS:
+        for ch in table.channels:
             for p in PARAMETERS:
                 assert len(table.reasons[ph][ch][p]) > 15, (ph, ch, p)
-    assert "Magno Caldognetto" in table.metadata["literature"]
+    for source in ("Magno Caldognetto", "Fromkin", "Farnetani 1990", "Recasens"):
+        assert source in table.metadata["literature"], source
     assert json.loads((corpus_dir() / "ground_truth_italian.json").read_text()) == json.loads(
         json.dumps(_build_ground_truth(italian=True).to_json_dict()))
-    # the default session's phonemes keep their values: the flavours share every rule
+    # the default session's phonemes keep their lip and jaw values (the flavours share every rule),
+    # except the width of the rounded sounds, which the Italian flavour narrows (ITALIAN_LR)
     default = ParameterTable.load(corpus_dir() / "ground_truth.json")
+    rounded = {"u", "S", "tS", "dZ"}
     for ph in default.phonemes:
-        assert table.values[ph] == default.values[ph], ph
-    T = {ph: {ch: table.values[ph][ch]["target"] for ch in CHANNELS} for ph in phonemes}
+        for ch in CHANNELS:
+            mine = dict(table.values[ph][ch])
+            if ph in rounded and ch == "LR":
+                assert mine.pop("target") < default.values[ph][ch]["target"] - 0.9, ph
+                assert mine == {k: v for k, v in default.values[ph][ch].items() if k != "target"}, ph
+            else:
+                assert mine == default.values[ph][ch], (ph, ch)
+    T = {ph: {ch: table.values[ph][ch]["target"] for ch in table.channels} for ph in phonemes}
+    # rounding: /u/ at most 80 % of the rest width (the face shows it from the front: test_view.py)
+    assert T["u"]["LR"] <= 0.8 * T["#"]["LR"] and T["w"]["LR"] < T["u"]["LR"] < T["o"]["LR"] < T["O"]["LR"]
+    assert all(T[c]["LR"] < T["#"]["LR"] - 4 for c in ("S", "tS", "dZ"))
+    # the tongue: the tip highest at the dental and alveolar contacts, the body at the velar and
+    # palatal ones (k_R = 1 there), both lowest at /a/; the body forwards at /i/, back at /u/
+    tip = sorted(phonemes, key=lambda p: -T[p]["TTH"])[:6]
+    assert set(tip) <= {"t", "d", "n", "l", "ts", "dz"}, tip
+    body = sorted(phonemes, key=lambda p: -T[p]["TBH"])[:6]
+    assert set(body) <= {"k", "g", "J", "L", "j", "i"}, body
+    assert min(phonemes, key=lambda p: T[p]["TTH"]) == "a" and min(phonemes, key=lambda p: T[p]["TBH"]) == "a"
+    assert T["i"]["TBA"] > T["a"]["TBA"] > T["u"]["TBA"]
+    for ph, ch in (("t", "TTH"), ("d", "TTH"), ("n", "TTH"), ("k", "TBH"), ("g", "TBH"), ("J", "TBH"), ("L", "TBH")):
+        assert table.values[ph][ch]["k_r"] == 1.0 and table.values[ph][ch]["alpha"] >= 2.0, (ph, ch)
+    assert all(T["#"][ch] == 0.0 for ch in TONGUE_CHANNELS)
     order = lambda ch: sorted(ITALIAN_VOWELS, key=lambda v: -T[v][ch])  # noqa: E731
     assert order("LLO") == ["a", "E", "O", "e", "o", "i", "u"]  # lip opening (Magno Caldognetto et al.)
     assert order("LR") == ["i", "e", "E", "a", "O", "o", "u"]  # mouth width: spread to rounded

@@ -24,6 +24,7 @@ from coartic.face.viewer import chromium_program, make_server, page_query, scree
 from coartic.io.labels import read_labels
 from coartic.runtime.animate import target_times
 from coartic.runtime.fap import read_fap
+from coartic.runtime.shipped import load_shipped_table, shipped_table_path
 from coartic.table import ParameterTable
 
 GROUND_TRUTH = Path(__file__).resolve().parents[2] / "corpus-synthetic" / "ground_truth.json"
@@ -277,3 +278,57 @@ def test_chromium_shows_f_with_teeth_on_the_lip_and_u_narrowed(tmp_path: Path, c
         mid = (ys.min() + ys.max()) // 2
         setback[ph] = int(xs[ys >= mid].min() - xs[ys < mid].min())  # the face looks left
     assert setback["f"] - setback["p"] >= 5, setback
+
+
+TONGUE_UTTERANCE = ("start\tend\tlabel\n0.0\t0.20\t#\n0.20\t0.36\ta\n0.36\t0.46\tt\n0.46\t0.62\ta\n0.62\t0.72\tk\n"
+                    "0.72\t0.88\ta\n0.88\t0.98\tl\n0.98\t1.14\ta\n1.14\t1.34\tu\n1.34\t1.50\t#\n")
+
+
+def tongue_pixels(png: Path) -> np.ndarray:
+    """Tongue-coloured pixels (lit darker than the lips: red over green, not the dark mouth)."""
+    img = np.asarray(Image.open(png).convert("RGB")).astype(int)
+    return (img[..., 0] - img[..., 1] > 35) & (img[..., 0] > 80) & (img.max(axis=-1) >= 70)
+
+
+def test_chromium_shows_the_tongue_at_t_l_k_and_u_rounded(tmp_path: Path, chromium: str) -> None:
+    """With the shipped Italian table (tongue channels; /u/ rounded): at the target frames of /t l k/ (/d n/
+    and /g/ share their tongue targets), in profile cut along the midline, the tongue shows where a
+    still tongue (the same table with every tongue target at rest: same lips, jaw and teeth) does
+    not, and higher up (measured: t 1197 px 21 rows up, l 692 px 17, k 2840 px 30); at /a/ it
+    drops (24 rows down). From the front the lips at /u/ are at most 80 % of their width at rest."""
+    table = load_shipped_table()
+    doc = table.to_json_dict()
+    for per in doc["phonemes"].values():
+        for ch in ("TTH", "TTA", "TBH", "TBA"):
+            per[ch]["target"] = 0.0
+    still = tmp_path / "still.json"
+    still.write_text(json.dumps(doc))
+    (tmp_path / "u.tsv").write_text(TONGUE_UTTERANCE)
+    pages = {}
+    for name, t in (("moving", shipped_table_path()), ("still", still)):
+        res = CliRunner().invoke(app, ["animate", str(tmp_path / "u.tsv"), "-t", str(t), "-o", str(tmp_path / name),
+                                       "--preview", "none", "--gltf"])
+        assert res.exit_code == 0, res.output
+        pages[name] = write_page(tmp_path / name)
+    segs = read_labels(tmp_path / "moving" / "segments.tsv")
+    frames = np.rint(target_times(table, segs, "LLO") * 25).astype(int)
+    labels = list(segs.labels)
+    shift = {}
+    for ph in ("t", "l", "k", "a"):
+        tongue = {}
+        for name, page in pages.items():
+            png = screenshot(page, tmp_path / f"{ph}_{name}.png", frame=int(frames[labels.index(ph)]), face_only=400,
+                             size=(400, 400), zoom=2.5, yaw=90.0, section=True)
+            tongue[name] = tongue_pixels(png)
+        # only the tongue differs between the two pictures (same lips, jaw and teeth)
+        shown, hidden = tongue["moving"] & ~tongue["still"], tongue["still"] & ~tongue["moving"]
+        shift[ph] = (int(shown.sum()), float(np.nonzero(hidden)[0].mean() - np.nonzero(shown)[0].mean()))
+    for ph in ("t", "l", "k"):  # the tongue shows where a still tongue does not, higher up (rows grow down)
+        assert shift[ph][0] > 100 and shift[ph][1] > 5.0, (ph, shift[ph])
+    assert shift["a"][0] > 100 and shift["a"][1] < -5.0, shift["a"]  # at /a/ it drops with the jaw
+    # rounding from the front: the lips' width in pixels at /u/ against rest
+    lips = {ph: mouth_pixels(screenshot(pages["moving"], tmp_path / f"{ph}_front.png", frame=k, face_only=400,
+                                        size=(400, 400), zoom=2.5))["lip"]
+            for ph, k in (("rest", 0), ("u", int(frames[labels.index("u")])))}
+    width = {ph: int(np.ptp(np.nonzero(m)[1])) for ph, m in lips.items()}
+    assert width["u"] <= 0.8 * width["rest"], width
