@@ -22,26 +22,14 @@ from coartic.face.gltf import (MAX_BLENDED_TARGETS, accessor_array, glb_bytes, g
 from coartic.face.mesh import PART_NAMES
 from coartic.runtime.pipeline import RuntimeOutput, animate_file
 from coartic.table import ParameterTable
+from face_helpers import APAFULA, GROUND_TRUTH, THREE
 
-GROUND_TRUTH = Path(__file__).resolve().parents[2] / "corpus-synthetic" / "ground_truth.json"
-THREE = Path("/usr/share/javascript/three")
-# a closure, a labiodental, an open and a rounded vowel, a lateral, and a blink (the first at 0.6 s)
-LABELS = """0.00 0.30 #
-0.30 0.45 a
-0.45 0.55 p
-0.55 0.70 a
-0.70 0.82 f
-0.82 0.98 u
-0.98 1.06 l
-1.06 1.24 a
-1.24 1.60 #
-"""
 
 
 @pytest.fixture(scope="module")
 def runs(tmp_path_factory: pytest.TempPathFactory) -> dict[str, RuntimeOutput]:
     tmp = tmp_path_factory.mktemp("limit")
-    (tmp / "apafula.tsv").write_text(LABELS)
+    (tmp / "apafula.tsv").write_text(APAFULA)
     table = ParameterTable.load(GROUND_TRUTH)
     return {morphs: animate_file(tmp / "apafula.tsv", table, tmp / morphs, preview="none", gltf=True,
                                  gltf_morphs=morphs) for morphs in ("eight", "fap")}
@@ -117,7 +105,7 @@ def test_the_eight_target_glb_passes_gltfpack_validation(runs: dict[str, Runtime
 
 def test_cli_writes_the_eight_target_glb(tmp_path: Path) -> None:
     labels = tmp_path / "l.tsv"
-    labels.write_text(LABELS)
+    labels.write_text(APAFULA)
     res = CliRunner().invoke(app, ["animate", str(labels), "-t", str(GROUND_TRUTH), "-o", str(tmp_path / "o"),
                                    "--preview", "none", "--gltf-morphs", "eight"])  # implies --gltf
     assert res.exit_code == 0, res.output

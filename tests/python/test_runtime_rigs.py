@@ -34,26 +34,14 @@ from coartic.runtime.rigs import (
     viseme_weights,
 )
 from coartic.table import ParameterTable
+from face_helpers import APAFULA, GROUND_TRUTH, THREE
 
-GROUND_TRUTH = Path(__file__).resolve().parents[2] / "corpus-synthetic" / "ground_truth.json"
-THREE = Path("/usr/share/javascript/three")
-# "# a p a f u l a #": a closure, a labiodental, a rounded vowel, a lateral, an open vowel
-LABELS = """0.00 0.30 #
-0.30 0.45 a
-0.45 0.55 p
-0.55 0.70 a
-0.70 0.82 f
-0.82 0.98 u
-0.98 1.06 l
-1.06 1.24 a
-1.24 1.60 #
-"""
 
 
 @pytest.fixture(scope="module")
 def run(tmp_path_factory: pytest.TempPathFactory) -> RuntimeOutput:
     tmp = tmp_path_factory.mktemp("rigs")
-    (tmp / "apafula.tsv").write_text(LABELS)
+    (tmp / "apafula.tsv").write_text(APAFULA)
     return animate_file(tmp / "apafula.tsv", ParameterTable.load(GROUND_TRUTH), tmp / "o", preview="none",
                         exports="arkit,visemes,rhubarb", gltf=True, gltf_morphs="arkit")
 
@@ -209,7 +197,7 @@ def test_export_names_are_checked() -> None:
 
 
 def test_cli_export_and_arkit_gltf(tmp_path: Path) -> None:
-    (tmp_path / "l.tsv").write_text(LABELS)
+    (tmp_path / "l.tsv").write_text(APAFULA)
     res = CliRunner().invoke(app, ["animate", str(tmp_path / "l.tsv"), "-t", str(GROUND_TRUTH), "-o",
                                    str(tmp_path / "o"), "--preview", "none", "--export", "rhubarb",
                                    "--gltf-morphs", "arkit"])
