@@ -278,6 +278,14 @@ def fit_multistart(problem: ChannelProblem, engine: str, options: dict[str, Any]
         if stop.is_set():
             raise KeyboardInterrupt
 
+    def fresh(x: FloatArray | None) -> ChannelProblem:
+        """A copy of the problem starting at internal ``x`` (None: the packing's own start), its
+        evaluation counters at 0 and Ctrl-C watched."""
+        p = problem.with_packing(full if x is None else full.with_free(full.free, full.beta_free, *full.unpack(x)))
+        p.nfev = p.njev = 0
+        p.monitor = guard
+        return p
+
     def tick() -> None:
         with lock:
             done[0] += 1
@@ -285,11 +293,7 @@ def fit_multistart(problem: ChannelProblem, engine: str, options: dict[str, Any]
                 on_start(done[0], total)
 
     def run_probe(i: int) -> tuple[ChannelProblem, EngineResult, list[StageResult]]:
-        params, beta = full.unpack(xs0[i])
-        p = problem.with_packing(full.with_free(full.free, full.beta_free, params, beta))
-        p.nfev = p.njev = 0
-        p.monitor = guard
-        out = fit_staged(p, engine, _capped(engine, options, probe), stages)
+        out = fit_staged(fresh(xs0[i]), engine, _capped(engine, options, probe), stages)
         tick()
         return out
 
@@ -300,10 +304,7 @@ def fit_multistart(problem: ChannelProblem, engine: str, options: dict[str, Any]
             # [parameters.start] gets the single fit itself (staged from the start, full budget), so
             # the multi-start is never worse than one fit: continuing its probe instead ended above it
             # (German EMA LA fitted on 0024, in-sample 0.166 vs the single fit's 0.157 mm)
-            p0 = problem.with_packing(full)
-            p0.nfev = p0.njev = 0
-            p0.monitor = guard
-            final, r, st = fit_staged(p0, engine, options, stages)
+            final, r, st = fit_staged(fresh(None), engine, options, stages)
         else:
             final, r, st = fit_staged(prob, engine, options, None)
         tick()
@@ -327,11 +328,7 @@ def fit_multistart(problem: ChannelProblem, engine: str, options: dict[str, Any]
             x = best[0].packing.pack()
             x[dynamics] = np.clip(x[dynamics] + rng.normal(0.0, HOP_SCALE, int(dynamics.sum())), lo[dynamics],
                                   hi[dynamics])
-            params, beta = full.unpack(x)
-            p = problem.with_packing(full.with_free(full.free, full.beta_free, params, beta))
-            p.nfev = p.njev = 0
-            p.monitor = guard
-            f, r, st = fit_staged(p, engine, options, None)
+            f, r, st = fit_staged(fresh(x), engine, options, None)
             nfev += f.nfev
             s = st[-1].sse_end if st else np.inf
             if r.status == "interrupted":
@@ -358,6 +355,12 @@ def fit_multistart(problem: ChannelProblem, engine: str, options: dict[str, Any]
 
     def add_end(x: FloatArray, sse: float, status: str, start: int) -> None:
         ends.append((x, sse, status, start, trajectory(problem, x)))
+
+    def budget_left() -> float:
+        """Evaluations left under the cost cap: COST_CAP single fits in all (start 0's is one; else a
+        continued fit's median)."""
+        one_fit = final_nfev[0] if include_start else float(np.median(final_nfev))
+        return COST_CAP * one_fit - (probe_nfev + sum(final_nfev) + chain_nfev)
 
     def settle() -> list[Optimum]:
         return cluster([e[0] for e in ends], [e[1] for e in ends], [e[4] for e in ends], problem.data.n_valid,
@@ -386,9 +389,7 @@ def fit_multistart(problem: ChannelProblem, engine: str, options: dict[str, Any]
             final_nfev += [f.nfev for f, _, _ in new]
             if interrupted or settle()[0].hits >= 2:  # reached from two starts: no polish needed
                 break
-            # the cost cap: COST_CAP single fits in all (start 0's is one; else a continued fit's median)
-            one_fit = final_nfev[0] if include_start else float(np.median(final_nfev))
-            left = COST_CAP * one_fit - (probe_nfev + sum(final_nfev) + chain_nfev)
+            left = budget_left()
             todo = [int(k) for k in np.argsort([s for _, _, s in finals], kind="stable")
                     if int(k) not in chained and np.isfinite(finals[int(k)][2])][:chains]
             if left <= 0 or not todo:
@@ -400,8 +401,7 @@ def fit_multistart(problem: ChannelProblem, engine: str, options: dict[str, Any]
                 chain_nfev += nf
                 n_hops += len(hops)
             chained += todo
-            left = COST_CAP * one_fit - (probe_nfev + sum(final_nfev) + chain_nfev)
-            if settle()[0].hits >= 2 or left < keep * float(np.median(final_nfev)):  # no room for a round
+            if settle()[0].hits >= 2 or budget_left() < keep * float(np.median(final_nfev)):  # no room for a round
                 break
     except KeyboardInterrupt:
         stop.set()
