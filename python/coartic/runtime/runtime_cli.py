@@ -4,6 +4,7 @@ Without --table both use the table shipped in the package (coartic.runtime.shipp
 
 from __future__ import annotations
 
+import math
 from pathlib import Path
 from typing import TYPE_CHECKING, Annotated, Callable
 
@@ -16,7 +17,7 @@ from rich.table import Table
 from coartic.runtime.errors import AnimationError
 from coartic.runtime.festival import LANGUAGES, start_synthesis
 from coartic.runtime import PREVIEW_FORMATS
-from coartic.console import LineProgress, print_error
+from coartic.console import LineProgress
 
 # NumPy, the table, the model and the outputs are imported in the commands, after `speak` has
 # started Festival: the imports then run while it synthesises (bench/startup.py).
@@ -29,7 +30,16 @@ _out = Console()
 
 TableOpt = Annotated[Path | None, typer.Option("--table", "-t", help="Parameter table (JSON or long CSV). Default: the Italian table shipped with coartic (every Italian phoneme, fitted on the synthetic session).")]
 OutOpt = Annotated[Path, typer.Option("--out", "-o", help="Output directory (created if needed).")]
-FpsOpt = Annotated[float, typer.Option("--fps", help="Frames per second of the channels, FAP file and preview.")]
+def _finite_fps(fps: float) -> float:
+    # before fps_warnings (int(inf) would raise) and before any work; the upper bound is the frame count's
+    if not (math.isfinite(fps) and fps > 0):
+        raise typer.BadParameter(f"{fps:g} is not a frame rate: give a finite number of frames per second above 0 "
+                                 "(25 for FAP players)")
+    return fps
+
+
+FpsOpt = Annotated[float, typer.Option("--fps", callback=_finite_fps,
+                                       help="Frames per second of the channels, FAP file and preview.")]
 MnsOpt = Annotated[float | None, typer.Option("--mns", help="The speaker's neutral mouth-nose separation, mm (FAPU = MNS/1024). Default 30 mm.")]
 MwOpt = Annotated[float | None, typer.Option("--mw", help="The speaker's neutral mouth width, mm (FAPU = MW/1024). Default: the table's rest LR.")]
 SnapOpt = Annotated[bool, typer.Option("--snap-contacts/--no-snap-contacts", help="Show each k_R = 1 target (lip closure, lip-teeth contact) on its nearest frame.")]
@@ -40,14 +50,9 @@ VrmlOpt = Annotated[bool, typer.Option("--vrml", help="Also write NAME.wrl: the 
 FapNameOpt = Annotated[str | None, typer.Option("--fap-name", help="Name of the FAP file and its header; the WAV and glTF get the same stem (Greta loads NAME.fap with NAME.wav).")]
 ExportOpt = Annotated[str | None, typer.Option("--export", help="Also write the rigs' curves and cues, comma-separated: arkit (NAME.arkit.csv/.json, ARKit's 52 blendshapes), visemes (NAME.visemes.csv/.json, Meta's 15), rhubarb (NAME.rhubarb.json/.tsv, Rhubarb Lip Sync's mouth cues).")]
 GltfMorphsOpt = Annotated[str, typer.Option("--gltf-morphs", help="The glTF's morph targets: fap (one per FAP), arkit (ARKit's 52 blendshape names, to retarget by name) or eight (at most 8 per mesh, all blended by three.js up to r132); arkit and eight imply --gltf.")]
-SpeakerOpt = Annotated[str | None, typer.Option("--speaker", help="Speak as this speaker of a table fitted with [model] speakers (its offset and scale, or its own targets).")]
+SpeakerOpt = Annotated[str | None, typer.Option("--speaker", help="Speak as this speaker of a table fitted with \\[model] speakers (its offset and scale, or its own targets).")]
 ForceOpt = Annotated[bool, typer.Option("--force", help="Replace --out even if it holds another run's output "
                                         "(the same labels or text replace their own output without it).")]
-
-
-def _fail(err: Exception) -> None:
-    print_error(_err, err)
-    raise typer.Exit(code=1)
 
 
 def _progress() -> Progress:
@@ -115,18 +120,12 @@ def _run_staged(table: Path | None, out: Path, command: str, identity: dict[str,
                 protect: list[Path], make: Callable[[ParameterTable, Path, Progress], RuntimeOutput],
                 phone_map: str = "phones_italian.tsv") -> None:
     """Load the table, run ``make`` into the staging directory of ``out`` with a progress bar, and
-    report what was written (where it is once swapped in); any failure is one clear error."""
-    from coartic.io.errors import DataError
-    from coartic.outputs import OutputDir, OutputError
-    from coartic.speakers import SpeakerError
-    from coartic.table import TableError
+    report what was written (where it is once swapped in)."""
+    from coartic.outputs import OutputDir
 
-    try:
-        t = _load_table(table)
-        with OutputDir(out, command, identity, force=force, protect=protect) as staging, _progress() as progress:
-            result = make(t, staging, progress)
-    except (AnimationError, DataError, TableError, OutputError, SpeakerError, OSError) as err:
-        _fail(err)
+    t = _load_table(table)
+    with OutputDir(out, command, identity, force=force, protect=protect) as staging, _progress() as progress:
+        result = make(t, staging, progress)
     _report(_moved(result, staging, out), phone_map)
 
 
@@ -195,13 +194,10 @@ def speak_command(
 
     The files are written beside --out and swapped in together when all are done (docs/OUTPUTS.md)."""
     if lang not in LANGUAGES:
-        _fail(AnimationError(f"--lang {lang!r} is not a language coartic can speak (known: {', '.join(LANGUAGES)})"))
+        raise AnimationError(f"--lang {lang!r} is not a language coartic can speak (known: {', '.join(LANGUAGES)})")
     _warn_fps(fps)
     # Festival first: it synthesises while NumPy, the model and the table load (stopped on any error)
-    try:
-        synthesis = start_synthesis(text, stretch=stretch, voice=voice, lang=lang)
-    except AnimationError as err:
-        _fail(err)
+    synthesis = start_synthesis(text, stretch=stretch, voice=voice, lang=lang)
     with synthesis:
         from coartic.runtime.pipeline import speak_text, speaker_face
 
