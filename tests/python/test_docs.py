@@ -59,3 +59,58 @@ def test_the_binding_specs_are_in_the_repository() -> None:
     assert "shared/spec" not in first
     for name in ("MODEL", "CORPUS", "FORMATS"):
         assert f"spec/{name}.md" in first and (ROOT / "docs" / "spec" / f"{name}.md").is_file()
+
+
+READER_PAGES = sorted((ROOT / "docs" / "readers").glob("*.md"))
+
+
+def _examples(page: Path) -> list[tuple[str, list[str]]]:
+    """(`coartic inspect ...` line, the lines of the ```text block after its ```sh block)."""
+    blocks = re.findall(r"```(sh|text)\n(.*?)```", page.read_text(encoding="utf-8"), flags=re.S)
+    out = []
+    for (kind, body), (next_kind, shown) in zip(blocks, blocks[1:]):
+        if kind == "sh" and next_kind == "text":
+            out += [(line.split("#")[0].strip(), [s.strip() for s in shown.splitlines() if s.strip()])
+                    for line in body.splitlines() if line.startswith("coartic inspect")]
+    return out
+
+
+@pytest.fixture(scope="module")
+def samples(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """A folder laid out as the repository's root after the readers pages' sample commands."""
+    import sys
+
+    where = tmp_path_factory.mktemp("readers")
+    (where / "tests").symlink_to(ROOT / "tests")
+    sys.path.insert(0, str(ROOT / "tests" / "python"))
+    import format_fixtures
+
+    format_fixtures.write_all(where / "build" / "formats")
+    r = CliRunner().invoke(app, ["corpus", "synth", str(where / "build" / "session"), "--quick"])
+    assert r.exit_code == 0, r.output
+    return where
+
+
+def test_every_reader_has_a_page_with_an_example() -> None:
+    from coartic.io.registry import BUILTIN_READERS
+
+    assert len(BUILTIN_READERS) >= 7
+    names = {p.stem for p in READER_PAGES}
+    assert {"README", "c3d", "marker-csv", "ema-csv", "emu", "est", "xrmb", "mview", "labels"} <= names
+    for page in READER_PAGES:
+        if page.stem != "README":
+            assert _examples(page), f"{page.name} has no `coartic inspect` example with what it prints"
+
+
+@pytest.mark.parametrize("page", [p for p in READER_PAGES if p.stem != "README"], ids=lambda p: p.stem)
+def test_the_reader_pages_commands_print_what_they_show(page: Path, samples: Path,
+                                                        monkeypatch: pytest.MonkeyPatch) -> None:
+    import shlex
+
+    monkeypatch.chdir(samples)
+    for command, shown in _examples(page):
+        r = CliRunner().invoke(app, shlex.split(command)[1:], env={"COLUMNS": "300"})
+        out = " ".join(r.output.split())
+        assert r.exit_code in (0, 1) and "error:" not in out, (command, r.output)
+        missing = [s for s in shown if " ".join(s.split()) not in out]
+        assert missing == [], (command, r.output)
