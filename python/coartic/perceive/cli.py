@@ -36,14 +36,14 @@ def prepare_command(
 ) -> None:
     """Render a study's stimuli (coartic's face with Festival's voice, noise at the spec's SNRs) into OUT."""
     from coartic.errors import CoarticError
-    from coartic.outputs import OutputDir
+    from coartic.outputs import OutputDir, OutputError
     from coartic.perceive.spec import read_study
     from coartic.perceive.stimuli import prepare_stimuli
 
     try:
         study = read_study(spec)
         if (out / "results.sqlite").exists():
-            raise FileExistsError(f"{out} holds a results database (results.sqlite): preparing the study again "
+            raise OutputError(f"{out} holds a results database (results.sqlite): preparing the study again "
                                   "would delete the answers; move it away or choose another --out")
         with OutputDir(out, "perceive prepare", {"spec": spec.resolve()}, force=force, protect=[spec]) as staging, \
                 LineProgress(console=_err) as progress:

@@ -29,6 +29,7 @@ from numpy.typing import NDArray
 
 from coartic.perceive.spec import Condition, StudySpec
 from coartic.runtime.animate import Animation
+from coartic.runtime.errors import AnimationError
 from coartic.table import PAUSE, ParameterTable
 
 FORMAT = "coartic-perceive-study 1"
@@ -51,7 +52,7 @@ def read_wav(path: Path) -> tuple[F64, int]:
     """A mono 16-bit PCM WAV (Festival's) as floats in [-1, 1], and its rate."""
     with wave.open(str(path), "rb") as w:
         if w.getsampwidth() != 2 or w.getnchannels() != 1:
-            raise ValueError(f"{path}: expected mono 16-bit PCM, got {w.getnchannels()} channels of "
+            raise AnimationError(f"{path}: expected mono 16-bit PCM, got {w.getnchannels()} channels of "
                              f"{8 * w.getsampwidth()} bits")
         data = np.frombuffer(w.readframes(w.getnframes()), dtype="<i2")
         return data.astype(np.float64) / 32768.0, w.getframerate()
@@ -96,7 +97,7 @@ def speech_mask(animation: Animation, n: int, rate: int) -> NDArray[np.bool_]:
         if label != PAUSE:
             mask |= (t >= s) & (t < e)
     if not mask.any():
-        raise ValueError("the utterance has only pauses: no speech to set an SNR against")
+        raise AnimationError("the utterance has only pauses: no speech to set an SNR against")
     return mask
 
 
