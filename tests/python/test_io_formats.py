@@ -48,13 +48,14 @@ def _expected(m: ff.Motion, rest: np.ndarray) -> dict[str, np.ndarray]:
     ("mocha-ascii", lambda: ff.motion(500.0), 1e-3),
     ("xrmb", ff.xrmb_motion, 2e-3),  # whole micrometres
     ("mview", lambda: ff.motion(100.0), 1e-9),
+    ("carstens", lambda: ff.motion(250.0), 1e-4),  # 4-byte floats in mm
     ("lab-csv", lambda: ff.motion(200.0), 1e-9),
 ])
 def test_each_format_gives_the_channels_of_its_motion(files, name, motion, tol) -> None:  # type: ignore[no-untyped-def]
     data, labels, label_map = files[name]
     with warnings.catch_warnings():
         warnings.simplefilter("error", DataWarning)  # right axes, right units: no warning
-        if name == "xrmb":
+        if name in ("xrmb", "carstens"):  # frame grids that stop before the labels' end
             warnings.filterwarnings("ignore", ".*the last label", DataWarning)
         trial = load_trial(data, labels=labels, label_map=label_map)
         ch = trial.channels()
@@ -389,7 +390,7 @@ def test_registry_unknown_format_and_a_new_reader(tmp_path: Path) -> None:
                                         r"'\.weird'\); coartic reads C3D \(\.c3d\); .*MOCHA-TIMIT"):
         load_trial(p)
     names = [r.name for r in readers()]
-    assert {"c3d", "ema-csv", "markers-csv", "emu", "est", "xrmb", "mview"} <= set(names)
+    assert {"c3d", "carstens-pos", "ema-csv", "markers-csv", "emu", "est", "xrmb", "mview"} <= set(names)
     assert names.index("ema-csv") < names.index("markers-csv")  # the generic sniffer asks last
 
     def read(path: Path, req: ReadRequest) -> tuple[Trial, None]:

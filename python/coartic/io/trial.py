@@ -427,6 +427,10 @@ def _sensor_roles(trial: Trial, given: RoleMap, guess: bool, axes: tuple[str, st
     if guess:
         said.append("sensors guessed by name (" +
                     (", ".join(f"{r}={n}" for r, n in roles.roles.items()) or "none found") + ")")
+    hint = trial.meta.get("roles_hint")
+    if guess and hint and not {"UL", "LL"} <= roles.roles.keys():
+        # a format that does not name its sensors (Carstens .pos): say how to name them
+        raise DataError(str(hint), path=trial.source)
     if not given.axes_given:
         if axes is None:
             vertical, anterior, why = guess_axes(trial.markers, trial.marker_names, roles,
