@@ -17,6 +17,8 @@ command -v espeak-ng >/dev/null 2>&1 || need_apt+=(espeak-ng)
 # the face: viewer test and screenshots (headless Chromium, software WebGL), glTF checks (gltfpack's
 # cgltf validator, three.js's GLTFLoader), VRML97 check (tovrmlx3d from view3dscene)
 command -v chromium >/dev/null 2>&1 || need_apt+=(chromium)
+# coartic perceive's browser tests drive Chromium through Selenium's chromedriver
+command -v chromedriver >/dev/null 2>&1 || need_apt+=(chromium-driver)
 command -v gltfpack >/dev/null 2>&1 || need_apt+=(gltfpack)
 command -v tovrmlx3d >/dev/null 2>&1 || need_apt+=(view3dscene)
 [ -f /usr/share/javascript/three/examples/js/loaders/GLTFLoader.js ] || need_apt+=(libjs-three)
@@ -40,7 +42,8 @@ if [ ! -f "$stamp" ] || [ pyproject.toml -nt "$stamp" ]; then
     $(.venv/bin/python - <<'PY'
 import tomllib
 p = tomllib.load(open("pyproject.toml", "rb"))["project"]
-print(" ".join(repr(d)[1:-1] for d in p["dependencies"] + p["optional-dependencies"]["dev"]))
+extras = p["optional-dependencies"]
+print(" ".join(repr(d)[1:-1] for d in p["dependencies"] + extras["dev"] + extras.get("perceive", [])))
 PY
 )
   touch "$stamp"

@@ -53,6 +53,8 @@ COMMANDS: dict[str, tuple[str, str, str]] = {
               "Fit every speaker/session (and all of them pooled), with \\[posteriors] sample each one's posteriors: "
               "one Dask task per speaker and channel; rerun the same command to continue after an interruption."),
     "corpus": ("coartic.synthetic_cli", "app", "The synthetic ELITE-style session (corpus-synthetic/)."),
+    "perceive": ("coartic.perceive.cli", "app", "Perceptual tests of the animation: prepare a study, serve it to "
+                 "participants' browsers, export and analyse the answers (docs/PERCEIVE.md)."),
 }
 
 
