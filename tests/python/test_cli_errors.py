@@ -69,6 +69,8 @@ BAD_INPUT: dict[str, list[str]] = {
     "view": ["view", "{tmp}/nothere"],
     "batch": ["batch", "{tmp}/nothere.toml", "--out", "{tmp}/o"],
     "corpus": ["corpus", "synth", "/"],
+    "align": ["align", "{tmp}/nothere.wav", "--text", "ciao", "--out", "{tmp}/o"],
+    "perceive": ["perceive", "prepare", "{tmp}/nothere.toml", "--out", "{tmp}/o"],
 }
 
 
