@@ -312,8 +312,10 @@ def parse_textgrid(text: str, path: Path, tier: str | None = None) -> Segments:
                             item=tier)
         raise DataError(f"no interval tier (tiers: {names})", path=path)
     phone_tiers = [t for t in interval if PHONE_TIER.search(t[0].strip())]
-    if tier is None and len(phone_tiers) > 1:
+    speakers = {t[0].partition(" - ")[0].strip() for t in phone_tiers if " - " in t[0]}
+    if tier is None and len(speakers) > 1:
         # Montreal Forced Aligner writes one "<speaker> - phones" tier per speaker: whose is meant?
+        phone_tiers = [t for t in phone_tiers if " - " in t[0]]
         shown = ", ".join(repr(t[0]) for t in phone_tiers)
         raise DataError(f"{len(phone_tiers)} phone tiers ({shown}; one per speaker, as Montreal Forced Aligner "
                         f"writes them): say which to read with --tier {phone_tiers[0][0]!r} (coartic inspect, animate; "
