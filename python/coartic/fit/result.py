@@ -24,6 +24,7 @@ from numpy.typing import NDArray
 
 from coartic import __version__
 from coartic.fit.bounds import CATEGORY_TITLES, BoundNote, explain_bounds, summary_counts
+from coartic.estimation.emotions import channel_metadata
 from coartic.estimation.parameters import ParameterSet, psd_pseudo_inverse
 from coartic.estimation.packing import Packing
 from coartic.estimation.pooling import PoolEstimate
@@ -151,6 +152,13 @@ class ChannelFit:
         return self.problem.data.phonemes
 
     @property
+    def polished(self) -> list[str]:
+        """Each stage another local method finished (nlopt's failed L-BFGS polished by scipy), as
+        "stage i: the engine's message"; the console, fit report and summary.json say so."""
+        return [f"stage {i + 1}: {sr.engine.message}" for i, sr in enumerate(self.stages)
+                if sr.engine.polished and not sr.probe]
+
+    @property
     def packing(self) -> Packing:
         return self.problem.packing
 
@@ -249,7 +257,7 @@ class FitResult:
         """The settings ``channel`` was fitted with: the spec's, a ``[choose]``n model option
         (plateau_fraction) the chosen value, β the fitted one (what the table and report show)."""
         fitted_with = self.spec if self.choice is None else self.choice.spec_for(self.spec, channel)
-        return fitted_with.channel_settings(channel, self.channels[channel].beta)
+        return fitted_with.channel_settings(channel, self.channels[channel].beta, self.channels[channel].problem.phonemes)
 
     def table(self) -> ParameterTable:
         """The fitted parameter table (coartic.table/1) with the fit's metadata."""
@@ -278,6 +286,12 @@ class FitResult:
             t.metadata["speakers"] = {"mode": s.speakers, "column": s.speaker_column,
                                       **{key: {ch: m[key] for ch, m in per.items()} for key in ("coefficients", "targets")
                                          if any(key in m for m in per.values())}}
+        if s.emotions != "none":
+            # each emotion's own targets, its deviations from the neutral ones (the table's) with their
+            # Laplace sd, and the deviations' prior scale τ the data gave (coartic.estimation.emotions)
+            t.metadata["emotions"] = {"mode": s.emotions, "column": s.emotion_column, "neutral": s.neutral_emotion,
+                                      "channels": {ch: channel_metadata(f.problem, f.x)
+                                                   for ch, f in self.channels.items()}}
         if s.shrinks:  # the shrinkage the fit had (sd as the spec gives it; a [choose]n one in "choice")
             # the members it was applied to: those present in a fitted channel's data
             applied = {(grp.key, m) for f in self.channels.values() for grp in f.problem.shrink_groups
@@ -361,7 +375,8 @@ class FitResult:
                 lines.append(f"    {what} {s_i + 1}: {sr.n_free} free ({', '.join(sr.parameters)}): "
                              f"SSE {sr.sse_start:.4g} -> {sr.sse_end:.4g} [{sr.engine.status}]"
                              # a stage that did not converge says why, in the engine's own words
-                             + ("" if sr.engine.status == "converged" or sr.probe else f": {sr.engine.message}"))
+                             + ("" if (sr.engine.status == "converged" and not sr.engine.polished) or sr.probe
+                                else f": {sr.engine.message}"))
             lines += shrinkage_lines(fit.problem, fit.x)
             if fit.pooling is not None:
                 lines += pooling_lines(fit.pooling)
@@ -443,7 +458,8 @@ class FitResult:
                                      "stages": [{"parameters": list(sr.parameters), "n_free": sr.n_free,
                                                  "sse_start": sr.sse_start, "sse_end": sr.sse_end,
                                                  "status": sr.engine.status, "probe": sr.probe,
-                                                 "message": sr.engine.message} for sr in f.stages],
+                                                 "message": sr.engine.message,
+                                                 "polished": sr.engine.polished} for sr in f.stages],
                                      "multistart": None if f.multistart is None
                                      else f.multistart.as_dict(f.problem.data.n_valid),
                                      "pooling": None if f.pooling is None else f.pooling.as_dict()}
