@@ -61,6 +61,9 @@ test-core: setup
 	build/core-env/bin/pip install -q build/core-wheel/coartic-*.whl pytest hypothesis
 	cd build && COARTIC_CORE_ONLY=1 core-env/bin/python -m pytest -q -p no:cacheprovider \
 	  $(addprefix ../,$(CORE_TESTS))
+	# then an extra installed on demand over the core (pip install 'coartic[dataframe]')
+	cd build && COARTIC_WHEEL=$$(ls $$PWD/core-wheel/coartic-*.whl) core-env/bin/python -m pytest -q \
+	  -p no:cacheprovider ../tests/python/test_extras.py -k on_demand
 
 test-rust:
 	cargo test --release --quiet

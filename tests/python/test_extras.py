@@ -144,3 +144,19 @@ def test_to_dataframe_names_its_extra(fitted: tuple[Path, Path], tmp_path: Path)
     r = run_core([str(fit / "table.json")], tmp_path, program)
     assert ("to_dataframe() needs coartic's [dataframe] extra (pandas is not installed): "
             "pip install 'coartic[dataframe]'") in r.stdout, r.stdout + r.stderr
+
+
+@pytest.mark.skipif(not os.environ.get("COARTIC_WHEEL"), reason="make test-core, after the core tests: the "
+                    "extra installed on demand into the core environment")
+def test_an_extra_installs_on_demand(fitted: tuple[Path, Path], tmp_path: Path) -> None:
+    """`pip install 'coartic[dataframe]'` over the core install, then what refused works."""
+    wheel = os.environ["COARTIC_WHEEL"]
+    pip = subprocess.run([sys.executable, "-m", "pip", "install", "-q", f"coartic[dataframe] @ file://{wheel}"],
+                         capture_output=True, text=True, timeout=900)
+    assert pip.returncode == 0, pip.stderr[-3000:]
+    _, fit = fitted
+    program = ("import sys\nfrom coartic.table import ParameterTable\n"
+               "print(len(ParameterTable.load(sys.argv[1]).to_dataframe()))\n")
+    r = subprocess.run([sys.executable, "-c", program, str(fit / "table.json")], capture_output=True, text=True,
+                       timeout=300, cwd=tmp_path)
+    assert r.returncode == 0 and int(r.stdout) > 0, r.stdout + r.stderr
