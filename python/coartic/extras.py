@@ -21,7 +21,11 @@ EXTRAS: dict[str, tuple[str, ...]] = {
     "batch": ("dask", "distributed"),
     "engines": ("nlopt", "casadi"),
     "dataframe": ("pandas",),
+    "speech": ("pocketsphinx", "python_speech_features", "dtw"),
+    "perceive": ("flask", "waitress", "sqlalchemy", "psycopg", "statsmodels"),
 }
+# a requirement whose import name differs from its distribution's
+IMPORT_NAMES = {"dtw-python": "dtw"}
 
 
 class MissingExtra(CoarticError, ImportError, ValueError):

@@ -19,7 +19,7 @@ from pathlib import Path
 import pytest
 
 import format_fixtures as ff
-from coartic.extras import EXTRAS, MissingExtra, missing_modules, require
+from coartic.extras import EXTRAS, IMPORT_NAMES, MissingExtra, missing_modules, require
 
 ROOT = Path(__file__).resolve().parents[2]
 EXTRA_MODULES = sorted({m for mods in EXTRAS.values() for m in mods})
@@ -47,7 +47,9 @@ def run_core(args: list[str], cwd: Path, program: str | None = None) -> subproce
 
 
 def _requirement_name(req: str) -> str:
-    return req.split(";")[0].split(">")[0].split("<")[0].split("=")[0].split("[")[0].strip().lower()
+    """The import name a requirement brings ("dtw-python>=1.5" → "dtw")."""
+    name = req.split(";")[0].split(">")[0].split("<")[0].split("=")[0].split("[")[0].strip().lower()
+    return IMPORT_NAMES.get(name, name)
 
 
 @pytest.mark.skipif(CORE_ONLY, reason="the checkout's pyproject.toml is checked in the full environment")

@@ -304,7 +304,7 @@ def build_problem(spec: FitSpec, utterances: Sequence[Utterance], channel: str, 
     data = ChannelData.build(utterances, channel, phonemes)
     if table is None:
         # Options from the settings the fitted table will record (spec.channel_settings): one source.
-        options = channel_options(spec.variant, spec.channel_settings(channel))
+        options = channel_options(spec.variant, spec.channel_settings(channel, phonemes=data.phonemes))
     else:
         options = model_options(table, channel)
         start = table.to_matrix(channel, data.phonemes)

@@ -441,7 +441,7 @@ def fit_multistart(problem: ChannelProblem, engine: str, options: dict[str, Any]
                     workers, time.perf_counter() - t0, nfev, include_start, n_hops, [continued[k] for k in chained])
     final.nfev = nfev
     status = "interrupted" if interrupted else res.status
-    return final, EngineResult(res.x, status, res.message, nfev, res.njev), stage_list, ms
+    return final, EngineResult(res.x, status, res.message, nfev, res.njev, polished=res.polished), stage_list, ms
 
 
 def max_continued(n_starts: int, keep: int) -> int:

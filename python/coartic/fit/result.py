@@ -150,6 +150,13 @@ class ChannelFit:
         return self.problem.data.phonemes
 
     @property
+    def polished(self) -> list[str]:
+        """Each stage another local method finished (nlopt's failed L-BFGS polished by scipy), as
+        "stage i: the engine's message"; the console, fit report and summary.json say so."""
+        return [f"stage {i + 1}: {sr.engine.message}" for i, sr in enumerate(self.stages)
+                if sr.engine.polished and not sr.probe]
+
+    @property
     def packing(self) -> Packing:
         return self.problem.packing
 
@@ -248,7 +255,7 @@ class FitResult:
         """The settings ``channel`` was fitted with: the spec's, a ``[choose]``n model option
         (plateau_fraction) the chosen value, β the fitted one (what the table and report show)."""
         fitted_with = self.spec if self.choice is None else self.choice.spec_for(self.spec, channel)
-        return fitted_with.channel_settings(channel, self.channels[channel].beta)
+        return fitted_with.channel_settings(channel, self.channels[channel].beta, self.channels[channel].problem.phonemes)
 
     def table(self) -> ParameterTable:
         """The fitted parameter table (coartic.table/1) with the fit's metadata."""
@@ -356,7 +363,8 @@ class FitResult:
                 lines.append(f"    {what} {s_i + 1}: {sr.n_free} free ({', '.join(sr.parameters)}): "
                              f"SSE {sr.sse_start:.4g} -> {sr.sse_end:.4g} [{sr.engine.status}]"
                              # a stage that did not converge says why, in the engine's own words
-                             + ("" if sr.engine.status == "converged" or sr.probe else f": {sr.engine.message}"))
+                             + ("" if (sr.engine.status == "converged" and not sr.engine.polished) or sr.probe
+                                else f": {sr.engine.message}"))
             lines += shrinkage_lines(fit.problem, fit.x)
             if st.at_bound:
                 lines.append(f"    warning: {len(st.at_bound)} parameter(s) at a bound: {', '.join(st.at_bound)}")
@@ -436,7 +444,8 @@ class FitResult:
                                      "stages": [{"parameters": list(sr.parameters), "n_free": sr.n_free,
                                                  "sse_start": sr.sse_start, "sse_end": sr.sse_end,
                                                  "status": sr.engine.status, "probe": sr.probe,
-                                                 "message": sr.engine.message} for sr in f.stages],
+                                                 "message": sr.engine.message,
+                                                 "polished": sr.engine.polished} for sr in f.stages],
                                      "multistart": None if f.multistart is None
                                      else f.multistart.as_dict(f.problem.data.n_valid)}
                                 for ch, f in self.channels.items()}}

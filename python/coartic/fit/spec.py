@@ -21,7 +21,7 @@ import dataclasses
 import functools
 import math
 import tomllib
-from collections.abc import Callable, Iterable, Mapping
+from collections.abc import Callable, Iterable, Mapping, Sequence
 from pathlib import Path
 from typing import Annotated, Any, TypeVar
 
@@ -33,12 +33,13 @@ from coartic.errors import SpecError
 from coartic.io.errors import DataError
 from coartic.io.roles import RoleMap
 from coartic.settings import CHANNEL_SETTINGS, default
-from coartic.table import ALL_CHANNELS, CHANNELS, PARAMETERS, VARIANTS, ChannelSettings, domain_problem
+from coartic.table import ALL_CHANNELS, CHANNELS, PARAMETERS, PAUSE, VARIANTS, ChannelSettings, domain_problem
 from coartic.textfile import TextDecodeError, read_text
 
 ENGINES: tuple[str, ...] = ("scipy", "nlopt", "casadi")
 # [validate] group: what a k-fold validation holds out together (manifest columns, or the file).
-VALIDATE_GROUPS: tuple[str, ...] = ("utterance", "sentence", "rate", "speaker", "repetition")
+# "time": each utterance cut at its middle segment, one half fitted, the other held out (both ways)
+VALIDATE_GROUPS: tuple[str, ...] = ("utterance", "sentence", "rate", "speaker", "repetition", "time")
 SPEAKER_MODES: tuple[str, ...] = ("none", "offset", "offset_scale", "targets")
 
 # Starting values of the dynamics; targets start from the data (mean value at the target times).
@@ -73,6 +74,10 @@ DEFAULT_STAGES: tuple[tuple[str, ...], ...] = (
 )
 # [fit] defaults: multi-start estimation (coartic.fit.multistart; measured in bench/multistart.py)
 DEFAULT_STARTS = 32
+# The reference phoneme (α = 1) of a spec that names none: the first of these the data have, /a/
+# first (the paper's), then the other vowels from open to close (FitSpec.reference_for).
+DEFAULT_REFERENCE = "a"
+REFERENCE_ORDER: tuple[str, ...] = (DEFAULT_REFERENCE, "E", "O", "e", "o", "i", "u")
 DEFAULT_PROBE = 10  # evaluations per stage in the probe every start gets
 # Fitted on a log scale: their bounds and log-scale priors need positive values.
 LOG_SCALE_PARAMETERS = ("alpha", "theta_bw", "theta_fw", "psi", "beta")
@@ -563,7 +568,8 @@ class FitSpec:
     corpus: CorpusSpec
     channels: Channels = CHANNELS
     variant: Annotated[str, BeforeValidator(_one_of(VARIANTS))] = "modified"
-    reference_phoneme: Text = "a"
+    # α = 1 for it (MODEL.md §1); None: chosen from the data (FitSpec.reference_for)
+    reference_phoneme: Annotated[str | None, BeforeValidator(_optional(_text))] = None
     # the model's channel settings: defaults and ranges from coartic.settings
     apex_fraction: Annotated[float, BeforeValidator(_setting("apex_fraction"))] = default("apex_fraction")
     edge_extent: Annotated[float, BeforeValidator(_setting("edge_extent"))] = default("edge_extent")
@@ -631,7 +637,7 @@ class FitSpec:
             raise _bad("no channel to fit", ("channels",))
         if self.speakers != "none" and self.offsets != "none":
             raise _bad("cannot be combined with [model] offsets yet: choose one", ("speakers",))
-        ref = self.reference_phoneme
+        ref = self.reference_phoneme or DEFAULT_REFERENCE
         for i, t in enumerate(self.ties):
             if ref in t.phonemes and "alpha" in t.parameters:
                 raise _bad(f"ties alpha of the reference phoneme {ref!r}, which is fixed at 1", ("ties", i),
@@ -662,11 +668,25 @@ class FitSpec:
         SpecError names the spec file and the key of the field at fault."""
         return dataclasses.replace(self, **changes)
 
-    def channel_settings(self, channel: str, beta: float | None = None) -> ChannelSettings:
+    def reference_for(self, phonemes: Sequence[str]) -> str:
+        """The reference phoneme (α = 1) of a channel whose data have ``phonemes``: the spec's
+        ``[model] reference_phoneme`` if it names one, else the first of REFERENCE_ORDER the data
+        have (/a/, then the other vowels from open to close), else the first non-pause phoneme.
+        α is scale-free, so which phoneme holds α = 1 changes no fit, only the scale the others' α
+        are written in."""
+        if self.reference_phoneme is not None:
+            return self.reference_phoneme
+        present = [p for p in phonemes if p != PAUSE] or list(phonemes)
+        return next((p for p in REFERENCE_ORDER if p in present), present[0] if present else DEFAULT_REFERENCE)
+
+    def channel_settings(self, channel: str, beta: float | None = None,
+                         phonemes: Sequence[str] | None = None) -> ChannelSettings:
         """The settings a fit of ``channel`` uses and writes into its table (``beta``: the fitted
-        value; default the spec's). The fit's model options are made from them
+        value; default the spec's; ``phonemes``: the channel's, for the reference phoneme the spec
+        leaves to the data). The fit's model options are made from them
         (``coartic.model.channel_options``), so a table evaluates as it was fitted."""
-        return ChannelSettings(reference_phoneme=self.reference_phoneme, beta=self.beta if beta is None else beta,
+        ref = self.reference_for(phonemes) if phonemes is not None else (self.reference_phoneme or DEFAULT_REFERENCE)
+        return ChannelSettings(reference_phoneme=ref, beta=self.beta if beta is None else beta,
                                edge_extent=self.edge_extent, apex_fraction=self.apex_fraction,
                                dominance=self.dominance, plateau_fraction=self.plateau_fraction,
                                handover=self.handover)
