@@ -6,7 +6,7 @@
 #   make table-italian   regenerate python/coartic/runtime/italian_table.json (and its provenance)
 #   make table-italian-changed   the same, refitting only the lip and jaw channels whose data changed
 PY := .venv/bin/python
-.PHONY: setup fit test test-rust test-python test-core stubtest typecheck bench clean wheel table-italian table-italian-changed
+.PHONY: setup fit fit-emotive test test-rust test-python test-core stubtest typecheck bench clean wheel table-italian table-italian-changed
 
 setup:
 	./scripts/setup.sh
@@ -16,6 +16,14 @@ fit: setup
 	[ -f build/session/manifest.csv ] || $(PY) -m coartic.cli corpus synth build/session
 	$(PY) -m coartic.cli fit fit/synthetic.toml --out results/synthetic --validate
 	$(PY) fit/check_recovery.py results/synthetic
+
+# The emotive flavour (corpus-synthetic/emotions.toml: /a i u/ x /p b m f v t/, neutral and Ekman's six
+# emotions, 504 trials) fitted with emotion as a factor (fit/emotive.toml, docs/EMOTIONS.md), then
+# every emotion's deviation from the neutral targets checked against the truth (fit/check_emotions.py).
+fit-emotive: setup
+	[ -f build/emotive/manifest.csv ] || $(PY) -m coartic.cli corpus synth build/emotive --flavour emotive
+	$(PY) -m coartic.cli fit fit/emotive.toml --out results/emotive --validate
+	$(PY) fit/check_emotions.py results/emotive build/emotive/ground_truth.json
 
 # The Italian flavour of the synthetic session (every Italian phoneme): its lip and jaw channels
 # (face markers, fit/italian.toml) and its tongue channels (EMA files, fit/italian_tongue.toml) fitted

@@ -25,6 +25,7 @@ from numpy.typing import NDArray
 from coartic import __version__
 from coartic.extras import require
 from coartic.fit.bounds import CATEGORY_TITLES, BoundNote, explain_bounds, summary_counts
+from coartic.estimation.emotions import channel_metadata
 from coartic.estimation.parameters import ParameterSet, psd_pseudo_inverse
 from coartic.estimation.packing import Packing
 from coartic.estimation.problem import ChannelProblem
@@ -284,6 +285,12 @@ class FitResult:
             t.metadata["speakers"] = {"mode": s.speakers, "column": s.speaker_column,
                                       **{key: {ch: m[key] for ch, m in per.items()} for key in ("coefficients", "targets")
                                          if any(key in m for m in per.values())}}
+        if s.emotions != "none":
+            # each emotion's own targets, its deviations from the neutral ones (the table's) with their
+            # Laplace sd, and the deviations' prior scale τ the data gave (coartic.estimation.emotions)
+            t.metadata["emotions"] = {"mode": s.emotions, "column": s.emotion_column, "neutral": s.neutral_emotion,
+                                      "channels": {ch: channel_metadata(f.problem, f.x)
+                                                   for ch, f in self.channels.items()}}
         if s.shrinks:  # the shrinkage the fit had (sd as the spec gives it; a [choose]n one in "choice")
             # the members it was applied to: those present in a fitted channel's data
             applied = {(grp.key, m) for f in self.channels.values() for grp in f.problem.shrink_groups

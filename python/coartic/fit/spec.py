@@ -41,6 +41,7 @@ ENGINES: tuple[str, ...] = ("scipy", "nlopt", "casadi")
 # "time": each utterance cut at its middle segment, one half fitted, the other held out (both ways)
 VALIDATE_GROUPS: tuple[str, ...] = ("utterance", "sentence", "rate", "speaker", "repetition", "time")
 SPEAKER_MODES: tuple[str, ...] = ("none", "offset", "offset_scale", "targets")
+EMOTION_MODES: tuple[str, ...] = ("none", "targets")
 
 # Starting values of the dynamics; targets start from the data (mean value at the target times).
 DEFAULT_START: dict[str, float] = {
@@ -600,6 +601,12 @@ class FitSpec:
     # shared dynamics
     speakers: Annotated[str, BeforeValidator(_one_of(SPEAKER_MODES))] = "none"
     speaker_column: Text = "speaker"
+    # emotion as a factor of the fit: "none", or "targets" (each emotion's targets a deviation from the
+    # neutral ones, shrunk toward them by a scale the data estimate: coartic.estimation.emotions), the
+    # emotion read from the manifest column emotion_column, neutral_emotion the reference
+    emotions: Annotated[str, BeforeValidator(_one_of(EMOTION_MODES))] = "none"
+    emotion_column: Text = "emotion"
+    neutral_emotion: Text = "neutral"
     start_given: frozenset[str] = frozenset()  # the [parameters.start] keys the spec gives (checked against bounds)
     bounds: Bounds = dataclasses.field(default_factory=lambda: dict(DEFAULT_FIT_BOUNDS))
     channel_bounds: Annotated[dict[str, dict[str, tuple[float, float]]], BeforeValidator(_channel_bounds)] = \
@@ -637,6 +644,8 @@ class FitSpec:
             raise _bad("no channel to fit", ("channels",))
         if self.speakers != "none" and self.offsets != "none":
             raise _bad("cannot be combined with [model] offsets yet: choose one", ("speakers",))
+        if self.emotions != "none" and (self.offsets != "none" or self.speakers != "none"):
+            raise _bad("cannot be combined with [model] offsets or speakers yet: choose one", ("emotions",))
         ref = self.reference_phoneme or DEFAULT_REFERENCE
         for i, t in enumerate(self.ties):
             if ref in t.phonemes and "alpha" in t.parameters:
@@ -729,7 +738,7 @@ DOCUMENT: dict[str, dict[str, str]] = {
     "": {"name": "name"},
     "model": {k: k for k in ("variant", "channels", "reference_phoneme", "apex_fraction", "edge_extent", "beta",
                              "fit_beta", "beta_bounds", "offsets", "dominance", "plateau_fraction", "handover",
-                             "speakers", "speaker_column")},
+                             "speakers", "speaker_column", "emotions", "emotion_column", "neutral_emotion")},
     "parameters": {"free": "free", "start": "start", "start_table": "start_table", "bounds": "bounds",
                    "target_margin": "target_margin", "prior": "priors", "prior_noise": "prior_noise",
                    "shared": "shared", "target_prior": "target_prior"},
