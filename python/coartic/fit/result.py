@@ -23,6 +23,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from coartic import __version__
+from coartic.extras import require
 from coartic.fit.bounds import CATEGORY_TITLES, BoundNote, explain_bounds, summary_counts
 from coartic.estimation.emotions import channel_metadata
 from coartic.estimation.parameters import ParameterSet, psd_pseudo_inverse
@@ -331,6 +332,7 @@ class FitResult:
         """pandas DataFrame of ``parameters.csv`` (``what="parameters"``: one row per channel,
         phoneme and parameter with value, standard error, free, tie, bounds and flags; NaN where a
         number does not apply) or of ``rmse.csv`` (``"rmse"``: per channel and group)."""
+        require("dataframe", "to_dataframe()")
         import pandas as pd
 
         if what == "rmse":
