@@ -49,11 +49,11 @@ def batch_command(
     if scheduler is None and tls_given:  # the local cluster takes no certificates: not a silent no-op
         raise UsageError(f"{', '.join(tls_given)}: TLS certificates are for a tls:// scheduler; give its address "
                          "with --scheduler tls://HOST:PORT, or leave them out to run on a local cluster")
+    from coartic.batch.run import Tls, require_packages, run_batch
     from coartic.batch.spec import load_batch_spec
 
+    require_packages(None, serial)
     s = load_batch_spec(spec)
-    from coartic.batch.run import Tls, run_batch
-
     outcome = run_batch(s, out, scheduler=scheduler, workers=workers, serial=serial, force=force, report=report,
                         console=err, quiet=quiet, tls=Tls(tls_ca_file, tls_cert, tls_key))
     from coartic.batch.report import rmse_rows
