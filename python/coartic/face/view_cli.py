@@ -35,6 +35,10 @@ def view_command(
     from coartic.face.viewer import (check_frame, make_server, page_query, screenshot as take_screenshot, view_yaw,
                                      write_page)
 
+    if screenshot is not None:  # before Chromium runs
+        from coartic.outputs import check_output_file
+
+        check_output_file(screenshot, "--screenshot", "view.png", create_folder=True)
     turn = view_yaw(view, yaw)
     page = write_page(out_dir, name)
     if frame is not None:
