@@ -37,7 +37,11 @@ COMMANDS: dict[str, tuple[str, str, str]] = {
     "mcmc": ("coartic.mcmc.mcmc_cli", "mcmc_command",
              "Sample the posterior of the fitted parameters with emcee, check convergence, write intervals."),
     "animate": ("coartic.runtime.runtime_cli", "animate_command",
-                "Animate a label file: channel trajectories (CSV), an MPEG-4 FAP file and a preview."),
+                "Animate a label file, or a recording and its transcript: channel trajectories (CSV), an MPEG-4 "
+                "FAP file and a preview."),
+    "align": ("coartic.align.align_cli", "align_command",
+              "Align a recording to its transcript: NAME.TextGrid (tiers words, phones and the model's phonemes, "
+              "which `coartic animate` reads) and NAME.align.txt (method, confidence, warnings)."),
     "speak": ("coartic.runtime.runtime_cli", "speak_command",
               "Say Italian (or English, --lang en) text with Festival: WAV, channel trajectories, FAP file and preview, all as long as "
               "the WAV."),
@@ -49,6 +53,8 @@ COMMANDS: dict[str, tuple[str, str, str]] = {
               "Fit every speaker/session (and all of them pooled), with \\[posteriors] sample each one's posteriors: "
               "one Dask task per speaker and channel; rerun the same command to continue after an interruption."),
     "corpus": ("coartic.synthetic_cli", "app", "The synthetic ELITE-style session (corpus-synthetic/)."),
+    "perceive": ("coartic.perceive.cli", "app", "Perceptual tests of the animation: prepare a study, serve it to "
+                 "participants' browsers, export and analyse the answers (docs/PERCEIVE.md)."),
 }
 
 

@@ -70,7 +70,9 @@ def synth(
         typer.Option(help="model: the channels are the model's (ground truth known); gestures: critically "
                      "damped gestures towards the same targets, data the model did not make; italian: the model "
                      "with every Italian phoneme (seven vowels and /j w/ in VCV, CV and VC, ground_truth_italian.json), "
-                     "each trial also as an EMA file with the tongue (ema/)."),
+                     "each trial also as an EMA file with the tongue (ema/); emotive: /a i u/ with /p b m f v t/ said "
+                     "neutrally and with Ekman's six emotions, each moving the lip targets "
+                     "(corpus-synthetic/emotions.toml; 'emotion' and 'intensity' manifest columns)."),
     ] = "model",
     speakers: Annotated[
         int,

@@ -1,6 +1,7 @@
 """Small recordings written in the exact formats the corpora are distributed in (MOCHA-TIMIT EST
-tracks, binary and ASCII; X-ray Microbeam .txy; mview MATLAB .mat; EMA CSV with lab sensor names),
-with label files in each corpus' phone set, so the readers are tested on the bytes a user has.
+tracks, binary and ASCII; X-ray Microbeam .txy; mview MATLAB .mat; Carstens AG501 .pos; EMA CSV
+with lab sensor names), with label files in each corpus' phone set, so the readers are tested on
+the bytes a user has.
 
 One utterance, /# p a m i t u #/, whose articulators follow the synthetic session's ground-truth
 model (corpus-synthetic/ground_truth.json) for the lips and jaw, and made-up but smooth tongue
@@ -261,6 +262,38 @@ def write_lab_csv(path: Path, m: Motion, names: dict[str, str] | None = None,
     return path
 
 
+# ------------------------------------------------------------------ Carstens AG50x .pos
+
+CARSTENS_CHANNELS = {3: "UL", 4: "LL", 5: "JAW", 6: "TT", 7: "TB", 8: "TD"}  # channel → role
+
+
+def write_carstens_pos(path: Path, m: Motion, header: bool = True, channels: int = 16,
+                       sensor_file: bool = True) -> Path:
+    """An AG501 file (V002 header; AG500: none) as Carstens documents it: little-endian float32,
+    per frame every channel's x y z phi theta rms extra. Axes as a head-corrected session often
+    has them: x backwards, y lateral, z up, mm. Channels not in CARSTENS_CHANNELS are unplugged
+    (all zero); with `sensor_file`, `<stem>.sensors` names the plugged ones."""
+    frames = np.zeros((m.times.size, channels, 7), dtype="<f4")
+    for ch, role in CARSTENS_CHANNELS.items():
+        a, v = m.sensors[role][:, 0], m.sensors[role][:, 1]
+        frames[:, ch - 1, 0] = -a
+        frames[:, ch - 1, 1] = 0.5  # the midline, as the lateral axis sees it
+        frames[:, ch - 1, 2] = v
+        frames[:, ch - 1, 3:5] = (10.0, 80.0)
+        frames[:, ch - 1, 5] = 0.4
+    head = b""
+    if header:
+        rate = 1.0 / (m.times[1] - m.times[0])
+        lines = (f"NumberOfChannels={channels}\nSamplingFrequencyHz={rate:g}\n").encode()
+        size = len(b"AG50xDATA_V002\n") + 9 + len(lines) + 2
+        head = b"AG50xDATA_V002\n" + f"{size:08d}\n".encode() + lines + b"\x00\x1a"
+    path.write_bytes(head + frames.tobytes())
+    if sensor_file:
+        path.with_suffix(".sensors").write_text(
+            "# channel  sensor\n" + "".join(f"{ch} {role}\n" for ch, role in CARSTENS_CHANNELS.items()))
+    return path
+
+
 def write_mfa_textgrid(path: Path, m: Motion, labels: tuple[str, ...] = ARPABET_LABELS) -> Path:
     """A Montreal-Forced-Aligner TextGrid: the words tier first, then the phones tier."""
     xmax = float(m.ends[-1])
@@ -293,6 +326,7 @@ def write_all(out: Path) -> dict[str, tuple[Path, Path, str]]:
     xrmb = xrmb_motion()
     hask = motion(100.0)
     ema = motion(200.0)
+    ag501 = motion(250.0)
     return {
         "mocha-binary": (write_mocha_est(out / "fsew0_001.ema", mocha),
                          write_mocha_lab(out / "fsew0_001.lab", mocha), "mocha"),
@@ -303,6 +337,8 @@ def write_all(out: Path) -> dict[str, tuple[Path, Path, str]]:
         "mview": (write_mview(out / "F01_B01_S01_R01_N.mat", hask),
                   write_tsv_labels(out / "F01_B01_S01_R01_N.tsv", hask, ARPABET_LABELS),
                   "english_arpabet"),
+        "carstens": (write_carstens_pos(out / "0001.pos", ag501),
+                     write_mfa_textgrid(out / "0001.TextGrid", ag501), "english_arpabet"),
         "lab-csv": (write_lab_csv(out / "utt_lab.csv", ema),
                     write_mfa_textgrid(out / "utt_lab.TextGrid", ema), "english_arpabet"),
     }

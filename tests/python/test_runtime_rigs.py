@@ -81,7 +81,11 @@ def test_arkit_weights_at_the_phonemes(run: RuntimeOutput) -> None:
     f, u = _frame_at_target(anim, "f"), _frame_at_target(anim, "u", "LR")
     assert col["mouthPressLeft"][p] > 0.5 and col["mouthPressLeft"][a] == 0.0
     assert col["jawOpen"][a] > 0.3 > col["jawOpen"][p]
-    assert col["mouthRollLower"][f] > 0.3 > col["mouthRollLower"][a]  # the lower lip drawn under the teeth
+    assert col["mouthRollLower"][f] == 1.0  # the lower lip drawn under the teeth, fully as the rig rolls it
+    # an open vowel's lips are drawn back a little but do not roll (issue 26: 0.27 at /a/ before)
+    assert col["mouthRollLower"][a] == 0.0 and col["mouthRollUpper"][a] == 0.0
+    # /f/ lifts the lower lip to the teeth on its own, no press of both lips (which hid the incisors)
+    assert col["mouthShrugLower"][f] > 0.05 and col["mouthPressLeft"][f] < 0.05
     assert col["mouthPucker"][u] + col["mouthFunnel"][u] > 0.3 > col["mouthPucker"][a] + col["mouthFunnel"][a]
     np.testing.assert_array_equal(col["mouthStretchLeft"], col["mouthStretchRight"])  # symmetric channels
 
@@ -243,7 +247,7 @@ def test_arkit_face_follows_the_fap_face(run: RuntimeOutput) -> None:
     names, fields = arkit_morphs(rig, anim.neutral, face)
     fap_pose = rig.pose(rig.weights(animation_faps(anim, face, "x")))
     ark_pose = rig.mesh.vertices + np.tensordot(arkit_weights(anim), fields, axes=(1, 0))
-    for part, within in (("skin", 5.5), ("lower_teeth", 1.0), ("eyelids", 2.0)):
+    for part, within in (("skin", 3.0), ("lower_teeth", 1.0), ("eyelids", 2.0)):
         sel = rig.mesh.in_part(part)
         moved = np.linalg.norm(fap_pose[:, sel] - rig.mesh.vertices[sel], axis=2).max()
         off = np.linalg.norm(fap_pose[:, sel] - ark_pose[:, sel], axis=2)

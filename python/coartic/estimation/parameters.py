@@ -199,10 +199,12 @@ class ParameterSet(Mapping[str, Parameter]):
                     # named (for errors) but never checked against bounds: a fixed value is not free
                     base[i, k], free[i, k], origin[i, k] = val, False, f"override #{j + 1}.fixed.{name}"
 
-        if spec.reference_phoneme not in phon:
-            raise SpecError.at(spec.path, "model.reference_phoneme", f"{spec.reference_phoneme!r} does not occur in "
-                               f"the {ch} data (phonemes: {' '.join(phon)})")
-        r = phon.index(spec.reference_phoneme)
+        ref = spec.reference_for(phon)
+        if ref not in phon:
+            raise SpecError.at(spec.path, "model.reference_phoneme", f"{ref!r} does not occur in "
+                               f"the {ch} data (phonemes: {' '.join(phon)}); name one that does, or leave "
+                               "reference_phoneme out to let the data choose")
+        r = phon.index(ref)
         ka = PARAMETERS.index("alpha")
         free[r, ka], base[r, ka] = False, 1.0
 

@@ -28,6 +28,8 @@ from numpy.typing import NDArray
 
 from coartic import _core
 from coartic.estimation.data import ChannelData
+from coartic.estimation.emotions import EmotionPrior, emotion_names, table_emotion_meta
+from coartic.estimation.emotions import shrink_groups as emotion_shrink_groups
 from coartic.estimation.offsets import Offsets
 from coartic.estimation.packing import Packing, Prior, moving
 from coartic.estimation.parameters import ParameterSet
@@ -56,15 +58,18 @@ class ChannelProblem:
                  priors: Mapping[str, Prior] | None = None, prior_noise: float = 1.0,
                  offset_sd: float | None = None, speakers: str = "none",
                  speaker_column: str = "speaker", shrink: Sequence[ShrinkGroup] = (),
-                 speaker_rows: SpeakerRows | None = None) -> None:
+                 speaker_rows: SpeakerRows | None = None, emotion_prior: EmotionPrior | None = None) -> None:
         self.data = data
         # Speaker-specific target offset/scale (spec [model] speakers), profiled out like offsets.
         self.speaker_mode, self.speaker_column = speakers, speaker_column
         self.speakers = None if speakers in ("none", "targets") else Speakers(data, speakers, speaker_column)
         # [model] speakers = "targets": the rows of the (expanded) matrix per speaker (expand_speaker_targets)
         self.speaker_rows = speaker_rows
-        if (speakers == "targets") != (speaker_rows is not None):
+        emotive = speaker_rows is not None and speaker_rows.factor == "emotions"
+        if (speakers == "targets" or emotive) != (speaker_rows is not None):
             raise SpecError("[model] speakers = \"targets\" needs the per-speaker rows (build_problem makes them)")
+        if emotion_prior is not None and not emotive:
+            raise SpecError("an emotion prior needs the per-emotion rows ([model] emotions = \"targets\")")
         if self.speakers is not None and offset_sd is not None:
             raise SpecError("[model] speakers and [model] offsets cannot be combined yet: choose one")
         self.packing = packing
@@ -77,8 +82,13 @@ class ChannelProblem:
         self.priors: dict[str, Prior] = dict(priors or {})
         self.prior_noise = float(prior_noise)
         self.penalty = Penalty(packing, self.priors, self.prior_noise)
-        # Shrinkage toward class means (spec [[shrink]]), likewise extra rows after the priors'.
-        self.shrink_groups = list(shrink)
+        # Shrinkage toward class means (spec [[shrink]]), likewise extra rows after the priors', and the
+        # emotions' deviations toward the neutral targets (None: not yet estimated, or no emotions).
+        self.spec_shrink_groups = list(shrink)
+        self.emotion_prior = emotion_prior
+        self.shrink_groups = self.spec_shrink_groups + (
+            [] if emotion_prior is None or speaker_rows is None
+            else emotion_shrink_groups(speaker_rows, emotion_prior, prior_noise))
         self.shrinkage = Shrinkage(packing, self.shrink_groups, self.prior_noise)
         self.sqrt_w = np.sqrt(data.weights)
         self.nfev = 0
@@ -294,8 +304,16 @@ class ChannelProblem:
     def with_packing(self, packing: Packing) -> ChannelProblem:
         """A problem on the same data with another free set (staged fits); best point carried."""
         p = ChannelProblem(self.data, packing, self.options, self.priors, self.prior_noise, self.offset_sd,
-                           self.speaker_mode, self.speaker_column, self.shrink_groups, self.speaker_rows)
+                           self.speaker_mode, self.speaker_column, self.spec_shrink_groups, self.speaker_rows,
+                           self.emotion_prior)
         p.nfev, p.njev, p.monitor = self.nfev, self.njev, self.monitor
+        return p
+
+    def with_emotion_prior(self, prior: EmotionPrior) -> ChannelProblem:
+        """The same problem with the emotions' deviation prior (``[model] emotions``), best point reset."""
+        p = ChannelProblem(self.data, self.packing, self.options, self.priors, self.prior_noise, self.offset_sd,
+                           self.speaker_mode, self.speaker_column, self.spec_shrink_groups, self.speaker_rows, prior)
+        p.monitor = self.monitor
         return p
 
 
@@ -326,7 +344,7 @@ def build_problem(spec: FitSpec, utterances: Sequence[Utterance], channel: str, 
     data = ChannelData.build(utterances, channel, phonemes)
     if table is None:
         # Options from the settings the fitted table will record (spec.channel_settings): one source.
-        options = channel_options(spec.variant, spec.channel_settings(channel))
+        options = channel_options(spec.variant, spec.channel_settings(channel, phonemes=data.phonemes))
     else:
         options = model_options(table, channel)
         start = table.to_matrix(channel, data.phonemes)
@@ -346,6 +364,22 @@ def build_problem(spec: FitSpec, utterances: Sequence[Utterance], channel: str, 
             data, ps, rows = expand_speaker_targets(spec, data, ps, data_start=False, names=tuple(own),
                                                     start_targets=own)
         shrink = rows.shrink_groups(spec, shrink)
+    prior = None
+    if spec.emotions == "targets":
+        if table is None:
+            names = emotion_names(data.utterances, spec.emotion_column, spec.neutral_emotion)
+            data, ps, rows = expand_speaker_targets(spec, data, ps, data_start=start is None and
+                                                    "target" not in spec.start_given, names=names, factor="emotions")
+        else:
+            emo = table_emotion_meta(spec, table).get("channels", {}).get(channel)
+            if not emo:
+                raise TableError(f"{where}: metadata.emotions has no channel {channel}")
+            data, ps, rows = expand_speaker_targets(spec, data, ps, data_start=False, names=tuple(emo["targets"]),
+                                                    start_targets=emo["targets"], factor="emotions")
+            prior = EmotionPrior.from_dict(emo) if "tau" in emo else None
+        shrink = rows.shrink_groups(spec, shrink)
+    elif table is not None:
+        table_emotion_meta(spec, table)  # a table fitted with emotions needs the spec that has them
     return ChannelProblem(data, ps.packing(), options, ps.priors, spec.prior_noise,
                           None if offset_sd is None else float(offset_sd), spec.speakers, spec.speaker_column,
-                          shrink, rows)
+                          shrink, rows, prior)

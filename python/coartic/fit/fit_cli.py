@@ -13,7 +13,7 @@ from rich.table import Table
 from coartic.fit.bounds import summary_counts
 from coartic.fit.result import BAR_MM, UNIDENTIFIED_ADVICE, FitResult
 from coartic.errors import SpecError
-from coartic.fit.spec import ENGINES, FitSpec, load_spec
+from coartic.fit.spec import ENGINES, VALIDATE_GROUPS, FitSpec, load_spec
 from coartic.fit.staged import UNCONFIRMED_STATUSES
 from coartic.console import print_error, print_table
 from coartic.table import ALL_CHANNELS
@@ -39,7 +39,7 @@ def rmse_table(result: FitResult, title: str = "RMSE (mm)") -> Table:
             w = worst[g].get(ch)
             row.append(cell(w[1], w[0]) if w else "–")
         colour = "green" if fit.status == "converged" else "red" if fit.status in UNCONFIRMED_STATUSES else "yellow"
-        row.append(f"[{colour}]{escape(fit.status)}[/{colour}]")
+        row.append(f"[{colour}]{escape(fit.status)}[/{colour}]" + (" (polished by scipy)" if fit.polished else ""))
         t.add_row(*row)
     return t
 
@@ -52,6 +52,8 @@ def status_lines(result: FitResult) -> list[str]:
         if fit.multistart is not None:
             colour = "yellow" if fit.multistart.best_found_once else "green"
             lines.append(f"[{colour}]{escape(ch)}[/{colour}]: {escape(fit.multistart.summary_line(fit.problem.data.n_valid))}")
+        for line in fit.polished:  # another local method finished the engine's fit: say so
+            lines.append(f"[yellow]{escape(ch)}: polished[/yellow]: {escape(line)}")
         if fit.status != "converged":
             colour = "red" if fit.status in UNCONFIRMED_STATUSES else "yellow"
             lines.append(f"[{colour}]{escape(ch)}: {escape(fit.status)}[/{colour}]: {escape(fit.message)}"
@@ -78,6 +80,10 @@ def fit_command(
     validate: bool = typer.Option(False, "--validate", help="also fit on part of the data and report RMSE on "
                                   "the rest: k-fold by [validate] group (utterance, sentence, rate, speaker, "
                                   "repetition), else the held-out repetition and the fast rate"),
+    validate_by: Optional[str] = typer.Option(None, "--validate-by", help="validate (implies --validate) by this "
+                                              "split instead of the spec's [validate] group: time (each utterance "
+                                              "cut at its middle segment, one half fitted, the other held out, both "
+                                              "ways), utterance, sentence, rate, speaker or repetition"),
     report: bool = typer.Option(True, "--report/--no-report", help="write the HTML report with plots"),
     choose: Optional[str] = typer.Option(None, "--choose", help="KEY=V1,V2,...: choose a setting by k-fold "
                                          "cross-validation on the training data, then fit with it (e.g. "
@@ -129,6 +135,11 @@ def fit_command(
                 changes["keep"] = starts
         if seed is not None:
             changes["seed"] = seed
+        if validate_by is not None:
+            if validate_by not in VALIDATE_GROUPS:
+                raise SpecError(f"--validate-by {validate_by!r}: unknown split ({', '.join(VALIDATE_GROUPS)})")
+            changes["validate_group"] = validate_by
+            validate = True
         s = s.with_options(**changes)
         if choose is not None:
             from coartic.fit.choose import parse_choose

@@ -567,7 +567,7 @@ def fit_multistart(problem: ChannelProblem, engine: str, options: dict[str, Any]
         ms.start0_rmse, ms.start0_objective = problem.data_rmse(e0[0]), float(e0[1])
     final.nfev = nfev
     status = "interrupted" if interrupted else res.status
-    return final, EngineResult(res.x, status, res.message, nfev, res.njev), stage_list, ms
+    return final, EngineResult(res.x, status, res.message, nfev, res.njev, polished=res.polished), stage_list, ms
 
 
 def penalty_words(problem: ChannelProblem) -> str:

@@ -23,7 +23,9 @@ import numpy as np
 from numpy.typing import NDArray
 
 from coartic import __version__
+from coartic.extras import require
 from coartic.fit.bounds import CATEGORY_TITLES, BoundNote, explain_bounds, summary_counts
+from coartic.estimation.emotions import channel_metadata
 from coartic.estimation.parameters import ParameterSet, psd_pseudo_inverse
 from coartic.estimation.packing import Packing, shared_words
 from coartic.estimation.problem import ChannelProblem
@@ -149,6 +151,13 @@ class ChannelFit:
         return self.problem.data.phonemes
 
     @property
+    def polished(self) -> list[str]:
+        """Each stage another local method finished (nlopt's failed L-BFGS polished by scipy), as
+        "stage i: the engine's message"; the console, fit report and summary.json say so."""
+        return [f"stage {i + 1}: {sr.engine.message}" for i, sr in enumerate(self.stages)
+                if sr.engine.polished and not sr.probe]
+
+    @property
     def packing(self) -> Packing:
         return self.problem.packing
 
@@ -244,7 +253,7 @@ class FitResult:
         """The settings ``channel`` was fitted with: the spec's, a ``[choose]``n model option
         (plateau_fraction) the chosen value, β the fitted one (what the table and report show)."""
         fitted_with = self.spec if self.choice is None else self.choice.spec_for(self.spec, channel)
-        return fitted_with.channel_settings(channel, self.channels[channel].beta)
+        return fitted_with.channel_settings(channel, self.channels[channel].beta, self.channels[channel].problem.phonemes)
 
     def table(self) -> ParameterTable:
         """The fitted parameter table (coartic.table/1) with the fit's metadata."""
@@ -273,6 +282,12 @@ class FitResult:
             t.metadata["speakers"] = {"mode": s.speakers, "column": s.speaker_column,
                                       **{key: {ch: m[key] for ch, m in per.items()} for key in ("coefficients", "targets")
                                          if any(key in m for m in per.values())}}
+        if s.emotions != "none":
+            # each emotion's own targets, its deviations from the neutral ones (the table's) with their
+            # Laplace sd, and the deviations' prior scale τ the data gave (coartic.estimation.emotions)
+            t.metadata["emotions"] = {"mode": s.emotions, "column": s.emotion_column, "neutral": s.neutral_emotion,
+                                      "channels": {ch: channel_metadata(f.problem, f.x)
+                                                   for ch, f in self.channels.items()}}
         if s.shrinks:  # the shrinkage the fit had (sd as the spec gives it; a [choose]n one in "choice")
             # the members it was applied to: those present in a fitted channel's data
             applied = {(grp.key, m) for f in self.channels.values() for grp in f.problem.shrink_groups
@@ -307,6 +322,7 @@ class FitResult:
         """pandas DataFrame of ``parameters.csv`` (``what="parameters"``: one row per channel,
         phoneme and parameter with value, standard error, free, tie, bounds and flags; NaN where a
         number does not apply) or of ``rmse.csv`` (``"rmse"``: per channel and group)."""
+        require("dataframe", "to_dataframe()")
         import pandas as pd
 
         if what == "rmse":
@@ -352,7 +368,8 @@ class FitResult:
                 lines.append(f"    {what} {s_i + 1}: {sr.n_free} free ({', '.join(sr.parameters)}): "
                              f"{objective} {sr.sse_start:.4g} -> {sr.sse_end:.4g} [{sr.engine.status}]"
                              # a stage that did not converge says why, in the engine's own words
-                             + ("" if sr.engine.status == "converged" or sr.probe else f": {sr.engine.message}"))
+                             + ("" if (sr.engine.status == "converged" and not sr.engine.polished) or sr.probe
+                                else f": {sr.engine.message}"))
             lines += shrinkage_lines(fit.problem, fit.x)
             if st.at_bound:
                 lines.append(f"    warning: {len(st.at_bound)} parameter(s) at a bound: {', '.join(st.at_bound)}")
@@ -440,7 +457,8 @@ class FitResult:
                                                  "objective_start": sr.sse_start, "objective_end": sr.sse_end,
                                                  "sse_start": sr.sse_start, "sse_end": sr.sse_end,
                                                  "status": sr.engine.status, "probe": sr.probe,
-                                                 "message": sr.engine.message} for sr in f.stages],
+                                                 "message": sr.engine.message,
+                                                 "polished": sr.engine.polished} for sr in f.stages],
                                      "multistart": None if f.multistart is None
                                      else f.multistart.as_dict(f.problem.data.n_valid)}
                                 for ch, f in self.channels.items()}}

@@ -21,6 +21,7 @@ from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, T
 from coartic.console import LineProgress
 from coartic.errors import CoarticError
 from coartic.fit.engines import OptionError, check_options
+from coartic.estimation.emotions import estimate_prior
 from coartic.estimation.problem import ChannelProblem, build_problem
 from coartic.model import Utterance
 from coartic.fit.result import ChannelFit, FitResult, finish_channel, now
@@ -88,6 +89,13 @@ def fit_channel(spec: FitSpec, utterances: Sequence[Utterance], channel: str,
                                                        include_start=spec.include_start)
         else:
             final, res, stages = fit_staged(problem, spec.engine, spec.engine_options, stage_names, on_stage)
+        if spec.emotions == "targets" and res.status not in ("interrupted", "failed", "non-finite start"):
+            # the deviations' scale τ from the fit without their prior, then the fit with it from there
+            # (coartic.estimation.emotions)
+            prior = estimate_prior(final, res.x)
+            final, res, more = fit_staged(final.with_emotion_prior(prior), spec.engine, spec.engine_options, None,
+                                          on_stage)
+            stages = [*stages, *more]
     status, message = channel_status(res, stages, multi is not None and multi.best_found_once)
     try:
         fit = finish_channel(final, res.x, status, message, time.perf_counter() - t0, stages)

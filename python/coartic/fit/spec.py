@@ -21,7 +21,7 @@ import dataclasses
 import functools
 import math
 import tomllib
-from collections.abc import Callable, Iterable, Mapping
+from collections.abc import Callable, Iterable, Mapping, Sequence
 from pathlib import Path
 from typing import Annotated, Any, TypeVar
 
@@ -33,13 +33,15 @@ from coartic.errors import SpecError
 from coartic.io.errors import DataError
 from coartic.io.roles import RoleMap
 from coartic.settings import CHANNEL_SETTINGS, default
-from coartic.table import ALL_CHANNELS, CHANNELS, PARAMETERS, VARIANTS, ChannelSettings, domain_problem
+from coartic.table import ALL_CHANNELS, CHANNELS, PARAMETERS, PAUSE, VARIANTS, ChannelSettings, domain_problem
 from coartic.textfile import TextDecodeError, read_text
 
 ENGINES: tuple[str, ...] = ("scipy", "nlopt", "casadi")
 # [validate] group: what a k-fold validation holds out together (manifest columns, or the file).
-VALIDATE_GROUPS: tuple[str, ...] = ("utterance", "sentence", "rate", "speaker", "repetition")
+# "time": each utterance cut at its middle segment, one half fitted, the other held out (both ways)
+VALIDATE_GROUPS: tuple[str, ...] = ("utterance", "sentence", "rate", "speaker", "repetition", "time")
 SPEAKER_MODES: tuple[str, ...] = ("none", "offset", "offset_scale", "targets")
+EMOTION_MODES: tuple[str, ...] = ("none", "targets")
 
 # Starting values of the dynamics; targets start from the data (mean value at the target times).
 DEFAULT_START: dict[str, float] = {
@@ -73,6 +75,10 @@ DEFAULT_STAGES: tuple[tuple[str, ...], ...] = (
 )
 # [fit] defaults: multi-start estimation (coartic.fit.multistart; measured in bench/multistart.py)
 DEFAULT_STARTS = 32
+# The reference phoneme (α = 1) of a spec that names none: the first of these the data have, /a/
+# first (the paper's), then the other vowels from open to close (FitSpec.reference_for).
+DEFAULT_REFERENCE = "a"
+REFERENCE_ORDER: tuple[str, ...] = (DEFAULT_REFERENCE, "E", "O", "e", "o", "i", "u")
 DEFAULT_PROBE = 10  # evaluations per stage in the probe every start gets
 # Fitted on a log scale: their bounds and log-scale priors need positive values.
 LOG_SCALE_PARAMETERS = ("alpha", "theta_bw", "theta_fw", "psi", "beta")
@@ -563,7 +569,8 @@ class FitSpec:
     corpus: CorpusSpec
     channels: Channels = CHANNELS
     variant: Annotated[str, BeforeValidator(_one_of(VARIANTS))] = "modified"
-    reference_phoneme: Text = "a"
+    # α = 1 for it (MODEL.md §1); None: chosen from the data (FitSpec.reference_for)
+    reference_phoneme: Annotated[str | None, BeforeValidator(_optional(_text))] = None
     # the model's channel settings: defaults and ranges from coartic.settings
     apex_fraction: Annotated[float, BeforeValidator(_setting("apex_fraction"))] = default("apex_fraction")
     edge_extent: Annotated[float, BeforeValidator(_setting("edge_extent"))] = default("edge_extent")
@@ -594,6 +601,12 @@ class FitSpec:
     # shared dynamics
     speakers: Annotated[str, BeforeValidator(_one_of(SPEAKER_MODES))] = "none"
     speaker_column: Text = "speaker"
+    # emotion as a factor of the fit: "none", or "targets" (each emotion's targets a deviation from the
+    # neutral ones, shrunk toward them by a scale the data estimate: coartic.estimation.emotions), the
+    # emotion read from the manifest column emotion_column, neutral_emotion the reference
+    emotions: Annotated[str, BeforeValidator(_one_of(EMOTION_MODES))] = "none"
+    emotion_column: Text = "emotion"
+    neutral_emotion: Text = "neutral"
     start_given: frozenset[str] = frozenset()  # the [parameters.start] keys the spec gives (checked against bounds)
     bounds: Bounds = dataclasses.field(default_factory=lambda: dict(DEFAULT_FIT_BOUNDS))
     channel_bounds: Annotated[dict[str, dict[str, tuple[float, float]]], BeforeValidator(_channel_bounds)] = \
@@ -631,7 +644,9 @@ class FitSpec:
             raise _bad("no channel to fit", ("channels",))
         if self.speakers != "none" and self.offsets != "none":
             raise _bad("cannot be combined with [model] offsets yet: choose one", ("speakers",))
-        ref = self.reference_phoneme
+        if self.emotions != "none" and (self.offsets != "none" or self.speakers != "none"):
+            raise _bad("cannot be combined with [model] offsets or speakers yet: choose one", ("emotions",))
+        ref = self.reference_phoneme or DEFAULT_REFERENCE
         for i, t in enumerate(self.ties):
             if ref in t.phonemes and "alpha" in t.parameters:
                 raise _bad(f"ties alpha of the reference phoneme {ref!r}, which is fixed at 1", ("ties", i),
@@ -662,11 +677,25 @@ class FitSpec:
         SpecError names the spec file and the key of the field at fault."""
         return dataclasses.replace(self, **changes)
 
-    def channel_settings(self, channel: str, beta: float | None = None) -> ChannelSettings:
+    def reference_for(self, phonemes: Sequence[str]) -> str:
+        """The reference phoneme (α = 1) of a channel whose data have ``phonemes``: the spec's
+        ``[model] reference_phoneme`` if it names one, else the first of REFERENCE_ORDER the data
+        have (/a/, then the other vowels from open to close), else the first non-pause phoneme.
+        α is scale-free, so which phoneme holds α = 1 changes no fit, only the scale the others' α
+        are written in."""
+        if self.reference_phoneme is not None:
+            return self.reference_phoneme
+        present = [p for p in phonemes if p != PAUSE] or list(phonemes)
+        return next((p for p in REFERENCE_ORDER if p in present), present[0] if present else DEFAULT_REFERENCE)
+
+    def channel_settings(self, channel: str, beta: float | None = None,
+                         phonemes: Sequence[str] | None = None) -> ChannelSettings:
         """The settings a fit of ``channel`` uses and writes into its table (``beta``: the fitted
-        value; default the spec's). The fit's model options are made from them
+        value; default the spec's; ``phonemes``: the channel's, for the reference phoneme the spec
+        leaves to the data). The fit's model options are made from them
         (``coartic.model.channel_options``), so a table evaluates as it was fitted."""
-        return ChannelSettings(reference_phoneme=self.reference_phoneme, beta=self.beta if beta is None else beta,
+        ref = self.reference_for(phonemes) if phonemes is not None else (self.reference_phoneme or DEFAULT_REFERENCE)
+        return ChannelSettings(reference_phoneme=ref, beta=self.beta if beta is None else beta,
                                edge_extent=self.edge_extent, apex_fraction=self.apex_fraction,
                                dominance=self.dominance, plateau_fraction=self.plateau_fraction,
                                handover=self.handover)
@@ -709,7 +738,7 @@ DOCUMENT: dict[str, dict[str, str]] = {
     "": {"name": "name"},
     "model": {k: k for k in ("variant", "channels", "reference_phoneme", "apex_fraction", "edge_extent", "beta",
                              "fit_beta", "beta_bounds", "offsets", "dominance", "plateau_fraction", "handover",
-                             "speakers", "speaker_column")},
+                             "speakers", "speaker_column", "emotions", "emotion_column", "neutral_emotion")},
     "parameters": {"free": "free", "start": "start", "start_table": "start_table", "bounds": "bounds",
                    "target_margin": "target_margin", "prior": "priors", "prior_noise": "prior_noise",
                    "shared": "shared", "target_prior": "target_prior"},

@@ -123,5 +123,5 @@ def fit_staged(problem: ChannelProblem, engine: str, options: dict[str, Any], st
     out = problem.with_packing(packing)
     out.nfev, out.njev = nfev, njev
     x = packing.pack()
-    res = EngineResult(x, res.status, res.message, nfev, njev)
+    res = EngineResult(x, res.status, res.message, nfev, njev, polished=res.polished)
     return out, res, results

@@ -94,11 +94,13 @@ class Segments:
         return Segments(self.labels, self.starts + offset, self.ends + offset, self.source,
                         self.lines, self.tier, self.tiers)
 
-    def clipped(self, end: float) -> Segments:
-        """The same segments with the last one ending at `end` (a label a few ms past the data)."""
-        ends = self.ends.copy()
+    def clipped(self, end: float, keep: int | None = None) -> Segments:
+        """The first `keep` segments (default all) with the last of them ending at `end` (a label
+        past the data: audio and sensors stop apart)."""
+        k = len(self) if keep is None else keep
+        ends = self.ends[:k].copy()
         ends[-1] = end
-        return Segments(self.labels, self.starts, ends, self.source, self.lines, self.tier,
+        return Segments(self.labels[:k], self.starts[:k], ends, self.source, self.lines[:k], self.tier,
                         self.tiers)
 
     def tier_note(self) -> str:

@@ -60,8 +60,8 @@ class Reader:
 
 _READERS: list[Reader] = []
 # the modules of the built-in readers, imported on first use
-BUILTIN_READERS = ("coartic.io.c3d", "coartic.io.ema", "coartic.io.emu", "coartic.io.est",
-                   "coartic.io.markers_csv", "coartic.io.mview", "coartic.io.xrmb")
+BUILTIN_READERS = ("coartic.io.c3d", "coartic.io.carstens", "coartic.io.ema", "coartic.io.emu",
+                   "coartic.io.est", "coartic.io.markers_csv", "coartic.io.mview", "coartic.io.xrmb")
 
 
 def _load_builtin() -> None:

@@ -88,6 +88,30 @@ class Channels(Mapping[str, NDArray[np.float64]]):
         return self.valid[channel].astype(np.float64)
 
 
+def _clip_final_pause(segments: Segments, label_map: LabelMap, end: float, data: Path | None) -> Segments:
+    """The labels with a final pause that runs past the data's `end` clipped to it, and pauses
+    that start after it left out, with a warning: labels made on the audio, which runs on after the
+    sensors stop (MOCHA-TIMIT: `sil` 1.67-2.2 s against 1.932 s of EMA), describe no articulation
+    there. A speech label past the data stays an error."""
+    tol = 1e-6
+    k = len(segments)
+    while k > 1 and segments.starts[k - 1] >= end - tol and label_map.map_label(segments.labels[k - 1]) == PAUSE:
+        k -= 1
+    last = k - 1
+    if k == len(segments) and not segments.ends[last] > end + tol:
+        return segments
+    if label_map.map_label(segments.labels[last]) != PAUSE or not segments.starts[last] < end - tol:
+        return segments  # a speech label past the data: refused by the caller, naming it
+    dropped = len(segments) - k
+    src = f" of {data}" if data is not None else ""
+    warnings.warn(f"{segments.source}: the final pause {segments.labels[last]!r} "
+                  f"({segments.starts[last]:g}-{segments.ends[last]:g} s) runs past the end of the data{src} "
+                  f"({end:g} s; labels made on the longer audio): clipped to {end:g} s"
+                  + (f", and the {dropped} pause label(s) after the data left out" if dropped else ""),
+                  DataWarning, stacklevel=3)
+    return segments.clipped(end, k)
+
+
 @dataclass(frozen=True)
 class Trial:
     """One recording: positions (frames x markers x 3, mm, NaN where missing) and labels."""
@@ -151,6 +175,7 @@ class Trial:
                           f"{self.source} end ({end:g} s): clipped to {end:g} s", DataWarning,
                           stacklevel=2)
             segments = segments.clipped(end)
+        segments = _clip_final_pause(segments, lm, end, self.source)
         for i, (lab, s, e) in enumerate(zip(segments.labels, segments.starts, segments.ends)):
             if e > end + tol or s < self.start_time - 1.0 / self.rate - tol:
                 src = f" of {self.source}" if self.source else ""
@@ -402,6 +427,10 @@ def _sensor_roles(trial: Trial, given: RoleMap, guess: bool, axes: tuple[str, st
     if guess:
         said.append("sensors guessed by name (" +
                     (", ".join(f"{r}={n}" for r, n in roles.roles.items()) or "none found") + ")")
+    hint = trial.meta.get("roles_hint")
+    if guess and hint and not {"UL", "LL"} <= roles.roles.keys():
+        # a format that does not name its sensors (Carstens .pos): say how to name them
+        raise DataError(str(hint), path=trial.source)
     if not given.axes_given:
         if axes is None:
             vertical, anterior, why = guess_axes(trial.markers, trial.marker_names, roles,

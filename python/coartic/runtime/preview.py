@@ -355,6 +355,42 @@ def _write_mp4(
         raise AnimationError(f"ffmpeg failed writing {path} (exit {code}): {err.strip()[-300:] or 'no message'}")
 
 
+def face_frames(animation: Animation, neutral: Mapping[str, float], size_px: int = 320) -> Iterator[Image.Image]:
+    """RGB frames of the face alone, front and side view, for perceptual tests (coartic.perceive):
+    no trace, no caption, no axis titles, nothing that names the phoneme on screen."""
+    _require_channels(animation)
+    fig = _agg_figure(2 * size_px / 80, size_px / 80, 80)
+    front, side = fig.add_axes((0.0, 0.0, 0.5, 1.0)), fig.add_axes((0.5, 0.0, 0.5, 1.0))
+    face = FaceArtist(front, side, neutral)
+    for ax in (front, side):
+        ax.set_title("")
+    canvas = fig.canvas
+    moving = [face.upper, face.lower, face.mouth, face.chin, face.profile, face.markers]
+    for a in moving:
+        a.set_animated(True)
+    canvas.draw()
+    background = canvas.copy_from_bbox(fig.bbox)  # type: ignore[attr-defined]
+    size = canvas.get_width_height()
+    for k in range(animation.n_frames):
+        face.update(_posture(animation, k))
+        canvas.restore_region(background)  # type: ignore[attr-defined]
+        for a in moving:
+            fig.draw_artist(a)
+        rgba = canvas.buffer_rgba()  # type: ignore[attr-defined]
+        yield Image.frombuffer("RGBA", size, rgba, "raw", "RGBA", 0, 1).convert("RGB")
+
+
+def render_face_video(animation: Animation, neutral: Mapping[str, float], path: str | Path, audio: Path | None,
+                      size_px: int = 320) -> Path:
+    """The face alone (`face_frames`) as an MP4 with `audio` as its sound track; written atomically."""
+    path = Path(path)
+    if path.suffix.lower() != ".mp4":
+        raise AnimationError(f"{path}: a face video is written as .mp4")
+    with atomic_path(path) as tmp:
+        _write_mp4(tmp, face_frames(animation, neutral, size_px), animation.fps, lambda: None, audio)
+    return path
+
+
 def _chain(first: Image.Image, rest: Iterator[Image.Image]) -> Iterator[Image.Image]:
     yield first
     yield from rest

@@ -30,6 +30,7 @@ from numpy.typing import NDArray
 
 from coartic.outputs import atomic_write_text
 from coartic.runtime.animate import SHARE_FRAMES, Animation
+from coartic.face.deform import ROLL_FULL_MM, ROLL_OPEN_MM
 from coartic.runtime.errors import AnimationError
 from coartic.runtime.fap import blink_profile
 from coartic.table import CHANNELS, PAUSE
@@ -58,12 +59,16 @@ JAW_OPEN_MM = 20.0  # nose-chin distance gained at jawOpen 1 (an /a/ of the synt
 LIP_PER_JAW = 1.0  # the lower lip drops with the chin when only the jaw opens
 LOWER_DOWN_MM = 10.0  # lower lip pulled down from the jaw (per side; the midline moves the mean of both)
 UPPER_UP_MM = 8.0  # upper lip raised
-PRESS_MM = 5.0  # lips pressed together past contact (sum of both lips)
+UPPER_DOWN_MM = 4.0  # upper lip drawn down over the upper teeth with the lips apart (mouthRollUpper)
+PRESS_MM = 5.0  # lips pressed together past contact (the overlap of both lips)
+SHRUG_MM = 5.0  # the lower lip pushed up from where the jaw and mouthClose put it (/f v/: under the teeth)
 STRETCH_MM = 8.0  # one corner pulled outwards (LR changes by twice this with both sides)
 NARROW_MM = 15.0  # mouth width lost to rounding
-PROTRUDE_MM = 8.0  # lips pushed forwards
-ROLL_MM = 4.0  # a lip drawn back (rolled in: the lower lip under the upper teeth at /f v/)
-FUNNEL_OPEN_MM = 6.0  # lip opening at which a rounded mouth is all funnel and no pucker
+PROTRUDE_MM = 4.0  # lips pushed forwards: a rounded vowel narrows the mouth ~4 mm per mm of protrusion
+FUNNEL_OPEN_MM = 6.0  # lip opening (both lips) that a funnel of weight 1 carries
+# The lower lip's roll is the face rig's (coartic.face.deform.roll_angle): drawn back ROLL_FULL_MM
+# and not lowered, it rolls in fully under the upper incisors (/f v/); lowered ROLL_OPEN_MM or more
+# (any open vowel), it does not roll at all, however far back it is (/i a/ retract the lips).
 # ARKit shape -> channel displacement (mm) at weight 1; the L/R shapes each carry half of the
 # midline's movement (the rig's side FAPs move fully, coartic.face.gltf)
 ARKIT_BASIS: dict[str, dict[str, float]] = {
@@ -73,12 +78,13 @@ ARKIT_BASIS: dict[str, dict[str, float]] = {
     "mouthUpperUpLeft": {"ULO": UPPER_UP_MM / 2}, "mouthUpperUpRight": {"ULO": UPPER_UP_MM / 2},
     "mouthPressLeft": {"ULO": -PRESS_MM / 4, "LLO": -PRESS_MM / 4},
     "mouthPressRight": {"ULO": -PRESS_MM / 4, "LLO": -PRESS_MM / 4},
+    "mouthShrugLower": {"LLO": -SHRUG_MM},
     "mouthStretchLeft": {"LR": STRETCH_MM}, "mouthStretchRight": {"LR": STRETCH_MM},
     "mouthPucker": {"LR": -NARROW_MM, "ULP": PROTRUDE_MM, "LLP": PROTRUDE_MM},
     "mouthFunnel": {"LR": -NARROW_MM, "ULP": PROTRUDE_MM, "LLP": PROTRUDE_MM, "ULO": FUNNEL_OPEN_MM / 2,
                     "LLO": FUNNEL_OPEN_MM / 2},
-    "mouthRollLower": {"LLP": -ROLL_MM},
-    "mouthRollUpper": {"ULP": -ROLL_MM},
+    "mouthRollLower": {"LLP": -ROLL_FULL_MM},
+    "mouthRollUpper": {"ULO": -UPPER_DOWN_MM},
 }
 # the blinks of the FAP file (coartic.runtime.fap.blink_profile: the same schedule), eyelid FAPs 19, 20
 ARKIT_BLINKS: dict[str, int] = {"eyeBlinkLeft": 19, "eyeBlinkRight": 20}
@@ -118,31 +124,49 @@ def _deltas(animation: Animation) -> dict[str, NDArray[np.float64]]:
     return {c: np.asarray(animation.channels[c], dtype=float) - animation.neutral[c] for c in CHANNELS}
 
 
+def lower_lip_roll(d_llp: NDArray[np.float64], d_llo: NDArray[np.float64]) -> NDArray[np.float64]:
+    """How far (0..1) the lower lip rolls in, as the face rig rolls it (coartic.face.deform.roll_angle
+    is this times ROLL_MAX): drawn back (d_LLP < 0) and not lowered (d_LLO, positive down)."""
+    out: NDArray[np.float64] = (np.clip(-d_llp / ROLL_FULL_MM, 0.0, 1.0)
+                                * np.clip(1.0 - np.maximum(d_llo, 0.0) / ROLL_OPEN_MM, 0.0, 1.0))
+    return out
+
+
 def arkit_weights(animation: Animation) -> NDArray[np.float64]:
-    """(frames, 52) ARKit blendshape weights in 0..1, columns in ARKIT_NAMES order."""
+    """(frames, 52) ARKit blendshape weights in 0..1, columns in ARKIT_NAMES order.
+
+    Each lip's movement is taken apart in a fixed order, every step removing what its shape
+    carries, so that the weights rebuild the jaw, each lip's opening and the width wherever no
+    weight saturates (docs/RUNTIME.md, "The rigs people have")."""
     d = _deltas(animation)
     n = animation.n_frames
     w = {name: np.zeros(n) for name in ARKIT_NAMES}
     jaw = np.clip(d["JO"] / JAW_OPEN_MM, 0.0, 1.0)
     w["jawOpen"] = jaw
-    carried = jaw * JAW_OPEN_MM * LIP_PER_JAW  # the lower lip's drop that the jaw gives it
-    lower = d["LLO"] - carried  # the lower lip's own movement, positive down, from the jaw
-    # lips held closer than the jaw would put them: first closed against the open jaw (mouthClose,
-    # at most as much as the jaw opened), then whatever is left presses them together
+    upper = d["ULO"].copy()  # the upper lip's own movement, positive up
+    lower = d["LLO"] - jaw * JAW_OPEN_MM * LIP_PER_JAW  # the lower lip's, positive down, from the jaw's carry
+    # lips past contact (they overlap: /p b m/) are pressed, both alike
+    press = np.clip(np.maximum(-(d["ULO"] + d["LLO"]), 0.0) / PRESS_MM, 0.0, 1.0)
+    upper, lower = upper + press * PRESS_MM / 2, lower + press * PRESS_MM / 2
+    # a lower lip held above where the jaw carries it: first closed against the open jaw
+    # (mouthClose, at most as much as the jaw opened), the rest pushed up (mouthShrugLower: /f v/)
     close = np.minimum(np.maximum(-lower, 0.0) / (JAW_OPEN_MM * LIP_PER_JAW), jaw)
     lower = lower + close * JAW_OPEN_MM * LIP_PER_JAW
-    w["mouthClose"] = close
-    opening = d["ULO"] + d["LLO"]
-    # rounding: narrowing or protrusion, whichever is further along; open lips make it a funnel
+    shrug = np.clip(np.maximum(-lower, 0.0) / SHRUG_MM, 0.0, 1.0)
+    lower = lower + shrug * SHRUG_MM
+    w["mouthClose"], w["mouthShrugLower"] = close, shrug
+    # rounding: the narrowing and the protrusion together, the weight whose (NARROW_MM, PROTRUDE_MM)
+    # movement is nearest (least squares, mm) to the lips' (a /u/ narrows 12 mm and protrudes 3:
+    # both within 0.2 mm); a funnel is a rounding whose lips are apart, as far as both are open
     protrusion = np.maximum((d["ULP"] + d["LLP"]) / 2.0, 0.0)
-    rounding = np.clip(np.maximum(np.maximum(-d["LR"], 0.0) / NARROW_MM, protrusion / PROTRUDE_MM), 0.0, 1.0)
-    funnel_share = np.clip(opening / FUNNEL_OPEN_MM, 0.0, 1.0)
-    w["mouthFunnel"] = rounding * funnel_share
-    w["mouthPucker"] = rounding * (1.0 - funnel_share)
-    # the funnel's own opening is part of the lips' movement: take it out before the lip shapes
-    fo = w["mouthFunnel"] * FUNNEL_OPEN_MM / 2.0
-    upper, lower = d["ULO"] - fo, lower - fo
-    press = np.clip((np.maximum(-upper, 0.0) + np.maximum(-lower, 0.0)) / PRESS_MM, 0.0, 1.0)
+    narrowing = np.maximum(-d["LR"], 0.0)
+    rounding = np.clip((narrowing * NARROW_MM + protrusion * PROTRUDE_MM) / (NARROW_MM**2 + PROTRUDE_MM**2),
+                       0.0, 1.0)
+    funnel = np.minimum(rounding, np.maximum(np.minimum(upper, lower), 0.0) / (FUNNEL_OPEN_MM / 2))
+    w["mouthFunnel"], w["mouthPucker"] = funnel, rounding - funnel
+    upper, lower = upper - funnel * FUNNEL_OPEN_MM / 2, lower - funnel * FUNNEL_OPEN_MM / 2
+    # an upper lip below rest that no press explains (the lips are apart) is drawn over the teeth
+    w["mouthRollUpper"] = np.clip(np.maximum(-upper, 0.0) / UPPER_DOWN_MM, 0.0, 1.0)
     for side in ("Left", "Right"):
         w[f"mouthUpperUp{side}"] = np.clip(upper / UPPER_UP_MM, 0.0, 1.0)
         w[f"mouthLowerDown{side}"] = np.clip(lower / LOWER_DOWN_MM, 0.0, 1.0)
@@ -150,8 +174,7 @@ def arkit_weights(animation: Animation) -> NDArray[np.float64]:
         w[f"mouthStretch{side}"] = np.clip(d["LR"] / (2.0 * STRETCH_MM), 0.0, 1.0)
     for name in ARKIT_BLINKS:
         w[name] = blink_profile(animation.times)
-    w["mouthRollLower"] = np.clip(-d["LLP"] / ROLL_MM, 0.0, 1.0)
-    w["mouthRollUpper"] = np.clip(-d["ULP"] / ROLL_MM, 0.0, 1.0)
+    w["mouthRollLower"] = lower_lip_roll(d["LLP"], d["LLO"])
     return np.column_stack([w[name] for name in ARKIT_NAMES])
 
 

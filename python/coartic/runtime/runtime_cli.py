@@ -5,7 +5,7 @@ Without --table both use the table shipped in the package (coartic.runtime.shipp
 from __future__ import annotations
 
 from pathlib import Path
-from typing import TYPE_CHECKING, Annotated, Callable
+from typing import TYPE_CHECKING, Annotated, Any, Callable
 
 import typer
 from rich.console import Console
@@ -131,7 +131,8 @@ def _run_staged(table: Path | None, out: Path, command: str, identity: dict[str,
 
 
 def animate_command(
-    labels: Annotated[Path, typer.Argument(help="Label file: Praat TextGrid, HTK/Festival .lab or TSV 'start end label'.")],
+    labels: Annotated[Path, typer.Argument(help="Label file: Praat TextGrid, HTK/Festival .lab or TSV 'start end label'; "
+                                                "or a recording (WAV) with --text or --transcript, aligned first (coartic align).")],
     out: OutOpt,
     table: TableOpt = None,
     fps: FpsOpt = 25.0,
@@ -150,13 +151,29 @@ def animate_command(
     export: ExportOpt = None,
     gltf_morphs: GltfMorphsOpt = "fap",
     force: ForceOpt = False,
+    text: Annotated[str | None, typer.Option("--text", help="With a recording: what it says (its transcript).")] = None,
+    transcript: Annotated[Path | None, typer.Option("--transcript", help="With a recording: its transcript as a file (plain text, or a TextGrid with a words tier).")] = None,
+    lang: Annotated[str, typer.Option("--lang", help="With a recording: its language (it, en, de, or any espeak-ng voice); also picks the phone map's fallbacks.")] = "it",
+    engine: Annotated[str | None, typer.Option("--engine", help="With a recording: the aligner (sphinx, festival, espeak; coartic align --help).")] = None,
+    max_duration: Annotated[float, typer.Option("--max-duration", help="With a recording: refuse recordings longer than this (s).")] = 3600.0,
 ) -> None:
-    """Animate a label file: channel trajectories (CSV), an MPEG-4 FAP file and a preview.
+    """Animate a label file, or a recording and its transcript: channel trajectories (CSV), an MPEG-4 FAP file and a preview.
 
-    The files are written beside --out and swapped in together when all are done (docs/OUTPUTS.md)."""
+    A recording (WAV) is aligned to its transcript first (as `coartic align`; the TextGrid is written
+    beside the animation). The files are written beside --out and swapped in together when all are
+    done (docs/OUTPUTS.md)."""
+    from coartic.align.aligner import is_wav
     from coartic.runtime.pipeline import animate_file, speaker_face
 
     _warn_fps(fps)
+    if is_wav(labels):
+        _animate_recording(labels, out, table, fps, text, transcript, lang, engine, max_duration, audio, force,
+                           dict(tier=tier, label_map=label_map, preview=preview, snap_contacts=snap_contacts,
+                                strict=strict, gltf=gltf or gltf_morphs != "fap", vrml=vrml, speaker=speaker,
+                                exports=export, gltf_morphs=gltf_morphs), fap_name, mns, mw, speaker)
+        return
+    if text is not None or transcript is not None:
+        _fail(AnimationError(f"{labels}: --text and --transcript go with a recording (WAV), and this is not one"))
 
     def make(t: ParameterTable, staging: Path, progress: Progress) -> RuntimeOutput:
         return animate_file(labels, t, staging, fps=fps, tier=tier, label_map=label_map,
@@ -167,6 +184,40 @@ def animate_command(
 
     _run_staged(table, out, "animate", {"labels": str(labels.resolve())}, force,
                 [labels, *([table] if table is not None else []), *([audio] if audio is not None else [])], make)
+
+
+def _animate_recording(wav: Path, out: Path, table: Path | None, fps: float, text: str | None, transcript: Path | None,
+                       lang: str, engine: str | None, max_duration: float, audio: Path | None, force: bool,
+                       options: dict[str, Any], name: str | None, mns: float | None, mw: float | None,
+                       speaker: str | None) -> None:
+    """`coartic animate voice.wav --text ...`: align, then animate with the recording as the sound."""
+    from coartic.align.align_cli import part_progress, shown_warnings, transcript_text
+    from coartic.align.aligner import animate_recording
+    from coartic.runtime.pipeline import speaker_face
+
+    if audio is not None:
+        _fail(AnimationError(f"{wav} is a recording: it is the sound already, leave out --audio {audio}"))
+    if options["tier"] is not None or options["label_map"] is not None:
+        _fail(AnimationError(f"{wav} is a recording: --tier and --label-map are for label files (the aligner "
+                             "gives the model's phonemes)"))
+    for key in ("tier", "label_map"):
+        del options[key]
+    try:
+        words = transcript_text(text, transcript)
+    except AnimationError as err:
+        _fail(err)
+    fallbacks = "phones_english.tsv" if lang.split("-")[0] == "en" else "the aligner's phone map"
+
+    def make(t: ParameterTable, staging: Path, progress: Progress) -> RuntimeOutput:
+        return animate_recording(wav, words, t, staging, lang=lang, engine=engine, max_duration=max_duration,
+                                 align_progress=part_progress(progress, "aligning"), name=name, fps=fps,
+                                 face=speaker_face(t, mns, mw, speaker), progress=progress, **options)
+
+    identity = {"recording": str(wav.resolve()), "text": words or "", "lang": lang}
+    with shown_warnings():
+        _run_staged(table, out, "animate", identity, force,
+                    [wav, *([table] if table is not None else []), *([transcript] if transcript else [])], make,
+                    fallbacks)
 
 
 def speak_command(

@@ -1,0 +1,141 @@
+"""Shared by the perceive tests: a tiny study prepared once, the real server as a process, and a
+headless Chromium driven by Selenium (Debian's chromium and chromium-driver)."""
+
+from __future__ import annotations
+
+import os
+import shutil
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+from typing import Any
+
+import pytest
+
+REPO = Path(__file__).resolve().parents[2]
+
+TINY_STUDY = """
+[study]
+name = "vcv-tiny"
+design = "intelligibility"
+seed = 7
+title = "Tiny <VCV> study"
+consent = "You will see a face <script>alert(1)</script> speak.\\n\\nYour answers are stored under a pseudonym."
+attention_every = 3
+completion_code = "DONE-42"
+
+[stimuli]
+items = ["aba", "ava"]
+snr_db = [0.0]
+fps = 10
+size_px = 64
+
+[[condition]]
+name = "coarticulation"
+
+[[condition]]
+name = "keyframe"
+face = "step"
+"""
+
+
+def write_spec(directory: Path, text: str = TINY_STUDY) -> Path:
+    directory.mkdir(parents=True, exist_ok=True)
+    path = directory / "study.toml"
+    path.write_text(text, encoding="utf-8")
+    return path
+
+
+class Server:
+    """`coartic perceive serve` as a child process (so that it can be killed like a crashed server)."""
+
+    def __init__(self, study: Path, db: str, port: int = 0) -> None:
+        env = {**os.environ, "PYTHONPATH": str(REPO / "python")}
+        self.proc = subprocess.Popen([sys.executable, "-m", "coartic.cli", "perceive", "serve", str(study),
+                                      "--db", db, "--port", str(port)], stdout=subprocess.PIPE,
+                                     stderr=subprocess.PIPE, text=True, env=env)
+        assert self.proc.stdout is not None
+        line = self.proc.stdout.readline()  # blocks until the socket listens (or the process ends)
+        if "serving" not in line:
+            err = self.proc.stderr.read() if self.proc.stderr else ""
+            raise RuntimeError(f"the server did not start: {line!r} {err}")
+        self.url = line.split(" at ", 1)[1].split(" ", 1)[0]
+        self.port = int(self.url.rsplit(":", 1)[1].strip("/"))
+
+    def kill(self) -> None:
+        """SIGKILL: no handler runs, as when the machine or the process dies."""
+        self.proc.send_signal(signal.SIGKILL)
+        self.proc.wait(timeout=30)
+        for f in (self.proc.stdout, self.proc.stderr):
+            if f is not None:
+                f.close()
+
+    def stop(self) -> None:
+        if self.proc.poll() is None:
+            self.proc.send_signal(signal.SIGINT)
+            try:
+                self.proc.wait(timeout=30)
+            except subprocess.TimeoutExpired:
+                self.kill()
+                return
+        for f in (self.proc.stdout, self.proc.stderr):
+            if f is not None:
+                f.close()
+
+
+def chromium_driver() -> Any:
+    """A headless Chromium under Selenium, or a skip saying what to install."""
+    pytest.importorskip("selenium")
+    from selenium import webdriver
+    from selenium.webdriver.chrome.service import Service
+
+    browser = shutil.which("chromium")
+    driver = shutil.which("chromedriver")
+    if browser is None or driver is None:
+        pytest.skip("needs Debian's chromium and chromium-driver (scripts/setup.sh installs them)")
+    opts = webdriver.ChromeOptions()
+    opts.binary_location = browser
+    for a in ("--headless=new", "--no-sandbox", "--disable-gpu", "--disable-dev-shm-usage", "--mute-audio",
+              "--window-size=900,700", "--no-first-run"):
+        opts.add_argument(a)
+    return webdriver.Chrome(options=opts, service=Service(driver))
+
+
+def answer_current_trial(driver: Any, pick: Any, timeout: float = 20.0) -> tuple[int, int]:
+    """Play every video of the trial page, wait until the answers open, answer with `pick(choices,
+    instruction)` (a button's text). Returns (position counted from 1, total) read from the page."""
+    from selenium.webdriver.common.by import By
+    from selenium.webdriver.support import expected_conditions as ec
+    from selenium.webdriver.support.ui import WebDriverWait
+
+    wait = WebDriverWait(driver, timeout)
+    progress = wait.until(ec.presence_of_element_located((By.ID, "progress"))).text
+    position, total = (int(x) for x in progress.split("/"))
+    for button in driver.find_elements(By.CSS_SELECTOR, "button.play"):
+        button.click()
+    wait.until(lambda d: all(b.is_enabled() for b in d.find_elements(By.CSS_SELECTOR, ".answer")))
+    buttons = driver.find_elements(By.CSS_SELECTOR, "button.choice")
+    instruction = driver.find_elements(By.ID, "instruction")
+    text = pick([b.text for b in buttons], instruction[0].text if instruction else None)
+    old = driver.find_element(By.ID, "answer-form")
+    next(b for b in buttons if b.text == text).click()
+    wait.until(ec.staleness_of(old))
+    return position, total
+
+
+def wait_for_text(driver: Any, element_id: str, timeout: float = 20.0) -> str:
+    from selenium.webdriver.common.by import By
+    from selenium.webdriver.support import expected_conditions as ec
+    from selenium.webdriver.support.ui import WebDriverWait
+
+    return str(WebDriverWait(driver, timeout).until(ec.presence_of_element_located((By.ID, element_id))).text)
+
+
+def until(predicate: Any, timeout: float = 20.0) -> None:
+    end = time.monotonic() + timeout
+    while not predicate():
+        if time.monotonic() > end:
+            raise AssertionError("condition not met in time")
+        time.sleep(0.05)
