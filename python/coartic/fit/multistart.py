@@ -577,6 +577,8 @@ def penalty_words(problem: ChannelProblem) -> str:
         parts.append("the priors (the target prior, [parameters.prior])")
     if problem.shrinkage.size:
         parts.append("the [[shrink]] shrinkage")
+    if getattr(problem, "pool_rows", None):
+        parts.append("the partial pooling's rows ([parameters] pooled, estimated target prior)")
     if problem.offsets is not None and problem.offsets.extra_rows:
         parts.append("the per-utterance offsets' prior ([model] offsets)")
     return " and ".join(parts)
