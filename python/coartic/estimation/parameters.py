@@ -209,6 +209,7 @@ class ParameterSet(Mapping[str, Parameter]):
         free[r, ka], base[r, ka] = False, 1.0
 
         ties: list[tuple[int, int]] = []
+        tied_by: dict[tuple[int, int], int] = {}  # (phoneme row, parameter) -> the [[tie]] that holds it
         for j, t in enumerate(spec.ties):
             if t.channels is not None and ch not in t.channels:
                 continue
@@ -219,6 +220,13 @@ class ParameterSet(Mapping[str, Parameter]):
                 if len(rows) >= 2 and not members:
                     raise SpecError.at(spec.path, f"tie #{j + 1}", f"{name} is free for none of {list(t.phonemes)} "
                                        f"on {ch}: nothing to tie")
+                again = [i for i in rows if (i, k) in tied_by]
+                if again:
+                    i = again[0]
+                    raise SpecError.at(spec.path, f"tie #{j + 1}", f"ties {name} of {list(t.phonemes)} on {ch}, but "
+                                       f"{phon[i]}.{name} is in [[tie]] #{tied_by[i, k] + 1} already: a parameter is "
+                                       f"tied by one [[tie]] only; put the phonemes of both in one tie",
+                                       phoneme=phon[i], parameter=name)
                 held = [i for i in rows if not free[i, k]]
                 if members and held:
                     # a tie means one shared value: a member held at its own value would silently not share it
@@ -230,6 +238,7 @@ class ParameterSet(Mapping[str, Parameter]):
                 if len(members) < 2:
                     continue  # fewer than two present (and free) here: nothing to share
                 leader = members[0]
+                tied_by.update({(i, k): j for i in members})
                 for i in members[1:]:
                     free[i, k] = False
                     base[i, k] = base[leader, k]

@@ -11,7 +11,7 @@ from rich.console import Console
 from rich.markup import escape
 from rich.table import Table
 
-from coartic.console import print_error, print_table
+from coartic.console import print_table
 from coartic.fit.result import BAR_MM
 
 
@@ -19,7 +19,7 @@ def compare_command(
     specs: list[Path] = typer.Argument(..., help="fit specs (TOML) to compare, e.g. original vs modified"),
     out: Path = typer.Option(Path("results/compare"), "--out", "-o", help="output directory"),
     validate: bool = typer.Option(True, "--validate/--no-validate",
-                                  help="held-out RMSE from each spec's [validate] splits (AIC/BIC either way)"),
+                                  help="held-out RMSE from each spec's \\[validate] splits (AIC/BIC either way)"),
     force: bool = typer.Option(False, "--force", help="replace --out even if it holds another run's output"),
     vary: Optional[str] = typer.Option(None, "--vary", help="KEY=V1,V2,...: one model per value of a setting of "
                                        "each spec (e.g. prior_noise=0.1,0.3,1 to choose a prior strength by "
@@ -39,17 +39,13 @@ def compare_command(
 
     console = Console()
     err = Console(stderr=True)
-    try:
-        models: list[FitSpec | Path] = list(specs)
-        if vary is not None:
-            key, values = parse_grid("--vary", vary)
-            models = [m for s in specs for m in vary_spec(load_spec(s), key, values)]
-        identity = {"specs": ",".join(str(s.resolve()) for s in specs), "validate": validate, "vary": vary or ""}
-        with OutputDir(out, "compare", identity, force=force, protect=specs) as d:
-            cmp = compare(models, d, validate=validate, console=err, quiet=quiet)
-    except (ValueError, OSError) as e:  # SpecError, DataError, FitFailed, OutputError
-        print_error(console, e)
-        raise typer.Exit(2) from None
+    models: list[FitSpec | Path] = list(specs)
+    if vary is not None:
+        key, values = parse_grid("--vary", vary)
+        models = [m for s in specs for m in vary_spec(load_spec(s), key, values)]
+    identity = {"specs": ",".join(str(s.resolve()) for s in specs), "validate": validate, "vary": vary or ""}
+    with OutputDir(out, "compare", identity, force=force, protect=specs) as d:
+        cmp = compare(models, d, validate=validate, console=err, quiet=quiet)
     print_table(console, comparison_table(cmp), keys=2)
     for n in cmp.notes:
         console.print(f"note: {escape(n)}", soft_wrap=True, highlight=False)

@@ -55,6 +55,10 @@ def fit_channel(spec: FitSpec, utterances: Sequence[Utterance], channel: str,
     start = start_values(spec, channel, problem.phonemes)
     if start is not None:
         problem = build_problem(spec, utterances, channel, start=start)
+    if problem.packing.n_free == 0:  # no start, stage or engine has anything to move: say so, not "converged"
+        raise SpecError.at(spec.path, "parameters.free", f"{channel}: no parameter is free (free = "
+                           f"{list(spec.free)!r}, and no [[override]] or fit_beta frees one): nothing to fit; free "
+                           "at least one (e.g. free = [\"target\"]), or predict with a fixed table by coartic score")
     task = None
     if progress is not None:
         task = progress.add_task(f"{channel}", total=None, info="", unit="evaluations")
