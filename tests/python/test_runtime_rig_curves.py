@@ -121,4 +121,4 @@ def test_cli_rig_options(tmp_path: Path) -> None:
     assert json.loads((tmp_path / "o" / "l.visemes.json").read_text())["visemes"] == list(VRM_VISEMES)
     res = CliRunner().invoke(app, ["animate", str(tmp_path / "l.tsv"), "-t", str(GROUND_TRUTH), "-o", str(tmp_path / "p"),
                                    "--preview", "none", "--export", "arkit", "--rig-scale", "jaw=2"])
-    assert res.exit_code == 1 and "--rig-scale jaw: no such shape in the curves written" in " ".join(res.output.split())
+    assert res.exit_code == 2 and "--rig-scale jaw: no such shape in the curves written" in " ".join(res.output.split())
