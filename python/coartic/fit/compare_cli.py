@@ -26,7 +26,12 @@ def compare_command(
                                        "held-out RMSE)"),
     quiet: bool = typer.Option(False, "--quiet", "-q", help="no progress on stderr; the comparison is still printed"),
 ) -> None:
-    """Fit every spec on its data and compare: free parameters, RMSE, held-out RMSE, AIC, BIC."""
+    """Fit every spec on its data and compare: free parameters, RMSE, held-out RMSE, AIC, BIC.
+
+    Exit status: 0 every fit converged; 3 written, but a fit reached its evaluation or iteration limit
+    (max-evaluations), had a failed stage (stage-failed) or a best optimum that one start only
+    reached (best-found-once), as `coartic fit`; 2 an error (spec, data, output); 130 interrupted.
+    """
     from coartic.fit.compare import compare
     from coartic.fit.compare import vary as vary_spec
     from coartic.fit.spec import FitSpec, load_spec, parse_grid
@@ -46,6 +51,18 @@ def compare_command(
         console.print(f"note: {escape(n)}", soft_wrap=True, highlight=False)
     console.print(escape(f"written: {out / 'compare.html'} (table and figure), compare.csv, one fit per spec"),
                   soft_wrap=True, highlight=False)
+    if any(res.interrupted for res in cmp.results):
+        raise typer.Exit(130)
+    from coartic.console import EXIT_UNCONFIRMED
+    from coartic.fit.fit_cli import STATUS_ADVICE
+    from coartic.fit.staged import UNCONFIRMED_STATUSES
+
+    unconfirmed = [r for r in cmp.rows if r.status in UNCONFIRMED_STATUSES]
+    for r in unconfirmed:  # the comparison of a fit that did not converge is not to be trusted as it stands
+        console.print(f"[bold red]{escape(r.model)} {escape(r.channel)}: {escape(r.status)}[/bold red]: "
+                      f"{escape(STATUS_ADVICE.get(r.status, ''))}", soft_wrap=True, highlight=False)
+    if unconfirmed:
+        raise typer.Exit(EXIT_UNCONFIRMED)
 
 
 def comparison_table(cmp: object) -> Table:

@@ -65,8 +65,7 @@ def score_table(score: object) -> Table:
     assert isinstance(score, Score)
     who = f" as speaker {score.speaker}" if score.speaker is not None else ""
     t = Table(title=f"RMSE (mm){who} on {len(score.utterances)} recording(s) the fit did not see — bar {BAR_MM} mm",
-              caption="baselines on the same samples: constant = training mean; step = each phoneme's training "
-                      "mean; warped = another token of the sentence, time-warped")
+              caption=score.caption())
     for c in ("channel", "model", "as measured", "offset removed", "speaker-calibrated", "worst utterance",
               "worst phoneme", "samples"):
         t.add_column(c, justify="left" if c in ("channel", "model") else "right")

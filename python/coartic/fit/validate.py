@@ -253,10 +253,14 @@ def _dirname(split: str) -> str:
 
 
 def validation_table(scores: Sequence[SplitScore]) -> Table:
-    t = Table(title=f"Validation RMSE (mm) on data the fit did not see — bar {BAR_MM} mm",
-              caption="step, constant, warped: the baselines on the same test samples (as measured / offset "
-                      "removed); step = each phoneme's training mean; ✗ = the table does not beat the step model")
+    from coartic.fit.baselines import caption
+
     have = [b for b in ("step", "constant", "warped") if any(b in sc.baselines for sc in scores)]
+    absent = {b: ("no split's test sentence has another token in its training data" if b == "warped" else
+                  "not computed") for b in ("step", "constant", "warped") if b not in have}
+    t = Table(title=f"Validation RMSE (mm) on data the fit did not see — bar {BAR_MM} mm",
+              caption=caption(have, absent) + " (as measured / offset removed); ✗ = the table does not beat the "
+                      "step model")
     for c in ("split", "channel", "train", "test", "test, offset removed", *have, "worst vowel (test)"):
         t.add_column(c, justify="left" if c in ("split", "channel") else "right")
 
