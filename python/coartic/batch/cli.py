@@ -46,8 +46,10 @@ def batch_command(
     from coartic.batch.spec import load_batch_spec
 
     try:
+        from coartic.batch.run import Tls, require_packages, run_batch
+
+        require_packages(None, serial)
         s = load_batch_spec(spec)
-        from coartic.batch.run import Tls, run_batch
 
         outcome = run_batch(s, out, scheduler=scheduler, workers=workers, serial=serial, force=force, report=report,
                             console=err, quiet=quiet, tls=Tls(tls_ca_file, tls_cert, tls_key))

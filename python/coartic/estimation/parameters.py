@@ -240,7 +240,8 @@ class ParameterSet(Mapping[str, Parameter]):
                 base[i, k] = base[members[0], k]
                 ties.append((i * N_PARAMS + k, members[0] * N_PARAMS + k))
         priors = expand_priors(spec, ch, tuple(phon), free, spec.fit_beta and spec.variant == "modified")
-        priors.update(target_priors(spec.target_prior, data.utterances, ch, phon, free, priors))
+        if not isinstance(spec.target_prior, str):  # "estimated": a family of the pool (build_problem)
+            priors.update(target_priors(spec.target_prior, data.utterances, ch, phon, free, priors))
         bad = lower > upper
         if bad.any():
             i, k = map(int, np.argwhere(bad)[0])

@@ -23,10 +23,12 @@ import numpy as np
 from numpy.typing import NDArray
 
 from coartic import __version__
+from coartic.extras import require
 from coartic.fit.bounds import CATEGORY_TITLES, BoundNote, explain_bounds, summary_counts
 from coartic.estimation.emotions import channel_metadata
 from coartic.estimation.parameters import ParameterSet, psd_pseudo_inverse
 from coartic.estimation.packing import Packing
+from coartic.estimation.pooling import PoolEstimate
 from coartic.estimation.problem import ChannelProblem
 from coartic.errors import UsageError
 from coartic.fit.spec import FitSpec
@@ -144,6 +146,7 @@ class ChannelFit:
     stats: ParameterStats | None = None
     fitted: FloatArray | None = None  # model on every sample of the channel's corpus
     multistart: MultiStart | None = None  # the optima a multi-start found ([fit] starts > 1)
+    pooling: PoolEstimate | None = None  # the pool's estimated sd and effective parameters ([parameters] pooled)
 
     @property
     def phonemes(self) -> tuple[str, ...]:
@@ -298,6 +301,9 @@ class FitResult:
                                         "parameters": list(g.parameters),
                                         "sd": g.sd, "scale": "log" if g.log else "natural", "prior_noise": s.prior_noise,
                                         "channels": list(g.channels) if g.channels else "all"} for g in s.shrinks]
+        pooling = {ch: f.pooling.as_dict() for ch, f in self.channels.items() if f.pooling is not None}
+        if pooling:  # the pool's estimated sd per family, σ and the effective parameters (build_problem reads it back)
+            t.metadata["pooling"] = pooling
         if self.choice is not None:
             t.metadata["choice"] = self.choice.metadata()
         # the map the corpus labels went through, so trajectories/animate/score read labels alike
@@ -318,12 +324,15 @@ class FitResult:
                     # its range inside the best optimum: the data leave it free (same fit within the noise)
                     row["not_identified_range"] = ms.best.unidentified.get(name, 0.0 if name in ms.names else "")
                 rows.append(row)
+            if fit.pooling is not None and rows:
+                rows += pooling_rows(fit.channel, fit.pooling, list(rows[0]))
         return rows
 
     def to_dataframe(self, what: str = "parameters") -> Any:
         """pandas DataFrame of ``parameters.csv`` (``what="parameters"``: one row per channel,
         phoneme and parameter with value, standard error, free, tie, bounds and flags; NaN where a
         number does not apply) or of ``rmse.csv`` (``"rmse"``: per channel and group)."""
+        require("dataframe", "to_dataframe()")
         import pandas as pd
 
         if what == "rmse":
@@ -371,6 +380,8 @@ class FitResult:
                              + ("" if (sr.engine.status == "converged" and not sr.engine.polished) or sr.probe
                                 else f": {sr.engine.message}"))
             lines += shrinkage_lines(fit.problem, fit.x)
+            if fit.pooling is not None:
+                lines += pooling_lines(fit.pooling)
             if st.at_bound:
                 lines.append(f"    warning: {len(st.at_bound)} parameter(s) at a bound: {', '.join(st.at_bound)}")
                 lines.append(f"        why (computed from the fit, [[At a bound]] below): {summary_counts(st.bounds)}")
@@ -452,7 +463,8 @@ class FitResult:
                                                  "message": sr.engine.message,
                                                  "polished": sr.engine.polished} for sr in f.stages],
                                      "multistart": None if f.multistart is None
-                                     else f.multistart.as_dict(f.problem.data.n_valid)}
+                                     else f.multistart.as_dict(f.problem.data.n_valid),
+                                     "pooling": None if f.pooling is None else f.pooling.as_dict()}
                                 for ch, f in self.channels.items()}}
         if self.validation:
 
@@ -506,6 +518,34 @@ def shrinkage_lines(problem: ChannelProblem, x: FloatArray) -> list[str]:
                      f"{'geometric ' if g.log else ''}mean {mean:.4g}: {devs}")
         i += len(g.rows)
     return lines
+
+
+def pooling_lines(est: PoolEstimate) -> list[str]:
+    """fit_report.txt: each pooled family's estimated sd and what it amounts to."""
+    lines = [f"    [[Pooling]] (sd estimated from the data: Laplace evidence, empirical Bayes; noise sd "
+             f"{est.sigma:.4g} mm; {est.rounds} re-solve(s){'' if est.settled else ', NOT settled'})",
+             f"        data weighed as {est.temper:.3g} x the samples (1 / the residuals' autocorrelation time: "
+             f"n_eff = {est.temper * est.n_valid:.0f} of {est.n_valid})",
+             f"        effective parameters: {est.effective:.2f} of {est.n_free} free (trace of the hat matrix)"]
+    lines += [f"        {est.line(f)}" for f in est.tau]
+    return lines
+
+
+def pooling_rows(channel: str, est: PoolEstimate, columns: list[str]) -> list[dict[str, Any]]:
+    """parameters.csv: a row per pooled family (parameter \"sd(family)\", its estimated sd; lower
+    and upper the search box) and one \"effective_parameters\" row (value: the trace of the hat
+    matrix, upper: the free parameters)."""
+    from coartic.estimation.pooling import TAU_BOUNDS
+
+    blank = dict.fromkeys(columns, "")
+    out = [{**blank, "channel": channel, "phoneme": "*", "parameter": f"sd({f})", "value": t, "free": True,
+            "tied_to": "", "lower": TAU_BOUNDS[0], "upper": TAU_BOUNDS[1], "at_bound": f in est.at_bound,
+            "unidentified": False, "bound_side": est.at_bound.get(f, ""),
+            "bound_explanation": est.line(f) if f in est.at_bound else ""} for f, t in est.tau.items()]
+    out.append({**blank, "channel": channel, "phoneme": "*", "parameter": "effective_parameters",
+                "value": est.effective, "free": False, "tied_to": "", "lower": 0.0, "upper": float(est.n_free),
+                "at_bound": False, "unidentified": False})
+    return out
 
 
 def now() -> str:

@@ -20,7 +20,7 @@ from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, T
 
 from coartic.console import LineProgress
 from coartic.errors import CoarticError
-from coartic.fit.engines import OptionError, check_options
+from coartic.fit.engines import EngineResult, OptionError, check_options
 from coartic.estimation.emotions import estimate_prior
 from coartic.estimation.problem import ChannelProblem, build_problem
 from coartic.model import Utterance
@@ -28,7 +28,7 @@ from coartic.fit.result import ChannelFit, FitResult, finish_channel, now
 from coartic.errors import SpecError
 from coartic.fit.spec import FitSpec, load_spec
 from coartic.fit.multistart import MultiStart, fit_multistart
-from coartic.fit.staged import channel_status, fit_staged
+from coartic.fit.staged import channel_status, fit_pooled, fit_staged
 from coartic.table import ParameterTable
 
 
@@ -94,6 +94,17 @@ def fit_channel(spec: FitSpec, utterances: Sequence[Utterance], channel: str,
             final, res, more = fit_staged(final.with_emotion_prior(prior), spec.engine, spec.engine_options, None,
                                           on_stage)
             stages = [*stages, *more]
+        pooling = None
+        if final.pool is not None and res.status in ("converged", "max-evaluations"):
+            # partial pooling: the pool's sd estimated from the data, the fit re-solved at it
+            if progress is not None and task is not None:
+                progress.update(task, description=f"{channel} pooling (sd estimated)")
+            final, pooled_res, pooling = fit_pooled(final, res.x, spec.engine, spec.engine_options)
+            if pooled_res is not None:
+                keep = res.status == "converged" and pooled_res.status == "converged"
+                res = EngineResult(pooled_res.x, res.status if keep else pooled_res.status,
+                                   res.message if keep else f"re-solving at the estimated pooling sd: {pooled_res.message}",
+                                   res.nfev + pooled_res.nfev, res.njev + pooled_res.njev)
     status, message = channel_status(res, stages, multi is not None and multi.best_found_once)
     try:
         fit = finish_channel(final, res.x, status, message, time.perf_counter() - t0, stages)
@@ -101,6 +112,7 @@ def fit_channel(spec: FitSpec, utterances: Sequence[Utterance], channel: str,
         fit = finish_channel(final, res.x, "interrupted", "stopped by the user (Ctrl-C) after the fit",
                              time.perf_counter() - t0, stages)
     fit.multistart = multi
+    fit.pooling = pooling
     if progress is not None and task is not None:
         progress.update(task, description=f"{channel} done", info=escape(f"RMSE {fit.rmse:.3f} mm [{fit.status}]"))
         progress.stop_task(task)

@@ -66,7 +66,8 @@ DEFAULT_BETA_BOUNDS: tuple[float, float] = (0.05, 20.0)
 # better and predicted held-out speech worse there.
 DEFAULT_FREE: tuple[str, ...] = ("target", "theta_bw", "theta_fw")
 DEFAULT_SHARED: tuple[str, ...] = ("theta_bw", "theta_fw")
-DEFAULT_TARGET_PRIOR: float | None = 0.3
+DEFAULT_TARGET_PRIOR: float | str | None = 0.3
+DEFAULT_POOLED: tuple[str, ...] = ()
 SPEC_MODEL_DEFAULTS: dict[str, Any] = {"dominance": "plateau", "handover": True}
 DEFAULT_STAGES: tuple[tuple[str, ...], ...] = (
     ("target",),
@@ -292,13 +293,16 @@ def _priors(v: Any) -> dict[str, tuple[float, float, bool]]:
     return out
 
 
-def _target_prior(v: Any) -> float | None:
-    """``[parameters] target_prior``: "none" (or None), or the prior's sd in mm."""
+def _target_prior(v: Any) -> float | str | None:
+    """``[parameters] target_prior``: "none" (or None), "estimated" (its sd estimated from the data,
+    coartic.estimation.pooling), or the prior's sd in mm."""
     if v is None or v == "none":
         return None
+    if v == "estimated":
+        return "estimated"
     if isinstance(v, bool) or not isinstance(v, (int, float)) or not (math.isfinite(v) and v > 0):
-        raise _bad(f"{v!r}: expected \"none\" or a positive number (the sd in mm of every target around its "
-                   "phoneme's mean in the data)")
+        raise _bad(f"{v!r}: expected \"none\", \"estimated\" or a positive number (the sd in mm of every target "
+                   "around its phoneme's mean in the data)")
     return float(v)
 
 
@@ -306,6 +310,14 @@ def _shared(v: Any) -> tuple[str, ...]:
     names = _params(v)
     if "target" in names:
         raise _bad("target cannot be shared: one target for every phoneme is the constant model", parameter="target")
+    return names
+
+
+def _pooled(v: Any) -> tuple[str, ...]:
+    names = _params(v)
+    if "target" in names:
+        raise _bad("target cannot be pooled toward one value (the constant model): use target_prior = \"estimated\"",
+                   parameter="target")
     return names
 
 
@@ -586,7 +598,10 @@ class FitSpec:
     shared: Annotated[tuple[str, ...], BeforeValidator(_shared)] = DEFAULT_SHARED
     # sd (mm) of a Gaussian prior drawing every free target toward the mean of the channel over its
     # phoneme's segments in the fitted data (the step model's value); None: no such prior
-    target_prior: Annotated[float | None, BeforeValidator(_target_prior)] = DEFAULT_TARGET_PRIOR
+    target_prior: Annotated[float | str | None, BeforeValidator(_target_prior)] = DEFAULT_TARGET_PRIOR
+    # free parameters drawn toward one value per channel with an sd estimated from the data
+    # (partial pooling, coartic.estimation.pooling)
+    pooled: Annotated[tuple[str, ...], BeforeValidator(_pooled)] = DEFAULT_POOLED
     start_table: Annotated[Path | None, BeforeValidator(_optional(_path))] = None  # start values from a table JSON
     start: ParamValues = dataclasses.field(default_factory=lambda: dict(DEFAULT_START))
     # Gaussian priors (penalties in least squares): "parameter" (every phoneme) or "phoneme.parameter"
@@ -658,6 +673,10 @@ class FitSpec:
                 raise _bad(f"sets alpha of the reference phoneme {ref!r}, which is fixed at 1 (alpha is "
                            "scale-free); choose another [model] reference_phoneme to fit it", ("overrides", i),
                            phoneme=ref, parameter="alpha")
+        both = set(self.pooled) & set(self.shared)
+        if both:
+            raise _bad(f"{', '.join(sorted(both))} is both shared by every phoneme and pooled: one or the other "
+                       "(pooled with its sd estimated reaches shared when the data say so)", ("pooled",))
         tied = {q for t in self.ties for q in t.parameters} & set(self.shared)
         if tied:
             raise _bad(f"{', '.join(sorted(tied))} is both shared by every phoneme and in a [[tie]]: one or the other",
@@ -741,7 +760,7 @@ DOCUMENT: dict[str, dict[str, str]] = {
                              "speakers", "speaker_column", "emotions", "emotion_column", "neutral_emotion")},
     "parameters": {"free": "free", "start": "start", "start_table": "start_table", "bounds": "bounds",
                    "target_margin": "target_margin", "prior": "priors", "prior_noise": "prior_noise",
-                   "shared": "shared", "target_prior": "target_prior"},
+                   "shared": "shared", "target_prior": "target_prior", "pooled": "pooled"},
     "engine": {"name": "engine", "options": "engine_options"},
     "staging": {"enabled": "staging", "stages": "stages"},
     "fit": {k: k for k in ("starts", "seed", "probe", "keep", "include_start")},
@@ -815,6 +834,18 @@ def document_fields(raw: Mapping[str, Any], path: Path) -> dict[str, Any]:
         # the shared dynamics belong to the default freedom: a spec that lists its own free set keeps
         # per-phoneme values unless it says shared = [...] too
         fields["shared"] = ()
+    if isinstance(p, Mapping) and "free" in p and "pooled" not in p:
+        fields["pooled"] = ()  # likewise the pooled dynamics
+    if isinstance(p, Mapping) and isinstance(p.get("pooled"), list) and "shared" not in p and "free" not in p:
+        fields["shared"] = tuple(q for q in DEFAULT_SHARED if q not in p["pooled"])  # pooled instead of shared
+    for key in ("pooled",):
+        if isinstance(p, Mapping) and isinstance(p.get(key), list):
+            frees = [p.get("free", list(DEFAULT_FREE))] + [o.get("free", []) for o in raw.get("override", [])
+                                                           if isinstance(o, Mapping)]
+            freed = {n for f in frees for n in (f if isinstance(f, list) else [f])}
+            if set(p[key]) - freed:
+                raise SpecError.at(path, f"parameters.{key}", f"{', '.join(sorted(set(p[key]) - freed))} is not free "
+                                   "([parameters] free or an [[override]] free): pooling a fixed value would do nothing")
     if isinstance(p, Mapping) and "shared" in p and isinstance(p["shared"], list):
         frees = [p.get("free", list(DEFAULT_FREE))] + [o.get("free", []) for o in raw.get("override", [])
                                                        if isinstance(o, Mapping)]

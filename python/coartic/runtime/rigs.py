@@ -11,8 +11,7 @@ the dominance weights of its segments).
 - **Meta visemes** (`viseme_weights`): the 15 visemes sil PP FF TH DD kk CH SS nn RR aa E ih oh
   ou; each frame's weights are the dominance shares of the segments (how much each segment's target
   counts in the model at that frame, averaged over the modelled channels) summed by viseme.
-- **Rhubarb** (`mouth_cues`): shapes A–H and X per frame from the viseme in control and the
-  mouth's opening and rounding, merged into cues.
+- **Rhubarb** Lip Sync's mouth cues: coartic.runtime.rhubarb.
 
 The mapping and why each weight is what it is: docs/RUNTIME.md, "The rigs people have".
 """
@@ -20,8 +19,6 @@ The mapping and why each weight is what it is: docs/RUNTIME.md, "The rigs people
 from __future__ import annotations
 
 import json
-import math
-from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -102,19 +99,6 @@ PHONEME_VISEME: dict[str, str] = {
     "R": "RR", "a": "aa", "A": "aa", "e": "E", "E": "E", "i": "ih", "I": "ih", "j": "ih", "o": "oh", "O": "oh",
     "u": "ou", "U": "ou", "w": "ou", "y": "ou", "h": "sil",
 }
-
-RHUBARB_SHAPES: tuple[str, ...] = ("A", "B", "C", "D", "E", "F", "G", "H", "X")
-# Opening (ULO + LLO from neutral) as a fraction of the table's widest phoneme target, below which
-# the mouth is shape B (teeth together, lips slightly apart) and C (open); above C it is D (wide).
-RHUBARB_B_BELOW = 0.5
-RHUBARB_C_BELOW = 0.75
-# a pause in control with the lips within this fraction of closed is the idle mouth X
-RHUBARB_REST_BELOW = 0.25
-# rounding (mouthPucker + mouthFunnel) from which the mouth is F (puckered) or E (slightly rounded)
-RHUBARB_ROUND_FROM = 0.25
-# the lateral phonemes that Rhubarb's H (tongue raised behind the upper teeth) is drawn for
-RHUBARB_H_PHONEMES = frozenset({"l", "L"})
-
 
 def _deltas(animation: Animation) -> dict[str, NDArray[np.float64]]:
     missing = [c for c in CHANNELS if c not in animation.neutral]
@@ -204,7 +188,7 @@ def segment_shares(animation: Animation, start: int = 0, stop: int | None = None
     return out
 
 
-def _blocks(animation: Animation) -> list[tuple[int, int]]:
+def share_blocks(animation: Animation) -> list[tuple[int, int]]:
     n = animation.n_frames
     return [(a, min(a + SHARE_FRAMES, n)) for a in range(0, n, SHARE_FRAMES)]
 
@@ -215,7 +199,7 @@ def viseme_weights(animation: Animation) -> NDArray[np.float64]:
     onehot = np.zeros((column.size, len(VISEMES)))
     onehot[np.arange(column.size), column] = 1.0
     out = np.empty((animation.n_frames, len(VISEMES)))
-    for a, b in _blocks(animation):
+    for a, b in share_blocks(animation):
         out[a:b] = segment_shares(animation, a, b) @ onehot
     return out
 
@@ -223,79 +207,9 @@ def viseme_weights(animation: Animation) -> NDArray[np.float64]:
 def dominant_segments(animation: Animation) -> NDArray[np.int64]:
     """The index of the segment with the largest dominance share at every frame."""
     out = np.empty(animation.n_frames, dtype=np.int64)
-    for a, b in _blocks(animation):
+    for a, b in share_blocks(animation):
         out[a:b] = np.argmax(segment_shares(animation, a, b), axis=1)
     return out
-
-
-@dataclass(frozen=True)
-class MouthCue:
-    start: float
-    end: float
-    value: str
-
-
-def widest_opening(animation: Animation) -> float:
-    """The widest lip opening (ULO + LLO from neutral, mm) among the table's phoneme targets."""
-    table = animation.table
-    if table is None:
-        raise AnimationError("this animation does not carry the table that made it: no mouth cues")
-    have = [c for c in ("ULO", "LLO") if c in table.channels]
-    widest = max((sum(per[c]["target"] - animation.neutral[c] for c in have)
-                  for per in table.values.values() if all(c in per for c in have)), default=0.0)
-    if not have or not widest > 0.0:
-        raise AnimationError(f"{table.source}: no phoneme opens the lips (ULO + LLO above the pause's): "
-                             "Rhubarb's open shapes B-D cannot be scaled")
-    return float(widest)
-
-
-def mouth_shapes(animation: Animation, arkit: NDArray[np.float64] | None = None) -> list[str]:
-    """Rhubarb's shape (A-H, X) at every frame."""
-    arkit = arkit_weights(animation) if arkit is None else arkit
-    d = _deltas(animation)
-    opening = (d["ULO"] + d["LLO"]) / widest_opening(animation)
-    rounding = arkit[:, ARKIT_NAMES.index("mouthPucker")] + arkit[:, ARKIT_NAMES.index("mouthFunnel")]
-    labels = animation.segments.labels
-    top = dominant_segments(animation)
-    shapes = []
-    for k in range(animation.n_frames):
-        ph = labels[int(top[k])]
-        vis = _viseme_of(ph)
-        if vis == "sil" and opening[k] < RHUBARB_REST_BELOW:
-            shapes.append("X")
-        elif vis == "FF":
-            shapes.append("G")
-        elif vis == "PP" or opening[k] <= 0.0:
-            shapes.append("A")
-        elif ph in RHUBARB_H_PHONEMES:
-            shapes.append("H")
-        elif rounding[k] >= RHUBARB_ROUND_FROM:
-            shapes.append("F" if opening[k] < RHUBARB_B_BELOW else "E")
-        elif opening[k] < RHUBARB_B_BELOW:
-            shapes.append("B")
-        elif opening[k] < RHUBARB_C_BELOW:
-            shapes.append("C")
-        else:
-            shapes.append("D")
-    return shapes
-
-
-def mouth_cues(animation: Animation, shapes: list[str] | None = None) -> list[MouthCue]:
-    """Runs of one shape as cues; frame k lasts from k/fps to (k+1)/fps, the last cue to the end.
-    Times are on Rhubarb's 0.01-s grid; a run shorter than that joins the cue before it."""
-    shapes = mouth_shapes(animation) if shapes is None else shapes
-    cues: list[MouthCue] = []
-    start = 0
-    for k in range(1, len(shapes) + 1):
-        if k == len(shapes) or shapes[k] != shapes[start]:
-            t0 = round(start / animation.fps, 2)
-            t1 = round(k / animation.fps, 2) if k < len(shapes) else round(animation.duration, 2)
-            if cues and (t1 <= t0 or cues[-1].value == shapes[start]):
-                cues[-1] = MouthCue(cues[-1].start, t1, cues[-1].value)
-            elif t1 > t0:
-                cues.append(MouthCue(t0, t1, shapes[start]))
-            start = k
-    return cues
 
 
 def _num(x: float) -> str:
@@ -329,20 +243,6 @@ def write_visemes_json(path: Path, animation: Animation, weights: NDArray[np.flo
     return path
 
 
-def write_rhubarb(json_path: Path, tsv_path: Path, animation: Animation, cues: list[MouthCue],
-                  audio: str | None) -> tuple[Path, Path]:
-    """Rhubarb Lip Sync's JSON (`metadata`, `mouthCues`) and TSV (start and shape per line, the last
-    line the end of the recording with X), times truncated to 0.01 s as Rhubarb writes them."""
-    duration = math.floor(animation.duration * 100.0 + 1e-9) / 100.0
-    body = ",\n".join(f'    {{ "start": {c.start:.2f}, "end": {min(c.end, duration):.2f}, "value": "{c.value}" }}'
-                      for c in cues)
-    meta = f'{{\n    "soundFile": {json.dumps(audio or "")},\n    "duration": {duration:.2f}\n  }}'
-    atomic_write_text(json_path, f'{{\n  "metadata": {meta},\n  "mouthCues": [\n{body}\n  ]\n}}\n')
-    lines = [f"{c.start:.2f}\t{c.value}" for c in cues] + [f"{duration:.2f}\tX"]
-    atomic_write_text(tsv_path, "\n".join(lines) + "\n")
-    return json_path, tsv_path
-
-
 def export_arkit(animation: Animation, settings: ExportSettings) -> dict[str, Path]:
     """Exporter (coartic.runtime.exporters): NAME.arkit.csv and NAME.arkit.json."""
     w = arkit_weights(animation)
@@ -357,10 +257,3 @@ def export_visemes(animation: Animation, settings: ExportSettings) -> dict[str, 
     return {"visemes_csv": write_curves_csv(settings.out / f"{settings.name}.visemes.csv", animation, VISEMES, w),
             "visemes_json": write_visemes_json(settings.out / f"{settings.name}.visemes.json", animation, w,
                                                settings.audio_name())}
-
-
-def export_rhubarb(animation: Animation, settings: ExportSettings) -> dict[str, Path]:
-    """Exporter: NAME.rhubarb.json and NAME.rhubarb.tsv (Rhubarb Lip Sync's mouth cues)."""
-    j, t = write_rhubarb(settings.out / f"{settings.name}.rhubarb.json", settings.out / f"{settings.name}.rhubarb.tsv",
-                         animation, mouth_cues(animation), settings.audio_name())
-    return {"rhubarb_json": j, "rhubarb_tsv": t}

@@ -21,6 +21,7 @@ from coartic.console import LineProgress, print_error
 # NumPy, the table, the model and the outputs are imported in the commands, after `speak` has
 # started Festival: the imports then run while it synthesises (bench/startup.py).
 if TYPE_CHECKING:
+    from coartic.runtime.exporters import RigOptions
     from coartic.runtime.pipeline import RuntimeOutput
     from coartic.table import ParameterTable
 
@@ -38,10 +39,13 @@ PreviewOpt = Annotated[str, typer.Option("--preview", help=f"Preview format: {',
 GltfOpt = Annotated[bool, typer.Option("--gltf", help="Also write NAME.glb: the face with morph targets per FAP and their animation (coartic view DIR plays it).")]
 VrmlOpt = Annotated[bool, typer.Option("--vrml", help="Also write NAME.wrl: the face animated in VRML97 (interpolators, the sound as an AudioClip).")]
 FapNameOpt = Annotated[str | None, typer.Option("--fap-name", help="Name of the FAP file and its header; the WAV and glTF get the same stem (Greta loads NAME.fap with NAME.wav).")]
-ExportOpt = Annotated[str | None, typer.Option("--export", help="Also write the rigs' curves and cues, comma-separated: arkit (NAME.arkit.csv/.json, ARKit's 52 blendshapes), visemes (NAME.visemes.csv/.json, Meta's 15), rhubarb (NAME.rhubarb.json/.tsv, Rhubarb Lip Sync's mouth cues).")]
+ExportOpt = Annotated[str | None, typer.Option("--export", help="Also write the rigs' curves and cues, comma-separated: arkit (NAME.arkit.csv/.json, ARKit's 52 blendshapes), visemes (NAME.visemes.csv/.json, Meta's 15), rhubarb (NAME.rhubarb.tsv/.json and --rhubarb-formats, Rhubarb Lip Sync's mouth cues).")]
 GltfMorphsOpt = Annotated[str, typer.Option("--gltf-morphs", help="The glTF's morph targets: fap (one per FAP), arkit (ARKit's 52 blendshape names, to retarget by name) or eight (at most 8 per mesh, all blended by three.js up to r132); arkit and eight imply --gltf.")]
 EmotionOpt = Annotated[str | None, typer.Option("--emotion", help="Speak with this emotion of a table fitted with [model] emotions (joy, surprise, sadness, disgust, anger, fear; docs/EMOTIONS.md).")]
 IntensityOpt = Annotated[float, typer.Option("--intensity", help="With --emotion: 0 = neutral, 1 = the emotion as fitted (up to 1.5).")]
+ExtendedOpt = Annotated[str, typer.Option("--extended-shapes", help="Rhubarb's extended mouth shapes the cues may use: any of G H X (as Rhubarb's --extendedShapes; \"\" for the six basic shapes A-F).")]
+RhubarbFormatsOpt = Annotated[str, typer.Option("--rhubarb-formats", help="Rhubarb's cue files to write with --export rhubarb: any of tsv, json, xml, dat (Moho / OpenToonz switch data, at --fps 24 to 100), comma-separated.")]
+PrestonBlairOpt = Annotated[bool, typer.Option("--preston-blair", help="Preston Blair's shape names (MBP, etc, E, AI, O, U, FV, L, rest) in Rhubarb's DAT file, as Rhubarb's --datUsePrestonBlair.")]
 SpeakerOpt = Annotated[str | None, typer.Option("--speaker", help="Speak as this speaker of a table fitted with [model] speakers (its offset and scale, or its own targets).")]
 ForceOpt = Annotated[bool, typer.Option("--force", help="Replace --out even if it holds another run's output "
                                         "(the same labels or text replace their own output without it).")]
@@ -136,6 +140,19 @@ def _run_staged(table: Path | None, out: Path, command: str, identity: dict[str,
     _report(_moved(result, staging, out), phone_map)
 
 
+def _rig_options(extended_shapes: str, rhubarb_formats: str, preston_blair: bool) -> RigOptions:
+    """The rig options of the command line, checked before anything runs."""
+    from coartic.runtime.exporters import RigOptions
+    from coartic.runtime.rhubarb import parse_extended_shapes, parse_rhubarb_formats
+
+    try:
+        return RigOptions(extended_shapes=parse_extended_shapes(extended_shapes),
+                          rhubarb_formats=parse_rhubarb_formats(rhubarb_formats), preston_blair=preston_blair)
+    except AnimationError as err:
+        _fail(err)
+        raise
+
+
 def animate_command(
     labels: Annotated[Path, typer.Argument(help="Label file: Praat TextGrid, HTK/Festival .lab or TSV 'start end label'; "
                                                 "or a recording (WAV) with --text or --transcript, aligned first (coartic align).")],
@@ -158,6 +175,9 @@ def animate_command(
     intensity: IntensityOpt = 1.0,
     export: ExportOpt = None,
     gltf_morphs: GltfMorphsOpt = "fap",
+    extended_shapes: ExtendedOpt = "GHX",
+    rhubarb_formats: RhubarbFormatsOpt = "tsv,json",
+    preston_blair: PrestonBlairOpt = False,
     force: ForceOpt = False,
     text: Annotated[str | None, typer.Option("--text", help="With a recording: what it says (its transcript).")] = None,
     transcript: Annotated[Path | None, typer.Option("--transcript", help="With a recording: its transcript as a file (plain text, or a TextGrid with a words tier).")] = None,
@@ -174,11 +194,12 @@ def animate_command(
     from coartic.runtime.pipeline import animate_file, speaker_face
 
     _warn_fps(fps)
+    rig = _rig_options(extended_shapes, rhubarb_formats, preston_blair)
     if is_wav(labels):
         _animate_recording(labels, out, table, fps, text, transcript, lang, engine, max_duration, audio, force,
                            dict(tier=tier, label_map=label_map, preview=preview, snap_contacts=snap_contacts,
                                 strict=strict, gltf=gltf or gltf_morphs != "fap", vrml=vrml, speaker=speaker,
-                                exports=export, gltf_morphs=gltf_morphs), fap_name, mns, mw, speaker,
+                                exports=export, gltf_morphs=gltf_morphs, rig=rig), fap_name, mns, mw, speaker,
                            emotion, intensity)
         return
     if text is not None or transcript is not None:
@@ -189,7 +210,7 @@ def animate_command(
                             face=speaker_face(t, mns, mw, speaker), preview=preview, snap_contacts=snap_contacts,
                             strict=strict, progress=progress, audio=audio, name=fap_name,
                             gltf=gltf or gltf_morphs != "fap", vrml=vrml, speaker=speaker, exports=export,
-                            gltf_morphs=gltf_morphs)
+                            gltf_morphs=gltf_morphs, rig=rig)
 
     _run_staged(table, out, "animate", {"labels": str(labels.resolve())}, force,
                 [labels, *([table] if table is not None else []), *([audio] if audio is not None else [])], make,
@@ -251,6 +272,9 @@ def speak_command(
     intensity: IntensityOpt = 1.0,
     export: ExportOpt = None,
     gltf_morphs: GltfMorphsOpt = "fap",
+    extended_shapes: ExtendedOpt = "GHX",
+    rhubarb_formats: RhubarbFormatsOpt = "tsv,json",
+    preston_blair: PrestonBlairOpt = False,
     force: ForceOpt = False,
 ) -> None:
     """Say Italian (or English, --lang en) text with Festival: WAV, channel trajectories, FAP file and preview,
@@ -268,11 +292,13 @@ def speak_command(
     with synthesis:
         from coartic.runtime.pipeline import speak_text, speaker_face
 
+        rig = _rig_options(extended_shapes, rhubarb_formats, preston_blair)
+
         def make(t: ParameterTable, staging: Path, progress: Progress) -> RuntimeOutput:
             return speak_text(text, t, staging, fps=fps, stretch=stretch, voice=voice, strict=strict,
                               face=speaker_face(t, mns, mw, speaker), preview=preview, snap_contacts=snap_contacts,
                               progress=progress, name=fap_name, gltf=gltf or gltf_morphs != "fap", vrml=vrml,
-                              speaker=speaker, exports=export, gltf_morphs=gltf_morphs, lang=lang,
+                              speaker=speaker, exports=export, gltf_morphs=gltf_morphs, lang=lang, rig=rig,
                               synthesis=synthesis)
 
         # the identity of an Italian run stays {"text": ...}: outputs written before --lang existed are its own
