@@ -154,4 +154,4 @@ def test_cli_writes_the_chosen_formats(tmp_path: Path) -> None:
     read_dat((tmp_path / "o" / "l.rhubarb.dat").read_text(), 25.0, "GX", preston_blair=True)
     res = CliRunner().invoke(app, ["animate", str(tmp_path / "l.tsv"), "-t", str(GROUND_TRUTH), "-o", str(tmp_path / "p"),
                                    "--preview", "none", "--export", "rhubarb", "--extended-shapes", "Z"])
-    assert res.exit_code == 1 and "--extended-shapes 'Z': Z is no extended shape" in res.output
+    assert res.exit_code == 2 and "--extended-shapes 'Z': Z is no extended shape" in res.output

@@ -202,7 +202,7 @@ def test_cli_export_and_arkit_gltf(tmp_path: Path) -> None:
     assert "channels.png" not in names  # --preview none: no pictures, no matplotlib
     res = CliRunner().invoke(app, ["animate", str(tmp_path / "l.tsv"), "-t", str(GROUND_TRUTH), "-o",
                                    str(tmp_path / "p"), "--preview", "none", "--gltf-morphs", "blendshapes"])
-    assert res.exit_code == 1 and "--gltf-morphs 'blendshapes': choose fap, arkit, eight" in res.output
+    assert res.exit_code == 2 and "--gltf-morphs 'blendshapes': choose fap, arkit, eight" in res.output
 
 
 def test_arkit_gltf_morph_set(run: RuntimeOutput) -> None:

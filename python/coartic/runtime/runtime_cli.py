@@ -4,6 +4,7 @@ Without --table both use the table shipped in the package (coartic.runtime.shipp
 
 from __future__ import annotations
 
+import math
 from pathlib import Path
 from typing import TYPE_CHECKING, Annotated, Any, Callable
 
@@ -16,7 +17,7 @@ from rich.table import Table
 from coartic.runtime.errors import AnimationError
 from coartic.runtime.festival import LANGUAGES, start_synthesis
 from coartic.runtime import PREVIEW_FORMATS
-from coartic.console import LineProgress, print_error
+from coartic.console import LineProgress
 
 # NumPy, the table, the model and the outputs are imported in the commands, after `speak` has
 # started Festival: the imports then run while it synthesises (bench/startup.py).
@@ -30,7 +31,16 @@ _out = Console()
 
 TableOpt = Annotated[Path | None, typer.Option("--table", "-t", help="Parameter table (JSON or long CSV). Default: the Italian table shipped with coartic (every Italian phoneme, fitted on the synthetic session).")]
 OutOpt = Annotated[Path, typer.Option("--out", "-o", help="Output directory (created if needed).")]
-FpsOpt = Annotated[float, typer.Option("--fps", help="Frames per second of the channels, FAP file and preview.")]
+def _finite_fps(fps: float) -> float:
+    # before fps_warnings (int(inf) would raise) and before any work; the upper bound is the frame count's
+    if not (math.isfinite(fps) and fps > 0):
+        raise typer.BadParameter(f"{fps:g} is not a frame rate: give a finite number of frames per second above 0 "
+                                 "(25 for FAP players)")
+    return fps
+
+
+FpsOpt = Annotated[float, typer.Option("--fps", callback=_finite_fps,
+                                       help="Frames per second of the channels, FAP file and preview.")]
 MnsOpt = Annotated[float | None, typer.Option("--mns", help="The speaker's neutral mouth-nose separation, mm (FAPU = MNS/1024). Default 30 mm.")]
 MwOpt = Annotated[float | None, typer.Option("--mw", help="The speaker's neutral mouth width, mm (FAPU = MW/1024). Default: the table's rest LR.")]
 SnapOpt = Annotated[bool, typer.Option("--snap-contacts/--no-snap-contacts", help="Show each k_R = 1 target (lip closure, lip-teeth contact) on its nearest frame.")]
@@ -46,14 +56,9 @@ IntensityOpt = Annotated[float, typer.Option("--intensity", help="With --emotion
 ExtendedOpt = Annotated[str, typer.Option("--extended-shapes", help="Rhubarb's extended mouth shapes the cues may use: any of G H X (as Rhubarb's --extendedShapes; \"\" for the six basic shapes A-F).")]
 RhubarbFormatsOpt = Annotated[str, typer.Option("--rhubarb-formats", help="Rhubarb's cue files to write with --export rhubarb: any of tsv, json, xml, dat (Moho / OpenToonz switch data, at --fps 24 to 100), comma-separated.")]
 PrestonBlairOpt = Annotated[bool, typer.Option("--preston-blair", help="Preston Blair's shape names (MBP, etc, E, AI, O, U, FV, L, rest) in Rhubarb's DAT file, as Rhubarb's --datUsePrestonBlair.")]
-SpeakerOpt = Annotated[str | None, typer.Option("--speaker", help="Speak as this speaker of a table fitted with [model] speakers (its offset and scale, or its own targets).")]
+SpeakerOpt = Annotated[str | None, typer.Option("--speaker", help="Speak as this speaker of a table fitted with \\[model] speakers (its offset and scale, or its own targets).")]
 ForceOpt = Annotated[bool, typer.Option("--force", help="Replace --out even if it holds another run's output "
                                         "(the same labels or text replace their own output without it).")]
-
-
-def _fail(err: Exception) -> None:
-    print_error(_err, err)
-    raise typer.Exit(code=1)
 
 
 def _progress() -> Progress:
@@ -121,22 +126,16 @@ def _run_staged(table: Path | None, out: Path, command: str, identity: dict[str,
                 protect: list[Path], make: Callable[[ParameterTable, Path, Progress], RuntimeOutput],
                 phone_map: str = "phones_italian.tsv", emotion: str | None = None, intensity: float = 1.0) -> None:
     """Load the table, run ``make`` into the staging directory of ``out`` with a progress bar, and
-    report what was written (where it is once swapped in); any failure is one clear error. ``emotion``
-    at ``intensity``: the table's emotion blended in first (coartic.emotions)."""
-    from coartic.emotions import EmotionError, emotion_table
-    from coartic.io.errors import DataError
-    from coartic.outputs import OutputDir, OutputError
-    from coartic.speakers import SpeakerError
-    from coartic.table import TableError
+    report what was written (where it is once swapped in). ``emotion`` at ``intensity``: the table's
+    emotion blended in first (coartic.emotions)."""
+    from coartic.emotions import emotion_table
+    from coartic.outputs import OutputDir
 
-    try:
-        t = emotion_table(_load_table(table), emotion, intensity)
-        if emotion is not None:
-            identity = identity | {"emotion": emotion, "intensity": repr(float(intensity))}
-        with OutputDir(out, command, identity, force=force, protect=protect) as staging, _progress() as progress:
-            result = make(t, staging, progress)
-    except (AnimationError, DataError, TableError, OutputError, SpeakerError, EmotionError, OSError) as err:
-        _fail(err)
+    t = emotion_table(_load_table(table), emotion, intensity)
+    if emotion is not None:
+        identity = identity | {"emotion": emotion, "intensity": repr(float(intensity))}
+    with OutputDir(out, command, identity, force=force, protect=protect) as staging, _progress() as progress:
+        result = make(t, staging, progress)
     _report(_moved(result, staging, out), phone_map)
 
 
@@ -145,12 +144,8 @@ def _rig_options(extended_shapes: str, rhubarb_formats: str, preston_blair: bool
     from coartic.runtime.exporters import RigOptions
     from coartic.runtime.rhubarb import parse_extended_shapes, parse_rhubarb_formats
 
-    try:
-        return RigOptions(extended_shapes=parse_extended_shapes(extended_shapes),
-                          rhubarb_formats=parse_rhubarb_formats(rhubarb_formats), preston_blair=preston_blair)
-    except AnimationError as err:
-        _fail(err)
-        raise
+    return RigOptions(extended_shapes=parse_extended_shapes(extended_shapes),
+                      rhubarb_formats=parse_rhubarb_formats(rhubarb_formats), preston_blair=preston_blair)
 
 
 def animate_command(
@@ -203,7 +198,7 @@ def animate_command(
                            emotion, intensity)
         return
     if text is not None or transcript is not None:
-        _fail(AnimationError(f"{labels}: --text and --transcript go with a recording (WAV), and this is not one"))
+        raise AnimationError(f"{labels}: --text and --transcript go with a recording (WAV), and this is not one")
 
     def make(t: ParameterTable, staging: Path, progress: Progress) -> RuntimeOutput:
         return animate_file(labels, t, staging, fps=fps, tier=tier, label_map=label_map,
@@ -227,16 +222,13 @@ def _animate_recording(wav: Path, out: Path, table: Path | None, fps: float, tex
     from coartic.runtime.pipeline import speaker_face
 
     if audio is not None:
-        _fail(AnimationError(f"{wav} is a recording: it is the sound already, leave out --audio {audio}"))
+        raise AnimationError(f"{wav} is a recording: it is the sound already, leave out --audio {audio}")
     if options["tier"] is not None or options["label_map"] is not None:
-        _fail(AnimationError(f"{wav} is a recording: --tier and --label-map are for label files (the aligner "
-                             "gives the model's phonemes)"))
+        raise AnimationError(f"{wav} is a recording: --tier and --label-map are for label files (the aligner "
+                             "gives the model's phonemes)")
     for key in ("tier", "label_map"):
         del options[key]
-    try:
-        words = transcript_text(text, transcript)
-    except AnimationError as err:
-        _fail(err)
+    words = transcript_text(text, transcript)
     fallbacks = "phones_english.tsv" if lang.split("-")[0] == "en" else "the aligner's phone map"
 
     def make(t: ParameterTable, staging: Path, progress: Progress) -> RuntimeOutput:
@@ -282,13 +274,10 @@ def speak_command(
 
     The files are written beside --out and swapped in together when all are done (docs/OUTPUTS.md)."""
     if lang not in LANGUAGES:
-        _fail(AnimationError(f"--lang {lang!r} is not a language coartic can speak (known: {', '.join(LANGUAGES)})"))
+        raise AnimationError(f"--lang {lang!r} is not a language coartic can speak (known: {', '.join(LANGUAGES)})")
     _warn_fps(fps)
     # Festival first: it synthesises while NumPy, the model and the table load (stopped on any error)
-    try:
-        synthesis = start_synthesis(text, stretch=stretch, voice=voice, lang=lang)
-    except AnimationError as err:
-        _fail(err)
+    synthesis = start_synthesis(text, stretch=stretch, voice=voice, lang=lang)
     with synthesis:
         from coartic.runtime.pipeline import speak_text, speaker_face
 
