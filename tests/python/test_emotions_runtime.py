@@ -14,6 +14,7 @@ from hypothesis import strategies as st
 from typer.testing import CliRunner
 
 from coartic.cli import app
+from coartic.console import EXIT_ERROR
 from coartic.emotions import EmotionError, emotion_table, evaluate_by_emotion, table_emotions
 from coartic.io.labels import Segments
 from coartic.model import Utterance, evaluate_corpus
@@ -130,4 +131,4 @@ def test_cli_speaks_with_an_emotion(tmp_path: Path) -> None:
     np.testing.assert_allclose(outs["joy"]["LR"] - outs["neutral"]["LR"], 0.6 * 4.0, atol=1e-3)
     bad = runner.invoke(app, ["animate", str(labels), "--table", str(table), "--out", str(tmp_path / "x"),
                               "--preview", "none", "--emotion", "pride"])
-    assert bad.exit_code == 1 and "the table knows neutral, joy" in bad.output and "Traceback" not in bad.output
+    assert bad.exit_code == EXIT_ERROR and "the table knows neutral, joy" in bad.output and "Traceback" not in bad.output
