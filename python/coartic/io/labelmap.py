@@ -266,9 +266,13 @@ class LabelMap:
         for i, label in enumerate(segments.labels):
             phoneme = self.map_label(label)
             if phoneme is None:
+                covering = [n for n in maps_covering(segments.labels) if n != self.name]
+                hint = (f"; built-in label map {' and '.join(repr(n) for n in covering)} maps every label of "
+                        f"this file: give --label-map {covering[0]} (in a fit spec: label_map = \"{covering[0]}\")"
+                        if covering else "")
                 raise DataError(
                     f"phone {label!r} (segment {i + 1}{segments.tier_note()}) "
-                    f"has no mapping in {self.source}; add a "
+                    f"has no mapping in {self.source}{hint}; or add a "
                     f"line '{label}<TAB>phoneme' (or '{label}<TAB>=' to keep it as a phoneme of "
                     "its own) to the label map",
                     path=segments.source, line=segments.lines[i], item=label)
@@ -298,6 +302,18 @@ def _with_classes(own: dict[str, tuple[str, ...]], source: str, line: int | None
         raise DataError(f"{source}{where}: 'fallback:*' may only say 'none' (no built-in phonetic-class "
                         f"fallbacks), found {','.join(star)!r}", line=line, item=FALLBACK_PREFIX + "*")
     return own
+
+
+def maps_covering(labels: Sequence[str]) -> list[str]:
+    """The built-in label maps that map every one of `labels` (an English MFA TextGrid's ARPAbet:
+    english_arpabet), to name in the error of a map that does not. Maps that keep unmapped labels
+    map anything and are left out."""
+    out = []
+    for name in BUILTIN:
+        m = LabelMap.builtin(name)
+        if not m.keep_unmapped and all(m.map_label(lab) is not None for lab in set(labels)):
+            out.append(name)
+    return out
 
 
 def _fallback_key(key: str, source: str, line: int | None) -> str:
