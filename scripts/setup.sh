@@ -42,8 +42,10 @@ if [ ! -f "$stamp" ] || [ pyproject.toml -nt "$stamp" ]; then
     $(.venv/bin/python - <<'PY'
 import tomllib
 p = tomllib.load(open("pyproject.toml", "rb"))["project"]
-extras = p["optional-dependencies"]
-print(" ".join(repr(d)[1:-1] for d in p["dependencies"] + extras["dev"] + extras.get("perceive", [])))
+# the core, every extra (the [all] of a pip install) and the test tools; "coartic[...]" entries
+# only group the others
+extras = [d for group in p["optional-dependencies"].values() for d in group if not d.startswith("coartic[")]
+print(" ".join(repr(d)[1:-1] for d in p["dependencies"] + extras))
 PY
 )
   touch "$stamp"

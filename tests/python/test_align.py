@@ -191,15 +191,15 @@ def test_align_cli_writes_textgrid_and_report(tmp_path: Path) -> None:
     assert "espeak" in report and re.search(r"warp distance ratio: 0\.\d+", report)
     # a rerun on another recording's output is refused without --force
     res = CliRunner().invoke(app, ["align", str(WAV), "--text", TEXT, "--lang", "it", "--out", str(out)])
-    assert res.exit_code == 1
+    assert res.exit_code == 2
 
 
 def test_align_cli_errors_exit_nonzero(tmp_path: Path) -> None:
     res = CliRunner().invoke(app, ["align", str(LABELS), "--text", TEXT, "--lang", "de", "--out", str(tmp_path / "o")])
-    assert res.exit_code == 1 and "not a readable WAV" in res.output
+    assert res.exit_code == 2 and "not a readable WAV" in res.output
     res = CliRunner().invoke(app, ["align", str(WAV), "--text", TEXT, "--transcript", str(LABELS), "--out",
                                    str(tmp_path / "o")])
-    assert res.exit_code == 1 and "not both" in res.output
+    assert res.exit_code == 2 and "not both" in res.output
 
 
 def test_animate_a_recording_with_exports(tmp_path: Path) -> None:
@@ -218,7 +218,7 @@ def test_animate_a_recording_with_exports(tmp_path: Path) -> None:
 
 def test_animate_refuses_text_with_label_files(tmp_path: Path) -> None:
     res = CliRunner().invoke(app, ["animate", str(LABELS), "--text", TEXT, "--out", str(tmp_path / "o")])
-    assert res.exit_code == 1 and "go with a recording" in res.output
+    assert res.exit_code == 2 and "go with a recording" in res.output
 
 
 def test_english_mfa_textgrid_error_points_to_the_arpabet_map(tmp_path: Path) -> None:
@@ -236,7 +236,7 @@ def test_english_mfa_textgrid_error_points_to_the_arpabet_map(tmp_path: Path) ->
     grid = tmp_path / "mfa.TextGrid"
     grid.write_text("\n".join(lines) + "\n")
     res = CliRunner().invoke(app, ["animate", str(grid), "--out", str(tmp_path / "o"), "--preview", "none"])
-    assert res.exit_code == 1
+    assert res.exit_code == 2
     assert "phone 'DH'" in res.output and "--label-map english_arpabet" in " ".join(res.output.split())
     res = CliRunner().invoke(app, ["animate", str(grid), "--out", str(tmp_path / "o"), "--preview", "none",
                                    "--label-map", "english_arpabet"])

@@ -261,15 +261,18 @@ class LabelMap:
             out.append(phoneme)
         return out
 
+    def maps_all(self, labels: Sequence[str]) -> bool:
+        """Whether every one of ``labels`` has a mapping (for suggesting a built-in map)."""
+        return all(self.map_label(label) is not None for label in labels)
+
     def apply(self, segments: Segments) -> Segments:
         out: list[str] = []
         for i, label in enumerate(segments.labels):
             phoneme = self.map_label(label)
             if phoneme is None:
-                covering = [n for n in maps_covering(segments.labels) if n != self.name]
-                hint = (f"; built-in label map {' and '.join(repr(n) for n in covering)} maps every label of "
-                        f"this file: give --label-map {covering[0]} (in a fit spec: label_map = \"{covering[0]}\")"
-                        if covering else "")
+                fits = [n for n in BUILTIN if n != self.name and LabelMap.builtin(n).maps_all(segments.labels)]
+                hint = (f"; the built-in map {' or '.join(fits)} maps every label of this file: --label-map "
+                        f"{fits[0]} (label_map = \"{fits[0]}\" in a spec)" if fits else "")
                 raise DataError(
                     f"phone {label!r} (segment {i + 1}{segments.tier_note()}) "
                     f"has no mapping in {self.source}{hint}; or add a "
@@ -302,18 +305,6 @@ def _with_classes(own: dict[str, tuple[str, ...]], source: str, line: int | None
         raise DataError(f"{source}{where}: 'fallback:*' may only say 'none' (no built-in phonetic-class "
                         f"fallbacks), found {','.join(star)!r}", line=line, item=FALLBACK_PREFIX + "*")
     return own
-
-
-def maps_covering(labels: Sequence[str]) -> list[str]:
-    """The built-in label maps that map every one of `labels` (an English MFA TextGrid's ARPAbet:
-    english_arpabet), to name in the error of a map that does not. Maps that keep unmapped labels
-    map anything and are left out."""
-    out = []
-    for name in BUILTIN:
-        m = LabelMap.builtin(name)
-        if not m.keep_unmapped and all(m.map_label(lab) is not None for lab in set(labels)):
-            out.append(name)
-    return out
 
 
 def _fallback_key(key: str, source: str, line: int | None) -> str:
