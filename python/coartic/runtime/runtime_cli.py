@@ -17,7 +17,7 @@ from rich.table import Table
 from coartic.runtime.errors import AnimationError
 from coartic.runtime.festival import LANGUAGES, start_synthesis
 from coartic.runtime import PREVIEW_FORMATS
-from coartic.console import LineProgress
+from coartic.console import LineProgress, positive_finite
 
 # NumPy, the table, the model and the outputs are imported in the commands, after `speak` has
 # started Festival: the imports then run while it synthesises (bench/startup.py).
@@ -191,7 +191,7 @@ def animate_command(
     transcript: Annotated[Path | None, typer.Option("--transcript", help="With a recording: its transcript as a file (plain text, or a TextGrid with a words tier).")] = None,
     lang: Annotated[str, typer.Option("--lang", help="With a recording: its language (it, en, de, or any espeak-ng voice); also picks the phone map's fallbacks.")] = "it",
     engine: Annotated[str | None, typer.Option("--engine", help="With a recording: the aligner (sphinx, festival, espeak; coartic align --help).")] = None,
-    max_duration: Annotated[float, typer.Option("--max-duration", help="With a recording: refuse recordings longer than this (s).")] = 3600.0,
+    max_duration: Annotated[float, typer.Option("--max-duration", callback=positive_finite, help="With a recording: refuse recordings longer than this (s).")] = 3600.0,
 ) -> None:
     """Animate a label file, or a recording and its transcript: channel trajectories (CSV), an MPEG-4 FAP file and a preview.
 
