@@ -26,30 +26,15 @@ import sys
 import time
 from pathlib import Path
 
-import numpy as np
 
 from coartic.fit import load_spec, run
 from coartic.fit.data import load_utterances
-from coartic.model import Utterance
 from coartic.fit.score import Score, score_utterances, with_fallbacks
 from coartic.io.labelmap import LabelMap
+from coartic.fit.validate import halves  # noqa: F401  (bench/real_data.py imports it from here)
 
 ROOT = Path(__file__).resolve().parents[1]
 OUT = ROOT / "bench" / "results" / "baselines_german.txt"
-
-
-def halves(u: Utterance) -> tuple[Utterance, Utterance]:
-    """``u`` cut at the start of its middle segment: the segments and samples before, and after."""
-    k = len(u.labels) // 2
-    cut = u.starts[k]
-    a, b = u.times < cut, u.times >= cut
-
-    def part(sl: slice, m: np.ndarray, tag: str) -> Utterance:
-        return Utterance(u.labels[sl], u.starts[sl], u.ends[sl], u.times[m], f"{u.name} ({tag})",
-                         {c: v[m] for c, v in u.observed.items()}, {c: v[m] for c, v in u.valid.items()},
-                         {**u.meta, "file": f"{u.meta.get('file', u.name)}#{tag}"})
-
-    return part(slice(0, k), a, "first half"), part(slice(k, None), b, "second half")
 
 
 def lines(title: str, sc: Score) -> list[str]:

@@ -97,3 +97,26 @@ def test_ctrl_c_keeps_best_point(engine: str, options: dict[str, Any], monkeypat
     assert res.status == "interrupted"
     assert np.all(np.isfinite(res.x)) and np.isfinite(p.best_sse) and p.best_sse <= sse0
     np.testing.assert_array_equal(res.x, p.best_x)
+
+
+def test_nlopt_fits_the_default_spec_polished_by_scipy_and_says_so(tmp_path: Path) -> None:
+    """The default spec on a German EMA utterance: nlopt's MLSL reaches scipy's optimum, then its
+    L-BFGS fails to take a step from it (nlopt's generic FAILURE); the fit is finished by scipy's
+    least_squares from that point instead of refused, and the status says so everywhere."""
+    from coartic.fit import load_spec, run
+    from coartic.fit.fit_cli import status_lines
+    from coartic.fit.runner import FitFailed
+
+    root = Path(__file__).resolve().parents[2]
+    spec = load_spec(root / "fit" / "ema_german_defaults_0024.toml").with_options(channels=("LA",), starts=1)
+    scipy_fit = run(spec, quiet=True, report=False).channels["LA"]
+    result = run(spec.with_options(engine="nlopt"), tmp_path / "nlopt", quiet=True, report=False)
+    fit = result.channels["LA"]
+    assert fit.status == "converged" and fit.polished
+    assert fit.rmse == pytest.approx(scipy_fit.rmse, abs=1e-4)
+    assert "nlopt result -1 (FAILURE); polished by scipy least_squares" in fit.polished[-1]
+    assert any("LA: polished" in line and "polished by scipy" in line for line in status_lines(result))
+    assert "polished by scipy least_squares" in (tmp_path / "nlopt" / "fit_report.txt").read_text()
+    # polish = "none": the failure stands (exit 2 in `coartic fit`, nothing written)
+    with pytest.raises(FitFailed, match=r"channel LA: the nlopt engine failed .*nlopt result -1 \(FAILURE\)"):
+        run(spec.with_options(engine="nlopt", engine_options={"polish": "none"}), quiet=True, report=False)

@@ -11,7 +11,7 @@ from coartic.estimation.packing import LOG_COLUMNS
 from coartic.estimation.problem import ChannelProblem, build_problem
 from coartic.fit.simulate import PHONEMES, TRUTH, vcv_utterances
 from coartic.errors import SpecError
-from coartic.fit.spec import parse_spec
+from coartic.fit.spec import REFERENCE_ORDER, parse_spec
 from coartic.table import PARAMETERS
 
 from fit_helpers import paper
@@ -109,6 +109,25 @@ def test_targets_start_from_data(utts) -> None:  # type: ignore[no-untyped-def]
 def test_reference_phoneme_must_occur(utts) -> None:  # type: ignore[no-untyped-def]
     with pytest.raises(SpecError, match=r"\[model.reference_phoneme\] 'u'"):
         build_problem(spec(model={"channels": ["LLO"], "reference_phoneme": "u"}), utts, "LLO")
+
+
+def test_reference_phoneme_chosen_from_the_data_when_the_spec_names_none(utts) -> None:  # type: ignore[no-untyped-def]
+    """A spec that names no reference phoneme takes /a/ when the data have it, else the first of
+    REFERENCE_ORDER they have (α of it fixed at 1, every other α free); the settings the table
+    records say which. A named one absent from the data is still an error (above)."""
+    no_a = [u for u in utts if "a" not in u.labels]
+    s = spec()
+    assert s.reference_phoneme is None
+    p = build_problem(s, no_a, "LLO")
+    assert "a" not in p.phonemes and "i" in p.phonemes
+    ref = s.reference_for(p.phonemes)
+    assert ref == next(q for q in REFERENCE_ORDER if q in p.phonemes) == "i"
+    names = p.packing.names()
+    assert f"{ref}.alpha" not in names and all(f"{q}.alpha" in names for q in p.phonemes if q != ref)
+    assert s.channel_settings("LLO", phonemes=p.phonemes).reference_phoneme == ref
+    assert build_problem(s, utts, "LLO").packing.names().count("a.alpha") == 0  # /a/ when present
+    named = spec(model={"channels": ["LLO"], "reference_phoneme": "u"})
+    assert named.reference_for(p.phonemes) == "u"
 
 
 def test_best_point_tracked(utts) -> None:  # type: ignore[no-untyped-def]

@@ -89,3 +89,36 @@ def test_kfold_scores_pooled_with_and_without_offsets(tmp_path: Path) -> None:
 def test_kfold_spec_errors(tmp_path: Path, validate: dict[str, object], key: str) -> None:
     with pytest.raises(SpecError, match=rf"\[{key}\]"):
         spec(tmp_path, **validate)
+
+
+def test_time_split_from_the_command_line_with_class_fallbacks(tmp_path: Path) -> None:
+    """``coartic fit --validate-by time``: every utterance cut at its middle segment, each half
+    fitted and the other held out; a held-out phoneme the half lacks is scored as its class's
+    fallback (a note says which); one with no fallback the half has skips that fold, with a note."""
+    from typer.testing import CliRunner
+
+    from coartic.cli import app
+    from coartic.fit.validate import halves
+
+    utts = vcv_utterances(np.random.default_rng(2), repetitions=1, rates={"normal": 1.0})
+    sp = splits(spec(tmp_path, group="time"), utts)
+    assert [n for n, _, _ in sp] == ["time split: first halves fitted, second halves held out",
+                                     "time split: second halves fitted, first halves held out"]
+    first, second = halves(utts[0])
+    assert first.labels + second.labels == utts[0].labels and first.times[-1] < second.starts[0] <= second.times[0]
+    assert len(first.times) + len(second.times) == len(utts[0].times)
+    assert [u.name for u in sp[0][1]] == [u.name for u in sp[1][2]]
+
+    root = Path(__file__).resolve().parents[2]
+    out = tmp_path / "out"
+    res = CliRunner().invoke(app, ["fit", str(root / "fit" / "ema_german_defaults_0024.toml"), "--channels", "LA",
+                                   "--starts", "1", "--no-report", "--quiet", "--out", str(out), "--validate-by", "time"])
+    assert res.exit_code == 0, res.output
+    text = (out / "validation" / "validation.csv").read_text()
+    assert "\"time split: first halves fitted, second halves held out\",LA," in text
+    flat = " ".join(res.output.split())
+    assert "the table has no /E/ (scored as /e/)" in flat
+    assert "second halves fitted, first halves held out: the test utterances contain phonemes the training " \
+           "fit never saw, with no phonetic-class fallback it saw: ['v']; not scored" in flat
+    res = CliRunner().invoke(app, ["fit", str(root / "fit" / "ema_german_defaults_0024.toml"), "--validate-by", "halves"])
+    assert res.exit_code == 2 and "--validate-by 'halves': unknown split" in " ".join(res.output.split())

@@ -267,7 +267,7 @@ def test_mfa_textgrid_phones_tier_and_tier_names_in_errors(files) -> None:  # ty
         LabelMap.builtin("english_arpabet").apply(words)
 
 
-def test_last_label_within_a_frame_is_clipped_beyond_is_an_error(tmp_path: Path) -> None:
+def test_last_label_within_a_frame_or_a_final_pause_is_clipped_speech_beyond_is_an_error(tmp_path: Path) -> None:
     m = ff.motion(200.0)
     data = ff.write_lab_csv(tmp_path / "u.csv", m)
     end = m.times[-1] + 1 / 200.0
@@ -279,9 +279,20 @@ def test_last_label_within_a_frame_is_clipped_beyond_is_an_error(tmp_path: Path)
                                          r"after the data of .*u\.csv end"):
         t = load_trial(data, labels=lab)
     assert t.segments is not None and t.segments.ends[-1] == pytest.approx(end)
-    ends[-1] = end + 0.006
-    lab.write_text("".join(f"{float(s)!r}\t{float(e)!r}\t{p}\n" for s, e, p in zip(starts, ends, ff.PHONEMES)))
-    with pytest.raises(DataError, match=r"u\.tsv, line 8: label '#' .* lies beyond the data"):
+    # a final pause labelled on the longer audio (MOCHA: sil 1.67-2.2 s against 1.932 s of EMA) is
+    # clipped, and a pause that starts after the data left out
+    ends[-1] = end + 0.27
+    rows = [*zip(starts, ends, ff.PHONEMES), (end + 0.27, end + 0.4, "sil")]
+    lab.write_text("".join(f"{float(s)!r}\t{float(e)!r}\t{p}\n" for s, e, p in rows))
+    with pytest.warns(DataWarning, match=r"u\.tsv: the final pause '#' \(.*\) runs past the end of the data "
+                                         r"of .*u\.csv .*clipped to .*, and the 1 pause label\(s\) after the data left out"):
+        t = load_trial(data, labels=lab)
+    assert t.segments is not None and t.segments.labels == tuple(ff.PHONEMES)
+    assert t.segments.ends[-1] == pytest.approx(end) and len(t.segments.lines) == len(ff.PHONEMES)
+    # a speech label past the data is still refused, naming it
+    lab.write_text("".join(f"{float(s)!r}\t{float(e if p != 'u' else end + 0.05)!r}\t{p}\n"
+                           for s, e, p in list(zip(starts, ends, ff.PHONEMES))[:-1]))
+    with pytest.raises(DataError, match=r"u\.tsv, line 7: label 'u' .* lies beyond the data"):
         load_trial(data, labels=lab)
 
 
@@ -301,11 +312,39 @@ def test_label_maps_mocha_timit_arpabet_and_their_fallbacks(tmp_path: Path) -> N
         assert lm.fallbacks["E"] == ("e", "a") and lm.fallbacks["h"] == ("#",)
     assert LabelMap.from_record(arpa.to_record()).fallbacks == arpa.fallbacks
     own = tmp_path / "own.tsv"
+    # a map file extends the built-in phonetic classes: its own line replaces one phoneme's list
     own.write_text("x\ta\nfallback:a\tO\n")
-    assert LabelMap.from_file(own).fallbacks == {"a": ("O",)}
+    extended = LabelMap.from_file(own).fallbacks
+    assert extended["a"] == ("O",) and extended["E"] == ("e", "a") and extended["p"] == ("b", "m")
+    assert LabelMap.from_record(LabelMap.from_file(own).to_record()).fallbacks == extended
+    # ... unless it says otherwise; the table's record keeps that too
+    own.write_text("x\ta\nfallback:a\tO\nfallback:*\tnone\n")
+    alone = LabelMap.from_file(own)
+    assert alone.fallbacks == {"a": ("O",)} and LabelMap.from_record(alone.to_record()).fallbacks == {"a": ("O",)}
+    assert LabelMap.from_dict({"x": "a"}).fallbacks == extended | {"a": ("E", "O")}
+    assert LabelMap.from_record(LabelMap.model().to_record()).fallbacks == {}
+    own.write_text("x\ta\nfallback:*\tO\n")
+    with pytest.raises(DataError, match=r"own\.tsv, line 2: 'fallback:\*' may only say 'none'"):
+        LabelMap.from_file(own)
     own.write_text("x\ta\nfallback:\tO\n")
     with pytest.raises(DataError, match=r"own\.tsv, line 2: 'fallback:' names no phoneme"):
         LabelMap.from_file(own)
+
+
+def test_every_built_in_symbol_has_a_fallback() -> None:
+    """Every phoneme a built-in map gives (kept labels such as the glottal stops `Q` and `?`
+    included) has a phonetic-class fallback, so a table that lacks it can still score or animate it;
+    MOCHA's ARPAbet-style `iy` is mapped."""
+    assert LabelMap.builtin("mocha").map_label("iy") == "i"
+    for name in ("german_sampa", "english_arpabet", "mocha", "timit"):
+        lm = LabelMap.builtin(name)
+        given = {label if p == "=" else p for label, p in lm.mapping.items()}
+        given |= {p for _, p in lm.patterns if p != "="}
+        lacking = sorted(p for p in given - {"#"} if not lm.fallbacks.get(p))
+        assert not lacking, (name, lacking)
+        assert all(f in lm.fallbacks or f == "#" for chain in lm.fallbacks.values() for f in chain), name
+    sampa = LabelMap.builtin("german_sampa")
+    assert sampa.map_label("Q") == "Q" and sampa.fallbacks["Q"] == ("#",) and sampa.fallbacks["?"] == ("#",)
 
 
 def test_inspect_fit_and_score_read_every_format(files, tmp_path: Path) -> None:  # type: ignore[no-untyped-def]

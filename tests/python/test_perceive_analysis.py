@@ -137,9 +137,9 @@ def test_export_and_analyse_commands(tmp_path: Path) -> None:
     rows = pd.read_csv(csv)
     assert rows["participant"].nunique() == 8 and (rows["simulated"] == 1).all()
     again = runner.invoke(app, ["perceive", "export", str(study), "--out", str(csv)])
-    assert again.exit_code == 1 and "--force" in again.output
+    assert again.exit_code == 2 and "--force" in again.output
     res = runner.invoke(app, ["perceive", "analyse", str(study), "--out", str(tmp_path / "rep")])
     assert res.exit_code == 0, res.output
     assert "condition[c1]" in res.output and (tmp_path / "rep" / "report.html").is_file()
     bad = runner.invoke(app, ["perceive", "analyse", str(tmp_path), "--out", str(tmp_path / "rep2")])
-    assert bad.exit_code == 1 and "not a prepared study" in bad.output
+    assert bad.exit_code == 2 and "not a prepared study" in bad.output

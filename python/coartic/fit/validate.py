@@ -2,7 +2,9 @@
 
 With ``[validate] group`` ("utterance", "sentence", "rate", "speaker" or "repetition") and
 optionally ``folds``: the groups are dealt into k folds and each fold is held out once (default
-one fold per group; "utterance" needs no manifest). Otherwise: fit on repetitions other than
+one fold per group; "utterance" needs no manifest). ``group = "time"`` (``coartic fit --validate-by
+time``) splits in time instead: every utterance cut at its middle segment (``halves``), the first
+halves fitted and the second held out, then the reverse. Otherwise: fit on repetitions other than
 ``holdout_repetition`` and report RMSE on it; fit on ``train_rate`` and report RMSE on
 ``test_rate`` (the model's claim is that the same parameters hold at a faster rate). Each split is
 a full fit of every channel (``run`` with the split's utterances), scored by
@@ -17,6 +19,7 @@ from pathlib import Path
 from typing import Protocol, Sequence
 
 import numpy as np
+from numpy.typing import NDArray
 from rich.console import Console
 from rich.markup import escape
 from rich.table import Table
@@ -27,23 +30,30 @@ from coartic.fit.data import load_utterances
 from coartic.model import Utterance
 from coartic.fit.heldout import BASELINE_COLUMNS, SplitScore, pooled
 from coartic.fit.result import BAR_MM, FitResult
-from coartic.fit.score import score_utterances
+from coartic.fit.score import score_utterances, with_fallbacks
+from coartic.io.labelmap import LabelMap
 from coartic.errors import SpecError
 from coartic.fit.spec import FitSpec
 from coartic.outputs import atomic_write_text
 
 
 def score(result: FitResult, test: Sequence[Utterance], split: str,
-          train: Sequence[Utterance] | None = None) -> list[SplitScore]:
+          train: Sequence[Utterance] | None = None, notes: list[str] | None = None) -> list[SplitScore]:
     """RMSE of the fitted table on utterances the fit did not see (``coartic.fit.score``); with
-    ``train`` (the split's training utterances), the baselines' on the same samples too."""
+    ``train`` (the split's training utterances), the baselines' on the same samples too. A held-out
+    phoneme the training lacks is scored as its phonetic class's fallback the table has (the label
+    map's, as ``coartic score`` does; said in ``notes``); one with none is ``UnseenPhonemes``."""
     table = result.table()
     out = []
     for ch, fit in result.channels.items():
-        unknown = sorted({lab for u in test for lab in u.labels} - set(fit.problem.phonemes))
+        test_ch, note = with_fallbacks(test, table, [ch], LabelMap.recorded(table))
+        unknown = sorted({lab for u in test_ch for lab in u.labels} - set(fit.problem.phonemes))
         if unknown:
-            raise UnseenPhonemes(f"{split}: the test utterances contain phonemes the training fit never saw: {unknown}")
-        sc = score_utterances(table, test, [ch], train=train)
+            raise UnseenPhonemes(f"{split}: the test utterances contain phonemes the training fit never saw, "
+                                 f"with no phonetic-class fallback it saw: {unknown}")
+        if note is not None and notes is not None:
+            notes.append(f"validation, {split}, {ch}: {note.replace(' (--strict refuses instead)', '')}")
+        sc = score_utterances(table, test_ch, [ch], train=train)
         by_vowel: dict[str, list[float]] = {}
         for u, utt in enumerate(sc.utterances):
             r = sc.residuals(ch, u)
@@ -63,7 +73,7 @@ def score(result: FitResult, test: Sequence[Utterance], split: str,
                 params, beta = fit.packing.unpack(o.x)
                 t = result.table()
                 t.set_from_matrix(ch, list(fit.problem.phonemes), fit.problem.table_matrix(params), beta)
-                o.heldout_rmse[split] = float(score_utterances(t, test, [ch]).channel_rows()[0]["rmse_mm"])
+                o.heldout_rmse[split] = float(score_utterances(t, test_ch, [ch]).channel_rows()[0]["rmse_mm"])
             out[-1].optima_test_rmse = tuple(o.heldout_rmse[split] for o in fit.multistart.optima)
     return out
 
@@ -86,11 +96,39 @@ def group_of(u: Utterance, group: str, spec: FitSpec) -> str:
                        "column (a manifest column), so its utterances cannot be grouped by it")
 
 
+def halves(u: Utterance) -> tuple[Utterance, Utterance]:
+    """``u`` cut at the start of its middle segment: the segments and samples before, and after."""
+    k = len(u.labels) // 2
+    cut = u.starts[k]
+    a, b = u.times < cut, u.times >= cut
+
+    def part(sl: slice, m: NDArray[np.bool_], tag: str) -> Utterance:
+        return Utterance(u.labels[sl], u.starts[sl], u.ends[sl], u.times[m], f"{u.name} ({tag})",
+                         {c: v[m] for c, v in u.observed.items()}, {c: v[m] for c, v in u.valid.items()},
+                         {**u.meta, "file": f"{u.meta.get('file', u.name)}#{tag}"})
+
+    return part(slice(0, k), a, "first half"), part(slice(k, None), b, "second half")
+
+
+def time_splits(utterances: Sequence[Utterance]) -> list[tuple[str, list[Utterance], list[Utterance]]]:
+    """Every utterance of two segments or more cut in time (``halves``): the first halves fitted,
+    the second held out, and the reverse."""
+    cut = [halves(u) for u in utterances if len(u.labels) >= 2]
+    first, second = [a for a, _ in cut], [b for _, b in cut]
+    return [("time split: first halves fitted, second halves held out", first, second),
+            ("time split: second halves fitted, first halves held out", second, first)]
+
+
 def kfold_splits(spec: FitSpec, utterances: Sequence[Utterance]) -> list[tuple[str, list[Utterance], list[Utterance]]]:
     """k-fold splits by ``[validate] group``: the groups (sorted) dealt round-robin into
-    ``folds`` folds (default one per group: leave one group out); each fold is held out once."""
+    ``folds`` folds (default one per group: leave one group out); each fold is held out once.
+    ``group = "time"``: the two halves of every utterance in time (``time_splits``)."""
     group = spec.validate_group
     assert group is not None
+    if group == "time":
+        if not any(len(u.labels) >= 2 for u in utterances):
+            raise SpecError.at(spec.path, "validate.group", "'time': no utterance has two segments to split")
+        return time_splits(utterances)
     values = [group_of(u, group, spec) for u in utterances]
     groups = sorted(set(values), key=_natural)
     if len(groups) < 2:
@@ -107,9 +145,11 @@ def kfold_splits(spec: FitSpec, utterances: Sequence[Utterance]) -> list[tuple[s
     return out
 
 
-def splits(spec: FitSpec, utterances: Sequence[Utterance]) -> list[tuple[str, list[Utterance], list[Utterance]]]:
+def splits(spec: FitSpec, utterances: Sequence[Utterance],
+           notes: list[str] | None = None) -> list[tuple[str, list[Utterance], list[Utterance]]]:
     """(name, train, test) for each validation the spec asks for and the corpus allows: the
-    k-fold splits of ``[validate] group`` if given, else the held-out repetition and the rate."""
+    k-fold splits of ``[validate] group`` if given, else the held-out repetition and the rate.
+    A held-out repetition the corpus's repetitions do not include is said in ``notes``."""
     if spec.validate_group is not None:
         return kfold_splits(spec, utterances)
     out = []
@@ -119,6 +159,13 @@ def splits(spec: FitSpec, utterances: Sequence[Utterance]) -> list[tuple[str, li
         train = [u for u in utterances if _rep(u) not in (rep, None)]
         if test and train:
             out.append((f"repetition {rep} held out", train, test))
+        else:
+            have = sorted({r for u in utterances if (r := _rep(u)) is not None}, key=_natural)
+            if have and notes is not None:
+                why = (f"the corpus has only repetition {have[0]}, none left to fit" if have == [rep]
+                       else f"the corpus's repetitions are {', '.join(have)}")
+                notes.append(f"{spec.path}: [validate] holdout_repetition = {rep}: {why}; that split is skipped "
+                             "(hold out one of them, or give [validate] group = \"repetition\" for k-fold)")
     if spec.train_rate and spec.test_rate:
         train = [u for u in utterances if u.meta.get("rate") == spec.train_rate]
         test = [u for u in utterances if u.meta.get("rate") == spec.test_rate]
@@ -166,13 +213,13 @@ def validate_all(spec: FitSpec, out: str | Path | None = None, utterances: Seque
     if utterances is None:
         utterances = load_utterances(spec)
     scores: list[SplitScore] = []
-    for name, train, test in splits(spec, utterances):
+    for name, train, test in splits(spec, utterances, notes):
         if console is not None and not quiet:
             console.print(f"[bold]validation[/bold]: {escape(name)} ({len(train)} trials to fit, {len(test)} to test)")
         sub = Path(out) / _dirname(name) if out is not None else None
         res = fit(spec, sub, utterances=train, console=console, quiet=quiet, report=False)
         try:
-            scores += score(res, test, name, train)
+            scores += score(res, test, name, train, notes)
         except UnseenPhonemes as e:
             if notes is None:
                 raise
@@ -206,10 +253,14 @@ def _dirname(split: str) -> str:
 
 
 def validation_table(scores: Sequence[SplitScore]) -> Table:
-    t = Table(title=f"Validation RMSE (mm) on data the fit did not see — bar {BAR_MM} mm",
-              caption="step, constant, warped: the baselines on the same test samples (as measured / offset "
-                      "removed); step = each phoneme's training mean; ✗ = the table does not beat the step model")
+    from coartic.fit.baselines import caption
+
     have = [b for b in ("step", "constant", "warped") if any(b in sc.baselines for sc in scores)]
+    absent = {b: ("no split's test sentence has another token in its training data" if b == "warped" else
+                  "not computed") for b in ("step", "constant", "warped") if b not in have}
+    t = Table(title=f"Validation RMSE (mm) on data the fit did not see — bar {BAR_MM} mm",
+              caption=caption(have, absent) + " (as measured / offset removed); ✗ = the table does not beat the "
+                      "step model")
     for c in ("split", "channel", "train", "test", "test, offset removed", *have, "worst vowel (test)"):
         t.add_column(c, justify="left" if c in ("split", "channel") else "right")
 

@@ -9,6 +9,11 @@ labels (`sil`, `pau`, `_`, `&p:`, `<p:>`, empty, ...) become the pause phoneme `
 says otherwise. A label that the map neither lists nor keeps is an error naming the label, its file
 and line.
 
+Phonetic-class fallbacks (`fallback:<phoneme>` → the phonemes that stand in for it when a table
+lacks it): every map but `model` and `identity` has those of labelmaps/fallbacks.tsv; a map's own
+`fallback:` lines replace one phoneme's list, and the line `fallback:*<TAB>none` drops the built-in
+ones (the map then has only its own).
+
 A fitted table records the map it was fitted with (`LabelMap.to_record`, in the table's metadata
 under `label_map`); `LabelMap.recorded(table)` gives it back, so that whoever evaluates the table on
 corpus labels maps them the same way.
@@ -44,7 +49,9 @@ BUILTIN = ("model", "german_sampa", "english_arpabet", "mocha", "timit")
 PATTERN_PREFIX = "re:"
 # `fallback:<phoneme>` → comma-separated phonemes that stand in for it when a table lacks it
 FALLBACK_PREFIX = "fallback:"
-CLASS_FALLBACKS = "fallbacks"  # labelmaps/fallbacks.tsv: every built-in map but 'model' has them
+CLASS_FALLBACKS = "fallbacks"  # labelmaps/fallbacks.tsv: every map but 'model' and identity maps has them
+# `fallback:*<TAB>none`: this map's own fallbacks only, without the built-in phonetic classes
+NO_CLASS_FALLBACKS = ("*", "none")
 # The key of the table metadata that holds the label map a table was fitted with.
 RECORD_KEY = "label_map"
 
@@ -90,10 +97,7 @@ class LabelMap:
             raise DataError(f"no built-in label map {name!r}; built-in maps: {list(BUILTIN)}")
         res = resources.files("coartic.io").joinpath("labelmaps", f"{name}.tsv")
         m = cls._parse_tsv(res.read_text(encoding="utf-8"), f"builtin map {name!r} ({name}.tsv)")
-        classes = resources.files("coartic.io").joinpath("labelmaps", f"{CLASS_FALLBACKS}.tsv")
-        shared = cls._parse_tsv(classes.read_text(encoding="utf-8"), f"{CLASS_FALLBACKS}.tsv")
-        return cls(m.mapping, m.keep_unmapped, m.source, m.lines, m.patterns, name,
-                   {**shared.fallbacks, **m.fallbacks})
+        return cls(m.mapping, m.keep_unmapped, m.source, m.lines, m.patterns, name, m.fallbacks)
 
     @classmethod
     def from_dict(cls, d: Mapping[str, str], source: str = "<dict>") -> LabelMap:
@@ -116,7 +120,7 @@ class LabelMap:
                 fallbacks[_fallback_key(k, source, None)] = _fallback_list(v, k, source, None)
             else:
                 mapping[k] = v
-        return cls(mapping, keep, source, patterns=tuple(patterns), fallbacks=fallbacks)
+        return cls(mapping, keep, source, patterns=tuple(patterns), fallbacks=_with_classes(fallbacks, source, None))
 
     @classmethod
     def from_file(cls, path: str | PathLike[str]) -> LabelMap:
@@ -163,7 +167,8 @@ class LabelMap:
             else:
                 mapping[label] = phoneme
             lines[label] = no
-        return cls(mapping, keep, source, lines, tuple(patterns), fallbacks=fallbacks)
+        return cls(mapping, keep, source, lines, tuple(patterns),
+                   fallbacks=_with_classes(fallbacks, source, lines.get(FALLBACK_PREFIX + "*")))
 
     # ------------------------------------------------------------- the table's record
 
@@ -172,6 +177,9 @@ class LabelMap:
         or path, so that the table maps labels the same way after the file or built-in changed."""
         entries = ([[k, v] for k, v in self.mapping.items()] + [[k, v] for k, v in self.patterns]
                    + [[FALLBACK_PREFIX + k, ",".join(v)] for k, v in self.fallbacks.items()])
+        if self.fallbacks != {**_class_fallbacks(), **self.fallbacks}:
+            # a map without the built-in classes: read back without them too (from_dict adds them)
+            entries.append([FALLBACK_PREFIX + NO_CLASS_FALLBACKS[0], NO_CLASS_FALLBACKS[1]])
         if self.keep_unmapped:
             entries.append(["*", KEEP])
         rec: dict[str, Any] = {"source": self.source, "entries": entries}
@@ -196,6 +204,9 @@ class LabelMap:
                 raise DataError(f"{where}: label {e[0]!r} is mapped twice", item=e[0])
             pairs[e[0]] = e[1]
         name = record.get("name")
+        if name == "model" and not any(k.startswith(FALLBACK_PREFIX) for k in pairs):
+            # the model map has no fallbacks (tables written before maps recorded 'fallback:*')
+            pairs[FALLBACK_PREFIX + NO_CLASS_FALLBACKS[0]] = NO_CLASS_FALLBACKS[1]
         m = cls.from_dict(pairs, f"the label map recorded in {source} "
                                  f"({record.get('source', 'no source')})")
         return cls(m.mapping, m.keep_unmapped, m.source, m.lines, m.patterns,
@@ -250,19 +261,50 @@ class LabelMap:
             out.append(phoneme)
         return out
 
+    def maps_all(self, labels: Sequence[str]) -> bool:
+        """Whether every one of ``labels`` has a mapping (for suggesting a built-in map)."""
+        return all(self.map_label(label) is not None for label in labels)
+
     def apply(self, segments: Segments) -> Segments:
         out: list[str] = []
         for i, label in enumerate(segments.labels):
             phoneme = self.map_label(label)
             if phoneme is None:
+                fits = [n for n in BUILTIN if n != self.name and LabelMap.builtin(n).maps_all(segments.labels)]
+                hint = (f"; the built-in map {' or '.join(fits)} maps every label of this file: --label-map "
+                        f"{fits[0]} (label_map = \"{fits[0]}\" in a spec)" if fits else "")
                 raise DataError(
                     f"phone {label!r} (segment {i + 1}{segments.tier_note()}) "
-                    f"has no mapping in {self.source}; add a "
+                    f"has no mapping in {self.source}{hint}; or add a "
                     f"line '{label}<TAB>phoneme' (or '{label}<TAB>=' to keep it as a phoneme of "
                     "its own) to the label map",
                     path=segments.source, line=segments.lines[i], item=label)
             out.append(phoneme)
         return segments.with_labels(out)
+
+
+def _class_fallbacks() -> dict[str, tuple[str, ...]]:
+    """labelmaps/fallbacks.tsv: the phonetic classes every map but `model` and identity maps extends."""
+    res = resources.files("coartic.io").joinpath("labelmaps", f"{CLASS_FALLBACKS}.tsv")
+    out: dict[str, tuple[str, ...]] = {}
+    for no, raw in enumerate(res.read_text(encoding="utf-8").splitlines(), start=1):
+        if raw.strip() and not raw.startswith("#"):
+            key, value = raw.split("\t")[:2]
+            out[_fallback_key(key, f"{CLASS_FALLBACKS}.tsv", no)] = _fallback_list(value, key, CLASS_FALLBACKS, no)
+    return out
+
+
+def _with_classes(own: dict[str, tuple[str, ...]], source: str, line: int | None) -> dict[str, tuple[str, ...]]:
+    """A map's fallbacks: the built-in phonetic classes extended (and overridden) by its own
+    `fallback:` lines, unless it says `fallback:*<TAB>none` (its own only)."""
+    star = own.pop("*", None)
+    if star is None:
+        return {**_class_fallbacks(), **own}
+    if star != NO_CLASS_FALLBACKS[1:]:
+        where = f", line {line}" if line is not None else ""
+        raise DataError(f"{source}{where}: 'fallback:*' may only say 'none' (no built-in phonetic-class "
+                        f"fallbacks), found {','.join(star)!r}", line=line, item=FALLBACK_PREFIX + "*")
+    return own
 
 
 def _fallback_key(key: str, source: str, line: int | None) -> str:

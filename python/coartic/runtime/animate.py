@@ -60,6 +60,9 @@ class Animation:
     # the table that animated it (a speaker's own with --speaker): its dominance functions give
     # each segment's share of every frame (`segment_shares`)
     table: ParameterTable | None = None
+    # the time the frames were laid over (the sound's duration, else the labels' end), s; the frames
+    # cover it to within half a frame (`duration`), Rhubarb's cues cover it exactly
+    span: float | None = None
 
     @property
     def modelled(self) -> list[str]:
@@ -98,6 +101,11 @@ class Animation:
     def duration(self) -> float:
         """Playing time: n_frames frames of 1 / fps each."""
         return self.n_frames / self.fps
+
+    @property
+    def sound_duration(self) -> float:
+        """The time animated (`span`), or the frames' playing time when it was not recorded."""
+        return self.span if self.span is not None else self.duration
 
 
 def frame_times(duration: float, fps: float) -> NDArray[np.float64]:
@@ -296,7 +304,7 @@ def animate(
             snapped[ch] = sample
     return Animation(fps=float(fps), times=times, channels=values, segments=segments,
                      substitutions=dict(substitutions or {}), sample_times=snapped, at_rest=at_rest,
-                     neutral=neutral, table=table)
+                     neutral=neutral, table=table, span=float(total))
 
 
 def contact_sample_times(

@@ -26,6 +26,17 @@ if TYPE_CHECKING:
     from coartic.table import ParameterTable
 
 
+@dataclass(frozen=True)
+class RigOptions:
+    """How the rigs' curves and cues are written (`--export arkit,visemes,rhubarb`; docs/RUNTIME.md)."""
+
+    # Rhubarb's cues (coartic.runtime.rhubarb): which extended shapes of G H X the mouth has drawn,
+    # the formats written, and Preston Blair's shape names in the DAT
+    extended_shapes: str = "GHX"
+    rhubarb_formats: tuple[str, ...] = ("tsv", "json")
+    preston_blair: bool = False
+
+
 @dataclass
 class ExportSettings:
     """How the exporters write one animation into `out`."""
@@ -41,6 +52,7 @@ class ExportSettings:
     mapping: SpeakerMapping | None = None
     gltf_morphs: str = "fap"  # the glTF's morph set: "fap" (one per FAP), "arkit" (ARKit's 52 names) or "eight"
     preview: str = "gif"
+    rig: RigOptions = field(default_factory=RigOptions)
     files: dict[str, Path] = field(default_factory=dict)  # what earlier exporters wrote
 
     def audio_name(self) -> str | None:
@@ -58,7 +70,7 @@ EXPORTERS: dict[str, tuple[str, str]] = {
     "vrml": ("coartic.face.vrml", "export_vrml"),
     "arkit": ("coartic.runtime.rigs", "export_arkit"),
     "visemes": ("coartic.runtime.rigs", "export_visemes"),
-    "rhubarb": ("coartic.runtime.rigs", "export_rhubarb"),
+    "rhubarb": ("coartic.runtime.rhubarb", "export_rhubarb"),
     "plot": ("coartic.runtime.preview", "export_plot"),
     "preview": ("coartic.runtime.preview", "export_preview"),
 }

@@ -22,6 +22,9 @@ class EngineResult:
     message: str
     nfev: int
     njev: int
+    # the engine's own local method stopped short and another one finished the fit from its best
+    # point (nlopt: scipy least_squares after L-BFGS failed); ``message`` says which and why
+    polished: bool = False
 
     @property
     def success(self) -> bool:

@@ -7,7 +7,14 @@ Options: ``global`` ('mlsl' = G_MLSL_LDS with a local L-BFGS from low-discrepanc
 'crs2' = GN_CRS2_LM, 'none', or 'auto' (default): 'mlsl' up to 40 free parameters, else 'none'), ``global_maxeval`` (default 2000), ``local`` ('lbfgs' or
 'slsqp'; SLSQP's dense QP stalls on whole corpora), ``local_maxeval`` (default ``coartic.fit.engines.evaluation_budget``), ``ftol_rel``
 and ``xtol_rel`` (1e-15: L-BFGS then stops on round-off, not early),
-``population`` (0 = nlopt's default), ``seed`` (0).
+``population`` (0 = nlopt's default), ``seed`` (0), ``polish`` ('scipy' (default) or 'none').
+
+nlopt's L-BFGS ends in its generic FAILURE when it cannot take a first step, e.g. started at the
+optimum the global phase found with a parameter on its bound (the default spec of a German EMA
+utterance: MLSL reached scipy's optimum, L-BFGS then failed and the whole fit was refused). With
+``polish = 'scipy'`` such a local failure is finished by SciPy's least_squares (trust-region
+reflective, bounded, the default engine) from the best point nlopt found, and the result says so
+(``EngineResult.polished``, the message, the fit report and the console).
 """
 
 from __future__ import annotations
@@ -42,7 +49,7 @@ def _nlopt_message(opt: nlopt.opt, err: BaseException) -> str:
 # Tolerances far below what L-BFGS reaches: looser ones stopped it early on whole corpora
 # (RMSE 0.176 instead of 0.137 mm on 150 synthetic trials); it ends on round-off instead.
 DEFAULTS: dict[str, Any] = {"global": "auto", "global_maxeval": 2000, "local": "lbfgs", "local_maxeval": None,
-                            "ftol_rel": 1e-15, "xtol_rel": 1e-15, "population": 0, "seed": 0}
+                            "ftol_rel": 1e-15, "xtol_rel": 1e-15, "population": 0, "seed": 0, "polish": "scipy"}
 
 
 def check_options(options: dict[str, Any]) -> None:
@@ -56,6 +63,7 @@ def check_options(options: dict[str, Any]) -> None:
         "xtol_rel": (lambda v: is_number(v, 0.0), "a number >= 0"),
         "population": (lambda v: is_int(v, 0), "an integer >= 0"),
         "seed": (lambda v: is_int(v, 0), "an integer >= 0"),
+        "polish": (lambda v: v in ("scipy", "none"), "'scipy' or 'none'"),
     }
     check_against("an nlopt", checks, options)
 
@@ -153,4 +161,17 @@ def minimize(problem: ChannelProblem, x0: NDArray[np.float64], options: dict[str
     if interrupted:
         return EngineResult(problem.best_x, "interrupted", "stopped by the user (Ctrl-C); best point kept",
                             problem.nfev, problem.njev)
+    if status == "failed" and o["polish"] == "scipy" and np.isfinite(problem.best_sse):
+        return _polish(problem, messages)
     return EngineResult(problem.best_x, status, "; ".join(messages), problem.nfev, problem.njev)
+
+
+def _polish(problem: ChannelProblem, messages: list[str]) -> EngineResult:
+    """The fit finished by SciPy's least_squares from nlopt's best point (its local phase failed)."""
+    from coartic.fit.engines import scipy_ls  # the default engine: a sibling, imported when needed
+
+    before = problem.best_sse
+    res = scipy_ls.minimize(problem, problem.best_x.copy(), {})
+    messages.append(f"polished by scipy least_squares (trf) from nlopt's best point, SSE {before:.6g} -> "
+                    f"{problem.best_sse:.6g}: {res.status} ({res.message})")
+    return EngineResult(problem.best_x, res.status, "; ".join(messages), problem.nfev, problem.njev, polished=True)
