@@ -53,7 +53,8 @@ def compare_command(
                   soft_wrap=True, highlight=False)
     if any(res.interrupted for res in cmp.results):
         raise typer.Exit(130)
-    from coartic.fit.fit_cli import EXIT_UNCONFIRMED, STATUS_ADVICE
+    from coartic.console import EXIT_UNCONFIRMED
+    from coartic.fit.fit_cli import STATUS_ADVICE
     from coartic.fit.staged import UNCONFIRMED_STATUSES
 
     unconfirmed = [r for r in cmp.rows if r.status in UNCONFIRMED_STATUSES]

@@ -118,6 +118,13 @@ def copy_audio(src: str | PathLike[str], dest: Path) -> tuple[Path, float]:
     return dest, wav_duration(dest)
 
 
+def _check_rig(rig: RigOptions | None, exports: tuple[str, ...]) -> None:
+    if rig is not None and rig.shape_scale:
+        from coartic.runtime.rigs import check_shape_scale
+
+        check_shape_scale(rig, exports)
+
+
 def _check_preview(preview: str) -> None:
     if preview not in PREVIEW_FORMATS:
         raise AnimationError(f"preview must be one of {', '.join(PREVIEW_FORMATS)}, got {preview!r}")
@@ -193,6 +200,7 @@ def animate_file(
     """
     _check_preview(preview)
     wanted = parse_exports(exports)
+    _check_rig(rig, wanted)
     mapping = speaker_mapping(table, speaker)
     out = Path(out)
     name = check_name(name) if name is not None else _name_from(Path(labels).stem)
@@ -262,6 +270,7 @@ def speak_text(
     """
     _check_preview(preview)
     wanted = parse_exports(exports)
+    _check_rig(rig, wanted)
     mapping = speaker_mapping(table, speaker)
     check_text(text)
     out = Path(out)

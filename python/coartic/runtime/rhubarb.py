@@ -273,15 +273,16 @@ def insert_tweens(cues: list[MouthCue]) -> list[MouthCue]:
     return out
 
 
-def mouth_cues(animation: Animation, extended: str = EXTENDED_SHAPES) -> list[MouthCue]:
-    """Rhubarb's cues for the animation, every centisecond of its sound (module docstring)."""
+def mouth_cues(animation: Animation, extended: str = EXTENDED_SHAPES, minimum: int = MIN_CUE_CS) -> list[MouthCue]:
+    """Rhubarb's cues for the animation, every centisecond of its sound (module docstring); no cue
+    shorter than `minimum` cs but the tweens (Rhubarb's 7 cs, or a longer --rig-hold)."""
     extended = parse_extended_shapes(extended)
     total = centiseconds(animation.sound_duration)
     if total < 1:
         raise AnimationError(f"the animation lasts {animation.sound_duration:.4f} s: shorter than Rhubarb's 0.01 s")
     shapes = shape_at(animation, np.arange(total) / 100.0)
     shapes = [s if s in BASIC_SHAPES or s in extended else BASIC_OF[s] for s in shapes]
-    return insert_tweens(hold_minimum(_runs(shapes)))
+    return insert_tweens(hold_minimum(_runs(shapes), max(minimum, MIN_CUE_CS)))
 
 
 def _t(cs: int) -> str:
@@ -354,7 +355,7 @@ def export_rhubarb(animation: Animation, settings: ExportSettings) -> dict[str, 
     `settings.rig.rhubarb_formats`, with the extended shapes `settings.rig.extended_shapes`."""
     extended = parse_extended_shapes(settings.rig.extended_shapes)
     formats = parse_rhubarb_formats(",".join(settings.rig.rhubarb_formats))
-    cues = mouth_cues(animation, extended)
+    cues = mouth_cues(animation, extended, int(round(settings.rig.hold * 100)))
     duration = centiseconds(animation.sound_duration)
     sound = settings.audio_name() or ""
     text = {"tsv": lambda: rhubarb_tsv(cues, duration, extended),

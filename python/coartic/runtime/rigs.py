@@ -33,7 +33,7 @@ from coartic.runtime.fap import blink_profile
 from coartic.table import CHANNELS, PAUSE
 
 if TYPE_CHECKING:
-    from coartic.runtime.exporters import ExportSettings
+    from coartic.runtime.exporters import ExportSettings, RigOptions
 
 # Apple ARKit ARFaceAnchor.BlendShapeLocation, in Apple's documentation order.
 ARKIT_NAMES: tuple[str, ...] = (
@@ -235,25 +235,123 @@ def write_arkit_json(path: Path, animation: Animation, weights: NDArray[np.float
     return path
 
 
-def write_visemes_json(path: Path, animation: Animation, weights: NDArray[np.float64], audio: str | None) -> Path:
-    """`{"fps", "frames", "visemes": [15 names], "weights": [[15 per frame]], "audio"}`."""
-    doc = {"fps": animation.fps, "frames": animation.n_frames, "audio": audio, "visemes": list(VISEMES),
+# Viseme name sets (`--viseme-names`): the 15 weights under the names a rig's shape keys carry.
+# Ready Player Me's avatars and VRChat's Oculus-style rigs name them viseme_sil ... viseme_U.
+RPM_VISEMES: tuple[str, ...] = ("viseme_sil", "viseme_PP", "viseme_FF", "viseme_TH", "viseme_DD", "viseme_kk",
+                                "viseme_CH", "viseme_SS", "viseme_nn", "viseme_RR", "viseme_aa", "viseme_E",
+                                "viseme_I", "viseme_O", "viseme_U")
+# VRM (1.0 expression presets; 0.x's A I U E O) has five mouth shapes, the vowels. Each Meta viseme
+# goes to the vowel whose mouth it is nearest: the vowels to their own; the tongue consonants (teeth
+# near together, lips a little spread) to ih; CH (rounded in Italian and English) to ou; PP, FF and
+# sil to none (the closed mouth is VRM's neutral face). Weights of one vowel add up.
+VRM_VISEMES: tuple[str, ...] = ("aa", "ih", "ou", "ee", "oh")
+VRM_OF: dict[str, str | None] = {"sil": None, "PP": None, "FF": None, "TH": "ih", "DD": "ih", "kk": "ih",
+                                 "CH": "ou", "SS": "ih", "nn": "ih", "RR": "ih", "aa": "aa", "E": "ee",
+                                 "ih": "ih", "oh": "oh", "ou": "ou"}
+VISEME_NAME_SETS: tuple[str, ...] = ("meta", "rpm", "vrm")
+
+
+def named_visemes(weights: NDArray[np.float64], names: str) -> tuple[tuple[str, ...], NDArray[np.float64]]:
+    """Meta's 15 viseme weights (VISEMES order) under the name set `names`: meta (Oculus), rpm
+    (Ready Player Me, VRChat: viseme_sil ... viseme_U) or vrm (five vowels, VRM_OF)."""
+    if names == "meta":
+        return VISEMES, weights
+    if names == "rpm":
+        return RPM_VISEMES, weights
+    if names == "vrm":
+        out = np.zeros((weights.shape[0], len(VRM_VISEMES)))
+        for k, v in enumerate(VISEMES):
+            target = VRM_OF[v]
+            if target is not None:
+                out[:, VRM_VISEMES.index(target)] += weights[:, k]
+        return VRM_VISEMES, out
+    raise AnimationError(f"--viseme-names {names!r}: choose {', '.join(VISEME_NAME_SETS)} (Meta/Oculus, "
+                         "Ready Player Me/VRChat, VRM)")
+
+
+def _hann_smooth(y: NDArray[np.float64], frames: int) -> NDArray[np.float64]:
+    """A zero-phase moving average weighted by a Hann window `frames` wide (odd), the ends held."""
+    if frames < 3:
+        return y
+    window = np.hanning(frames + 2)[1:-1]
+    window /= window.sum()
+    half = frames // 2
+    padded = np.concatenate([np.repeat(y[:1], half, axis=0), y, np.repeat(y[-1:], half, axis=0)])
+    out: NDArray[np.float64] = np.stack([np.convolve(padded[:, j], window, mode="valid") for j in range(y.shape[1])], axis=1)
+    return out
+
+
+def _hold(y: NDArray[np.float64], frames: int) -> NDArray[np.float64]:
+    """A centred running maximum `frames` wide (odd): every peak held for at least that long."""
+    if frames < 2:
+        return y
+    half = frames // 2
+    padded = np.concatenate([np.repeat(y[:1], half, axis=0), y, np.repeat(y[-1:], half, axis=0)])
+    windows = np.lib.stride_tricks.sliding_window_view(padded, frames, axis=0)
+    out: NDArray[np.float64] = windows.max(axis=-1)
+    return out
+
+
+def _odd_frames(seconds: float, fps: float) -> int:
+    n = int(round(seconds * fps))
+    return n + 1 if n % 2 == 0 and n > 0 else n
+
+
+def shape_curves(weights: NDArray[np.float64], names: tuple[str, ...], fps: float, options: RigOptions,
+                 fixed: tuple[str, ...] = (), rest: str | None = None) -> NDArray[np.float64]:
+    """The curves as the rig options ask (docs/RUNTIME.md, "Gain, scale, smoothing and hold"), in order:
+    smoothed over `options.smooth` s (Hann, zero phase), peaks held `options.hold` s, scaled by the
+    gain and by each shape's own scale, clipped to 0..1. The shapes `fixed` (the blinks) are left as
+    they are; `rest` (a viseme set's silence) is what the others leave of 1 (the rows sum to 1)."""
+    scale = dict(options.shape_scale)  # names of another set written beside (check_shape_scale) left out
+    y = np.array(weights, dtype=np.float64)
+    if options.gain == 1.0 and not scale and _odd_frames(options.smooth, fps) < 3 and _odd_frames(options.hold, fps) < 2:
+        return y  # the model's curves as they are
+    moving = [k for k, n in enumerate(names) if n not in fixed and n != rest]
+    part = y[:, moving]
+    part = _hann_smooth(part, _odd_frames(options.smooth, fps))
+    part = _hold(part, _odd_frames(options.hold, fps))
+    part = part * options.gain * np.array([scale.get(names[k], 1.0) for k in moving])
+    part = np.clip(part, 0.0, 1.0)
+    if rest is not None:  # the shares stay shares: the silence is what is left, and past 1 they shrink
+        total = part.sum(axis=1, keepdims=True)
+        part = part / np.maximum(total, 1.0)
+        y[:, names.index(rest)] = np.maximum(1.0 - part.sum(axis=1), 0.0)
+    y[:, moving] = part
+    return y
+
+
+def check_shape_scale(options: RigOptions, exports: tuple[str, ...]) -> None:
+    """Every --rig-scale name is a shape of a curve set being written (--export arkit, visemes)."""
+    sets = {"arkit": ARKIT_NAMES, "visemes": named_visemes(np.zeros((1, len(VISEMES))), options.viseme_names)[0]}
+    known = [n for e in exports if e in sets for n in sets[e]]
+    unknown = [n for n, _ in options.shape_scale if n not in known]
+    if unknown:
+        raise AnimationError(f"--rig-scale {', '.join(unknown)}: no such shape in the curves written "
+                             f"(--export {','.join(exports) or 'none'}); they are {' '.join(known) or 'none'}")
+
+
+def write_visemes_json(path: Path, animation: Animation, weights: NDArray[np.float64], audio: str | None,
+                       names: tuple[str, ...] = VISEMES) -> Path:
+    """`{"fps", "frames", "visemes": [names], "weights": [[one per name, per frame]], "audio"}`."""
+    doc = {"fps": animation.fps, "frames": animation.n_frames, "audio": audio, "visemes": list(names),
            "weights": [[float(v) for v in row] for row in weights]}
     atomic_write_text(path, json.dumps(doc) + "\n")
     return path
 
 
 def export_arkit(animation: Animation, settings: ExportSettings) -> dict[str, Path]:
-    """Exporter (coartic.runtime.exporters): NAME.arkit.csv and NAME.arkit.json."""
-    w = arkit_weights(animation)
+    """Exporter (coartic.runtime.exporters): NAME.arkit.csv and NAME.arkit.json, shaped by the rig options."""
+    w = shape_curves(arkit_weights(animation), ARKIT_NAMES, animation.fps, settings.rig, fixed=tuple(ARKIT_BLINKS))
     return {"arkit_csv": write_curves_csv(settings.out / f"{settings.name}.arkit.csv", animation, ARKIT_NAMES, w),
             "arkit_json": write_arkit_json(settings.out / f"{settings.name}.arkit.json", animation, w,
                                            settings.audio_name())}
 
 
 def export_visemes(animation: Animation, settings: ExportSettings) -> dict[str, Path]:
-    """Exporter: NAME.visemes.csv and NAME.visemes.json (Meta's 15 visemes)."""
-    w = viseme_weights(animation)
-    return {"visemes_csv": write_curves_csv(settings.out / f"{settings.name}.visemes.csv", animation, VISEMES, w),
+    """Exporter: NAME.visemes.csv and NAME.visemes.json, in the name set `settings.rig.viseme_names`."""
+    names, w = named_visemes(viseme_weights(animation), settings.rig.viseme_names)
+    w = shape_curves(w, names, animation.fps, settings.rig, rest=names[0] if names[0].endswith("sil") else None)
+    return {"visemes_csv": write_curves_csv(settings.out / f"{settings.name}.visemes.csv", animation, names, w),
             "visemes_json": write_visemes_json(settings.out / f"{settings.name}.visemes.json", animation, w,
-                                               settings.audio_name())}
+                                               settings.audio_name(), names)}

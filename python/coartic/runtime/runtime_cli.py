@@ -54,6 +54,11 @@ GltfMorphsOpt = Annotated[str, typer.Option("--gltf-morphs", help="The glTF's mo
 ExtendedOpt = Annotated[str, typer.Option("--extended-shapes", help="Rhubarb's extended mouth shapes the cues may use: any of G H X (as Rhubarb's --extendedShapes; \"\" for the six basic shapes A-F).")]
 RhubarbFormatsOpt = Annotated[str, typer.Option("--rhubarb-formats", help="Rhubarb's cue files to write with --export rhubarb: any of tsv, json, xml, dat (Moho / OpenToonz switch data, at --fps 24 to 100), comma-separated.")]
 PrestonBlairOpt = Annotated[bool, typer.Option("--preston-blair", help="Preston Blair's shape names (MBP, etc, E, AI, O, U, FV, L, rest) in Rhubarb's DAT file, as Rhubarb's --datUsePrestonBlair.")]
+VisemeNamesOpt = Annotated[str, typer.Option("--viseme-names", help="Names of the viseme curves (--export visemes): meta (Oculus: sil PP ... ou), rpm (Ready Player Me, VRChat: viseme_sil ... viseme_U) or vrm (VRM's five vowels aa ih ou ee oh).")]
+RigGainOpt = Annotated[float, typer.Option("--rig-gain", help="Exaggeration of the rigs' curves (--export arkit, visemes): every mouth and jaw weight times this (1 = the model's), clipped to 0..1.")]
+RigScaleOpt = Annotated[str | None, typer.Option("--rig-scale", help="Per-shape scale of the rigs' curves, e.g. jawOpen=0.8,mouthFunnel=1.2 (names of the set written).")]
+RigSmoothOpt = Annotated[float, typer.Option("--rig-smooth", help="Smooth the rigs' curves over this many seconds (a Hann window, no delay); 0 = off.")]
+RigHoldOpt = Annotated[float, typer.Option("--rig-hold", help="Hold every peak of the rigs' curves at least this many seconds; also Rhubarb's shortest cue when above its 0.07 s. 0 = off.")]
 SpeakerOpt = Annotated[str | None, typer.Option("--speaker", help="Speak as this speaker of a table fitted with \\[model] speakers (its offset and scale, or its own targets).")]
 ForceOpt = Annotated[bool, typer.Option("--force", help="Replace --out even if it holds another run's output "
                                         "(the same labels or text replace their own output without it).")]
@@ -133,13 +138,16 @@ def _run_staged(table: Path | None, out: Path, command: str, identity: dict[str,
     _report(_moved(result, staging, out), phone_map)
 
 
-def _rig_options(extended_shapes: str, rhubarb_formats: str, preston_blair: bool) -> RigOptions:
+def _rig_options(extended_shapes: str, rhubarb_formats: str, preston_blair: bool, viseme_names: str, gain: float,
+                 scale: str | None, smooth: float, hold: float) -> RigOptions:
     """The rig options of the command line, checked before anything runs."""
-    from coartic.runtime.exporters import RigOptions
+    from coartic.runtime.exporters import RigOptions, parse_shape_scale
     from coartic.runtime.rhubarb import parse_extended_shapes, parse_rhubarb_formats
 
     return RigOptions(extended_shapes=parse_extended_shapes(extended_shapes),
-                      rhubarb_formats=parse_rhubarb_formats(rhubarb_formats), preston_blair=preston_blair)
+                      rhubarb_formats=parse_rhubarb_formats(rhubarb_formats), preston_blair=preston_blair,
+                      viseme_names=viseme_names, gain=gain, shape_scale=parse_shape_scale(scale), smooth=smooth,
+                      hold=hold)
 
 
 def animate_command(
@@ -165,6 +173,11 @@ def animate_command(
     extended_shapes: ExtendedOpt = "GHX",
     rhubarb_formats: RhubarbFormatsOpt = "tsv,json",
     preston_blair: PrestonBlairOpt = False,
+    viseme_names: VisemeNamesOpt = "meta",
+    rig_gain: RigGainOpt = 1.0,
+    rig_scale: RigScaleOpt = None,
+    rig_smooth: RigSmoothOpt = 0.0,
+    rig_hold: RigHoldOpt = 0.0,
     force: ForceOpt = False,
     text: Annotated[str | None, typer.Option("--text", help="With a recording: what it says (its transcript).")] = None,
     transcript: Annotated[Path | None, typer.Option("--transcript", help="With a recording: its transcript as a file (plain text, or a TextGrid with a words tier).")] = None,
@@ -181,7 +194,8 @@ def animate_command(
     from coartic.runtime.pipeline import animate_file, speaker_face
 
     _warn_fps(fps)
-    rig = _rig_options(extended_shapes, rhubarb_formats, preston_blair)
+    rig = _rig_options(extended_shapes, rhubarb_formats, preston_blair, viseme_names, rig_gain, rig_scale,
+                       rig_smooth, rig_hold)
     if is_wav(labels):
         _animate_recording(labels, out, table, fps, text, transcript, lang, engine, max_duration, audio, force,
                            dict(tier=tier, label_map=label_map, preview=preview, snap_contacts=snap_contacts,
@@ -255,6 +269,11 @@ def speak_command(
     extended_shapes: ExtendedOpt = "GHX",
     rhubarb_formats: RhubarbFormatsOpt = "tsv,json",
     preston_blair: PrestonBlairOpt = False,
+    viseme_names: VisemeNamesOpt = "meta",
+    rig_gain: RigGainOpt = 1.0,
+    rig_scale: RigScaleOpt = None,
+    rig_smooth: RigSmoothOpt = 0.0,
+    rig_hold: RigHoldOpt = 0.0,
     force: ForceOpt = False,
 ) -> None:
     """Say Italian (or English, --lang en) text with Festival: WAV, channel trajectories, FAP file and preview,
@@ -269,7 +288,8 @@ def speak_command(
     with synthesis:
         from coartic.runtime.pipeline import speak_text, speaker_face
 
-        rig = _rig_options(extended_shapes, rhubarb_formats, preston_blair)
+        rig = _rig_options(extended_shapes, rhubarb_formats, preston_blair, viseme_names, rig_gain, rig_scale,
+                       rig_smooth, rig_hold)
 
         def make(t: ParameterTable, staging: Path, progress: Progress) -> RuntimeOutput:
             return speak_text(text, t, staging, fps=fps, stretch=stretch, voice=voice, strict=strict,
