@@ -113,6 +113,18 @@ def handled(command: F) -> F:
     return run  # type: ignore[return-value]
 
 
+def positive_finite(value: float | None) -> float | None:
+    """A typer callback: a number option that must be finite and above 0 (a duration, a rate).
+    NaN passes every comparison, so a bound written as ``x > limit`` alone would let it through."""
+    import math
+
+    import typer
+
+    if value is not None and not (math.isfinite(value) and value > 0):
+        raise typer.BadParameter(f"{value:g}: give a finite number above 0")
+    return value
+
+
 def print_error(console: Console, err: BaseException | str) -> None:
     console.print(f"[bold red]error:[/] {escape(str(err))}", highlight=False, soft_wrap=True)
 

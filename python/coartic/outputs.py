@@ -91,6 +91,24 @@ def atomic_write_text(path: str | os.PathLike[str], text: str, encoding: str = "
         tmp.write_text(text, encoding=encoding)
 
 
+def check_output_file(path: str | os.PathLike[str], option: str, example: str = "out.png",
+                      create_folder: bool = False) -> Path:
+    """An output file an option names, checked before any work: not a folder, in a folder that
+    exists (or can be made, with ``create_folder``) and is not a file. The errors name the option
+    and the fix, instead of a raw [Errno 21] after the work is done."""
+    p = Path(path)
+    if p.is_dir():
+        raise OutputError(f"{option} {p}: is a folder; give the file to write, e.g. {option} {p / example}")
+    folder = p.parent
+    while not folder.exists() and folder.parent != folder:
+        if not create_folder:
+            raise OutputError(f"{option} {p}: the folder {p.parent} does not exist; create it or write elsewhere")
+        folder = folder.parent
+    if not folder.is_dir():
+        raise OutputError(f"{option} {p}: {folder} is a file, not a folder; write elsewhere")
+    return p
+
+
 # ---------------------------------------------------------------------------------- signals
 def save_figure(fig: Any, path: str | os.PathLike[str], dpi: int = 100) -> Path:
     """Write a matplotlib figure as PNG through ``atomic_path`` and close it; return the path."""
@@ -459,5 +477,5 @@ def _version() -> str:
         return "unknown"
 
 
-__all__ = ["OutputDir", "OutputError", "DeferredSignals", "atomic_path", "atomic_write_bytes",
+__all__ = ["OutputDir", "OutputError", "DeferredSignals", "atomic_path", "atomic_write_bytes", "check_output_file",
            "atomic_write_text", "fsync_dir", "read_marker", "save_figure", "signals_held", "RUN_MARKER"]

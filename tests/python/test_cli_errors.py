@@ -188,7 +188,13 @@ def test_output_paths_through_a_file_or_a_folder_name_the_option_and_the_fix(
     assert code == 2 and "is a file, not a directory" in text and "Errno" not in text, text
     (tmp_path / "plots").mkdir()
     code, text = run("inspect", labels, "--plot", tmp_path / "plots")
-    assert code == 2 and f"--plot {tmp_path / 'plots'}: is a folder; give the PNG file" in text, text
+    assert code == 2 and f"--plot {tmp_path / 'plots'}: is a folder; give the file to write" in text, text
+    code, text = run("inspect", labels, "--plot", tmp_path / "file" / "x.png")
+    assert code == 2 and "is a file, not a folder" in text and "Errno" not in text, text
+    # checked before Chromium runs
+    code, text = run("view", tmp_path, "--screenshot", tmp_path / "plots")
+    assert code == 2 and f"--screenshot {tmp_path / 'plots'}: is a folder; give the file to write, e.g. --screenshot " \
+        f"{tmp_path / 'plots' / 'view.png'}" in text, text
 
 
 # ------------------------------------------------------------------- bounds and silent no-ops
@@ -238,4 +244,17 @@ def test_nothing_free_is_refused_not_reported_as_a_multistart(tmp_path: Path) ->
     spec = german_utterance_spec(tmp_path / "free.toml", '[model]\nchannels = ["LLO"]\n[parameters]\nfree = []\n')
     code, text = run("fit", spec, "--out", tmp_path / "o", "--no-report", "--quiet")
     assert code == 2 and "[parameters.free] LLO: no parameter is free" in text and "starts" not in text, text
+    assert not (tmp_path / "o").exists()
+
+
+WAV = Path(__file__).resolve().parents[1] / "data" / "realdata" / "emu-ema-german" / "derived" / \
+    "dfgspp_mo1_prosody_0020.wav"
+
+
+@pytest.mark.parametrize("command", ["align", "animate"])
+@pytest.mark.parametrize("value", ["nan", "-1", "0", "inf"])
+def test_a_recording_length_limit_must_be_a_duration(tmp_path: Path, command: str, value: str) -> None:
+    # NaN used to pass the limit (every comparison with it is false), -1 read as "-1:59:59"
+    code, text = run(command, WAV, "--text", "hallo", "--lang", "de", "--out", tmp_path / "o", "--max-duration", value)
+    assert code == 2 and "--max-duration" in text and "give a finite number above 0" in text, text
     assert not (tmp_path / "o").exists()

@@ -96,7 +96,7 @@ def test_every_reader_has_a_page_with_an_example() -> None:
 
     assert len(BUILTIN_READERS) >= 7
     names = {p.stem for p in READER_PAGES}
-    assert {"README", "c3d", "marker-csv", "ema-csv", "emu", "est", "xrmb", "mview", "labels"} <= names
+    assert {"README", "c3d", "marker-csv", "ema-csv", "emu", "est", "xrmb", "mview", "carstens", "labels"} <= names
     for page in READER_PAGES:
         if page.stem != "README":
             assert _examples(page), f"{page.name} has no `coartic inspect` example with what it prints"

@@ -44,10 +44,6 @@ free = ["target", "alpha", "theta_bw", "theta_fw", "c_bw", "c_fw", "k_r", "delta
 enabled = true
 [fit]
 starts = 1
-[validate]
-holdout_repetition = 0
-train_rate = ""
-test_rate = ""
 """
 
 

@@ -14,7 +14,7 @@ from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, T
 
 from coartic.align.alignment import Progress as PartProgress
 from coartic.align.audio import MAX_DURATION
-from coartic.console import LineProgress, print_warning
+from coartic.console import LineProgress, positive_finite, print_warning
 
 _err = Console(stderr=True)
 _out = Console()
@@ -23,7 +23,8 @@ TextOpt = Annotated[str | None, typer.Option("--text", help="What the recording 
 TranscriptOpt = Annotated[Path | None, typer.Option("--transcript", help="The transcript as a file: plain text, or a TextGrid with a words tier.")]
 LangOpt = Annotated[str, typer.Option("--lang", help="Language of the recording: it, en, de, or any espeak-ng voice (fr, es, ...).")]
 EngineOpt = Annotated[str | None, typer.Option("--engine", help="Aligner: sphinx (PocketSphinx, English; the default for en), festival (alignment by synthesis with Festival; it, en; the default for it), espeak (alignment by synthesis with espeak-ng; the default for other languages).")]
-MaxDurationOpt = Annotated[float, typer.Option("--max-duration", help="Refuse recordings longer than this (s).")]
+MaxDurationOpt = Annotated[float, typer.Option("--max-duration", callback=positive_finite,
+                                               help="Refuse recordings longer than this (s).")]
 
 
 def transcript_text(text: str | None, transcript: Path | None) -> str | None:

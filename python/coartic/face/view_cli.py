@@ -25,7 +25,7 @@ def view_command(
     view: Annotated[str | None, typer.Option("--view", help="Camera preset: front, three-quarter or profile.")] = None,
     section: Annotated[bool, typer.Option("--section", help="Cut the head along the midline (with --view profile: lips, teeth, tongue).")] = False,
     zoom: Annotated[float | None, typer.Option("--zoom", help="Bring the camera closer by this factor (2: the mouth twice as large).")] = None,
-    face_only: Annotated[int | None, typer.Option("--face-only", help="Screenshot only the face, N x N pixels.")] = None,
+    face_only: Annotated[int | None, typer.Option("--face-only", min=1, help="Screenshot only the face, N x N pixels.")] = None,
     open_page: Annotated[bool, typer.Option("--open", help="Open the page in the default browser.")] = False,
 ) -> None:
     """Write OUT_DIR/view.html: the face (glTF) playing with its WAV in sync, the channels and a cursor.
@@ -35,6 +35,10 @@ def view_command(
     from coartic.face.viewer import (check_frame, make_server, page_query, screenshot as take_screenshot, view_yaw,
                                      write_page)
 
+    if screenshot is not None:  # before Chromium runs
+        from coartic.outputs import check_output_file
+
+        check_output_file(screenshot, "--screenshot", "view.png", create_folder=True)
     turn = view_yaw(view, yaw)
     page = write_page(out_dir, name)
     if frame is not None:

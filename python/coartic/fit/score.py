@@ -251,6 +251,7 @@ def score_utterances(table: ParameterTable, utterances: Sequence[Utterance],
     predictions are that speaker's (``coartic.speakers.speaker_mapping``: an unknown name, or a
     table without speakers, is an error). With ``train`` (the utterances the table was fitted on),
     the baselines too (``coartic.fit.baselines``, ``Score.baseline_rows``)."""
+    from coartic.emotions import evaluate_by_emotion
     from coartic.speakers import speaker_mapping, table_speakers
 
     mapping = speaker_mapping(table, speaker)
@@ -277,8 +278,8 @@ def score_utterances(table: ParameterTable, utterances: Sequence[Utterance],
             raise ScoreError(f"channel {c} is {y[0]:.3g} mm in every sample of {', '.join(u.name for u in utts[:5])}: "
                              "it was not computed from the recordings (a missing or misnamed sensor? give "
                              "--role-map, or --channels without it); no RMSE, calibrated or not, is printed for it")
-    if mapping is None:
-        predicted = {c: evaluate_corpus(table, c, utts) for c in chans}
+    if mapping is None:  # each utterance with its emotion's targets when the table has emotions
+        predicted = {c: evaluate_by_emotion(table, c, utts) for c in chans}
     else:
         own = mapping.evaluation_table(table)
         predicted = {c: [mapping.apply(c, v) for v in evaluate_corpus(own, c, utts)] for c in chans}

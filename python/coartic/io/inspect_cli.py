@@ -40,14 +40,10 @@ def inspect_command(
 
     Exits 2 when the file cannot be read, 1 when no channel can be computed from it."""
     console = Console()
-    if plot is not None:
-        # checked first: the summary should not be lost to a typo in the plot's path
-        if plot.is_dir():
-            raise UsageError(f"--plot {plot}: is a folder; give the PNG file to write, e.g. --plot "
-                             f"{plot / (file.stem + '.png')}")
-        if not plot.parent.is_dir():
-            raise UsageError(f"--plot {plot}: the folder {plot.parent} does not exist; create it or write the "
-                             "plot elsewhere")
+    if plot is not None:  # checked first: the summary should not be lost to a typo in the plot's path
+        from coartic.outputs import check_output_file
+
+        check_output_file(plot, "--plot", file.stem + ".png")
     trial = load_trial(file, labels=labels, label_map=label_map, role_map=role_map, tier=tier,
                        units=units, allow_truncated=allow_truncated)
     _, gaps = fill_gaps(trial.markers, trial.marker_names, trial.rate, trial.start_time, max_gap)

@@ -17,7 +17,7 @@ from rich.table import Table
 from coartic.runtime.errors import AnimationError
 from coartic.runtime.festival import LANGUAGES, start_synthesis
 from coartic.runtime import PREVIEW_FORMATS
-from coartic.console import LineProgress
+from coartic.console import LineProgress, positive_finite
 
 # NumPy, the table, the model and the outputs are imported in the commands, after `speak` has
 # started Festival: the imports then run while it synthesises (bench/startup.py).
@@ -51,6 +51,8 @@ VrmlOpt = Annotated[bool, typer.Option("--vrml", help="Also write NAME.wrl: the 
 FapNameOpt = Annotated[str | None, typer.Option("--fap-name", help="Name of the FAP file and its header; the WAV and glTF get the same stem (Greta loads NAME.fap with NAME.wav).")]
 ExportOpt = Annotated[str | None, typer.Option("--export", help="Also write the rigs' curves and cues, comma-separated: arkit (NAME.arkit.csv/.json, ARKit's 52 blendshapes), visemes (NAME.visemes.csv/.json, Meta's 15), rhubarb (NAME.rhubarb.tsv/.json and --rhubarb-formats, Rhubarb Lip Sync's mouth cues).")]
 GltfMorphsOpt = Annotated[str, typer.Option("--gltf-morphs", help="The glTF's morph targets: fap (one per FAP), arkit (ARKit's 52 blendshape names, to retarget by name) or eight (at most 8 per mesh, all blended by three.js up to r132); arkit and eight imply --gltf.")]
+EmotionOpt = Annotated[str | None, typer.Option("--emotion", help="Speak with this emotion of a table fitted with [model] emotions (joy, surprise, sadness, disgust, anger, fear; docs/EMOTIONS.md).")]
+IntensityOpt = Annotated[float, typer.Option("--intensity", help="With --emotion: 0 = neutral, 1 = the emotion as fitted (up to 1.5).")]
 ExtendedOpt = Annotated[str, typer.Option("--extended-shapes", help="Rhubarb's extended mouth shapes the cues may use: any of G H X (as Rhubarb's --extendedShapes; \"\" for the six basic shapes A-F).")]
 RhubarbFormatsOpt = Annotated[str, typer.Option("--rhubarb-formats", help="Rhubarb's cue files to write with --export rhubarb: any of tsv, json, xml, dat (Moho / OpenToonz switch data, at --fps 24 to 100), comma-separated.")]
 PrestonBlairOpt = Annotated[bool, typer.Option("--preston-blair", help="Preston Blair's shape names (MBP, etc, E, AI, O, U, FV, L, rest) in Rhubarb's DAT file, as Rhubarb's --datUsePrestonBlair.")]
@@ -127,12 +129,16 @@ def _moved(result: RuntimeOutput, staging: Path, out: Path) -> RuntimeOutput:
 
 def _run_staged(table: Path | None, out: Path, command: str, identity: dict[str, str], force: bool,
                 protect: list[Path], make: Callable[[ParameterTable, Path, Progress], RuntimeOutput],
-                phone_map: str = "phones_italian.tsv") -> None:
+                phone_map: str = "phones_italian.tsv", emotion: str | None = None, intensity: float = 1.0) -> None:
     """Load the table, run ``make`` into the staging directory of ``out`` with a progress bar, and
-    report what was written (where it is once swapped in)."""
+    report what was written (where it is once swapped in). ``emotion`` at ``intensity``: the table's
+    emotion blended in first (coartic.emotions)."""
+    from coartic.emotions import emotion_table
     from coartic.outputs import OutputDir
 
-    t = _load_table(table)
+    t = emotion_table(_load_table(table), emotion, intensity)
+    if emotion is not None:
+        identity = identity | {"emotion": emotion, "intensity": repr(float(intensity))}
     with OutputDir(out, command, identity, force=force, protect=protect) as staging, _progress() as progress:
         result = make(t, staging, progress)
     _report(_moved(result, staging, out), phone_map)
@@ -168,6 +174,8 @@ def animate_command(
     gltf: GltfOpt = False,
     vrml: VrmlOpt = False,
     speaker: SpeakerOpt = None,
+    emotion: EmotionOpt = None,
+    intensity: IntensityOpt = 1.0,
     export: ExportOpt = None,
     gltf_morphs: GltfMorphsOpt = "fap",
     extended_shapes: ExtendedOpt = "GHX",
@@ -183,7 +191,7 @@ def animate_command(
     transcript: Annotated[Path | None, typer.Option("--transcript", help="With a recording: its transcript as a file (plain text, or a TextGrid with a words tier).")] = None,
     lang: Annotated[str, typer.Option("--lang", help="With a recording: its language (it, en, de, or any espeak-ng voice); also picks the phone map's fallbacks.")] = "it",
     engine: Annotated[str | None, typer.Option("--engine", help="With a recording: the aligner (sphinx, festival, espeak; coartic align --help).")] = None,
-    max_duration: Annotated[float, typer.Option("--max-duration", help="With a recording: refuse recordings longer than this (s).")] = 3600.0,
+    max_duration: Annotated[float, typer.Option("--max-duration", callback=positive_finite, help="With a recording: refuse recordings longer than this (s).")] = 3600.0,
 ) -> None:
     """Animate a label file, or a recording and its transcript: channel trajectories (CSV), an MPEG-4 FAP file and a preview.
 
@@ -200,7 +208,8 @@ def animate_command(
         _animate_recording(labels, out, table, fps, text, transcript, lang, engine, max_duration, audio, force,
                            dict(tier=tier, label_map=label_map, preview=preview, snap_contacts=snap_contacts,
                                 strict=strict, gltf=gltf or gltf_morphs != "fap", vrml=vrml, speaker=speaker,
-                                exports=export, gltf_morphs=gltf_morphs, rig=rig), fap_name, mns, mw, speaker)
+                                exports=export, gltf_morphs=gltf_morphs, rig=rig), fap_name, mns, mw, speaker,
+                           emotion, intensity)
         return
     if text is not None or transcript is not None:
         raise AnimationError(f"{labels}: --text and --transcript go with a recording (WAV), and this is not one")
@@ -213,13 +222,14 @@ def animate_command(
                             gltf_morphs=gltf_morphs, rig=rig)
 
     _run_staged(table, out, "animate", {"labels": str(labels.resolve())}, force,
-                [labels, *([table] if table is not None else []), *([audio] if audio is not None else [])], make)
+                [labels, *([table] if table is not None else []), *([audio] if audio is not None else [])], make,
+                emotion=emotion, intensity=intensity)
 
 
 def _animate_recording(wav: Path, out: Path, table: Path | None, fps: float, text: str | None, transcript: Path | None,
                        lang: str, engine: str | None, max_duration: float, audio: Path | None, force: bool,
                        options: dict[str, Any], name: str | None, mns: float | None, mw: float | None,
-                       speaker: str | None) -> None:
+                       speaker: str | None, emotion: str | None = None, intensity: float = 1.0) -> None:
     """`coartic animate voice.wav --text ...`: align, then animate with the recording as the sound."""
     from coartic.align.align_cli import part_progress, shown_warnings, transcript_text
     from coartic.align.aligner import animate_recording
@@ -244,7 +254,7 @@ def _animate_recording(wav: Path, out: Path, table: Path | None, fps: float, tex
     with shown_warnings():
         _run_staged(table, out, "animate", identity, force,
                     [wav, *([table] if table is not None else []), *([transcript] if transcript else [])], make,
-                    fallbacks)
+                    fallbacks, emotion, intensity)
 
 
 def speak_command(
@@ -264,6 +274,8 @@ def speak_command(
     gltf: GltfOpt = False,
     vrml: VrmlOpt = False,
     speaker: SpeakerOpt = None,
+    emotion: EmotionOpt = None,
+    intensity: IntensityOpt = 1.0,
     export: ExportOpt = None,
     gltf_morphs: GltfMorphsOpt = "fap",
     extended_shapes: ExtendedOpt = "GHX",
@@ -301,4 +313,4 @@ def speak_command(
         # the identity of an Italian run stays {"text": ...}: outputs written before --lang existed are its own
         identity = {"text": text} | ({"lang": lang} if lang != "it" else {})
         _run_staged(table, out, "speak", identity, force, [table] if table is not None else [], make,
-                    LANGUAGES[lang][1])
+                    LANGUAGES[lang][1], emotion, intensity)
