@@ -14,6 +14,8 @@ from __future__ import annotations
 
 import copy
 import math
+from dataclasses import dataclass
+from pathlib import Path
 from typing import Any, Sequence
 
 import numpy as np
@@ -76,6 +78,8 @@ def emotion_table(table: ParameterTable, emotion: str | None, intensity: float =
                 continue  # the contact is phonological: kept at every intensity
             row["target"] = float(row["target"] + intensity * float(d))
     out.source = f"{table.source} ({emotion} at {intensity:g})"
+    # what the runtime shows outside the mouth (coartic.runtime.expression); the targets carry the rest
+    out.metadata = {**(out.metadata or {}), "expression": {"emotion": emotion, "intensity": float(intensity)}}
     return out
 
 
@@ -98,3 +102,92 @@ def evaluate_by_emotion(table: ParameterTable, channel: str, utterances: Sequenc
         for i, v in zip(idx, values):
             out[i] = v
     return [v for v in out if v is not None]
+
+
+# ----------------------------------------------------------------------------- emotion over time
+
+# An emotion's onset and offset: a raised-cosine ramp of this length centred on each span boundary
+# (an expression takes a few hundred ms to come and go; a step would jump the lips between frames).
+RAMP_S = 0.2
+
+
+@dataclass(frozen=True)
+class EmotionSpan:
+    """One span of a markup: ``emotion`` at ``intensity`` from ``start`` to ``end`` (s)."""
+
+    start: float
+    end: float
+    emotion: str
+    intensity: float = 1.0
+
+
+def read_emotion_spans(path: str | Path) -> list[EmotionSpan]:
+    """A TSV of spans, one per line: ``start end emotion [intensity]`` (s, s, name, 0-1.5; tabs or
+    spaces; ``#`` starts a comment). Errors name the file, the line and the field."""
+    from coartic.textfile import read_text
+
+    path = Path(path)
+    spans: list[EmotionSpan] = []
+    for n, line in enumerate(read_text(path, "emotion spans").splitlines(), start=1):
+        fields = line.split("#", 1)[0].split()
+        if not fields:
+            continue
+        if len(fields) not in (3, 4):
+            raise EmotionError(f"{path}, line {n}: expected 'start end emotion [intensity]', got {len(fields)} fields")
+        try:
+            start, end = float(fields[0]), float(fields[1])
+            intensity = float(fields[3]) if len(fields) == 4 else 1.0
+        except ValueError:
+            raise EmotionError(f"{path}, line {n}: start, end and intensity must be numbers: {line.strip()!r}") from None
+        if not (math.isfinite(start) and math.isfinite(end) and 0.0 <= start < end):
+            raise EmotionError(f"{path}, line {n}: a span needs 0 <= start < end, got {start:g} to {end:g}")
+        if not (math.isfinite(intensity) and 0.0 <= intensity <= MAX_INTENSITY):
+            raise EmotionError(f"{path}, line {n}: intensity {fields[3]!r} is not within 0-{MAX_INTENSITY:g}")
+        if spans and start < spans[-1].end:
+            raise EmotionError(f"{path}, line {n}: the span starting at {start:g} s overlaps the one before "
+                               f"(ending at {spans[-1].end:g} s): spans are in time order, one emotion at a time")
+        spans.append(EmotionSpan(start, end, fields[2], intensity))
+    if not spans:
+        raise EmotionError(f"{path}: no span (lines 'start end emotion [intensity]')")
+    return spans
+
+
+def with_emotion_spans(table: ParameterTable, spans: Sequence[EmotionSpan], where: str = "") -> ParameterTable:
+    """The table speaking the spans' emotions over time: its targets are the neutral ones, and
+    ``metadata.expression.spans`` tells ``runtime.animate`` to add each emotion's deviation trajectory
+    weighted by its ramped intensity (``span_weights``), and the expression outside the mouth to follow."""
+    known = table_emotions(table)
+    for s in spans:
+        if not known:
+            emotion_table(table, s.emotion)  # the error for a table without emotions
+        if s.emotion not in known:
+            raise EmotionError(f"{where or table.source}: no emotion {s.emotion!r} (span {s.start:g}-{s.end:g} s); "
+                               f"the table knows {', '.join(known)}")
+    out = copy.deepcopy(table)
+    out.metadata["expression"] = {"spans": [[s.start, s.end, s.emotion, s.intensity] for s in spans]}
+    return out
+
+
+def span_weights(spans: Sequence[Sequence[Any]], times: F64, ramp: float = RAMP_S) -> dict[str, F64]:
+    """emotion -> its intensity at ``times``: within a span its intensity, ramped in and out by a
+    raised cosine of ``ramp`` seconds centred on the span's boundaries."""
+    out: dict[str, F64] = {}
+    t = np.asarray(times, dtype=np.float64)
+    for start, end, emotion, intensity in spans:
+        def edge(x: F64) -> F64:  # 0 before, 1 after, raised cosine over the ramp
+            u = np.clip(x / ramp + 0.5, 0.0, 1.0)
+            return np.asarray(0.5 - 0.5 * np.cos(np.pi * u), dtype=np.float64)
+        w = float(intensity) * edge(t - float(start)) * edge(float(end) - t)
+        out[str(emotion)] = out.get(str(emotion), np.zeros_like(t)) + w
+    return out
+
+
+def expression_weights(table: ParameterTable | None, times: F64) -> dict[str, F64]:
+    """emotion -> intensity per time of the expression a table speaks with (``emotion_table``: one
+    emotion throughout; ``with_emotion_spans``: the spans'); {} for none."""
+    meta: Any = (table.metadata or {}).get("expression") if table is not None else None
+    if not isinstance(meta, dict):
+        return {}
+    if "spans" in meta:
+        return span_weights(meta["spans"], times)
+    return {str(meta["emotion"]): np.full(np.shape(times), float(meta["intensity"]))}

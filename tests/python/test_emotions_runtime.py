@@ -132,3 +132,65 @@ def test_cli_speaks_with_an_emotion(tmp_path: Path) -> None:
     bad = runner.invoke(app, ["animate", str(labels), "--table", str(table), "--out", str(tmp_path / "x"),
                               "--preview", "none", "--emotion", "pride"])
     assert bad.exit_code == EXIT_ERROR and "the table knows neutral, joy" in bad.output and "Traceback" not in bad.output
+
+
+def test_emotion_spans_are_read_with_their_errors_named(tmp_path: Path) -> None:
+    from coartic.emotions import read_emotion_spans
+
+    f = tmp_path / "spans.tsv"
+    f.write_text("# start end emotion intensity\n0.0\t0.5\tjoy\t0.8\n0.6 1.2 anger\n", encoding="utf-8")
+    spans = read_emotion_spans(f)
+    assert [(s.start, s.end, s.emotion, s.intensity) for s in spans] == [(0.0, 0.5, "joy", 0.8), (0.6, 1.2, "anger", 1.0)]
+    for text, message in (("0.0 0.5 joy\n0.4 0.9 fear\n", "line 2: the span starting at 0.4 s overlaps"),
+                          ("0.0 x joy\n", "line 1: start, end and intensity must be numbers"),
+                          ("0.5 0.2 joy\n", "line 1: a span needs 0 <= start < end"),
+                          ("0.0 0.5 joy 3\n", "line 1: intensity '3' is not within 0-1.5"),
+                          ("# nothing\n", "no span")):
+        f.write_text(text, encoding="utf-8")
+        with pytest.raises(EmotionError, match=message):
+            read_emotion_spans(f)
+
+
+def test_spans_blend_the_emotions_over_time_and_keep_the_contacts() -> None:
+    """A span over the whole utterance gives the emotion's own trajectory once ramped in; two spans
+    switch between emotions through the ramps; the closure of /b/ is the neutral one throughout."""
+    from coartic.emotions import EmotionSpan, with_emotion_spans
+
+    seg = Segments(("#", "a", "b", "a", "v", "a", "#"), np.array([0.0, 0.4, 0.56, 0.64, 0.8, 0.9, 1.05]),
+                   np.array([0.4, 0.56, 0.64, 0.8, 0.9, 1.05, 1.5]))
+    whole = animate(with_emotion_spans(TRUTH, [EmotionSpan(0.0, 10.0, "joy", 0.7)]), seg, 50.0)
+    joy = animate(emotion_table(TRUTH, "joy", 0.7), seg, 50.0)
+    inside = whole.times >= 0.1  # past the ramp in (0.1 s after the span's start)
+    for ch in CHANNELS:
+        np.testing.assert_allclose(whole.channels[ch][inside], joy.channels[ch][inside], atol=1e-9)
+    two = animate(with_emotion_spans(TRUTH, [EmotionSpan(0.0, 0.7, "surprise"), EmotionSpan(0.7, 2.0, "anger")]),
+                  seg, 50.0)
+    surprise, anger = (animate(emotion_table(TRUTH, e), seg, 50.0) for e in ("surprise", "anger"))
+    early, late = two.times <= 0.55, two.times >= 0.85
+    early &= two.times >= 0.1
+    np.testing.assert_allclose(two.channels["LR"][early], surprise.channels["LR"][early], atol=1e-9)
+    np.testing.assert_allclose(two.channels["LR"][late], anger.channels["LR"][late], atol=1e-9)
+    k = int(round(float(target_times(TRUTH, seg, "ULO")[2]) * 50.0))
+    closure = reached(TRUTH, "b", "ULO") + reached(TRUTH, "b", "LLO")
+    assert two.channels["ULO"][k] + two.channels["LLO"][k] == pytest.approx(closure, abs=1e-6)
+
+
+def test_expression_outside_the_mouth_in_faps_and_arkit(tmp_path: Path) -> None:
+    """Surprise raises the brows and opens the eyes (FAPs 31-36 up, 19/20 below the blinks'), joy
+    lifts the cheeks and the lip corners; ARKit gets eyeWide and browInnerUp; neutral has none."""
+    from coartic.runtime.fap import FaceUnits, animation_faps
+    from coartic.runtime.rigs import ARKIT_NAMES, arkit_weights
+
+    seg = Segments(("#", "a", "b", "a", "#"), np.array([0.0, 0.4, 0.56, 0.64, 0.8]),
+                   np.array([0.4, 0.56, 0.64, 0.8, 1.4]))
+    faps = {e: animation_faps(animate(emotion_table(TRUTH, e, 0.5) if e else TRUTH, seg, 25.0), FaceUnits(), "x")
+            for e in ("", "surprise", "joy")}
+    assert not faps[""].mask[:, 30].any()  # neutral: no brow
+    for fap in range(31, 37):
+        assert (faps["surprise"].column(fap) > 100).all()
+    np.testing.assert_array_equal(faps["surprise"].column(19), faps[""].column(19) - 90)  # 0.5 x -180 IRISD
+    assert (faps["joy"].column(41) == 90).all() and (faps["joy"].column(12) == 45).all()
+    w = arkit_weights(animate(emotion_table(TRUTH, "surprise", 1.0), seg, 25.0))
+    assert w[:, ARKIT_NAMES.index("eyeWideLeft")].min() == pytest.approx(0.6)
+    assert w[:, ARKIT_NAMES.index("browInnerUp")].min() == pytest.approx(0.8)
+    assert arkit_weights(animate(TRUTH, seg, 25.0))[:, ARKIT_NAMES.index("browInnerUp")].max() == 0.0

@@ -159,6 +159,10 @@ def arkit_weights(animation: Animation) -> NDArray[np.float64]:
     for name in ARKIT_BLINKS:
         w[name] = blink_profile(animation.times)
     w["mouthRollLower"] = lower_lip_roll(d["LLP"], d["LLO"])
+    from coartic.runtime.expression import expression_arkit  # an emotion's brows, eyes, cheeks, smile
+
+    for name, add in expression_arkit(animation).items():
+        w[name] = np.clip(w[name] + add, 0.0, 1.0)
     return np.column_stack([w[name] for name in ARKIT_NAMES])
 
 

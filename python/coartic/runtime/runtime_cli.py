@@ -53,6 +53,7 @@ ExportOpt = Annotated[str | None, typer.Option("--export", help="Also write the 
 GltfMorphsOpt = Annotated[str, typer.Option("--gltf-morphs", help="The glTF's morph targets: fap (one per FAP), arkit (ARKit's 52 blendshape names, to retarget by name) or eight (at most 8 per mesh, all blended by three.js up to r132); arkit and eight imply --gltf.")]
 EmotionOpt = Annotated[str | None, typer.Option("--emotion", help="Speak with this emotion of a table fitted with [model] emotions (joy, surprise, sadness, disgust, anger, fear; docs/EMOTIONS.md).")]
 IntensityOpt = Annotated[float, typer.Option("--intensity", help="With --emotion: 0 = neutral, 1 = the emotion as fitted (up to 1.5).")]
+EmotionSpansOpt = Annotated[Path | None, typer.Option("--emotion-spans", help="Emotions over time: a TSV of spans 'start end emotion [intensity]' (s), ramped in and out over 0.2 s (docs/EMOTIONS.md).")]
 ExtendedOpt = Annotated[str, typer.Option("--extended-shapes", help="Rhubarb's extended mouth shapes the cues may use: any of G H X (as Rhubarb's --extendedShapes; \"\" for the six basic shapes A-F).")]
 RhubarbFormatsOpt = Annotated[str, typer.Option("--rhubarb-formats", help="Rhubarb's cue files to write with --export rhubarb: any of tsv, json, xml, dat (Moho / OpenToonz switch data, at --fps 24 to 100), comma-separated.")]
 PrestonBlairOpt = Annotated[bool, typer.Option("--preston-blair", help="Preston Blair's shape names (MBP, etc, E, AI, O, U, FV, L, rest) in Rhubarb's DAT file, as Rhubarb's --datUsePrestonBlair.")]
@@ -129,16 +130,23 @@ def _moved(result: RuntimeOutput, staging: Path, out: Path) -> RuntimeOutput:
 
 def _run_staged(table: Path | None, out: Path, command: str, identity: dict[str, str], force: bool,
                 protect: list[Path], make: Callable[[ParameterTable, Path, Progress], RuntimeOutput],
-                phone_map: str = "phones_italian.tsv", emotion: str | None = None, intensity: float = 1.0) -> None:
+                phone_map: str = "phones_italian.tsv", emotion: str | None = None, intensity: float = 1.0,
+                emotion_spans: Path | None = None) -> None:
     """Load the table, run ``make`` into the staging directory of ``out`` with a progress bar, and
     report what was written (where it is once swapped in). ``emotion`` at ``intensity``: the table's
-    emotion blended in first (coartic.emotions)."""
-    from coartic.emotions import emotion_table
+    emotion blended in first, or ``emotion_spans`` over time (coartic.emotions)."""
+    from coartic.emotions import EmotionError, emotion_table, read_emotion_spans, with_emotion_spans
     from coartic.outputs import OutputDir
 
+    if emotion is not None and emotion_spans is not None:
+        raise EmotionError(f"--emotion {emotion} and --emotion-spans {emotion_spans}: give one (a span file "
+                           "can hold a single span over the whole utterance)")
     t = emotion_table(_load_table(table), emotion, intensity)
     if emotion is not None:
         identity = identity | {"emotion": emotion, "intensity": repr(float(intensity))}
+    if emotion_spans is not None:
+        t = with_emotion_spans(t, read_emotion_spans(emotion_spans), str(emotion_spans))
+        identity = identity | {"emotion_spans": str(emotion_spans.resolve())}
     with OutputDir(out, command, identity, force=force, protect=protect) as staging, _progress() as progress:
         result = make(t, staging, progress)
     _report(_moved(result, staging, out), phone_map)
@@ -176,6 +184,7 @@ def animate_command(
     speaker: SpeakerOpt = None,
     emotion: EmotionOpt = None,
     intensity: IntensityOpt = 1.0,
+    emotion_spans: EmotionSpansOpt = None,
     export: ExportOpt = None,
     gltf_morphs: GltfMorphsOpt = "fap",
     extended_shapes: ExtendedOpt = "GHX",
@@ -209,7 +218,7 @@ def animate_command(
                            dict(tier=tier, label_map=label_map, preview=preview, snap_contacts=snap_contacts,
                                 strict=strict, gltf=gltf or gltf_morphs != "fap", vrml=vrml, speaker=speaker,
                                 exports=export, gltf_morphs=gltf_morphs, rig=rig), fap_name, mns, mw, speaker,
-                           emotion, intensity)
+                           emotion, intensity, emotion_spans)
         return
     if text is not None or transcript is not None:
         raise AnimationError(f"{labels}: --text and --transcript go with a recording (WAV), and this is not one")
@@ -223,13 +232,14 @@ def animate_command(
 
     _run_staged(table, out, "animate", {"labels": str(labels.resolve())}, force,
                 [labels, *([table] if table is not None else []), *([audio] if audio is not None else [])], make,
-                emotion=emotion, intensity=intensity)
+                emotion=emotion, intensity=intensity, emotion_spans=emotion_spans)
 
 
 def _animate_recording(wav: Path, out: Path, table: Path | None, fps: float, text: str | None, transcript: Path | None,
                        lang: str, engine: str | None, max_duration: float, audio: Path | None, force: bool,
                        options: dict[str, Any], name: str | None, mns: float | None, mw: float | None,
-                       speaker: str | None, emotion: str | None = None, intensity: float = 1.0) -> None:
+                       speaker: str | None, emotion: str | None = None, intensity: float = 1.0,
+                       emotion_spans: Path | None = None) -> None:
     """`coartic animate voice.wav --text ...`: align, then animate with the recording as the sound."""
     from coartic.align.align_cli import part_progress, shown_warnings, transcript_text
     from coartic.align.aligner import animate_recording
@@ -254,7 +264,7 @@ def _animate_recording(wav: Path, out: Path, table: Path | None, fps: float, tex
     with shown_warnings():
         _run_staged(table, out, "animate", identity, force,
                     [wav, *([table] if table is not None else []), *([transcript] if transcript else [])], make,
-                    fallbacks, emotion, intensity)
+                    fallbacks, emotion, intensity, emotion_spans)
 
 
 def speak_command(
@@ -276,6 +286,7 @@ def speak_command(
     speaker: SpeakerOpt = None,
     emotion: EmotionOpt = None,
     intensity: IntensityOpt = 1.0,
+    emotion_spans: EmotionSpansOpt = None,
     export: ExportOpt = None,
     gltf_morphs: GltfMorphsOpt = "fap",
     extended_shapes: ExtendedOpt = "GHX",
@@ -313,4 +324,4 @@ def speak_command(
         # the identity of an Italian run stays {"text": ...}: outputs written before --lang existed are its own
         identity = {"text": text} | ({"lang": lang} if lang != "it" else {})
         _run_staged(table, out, "speak", identity, force, [table] if table is not None else [], make,
-                    LANGUAGES[lang][1], emotion, intensity)
+                    LANGUAGES[lang][1], emotion, intensity, emotion_spans)
