@@ -194,3 +194,13 @@ def test_speak_refuses_a_stretch_festival_would_ignore(tmp_path: Path) -> None:
         code, text = run("speak", "ciao", "--stretch", stretch, "--out", tmp_path / "o")
         assert code == 2 and f"--stretch {float(stretch):g}" in text and "at least 0.1" in text, text
     assert not (tmp_path / "o").exists()
+
+
+def test_a_folder_given_as_a_recording_is_named(tmp_path: Path) -> None:
+    with pytest.raises(DataError, match=r"is a folder, not a recording: give a file in it$"):
+        load_trial(tmp_path)
+    (tmp_path / "b_bndl").mkdir()
+    (tmp_path / "b_bndl" / "b_annot.json").write_text("{}")
+    with pytest.raises(DataError, match=r"b_bndl: is a folder, not a recording: give a file in it \(.*b_annot\.json "
+                                        r"for this emuDB bundle\)"):
+        load_trial(tmp_path / "b_bndl")

@@ -28,9 +28,9 @@ def fake_manifest(design: str = "intelligibility", counterbalance: str = "full",
                         + (f'answer = "e{k}"\n' if design == "emotion" else "") for k in range(conditions))
     vowels = "aeiou"
     item_list = ", ".join(f'"{vowels[k % 5]}{c}{vowels[k % 5]}"' for k, c in zip(range(items), "bdgvmnlr"))
-    snr = ", ".join("0.0" if s is None else str(s) for s in snrs)
+    snr = "" if snrs == (None,) else "snr_db = [" + ", ".join(str(s) for s in snrs) + "]\n"
     text = (f'[study]\nname = "t"\ndesign = "{design}"\nseed = 3\nconsent = "ok"\nattention_every = {attention_every}\n'
-            f'counterbalance = "{counterbalance}"\n[stimuli]\nitems = [{item_list}]\nsnr_db = [{snr}]\n{cond_toml}')
+            f'counterbalance = "{counterbalance}"\n[stimuli]\nitems = [{item_list}]\n{snr}{cond_toml}')
     import tomllib
 
     spec = parse_study(tomllib.loads(text), Path("t.toml"))

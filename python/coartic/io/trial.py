@@ -405,6 +405,10 @@ def load_trial(
     frames than its header declares (with a note in `meta["notes"]`) instead of refusing it.
     """
     p = Path(path)
+    if p.is_dir():
+        bundle = sorted(p.glob("*_annot.json"))  # an emuDB bundle directory: its annotation file is the recording
+        raise DataError("is a folder, not a recording: give a file in it" +
+                        (f" ({bundle[0]} for this emuDB bundle)" if bundle else ""), path=p)
     if not p.is_file():
         raise DataError("no such file", path=p)
     reader = reader_for(p)
