@@ -10,7 +10,7 @@
    and aligned by the other TTS (Festival) or by PocketSphinx. English (en-us voice) and Italian.
 3. **Confidence**: the warp distance ratio of each German recording with its own transcript and
    with another sentence's (AlignWarning above MISMATCH_RATIO).
-4. **End to end, the lips**: fit utterance 0024 (fit/ema_german_0024.toml, MAUS labels), then
+4. **End to end, the lips**: fit utterance 0024 (fit/ema_german_defaults_0024.toml: the default model, MAUS labels), then
    predict 0020's lip aperture (LA) and jaw opening (JO) from its MAUS labels and from its audio
    alone (aligned by coartic), each against the step model (phoneme means of 0024) on the same
    segments: RMSE as measured, offset removed and speaker-calibrated (coartic.fit.score).
@@ -163,11 +163,11 @@ def lips(data: Path, aligned: dict[str, Segments], lines: list[str]) -> None:
     from coartic.fit.score import score_utterances, with_fallbacks
     from coartic.model import Utterance
 
-    lines += ["## 4. end to end: fit 0024 (MAUS labels), predict 0020's lips from its labels or its audio",
+    lines += ["## 4. end to end: fit 0024 (fit/ema_german_defaults_0024.toml, MAUS labels), predict 0020's lips from its labels or its audio",
               "RMSE in mm on the same EMA samples; step = phoneme means of 0024 on the same segments", "",
               f"{'channel':8s}{'labels of 0020':16s}{'model':8s}{'as measured':>13s}{'offset removed':>16s}"
               f"{'calibrated':>12s}{'samples':>9s}"]
-    spec = load_spec(ROOT / "fit" / "ema_german_0024.toml")
+    spec = load_spec(ROOT / "fit" / "ema_german_defaults_0024.toml")
     res = run(spec, quiet=True, report=False)
     table = res.table()
     both = load_utterances(load_spec(ROOT / "fit" / "ema_german.toml"))

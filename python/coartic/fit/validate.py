@@ -67,7 +67,8 @@ def score(result: FitResult, test: Sequence[Utterance], split: str,
         base = {r["model"]: (r["rmse_mm"], r["rmse_offset_removed_mm"], r["rmse_calibrated_mm"])
                 for r in sc.baseline_rows() if r["model"] != "table"}
         out.append(SplitScore(split, ch, fit.rmse, row["rmse_mm"], row["samples"], worst, row["rmse_offset_removed_mm"],
-                              fit.rmse**2 * n, n, fit.packing.n_free, row["rmse_calibrated_mm"], base))
+                              fit.rmse**2 * n, n, fit.packing.n_free, row["rmse_calibrated_mm"], base,
+                              other_session=sc.other_session))
         if fit.multistart is not None:  # how much the held-out error differs between the optima found
             for o in fit.multistart.optima:
                 params, beta = fit.packing.unpack(o.x)
