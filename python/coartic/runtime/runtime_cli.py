@@ -221,6 +221,8 @@ def animate_command(
                            emotion, intensity, emotion_spans)
         return
     if text is not None or transcript is not None:
+        if not labels.exists():
+            raise AnimationError(f"{labels}: no such file (the recording to align to --text or --transcript)")
         raise AnimationError(f"{labels}: --text and --transcript go with a recording (WAV), and this is not one")
 
     def make(t: ParameterTable, staging: Path, progress: Progress) -> RuntimeOutput:
