@@ -204,3 +204,12 @@ def test_a_folder_given_as_a_recording_is_named(tmp_path: Path) -> None:
     with pytest.raises(DataError, match=r"b_bndl: is a folder, not a recording: give a file in it \(.*b_annot\.json "
                                         r"for this emuDB bundle\)"):
         load_trial(tmp_path / "b_bndl")
+
+
+def test_a_tier_without_labels_to_take_it_from_is_refused() -> None:
+    ema = EMU / "derived" / "dfgspp_mo1_prosody_0020_ema.csv"
+    with pytest.raises(DataError, match=r"tier 'phones' was asked for, but no label file was given and this file "
+                                        "carries no labels of its own"):
+        load_trial(ema, tier="phones")
+    code, text = run("inspect", ema, "--units", "furlong")
+    assert code == 2 and "--units mm" in text, text

@@ -415,6 +415,10 @@ def load_trial(
     trial, own_labels = reader.read(p, ReadRequest(units=units, allow_truncated=allow_truncated,
                                                    level=tier if labels is None else None))
     if labels is None:
+        if tier is not None and own_labels is None:  # not silently ignored
+            raise DataError(f"tier {tier!r} was asked for, but no label file was given and this file carries no "
+                            "labels of its own: give the TextGrid with --labels (labels= in Python)", path=p,
+                            item=tier)
         labels = own_labels
     roles = resolve_role_map(role_map)
     if reader.sensors:
