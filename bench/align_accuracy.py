@@ -10,7 +10,7 @@
    and aligned by the other TTS (Festival) or by PocketSphinx. English (en-us voice) and Italian.
 3. **Confidence**: the warp distance ratio of each German recording with its own transcript and
    with another sentence's (AlignWarning above MISMATCH_RATIO).
-4. **End to end, the lips**: fit utterance 0024 (fit/ema_german_0024.toml, MAUS labels), then
+4. **End to end, the lips**: fit utterance 0024 (fit/ema_german_defaults_0024.toml: the default model, MAUS labels), then
    predict 0020's lip aperture (LA) and jaw opening (JO) from its MAUS labels and from its audio
    alone (aligned by coartic), each against the step model (phoneme means of 0024) on the same
    segments: RMSE as measured, offset removed and speaker-calibrated (coartic.fit.score).
@@ -163,11 +163,11 @@ def lips(data: Path, aligned: dict[str, Segments], lines: list[str]) -> None:
     from coartic.fit.score import score_utterances, with_fallbacks
     from coartic.model import Utterance
 
-    lines += ["## 4. end to end: fit 0024 (MAUS labels), predict 0020's lips from its labels or its audio",
+    lines += ["## 4. end to end: fit 0024 (fit/ema_german_defaults_0024.toml, MAUS labels), predict 0020's lips from its labels or its audio",
               "RMSE in mm on the same EMA samples; step = phoneme means of 0024 on the same segments", "",
               f"{'channel':8s}{'labels of 0020':16s}{'model':8s}{'as measured':>13s}{'offset removed':>16s}"
               f"{'calibrated':>12s}{'samples':>9s}"]
-    spec = load_spec(ROOT / "fit" / "ema_german_0024.toml")
+    spec = load_spec(ROOT / "fit" / "ema_german_defaults_0024.toml")
     res = run(spec, quiet=True, report=False)
     table = res.table()
     both = load_utterances(load_spec(ROOT / "fit" / "ema_german.toml"))
@@ -177,16 +177,33 @@ def lips(data: Path, aligned: dict[str, Segments], lines: list[str]) -> None:
     from_audio = Utterance(seg.labels, seg.starts, seg.ends, test.times, test.name + " (aligned)", test.observed,
                            test.valid, test.meta)
     lm = LabelMap.builtin("german_sampa")
-    for what, utt in (("MAUS", test), ("coartic align", from_audio)):
-        scored, note = with_fallbacks([utt], table, spec.channels, lm)
-        sc = score_utterances(table, scored, spec.channels, train=[train])
-        for r in sc.baseline_rows():
-            if r["model"] in ("table", "step"):
-                lines.append(f"{r['channel']:8s}{what:16s}{r['model']:8s}{r['rmse_mm']:13.3f}"
-                             f"{r['rmse_offset_removed_mm']:16.3f}{r['rmse_calibrated_mm']:12.3f}{r['samples']:9d}")
-        if note:
-            lines.append(f"  note ({what}): {note}")
-    lines.append("")
+
+    def scored_rows(pairs: list[tuple[str, Utterance]]) -> None:
+        for what, utt in pairs:
+            scored, note = with_fallbacks([utt], table, spec.channels, lm)
+            sc = score_utterances(table, scored, spec.channels, train=[train])
+            for r in sc.baseline_rows():
+                if r["model"] in ("table", "step"):
+                    lines.append(f"{r['channel']:8s}{what:16s}{r['model']:8s}{r['rmse_mm']:13.3f}"
+                                 f"{r['rmse_offset_removed_mm']:16.3f}{r['rmse_calibrated_mm']:12.3f}{r['samples']:9d}")
+            if note:
+                lines.append(f"  note ({what}): {note}")
+        lines.append("")
+
+    scored_rows([("MAUS", test), ("coartic align", from_audio)])
+    # another speaker and sentence: s1em's 0666 (the emuDB bundle, read through its _annot.json)
+    if (data / f"{TINY}_annot.json").exists() and "s1em 0666" in aligned:
+        lines += ["new speaker, new sentence: s1em 0666 predicted by the same table (mo1's); the calibrated column "
+                  "fits a + b x prediction to the speaker", ""]
+        with tempfile.TemporaryDirectory() as tmp:
+            tiny_spec = Path(tmp) / "tiny.toml"
+            tiny_spec.write_text(f'[corpus]\nfiles = ["{data / TINY}_annot.json"]\nlabels = ["{data / TINY}.MAU"]\n'
+                                 'label_map = "german_sampa"\n[model]\nchannels = ["LA", "JO"]\n')
+            (other,) = load_utterances(load_spec(tiny_spec))
+        seg = aligned["s1em 0666"]
+        heard = Utterance(seg.labels, seg.starts, seg.ends, other.times, other.name + " (aligned)", other.observed,
+                          other.valid, other.meta)
+        scored_rows([("MAUS", other), ("coartic align", heard)])
 
 
 def main() -> int:

@@ -124,6 +124,11 @@ def test_two_axis_face_markers_seen_from_the_front_are_refused(tmp_path: Path) -
         front.channels()
     side = load_trial(_two_axis_csv(tmp_path / "side.csv", head, (2, 1)))  # forwards and up: a side view
     assert "JO" in side.channels()
+    # a side view of a head turned 20 degrees: left and right no longer on one another, still a side view
+    a = np.deg2rad(20.0)
+    turn = np.array([[np.cos(a), 0, np.sin(a)], [0, 1, 0], [-np.sin(a), 0, np.cos(a)]])
+    turned = load_trial(_two_axis_csv(tmp_path / "turned.csv", head @ turn.T, (2, 1)))
+    assert "JO" in turned.channels()
 
 
 # ------------------------------------------------------------------------------------ labels
@@ -204,3 +209,12 @@ def test_a_folder_given_as_a_recording_is_named(tmp_path: Path) -> None:
     with pytest.raises(DataError, match=r"b_bndl: is a folder, not a recording: give a file in it \(.*b_annot\.json "
                                         r"for this emuDB bundle\)"):
         load_trial(tmp_path / "b_bndl")
+
+
+def test_a_tier_without_labels_to_take_it_from_is_refused() -> None:
+    ema = EMU / "derived" / "dfgspp_mo1_prosody_0020_ema.csv"
+    with pytest.raises(DataError, match=r"tier 'phones' was asked for, but no label file was given and this file "
+                                        "carries no labels of its own"):
+        load_trial(ema, tier="phones")
+    code, text = run("inspect", ema, "--units", "furlong")
+    assert code == 2 and "--units mm" in text, text

@@ -155,11 +155,14 @@ def other_design(study: Path, where: Path, design: str) -> Path:
 
     conds = '[[condition]]\nname = "coarticulation"\nreference = true\n[[condition]]\nname = "keyframe"\nface = "step"\n' \
         if design == "mushra" else '[[condition]]\nname = "coarticulation"\n[[condition]]\nname = "keyframe"\nface = "step"\n'
-    text = (f'[study]\nname = "{design}-tiny"\ndesign = "{design}"\nseed = 5\nconsent = "ok"\nattention_every = 0\n'
-            f'[stimuli]\nitems = ["aba", "ava"]\n{conds}')
+    typed = design == "text"
+    typed_keys = 'response = "text"\nsnr_db = [0.0]' if typed else ""
+    text = (f'[study]\nname = "{design}-tiny"\ndesign = "{"intelligibility" if typed else design}"\nseed = 5\n'
+            f'consent = "ok"\nattention_every = 0\ncounterbalance = "{"latin" if typed else "full"}"\n'
+            f'[stimuli]\nitems = ["aba", "ava"]\n{typed_keys}\n{conds}')
     spec = parse_study(tomllib.loads(text), where / "s.toml")
     old = json.loads((study / "study.json").read_text())
-    stimuli = [{**s, "snr_db": None} for s in old["stimuli"]]
+    stimuli = old["stimuli"] if typed else [{**s, "snr_db": None} for s in old["stimuli"]]
     out = where / design
     shutil.copytree(study / "stimuli", out / "stimuli")
     (out / "study.json").write_text(json.dumps(manifest_of(spec, stimuli)))
@@ -167,8 +170,8 @@ def other_design(study: Path, where: Path, design: str) -> Path:
     return out
 
 
-@pytest.mark.parametrize("design", ["preference", "mushra"])
-def test_preference_and_mushra_pages_in_chromium(study: Path, tmp_path: Path, driver: Any, design: str) -> None:
+@pytest.mark.parametrize("design", ["preference", "mushra", "text"])
+def test_preference_mushra_and_typed_answers_in_chromium(study: Path, tmp_path: Path, driver: Any, design: str) -> None:
     from selenium.webdriver.common.by import By
     from selenium.webdriver.support.ui import WebDriverWait
 
@@ -181,12 +184,15 @@ def test_preference_and_mushra_pages_in_chromium(study: Path, tmp_path: Path, dr
         driver.find_element(By.ID, "start").click()
         for k in range(2):  # two items, one trial each
             assert wait_for_text(driver, "progress") == f"{k + 1} / 2"
-            assert play_all(driver) == (3 if design == "mushra" else 2)  # MUSHRA: the labelled reference too
+            assert play_all(driver) == {"mushra": 3, "preference": 2, "text": 1}[design]  # MUSHRA: the reference too
             WebDriverWait(driver, 20).until(
                 lambda d: all(e.is_enabled() for e in d.find_elements(By.CSS_SELECTOR, ".answer")))
             old = driver.find_element(By.ID, "answer-form")
             if design == "preference":
                 driver.find_element(By.ID, "choice-1").click()  # "Face B"
+            elif design == "text":
+                driver.find_element(By.ID, "text").send_keys("<b>Aba</b> ava")
+                driver.find_element(By.ID, "submit").click()
             else:
                 driver.execute_script("document.getElementById('rating-0').value = 91;"
                                       "document.getElementById('rating-1').value = 17;")
@@ -196,11 +202,13 @@ def test_preference_and_mushra_pages_in_chromium(study: Path, tmp_path: Path, dr
     finally:
         server.stop()
     with sqlite3.connect(db) as conn:
-        got = conn.execute("SELECT trial, conditions, response FROM answers ORDER BY trial").fetchall()
+        got = conn.execute("SELECT trial, conditions, response, correct FROM answers ORDER BY trial").fetchall()
     assert [g[0] for g in got] == [0, 1]
-    for _, conditions, response in got:
+    for _, conditions, response, correct in got:
         shown = json.loads(conditions)
-        if design == "preference":
+        if design == "text":  # stored as typed; scored by the item's words ("aba" or "ava": one of them typed)
+            assert json.loads(response) == "<b>Aba</b> ava" and correct == 1.0
+        elif design == "preference":
             assert json.loads(response) == shown[1]  # the face shown second, by condition name
         else:
             assert json.loads(response) == {shown[0]: 91, shown[1]: 17}

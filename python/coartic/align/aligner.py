@@ -9,7 +9,7 @@ from os import PathLike
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from coartic.align.audio import MAX_DURATION, Recording, read_recording
+from coartic.align.audio import MAX_DURATION, Recording, is_pcm_wav, read_recording, write_pcm16
 from coartic.align.alignment import Alignment, Progress, align_by_synthesis
 from coartic.align.errors import AlignError, AlignWarning
 from coartic.align.synthesis import ENGINES, default_engine
@@ -179,9 +179,11 @@ def animate_recording(wav: str | PathLike[str], text: str | None, table: Paramet
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     files = write_alignment(alignment, out, stem)
+    # a recording the runtime's WAV copy cannot take (float, 24-bit extensible) is the sound as 16-bit PCM
+    sound = Path(wav) if is_pcm_wav(wav) else write_pcm16(wav, out / f"{stem}.wav")
     # the phonemes tier holds model phonemes already, and phonemes outside the Italian set (h) are kept
     # for the phone map's fallbacks
     result = animate_file(files["textgrid"], table, out, tier=PHONEMES_TIER, label_map=LabelMap.from_dict({"*": "="}),
-                          phone_map=alignment.phone_map, audio=wav, name=stem, **animate)
+                          phone_map=alignment.phone_map, audio=sound, name=stem, **animate)
     result.files = {**files, **result.files}
     return result
