@@ -177,16 +177,33 @@ def lips(data: Path, aligned: dict[str, Segments], lines: list[str]) -> None:
     from_audio = Utterance(seg.labels, seg.starts, seg.ends, test.times, test.name + " (aligned)", test.observed,
                            test.valid, test.meta)
     lm = LabelMap.builtin("german_sampa")
-    for what, utt in (("MAUS", test), ("coartic align", from_audio)):
-        scored, note = with_fallbacks([utt], table, spec.channels, lm)
-        sc = score_utterances(table, scored, spec.channels, train=[train])
-        for r in sc.baseline_rows():
-            if r["model"] in ("table", "step"):
-                lines.append(f"{r['channel']:8s}{what:16s}{r['model']:8s}{r['rmse_mm']:13.3f}"
-                             f"{r['rmse_offset_removed_mm']:16.3f}{r['rmse_calibrated_mm']:12.3f}{r['samples']:9d}")
-        if note:
-            lines.append(f"  note ({what}): {note}")
-    lines.append("")
+
+    def scored_rows(pairs: list[tuple[str, Utterance]]) -> None:
+        for what, utt in pairs:
+            scored, note = with_fallbacks([utt], table, spec.channels, lm)
+            sc = score_utterances(table, scored, spec.channels, train=[train])
+            for r in sc.baseline_rows():
+                if r["model"] in ("table", "step"):
+                    lines.append(f"{r['channel']:8s}{what:16s}{r['model']:8s}{r['rmse_mm']:13.3f}"
+                                 f"{r['rmse_offset_removed_mm']:16.3f}{r['rmse_calibrated_mm']:12.3f}{r['samples']:9d}")
+            if note:
+                lines.append(f"  note ({what}): {note}")
+        lines.append("")
+
+    scored_rows([("MAUS", test), ("coartic align", from_audio)])
+    # another speaker and sentence: s1em's 0666 (the emuDB bundle, read through its _annot.json)
+    if (data / f"{TINY}_annot.json").exists() and "s1em 0666" in aligned:
+        lines += ["new speaker, new sentence: s1em 0666 predicted by the same table (mo1's); the calibrated column "
+                  "fits a + b x prediction to the speaker", ""]
+        with tempfile.TemporaryDirectory() as tmp:
+            tiny_spec = Path(tmp) / "tiny.toml"
+            tiny_spec.write_text(f'[corpus]\nfiles = ["{data / TINY}_annot.json"]\nlabels = ["{data / TINY}.MAU"]\n'
+                                 'label_map = "german_sampa"\n[model]\nchannels = ["LA", "JO"]\n')
+            (other,) = load_utterances(load_spec(tiny_spec))
+        seg = aligned["s1em 0666"]
+        heard = Utterance(seg.labels, seg.starts, seg.ends, other.times, other.name + " (aligned)", other.observed,
+                          other.valid, other.meta)
+        scored_rows([("MAUS", other), ("coartic align", heard)])
 
 
 def main() -> int:

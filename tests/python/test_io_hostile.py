@@ -124,6 +124,11 @@ def test_two_axis_face_markers_seen_from_the_front_are_refused(tmp_path: Path) -
         front.channels()
     side = load_trial(_two_axis_csv(tmp_path / "side.csv", head, (2, 1)))  # forwards and up: a side view
     assert "JO" in side.channels()
+    # a side view of a head turned 20 degrees: left and right no longer on one another, still a side view
+    a = np.deg2rad(20.0)
+    turn = np.array([[np.cos(a), 0, np.sin(a)], [0, 1, 0], [-np.sin(a), 0, np.cos(a)]])
+    turned = load_trial(_two_axis_csv(tmp_path / "turned.csv", head @ turn.T, (2, 1)))
+    assert "JO" in turned.channels()
 
 
 # ------------------------------------------------------------------------------------ labels
