@@ -83,7 +83,7 @@ typecheck:
 	$(PY) -m mypy
 
 test-python:
-	$(PY) -m pytest -q -n 2 tests/python
+	$(PY) -m pytest -q -n 2 --dist loadfile tests/python
 
 # Each benchmark prints ratios measured in one run and saves its output in bench/results/.
 bench: setup
