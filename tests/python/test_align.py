@@ -111,8 +111,9 @@ def test_english_wrong_transcript_is_flagged(tmp_path: Path) -> None:
         warnings.simplefilter("error", AlignWarning)
         right = align_recording(wav, "The quick brown fox jumps over the lazy dog.", "en")
     assert right.method.startswith("forced alignment by PocketSphinx") and "dh" in right.phones
-    with pytest.warns(AlignWarning, match="matches the transcript poorly"):
+    with pytest.warns(AlignWarning) as record:
         align_recording(wav, "Rice is often served in round bowls.", "en")
+    assert any("matches the transcript poorly" in str(w.message) for w in record)
 
 
 def test_no_transcript_outside_english_is_refused() -> None:

@@ -169,6 +169,9 @@ def test_an_empty_phones_tier_says_so(tmp_path: Path) -> None:
     p = _textgrid(tmp_path / "empty.TextGrid", [("words", [(0.0, 1.0, "")]), ("phones", [(0.0, 1.0, "")])])
     with pytest.raises(DataError, match=r"empty\.TextGrid: tier 'phones' holds no label \(1 empty interval"):
         read_labels(p)
+    none = _textgrid(tmp_path / "none.TextGrid", [("words", [(0.0, 1.0, "")]), ("phones", [])])
+    with pytest.raises(DataError, match=r"none\.TextGrid: tier 'phones' holds no label \(no interval\)"):
+        read_labels(none)
 
 
 # ------------------------------------------------------------------------ C3D and EMU hints

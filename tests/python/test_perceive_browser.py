@@ -70,6 +70,7 @@ def test_participants_answer_in_chromium_and_resume_after_the_server_is_killed(s
                                                                                   driver: Any) -> None:
     db = tmp_path / "results.sqlite"
     server = Server(study, f"sqlite:///{db}")
+    assert server.url.startswith("http://127.0.0.1:")  # this machine only, unless --host says otherwise
     try:
         # participant 0 answers the whole study
         consent(driver, server.url)

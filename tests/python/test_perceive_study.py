@@ -214,3 +214,16 @@ def test_an_emotion_condition_speaks_with_the_table_blended_as_speak_does(tmp_pa
                                                {"name": "s", "table": str(path), "emotion": "sadness"}]},
                                 Path("e.toml")), [])
     assert m["choices"] == ["joy", "sadness"]
+
+
+def test_prepare_refuses_a_directory_holding_answers(tmp_path: Path) -> None:
+    from typer.testing import CliRunner
+
+    from coartic.cli import app
+
+    out = tmp_path / "study"
+    out.mkdir()
+    (out / "results.sqlite").write_bytes(b"")
+    res = CliRunner().invoke(app, ["perceive", "prepare", str(write_spec(tmp_path)), "--out", str(out), "--force"])
+    assert res.exit_code == 2 and "holds a results database" in res.output
+    assert sorted(p.name for p in out.iterdir()) == ["results.sqlite"]

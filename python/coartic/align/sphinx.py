@@ -110,7 +110,8 @@ def align_sphinx(recording: Recording, text: str, progress: Progress | None = No
         decoder.process_raw(pcm, full_utt=True)
         decoder.end_utt()
         if decoder.hyp() is None:
-            raise RuntimeError("the words do not fit the sound")
+            raise AlignError(f"{recording.path}: PocketSphinx could not align the transcript (the words do "
+                             "not fit the sound)")
         decoder.set_alignment()
         decoder.start_utt()
         decoder.process_raw(pcm, full_utt=True)
