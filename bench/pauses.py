@@ -11,7 +11,11 @@ pooled over the splits. Corpora:
 - the German EMA with every default (fit/ema_german_defaults.toml: both utterances, a spec that sets
   nothing but the recordings), held out by utterance and in time (each utterance's halves);
 - the synthetic session (fit/synthetic.toml; ``coartic corpus synth build/session`` first), its own
-  splits: repetition 5 held out and the fast rate from the normal one.
+  splits: repetition 5 held out and the fast rate from the normal one;
+- "english-like": the files tests/python/test_pauses.py writes to reproduce the English EMA's pauses
+  (an open-lipped breath before each sentence, closed lips after it; three sentences fitted, LA),
+  scored with ``coartic score`` on a fast token whose aligner wrote the first 20 ms of a /p/ closure
+  as a pause.
 
     nice -n 10 .venv/bin/python bench/pauses.py [--corpora german,synthetic] [--channels LLO,JO]
 
@@ -77,9 +81,43 @@ def lines_for(name: str, spec: FitSpec, groups: list[str | None]) -> list[str]:
     return out
 
 
+def english_like() -> list[str]:
+    """The English pauses reproduced (tests/python/test_pauses.py's files): fit three sentences, score
+    the fast token with `coartic score`'s function, per mode."""
+    import tempfile
+
+    import numpy as np
+
+    sys.path.insert(0, str(ROOT / "tests" / "python"))
+    from test_pauses import SENTENCES, spec_for, write_recording
+
+    from coartic.fit.score import score_recordings
+
+    tmp = Path(tempfile.mkdtemp(prefix="pauses_"))
+    files = [write_recording(tmp, f"s{k}", labels, durs) for k, (labels, durs) in enumerate(SENTENCES)]
+    labels, durs = SENTENCES[2]
+    ends = np.cumsum(durs)
+    starts = np.concatenate([[0.0], ends[:-1]])
+    rows = [(float(s), float(e), lab) for s, e, lab in zip(starts, ends, labels)]
+    rows[5:6] = [(float(starts[5]), float(starts[5]) + 0.02, "#"), (float(starts[5]) + 0.02, float(ends[5]), "p")]
+    held = write_recording(tmp, "fast", labels, durs, rows)
+    out = ["## english-like: tests/python/test_pauses.py's files, 3 sentences fitted, the fast token scored (LA)",
+           f"{'pauses':9s} {'model':9s}{'all':>16s}{'speech':>16s}{'samples':>9s}"]
+    for mode in MODES:
+        run(spec_for(tmp, files, mode), tmp / mode, quiet=True, report=False)
+        sc = score_recordings(tmp / mode / "table.json", [held[0]], [held[1]], train=tmp / f"spec_{mode}.toml")
+        for r in sc.baseline_rows():
+            if r["model"] in MODELS:
+                out.append(f"{mode:9s} {r['model']:9s}{r['rmse_mm']:8.3f}/{r['rmse_offset_removed_mm']:6.3f}"
+                           f" {r['rmse_speech_mm']:8.3f}/{r['rmse_speech_offset_removed_mm']:6.3f}"
+                           f"{r['samples']:5d}/{r['speech_samples']}")
+        print("\n".join(out[-3:]), flush=True)
+    return out
+
+
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--corpora", default="german,synthetic")
+    ap.add_argument("--corpora", default="german,synthetic,english-like")
     ap.add_argument("--channels", default=None, help="channels of every corpus (default: German LA,JO; synthetic LLO,JO)")
     ap.add_argument("--out", type=Path, default=ROOT / "bench" / "results" / "pauses.txt")
     a = ap.parse_args()
@@ -91,6 +129,8 @@ def main() -> int:
     for name, spec, groups in corpora(a.corpora.split(","), chans):
         lines += lines_for(name, spec, groups) + [""]
         atomic_write_text(a.out, "\n".join(lines) + "\n")
+    if "english-like" in a.corpora.split(","):
+        lines += english_like() + [""]
     lines.append(f"({time.perf_counter() - t0:.0f} s wall)")
     atomic_write_text(a.out, "\n".join(lines) + "\n")
     print(f"wrote {a.out}")
