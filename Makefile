@@ -6,7 +6,7 @@
 #   make table-italian   regenerate python/coartic/runtime/italian_table.json (and its provenance)
 #   make table-italian-changed   the same, refitting only the lip and jaw channels whose data changed
 PY := .venv/bin/python
-.PHONY: setup fit test test-rust test-python stubtest typecheck bench clean wheel table-italian table-italian-changed
+.PHONY: setup fit fit-emotive test test-rust test-python test-core stubtest typecheck bench clean wheel table-italian table-italian-changed
 
 setup:
 	./scripts/setup.sh
@@ -16,6 +16,14 @@ fit: setup
 	[ -f build/session/manifest.csv ] || $(PY) -m coartic.cli corpus synth build/session
 	$(PY) -m coartic.cli fit fit/synthetic.toml --out results/synthetic --validate
 	$(PY) fit/check_recovery.py results/synthetic
+
+# The emotive flavour (corpus-synthetic/emotions.toml: /a i u/ x /p b m f v t/, neutral and Ekman's six
+# emotions, 504 trials) fitted with emotion as a factor (fit/emotive.toml, docs/EMOTIONS.md), then
+# every emotion's deviation from the neutral targets checked against the truth (fit/check_emotions.py).
+fit-emotive: setup
+	[ -f build/emotive/manifest.csv ] || $(PY) -m coartic.cli corpus synth build/emotive --flavour emotive
+	$(PY) -m coartic.cli fit fit/emotive.toml --out results/emotive --validate
+	$(PY) fit/check_emotions.py results/emotive build/emotive/ground_truth.json
 
 # The Italian flavour of the synthetic session (every Italian phoneme): its lip and jaw channels
 # (face markers, fit/italian.toml) and its tongue channels (EMA files, fit/italian_tongue.toml) fitted
@@ -42,12 +50,28 @@ table-italian-changed: setup
 	$(PY) -m coartic.cli fit fit/italian_tongue.toml --out results/italian_tongue --validate
 	$(PY) fit/ship_table.py --lips results/italian --tongue results/italian_tongue --session build/italian --keep-unchanged
 
-test: setup test-rust stubtest typecheck test-python
+test: setup test-rust stubtest typecheck test-python test-core
 
 # dist/coartic-VERSION-cp311-abi3-PLATFORM.whl: one wheel for every CPython >= 3.11 (pyo3's
 # abi3-py311), installed by pip without Rust (tests/python/test_wheel.py). Reuses make setup's build.
 wheel: setup
 	$(PY) -m maturin build --release -o dist
+
+# `pip install coartic` without extras, as a new user gets it: the wheel of this checkout in a fresh
+# environment, its core dependencies from the package index, then the tests the core must pass
+# (the extras' commands must name their extra: tests/python/test_extras.py).
+CORE_TESTS := tests/python/test_extras.py tests/python/test_io_formats.py tests/python/test_io_carstens.py \
+	tests/python/test_core_model.py tests/python/test_table.py
+test-core: setup
+	rm -rf build/core-wheel build/core-env
+	$(PY) -m maturin build --release --quiet -o build/core-wheel
+	python3 -m venv build/core-env
+	build/core-env/bin/pip install -q build/core-wheel/coartic-*.whl pytest hypothesis
+	cd build && COARTIC_CORE_ONLY=1 core-env/bin/python -m pytest -q -p no:cacheprovider \
+	  $(addprefix ../,$(CORE_TESTS))
+	# then an extra installed on demand over the core (pip install 'coartic[dataframe]')
+	cd build && COARTIC_WHEEL=$$(ls $$PWD/core-wheel/coartic-*.whl) core-env/bin/python -m pytest -q \
+	  -p no:cacheprovider ../tests/python/test_extras.py -k on_demand
 
 test-rust:
 	cargo test --release --quiet

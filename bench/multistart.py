@@ -52,7 +52,7 @@ def line(label: str, fit: Any, wall: float, ref_wall: float | None) -> str:
     extra = ""
     if ms is not None:
         n = fit.problem.data.n_valid
-        rm = ", ".join(f"{math.sqrt(o.sse / n):.4f}" for o in ms.optima[:4])
+        rm = ", ".join(f"{o.rmse:.4f}" for o in ms.optima[:4])
         extra = (f"; {len(ms.optima)} optima (RMSE {rm}{' ...' if len(ms.optima) > 4 else ''}), best reached from "
                  f"{ms.best.hits}/{len(ms.continued)} continued of {ms.n_starts}, {ms.hops} polishing restarts, "
                  f"{len(ms.best.unidentified)} parameters not identified in the best")

@@ -61,7 +61,7 @@ from coartic.fit.data import load_utterances  # noqa: E402
 from coartic.model import Utterance  # noqa: E402
 from coartic.fit.result import FitResult  # noqa: E402
 from coartic.fit.score import score_utterances, with_fallbacks  # noqa: E402
-from coartic.fit.spec import FitSpec, Override  # noqa: E402
+from coartic.fit.spec import FitSpec, Override, parse_spec  # noqa: E402
 from coartic.io.labelmap import resolve_label_map  # noqa: E402
 from coartic.outputs import atomic_write_text  # noqa: E402
 from coartic.pauses import is_pause  # noqa: E402
@@ -76,12 +76,17 @@ FREEDOM: dict[str, tuple[str, ...]] = {
     "t+shared": ("target", "theta_bw", "theta_fw"),
     # targets only (alpha = 1, theta at its start): the fewest parameters a coarticulation model has
     "t": ("target",),
+    # per-phoneme target, alpha, theta_bw, theta_fw, the dynamics drawn toward one value per channel
+    # with an sd estimated from the training data ([parameters] pooled, coartic.estimation.pooling)
+    "pooled": TAT,
 }
 SHARED = {"t+shared": ("theta_bw", "theta_fw")}
+POOLED = {"pooled": ("alpha", "theta_bw", "theta_fw")}
 # "none"; "shrink" (the dynamics toward class means); "tprior:SD": every target toward the training
 # data's own mean of its phoneme (the step model's value) with sd SD mm; "tprior-cv": that sd chosen
-# by cross-validation inside the training data (TPRIOR_GRID; folds: the training utterances' halves in time)
-REGULARISATION = ("none", "shrink", "tprior-cv")
+# by cross-validation inside the training data (TPRIOR_GRID; folds: the training utterances' halves in time);
+# "tprior-eb": that sd estimated from the training data (target_prior = "estimated", empirical Bayes)
+REGULARISATION = ("none", "shrink", "tprior-cv", "tprior-eb")
 TPRIOR_GRID = (0.03, 0.1, 0.3, 1.0, 3.0)
 # sd of every [[shrink]] (log units for alpha and theta, natural for c and k_r). Not chosen by
 # [choose]: each training set here has one utterance (leave one out) or two halves, too few groups
@@ -98,29 +103,49 @@ class Corpus:
     spec: Path
     source: str
     licence: str
+    key: str = "german"
+    # a spec that sets nothing but its corpus (the synthetic sessions): the spec file is not read
+    manifest: Path | None = None
+    channels: str = "LA,JO"
+    splits: str = "loo,time"
 
 
 CORPORA = (
     Corpus("German EMA, EMU demo (speaker mo1, 2 utterances)", ROOT / "fit" / "ema_german.toml",
            "tests/data/realdata/emu-ema-german: the EMU-webApp demo database ema (IPS Munich, DFG SPP prosody, speaker mo1)",
            "MIT (distributed in github.com/IPS-LMU/EMU-webApp; README.txt there)"),
+    # the synthetic sessions (coartic corpus synth build/session; ... build/gestures --flavour gestures),
+    # with a spec that sets nothing but the corpus: held out by rate, and data-starved
+    Corpus("synthetic session (model flavour)", ROOT / "bench" / "synthetic_session.toml", "coartic corpus synth build/session",
+           "ours", "synthetic", ROOT / "build" / "session" / "manifest.csv", "LLO,JO", "rate,starved1,starved2"),
+    Corpus("synthetic session (gestures flavour)", ROOT / "bench" / "gestures_session.toml",
+           "coartic corpus synth build/gestures --flavour gestures", "ours", "gestures",
+           ROOT / "build" / "gestures" / "manifest.csv", "LLO,JO", "rate"),
 )
 
 
-def cell_spec(base: FitSpec, variant: str, freedom: Sequence[str], reg: str, starts: int | None = None) -> FitSpec:
+def corpus_spec(corpus: Corpus) -> FitSpec:
+    """The corpus's base spec: its spec file, or (a manifest) a spec that sets nothing else."""
+    if corpus.manifest is None:
+        return load_spec(corpus.spec)
+    return parse_spec({"corpus": {"manifest": str(corpus.manifest)}}, corpus.spec)
+
+
+def cell_spec(base: FitSpec, variant: str, freedom: Sequence[str] | str, reg: str, starts: int | None = None) -> FitSpec:
     """``base`` with the variant's model options, these free parameters (some shared by every
     phoneme: SHARED) and this regularisation; the product's own spec fields, so what is measured is
     what a spec with these settings fits. A "tprior:SD" sets [parameters] target_prior = SD; for
     "tprior-cv" ``evaluate_cell`` chooses SD per channel."""
     model = {"dominance": "centre", "handover": False, **VARIANTS[variant]}
-    spec = base.with_options(**model, free=tuple(freedom), shared=SHARED.get(freedom_name(freedom), ()),
-                             target_prior=None)
+    name = freedom_name(freedom)
+    spec = base.with_options(**model, free=tuple(FREEDOM[name] if name in FREEDOM else freedom),
+                             shared=SHARED.get(name, ()), pooled=POOLED.get(name, ()), target_prior=None)
     if starts is not None and hasattr(spec, "starts"):
         spec = spec.with_options(starts=starts)
     sd = tprior_sd(reg)
     if reg == "shrink":
         spec = spec.with_options(**shrink_options(spec, SHRINK_SD, None))
-    elif isinstance(sd, float):
+    elif isinstance(sd, float) or sd == "estimated":
         spec = spec.with_options(target_prior=sd)
     elif reg != "none" and sd is None:
         raise ValueError(f"unknown regularisation {reg!r} (known: {', '.join(REGULARISATION)}, tprior:SD)")
@@ -131,6 +156,8 @@ def tprior_sd(reg: str) -> float | str | None:
     """The sd (mm) of a "tprior:SD" regularisation, "cv" for "tprior-cv", None for any other."""
     if reg == "tprior-cv":
         return "cv"
+    if reg == "tprior-eb":
+        return "estimated"
     if reg.startswith("tprior:"):
         try:
             sd = float(reg.split(":", 1)[1])
@@ -169,10 +196,13 @@ def fit_and_score(spec: FitSpec, train: Sequence[Utterance], test: Sequence[Utte
     fit = trained.channels[channel]
     table, mapped, notes = predict_channel(spec, trained, channel, test, label_map, unseen, train)
     scored = [masked(m, o, seen) for m, o in zip(mapped, test)]
-    out: dict[str, Any] = {"in_sample": fit.rmse, "status": fit.status, "notes": notes}
+    scored_all = [masked(m, o, seen | {"#"}, pauses=True) for m, o in zip(mapped, test)]
+    out: dict[str, Any] = {"in_sample": fit.rmse, "status": fit.status, "notes": notes,
+                           "pooling": None if fit.pooling is None else fit.pooling.as_dict()}
     # every figure twice: on all scored samples, and without each test utterance's last segment
     # (on the German EMA a final /n/ that runs 1.3-1.8 s to the end of the file: mostly rest)
-    for suffix, test_set in (("", scored), ("_nolast", [drop_last(u) for u in scored])):
+    # and on every sample of those phonemes' segments, pauses included ("_all"; the rest: speech only)
+    for suffix, test_set in (("", scored), ("_nolast", [drop_last(u) for u in scored]), ("_all", scored_all)):
         sc = score_utterances(table, test_set, (channel,), train=train)
         fig = {r["model"]: r for r in sc.baseline_rows()}
         out[f"samples{suffix}"] = int(fig["table"]["samples"])
@@ -231,8 +261,18 @@ def drop_last(u: Utterance) -> Utterance:
 
 
 def splits(utts: Sequence[Utterance], which: Sequence[str] = ("loo", "time")) -> list[tuple[str, list[Utterance], list[Utterance]]]:
-    """(name, train, test) of each held-out split: leave one utterance out, and split in time."""
+    """(name, train, test) of each held-out split: leave one utterance out, and split in time; for a
+    session with rates ("rate"): fit the normal rate, predict the fast one, and data-starved
+    ("starvedK"): fit only repetitions 1..K of the normal rate (K utterances per vowel-consonant
+    pair), predict the fast rate."""
     out = []
+    fast = [u for u in utts if u.meta.get("rate") == "fast"]
+    if "rate" in which:
+        out.append(("rate", [u for u in utts if u.meta.get("rate") == "normal"], fast))
+    for k in (1, 2):
+        if f"starved{k}" in which:
+            out.append((f"starved {k}", [u for u in utts if u.meta.get("rate") == "normal"
+                                         and int(u.meta.get("repetition", 0)) <= k], fast))
     if "loo" in which and len(utts) > 1:
         for k, held in enumerate(utts):
             out.append((f"LOO {held.name.replace('dfgspp_mo1_prosody_', '').replace('_ema', '')}",
@@ -243,10 +283,12 @@ def splits(utts: Sequence[Utterance], which: Sequence[str] = ("loo", "time")) ->
     return out
 
 
-def masked(test: Utterance, original: Utterance, keep_labels: set[str]) -> Utterance:
+def masked(test: Utterance, original: Utterance, keep_labels: set[str], pauses: bool = False) -> Utterance:
     """``test`` (labels possibly mapped to fallbacks) with every sample outside a segment whose
-    *original* phoneme is in ``keep_labels`` marked invalid: not scored. Pauses are never scored."""
-    keep = np.array([lab in keep_labels and not is_pause(lab) for lab in original.labels] + [False])[original.sample_segments()]
+    *original* phoneme is in ``keep_labels`` marked invalid: not scored. Pauses (of any posture,
+    coartic.pauses) are scored only with ``pauses`` (and the pause in ``keep_labels``)."""
+    keep = np.array([lab in keep_labels and (pauses or not is_pause(lab)) for lab in original.labels]
+                    + [False])[original.sample_segments()]
     return Utterance(test.labels, test.starts, test.ends, test.times, test.name, test.observed,
                      {c: v & keep for c, v in test.valid.items()}, test.meta)
 
@@ -292,14 +334,14 @@ def predict_channel(spec: FitSpec, trained: FitResult, channel: str, test: Seque
     bounds = {**spec.channel_bounds, channel: {**spec.channel_bounds.get(channel, {}), "target": box}}
     tspec = spec.with_options(channels=(channel,), overrides=spec.overrides + fixes, beta=fit.beta, channel_bounds=bounds,
                               shrinks=tuple(g for g in spec.shrinks if set(g.phonemes) & set(missing)),
-                              shared=(), target_prior=None)
+                              shared=(), pooled=(), target_prior=None)
     if hasattr(tspec, "starts"):  # a handful of free parameters: one local fit
         tspec = tspec.with_options(starts=1)
     notes.append(f"{channel}: /{' '.join(missing)}/ fitted on the test data (no fallback trained), not scored")
     return run(tspec, utterances=list(mapped), quiet=True, report=False).table(), mapped, notes
 
 
-def evaluate_cell(base: FitSpec, utts: Sequence[Utterance], variant: str, freedom: Sequence[str], reg: str,
+def evaluate_cell(base: FitSpec, utts: Sequence[Utterance], variant: str, freedom: Sequence[str] | str, reg: str,
                   which: Sequence[str] = ("loo", "time"), starts: int | None = None,
                   unseen: str = "constant") -> list[dict[str, Any]]:
     """One cell on every split: a row per (split, channel) with the table's held-out RMSE (raw and
@@ -326,7 +368,11 @@ def evaluate_cell(base: FitSpec, utts: Sequence[Utterance], variant: str, freedo
     return rows
 
 
-def freedom_name(freedom: Sequence[str]) -> str:
+def freedom_name(freedom: Sequence[str] | str) -> str:
+    """A freedom's name: itself when given by name (two freedoms may free the same parameters, e.g.
+    "tat" and "pooled"), else the first FREEDOM with these parameters."""
+    if isinstance(freedom, str):
+        return freedom
     return next((k for k, v in FREEDOM.items() if tuple(v) == tuple(freedom)), "+".join(freedom))
 
 
@@ -355,7 +401,7 @@ def summary_lines(rows: Sequence[dict[str, Any]]) -> list[str]:
     ranked = sorted(cells.items(), key=lambda kv: pooled(kv[1], "table"))
     out = [f"{'variant':11s} {'freedom':9s} {'reg':10s} {'unseen starts/θ0':17s} {'held-out':>8s} {'-offset':>8s} {'const':>7s} "
            f"{'-off':>6s} {'step':>6s} {'-off':>6s} {'in-smp':>6s} beats step (raw/-off) {'nolast':>7s} {'step':>6s}"
-           "  CPU s  held-out per channel (raw)"]
+           f" {'all':>6s} {'step':>6s}  CPU s  held-out per channel (raw)"]
     for (v, f, g, un), rs in ranked:
         beat = sum(r["table"] < r["step"] for r in rs), sum(r["table_off"] < r["step_off"] for r in rs)
         insample = math.sqrt(np.mean([r["in_sample"] ** 2 for r in rs]))
@@ -363,6 +409,7 @@ def summary_lines(rows: Sequence[dict[str, Any]]) -> list[str]:
                    f"{pooled(rs, 'constant'):7.3f} {pooled(rs, 'constant_off'):6.3f} {pooled(rs, 'step'):6.3f} "
                    f"{pooled(rs, 'step_off'):6.3f} {insample:6.3f} {beat[0]}/{len(rs)} {beat[1]}/{len(rs)}"
                    f"{pooled(rs, 'table', '_nolast'):17.3f} {pooled(rs, 'step', '_nolast'):6.3f}"
+                   f" {pooled(rs, 'table', '_all'):6.3f} {pooled(rs, 'step', '_all'):6.3f}"
                    f"{sum(r.get('cpu', 0.0) for r in rs):7.0f}  "
                    + " ".join(f"{ch} {pooled([r for r in rs if r['channel'] == ch], 'table'):.3f}"
                               for ch in dict.fromkeys(r["channel"] for r in rs)))
@@ -379,6 +426,11 @@ def summary_lines(rows: Sequence[dict[str, Any]]) -> list[str]:
 
 def row_line(r: dict[str, Any]) -> str:
     sd = f"  sd {r['tprior_sd']:g}" if "tprior_sd" in r else ""
+    if r.get("pooling"):
+        sd += "  " + "; ".join(f"{f} sd {v['sd']:.3g} ({v['effective_parameters']:.1f}/{v['rank']})"
+                               for f, v in r["pooling"]["families"].items())
+    if "table_all" in r:
+        sd = f"  all: {r['table_all']:.3f} step {r['step_all']:.3f} n {r['samples_all']}" + sd
     last = (f"{r['table_nolast']:8.3f}{r['step_nolast']:7.3f}{r['samples_nolast']:6d}" if "table_nolast" in r
             else f"{'':21s}")
     return (f"{r['variant']:11s} {r['freedom']:9s} {r['reg']:10s} {r.get('unseen', 'transfer'):8s} {r['split']:11s} "
@@ -396,8 +448,10 @@ def main() -> int:
     ap.add_argument("--variants", default=",".join(VARIANT_NAMES))
     ap.add_argument("--freedom", default=",".join(FREEDOM), help=f"among {', '.join(FREEDOM)}")
     ap.add_argument("--reg", default=",".join(REGULARISATION))
-    ap.add_argument("--channels", default="LA,JO")
-    ap.add_argument("--splits", default="loo,time")
+    ap.add_argument("--corpus", default="german", help=f"among {', '.join(c.key for c in CORPORA)} (comma-separated)")
+    ap.add_argument("--channels", default=None, help="default: the corpus's (German LA,JO; synthetic LLO,JO)")
+    ap.add_argument("--splits", default=None, help="default: the corpus's (German loo,time; synthetic "
+                    "rate,starved1,starved2; gestures rate)")
     ap.add_argument("--starts", type=int, default=None, help="[fit] starts of every fit (default: the spec default)")
     ap.add_argument("--theta-start", type=float, default=None,
                     help="start of theta_bw and theta_fw (default: the corpus spec's): is the fit start-independent?")
@@ -423,13 +477,18 @@ def main() -> int:
     lines = ["# bench/real_data.py: held-out RMSE (mm) of model variants x freedom x regularisation on real recordings",
              f"# command: nice -n 10 .venv/bin/python bench/real_data.py {' '.join(sys.argv[1:])}".rstrip()]
     all_rows: list[dict[str, Any]] = []
-    for corpus in CORPORA:
-        base = load_spec(corpus.spec).with_options(channels=tuple(a.channels.split(",")))
+    wanted = a.corpus.split(",")
+    if set(wanted) - {c.key for c in CORPORA}:
+        ap.error(f"--corpus: unknown {sorted(set(wanted) - {c.key for c in CORPORA})}")
+    for corpus in [c for c in CORPORA if c.key in wanted]:
+        channels = a.channels or corpus.channels
+        which = (a.splits or corpus.splits).split(",")
+        base = corpus_spec(corpus).with_options(channels=tuple(channels.split(",")))
         if a.theta_start is not None:
             base = base.with_options(start={**base.start, "theta_bw": a.theta_start, "theta_fw": a.theta_start})
         starts = a.starts if a.starts is not None else getattr(base, "starts", 1)
         utts = load_utterances(base)
-        lines += [f"## {corpus.name}: {corpus.spec.relative_to(ROOT)}, channels {a.channels}; source {corpus.source}; "
+        lines += [f"## {corpus.name}: {corpus.spec.relative_to(ROOT) if corpus.manifest is None else 'a spec that sets nothing but ' + str(corpus.manifest.relative_to(ROOT))}, channels {channels}, splits {','.join(which)}; source {corpus.source}; "
                   f"licence {corpus.licence}", f"fits: [fit] starts = {starts}; theta start {base.start['theta_bw']:g}; shrink sd = {SHRINK_SD} when on; nolast: without each test "
                   "utterance's last segment",
                   ROW_HEADER]
@@ -438,7 +497,7 @@ def main() -> int:
         for v in variants:
             for f in freedoms:
                 for g in regs:
-                    got = evaluate_cell(base, utts, v, FREEDOM[f], g, a.splits.split(","), a.starts, a.unseen)
+                    got = evaluate_cell(base, utts, v, f, g, which, a.starts, a.unseen)
                     for r in got:
                         lines.append(row_line(r))
                         print(lines[-1], flush=True)

@@ -46,8 +46,10 @@ from coartic.model import trajectories
 from coartic.table import CHANNELS, PAUSE, TONGUE_CHANNELS, ParameterTable
 
 HERE = Path(__file__).resolve().parent
-FLAVOURS: tuple[str, ...] = ("model", "gestures", "italian")
+FLAVOURS: tuple[str, ...] = ("model", "gestures", "italian", "emotive")
 SETTINGS = HERE / "session.toml"
+EMOTION_SETTINGS = HERE / "emotions.toml"  # the emotive flavour
+ASYMMETRY: tuple[str, ...] = ("ASYMX", "ASYMY")  # the corner asymmetries of the emotive flavour
 GROUND_TRUTH = HERE / "ground_truth.json"
 GROUND_TRUTH_ITALIAN = HERE / "ground_truth_italian.json"
 CONTEXTS: tuple[str, ...] = ("VCV", "CV", "VC")
@@ -81,6 +83,7 @@ class TrialPlan:
     # (vowel, consonant, rate, repetition) indices, and the context's for the Italian flavour: the RNG stream
     key: tuple[int, ...]
     context: str = "VCV"  # VCV, or (Italian flavour) CV or VC between pauses
+    emotion: str = ""  # the emotive flavour's emotion ("neutral", "joy", ...); "" in the other flavours
 
     @property
     def phonemes(self) -> tuple[str, ...]:
@@ -91,6 +94,8 @@ class TrialPlan:
     @property
     def name(self) -> str:
         spelt = "".join(FILE_SPELLING.get(p, p) for p in self.phonemes)
+        if self.emotion:
+            return f"{spelt}_{self.emotion}_{self.rate}_{self.repetition:02d}"
         return f"{spelt}_{self.rate}_{self.repetition:02d}"
 
     @property
@@ -154,10 +159,120 @@ def load_settings(path: Path = SETTINGS) -> dict[str, Any]:
     return s
 
 
+def load_emotions(path: Path = EMOTION_SETTINGS) -> dict[str, Any]:
+    """Read ``emotions.toml`` (the emotive flavour) and check it: every emotion's deviations name
+    known channels and classes, every phoneme is in one class, the bilabials never move ULO/LLO and
+    the labiodentals never LLO (their contacts are phonological), every emotion has its asymmetry."""
+    try:
+        with open(path, "rb") as fh:
+            e = tomllib.load(fh)
+    except OSError as exc:
+        raise SessionError(f"{path}: cannot read the emotion settings: {exc.strerror}") from None
+    except tomllib.TOMLDecodeError as exc:
+        raise SessionError(f"{path}: invalid TOML: {exc}") from None
+    for key in ("emotions", "vowels", "consonants", "repetitions", "quick_repetitions", "intensity", "classes",
+                "deviation", "asymmetry"):
+        if key not in e:
+            raise SessionError(f"{path}: missing setting {key!r}")
+    if not e["emotions"] or e["emotions"][0] != "neutral":
+        raise SessionError(f"{path}: emotions must start with \"neutral\" (the reference), got {e['emotions']!r}")
+    if not 0 < e["quick_repetitions"] <= e["repetitions"]:
+        raise SessionError(f"{path}: quick_repetitions must be in 1..repetitions")
+    owner: dict[str, str] = {}
+    for cls, members in e["classes"].items():
+        for ph in members:
+            if ph in owner:
+                raise SessionError(f"{path}: phoneme {ph!r} is in [classes] {owner[ph]} and {cls}")
+            owner[ph] = cls
+    missing = [ph for ph in [PAUSE, *e["vowels"], *e["consonants"]] if ph not in owner]
+    if missing:
+        raise SessionError(f"{path}: phoneme(s) {missing} in no [classes] entry")
+    for emotion, devs in e["deviation"].items():
+        if emotion not in e["emotions"] or emotion == "neutral":
+            raise SessionError(f"{path}: [deviation.{emotion}]: not one of the emotions {e['emotions'][1:]}")
+        for ch, v in devs.items():
+            if ch not in CHANNELS:
+                raise SessionError(f"{path}: [deviation.{emotion}] {ch}: not a channel ({', '.join(CHANNELS)})")
+            per = v if isinstance(v, dict) else {cls: v for cls in e["classes"]}
+            bad = [c for c in per if c not in e["classes"]]
+            if bad:
+                raise SessionError(f"{path}: [deviation.{emotion}] {ch}: unknown class(es) {bad}")
+            if ((ch in ("ULO", "LLO") and per.get("bilabial", 0.0) != 0.0 and isinstance(v, dict))
+                    or (ch == "LLO" and per.get("labiodental", 0.0) != 0.0 and isinstance(v, dict))
+                    or (ch in ("ULO", "LLO") and not isinstance(v, dict))):
+                raise SessionError(f"{path}: [deviation.{emotion}] {ch}: the lips' closure on /p b m/ and the lower "
+                                   "lip's contact on /f v/ must not move (give the classes it applies to)")
+    for emotion in e["emotions"]:
+        if emotion not in e["asymmetry"]:
+            raise SessionError(f"{path}: [asymmetry] has no entry for {emotion!r}")
+        if set(e["asymmetry"][emotion]) - set(ASYMMETRY):
+            raise SessionError(f"{path}: [asymmetry] {emotion}: keys must be {list(ASYMMETRY)}")
+    return e
+
+
+def emotion_deviations(emo: dict[str, Any]) -> dict[str, dict[str, dict[str, float]]]:
+    """emotion -> channel -> phoneme -> deviation (mm) of every non-neutral emotion (0 where none given)."""
+    owner = {ph: cls for cls, members in emo["classes"].items() for ph in members}
+    out: dict[str, dict[str, dict[str, float]]] = {}
+    for emotion in emo["emotions"][1:]:
+        devs = emo["deviation"].get(emotion, {})
+        out[emotion] = {}
+        for ch in CHANNELS:
+            v = devs.get(ch, 0.0)
+            out[emotion][ch] = {ph: float(v.get(cls, 0.0) if isinstance(v, dict) else v) for ph, cls in owner.items()}
+    return out
+
+
+def emotion_tables(table: ParameterTable, emo: dict[str, Any]) -> dict[str, ParameterTable]:
+    """The table each emotion's trials are generated from: the neutral truth with its targets moved."""
+    out = {"neutral": table}
+    for emotion, per_ch in emotion_deviations(emo).items():
+        t = copy.deepcopy(table)
+        for ch, per in per_ch.items():
+            for ph, d in per.items():
+                t.values[ph][ch]["target"] += d
+        out[emotion] = t
+    return out
+
+
+def emotive_truth(table: ParameterTable, emo: dict[str, Any]) -> ParameterTable:
+    """The emotive flavour's ground truth: the neutral table (the phonemes of the flavour) with
+    ``metadata.emotions`` in the shape a fit with ``[model] emotions = "targets"`` writes (each
+    emotion's targets and deviations per channel) plus the corner asymmetries."""
+    keep = [PAUSE, *emo["vowels"], *emo["consonants"]]
+    t = copy.deepcopy(table)
+    t.values = {ph: t.values[ph] for ph in keep}
+    devs = emotion_deviations(emo)
+    channels: dict[str, Any] = {}
+    for ch in CHANNELS:
+        targets = {e: {ph: t.values[ph][ch]["target"] + (devs[e][ch][ph] if e in devs else 0.0) for ph in keep}
+                   for e in emo["emotions"]}
+        channels[ch] = {"targets": targets, "deviations": {e: {ph: devs[e][ch][ph] for ph in keep} for e in devs}}
+    t.metadata = {**(t.metadata or {}), "emotions": {
+        "mode": "targets", "column": "emotion", "neutral": "neutral", "channels": channels,
+        "asymmetry": {e: {k: float(emo["asymmetry"][e].get(k, 0.0)) for k in ASYMMETRY} for e in emo["emotions"]},
+        "note": "directions from Magno Caldognetto et al. (AVSP 2003, Speech Communication 2004) as read in "
+                "corpus-synthetic/emotions.toml; the millimetres are ours"}}
+    t.source = "corpus-synthetic emotive flavour truth"
+    return t
+
+
 def plan_trials(settings: dict[str, Any], quick: bool = False, flavour: str = "model") -> list[TrialPlan]:
     """Every trial of the session (``quick``: the first ``quick_repetitions`` repetitions only).
 
-    The Italian flavour: every vowel of ``[italian]`` in each of its contexts with every consonant."""
+    The Italian flavour: every vowel of ``[italian]`` in each of its contexts with every consonant.
+    The emotive flavour (``settings["emotive"]``, emotions.toml): its vowels and consonants with every emotion."""
+    if flavour == "emotive":
+        em = settings["emotive"]
+        reps = em["quick_repetitions"] if quick else em["repetitions"]
+        return [
+            TrialPlan(v, c, rate, rep + 1, (vi, ci, ri, rep, ei), "VCV", emotion)
+            for ei, emotion in enumerate(em["emotions"])
+            for vi, v in enumerate(em["vowels"])
+            for ci, c in enumerate(em["consonants"])
+            for ri, rate in enumerate(RATES)
+            for rep in range(reps)
+        ]
     if flavour == "italian":
         it = settings["italian"]
         reps = it["quick_repetitions"] if quick else it["repetitions"]
@@ -222,7 +337,8 @@ def draw_segments(
 # ----------------------------------------------------------------------------- markers
 
 
-def place_markers(settings: dict[str, Any], channels: dict[str, F64], jaw_rest: float) -> F64:
+def place_markers(settings: dict[str, Any], channels: dict[str, F64], jaw_rest: float,
+                  asymmetry: tuple[float, float] = (0.0, 0.0)) -> F64:
     """Markers [F, 8, 3] in the head frame whose MODEL.md §6 channels are ``channels``.
 
     The head frame is fixed by NOSE and the ears (origin at the ear midpoint, x towards EAR_L,
@@ -230,6 +346,10 @@ def place_markers(settings: dict[str, Any], channels: dict[str, F64], jaw_rest: 
     rest, so ULO = UL_y - y_0 and LLO = y_0 - LL_y hold exactly; the lip corners are mirror
     images (their distance is LR); CHIN lies on a ray from NOSE at distance JO, turning back as
     the jaw opens.
+
+    ``asymmetry`` (ASYMX, ASYMY mm, the emotive flavour): the right corner's outward displacement
+    minus the left's, and its height minus the left's; both corners move by the same amount in
+    opposite senses, their distance staying LR.
     """
     g = settings["geometry"]
     n = len(channels["ULO"])
@@ -242,9 +362,12 @@ def place_markers(settings: dict[str, Any], channels: dict[str, F64], jaw_rest: 
     m[:, idx["UL"]] = np.stack([np.zeros(n), y0 + channels["ULO"], channels["ULP"]], axis=1)
     m[:, idx["LL"]] = np.stack([np.zeros(n), y0 - channels["LLO"], channels["LLP"]], axis=1)
     corner_z = channels["ULP"] + g["corner_z_offset"]
-    half = channels["LR"] / 2.0
-    m[:, idx["LC_L"]] = np.stack([half, np.full(n, g["corner_y"]), corner_z], axis=1)
-    m[:, idx["LC_R"]] = np.stack([-half, np.full(n, g["corner_y"]), corner_z], axis=1)
+    ax, ay = asymmetry
+    # x_L = half − ax/2, x_R = −half − ax/2: right outward minus left outward = ax, the distance kept
+    # LR by narrowing the lateral half-width for the height difference ay
+    half = np.sqrt(np.maximum(channels["LR"] ** 2 - ay**2, 0.0)) / 2.0
+    m[:, idx["LC_L"]] = np.stack([half - ax / 2.0, np.full(n, g["corner_y"] - ay / 2.0), corner_z], axis=1)
+    m[:, idx["LC_R"]] = np.stack([-half - ax / 2.0, np.full(n, g["corner_y"] + ay / 2.0), corner_z], axis=1)
     phi = np.radians(g["chin_angle"] + g["chin_angle_per_mm"] * (channels["JO"] - jaw_rest))
     jo = channels["JO"]
     m[:, idx["CHIN"]] = np.stack([np.zeros(n), -jo * np.cos(phi), g["nose_z"] - jo * np.sin(phi)], axis=1)
@@ -347,10 +470,11 @@ def make_trial(
     flavour: str = "model",
     stream: tuple[int, ...] = (),
 ) -> Trial:
-    """One trial; ``flavour`` "model" or "italian" (MODEL.md §3 with the table) or "gestures" (gestures.py)."""
+    """One trial; ``flavour`` "model", "italian" or "emotive" (MODEL.md §3 with the table: for an
+    emotive trial the table of its emotion, ``emotion_tables``) or "gestures" (gestures.py)."""
     rng = trial_rng(seed, plan, stream)
     labels, starts, ends, times = draw_segments(settings, plan, rng)
-    if flavour in ("model", "italian"):
+    if flavour in ("model", "italian", "emotive"):
         traj = trajectories(table, labels, starts, ends, times, channels=list(CHANNELS))
     elif flavour == "gestures":
         traj = _gestures().gesture_trajectories(table, labels, starts, ends, times, settings["gestures"])
@@ -358,7 +482,8 @@ def make_trial(
         raise SessionError(f"unknown flavour {flavour!r} (known: {', '.join(FLAVOURS)})")
     channels = {ch: np.asarray(traj[ch], dtype=np.float64) for ch in CHANNELS}
     jaw_rest = table.values[PAUSE]["JO"]["target"]
-    head = place_markers(settings, channels, jaw_rest)
+    asym = settings["emotive"]["asymmetry"][plan.emotion] if plan.emotion else {}
+    head = place_markers(settings, channels, jaw_rest, (asym.get("ASYMX", 0.0), asym.get("ASYMY", 0.0)))
     markers, dropouts = record(settings, head, times, rng, n_session)
     rest = (times >= starts[0]) & (times <= ends[0])
     y0_offset = float(np.mean(channels["ULO"][rest] - channels["LLO"][rest]) / 2.0)
@@ -471,6 +596,8 @@ SUBDIRS = ("c3d", "csv", "labels", "truth")
 # The trials of the overview figure: a bilabial, a labiodental and a rounded postalveolar, and the
 # bilabial again at the fast rate (its closure must still be reached).
 OVERVIEW = ("apa_normal_01", "apa_fast_01", "ifi_normal_01", "ushu_normal_01")
+# the emotive flavour's: one bilabial said neutrally, with joy and with surprise, and a labiodental with disgust
+OVERVIEW_EMOTIVE = ("aba_neutral_normal_01", "aba_joy_normal_01", "aba_surprise_normal_01", "ava_disgust_normal_01")
 
 
 def plot_overview(out: Path, gap: float, flavour: str) -> Path:
@@ -482,7 +609,9 @@ def plot_overview(out: Path, gap: float, flavour: str) -> Path:
 
     from coartic.io import load_trial
 
-    names = [n for n in OVERVIEW if (out / "c3d" / f"{n}.c3d").is_file()]
+    names = [n for n in (OVERVIEW_EMOTIVE if flavour == "emotive" else OVERVIEW) if (out / "c3d" / f"{n}.c3d").is_file()]
+    if not names:  # a session of other consonants: its first trial
+        names = sorted(f.stem for f in (out / "c3d").glob("*.c3d"))[:1]
     fig, axes = plt.subplots(len(CHANNELS) + 1, len(names), figsize=(4.2 * len(names), 13), sharex="col",
                              squeeze=False)
     for j, name in enumerate(names):
@@ -524,7 +653,8 @@ def _prepare(out: Path) -> None:
     """Create ``out``; clear an earlier (or interrupted) session there, refuse anything else."""
     if out.exists() and not out.is_dir():
         raise SessionError(f"{out}: exists and is not a directory")
-    if out.is_dir() and any(out.iterdir()):
+    # coartic_run.json: the mark of the staging directory `coartic corpus synth` writes into
+    if out.is_dir() and any(p.name != "coartic_run.json" for p in out.iterdir()):
         if not (out / STAMP).is_file():
             raise SessionError(
                 f"{out}: the directory is not empty and is not a synthetic session written by coartic; "
@@ -575,10 +705,15 @@ def generate(
         raise SessionError(f"--speakers must be a positive integer, got {speakers!r}")
     if flavour not in FLAVOURS:
         raise SessionError(f"unknown flavour {flavour!r} (known: {', '.join(FLAVOURS)})")
+    if flavour == "emotive":
+        if speakers != 1:
+            raise SessionError("--flavour emotive is one speaker's session: leave out --speakers")
+        settings = {**settings, "emotive": load_emotions()}
     table = ParameterTable.load(truth_path(flavour))
     plans = plan_trials(settings, quick, flavour)
     if consonants is not None:
-        known = settings["italian"]["consonants"] if flavour == "italian" else settings["consonants"]
+        known = {"italian": settings["italian"]["consonants"],
+                 "emotive": settings.get("emotive", {}).get("consonants")}.get(flavour) or settings["consonants"]
         unknown = sorted(set(consonants) - set(known))
         if unknown:
             raise SessionError(f"{SETTINGS}: consonant(s) {unknown} are not in the session")
@@ -596,7 +731,10 @@ def truth_path(flavour: str) -> Path:
 
 def manifest_columns(flavour: str) -> tuple[str, ...]:
     """The manifest's columns; the Italian flavour adds the stimulus's ``context`` (VCV, CV, VC) and
-    its EMA recording (``ema``: the file column of fit/italian_tongue.toml)."""
+    its EMA recording (``ema``: the file column of fit/italian_tongue.toml), the emotive flavour the
+    trial's ``emotion`` and ``intensity``."""
+    if flavour == "emotive":
+        return (*MANIFEST_COLUMNS, "emotion", "intensity")
     return (*MANIFEST_COLUMNS, "context", "ema") if flavour == "italian" else MANIFEST_COLUMNS
 
 
@@ -627,8 +765,9 @@ def _write_session(
     )
     with Progress(*columns, disable=not progress, transient=False) as bar:
         task = bar.add_task("", total=len(plans))
+        tables = emotion_tables(table, settings["emotive"]) if flavour == "emotive" else {}
         for plan in plans:
-            trial = make_trial(settings, table, plan, seed, n_session, flavour, stream)
+            trial = make_trial(settings, tables.get(plan.emotion, table), plan, seed, n_session, flavour, stream)
             name = plan.name
             write_c3d(out / "c3d" / f"{name}.c3d", trial.markers, rate)
             write_csv(out / "csv" / f"{name}.csv", trial.times, trial.markers)
@@ -656,10 +795,15 @@ def _write_session(
                     "y0_offset_mm": f"{trial.y0_offset:.4f}",
                 } | ({"context": plan.context, "ema": f"ema/{name}.csv" if trial.ema is not None else ""}
                      if flavour == "italian" else {})
+                  | ({"emotion": plan.emotion, "intensity": settings["emotive"]["intensity"]}
+                     if flavour == "emotive" else {})
             )
             bar.update(task, advance=1, description=name)
     if stream:  # a speaker of a multi-speaker corpus: its own (scaled) truth
         table.save(out / "ground_truth.json")
+    elif flavour == "emotive":  # the neutral truth with every emotion's (metadata.emotions)
+        emotive_truth(table, settings["emotive"]).save(out / "ground_truth.json")
+        shutil.copyfile(EMOTION_SETTINGS, out / "emotions.toml")
     else:
         shutil.copyfile(truth_path(flavour), out / "ground_truth.json")
     shutil.copyfile(SETTINGS, out / "session.toml")

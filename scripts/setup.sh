@@ -12,6 +12,8 @@ command -v festival >/dev/null 2>&1 || need_apt+=(festival)
 # English voice (kal_diphone, with the CMU lexicon) for `coartic speak --lang en`
 [ -d /usr/share/festival/voices/english/kal_diphone ] || need_apt+=(festvox-kallpc16k)
 command -v ffmpeg >/dev/null 2>&1 || need_apt+=(ffmpeg)
+# coartic align: espeak-ng's library says the transcript with its phone times (German and other languages)
+command -v espeak-ng >/dev/null 2>&1 || need_apt+=(espeak-ng)
 # the face: viewer test and screenshots (headless Chromium, software WebGL), glTF checks (gltfpack's
 # cgltf validator, three.js's GLTFLoader), VRML97 check (tovrmlx3d from view3dscene)
 command -v chromium >/dev/null 2>&1 || need_apt+=(chromium)
@@ -40,8 +42,10 @@ if [ ! -f "$stamp" ] || [ pyproject.toml -nt "$stamp" ]; then
     $(.venv/bin/python - <<'PY'
 import tomllib
 p = tomllib.load(open("pyproject.toml", "rb"))["project"]
-extras = p["optional-dependencies"]
-print(" ".join(repr(d)[1:-1] for d in p["dependencies"] + extras["dev"] + extras.get("perceive", [])))
+# the core, every extra (the [all] of a pip install) and the test tools; "coartic[...]" entries
+# only group the others
+extras = [d for group in p["optional-dependencies"].values() for d in group if not d.startswith("coartic[")]
+print(" ".join(repr(d)[1:-1] for d in p["dependencies"] + extras))
 PY
 )
   touch "$stamp"

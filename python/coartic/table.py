@@ -25,6 +25,7 @@ import numpy as np
 import numpy.typing as npt
 
 from coartic.errors import CoarticError
+from coartic.extras import require
 from coartic.outputs import atomic_write_text
 from coartic.settings import CHANNEL_SETTINGS, DOMINANCES, RATE_SETTINGS
 from coartic.textfile import TextDecodeError, read_text
@@ -488,6 +489,7 @@ class ParameterTable:
         >>> str(df["value"].dtype), str(df["q50"].dtype)
         ('float64', 'float64')
         """
+        require("dataframe", "to_dataframe()")
         import pandas as pd
 
         rows = [(ch, ph, name, value, *[math.nan if q is None else float(q) for q in qs])

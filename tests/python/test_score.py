@@ -168,3 +168,19 @@ def test_baselines_from_the_recorded_spec_or_train(ema_fit: tuple[Path, float], 
     t.save(moved)
     sc = score_recordings(moved, [U20[0]], [U20[1]], channels=["JO"])
     assert any(n.startswith("no baselines: the table records no fit spec") for n in sc.notes)
+
+
+def test_score_shows_every_baseline_it_names_or_says_why_not(ema_fit: tuple[Path, float]) -> None:
+    """Issue 25 item 3: the caption listed a warped-token baseline it did not show. Scored on its own
+    (only) training recording, there is no other token of the sentence: the caption says so."""
+    from coartic.fit.score_cli import score_table
+
+    table_path, _ = ema_fit
+    sc = score_recordings(table_path, [U20[0]], [U20[1]], channels=["JO"])
+    assert set(sc.baselines) == {"constant", "step"}
+    cap = str(score_table(sc).caption)
+    assert "step = each phoneme's training mean" in cap and "constant = training mean" in cap
+    assert "warped not shown: no other token of the sentence of" in cap
+    assert "warped" in sc.summary()["baselines_absent"] and "warped: not shown" in sc.text()
+    bare = score_utterances(ParameterTable.load(table_path), sc.utterances, ["JO"])  # no training data at all
+    assert str(score_table(bare).caption).startswith("no baselines; constant not shown")

@@ -173,7 +173,7 @@ def long_csv(table: ParameterTable) -> str:
 
 
 def test_csv_is_tidy_and_pandas_reads_numbers(tmp_path: Path) -> None:
-    import pandas as pd
+    pd = pytest.importorskip("pandas", reason="the [dataframe] extra (absent in make test-core)")
 
     t = ParameterTable.from_json_dict(base_doc())
     lines = t.to_csv().splitlines()

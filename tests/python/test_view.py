@@ -26,6 +26,7 @@ from coartic.runtime.animate import target_times
 from coartic.runtime.fap import read_fap
 from coartic.runtime.shipped import load_shipped_table, shipped_table_path
 from coartic.table import ParameterTable
+from face_helpers import mouth_opening, mouth_pixels
 
 GROUND_TRUTH = Path(__file__).resolve().parents[2] / "corpus-synthetic" / "ground_truth.json"
 LABELS = ("start\tend\tlabel\n0.0\t0.20\t#\n0.20\t0.36\ta\n0.36\t0.44\tp\n0.44\t0.60\ta\n0.60\t0.68\tm\n"
@@ -76,17 +77,17 @@ def test_page_data_cannot_close_the_script(run: Path, tmp_path: Path) -> None:
 
 def test_view_names_what_is_missing(tmp_path: Path, run: Path) -> None:
     res = CliRunner().invoke(app, ["view", str(tmp_path)])
-    assert res.exit_code == 1 and "no .glb file" in res.output and "--gltf" in res.output
+    assert res.exit_code == 2 and "no .glb file" in res.output and "--gltf" in res.output
     two = tmp_path / "two"
     shutil.copytree(run, two)
     shutil.copy(two / "apamaba.glb", two / "other.glb")
     res = CliRunner().invoke(app, ["view", str(two)])
-    assert res.exit_code == 1 and "several .glb files" in res.output
+    assert res.exit_code == 2 and "several .glb files" in res.output
     res = CliRunner().invoke(app, ["view", str(two), "--name", "other"])
     assert res.exit_code == 0, res.output
     (two / "apamaba.wav").unlink()
     res = CliRunner().invoke(app, ["view", str(two), "--name", "apamaba"])
-    assert res.exit_code == 1 and "'apamaba.wav' is not in" in " ".join(res.output.split())
+    assert res.exit_code == 2 and "'apamaba.wav' is not in" in " ".join(res.output.split())
 
 
 def test_server_serves_page_and_sound_on_localhost(run: Path) -> None:
@@ -105,22 +106,6 @@ def test_server_serves_page_and_sound_on_localhost(run: Path) -> None:
         server.shutdown()
         server.server_close()
         thread.join(timeout=5)
-
-
-def mouth_opening(png: Path) -> float:
-    """Median over the central columns of the lips of the non-lip pixels between the top and the
-    bottom lip pixel: 0 when the lips touch, the mouth's height in pixels when open."""
-    img = np.asarray(Image.open(png).convert("RGB")).astype(int)
-    lip = (img[..., 0] - img[..., 1] > 70) & (img[..., 0] > 100)
-    ys, xs = np.nonzero(lip)
-    assert xs.size > 200, "no lips in the picture"
-    x0, x1 = int(xs.min()), int(xs.max())
-    centre, half = (x0 + x1) // 2, (x1 - x0) // 6
-    gaps = []
-    for x in range(centre - half, centre + half + 1):
-        col = np.nonzero(lip[:, x])[0]
-        gaps.append(0 if col.size == 0 else int(col.max() - col.min() + 1 - col.size))
-    return float(np.median(gaps))
 
 
 @pytest.fixture(scope="module")
@@ -174,13 +159,13 @@ def test_playing_follows_the_sound(run: Path, chromium: str, tmp_path: Path) -> 
 def test_frame_out_of_range_and_view_presets_are_checked(run: Path) -> None:
     res = CliRunner().invoke(app, ["view", str(run), "--frame", "999"])
     n = read_fap(run / "apamaba.fap").n_frames
-    assert res.exit_code == 1 and f"--frame 999 is outside 0..{n - 1}" in " ".join(res.output.split())
+    assert res.exit_code == 2 and f"--frame 999 is outside 0..{n - 1}" in " ".join(res.output.split())
     res = CliRunner().invoke(app, ["view", str(run), "--frame", "-1"])
-    assert res.exit_code == 1 and "outside" in res.output
+    assert res.exit_code == 2 and "outside" in res.output
     res = CliRunner().invoke(app, ["view", str(run), "--view", "profile", "--yaw", "10"])
-    assert res.exit_code == 1 and "not both" in res.output
+    assert res.exit_code == 2 and "not both" in res.output
     res = CliRunner().invoke(app, ["view", str(run), "--view", "back"])
-    assert res.exit_code == 1 and "front, three-quarter, profile" in " ".join(res.output.split())
+    assert res.exit_code == 2 and "front, three-quarter, profile" in " ".join(res.output.split())
     assert view_yaw("profile", None) == 90.0 and view_yaw(None, -20.0) == -20.0 and view_yaw(None, None) is None
     assert page_query(3, 90.0) == f"?frame=3&yaw={math.pi / 2!r}"
 
@@ -217,14 +202,6 @@ def test_labels_of_a_long_utterance_stay_readable(tmp_path: Path, chromium: str)
 
 VISEMES = ("start\tend\tlabel\n0.0\t0.20\t#\n0.20\t0.36\ta\n0.36\t0.46\tp\n0.46\t0.62\ta\n0.62\t0.76\tf\n0.76\t0.92\ta\n"
            "0.92\t1.12\tu\n1.12\t1.30\t#\n")
-
-
-def mouth_pixels(png: Path) -> dict[str, np.ndarray]:
-    """Masks of lip-coloured, tooth-coloured and dark (mouth cavity) pixels."""
-    img = np.asarray(Image.open(png).convert("RGB")).astype(int)
-    return {"lip": (img[..., 0] - img[..., 1] > 70) & (img[..., 0] > 100),
-            "teeth": (img.min(axis=-1) > 170) & (img.max(axis=-1) - img.min(axis=-1) < 45),
-            "dark": img.max(axis=-1) < 70}
 
 
 def test_chromium_shows_f_with_teeth_on_the_lip_and_u_narrowed(tmp_path: Path, chromium: str) -> None:

@@ -41,6 +41,7 @@ from coartic.batch.spec import BatchSpec
 from coartic.batch.tasks import UnitFailed, UnitKey, UnitOutput, fit_unit, load_group, posterior_unit
 from coartic.console import LineProgress
 from coartic.errors import CoarticError
+from coartic.extras import require
 from coartic.model import Utterance
 from coartic.outputs import DeferredSignals, OutputDir
 
@@ -137,6 +138,7 @@ def cluster_security(scheduler: str, tls: Tls | None) -> Any:
     """The ``distributed.Security`` for reaching ``scheduler``: Dask's own TLS (encryption
     required) for a ``tls://`` address, certificates from ``tls`` or else the Dask configuration;
     None (Dask's default) for other protocols, which take no certificates."""
+    require("batch", "a Dask cluster")
     import dask.config
     from distributed.security import Security
 
@@ -167,6 +169,15 @@ def cluster_security(scheduler: str, tls: Tls | None) -> Any:
 LOCAL_DASHBOARD = "127.0.0.1:0"
 
 
+def require_packages(spec: BatchSpec | None, serial: bool) -> None:
+    """Dask (the [batch] extra) unless `serial`; emcee and ArviZ (the [mcmc] extra) when the spec
+    asks for posteriors; checked before anything is read or written."""
+    if not serial:
+        require("batch", "coartic batch on a Dask cluster (--serial runs without Dask)")
+    if spec is not None and spec.posterior_channels:
+        require("mcmc", "the batch spec's [posteriors]")
+
+
 def run_batch(spec: BatchSpec, out: str | Path, *, scheduler: str | None = None, workers: int | None = None,
               serial: bool = False, force: bool = False, report: bool = True, console: Console | None = None,
               quiet: bool = False, before: Callable[[UnitKey], None] | None = None,
@@ -178,6 +189,7 @@ def run_batch(spec: BatchSpec, out: str | Path, *, scheduler: str | None = None,
     landed is landed first. ``tls``: certificates for a ``tls://`` scheduler (``cluster_security``).
     """
     out = Path(out)
+    require_packages(spec, serial)
     console = console or Console(stderr=True, quiet=quiet)
     keys = plan_units(spec)
     t0 = time.perf_counter()
@@ -268,6 +280,7 @@ def _run_dask(spec: BatchSpec, out: Path, todo: list[UnitKey], landed: Callable[
               failed: Callable[[UnitKey, BaseException], None], before: Callable[[UnitKey], None] | None,
               scheduler: str | None, workers: int | None, outcome: BatchOutcome, console: Console,
               security: Any = None) -> None:
+    require("batch", "a Dask cluster (coartic batch without --serial)")
     from distributed import Client, LocalCluster, as_completed
 
     cluster = None

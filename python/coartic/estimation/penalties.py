@@ -36,6 +36,10 @@ class PenaltyRows:
     def jacobian(self, x: FloatArray) -> sp.csr_matrix:
         raise NotImplementedError
 
+    def squares_batch(self, xs: FloatArray, params: FloatArray) -> FloatArray:
+        """Σ rows² for many x at once (rows of ``xs``; ``params`` their unpacked matrices)."""
+        return np.array([float(r @ r) for r in map(self.residuals, np.atleast_2d(xs))])
+
     def gradient(self, x: FloatArray) -> tuple[float, FloatArray]:
         """Σ rows² and its gradient in x."""
         r = self.residuals(x)
@@ -90,6 +94,8 @@ class ShrinkGroup:
     column: int
     sd: float
     log: bool = False
+    # the family whose estimated sd this group takes (coartic.estimation.pooling); None: sd as given
+    family: str | None = None
 
     @property
     def parameter(self) -> str:
@@ -140,6 +146,10 @@ class Shrinkage(PenaltyRows):
     def residuals(self, x: FloatArray) -> FloatArray:
         params, _ = self.packing.unpack(x)
         return self.noise * self.z(params)
+
+    def squares_batch(self, xs: FloatArray, params: FloatArray) -> FloatArray:
+        out: FloatArray = np.sum((self.noise * self.z(params)) ** 2, axis=-1)
+        return out
 
     def jacobian(self, x: FloatArray) -> sp.csr_matrix:
         params, _ = self.packing.unpack(x)

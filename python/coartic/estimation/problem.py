@@ -28,11 +28,15 @@ from numpy.typing import NDArray
 
 from coartic import _core
 from coartic.estimation.data import ChannelData
+from coartic.estimation.emotions import EmotionPrior, emotion_names, table_emotion_meta
+from coartic.estimation.emotions import shrink_groups as emotion_shrink_groups
 from coartic.estimation.offsets import Offsets
 from coartic.estimation.packing import Packing, Prior, moving
 from coartic.estimation.parameters import ParameterSet
-from coartic.estimation.penalties import Penalty, ShrinkGroup, Shrinkage, shrink_groups
+from coartic.estimation.penalties import Penalty, PenaltyRows, ShrinkGroup, Shrinkage, shrink_groups
+from coartic.estimation.pooling import Pool, pool_from_spec
 from coartic.estimation.speakers import SpeakerRows, Speakers, expand_speaker_targets, table_speaker_meta
+from coartic.estimation.target_prior import target_priors
 from coartic.errors import SpecError
 from coartic.jacobian import JacobianBuffer
 from coartic.model import Utterance, channel_options, core_error, model_options
@@ -56,15 +60,19 @@ class ChannelProblem:
                  priors: Mapping[str, Prior] | None = None, prior_noise: float = 1.0,
                  offset_sd: float | None = None, speakers: str = "none",
                  speaker_column: str = "speaker", shrink: Sequence[ShrinkGroup] = (),
-                 speaker_rows: SpeakerRows | None = None) -> None:
+                 speaker_rows: SpeakerRows | None = None, emotion_prior: EmotionPrior | None = None,
+                 pool: Pool | None = None) -> None:
         self.data = data
         # Speaker-specific target offset/scale (spec [model] speakers), profiled out like offsets.
         self.speaker_mode, self.speaker_column = speakers, speaker_column
         self.speakers = None if speakers in ("none", "targets") else Speakers(data, speakers, speaker_column)
         # [model] speakers = "targets": the rows of the (expanded) matrix per speaker (expand_speaker_targets)
         self.speaker_rows = speaker_rows
-        if (speakers == "targets") != (speaker_rows is not None):
+        emotive = speaker_rows is not None and speaker_rows.factor == "emotions"
+        if (speakers == "targets" or emotive) != (speaker_rows is not None):
             raise SpecError("[model] speakers = \"targets\" needs the per-speaker rows (build_problem makes them)")
+        if emotion_prior is not None and not emotive:
+            raise SpecError("an emotion prior needs the per-emotion rows ([model] emotions = \"targets\")")
         if self.speakers is not None and offset_sd is not None:
             raise SpecError("[model] speakers and [model] offsets cannot be combined yet: choose one")
         self.packing = packing
@@ -77,9 +85,19 @@ class ChannelProblem:
         self.priors: dict[str, Prior] = dict(priors or {})
         self.prior_noise = float(prior_noise)
         self.penalty = Penalty(packing, self.priors, self.prior_noise)
-        # Shrinkage toward class means (spec [[shrink]]), likewise extra rows after the priors'.
-        self.shrink_groups = list(shrink)
+        # Shrinkage toward class means (spec [[shrink]]), likewise extra rows after the priors', and the
+        # emotions' deviations toward the neutral targets (None: not yet estimated, or no emotions).
+        self.spec_shrink_groups = list(shrink)
+        self.emotion_prior = emotion_prior
+        self.shrink_groups = self.spec_shrink_groups + (
+            [] if emotion_prior is None or speaker_rows is None
+            else emotion_shrink_groups(speaker_rows, emotion_prior, prior_noise))
         self.shrinkage = Shrinkage(packing, self.shrink_groups, self.prior_noise)
+        # Families of rows whose sd is estimated ([parameters] pooled, target_prior = "estimated";
+        # coartic.estimation.pooling), weighed against the estimated noise: rows after the shrinkage's.
+        self.pool = pool
+        self.pool_rows: list[PenaltyRows] = [] if pool is None else pool.rows(packing)
+        self.penalties: list[PenaltyRows] = [self.penalty, self.shrinkage, *self.pool_rows]
         self.sqrt_w = np.sqrt(data.weights)
         self.nfev = 0
         self.njev = 0
@@ -136,10 +154,9 @@ class ChannelProblem:
              else self.speakers.residuals(f))
         if self.offsets is not None:
             r = self.offsets.residuals(r)
-        if self.penalty.size:
-            r = np.concatenate([r, self.penalty.residuals(x)])
-        if self.shrinkage.size:
-            r = np.concatenate([r, self.shrinkage.residuals(x)])
+        for pen in self.penalties:
+            if pen.size:
+                r = np.concatenate([r, pen.residuals(x)])
         self._track(x, float(r @ r))
         return r
 
@@ -161,10 +178,9 @@ class ChannelProblem:
             j = self.speakers.jacobian(np.asarray(f, dtype=np.float64), j)
         if self.offsets is not None:
             j = self.offsets.jacobian(j)
-        if self.penalty.size:
-            j = sp.vstack([j, self.penalty.jacobian(x)], format="csr")
-        if self.shrinkage.size:
-            j = sp.vstack([j, self.shrinkage.jacobian(x)], format="csr")
+        for pen in self.penalties:
+            if pen.size:
+                j = sp.vstack([j, pen.jacobian(x)], format="csr")
         return j
 
     def sse(self, x: FloatArray) -> float:
@@ -174,9 +190,36 @@ class ChannelProblem:
     @property
     def n_residuals(self) -> int:
         """Rows of the residual vector: samples, then offset rows (random effects), then priors, then
-        shrinkage."""
-        return (self.data.corpus.n_samples + (self.offsets.extra_rows if self.offsets else 0) + self.penalty.size
-                + self.shrinkage.size)
+        shrinkage, then the pool's rows."""
+        return (self.data.corpus.n_samples + (self.offsets.extra_rows if self.offsets else 0)
+                + sum(pen.size for pen in self.penalties))
+
+    @property
+    def pool_size(self) -> int:
+        """The last rows of the residual vector: the pool's (its families' priors)."""
+        return sum(pen.size for pen in self.pool_rows)
+
+    def fitted(self, x: FloatArray) -> FloatArray:
+        """The model on every sample at ``x`` as the fit reports it (with [model] speakers each
+        speaker's a_s + b_s·F): what the data RMSE is measured on. Not counted as an evaluation."""
+        params, beta = self.packing.unpack(x)
+        f = self.evaluate(params, beta)
+        if self.speakers is not None:
+            a, b = self.speakers.coefficients(f)
+            f = a[self.speakers.spk] + b[self.speakers.spk] * f
+        return f
+
+    def data_rmse(self, x: FloatArray) -> float:
+        """The data RMSE at ``x`` (mm): model − measured over the valid samples, as measured (no
+        penalty rows, no per-utterance offsets). The objective the engines minimise adds the
+        penalty rows (priors, shrinkage, offsets' random effects): ``penalised`` says whether."""
+        r = (self.fitted(x) - self.data.observed)[self.data.weights > 0]
+        return float(np.sqrt(np.mean(r**2))) if r.size else float("nan")
+
+    @property
+    def penalised(self) -> bool:
+        """The objective has rows besides the data's (priors, shrinkage, offsets): it is not the SSE."""
+        return self.n_residuals > self.data.corpus.n_samples
 
     def utterance_offsets(self, x: FloatArray) -> FloatArray:
         """The fitted per-utterance offsets b_u (mm) at x (zeros without offsets)."""
@@ -243,7 +286,7 @@ class ChannelProblem:
         full = np.append(np.asarray(grad), dbeta)
         tmap = self.packing.column_map()
         g = (full[self.packing.free_columns] if tmap is None else tmap.T @ full) * self.packing.dvalue_dx(x)
-        for pen in (self.penalty, self.shrinkage):
+        for pen in self.penalties:
             if pen.size:
                 ps, pg = pen.gradient(x)
                 sse, g = sse + ps, g + pg
@@ -263,17 +306,33 @@ class ChannelProblem:
         else:
             out = np.asarray(_core.sse_batch(self.data.corpus, params, betas, self.options,
                                              self.data.observed, self.data.weights))
-        if self.penalty.size:
-            out = out + np.array([float(r @ r) for r in map(self.penalty.residuals, np.atleast_2d(xs))])
-        if self.shrinkage.size:
-            out = out + np.sum((self.shrinkage.noise * self.shrinkage.z(params)) ** 2, axis=-1)
+        for pen in self.penalties:
+            if pen.size:
+                out = out + pen.squares_batch(xs, params)
         return out
 
     def with_packing(self, packing: Packing) -> ChannelProblem:
         """A problem on the same data with another free set (staged fits); best point carried."""
         p = ChannelProblem(self.data, packing, self.options, self.priors, self.prior_noise, self.offset_sd,
-                           self.speaker_mode, self.speaker_column, self.shrink_groups, self.speaker_rows)
+                           self.speaker_mode, self.speaker_column, self.spec_shrink_groups, self.speaker_rows,
+                           self.emotion_prior, self.pool)
         p.nfev, p.njev, p.monitor = self.nfev, self.njev, self.monitor
+        return p
+
+    def with_pool(self, pool: Pool) -> ChannelProblem:
+        """The same problem with the pool's families at other τ and σ (the same packing, its base
+        values as they are)."""
+        p = ChannelProblem(self.data, self.packing, self.options, self.priors, self.prior_noise, self.offset_sd,
+                           self.speaker_mode, self.speaker_column, self.spec_shrink_groups, self.speaker_rows,
+                           self.emotion_prior, pool)
+        p.nfev, p.njev, p.monitor = self.nfev, self.njev, self.monitor
+        return p
+
+    def with_emotion_prior(self, prior: EmotionPrior) -> ChannelProblem:
+        """The same problem with the emotions' deviation prior (``[model] emotions``), best point reset."""
+        p = ChannelProblem(self.data, self.packing, self.options, self.priors, self.prior_noise, self.offset_sd,
+                           self.speaker_mode, self.speaker_column, self.spec_shrink_groups, self.speaker_rows, prior)
+        p.monitor = self.monitor
         return p
 
 
@@ -324,6 +383,43 @@ def build_problem(spec: FitSpec, utterances: Sequence[Utterance], channel: str, 
             data, ps, rows = expand_speaker_targets(spec, data, ps, data_start=False, names=tuple(own),
                                                     start_targets=own)
         shrink = rows.shrink_groups(spec, shrink)
+    prior = None
+    if spec.emotions == "targets":
+        if table is None:
+            names = emotion_names(data.utterances, spec.emotion_column, spec.neutral_emotion)
+            data, ps, rows = expand_speaker_targets(spec, data, ps, data_start=start is None and
+                                                    "target" not in spec.start_given, names=names, factor="emotions")
+        else:
+            emo = table_emotion_meta(spec, table).get("channels", {}).get(channel)
+            if not emo:
+                raise TableError(f"{where}: metadata.emotions has no channel {channel}")
+            data, ps, rows = expand_speaker_targets(spec, data, ps, data_start=False, names=tuple(emo["targets"]),
+                                                    start_targets=emo["targets"], factor="emotions")
+            prior = EmotionPrior.from_dict(emo) if "tau" in emo else None
+        shrink = rows.shrink_groups(spec, shrink)
+    elif table is not None:
+        table_emotion_meta(spec, table)  # a table fitted with emotions needs the spec that has them
+    pool = None
+    if spec.pooled or spec.target_prior == "estimated":
+        if spec.speakers == "targets" or spec.emotions == "targets":
+            raise SpecError.at(spec.path, "parameters.pooled" if spec.pooled else "parameters.target_prior",
+                               "estimated pooling cannot be combined with [model] speakers or emotions = \"targets\" yet: "
+                               "give the sd ([[shrink]], a target_prior number) or another speakers mode")
+        free_now = moving(ps.free, ps.ties)
+        means = target_priors(1.0, data.utterances, channel, data.phonemes, ps.free, ps.priors)
+        pool = pool_from_spec(spec, channel, data.phonemes, free_now, means,
+                              None if table is None else table_pool(table, channel))
     return ChannelProblem(data, ps.packing(), options, ps.priors, spec.prior_noise,
                           None if offset_sd is None else float(offset_sd), spec.speakers, spec.speaker_column,
-                          shrink, rows)
+                          shrink, rows, prior, pool)
+
+
+def table_pool(table: ParameterTable, channel: str) -> Pool | None:
+    """The τ and σ a fitted table records for ``channel`` (``metadata.pooling``) as a Pool holding
+    only those scales (``pool_from_spec`` starts from them), or None."""
+    rec = (table.metadata.get("pooling") or {}).get(channel)
+    if not isinstance(rec, dict):
+        return None
+    fams = rec.get("families") or {}
+    return Pool(tau={f: float(v["sd"]) for f, v in fams.items()}, sigma=float(rec["sigma_mm"]),
+                temper=float(rec.get("data_weight", 1.0)))

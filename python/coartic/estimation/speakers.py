@@ -27,20 +27,21 @@ FloatArray = NDArray[np.float64]
 
 
 def utterance_speakers(utterances: Sequence[Utterance], mode: str, column: str,
-                       names: Sequence[str] | None = None) -> tuple[str, ...]:
-    """The speakers of the utterances in order of first appearance (the first is the reference), or
-    ``names`` checked to cover them; an utterance without a speaker is an error naming it."""
+                       names: Sequence[str] | None = None, factor: str = "speakers") -> tuple[str, ...]:
+    """The speakers (or, ``factor`` "emotions", the emotions) of the utterances in order of first
+    appearance (the first is the reference), or ``names`` checked to cover them; an utterance without
+    one is an error naming it."""
     seen: dict[str, None] = {}
     for u in utterances:
         if column not in u.meta or not str(u.meta[column]):
-            raise SpecError(f"[model] speakers = {mode!r}: utterance {u.name!r} has no {column!r} "
-                             f"(manifest column named by [model] speaker_column)")
+            raise SpecError(f"[model] {factor} = {mode!r}: utterance {u.name!r} has no {column!r} "
+                             f"(manifest column named by [model] {factor[:-1]}_column)")
         seen.setdefault(str(u.meta[column]), None)
     if names is None:
         return tuple(seen)
     extra = [s for s in seen if s not in names]
     if extra:
-        raise SpecError(f"[model] speakers: speaker(s) {', '.join(extra)} not among {', '.join(names)}")
+        raise SpecError(f"[model] {factor}: {factor[:-1]}(s) {', '.join(extra)} not among {', '.join(names)}")
     return tuple(names)
 
 
@@ -151,6 +152,9 @@ class SpeakerRows:
     names: tuple[str, ...]  # speakers, reference (first in utterance order) first
     base: tuple[str, ...]  # the phonemes (the table's rows)
     rows: tuple[tuple[int, int], ...]  # per row of the problem: (base phoneme index, speaker index)
+    # "speakers", or "emotions" ([model] emotions = "targets", coartic.estimation.emotions): the
+    # same rows per emotion, the reference (first name) the neutral one, whose targets the table holds
+    factor: str = "speakers"
 
     @property
     def labels(self) -> tuple[str, ...]:
@@ -162,8 +166,10 @@ class SpeakerRows:
 
     def collapse(self, params: FloatArray) -> FloatArray:
         """The table's matrix: each phoneme's shared values (its leader row) and as target the mean
-        of its speakers' targets (the population)."""
+        of its speakers' targets (the population); for emotions the leader's (the neutral) target."""
         out = np.array([params[self.leader(p)] for p in range(len(self.base))], dtype=np.float64)
+        if self.factor == "emotions":
+            return out
         k = PARAMETERS.index("target")
         for p in range(len(self.base)):
             out[p, k] = float(np.mean([params[r, k] for r, (q, _) in enumerate(self.rows) if q == p]))
@@ -182,8 +188,8 @@ class SpeakerRows:
         out = []
         for g in groups:
             if g.parameter == "target":
-                raise SpecError.at(spec.path, g.key, f"shrinks target, but [model] speakers = \"targets\" gives "
-                                   "every speaker its own targets: shrink the dynamics only")
+                raise SpecError.at(spec.path, g.key, f"shrinks target, but [model] {self.factor} = \"targets\" gives "
+                                   f"every {self.factor[:-1]} its own targets: shrink the dynamics only")
             out.append(replace(g, rows=tuple(self.leader(i) for i in g.rows)))
         return out
 
@@ -191,28 +197,39 @@ class SpeakerRows:
 def expand_speaker_targets(spec: FitSpec, data: ChannelData, ps: ParameterSet, data_start: bool = True,
                            names: Sequence[str] | None = None,
                            start_targets: Mapping[str, Mapping[str, float]] | None = None,
-                           ) -> tuple[ChannelData, ParameterSet, SpeakerRows]:
+                           factor: str = "speakers") -> tuple[ChannelData, ParameterSet, SpeakerRows]:
     """The per-speaker problem of ``[model] speakers = "targets"`` from the base one: data relabelled
     ``p|s``, the parameter set with a row per (phoneme, speaker), shared entries tied to the first
     row, targets per row. Targets start at each speaker's own data targets (``data_start``), at
     ``start_targets`` (speaker -> phoneme -> target: a fitted table's, for MCMC), or at the base
-    start. ``names`` fixes the speakers' order (the reference first)."""
-    column = spec.speaker_column
-    spk = utterance_speakers(data.utterances, "targets", column, names)
+    start. ``names`` fixes the speakers' order (the reference first).
+
+    ``factor`` "emotions" makes the same rows per emotion (``[model] emotions = "targets"``, column
+    ``[model] emotion_column``; ``names`` then starts with the neutral emotion, whose rows lead, so
+    every phoneme must occur in a neutral trial)."""
+    column = spec.speaker_column if factor == "speakers" else spec.emotion_column
+    spk = utterance_speakers(data.utterances, "targets", column, names, factor)
     bad = [n for n in spk if SPEAKER_SEP in n]
     if bad:
-        raise SpecError.at(spec.path, "model", f"speakers = \"targets\": speaker name {bad[0]!r} contains "
+        raise SpecError.at(spec.path, "model", f"{factor} = \"targets\": {factor[:-1]} name {bad[0]!r} contains "
                            f"{SPEAKER_SEP!r}")
     kt = PARAMETERS.index("target")
     for f, ld in ps.ties:
         if f % N_PARAMS == kt:
             tie = next((f"tie #{i + 1}.parameters" for i, t in enumerate(spec.ties) if "target" in t.parameters), "tie")
             raise SpecError.at(spec.path, tie, "a tie of target cannot be combined with "
-                               "[model] speakers = \"targets\" (every speaker has its own targets)", parameter="target")
+                               f"[model] {factor} = \"targets\" (every {factor[:-1]} has its own targets)",
+                               parameter="target")
     base = tuple(data.phonemes)
     occurs = {(base.index(lab), spk.index(str(u.meta[column]))) for u in data.utterances for lab in u.labels}
     rows = tuple((p, s) for s in range(len(spk)) for p in range(len(base)) if (p, s) in occurs)
-    sr = SpeakerRows(spk, base, rows)
+    if factor == "emotions":
+        alone = [base[p] for p in range(len(base)) if (p, 0) not in occurs]
+        if alone:
+            raise SpecError.at(spec.path, "model", f"emotions = \"targets\": phoneme(s) {', '.join(alone)} occur in "
+                               f"no {spk[0]!r} trial: each emotion is fitted as a deviation from the neutral "
+                               f"target, so record them neutrally too (or drop them with [corpus] select)")
+    sr = SpeakerRows(spk, base, rows, factor)
     labels = sr.labels
     utts = [Utterance([f"{lab}{SPEAKER_SEP}{u.meta[column]}" for lab in u.labels], u.starts, u.ends, u.times,
                       u.name, u.observed, u.valid, u.meta) for u in data.utterances]

@@ -118,6 +118,30 @@ class Baselines:
         return out
 
 
+    def absent(self, test: Sequence[Utterance], channel: str) -> dict[str, str]:
+        """Each baseline ``predict`` leaves out for ``channel``, with the reason in words (the
+        warped one: the test utterances whose sentence has no other token in the training data)."""
+        out: dict[str, str] = {}
+        lone = [u.name for u in test if self.predict_one("warped", u, channel) is None]
+        if lone:
+            more = f" and {len(lone) - 3} more" if len(lone) > 3 else ""
+            out["warped"] = (f"no other token of the sentence of {', '.join(lone[:3])}{more} in the training data "
+                             f"(a warped token needs the same label sequence from another file)")
+        return out
+
+
+def caption(shown: Sequence[str], absent: dict[str, str]) -> str:
+    """The words under a table of baselines: what each one shown is, and why each other is not."""
+    parts = [f"{b} = {WHAT[b]}" for b in BASELINES if b in shown]
+    said = ("baselines on the same samples: " + "; ".join(parts)) if parts else "no baselines"
+    gone = [f"{b} not shown: {why}" for b, why in absent.items() if b not in shown]
+    return said + "".join(f"; {g}" for g in gone)
+
+
+WHAT = {"constant": "training mean", "step": "each phoneme's training mean",
+        "warped": "another token of the sentence, time-warped"}
+
+
 def beats_step(table_rmse: tuple[float, float], step_rmse: tuple[float, float]) -> bool:
     """Whether the table beats the step model both as measured and with the offsets removed
     ((raw, offset removed) RMSE of each on the same samples)."""

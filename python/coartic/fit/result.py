@@ -23,9 +23,12 @@ import numpy as np
 from numpy.typing import NDArray
 
 from coartic import __version__
+from coartic.extras import require
 from coartic.fit.bounds import CATEGORY_TITLES, BoundNote, explain_bounds, summary_counts
+from coartic.estimation.emotions import channel_metadata
 from coartic.estimation.parameters import ParameterSet, psd_pseudo_inverse
-from coartic.estimation.packing import Packing
+from coartic.estimation.packing import Packing, shared_words
+from coartic.estimation.pooling import PoolEstimate
 from coartic.estimation.problem import ChannelProblem
 from coartic.errors import UsageError
 from coartic.fit.spec import FitSpec
@@ -144,6 +147,7 @@ class ChannelFit:
     stats: ParameterStats | None = None
     fitted: FloatArray | None = None  # model on every sample of the channel's corpus
     multistart: MultiStart | None = None  # the optima a multi-start found ([fit] starts > 1)
+    pooling: PoolEstimate | None = None  # the pool's estimated sd and effective parameters ([parameters] pooled)
 
     @property
     def phonemes(self) -> tuple[str, ...]:
@@ -204,10 +208,7 @@ def finish_channel(problem: ChannelProblem, x: FloatArray, status: str, message:
                    stages: list[StageResult]) -> ChannelFit:
     params, beta = problem.packing.unpack(x)
     problem.packing.base, problem.packing.base_beta = params, beta
-    fitted = problem.evaluate(params, beta)
-    if problem.speakers is not None:  # each speaker's prediction a_s + b_s·F: what its mapped table gives
-        a, b = problem.speakers.coefficients(fitted)
-        fitted = a[problem.speakers.spk] + b[problem.speakers.spk] * fitted
+    fitted = problem.fitted(x)  # with speakers, each one's a_s + b_s·F: what its mapped table gives
     stats = parameter_stats(problem, x)
     return ChannelFit(problem.data.channel, problem, x, params, beta, status, message, problem.nfev, wall,
                       stages, stats, fitted)
@@ -284,6 +285,12 @@ class FitResult:
             t.metadata["speakers"] = {"mode": s.speakers, "column": s.speaker_column,
                                       **{key: {ch: m[key] for ch, m in per.items()} for key in ("coefficients", "targets")
                                          if any(key in m for m in per.values())}}
+        if s.emotions != "none":
+            # each emotion's own targets, its deviations from the neutral ones (the table's) with their
+            # Laplace sd, and the deviations' prior scale τ the data gave (coartic.estimation.emotions)
+            t.metadata["emotions"] = {"mode": s.emotions, "column": s.emotion_column, "neutral": s.neutral_emotion,
+                                      "channels": {ch: channel_metadata(f.problem, f.x)
+                                                   for ch, f in self.channels.items()}}
         if s.shrinks:  # the shrinkage the fit had (sd as the spec gives it; a [choose]n one in "choice")
             # the members it was applied to: those present in a fitted channel's data
             applied = {(grp.key, m) for f in self.channels.values() for grp in f.problem.shrink_groups
@@ -292,6 +299,9 @@ class FitResult:
                                         "parameters": list(g.parameters),
                                         "sd": g.sd, "scale": "log" if g.log else "natural", "prior_noise": s.prior_noise,
                                         "channels": list(g.channels) if g.channels else "all"} for g in s.shrinks]
+        pooling = {ch: f.pooling.as_dict() for ch, f in self.channels.items() if f.pooling is not None}
+        if pooling:  # the pool's estimated sd per family, σ and the effective parameters (build_problem reads it back)
+            t.metadata["pooling"] = pooling
         if self.choice is not None:
             t.metadata["choice"] = self.choice.metadata()
         if s.pauses == "postures":  # whoever evaluates the table gives pauses the same postures
@@ -314,12 +324,15 @@ class FitResult:
                     # its range inside the best optimum: the data leave it free (same fit within the noise)
                     row["not_identified_range"] = ms.best.unidentified.get(name, 0.0 if name in ms.names else "")
                 rows.append(row)
+            if fit.pooling is not None and rows:
+                rows += pooling_rows(fit.channel, fit.pooling, list(rows[0]))
         return rows
 
     def to_dataframe(self, what: str = "parameters") -> Any:
         """pandas DataFrame of ``parameters.csv`` (``what="parameters"``: one row per channel,
         phoneme and parameter with value, standard error, free, tie, bounds and flags; NaN where a
         number does not apply) or of ``rmse.csv`` (``"rmse"``: per channel and group)."""
+        require("dataframe", "to_dataframe()")
         import pandas as pd
 
         if what == "rmse":
@@ -359,14 +372,17 @@ class FitResult:
                              f"offset a = {a_s:+.4f} mm, scale b = {b_s:.4f}")
             if fit.multistart is not None:
                 lines += multistart_lines(fit.multistart, fit.problem.data.n_valid)
+            objective = "penalised objective" if fit.problem.penalised else "SSE"
             for s_i, sr in enumerate(fit.stages):
                 what = "probe stage" if sr.probe else "stage"
                 lines.append(f"    {what} {s_i + 1}: {sr.n_free} free ({', '.join(sr.parameters)}): "
-                             f"SSE {sr.sse_start:.4g} -> {sr.sse_end:.4g} [{sr.engine.status}]"
+                             f"{objective} {sr.sse_start:.4g} -> {sr.sse_end:.4g} [{sr.engine.status}]"
                              # a stage that did not converge says why, in the engine's own words
                              + ("" if (sr.engine.status == "converged" and not sr.engine.polished) or sr.probe
                                 else f": {sr.engine.message}"))
             lines += shrinkage_lines(fit.problem, fit.x)
+            if fit.pooling is not None:
+                lines += pooling_lines(fit.pooling)
             if st.at_bound:
                 lines.append(f"    warning: {len(st.at_bound)} parameter(s) at a bound: {', '.join(st.at_bound)}")
                 lines.append(f"        why (computed from the fit, [[At a bound]] below): {summary_counts(st.bounds)}")
@@ -383,12 +399,16 @@ class FitResult:
                 err = f"+/- {prm.stderr:.4g}" if np.isfinite(prm.stderr) else "+/- (not identified)"
                 prior = "" if prm.prior is None else (
                     f"  prior {'log-' if prm.prior.log else ''}N({prm.prior.mean:.4g}, {prm.prior.sd:.4g})")
+                shared = (f"  ({shared_words(prm.shared_by, fit.phonemes, prm.parameter)}: {prm.name} names its "
+                          "carrier)" if prm.shared_by else "")
                 lines.append(f"        {prm.name:<16} {prm.value:>12.5g} {err}{flag}"
-                             f"  [{prm.lower:.4g}, {prm.upper:.4g}]{prior}")
+                             f"  [{prm.lower:.4g}, {prm.upper:.4g}]{prior}{shared}")
             if st.bounds:
                 lines.append("    [[At a bound]] (each free parameter at a bound: which bound, where it comes from, why)")
                 for bn in st.bounds.values():
-                    lines += [f"        {bn.name} = {bn.value:.5g} at its {bn.side} bound {bn.bound:.5g} ({bn.source})",
+                    who = (f", the value of {shared_words(bn.shared_by, fit.phonemes, bn.parameter)}"
+                           if bn.shared_by else "")
+                    lines += [f"        {bn.name} = {bn.value:.5g} at its {bn.side} bound {bn.bound:.5g} ({bn.source}{who})",
                               f"            {CATEGORY_TITLES[bn.category]}: {bn.explanation}",
                               f"            reading: {bn.reading}"]
             c = np.triu(np.nan_to_num(st.corr), 1)
@@ -442,13 +462,18 @@ class FitResult:
                                      if f.stats else [],
                                      "unidentified": f.stats.unidentified if f.stats else [],
                                      "unidentified_explained": f.stats.unidentified_why if f.stats else {},
+                                     # the objective the engine minimised: the SSE plus the penalty rows when
+                                     # "penalised" (sse_start/sse_end: its old names, kept for old readers)
+                                     "penalised": f.problem.penalised,
                                      "stages": [{"parameters": list(sr.parameters), "n_free": sr.n_free,
+                                                 "objective_start": sr.sse_start, "objective_end": sr.sse_end,
                                                  "sse_start": sr.sse_start, "sse_end": sr.sse_end,
                                                  "status": sr.engine.status, "probe": sr.probe,
                                                  "message": sr.engine.message,
                                                  "polished": sr.engine.polished} for sr in f.stages],
                                      "multistart": None if f.multistart is None
-                                     else f.multistart.as_dict(f.problem.data.n_valid)}
+                                     else f.multistart.as_dict(f.problem.data.n_valid),
+                                     "pooling": None if f.pooling is None else f.pooling.as_dict()}
                                 for ch, f in self.channels.items()}}
         if self.validation:
 
@@ -464,12 +489,16 @@ def multistart_lines(ms: MultiStart, n_valid: int) -> list[str]:
     RMSE where validation scored them), the parameters the data leave free inside an optimum, and
     those that differ most between the optima."""
     hops = f", then {ms.hops} polishing restarts from the best of starts {ms.chains}" if ms.hops else ""
+    how = (f"probe: {ms.probe} evaluations per stage from {ms.probed} starts, continued: starts {ms.continued}{hops}"
+           if ms.probed else f"starts {ms.continued} fitted in full, no probe needed")
+    objective = f"penalised objective (SSE + {ms.penalty})" if ms.penalty else "objective (SSE)"
     lines = [f"    multi-start: {ms.summary_line(n_valid)}",
-             f"        {ms.nfev} evaluations in {ms.wall_time:.1f} s ({ms.workers} worker(s)); probe: "
-             f"{ms.probe} evaluations per stage from every start, then the best {len(ms.continued)} continued{hops}"]
+             f"        {ms.nfev} evaluations in {ms.wall_time:.1f} s ({ms.workers} worker(s)); {how}; optima ranked "
+             f"by the {objective}, data RMSE as measured"]
     for k, o in enumerate(ms.optima):
         held = "".join(f"; held out {sp}: {v:.4f} mm" for sp, v in o.heldout_rmse.items())
-        lines.append(f"        optimum {k + 1}: SSE {o.sse:.6g}, RMSE {np.sqrt(o.sse / max(n_valid, 1)):.4f} mm, "
+        lines.append(f"        optimum {k + 1}: data RMSE {o.rmse:.4f} mm, {'penalised ' if ms.penalty else ''}"
+                     f"objective {o.objective:.6g}, "
                      f"reached from {o.hits} start(s) {sorted(set(o.starts))} ({len(o.members)} end point(s)) "
                      f"[{o.status}]{held}")
         if o.unidentified:
@@ -478,6 +507,8 @@ def multistart_lines(ms: MultiStart, n_valid: int) -> list[str]:
                          + ", ".join(f"{nm} {d:.4g}" for nm, d in top))
     if ms.best_found_once:
         lines.append("        warning: the best optimum was reached from one start only: more starts may find a better one")
+    if ms.worse_than_start0:
+        lines.append(f"        note: {ms.worse_than_start0}")
     if ms.spread:
         top = sorted(ms.spread.items(), key=lambda kv: -kv[1])[:5]
         lines.append("        largest differences from the best among the distinct optima: "
@@ -502,6 +533,34 @@ def shrinkage_lines(problem: ChannelProblem, x: FloatArray) -> list[str]:
                      f"{'geometric ' if g.log else ''}mean {mean:.4g}: {devs}")
         i += len(g.rows)
     return lines
+
+
+def pooling_lines(est: PoolEstimate) -> list[str]:
+    """fit_report.txt: each pooled family's estimated sd and what it amounts to."""
+    lines = [f"    [[Pooling]] (sd estimated from the data: Laplace evidence, empirical Bayes; noise sd "
+             f"{est.sigma:.4g} mm; {est.rounds} re-solve(s){'' if est.settled else ', NOT settled'})",
+             f"        data weighed as {est.temper:.3g} x the samples (1 / the residuals' autocorrelation time: "
+             f"n_eff = {est.temper * est.n_valid:.0f} of {est.n_valid})",
+             f"        effective parameters: {est.effective:.2f} of {est.n_free} free (trace of the hat matrix)"]
+    lines += [f"        {est.line(f)}" for f in est.tau]
+    return lines
+
+
+def pooling_rows(channel: str, est: PoolEstimate, columns: list[str]) -> list[dict[str, Any]]:
+    """parameters.csv: a row per pooled family (parameter \"sd(family)\", its estimated sd; lower
+    and upper the search box) and one \"effective_parameters\" row (value: the trace of the hat
+    matrix, upper: the free parameters)."""
+    from coartic.estimation.pooling import TAU_BOUNDS
+
+    blank = dict.fromkeys(columns, "")
+    out = [{**blank, "channel": channel, "phoneme": "*", "parameter": f"sd({f})", "value": t, "free": True,
+            "tied_to": "", "lower": TAU_BOUNDS[0], "upper": TAU_BOUNDS[1], "at_bound": f in est.at_bound,
+            "unidentified": False, "bound_side": est.at_bound.get(f, ""),
+            "bound_explanation": est.line(f) if f in est.at_bound else ""} for f, t in est.tau.items()]
+    out.append({**blank, "channel": channel, "phoneme": "*", "parameter": "effective_parameters",
+                "value": est.effective, "free": False, "tied_to": "", "lower": 0.0, "upper": float(est.n_free),
+                "at_bound": False, "unidentified": False})
+    return out
 
 
 def now() -> str:

@@ -20,14 +20,15 @@ from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, T
 
 from coartic.console import LineProgress
 from coartic.errors import CoarticError
-from coartic.fit.engines import OptionError, check_options
+from coartic.fit.engines import EngineResult, OptionError, check_options
+from coartic.estimation.emotions import estimate_prior
 from coartic.estimation.problem import ChannelProblem, build_problem
 from coartic.model import Utterance
 from coartic.fit.result import ChannelFit, FitResult, finish_channel, now
 from coartic.errors import SpecError
 from coartic.fit.spec import FitSpec, load_spec
 from coartic.fit.multistart import MultiStart, fit_multistart
-from coartic.fit.staged import channel_status, fit_staged
+from coartic.fit.staged import channel_status, fit_pooled, fit_staged
 from coartic.table import ParameterTable
 
 
@@ -54,13 +55,20 @@ def fit_channel(spec: FitSpec, utterances: Sequence[Utterance], channel: str,
     start = start_values(spec, channel, problem.phonemes)
     if start is not None:
         problem = build_problem(spec, utterances, channel, start=start)
+    if problem.packing.n_free == 0:  # no start, stage or engine has anything to move: say so, not "converged"
+        raise SpecError.at(spec.path, "parameters.free", f"{channel}: no parameter is free (free = "
+                           f"{list(spec.free)!r}, and no [[override]] or fit_beta frees one): nothing to fit; free "
+                           "at least one (e.g. free = [\"target\"]), or predict with a fixed table by coartic score")
     task = None
     if progress is not None:
         task = progress.add_task(f"{channel}", total=None, info="", unit="evaluations")
 
+        # the best objective so far as an RMS (mm): the data RMSE only when nothing is added to the SSE
+        what = "penalised RMS" if problem.penalised else "RMSE"
+
         def monitor(nfev: int, best: float) -> None:
-            rmse = np.sqrt(best / max(problem.data.n_valid, 1))
-            progress.update(task, advance=1, info=f"RMSE {rmse:.3f} mm")
+            rms = np.sqrt(best / max(problem.data.n_valid, 1))
+            progress.update(task, advance=1, info=f"{what} {rms:.3f} mm")
 
         problem.monitor = monitor
     t0 = time.perf_counter()
@@ -75,10 +83,9 @@ def fit_channel(spec: FitSpec, utterances: Sequence[Utterance], channel: str,
     multi: MultiStart | None = None
     with threadpool_limits(limits=1, user_api="blas"):
         if spec.starts > 1:
-            def on_start(done: int, total: int) -> None:
+            def on_start(done: int, total: int, what: str) -> None:
                 if progress is not None and task is not None:
-                    progress.update(task, description=f"{channel} start {min(done + 1, total)}/{total} "
-                                    f"({'probe' if done < spec.starts else 'continued'})")
+                    progress.update(task, description=f"{channel} multi-start: {what} done")
 
             final, res, stages, multi = fit_multistart(problem, spec.engine, spec.engine_options, stage_names,
                                                        spec.starts, spec.seed, spec.probe, spec.keep,
@@ -86,6 +93,24 @@ def fit_channel(spec: FitSpec, utterances: Sequence[Utterance], channel: str,
                                                        include_start=spec.include_start)
         else:
             final, res, stages = fit_staged(problem, spec.engine, spec.engine_options, stage_names, on_stage)
+        if spec.emotions == "targets" and res.status not in ("interrupted", "failed", "non-finite start"):
+            # the deviations' scale τ from the fit without their prior, then the fit with it from there
+            # (coartic.estimation.emotions)
+            prior = estimate_prior(final, res.x)
+            final, res, more = fit_staged(final.with_emotion_prior(prior), spec.engine, spec.engine_options, None,
+                                          on_stage)
+            stages = [*stages, *more]
+        pooling = None
+        if final.pool is not None and res.status in ("converged", "max-evaluations"):
+            # partial pooling: the pool's sd estimated from the data, the fit re-solved at it
+            if progress is not None and task is not None:
+                progress.update(task, description=f"{channel} pooling (sd estimated)")
+            final, pooled_res, pooling = fit_pooled(final, res.x, spec.engine, spec.engine_options)
+            if pooled_res is not None:
+                keep = res.status == "converged" and pooled_res.status == "converged"
+                res = EngineResult(pooled_res.x, res.status if keep else pooled_res.status,
+                                   res.message if keep else f"re-solving at the estimated pooling sd: {pooled_res.message}",
+                                   res.nfev + pooled_res.nfev, res.njev + pooled_res.njev)
     status, message = channel_status(res, stages, multi is not None and multi.best_found_once)
     try:
         fit = finish_channel(final, res.x, status, message, time.perf_counter() - t0, stages)
@@ -93,6 +118,7 @@ def fit_channel(spec: FitSpec, utterances: Sequence[Utterance], channel: str,
         fit = finish_channel(final, res.x, "interrupted", "stopped by the user (Ctrl-C) after the fit",
                              time.perf_counter() - t0, stages)
     fit.multistart = multi
+    fit.pooling = pooling
     if progress is not None and task is not None:
         progress.update(task, description=f"{channel} done", info=escape(f"RMSE {fit.rmse:.3f} mm [{fit.status}]"))
         progress.stop_task(task)

@@ -42,6 +42,7 @@ ENGINES: tuple[str, ...] = ("scipy", "nlopt", "casadi")
 # "time": each utterance cut at its middle segment, one half fitted, the other held out (both ways)
 VALIDATE_GROUPS: tuple[str, ...] = ("utterance", "sentence", "rate", "speaker", "repetition", "time")
 SPEAKER_MODES: tuple[str, ...] = ("none", "offset", "offset_scale", "targets")
+EMOTION_MODES: tuple[str, ...] = ("none", "targets")
 
 # Starting values of the dynamics; targets start from the data (mean value at the target times).
 DEFAULT_START: dict[str, float] = {
@@ -66,7 +67,8 @@ DEFAULT_BETA_BOUNDS: tuple[float, float] = (0.05, 20.0)
 # better and predicted held-out speech worse there.
 DEFAULT_FREE: tuple[str, ...] = ("target", "theta_bw", "theta_fw")
 DEFAULT_SHARED: tuple[str, ...] = ("theta_bw", "theta_fw")
-DEFAULT_TARGET_PRIOR: float | None = 0.3
+DEFAULT_TARGET_PRIOR: float | str | None = 0.3
+DEFAULT_POOLED: tuple[str, ...] = ()
 SPEC_MODEL_DEFAULTS: dict[str, Any] = {"dominance": "plateau", "handover": True}
 DEFAULT_STAGES: tuple[tuple[str, ...], ...] = (
     ("target",),
@@ -75,6 +77,9 @@ DEFAULT_STAGES: tuple[tuple[str, ...], ...] = (
 )
 # [fit] defaults: multi-start estimation (coartic.fit.multistart; measured in bench/multistart.py)
 DEFAULT_STARTS = 32
+# A start is a local fit from its own point, and their Sobol points are drawn at once: a bound that
+# turns a typo (10**9) into an error naming it, not a MemoryError hours later.
+MAX_STARTS = 10_000
 # The reference phoneme (α = 1) of a spec that names none: the first of these the data have, /a/
 # first (the paper's), then the other vowels from open to close (FitSpec.reference_for).
 DEFAULT_REFERENCE = "a"
@@ -120,10 +125,12 @@ def _flag(v: Any) -> bool:
     return v
 
 
-def _count(low: int) -> Callable[[Any], int]:
+def _count(low: int, high: int | None = None) -> Callable[[Any], int]:
     def check(v: Any) -> int:
         if isinstance(v, bool) or not isinstance(v, int) or v < low:
             raise _bad(f"expected {'a positive integer' if low == 1 else f'an integer >= {low}'}, got {v!r}")
+        if high is not None and v > high:
+            raise _bad(f"{v}: at most {high}; lower it")
         return v
     return check
 
@@ -292,13 +299,16 @@ def _priors(v: Any) -> dict[str, tuple[float, float, bool]]:
     return out
 
 
-def _target_prior(v: Any) -> float | None:
-    """``[parameters] target_prior``: "none" (or None), or the prior's sd in mm."""
+def _target_prior(v: Any) -> float | str | None:
+    """``[parameters] target_prior``: "none" (or None), "estimated" (its sd estimated from the data,
+    coartic.estimation.pooling), or the prior's sd in mm."""
     if v is None or v == "none":
         return None
+    if v == "estimated":
+        return "estimated"
     if isinstance(v, bool) or not isinstance(v, (int, float)) or not (math.isfinite(v) and v > 0):
-        raise _bad(f"{v!r}: expected \"none\" or a positive number (the sd in mm of every target around its "
-                   "phoneme's mean in the data)")
+        raise _bad(f"{v!r}: expected \"none\", \"estimated\" or a positive number (the sd in mm of every target "
+                   "around its phoneme's mean in the data)")
     return float(v)
 
 
@@ -306,6 +316,14 @@ def _shared(v: Any) -> tuple[str, ...]:
     names = _params(v)
     if "target" in names:
         raise _bad("target cannot be shared: one target for every phoneme is the constant model", parameter="target")
+    return names
+
+
+def _pooled(v: Any) -> tuple[str, ...]:
+    names = _params(v)
+    if "target" in names:
+        raise _bad("target cannot be pooled toward one value (the constant model): use target_prior = \"estimated\"",
+                   parameter="target")
     return names
 
 
@@ -357,12 +375,6 @@ def _table(v: Any) -> dict[str, Any]:
 def _text(v: Any) -> str:
     if not isinstance(v, str) or not v:
         raise _bad(f"{v!r}: expected a non-empty string")
-    return v
-
-
-def _optional_int(v: Any) -> int | None:
-    if v is not None and (isinstance(v, bool) or not isinstance(v, int)):
-        raise _bad(f"expected an integer, got {v!r}")
     return v
 
 
@@ -586,7 +598,10 @@ class FitSpec:
     shared: Annotated[tuple[str, ...], BeforeValidator(_shared)] = DEFAULT_SHARED
     # sd (mm) of a Gaussian prior drawing every free target toward the mean of the channel over its
     # phoneme's segments in the fitted data (the step model's value); None: no such prior
-    target_prior: Annotated[float | None, BeforeValidator(_target_prior)] = DEFAULT_TARGET_PRIOR
+    target_prior: Annotated[float | str | None, BeforeValidator(_target_prior)] = DEFAULT_TARGET_PRIOR
+    # free parameters drawn toward one value per channel with an sd estimated from the data
+    # (partial pooling, coartic.estimation.pooling)
+    pooled: Annotated[tuple[str, ...], BeforeValidator(_pooled)] = DEFAULT_POOLED
     start_table: Annotated[Path | None, BeforeValidator(_optional(_path))] = None  # start values from a table JSON
     start: ParamValues = dataclasses.field(default_factory=lambda: dict(DEFAULT_START))
     # Gaussian priors (penalties in least squares): "parameter" (every phoneme) or "phoneme.parameter"
@@ -604,6 +619,12 @@ class FitSpec:
     # "postures": initial, final and medial pauses are three rows, short pauses in a closure join
     # it (coartic.pauses); "one": every pause is '#'
     pauses: Annotated[str, BeforeValidator(_one_of(PAUSE_MODES))] = "postures"
+    # emotion as a factor of the fit: "none", or "targets" (each emotion's targets a deviation from the
+    # neutral ones, shrunk toward them by a scale the data estimate: coartic.estimation.emotions), the
+    # emotion read from the manifest column emotion_column, neutral_emotion the reference
+    emotions: Annotated[str, BeforeValidator(_one_of(EMOTION_MODES))] = "none"
+    emotion_column: Text = "emotion"
+    neutral_emotion: Text = "neutral"
     start_given: frozenset[str] = frozenset()  # the [parameters.start] keys the spec gives (checked against bounds)
     bounds: Bounds = dataclasses.field(default_factory=lambda: dict(DEFAULT_FIT_BOUNDS))
     channel_bounds: Annotated[dict[str, dict[str, tuple[float, float]]], BeforeValidator(_channel_bounds)] = \
@@ -619,7 +640,7 @@ class FitSpec:
     stages: Annotated[tuple[tuple[str, ...], ...], BeforeValidator(_stages)] = DEFAULT_STAGES
     # [fit]: global estimation by multi-start (coartic.fit.multistart); starts = 1 is one local fit
     # from [parameters.start]
-    starts: Annotated[int, BeforeValidator(_count(1))] = DEFAULT_STARTS
+    starts: Annotated[int, BeforeValidator(_count(1, MAX_STARTS))] = DEFAULT_STARTS
     seed: Annotated[int, BeforeValidator(_count(0))] = 0
     probe: Annotated[int, BeforeValidator(_count(1))] = DEFAULT_PROBE
     # starts continued after the probe (None: multistart.default_keep)
@@ -630,7 +651,7 @@ class FitSpec:
     validate_group: Annotated[str | None, BeforeValidator(_optional(_one_of(VALIDATE_GROUPS)))] = None
     # None: one fold per group (leave one group out)
     validate_folds: Annotated[int | None, BeforeValidator(_optional(_count(2)))] = None
-    holdout_repetition: Annotated[int | None, BeforeValidator(_optional_int)] = 5
+    holdout_repetition: Annotated[int | None, BeforeValidator(_optional(_count(1)))] = 5  # counted from 1
     train_rate: str | None = "normal"
     test_rate: str | None = "fast"
 
@@ -641,6 +662,8 @@ class FitSpec:
             raise _bad("no channel to fit", ("channels",))
         if self.speakers != "none" and self.offsets != "none":
             raise _bad("cannot be combined with [model] offsets yet: choose one", ("speakers",))
+        if self.emotions != "none" and (self.offsets != "none" or self.speakers != "none"):
+            raise _bad("cannot be combined with [model] offsets or speakers yet: choose one", ("emotions",))
         ref = self.reference_phoneme or DEFAULT_REFERENCE
         for i, t in enumerate(self.ties):
             if ref in t.phonemes and "alpha" in t.parameters:
@@ -653,10 +676,20 @@ class FitSpec:
                 raise _bad(f"sets alpha of the reference phoneme {ref!r}, which is fixed at 1 (alpha is "
                            "scale-free); choose another [model] reference_phoneme to fit it", ("overrides", i),
                            phoneme=ref, parameter="alpha")
+        both = set(self.pooled) & set(self.shared)
+        if both:
+            raise _bad(f"{', '.join(sorted(both))} is both shared by every phoneme and pooled: one or the other "
+                       "(pooled with its sd estimated reaches shared when the data say so)", ("pooled",))
         tied = {q for t in self.ties for q in t.parameters} & set(self.shared)
         if tied:
             raise _bad(f"{', '.join(sorted(tied))} is both shared by every phoneme and in a [[tie]]: one or the other",
                        ("shared",))
+        if self.beta > self.beta_bounds[1]:
+            # the model takes any beta >= 0, but past the box a fit may search, rho(u) is gone within a
+            # hair of the target: a typo (1e308) must not read as a model that fits badly
+            raise _bad(f"beta = {self.beta:g} is above {self.beta_bounds[1]:g}, the upper end of [model] beta_bounds "
+                       "(the largest beta a fit may reach): lower beta, or widen beta_bounds", ("beta",),
+                       parameter="beta", value=self.beta)
         if self.keep is not None and self.starts > 1 and self.keep > self.starts:
             raise _bad(f"{self.keep}: more than the {self.starts} starts", ("keep",))
         if self.validate_folds is not None and self.validate_group is None:
@@ -733,10 +766,11 @@ DOCUMENT: dict[str, dict[str, str]] = {
     "": {"name": "name"},
     "model": {k: k for k in ("variant", "channels", "reference_phoneme", "apex_fraction", "edge_extent", "beta",
                              "fit_beta", "beta_bounds", "offsets", "dominance", "plateau_fraction", "handover",
-                             "speakers", "speaker_column", "pauses")},
+                             "speakers", "speaker_column", "pauses", "emotions", "emotion_column",
+                             "neutral_emotion")},
     "parameters": {"free": "free", "start": "start", "start_table": "start_table", "bounds": "bounds",
                    "target_margin": "target_margin", "prior": "priors", "prior_noise": "prior_noise",
-                   "shared": "shared", "target_prior": "target_prior"},
+                   "shared": "shared", "target_prior": "target_prior", "pooled": "pooled"},
     "engine": {"name": "engine", "options": "engine_options"},
     "staging": {"enabled": "staging", "stages": "stages"},
     "fit": {k: k for k in ("starts", "seed", "probe", "keep", "include_start")},
@@ -810,6 +844,18 @@ def document_fields(raw: Mapping[str, Any], path: Path) -> dict[str, Any]:
         # the shared dynamics belong to the default freedom: a spec that lists its own free set keeps
         # per-phoneme values unless it says shared = [...] too
         fields["shared"] = ()
+    if isinstance(p, Mapping) and "free" in p and "pooled" not in p:
+        fields["pooled"] = ()  # likewise the pooled dynamics
+    if isinstance(p, Mapping) and isinstance(p.get("pooled"), list) and "shared" not in p and "free" not in p:
+        fields["shared"] = tuple(q for q in DEFAULT_SHARED if q not in p["pooled"])  # pooled instead of shared
+    for key in ("pooled",):
+        if isinstance(p, Mapping) and isinstance(p.get(key), list):
+            frees = [p.get("free", list(DEFAULT_FREE))] + [o.get("free", []) for o in raw.get("override", [])
+                                                           if isinstance(o, Mapping)]
+            freed = {n for f in frees for n in (f if isinstance(f, list) else [f])}
+            if set(p[key]) - freed:
+                raise SpecError.at(path, f"parameters.{key}", f"{', '.join(sorted(set(p[key]) - freed))} is not free "
+                                   "([parameters] free or an [[override]] free): pooling a fixed value would do nothing")
     if isinstance(p, Mapping) and "shared" in p and isinstance(p["shared"], list):
         frees = [p.get("free", list(DEFAULT_FREE))] + [o.get("free", []) for o in raw.get("override", [])
                                                        if isinstance(o, Mapping)]

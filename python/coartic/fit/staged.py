@@ -9,13 +9,14 @@ can only change where the last fit starts from, never what it may fit.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Any, Callable, Sequence
 
 import numpy as np
 from numpy.typing import NDArray
 
 from coartic.fit.engines import EngineResult, get_engine
+from coartic.estimation.pooling import PoolEstimate, estimate, residual_weight, settled
 from coartic.estimation.problem import ChannelProblem
 from coartic.table import PARAMETERS
 
@@ -125,3 +126,46 @@ def fit_staged(problem: ChannelProblem, engine: str, options: dict[str, Any], st
     x = packing.pack()
     res = EngineResult(x, res.status, res.message, nfev, njev, polished=res.polished)
     return out, res, results
+
+
+# MAP re-solves at most, alternating with the τ estimate, before the pool is reported unsettled
+POOL_ROUNDS = 12
+
+
+def fit_pooled(problem: ChannelProblem, x: NDArray[np.float64], engine: str, options: dict[str, Any],
+               rounds: int = POOL_ROUNDS) -> tuple[ChannelProblem, EngineResult | None, PoolEstimate]:
+    """Partial pooling's empirical Bayes (``coartic.estimation.pooling``): from the optimum ``x`` of
+    ``problem`` (its pool at its starting τ and σ), alternate the τ and σ that maximise the Laplace
+    evidence at the current optimum and the optimum (one local fit from the last) at those τ, σ,
+    until τ and σ settle. Returns the problem at the final τ, σ (its packing's base the optimum),
+    the last engine result (None if the first estimate already matched) and the estimate."""
+    assert problem.pool is not None
+    minimize = get_engine(engine)
+    res: EngineResult | None = None
+    est: PoolEstimate | None = None
+    nfev = njev = 0
+    for k in range(rounds + 1):
+        r = problem.residuals(x)
+        j = problem.jacobian(x)
+        nd = r.size - problem.pool_size
+        d = problem.data
+        w, _ = residual_weight(r[: d.corpus.n_samples], d.sample_offsets, d.weights)
+        est = estimate(r[:nd], j[:nd].toarray(), problem.pool, problem.packing, x, d.n_valid, w)
+        if settled(problem.pool, est) or k == rounds:
+            est = replace(est, rounds=k, settled=settled(problem.pool, est))
+            break
+        problem = problem.with_pool(problem.pool.with_scales(est.tau, est.sigma, est.temper))
+        problem.nfev = problem.njev = 0
+        res = minimize(problem, x, options)
+        nfev += problem.nfev
+        njev += problem.njev
+        if res.status in ("interrupted", "failed", "non-finite start"):
+            est = replace(est, rounds=k + 1, settled=False)
+            break
+        x = res.x
+    assert est is not None
+    params, beta = problem.packing.unpack(x)
+    problem.packing.base, problem.packing.base_beta = params, beta
+    if res is not None:
+        res = EngineResult(x, res.status, res.message, nfev, njev)
+    return problem, res, est

@@ -26,6 +26,8 @@ from typing import Any, Sequence
 
 import numpy as np
 from numpy.typing import NDArray
+
+from coartic.extras import require
 from coartic.mcmc.errors import McmcError
 
 MIN_TAU_MULTIPLE = 50.0
@@ -84,6 +86,7 @@ def load_arviz() -> Any:
     """ArviZ, imported quietly (it warns about its coming refactor on import)."""
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
+        require("mcmc", "MCMC convergence diagnostics")
         import arviz as az
     return az
 
@@ -93,6 +96,7 @@ def autocorr_time(chain: NDArray[np.float64]) -> NDArray[np.float64]:
 
     emcee's estimator with ``tol=0``: it never raises, the caller compares the length with τ.
     """
+    require("mcmc", "MCMC convergence diagnostics")
     import emcee
 
     if chain.shape[0] < 2:

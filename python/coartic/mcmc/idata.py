@@ -27,6 +27,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from coartic.extras import require
 from coartic.outputs import atomic_path
 
 if TYPE_CHECKING:
@@ -56,6 +57,7 @@ def burn_and_thin(result: SamplingResult) -> tuple[int, int]:
 
 def to_inference_data(posterior: LogPosterior, result: SamplingResult, label: str = "") -> Any:
     """``arviz.InferenceData`` of one sampled posterior (layout in the module's docstring)."""
+    require("mcmc", "an ArviZ InferenceData")
     import arviz as az
     import xarray as xr
 

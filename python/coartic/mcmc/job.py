@@ -17,6 +17,7 @@ from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any, Callable, Sequence
 
+from coartic.extras import require
 from coartic.fit.data import load_utterances
 from coartic.mcmc import plots
 from coartic.mcmc.idata import split_name
@@ -160,6 +161,7 @@ class McmcResult:
     def to_dataframe(self) -> Any:
         """One row per posterior and sampled quantity (pandas): channel, phoneme, parameter,
         speaker, least-squares start, mean, sd, quantiles, R-hat, bulk ESS, identified, converged."""
+        require("dataframe", "to_dataframe()")
         import pandas as pd
 
         rows = []
@@ -184,6 +186,7 @@ def sample(spec: str | Path, fit: str | Path, out: str | Path, *, channels: Sequ
     ``channels``, ``phonemes``, ``scope`` and ``max_steps`` override it). ``fit``: the fit's output
     directory or its table. A rerun into the same ``out`` resumes the saved chains.
     """
+    require("mcmc", "coartic mcmc")
     spec, fit, out = Path(spec), Path(fit), Path(out)
     fit_spec, cfg = read_spec(spec)
     cfg = configure(cfg, channels=channels, phonemes=phonemes, scope=scope, max_steps=max_steps)

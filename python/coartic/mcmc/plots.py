@@ -13,6 +13,8 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 from numpy.typing import NDArray  # noqa: E402
 
+from coartic.extras import require  # noqa: E402
+
 if TYPE_CHECKING:
     from coartic.mcmc.posterior import LogPosterior
     from coartic.mcmc.sampler import SamplingResult
@@ -23,6 +25,7 @@ PREDICTIVE_DRAWS = 200
 
 def corner_plot(result: SamplingResult, start: NDArray[np.float64], path: Path, title: str = "") -> Path:
     """Corner plot of the sampling coordinates; the least-squares optimum drawn as the 'truth' lines."""
+    require("mcmc", "a corner plot")
     import corner
 
     draws = result.draws()

@@ -28,6 +28,7 @@ from typing import Any, Callable, Iterator, Sequence
 import numpy as np
 from numpy.typing import NDArray
 
+from coartic.extras import require
 from coartic.mcmc import convergence
 from coartic.mcmc.convergence import ConvergenceReport
 from coartic.mcmc.errors import ChainError, McmcConfigError, McmcError
@@ -53,6 +54,7 @@ def make_moves(name: str) -> Any:
     """emcee moves by name. "de" (default): differential evolution (ter Braak 2006), which on the
     correlated per-phoneme and channel posteriors has about a third of the stretch move's
     autocorrelation time at the same cost per step. "stretch": emcee's default."""
+    require("mcmc", "MCMC sampling")
     import emcee
 
     check_moves(name)
@@ -289,6 +291,7 @@ def _run_chunk(
     Only whole steps are kept, each with the random state right after it, so that the resumed
     chain equals an uninterrupted one.
     """
+    require("mcmc", "MCMC sampling")
     import emcee
 
     stop = False

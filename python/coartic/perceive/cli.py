@@ -10,7 +10,7 @@ import typer
 from rich.console import Console
 from rich.markup import escape
 
-from coartic.console import LineProgress, print_error
+from coartic.console import LineProgress
 
 app = typer.Typer(help="Perceptual tests of the animation: prepare a study, serve it to participants' browsers, "
                   "export and analyse the answers (docs/PERCEIVE.md).", no_args_is_help=True)
@@ -24,8 +24,7 @@ ForceOpt = Annotated[bool, typer.Option("--force", help="Replace an output that 
 
 
 def _fail(err: BaseException) -> NoReturn:
-    print_error(_err, err)
-    raise typer.Exit(code=1)
+    raise err  # reported by the one handler of every command (coartic.console.handled): exit status 2
 
 
 @app.command("prepare")

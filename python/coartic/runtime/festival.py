@@ -72,8 +72,11 @@ class PhoneMap:
             except OSError as err:
                 raise PhoneMapError(f"{path}: cannot read the phone map ({err.strerror})") from None
         rows = list(csv.reader(text.splitlines(), delimiter="\t"))
-        if not rows or [c.strip() for c in rows[0][:3]] != ["festival", "phoneme", "fallbacks"]:
-            raise PhoneMapError(f"{source}, line 1: header must start with festival<TAB>phoneme<TAB>fallbacks")
+        # the first column is a TTS's phone: "festival" in Festival's maps, "phone" in phones_ipa.tsv (espeak-ng)
+        if not rows or [c.strip() for c in rows[0][:3]] not in (["festival", "phoneme", "fallbacks"],
+                                                               ["phone", "phoneme", "fallbacks"]):
+            raise PhoneMapError(f"{source}, line 1: header must start with festival<TAB>phoneme<TAB>fallbacks "
+                                "(or phone<TAB>phoneme<TAB>fallbacks)")
         phonemes: dict[str, str] = {}
         fallbacks: dict[str, tuple[str, ...]] = {}
         for lineno, row in enumerate(rows[1:], start=2):
@@ -120,6 +123,10 @@ class FestivalUtterance:
     wav: Path
     duration: float
     dropped: tuple[str, ...] = ()
+    # per phone: the word it belongs to (Festival's lower-cased token, "" for a pause) and that word's
+    # number in the utterance (-1 for a pause), so that two equal words in a row stay two
+    words: tuple[str, ...] = ()
+    word_ids: tuple[int, ...] = ()
 
 
 def prepare_text(text: str) -> str:
@@ -147,7 +154,8 @@ def _script(text: str, voice: str, stretch: float, segs: Path, wav: Path) -> str
         f"(set! utt (Utterance Text {_scheme_string(text)}))",
         "(utt.synth utt)",
         f"(set! fd (fopen {_scheme_string(str(segs))} \"w\"))",
-        '(mapcar (lambda (s) (format fd "%s\\t%f\\n" (item.name s) (item.feat s "end")))'
+        '(mapcar (lambda (s) (format fd "%s\\t%f\\t%s\\t%s\\n" (item.name s) (item.feat s "end")'
+        ' (item.feat s "R:SylStructure.parent.parent.name") (item.feat s "R:SylStructure.parent.parent.id")))'
         " (utt.relation.items utt 'Segment))",
         "(fclose fd)",
         f"(utt.save.wave utt {_scheme_string(str(wav))} 'riff)",
@@ -171,9 +179,12 @@ def wav_duration(path: Path) -> float:
         raise FestivalError(f"{path}: Festival's WAV cannot be read ({err})") from None
 
 
-def _parse_segments(path: Path) -> tuple[list[str], list[float]]:
+def _parse_segments(path: Path) -> tuple[list[str], list[float], list[str], list[int]]:
+    """Phones, end times and (from the third and fourth columns) each phone's word and word number."""
     phones: list[str] = []
     ends: list[float] = []
+    words: list[str] = []
+    word_ids: list[int] = []
     for lineno, line in enumerate(path.read_text(encoding="latin-1").splitlines(), start=1):
         if not line.strip():
             continue
@@ -184,7 +195,12 @@ def _parse_segments(path: Path) -> tuple[list[str], list[float]]:
             raise FestivalError(f"Festival's segment list {path}, line {lineno}: expected 'phone<TAB>end', got {line!r}") from None
         phones.append(parts[0])
         ends.append(end)
-    return phones, ends
+        # a pause has no word: Festival says 0 for the feature of a missing item; ids are "_<n>"
+        wid = parts[3].strip() if len(parts) > 3 else "0"
+        in_word = wid.startswith("_") and wid[1:].isdigit()
+        words.append(parts[2].strip() if in_word else "")
+        word_ids.append(int(wid[1:]) if in_word else -1)
+    return phones, ends, words, word_ids
 
 
 # Festival's Scheme heap, in cells: its default, 10 million (320 MB), costs 0.2 s of page faults at
@@ -271,7 +287,7 @@ class Synthesis:
                 hint = f"; Festival's heap of {festival_heap(cleaned)} cells was too small for this text"
             self.close()
             raise FestivalError(f"Festival failed (exit code {code}) on {cleaned!r}: {' | '.join(detail)}{hint}")
-        phones, ends = _parse_segments(self._segs)
+        phones, ends, words, word_ids = _parse_segments(self._segs)
         wav_path = Path(wav_path)
         wav_path.parent.mkdir(parents=True, exist_ok=True)
         shutil.copyfile(self._wav, wav_path)
@@ -290,7 +306,14 @@ class Synthesis:
             wav=wav_path,
             duration=duration,
             dropped=tuple(p for p, k in zip(phones, keep) if not k),
+            words=tuple(w for w, k in zip(words, keep) if k),
+            word_ids=tuple(w for w, k in zip(word_ids, keep) if k),
         )
+
+
+# Festival 2.5 ignores a Duration_Stretch below 0.1 (the /casa/ of pc_diphone lasts 1.04 s at 1,
+# 0.099 and 0.05, 0.114 s at 0.1: `(Parameter.set 'Duration_Stretch S)` then `utt.synth`).
+MIN_STRETCH = 0.1
 
 
 def start_synthesis(
@@ -311,8 +334,10 @@ def start_synthesis(
     default_voice, _, packages = language(lang)
     voice = default_voice if voice is None else voice
     cleaned = prepare_text(check_text(text))
-    if not (math.isfinite(stretch) and stretch > 0):
-        raise FestivalError(f"speaking-rate stretch must be a positive number, got {stretch!r}")
+    if not (math.isfinite(stretch) and stretch >= MIN_STRETCH):
+        raise FestivalError(f"--stretch {stretch:g}: the speaking-rate stretch must be a finite number of at least "
+                            f"{MIN_STRETCH:g} (Festival speaks at its normal rate when Duration_Stretch is below it); "
+                            f"{MIN_STRETCH:g} is about {1 / MIN_STRETCH:g} times as fast as normal")
     if not _VOICE_NAME.match(voice):
         raise FestivalError(f"voice name {voice!r} is not a Festival voice name (letters, digits, _)")
     return Synthesis(cleaned, voice, packages, festival_program(festival), float(stretch), timeout)

@@ -3,7 +3,7 @@
 Every engine is fed the Rust core's exact derivatives through ``ChannelProblem`` and returns the
 best point it saw, whatever happened (divergence, evaluation failures, Ctrl-C). What they share
 is in ``coartic.fit.engines.base``; each engine module is imported when its engine is asked for
-(nlopt and CasADi load only when used).
+(nlopt and CasADi load only when used; they come with the [engines] extra).
 """
 
 from __future__ import annotations
@@ -11,6 +11,7 @@ from __future__ import annotations
 from typing import Any
 
 from coartic.errors import UsageError
+from coartic.extras import EXTRAS, require
 from coartic.fit.engines.base import (Check, EngineResult, Minimizer, OptionError, Unit, check_against,
                                       evaluation_budget, is_int, is_number, iteration_budget, prepare_start)
 
@@ -18,8 +19,15 @@ __all__ = ["Check", "EngineResult", "Minimizer", "OptionError", "Unit", "check_a
            "evaluation_budget", "get_engine", "is_int", "is_number", "iteration_budget", "prepare_start"]
 
 
+def _require(name: str) -> None:
+    """nlopt and CasADi come with the [engines] extra; SciPy with every install."""
+    if name in EXTRAS["engines"]:
+        require("engines", f"the {name} engine", (name,))
+
+
 def get_engine(name: str) -> Minimizer:
     """The engine's minimize function (imported lazily: nlopt and CasADi load only when used)."""
+    _require(name)
     if name == "scipy":
         from coartic.fit.engines.scipy_ls import minimize
     elif name == "nlopt":
@@ -35,6 +43,7 @@ def check_options(name: str, options: dict[str, Any]) -> None:
     """Refuse engine options of the wrong name, type or value before any fit starts (raising
     ``OptionError`` naming the option), instead of a SciPy TypeError or a CasADi RuntimeError
     from inside the first channel's fit."""
+    _require(name)
     if name == "scipy":
         from coartic.fit.engines.scipy_ls import check_options as check
     elif name == "nlopt":

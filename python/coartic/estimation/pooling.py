@@ -1,0 +1,306 @@
+"""Partial pooling with an estimated strength: hierarchical priors whose sd τ the data choose
+(empirical Bayes), ``[parameters] pooled`` and ``[parameters] target_prior = "estimated"``.
+
+The general piece is a *family*: a set of least-squares prior rows that share one sd τ, which is
+estimated, not given. Two kinds of rows exist today:
+
+- **groups** (``coartic.estimation.penalties.ShrinkGroup`` with ``family`` set): the members of a
+  group (rows of the parameter matrix, one column) drawn toward the group's own mean, one row
+  ``σ (u_i − ū) / τ`` per member (u the value or its log). ``[parameters] pooled = ["theta_bw"]``
+  makes one group per channel, every phoneme of the channel, family ``"pooled theta_bw"``: each
+  phoneme's log θ_bw drawn toward the channel's shared value. τ → 0 is one shared value
+  (``[parameters] shared``), τ → ∞ a free value per phoneme. Any other grouping is the same
+  machinery: a factor such as emotion is one group per phoneme (its rows for each emotion, as
+  ``coartic.estimation.speakers.SpeakerRows`` makes per-speaker target rows) in one family per
+  parameter, drawn toward the phoneme's value with an estimated τ;
+- **means** (the target prior): every free target drawn toward its phoneme's mean over its segments
+  (the step model's value, ``coartic.estimation.target_prior``), rows ``σ (T_i − m_i) / τ``.
+
+``Pool`` holds the rows of one channel, each family's current τ and the noise sd σ the rows are
+weighed against (minimising SSE + Σ rows² is then the MAP of y ~ N(F, σ²), u ~ N(ū, τ²)).
+
+**Estimating τ** (``estimate``): the Laplace approximation of the marginal likelihood p(y | σ, τ),
+at the current optimum x̂, linearised with the core's exact Jacobian J (rows of the data) and the
+prior rows' Jacobians K_f (unit sd):
+
+    A = JᵀJ / σ² + Σ_f K_fᵀK_f / τ_f²,   g = Jᵀr / σ² + Σ_f K_fᵀz_f / τ_f²
+    −log p(y | σ, τ) ≈ |r|²/2σ² + Σ_f |z_f|²/2τ_f² − ½ gᵀA⁻¹g + n log σ + Σ_f rank_f log τ_f + ½ log det A
+
+(rank_f: the prior's rank, Σ (members − 1) over a family's groups, one per target prior row;
+constants dropped). The Gaussian likelihood counts every sample as independent; articulatory
+residuals are not (a model error lasts many samples), and counted as n independent samples they
+would swamp every prior (τ → ∞, per-phoneme fits, on any real recording). So the data are weighed
+as n_eff = w n samples, w = 1/τ_int from the residuals' integrated autocorrelation time (Geyer's
+initial positive sequence, as MCMC's effective sample size; ``residual_weight``): J, r and n above
+are scaled by √w, √w and w, and the MAP's prior rows by σ/√w. White residuals (the synthetic
+sessions) have w ≈ 1; the German EMA at 200 Hz about 1/8. It is minimised over log σ and every log τ_f within ``TAU_BOUNDS``; the fit
+then re-solves the MAP at the new τ and the two alternate until τ settles (``coartic.fit.staged.
+fit_pooled``). The effective number of parameters is the trace of the hat matrix,
+tr(A⁻¹ JᵀJ/σ²), and each family's γ_f = rank_f − tr(A⁻¹K_fᵀK_f)/τ_f² (0: pooled into one value,
+rank_f: every member its own).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field, replace
+from typing import TYPE_CHECKING, Mapping, Sequence
+
+import numpy as np
+import scipy.linalg as sla
+import scipy.optimize as so
+from numpy.typing import NDArray
+
+from coartic.estimation.packing import LOG_PARAMETERS, Packing, Prior
+from coartic.estimation.penalties import Penalty, PenaltyRows, ShrinkGroup, Shrinkage
+from coartic.errors import SpecError
+from coartic.table import PARAMETERS
+
+if TYPE_CHECKING:  # annotations only: the spec is fit's, above this package
+    from coartic.fit.spec import FitSpec
+
+FloatArray = NDArray[np.float64]
+
+TARGET_FAMILY = "target prior"
+# τ's search box, in the family's units (log units for α, θ; mm for targets and c, k_R natural):
+# 1e-3 is one shared value for any practical purpose, 1e3 a free one.
+TAU_BOUNDS: tuple[float, float] = (1e-3, 1e3)
+# Where τ starts: a moderate pull (a factor of e^0.3 ≈ 1.35 between phonemes' rates, 0.3 mm for a
+# target: the fixed default of earlier versions); the estimate does not depend on it beyond the
+# local optimum the first fit finds.
+TAU_START = 0.3
+# τ (and σ) are settled when no log changes by more than this between two rounds
+SETTLED = 0.02
+
+
+def family_of(parameter: str) -> str:
+    return f"pooled {parameter}"
+
+
+@dataclass(frozen=True)
+class Pool:
+    """The estimated prior families of one channel: groups toward their means, targets toward
+    their segment means, each family's τ and the noise σ (mm) the rows are weighed against."""
+
+    groups: tuple[ShrinkGroup, ...] = ()  # each with its family set
+    target_means: Mapping[str, float] = field(default_factory=dict)  # "phoneme.target" -> mean (mm)
+    tau: Mapping[str, float] = field(default_factory=dict)  # family -> τ
+    sigma: float = 1.0
+    # the weight w = n_eff / n of the data against the priors (autocorrelated residuals carry fewer
+    # independent samples than there are samples: ``temper``); the rows' noise is σ / √w
+    temper: float = 1.0
+
+    @property
+    def families(self) -> tuple[str, ...]:
+        out = list(dict.fromkeys(str(g.family) for g in self.groups))
+        return tuple(out + ([TARGET_FAMILY] if self.target_means else []))
+
+    def rank(self, family: str) -> int:
+        if family == TARGET_FAMILY:
+            return len(self.target_means)
+        return sum(len(g.rows) - 1 for g in self.groups if g.family == family)
+
+    def rows(self, packing: Packing, unit: bool = False) -> list[PenaltyRows]:
+        """The least-squares rows: the targets' then the groups' (``unit``: sd 1, noise 1, per family:
+        z_f and K_f of the evidence)."""
+        out: list[PenaltyRows] = []
+        fams = self.families if unit else ((TARGET_FAMILY,) if self.target_means else ()) + ("*",)
+        for fam in fams:
+            if fam == TARGET_FAMILY:
+                sd = 1.0 if unit else self.tau[TARGET_FAMILY]
+                out.append(Penalty(packing, {k: Prior(m, sd) for k, m in self.target_means.items()},
+                                   1.0 if unit else self.noise))
+            else:
+                groups = [replace(g, sd=1.0 if unit else self.tau[str(g.family)]) for g in self.groups
+                          if unit is False or g.family == fam]
+                out.append(Shrinkage(packing, groups, 1.0 if unit else self.noise))
+        return out
+
+    @property
+    def noise(self) -> float:
+        """The noise the rows are weighed against: σ / √w."""
+        return float(self.sigma / np.sqrt(self.temper))
+
+    def with_scales(self, tau: Mapping[str, float], sigma: float, temper: float | None = None) -> Pool:
+        return replace(self, tau=dict(tau), sigma=float(sigma),
+                       temper=self.temper if temper is None else float(temper))
+
+
+def pool_from_spec(spec: FitSpec, channel: str, phonemes: Sequence[str], moving: NDArray[np.bool_],
+                   priors: Mapping[str, Prior], start: Pool | None = None) -> Pool | None:
+    """The channel's pool from ``[parameters] pooled`` (one group of every phoneme per parameter)
+    and ``target_prior = "estimated"`` (the target priors ``priors`` holds, taken out of the fixed
+    ones by the caller); None when the spec estimates nothing. ``start``: τ and σ to start from
+    (a fitted table's)."""
+    groups = []
+    for name in spec.pooled:
+        k = PARAMETERS.index(name)
+        if not moving[:, k].any():
+            raise SpecError.at(spec.path, "parameters.pooled", f"{name} is free for no phoneme on {channel}: "
+                               "nothing to pool")
+        if len(phonemes) >= 2:
+            groups.append(ShrinkGroup("parameters.pooled", tuple(phonemes), tuple(range(len(phonemes))), k,
+                                      TAU_START, name in LOG_PARAMETERS, family_of(name)))
+    means = {k: p.mean for k, p in priors.items()} if spec.target_prior == "estimated" else {}
+    if not groups and not means:
+        return None
+    pool = Pool(tuple(groups), means, {}, spec.prior_noise)
+    tau = {f: TAU_START for f in pool.families}
+    sigma = spec.prior_noise
+    if start is not None:
+        tau.update({f: t for f, t in start.tau.items() if f in tau})
+        sigma = start.sigma
+    return pool.with_scales(tau, sigma, 1.0 if start is None else start.temper)
+
+
+@dataclass(frozen=True)
+class PoolEstimate:
+    """τ and σ that maximise the Laplace evidence at one optimum, and what they amount to."""
+
+    tau: dict[str, float]
+    sigma: float
+    log_evidence: float  # at the estimate (constants dropped: compare within one channel only)
+    effective: float  # tr(A⁻¹ JᵀJ/σ²): the effective number of parameters of the fit
+    family_effective: dict[str, float]  # γ_f per family
+    rank: dict[str, int]  # the prior rank of each family (its γ_f when τ → ∞)
+    n_free: int
+    at_bound: dict[str, str] = field(default_factory=dict)  # family -> "lower" (shared) / "upper" (free)
+    rounds: int = 0  # MAP re-solves until τ settled (set by the fit)
+    settled: bool = True
+    temper: float = 1.0  # w = n_eff / n (residual_weight): 1 / the residuals' autocorrelation time
+    n_valid: int = 0  # the samples n
+
+    def as_dict(self) -> dict[str, object]:
+        return {"sigma_mm": self.sigma, "effective_parameters": self.effective, "free_parameters": self.n_free,
+                "rounds": self.rounds, "settled": bool(self.settled), "data_weight": self.temper,
+                "samples": self.n_valid,
+
+                "families": {f: {"sd": t, "effective_parameters": self.family_effective[f], "rank": self.rank[f],
+                                 "at_bound": self.at_bound.get(f, "")} for f, t in self.tau.items()}}
+
+    def line(self, family: str) -> str:
+        b = self.at_bound.get(family)
+        where = {"lower": " (at its lower bound: one shared value)", "upper": " (at its upper bound: free per member)"}
+        return (f"{family}: sd {self.tau[family]:.4g}{where.get(b or '', '')}, "
+                f"{self.family_effective[family]:.2f} effective of {self.rank[family]}")
+
+
+class Evidence:
+    """The linearised Laplace evidence of one channel's problem at x̂, as a function of (σ, τ)."""
+
+    def __init__(self, data_r: FloatArray, data_j: FloatArray, pool: Pool, packing: Packing, x: FloatArray,
+                 n: float) -> None:
+        self.families = pool.families
+        self.rank = {f: pool.rank(f) for f in self.families}
+        self.n = float(n)
+        self.gd = data_j.T @ data_j
+        self.bd = data_j.T @ data_r
+        self.sd = float(data_r @ data_r)
+        self.gf, self.bf, self.sf = [], [], []
+        for rows in pool.rows(packing, unit=True):
+            z = rows.residuals(x)
+            k = rows.jacobian(x).toarray()
+            self.gf.append(k.T @ k)
+            self.bf.append(k.T @ z)
+            self.sf.append(float(z @ z))
+        d = self.gd.shape[0]
+        scale = max(float(np.max(np.diag(self.gd), initial=0.0)), 1e-300)
+        # a direction neither the data nor a prior determine: a tiny ridge keeps log det finite (a
+        # constant in σ, τ, so the estimate does not depend on it)
+        self.ridge = 1e-10 * scale * np.eye(d)
+
+    def _a(self, s: FloatArray) -> tuple[FloatArray, FloatArray, float]:
+        sig2 = np.exp(2 * s[0])
+        a = self.gd / sig2 + self.ridge
+        g = self.bd / sig2
+        l0 = self.sd / (2 * sig2)
+        for t, gf, bf, sf in zip(s[1:], self.gf, self.bf, self.sf):
+            w = np.exp(-2 * t)
+            a = a + gf * w
+            g = g + bf * w
+            l0 += sf * w / 2
+        return a, g, l0
+
+    def __call__(self, s: FloatArray) -> float:
+        """−log evidence at s = (log σ, log τ_f...)."""
+        a, g, l0 = self._a(s)
+        try:
+            c = sla.cho_factor(a)
+        except np.linalg.LinAlgError:
+            return np.inf
+        quad = float(g @ sla.cho_solve(c, g))
+        logdet = 2.0 * float(np.sum(np.log(np.diag(c[0]))))
+        return float(l0 - 0.5 * quad + self.n * s[0] + sum(self.rank[f] * t for f, t in zip(self.families, s[1:]))
+                     + 0.5 * logdet)
+
+    def effective(self, s: FloatArray) -> tuple[float, dict[str, float]]:
+        a, _, _ = self._a(s)
+        inv = np.linalg.pinv(a, hermitian=True)
+        total = float(np.sum(inv * self.gd.T) / np.exp(2 * s[0]))
+        fam = {f: float(self.rank[f] - np.sum(inv * gf.T) * np.exp(-2 * t))
+               for f, gf, t in zip(self.families, self.gf, s[1:])}
+        return total, fam
+
+
+def residual_weight(r: FloatArray, offsets: NDArray[np.int64], weights: FloatArray) -> tuple[float, float]:
+    """w = n_eff / n of the residuals ``r`` (one per sample; ``offsets`` the utterances' sample
+    offsets) and their integrated autocorrelation time τ_int = 1/w: the autocorrelation ρ_k over
+    pairs of valid samples k apart within one utterance, summed by Geyer's initial positive
+    sequence (τ_int = −1 + 2 Σ_m (ρ_2m + ρ_2m+1) while the pair sums stay positive, made
+    non-increasing: Geyer's initial monotone sequence, 1992; the
+    estimator of MCMC's effective sample size). White residuals give w ≈ 1; a model error that lasts
+    many samples (articulatory recordings sampled at 100-400 Hz) as few independent samples as it holds.
+    w is kept within [1/n, 1]."""
+    r = np.where(weights > 0, r, 0.0)
+    n = int(np.count_nonzero(weights > 0))
+    den = float(r @ r)
+    if n < 2 or den <= 0:
+        return 1.0, 1.0
+    utt = np.repeat(np.arange(offsets.size - 1), np.diff(offsets))
+
+    def rho(k: int) -> float:
+        if k == 0:
+            return 1.0
+        same = utt[:-k] == utt[k:]
+        return float(np.sum((r[:-k] * r[k:])[same]) / den)
+
+    tau, m, last = -1.0, 0, np.inf
+    longest = int(np.max(np.diff(offsets)))
+    while 2 * m + 1 < longest:
+        pair = min(rho(2 * m) + rho(2 * m + 1), last)  # Geyer's initial monotone sequence
+        if pair <= 0:
+            break
+        tau += 2.0 * pair
+        last = pair
+        m += 1
+    tau = max(tau, 1.0)
+    return float(np.clip(1.0 / tau, 1.0 / n, 1.0)), tau
+
+
+def estimate(data_r: FloatArray, data_j: FloatArray, pool: Pool, packing: Packing, x: FloatArray,
+             n: int, w: float = 1.0) -> PoolEstimate:
+    """σ and each family's τ maximising the linearised Laplace evidence at x (the current MAP);
+    ``data_r``, ``data_j``: the problem's residual rows and Jacobian without the pool's rows; ``w``:
+    n_eff / n of the residuals (``residual_weight``), the data weighed as n_eff samples (the
+    likelihood tempered by w)."""
+    ev = Evidence(np.sqrt(w) * data_r, np.sqrt(w) * np.asarray(data_j, dtype=np.float64), pool, packing, x, n)
+    ev.n = w * n
+    fams = ev.families
+    s0 = np.log(np.array([pool.sigma] + [pool.tau[f] for f in fams]))
+    rms = np.sqrt(ev.sd / max(ev.n, 1e-300))
+    lo_t, hi_t = np.log(TAU_BOUNDS)
+    bounds = [(np.log(max(rms, 1e-6)) - 5.0, np.log(max(rms, 1e-6)) + 5.0)] + [(lo_t, hi_t)] * len(fams)
+    s0 = np.clip(s0, [b[0] for b in bounds], [b[1] for b in bounds])
+    best = so.minimize(ev, s0, method="L-BFGS-B", bounds=bounds)
+    s = best.x if np.isfinite(best.fun) and best.fun <= ev(s0) else s0
+    total, fam = ev.effective(s)
+    tau = {f: float(np.exp(t)) for f, t in zip(fams, s[1:])}
+    at = {f: ("lower" if t <= lo_t + 1e-3 else "upper") for f, t in zip(fams, s[1:])
+          if t <= lo_t + 1e-3 or t >= hi_t - 1e-3}
+    return PoolEstimate(tau, float(np.exp(s[0])), -float(ev(s)), total, fam, dict(ev.rank), packing.n_free, at,
+                        temper=w, n_valid=int(n))
+
+
+def settled(a: Pool, b: PoolEstimate) -> bool:
+    """τ and σ within SETTLED (in log) of the pool's."""
+    return bool(abs(np.log(b.sigma / a.sigma)) <= SETTLED and abs(np.log(b.temper / a.temper)) <= SETTLED
+                and all(abs(np.log(b.tau[f] / a.tau[f])) <= SETTLED for f in b.tau))

@@ -1,0 +1,177 @@
+"""Emotion as a factor of the fit (issue 27): the emotive flavour of the synthetic session, the
+per-emotion target rows with their data-estimated shrinkage toward neutral, and the recovery of
+every deviation of a reduced emotive session."""
+
+from __future__ import annotations
+
+import csv
+import importlib.util
+import json
+import math
+import sys
+from pathlib import Path
+from types import ModuleType
+
+import numpy as np
+import pytest
+
+from coartic.errors import SpecError
+from coartic.estimation.emotions import EmotionPrior, pairs, shrink_groups
+from coartic.estimation.penalties import Shrinkage
+from coartic.estimation.problem import build_problem
+from coartic.fit import run
+from coartic.fit.data import load_utterances
+from coartic.fit.spec import load_spec
+from coartic.synthetic_cli import load_generator
+from coartic.table import CHANNELS, ParameterTable
+
+ROOT = Path(__file__).resolve().parents[2]
+# the reduced session: /b v/ only, repetition 1 (7 emotions x 3 vowels x 2 consonants x 2 rates = 84 trials)
+REDUCED = ("b", "v")
+SPEC = """name = "emotive reduced"
+[corpus]
+manifest = "{manifest}"
+[model]
+dominance = "centre"
+handover = false
+channels = {channels}
+reference_phoneme = "a"
+emotions = "targets"
+[parameters]
+target_prior = "none"
+free = ["target", "alpha", "theta_bw", "theta_fw", "c_bw", "c_fw", "k_r", "delta"]
+[staging]
+enabled = true
+[fit]
+starts = 1
+"""
+
+
+def check_module() -> ModuleType:
+    spec = importlib.util.spec_from_file_location("coartic_check_emotions", ROOT / "fit" / "check_emotions.py")
+    assert spec is not None and spec.loader is not None
+    module = importlib.util.module_from_spec(spec)
+    sys.modules[spec.name] = module  # its dataclasses look their module up
+    spec.loader.exec_module(module)
+    return module
+
+
+@pytest.fixture(scope="module")
+def gen() -> ModuleType:
+    return load_generator()
+
+
+@pytest.fixture(scope="module")
+def session(tmp_path_factory: pytest.TempPathFactory, gen: ModuleType) -> Path:
+    out = tmp_path_factory.mktemp("emotive")
+    gen.generate(out, quick=True, progress=False, flavour="emotive", consonants=list(REDUCED))
+    return out
+
+
+def write_spec(path: Path, manifest: Path, channels: list[str]) -> Path:
+    path.write_text(SPEC.format(manifest=manifest.as_posix(), channels=json.dumps(channels)), encoding="utf-8")
+    return path
+
+
+def test_emotion_settings_keep_the_contacts_and_follow_the_published_directions(gen: ModuleType) -> None:
+    emo = gen.load_emotions()
+    assert emo["emotions"] == ["neutral", "joy", "surprise", "sadness", "disgust", "anger", "fear"]
+    devs = gen.emotion_deviations(emo)
+    for e, per in devs.items():
+        for ph in ("p", "b", "m"):  # the closure is phonological: no emotion moves it
+            assert per["ULO"][ph] == 0.0 and per["LLO"][ph] == 0.0, (e, ph)
+        for ph in ("f", "v"):  # nor the lower lip's contact with the teeth
+            assert per["LLO"][ph] == 0.0, (e, ph)
+    # directions (our reading of Magno Caldognetto et al. 2003/2004): joy and fear spread the corners,
+    # surprise and anger draw them in; surprise opens the jaw most on /a/; sadness reduces the opening
+    assert devs["joy"]["LR"]["a"] > 0 and devs["fear"]["LR"]["a"] > 0
+    assert devs["surprise"]["LR"]["a"] < 0 and devs["anger"]["LR"]["a"] < 0
+    assert max(devs, key=lambda e: devs[e]["JO"]["a"]) == "surprise"
+    assert devs["sadness"]["LLO"]["a"] < 0 and devs["joy"]["ULP"]["a"] < 0
+    assert max(emo["asymmetry"], key=lambda e: abs(emo["asymmetry"][e]["ASYMX"])) == "disgust"
+
+
+def test_bad_emotion_settings_are_named(gen: ModuleType, tmp_path: Path) -> None:
+    text = (ROOT / "corpus-synthetic" / "emotions.toml").read_text(encoding="utf-8")
+    bad = tmp_path / "emotions.toml"
+    bad.write_text(text.replace("[deviation.sadness]        # reduced", "[deviation.sadness]\nULO = 1.0\n#"), encoding="utf-8")
+    with pytest.raises(gen.SessionError, match=r"emotions.toml: \[deviation.sadness\] ULO: the lips' closure"):
+        gen.load_emotions(bad)
+    bad.write_text(text.replace('other = ["t"]', 'other = []'), encoding="utf-8")
+    with pytest.raises(gen.SessionError, match=r"phoneme\(s\) \['t'\] in no \[classes\]"):
+        gen.load_emotions(bad)
+
+
+def test_emotive_session_has_the_emotions_the_truth_and_the_asymmetry(session: Path, gen: ModuleType) -> None:
+    with (session / "manifest.csv").open(newline="", encoding="utf-8") as f:
+        rows = list(csv.DictReader(f))
+    assert len(rows) == 7 * 3 * len(REDUCED) * 2
+    assert {r["emotion"] for r in rows} == {"neutral", "joy", "surprise", "sadness", "disgust", "anger", "fear"}
+    assert {r["intensity"] for r in rows} == {"1.0"}
+    truth = ParameterTable.load(session / "ground_truth.json")
+    meta = truth.metadata["emotions"]
+    assert meta["channels"]["LR"]["deviations"]["joy"]["a"] == 4.0
+    assert meta["channels"]["LR"]["targets"]["joy"]["a"] == truth.values["a"]["LR"]["target"] + 4.0
+    # the disgust trial's corners: the markers carry the asymmetry, their distance is still LR
+    with np.load(session / "truth" / "ava_disgust_normal_01.npz") as z:
+        m, names, lr = z["head_markers"], list(z["marker_names"]), z["LR"]
+    left, right = m[:, names.index("LC_L")], m[:, names.index("LC_R")]
+    np.testing.assert_allclose(np.linalg.norm(left - right, axis=1), lr, atol=1e-9)
+    np.testing.assert_allclose(-(left[:, 0] + right[:, 0]), 2.0, atol=1e-9)  # ASYMX: right outward minus left
+    np.testing.assert_allclose(right[:, 1] - left[:, 1], 1.5, atol=1e-9)  # ASYMY
+
+
+def test_deviation_prior_is_a_gaussian_on_the_difference(session: Path, tmp_path: Path) -> None:
+    """A pair group's penalty is σ̂² d² / τ², whatever the neutral target: the prior shrinks the
+    deviation toward 0, not the neutral target toward the emotion."""
+    spec = load_spec(write_spec(tmp_path / "s.toml", session / "manifest.csv", ["LR"]))
+    utts = load_utterances(spec)
+    problem = build_problem(spec, utts, "LR")
+    rows = problem.speaker_rows
+    assert rows is not None and rows.factor == "emotions" and rows.names[0] == "neutral"
+    prior = EmotionPrior({e: 0.5 for e in rows.names[1:]}, 0.1)
+    groups = shrink_groups(rows, prior, spec.prior_noise)
+    assert len(groups) == len(pairs(rows)) == sum(1 for _, e in rows.rows if e != 0)
+    shr = Shrinkage(problem.packing, groups, spec.prior_noise)
+    params, _ = problem.packing.unpack(problem.packing.pack())
+    _, r, _ = pairs(rows)[0]
+    for shift in (0.0, 7.0):
+        p = params.copy()
+        p[:, 0] = shift  # every row at the neutral target, one emotion row 1.3 mm from it
+        p[r, 0] = shift + 1.3
+        z = shr.noise * shr.z(p)
+        assert math.isclose(float(z @ z), 0.1**2 * 1.3**2 / 0.5**2, rel_tol=1e-12)
+
+
+def test_spec_refuses_emotions_with_speakers_and_a_corpus_without_neutral(session: Path, tmp_path: Path) -> None:
+    path = write_spec(tmp_path / "s.toml", session / "manifest.csv", ["LR"])
+    text = path.read_text(encoding="utf-8")
+    path.write_text(text.replace('emotions = "targets"', 'emotions = "targets"\nspeakers = "offset"'), encoding="utf-8")
+    with pytest.raises(SpecError, match="emotions.*cannot be combined"):
+        load_spec(path)
+    path.write_text(text.replace('emotions = "targets"', 'emotions = "targets"\nneutral_emotion = "calm"'),
+                    encoding="utf-8")
+    spec = load_spec(path)
+    with pytest.raises(SpecError, match="no trial has emotion = 'calm'"):
+        build_problem(spec, load_utterances(spec), "LR")
+
+
+def test_reduced_emotive_fit_recovers_every_deviation(session: Path, tmp_path: Path) -> None:
+    """The test suite's version of `make fit-emotive`: two channels of the reduced session, every
+    deviation of the truth within the check's tolerance, τ estimated near each emotion's spread."""
+    spec = write_spec(tmp_path / "s.toml", session / "manifest.csv", ["LR", "LLO"])
+    out = tmp_path / "fit"
+    run(spec, out)
+    table = ParameterTable.load(out / "table.json")
+    meta = table.metadata["emotions"]
+    assert meta["neutral"] == "neutral" and set(meta["channels"]) == {"LR", "LLO"}
+    check = check_module()
+    devs = check.deviations(table, ParameterTable.load(session / "ground_truth.json"))
+    assert len(devs) == 2 * 6 * (1 + 3 + len(REDUCED))  # channels x emotions x phonemes (# a i u b v)
+    worst = max(devs, key=lambda d: d.error)
+    assert worst.error <= check.TOLERANCE_MM, worst
+    # LR moves by the same amount on every phoneme, so τ is about that amount; the large ones are credible
+    tau = meta["channels"]["LR"]["tau"]
+    assert abs(tau["joy"] - 4.0) < 0.3 and abs(tau["sadness"] - 1.0) < 0.3
+    assert all(d.credible for d in devs if abs(d.truth) >= 1.0)
+    assert check.main([str(out), str(session / "ground_truth.json")]) == 0

@@ -1,0 +1,176 @@
+"""Partial pooling with an estimated strength (``[parameters] pooled``, ``target_prior =
+"estimated"``; coartic.estimation.pooling): the Laplace evidence it maximises, the τ it finds on
+data whose phonemes differ or share their rates, the limits τ → 0 (shared) and τ → ∞ (per
+phoneme), and what the outputs say about it (issue 25 item 1)."""
+
+from __future__ import annotations
+
+import csv
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from coartic import model
+from coartic.estimation.packing import Packing
+from coartic.estimation.penalties import ShrinkGroup
+from coartic.estimation.pooling import TAU_BOUNDS, Evidence, Pool, family_of, residual_weight
+from coartic.estimation.problem import build_problem
+from coartic.fit import run
+from coartic.fit.simulate import TRUTH, vcv_utterances
+from coartic.fit.spec import SpecError
+from coartic.fit.staged import fit_staged
+from coartic.table import N_PARAMS, PARAMETERS
+
+from fit_helpers import check_problem_derivatives, spec_of
+
+BW, FW = PARAMETERS.index("theta_bw"), PARAMETERS.index("theta_fw")
+# the simulation's truth with every parameter a fit of target and theta leaves at its start (alpha 1,
+# c 1, k_R 0.5) at that value: the fitted model is the true one, so the spread of theta is the truth's
+WELL = TRUTH.copy()
+WELL[:, 1], WELL[:, 4:6], WELL[:, 6] = 1.0, 1.0, 0.5
+SAME = WELL.copy()
+SAME[:, BW] = SAME[:, FW] = 30.0
+POOLED = {"free": ["target", "theta_bw", "theta_fw"], "pooled": ["theta_bw", "theta_fw"]}
+
+
+def utterances(truth: np.ndarray, seed: int = 3) -> list[model.Utterance]:
+    return vcv_utterances(np.random.default_rng(seed), truth, repetitions=1, rates={"normal": 1.0, "fast": 0.6})
+
+
+@pytest.fixture(scope="module")
+def differ() -> list[model.Utterance]:
+    return utterances(WELL)
+
+
+def test_the_evidence_is_the_exact_marginal_likelihood_of_a_linear_model() -> None:
+    # y = X u + noise, u_i ~ N(mu, tau^2) with a flat prior on mu: the linearised Laplace evidence is
+    # exact here; its differences between (sigma, tau) must equal those of the closed form
+    rng = np.random.default_rng(0)
+    d, n = 5, 40
+    X = rng.normal(size=(n, d))
+    y = X @ rng.normal(2.0, 0.7, d) + rng.normal(0.0, 0.3, n)
+    phon = tuple("abcde")
+    k = PARAMETERS.index("c_bw")  # a natural-scale column: u is x itself
+    free = np.zeros((d, N_PARAMS), dtype=bool)
+    free[:, k] = True
+    base = np.ones((d, N_PARAMS))
+    pk = Packing(phon, free, False, np.full((d, N_PARAMS), -1e9), np.full((d, N_PARAMS), 1e9), (1.0, 1.0), base, 1.0)
+    pool = Pool((ShrinkGroup("t", phon, tuple(range(d)), k, 1.0, False, "f"),), {}, {"f": 1.0}, 1.0)
+    x = rng.normal(size=d)  # any point: the quadratic expansion of a linear model is exact
+    ev = Evidence(X @ x - y, X, pool, pk, x, n)
+
+    def exact(sigma: float, tau: float) -> float:  # -log p(y | sigma, tau), mu integrated (flat)
+        c = sigma**2 * np.eye(n) + tau**2 * X @ X.T
+        ci = np.linalg.inv(c)
+        b = X @ np.ones(d)
+        q = float(y @ ci @ y - (b @ ci @ y) ** 2 / (b @ ci @ b))
+        return 0.5 * (np.linalg.slogdet(c)[1] + q + np.log(b @ ci @ b))
+
+    pts = [(0.3, 0.7), (0.2, 0.05), (0.5, 3.0)]
+    mine = [ev(np.log([s, t])) for s, t in pts]
+    ref = [exact(s, t) for s, t in pts]
+    np.testing.assert_allclose(np.diff(mine), np.diff(ref), rtol=1e-8, atol=1e-8)
+
+
+def test_pooled_rows_have_exact_derivatives(tmp_path: Path, differ: list[model.Utterance]) -> None:
+    s = spec_of(tmp_path, parameters={**POOLED, "free": ["target", "alpha", "theta_bw", "theta_fw"],
+                                      "pooled": ["alpha", "theta_bw"], "target_prior": "estimated"})
+    prob = build_problem(s, differ, "LLO")
+    assert prob.pool is not None and set(prob.pool.families) == {"pooled alpha", "pooled theta_bw", "target prior"}
+    n = len(prob.data.phonemes)
+    assert prob.pool_size == 2 * n + n  # every phoneme in each group (the reference's fixed alpha too), every target
+    x = prob.packing.pack() + np.random.default_rng(1).normal(0.0, 0.05, prob.packing.n_free)
+    check_problem_derivatives(prob, x)
+
+
+@pytest.mark.parametrize("truth, expect", [(WELL, "differ"), (SAME, "share")])
+def test_the_estimated_sd_follows_how_much_the_phonemes_differ(tmp_path: Path, truth: np.ndarray, expect: str) -> None:
+    s = spec_of(tmp_path, parameters=POOLED).with_options(starts=1)
+    fit = run(s, utterances=utterances(truth), quiet=True, report=False).channels["LLO"]
+    est = fit.pooling
+    assert est is not None and est.settled and fit.status == "converged"
+    true_sd = float(np.std(np.log(truth[:, [BW, FW]]), axis=0, ddof=1).mean())
+    for fam in (family_of("theta_bw"), family_of("theta_fw")):
+        if expect == "differ":  # the truth's spread of log theta (0.47): found within a factor 1.5
+            assert true_sd / 1.5 < est.tau[fam] < true_sd * 1.5, est.tau
+            assert est.family_effective[fam] > 0.9 * est.rank[fam]  # every phoneme its own rate
+        else:  # one rate for all: pooled into one value
+            assert est.tau[fam] == pytest.approx(TAU_BOUNDS[0]) and est.at_bound[fam] == "lower"
+            assert est.family_effective[fam] < 0.5
+    assert abs(est.sigma - 0.1) < 0.02  # the simulation's noise
+    if expect == "share":
+        th = fit.params[:, [BW, FW]]
+        assert np.ptp(th, axis=0).max() < 0.5 and np.allclose(th.mean(axis=0), 30.0, rtol=0.05)
+
+
+@pytest.mark.parametrize("tau, other", [(1e-4, {"shared": ["theta_bw", "theta_fw"]}), (1e4, {})])
+def test_the_limits_are_the_shared_and_the_per_phoneme_fits(tmp_path: Path, differ: list[model.Utterance],
+                                                            tau: float, other: dict[str, list[str]]) -> None:
+    pooled = build_problem(spec_of(tmp_path, parameters=POOLED), differ, "LLO")
+    assert pooled.pool is not None
+    pooled = pooled.with_pool(pooled.pool.with_scales({f: tau for f in pooled.pool.families}, 0.1))
+    p_fit, p_res, _ = fit_staged(pooled, "scipy", {}, None)
+    ref = build_problem(spec_of(tmp_path, parameters={"free": POOLED["free"], **other}), differ, "LLO")
+    r_fit, r_res, _ = fit_staged(ref, "scipy", {}, None)
+    a, b = p_fit.packing.unpack(p_res.x)[0], r_fit.packing.unpack(r_res.x)[0]
+    np.testing.assert_allclose(a[:, [BW, FW]], b[:, [BW, FW]], rtol=2e-3)
+    np.testing.assert_allclose(a[:, 0], b[:, 0], atol=2e-3)
+
+
+def test_outputs_say_which_sd_was_found_and_the_effective_parameters(tmp_path: Path,
+                                                                      differ: list[model.Utterance]) -> None:
+    s = spec_of(tmp_path, parameters={**POOLED, "target_prior": "estimated"}).with_options(starts=1)
+    res = run(s, tmp_path / "out", utterances=differ, quiet=True, report=False)
+    est = res.channels["LLO"].pooling
+    assert est is not None and set(est.tau) == {"pooled theta_bw", "pooled theta_fw", "target prior"}
+    assert 0 < est.effective <= est.n_free
+    meta = json.loads((tmp_path / "out" / "table.json").read_text())["metadata"]["pooling"]["LLO"]
+    assert meta["families"]["pooled theta_bw"]["sd"] == est.tau["pooled theta_bw"]
+    assert meta["effective_parameters"] == pytest.approx(est.effective)
+    rows = {r["parameter"]: r for r in csv.DictReader((tmp_path / "out" / "parameters.csv").open())}
+    assert float(rows["sd(pooled theta_fw)"]["value"]) == est.tau["pooled theta_fw"]
+    assert float(rows["effective_parameters"]["value"]) == pytest.approx(est.effective)
+    text = (tmp_path / "out" / "fit_report.txt").read_text()
+    assert "[[Pooling]]" in text and f"effective parameters: {est.effective:.2f} of {est.n_free} free" in text
+    assert "pooled theta_bw: sd" in text and "target prior: sd" in text
+    summary = json.loads((tmp_path / "out" / "summary.json").read_text())
+    assert summary["channels"]["LLO"]["pooling"]["families"]["target prior"]["rank"] == len(res.channels["LLO"].phonemes)
+    # the table's sd is where a problem built on it starts (MCMC samples around it)
+    from coartic.table import ParameterTable
+
+    again = build_problem(s, differ, "LLO", ParameterTable.load(tmp_path / "out" / "table.json"))
+    assert again.pool is not None and again.pool.tau == est.tau and again.pool.sigma == est.sigma
+
+
+@pytest.mark.parametrize("parameters, words", [
+    ({"free": ["target", "theta_bw"], "pooled": ["theta_fw"]}, "theta_fw is not free"),
+    ({"free": ["target", "theta_bw"], "pooled": ["theta_bw"], "shared": ["theta_bw"]}, "both shared"),
+    ({"pooled": ["target"]}, "target_prior = \"estimated\""),
+    ({"target_prior": "estimate"}, "\"estimated\""),
+])
+def test_pooling_settings_are_checked(tmp_path: Path, parameters: dict[str, object], words: str) -> None:
+    with pytest.raises(SpecError, match=words):
+        spec_of(tmp_path, parameters=parameters)
+
+
+def test_autocorrelated_residuals_count_as_fewer_samples() -> None:
+    # white residuals weigh 1; an AR(1) series with rho 0.9 has an autocorrelation time of
+    # (1 + rho)/(1 - rho) = 19 samples; pairs across two utterances do not count
+    rng = np.random.default_rng(0)
+    n, k = 4000, 8
+    offsets = np.linspace(0, n * k, k + 1).astype(np.int64)
+    white = rng.normal(size=n * k)
+    w, tau = residual_weight(white, offsets, np.ones(n * k))
+    assert w > 0.85 and tau < 1.2
+    e = np.random.default_rng(1).normal(size=(k, n))
+    ar = np.zeros((k, n))
+    for t in range(1, n):
+        ar[:, t] = 0.9 * ar[:, t - 1] + e[:, t]
+    w, tau = residual_weight(ar.ravel(), offsets, np.ones(n * k))
+    assert 19 / 1.25 < tau < 19 * 1.25 and w == pytest.approx(1 / tau)
+    # masked samples take no part
+    weights = np.ones(n * k)
+    weights[::7] = 0.0
+    assert residual_weight(np.where(weights > 0, ar.ravel(), 1e6), offsets, weights)[1] == pytest.approx(tau, rel=0.2)
