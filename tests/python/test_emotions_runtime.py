@@ -194,3 +194,31 @@ def test_expression_outside_the_mouth_in_faps_and_arkit(tmp_path: Path) -> None:
     assert w[:, ARKIT_NAMES.index("eyeWideLeft")].min() == pytest.approx(0.6)
     assert w[:, ARKIT_NAMES.index("browInnerUp")].min() == pytest.approx(0.8)
     assert arkit_weights(animate(TRUTH, seg, 25.0))[:, ARKIT_NAMES.index("browInnerUp")].max() == 0.0
+
+
+def test_chromium_shows_each_emotion_and_the_closure_stays(tmp_path: Path) -> None:
+    """The face in headless Chromium at the /a/ of /a b a/: surprise opens the mouth wider than
+    neutral and sadness less; at the /b/ the lips touch as in neutral speech for every emotion."""
+    from face_helpers import mouth_opening
+
+    from coartic.face.viewer import chromium_program, screenshot, write_page
+    from coartic.runtime.pipeline import animate_file
+
+    try:
+        chromium_program()
+    except Exception as err:  # scripts/setup.sh installs it; without it there is nothing to look at
+        pytest.skip(str(err))
+    labels = tmp_path / "aba.tsv"
+    labels.write_text("0.0\t0.5\t#\n0.5\t0.8\ta\n0.8\t0.92\tb\n0.92\t1.1\ta\n1.1\t1.5\t#\n", encoding="utf-8")
+    seg = Segments(("#", "a", "b", "a", "#"), np.array([0.0, 0.5, 0.8, 0.92, 1.1]), np.array([0.5, 0.8, 0.92, 1.1, 1.5]))
+    opening: dict[str, dict[str, float]] = {}
+    for e in ("neutral", "surprise", "sadness"):
+        table = TRUTH if e == "neutral" else emotion_table(TRUTH, e)
+        k = np.rint(target_times(table, seg, "LLO") * 25).astype(int)
+        animate_file(labels, table, tmp_path / e, fps=25.0, preview="none", gltf=True)
+        page = write_page(tmp_path / e)
+        opening[e] = {ph: mouth_opening(screenshot(page, tmp_path / f"{e}_{ph}.png", frame=int(k[i]), face_only=400,
+                                                   size=(400, 400), zoom=2.0)) for ph, i in (("a", 1), ("b", 2))}
+    assert opening["surprise"]["a"] > opening["neutral"]["a"] > opening["sadness"]["a"], opening
+    # the closure is the neutral one whatever the emotion (a pixel of anti-aliasing at most)
+    assert all(o["b"] == opening["neutral"]["b"] <= 1 for o in opening.values()), opening

@@ -124,6 +124,11 @@ def test_two_axis_face_markers_seen_from_the_front_are_refused(tmp_path: Path) -
         front.channels()
     side = load_trial(_two_axis_csv(tmp_path / "side.csv", head, (2, 1)))  # forwards and up: a side view
     assert "JO" in side.channels()
+    # a side view of a head turned 20 degrees: left and right no longer on one another, still a side view
+    a = np.deg2rad(20.0)
+    turn = np.array([[np.cos(a), 0, np.sin(a)], [0, 1, 0], [-np.sin(a), 0, np.cos(a)]])
+    turned = load_trial(_two_axis_csv(tmp_path / "turned.csv", head @ turn.T, (2, 1)))
+    assert "JO" in turned.channels()
 
 
 # ------------------------------------------------------------------------------------ labels
@@ -164,6 +169,9 @@ def test_an_empty_phones_tier_says_so(tmp_path: Path) -> None:
     p = _textgrid(tmp_path / "empty.TextGrid", [("words", [(0.0, 1.0, "")]), ("phones", [(0.0, 1.0, "")])])
     with pytest.raises(DataError, match=r"empty\.TextGrid: tier 'phones' holds no label \(1 empty interval"):
         read_labels(p)
+    none = _textgrid(tmp_path / "none.TextGrid", [("words", [(0.0, 1.0, "")]), ("phones", [])])
+    with pytest.raises(DataError, match=r"none\.TextGrid: tier 'phones' holds no label \(no interval\)"):
+        read_labels(none)
 
 
 # ------------------------------------------------------------------------ C3D and EMU hints
@@ -194,3 +202,22 @@ def test_speak_refuses_a_stretch_festival_would_ignore(tmp_path: Path) -> None:
         code, text = run("speak", "ciao", "--stretch", stretch, "--out", tmp_path / "o")
         assert code == 2 and f"--stretch {float(stretch):g}" in text and "at least 0.1" in text, text
     assert not (tmp_path / "o").exists()
+
+
+def test_a_folder_given_as_a_recording_is_named(tmp_path: Path) -> None:
+    with pytest.raises(DataError, match=r"is a folder, not a recording: give a file in it$"):
+        load_trial(tmp_path)
+    (tmp_path / "b_bndl").mkdir()
+    (tmp_path / "b_bndl" / "b_annot.json").write_text("{}")
+    with pytest.raises(DataError, match=r"b_bndl: is a folder, not a recording: give a file in it \(.*b_annot\.json "
+                                        r"for this emuDB bundle\)"):
+        load_trial(tmp_path / "b_bndl")
+
+
+def test_a_tier_without_labels_to_take_it_from_is_refused() -> None:
+    ema = EMU / "derived" / "dfgspp_mo1_prosody_0020_ema.csv"
+    with pytest.raises(DataError, match=r"tier 'phones' was asked for, but no label file was given and this file "
+                                        "carries no labels of its own"):
+        load_trial(ema, tier="phones")
+    code, text = run("inspect", ema, "--units", "furlong")
+    assert code == 2 and "--units mm" in text, text

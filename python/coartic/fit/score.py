@@ -56,6 +56,9 @@ class Score:
     # baseline -> why it is not shown (e.g. warped: no other token of the sentence; every one when no
     # training data were found)
     absent: dict[str, str] = field(default_factory=dict)
+    # why the scored recordings are from another session or speaker than the training (None: the
+    # same): the step-model flag then compares with the offsets removed only (baselines.other_session)
+    other_session: str | None = None
 
     def calibration(self, channel: str, predicted: list[F64] | None = None) -> tuple[float, float]:
         """(a, b) of measured ≈ a + b·predicted over every valid sample of ``channel``: the speaker
@@ -169,14 +172,20 @@ class Score:
             t, s = self._figures(ch), self._figures(ch, self.baselines["step"][ch])
             pair_t = (t["rmse_mm"], t["rmse_offset_removed_mm"])
             pair_s = (s["rmse_mm"], s["rmse_offset_removed_mm"])
-            if not beats_step(pair_t, pair_s):
-                out.append(flag_text(ch, pair_t, pair_s))
+            if not beats_step(pair_t, pair_s, offset_only=self.other_session is not None):
+                out.append(flag_text(ch, pair_t, pair_s, self.other_session))
         return out
 
     def add_baselines(self, train: Sequence[Utterance]) -> None:
         """Fit the baselines on ``train`` (the table's training utterances) and predict these samples."""
 
+        from coartic.fit.baselines import other_session
+
         b = Baselines.fit(train, self.channels)
+        self.other_session = other_session(self.utterances, train)
+        if self.other_session:
+            self.notes.append(f"the step model is compared with the offsets removed only: {self.other_session}, so "
+                              "the recordings' positions have another origin than the training's")
         self.baselines = {}
         self.absent = {}
         for ch in self.channels:
@@ -203,6 +212,8 @@ class Score:
                 "channels": {ch: {r["model"]: {k: v for k, v in r.items() if k not in ("channel", "model")}
                                   for r in self.baseline_rows() if r["channel"] == ch} for ch in self.channels},
                 "baselines_absent": dict(self.absent),
+                # the step model is compared with the offsets removed only when this says why
+                "other_session": self.other_session,
                 "beats_step_model": {ch: not any(f.startswith(f"{ch}:") for f in self.flags())
                                      for ch in self.channels if ch in self.baselines.get("step", {})},
                 "flags": self.flags()}

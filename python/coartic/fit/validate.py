@@ -73,7 +73,7 @@ def score(result: FitResult, test: Sequence[Utterance], split: str,
                               fit.rmse**2 * n, n, fit.packing.n_free, row["rmse_calibrated_mm"], base,
                               test_rmse_speech=row["rmse_speech_mm"],
                               test_rmse_speech_offset_removed=row["rmse_speech_offset_removed_mm"],
-                              test_speech_samples=row["speech_samples"]))
+                              test_speech_samples=row["speech_samples"], other_session=sc.other_session))
         if fit.multistart is not None:  # how much the held-out error differs between the optima found
             for o in fit.multistart.optima:
                 params, beta = fit.packing.unpack(o.x)

@@ -324,7 +324,8 @@ def parse_textgrid(text: str, path: Path, tier: str | None = None) -> Segments:
     pick = phone_tiers[0] if phone_tiers else interval[0]
     name, labels, starts, ends, lines = pick
     if not any(lab.strip() for lab in labels):
-        raise DataError(f"tier {name!r} holds no label ({len(labels)} empty interval(s)): nothing to read; "
+        held = f"{len(labels)} empty interval(s)" if labels else "no interval"
+        raise DataError(f"tier {name!r} holds no label ({held}): nothing to read; "
                         f"align the recording first, or name the tier with the phones (tiers: {names})",
                         path=path, item=name)
     return Segments(tuple(labels), np.array(starts), np.array(ends), path, tuple(lines), name,

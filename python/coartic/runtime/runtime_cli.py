@@ -53,7 +53,7 @@ ExportOpt = Annotated[str | None, typer.Option("--export", help="Also write the 
 GltfMorphsOpt = Annotated[str, typer.Option("--gltf-morphs", help="The glTF's morph targets: fap (one per FAP), arkit (ARKit's 52 blendshape names, to retarget by name) or eight (at most 8 per mesh, all blended by three.js up to r132); arkit and eight imply --gltf.")]
 EmotionOpt = Annotated[str | None, typer.Option("--emotion", help="Speak with this emotion of a table fitted with [model] emotions (joy, surprise, sadness, disgust, anger, fear; docs/EMOTIONS.md).")]
 IntensityOpt = Annotated[float, typer.Option("--intensity", help="With --emotion: 0 = neutral, 1 = the emotion as fitted (up to 1.5).")]
-EmotionSpansOpt = Annotated[Path | None, typer.Option("--emotion-spans", help="Emotions over time: a TSV of spans 'start end emotion [intensity]' (s), ramped in and out over 0.2 s (docs/EMOTIONS.md).")]
+EmotionSpansOpt = Annotated[Path | None, typer.Option("--emotion-spans", help="Emotions over time: a TSV of spans 'start end emotion \\[intensity]' (s), ramped in and out over 0.2 s (docs/EMOTIONS.md).")]
 ExtendedOpt = Annotated[str, typer.Option("--extended-shapes", help="Rhubarb's extended mouth shapes the cues may use: any of G H X (as Rhubarb's --extendedShapes; \"\" for the six basic shapes A-F).")]
 RhubarbFormatsOpt = Annotated[str, typer.Option("--rhubarb-formats", help="Rhubarb's cue files to write with --export rhubarb: any of tsv, json, xml, dat (Moho / OpenToonz switch data, at --fps 24 to 100), comma-separated.")]
 PrestonBlairOpt = Annotated[bool, typer.Option("--preston-blair", help="Preston Blair's shape names (MBP, etc, E, AI, O, U, FV, L, rest) in Rhubarb's DAT file, as Rhubarb's --datUsePrestonBlair.")]
@@ -221,6 +221,8 @@ def animate_command(
                            emotion, intensity, emotion_spans)
         return
     if text is not None or transcript is not None:
+        if not labels.exists():
+            raise AnimationError(f"{labels}: no such file (the recording to align to --text or --transcript)")
         raise AnimationError(f"{labels}: --text and --transcript go with a recording (WAV), and this is not one")
 
     def make(t: ParameterTable, staging: Path, progress: Progress) -> RuntimeOutput:
