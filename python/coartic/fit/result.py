@@ -25,7 +25,7 @@ from numpy.typing import NDArray
 from coartic import __version__
 from coartic.extras import require
 from coartic.fit.bounds import CATEGORY_TITLES, BoundNote, explain_bounds, summary_counts
-from coartic.estimation.emotions import channel_metadata
+from coartic.estimation.emotions import asymmetry_metadata, channel_metadata
 from coartic.estimation.parameters import ParameterSet, psd_pseudo_inverse
 from coartic.estimation.packing import Packing, shared_words
 from coartic.estimation.pooling import PoolEstimate
@@ -291,6 +291,11 @@ class FitResult:
             t.metadata["emotions"] = {"mode": s.emotions, "column": s.emotion_column, "neutral": s.neutral_emotion,
                                       "channels": {ch: channel_metadata(f.problem, f.x)
                                                    for ch, f in self.channels.items()}}
+            if self.channels:  # the corner asymmetries, measured on the markers (not a channel of the model)
+                utts = next(iter(self.channels.values())).problem.data.utterances
+                asym = asymmetry_metadata(utts, s.emotion_column, s.neutral_emotion)
+                if asym:
+                    t.metadata["emotions"]["asymmetry"] = asym
         if s.shrinks:  # the shrinkage the fit had (sd as the spec gives it; a [choose]n one in "choice")
             # the members it was applied to: those present in a fitted channel's data
             applied = {(grp.key, m) for f in self.channels.values() for grp in f.problem.shrink_groups

@@ -381,7 +381,7 @@ def animation_faps(animation: Animation, face: FaceUnits, name: str) -> FapSeque
     faps = channels_to_faps(animation.channels, animation.neutral, face, name, animation.fps)
     tongue, rest, _ = tongue_channels(animation)
     # an emotion's brows, lids, cheeks and corners (coartic.runtime.expression), over the blinks
-    return add_expression_faps(add_blinks(add_tongue_faps(faps, tongue, rest, face)), animation)
+    return add_expression_faps(add_blinks(add_tongue_faps(faps, tongue, rest, face)), animation, face)
 
 
 def export_fap(animation: Animation, settings: ExportSettings) -> dict[str, Path]:
