@@ -155,8 +155,6 @@ def utterances_for_table(table: ParameterTable, utterances: Sequence[Utterance])
     """The utterances (labels already the table's phonemes) as ``table`` reads them: with the pause
     postures it was fitted with (``recorded``; samples, channels and meta kept), as they are for a
     table that records none."""
-    from coartic.model import Utterance as Utt
-
     if not recorded(table.metadata):
         return list(utterances)
     short, have = recorded_short(table.metadata), set(table.phonemes)
@@ -164,7 +162,7 @@ def utterances_for_table(table: ParameterTable, utterances: Sequence[Utterance])
     for u in utterances:
         labs, s, e, _ = pause_postures(u.labels, u.starts, u.ends, short, have)
         out.append(u if labs == u.labels and s.size == u.starts.size else
-                   Utt(labs, s, e, u.times, u.name, u.observed, u.valid, u.meta))
+                   type(u)(labs, s, e, u.times, u.name, u.observed, u.valid, u.meta))
     return out
 
 
@@ -185,8 +183,6 @@ def utterances_with_postures(utterances: Sequence[Utterance], short: float = SHO
                              ) -> tuple[list[Utterance], list[str]]:
     """``pause_postures`` on every utterance (samples, channels and meta kept), and a note naming
     each change but the final pauses' (one per utterance, counted in one note)."""
-    from coartic.model import Utterance as Utt
-
     out: list[Utterance] = []
     notes: list[str] = []
     finals = 0
@@ -195,7 +191,8 @@ def utterances_with_postures(utterances: Sequence[Utterance], short: float = SHO
         if not changes:
             out.append(u)
             continue
-        out.append(Utt(labels, starts, ends, u.times, u.name, u.observed, u.valid, u.meta))
+        # type(u): coartic.model.Utterance, which imports this module (no import circle)
+        out.append(type(u)(labels, starts, ends, u.times, u.name, u.observed, u.valid, u.meta))
         finals += sum(c.became == FINAL_PAUSE for c in changes)
         where = u.meta.get("file") or u.name
         notes += [f"pauses: {where}: {c.text()}" for c in changes if c.became != FINAL_PAUSE]
