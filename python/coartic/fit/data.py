@@ -14,6 +14,7 @@ from coartic.model import Utterance
 from coartic.errors import SpecError
 from coartic.fit.spec import FitSpec, synth_hint
 from coartic.io import DataError, load_trial
+from coartic.pauses import utterances_with_postures
 from coartic.textfile import TextDecodeError, read_text
 
 
@@ -74,12 +75,28 @@ def manifest_rows(spec: FitSpec) -> list[dict[str, str | None]]:
 
 
 def load_utterances(spec: FitSpec, rows: Sequence[Mapping[str, str | None]] | None = None,
-                    progress: Callable[[int, int], None] | None = None, asymmetry: bool = False) -> list[Utterance]:
-    """One Utterance per trial with the spec's channels (gaps filled up to max_gap, longer ones masked)."""
+                    progress: Callable[[int, int], None] | None = None, asymmetry: bool = False,
+                    notes: list[str] | None = None) -> list[Utterance]:
+    """One Utterance per trial with the spec's channels (gaps filled up to max_gap, longer ones
+    masked), pauses given their posture (``with_spec_pauses``; each change named in ``notes``)."""
     rows = manifest_rows(spec) if rows is None else rows
-    return load_rows(rows, spec.channels, file_column=spec.corpus.file_column, label_map=spec.corpus.label_map,
+    utts = load_rows(rows, spec.channels, file_column=spec.corpus.file_column, label_map=spec.corpus.label_map,
                      role_map=spec.corpus.role_map, max_gap=spec.max_gap, where=f"the corpus in {spec.path}",
                      progress=progress, asymmetry=spec.emotions != "none")
+    return with_spec_pauses(spec, utts, notes)
+
+
+def with_spec_pauses(spec: FitSpec, utterances: Sequence[Utterance], notes: list[str] | None = None) -> list[Utterance]:
+    """The utterances as the spec fits them: with ``[model] pauses = "postures"`` (the default)
+    initial, final and medial pauses are three rows and short pauses in a closure join it
+    (``coartic.pauses``; a note per change in ``notes``); with "one", as they are. Applying it twice
+    changes nothing."""
+    if spec.pauses != "postures":
+        return list(utterances)
+    out, said = utterances_with_postures(utterances)
+    if notes is not None:
+        notes += said
+    return out
 
 
 def load_rows(rows: Sequence[Mapping[str, str | None]], channels: Sequence[str], *, file_column: str = "file",

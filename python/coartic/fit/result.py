@@ -36,6 +36,7 @@ from coartic.fit.heldout import baseline_summary, flags
 from coartic.fit.multistart import MultiStart
 from coartic.fit.staged import StageResult
 from coartic.io.labelmap import resolve_label_map
+from coartic.pauses import POSTURES_RECORD, RECORD_KEY as PAUSES_RECORD_KEY
 from coartic.io.roles import ROLE_RECORD_KEY, resolve_role_map
 from coartic.outputs import atomic_path, atomic_write_text
 from coartic.table import PARAMETERS, ChannelSettings, ParameterTable
@@ -308,6 +309,8 @@ class FitResult:
             t.metadata["pooling"] = pooling
         if self.choice is not None:
             t.metadata["choice"] = self.choice.metadata()
+        if s.pauses == "postures":  # whoever evaluates the table gives pauses the same postures
+            t.metadata[PAUSES_RECORD_KEY] = dict(POSTURES_RECORD)
         # the map the corpus labels went through, so trajectories/animate/score read labels alike
         resolve_label_map(s.corpus.label_map).record_in(t)
         if s.corpus.role_map is not None:  # and the sensors' roles and axes, so that score reads alike
