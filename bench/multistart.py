@@ -1,7 +1,8 @@
 """Multi-start estimation (coartic.fit.multistart): its cost as a ratio to one start, the share of
 starts that reach the best optimum, against nlopt's global MLSL and against the single start.
 
-    .venv/bin/python bench/multistart.py [synthetic|german|workers|heldout ...]   (default: all)
+    .venv/bin/python bench/multistart.py [synthetic|german|workers|heldout|cost|cost-gestures ...]
+                                                                      (default: the first four)
 
 - synthetic: LLO of the synthetic session, the 150 trials of /p f t l s/ (fit/synthetic.toml;
   `coartic corpus synth build/session` first), as in fit/compare_engines.py;
@@ -13,6 +14,12 @@ starts that reach the best optimum, against nlopt's global MLSL and against the 
   and the default from θ = 15 (seed 0) and θ = 100 (seed 1); the table's held-out RMSE and the step
   model's on the same samples. heldout-one-start, heldout-previous-default, heldout-default: one
   kind of fit only (a CPU hour in all on the shared machine).
+
+- cost: the cost of the default multi-start (with the stopping rule) and of the search before the
+  rule, as ratios to one start, with the share of the continued starts that reached the best, on
+  the German EMA defaults spec (utterance 0024) and the same with per-phoneme dynamics
+  (bench/results/multistart_cost.txt); cost-gestures: the gestures flavour's LLO, with the rule
+  only (bench/results/multistart_cost-gestures.txt).
 
 "previous default" is the multi-start before the polish and the rounds (the best 4 of 32 probes
 continued, nothing more): ``CHAINS = 0`` and one round, set here for that line only.
@@ -52,7 +59,7 @@ def line(label: str, fit: Any, wall: float, ref_wall: float | None) -> str:
     extra = ""
     if ms is not None:
         n = fit.problem.data.n_valid
-        rm = ", ".join(f"{math.sqrt(o.sse / n):.4f}" for o in ms.optima[:4])
+        rm = ", ".join(f"{o.rmse:.4f}" for o in ms.optima[:4])
         extra = (f"; {len(ms.optima)} optima (RMSE {rm}{' ...' if len(ms.optima) > 4 else ''}), best reached from "
                  f"{ms.best.hits}/{len(ms.continued)} continued of {ms.n_starts}, {ms.hops} polishing restarts, "
                  f"{len(ms.best.unidentified)} parameters not identified in the best")
@@ -188,6 +195,63 @@ def heldout(which: Sequence[str] = ("one start", "previous default", "default"))
     return out
 
 
+@contextlib.contextmanager
+def without_rule() -> Iterator[None]:
+    """The multi-start before the stopping rule: every start probed, no confirmation first."""
+    confirm = multistart.CONFIRM
+    multistart.CONFIRM = 0
+    try:
+        yield
+    finally:
+        multistart.CONFIRM = confirm
+
+
+def cost_line(label: str, fit: Any, wall: float, one: Any, one_wall: float) -> str:
+    ms = fit.multistart
+    extra = ""
+    if ms is not None:
+        extra = (f"; best reached from {ms.best.hits} of {len(ms.continued)} continued ({ms.share:.0%}), "
+                 f"{ms.probed} probed, {len(ms.optima)} optima; stopped: {ms.stopped}")
+    return (f"  {label:<40} data RMSE {fit.rmse:.4f} mm  {fit.nfev:6d} evals = {fit.nfev / one.nfev:5.2f}x one start"
+            f"  {wall:7.1f} s = {wall / one_wall:5.2f}x  [{fit.status}]{extra}")
+
+
+def cost(title: str, spec: FitSpec, utts: Sequence[Utterance], channels: Sequence[str],
+         before: bool = True) -> list[str]:
+    """Issue 25 item 5: a multi-start's cost as a ratio to one start (evaluations exact; wall times on
+    the shared machine rough), the share of the continued starts that reach the best, with the
+    stopping rule (the default) and, with ``before``, without it (every start probed)."""
+    out = [title]
+    print(title, flush=True)
+    for ch in channels:
+        one, w1 = timed(spec.with_options(starts=1), utts, ch)
+        rows = [cost_line(f"{ch} one start", one, w1, one, w1)]
+        print(rows[0], flush=True)
+        kinds = [("32 starts, stopping rule (default)", False)] + ([("32 starts, before the rule", True)] if before else [])
+        for label, old in kinds:
+            with without_rule() if old else contextlib.nullcontext():
+                fit, w = timed(spec.with_options(starts=32, seed=0), utts, ch)
+            rows.append(cost_line(f"{ch} {label}", fit, w, one, w1))
+            print(rows[-1], flush=True)
+        out += rows
+    return out
+
+
+def defaults_data(per_phoneme: bool = False) -> tuple[FitSpec, list[Utterance]]:
+    """fit/ema_german_defaults_0024.toml (every default: shared θ, target prior), or the same with
+    per-phoneme dynamics (target, α, θ_bw, θ_fw of every phoneme, nothing shared)."""
+    spec = load_spec(ROOT / "fit/ema_german_defaults_0024.toml")
+    if per_phoneme:
+        spec = spec.with_options(free=("target", "alpha", "theta_bw", "theta_fw"), shared=())
+    return spec, load_utterances(spec, manifest_rows(spec))
+
+
+def gestures_data() -> tuple[FitSpec, list[Utterance]]:
+    """fit/gestures_rate_aware.toml (`coartic corpus synth build/gestures --flavour gestures` first)."""
+    spec = load_spec(ROOT / "fit/gestures_rate_aware.toml")
+    return spec, load_utterances(spec, manifest_rows(spec))
+
+
 def main(parts: Sequence[str]) -> None:
     lines: list[str] = []
     name = "multistart.txt" if set(parts) >= {"synthetic", "german", "workers"} else f"multistart_{'_'.join(parts)}.txt"
@@ -205,12 +269,24 @@ def main(parts: Sequence[str]) -> None:
             lines += compare("German EMA, two utterances, LA and JO (fit/ema_german.toml)", spec, utts, ["LA", "JO"])
         elif part == "workers":
             lines += workers()
+        elif part == "cost":
+            spec, utts = defaults_data()
+            lines += cost("cost, German EMA 0024 LA and JO, every default (fit/ema_german_defaults_0024.toml)", spec,
+                          utts, ["LA", "JO"])
+            save()
+            spec, utts = defaults_data(per_phoneme=True)
+            lines += cost("cost, the same with per-phoneme dynamics (target, alpha, theta_bw, theta_fw free, nothing "
+                          "shared)", spec, utts, ["LA", "JO"])
+        elif part == "cost-gestures":  # the rule only: before it, the run takes CPU hours on the shared machine
+            spec, utts = gestures_data()
+            lines += cost(f"cost, gestures flavour, LLO, {len(utts)} trials (fit/gestures_rate_aware.toml)", spec, utts,
+                          ["LLO"], before=False)
         elif part == "heldout":
             lines += heldout()
         elif part.startswith("heldout-"):  # one kind of fit only, e.g. heldout-default (the run is long)
             lines += heldout([part.removeprefix("heldout-").replace("-", " ")])
         else:
-            raise SystemExit(f"unknown part {part!r} (synthetic, german, workers, heldout)")
+            raise SystemExit(f"unknown part {part!r} (synthetic, german, workers, heldout, cost, cost-gestures)")
         save()
     print(f"saved bench/results/{name}")
 

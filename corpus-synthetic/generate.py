@@ -653,7 +653,8 @@ def _prepare(out: Path) -> None:
     """Create ``out``; clear an earlier (or interrupted) session there, refuse anything else."""
     if out.exists() and not out.is_dir():
         raise SessionError(f"{out}: exists and is not a directory")
-    if out.is_dir() and any(out.iterdir()):
+    # coartic_run.json: the mark of the staging directory `coartic corpus synth` writes into
+    if out.is_dir() and any(p.name != "coartic_run.json" for p in out.iterdir()):
         if not (out / STAMP).is_file():
             raise SessionError(
                 f"{out}: the directory is not empty and is not a synthetic session written by coartic; "

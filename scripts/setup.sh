@@ -19,6 +19,8 @@ command -v espeak-ng >/dev/null 2>&1 || need_apt+=(espeak-ng)
 command -v chromium >/dev/null 2>&1 || need_apt+=(chromium)
 # coartic perceive's browser tests drive Chromium through Selenium's chromedriver
 command -v chromedriver >/dev/null 2>&1 || need_apt+=(chromium-driver)
+# and its PostgreSQL test starts a throwaway cluster (initdb, pg_ctl) on a socket of its own
+compgen -G "/usr/lib/postgresql/*/bin/initdb" >/dev/null || need_apt+=(postgresql)
 command -v gltfpack >/dev/null 2>&1 || need_apt+=(gltfpack)
 command -v tovrmlx3d >/dev/null 2>&1 || need_apt+=(view3dscene)
 [ -f /usr/share/javascript/three/examples/js/loaders/GLTFLoader.js ] || need_apt+=(libjs-three)

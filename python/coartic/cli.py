@@ -18,7 +18,7 @@ import typer
 from typer.core import TyperCommand, TyperGroup
 
 from coartic import __version__
-from coartic.console import show_data_warnings
+from coartic.console import handled, show_data_warnings
 
 YOUNG_GENERATION = 10_000  # objects between two collections of the youngest generation (main)
 
@@ -59,14 +59,17 @@ COMMANDS: dict[str, tuple[str, str, str]] = {
 
 
 def load_command(name: str) -> Any:
-    """The (click) command `name`, its module imported now."""
+    """The (click) command `name`, its module imported now, its errors reported by the one handler
+    of every command (`coartic.console.handled`: exception -> exit status -> message)."""
     module, attr, _ = COMMANDS[name]
     obj: Any = getattr(importlib.import_module(module), attr)
     if isinstance(obj, typer.Typer):
+        for info in obj.registered_commands:
+            info.callback = handled(info.callback) if info.callback is not None else None
         cmd: Any = typer.main.get_group(obj)
     else:
         single = typer.Typer(add_completion=False)
-        single.command(name)(obj)
+        single.command(name)(handled(obj))
         cmd = typer.main.get_command(single)
     cmd.name = name
     return cmd

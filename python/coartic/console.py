@@ -8,14 +8,121 @@ and plain lines elsewhere (`LineProgress`); tables that do not fit the width are
 """
 from __future__ import annotations
 
+import errno
+import functools
 import time
-from typing import Any
+from typing import Any, Callable, TypeVar
 
 from rich.console import Console
 from rich.markup import escape
 from rich.progress import Progress, ProgressColumn, TaskID
 from rich.table import Table
 from rich.text import Text
+
+from coartic.errors import CoarticError
+
+
+# The exit status of every `coartic` command (docs/OUTPUTS.md, "Exit status").
+EXIT_OK = 0
+EXIT_NOTHING = 1  # it ran, but nothing usable came out (nothing fitted, no channel, a unit failed)
+EXIT_ERROR = 2  # refused: a spec, data, option or output error; nothing was written
+EXIT_UNCONFIRMED = 3  # written, but a limit was reached or a result is not confirmed (not converged)
+EXIT_INTERRUPTED = 130  # Ctrl-C or kill (128 + SIGINT, as shells report it)
+
+# What an OSError about a path means to the user, and what to do.
+_OS_ADVICE = {
+    errno.ENOENT: "does not exist: check the path",
+    errno.EISDIR: "is a folder: give a file's path",
+    errno.ENOTDIR: "goes through a file as if it were a folder: check the path",
+    errno.EEXIST: "already exists: choose another path",
+    errno.EACCES: "permission denied: choose a path you can read (or write)",
+    errno.EPERM: "operation not permitted: choose a path you can read (or write)",
+    errno.ENOSPC: "the disk is full: free space or write elsewhere",
+    errno.EROFS: "is on a read-only file system: write elsewhere",
+}
+
+
+def _os_message(err: OSError) -> str:
+    where = " -> ".join(str(f) for f in (err.filename, err.filename2) if f is not None)
+    advice = _OS_ADVICE.get(err.errno or 0, err.strerror or str(err))
+    return f"{where}: {advice}" if where else f"{err.strerror or err}"
+
+
+def _interrupted(err: BaseException) -> str:
+    return "interrupted (Ctrl-C or kill): what a command keeps of an interrupted run is in docs/OUTPUTS.md"
+
+
+def _memory(err: BaseException) -> str:
+    return ("out of memory: a setting asks for more than this machine holds (a start count, frame rate or "
+            "corpus size): lower it")
+
+
+# The one table of every command: exception -> exit status -> message. The first row whose type
+# matches is used; an exception in no row is a bug in coartic and keeps its traceback.
+# Every error coartic raises on purpose is a CoarticError (coartic.errors), whose message names
+# the file, key, option or label and the fix; a library's ValueError is a value it refused.
+ERRORS: tuple[tuple[type[BaseException], int, Callable[[Any], str]], ...] = (
+    (KeyboardInterrupt, EXIT_INTERRUPTED, _interrupted),
+    (CoarticError, EXIT_ERROR, str),
+    (MemoryError, EXIT_ERROR, _memory),
+    (OSError, EXIT_ERROR, _os_message),
+    (ValueError, EXIT_ERROR, str),
+)
+
+
+def error_exit(err: BaseException) -> tuple[int, str] | None:
+    """The exit status and message of ``err`` by the table ``ERRORS``; None if it is in no row
+    (a bug: the traceback is kept)."""
+    for kind, code, message in ERRORS:
+        if isinstance(err, kind):
+            return code, message(err)
+    return None
+
+
+F = TypeVar("F", bound=Callable[..., Any])
+
+
+def handled(command: F) -> F:
+    """``command`` (a typer command function) with its errors reported through ``ERRORS``: one
+    soft-wrapped ``error:`` line on stderr and the exit status of the table, no traceback.
+    Applied to every command by coartic.cli."""
+    import typer
+
+    if getattr(command, "coartic_handled", False):
+        return command
+
+    @functools.wraps(command)
+    def run(*args: Any, **kwargs: Any) -> Any:
+        try:
+            return command(*args, **kwargs)
+        except typer.Exit:
+            raise
+        except BaseException as err:
+            found = error_exit(err)
+            if found is None:
+                raise
+            code, message = found
+            console = Console(stderr=True)
+            if code == EXIT_INTERRUPTED:
+                console.print(f"[yellow]{escape(message)}[/]", highlight=False, soft_wrap=True)
+            else:
+                print_error(console, message)
+            raise typer.Exit(code) from None
+
+    run.coartic_handled = True  # type: ignore[attr-defined]
+    return run  # type: ignore[return-value]
+
+
+def positive_finite(value: float | None) -> float | None:
+    """A typer callback: a number option that must be finite and above 0 (a duration, a rate).
+    NaN passes every comparison, so a bound written as ``x > limit`` alone would let it through."""
+    import math
+
+    import typer
+
+    if value is not None and not (math.isfinite(value) and value > 0):
+        raise typer.BadParameter(f"{value:g}: give a finite number above 0")
+    return value
 
 
 def print_error(console: Console, err: BaseException | str) -> None:

@@ -21,7 +21,6 @@ import typer
 from rich.console import Console
 from rich.table import Table
 
-from coartic.console import print_error
 from coartic.model import segment_weights, trajectories
 from coartic.outputs import OutputDir
 from coartic.table import PARAMETERS, ParameterTable
@@ -139,12 +138,8 @@ def demo_command(
 ) -> None:
     """Plot the model on /a p a/, /a f a/, /a t a/ at a normal and a 3x faster rate (illustrative table)."""
     console = Console()
-    try:
-        with OutputDir(out, "demo", {}, force=force) as staging:
-            reached = run_demo(staging)
-    except ValueError as e:  # OutputError: --out holds another run's output, or is in use
-        print_error(console, e)
-        raise typer.Exit(2) from None
+    with OutputDir(out, "demo", {}, force=force) as staging:
+        reached = run_demo(staging)
     summary = Table(title=f"{CHANNEL} at the consonant's target time (illustrative parameters)")
     summary.add_column("stimulus")
     summary.add_column("target", justify="right")

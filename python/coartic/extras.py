@@ -22,7 +22,7 @@ EXTRAS: dict[str, tuple[str, ...]] = {
     "engines": ("nlopt", "casadi"),
     "dataframe": ("pandas",),
     "speech": ("pocketsphinx", "python_speech_features", "dtw"),
-    "perceive": ("flask", "waitress", "sqlalchemy", "psycopg", "statsmodels"),
+    "perceive": ("flask", "waitress", "sqlalchemy", "psycopg", "statsmodels", "pandas"),
 }
 # a requirement whose import name differs from its distribution's
 IMPORT_NAMES = {"dtw-python": "dtw"}

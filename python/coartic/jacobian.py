@@ -14,7 +14,7 @@ import scipy.sparse as sp
 
 from coartic import _core
 from coartic.io.labelmap import LabelMap
-from coartic.model import F64, channel_problems
+from coartic.model import F64, utterance_channels
 from coartic.table import N_PARAMS, ParameterTable
 
 
@@ -72,7 +72,7 @@ def trajectory_jacobians(
     ``table.phonemes_for(channel)`` (``coartic.model.jacobian_columns`` names them), and the last
     column ∂F/∂β."""
     out: dict[str, tuple[F64, sp.csr_matrix]] = {}
-    for problem in channel_problems(table, labels, starts, ends, times, channels, label_map=label_map):
+    for problem in utterance_channels(table, labels, starts, ends, times, channels, label_map=label_map):
         try:
             out[problem.channel] = JacobianBuffer(problem.corpus).compute(problem.params, problem.beta,
                                                                            problem.options)

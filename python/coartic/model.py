@@ -309,7 +309,7 @@ def trajectories(
     (60,)
     """
     out: dict[str, F64] = {}
-    for problem in channel_problems(table, labels, starts, ends, times, channels, label_map=label_map):
+    for problem in utterance_channels(table, labels, starts, ends, times, channels, label_map=label_map):
         try:
             out[problem.channel] = _core.evaluate(problem.corpus, problem.params, problem.beta, problem.options)
         except ValueError as err:
@@ -318,9 +318,10 @@ def trajectories(
 
 
 @dataclass(frozen=True)
-class ChannelProblem:
-    """One channel of one utterance as the core takes it: the corpus, the parameter rows (in
-    ``phonemes`` order), beta and the options."""
+class UtteranceChannel:
+    """One channel of one utterance as the core takes it (what `trajectories` and the runtime
+    evaluate; a whole fit's is `coartic.estimation.problem.ChannelProblem`): the corpus, the
+    parameter rows (in ``phonemes`` order), beta and the options."""
 
     channel: str
     phonemes: list[str]
@@ -333,7 +334,7 @@ class ChannelProblem:
         return core_error(err, self.channel, self.phonemes)
 
 
-def channel_problems(
+def utterance_channels(
     table: ParameterTable,
     labels: Sequence[str],
     starts: npt.ArrayLike,
@@ -342,7 +343,7 @@ def channel_problems(
     channels: Sequence[str] | None = None,
     *,
     label_map: LabelMap | Mapping[str, str] | str | None = None,
-) -> Iterator[ChannelProblem]:
+) -> Iterator[UtteranceChannel]:
     """The labels mapped and checked, channel by channel (arguments as ``trajectories``); channels
     with the same phoneme rows share one corpus."""
     chans = list(table.channels) if channels is None else list(channels)
@@ -362,7 +363,7 @@ def channel_problems(
         if key not in corpora:
             corpora[key] = build_corpus([utt], phonemes)
         params, beta = table.to_matrix(ch, phonemes)
-        yield ChannelProblem(ch, phonemes, corpora[key], params, beta, model_options(table, ch))
+        yield UtteranceChannel(ch, phonemes, corpora[key], params, beta, model_options(table, ch))
 
 
 def evaluate_corpus(table: ParameterTable, channel: str, utterances: Sequence[Utterance]) -> list[F64]:

@@ -91,6 +91,24 @@ def atomic_write_text(path: str | os.PathLike[str], text: str, encoding: str = "
         tmp.write_text(text, encoding=encoding)
 
 
+def check_output_file(path: str | os.PathLike[str], option: str, example: str = "out.png",
+                      create_folder: bool = False) -> Path:
+    """An output file an option names, checked before any work: not a folder, in a folder that
+    exists (or can be made, with ``create_folder``) and is not a file. The errors name the option
+    and the fix, instead of a raw [Errno 21] after the work is done."""
+    p = Path(path)
+    if p.is_dir():
+        raise OutputError(f"{option} {p}: is a folder; give the file to write, e.g. {option} {p / example}")
+    folder = p.parent
+    while not folder.exists() and folder.parent != folder:
+        if not create_folder:
+            raise OutputError(f"{option} {p}: the folder {p.parent} does not exist; create it or write elsewhere")
+        folder = folder.parent
+    if not folder.is_dir():
+        raise OutputError(f"{option} {p}: {folder} is a file, not a folder; write elsewhere")
+    return p
+
+
 # ---------------------------------------------------------------------------------- signals
 def save_figure(fig: Any, path: str | os.PathLike[str], dpi: int = 100) -> Path:
     """Write a matplotlib figure as PNG through ``atomic_path`` and close it; return the path."""
@@ -220,13 +238,19 @@ class OutputDir:
     def __init__(self, out: str | os.PathLike[str], command: str, identity: Mapping[str, Any], *,
                  force: bool = False, staged: bool = True, protect: Sequence[str | os.PathLike[str]] = (),
                  recognise: Callable[[Path], bool] | None = None) -> None:
-        # a symlink to the output directory: the directory it points to is replaced, the link kept
-        self.out = Path(os.path.realpath(out) if Path(out).is_symlink() else os.path.abspath(out))
+        # Resolved (symlinks, `..`) before anything is compared or removed: a symlink to the output
+        # directory keeps its link and the directory it points to is replaced; an input reached
+        # through a symlinked folder is still recognised as inside it.
+        self.given = Path(out)
+        self.out = Path(os.path.realpath(out))
+        if self.out.parent == self.out:  # before the names below: the root has none
+            raise OutputError(f"{self._named()}: the root directory cannot be an output directory (replacing "
+                              "it would delete everything); choose a folder of its own as --out")
         self.command = command
         self.identity = {k: (str(v) if isinstance(v, os.PathLike) else v) for k, v in identity.items()}
         self.force = force
         self.staged = staged
-        self.protect = [Path(os.path.abspath(p)) for p in protect]
+        self.protect = [Path(os.path.realpath(p)) for p in protect]
         self.recognise = recognise
         self.status = "complete"
         self._abandoned = False
@@ -239,24 +263,75 @@ class OutputDir:
         self.path = self.partial if staged else self.out
 
     # -------------------------------------------------------------------- checks and lock
+    def _named(self) -> str:
+        """The output directory as given, and where it resolves to when that differs."""
+        given = str(self.given)
+        return given if os.path.abspath(given) == str(self.out) else f"{given} (resolves to {self.out})"
+
     def _check_safe(self) -> None:
-        if self.out.parent == self.out:
-            raise OutputError(f"{self.out}: the root directory cannot be an output directory")
         if self.out.exists() and not self.out.is_dir():
-            raise OutputError(f"{self.out}: exists and is not a directory; choose another --out")
-        cwd = Path(os.path.abspath(os.getcwd()))
+            raise OutputError(f"{self._named()}: exists and is a file, not a directory; choose another --out")
+        cwd = Path(os.path.realpath(os.getcwd()))
         if self.out.exists() and _inside(cwd, self.out):
-            raise OutputError(f"{self.out}: is (or contains) the current directory; replacing it would delete "
+            raise OutputError(f"{self._named()}: is (or contains) the current directory; replacing it would delete "
                               "it, so choose an output directory of its own")
         for p in self.protect:
             if _inside(p, self.out):
-                raise OutputError(f"{self.out}: contains {p}, an input of this run; replacing the output "
+                raise OutputError(f"{self._named()}: contains {p}, an input of this run; replacing the output "
                                   "directory would delete it, so choose another --out")
+        self._check_parent()
+        self._check_lock_file()
+
+    def _check_parent(self) -> None:
+        """The folder --out goes into can be made: its nearest existing ancestor is a folder."""
+        ancestor = self.out.parent
+        while not ancestor.exists() and ancestor.parent != ancestor:
+            ancestor = ancestor.parent
+        if not ancestor.is_dir():
+            raise OutputError(f"{self._named()}: {ancestor} is a file, not a folder, so --out cannot be made "
+                              "inside it; choose another --out")
+
+    def _check_ours(self, path: Path, what: str) -> None:
+        """``path`` (.NAME.partial, .NAME.old) is removed or renamed by the run: only when it is
+        coartic's own (a run marker in it, or an empty folder), never a user's folder of that name."""
+        if not os.path.lexists(path):
+            return
+        if path.is_symlink() or not path.is_dir():
+            mine = False
+        else:
+            mine = read_marker(path) is not None or not any(path.iterdir())
+        if not mine:
+            hint = (f" If it is the previous content of {self.out} (a run killed while replacing it), rename it "
+                    f"back to {self.out.name}." if what.startswith("previous") else "")
+            raise OutputError(f"{path}: coartic uses this name for the {what} of --out {self._named()}, but it is "
+                              f"not coartic's (no {RUN_MARKER} in it), so it is neither removed nor replaced.{hint} "
+                              "Move it away, or choose another --out")
+
+    def _check_lock_file(self) -> None:
+        """``.NAME.lock`` is truncated and removed by the run: only coartic's own lock file is."""
+        p = self.lock_path
+        if not os.path.lexists(p):
+            return
+        mine = False
+        if not p.is_symlink() and p.is_file() and p.stat().st_size <= 1000:
+            text = p.read_bytes()
+            mine = not text or (text.startswith(b"pid ") and b", coartic " in text)
+        if not mine:
+            raise OutputError(f"{p}: coartic uses this name for the lock of --out {self._named()}, but it is not "
+                              "coartic's lock file, so it is not overwritten. Move it away, or choose another --out")
 
     def _lock(self) -> None:
-        self.out.parent.mkdir(parents=True, exist_ok=True)
+        try:
+            self.out.parent.mkdir(parents=True, exist_ok=True)
+        except OSError as e:
+            raise OutputError(f"{self._named()}: cannot create the folder it goes into ({e.strerror}: "
+                              f"{e.filename}); choose another --out") from None
         while True:
-            fd = os.open(self.lock_path, os.O_RDWR | os.O_CREAT, 0o644)
+            try:
+                fd = os.open(self.lock_path, os.O_RDWR | os.O_CREAT | getattr(os, "O_NOFOLLOW", 0), 0o644)
+            except OSError as e:
+                raise OutputError(f"{self._named()}: cannot create its lock file {self.lock_path} "
+                                  f"({e.strerror}); choose a folder you can write as --out") from None
             try:
                 fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
             except BlockingIOError:
@@ -288,7 +363,10 @@ class OutputDir:
             self._lock_fd = None
 
     def _recover(self) -> None:
-        """Tidy what a killed run left (we hold the lock, so no live run owns it)."""
+        """Tidy what a killed run left (we hold the lock, so no live run owns it), once it is
+        checked to be coartic's own."""
+        for path, what in ((self.partial, "staging folder"), (self.old, "previous output, set aside during a swap")):
+            self._check_ours(path, what)
         if self.old.exists():
             if self.out.exists():
                 shutil.rmtree(self.old)
@@ -325,6 +403,7 @@ class OutputDir:
             same = self._check_owner()
             if self.staged:
                 self.partial.mkdir()
+                self._write_marker(self.partial, "running")  # marks it coartic's (see _check_ours)
             else:
                 if not same and self.out.exists():  # --force in place: start from nothing
                     shutil.rmtree(self.out)
@@ -398,5 +477,5 @@ def _version() -> str:
         return "unknown"
 
 
-__all__ = ["OutputDir", "OutputError", "DeferredSignals", "atomic_path", "atomic_write_bytes",
+__all__ = ["OutputDir", "OutputError", "DeferredSignals", "atomic_path", "atomic_write_bytes", "check_output_file",
            "atomic_write_text", "fsync_dir", "read_marker", "save_figure", "signals_held", "RUN_MARKER"]

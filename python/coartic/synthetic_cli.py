@@ -15,7 +15,7 @@ from typing import Annotated, Optional
 
 import typer
 from rich.console import Console
-from coartic.console import print_error
+from coartic.console import handled
 from coartic.errors import CoarticError
 from coartic.outputs import OutputDir
 
@@ -84,22 +84,18 @@ def synth(
 ) -> None:
     """Generate the session: C3D + CSV markers, TextGrid + .lab labels, manifest, ground truth."""
     console = Console(stderr=True)
-    try:
-        gen = load_generator()
-        # the session is staged and swapped in whole (docs/OUTPUTS.md): an interrupted run leaves
-        # OUT as it was, and a session of other settings is never mixed with (or replaced by) this one
-        identity = {"seed": gen.load_settings()["seed"] if seed is None else seed, "flavour": flavour,
-                    "quick": quick, "speakers": speakers}
-        output = OutputDir(out, "corpus synth", identity, force=force, recognise=_earlier_session)
-        with output as staging:
-            try:
-                gen.generate(staging, seed=seed, quick=quick, progress=True, flavour=flavour, speakers=speakers)
-            except KeyboardInterrupt:
-                output.abandon()  # half a session is worth nothing: generation takes seconds
-                raise
-    except (GeneratorNotFound, ValueError) as exc:  # SessionError, TableError and OutputError are ValueErrors
-        print_error(console, exc)
-        raise typer.Exit(code=1) from None
+    gen = load_generator()
+    # the session is staged and swapped in whole (docs/OUTPUTS.md): an interrupted run leaves
+    # OUT as it was, and a session of other settings is never mixed with (or replaced by) this one
+    identity = {"seed": gen.load_settings()["seed"] if seed is None else seed, "flavour": flavour,
+                "quick": quick, "speakers": speakers}
+    output = OutputDir(out, "corpus synth", identity, force=force, recognise=_earlier_session)
+    with output as staging:
+        try:
+            gen.generate(staging, seed=seed, quick=quick, progress=True, flavour=flavour, speakers=speakers)
+        except KeyboardInterrupt:
+            output.abandon()  # half a session is worth nothing: generation takes seconds
+            raise
     manifest = out / "manifest.csv"
     n = sum(1 for _ in open(manifest, encoding="utf-8")) - 1
     who = f" of {speakers} speakers" if speakers > 1 else ""
@@ -114,4 +110,4 @@ def _earlier_session(out: Path) -> bool:
 
 def run() -> None:
     """Entry point of ``python corpus-synthetic/generate.py OUT [--seed N] [--quick]``."""
-    typer.run(synth)
+    typer.run(handled(synth))

@@ -113,8 +113,7 @@ def answer_current_trial(driver: Any, pick: Any, timeout: float = 20.0) -> tuple
     wait = WebDriverWait(driver, timeout)
     progress = wait.until(ec.presence_of_element_located((By.ID, "progress"))).text
     position, total = (int(x) for x in progress.split("/"))
-    for button in driver.find_elements(By.CSS_SELECTOR, "button.play"):
-        button.click()
+    play_all(driver, timeout)
     wait.until(lambda d: all(b.is_enabled() for b in d.find_elements(By.CSS_SELECTOR, ".answer")))
     buttons = driver.find_elements(By.CSS_SELECTOR, "button.choice")
     instruction = driver.find_elements(By.ID, "instruction")
@@ -123,6 +122,20 @@ def answer_current_trial(driver: Any, pick: Any, timeout: float = 20.0) -> tuple
     next(b for b in buttons if b.text == text).click()
     wait.until(ec.staleness_of(old))
     return position, total
+
+
+def play_all(driver: Any, timeout: float = 20.0) -> int:
+    """Play each video of the page to its end, one after the other, as a participant does (starting
+    one pauses the others). Returns how many there were."""
+    from selenium.webdriver.common.by import By
+    from selenium.webdriver.support.ui import WebDriverWait
+
+    buttons = driver.find_elements(By.CSS_SELECTOR, "button.play")
+    for button in buttons:
+        video = button.find_element(By.XPATH, "preceding-sibling::video[1]")
+        button.click()
+        WebDriverWait(driver, timeout).until(lambda d: d.execute_script("return arguments[0].ended", video))
+    return len(buttons)
 
 
 def wait_for_text(driver: Any, element_id: str, timeout: float = 20.0) -> str:

@@ -62,3 +62,17 @@ def test_compare_varies_a_setting_to_choose_a_prior_strength(tmp_path: Path) -> 
     assert rmse[1] > rmse[0]  # a strong prior (noise 3 mm) pulls theta_bw to 5 ms and away from the data
     res = CliRunner().invoke(app, ["compare", str(a), "--vary", "speed=1,2", "--out", str(tmp_path / "d")])
     assert res.exit_code == 2 and "not a setting compare can vary" in res.output
+
+
+def test_compare_exits_3_when_a_fit_did_not_converge(tmp_path: Path) -> None:
+    """Issue 25 item 3: compare exited 0 while two of its fits ended best-found-once. A fit stopped at
+    its evaluation limit (max-evaluations) makes it exit 3, as `coartic fit` does, naming the fit."""
+    a = write_spec(tmp_path, "targets", "modified", '["target"]')
+    b = write_spec(tmp_path, "capped", "modified", '["target", "theta_bw"]', '[engine.options]\nmax_nfev = 3\n')
+    res = CliRunner().invoke(app, ["compare", str(a), str(b), "--no-validate", "--out", str(tmp_path / "c")])
+    assert res.exit_code == 3, res.output
+    said = " ".join(res.output.split())
+    assert "2. capped" in said and "JO: max-evaluations" in said and "exit status 3" in said
+    assert (tmp_path / "c" / "compare.csv").is_file()  # written all the same
+    res = CliRunner().invoke(app, ["compare", "--help"], terminal_width=120)
+    assert "Exit status: 0 every fit converged; 3" in " ".join(res.output.replace("│", " ").split())

@@ -44,10 +44,6 @@ free = ["target", "alpha", "theta_bw", "theta_fw", "c_bw", "c_fw", "k_r", "delta
 enabled = true
 [fit]
 starts = 1
-[validate]
-holdout_repetition = 0
-train_rate = ""
-test_rate = ""
 """
 
 
@@ -160,12 +156,19 @@ def test_spec_refuses_emotions_with_speakers_and_a_corpus_without_neutral(sessio
         build_problem(spec, load_utterances(spec), "LR")
 
 
-def test_reduced_emotive_fit_recovers_every_deviation(session: Path, tmp_path: Path) -> None:
+@pytest.fixture(scope="module")
+def fitted(session: Path, tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, Path]:
+    """The reduced session fitted on LR and LLO: (spec, output folder)."""
+    tmp = tmp_path_factory.mktemp("emotive_fit")
+    spec = write_spec(tmp / "s.toml", session / "manifest.csv", ["LR", "LLO"])
+    run(spec, tmp / "fit")
+    return spec, tmp / "fit"
+
+
+def test_reduced_emotive_fit_recovers_every_deviation(session: Path, fitted: tuple[Path, Path]) -> None:
     """The test suite's version of `make fit-emotive`: two channels of the reduced session, every
     deviation of the truth within the check's tolerance, τ estimated near each emotion's spread."""
-    spec = write_spec(tmp_path / "s.toml", session / "manifest.csv", ["LR", "LLO"])
-    out = tmp_path / "fit"
-    run(spec, out)
+    out = fitted[1]
     table = ParameterTable.load(out / "table.json")
     meta = table.metadata["emotions"]
     assert meta["neutral"] == "neutral" and set(meta["channels"]) == {"LR", "LLO"}
@@ -179,3 +182,24 @@ def test_reduced_emotive_fit_recovers_every_deviation(session: Path, tmp_path: P
     assert abs(tau["joy"] - 4.0) < 0.3 and abs(tau["sadness"] - 1.0) < 0.3
     assert all(d.credible for d in devs if abs(d.truth) >= 1.0)
     assert check.main([str(out), str(session / "ground_truth.json")]) == 0
+
+
+def test_mcmc_intervals_of_the_deviations(session: Path, fitted: tuple[Path, Path], tmp_path: Path) -> None:
+    """The joint posterior of /a/'s targets (neutral and every emotion) on LR of a fitted reduced
+    session: each deviation's 95 % interval around the least-squares one, credible where the truth
+    moves (every emotion moves LR by 1-4 mm), and holding the truth."""
+    from coartic.mcmc.emotions import deviation_intervals
+    from coartic.mcmc.sampler import SamplerSettings
+
+    spec = load_spec(fitted[0])
+    table = ParameterTable.load(fitted[1] / "table.json")
+    problem = build_problem(spec, load_utterances(spec), "LR", table)
+    assert problem.emotion_prior is not None  # the fit's τ, read back from the table
+    got = deviation_intervals(problem, "a", tmp_path / "mcmc", SamplerSettings(n_ensembles=2, min_steps=300,
+                                                                                 chunk_steps=150))
+    truth = ParameterTable.load(session / "ground_truth.json").metadata["emotions"]["channels"]["LR"]["deviations"]
+    assert {d.emotion for d in got} == {"joy", "surprise", "sadness", "disgust", "anger", "fear"}
+    for d in got:
+        assert d.q2_5 < d.fitted < d.q97_5 and d.credible, d
+        assert d.q2_5 - 0.05 <= truth[d.emotion]["a"] <= d.q97_5 + 0.05, d
+        assert d.q97_5 - d.q2_5 < 0.3, d

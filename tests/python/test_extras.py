@@ -116,6 +116,8 @@ def test_the_core_fits_and_scores(fitted: tuple[Path, Path], tmp_path: Path) -> 
     (["mcmc", "{spec}", "--fit", "{fit}", "--out", "{tmp}/mcmc"], "mcmc", "emcee, corner, arviz, xarray, pandas are"),
     (["fit", "{spec}", "--out", "{tmp}/nl", "--engine", "nlopt"], "engines", "nlopt is"),
     (["fit", "{spec}", "--out", "{tmp}/ca", "--engine", "casadi"], "engines", "casadi is"),
+    (["perceive", "analyse", "{tmp}", "--out", "{tmp}/ca"], "perceive",
+     "flask, waitress, sqlalchemy, psycopg, statsmodels, pandas are"),
 ])
 def test_each_command_names_its_extra(fitted: tuple[Path, Path], tmp_path: Path, args: list[str], extra: str,
                                       missing: str) -> None:

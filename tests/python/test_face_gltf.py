@@ -185,7 +185,7 @@ def test_labels_longer_than_the_audio_are_refused(tmp_path: Path) -> None:
     wav = write_wav(tmp_path / "short.wav", 0.5)
     res = CliRunner().invoke(app, ["animate", str(labels), "-t", str(GROUND_TRUTH), "-o", str(tmp_path / "o"),
                                    "--preview", "none", "--audio", str(wav)])
-    assert res.exit_code == 1
+    assert res.exit_code == 2
     assert "labels run to 1.000 s" in res.output and "short.wav" in res.output
 
 
@@ -196,7 +196,7 @@ def test_audio_that_is_not_a_wav_is_refused(tmp_path: Path) -> None:
     fake.write_bytes(b"ID3 not a wav at all")
     res = CliRunner().invoke(app, ["animate", str(labels), "-t", str(GROUND_TRUTH), "-o", str(tmp_path / "o"),
                                    "--preview", "none", "--audio", str(fake)])
-    assert res.exit_code == 1
+    assert res.exit_code == 2
     assert "not a PCM WAV" in res.output
 
 
@@ -219,7 +219,7 @@ def test_fap_name_must_be_one_word(tmp_path: Path) -> None:
     labels.write_text(LABELS)
     res = CliRunner().invoke(app, ["animate", str(labels), "-t", str(GROUND_TRUTH), "-o", str(tmp_path / "o"),
                                    "--preview", "none", "--fap-name", "two words"])
-    assert res.exit_code == 1
+    assert res.exit_code == 2
     assert "one ASCII word" in res.output
 
 

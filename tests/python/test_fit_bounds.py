@@ -197,3 +197,43 @@ def test_html_escapes_names_in_the_explanations(tmp_path: Path) -> None:
     assert st is not None and f"{evil}.theta_fw" in st.bounds
     html = write_report(result, tmp_path / "out").read_text()
     assert evil not in html and "&lt;b onmouseover=alert(3)&gt;" in html
+
+
+def test_a_shared_parameter_is_reported_as_every_phonemes_everywhere(tmp_path: Path) -> None:
+    """Issue 25 item 3: the report called the default's shared θ_bw at its bound "the anticipatory reach
+    of /#/" (its carrier's) when it is every phoneme's. The reading, fit_report.txt and parameters.csv
+    say whose value it is; a [[tie]] names the tied phonemes."""
+    from coartic.estimation.packing import tie_group
+    from coartic.fit.bounds import explain_bounds, reading
+    from coartic.fit.result import parameter_stats
+
+    from fit_helpers import german_utterance_spec
+
+    path = german_utterance_spec(tmp_path / "d.toml", '[model]\nchannels = ["JO"]\n')
+    res = run(path, tmp_path / "out", quiet=True, report=False)
+    fit = res.channels["JO"]
+    pk = fit.packing
+    carrier = next(nm for nm in pk.names() if nm.endswith(".theta_bw"))
+    ph = carrier.rpartition(".")[0]
+    group = tie_group(pk.phonemes, pk.ties, ph, "theta_bw")
+    assert set(group) == set(pk.phonemes) and group[0] == ph
+    words = reading("theta_bw", "lower", 0.5, ph, fit.problem, 0.5, {"c_bw": 1.0}, group)
+    assert f"every phoneme (one theta_bw shared by all {len(pk.phonemes)})" in words and f"/{ph}/" not in words
+    # a bound note made for it carries the group (the fit puts it wherever the data say: forced here)
+    st = parameter_stats(fit.problem, fit.x)
+    jac = fit.problem.jacobian(fit.x)
+    r = fit.problem.residuals(fit.x)
+    note = explain_bounds(fit.problem, fit.x, [carrier], jac, r, st.s2, st.corr)[carrier]
+    assert note.shared_by == group and "every phoneme" in note.reading and note.as_dict()["shared_by"] == group
+    text = (tmp_path / "out" / "fit_report.txt").read_text()
+    assert f"every phoneme (one theta_bw shared by all {len(pk.phonemes)}): {carrier} names its carrier" in text
+    with (tmp_path / "out" / "parameters.csv").open() as f:
+        rows = [r for r in csv.DictReader(f) if r["parameter"] == "theta_bw"]
+    assert {r["shared_by"] for r in rows} == {"all"} and sum(r["tied_to"] == "" for r in rows) == 1
+    # a [[tie]] of two phonemes: named as tied across them
+    tied = german_utterance_spec(tmp_path / "t.toml", '[model]\nchannels = ["JO"]\n[parameters]\nfree = ["target", '
+                                 '"alpha"]\n[[tie]]\nphonemes = ["e", "i"]\nparameters = ["alpha"]\n')
+    fit = run(tied, tmp_path / "tied", quiet=True, report=False).channels["JO"]
+    assert set(fit.parameters["e.alpha"].shared_by) == set(fit.parameters["i.alpha"].shared_by) == {"e", "i"}
+    text = (tmp_path / "tied" / "fit_report.txt").read_text()
+    assert "(one alpha tied across them)" in text

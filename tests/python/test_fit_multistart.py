@@ -88,7 +88,7 @@ def test_cluster_groups_end_points_by_fit_and_reports_what_the_data_leave_free(t
     optima = cluster(xs, sses, [tr, tr, other, tr], n, [3, 5, 7, 9], ["converged"] * 4, n_free=pk.n_free)
     assert [o.starts for o in optima] == [[3, 5], [7], [9]]
     assert [o.hits for o in optima] == [2, 1, 1]
-    assert isinstance(optima[0], Optimum) and optima[0].sse == sse
+    assert isinstance(optima[0], Optimum) and optima[0].objective == sse
     free = spread_within(optima[0], pk)
     assert list(free) == ["g.theta_fw"]
     assert free["g.theta_fw"] == pytest.approx(abs(pk.natural(x_free)[k] - pk.natural(x)[k]))
@@ -131,14 +131,18 @@ def test_multistart_is_deterministic_and_reports_its_optima(tmp_path: Path) -> N
     b = fit_multistart(prob, "scipy", capped, spec.stages, 4, seed=3, probe=3, keep=2, workers=2)
     np.testing.assert_array_equal(a[1].x, b[1].x)  # threads or not, the same answer
     ms = a[3]
-    assert len(ms.probe_sse) == 4 and len(ms.continued) == 2
-    # [parameters.start] is start 0 and always goes on, with the best of the other probes
-    assert ms.continued == [0, min(range(1, 4), key=lambda i: ms.probe_sse[i])] and ms.include_start
+    assert len(ms.probe_objective) == 4 and len(ms.continued) == 2
+    # [parameters.start] is start 0 and always goes on. Start 1 is fitted in full to confirm it (the
+    # stopping rule), here stopped at its cap (one single fit's evaluations): it is then ranked with the
+    # probes of the others, and the best of them goes on
+    assert np.isnan(ms.probe_objective[0]) and ms.probed == 3 and ms.include_start
+    assert ms.continued == [0, min(range(1, 4), key=lambda i: ms.probe_objective[i])]
     # every continued start ended in some optimum (its polishing restarts may reach others too)
     assert set().union(*(o.starts for o in ms.optima)) == set(ms.continued)
     assert ms.hops == sum(len(o.members) for o in ms.optima) - 2 and set(ms.chains) <= set(ms.continued)
-    assert ms.best.sse == min(ms.final_sse.values()) == pytest.approx(prob.with_packing(a[0].packing).sse(a[1].x))
-    assert [s.probe for s in a[2]] == [True] * (len(a[2]) - 1) + [False]
+    assert ms.best.objective == min(ms.final_objective.values()) == pytest.approx(prob.with_packing(a[0].packing).sse(a[1].x))
+    # the best start's stages: its probe's then its continued fit, or start 0's own staged fit
+    assert [s.probe for s in a[2]] == [ms.best.starts[0] != 0] * (len(a[2]) - 1) + [False]
     d = ms.as_dict(prob.data.n_valid)
     assert d["starts"] == 4 and d["best_hits"] == ms.best.hits and len(d["optima"]) == len(ms.optima)
 
@@ -154,7 +158,7 @@ def test_cli_reports_optima_everywhere_and_exits_3_when_the_best_was_found_once(
     assert "Multi-start: distinct optima" in html and f"of {ms['continued']} continued (4 started)" in html
     assert ms["starts"] == 4 and ms["continued"] == 2 and ms["optima"]
     text = (out / "fit_report.txt").read_text()
-    assert "multi-start: 4 starts (seed 0, start 0 [parameters.start])" in text and "optimum 1: SSE" in text
+    assert "multi-start: 4 starts drawn (seed 0, start 0 [parameters.start])" in text and "optimum 1: data RMSE" in text
     assert "spread_between_optima" in (out / "parameters.csv").read_text().splitlines()[0]
     status = summary["channels"]["JO"]["status"]
     assert status == ("best-found-once" if ms["best_hits"] == 1 else "converged")
@@ -270,3 +274,75 @@ def test_help_documents_the_exit_statuses_and_the_starts() -> None:
     for words in ("Exit status: 0 every channel converged; 3", "best-found-once", "max-evaluations", "stage-failed",
                   "[fit] starts", "--starts", "--seed"):
         assert words in text, words
+
+
+def defaults_spec(path: Path, starts: int = 32) -> Path:
+    """A spec that sets nothing but the recording (German EMA 0024, JO) and the starts: the default
+    model (shared θ, the target prior: a penalised objective), well identified."""
+    return utterance_0024_spec(path, f'[model]\nchannels = ["JO"]\n[fit]\nstarts = {starts}\n')
+
+
+@pytest.mark.multistart
+def test_stopping_rule_ends_a_well_identified_search_after_two_starts(tmp_path: Path) -> None:
+    """Issue 25 item 5: the default spec on one German utterance has one optimum; the first two starts
+    reach it, so the search stops there (no probe) at about two single fits' evaluations instead of 13-29."""
+    one = run(load_spec(defaults_spec(tmp_path / "one.toml", 1)), quiet=True).channels["JO"]
+    fit = run(load_spec(defaults_spec(tmp_path / "many.toml")), quiet=True).channels["JO"]
+    ms = fit.multistart
+    assert ms is not None and ms.continued == [0, 1] and ms.probed == 0 and ms.best.hits == 2
+    assert "stopping rule" in ms.stopped and fit.status == "converged"
+    assert fit.nfev <= 2.5 * one.nfev, (fit.nfev, one.nfev)
+    assert fit.rmse == pytest.approx(one.rmse, abs=1e-6)
+    d = ms.as_dict(fit.problem.data.n_valid)
+    assert d["best_share"] == 1.0 and d["probed"] == 0 and "stopping rule" in d["stopped"]
+    # without the rule (confirm = 0) the same search probes every start
+    prob = build_problem(load_spec(defaults_spec(tmp_path / "x.toml")), fit.problem.data.utterances, "JO")
+    spec = load_spec(defaults_spec(tmp_path / "y.toml", 8))
+    _, _, _, old = fit_multistart(prob, "scipy", {}, spec.stages, 8, probe=10, confirm=0)
+    assert old.probed == 7 and old.nfev > ms.nfev
+
+
+@pytest.mark.multistart
+def test_multistart_reports_data_rmse_and_the_penalised_objective(tmp_path: Path) -> None:
+    """Issue 25 item 3: the optima's RMSE is the data RMSE (the fit's own), the penalised objective is
+    called so, and the progress counts every evaluation."""
+    from coartic.console import LineProgress
+    from coartic.fit.runner import fit_channel
+    from rich.progress import TextColumn
+
+    spec = load_spec(defaults_spec(tmp_path / "d.toml", 4))
+    utts = load_utterances(spec, manifest_rows(spec))
+    buf = io.StringIO()
+    console = Console(file=buf, width=200, force_terminal=False, color_system=None)
+    with LineProgress(TextColumn("{task.description}"), console=console) as progress:
+        fit = fit_channel(spec, utts, "JO", progress)
+    ms = fit.multistart
+    assert ms is not None and fit.problem.penalised and "target prior" in ms.penalty
+    assert ms.best.rmse == pytest.approx(fit.rmse, rel=1e-9)  # the data RMSE, not √(objective / n)
+    n = fit.problem.data.n_valid
+    assert ms.best.objective > ms.best.rmse ** 2 * n  # the target prior's rows add to the SSE
+    d = ms.as_dict(n)
+    assert d["optima"][0]["rmse_mm"] == pytest.approx(fit.rmse, rel=1e-9)
+    assert d["optima"][0]["objective"] == ms.best.objective and d["optima"][0]["sse"] < ms.best.objective
+    assert f"data RMSE {fit.rmse:.4f}" in ms.summary_line(n)
+    # never worse in data RMSE than start 0, or it says why (the penalty)
+    assert ms.best.rmse <= ms.start0_rmse * (1 + 1e-9) or "penalised objective" in (ms.worse_than_start0 or "")
+    # the progress line counts every evaluation of every start (it said "done 4 evaluations" after 792)
+    last = [ln for ln in buf.getvalue().splitlines() if ln.startswith("JO done")][-1]
+    assert f" {fit.nfev} evaluations " in last and "penalised RMS" not in last and "RMSE" in last, last
+
+
+def test_a_penalised_optimum_worse_in_data_rmse_than_start_0_says_why() -> None:
+    from coartic.fit.multistart import MultiStart
+
+    x = np.zeros(2)
+    best = Optimum(10.0, x, [3], "converged", rmse=0.6335)
+    other = Optimum(10.5, x, [0], "converged", rmse=0.6240)
+    ms = MultiStart(8, 0, 10, [0, 3], [np.nan] * 8, {0: 10.5, 3: 10.0}, [best, other], ["a.target"], {}, 1, 1.0, 100,
+                    include_start=True, penalty="the priors (the target prior, [parameters.prior])",
+                    start0_rmse=0.6240, start0_objective=10.5)
+    why = ms.worse_than_start0
+    assert why is not None and "0.6240" in why and "0.6335" in why and "target prior" in why
+    assert why in ms.summary_line(100) and ms.as_dict(100)["worse_than_start0"] == why
+    ms.start0_rmse = 0.64  # start 0 fitted the data worse too: nothing to explain
+    assert ms.worse_than_start0 is None

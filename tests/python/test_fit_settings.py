@@ -357,6 +357,23 @@ def test_a_tie_over_a_member_an_override_fixes_is_refused(tmp_path: Path, utts: 
     assert e.value.key == "tie #1" and e.value.phoneme == "t" and e.value.file == tmp_path / "spec.toml"
 
 
+def test_overlapping_ties_are_refused_for_what_they_are(tmp_path: Path, utts: list[model.Utterance]) -> None:
+    # issue 28: the second tie was refused as if t.theta_bw were fixed ("not in [parameters] free")
+    s = spec_of(tmp_path, parameters={"free": ["target", "theta_bw"]},
+                tie=[{"phonemes": ["p", "t"], "parameters": ["theta_bw"]},
+                     {"phonemes": ["t", "a"], "parameters": ["theta_bw"]}])
+    with pytest.raises(SpecError, match=r"\[tie #2\] ties theta_bw of \['t', 'a'\] on LLO, but t.theta_bw is in "
+                       r"\[\[tie\]\] #1 already: a parameter is tied by one \[\[tie\]\] only; put the phonemes of "
+                       "both in one tie") as e:
+        ParameterSet.from_spec(s, ChannelData.build(utts, "LLO", PHONEMES)).packing()
+    assert (e.value.key, e.value.phoneme, e.value.parameter) == ("tie #2", "t", "theta_bw")
+    # ties of other parameters over the same phonemes do not overlap
+    ok = spec_of(tmp_path, parameters={"free": ["target", "theta_bw", "theta_fw"]},
+                 tie=[{"phonemes": ["p", "t"], "parameters": ["theta_bw"]},
+                      {"phonemes": ["t", "a"], "parameters": ["theta_fw"]}])
+    ParameterSet.from_spec(ok, ChannelData.build(utts, "LLO", PHONEMES)).packing()
+
+
 @pytest.mark.parametrize("kind, table", [
     ("tie", {"phonemes": ["p", "f"], "parameters": ["theta_bw"]}),
     ("shrink", {"phonemes": ["p", "f", "v"], "parameters": ["target"], "sd": 1.0}),

@@ -209,3 +209,36 @@ def test_emu_bundle_char_positions_and_deep_nesting(tmp_path: Path) -> None:
     p.write_text("[" * 100_000 + "]" * 100_000)
     with pytest.raises(DataError, match=r"x_bndl\.json: JSON nested too deeply"):
         load_trial(p)
+
+
+def test_a_lateral_jaw_sensor_taken_for_the_midline_one_is_named_with_the_fix(tmp_path: Path) -> None:
+    """Issue 25 item 3: a lateral jaw sensor (Haskins' JAWL) given as JAW got a warning recommending
+    the axes already in use. The German EMA with a lateral jaw sensor added (the midline jw moved 15 mm
+    along x, the lateral axis) and taken as JAW: the warning names the lateral sensor and the midline
+    one to give instead; the axes are not blamed. With jw as JAW, no warning."""
+    import warnings
+
+    from coartic.io.errors import DataWarning
+
+    src = REAL / "dfgspp_mo1_prosody_0020_ema.csv"
+    lines = src.read_text().splitlines()
+    header = lines[0].split(",")
+    cols = [header.index(f"jw_{c}") for c in ("posx", "posy", "posz", "orix", "oriy", "oriz")]
+    out = [lines[0] + "," + ",".join(f"jwl_{c}" for c in ("posx", "posy", "posz", "orix", "oriy", "oriz"))]
+    for line in lines[1:]:
+        cells = line.split(",")
+        extra = [cells[k] for k in cols]
+        if extra[0]:
+            extra[0] = repr(float(extra[0]) + 15.0)  # 15 mm to the side
+        out.append(line + "," + ",".join(extra))
+    p = tmp_path / "lateral_jaw.csv"
+    p.write_text("\n".join(out) + "\n")
+    axes = {"vertical": "+z", "anterior": "-y"}
+    with pytest.warns(DataWarning) as caught:
+        load_trial(p, role_map={"UL": "ul", "LL": "ll", "JAW": "jwl", "axes": axes}).channels()
+    said = " ".join(str(w.message) for w in caught)
+    assert "the sensor taken as JAW ('jwl') is 1" in said and "lateral jaw sensor" in said
+    assert 'e.g. {"JAW": "jw"}' in said and "axes look wrong" not in said
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", DataWarning)
+        load_trial(p, role_map={"UL": "ul", "LL": "ll", "JAW": "jw", "axes": axes}).channels()

@@ -32,8 +32,9 @@ def test_inspect_ema_with_labels_and_plot(tmp_path: Path) -> None:
 def test_inspect_c3d_without_face_markers_and_bad_file(tmp_path: Path) -> None:
     r = CliRunner().invoke(app, ["inspect", str(DATA / "c3d-optotrak/Optotrak.c3d")],
                            env={"COLUMNS": "160"})
-    assert r.exit_code == 1
+    assert r.exit_code == 2
     assert "truncated C3D: the header declares 1149 frames" in r.output
+    assert "--allow-truncated" in " ".join(r.output.split())  # the option, not the Python keyword
     png = tmp_path / "m.png"
     r = CliRunner().invoke(app, ["inspect", str(DATA / "c3d-optotrak/Optotrak.c3d"),
                                  "--allow-truncated", "--plot", str(png)], env={"COLUMNS": "160"})
@@ -46,14 +47,14 @@ def test_inspect_c3d_without_face_markers_and_bad_file(tmp_path: Path) -> None:
     bad = tmp_path / "bad.csv"
     bad.write_text("time_s,UL_x,UL_y,UL_z\n0,1,2,3\n0.01,1,x,3\n")
     r = CliRunner().invoke(app, ["inspect", str(bad)], env={"COLUMNS": "200"})
-    assert r.exit_code == 1 and "line 3: column 'UL_y': 'x' is not a number" in r.output
+    assert r.exit_code == 2 and "line 3: column 'UL_y': 'x' is not a number" in r.output
     assert "Traceback" not in r.output
 
 
 def test_inspect_plot_into_a_missing_folder_is_an_error_first(tmp_path: Path) -> None:
     r = CliRunner().invoke(app, ["inspect", str(EMA / "dfgspp_mo1_prosody_0024_ema.csv"),
                                  "--plot", str(tmp_path / "nodir" / "x.png")], env={"COLUMNS": "300"})
-    assert r.exit_code == 1, r.output
+    assert r.exit_code == 2, r.output
     assert "error: --plot" in r.output and "nodir does not exist" in r.output
     assert "Traceback" not in r.output
 

@@ -58,7 +58,7 @@ def test_unconverged_run_says_so_writes_everything_and_resumes(fitted: tuple[Pat
     out = tmp_path / "mcmc"
     runner = CliRunner()
     r = runner.invoke(app, ["mcmc", str(spec), "--fit", str(fit), "--out", str(out), "--strict", "--quiet"])
-    assert r.exit_code == 2, r.output
+    assert r.exit_code == 3, r.output
     assert "NOT CONVERGED" in r.output and "chain too short" in r.output
     table = json.loads((out / "table.json").read_text())
     q = table["uncertainty"]["p"]["LLO"]
@@ -91,12 +91,12 @@ def test_errors_name_the_file_and_key(fitted: tuple[Path, Path], tmp_path: Path)
     # A terminal narrower than the temporary path must not break the message (soft wrap only).
     narrow = {"COLUMNS": "20"}
     r = runner.invoke(app, ["mcmc", str(bad), "--fit", str(fit), "--out", str(tmp_path / "o")], env=narrow)
-    assert r.exit_code == 1 and f"{bad}: [mcmc] walkerz: unknown key" in r.output
+    assert r.exit_code == 2 and f"{bad}: [mcmc] walkerz: unknown key" in r.output
     r = runner.invoke(app, ["mcmc", str(spec), "--fit", str(tmp_path), "--out", str(tmp_path / "o")], env=narrow)
-    assert r.exit_code == 1 and "expected one parameter table" in r.output
+    assert r.exit_code == 2 and "expected one parameter table" in r.output
     r = runner.invoke(app, ["mcmc", str(spec), "--fit", str(fit), "--out", str(tmp_path / "o"), "--phonemes", "zz"],
                       env=narrow)
-    assert r.exit_code == 1 and "zz do not occur in the LLO data" in r.output
+    assert r.exit_code == 2 and "zz do not occur in the LLO data" in r.output
 
 
 @pytest.mark.slow
@@ -180,7 +180,7 @@ def test_a_table_fitted_to_other_data_is_refused(fitted: tuple[Path, Path], tmp_
     stale = tmp_path / "stale.json"
     stale.write_text(json.dumps(doc))
     r = CliRunner().invoke(app, ["mcmc", str(spec), "--fit", str(stale), "--out", str(tmp_path / "o"), "--quiet"])
-    assert r.exit_code == 1 and "fitted to other data than the spec gives now" in r.output.replace("\n", " ")
+    assert r.exit_code == 2 and "fitted to other data than the spec gives now" in r.output.replace("\n", " ")
     assert not (tmp_path / "o" / "LLO").exists()
 
 

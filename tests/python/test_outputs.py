@@ -280,7 +280,7 @@ def test_mcmc_into_the_fit_directory_is_refused(session: tuple[Path, Path], tmp_
     for o in (out, out / "mcmc"):
         r = CliRunner().invoke(app, ["mcmc", str(spec), "--fit", str(out), "--out", str(o), "--quiet"])
         text = r.output.replace("\n", " ")
-        assert r.exit_code == 1 and "fit directory" in text and "beside it" in text, text
+        assert r.exit_code == 2 and "fit directory" in text and "beside it" in text, text
     assert (out / "table.json").read_bytes() == before and not (out / "mcmc").exists()
     # chains of another spec: refused (resuming them would mix two runs), not deleted
     other = tmp_path / "mcmc"
@@ -288,7 +288,7 @@ def test_mcmc_into_the_fit_directory_is_refused(session: tuple[Path, Path], tmp_
         (d / "mcmc.json").write_text("[]")
     r = CliRunner().invoke(app, ["mcmc", str(spec), "--fit", str(out), "--out", str(other), "--quiet"])
     text = r.output.replace("\n", " ")
-    assert r.exit_code == 1 and "holds coartic mcmc spec /elsewhere/spec.toml" in text, text
+    assert r.exit_code == 2 and "holds coartic mcmc spec /elsewhere/spec.toml" in text, text
     assert (other / "mcmc.json").read_text() == "[]"
 
 
@@ -311,7 +311,7 @@ def test_animate_into_a_used_directory(tmp_path: Path) -> None:
     assert code == 0, text
     first = listing(out)
     code, text = animate(b, "--preview", "none")
-    assert code == 1 and "holds coartic animate labels" in text, text
+    assert code == 2 and "holds coartic animate labels" in text, text
     assert listing(out) == first
     code, text = animate(b, "--preview", "none", "--force")
     assert code == 0, text

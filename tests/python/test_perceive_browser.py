@@ -5,13 +5,18 @@ database holding every answer exactly once."""
 
 from __future__ import annotations
 
+import json
 import sqlite3
 from pathlib import Path
 from typing import Any
 
+import pandas as pd
 import pytest
+from typer.testing import CliRunner
 
-from perceive_helpers import Server, answer_current_trial, chromium_driver, wait_for_text, write_spec
+from coartic.cli import app
+
+from perceive_helpers import Server, answer_current_trial, chromium_driver, play_all, wait_for_text, write_spec
 
 pytestmark = [pytest.mark.festival, pytest.mark.slow]
 
@@ -65,6 +70,7 @@ def test_participants_answer_in_chromium_and_resume_after_the_server_is_killed(s
                                                                                   driver: Any) -> None:
     db = tmp_path / "results.sqlite"
     server = Server(study, f"sqlite:///{db}")
+    assert server.url.startswith("http://127.0.0.1:")  # this machine only, unless --host says otherwise
     try:
         # participant 0 answers the whole study
         consent(driver, server.url)
@@ -124,3 +130,86 @@ def test_participants_answer_in_chromium_and_resume_after_the_server_is_killed(s
         dup = conn.execute("SELECT participant_id, trial, COUNT(*) FROM answers GROUP BY 1, 2 HAVING COUNT(*) > 1")
         assert dup.fetchall() == []
         assert conn.execute("SELECT COUNT(*) FROM participants WHERE completed_at IS NOT NULL").fetchone()[0] == 2
+    # simulated participants beside the two real ones, then the analysis of all of them
+    runner = CliRunner()
+    res = runner.invoke(app, ["perceive", "simulate", str(study), "--db", f"sqlite:///{db}", "-n", "6",
+                              "--effect", "keyframe=-1"])
+    assert res.exit_code == 0, res.output
+    res = runner.invoke(app, ["perceive", "analyse", str(study), "--db", f"sqlite:///{db}", "--out",
+                              str(tmp_path / "report")])
+    assert res.exit_code == 0, res.output
+    answers = pd.read_csv(tmp_path / "report" / "answers.csv")
+    real = answers[answers["simulated"] == 0]
+    assert sorted(real["participant"].unique()) == ["P0001", "P0002"] and len(real) == 2 * total
+    assert answers["participant"].nunique() == 8
+    assert "vcv-tiny" in (tmp_path / "report" / "report.html").read_text()
+
+
+def other_design(study: Path, where: Path, design: str) -> Path:
+    """A study of `design` whose two conditions x two items reuse the tiny study's videos (the pages
+    and the answers are under test here, not the rendering)."""
+    import shutil
+    import tomllib
+
+    from coartic.perceive.spec import parse_study
+    from coartic.perceive.stimuli import manifest_of
+
+    conds = '[[condition]]\nname = "coarticulation"\nreference = true\n[[condition]]\nname = "keyframe"\nface = "step"\n' \
+        if design == "mushra" else '[[condition]]\nname = "coarticulation"\n[[condition]]\nname = "keyframe"\nface = "step"\n'
+    typed = design == "text"
+    typed_keys = 'response = "text"\nsnr_db = [0.0]' if typed else ""
+    text = (f'[study]\nname = "{design}-tiny"\ndesign = "{"intelligibility" if typed else design}"\nseed = 5\n'
+            f'consent = "ok"\nattention_every = 0\ncounterbalance = "{"latin" if typed else "full"}"\n'
+            f'[stimuli]\nitems = ["aba", "ava"]\n{typed_keys}\n{conds}')
+    spec = parse_study(tomllib.loads(text), where / "s.toml")
+    old = json.loads((study / "study.json").read_text())
+    stimuli = old["stimuli"] if typed else [{**s, "snr_db": None} for s in old["stimuli"]]
+    out = where / design
+    shutil.copytree(study / "stimuli", out / "stimuli")
+    (out / "study.json").write_text(json.dumps(manifest_of(spec, stimuli)))
+    (out / "secret.key").write_text("k\n")
+    return out
+
+
+@pytest.mark.parametrize("design", ["preference", "mushra", "text"])
+def test_preference_mushra_and_typed_answers_in_chromium(study: Path, tmp_path: Path, driver: Any, design: str) -> None:
+    from selenium.webdriver.common.by import By
+    from selenium.webdriver.support.ui import WebDriverWait
+
+    other = other_design(study, tmp_path, design)
+    db = tmp_path / "r.sqlite"
+    server = Server(other, f"sqlite:///{db}")
+    try:
+        driver.get(server.url)
+        driver.find_element(By.ID, "agree").click()
+        driver.find_element(By.ID, "start").click()
+        for k in range(2):  # two items, one trial each
+            assert wait_for_text(driver, "progress") == f"{k + 1} / 2"
+            assert play_all(driver) == {"mushra": 3, "preference": 2, "text": 1}[design]  # MUSHRA: the reference too
+            WebDriverWait(driver, 20).until(
+                lambda d: all(e.is_enabled() for e in d.find_elements(By.CSS_SELECTOR, ".answer")))
+            old = driver.find_element(By.ID, "answer-form")
+            if design == "preference":
+                driver.find_element(By.ID, "choice-1").click()  # "Face B"
+            elif design == "text":
+                driver.find_element(By.ID, "text").send_keys("<b>Aba</b> ava")
+                driver.find_element(By.ID, "submit").click()
+            else:
+                driver.execute_script("document.getElementById('rating-0').value = 91;"
+                                      "document.getElementById('rating-1').value = 17;")
+                driver.find_element(By.ID, "submit").click()
+            WebDriverWait(driver, 20).until(lambda d: old not in d.find_elements(By.ID, "answer-form"))
+        wait_for_text(driver, "done")
+    finally:
+        server.stop()
+    with sqlite3.connect(db) as conn:
+        got = conn.execute("SELECT trial, conditions, response, correct FROM answers ORDER BY trial").fetchall()
+    assert [g[0] for g in got] == [0, 1]
+    for _, conditions, response, correct in got:
+        shown = json.loads(conditions)
+        if design == "text":  # stored as typed; scored by the item's words ("aba" or "ava": one of them typed)
+            assert json.loads(response) == "<b>Aba</b> ava" and correct == 1.0
+        elif design == "preference":
+            assert json.loads(response) == shown[1]  # the face shown second, by condition name
+        else:
+            assert json.loads(response) == {shown[0]: 91, shown[1]: 17}

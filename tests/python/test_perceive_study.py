@@ -28,9 +28,9 @@ def fake_manifest(design: str = "intelligibility", counterbalance: str = "full",
                         + (f'answer = "e{k}"\n' if design == "emotion" else "") for k in range(conditions))
     vowels = "aeiou"
     item_list = ", ".join(f'"{vowels[k % 5]}{c}{vowels[k % 5]}"' for k, c in zip(range(items), "bdgvmnlr"))
-    snr = ", ".join("0.0" if s is None else str(s) for s in snrs)
+    snr = "" if snrs == (None,) else "snr_db = [" + ", ".join(str(s) for s in snrs) + "]\n"
     text = (f'[study]\nname = "t"\ndesign = "{design}"\nseed = 3\nconsent = "ok"\nattention_every = {attention_every}\n'
-            f'counterbalance = "{counterbalance}"\n[stimuli]\nitems = [{item_list}]\nsnr_db = [{snr}]\n{cond_toml}')
+            f'counterbalance = "{counterbalance}"\n[stimuli]\nitems = [{item_list}]\n{snr}{cond_toml}')
     import tomllib
 
     spec = parse_study(tomllib.loads(text), Path("t.toml"))
@@ -187,3 +187,43 @@ def test_a_database_of_another_study_is_refused(tmp_path: Path) -> None:
     Store(url, fake_manifest(), "k").close()
     with pytest.raises(StorageError, match="holds the results of study 't' as prepared another time"):
         Store(url, fake_manifest(items=3), "k")
+
+
+def test_an_emotion_condition_speaks_with_the_table_blended_as_speak_does(tmp_path: Path) -> None:
+    from coartic.emotions import EmotionError, emotion_table
+    from coartic.perceive.spec import Condition
+    from coartic.perceive.stimuli import condition_table
+    from coartic.synthetic_cli import load_generator
+    from coartic.table import ParameterTable
+
+    root = Path(__file__).resolve().parents[2]
+    gen = load_generator()
+    truth = gen.emotive_truth(ParameterTable.load(root / "corpus-synthetic" / "ground_truth.json"), gen.load_emotions())
+    path = tmp_path / "emotive.json"
+    truth.save(path)
+    joy = condition_table(Condition(name="joy", table=path, emotion="joy", intensity=0.6))
+    assert joy.values == emotion_table(ParameterTable.load(path), "joy", 0.6).values
+    assert joy.values != ParameterTable.load(path).values  # the emotion moved some targets
+    assert condition_table(Condition(name="n", table=path)).values == ParameterTable.load(path).values
+    with pytest.raises(EmotionError, match="fitted without emotions"):
+        condition_table(Condition(name="joy", emotion="joy"))  # the shipped table has none
+    # an emotion study asks for the conditions' emotions
+    m = manifest_of(parse_study({"study": {"name": "e", "design": "emotion", "seed": 1, "consent": "ok"},
+                                 "stimuli": {"items": ["apa"]},
+                                 "condition": [{"name": "j", "table": str(path), "emotion": "joy"},
+                                               {"name": "s", "table": str(path), "emotion": "sadness"}]},
+                                Path("e.toml")), [])
+    assert m["choices"] == ["joy", "sadness"]
+
+
+def test_prepare_refuses_a_directory_holding_answers(tmp_path: Path) -> None:
+    from typer.testing import CliRunner
+
+    from coartic.cli import app
+
+    out = tmp_path / "study"
+    out.mkdir()
+    (out / "results.sqlite").write_bytes(b"")
+    res = CliRunner().invoke(app, ["perceive", "prepare", str(write_spec(tmp_path)), "--out", str(out), "--force"])
+    assert res.exit_code == 2 and "holds a results database" in res.output
+    assert sorted(p.name for p in out.iterdir()) == ["results.sqlite"]

@@ -161,12 +161,12 @@ def test_cli_animate_and_its_errors(tmp_path: Path, labels: Path) -> None:
     small = tmp_path / "small.json"
     make_table(("#", "a", "i", "p")).save(small)
     bad = runner.invoke(app, ["animate", str(labels), "--table", str(small), "--out", str(tmp_path / "o2")])
-    assert bad.exit_code == 1
+    assert bad.exit_code == 2
     assert "has no phoneme 'f'" in bad.output and "Traceback" not in bad.output
     garbled = tmp_path / "garbled.tsv"
     garbled.write_text("0.0\t0.3\tsil\n0.2\t0.1\ta\n")
     bad = runner.invoke(app, ["animate", str(garbled), "--table", str(table), "--out", str(tmp_path / "o3")])
-    assert bad.exit_code == 1 and "garbled.tsv" in bad.output and "Traceback" not in bad.output
+    assert bad.exit_code == 2 and "garbled.tsv" in bad.output and "Traceback" not in bad.output
 
 
 def test_label_reader_errors_pass_through(tmp_path: Path) -> None:
@@ -384,4 +384,4 @@ def test_animate_speaks_as_the_tables_speaker(tmp_path: Path, labels: Path) -> N
     assert ok.exit_code == 0, ok.output
     bad = CliRunner().invoke(app, ["animate", str(labels), "--table", str(path), "--out", str(tmp_path / "cli2"),
                                    "--preview", "none", "--speaker", "s9"])
-    assert bad.exit_code == 1 and "s1, s2" in bad.output and "Traceback" not in bad.output
+    assert bad.exit_code == 2 and "s1, s2" in bad.output and "Traceback" not in bad.output

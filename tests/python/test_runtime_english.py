@@ -84,7 +84,7 @@ def test_unknown_language_is_refused(tmp_path: Path) -> None:
     with pytest.raises(FestivalError, match=r"language 'fr' .* \(known: it, en\)"):
         synthesize("bonjour", tmp_path / "x.wav", lang="fr")
     res = CliRunner().invoke(app, ["speak", "bonjour", "--lang", "fr", "-o", str(tmp_path / "o")])
-    assert res.exit_code == 1 and "--lang 'fr'" in res.output and "Traceback" not in res.output
+    assert res.exit_code == 2 and "--lang 'fr'" in res.output and "Traceback" not in res.output
     assert not (tmp_path / "o").exists()
 
 

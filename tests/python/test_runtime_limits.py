@@ -37,11 +37,11 @@ def test_frame_count_limit(tmp_path: Path) -> None:
     labels.write_text(LABELS)
     code, out = _run(["animate", str(labels), "--table", str(table), "--out", str(tmp_path / "o"),
                       "--fps", "1e9", "--preview", "none"])
-    assert code == 1 and "error:" in out and "more than the 1000000 an animation may have" in out
+    assert code == 2 and "error:" in out and "more than the 1000000 an animation may have" in out
     labels.write_text("0\t0.1\tsil\n0.1\t1000000\ta\n")
     code, out = _run(["animate", str(labels), "--table", str(table), "--out", str(tmp_path / "p"),
                       "--preview", "none"])
-    assert code == 1 and "1e+06 s at 25 fps is 2.5e+07 frames" in out
+    assert code == 2 and "1e+06 s at 25 fps is 2.5e+07 frames" in out
 
 
 def test_fap_values_out_of_range_and_face_units(tmp_path: Path) -> None:
@@ -59,7 +59,7 @@ def test_fap_values_out_of_range_and_face_units(tmp_path: Path) -> None:
     labels.write_text(LABELS)
     code, out = _run(["animate", str(labels), "--table", str(table), "--out", str(tmp_path / "o"),
                       "--mns", "1e-300", "--preview", "none"])
-    assert code == 1 and "error: face unit mns_mm = 1e-300 mm" in out
+    assert code == 2 and "error: face unit mns_mm = 1e-300 mm" in out
 
 
 def test_speak_refuses_control_characters_before_festival(tmp_path: Path) -> None:
@@ -116,5 +116,5 @@ def test_a_frame_rate_at_which_no_phoneme_lasts_a_frame_is_refused(tmp_path: Pat
     labels.write_text(LABELS)
     code, out = _run(["animate", str(labels), "--table", str(table), "--out", str(tmp_path / "o"),
                       "--fps", "1e-9", "--preview", "none"])
-    assert code == 1 and "at 1e-09 fps a frame lasts 1e+09 s, longer than every phoneme" in out
+    assert code == 2 and "at 1e-09 fps a frame lasts 1e+09 s, longer than every phoneme" in out
     assert not (tmp_path / "o").exists()

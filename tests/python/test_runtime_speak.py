@@ -128,11 +128,11 @@ def test_cli_speak_errors_exit_nonzero_without_traceback(tmp_path: Path, monkeyp
     ]
     for args, needle in cases:
         res = runner.invoke(app, args)
-        assert res.exit_code == 1, (args, res.output)
+        assert res.exit_code == 2, (args, res.output)
         assert needle in res.output and "Traceback" not in res.output, res.output
     monkeypatch.setenv("PATH", str(tmp_path))
     res = runner.invoke(app, ["speak", "ciao", "-t", str(GROUND_TRUTH), "-o", str(tmp_path / "e")])
-    assert res.exit_code == 1 and "'festival' not found on PATH" in res.output
+    assert res.exit_code == 2 and "'festival' not found on PATH" in res.output
 
 
 def test_speak_output_animates_again_to_the_same_frames(tmp_path: Path, table: ParameterTable) -> None:
@@ -202,7 +202,7 @@ def test_speak_into_a_used_directory(tmp_path: Path) -> None:
     assert speak("Ciao mamma.")[0] == 0
     first = sorted(p.name for p in out.iterdir())
     code, text = speak("Viva la pappa.")
-    assert code == 1 and "holds coartic speak text Ciao mamma." in text, text
+    assert code == 2 and "holds coartic speak text Ciao mamma." in text, text
     assert sorted(p.name for p in out.iterdir()) == first
     code, text = speak("Viva la pappa.", "--force")
     assert code == 0, text

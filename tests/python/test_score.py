@@ -168,3 +168,61 @@ def test_baselines_from_the_recorded_spec_or_train(ema_fit: tuple[Path, float], 
     t.save(moved)
     sc = score_recordings(moved, [U20[0]], [U20[1]], channels=["JO"])
     assert any(n.startswith("no baselines: the table records no fit spec") for n in sc.notes)
+
+
+def test_score_shows_every_baseline_it_names_or_says_why_not(ema_fit: tuple[Path, float]) -> None:
+    """Issue 25 item 3: the caption listed a warped-token baseline it did not show. Scored on its own
+    (only) training recording, there is no other token of the sentence: the caption says so."""
+    from coartic.fit.score_cli import score_table
+
+    table_path, _ = ema_fit
+    sc = score_recordings(table_path, [U20[0]], [U20[1]], channels=["JO"])
+    assert set(sc.baselines) == {"constant", "step"}
+    cap = str(score_table(sc).caption)
+    assert "step = each phoneme's training mean" in cap and "constant = training mean" in cap
+    assert "warped not shown: no other token of the sentence of" in cap
+    assert "warped" in sc.summary()["baselines_absent"] and "warped: not shown" in sc.text()
+    bare = score_utterances(ParameterTable.load(table_path), sc.utterances, ["JO"])  # no training data at all
+    assert str(score_table(bare).caption).startswith("no baselines; constant not shown")
+
+
+def test_the_step_flag_compares_like_with_like_for_another_session() -> None:
+    """Issue 25 item 3: a table scored on a recording of another session (another EMA origin) was
+    flagged "worse than the step model" on the raw figure while it won with the offsets removed. A test
+    recording in no directory of the training files (or of a speaker the training lacks) is compared
+    with the offsets removed only, and the flag and the notes say why."""
+    from coartic.fit.baselines import other_session
+    from coartic.model import Utterance
+
+    rng = np.random.default_rng(7)
+    train = vcv_utterances(rng, repetitions=1, rates={"normal": 1.0}, noise=0.1)
+    test = vcv_utterances(rng, repetitions=1, rates={"normal": 1.0}, noise=0.1)
+    for u in train:
+        u.meta["file"] = f"/corpus/session1/{u.name}.csv"
+    plain = score_utterances(truth_table(), test, train=train)
+    rs = np.concatenate([plain.residuals("LLO", u, predicted=plain.baselines["step"]["LLO"]) for u in range(len(test))])
+    rt = np.concatenate([plain.residuals("LLO", u) for u in range(len(test))])
+    ms, mt = float(np.nanmean(rs)), float(np.nanmean(rt))
+    # another origin (every measured value moved by `shift`), on the side and of the size where the
+    # step model's raw RMSE falls below the table's: raw² = var + (mean − shift)²
+    gap = float(np.nanvar(rs) - np.nanvar(rt) + ms**2 - mt**2) + 0.5
+    shift = gap / (2.0 * (ms - mt))
+
+    def moved(folder: str) -> list[Utterance]:
+        return [Utterance(u.labels, u.starts, u.ends, u.times, u.name, {"LLO": u.observed["LLO"] + shift}, u.valid,
+                          {**u.meta, "file": f"/corpus/{folder}/{u.name}.csv"}) for u in test]
+
+    same = score_utterances(truth_table(), moved("session1"), train=train)
+    assert same.other_session is None and same.flags()  # raw: the step model wins by the shift's chance
+    t, s = same._figures("LLO"), same._figures("LLO", same.baselines["step"]["LLO"])
+    assert t["rmse_mm"] > s["rmse_mm"] and t["rmse_offset_removed_mm"] < s["rmse_offset_removed_mm"]
+    other = score_utterances(truth_table(), moved("session2"), train=train)
+    assert other.other_session is not None and "in no directory of the training files" in other.other_session
+    assert other.flags() == [] and other.summary()["beats_step_model"] == {"LLO": True}
+    assert any("compared with the offsets removed only" in n for n in other.notes)
+    # another speaker: named by the metadata
+    for u in train:
+        u.meta["speaker"] = "s1"
+    spk = [Utterance(u.labels, u.starts, u.ends, u.times, u.name, u.observed, u.valid, {**u.meta, "speaker": "s2"})
+           for u in moved("session1")]
+    assert other_session(spk, train) == "speaker s2 is not in the training data"

@@ -115,7 +115,7 @@ def test_rerun_into_an_earlier_session_replaces_it_and_refuses_foreign_directori
     foreign.mkdir()
     (foreign / "thesis.tex").write_text("precious")
     result = CliRunner().invoke(app, ["corpus", "synth", str(foreign), "--quick"])
-    assert result.exit_code == 1
+    assert result.exit_code == 2
     said = " ".join(result.output.split())
     assert str(foreign) in said.replace(" ", "") or str(foreign) in said
     assert "no coartic run wrote" in said
@@ -134,7 +134,7 @@ def test_corpus_synth_is_staged_marked_and_refuses_another_sessions_directory(
     assert CliRunner().invoke(app, args).exit_code == 0  # the same session again: replaced
     assert (out / "manifest.csv").read_bytes() == first
     other = CliRunner().invoke(app, ["corpus", "synth", str(out), "--quick", "--seed", "8"])
-    assert other.exit_code == 1 and "--force" in other.output  # another seed: refused, nothing mixed
+    assert other.exit_code == 2 and "--force" in other.output  # another seed: refused, nothing mixed
     assert (out / "manifest.csv").read_bytes() == first
     # Ctrl-C half-way: the previous session stays whole, and no staging directory is left behind
     calls = {"n": 0}

@@ -77,17 +77,17 @@ def test_page_data_cannot_close_the_script(run: Path, tmp_path: Path) -> None:
 
 def test_view_names_what_is_missing(tmp_path: Path, run: Path) -> None:
     res = CliRunner().invoke(app, ["view", str(tmp_path)])
-    assert res.exit_code == 1 and "no .glb file" in res.output and "--gltf" in res.output
+    assert res.exit_code == 2 and "no .glb file" in res.output and "--gltf" in res.output
     two = tmp_path / "two"
     shutil.copytree(run, two)
     shutil.copy(two / "apamaba.glb", two / "other.glb")
     res = CliRunner().invoke(app, ["view", str(two)])
-    assert res.exit_code == 1 and "several .glb files" in res.output
+    assert res.exit_code == 2 and "several .glb files" in res.output
     res = CliRunner().invoke(app, ["view", str(two), "--name", "other"])
     assert res.exit_code == 0, res.output
     (two / "apamaba.wav").unlink()
     res = CliRunner().invoke(app, ["view", str(two), "--name", "apamaba"])
-    assert res.exit_code == 1 and "'apamaba.wav' is not in" in " ".join(res.output.split())
+    assert res.exit_code == 2 and "'apamaba.wav' is not in" in " ".join(res.output.split())
 
 
 def test_server_serves_page_and_sound_on_localhost(run: Path) -> None:
@@ -159,13 +159,13 @@ def test_playing_follows_the_sound(run: Path, chromium: str, tmp_path: Path) -> 
 def test_frame_out_of_range_and_view_presets_are_checked(run: Path) -> None:
     res = CliRunner().invoke(app, ["view", str(run), "--frame", "999"])
     n = read_fap(run / "apamaba.fap").n_frames
-    assert res.exit_code == 1 and f"--frame 999 is outside 0..{n - 1}" in " ".join(res.output.split())
+    assert res.exit_code == 2 and f"--frame 999 is outside 0..{n - 1}" in " ".join(res.output.split())
     res = CliRunner().invoke(app, ["view", str(run), "--frame", "-1"])
-    assert res.exit_code == 1 and "outside" in res.output
+    assert res.exit_code == 2 and "outside" in res.output
     res = CliRunner().invoke(app, ["view", str(run), "--view", "profile", "--yaw", "10"])
-    assert res.exit_code == 1 and "not both" in res.output
+    assert res.exit_code == 2 and "not both" in res.output
     res = CliRunner().invoke(app, ["view", str(run), "--view", "back"])
-    assert res.exit_code == 1 and "front, three-quarter, profile" in " ".join(res.output.split())
+    assert res.exit_code == 2 and "front, three-quarter, profile" in " ".join(res.output.split())
     assert view_yaw("profile", None) == 90.0 and view_yaw(None, -20.0) == -20.0 and view_yaw(None, None) is None
     assert page_query(3, 90.0) == f"?frame=3&yaw={math.pi / 2!r}"
 

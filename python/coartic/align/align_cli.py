@@ -14,7 +14,7 @@ from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, T
 
 from coartic.align.alignment import Progress as PartProgress
 from coartic.align.audio import MAX_DURATION
-from coartic.console import LineProgress, print_error, print_warning
+from coartic.console import LineProgress, positive_finite, print_warning
 
 _err = Console(stderr=True)
 _out = Console()
@@ -23,7 +23,8 @@ TextOpt = Annotated[str | None, typer.Option("--text", help="What the recording 
 TranscriptOpt = Annotated[Path | None, typer.Option("--transcript", help="The transcript as a file: plain text, or a TextGrid with a words tier.")]
 LangOpt = Annotated[str, typer.Option("--lang", help="Language of the recording: it, en, de, or any espeak-ng voice (fr, es, ...).")]
 EngineOpt = Annotated[str | None, typer.Option("--engine", help="Aligner: sphinx (PocketSphinx, English; the default for en), festival (alignment by synthesis with Festival; it, en; the default for it), espeak (alignment by synthesis with espeak-ng; the default for other languages).")]
-MaxDurationOpt = Annotated[float, typer.Option("--max-duration", help="Refuse recordings longer than this (s).")]
+MaxDurationOpt = Annotated[float, typer.Option("--max-duration", callback=positive_finite,
+                                               help="Refuse recordings longer than this (s).")]
 
 
 def transcript_text(text: str | None, transcript: Path | None) -> str | None:
@@ -79,26 +80,19 @@ def align_command(
 
     Without a transcript (English only) the phones are recognised, which is less accurate."""
     from coartic.align.aligner import align_recording, write_alignment
-    from coartic.align.errors import AlignError
-    from coartic.io.errors import DataError
-    from coartic.outputs import OutputDir, OutputError
-    from coartic.runtime.errors import AnimationError
+    from coartic.outputs import OutputDir
     from coartic.runtime.pipeline import _name_from, check_name
 
-    try:
-        words = transcript_text(text, transcript)
-        stem = check_name(name) if name is not None else _name_from(recording.stem)
-        identity = {"recording": str(recording.resolve()), "lang": lang}
-        with shown_warnings(), OutputDir(out, "align", identity, force=force,
-                                         protect=[recording, *([transcript] if transcript else [])]) as staging, \
-                LineProgress(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(),
-                             TimeRemainingColumn(), console=_err) as progress:
-            alignment = align_recording(recording, words, lang, engine, max_duration=max_duration,
-                                        progress=part_progress(progress, "aligning"))
-            files = write_alignment(alignment, staging, stem)
-    except (AlignError, AnimationError, DataError, OutputError, OSError) as err:
-        print_error(_err, err)
-        raise typer.Exit(code=1)
+    words = transcript_text(text, transcript)
+    stem = check_name(name) if name is not None else _name_from(recording.stem)
+    identity = {"recording": str(recording.resolve()), "lang": lang}
+    with shown_warnings(), OutputDir(out, "align", identity, force=force,
+                                     protect=[recording, *([transcript] if transcript else [])]) as staging, \
+            LineProgress(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(),
+                         TimeRemainingColumn(), console=_err) as progress:
+        alignment = align_recording(recording, words, lang, engine, max_duration=max_duration,
+                                    progress=part_progress(progress, "aligning"))
+        files = write_alignment(alignment, staging, stem)
     _out.print(f"{alignment.method}: {len(alignment.phones)} phones, {len(alignment.words)} words", highlight=False,
                soft_wrap=True)
     for what, path in files.items():

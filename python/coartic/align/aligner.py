@@ -9,7 +9,7 @@ from os import PathLike
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from coartic.align.audio import MAX_DURATION, read_recording
+from coartic.align.audio import MAX_DURATION, Recording, is_pcm_wav, read_recording, write_pcm16
 from coartic.align.alignment import Alignment, Progress, align_by_synthesis
 from coartic.align.errors import AlignError, AlignWarning
 from coartic.align.synthesis import ENGINES, default_engine
@@ -84,13 +84,31 @@ def align_recording(
         if not english:
             raise AlignError(f"--engine sphinx aligns English only (its en-us model), not {lang!r}; "
                              f"use --engine {default_engine(lang)}")
-        from coartic.align.sphinx import align_sphinx
-
-        alignment = align_sphinx(recording, text, progress=progress)
+        alignment = align_english(recording, text, progress)
     else:
         alignment = align_by_synthesis(recording, text, lang, engine, progress=progress)
     for message in alignment.warnings:
         warnings.warn(message, AlignWarning, stacklevel=2)
+    return alignment
+
+
+def align_english(recording: Recording, text: str, progress: Progress | None = None) -> Alignment:
+    """PocketSphinx's forced alignment, with the confidence (and the warnings) of an alignment by
+    synthesis with Festival, which is also the answer, said in a warning, where PocketSphinx fails
+    (a word its dictionary lacks, or a path its beams lose)."""
+    from coartic.align.sphinx import align_sphinx
+
+    check = align_by_synthesis(recording, text, "en", "festival")
+    try:
+        alignment = align_sphinx(recording, text, progress=progress, parts=check.parts)
+    except AlignError as err:
+        check.warnings.insert(0, f"{err}: aligned by synthesis with Festival instead (less accurate on English: "
+                                 "docs/ALIGN.md)")
+        if progress is not None:
+            progress(1, 1)
+        return check
+    alignment.confidence = check.confidence
+    alignment.warnings.extend(w for w in check.warnings if "poorly" in w)
     return alignment
 
 
@@ -161,9 +179,11 @@ def animate_recording(wav: str | PathLike[str], text: str | None, table: Paramet
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     files = write_alignment(alignment, out, stem)
+    # a recording the runtime's WAV copy cannot take (float, 24-bit extensible) is the sound as 16-bit PCM
+    sound = Path(wav) if is_pcm_wav(wav) else write_pcm16(wav, out / f"{stem}.wav")
     # the phonemes tier holds model phonemes already, and phonemes outside the Italian set (h) are kept
     # for the phone map's fallbacks
     result = animate_file(files["textgrid"], table, out, tier=PHONEMES_TIER, label_map=LabelMap.from_dict({"*": "="}),
-                          phone_map=alignment.phone_map, audio=wav, name=stem, **animate)
+                          phone_map=alignment.phone_map, audio=sound, name=stem, **animate)
     result.files = {**files, **result.files}
     return result

@@ -59,6 +59,8 @@ class Alignment:
     phone_map: PhoneMap  # the fallbacks of its phonemes
     confidence: float | None = None  # warp distance ratio (alignment by synthesis; lower is better)
     warnings: list[str] = field(default_factory=list)
+    # the parts a long transcript was aligned in: (start, end) in the recording (s) and the part's words
+    parts: list[tuple[float, float, str]] = field(default_factory=list)
 
     def segments(self) -> Segments:
         """The model phonemes as Segments (what the runtime animates)."""
@@ -209,6 +211,7 @@ def align_by_synthesis(recording: Recording, text: str, lang: str, engine: str |
     words: list[str] = []
     ratios: list[tuple[float, float]] = []  # (ratio, weight)
     pos = 0  # sample where the next part is searched from
+    part_spans: list[tuple[float, float, str]] = []
     spoken: Spoken | None = None
     for k, part in enumerate(parts):
         spoken = speak_transcript(part, lang, engine)
@@ -236,6 +239,7 @@ def align_by_synthesis(recording: Recording, text: str, lang: str, engine: str |
         # the next part is searched from the end of this one's warp (the start of the pause it ended at),
         # not from its carried last boundary, which may fall short of the last phone's fading tail
         speech_end = b / RATE if last else a / RATE + float(j[-1] + 1) * HOP
+        part_spans.append((a / RATE, speech_end, part))
         offset = len(words)
         for p in range(first, final + 1):
             phones.append(spoken.phones[p])
@@ -263,7 +267,7 @@ def align_by_synthesis(recording: Recording, text: str, lang: str, engine: str |
     method = (f"alignment by synthesis: {spoken.engine} said the transcript, its MFCCs warped onto the recording's "
               f"(DTW){'' if len(parts) == 1 else f', in {len(parts)} parts'}")
     alignment = Alignment(tuple(phones), tuple(phonemes), bnd[:-1], bnd[1:], tuple(word_of), tuple(words), end,
-                          method, spoken.phone_map, confidence=ratio)
+                          method, spoken.phone_map, confidence=ratio, parts=part_spans)
     alignment.warnings.extend(_check(alignment, recording, ratio))
     return alignment
 

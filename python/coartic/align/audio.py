@@ -99,6 +99,32 @@ def read_recording(path: str | PathLike[str], max_duration: float = MAX_DURATION
     return rec
 
 
+def is_pcm_wav(path: str | PathLike[str]) -> bool:
+    """Whether Python's wave module (what the runtime copies and plays) reads the file: integer PCM."""
+    import wave
+
+    try:
+        with wave.open(str(path), "rb"):
+            return True
+    except (wave.Error, EOFError, OSError):
+        return False
+
+
+def write_pcm16(src: str | PathLike[str], dest: Path) -> Path:
+    """`src` (any WAV SciPy reads: float, 24-bit, WAVE_FORMAT_EXTENSIBLE) as 16-bit PCM at its own rate
+    and channels, so that players and the runtime's copy take it."""
+    from scipy.io import wavfile
+
+    from coartic.outputs import atomic_path
+
+    rate, data = wavfile.read(src, mmap=True)
+    pcm = np.clip(_to_float(np.asarray(data), Path(src)), -1.0, 1.0)
+    dest.parent.mkdir(parents=True, exist_ok=True)
+    with atomic_path(dest) as tmp:
+        wavfile.write(tmp, rate, np.round(pcm * 32767).astype(np.int16))
+    return dest
+
+
 def _hms(seconds: float) -> str:
     s = int(round(seconds))
     return f"{s // 3600}:{s % 3600 // 60:02d}:{s % 60:02d}"

@@ -22,6 +22,8 @@ from coartic.table import PAUSE
 # PocketSphinx's silence and filler phones
 _SILENCE = {"SIL", "+SPN+", "+NSN+", "+BREATH+", "+COUGH+", "+NOISE+", "+UM+", "+UH+", "+SMACK+"}
 _WORD = re.compile(r"[a-z0-9']+")
+# Share of a transcript's words missing from the English dictionary that says it is not English.
+FOREIGN_SHARE = 0.3
 # Beams of the alignment search, wider than PocketSphinx's recognition defaults (1e-48): an alignment
 # has one path to follow, and with the defaults a voice unlike the model's (a TTS, a child) falls off it.
 # bestpath off: its lattice can give a phone fewer frames than its HMM has states, and the second
@@ -49,9 +51,11 @@ def normalise(text: str, decoder: Any) -> list[str]:
         raise AlignError("the transcript has no English words to align")
     missing = sorted({w for w in words if decoder.lookup_word(w) is None})
     if missing:
+        share = sum(w in missing for w in words) / len(words)
+        hint = (f"; {100 * share:.0f} % of the words are not English words: is the transcript in English (--lang)?"
+                if share >= FOREIGN_SHARE else " (spell numbers and abbreviations out)")
         raise AlignError(f"PocketSphinx's dictionary (cmudict-en-us) has no {', '.join(repr(w) for w in missing[:10])}"
-                         f"{' ...' if len(missing) > 10 else ''}: spell numbers and abbreviations out, or align "
-                         "with --engine festival (its letter-to-sound rules say any word)")
+                         f"{' ...' if len(missing) > 10 else ''}{hint}")
     return words
 
 
@@ -89,8 +93,14 @@ def _build(phones: list[tuple[str, int, int, int]], words: list[str], recording:
                      warnings=note)
 
 
-def align_sphinx(recording: Recording, text: str, progress: Progress | None = None) -> Alignment:
-    """Forced alignment of `text` (English) with PocketSphinx: words, then phones within them."""
+def align_sphinx(recording: Recording, text: str, progress: Progress | None = None,
+                 parts: list[tuple[float, float, str]] | None = None) -> Alignment:
+    """Forced alignment of `text` (English) with PocketSphinx: words, then phones within them.
+    `parts`: (start, end, words) spans of the recording found by an alignment by synthesis
+    (`Alignment.parts`); each is aligned alone, so that a long recording costs its length, not more,
+    and progress is shown part by part."""
+    if parts is not None and len(parts) > 1:
+        return _align_parts(recording, parts, progress)
     decoder = _decoder(**ALIGN_BEAMS)
     words = normalise(text, decoder)
     pcm = _pcm(recording)
@@ -100,15 +110,15 @@ def align_sphinx(recording: Recording, text: str, progress: Progress | None = No
         decoder.process_raw(pcm, full_utt=True)
         decoder.end_utt()
         if decoder.hyp() is None:
-            raise RuntimeError("the words do not fit the sound")
+            raise AlignError(f"{recording.path}: PocketSphinx could not align the transcript (the words do "
+                             "not fit the sound)")
         decoder.set_alignment()
         decoder.start_utt()
         decoder.process_raw(pcm, full_utt=True)
         decoder.end_utt()
         found = decoder.get_alignment()
     except RuntimeError as err:
-        raise AlignError(f"{recording.path}: PocketSphinx could not align the transcript ({err}); is it what the "
-                         "recording says, in English?") from None
+        raise AlignError(f"{recording.path}: PocketSphinx could not align the transcript ({err})") from None
     if found is None:
         raise AlignError(f"{recording.path}: PocketSphinx found no alignment of the transcript to the recording: "
                          "is it what the recording says, in English?")
@@ -123,6 +133,40 @@ def align_sphinx(recording: Recording, text: str, progress: Progress | None = No
     if progress is not None:
         progress(1, 1)
     return _build(phones, words, recording, "forced alignment by PocketSphinx (en-us model, CMU dictionary)", [])
+
+
+def _align_parts(recording: Recording, parts: list[tuple[float, float, str]], progress: Progress | None) -> Alignment:
+    from dataclasses import replace
+
+    pieces: list[Alignment] = []
+    for k, (start, end, words) in enumerate(parts):
+        a = int(start * RATE)
+        b = int(end * RATE) if k < len(parts) - 1 else len(recording.samples)
+        clip = replace(recording, samples=recording.samples[a:b], duration=(b - a) / RATE)
+        pieces.append(align_sphinx(clip, words))
+        if progress is not None:
+            progress(k + 1, len(parts))
+    labels: list[str] = [""]
+    phonemes: list[str] = [PAUSE]
+    starts: list[float] = [0.0]
+    word_of: list[int] = [-1]
+    words_all: list[str] = []
+    for (start, _, _), piece in zip(parts, pieces):
+        offset = len(words_all)
+        for lab, phm, s, w in zip(piece.phones, piece.phonemes, piece.starts, piece.word_of):
+            if phm == PAUSE and phonemes[-1] == PAUSE:
+                continue
+            labels.append(lab)
+            phonemes.append(phm)
+            starts.append(start + float(s))
+            word_of.append(w + offset if w >= 0 else -1)
+        words_all.extend(piece.words)
+    if len(starts) > 1 and starts[1] <= 0.0:
+        del labels[0], phonemes[0], starts[0], word_of[0]
+    s_arr = np.array(starts)
+    e_arr = np.append(s_arr[1:], recording.duration)
+    return Alignment(tuple(labels), tuple(phonemes), s_arr, e_arr, tuple(word_of), tuple(words_all),
+                     recording.duration, pieces[0].method + f", in {len(parts)} parts", pieces[0].phone_map)
 
 
 def recognise_phones(recording: Recording, progress: Progress | None = None) -> Alignment:

@@ -40,22 +40,22 @@ def batch_command(
     per speaker and channel; rerun the same command to continue after an interruption."""
     console = Console()
     err = Console(stderr=True)
+    from coartic.errors import UsageError
+
     if scheduler is not None and (workers is not None or serial):
-        print_error(err, "--scheduler runs on the cluster's workers: --workers and --serial do not apply")
-        raise typer.Exit(2)
+        raise UsageError("--scheduler runs on the cluster's workers: --workers and --serial do not apply")
+    tls_given = [f"{name} {path}" for name, path in (("--tls-ca-file", tls_ca_file), ("--tls-cert", tls_cert),
+                                                     ("--tls-key", tls_key)) if path is not None]
+    if scheduler is None and tls_given:  # the local cluster takes no certificates: not a silent no-op
+        raise UsageError(f"{', '.join(tls_given)}: TLS certificates are for a tls:// scheduler; give its address "
+                         "with --scheduler tls://HOST:PORT, or leave them out to run on a local cluster")
+    from coartic.batch.run import Tls, require_packages, run_batch
     from coartic.batch.spec import load_batch_spec
 
-    try:
-        from coartic.batch.run import Tls, require_packages, run_batch
-
-        require_packages(None, serial)
-        s = load_batch_spec(spec)
-
-        outcome = run_batch(s, out, scheduler=scheduler, workers=workers, serial=serial, force=force, report=report,
-                            console=err, quiet=quiet, tls=Tls(tls_ca_file, tls_cert, tls_key))
-    except (ValueError, OSError) as e:  # SpecError, OutputError, DataError: messages name the culprit
-        print_error(err, e)
-        raise typer.Exit(2) from None
+    require_packages(None, serial)
+    s = load_batch_spec(spec)
+    outcome = run_batch(s, out, scheduler=scheduler, workers=workers, serial=serial, force=force, report=report,
+                        console=err, quiet=quiet, tls=Tls(tls_ca_file, tls_cert, tls_key))
     from coartic.batch.report import rmse_rows
 
     print_table(console, rmse_table(s, rmse_rows(s, out)))

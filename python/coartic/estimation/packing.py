@@ -175,6 +175,27 @@ class Prior:
     log: bool = False
 
 
+def tie_group(phonemes: Sequence[str], ties: Sequence[tuple[int, int]], phoneme: str, parameter: str) -> tuple[str, ...]:
+    """The phonemes whose ``parameter`` takes one value with ``phoneme``'s ([[tie]] or [parameters]
+    shared), its carrier (the leader) first; () when it is its own."""
+    if phoneme not in phonemes or parameter not in PARAMETERS:
+        return ()
+    k = PARAMETERS.index(parameter)
+    leaders = dict(ties)
+    me = phonemes.index(phoneme) * N_PARAMS + k
+    lead = leaders.get(me, me)
+    group = [lead] + [f for f, ld in ties if ld == lead]
+    return tuple(phonemes[j // N_PARAMS] for j in group) if len(group) > 1 else ()
+
+
+def shared_words(group: Sequence[str], phonemes: Sequence[str], parameter: str) -> str:
+    """Who a shared or tied value belongs to, for a sentence ("every phoneme (one theta_bw shared by
+    all 25)", "/a/, /e/ (one alpha tied across them)"): a report must not call it its carrier's."""
+    if set(group) >= set(phonemes):
+        return f"every phoneme (one {parameter} shared by all {len(phonemes)})"
+    return f"{', '.join(f'/{p}/' for p in group)} (one {parameter} tied across them)"
+
+
 def moving(free: BoolArray, ties: Sequence[tuple[int, int]]) -> BoolArray:
     """Entries that move with x: the free ones and those tied to a free one."""
     out = free.copy()

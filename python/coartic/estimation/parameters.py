@@ -21,7 +21,7 @@ from typing import TYPE_CHECKING, Iterator, Mapping
 import numpy as np
 from numpy.typing import NDArray
 
-from coartic.estimation.packing import Packing, Prior
+from coartic.estimation.packing import Packing, Prior, tie_group
 from coartic.estimation.target_prior import target_priors
 from coartic.errors import SpecError
 from coartic.table import N_PARAMS, PARAMETERS
@@ -64,6 +64,7 @@ class Parameter:
     identified: bool = True
     tied_to: str | None = None  # "phoneme.parameter" whose value this entry takes ([[tie]])
     bound_note: BoundNote | None = None  # why it is at a bound (coartic.fit.bounds), after a fit
+    shared_by: tuple[str, ...] = ()  # the phonemes whose one value this is ([parameters] shared, [[tie]]), carrier first
 
     @property
     def name(self) -> str:
@@ -127,7 +128,8 @@ class ParameterSet(Mapping[str, Parameter]):
         tied = None if leader is None else f"{self.phonemes[leader // N_PARAMS]}.{parameter}"
         info = extra(name) if tied is None else extra(tied) | {"prior": None}
         return Parameter(phoneme, parameter, float(self.matrix[i, k]), bool(self.free[i, k]),
-                         float(self.lower[i, k]), float(self.upper[i, k]), tied_to=tied, **info)  # type: ignore[arg-type]
+                         float(self.lower[i, k]), float(self.upper[i, k]), tied_to=tied,
+                         shared_by=tie_group(self.phonemes, self.ties, phoneme, parameter), **info)  # type: ignore[arg-type]
 
     @property
     def n_free(self) -> int:
@@ -207,6 +209,7 @@ class ParameterSet(Mapping[str, Parameter]):
         free[r, ka], base[r, ka] = False, 1.0
 
         ties: list[tuple[int, int]] = []
+        tied_by: dict[tuple[int, int], int] = {}  # (phoneme row, parameter) -> the [[tie]] that holds it
         for j, t in enumerate(spec.ties):
             if t.channels is not None and ch not in t.channels:
                 continue
@@ -217,6 +220,13 @@ class ParameterSet(Mapping[str, Parameter]):
                 if len(rows) >= 2 and not members:
                     raise SpecError.at(spec.path, f"tie #{j + 1}", f"{name} is free for none of {list(t.phonemes)} "
                                        f"on {ch}: nothing to tie")
+                again = [i for i in rows if (i, k) in tied_by]
+                if again:
+                    i = again[0]
+                    raise SpecError.at(spec.path, f"tie #{j + 1}", f"ties {name} of {list(t.phonemes)} on {ch}, but "
+                                       f"{phon[i]}.{name} is in [[tie]] #{tied_by[i, k] + 1} already: a parameter is "
+                                       f"tied by one [[tie]] only; put the phonemes of both in one tie",
+                                       phoneme=phon[i], parameter=name)
                 held = [i for i in rows if not free[i, k]]
                 if members and held:
                     # a tie means one shared value: a member held at its own value would silently not share it
@@ -228,6 +238,7 @@ class ParameterSet(Mapping[str, Parameter]):
                 if len(members) < 2:
                     continue  # fewer than two present (and free) here: nothing to share
                 leader = members[0]
+                tied_by.update({(i, k): j for i in members})
                 for i in members[1:]:
                     free[i, k] = False
                     base[i, k] = base[leader, k]
@@ -300,6 +311,9 @@ class ParameterSet(Mapping[str, Parameter]):
             bn = p.bound_note if p.at_bound else None  # a tied entry shares its carrier's
             out.append({"channel": self.channel, "phoneme": p.phoneme, "parameter": p.parameter, "value": p.value,
                         "stderr": p.stderr if p.free or p.tied_to else "", "free": p.free, "tied_to": p.tied_to or "",
+                        # one value for these phonemes (carrier first): "all" when every phoneme shares it
+                        "shared_by": ("all" if set(p.shared_by) >= set(self.phonemes) else " ".join(p.shared_by))
+                        if p.shared_by else "",
                         "lower": p.lower, "upper": p.upper,
                         "at_bound": p.at_bound, "unidentified": not p.identified,
                         # why it is at a bound: which side, the category, the computed sentence

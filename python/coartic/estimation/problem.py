@@ -199,6 +199,28 @@ class ChannelProblem:
         """The last rows of the residual vector: the pool's (its families' priors)."""
         return sum(pen.size for pen in self.pool_rows)
 
+    def fitted(self, x: FloatArray) -> FloatArray:
+        """The model on every sample at ``x`` as the fit reports it (with [model] speakers each
+        speaker's a_s + b_s·F): what the data RMSE is measured on. Not counted as an evaluation."""
+        params, beta = self.packing.unpack(x)
+        f = self.evaluate(params, beta)
+        if self.speakers is not None:
+            a, b = self.speakers.coefficients(f)
+            f = a[self.speakers.spk] + b[self.speakers.spk] * f
+        return f
+
+    def data_rmse(self, x: FloatArray) -> float:
+        """The data RMSE at ``x`` (mm): model − measured over the valid samples, as measured (no
+        penalty rows, no per-utterance offsets). The objective the engines minimise adds the
+        penalty rows (priors, shrinkage, offsets' random effects): ``penalised`` says whether."""
+        r = (self.fitted(x) - self.data.observed)[self.data.weights > 0]
+        return float(np.sqrt(np.mean(r**2))) if r.size else float("nan")
+
+    @property
+    def penalised(self) -> bool:
+        """The objective has rows besides the data's (priors, shrinkage, offsets): it is not the SSE."""
+        return self.n_residuals > self.data.corpus.n_samples
+
     def utterance_offsets(self, x: FloatArray) -> FloatArray:
         """The fitted per-utterance offsets b_u (mm) at x (zeros without offsets)."""
         if self.offsets is None:

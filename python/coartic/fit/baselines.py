@@ -19,6 +19,7 @@ flag the score, the validation and the comparison raise when the table does not 
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Sequence
 
 import numpy as np
@@ -118,14 +119,65 @@ class Baselines:
         return out
 
 
-def beats_step(table_rmse: tuple[float, float], step_rmse: tuple[float, float]) -> bool:
+    def absent(self, test: Sequence[Utterance], channel: str) -> dict[str, str]:
+        """Each baseline ``predict`` leaves out for ``channel``, with the reason in words (the
+        warped one: the test utterances whose sentence has no other token in the training data)."""
+        out: dict[str, str] = {}
+        lone = [u.name for u in test if self.predict_one("warped", u, channel) is None]
+        if lone:
+            more = f" and {len(lone) - 3} more" if len(lone) > 3 else ""
+            out["warped"] = (f"no other token of the sentence of {', '.join(lone[:3])}{more} in the training data "
+                             f"(a warped token needs the same label sequence from another file)")
+        return out
+
+
+def caption(shown: Sequence[str], absent: dict[str, str]) -> str:
+    """The words under a table of baselines: what each one shown is, and why each other is not."""
+    parts = [f"{b} = {WHAT[b]}" for b in BASELINES if b in shown]
+    said = ("baselines on the same samples: " + "; ".join(parts)) if parts else "no baselines"
+    gone = [f"{b} not shown: {why}" for b, why in absent.items() if b not in shown]
+    return said + "".join(f"; {g}" for g in gone)
+
+
+WHAT = {"constant": "training mean", "step": "each phoneme's training mean",
+        "warped": "another token of the sentence, time-warped"}
+
+
+def other_session(test: Sequence[Utterance], train: Sequence[Utterance]) -> str | None:
+    """Why ``test`` was recorded in another session or by another speaker than ``train`` (their raw
+    positions then have another origin), or None: a test speaker (meta ``speaker``) or session
+    (meta ``session``) the training lacks, else a test file in a directory none of the training
+    files is in (a session's files sit together: an EMU session, a speaker's directory). Utterances
+    without files (made in memory) count as one session."""
+    for key in ("speaker", "session"):
+        seen = {u.meta.get(key) for u in train}
+        new = sorted({str(u.meta[key]) for u in test if key in u.meta and u.meta[key] not in seen})
+        if new and None not in seen:
+            return f"{key} {', '.join(new)} is not in the training data"
+    dirs = {Path(str(u.meta["file"])).resolve().parent for u in train if u.meta.get("file")}
+    away = sorted({Path(str(u.meta["file"])).name for u in test
+                   if u.meta.get("file") and Path(str(u.meta["file"])).resolve().parent not in dirs})
+    if dirs and away:
+        return f"{', '.join(away[:3])}{' and more' if len(away) > 3 else ''} is in no directory of the training files"
+    return None
+
+
+def beats_step(table_rmse: tuple[float, float], step_rmse: tuple[float, float], offset_only: bool = False) -> bool:
     """Whether the table beats the step model both as measured and with the offsets removed
-    ((raw, offset removed) RMSE of each on the same samples)."""
-    return all(t < s for t, s in zip(table_rmse, step_rmse) if np.isfinite(s))
+    ((raw, offset removed) RMSE of each on the same samples); ``offset_only`` (recordings from another
+    session or speaker, whose raw positions have another origin): with the offsets removed only."""
+    pairs = list(zip(table_rmse, step_rmse))[1:] if offset_only else zip(table_rmse, step_rmse)
+    return all(t < s for t, s in pairs if np.isfinite(s))
 
 
-def flag_text(channel: str, table_rmse: tuple[float, float], step_rmse: tuple[float, float]) -> str:
-    """The console's and report's words for a table that does not beat the step model."""
+def flag_text(channel: str, table_rmse: tuple[float, float], step_rmse: tuple[float, float],
+              other: str | None = None) -> str:
+    """The console's and report's words for a table that does not beat the step model (``other``:
+    why the test recordings are from another session or speaker: compared with the offsets removed)."""
+    if other:
+        return (f"{channel}: the table does not beat the step model (phoneme means, no coarticulation) with the "
+                f"offsets removed: {table_rmse[1]:.3f} vs {step_rmse[1]:.3f} mm (as measured {table_rmse[0]:.3f} vs "
+                f"{step_rmse[0]:.3f} mm, not compared: {other}, so its positions have another origin)")
     return (f"{channel}: the table does not beat the step model (phoneme means, no coarticulation): "
             f"{table_rmse[0]:.3f} vs {step_rmse[0]:.3f} mm as measured, {table_rmse[1]:.3f} vs "
             f"{step_rmse[1]:.3f} mm offset removed")

@@ -45,6 +45,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from coartic.estimation.parameters import psd_pseudo_inverse
+from coartic.estimation.packing import shared_words, tie_group
 from coartic.settings import default
 
 if TYPE_CHECKING:
@@ -100,6 +101,7 @@ class BoundNote:
     partner_corr: float
     explanation: str  # the category's sentence, with numbers
     reading: str  # what the bound means for the model (MODEL.md names)
+    shared_by: tuple[str, ...] = ()  # the phonemes that share this one value ([parameters] shared, [[tie]])
 
     @property
     def title(self) -> str:
@@ -242,6 +244,7 @@ def explain_bounds(problem: ChannelProblem, x: FloatArray, at_bound: Sequence[st
                              gn_meas, range_chi2, cost, beyond, rmse, rmse_relaxed, gain_in, in_value, partner, pc, s2,
                              lo_hi=(_nat(pk, i, lo[i]), _nat(pk, i, hi[i])))
         row = _row(params, pk.phonemes, phoneme)
+        group = tie_group(pk.phonemes, pk.ties, phoneme, parameter)
         extra = ""
         if parameter == "k_r" and phoneme in pk.phonemes:
             if fitted is None:
@@ -253,7 +256,8 @@ def explain_bounds(problem: ChannelProblem, x: FloatArray, at_bound: Sequence[st
         notes[name] = BoundNote(name, phoneme, parameter, value, side, bound, source, category, grad, grad_of,
                                 gain_held,
                                 held_value, gn_pred, gn_meas, range_chi2, beyond, rmse, rmse_relaxed, partner, pc,
-                                sentence, reading(parameter, side, value, phoneme, problem, bound, row) + extra)
+                                sentence, reading(parameter, side, value, phoneme, problem, bound, row, group) + extra,
+                                group)
     return notes
 
 
@@ -373,16 +377,17 @@ def _reach_ms(theta: float, c: float) -> float:
 
 
 def reading(parameter: str, side: str, value: float, phoneme: str, problem: ChannelProblem, bound: float,
-            row: dict[str, float] | None = None) -> str:
+            row: dict[str, float] | None = None, shared_by: Sequence[str] = ()) -> str:
     """What this bound means for the model, in MODEL.md's terms (dominance D, resistance R, shape S);
-    ``row`` is the phoneme's fitted parameters (for θ, the reach θ^(−1/c) uses its c)."""
+    ``row`` is the phoneme's fitted parameters (for θ, the reach θ^(−1/c) uses its c); ``shared_by``
+    the phonemes that share the value (a shared θ_bw is every phoneme's reach, not its carrier's)."""
     row = row or {}
     opts = problem.options
     plateau = getattr(opts, "dominance", default("dominance")) == "plateau"
     handover = bool(getattr(opts, "handover", False))
     ch = problem.data.channel
     up = side == "upper"
-    ph = f"/{phoneme}/"
+    ph = shared_words(shared_by, problem.packing.phonemes, parameter) if shared_by else f"/{phoneme}/"
     if parameter == "k_r":
         if up:
             where = ("the contact the Cosi–Perin resistance exists for (bilabial closure /p b m/, labiodental /f v/)"

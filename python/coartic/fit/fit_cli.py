@@ -13,9 +13,9 @@ from rich.table import Table
 from coartic.fit.bounds import summary_counts
 from coartic.fit.result import BAR_MM, UNIDENTIFIED_ADVICE, FitResult
 from coartic.errors import SpecError
-from coartic.fit.spec import ENGINES, VALIDATE_GROUPS, FitSpec, load_spec
+from coartic.fit.spec import ENGINES, MAX_STARTS, VALIDATE_GROUPS, FitSpec, load_spec
 from coartic.fit.staged import UNCONFIRMED_STATUSES
-from coartic.console import print_error, print_table
+from coartic.console import EXIT_UNCONFIRMED, print_table
 from coartic.table import ALL_CHANNELS
 from coartic.outputs import OutputDir
 
@@ -69,7 +69,6 @@ STATUS_ADVICE = {
     "best-found-once": "no other start reached a fit as good (within the noise): raise [fit] starts or keep, "
                        "or fix or tie what the data leave free (fit_report.txt); exit status 3",
 }
-EXIT_UNCONFIRMED = 3  # written, but a limit was reached, a stage failed, or the best optimum was found once
 
 def fit_command(
     spec: Path = typer.Argument(..., help="fit spec (TOML), e.g. fit/synthetic.toml"),
@@ -78,18 +77,18 @@ def fit_command(
     channels: Optional[str] = typer.Option(None, help="comma-separated channels (default: the spec's)"),
     no_staging: bool = typer.Option(False, "--no-staging", help="one joint fit instead of stages"),
     validate: bool = typer.Option(False, "--validate", help="also fit on part of the data and report RMSE on "
-                                  "the rest: k-fold by [validate] group (utterance, sentence, rate, speaker, "
+                                  "the rest: k-fold by \\[validate] group (utterance, sentence, rate, speaker, "
                                   "repetition), else the held-out repetition and the fast rate"),
     validate_by: Optional[str] = typer.Option(None, "--validate-by", help="validate (implies --validate) by this "
-                                              "split instead of the spec's [validate] group: time (each utterance "
+                                              "split instead of the spec's \\[validate] group: time (each utterance "
                                               "cut at its middle segment, one half fitted, the other held out, both "
                                               "ways), utterance, sentence, rate, speaker or repetition"),
     report: bool = typer.Option(True, "--report/--no-report", help="write the HTML report with plots"),
     choose: Optional[str] = typer.Option(None, "--choose", help="KEY=V1,V2,...: choose a setting by k-fold "
                                          "cross-validation on the training data, then fit with it (e.g. "
-                                         "shrink.sd=0.03,0.1,0.3,1; replaces the spec's [choose] grid; "
+                                         "shrink.sd=0.03,0.1,0.3,1; replaces the spec's \\[choose] grid; "
                                          "docs/FITTING.md)"),
-    starts: Optional[int] = typer.Option(None, "--starts", min=1, help="multi-start: local fits from this many "
+    starts: Optional[int] = typer.Option(None, "--starts", min=1, max=MAX_STARTS, help="multi-start: local fits from this many "
                                          "quasi-random starts (default the spec's \\[fit] starts, 32; 1: one fit from "
                                          "\\[parameters.start])"),
     seed: Optional[int] = typer.Option(None, "--seed", min=0, help="seed of the starts (default \\[fit] seed, 0)"),
@@ -152,9 +151,6 @@ def fit_command(
                 output.abandon()
             elif result.interrupted:
                 output.status = "interrupted"
-    except (ValueError, OSError) as e:  # SpecError, DataError, FitFailed, OutputError: messages name the culprit
-        print_error(console, e)
-        raise typer.Exit(2) from None
     except KeyboardInterrupt:  # outside the fit itself (report, swap): what was written is in --out
         console.print(f"[yellow]interrupted[/yellow]; what was finished is in {escape(str(out))}", soft_wrap=True)
         raise typer.Exit(130) from None

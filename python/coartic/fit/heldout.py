@@ -36,18 +36,23 @@ class SplitScore:
     baselines: dict[str, tuple[float, float, float]] = field(default_factory=dict)
     # a multi-start's distinct optima ([fit] starts > 1): each one's test RMSE, best in-sample first
     optima_test_rmse: tuple[float, ...] = ()
+    # why the test utterances are from another session or speaker than the training (None: the same):
+    # the step model is then compared with the offsets removed only (coartic.fit.baselines.other_session)
+    other_session: str | None = None
 
     @property
     def beats_step(self) -> bool:
-        """The table beats the step model (as measured and offset removed), or there is none."""
+        """The table beats the step model (as measured and offset removed; offset removed only for
+        another session or speaker), or there is none."""
         step = self.baselines.get("step")
-        return step is None or beats_step((self.test_rmse, self.test_rmse_offset_removed), step[:2])
+        return step is None or beats_step((self.test_rmse, self.test_rmse_offset_removed), step[:2],
+                                          offset_only=self.other_session is not None)
 
     def flag(self) -> str | None:
         if self.beats_step:
             return None
         return f"{self.split}: " + flag_text(self.channel, (self.test_rmse, self.test_rmse_offset_removed),
-                                             self.baselines["step"][:2])
+                                             self.baselines["step"][:2], self.other_session)
 
 
 def pooled(scores: Sequence[SplitScore], model: str = "table") -> dict[str, tuple[float, float, int]]:
@@ -77,8 +82,10 @@ def flags(scores: Sequence[SplitScore]) -> list[str]:
     out = [f for f in (sc.flag() for sc in scores) if f is not None]
     if len({sc.split for sc in scores}) > 1:
         table, step = pooled(scores), pooled(scores, "step")
-        out += [f"all splits pooled: {flag_text(ch, table[ch][:2], step[ch][:2])}" for ch in table
-                if ch in step and not beats_step(table[ch][:2], step[ch][:2])]
+        # a channel any of whose splits is from another session is compared with the offsets removed
+        other = {sc.channel: sc.other_session for sc in scores if sc.other_session}
+        out += [f"all splits pooled: {flag_text(ch, table[ch][:2], step[ch][:2], other.get(ch))}" for ch in table
+                if ch in step and not beats_step(table[ch][:2], step[ch][:2], offset_only=ch in other)]
     return out
 
 
@@ -88,5 +95,5 @@ def baseline_summary(scores: Sequence[SplitScore]) -> dict[str, object]:
                         "table": {"rmse_mm": sc.test_rmse, "rmse_offset_removed_mm": sc.test_rmse_offset_removed,
                                   "rmse_speaker_calibrated_mm": sc.test_rmse_calibrated},
                         **{b: dict(zip(BASELINE_COLUMNS, v)) for b, v in sc.baselines.items()},
-                        "beats_step_model": sc.beats_step} for sc in scores],
+                        "beats_step_model": sc.beats_step, "other_session": sc.other_session} for sc in scores],
             "flags": flags(scores)}

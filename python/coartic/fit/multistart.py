@@ -9,14 +9,20 @@ real recordings the answer of one local fit depended more on its start than on t
    and β, so a θ box of [0.5, 2000] is sampled evenly in its orders of magnitude. Targets are not
    drawn: they start at the data's values (the first stage fits them given the drawn dynamics; a
    random target would only cost evaluations). Start 0 is the spec's ``[parameters.start]``
-   (``include_start``, default on), always continued, so the result is never worse than the single
-   fit: from 32 random starts alone the synthetic session's LLO ended at 0.157 mm with one seed, where
-   the single fit reaches the noise floor, 0.135 (bench/multistart.py). Without it the result does
-   not depend on ``[parameters.start]`` at all;
-2. runs a short probe from every start (the staged fit with every stage capped at ``probe``
-   evaluations) and ranks the probes by SSE; starts that fall clearly behind stop there;
-3. continues the best ``keep`` of them to convergence (one joint fit with the engine's full
-   budget); unless two of them already ended in the best optimum, it then *polishes* the best
+   (``include_start``, default on), always continued, so the result is never worse in its objective
+   than the single fit: from 32 random starts alone the synthetic session's LLO ended at 0.157 mm
+   with one seed, where the single fit reaches the noise floor, 0.135 (bench/multistart.py). Without
+   it the result does not depend on ``[parameters.start]`` at all;
+2. *confirms* first: the first ``CONFIRM`` starts (start 0 and the first drawn one) are each fitted
+   in full (the staged fit, the engine's whole budget), one after the other; when they end in one
+   optimum the search stops there. This is the stopping rule: the best optimum reached from
+   ``CONFIRM`` independent starts. A well-identified problem then costs about two single fits
+   instead of 13-28 (the defaults spec on the German EMA, bench/multistart.py cost), and a problem
+   with several optima goes on to the search below, which the rule stops as soon as it is met again;
+3. otherwise runs a short probe from every other start (the staged fit with every stage capped at
+   ``probe`` evaluations) and ranks the probes by their objective; the best of them are continued
+   to convergence (one joint fit with the engine's full budget) until ``keep`` starts in all have
+   been continued; unless two of them already ended in the best optimum, it then *polishes* the best
    ``CHAINS`` continued optima not yet polished by perturbed
    restarts (monotonic basin hopping: the dynamics moved at random around the optimum, refitted,
    an improvement kept, until ``HOP_PATIENCE`` restarts in a row found nothing better). While the
@@ -30,6 +36,11 @@ real recordings the answer of one local fit depended more on its start than on t
    SSE within the residual variance, Δχ² ≤ 1, and fitted curves within ``TRAJ_RTOL`` of the
    residual RMSE), keeps the best, counts the starts that reached it, and names the parameters
    that still differ inside an optimum: the data do not identify them (``spread_within``).
+
+The objective the engines minimise is the data's SSE plus the penalty rows (priors, shrinkage,
+per-utterance offsets' random effects; ``ChannelProblem.penalised``): optima are ranked and told
+apart by it, and reported with their *data* RMSE (``ChannelProblem.data_rmse``, the fit's RMSE).
+A penalised optimum may fit the data worse than start 0's end; the report then says so and why.
 
 Starts run in a thread pool (the Rust core releases the GIL and runs rayon inside an evaluation);
 the results do not depend on the number of workers: every start is computed alike and collected by
@@ -53,7 +64,7 @@ from scipy.stats import qmc
 from coartic.fit.engines import EngineResult
 from coartic.estimation.packing import Packing
 from coartic.estimation.problem import ChannelProblem
-from coartic.fit.staged import StageResult, fit_staged
+from coartic.fit.staged import StageResult, channel_status, fit_staged
 from coartic.table import N_PARAMS, PARAMETERS
 
 FloatArray = NDArray[np.float64]
@@ -85,6 +96,13 @@ MAX_HOPS = 8
 # 6.6-27.3 times one start (bench/results/multistart_german.txt). Fits whose best is reached from two
 # starts in the first round (the recommended model) are not polished and cost what they did.
 COST_CAP = 8.0
+# The stopping rule (step 2 of the module docstring): the search ends once the best optimum has been
+# reached from CONFIRM distinct starts. Two is the least that can tell "found again" from "found
+# once". On the defaults spec on the German EMA every continued start reached the one optimum (4 of
+# 4 before the rule), and with the rule LA and JO stop after two starts at 2.07 and 1.92 times one
+# start instead of 12.7 and 28.1 (bench/results/multistart_cost.txt). A confirming start that has not
+# converged within one single fit's evaluations per stage is ranked with the probes instead.
+CONFIRM = 2
 # The engine option that caps one local run, per engine (the probe's budget).
 BUDGET_OPTION = {"scipy": "max_nfev", "nlopt": "local_maxeval", "casadi": "max_iter"}
 
@@ -95,7 +113,7 @@ class Optimum:
     polishing chain ended in it; ``members`` every end point grouped into it (for the spread of
     parameters the data do not identify)."""
 
-    sse: float
+    objective: float  # what the engines minimise: the data's SSE plus the penalty rows (if any)
     x: FloatArray
     starts: list[int]
     status: str  # the engine's status at its best point
@@ -103,6 +121,7 @@ class Optimum:
     members: list[FloatArray] = field(default_factory=list)
     trajectory: FloatArray | None = None  # weighted model - data on the training samples, at ``x``
     unidentified: dict[str, float] = field(default_factory=dict)  # parameter -> range inside this optimum (natural units)
+    rmse: float = math.nan  # the data RMSE at ``x`` (mm, as measured: ChannelProblem.data_rmse)
 
     @property
     def hits(self) -> int:
@@ -117,9 +136,9 @@ class MultiStart:
     n_starts: int
     seed: int
     probe: int
-    continued: list[int]  # start indices continued after the probe
-    probe_sse: list[float]  # per start, SSE after the probe
-    final_sse: dict[int, float]  # per continued start, SSE at its end (after its polishing chain if any)
+    continued: list[int]  # start indices continued (fitted to convergence), in order
+    probe_objective: list[float]  # per start, the objective after its probe (NaN: not probed)
+    final_objective: dict[int, float]  # per continued start, the objective at its end (after its polish if any)
     optima: list[Optimum]  # distinct, best first
     names: list[str]  # the free parameters, for the spread between optima
     spread: dict[str, float]  # parameter -> largest |difference| from the best among the optima (natural units)
@@ -129,6 +148,11 @@ class MultiStart:
     include_start: bool = False  # start 0 was [parameters.start]
     hops: int = 0  # polishing restarts run (perturbed restarts from the best continued optima)
     chains: list[int] = field(default_factory=list)  # the continued starts polished by a chain
+    stopped: str = ""  # why the search ended (stop_reason words)
+    probed: int = 0  # starts probed (none when the first CONFIRM starts agreed)
+    penalty: str = ""  # what the objective adds to the SSE ("" when it is the SSE)
+    start0_rmse: float = math.nan  # data RMSE (mm) and objective where start 0 ([parameters.start]) ended
+    start0_objective: float = math.nan
 
     @property
     def best(self) -> Optimum:
@@ -139,25 +163,55 @@ class MultiStart:
         """The best optimum was reached from one start only: another run may well find a better one."""
         return len(self.continued) > 1 and self.best.hits == 1
 
+    @property
+    def share(self) -> float:
+        """The share of the continued starts that reached the best optimum."""
+        return self.best.hits / max(len(self.continued), 1)
+
+    @property
+    def worse_than_start0(self) -> str | None:
+        """Why the kept optimum fits the data worse than start 0's end did, if it does: the penalty
+        (None when it does not: the multi-start is never worse in data RMSE for an unpenalised fit)."""
+        b = self.best
+        if not (self.include_start and np.isfinite(self.start0_rmse) and b.rmse > self.start0_rmse * (1 + 1e-9)):
+            return None
+        return (f"start 0 [parameters.start] ended at a lower data RMSE ({self.start0_rmse:.4f} mm against "
+                f"{b.rmse:.4f}) but a higher penalised objective ({self.start0_objective:.6g} against "
+                f"{b.objective:.6g}): the objective adds {self.penalty or 'penalty rows'} to the SSE, and the "
+                "multi-start keeps the optimum of the objective")
+
     def summary_line(self, n_valid: int) -> str:
-        """One line for the console and the report: starts, distinct optima, how often the best."""
-        rm = ", ".join(f"{math.sqrt(o.sse / max(n_valid, 1)):.4f}" for o in self.optima[:5])
+        """One line for the console and the report: starts, distinct optima (data RMSE), how often the
+        best, why the search stopped."""
+        rm = ", ".join(f"{o.rmse:.4f}" for o in self.optima[:5])
         more = f" (+{len(self.optima) - 5} more)" if len(self.optima) > 5 else ""
         first = ", start 0 [parameters.start]" if self.include_start else ""
+        probed = f", {self.probed} probed" if self.probed else ""
         hops = f", {self.hops} polishing restarts" if self.hops else ""
         free = (f"; {len(self.best.unidentified)} parameters not identified within the best"
                 if self.best.unidentified else "")
-        return (f"{self.n_starts} starts (seed {self.seed}{first}), {len(self.continued)} continued after the probe"
-                f"{hops}: {len(self.optima)} distinct optim{'um' if len(self.optima) == 1 else 'a'}, RMSE {rm}{more} mm; "
-                f"best reached from {self.best.hits} of {len(self.continued)} starts{free}")
+        why = f"; stopped: {self.stopped}" if self.stopped else ""
+        worse = self.worse_than_start0
+        return (f"{self.n_starts} starts drawn (seed {self.seed}{first}){probed}, {len(self.continued)} continued"
+                f"{hops}: {len(self.optima)} distinct optim{'um' if len(self.optima) == 1 else 'a'}, data RMSE "
+                f"{rm}{more} mm; best reached from {self.best.hits} of {len(self.continued)} starts{why}{free}"
+                + (f"; {worse}" if worse else ""))
 
     def as_dict(self, n_valid: int) -> dict[str, Any]:
+        """summary.json's ``multistart``. ``rmse_mm`` and ``sse`` are the data's (the fit's RMSE);
+        ``objective`` is what the engines minimised (the SSE plus ``penalty``). Until this version
+        ``sse`` and ``rmse_mm`` held the objective and √(objective/n)."""
+        n = max(n_valid, 1)
         return {"starts": self.n_starts, "seed": self.seed, "probe_evaluations": self.probe,
-                "continued": len(self.continued), "polishing_restarts": self.hops, "chains_from": self.chains,
+                "probed": self.probed, "continued": len(self.continued), "polishing_restarts": self.hops,
+                "chains_from": self.chains, "stopped": self.stopped,
                 "include_start": self.include_start, "workers": self.workers, "nfev": self.nfev,
-                "wall_time_s": self.wall_time, "best_hits": self.best.hits,
-                "best_found_once": self.best_found_once,
-                "optima": [{"sse": o.sse, "rmse_mm": math.sqrt(o.sse / max(n_valid, 1)), "hits": o.hits,
+                "wall_time_s": self.wall_time, "best_hits": self.best.hits, "best_share": self.share,
+                "best_found_once": self.best_found_once, "penalty": self.penalty or None,
+                "start0": ({"rmse_mm": self.start0_rmse, "objective": self.start0_objective}
+                           if self.include_start else None),
+                "worse_than_start0": self.worse_than_start0,
+                "optima": [{"rmse_mm": o.rmse, "sse": o.rmse ** 2 * n, "objective": o.objective, "hits": o.hits,
                             "starts": sorted(set(o.starts)), "end_points": len(o.members), "status": o.status,
                             "heldout_rmse_mm": o.heldout_rmse,
                             "not_identified": dict(sorted(o.unidentified.items(), key=lambda kv: -kv[1]))}
@@ -201,14 +255,15 @@ def trajectory(problem: ChannelProblem, x: FloatArray) -> FloatArray:
     """The weighted fitted-minus-measured values on every training sample at ``x`` (the residual
     rows of the data, without penalty rows): two of them differ where the fitted curves differ."""
     p = problem.with_packing(problem.packing)
+    p.monitor = None  # not an evaluation of the fit: the progress counts the fit's own
     r = p.residuals(x)
     return np.array(r[: problem.data.corpus.n_samples])
 
 
 def cluster(xs: Sequence[FloatArray], sses: Sequence[float], trajectories: Sequence[FloatArray], n_valid: int,
             starts: Sequence[int], statuses: Sequence[str], n_free: int = 0) -> list[Optimum]:
-    """Group end points into distinct optima, best first: one optimum when the SSE differ by at most
-    the residual variance SSE/(n_valid - n_free) (Δχ² ≤ 1) and the fitted curves by at most
+    """Group end points into distinct optima, best first: one optimum when their objectives
+    (``sses``) differ by at most the residual variance objective/(n_valid - n_free) (Δχ² ≤ 1) and the fitted curves by at most
     ``TRAJ_RTOL`` of the residual RMSE (RMS over the ``n_valid`` samples). Parameters may differ
     inside an optimum: the data do not identify them (``spread_within``)."""
     order = np.argsort(np.asarray(sses), kind="stable")
@@ -221,8 +276,9 @@ def cluster(xs: Sequence[FloatArray], sses: Sequence[float], trajectories: Seque
             continue
         for o in optima:
             assert o.trajectory is not None
-            close_sse = s - o.sse <= max(o.sse, 1e-300) / dof
-            close_curve = math.sqrt(float(np.sum((tr - o.trajectory) ** 2)) / n) <= TRAJ_RTOL * math.sqrt(o.sse / n)
+            close_sse = s - o.objective <= max(o.objective, 1e-300) / dof
+            close_curve = (math.sqrt(float(np.sum((tr - o.trajectory) ** 2)) / n)
+                           <= TRAJ_RTOL * math.sqrt(o.objective / n))
             if close_sse and close_curve:
                 o.starts.append(int(starts[i]))
                 o.members.append(np.array(x))
@@ -250,16 +306,21 @@ def spread_within(optimum: Optimum, packing: Packing) -> dict[str, float]:
 def fit_multistart(problem: ChannelProblem, engine: str, options: dict[str, Any],
                    stages: Sequence[Sequence[str]] | None, n_starts: int, seed: int = 0, probe: int = 20,
                    keep: int | None = None, workers: int = 1, include_start: bool = True,
-                   on_start: Callable[[int, int], None] | None = None, chains: int | None = None,
-                   ) -> tuple[ChannelProblem, EngineResult, list[StageResult], MultiStart]:
+                   on_start: Callable[[int, int, str], None] | None = None, chains: int | None = None,
+                   confirm: int | None = None) -> tuple[ChannelProblem, EngineResult, list[StageResult], MultiStart]:
     """Multi-start fit of one channel (module docstring). Returns what ``fit_staged`` returns for the
-    best start (its probe stages then its final fit as the last stage) and the ``MultiStart``.
+    best start (its probe stages then its final fit as the last stage, or the stages of its staged
+    fit) and the ``MultiStart``.
 
-    ``keep``: starts continued after the probe (default ``default_keep(n_starts)``);
+    ``keep``: starts continued in the first round (default ``default_keep(n_starts)``);
     ``include_start``: start 0 is the packing's own start ([parameters.start]), always continued;
     ``chains``: the best continued optima (of distinct starts) polished by perturbed restarts;
-    ``on_start`` is called (done, total) as starts finish. Ctrl-C stops every start at its next
-    evaluation; the best point so far is returned with status "interrupted".
+    ``confirm``: the stopping rule's number of starts (default ``CONFIRM``; 0 or 1 skip the
+    confirmation and probe every start, the search before the rule);
+    ``on_start`` is called (done, total, what) as starts finish, ``what`` naming the phase. Every
+    evaluation goes through ``problem.monitor`` (evaluations so far, best objective), so a progress
+    bar counts them all. Ctrl-C stops every start at its next evaluation; the best point so far is
+    returned with status "interrupted".
     """
     t0 = time.perf_counter()
     full = problem.packing
@@ -269,14 +330,26 @@ def fit_multistart(problem: ChannelProblem, engine: str, options: dict[str, Any]
         xs0[0] = full.pack()
     keep = default_keep(n_starts) if keep is None else max(1, min(keep, n_starts))
     chains = max(0, min(CHAINS if chains is None else chains, keep))
+    n_confirm = min(n_starts, CONFIRM if confirm is None else confirm)
+    if n_confirm < 2:
+        n_confirm = 0
     stop = threading.Event()
     done = [0]
-    total = n_starts + max_continued(n_starts, keep) + max_continued(n_starts, keep) // keep * chains
+    limit = max(max_continued(n_starts, keep), n_confirm)
+    total = n_starts + limit + limit // keep * chains
     lock = threading.Lock()
+    outer = problem.monitor
+    counted = [0]  # every evaluation of every start, probe, fit and restart
+    best_seen = [np.inf]
 
     def guard(nfev: int, best: float) -> None:
         if stop.is_set():
             raise KeyboardInterrupt
+        with lock:
+            counted[0] += 1
+            best_seen[0] = min(best_seen[0], best)
+            if outer is not None:
+                outer(counted[0], best_seen[0])
 
     def fresh(x: FloatArray | None) -> ChannelProblem:
         """A copy of the problem starting at internal ``x`` (None: the packing's own start), its
@@ -286,29 +359,41 @@ def fit_multistart(problem: ChannelProblem, engine: str, options: dict[str, Any]
         p.monitor = guard
         return p
 
-    def tick() -> None:
+    def tick(what: str) -> None:
         with lock:
             done[0] += 1
             if on_start is not None:
-                on_start(done[0], total)
+                on_start(done[0], total, what)
+
+    def start_point(i: int) -> FloatArray | None:
+        return None if include_start and i == 0 else xs0[i]
+
+    def run_confirm(i: int, what: str = "", budget: int | None = None) -> tuple[ChannelProblem, EngineResult,
+                                                                             list[StageResult]]:
+        # the single fit from start i itself (staged, full budget): start 0's is the fit without a
+        # multi-start, so the result is never worse in its objective (continuing start 0's probe, as
+        # before, ended above it: German EMA LA fitted on 0024, in-sample 0.166 vs 0.157 mm). A
+        # confirming start gets `budget` evaluations per stage (one single fit's).
+        out = fit_staged(fresh(start_point(i)), engine, options if budget is None else _capped(engine, options, budget),
+                         stages)
+        tick(what or f"start {i + 1} of the first {n_confirm}")
+        return out
 
     def run_probe(i: int) -> tuple[ChannelProblem, EngineResult, list[StageResult]]:
         out = fit_staged(fresh(xs0[i]), engine, _capped(engine, options, probe), stages)
-        tick()
+        tick("probe")
         return out
 
-    def run_final(i: int) -> tuple[ChannelProblem, EngineResult, float]:
-        prob, res, _ = probes[i]
+    def run_final(i: int) -> tuple[ChannelProblem, EngineResult, list[StageResult]]:
+        if i not in probes:  # never probed (no probe phase: n_confirm = 0 and start 0): the staged fit
+            return run_confirm(i, "continued")
+        prob, res, st = probes[i]
         prob.monitor = guard
-        if include_start and i == 0:
-            # [parameters.start] gets the single fit itself (staged from the start, full budget), so
-            # the multi-start is never worse than one fit: continuing its probe instead ended above it
-            # (German EMA LA fitted on 0024, in-sample 0.166 vs the single fit's 0.157 mm)
-            final, r, st = fit_staged(fresh(None), engine, options, stages)
-        else:
-            final, r, st = fit_staged(prob, engine, options, None)
-        tick()
-        return final, r, st[-1].sse_end
+        final, r, fst = fit_staged(prob, engine, options, None)
+        tick("continued")
+        return final, r, [replace(s, probe=True) for s in st] + [StageResult(("final",), final.packing.n_free,
+                                                                            st[-1].sse_end if st else np.inf,
+                                                                            fst[-1].sse_end, r)]
 
     dynamics = _columns(full) != PARAMETERS.index("target")  # what a hop perturbs: not the targets
 
@@ -316,7 +401,7 @@ def fit_multistart(problem: ChannelProblem, engine: str, options: dict[str, Any]
                                                   tuple[ChannelProblem, EngineResult, float]]:
         """Perturbed restarts from continued start ``continued[k]``'s optimum (monotonic basin
         hopping) while ``budget`` evaluations last: every end point, the evaluations, and the
-        chain's best (problem, result, SSE)."""
+        chain's best (problem, result, objective)."""
         prob, res, sse = finals[k]
         rng = np.random.default_rng([seed, continued[k]])  # the same hops whatever the workers
         best = (prob, res, sse)
@@ -338,110 +423,166 @@ def fit_multistart(problem: ChannelProblem, engine: str, options: dict[str, Any]
             fails = 0 if s < best[2] * (1 - HOP_RTOL) else fails + 1
             if s < best[2]:
                 best = (f, r, s)
-        tick()
+        tick("polish")
         return ends, nfev, best
 
     pool = ThreadPoolExecutor(max_workers=max(1, workers)) if workers > 1 else None
     interrupted = False
-    probes: list[tuple[ChannelProblem, EngineResult, list[StageResult]]] = []
+    probes: dict[int, tuple[ChannelProblem, EngineResult, list[StageResult]]] = {}
     finals: list[tuple[ChannelProblem, EngineResult, float]] = []
+    lead: list[list[StageResult]] = []  # per continued start, the stages that led to its end
     continued: list[int] = []
     chained: list[int] = []  # indices into finals/continued
-    chain_nfev = 0
-    final_nfev: list[int] = []  # per continued start, its final fit's evaluations (before any polish)
     n_hops = 0
-    ends: list[tuple[FloatArray, float, str, int, FloatArray]] = []  # x, SSE, status, start, trajectory
-    limit = max_continued(n_starts, keep)
+    ends: list[tuple[FloatArray, float, str, int, FloatArray]] = []  # x, objective, status, start, trajectory
+    stopped = ""
 
     def add_end(x: FloatArray, sse: float, status: str, start: int) -> None:
         ends.append((x, sse, status, start, trajectory(problem, x)))
 
+    def one_fit() -> float:
+        """A single fit's evaluations: start 0's (the fit from [parameters.start]), else a continued fit's median."""
+        return float(finals[0][0].nfev) if include_start and finals else float(np.median([f.nfev for f, _, _ in finals]))
+
     def budget_left() -> float:
-        """Evaluations left under the cost cap: COST_CAP single fits in all (start 0's is one; else a
-        continued fit's median)."""
-        one_fit = final_nfev[0] if include_start else float(np.median(final_nfev))
-        return COST_CAP * one_fit - (probe_nfev + sum(final_nfev) + chain_nfev)
+        """Evaluations left under the cost cap: COST_CAP single fits in all."""
+        return COST_CAP * one_fit() - counted[0]
 
     def settle() -> list[Optimum]:
         return cluster([e[0] for e in ends], [e[1] for e in ends], [e[4] for e in ends], problem.data.n_valid,
                        [e[3] for e in ends], [e[2] for e in ends], n_free=full.n_free)
 
+    def finish(batch: list[int], new: list[tuple[ChannelProblem, EngineResult, list[StageResult]]]) -> bool:
+        for (f, r, st), i in zip(new, batch):
+            sse = st[-1].sse_end if st else np.inf
+            add_end(f.packing.pack(), sse, r.status, i)
+            continued.append(i)
+            finals.append((f, r, sse))
+            lead.append(list(st))
+        return any(r.status == "interrupted" for _, r, _ in new)
+
     try:
         mapper = pool.map if pool is not None else map
-        probes = list(mapper(run_probe, range(n_starts)))
-        probe_sse = [st[-1].sse_end if st else np.inf for _, _, st in probes]
-        probe_nfev = sum(p.nfev for p, _, _ in probes)
-        interrupted = any(r.status == "interrupted" for _, r, _ in probes)
-        ranked = [int(i) for i in np.argsort(np.where(np.isfinite(probe_sse), probe_sse, np.inf), kind="stable")]
-        order = ([0] + [i for i in ranked if i != 0]) if include_start else ranked
-        # Rounds: continue the next `keep` starts in probe order, polish the best not yet polished, and
-        # stop once the best optimum was reached from two starts, or at the limits.
-        while not interrupted:
-            batch = order[len(continued): min(len(continued) + keep, limit)]
-            if not batch:
+        # the stopping rule first: the first n_confirm starts fitted in full, one after the other
+        for i in range(n_confirm):
+            first = not finals
+            out = run_confirm(i, budget=None if first else max(int(one_fit()), 1))
+            if first or channel_status(out[1], out[2])[0] == "converged":
+                interrupted = finish([i], [out])
+            else:  # not converged within one single fit's cost: ranked with the probes instead
+                probes[i] = out
+                interrupted = out[1].status == "interrupted"
+            if interrupted:
                 break
-            new = list(mapper(run_final, batch))
-            interrupted = any(r.status == "interrupted" for _, r, _ in new)
-            for (f, r, sse), i in zip(new, batch):
-                add_end(f.packing.pack(), sse, r.status, i)
-            continued += batch
-            finals += new
-            final_nfev += [f.nfev for f, _, _ in new]
-            if interrupted or settle()[0].hits >= 2:  # reached from two starts: no polish needed
-                break
-            left = budget_left()
-            todo = [int(k) for k in np.argsort([s for _, _, s in finals], kind="stable")
-                    if int(k) not in chained and np.isfinite(finals[int(k)][2])][:chains]
-            if left <= 0 or not todo:
-                break
-            for k, (hops, nf, best) in zip(todo, mapper(run_chain, todo, [left / len(todo)] * len(todo))):
-                for x, sse, how in hops:
-                    add_end(x, sse, how, continued[k])
-                finals[k] = best  # the chain's best is where that start ended
-                chain_nfev += nf
-                n_hops += len(hops)
-            chained += todo
-            if settle()[0].hits >= 2 or budget_left() < keep * float(np.median(final_nfev)):  # no room for a round
-                break
+        if not interrupted and n_confirm and settle()[0].hits >= n_confirm:
+            stopped = f"the best optimum was reached from the first {n_confirm} starts (the stopping rule)"
+        elif not interrupted:
+            # (no probe when no other start could be continued: the polish alone is left)
+            others = [i for i in range(n_starts) if i not in continued and i not in probes
+                      and not (include_start and i == 0 and n_confirm == 0)] if len(continued) < limit else []
+            probes.update(zip(others, mapper(run_probe, others)))
+            interrupted = any(r.status == "interrupted" for _, r, _ in probes.values())
+            pobj = {i: (st[-1].sse_end if st else np.inf) for i, (_, _, st) in probes.items()}
+            ranked = sorted(pobj, key=lambda i: (pobj[i] if np.isfinite(pobj[i]) else np.inf, i))
+            order = continued + ([0] if include_start and n_confirm == 0 else []) + ranked
+            # Rounds: continue the next starts in probe order (the first up to `keep` in all), polish the
+            # best not yet polished, and stop once the best optimum was reached from two starts, or at the limits.
+            upto = max(keep, len(continued))
+            while not interrupted:
+                batch = order[len(continued): min(upto, limit)]
+                if batch:
+                    interrupted = finish(batch, list(mapper(run_final, batch)))
+                if interrupted:
+                    break
+                if settle()[0].hits >= 2:  # reached from two starts: no polish needed
+                    stopped = "the best optimum was reached from two starts"
+                    break
+                left = budget_left()
+                todo = [int(k) for k in np.argsort([s for _, _, s in finals], kind="stable")
+                        if int(k) not in chained and np.isfinite(finals[int(k)][2])][:chains]
+                if left <= 0 or not todo:
+                    stopped = (f"the cost cap ({COST_CAP:g} single fits)" if left <= 0 else
+                               f"the limit of {limit} continued starts" if len(continued) >= limit else
+                               "no continued optimum left to polish")
+                    break
+                for k, (hops, nf, best) in zip(todo, mapper(run_chain, todo, [left / len(todo)] * len(todo))):
+                    for x, sse, how in hops:
+                        add_end(x, sse, how, continued[k])
+                    finals[k] = best  # the chain's best is where that start ended
+                    n_hops += len(hops)
+                chained += todo
+                if settle()[0].hits >= 2:
+                    stopped = "the best optimum was reached from two starts"
+                    break
+                if budget_left() < keep * one_fit():
+                    stopped = f"the cost cap ({COST_CAP:g} single fits)"
+                    break
+                if len(continued) >= limit:
+                    stopped = f"the limit of {limit} continued starts"
+                    break
+                upto = len(continued) + keep
     except KeyboardInterrupt:
         stop.set()
         interrupted = True
     finally:
         if pool is not None:
             pool.shutdown(wait=True)
+    if interrupted:
+        stopped = "interrupted"
+    pobj_list = [float(probes[i][2][-1].sse_end) if i in probes and probes[i][2] else math.nan for i in range(n_starts)]
     if interrupted and not finals:  # stopped during the probes: the best probe so far
-        ok = [(st[-1].sse_end, i) for i, (_, _, st) in enumerate(probes) if st]
+        ok = [(st[-1].sse_end, i) for i, (_, _, st) in probes.items() if st]
         if not ok:
             raise KeyboardInterrupt
         i = min(ok)[1]
         prob, res, st = probes[i]
-        ms = MultiStart(n_starts, seed, probe, [i], [s for s, _ in ok], {i: min(ok)[0]},
-                        [Optimum(min(ok)[0], prob.packing.pack(), [i], "interrupted")], full.names(), {}, workers,
-                        time.perf_counter() - t0, sum(p.nfev for p, _, _ in probes))
+        ms = MultiStart(n_starts, seed, probe, [i], pobj_list, {i: min(ok)[0]},
+                        [Optimum(min(ok)[0], prob.packing.pack(), [i], "interrupted",
+                                 rmse=problem.data_rmse(prob.packing.pack()))], full.names(), {}, workers,
+                        time.perf_counter() - t0, counted[0], stopped="interrupted", probed=len(probes))
         return prob, EngineResult(res.x, "interrupted", "stopped by the user (Ctrl-C) during the probes", res.nfev,
                                   res.njev), [replace(s, probe=True) for s in st], ms
-    # every evaluation: the probes (those continued are counted in their final fit), the finals, the chains
-    nfev = sum(p.nfev for p, _, _ in probes) + sum(final_nfev) + chain_nfev
     optima = settle()
     for o in optima:
         o.unidentified = spread_within(o, full)
+        o.rmse = problem.data_rmse(o.x)
     sses = [s for _, _, s in finals]
     k = int(np.argmin(sses))
-    best_i = continued[k]
     final, res, _ = finals[k]
-    stage_list = [replace(st, probe=True) for st in probes[best_i][2]] + [StageResult(("final",), final.packing.n_free, probe_sse[best_i],
-                                                        sses[k], res)]
+    stage_list = lead[k]
+    if k in chained:  # its polish moved its end: the last stage is where the chain ended
+        stage_list = stage_list[:-1] + [StageResult(("final",), final.packing.n_free, lead[k][-1].sse_start,
+                                                    sses[k], res)]
     names = full.names()
     spread: dict[str, float] = {}
     if len(optima) > 1:
         nat = np.array([full.natural(o.x) for o in optima])
         diff = np.abs(nat[1:] - nat[0]).max(axis=0)
         spread = {nm: float(d) for nm, d in zip(names, diff)}
-    ms = MultiStart(n_starts, seed, probe, continued, probe_sse, dict(zip(continued, sses)), optima, names, spread,
-                    workers, time.perf_counter() - t0, nfev, include_start, n_hops, [continued[k] for k in chained])
+    nfev = counted[0]
+    ms = MultiStart(n_starts, seed, probe, continued, pobj_list, dict(zip(continued, sses)), optima, names, spread,
+                    workers, time.perf_counter() - t0, nfev, include_start, n_hops, [continued[c] for c in chained],
+                    stopped=stopped, probed=len(probes), penalty=penalty_words(problem))
+    if include_start and 0 in continued:  # where start 0 ended (its own fit, before any polish)
+        e0 = next(e for e in ends if e[3] == 0)
+        ms.start0_rmse, ms.start0_objective = problem.data_rmse(e0[0]), float(e0[1])
     final.nfev = nfev
     status = "interrupted" if interrupted else res.status
     return final, EngineResult(res.x, status, res.message, nfev, res.njev, polished=res.polished), stage_list, ms
+
+
+def penalty_words(problem: ChannelProblem) -> str:
+    """What the objective adds to the data's SSE, in the spec's words ("" when nothing)."""
+    parts = []
+    if problem.penalty.size:
+        parts.append("the priors (the target prior, [parameters.prior])")
+    if problem.shrinkage.size:
+        parts.append("the [[shrink]] shrinkage")
+    if getattr(problem, "pool_rows", None):
+        parts.append("the partial pooling's rows ([parameters] pooled, estimated target prior)")
+    if problem.offsets is not None and problem.offsets.extra_rows:
+        parts.append("the per-utterance offsets' prior ([model] offsets)")
+    return " and ".join(parts)
 
 
 def max_continued(n_starts: int, keep: int) -> int:

@@ -27,7 +27,7 @@ from coartic.extras import require
 from coartic.fit.bounds import CATEGORY_TITLES, BoundNote, explain_bounds, summary_counts
 from coartic.estimation.emotions import channel_metadata
 from coartic.estimation.parameters import ParameterSet, psd_pseudo_inverse
-from coartic.estimation.packing import Packing
+from coartic.estimation.packing import Packing, shared_words
 from coartic.estimation.pooling import PoolEstimate
 from coartic.estimation.problem import ChannelProblem
 from coartic.errors import UsageError
@@ -207,10 +207,7 @@ def finish_channel(problem: ChannelProblem, x: FloatArray, status: str, message:
                    stages: list[StageResult]) -> ChannelFit:
     params, beta = problem.packing.unpack(x)
     problem.packing.base, problem.packing.base_beta = params, beta
-    fitted = problem.evaluate(params, beta)
-    if problem.speakers is not None:  # each speaker's prediction a_s + b_s·F: what its mapped table gives
-        a, b = problem.speakers.coefficients(fitted)
-        fitted = a[problem.speakers.spk] + b[problem.speakers.spk] * fitted
+    fitted = problem.fitted(x)  # with speakers, each one's a_s + b_s·F: what its mapped table gives
     stats = parameter_stats(problem, x)
     return ChannelFit(problem.data.channel, problem, x, params, beta, status, message, problem.nfev, wall,
                       stages, stats, fitted)
@@ -372,10 +369,11 @@ class FitResult:
                              f"offset a = {a_s:+.4f} mm, scale b = {b_s:.4f}")
             if fit.multistart is not None:
                 lines += multistart_lines(fit.multistart, fit.problem.data.n_valid)
+            objective = "penalised objective" if fit.problem.penalised else "SSE"
             for s_i, sr in enumerate(fit.stages):
                 what = "probe stage" if sr.probe else "stage"
                 lines.append(f"    {what} {s_i + 1}: {sr.n_free} free ({', '.join(sr.parameters)}): "
-                             f"SSE {sr.sse_start:.4g} -> {sr.sse_end:.4g} [{sr.engine.status}]"
+                             f"{objective} {sr.sse_start:.4g} -> {sr.sse_end:.4g} [{sr.engine.status}]"
                              # a stage that did not converge says why, in the engine's own words
                              + ("" if (sr.engine.status == "converged" and not sr.engine.polished) or sr.probe
                                 else f": {sr.engine.message}"))
@@ -398,12 +396,16 @@ class FitResult:
                 err = f"+/- {prm.stderr:.4g}" if np.isfinite(prm.stderr) else "+/- (not identified)"
                 prior = "" if prm.prior is None else (
                     f"  prior {'log-' if prm.prior.log else ''}N({prm.prior.mean:.4g}, {prm.prior.sd:.4g})")
+                shared = (f"  ({shared_words(prm.shared_by, fit.phonemes, prm.parameter)}: {prm.name} names its "
+                          "carrier)" if prm.shared_by else "")
                 lines.append(f"        {prm.name:<16} {prm.value:>12.5g} {err}{flag}"
-                             f"  [{prm.lower:.4g}, {prm.upper:.4g}]{prior}")
+                             f"  [{prm.lower:.4g}, {prm.upper:.4g}]{prior}{shared}")
             if st.bounds:
                 lines.append("    [[At a bound]] (each free parameter at a bound: which bound, where it comes from, why)")
                 for bn in st.bounds.values():
-                    lines += [f"        {bn.name} = {bn.value:.5g} at its {bn.side} bound {bn.bound:.5g} ({bn.source})",
+                    who = (f", the value of {shared_words(bn.shared_by, fit.phonemes, bn.parameter)}"
+                           if bn.shared_by else "")
+                    lines += [f"        {bn.name} = {bn.value:.5g} at its {bn.side} bound {bn.bound:.5g} ({bn.source}{who})",
                               f"            {CATEGORY_TITLES[bn.category]}: {bn.explanation}",
                               f"            reading: {bn.reading}"]
             c = np.triu(np.nan_to_num(st.corr), 1)
@@ -457,7 +459,11 @@ class FitResult:
                                      if f.stats else [],
                                      "unidentified": f.stats.unidentified if f.stats else [],
                                      "unidentified_explained": f.stats.unidentified_why if f.stats else {},
+                                     # the objective the engine minimised: the SSE plus the penalty rows when
+                                     # "penalised" (sse_start/sse_end: its old names, kept for old readers)
+                                     "penalised": f.problem.penalised,
                                      "stages": [{"parameters": list(sr.parameters), "n_free": sr.n_free,
+                                                 "objective_start": sr.sse_start, "objective_end": sr.sse_end,
                                                  "sse_start": sr.sse_start, "sse_end": sr.sse_end,
                                                  "status": sr.engine.status, "probe": sr.probe,
                                                  "message": sr.engine.message,
@@ -480,12 +486,16 @@ def multistart_lines(ms: MultiStart, n_valid: int) -> list[str]:
     RMSE where validation scored them), the parameters the data leave free inside an optimum, and
     those that differ most between the optima."""
     hops = f", then {ms.hops} polishing restarts from the best of starts {ms.chains}" if ms.hops else ""
+    how = (f"probe: {ms.probe} evaluations per stage from {ms.probed} starts, continued: starts {ms.continued}{hops}"
+           if ms.probed else f"starts {ms.continued} fitted in full, no probe needed")
+    objective = f"penalised objective (SSE + {ms.penalty})" if ms.penalty else "objective (SSE)"
     lines = [f"    multi-start: {ms.summary_line(n_valid)}",
-             f"        {ms.nfev} evaluations in {ms.wall_time:.1f} s ({ms.workers} worker(s)); probe: "
-             f"{ms.probe} evaluations per stage from every start, then the best {len(ms.continued)} continued{hops}"]
+             f"        {ms.nfev} evaluations in {ms.wall_time:.1f} s ({ms.workers} worker(s)); {how}; optima ranked "
+             f"by the {objective}, data RMSE as measured"]
     for k, o in enumerate(ms.optima):
         held = "".join(f"; held out {sp}: {v:.4f} mm" for sp, v in o.heldout_rmse.items())
-        lines.append(f"        optimum {k + 1}: SSE {o.sse:.6g}, RMSE {np.sqrt(o.sse / max(n_valid, 1)):.4f} mm, "
+        lines.append(f"        optimum {k + 1}: data RMSE {o.rmse:.4f} mm, {'penalised ' if ms.penalty else ''}"
+                     f"objective {o.objective:.6g}, "
                      f"reached from {o.hits} start(s) {sorted(set(o.starts))} ({len(o.members)} end point(s)) "
                      f"[{o.status}]{held}")
         if o.unidentified:
@@ -494,6 +504,8 @@ def multistart_lines(ms: MultiStart, n_valid: int) -> list[str]:
                          + ", ".join(f"{nm} {d:.4g}" for nm, d in top))
     if ms.best_found_once:
         lines.append("        warning: the best optimum was reached from one start only: more starts may find a better one")
+    if ms.worse_than_start0:
+        lines.append(f"        note: {ms.worse_than_start0}")
     if ms.spread:
         top = sorted(ms.spread.items(), key=lambda kv: -kv[1])[:5]
         lines.append("        largest differences from the best among the distinct optima: "

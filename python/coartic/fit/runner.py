@@ -55,13 +55,20 @@ def fit_channel(spec: FitSpec, utterances: Sequence[Utterance], channel: str,
     start = start_values(spec, channel, problem.phonemes)
     if start is not None:
         problem = build_problem(spec, utterances, channel, start=start)
+    if problem.packing.n_free == 0:  # no start, stage or engine has anything to move: say so, not "converged"
+        raise SpecError.at(spec.path, "parameters.free", f"{channel}: no parameter is free (free = "
+                           f"{list(spec.free)!r}, and no [[override]] or fit_beta frees one): nothing to fit; free "
+                           "at least one (e.g. free = [\"target\"]), or predict with a fixed table by coartic score")
     task = None
     if progress is not None:
         task = progress.add_task(f"{channel}", total=None, info="", unit="evaluations")
 
+        # the best objective so far as an RMS (mm): the data RMSE only when nothing is added to the SSE
+        what = "penalised RMS" if problem.penalised else "RMSE"
+
         def monitor(nfev: int, best: float) -> None:
-            rmse = np.sqrt(best / max(problem.data.n_valid, 1))
-            progress.update(task, advance=1, info=f"RMSE {rmse:.3f} mm")
+            rms = np.sqrt(best / max(problem.data.n_valid, 1))
+            progress.update(task, advance=1, info=f"{what} {rms:.3f} mm")
 
         problem.monitor = monitor
     t0 = time.perf_counter()
@@ -76,10 +83,9 @@ def fit_channel(spec: FitSpec, utterances: Sequence[Utterance], channel: str,
     multi: MultiStart | None = None
     with threadpool_limits(limits=1, user_api="blas"):
         if spec.starts > 1:
-            def on_start(done: int, total: int) -> None:
+            def on_start(done: int, total: int, what: str) -> None:
                 if progress is not None and task is not None:
-                    progress.update(task, description=f"{channel} start {min(done + 1, total)}/{total} "
-                                    f"({'probe' if done < spec.starts else 'continued'})")
+                    progress.update(task, description=f"{channel} multi-start: {what} done")
 
             final, res, stages, multi = fit_multistart(problem, spec.engine, spec.engine_options, stage_names,
                                                        spec.starts, spec.seed, spec.probe, spec.keep,

@@ -52,6 +52,12 @@ class Score:
     speaker: str | None = None  # the table's speaker whose mapping the predictions carry
     # baseline -> channel -> predictions per utterance (coartic.fit.baselines; add_baselines)
     baselines: dict[str, dict[str, list[F64]]] = field(default_factory=dict)
+    # baseline -> why it is not shown (e.g. warped: no other token of the sentence; every one when no
+    # training data were found)
+    absent: dict[str, str] = field(default_factory=dict)
+    # why the scored recordings are from another session or speaker than the training (None: the
+    # same): the step-model flag then compares with the offsets removed only (baselines.other_session)
+    other_session: str | None = None
 
     def calibration(self, channel: str, predicted: list[F64] | None = None) -> tuple[float, float]:
         """(a, b) of measured ≈ a + b·predicted over every valid sample of ``channel``: the speaker
@@ -153,18 +159,38 @@ class Score:
             t, s = self._figures(ch), self._figures(ch, self.baselines["step"][ch])
             pair_t = (t["rmse_mm"], t["rmse_offset_removed_mm"])
             pair_s = (s["rmse_mm"], s["rmse_offset_removed_mm"])
-            if not beats_step(pair_t, pair_s):
-                out.append(flag_text(ch, pair_t, pair_s))
+            if not beats_step(pair_t, pair_s, offset_only=self.other_session is not None):
+                out.append(flag_text(ch, pair_t, pair_s, self.other_session))
         return out
 
     def add_baselines(self, train: Sequence[Utterance]) -> None:
         """Fit the baselines on ``train`` (the table's training utterances) and predict these samples."""
 
+        from coartic.fit.baselines import other_session
+
         b = Baselines.fit(train, self.channels)
+        self.other_session = other_session(self.utterances, train)
+        if self.other_session:
+            self.notes.append(f"the step model is compared with the offsets removed only: {self.other_session}, so "
+                              "the recordings' positions have another origin than the training's")
         self.baselines = {}
+        self.absent = {}
         for ch in self.channels:
             for name, preds in b.predict(self.utterances, ch).items():
                 self.baselines.setdefault(name, {})[ch] = preds
+            for name, why in b.absent(self.utterances, ch).items():
+                self.absent.setdefault(name, why)
+
+    def caption(self) -> str:
+        """What each baseline shown is, and why each one not shown is absent."""
+        from coartic.fit.baselines import BASELINES, caption
+
+        absent = dict(self.absent)
+        if not self.baselines:  # none at all: the note that says why (no training spec found)
+            why = next((n.partition(": ")[2] for n in self.notes if n.startswith("no baselines")),
+                       "no training data given (--train SPEC)")
+            absent = {b: why for b in BASELINES}
+        return caption(list(self.baselines), absent)
 
     def summary(self) -> dict[str, Any]:
         """What ``summary.json`` holds: per channel the table's and the baselines' figures, the flags."""
@@ -172,6 +198,9 @@ class Score:
                 "speaker": self.speaker, "notes": list(self.notes),
                 "channels": {ch: {r["model"]: {k: v for k, v in r.items() if k not in ("channel", "model")}
                                   for r in self.baseline_rows() if r["channel"] == ch} for ch in self.channels},
+                "baselines_absent": dict(self.absent),
+                # the step model is compared with the offsets removed only when this says why
+                "other_session": self.other_session,
                 "beats_step_model": {ch: not any(f.startswith(f"{ch}:") for f in self.flags())
                                      for ch in self.channels if ch in self.baselines.get("step", {})},
                 "flags": self.flags()}
@@ -191,6 +220,7 @@ class Score:
         base = [r for r in self.baseline_rows() if r["model"] != "table"]
         if base:
             lines.append("[[Baselines]] (fitted on the table's training data, scored on the same samples)")
+            lines += [f"    {b}: not shown: {why}" for b, why in self.absent.items()]
             for r in base:
                 lines.append(f"    {r['channel']} {r['model']}: RMSE {r['rmse_mm']:.4f} mm, offset removed "
                              f"{r['rmse_offset_removed_mm']:.4f} mm, speaker-calibrated {r['rmse_calibrated_mm']:.4f} mm")
@@ -232,6 +262,7 @@ def score_utterances(table: ParameterTable, utterances: Sequence[Utterance],
     predictions are that speaker's (``coartic.speakers.speaker_mapping``: an unknown name, or a
     table without speakers, is an error). With ``train`` (the utterances the table was fitted on),
     the baselines too (``coartic.fit.baselines``, ``Score.baseline_rows``)."""
+    from coartic.emotions import evaluate_by_emotion
     from coartic.speakers import speaker_mapping, table_speakers
 
     mapping = speaker_mapping(table, speaker)
@@ -258,8 +289,8 @@ def score_utterances(table: ParameterTable, utterances: Sequence[Utterance],
             raise ScoreError(f"channel {c} is {y[0]:.3g} mm in every sample of {', '.join(u.name for u in utts[:5])}: "
                              "it was not computed from the recordings (a missing or misnamed sensor? give "
                              "--role-map, or --channels without it); no RMSE, calibrated or not, is printed for it")
-    if mapping is None:
-        predicted = {c: evaluate_corpus(table, c, utts) for c in chans}
+    if mapping is None:  # each utterance with its emotion's targets when the table has emotions
+        predicted = {c: evaluate_by_emotion(table, c, utts) for c in chans}
     else:
         own = mapping.evaluation_table(table)
         predicted = {c: [mapping.apply(c, v) for v in evaluate_corpus(own, c, utts)] for c in chans}

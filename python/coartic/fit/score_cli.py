@@ -11,7 +11,7 @@ from rich.console import Console
 from rich.markup import escape
 from rich.table import Table
 
-from coartic.console import print_error, print_table
+from coartic.console import print_table
 from coartic.fit.result import BAR_MM
 
 
@@ -30,7 +30,7 @@ def score_command(
     train: Optional[Path] = typer.Option(None, "--train", help="fit spec of the table's training data, for the "
                                          "baselines (default: the spec the table records, if it exists)"),
     speaker: Optional[str] = typer.Option(None, "--speaker", help="predict as this speaker of the table (a table "
-                                          "fitted with [model] speakers): its offset and scale, or its own targets"),
+                                          "fitted with \\[model] speakers): its offset and scale, or its own targets"),
     out: Optional[Path] = typer.Option(None, "--out", "-o", help="write CSVs, score.txt and figures here"),
     force: bool = typer.Option(False, "--force", help="replace --out even if it holds another run's output"),
 ) -> None:
@@ -39,20 +39,16 @@ def score_command(
     from coartic.fit.score import score_recordings
 
     console = Console()
-    try:
-        chans = [c.strip() for c in channels.split(",") if c.strip()] if channels else None
-        score = score_recordings(table, recordings, labels or None, label_map=label_map, channels=chans,
-                                 speaker=speaker, role_map=role_map, strict=strict, train=train)
-        if out is not None:
-            from coartic.outputs import OutputDir
+    chans = [c.strip() for c in channels.split(",") if c.strip()] if channels else None
+    score = score_recordings(table, recordings, labels or None, label_map=label_map, channels=chans,
+                             speaker=speaker, role_map=role_map, strict=strict, train=train)
+    if out is not None:
+        from coartic.outputs import OutputDir
 
-            identity = {"table": str(table.resolve()), "recordings": ",".join(str(r) for r in recordings),
-                        **({"speaker": speaker} if speaker is not None else {})}
-            with OutputDir(out, "score", identity, force=force, protect=[table, *recordings, *(labels or [])]) as d:
-                score.save(d)
-    except (ValueError, OSError) as e:  # DataError, TableError, ModelInputError, OutputError
-        print_error(console, e)
-        raise typer.Exit(2) from None
+        identity = {"table": str(table.resolve()), "recordings": ",".join(str(r) for r in recordings),
+                    **({"speaker": speaker} if speaker is not None else {})}
+        with OutputDir(out, "score", identity, force=force, protect=[table, *recordings, *(labels or [])]) as d:
+            score.save(d)
     print_table(console, score_table(score), keys=2)
     for note in score.notes:
         console.print(f"note: {escape(note)}", soft_wrap=True, highlight=False)
@@ -69,8 +65,7 @@ def score_table(score: object) -> Table:
     assert isinstance(score, Score)
     who = f" as speaker {score.speaker}" if score.speaker is not None else ""
     t = Table(title=f"RMSE (mm){who} on {len(score.utterances)} recording(s) the fit did not see — bar {BAR_MM} mm",
-              caption="baselines on the same samples: constant = training mean; step = each phoneme's training "
-                      "mean; warped = another token of the sentence, time-warped")
+              caption=score.caption())
     for c in ("channel", "model", "as measured", "offset removed", "speaker-calibrated", "worst utterance",
               "worst phoneme", "samples"):
         t.add_column(c, justify="left" if c in ("channel", "model") else "right")

@@ -79,6 +79,9 @@ DEFAULT_STAGES: tuple[tuple[str, ...], ...] = (
 )
 # [fit] defaults: multi-start estimation (coartic.fit.multistart; measured in bench/multistart.py)
 DEFAULT_STARTS = 32
+# A start is a local fit from its own point, and their Sobol points are drawn at once: a bound that
+# turns a typo (10**9) into an error naming it, not a MemoryError hours later.
+MAX_STARTS = 10_000
 # The reference phoneme (α = 1) of a spec that names none: the first of these the data have, /a/
 # first (the paper's), then the other vowels from open to close (FitSpec.reference_for).
 DEFAULT_REFERENCE = "a"
@@ -124,10 +127,12 @@ def _flag(v: Any) -> bool:
     return v
 
 
-def _count(low: int) -> Callable[[Any], int]:
+def _count(low: int, high: int | None = None) -> Callable[[Any], int]:
     def check(v: Any) -> int:
         if isinstance(v, bool) or not isinstance(v, int) or v < low:
             raise _bad(f"expected {'a positive integer' if low == 1 else f'an integer >= {low}'}, got {v!r}")
+        if high is not None and v > high:
+            raise _bad(f"{v}: at most {high}; lower it")
         return v
     return check
 
@@ -372,12 +377,6 @@ def _table(v: Any) -> dict[str, Any]:
 def _text(v: Any) -> str:
     if not isinstance(v, str) or not v:
         raise _bad(f"{v!r}: expected a non-empty string")
-    return v
-
-
-def _optional_int(v: Any) -> int | None:
-    if v is not None and (isinstance(v, bool) or not isinstance(v, int)):
-        raise _bad(f"expected an integer, got {v!r}")
     return v
 
 
@@ -640,7 +639,7 @@ class FitSpec:
     stages: Annotated[tuple[tuple[str, ...], ...], BeforeValidator(_stages)] = DEFAULT_STAGES
     # [fit]: global estimation by multi-start (coartic.fit.multistart); starts = 1 is one local fit
     # from [parameters.start]
-    starts: Annotated[int, BeforeValidator(_count(1))] = DEFAULT_STARTS
+    starts: Annotated[int, BeforeValidator(_count(1, MAX_STARTS))] = DEFAULT_STARTS
     seed: Annotated[int, BeforeValidator(_count(0))] = 0
     probe: Annotated[int, BeforeValidator(_count(1))] = DEFAULT_PROBE
     # starts continued after the probe (None: multistart.default_keep)
@@ -651,7 +650,7 @@ class FitSpec:
     validate_group: Annotated[str | None, BeforeValidator(_optional(_one_of(VALIDATE_GROUPS)))] = None
     # None: one fold per group (leave one group out)
     validate_folds: Annotated[int | None, BeforeValidator(_optional(_count(2)))] = None
-    holdout_repetition: Annotated[int | None, BeforeValidator(_optional_int)] = 5
+    holdout_repetition: Annotated[int | None, BeforeValidator(_optional(_count(1)))] = 5  # counted from 1
     train_rate: str | None = "normal"
     test_rate: str | None = "fast"
 
@@ -684,6 +683,12 @@ class FitSpec:
         if tied:
             raise _bad(f"{', '.join(sorted(tied))} is both shared by every phoneme and in a [[tie]]: one or the other",
                        ("shared",))
+        if self.beta > self.beta_bounds[1]:
+            # the model takes any beta >= 0, but past the box a fit may search, rho(u) is gone within a
+            # hair of the target: a typo (1e308) must not read as a model that fits badly
+            raise _bad(f"beta = {self.beta:g} is above {self.beta_bounds[1]:g}, the upper end of [model] beta_bounds "
+                       "(the largest beta a fit may reach): lower beta, or widen beta_bounds", ("beta",),
+                       parameter="beta", value=self.beta)
         if self.keep is not None and self.starts > 1 and self.keep > self.starts:
             raise _bad(f"{self.keep}: more than the {self.starts} starts", ("keep",))
         if self.validate_folds is not None and self.validate_group is None:

@@ -67,7 +67,8 @@ def score(result: FitResult, test: Sequence[Utterance], split: str,
         base = {r["model"]: (r["rmse_mm"], r["rmse_offset_removed_mm"], r["rmse_calibrated_mm"])
                 for r in sc.baseline_rows() if r["model"] != "table"}
         out.append(SplitScore(split, ch, fit.rmse, row["rmse_mm"], row["samples"], worst, row["rmse_offset_removed_mm"],
-                              fit.rmse**2 * n, n, fit.packing.n_free, row["rmse_calibrated_mm"], base))
+                              fit.rmse**2 * n, n, fit.packing.n_free, row["rmse_calibrated_mm"], base,
+                              other_session=sc.other_session))
         if fit.multistart is not None:  # how much the held-out error differs between the optima found
             for o in fit.multistart.optima:
                 params, beta = fit.packing.unpack(o.x)
@@ -145,9 +146,11 @@ def kfold_splits(spec: FitSpec, utterances: Sequence[Utterance]) -> list[tuple[s
     return out
 
 
-def splits(spec: FitSpec, utterances: Sequence[Utterance]) -> list[tuple[str, list[Utterance], list[Utterance]]]:
+def splits(spec: FitSpec, utterances: Sequence[Utterance],
+           notes: list[str] | None = None) -> list[tuple[str, list[Utterance], list[Utterance]]]:
     """(name, train, test) for each validation the spec asks for and the corpus allows: the
-    k-fold splits of ``[validate] group`` if given, else the held-out repetition and the rate."""
+    k-fold splits of ``[validate] group`` if given, else the held-out repetition and the rate.
+    A held-out repetition the corpus's repetitions do not include is said in ``notes``."""
     if spec.validate_group is not None:
         return kfold_splits(spec, utterances)
     out = []
@@ -157,6 +160,13 @@ def splits(spec: FitSpec, utterances: Sequence[Utterance]) -> list[tuple[str, li
         train = [u for u in utterances if _rep(u) not in (rep, None)]
         if test and train:
             out.append((f"repetition {rep} held out", train, test))
+        else:
+            have = sorted({r for u in utterances if (r := _rep(u)) is not None}, key=_natural)
+            if have and notes is not None:
+                why = (f"the corpus has only repetition {have[0]}, none left to fit" if have == [rep]
+                       else f"the corpus's repetitions are {', '.join(have)}")
+                notes.append(f"{spec.path}: [validate] holdout_repetition = {rep}: {why}; that split is skipped "
+                             "(hold out one of them, or give [validate] group = \"repetition\" for k-fold)")
     if spec.train_rate and spec.test_rate:
         train = [u for u in utterances if u.meta.get("rate") == spec.train_rate]
         test = [u for u in utterances if u.meta.get("rate") == spec.test_rate]
@@ -204,7 +214,7 @@ def validate_all(spec: FitSpec, out: str | Path | None = None, utterances: Seque
     if utterances is None:
         utterances = load_utterances(spec)
     scores: list[SplitScore] = []
-    for name, train, test in splits(spec, utterances):
+    for name, train, test in splits(spec, utterances, notes):
         if console is not None and not quiet:
             console.print(f"[bold]validation[/bold]: {escape(name)} ({len(train)} trials to fit, {len(test)} to test)")
         sub = Path(out) / _dirname(name) if out is not None else None
@@ -244,10 +254,14 @@ def _dirname(split: str) -> str:
 
 
 def validation_table(scores: Sequence[SplitScore]) -> Table:
-    t = Table(title=f"Validation RMSE (mm) on data the fit did not see — bar {BAR_MM} mm",
-              caption="step, constant, warped: the baselines on the same test samples (as measured / offset "
-                      "removed); step = each phoneme's training mean; ✗ = the table does not beat the step model")
+    from coartic.fit.baselines import caption
+
     have = [b for b in ("step", "constant", "warped") if any(b in sc.baselines for sc in scores)]
+    absent = {b: ("no split's test sentence has another token in its training data" if b == "warped" else
+                  "not computed") for b in ("step", "constant", "warped") if b not in have}
+    t = Table(title=f"Validation RMSE (mm) on data the fit did not see — bar {BAR_MM} mm",
+              caption=caption(have, absent) + " (as measured / offset removed); ✗ = the table does not beat the "
+                      "step model")
     for c in ("split", "channel", "train", "test", "test, offset removed", *have, "worst vowel (test)"):
         t.add_column(c, justify="left" if c in ("split", "channel") else "right")
 

@@ -81,7 +81,7 @@ def read_c3d(
         msg = (f"truncated C3D: the header declares {declared} frames of POINT data, the file "
                f"holds {trial.n_frames}")
         if not allow_truncated:
-            raise DataError(msg + " (allow_truncated=True reads those)", path=p)
+            raise DataError(msg + "; --allow-truncated (allow_truncated=True in Python) reads those", path=p)
         trial.meta["notes"].append(msg + "; read those" + (
             f" ({padding} all-zero frames of block padding after them left out)" if padding else ""))
     return trial
@@ -213,7 +213,7 @@ def _finish(
         seen[n] = i
     given = units if units is not None else unit
     if not given.strip():
-        raise DataError("POINT:UNITS is empty; pass units='mm' (or cm, m) to say what they are",
+        raise DataError("POINT:UNITS is empty; say what they are with --units mm (or cm, m; units='mm' in Python)",
                         path=p, item="POINT:UNITS")
     xyz, note = to_mm(xyz, given, p, "marker positions", names)
     if note:
@@ -251,9 +251,11 @@ def _read_ezc3d(p: Path, units: str | None) -> Trial:
         rate = float(np.asarray(point["RATE"]["value"]).ravel()[0])
         unit = _point_units(point["UNITS"]["value"]) if "UNITS" in point else "mm"
         first = int(c["header"]["points"]["first_frame"])
+        scale = float(np.asarray(point["SCALE"]["value"]).ravel()[0]) if "SCALE" in point else -1.0
     except (KeyError, IndexError, TypeError, ValueError) as e:
         raise DataError(f"C3D without usable POINT parameters ({type(e).__name__}: {e})",
                         path=p) from None
+    _check_scale(scale, p)
     if pts.ndim != 3 or pts.shape[0] < 3:
         raise DataError(f"C3D POINT data of unexpected shape {pts.shape}", path=p)
     labels = labels[: pts.shape[1]]
@@ -280,15 +282,27 @@ def _read_pyc3d(p: Path, units: str | None) -> Trial:
             upar = r.get("POINT:UNITS")
             unit = _point_units(list(upar.string_array)) if upar is not None else "mm"
             first = int(r.first_frame)
+            scale = float(r.point_scale)
             frames = [np.array(pts, dtype=np.float64) for _, pts, _ in r.read_frames()]
     except Exception as e:  # the c3d package raises many kinds on corrupt input
         raise DataError(f"corrupt or truncated C3D ({type(e).__name__}: {e})", path=p) from None
+    _check_scale(scale, p)
     if not frames:
         raise DataError("no frames of POINT data", path=p)
     arr = np.stack(frames)  # (F, M, 5): x y z residual cameras
     xyz = arr[:, :, :3].copy()
     xyz[arr[:, :, 3] < 0] = np.nan
     return _finish(p, xyz, labels[: xyz.shape[1]], rate, unit, units, "c3d", first)
+
+
+def _check_scale(scale: float, p: Path) -> None:
+    """POINT:SCALE multiplies integer positions (its sign says integer or float data): 0 would read
+    every marker at the origin, which then fails far from the cause."""
+    if scale == 0.0 or not math.isfinite(scale):
+        raise DataError(f"POINT:SCALE is {0.0 if scale == 0 else scale:g}: every position would read as that times its "
+                        "stored value; "
+                        "C3D needs a non-zero scale (negative for float data, e.g. -1; the length of one integer "
+                        "unit otherwise): fix POINT:SCALE in the file (e.g. with ezc3d)", path=p, item="POINT:SCALE")
 
 
 def _declared_frames(p: Path) -> int | None:

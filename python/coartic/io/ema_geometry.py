@@ -27,6 +27,9 @@ _TONGUE_NAMES = {"TT": "tongue-tip", "TB": "tongue-body"}
 # The lips' motion along the axis taken as lateral may exceed their motion along the anterior axis
 # by this factor before the axes are called implausible (German EMA, right axes: 0.7).
 LATERAL_MOTION_RATIO = 2.0
+# A sensor whose median lateral coordinate is within this (mm) of the lips' is on the midline (German
+# EMA: ul, ll, jw, tt, tm, tb within 3.4 mm of one another); a jaw sensor farther out is a lateral one.
+MIDLINE_MM = 5.0
 
 
 def planar_reason(planar_axis: int) -> str:
@@ -58,8 +61,11 @@ def ema_channels(
                         "and the role map names " + (str(dict(roles.roles)) or "none") +
                         " (pass role_map={'UL': ..., 'LL': ...})", path=source, item="UL/LL")
     ll_k, jaw_k = idx["LL"], idx["JAW"]
+    lips_jaw = {idx["UL"], ll_k, jaw_k}
     check_axes(ul, ll, sensor("JAW"), roles, source,
-               names=(names[ll_k], names[jaw_k]) if ll_k is not None and jaw_k is not None else None)
+               names=(names[ll_k], names[jaw_k]) if ll_k is not None and jaw_k is not None else None,
+               others={names[k]: markers[:, k, :] for k in range(len(names)) if k not in lips_jaw},
+               assigned=frozenset(names[k] for k in idx.values() if k is not None))
     mid = 0.5 * (ul[:, vi] + ll[:, vi]) * vs
     rest_mid = mid[rest & np.isfinite(mid)]
     if rest_mid.size == 0:
@@ -107,6 +113,7 @@ def ema_channels(
 def check_axes(
     ul: NDArray[np.float64], ll: NDArray[np.float64], jaw: NDArray[np.float64] | None, roles: RoleMap,
     source: Path | None, names: tuple[str, str] | None = None,
+    others: dict[str, NDArray[np.float64]] | None = None, assigned: frozenset[str] = frozenset(),
 ) -> None:
     """Warn (DataWarning) when the role map's axes do not fit the sensors' geometry.
 
@@ -115,7 +122,10 @@ def check_axes(
     axis than sideways; and midline sensors move less sideways than forwards. Wrong axes give
     wrong channels without an error, e.g. ULP and LLP read along the lateral axis. A lower-lip
     sensor behind the jaw sensor while the upper lip is in front of both is named as a swapped
-    pair of sensors (`names`: the LL and JAW sensors' names), not as an axis problem.
+    pair of sensors (`names`: the LL and JAW sensors' names), not as an axis problem; so is a jaw
+    sensor off the midline where the lips and the file's other sensors (`others`, by name; those in
+    `assigned` play a role already) are on it: a lateral jaw sensor taken for the midline one, with
+    the midline candidates for the role map's JAW.
     """
     vi, vs = roles.vertical_axis
     ai, asg = roles.anterior_axis
@@ -153,6 +163,9 @@ def check_axes(
                 f"sensors were swapped when recorded, give the role map "
                 f'{{"LL": "{jaw_name}", "JAW": "{ll_name}"}}', DataWarning, stacklevel=3)
             return
+        if not problems and abs(front[li]) > abs(front[ai]) and lateral_jaw(ul, ll, jaw, np.asarray(ok_jaw, dtype=bool), roles, where, axes,
+                                                                          names, others or {}, assigned):
+            return
         if abs(front[li]) > abs(front[ai]):
             problems.append(f"LL is {abs(front[li]):.1f} mm from the jaw sensor along {'xyz'[li]} "
                             f"(taken as lateral) and {abs(front[ai]):.1f} mm along the anterior axis "
@@ -171,3 +184,41 @@ def check_axes(
         warnings.warn(f"{where}the EMA axes look wrong {axes}: " + "; ".join(problems)
                       + ". Give the axes in the role map, e.g. "
                       '{"axes": {"vertical": "+z", "anterior": "+x"}}', DataWarning, stacklevel=3)
+
+
+def lateral_jaw(ul: NDArray[np.float64], ll: NDArray[np.float64], jaw: NDArray[np.float64], ok: NDArray[np.bool_],
+                roles: RoleMap, where: str, axes: str, names: tuple[str, str] | None,
+                others: dict[str, NDArray[np.float64]], assigned: frozenset[str]) -> bool:
+    """Warn and return True when the sensor taken as JAW is off the midline while the lips and most
+    other sensors are on it (within ``MIDLINE_MM`` along the lateral axis): a lateral jaw sensor
+    (e.g. Haskins' JAWL) in the place of the midline one, not wrong axes. The warning names the
+    midline sensors below and behind the lower lip that play no role, for the role map's JAW."""
+    vi, vs = roles.vertical_axis
+    ai, asg = roles.anterior_axis
+    li = 3 - vi - ai
+    mid = float(np.median(0.5 * (ul[ok, li] + ll[ok, li])))
+    jaw_off = float(np.median(jaw[ok, li])) - mid
+    if abs(jaw_off) <= MIDLINE_MM:
+        return False
+    at: dict[str, NDArray[np.float64]] = {}
+    for nm, s in others.items():
+        good = np.isfinite(s).all(axis=1)
+        if good.sum() >= 2:
+            at[nm] = np.median(s[good], axis=0)
+    midline = [nm for nm, p in at.items() if abs(float(p[li]) - mid) <= MIDLINE_MM]
+    if not midline or 2 * len(midline) <= len(at):  # the other sensors do not show a midline: not this
+        return False
+    ll_at = np.median(ll[ok], axis=0)
+    below_behind = [nm for nm in midline if nm not in assigned
+                    and (at[nm][vi] - ll_at[vi]) * vs < 0 and (at[nm][ai] - ll_at[ai]) * asg < 0]
+    jaw_name = names[1] if names is not None else "<JAW sensor>"
+    fix = (f'{{"JAW": "{below_behind[0]}"}}' + (f" (midline sensors below and behind the lower lip that play no role: "
+                                                 f"{', '.join(below_behind)})" if len(below_behind) > 1 else "")
+           if below_behind else '{"JAW": "<the lower-incisor sensor>"}')
+    warnings.warn(
+        f"{where}the sensor taken as JAW ({jaw_name!r}) is {abs(jaw_off):.1f} mm to the side of the lips' midline "
+        f"along {'xyz'[li]} (the lateral axis), where UL, LL and {len(midline)} of the file's {len(at)} other "
+        f"sensors ({', '.join(midline)}) lie within {MIDLINE_MM:g} mm of it: it looks like a lateral jaw sensor "
+        f"taken for the midline one on the lower incisors that JO is measured from; the axes {axes} fit the "
+        f"other sensors. Give the midline jaw sensor in the role map, e.g. {fix}", DataWarning, stacklevel=4)
+    return True

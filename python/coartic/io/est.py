@@ -68,6 +68,14 @@ def _header(raw: bytes, p: Path) -> tuple[dict[str, str], dict[int, str], int, i
     raise DataError(f"no {END} line in the first {MAX_HEADER_LINES} lines", path=p)
 
 
+def _plausible_times(t: np.ndarray) -> bool:
+    """Frame times that can be a clock: finite, rising, within a day, in steps that vary little."""
+    if t.size < 2 or not np.all(np.isfinite(t)) or np.max(np.abs(t)) > 86_400.0:
+        return False
+    d = np.diff(t)
+    return bool(np.all(d > 0) and np.max(d) < 2.0 * np.min(d) + 1e-6)
+
+
 def _int(keys: dict[str, str], key: str, p: Path, default: int | None = None) -> int:
     if key not in keys:
         if default is not None:
@@ -122,7 +130,18 @@ def read_est(path: str | Path, units: str | None = None) -> Trial:
         if len(body) > need:
             raise DataError(f"{len(body) - need} bytes after the {n_frames} frames the header "
                             "declares (NumFrames or NumChannels wrong?)", path=p)
-        data = np.frombuffer(body, dtype=f"{endian}f4").reshape(n_frames, width).astype(np.float64)
+        with np.errstate(invalid="ignore"):  # signalling-NaN bit patterns of a wrong byte order
+            data = np.frombuffer(body, dtype=f"{endian}f4").reshape(n_frames, width).astype(np.float64)
+        if not _plausible_times(data[:, 0]):
+            other = "<" if endian == ">" else ">"
+            with np.errstate(invalid="ignore"):
+                swapped = np.frombuffer(body, dtype=f"{other}f4").reshape(n_frames, width).astype(np.float64)
+            said = "little-endian" if endian == "<" else "big-endian"
+            if _plausible_times(swapped[:, 0]):
+                raise DataError(f"ByteOrder {order} says the frames are {said}, but their times read so are "
+                                f"not a clock (first {data[0, 0]:.3g} s, then {data[1, 0]:.3g} s); read the other "
+                                f"way they rise evenly from {swapped[0, 0]:.3g} s: the header's ByteOrder is "
+                                f"wrong, set it to {'10' if other == '>' else '01'}", path=p, item="ByteOrder")
     elif kind == "ascii":
         data, lines = _ascii(raw[offset:], n_frames, width, p, first_line)
     else:
@@ -132,6 +151,7 @@ def read_est(path: str | Path, units: str | None = None) -> Trial:
     names: list[str] = []
     cols: dict[str, dict[str, int]] = {}
     mngu0 = False
+    styles: dict[bool, list[str]] = {False: [], True: []}  # channels named as MOCHA (_x) and mngu0 (_px) do
     for i in sorted(channels):
         m = _CHANNEL.match(channels[i])
         if m is None:
@@ -144,9 +164,16 @@ def read_est(path: str | Path, units: str | None = None) -> Trial:
             raise DataError(f"channel {channels[i]!r} appears twice", path=p, item=channels[i])
         cols[sensor][axis] = 2 + i
         mngu0 = mngu0 or m.group("p") is not None
+        styles[m.group("p") is not None].append(channels[i])
     if not names:
         raise DataError(f"no sensor channels named <sensor>_x, _y (the channels are "
                         f"{[channels[i] for i in sorted(channels)][:12]})", path=p)
+    if styles[False] and styles[True] and units is None:
+        # the name is the only sign of the unit (1/100 mm or mm): one odd name must not rescale the rest
+        raise DataError(f"the channels mix MOCHA-TIMIT's names in 1/100 mm ({', '.join(styles[False][:4])}) and "
+                        f"mngu0's in mm ({', '.join(styles[True][:4])}), so their unit cannot be told from them: "
+                        "give the unit (coartic inspect --units mm, or units=... in Python), or rename the odd "
+                        "channels", path=p, item=styles[True][0])
     planar = planar_axis(names, cols, p, "_")
     times = data[:, 0]
     if kind == "binary":

@@ -14,7 +14,8 @@ from rich.table import Table
 from coartic.io.errors import DataError
 from coartic.io.gaps import DEFAULT_MAX_GAP, Gap, fill_gaps
 from coartic.io.trial import Channels, Trial, load_trial
-from coartic.console import print_error
+from coartic.console import EXIT_NOTHING
+from coartic.errors import UsageError
 
 
 def inspect_command(
@@ -37,27 +38,23 @@ def inspect_command(
 ) -> None:
     """Summarise a recording: markers, rate, frames, gaps per marker, labels, channels.
 
-    Exits 1 when the file cannot be read or no channel can be computed from it."""
+    Exits 2 when the file cannot be read, 1 when no channel can be computed from it."""
     console = Console()
-    if plot is not None and not plot.parent.is_dir():
-        # checked first: the summary should not be lost to a typo in the plot's folder
-        print_error(console, f"--plot {plot}: the folder {plot.parent} does not exist")
-        raise typer.Exit(1)
+    if plot is not None:  # checked first: the summary should not be lost to a typo in the plot's path
+        from coartic.outputs import check_output_file
+
+        check_output_file(plot, "--plot", file.stem + ".png")
+    trial = load_trial(file, labels=labels, label_map=label_map, role_map=role_map, tier=tier,
+                       units=units, allow_truncated=allow_truncated)
+    _, gaps = fill_gaps(trial.markers, trial.marker_names, trial.rate, trial.start_time, max_gap)
+    channels: Channels | None = None
+    channel_error = ""
     try:
-        trial = load_trial(file, labels=labels, label_map=label_map, role_map=role_map, tier=tier,
-                           units=units, allow_truncated=allow_truncated)
-        _, gaps = fill_gaps(trial.markers, trial.marker_names, trial.rate, trial.start_time, max_gap)
-        channels: Channels | None = None
-        channel_error = ""
-        try:
-            channels = trial.channels(max_gap=max_gap)
-        except DataError as e:
-            channel_error = str(e)
-        except ImportError as e:  # the Rust core is not built
-            channel_error = f"channels need the compiled core: {e}"
+        channels = trial.channels(max_gap=max_gap)
     except DataError as e:
-        print_error(console, e)
-        raise typer.Exit(1) from None
+        channel_error = str(e)
+    except ImportError as e:  # the Rust core is not built
+        channel_error = f"channels need the compiled core: {e}"
     _summary(console, trial)
     _markers(console, trial, gaps)
     if trial.segments is not None:
@@ -72,11 +69,10 @@ def inspect_command(
         try:
             plot_trial(trial, channels, plot)
         except OSError as e:
-            print_error(console, f"--plot {plot}: cannot write it: {e.strerror or e}")
-            raise typer.Exit(1) from None
+            raise UsageError(f"--plot {plot}: cannot write it: {e.strerror or e}") from None
         console.print(f"plot written to {plot}")
     if channels is None or not len(channels):
-        raise typer.Exit(1)  # scripts must see that nothing usable came out of the file
+        raise typer.Exit(EXIT_NOTHING)  # scripts must see that nothing usable came out of the file
 
 
 def _summary(console: Console, trial: Trial) -> None:

@@ -261,14 +261,21 @@ class LabelMap:
             out.append(phoneme)
         return out
 
+    def maps_all(self, labels: Sequence[str]) -> bool:
+        """Whether every one of ``labels`` has a mapping (for suggesting a built-in map)."""
+        return all(self.map_label(label) is not None for label in labels)
+
     def apply(self, segments: Segments) -> Segments:
         out: list[str] = []
         for i, label in enumerate(segments.labels):
             phoneme = self.map_label(label)
             if phoneme is None:
+                fits = [n for n in BUILTIN if n != self.name and LabelMap.builtin(n).maps_all(segments.labels)]
+                hint = (f"; the built-in map {' or '.join(fits)} maps every label of this file: --label-map "
+                        f"{fits[0]} (label_map = \"{fits[0]}\" in a spec)" if fits else "")
                 raise DataError(
                     f"phone {label!r} (segment {i + 1}{segments.tier_note()}) "
-                    f"has no mapping in {self.source}; add a "
+                    f"has no mapping in {self.source}{hint}; or add a "
                     f"line '{label}<TAB>phoneme' (or '{label}<TAB>=' to keep it as a phoneme of "
                     "its own) to the label map",
                     path=segments.source, line=segments.lines[i], item=label)

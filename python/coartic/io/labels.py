@@ -115,9 +115,18 @@ def read_labels(path: str | PathLike[str], tier: str | None = None) -> Segments:
     """Read a label file, choosing the format from the extension and, failing that, the content.
 
     `tier` names the TextGrid interval tier to use (default: the first interval tier); it is an
-    error to give it for formats that have no tiers.
+    error to give it for formats that have no tiers. Times are seconds from the recording's
+    start: a negative one is refused.
     """
-    p = Path(path)
+    segs = _read_labels(Path(path), tier)
+    if len(segs) and float(segs.starts[0]) < 0:
+        raise DataError(f"label {segs.labels[0]!r} starts at {float(segs.starts[0]):g} s: label times are seconds "
+                        "from the start of the recording, never negative (shift the labels, or cut the part "
+                        "before 0 s)", path=segs.source, line=segs.lines[0], item=segs.labels[0])
+    return segs
+
+
+def _read_labels(p: Path, tier: str | None) -> Segments:
     text = _read_text(p)
     suffix = p.suffix.lower()
     if suffix == ".textgrid" or _looks_like_textgrid(text):
@@ -302,8 +311,23 @@ def parse_textgrid(text: str, path: Path, tier: str | None = None) -> Segments:
             raise DataError(f"no interval tier named {tier!r}; the tiers are {names}", path=path,
                             item=tier)
         raise DataError(f"no interval tier (tiers: {names})", path=path)
-    pick = next((t for t in interval if PHONE_TIER.search(t[0].strip())), interval[0])
+    phone_tiers = [t for t in interval if PHONE_TIER.search(t[0].strip())]
+    speakers = {t[0].partition(" - ")[0].strip() for t in phone_tiers if " - " in t[0]}
+    if tier is None and len(speakers) > 1:
+        # Montreal Forced Aligner writes one "<speaker> - phones" tier per speaker: whose is meant?
+        phone_tiers = [t for t in phone_tiers if " - " in t[0]]
+        shown = ", ".join(repr(t[0]) for t in phone_tiers)
+        raise DataError(f"{len(phone_tiers)} phone tiers ({shown}; one per speaker, as Montreal Forced Aligner "
+                        f"writes them): say which to read with --tier {phone_tiers[0][0]!r} (coartic inspect, animate; "
+                        "tier= in Python); a fit spec reads the tier of one speaker, so keep only that speaker's "
+                        "tiers in the TextGrid it is given", path=path, item=phone_tiers[0][0])
+    pick = phone_tiers[0] if phone_tiers else interval[0]
     name, labels, starts, ends, lines = pick
+    if not any(lab.strip() for lab in labels):
+        held = f"{len(labels)} empty interval(s)" if labels else "no interval"
+        raise DataError(f"tier {name!r} holds no label ({held}): nothing to read; "
+                        f"align the recording first, or name the tier with the phones (tiers: {names})",
+                        path=path, item=name)
     return Segments(tuple(labels), np.array(starts), np.array(ends), path, tuple(lines), name,
                     tuple(names))
 

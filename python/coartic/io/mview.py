@@ -27,6 +27,8 @@ from coartic.io.trial import Trial
 from coartic.io.units import to_mm
 
 FIELDS = ("NAME", "SRATE", "SIGNAL")
+# Columns of a sensor's SIGNAL: x, y, z, three of orientation and at most a couple more (RMS, status)
+MAX_COORDINATES = 8
 MAGIC = b"MATLAB 5.0 MAT-file"
 # fields holding segment labels (struct arrays of LABEL and OFFS), the default first
 LABEL_FIELDS = ("PHONES", "WORDS")
@@ -70,7 +72,8 @@ def read_mview_labelled(path: str | Path, units: str | None = None,
     var, structs = candidates[0]
     names: list[str] = []
     signals: list[np.ndarray] = []
-    rate: float | None = None
+    rates: list[float] = []
+    transposed: list[str] = []
     for k, el in enumerate(structs.ravel()):
         name = _text(el["NAME"])
         if not name:
@@ -80,23 +83,31 @@ def read_mview_labelled(path: str | Path, units: str | None = None,
         if sig.ndim != 2 or sig.dtype.kind not in "iuf":
             raise DataError(f"sensor {name!r}: SIGNAL is {sig.dtype} of shape {sig.shape}, not a "
                             "frames x coordinates matrix of numbers", path=p, item=name)
+        if sig.shape[0] <= MAX_COORDINATES < sig.shape[1]:
+            # coordinates x frames (saved transposed): a sensor has at most MAX_COORDINATES columns
+            sig = sig.T
+            transposed.append(name)
         if sig.shape[1] < 2:
             continue  # the audio, or another one-column signal: not a sensor
-        if rate is None:
-            rate = srate
-        elif srate != rate or sig.shape[0] != signals[0].shape[0]:
-            raise DataError(f"sensor {name!r} has {sig.shape[0]} frames at {srate:g} Hz, the "
-                            f"first sensor {names[0]!r} {signals[0].shape[0]} at {rate:g} Hz",
-                            path=p, item=name)
+        if not (np.isfinite(srate) and srate > 0):
+            raise DataError(f"sensor {name!r}: SRATE {srate:g} is not a frame rate (a positive number of "
+                            "frames per second)", path=p, item=name)
         if name in names:
             raise DataError(f"sensor {name!r} appears twice in {var!r}", path=p, item=name)
         names.append(name)
+        rates.append(srate)
         signals.append(sig.astype(np.float64))
-    if not names or rate is None:
+    if not names:
         raise DataError(f"{var!r} holds no sensor (every SIGNAL has one column)", path=p, item=var)
-    if rate <= 0 or not np.isfinite(rate):
-        raise DataError(f"SRATE {rate:g} is not a frame rate", path=p, item=names[0])
-    n = signals[0].shape[0]
+    # every sensor shares one rate and length: the odd ones out are named, measured against the most
+    # common (not the first, which may be the odd one)
+    shapes = [(s.shape[0], r) for s, r in zip(signals, rates)]
+    n, rate = max(set(shapes), key=shapes.count)
+    odd = [f"{nm!r} ({m} frames at {r:g} Hz)" for nm, (m, r) in zip(names, shapes) if (m, r) != (n, rate)]
+    if odd:
+        raise DataError(f"sensor{'s' if len(odd) > 1 else ''} {', '.join(odd)} differ from the other "
+                        f"{len(names) - len(odd)} ({n} frames at {rate:g} Hz): every sensor must share one rate "
+                        "and length", path=p, item=odd[0].split("'")[1])
     if n < 2:
         raise DataError(f"{n} frame(s): no frame rate", path=p)
     dims = {s.shape[1] for s in signals}
@@ -116,6 +127,9 @@ def read_mview_labelled(path: str | Path, units: str | None = None,
                         path=p, item=short)
     xyz, note = to_mm(xyz, units or "mm", p, "sensor positions", names)
     notes = [f"mview struct {var!r}: {len(names)} sensors at {rate:g} Hz"] + ([note] if note else [])
+    if transposed:
+        notes.append(f"SIGNAL of {', '.join(transposed)} stored as coordinates x frames (transposed): read as "
+                     "frames x coordinates")
     if planar is not None:
         notes.append(midsagittal_note(planar))
     segments = _embedded_segments(structs, var, tier, p)

@@ -17,6 +17,11 @@ from numpy.typing import NDArray
 
 import warnings
 
+# Left and right markers further apart than this in a two-axis marker file show a frontal, not a
+# side, view: a side view projects them onto one another, a frontal one keeps their whole distance
+# (lip corners ~50 mm, ears ~140 mm). Half of it: a side view would need the head turned 30 degrees.
+PLANAR_PAIR_MM = {("LC_L", "LC_R"): 25.0, ("EAR_L", "EAR_R"): 70.0}
+
 from coartic.io.errors import DataError, DataWarning
 from coartic.io.ema_geometry import ema_channels, planar_reason
 from coartic.io.gaps import DEFAULT_MAX_GAP, Gap, fill_gaps, resample
@@ -273,6 +278,7 @@ class Trial:
                             f"{list(self.marker_names)}", path=self.source, item=tongue[0])
         flat = planar_reason(self.planar_axis) if self.planar_axis is not None else None
         if flat is not None:
+            self._refuse_frontal_plane(idx)
             three_d = [c for c in wanted if c in PLANAR_MARKER_REFUSED]
             if strict and three_d:
                 raise DataError(f"channel {three_d[0]} cannot be computed: {flat}",
@@ -312,6 +318,25 @@ class Trial:
                 a, b = (self.markers[:, idx[r], :] for r in CHANNEL_ROLES[c] if idx[r] is not None)
                 values[c] = np.linalg.norm(a - b, axis=1)
         return values, why
+
+    def _refuse_frontal_plane(self, idx: Mapping[str, int | None]) -> None:
+        """Two-axis markers are read as a side view (front-back and up). Seen from the front
+        instead (x ear to ear), a left and right marker lie far apart in the plane, where a side
+        view puts them on one another: refused, since every distance would be the wrong one."""
+        for (left, right), limit in PLANAR_PAIR_MM.items():
+            a, b = idx[left], idx[right]
+            if a is None or b is None:
+                continue
+            apart = self.markers[:, a, :] - self.markers[:, b, :]
+            d = float(np.nanmedian(np.linalg.norm(apart, axis=1))) if np.isfinite(apart).all(axis=1).any() else 0.0
+            if d > limit:
+                kept = " and ".join(ax for k, ax in enumerate("xyz") if k != self.planar_axis)
+                raise DataError(
+                    f"{left} ({self.marker_names[a]}) and {right} ({self.marker_names[b]}) are {d:.0f} mm apart "
+                    f"in the file's {kept} plane: the markers were seen from the front (one axis ear to ear), "
+                    f"but markers with two axes are read as a side view (front-back and up), where these two lie "
+                    f"within {limit:g} mm of each other. Give the markers' three axes, or a side view",
+                    path=self.source, item=left)
 
     def _head_frame_channels(
         self, idx: Mapping[str, int | None], wanted: Sequence[str], strict: bool,
@@ -381,12 +406,20 @@ def load_trial(
     frames than its header declares (with a note in `meta["notes"]`) instead of refusing it.
     """
     p = Path(path)
+    if p.is_dir():
+        bundle = sorted(p.glob("*_annot.json"))  # an emuDB bundle directory: its annotation file is the recording
+        raise DataError("is a folder, not a recording: give a file in it" +
+                        (f" ({bundle[0]} for this emuDB bundle)" if bundle else ""), path=p)
     if not p.is_file():
         raise DataError("no such file", path=p)
     reader = reader_for(p)
     trial, own_labels = reader.read(p, ReadRequest(units=units, allow_truncated=allow_truncated,
                                                    level=tier if labels is None else None))
     if labels is None:
+        if tier is not None and own_labels is None:  # not silently ignored
+            raise DataError(f"tier {tier!r} was asked for, but no label file was given and this file carries no "
+                            "labels of its own: give the TextGrid with --labels (labels= in Python)", path=p,
+                            item=tier)
         labels = own_labels
     roles = resolve_role_map(role_map)
     if reader.sensors:

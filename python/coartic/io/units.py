@@ -25,7 +25,7 @@ def to_mm(
     key = unit.strip().lower()
     if key not in _TO_MM:
         raise DataError(f"{what} are in unit {unit!r}; coartic reads mm, cm or m only "
-                        "(pass units='mm' if the file's unit field is wrong)", path=path, item=unit)
+                        "(--units mm, units='mm' in Python, if the file's unit field is wrong)", path=path, item=unit)
     factor = _TO_MM[key]
     if factor == 1.0:
         return values, None

@@ -13,7 +13,7 @@ from rich.markup import escape
 from rich.table import Table
 
 from coartic.mcmc.run import PosteriorRun, phoneme_dir, verdict_lines
-from coartic.console import print_error, print_table
+from coartic.console import EXIT_UNCONFIRMED, print_table
 
 console = Console(stderr=True)
 
@@ -50,7 +50,7 @@ def mcmc_command(
     phonemes: Optional[str] = typer.Option(None, help="Comma-separated phonemes (default: \\[mcmc] phonemes, else every non-pause phoneme)."),
     scope: Optional[str] = typer.Option(None, help="'phonemes' (one posterior per phoneme) or 'channel' (joint, slow)."),
     max_steps: Optional[int] = typer.Option(None, help="Override \\[mcmc] max_steps."),
-    strict: bool = typer.Option(False, help="Exit with status 2 if any posterior has not converged."),
+    strict: bool = typer.Option(False, help="Exit with status 3 (written, not confirmed) if any posterior has not converged."),
     allow_stale_fit: bool = typer.Option(False, help="Sample even if the table's recorded RMSE does not match the data loaded now."),
     quiet: bool = typer.Option(False, help="No progress bars."),
     force: bool = typer.Option(False, "--force", help="Start over in --out even if it holds another run's chains "
@@ -62,12 +62,8 @@ def mcmc_command(
     """
     from coartic.mcmc.job import sample
 
-    try:
-        result = sample(spec, fit, out, channels=_names(channels), phonemes=_names(phonemes), scope=scope,
-                        max_steps=max_steps, progress=not quiet, allow_stale=allow_stale_fit, force=force)
-    except (ValueError, OSError) as e:
-        print_error(console, e)
-        raise typer.Exit(1) from None
+    result = sample(spec, fit, out, channels=_names(channels), phonemes=_names(phonemes), scope=scope,
+                    max_steps=max_steps, progress=not quiet, allow_stale=allow_stale_fit, force=force)
     runs, interrupted = result.runs, result.interrupted
     print_table(console, _status_table(runs))
     for ch, held in {r.channel: r.held_fixed for r in runs}.items():
@@ -86,7 +82,7 @@ def mcmc_command(
         for line in bad:
             console.print(escape(f"  {line}"), style="red", soft_wrap=True, highlight=False)
         if strict:
-            raise typer.Exit(2)
+            raise typer.Exit(EXIT_UNCONFIRMED)
     else:
         console.print(f"[green]All {len(runs)} posteriors converged.[/] Table with uncertainty: "
                       f"{escape(str(out / 'table.json'))}", soft_wrap=True, highlight=False)

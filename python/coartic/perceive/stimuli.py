@@ -1,7 +1,9 @@
 """The study's videos: coartic's face (the runtime's preview face, front and side, nothing written on
 screen) saying each item with Festival's voice, one video per item x condition x SNR.
 
-A condition's face is the table's coarticulated animation (`model`), the same table with each
+A condition's face is the table's coarticulated animation (`model`; with an `emotion`, the table's
+emotion blended in as `coartic speak --emotion` does: the lips' emotional targets — the preview face
+has no brows, lids or cheeks, so the expression outside the mouth is not in these videos), the same table with each
 phoneme's target held over its segment (`step`: keyframe lip-sync, the runtime's analogue of the
 fit's step baseline, coartic.fit.baselines), or the face at rest (`still`: the audio-alone baseline
 of audiovisual intelligibility). Festival speaks each item once per table; every condition of an
@@ -145,31 +147,27 @@ def _table_key(c: Condition) -> tuple[str, str | None, float | None]:
     return (str(c.table) if c.table is not None else "", c.emotion, c.intensity)
 
 
-def _load_table(c: Condition) -> ParameterTable:
+def condition_table(c: Condition) -> ParameterTable:
+    """The table a condition speaks with: its file (default: the shipped table), with its emotion
+    blended in at its intensity (coartic.emotions.emotion_table, as `coartic speak --emotion`)."""
     if c.table is not None:
-        return ParameterTable.load(c.table)
-    from coartic.runtime.shipped import load_shipped_table
+        table = ParameterTable.load(c.table)
+    else:
+        from coartic.runtime.shipped import load_shipped_table
 
-    return load_shipped_table()
+        table = load_shipped_table()
+    if c.emotion is None:
+        return table
+    from coartic.emotions import emotion_table
+
+    return emotion_table(table, c.emotion, 1.0 if c.intensity is None else c.intensity)
 
 
-def speak_item(text: str, c: Condition, table: ParameterTable, spec: StudySpec, work: Path, name: str) -> Speech:
+def speak_item(text: str, table: ParameterTable, spec: StudySpec, work: Path, name: str) -> Speech:
     """Festival says `text`; the runtime animates it with `table` (coartic.runtime.pipeline.speak_text)."""
-    import inspect
-
     from coartic.runtime.pipeline import speak_text
 
-    kwargs: dict[str, Any] = {}
-    if c.emotion is not None:
-        if "emotion" not in inspect.signature(speak_text).parameters:
-            from coartic.errors import SpecError
-
-            raise SpecError.at(spec.path, f"condition {c.name}.emotion", "this coartic's runtime does not speak with "
-                               "emotions yet (issue 27 item 3): give the emotion study tables (table = ...) instead")
-        kwargs["emotion"] = c.emotion
-        if c.intensity is not None:
-            kwargs["intensity"] = c.intensity
-    out = speak_text(text, table, work / name, fps=spec.fps, preview="none", name=name, lang=spec.lang, **kwargs)
+    out = speak_text(text, table, work / name, fps=spec.fps, preview="none", name=name, lang=spec.lang)
     samples, rate = read_wav(out.files["wav"])
     return Speech(out.animation, table, samples, rate)
 
@@ -193,7 +191,8 @@ def prepare_stimuli(spec: StudySpec, out: Path, progress: Any = None) -> dict[st
     stim_dir.mkdir(parents=True, exist_ok=True)
     tables: dict[tuple[str, str | None, float | None], ParameterTable] = {}
     for c in spec.conditions:
-        tables.setdefault(_table_key(c), _load_table(c))
+        if _table_key(c) not in tables:
+            tables[_table_key(c)] = condition_table(c)
     task = progress.add_task("stimuli", total=spec.n_stimuli()) if progress is not None else None
     # Festival once per item and table
     spoken: dict[tuple[int, tuple[str, str | None, float | None]], Speech] = {}
@@ -201,7 +200,7 @@ def prepare_stimuli(spec: StudySpec, out: Path, progress: Any = None) -> dict[st
         for c in spec.conditions:
             key = (i, _table_key(c))
             if key not in spoken:
-                spoken[key] = speak_item(text, c, tables[key[1]], spec, work, f"item{i + 1}_{len(spoken)}")
+                spoken[key] = speak_item(text, tables[key[1]], spec, work, f"item{i + 1}_{len(spoken)}")
     first = {i: spoken[(i, _table_key(spec.conditions[0]))] for i in range(len(spec.items))}
     spectrum = speech_spectrum(list(first.values())) if spec.noise == "speech-shaped" else None
     stimuli: list[dict[str, Any]] = []

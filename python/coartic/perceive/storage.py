@@ -79,8 +79,10 @@ def _now() -> str:
     return datetime.now(timezone.utc).isoformat(timespec="milliseconds")
 
 
-def engine_for(url: str) -> Engine:
-    """An engine for `url` (sqlite:///path or postgresql://...; the latter through psycopg 3)."""
+def engine_for(url: str, durable: bool = True) -> Engine:
+    """An engine for `url` (sqlite:///path or postgresql://...; the latter through psycopg 3).
+    SQLite: `durable` syncs every commit to disk (synchronous=FULL); otherwise (simulated answers,
+    which a crash may cost) the log is synced at checkpoints only (NORMAL: still atomic)."""
     if url.startswith("postgresql://") or url.startswith("postgres://"):
         url = "postgresql+psycopg://" + url.split("://", 1)[1]
     try:
@@ -93,7 +95,7 @@ def engine_for(url: str) -> Engine:
         def _pragmas(dbapi_conn: Any, _record: Any) -> None:
             cur = dbapi_conn.cursor()
             cur.execute("PRAGMA journal_mode=WAL")
-            cur.execute("PRAGMA synchronous=FULL")
+            cur.execute("PRAGMA synchronous=FULL" if durable else "PRAGMA synchronous=NORMAL")
             cur.execute("PRAGMA foreign_keys=ON")
             cur.execute("PRAGMA busy_timeout=10000")
             cur.close()
@@ -109,11 +111,11 @@ def study_fingerprint(manifest: dict[str, Any]) -> str:
 class Store:
     """The results of one study in one database."""
 
-    def __init__(self, url: str, manifest: dict[str, Any], secret: str = "") -> None:
+    def __init__(self, url: str, manifest: dict[str, Any], secret: str = "", durable: bool = True) -> None:
         self.url = url
         self.manifest = manifest
         self.secret = secret.encode()
-        self.engine = engine_for(url)
+        self.engine = engine_for(url, durable)
         fingerprint = study_fingerprint(manifest)
         try:
             metadata.create_all(self.engine)

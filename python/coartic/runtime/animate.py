@@ -60,6 +60,9 @@ class Animation:
     # the table that animated it (a speaker's own with --speaker): its dominance functions give
     # each segment's share of every frame (`segment_shares`)
     table: ParameterTable | None = None
+    # the time the frames were laid over (the sound's duration, else the labels' end), s; the frames
+    # cover it to within half a frame (`duration`), Rhubarb's cues cover it exactly
+    span: float | None = None
 
     @property
     def modelled(self) -> list[str]:
@@ -98,6 +101,11 @@ class Animation:
     def duration(self) -> float:
         """Playing time: n_frames frames of 1 / fps each."""
         return self.n_frames / self.fps
+
+    @property
+    def sound_duration(self) -> float:
+        """The time animated (`span`), or the frames' playing time when it was not recorded."""
+        return self.span if self.span is not None else self.duration
 
 
 def frame_times(duration: float, fps: float) -> NDArray[np.float64]:
@@ -292,11 +300,31 @@ def animate(
             continue
         sample = contact_sample_times(table, segments, ch, times, fps) if snap_contacts else times
         values[ch] = evaluate(table, segments, sample, [ch])[ch]
+        values[ch] = values[ch] + emotion_spans_deviation(table, segments, sample, ch, values[ch])
         if not np.array_equal(sample, times):
             snapped[ch] = sample
     return Animation(fps=float(fps), times=times, channels=values, segments=segments,
                      substitutions=dict(substitutions or {}), sample_times=snapped, at_rest=at_rest,
-                     neutral=neutral, table=table)
+                     neutral=neutral, table=table, span=float(total))
+
+
+def emotion_spans_deviation(table: ParameterTable, segments: Segments, times: NDArray[np.float64], channel: str,
+                            neutral: NDArray[np.float64]) -> NDArray[np.float64]:
+    """What a table's emotion spans (``coartic.emotions.with_emotion_spans``) add to the neutral
+    trajectory ``neutral`` of ``channel``: each emotion's deviation trajectory F_e − F_neutral
+    weighted by its ramped intensity at ``times`` (the model is linear in the targets and the emotions
+    share the dynamics, so a constant span gives the emotion's own trajectory; the contacts, kept
+    neutral in every emotion's table, stay where they are). Zeros without spans."""
+    meta = (table.metadata or {}).get("expression")
+    out = np.zeros_like(neutral)
+    if not isinstance(meta, dict) or "spans" not in meta:
+        return out
+    from coartic.emotions import emotion_table, span_weights
+
+    for emotion, w in span_weights(meta["spans"], times).items():
+        if np.any(w != 0.0):
+            out += w * (evaluate(emotion_table(table, emotion, 1.0), segments, times, [channel])[channel] - neutral)
+    return out
 
 
 def contact_sample_times(

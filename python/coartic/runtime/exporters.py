@@ -26,6 +26,55 @@ if TYPE_CHECKING:
     from coartic.table import ParameterTable
 
 
+@dataclass(frozen=True)
+class RigOptions:
+    """How the rigs' curves and cues are written (`--export arkit,visemes,rhubarb`; docs/RUNTIME.md)."""
+
+    # Rhubarb's cues (coartic.runtime.rhubarb): which extended shapes of G H X the mouth has drawn,
+    # the formats written, and Preston Blair's shape names in the DAT
+    extended_shapes: str = "GHX"
+    rhubarb_formats: tuple[str, ...] = ("tsv", "json")
+    preston_blair: bool = False
+    # the visemes' names: "meta" (Oculus), "rpm" (Ready Player Me, VRChat) or "vrm" (five vowels)
+    viseme_names: str = "meta"
+    # the curves' gain (exaggeration, 1 = the model's), each shape's own scale, smoothing (s, a Hann
+    # window) and minimum hold (s; also Rhubarb's minimum cue duration when longer than its 7 cs)
+    gain: float = 1.0
+    shape_scale: tuple[tuple[str, float], ...] = ()
+    smooth: float = 0.0
+    hold: float = 0.0
+
+    def __post_init__(self) -> None:
+        import math
+
+        for key, value, low, high in (("--rig-gain", self.gain, 0.0, 10.0), ("--rig-smooth", self.smooth, 0.0, 1.0),
+                                      ("--rig-hold", self.hold, 0.0, 1.0)):
+            if not (math.isfinite(value) and low <= value <= high):
+                raise AnimationError(f"{key} {value!r}: must be within {low:g} to {high:g}")
+        for name, factor in self.shape_scale:
+            if not (math.isfinite(factor) and 0.0 <= factor <= 10.0):
+                raise AnimationError(f"--rig-scale {name}={factor!r}: a scale is within 0 to 10")
+        if self.viseme_names not in ("meta", "rpm", "vrm"):
+            raise AnimationError(f"--viseme-names {self.viseme_names!r}: choose meta, rpm, vrm (Meta/Oculus, "
+                                 "Ready Player Me/VRChat, VRM)")
+
+
+def parse_shape_scale(spec: str | None) -> tuple[tuple[str, float], ...]:
+    """`--rig-scale jawOpen=0.8,mouthFunnel=1.2` → ((name, factor), ...), checked for form."""
+    out = []
+    for item in (spec or "").split(","):
+        if not item.strip():
+            continue
+        name, eq, value = item.partition("=")
+        try:
+            out.append((name.strip(), float(value)))
+        except ValueError:
+            raise AnimationError(f"--rig-scale {item.strip()!r}: expected NAME=FACTOR, e.g. jawOpen=0.8") from None
+        if not eq or not name.strip():
+            raise AnimationError(f"--rig-scale {item.strip()!r}: expected NAME=FACTOR, e.g. jawOpen=0.8")
+    return tuple(out)
+
+
 @dataclass
 class ExportSettings:
     """How the exporters write one animation into `out`."""
@@ -41,6 +90,7 @@ class ExportSettings:
     mapping: SpeakerMapping | None = None
     gltf_morphs: str = "fap"  # the glTF's morph set: "fap" (one per FAP), "arkit" (ARKit's 52 names) or "eight"
     preview: str = "gif"
+    rig: RigOptions = field(default_factory=RigOptions)
     files: dict[str, Path] = field(default_factory=dict)  # what earlier exporters wrote
 
     def audio_name(self) -> str | None:
@@ -58,7 +108,7 @@ EXPORTERS: dict[str, tuple[str, str]] = {
     "vrml": ("coartic.face.vrml", "export_vrml"),
     "arkit": ("coartic.runtime.rigs", "export_arkit"),
     "visemes": ("coartic.runtime.rigs", "export_visemes"),
-    "rhubarb": ("coartic.runtime.rigs", "export_rhubarb"),
+    "rhubarb": ("coartic.runtime.rhubarb", "export_rhubarb"),
     "plot": ("coartic.runtime.preview", "export_plot"),
     "preview": ("coartic.runtime.preview", "export_preview"),
 }

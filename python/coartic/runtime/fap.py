@@ -373,12 +373,15 @@ def add_blinks(seq: FapSequence) -> FapSequence:
 
 def animation_faps(animation: Animation, face: FaceUnits, name: str) -> FapSequence:
     """The animation's FAPs in `face`'s units: lips and jaw from its channels and neutral face, the
-    tongue from its table's tongue channels or the default (coartic.runtime.tongue), and blinks."""
+    tongue from its table's tongue channels or the default (coartic.runtime.tongue), blinks, and the
+    expression of an emotion it speaks with (coartic.runtime.expression)."""
+    from coartic.runtime.expression import add_expression_faps
     from coartic.runtime.tongue import tongue_channels
 
     faps = channels_to_faps(animation.channels, animation.neutral, face, name, animation.fps)
     tongue, rest, _ = tongue_channels(animation)
-    return add_blinks(add_tongue_faps(faps, tongue, rest, face))
+    # an emotion's brows, lids, cheeks and corners (coartic.runtime.expression), over the blinks
+    return add_expression_faps(add_blinks(add_tongue_faps(faps, tongue, rest, face)), animation)
 
 
 def export_fap(animation: Animation, settings: ExportSettings) -> dict[str, Path]:

@@ -311,6 +311,11 @@ class Synthesis:
         )
 
 
+# Festival 2.5 ignores a Duration_Stretch below 0.1 (the /casa/ of pc_diphone lasts 1.04 s at 1,
+# 0.099 and 0.05, 0.114 s at 0.1: `(Parameter.set 'Duration_Stretch S)` then `utt.synth`).
+MIN_STRETCH = 0.1
+
+
 def start_synthesis(
     text: str,
     *,
@@ -329,8 +334,10 @@ def start_synthesis(
     default_voice, _, packages = language(lang)
     voice = default_voice if voice is None else voice
     cleaned = prepare_text(check_text(text))
-    if not (math.isfinite(stretch) and stretch > 0):
-        raise FestivalError(f"speaking-rate stretch must be a positive number, got {stretch!r}")
+    if not (math.isfinite(stretch) and stretch >= MIN_STRETCH):
+        raise FestivalError(f"--stretch {stretch:g}: the speaking-rate stretch must be a finite number of at least "
+                            f"{MIN_STRETCH:g} (Festival speaks at its normal rate when Duration_Stretch is below it); "
+                            f"{MIN_STRETCH:g} is about {1 / MIN_STRETCH:g} times as fast as normal")
     if not _VOICE_NAME.match(voice):
         raise FestivalError(f"voice name {voice!r} is not a Festival voice name (letters, digits, _)")
     return Synthesis(cleaned, voice, packages, festival_program(festival), float(stretch), timeout)

@@ -31,7 +31,7 @@ from coartic.runtime.animate import (
     table_channels,
 )
 from coartic.runtime.errors import AnimationError, MissingPhonemeError
-from coartic.runtime.exporters import ExportSettings, parse_exports, run_exports
+from coartic.runtime.exporters import ExportSettings, RigOptions, parse_exports, run_exports
 from coartic.runtime.fap import FaceUnits, FapSequence, animation_faps
 from coartic.runtime.festival import (FestivalUtterance, PhoneMap, Synthesis, check_text, prepare_text,
                                       start_synthesis, wav_duration)
@@ -118,6 +118,13 @@ def copy_audio(src: str | PathLike[str], dest: Path) -> tuple[Path, float]:
     return dest, wav_duration(dest)
 
 
+def _check_rig(rig: RigOptions | None, exports: tuple[str, ...]) -> None:
+    if rig is not None and rig.shape_scale:
+        from coartic.runtime.rigs import check_shape_scale
+
+        check_shape_scale(rig, exports)
+
+
 def _check_preview(preview: str) -> None:
     if preview not in PREVIEW_FORMATS:
         raise AnimationError(f"preview must be one of {', '.join(PREVIEW_FORMATS)}, got {preview!r}")
@@ -139,13 +146,14 @@ def _write_outputs(
     mapping: SpeakerMapping | None = None,
     exports: tuple[str, ...] = (),
     gltf_morphs: str = "fap",
+    rig: RigOptions | None = None,
 ) -> RuntimeOutput:
     """Every exporter fed the one animation: the exact outputs first, the pictures last."""
     if not animation.neutral:
         neutral_posture(table)  # raises, naming the table: no pause phoneme, no neutral face
     settings = ExportSettings(out=out, name=name, face=face, table=table, requested=requested, source=source,
                               audio=audio, progress=progress, mapping=mapping, gltf_morphs=gltf_morphs,
-                              preview=preview)
+                              preview=preview, rig=rig or RigOptions())
     if audio is not None:
         settings.files["wav"] = audio
     names = ["channels", "fap", "segments", *(["gltf"] if gltf else []), *(["vrml"] if vrml else []), *exports,
@@ -176,6 +184,7 @@ def animate_file(
     speaker: str | None = None,
     exports: str | tuple[str, ...] | list[str] | None = None,
     gltf_morphs: str = "fap",
+    rig: RigOptions | None = None,
 ) -> RuntimeOutput:
     """A label file (.lab / TextGrid / TSV) → channels, FAP file and preview in `out`.
 
@@ -186,10 +195,12 @@ def animate_file(
     long as the sound, and the MP4 preview and the glTF bundle carry it. `name` defaults to the
     label file's stem. `exports`: the rigs' curves and cues ("arkit", "visemes", "rhubarb"; a list
     or comma-separated); `gltf_morphs`: the glTF's morph set, "fap", "arkit" or "eight" (coartic.runtime.exporters). `speaker`: one of the speakers of a table fitted with `[model] speakers`
-    (its offset and scale, or its own targets; coartic.speakers).
+    (its offset and scale, or its own targets; coartic.speakers). `rig`: how the rigs' curves
+    and cues are written (coartic.runtime.exporters.RigOptions).
     """
     _check_preview(preview)
     wanted = parse_exports(exports)
+    _check_rig(rig, wanted)
     mapping = speaker_mapping(table, speaker)
     out = Path(out)
     name = check_name(name) if name is not None else _name_from(Path(labels).stem)
@@ -217,7 +228,7 @@ def animate_file(
     return _write_outputs(animation, table, out, name, face or speaker_face(table, speaker=speaker),
                           preview, tuple(requested[i] for i in origin), tuple(raw.labels[i] for i in origin),
                           progress, audio=wav, gltf=gltf, vrml=vrml, mapping=mapping,
-                          exports=wanted, gltf_morphs=gltf_morphs)
+                          exports=wanted, gltf_morphs=gltf_morphs, rig=rig)
 
 
 def speak_text(
@@ -243,6 +254,7 @@ def speak_text(
     gltf_morphs: str = "fap",
     lang: str = "it",
     synthesis: Synthesis | None = None,
+    rig: RigOptions | None = None,
 ) -> RuntimeOutput:
     """Text → Festival's WAV, and channels, FAP file and preview lasting as long as the WAV.
 
@@ -258,6 +270,7 @@ def speak_text(
     """
     _check_preview(preview)
     wanted = parse_exports(exports)
+    _check_rig(rig, wanted)
     mapping = speaker_mapping(table, speaker)
     check_text(text)
     out = Path(out)
@@ -290,6 +303,6 @@ def speak_text(
     result = _write_outputs(animation, table, out, name, face or speaker_face(table, speaker=speaker), preview,
                             tuple(requested[i] for i in origin), tuple(utt.phones[i] for i in origin), progress,
                             audio=utt.wav, gltf=gltf, vrml=vrml, mapping=mapping,
-                            exports=wanted, gltf_morphs=gltf_morphs)
+                            exports=wanted, gltf_morphs=gltf_morphs, rig=rig)
     result.utterance = utt
     return result

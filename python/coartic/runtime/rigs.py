@@ -11,8 +11,7 @@ the dominance weights of its segments).
 - **Meta visemes** (`viseme_weights`): the 15 visemes sil PP FF TH DD kk CH SS nn RR aa E ih oh
   ou; each frame's weights are the dominance shares of the segments (how much each segment's target
   counts in the model at that frame, averaged over the modelled channels) summed by viseme.
-- **Rhubarb** (`mouth_cues`): shapes A–H and X per frame from the viseme in control and the
-  mouth's opening and rounding, merged into cues.
+- **Rhubarb** Lip Sync's mouth cues: coartic.runtime.rhubarb.
 
 The mapping and why each weight is what it is: docs/RUNTIME.md, "The rigs people have".
 """
@@ -20,8 +19,6 @@ The mapping and why each weight is what it is: docs/RUNTIME.md, "The rigs people
 from __future__ import annotations
 
 import json
-import math
-from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -36,7 +33,7 @@ from coartic.runtime.fap import blink_profile
 from coartic.table import CHANNELS, PAUSE
 
 if TYPE_CHECKING:
-    from coartic.runtime.exporters import ExportSettings
+    from coartic.runtime.exporters import ExportSettings, RigOptions
 
 # Apple ARKit ARFaceAnchor.BlendShapeLocation, in Apple's documentation order.
 ARKIT_NAMES: tuple[str, ...] = (
@@ -103,19 +100,6 @@ PHONEME_VISEME: dict[str, str] = {
     "u": "ou", "U": "ou", "w": "ou", "y": "ou", "h": "sil",
 }
 
-RHUBARB_SHAPES: tuple[str, ...] = ("A", "B", "C", "D", "E", "F", "G", "H", "X")
-# Opening (ULO + LLO from neutral) as a fraction of the table's widest phoneme target, below which
-# the mouth is shape B (teeth together, lips slightly apart) and C (open); above C it is D (wide).
-RHUBARB_B_BELOW = 0.5
-RHUBARB_C_BELOW = 0.75
-# a pause in control with the lips within this fraction of closed is the idle mouth X
-RHUBARB_REST_BELOW = 0.25
-# rounding (mouthPucker + mouthFunnel) from which the mouth is F (puckered) or E (slightly rounded)
-RHUBARB_ROUND_FROM = 0.25
-# the lateral phonemes that Rhubarb's H (tongue raised behind the upper teeth) is drawn for
-RHUBARB_H_PHONEMES = frozenset({"l", "L"})
-
-
 def _deltas(animation: Animation) -> dict[str, NDArray[np.float64]]:
     missing = [c for c in CHANNELS if c not in animation.neutral]
     if missing:
@@ -175,6 +159,10 @@ def arkit_weights(animation: Animation) -> NDArray[np.float64]:
     for name in ARKIT_BLINKS:
         w[name] = blink_profile(animation.times)
     w["mouthRollLower"] = lower_lip_roll(d["LLP"], d["LLO"])
+    from coartic.runtime.expression import expression_arkit  # an emotion's brows, eyes, cheeks, smile
+
+    for name, add in expression_arkit(animation).items():
+        w[name] = np.clip(w[name] + add, 0.0, 1.0)
     return np.column_stack([w[name] for name in ARKIT_NAMES])
 
 
@@ -204,7 +192,7 @@ def segment_shares(animation: Animation, start: int = 0, stop: int | None = None
     return out
 
 
-def _blocks(animation: Animation) -> list[tuple[int, int]]:
+def share_blocks(animation: Animation) -> list[tuple[int, int]]:
     n = animation.n_frames
     return [(a, min(a + SHARE_FRAMES, n)) for a in range(0, n, SHARE_FRAMES)]
 
@@ -215,7 +203,7 @@ def viseme_weights(animation: Animation) -> NDArray[np.float64]:
     onehot = np.zeros((column.size, len(VISEMES)))
     onehot[np.arange(column.size), column] = 1.0
     out = np.empty((animation.n_frames, len(VISEMES)))
-    for a, b in _blocks(animation):
+    for a, b in share_blocks(animation):
         out[a:b] = segment_shares(animation, a, b) @ onehot
     return out
 
@@ -223,79 +211,9 @@ def viseme_weights(animation: Animation) -> NDArray[np.float64]:
 def dominant_segments(animation: Animation) -> NDArray[np.int64]:
     """The index of the segment with the largest dominance share at every frame."""
     out = np.empty(animation.n_frames, dtype=np.int64)
-    for a, b in _blocks(animation):
+    for a, b in share_blocks(animation):
         out[a:b] = np.argmax(segment_shares(animation, a, b), axis=1)
     return out
-
-
-@dataclass(frozen=True)
-class MouthCue:
-    start: float
-    end: float
-    value: str
-
-
-def widest_opening(animation: Animation) -> float:
-    """The widest lip opening (ULO + LLO from neutral, mm) among the table's phoneme targets."""
-    table = animation.table
-    if table is None:
-        raise AnimationError("this animation does not carry the table that made it: no mouth cues")
-    have = [c for c in ("ULO", "LLO") if c in table.channels]
-    widest = max((sum(per[c]["target"] - animation.neutral[c] for c in have)
-                  for per in table.values.values() if all(c in per for c in have)), default=0.0)
-    if not have or not widest > 0.0:
-        raise AnimationError(f"{table.source}: no phoneme opens the lips (ULO + LLO above the pause's): "
-                             "Rhubarb's open shapes B-D cannot be scaled")
-    return float(widest)
-
-
-def mouth_shapes(animation: Animation, arkit: NDArray[np.float64] | None = None) -> list[str]:
-    """Rhubarb's shape (A-H, X) at every frame."""
-    arkit = arkit_weights(animation) if arkit is None else arkit
-    d = _deltas(animation)
-    opening = (d["ULO"] + d["LLO"]) / widest_opening(animation)
-    rounding = arkit[:, ARKIT_NAMES.index("mouthPucker")] + arkit[:, ARKIT_NAMES.index("mouthFunnel")]
-    labels = animation.segments.labels
-    top = dominant_segments(animation)
-    shapes = []
-    for k in range(animation.n_frames):
-        ph = labels[int(top[k])]
-        vis = _viseme_of(ph)
-        if vis == "sil" and opening[k] < RHUBARB_REST_BELOW:
-            shapes.append("X")
-        elif vis == "FF":
-            shapes.append("G")
-        elif vis == "PP" or opening[k] <= 0.0:
-            shapes.append("A")
-        elif ph in RHUBARB_H_PHONEMES:
-            shapes.append("H")
-        elif rounding[k] >= RHUBARB_ROUND_FROM:
-            shapes.append("F" if opening[k] < RHUBARB_B_BELOW else "E")
-        elif opening[k] < RHUBARB_B_BELOW:
-            shapes.append("B")
-        elif opening[k] < RHUBARB_C_BELOW:
-            shapes.append("C")
-        else:
-            shapes.append("D")
-    return shapes
-
-
-def mouth_cues(animation: Animation, shapes: list[str] | None = None) -> list[MouthCue]:
-    """Runs of one shape as cues; frame k lasts from k/fps to (k+1)/fps, the last cue to the end.
-    Times are on Rhubarb's 0.01-s grid; a run shorter than that joins the cue before it."""
-    shapes = mouth_shapes(animation) if shapes is None else shapes
-    cues: list[MouthCue] = []
-    start = 0
-    for k in range(1, len(shapes) + 1):
-        if k == len(shapes) or shapes[k] != shapes[start]:
-            t0 = round(start / animation.fps, 2)
-            t1 = round(k / animation.fps, 2) if k < len(shapes) else round(animation.duration, 2)
-            if cues and (t1 <= t0 or cues[-1].value == shapes[start]):
-                cues[-1] = MouthCue(cues[-1].start, t1, cues[-1].value)
-            elif t1 > t0:
-                cues.append(MouthCue(t0, t1, shapes[start]))
-            start = k
-    return cues
 
 
 def _num(x: float) -> str:
@@ -321,46 +239,123 @@ def write_arkit_json(path: Path, animation: Animation, weights: NDArray[np.float
     return path
 
 
-def write_visemes_json(path: Path, animation: Animation, weights: NDArray[np.float64], audio: str | None) -> Path:
-    """`{"fps", "frames", "visemes": [15 names], "weights": [[15 per frame]], "audio"}`."""
-    doc = {"fps": animation.fps, "frames": animation.n_frames, "audio": audio, "visemes": list(VISEMES),
+# Viseme name sets (`--viseme-names`): the 15 weights under the names a rig's shape keys carry.
+# Ready Player Me's avatars and VRChat's Oculus-style rigs name them viseme_sil ... viseme_U.
+RPM_VISEMES: tuple[str, ...] = ("viseme_sil", "viseme_PP", "viseme_FF", "viseme_TH", "viseme_DD", "viseme_kk",
+                                "viseme_CH", "viseme_SS", "viseme_nn", "viseme_RR", "viseme_aa", "viseme_E",
+                                "viseme_I", "viseme_O", "viseme_U")
+# VRM (1.0 expression presets; 0.x's A I U E O) has five mouth shapes, the vowels. Each Meta viseme
+# goes to the vowel whose mouth it is nearest: the vowels to their own; the tongue consonants (teeth
+# near together, lips a little spread) to ih; CH (rounded in Italian and English) to ou; PP, FF and
+# sil to none (the closed mouth is VRM's neutral face). Weights of one vowel add up.
+VRM_VISEMES: tuple[str, ...] = ("aa", "ih", "ou", "ee", "oh")
+VRM_OF: dict[str, str | None] = {"sil": None, "PP": None, "FF": None, "TH": "ih", "DD": "ih", "kk": "ih",
+                                 "CH": "ou", "SS": "ih", "nn": "ih", "RR": "ih", "aa": "aa", "E": "ee",
+                                 "ih": "ih", "oh": "oh", "ou": "ou"}
+VISEME_NAME_SETS: tuple[str, ...] = ("meta", "rpm", "vrm")
+
+
+def named_visemes(weights: NDArray[np.float64], names: str) -> tuple[tuple[str, ...], NDArray[np.float64]]:
+    """Meta's 15 viseme weights (VISEMES order) under the name set `names`: meta (Oculus), rpm
+    (Ready Player Me, VRChat: viseme_sil ... viseme_U) or vrm (five vowels, VRM_OF)."""
+    if names == "meta":
+        return VISEMES, weights
+    if names == "rpm":
+        return RPM_VISEMES, weights
+    if names == "vrm":
+        out = np.zeros((weights.shape[0], len(VRM_VISEMES)))
+        for k, v in enumerate(VISEMES):
+            target = VRM_OF[v]
+            if target is not None:
+                out[:, VRM_VISEMES.index(target)] += weights[:, k]
+        return VRM_VISEMES, out
+    raise AnimationError(f"--viseme-names {names!r}: choose {', '.join(VISEME_NAME_SETS)} (Meta/Oculus, "
+                         "Ready Player Me/VRChat, VRM)")
+
+
+def _hann_smooth(y: NDArray[np.float64], frames: int) -> NDArray[np.float64]:
+    """A zero-phase moving average weighted by a Hann window `frames` wide (odd), the ends held."""
+    if frames < 3:
+        return y
+    window = np.hanning(frames + 2)[1:-1]
+    window /= window.sum()
+    half = frames // 2
+    padded = np.concatenate([np.repeat(y[:1], half, axis=0), y, np.repeat(y[-1:], half, axis=0)])
+    out: NDArray[np.float64] = np.stack([np.convolve(padded[:, j], window, mode="valid") for j in range(y.shape[1])], axis=1)
+    return out
+
+
+def _hold(y: NDArray[np.float64], frames: int) -> NDArray[np.float64]:
+    """A centred running maximum `frames` wide (odd): every peak held for at least that long."""
+    if frames < 2:
+        return y
+    half = frames // 2
+    padded = np.concatenate([np.repeat(y[:1], half, axis=0), y, np.repeat(y[-1:], half, axis=0)])
+    windows = np.lib.stride_tricks.sliding_window_view(padded, frames, axis=0)
+    out: NDArray[np.float64] = windows.max(axis=-1)
+    return out
+
+
+def _odd_frames(seconds: float, fps: float) -> int:
+    n = int(round(seconds * fps))
+    return n + 1 if n % 2 == 0 and n > 0 else n
+
+
+def shape_curves(weights: NDArray[np.float64], names: tuple[str, ...], fps: float, options: RigOptions,
+                 fixed: tuple[str, ...] = (), rest: str | None = None) -> NDArray[np.float64]:
+    """The curves as the rig options ask (docs/RUNTIME.md, "Gain, scale, smoothing and hold"), in order:
+    smoothed over `options.smooth` s (Hann, zero phase), peaks held `options.hold` s, scaled by the
+    gain and by each shape's own scale, clipped to 0..1. The shapes `fixed` (the blinks) are left as
+    they are; `rest` (a viseme set's silence) is what the others leave of 1 (the rows sum to 1)."""
+    scale = dict(options.shape_scale)  # names of another set written beside (check_shape_scale) left out
+    y = np.array(weights, dtype=np.float64)
+    if options.gain == 1.0 and not scale and _odd_frames(options.smooth, fps) < 3 and _odd_frames(options.hold, fps) < 2:
+        return y  # the model's curves as they are
+    moving = [k for k, n in enumerate(names) if n not in fixed and n != rest]
+    part = y[:, moving]
+    part = _hann_smooth(part, _odd_frames(options.smooth, fps))
+    part = _hold(part, _odd_frames(options.hold, fps))
+    part = part * options.gain * np.array([scale.get(names[k], 1.0) for k in moving])
+    part = np.clip(part, 0.0, 1.0)
+    if rest is not None:  # the shares stay shares: the silence is what is left, and past 1 they shrink
+        total = part.sum(axis=1, keepdims=True)
+        part = part / np.maximum(total, 1.0)
+        y[:, names.index(rest)] = np.maximum(1.0 - part.sum(axis=1), 0.0)
+    y[:, moving] = part
+    return y
+
+
+def check_shape_scale(options: RigOptions, exports: tuple[str, ...]) -> None:
+    """Every --rig-scale name is a shape of a curve set being written (--export arkit, visemes)."""
+    sets = {"arkit": ARKIT_NAMES, "visemes": named_visemes(np.zeros((1, len(VISEMES))), options.viseme_names)[0]}
+    known = [n for e in exports if e in sets for n in sets[e]]
+    unknown = [n for n, _ in options.shape_scale if n not in known]
+    if unknown:
+        raise AnimationError(f"--rig-scale {', '.join(unknown)}: no such shape in the curves written "
+                             f"(--export {','.join(exports) or 'none'}); they are {' '.join(known) or 'none'}")
+
+
+def write_visemes_json(path: Path, animation: Animation, weights: NDArray[np.float64], audio: str | None,
+                       names: tuple[str, ...] = VISEMES) -> Path:
+    """`{"fps", "frames", "visemes": [names], "weights": [[one per name, per frame]], "audio"}`."""
+    doc = {"fps": animation.fps, "frames": animation.n_frames, "audio": audio, "visemes": list(names),
            "weights": [[float(v) for v in row] for row in weights]}
     atomic_write_text(path, json.dumps(doc) + "\n")
     return path
 
 
-def write_rhubarb(json_path: Path, tsv_path: Path, animation: Animation, cues: list[MouthCue],
-                  audio: str | None) -> tuple[Path, Path]:
-    """Rhubarb Lip Sync's JSON (`metadata`, `mouthCues`) and TSV (start and shape per line, the last
-    line the end of the recording with X), times truncated to 0.01 s as Rhubarb writes them."""
-    duration = math.floor(animation.duration * 100.0 + 1e-9) / 100.0
-    body = ",\n".join(f'    {{ "start": {c.start:.2f}, "end": {min(c.end, duration):.2f}, "value": "{c.value}" }}'
-                      for c in cues)
-    meta = f'{{\n    "soundFile": {json.dumps(audio or "")},\n    "duration": {duration:.2f}\n  }}'
-    atomic_write_text(json_path, f'{{\n  "metadata": {meta},\n  "mouthCues": [\n{body}\n  ]\n}}\n')
-    lines = [f"{c.start:.2f}\t{c.value}" for c in cues] + [f"{duration:.2f}\tX"]
-    atomic_write_text(tsv_path, "\n".join(lines) + "\n")
-    return json_path, tsv_path
-
-
 def export_arkit(animation: Animation, settings: ExportSettings) -> dict[str, Path]:
-    """Exporter (coartic.runtime.exporters): NAME.arkit.csv and NAME.arkit.json."""
-    w = arkit_weights(animation)
+    """Exporter (coartic.runtime.exporters): NAME.arkit.csv and NAME.arkit.json, shaped by the rig options."""
+    w = shape_curves(arkit_weights(animation), ARKIT_NAMES, animation.fps, settings.rig, fixed=tuple(ARKIT_BLINKS))
     return {"arkit_csv": write_curves_csv(settings.out / f"{settings.name}.arkit.csv", animation, ARKIT_NAMES, w),
             "arkit_json": write_arkit_json(settings.out / f"{settings.name}.arkit.json", animation, w,
                                            settings.audio_name())}
 
 
 def export_visemes(animation: Animation, settings: ExportSettings) -> dict[str, Path]:
-    """Exporter: NAME.visemes.csv and NAME.visemes.json (Meta's 15 visemes)."""
-    w = viseme_weights(animation)
-    return {"visemes_csv": write_curves_csv(settings.out / f"{settings.name}.visemes.csv", animation, VISEMES, w),
+    """Exporter: NAME.visemes.csv and NAME.visemes.json, in the name set `settings.rig.viseme_names`."""
+    names, w = named_visemes(viseme_weights(animation), settings.rig.viseme_names)
+    w = shape_curves(w, names, animation.fps, settings.rig, rest=names[0] if names[0].endswith("sil") else None)
+    return {"visemes_csv": write_curves_csv(settings.out / f"{settings.name}.visemes.csv", animation, names, w),
             "visemes_json": write_visemes_json(settings.out / f"{settings.name}.visemes.json", animation, w,
-                                               settings.audio_name())}
-
-
-def export_rhubarb(animation: Animation, settings: ExportSettings) -> dict[str, Path]:
-    """Exporter: NAME.rhubarb.json and NAME.rhubarb.tsv (Rhubarb Lip Sync's mouth cues)."""
-    j, t = write_rhubarb(settings.out / f"{settings.name}.rhubarb.json", settings.out / f"{settings.name}.rhubarb.tsv",
-                         animation, mouth_cues(animation), settings.audio_name())
-    return {"rhubarb_json": j, "rhubarb_tsv": t}
+                                               settings.audio_name(), names)}

@@ -4,6 +4,7 @@ Without --table both use the table shipped in the package (coartic.runtime.shipp
 
 from __future__ import annotations
 
+import math
 from pathlib import Path
 from typing import TYPE_CHECKING, Annotated, Any, Callable
 
@@ -16,11 +17,12 @@ from rich.table import Table
 from coartic.runtime.errors import AnimationError
 from coartic.runtime.festival import LANGUAGES, start_synthesis
 from coartic.runtime import PREVIEW_FORMATS
-from coartic.console import LineProgress, print_error
+from coartic.console import LineProgress, positive_finite
 
 # NumPy, the table, the model and the outputs are imported in the commands, after `speak` has
 # started Festival: the imports then run while it synthesises (bench/startup.py).
 if TYPE_CHECKING:
+    from coartic.runtime.exporters import RigOptions
     from coartic.runtime.pipeline import RuntimeOutput
     from coartic.table import ParameterTable
 
@@ -29,7 +31,16 @@ _out = Console()
 
 TableOpt = Annotated[Path | None, typer.Option("--table", "-t", help="Parameter table (JSON or long CSV). Default: the Italian table shipped with coartic (every Italian phoneme, fitted on the synthetic session).")]
 OutOpt = Annotated[Path, typer.Option("--out", "-o", help="Output directory (created if needed).")]
-FpsOpt = Annotated[float, typer.Option("--fps", help="Frames per second of the channels, FAP file and preview.")]
+def _finite_fps(fps: float) -> float:
+    # before fps_warnings (int(inf) would raise) and before any work; the upper bound is the frame count's
+    if not (math.isfinite(fps) and fps > 0):
+        raise typer.BadParameter(f"{fps:g} is not a frame rate: give a finite number of frames per second above 0 "
+                                 "(25 for FAP players)")
+    return fps
+
+
+FpsOpt = Annotated[float, typer.Option("--fps", callback=_finite_fps,
+                                       help="Frames per second of the channels, FAP file and preview.")]
 MnsOpt = Annotated[float | None, typer.Option("--mns", help="The speaker's neutral mouth-nose separation, mm (FAPU = MNS/1024). Default 30 mm.")]
 MwOpt = Annotated[float | None, typer.Option("--mw", help="The speaker's neutral mouth width, mm (FAPU = MW/1024). Default: the table's rest LR.")]
 SnapOpt = Annotated[bool, typer.Option("--snap-contacts/--no-snap-contacts", help="Show each k_R = 1 target (lip closure, lip-teeth contact) on its nearest frame.")]
@@ -38,16 +49,22 @@ PreviewOpt = Annotated[str, typer.Option("--preview", help=f"Preview format: {',
 GltfOpt = Annotated[bool, typer.Option("--gltf", help="Also write NAME.glb: the face with morph targets per FAP and their animation (coartic view DIR plays it).")]
 VrmlOpt = Annotated[bool, typer.Option("--vrml", help="Also write NAME.wrl: the face animated in VRML97 (interpolators, the sound as an AudioClip).")]
 FapNameOpt = Annotated[str | None, typer.Option("--fap-name", help="Name of the FAP file and its header; the WAV and glTF get the same stem (Greta loads NAME.fap with NAME.wav).")]
-ExportOpt = Annotated[str | None, typer.Option("--export", help="Also write the rigs' curves and cues, comma-separated: arkit (NAME.arkit.csv/.json, ARKit's 52 blendshapes), visemes (NAME.visemes.csv/.json, Meta's 15), rhubarb (NAME.rhubarb.json/.tsv, Rhubarb Lip Sync's mouth cues).")]
+ExportOpt = Annotated[str | None, typer.Option("--export", help="Also write the rigs' curves and cues, comma-separated: arkit (NAME.arkit.csv/.json, ARKit's 52 blendshapes), visemes (NAME.visemes.csv/.json, Meta's 15), rhubarb (NAME.rhubarb.tsv/.json and --rhubarb-formats, Rhubarb Lip Sync's mouth cues).")]
 GltfMorphsOpt = Annotated[str, typer.Option("--gltf-morphs", help="The glTF's morph targets: fap (one per FAP), arkit (ARKit's 52 blendshape names, to retarget by name) or eight (at most 8 per mesh, all blended by three.js up to r132); arkit and eight imply --gltf.")]
-SpeakerOpt = Annotated[str | None, typer.Option("--speaker", help="Speak as this speaker of a table fitted with [model] speakers (its offset and scale, or its own targets).")]
+EmotionOpt = Annotated[str | None, typer.Option("--emotion", help="Speak with this emotion of a table fitted with [model] emotions (joy, surprise, sadness, disgust, anger, fear; docs/EMOTIONS.md).")]
+IntensityOpt = Annotated[float, typer.Option("--intensity", help="With --emotion: 0 = neutral, 1 = the emotion as fitted (up to 1.5).")]
+EmotionSpansOpt = Annotated[Path | None, typer.Option("--emotion-spans", help="Emotions over time: a TSV of spans 'start end emotion \\[intensity]' (s), ramped in and out over 0.2 s (docs/EMOTIONS.md).")]
+ExtendedOpt = Annotated[str, typer.Option("--extended-shapes", help="Rhubarb's extended mouth shapes the cues may use: any of G H X (as Rhubarb's --extendedShapes; \"\" for the six basic shapes A-F).")]
+RhubarbFormatsOpt = Annotated[str, typer.Option("--rhubarb-formats", help="Rhubarb's cue files to write with --export rhubarb: any of tsv, json, xml, dat (Moho / OpenToonz switch data, at --fps 24 to 100), comma-separated.")]
+PrestonBlairOpt = Annotated[bool, typer.Option("--preston-blair", help="Preston Blair's shape names (MBP, etc, E, AI, O, U, FV, L, rest) in Rhubarb's DAT file, as Rhubarb's --datUsePrestonBlair.")]
+VisemeNamesOpt = Annotated[str, typer.Option("--viseme-names", help="Names of the viseme curves (--export visemes): meta (Oculus: sil PP ... ou), rpm (Ready Player Me, VRChat: viseme_sil ... viseme_U) or vrm (VRM's five vowels aa ih ou ee oh).")]
+RigGainOpt = Annotated[float, typer.Option("--rig-gain", help="Exaggeration of the rigs' curves (--export arkit, visemes): every mouth and jaw weight times this (1 = the model's), clipped to 0..1.")]
+RigScaleOpt = Annotated[str | None, typer.Option("--rig-scale", help="Per-shape scale of the rigs' curves, e.g. jawOpen=0.8,mouthFunnel=1.2 (names of the set written).")]
+RigSmoothOpt = Annotated[float, typer.Option("--rig-smooth", help="Smooth the rigs' curves over this many seconds (a Hann window, no delay); 0 = off.")]
+RigHoldOpt = Annotated[float, typer.Option("--rig-hold", help="Hold every peak of the rigs' curves at least this many seconds; also Rhubarb's shortest cue when above its 0.07 s. 0 = off.")]
+SpeakerOpt = Annotated[str | None, typer.Option("--speaker", help="Speak as this speaker of a table fitted with \\[model] speakers (its offset and scale, or its own targets).")]
 ForceOpt = Annotated[bool, typer.Option("--force", help="Replace --out even if it holds another run's output "
                                         "(the same labels or text replace their own output without it).")]
-
-
-def _fail(err: Exception) -> None:
-    print_error(_err, err)
-    raise typer.Exit(code=1)
 
 
 def _progress() -> Progress:
@@ -113,21 +130,38 @@ def _moved(result: RuntimeOutput, staging: Path, out: Path) -> RuntimeOutput:
 
 def _run_staged(table: Path | None, out: Path, command: str, identity: dict[str, str], force: bool,
                 protect: list[Path], make: Callable[[ParameterTable, Path, Progress], RuntimeOutput],
-                phone_map: str = "phones_italian.tsv") -> None:
+                phone_map: str = "phones_italian.tsv", emotion: str | None = None, intensity: float = 1.0,
+                emotion_spans: Path | None = None) -> None:
     """Load the table, run ``make`` into the staging directory of ``out`` with a progress bar, and
-    report what was written (where it is once swapped in); any failure is one clear error."""
-    from coartic.io.errors import DataError
-    from coartic.outputs import OutputDir, OutputError
-    from coartic.speakers import SpeakerError
-    from coartic.table import TableError
+    report what was written (where it is once swapped in). ``emotion`` at ``intensity``: the table's
+    emotion blended in first, or ``emotion_spans`` over time (coartic.emotions)."""
+    from coartic.emotions import EmotionError, emotion_table, read_emotion_spans, with_emotion_spans
+    from coartic.outputs import OutputDir
 
-    try:
-        t = _load_table(table)
-        with OutputDir(out, command, identity, force=force, protect=protect) as staging, _progress() as progress:
-            result = make(t, staging, progress)
-    except (AnimationError, DataError, TableError, OutputError, SpeakerError, OSError) as err:
-        _fail(err)
+    if emotion is not None and emotion_spans is not None:
+        raise EmotionError(f"--emotion {emotion} and --emotion-spans {emotion_spans}: give one (a span file "
+                           "can hold a single span over the whole utterance)")
+    t = emotion_table(_load_table(table), emotion, intensity)
+    if emotion is not None:
+        identity = identity | {"emotion": emotion, "intensity": repr(float(intensity))}
+    if emotion_spans is not None:
+        t = with_emotion_spans(t, read_emotion_spans(emotion_spans), str(emotion_spans))
+        identity = identity | {"emotion_spans": str(emotion_spans.resolve())}
+    with OutputDir(out, command, identity, force=force, protect=protect) as staging, _progress() as progress:
+        result = make(t, staging, progress)
     _report(_moved(result, staging, out), phone_map)
+
+
+def _rig_options(extended_shapes: str, rhubarb_formats: str, preston_blair: bool, viseme_names: str, gain: float,
+                 scale: str | None, smooth: float, hold: float) -> RigOptions:
+    """The rig options of the command line, checked before anything runs."""
+    from coartic.runtime.exporters import RigOptions, parse_shape_scale
+    from coartic.runtime.rhubarb import parse_extended_shapes, parse_rhubarb_formats
+
+    return RigOptions(extended_shapes=parse_extended_shapes(extended_shapes),
+                      rhubarb_formats=parse_rhubarb_formats(rhubarb_formats), preston_blair=preston_blair,
+                      viseme_names=viseme_names, gain=gain, shape_scale=parse_shape_scale(scale), smooth=smooth,
+                      hold=hold)
 
 
 def animate_command(
@@ -148,14 +182,25 @@ def animate_command(
     gltf: GltfOpt = False,
     vrml: VrmlOpt = False,
     speaker: SpeakerOpt = None,
+    emotion: EmotionOpt = None,
+    intensity: IntensityOpt = 1.0,
+    emotion_spans: EmotionSpansOpt = None,
     export: ExportOpt = None,
     gltf_morphs: GltfMorphsOpt = "fap",
+    extended_shapes: ExtendedOpt = "GHX",
+    rhubarb_formats: RhubarbFormatsOpt = "tsv,json",
+    preston_blair: PrestonBlairOpt = False,
+    viseme_names: VisemeNamesOpt = "meta",
+    rig_gain: RigGainOpt = 1.0,
+    rig_scale: RigScaleOpt = None,
+    rig_smooth: RigSmoothOpt = 0.0,
+    rig_hold: RigHoldOpt = 0.0,
     force: ForceOpt = False,
     text: Annotated[str | None, typer.Option("--text", help="With a recording: what it says (its transcript).")] = None,
     transcript: Annotated[Path | None, typer.Option("--transcript", help="With a recording: its transcript as a file (plain text, or a TextGrid with a words tier).")] = None,
     lang: Annotated[str, typer.Option("--lang", help="With a recording: its language (it, en, de, or any espeak-ng voice); also picks the phone map's fallbacks.")] = "it",
     engine: Annotated[str | None, typer.Option("--engine", help="With a recording: the aligner (sphinx, festival, espeak; coartic align --help).")] = None,
-    max_duration: Annotated[float, typer.Option("--max-duration", help="With a recording: refuse recordings longer than this (s).")] = 3600.0,
+    max_duration: Annotated[float, typer.Option("--max-duration", callback=positive_finite, help="With a recording: refuse recordings longer than this (s).")] = 3600.0,
 ) -> None:
     """Animate a label file, or a recording and its transcript: channel trajectories (CSV), an MPEG-4 FAP file and a preview.
 
@@ -166,46 +211,50 @@ def animate_command(
     from coartic.runtime.pipeline import animate_file, speaker_face
 
     _warn_fps(fps)
+    rig = _rig_options(extended_shapes, rhubarb_formats, preston_blair, viseme_names, rig_gain, rig_scale,
+                       rig_smooth, rig_hold)
     if is_wav(labels):
         _animate_recording(labels, out, table, fps, text, transcript, lang, engine, max_duration, audio, force,
                            dict(tier=tier, label_map=label_map, preview=preview, snap_contacts=snap_contacts,
                                 strict=strict, gltf=gltf or gltf_morphs != "fap", vrml=vrml, speaker=speaker,
-                                exports=export, gltf_morphs=gltf_morphs), fap_name, mns, mw, speaker)
+                                exports=export, gltf_morphs=gltf_morphs, rig=rig), fap_name, mns, mw, speaker,
+                           emotion, intensity, emotion_spans)
         return
     if text is not None or transcript is not None:
-        _fail(AnimationError(f"{labels}: --text and --transcript go with a recording (WAV), and this is not one"))
+        if not labels.exists():
+            raise AnimationError(f"{labels}: no such file (the recording to align to --text or --transcript)")
+        raise AnimationError(f"{labels}: --text and --transcript go with a recording (WAV), and this is not one")
 
     def make(t: ParameterTable, staging: Path, progress: Progress) -> RuntimeOutput:
         return animate_file(labels, t, staging, fps=fps, tier=tier, label_map=label_map,
                             face=speaker_face(t, mns, mw, speaker), preview=preview, snap_contacts=snap_contacts,
                             strict=strict, progress=progress, audio=audio, name=fap_name,
                             gltf=gltf or gltf_morphs != "fap", vrml=vrml, speaker=speaker, exports=export,
-                            gltf_morphs=gltf_morphs)
+                            gltf_morphs=gltf_morphs, rig=rig)
 
     _run_staged(table, out, "animate", {"labels": str(labels.resolve())}, force,
-                [labels, *([table] if table is not None else []), *([audio] if audio is not None else [])], make)
+                [labels, *([table] if table is not None else []), *([audio] if audio is not None else [])], make,
+                emotion=emotion, intensity=intensity, emotion_spans=emotion_spans)
 
 
 def _animate_recording(wav: Path, out: Path, table: Path | None, fps: float, text: str | None, transcript: Path | None,
                        lang: str, engine: str | None, max_duration: float, audio: Path | None, force: bool,
                        options: dict[str, Any], name: str | None, mns: float | None, mw: float | None,
-                       speaker: str | None) -> None:
+                       speaker: str | None, emotion: str | None = None, intensity: float = 1.0,
+                       emotion_spans: Path | None = None) -> None:
     """`coartic animate voice.wav --text ...`: align, then animate with the recording as the sound."""
     from coartic.align.align_cli import part_progress, shown_warnings, transcript_text
     from coartic.align.aligner import animate_recording
     from coartic.runtime.pipeline import speaker_face
 
     if audio is not None:
-        _fail(AnimationError(f"{wav} is a recording: it is the sound already, leave out --audio {audio}"))
+        raise AnimationError(f"{wav} is a recording: it is the sound already, leave out --audio {audio}")
     if options["tier"] is not None or options["label_map"] is not None:
-        _fail(AnimationError(f"{wav} is a recording: --tier and --label-map are for label files (the aligner "
-                             "gives the model's phonemes)"))
+        raise AnimationError(f"{wav} is a recording: --tier and --label-map are for label files (the aligner "
+                             "gives the model's phonemes)")
     for key in ("tier", "label_map"):
         del options[key]
-    try:
-        words = transcript_text(text, transcript)
-    except AnimationError as err:
-        _fail(err)
+    words = transcript_text(text, transcript)
     fallbacks = "phones_english.tsv" if lang.split("-")[0] == "en" else "the aligner's phone map"
 
     def make(t: ParameterTable, staging: Path, progress: Progress) -> RuntimeOutput:
@@ -217,7 +266,7 @@ def _animate_recording(wav: Path, out: Path, table: Path | None, fps: float, tex
     with shown_warnings():
         _run_staged(table, out, "animate", identity, force,
                     [wav, *([table] if table is not None else []), *([transcript] if transcript else [])], make,
-                    fallbacks)
+                    fallbacks, emotion, intensity, emotion_spans)
 
 
 def speak_command(
@@ -237,8 +286,19 @@ def speak_command(
     gltf: GltfOpt = False,
     vrml: VrmlOpt = False,
     speaker: SpeakerOpt = None,
+    emotion: EmotionOpt = None,
+    intensity: IntensityOpt = 1.0,
+    emotion_spans: EmotionSpansOpt = None,
     export: ExportOpt = None,
     gltf_morphs: GltfMorphsOpt = "fap",
+    extended_shapes: ExtendedOpt = "GHX",
+    rhubarb_formats: RhubarbFormatsOpt = "tsv,json",
+    preston_blair: PrestonBlairOpt = False,
+    viseme_names: VisemeNamesOpt = "meta",
+    rig_gain: RigGainOpt = 1.0,
+    rig_scale: RigScaleOpt = None,
+    rig_smooth: RigSmoothOpt = 0.0,
+    rig_hold: RigHoldOpt = 0.0,
     force: ForceOpt = False,
 ) -> None:
     """Say Italian (or English, --lang en) text with Festival: WAV, channel trajectories, FAP file and preview,
@@ -246,24 +306,24 @@ def speak_command(
 
     The files are written beside --out and swapped in together when all are done (docs/OUTPUTS.md)."""
     if lang not in LANGUAGES:
-        _fail(AnimationError(f"--lang {lang!r} is not a language coartic can speak (known: {', '.join(LANGUAGES)})"))
+        raise AnimationError(f"--lang {lang!r} is not a language coartic can speak (known: {', '.join(LANGUAGES)})")
     _warn_fps(fps)
     # Festival first: it synthesises while NumPy, the model and the table load (stopped on any error)
-    try:
-        synthesis = start_synthesis(text, stretch=stretch, voice=voice, lang=lang)
-    except AnimationError as err:
-        _fail(err)
+    synthesis = start_synthesis(text, stretch=stretch, voice=voice, lang=lang)
     with synthesis:
         from coartic.runtime.pipeline import speak_text, speaker_face
+
+        rig = _rig_options(extended_shapes, rhubarb_formats, preston_blair, viseme_names, rig_gain, rig_scale,
+                       rig_smooth, rig_hold)
 
         def make(t: ParameterTable, staging: Path, progress: Progress) -> RuntimeOutput:
             return speak_text(text, t, staging, fps=fps, stretch=stretch, voice=voice, strict=strict,
                               face=speaker_face(t, mns, mw, speaker), preview=preview, snap_contacts=snap_contacts,
                               progress=progress, name=fap_name, gltf=gltf or gltf_morphs != "fap", vrml=vrml,
-                              speaker=speaker, exports=export, gltf_morphs=gltf_morphs, lang=lang,
+                              speaker=speaker, exports=export, gltf_morphs=gltf_morphs, lang=lang, rig=rig,
                               synthesis=synthesis)
 
         # the identity of an Italian run stays {"text": ...}: outputs written before --lang existed are its own
         identity = {"text": text} | ({"lang": lang} if lang != "it" else {})
         _run_staged(table, out, "speak", identity, force, [table] if table is not None else [], make,
-                    LANGUAGES[lang][1])
+                    LANGUAGES[lang][1], emotion, intensity, emotion_spans)

@@ -1,0 +1,94 @@
+"""The expression outside the mouth: what an emotion does to the brows, eyelids, cheeks and lip
+corners, as MPEG-4 low-level FAPs and ARKit blendshapes (docs/EMOTIONS.md).
+
+The lips' share of an emotion is fitted (the table's emotion targets, ``coartic.emotions``); what the
+lip markers do not measure is placed here from the Facial Action Coding System's prototypes of
+Ekman's six emotions (Ekman and Friesen 1978; the EMFACS prototypes): joy AU6+12 (cheeks raised, lip
+corners pulled up, lower lids up), surprise AU1+2+5 (brows raised, upper lids up), sadness AU1+4+15
+(inner brows raised and drawn together, lip corners down), disgust AU9+10 (nose wrinkled, lower lids
+and cheeks up, brows lowered), anger AU4+5+7 (brows lowered and drawn together, upper lids up, lower
+lids tightened), fear AU1+2+4+5+20 (brows raised and drawn together, upper lids up). The values are
+ours, of the size an MPEG-4 player's expression tables use; they scale with the intensity (0-1.5) and
+follow an emotion markup's ramps (``coartic.emotions.expression_weights``).
+
+FAP units (ISO/IEC 14496-2): brows and cheeks ENS (eye-nose separation / 1024), eyelids IRISD (iris
+diameter / 1024; positive closes), lip corners MNS (positive up). The face coartic ships
+(``coartic.face``) moves the upper eyelids and the lip corners; brows and cheeks are written to the
+FAP file and the ARKit curves for players whose faces have them.
+"""
+
+from __future__ import annotations
+
+from typing import Mapping
+
+import numpy as np
+from numpy.typing import NDArray
+
+from coartic.emotions import expression_weights
+from coartic.runtime.animate import Animation
+from coartic.runtime.fap import FAP_VALUE_LIMIT, FapSequence
+
+F64 = NDArray[np.float64]
+
+# emotion -> low-level FAP -> value at intensity 1. 19/20 close_t_l/r_eyelid, 21/22 close_b_l/r_eyelid,
+# 31-36 raise_l/r_i/m/o_eyebrow, 37/38 squeeze_l/r_eyebrow, 41/42 lift_l/r_cheek, 12/13 raise_l/r_cornerlip.
+EXPRESSION_FAPS: dict[str, dict[int, float]] = {
+    "joy": {41: 180.0, 42: 180.0, 21: 120.0, 22: 120.0, 12: 90.0, 13: 90.0},
+    "surprise": {31: 260.0, 32: 260.0, 33: 280.0, 34: 280.0, 35: 240.0, 36: 240.0, 19: -180.0, 20: -180.0},
+    "sadness": {31: 220.0, 32: 220.0, 33: 60.0, 34: 60.0, 35: -60.0, 36: -60.0, 37: 80.0, 38: 80.0,
+                19: 150.0, 20: 150.0, 12: -80.0, 13: -80.0},
+    "disgust": {31: -80.0, 32: -80.0, 33: -100.0, 34: -100.0, 35: -60.0, 36: -60.0, 21: 120.0, 22: 120.0,
+                41: 100.0, 42: 100.0, 12: -40.0, 13: -40.0},
+    "anger": {31: -180.0, 32: -180.0, 33: -160.0, 34: -160.0, 35: -100.0, 36: -100.0, 37: 200.0, 38: 200.0,
+              19: -80.0, 20: -80.0, 21: 140.0, 22: 140.0},
+    "fear": {31: 260.0, 32: 260.0, 33: 160.0, 34: 160.0, 35: 60.0, 36: 60.0, 37: 120.0, 38: 120.0,
+             19: -220.0, 20: -220.0},
+}
+# The same prototypes as ARKit blendshape weights at intensity 1 (0-1 each).
+EXPRESSION_ARKIT: dict[str, dict[str, float]] = {
+    "joy": {"cheekSquintLeft": 0.6, "cheekSquintRight": 0.6, "eyeSquintLeft": 0.4, "eyeSquintRight": 0.4,
+            "mouthSmileLeft": 0.6, "mouthSmileRight": 0.6},
+    "surprise": {"browInnerUp": 0.8, "browOuterUpLeft": 0.8, "browOuterUpRight": 0.8, "eyeWideLeft": 0.6,
+                 "eyeWideRight": 0.6},
+    "sadness": {"browInnerUp": 0.7, "browDownLeft": 0.2, "browDownRight": 0.2, "mouthFrownLeft": 0.5,
+                "mouthFrownRight": 0.5, "eyeBlinkLeft": 0.15, "eyeBlinkRight": 0.15},
+    "disgust": {"noseSneerLeft": 0.7, "noseSneerRight": 0.6, "browDownLeft": 0.4, "browDownRight": 0.4,
+                "eyeSquintLeft": 0.4, "eyeSquintRight": 0.4, "cheekSquintLeft": 0.3, "cheekSquintRight": 0.3},
+    "anger": {"browDownLeft": 0.8, "browDownRight": 0.8, "eyeWideLeft": 0.3, "eyeWideRight": 0.3,
+              "eyeSquintLeft": 0.4, "eyeSquintRight": 0.4},
+    "fear": {"browInnerUp": 0.8, "browOuterUpLeft": 0.3, "browOuterUpRight": 0.3, "browDownLeft": 0.2,
+             "browDownRight": 0.2, "eyeWideLeft": 0.8, "eyeWideRight": 0.8},
+}
+# the eyelid FAPs the blinks also drive: the expression adds to the blink there
+LID_FAPS: tuple[int, ...] = (19, 20)
+
+
+def _intensities(animation: Animation) -> dict[str, F64]:
+    return expression_weights(animation.table, animation.times)
+
+
+def add_expression_faps(seq: FapSequence, animation: Animation) -> FapSequence:
+    """``seq`` with the animation's expression (``EXPRESSION_FAPS`` times each frame's intensity)
+    added to its FAPs; ``seq`` itself when the animation speaks no emotion."""
+    weights = _intensities(animation)
+    if not weights:
+        return seq
+    mask, values = seq.mask.copy(), seq.values.copy()
+    added: dict[int, F64] = {}
+    for emotion, w in weights.items():
+        for fap, v in EXPRESSION_FAPS.get(emotion, {}).items():
+            added[fap] = added.get(fap, np.zeros(seq.n_frames)) + v * w[: seq.n_frames]
+    for fap, a in added.items():
+        col = values[:, fap - 1].astype(np.float64) + a
+        values[:, fap - 1] = np.clip(np.rint(col), -FAP_VALUE_LIMIT, FAP_VALUE_LIMIT).astype(np.int64)
+        mask[:, fap - 1] = True
+    return FapSequence(name=seq.name, fps=seq.fps, mask=mask, values=values, first_frame=seq.first_frame)
+
+
+def expression_arkit(animation: Animation) -> Mapping[str, F64]:
+    """ARKit weights the animation's expression adds, per blendshape name (frames,); {} without one."""
+    out: dict[str, F64] = {}
+    for emotion, w in _intensities(animation).items():
+        for name, v in EXPRESSION_ARKIT.get(emotion, {}).items():
+            out[name] = out.get(name, np.zeros(animation.n_frames)) + v * w
+    return out
