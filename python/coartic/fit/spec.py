@@ -34,6 +34,7 @@ from coartic.io.errors import DataError
 from coartic.io.roles import RoleMap
 from coartic.settings import CHANNEL_SETTINGS, default
 from coartic.table import ALL_CHANNELS, CHANNELS, PARAMETERS, PAUSE, VARIANTS, ChannelSettings, domain_problem
+from coartic.pauses import PAUSE_MODES, is_pause
 from coartic.textfile import TextDecodeError, read_text
 
 ENGINES: tuple[str, ...] = ("scipy", "nlopt", "casadi")
@@ -618,6 +619,9 @@ class FitSpec:
     # shared dynamics
     speakers: Annotated[str, BeforeValidator(_one_of(SPEAKER_MODES))] = "none"
     speaker_column: Text = "speaker"
+    # "postures": initial, final and medial pauses are three rows, short pauses in a closure join
+    # it (coartic.pauses); "one": every pause is '#'
+    pauses: Annotated[str, BeforeValidator(_one_of(PAUSE_MODES))] = "postures"
     # emotion as a factor of the fit: "none", or "targets" (each emotion's targets a deviation from the
     # neutral ones, shrunk toward them by a scale the data estimate: coartic.estimation.emotions), the
     # emotion read from the manifest column emotion_column, neutral_emotion the reference
@@ -712,7 +716,7 @@ class FitSpec:
         are written in."""
         if self.reference_phoneme is not None:
             return self.reference_phoneme
-        present = [p for p in phonemes if p != PAUSE] or list(phonemes)
+        present = [p for p in phonemes if not is_pause(p)] or list(phonemes)
         return next((p for p in REFERENCE_ORDER if p in present), present[0] if present else DEFAULT_REFERENCE)
 
     def channel_settings(self, channel: str, beta: float | None = None,
@@ -765,7 +769,8 @@ DOCUMENT: dict[str, dict[str, str]] = {
     "": {"name": "name"},
     "model": {k: k for k in ("variant", "channels", "reference_phoneme", "apex_fraction", "edge_extent", "beta",
                              "fit_beta", "beta_bounds", "offsets", "dominance", "plateau_fraction", "handover",
-                             "speakers", "speaker_column", "emotions", "emotion_column", "neutral_emotion")},
+                             "speakers", "speaker_column", "pauses", "emotions", "emotion_column",
+                             "neutral_emotion")},
     "parameters": {"free": "free", "start": "start", "start_table": "start_table", "bounds": "bounds",
                    "target_margin": "target_margin", "prior": "priors", "prior_noise": "prior_noise",
                    "shared": "shared", "target_prior": "target_prior", "pooled": "pooled"},

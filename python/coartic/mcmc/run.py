@@ -23,7 +23,7 @@ from coartic.mcmc.posterior import LogPosterior, SpeakerTerms, channel_posterior
 from coartic.mcmc.sampler import SamplerSettings, SamplingResult
 from coartic.mcmc.summary import ParameterSummary
 from coartic.outputs import atomic_write_text
-from coartic.table import PAUSE
+from coartic.pauses import is_pause
 from coartic.mcmc.errors import McmcConfigError, McmcError
 
 SCOPES = ("phonemes", "channel")
@@ -319,7 +319,7 @@ def channel_runs(
     else:
         # (with per-speaker targets the rows are "p|s": a phoneme named in [mcmc] phonemes means all its rows)
         base = [p.rpartition(SPEAKER_SEP)[0] or p if SPEAKER_SEP in p else p for p in data.phonemes]
-        wanted = cfg.phonemes or tuple(p for i, p in enumerate(data.phonemes) if base[i] != PAUSE and packing.free[i].any())
+        wanted = cfg.phonemes or tuple(p for i, p in enumerate(data.phonemes) if not is_pause(base[i]) and packing.free[i].any())
         missing = [p for p in wanted if p not in data.phonemes and p not in base]
         wanted = tuple(r for p in wanted for r, b in zip(data.phonemes, base) if p in (r, b))
         if missing:
