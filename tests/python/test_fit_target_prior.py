@@ -107,7 +107,7 @@ def test_target_prior_rows_pull_toward_each_phonemes_segment_mean(tmp_path: Path
 def test_a_strong_target_prior_makes_the_targets_the_phoneme_means(tmp_path: Path, utts: list[model.Utterance]) -> None:
     """sd -> 0: the table is the step model's values under the dominance functions; without the
     prior the fitted targets leave them (the test can fail: the two differ)."""
-    base = parsed(tmp_path, model={"channels": ["LLO"], "dominance": "centre", "handover": False},
+    base = parsed(tmp_path, model={"channels": ["LLO"], "dominance": "centre", "handover": False, "pauses": "one"},
                   parameters={"free": ["target"], "target_prior": 0.001}, fit={"starts": 1})
     means = segment_means(utts, "LLO")
     for sd, close in ((0.001, True), (None, False)):
