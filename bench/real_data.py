@@ -64,6 +64,7 @@ from coartic.fit.score import score_utterances, with_fallbacks  # noqa: E402
 from coartic.fit.spec import FitSpec, Override, parse_spec  # noqa: E402
 from coartic.io.labelmap import resolve_label_map  # noqa: E402
 from coartic.outputs import atomic_write_text  # noqa: E402
+from coartic.pauses import is_pause  # noqa: E402
 from coartic.table import PARAMETERS  # noqa: E402
 
 # Which per-phoneme parameters are free (the others stay at their start values: c = 1, k_r = 0.5,
@@ -253,7 +254,7 @@ def loss_lines(rows: Sequence[dict[str, Any]], worst: int = 3) -> list[str]:
 
 def drop_last(u: Utterance) -> Utterance:
     """``u`` with the samples of its last non-pause segment not scored."""
-    last = max(i for i, lab in enumerate(u.labels) if lab != "#")
+    last = max(i for i, lab in enumerate(u.labels) if not is_pause(lab))
     keep = u.sample_segments() != last
     return Utterance(u.labels, u.starts, u.ends, u.times, u.name, u.observed,
                      {c: v & keep for c, v in u.valid.items()}, u.meta)
@@ -284,9 +285,9 @@ def splits(utts: Sequence[Utterance], which: Sequence[str] = ("loo", "time")) ->
 
 def masked(test: Utterance, original: Utterance, keep_labels: set[str], pauses: bool = False) -> Utterance:
     """``test`` (labels possibly mapped to fallbacks) with every sample outside a segment whose
-    *original* phoneme is in ``keep_labels`` marked invalid: not scored. Pauses are scored only with
-    ``pauses`` (and "#" in ``keep_labels``)."""
-    keep = np.array([lab in keep_labels and (pauses or lab != "#") for lab in original.labels]
+    *original* phoneme is in ``keep_labels`` marked invalid: not scored. Pauses (of any posture,
+    coartic.pauses) are scored only with ``pauses`` (and the pause in ``keep_labels``)."""
+    keep = np.array([lab in keep_labels and (pauses or not is_pause(lab)) for lab in original.labels]
                     + [False])[original.sample_segments()]
     return Utterance(test.labels, test.starts, test.ends, test.times, test.name, test.observed,
                      {c: v & keep for c, v in test.valid.items()}, test.meta)

@@ -6,7 +6,9 @@ from the neutral target, per channel and phoneme, within a stated tolerance.
 The tolerance (default 0.3 mm) is the fit's 0.2 mm target bar (fit/check_recovery.py) for a difference
 of two targets, each within it: 0.2·√2 ≈ 0.3 mm. Also printed: the neutral targets' largest error,
 how many deviations the fit calls credible (the fit's 95 % interval excludes 0) and how many of the
-truth's non-zero ones that catches, and the data-estimated shrinkage scale τ per emotion. A driver:
+truth's non-zero ones that catches, the data-estimated shrinkage scale τ per emotion, and the corner
+asymmetries (each emotion's, from the markers, relative to neutral) against the truth's, within the
+same tolerance. A driver:
 it reads only the two tables. Exit status 0 when every deviation is within the tolerance.
 """
 
@@ -97,6 +99,18 @@ def main(argv: list[str] | None = None) -> int:
               f"{within:4d}/{len(rows):<4d} {sum(d.credible for d in rows):9d} {caught:9d} of {len(nonzero):<6d}  "
               + " ".join(f"{e[:4]} {t:.2f}" for e, t in tau.items()))
         ok &= within == len(rows)
+    fa, ta = fm.get("asymmetry") or {}, emotions_of(truth).get("asymmetry") or {}
+    if ta:  # the corner asymmetries (measured on the markers, relative to the neutral trials)
+        rows_a = [(e, k, float(fa[e][k]["value"]), float(ta[e][k]) - float(ta.get("neutral", {}).get(k, 0.0)),
+                   float(fa[e][k]["q2.5"]), float(fa[e][k]["q97.5"]))
+                  for e in ta if e in fa for k in ("ASYMX", "ASYMY")]
+        missing = [e for e in ta if e != "neutral" and e not in fa]
+        print("corner asymmetry (mm, fitted [95 %] / truth): " + "  ".join(
+            f"{e[:4]} {k[-1]} {v:+.2f} [{lo:+.2f},{hi:+.2f}]/{t:+.1f}" for e, k, v, t, lo, hi in rows_a))
+        off_a = [(e, k) for e, k, v, t, _, _ in rows_a if abs(v - t) > a.tolerance]
+        if off_a or missing:
+            print(f"  asymmetry off or missing: {off_a} {missing}")
+            ok = False
     bad = [d for d in devs if d.error > a.tolerance]
     for d in sorted(bad, key=lambda d: -d.error)[:10]:
         print(f"  off: {d.channel} {d.emotion} /{d.phoneme}/ fitted {d.fitted:+.3f} truth {d.truth:+.3f} mm")

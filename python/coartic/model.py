@@ -21,6 +21,7 @@ from coartic import _core
 from coartic.errors import CoarticError
 from coartic.io.errors import DataError
 from coartic.io.labelmap import LabelMap, resolve_label_map
+from coartic.pauses import utterances_for_table
 from coartic.table import N_PARAMS, PARAMETERS, ChannelSettings, ParameterTable
 
 F64 = npt.NDArray[np.float64]
@@ -354,7 +355,9 @@ def utterance_channels(
             labels = lmap.apply_labels(list(labels), "utterance")
         except DataError as err:
             raise ModelInputError(str(err)) from None
-    utt = Utterance(labels, starts, ends, times)
+    # a table fitted with pause postures reads pauses as it was fitted (coartic.pauses)
+    utt = utterances_for_table(table, [Utterance(labels, starts, ends, times)])[0]
+    labels = list(utt.labels)
     corpora: dict[tuple[str, ...], _core.Corpus] = {}
     for ch in chans:
         table._check_channel(ch)

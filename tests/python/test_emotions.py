@@ -181,6 +181,11 @@ def test_reduced_emotive_fit_recovers_every_deviation(session: Path, fitted: tup
     tau = meta["channels"]["LR"]["tau"]
     assert abs(tau["joy"] - 4.0) < 0.3 and abs(tau["sadness"] - 1.0) < 0.3
     assert all(d.credible for d in devs if abs(d.truth) >= 1.0)
+    # the corner asymmetries, from the corner markers relative to the neutral trials (placed in emotions.toml)
+    asym = meta["asymmetry"]
+    assert asym["disgust"]["ASYMX"]["value"] == pytest.approx(2.0, abs=0.1)
+    assert asym["sadness"]["ASYMY"]["value"] == pytest.approx(-0.5, abs=0.1)
+    assert all(a[k]["q2.5"] < a[k]["value"] < a[k]["q97.5"] for a in asym.values() for k in ("ASYMX", "ASYMY"))
     assert check.main([str(out), str(session / "ground_truth.json")]) == 0
 
 

@@ -189,7 +189,16 @@ def test_expression_outside_the_mouth_in_faps_and_arkit(tmp_path: Path) -> None:
     for fap in range(31, 37):
         assert (faps["surprise"].column(fap) > 100).all()
     np.testing.assert_array_equal(faps["surprise"].column(19), faps[""].column(19) - 90)  # 0.5 x -180 IRISD
-    assert (faps["joy"].column(41) == 90).all() and (faps["joy"].column(12) == 45).all()
+    assert (faps["joy"].column(41) == 90).all()
+    assert ((faps["joy"].column(12) + faps["joy"].column(13)) == 90).all()  # 45 each, around the asymmetry
+    # disgust's corner asymmetry (ASYMY 1.5 mm, ASYMX 2.0 mm in the truth): the right corner half up,
+    # the left half down (MNS), the right half out, the left half in (MW)
+    face = FaceUnits()
+    dis = animation_faps(animate(emotion_table(TRUTH, "disgust", 1.0), seg, 25.0), face, "x")
+    neu = faps[""]
+    np.testing.assert_allclose(dis.column(13) - dis.column(12), 1.5 / face.mns, atol=1.0)
+    np.testing.assert_allclose((dis.column(7) - neu.column(7)) - (dis.column(6) - neu.column(6)), 2.0 / face.mw,
+                               atol=1.0)
     w = arkit_weights(animate(emotion_table(TRUTH, "surprise", 1.0), seg, 25.0))
     assert w[:, ARKIT_NAMES.index("eyeWideLeft")].min() == pytest.approx(0.6)
     assert w[:, ARKIT_NAMES.index("browInnerUp")].min() == pytest.approx(0.8)

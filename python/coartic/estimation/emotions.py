@@ -172,3 +172,63 @@ def table_emotion_meta(spec: Any, table: Any) -> dict[str, Any]:
                          f"{'no emotions' if not told else repr(told) + ' (column ' + repr(meta.get('column')) + ')'}: "
                          "use the spec the table was fitted with")
     return meta
+
+
+# ----------------------------------------------------------------------------- corner asymmetries
+
+ASYMMETRY: tuple[str, ...] = ("ASYMX", "ASYMY")
+# the meta keys a trial's mean corner asymmetry is kept under (fit.data.load_rows, asymmetry=True)
+ASYMMETRY_META: dict[str, str] = {"ASYMX": "corner_asymx_mm", "ASYMY": "corner_asymy_mm"}
+CORNER_MARKERS: tuple[str, ...] = ("NOSE", "EAR_L", "EAR_R", "LC_L", "LC_R")
+
+
+def corner_asymmetry(markers: FloatArray, names: Sequence[str]) -> dict[str, float] | None:
+    """A trial's mean corner asymmetries (mm) in the head frame of MODEL.md §6 (x towards EAR_L, y
+    up): ASYMX the right corner's outward displacement minus the left's, −(x_L + x_R); ASYMY the right
+    corner's height minus the left's (the two asymmetry parameters of Magno Caldognetto et al.).
+    None when the trial lacks a corner or a head marker (EMA: no corners)."""
+    from coartic import _core
+
+    if any(n not in names for n in CORNER_MARKERS):
+        return None
+    i = {n: list(names).index(n) for n in CORNER_MARKERS}
+    head = np.asarray(_core.head_frame(np.ascontiguousarray(markers, dtype=np.float64), i["NOSE"], i["EAR_L"],
+                                       i["EAR_R"]))
+    left, right = head[:, i["LC_L"]], head[:, i["LC_R"]]
+    ax, ay = -(left[:, 0] + right[:, 0]), right[:, 1] - left[:, 1]
+    if not (np.isfinite(ax).any() and np.isfinite(ay).any()):
+        return None
+    return {"ASYMX": float(np.nanmean(ax)), "ASYMY": float(np.nanmean(ay))}
+
+
+def asymmetry_metadata(utterances: Sequence[Utterance], column: str, neutral: str) -> dict[str, Any]:
+    """Each emotion's corner asymmetries relative to the neutral trials' (mm): the difference of the
+    trial means, with a Welch 95 % interval (scipy.stats). {} when the trials carry none."""
+    from scipy import stats
+
+    per: dict[str, dict[str, list[float]]] = {}
+    for u in utterances:
+        if not all(k in u.meta for k in ASYMMETRY_META.values()):
+            continue
+        e = str(u.meta.get(column, ""))
+        for a, key in ASYMMETRY_META.items():
+            per.setdefault(e, {}).setdefault(a, []).append(float(u.meta[key]))
+    if neutral not in per:
+        return {}
+    out: dict[str, Any] = {}
+    for e, vals in per.items():
+        if e == neutral:
+            continue
+        out[e] = {}
+        for a in ASYMMETRY:
+            x, y = np.asarray(vals[a]), np.asarray(per[neutral][a])
+            d = float(x.mean() - y.mean())
+            if x.size > 1 and y.size > 1:
+                vx, vy = x.var(ddof=1) / x.size, y.var(ddof=1) / y.size
+                se = math.sqrt(vx + vy)
+                dof = (vx + vy) ** 2 / max(vx**2 / (x.size - 1) + vy**2 / (y.size - 1), 1e-300)
+                h = float(stats.t.ppf(0.975, dof)) * se
+            else:
+                h = math.inf
+            out[e][a] = {"value": d, "q2.5": d - h, "q97.5": d + h}
+    return out

@@ -24,6 +24,7 @@ from numpy.typing import NDArray
 from coartic.estimation.packing import Packing, Prior, tie_group
 from coartic.estimation.target_prior import target_priors
 from coartic.errors import SpecError
+from coartic.pauses import MEDIAL_ALPHA, MEDIAL_PAUSE
 from coartic.table import N_PARAMS, PARAMETERS
 
 
@@ -179,6 +180,8 @@ class ParameterSet(Mapping[str, Parameter]):
                 base[:, 0] = data_targets(data)
             beta = spec.beta
 
+        if MEDIAL_PAUSE in phon and start is None:  # a weak medial pause: its neighbours dominate it (coartic.pauses)
+            base[phon.index(MEDIAL_PAUSE), PARAMETERS.index("alpha")] = MEDIAL_ALPHA
         for j, o in enumerate(spec.overrides):
             for i, p in enumerate(phon):
                 if not o.applies(p, ch):

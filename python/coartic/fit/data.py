@@ -9,10 +9,12 @@ from typing import Any, Callable, Mapping, Sequence
 
 import numpy as np
 
+from coartic.estimation.emotions import ASYMMETRY_META, corner_asymmetry
 from coartic.model import Utterance
 from coartic.errors import SpecError
 from coartic.fit.spec import FitSpec, synth_hint
 from coartic.io import DataError, load_trial
+from coartic.pauses import utterances_with_postures
 from coartic.textfile import TextDecodeError, read_text
 
 
@@ -73,20 +75,37 @@ def manifest_rows(spec: FitSpec) -> list[dict[str, str | None]]:
 
 
 def load_utterances(spec: FitSpec, rows: Sequence[Mapping[str, str | None]] | None = None,
-                    progress: Callable[[int, int], None] | None = None) -> list[Utterance]:
-    """One Utterance per trial with the spec's channels (gaps filled up to max_gap, longer ones masked)."""
+                    progress: Callable[[int, int], None] | None = None, asymmetry: bool = False,
+                    notes: list[str] | None = None) -> list[Utterance]:
+    """One Utterance per trial with the spec's channels (gaps filled up to max_gap, longer ones
+    masked), pauses given their posture (``with_spec_pauses``; each change named in ``notes``)."""
     rows = manifest_rows(spec) if rows is None else rows
-    return load_rows(rows, spec.channels, file_column=spec.corpus.file_column, label_map=spec.corpus.label_map,
+    utts = load_rows(rows, spec.channels, file_column=spec.corpus.file_column, label_map=spec.corpus.label_map,
                      role_map=spec.corpus.role_map, max_gap=spec.max_gap, where=f"the corpus in {spec.path}",
-                     progress=progress)
+                     progress=progress, asymmetry=spec.emotions != "none")
+    return with_spec_pauses(spec, utts, notes)
+
+
+def with_spec_pauses(spec: FitSpec, utterances: Sequence[Utterance], notes: list[str] | None = None) -> list[Utterance]:
+    """The utterances as the spec fits them: with ``[model] pauses = "postures"`` (the default)
+    initial, final and medial pauses are three rows and short pauses in a closure join it
+    (``coartic.pauses``; a note per change in ``notes``); with "one", as they are. Applying it twice
+    changes nothing."""
+    if spec.pauses != "postures":
+        return list(utterances)
+    out, said = utterances_with_postures(utterances)
+    if notes is not None:
+        notes += said
+    return out
 
 
 def load_rows(rows: Sequence[Mapping[str, str | None]], channels: Sequence[str], *, file_column: str = "file",
               label_map: Any = None, role_map: Any = None, max_gap: float = 0.05, where: str = "the recordings",
-              progress: Callable[[int, int], None] | None = None) -> list[Utterance]:
+              progress: Callable[[int, int], None] | None = None, asymmetry: bool = False) -> list[Utterance]:
     """The trials of ``rows`` (data file in ``file_column``, label file in ``labels``, or None for
     an EMU bundle's own; other cells become ``meta``) as Utterances with ``channels``: the one
-    loader of the fit, its validation and ``coartic score``."""
+    loader of the fit, its validation and ``coartic score``. ``asymmetry``: each trial's mean corner
+    asymmetries too (``coartic.estimation.emotions.corner_asymmetry``, in meta), for ``[model] emotions``."""
     out: list[Utterance] = []
     for i, r in enumerate(rows):
         path = Path(str(r[file_column]))
@@ -100,6 +119,9 @@ def load_rows(rows: Sequence[Mapping[str, str | None]], channels: Sequence[str],
             raise DataError(f"{path}: no labels (trial {i + 1} of {where}): the file carries none of its "
                             "own, give its label file")
         meta = {k: str(v) for k, v in r.items() if k not in (file_column, "labels") and v is not None}
+        asym = corner_asymmetry(trial.markers, trial.marker_names) if asymmetry else None
+        if asym is not None:
+            meta |= {ASYMMETRY_META[k]: repr(v) for k, v in asym.items()}
         out.append(Utterance(
             name=meta.get("stimulus", path.stem) + (f"#{meta['repetition']}" if "repetition" in meta else "")
             + (f"@{meta['rate']}" if "rate" in meta else ""),

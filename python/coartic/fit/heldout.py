@@ -15,7 +15,9 @@ import numpy as np
 from coartic.fit.baselines import beats_step, flag_text
 
 # the baselines' columns of validation.csv, each prefixed by the baseline's name
-BASELINE_COLUMNS = ("rmse_mm", "rmse_offset_removed_mm", "rmse_speaker_calibrated_mm")
+BASELINE_COLUMNS = ("rmse_mm", "rmse_offset_removed_mm", "rmse_speaker_calibrated_mm", "rmse_speech_mm",
+                    "rmse_speech_offset_removed_mm")
+BaselineFigures = tuple[float, float, float, float, float]  # a baseline's BASELINE_COLUMNS
 
 
 @dataclass
@@ -32,10 +34,16 @@ class SplitScore:
     n_free: int = 0
     # after calibrating the test speaker's offset and scale on the test data (coartic.fit.score)
     test_rmse_calibrated: float = float("nan")
-    # baseline -> (as measured, offset removed, speaker-calibrated) test RMSE on the same samples
-    baselines: dict[str, tuple[float, float, float]] = field(default_factory=dict)
+    # baseline -> (as measured, offset removed, speaker-calibrated, speech only as measured and offset
+    # removed) test RMSE on the same samples (BASELINE_COLUMNS)
+    baselines: dict[str, BaselineFigures] = field(default_factory=dict)
     # a multi-start's distinct optima ([fit] starts > 1): each one's test RMSE, best in-sample first
     optima_test_rmse: tuple[float, ...] = ()
+    # the test samples inside speech segments only (every pause posture left out): as measured,
+    # offset removed (coartic.fit.score: "rmse_speech_mm")
+    test_rmse_speech: float = float("nan")
+    test_rmse_speech_offset_removed: float = float("nan")
+    test_speech_samples: int = 0
     # why the test utterances are from another session or speaker than the training (None: the same):
     # the step model is then compared with the offsets removed only (coartic.fit.baselines.other_session)
     other_session: str | None = None
@@ -55,24 +63,29 @@ class SplitScore:
                                              self.baselines["step"][:2], self.other_session)
 
 
-def pooled(scores: Sequence[SplitScore], model: str = "table") -> dict[str, tuple[float, float, int]]:
+def pooled(scores: Sequence[SplitScore], model: str = "table", speech: bool = False) -> dict[str, tuple[float, float, int]]:
     """Per channel, the held-out RMSE over every split's test samples together (as measured,
     offset removed, samples): the one number a k-fold validation gives. ``model``: the table, or
-    a baseline (``coartic.fit.baselines``; a channel some split lacks it on is left out)."""
+    a baseline (``coartic.fit.baselines``; a channel some split lacks it on is left out).
+    ``speech``: over the speech samples only (pauses left out)."""
     acc: dict[str, list[float]] = {}
     lacking: set[str] = set()
     for sc in scores:
         if model == "table":
-            rm, ro = sc.test_rmse, sc.test_rmse_offset_removed
+            rm, ro = ((sc.test_rmse_speech, sc.test_rmse_speech_offset_removed) if speech
+                      else (sc.test_rmse, sc.test_rmse_offset_removed))
         elif model in sc.baselines:
-            rm, ro = sc.baselines[model][:2]
+            rm, ro = sc.baselines[model][3:5] if speech else sc.baselines[model][:2]
         else:
             lacking.add(sc.channel)
             continue
+        n = sc.test_speech_samples if speech else sc.test_samples
+        if n == 0:
+            continue
         a = acc.setdefault(sc.channel, [0.0, 0.0, 0.0])
-        a[0] += rm**2 * sc.test_samples
-        a[1] += ro**2 * sc.test_samples
-        a[2] += sc.test_samples
+        a[0] += rm**2 * n
+        a[1] += ro**2 * n
+        a[2] += n
     return {ch: (float(np.sqrt(s / n)), float(np.sqrt(so / n)), int(n)) for ch, (s, so, n) in acc.items()
             if n and ch not in lacking}
 
@@ -93,7 +106,9 @@ def baseline_summary(scores: Sequence[SplitScore]) -> dict[str, object]:
     """summary.json's validation: per split and channel the table's and baselines' held-out RMSE, the flags."""
     return {"splits": [{"split": sc.split, "channel": sc.channel, "samples": sc.test_samples,
                         "table": {"rmse_mm": sc.test_rmse, "rmse_offset_removed_mm": sc.test_rmse_offset_removed,
-                                  "rmse_speaker_calibrated_mm": sc.test_rmse_calibrated},
+                                  "rmse_speaker_calibrated_mm": sc.test_rmse_calibrated,
+                                  "rmse_speech_mm": sc.test_rmse_speech,
+                                  "rmse_speech_offset_removed_mm": sc.test_rmse_speech_offset_removed},
                         **{b: dict(zip(BASELINE_COLUMNS, v)) for b, v in sc.baselines.items()},
                         "beats_step_model": sc.beats_step, "other_session": sc.other_session} for sc in scores],
             "flags": flags(scores)}

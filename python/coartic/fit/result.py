@@ -25,7 +25,7 @@ from numpy.typing import NDArray
 from coartic import __version__
 from coartic.extras import require
 from coartic.fit.bounds import CATEGORY_TITLES, BoundNote, explain_bounds, summary_counts
-from coartic.estimation.emotions import channel_metadata
+from coartic.estimation.emotions import asymmetry_metadata, channel_metadata
 from coartic.estimation.parameters import ParameterSet, psd_pseudo_inverse
 from coartic.estimation.packing import Packing, shared_words
 from coartic.estimation.pooling import PoolEstimate
@@ -36,6 +36,7 @@ from coartic.fit.heldout import baseline_summary, flags
 from coartic.fit.multistart import MultiStart
 from coartic.fit.staged import StageResult
 from coartic.io.labelmap import resolve_label_map
+from coartic.pauses import POSTURES_RECORD, RECORD_KEY as PAUSES_RECORD_KEY
 from coartic.io.roles import ROLE_RECORD_KEY, resolve_role_map
 from coartic.outputs import atomic_path, atomic_write_text
 from coartic.table import PARAMETERS, ChannelSettings, ParameterTable
@@ -290,6 +291,11 @@ class FitResult:
             t.metadata["emotions"] = {"mode": s.emotions, "column": s.emotion_column, "neutral": s.neutral_emotion,
                                       "channels": {ch: channel_metadata(f.problem, f.x)
                                                    for ch, f in self.channels.items()}}
+            if self.channels:  # the corner asymmetries, measured on the markers (not a channel of the model)
+                utts = next(iter(self.channels.values())).problem.data.utterances
+                asym = asymmetry_metadata(utts, s.emotion_column, s.neutral_emotion)
+                if asym:
+                    t.metadata["emotions"]["asymmetry"] = asym
         if s.shrinks:  # the shrinkage the fit had (sd as the spec gives it; a [choose]n one in "choice")
             # the members it was applied to: those present in a fitted channel's data
             applied = {(grp.key, m) for f in self.channels.values() for grp in f.problem.shrink_groups
@@ -303,6 +309,8 @@ class FitResult:
             t.metadata["pooling"] = pooling
         if self.choice is not None:
             t.metadata["choice"] = self.choice.metadata()
+        if s.pauses == "postures":  # whoever evaluates the table gives pauses the same postures
+            t.metadata[PAUSES_RECORD_KEY] = dict(POSTURES_RECORD)
         # the map the corpus labels went through, so trajectories/animate/score read labels alike
         resolve_label_map(s.corpus.label_map).record_in(t)
         if s.corpus.role_map is not None:  # and the sensors' roles and axes, so that score reads alike

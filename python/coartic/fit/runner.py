@@ -170,13 +170,18 @@ def run(spec: FitSpec | str | Path, out: str | Path | None = None, *, utterances
             rows = manifest_rows(spec)
             task = progress.add_task("loading trials", total=len(rows), info="")
             try:
-                utterances = load_utterances(spec, rows, lambda i, n: progress.update(task, completed=i))
+                utterances = load_utterances(spec, rows, lambda i, n: progress.update(task, completed=i),
+                                             notes=result.notes)
                 progress.stop_task(task)
             except KeyboardInterrupt:
                 result.interrupted = True
                 result.notes.append("interrupted while loading the trials: nothing was fitted")
                 return result
             result.notes += check_overrides(spec, utterances)
+        else:  # given utterances (a validation split, a script's): pauses as the spec fits them
+            from coartic.fit.data import with_spec_pauses
+
+            utterances = with_spec_pauses(spec, utterances, result.notes)
         from coartic.fit.guards import small_data_notes
 
         result.notes += small_data_notes(spec, utterances)  # settings the data cannot support: refused or warned

@@ -33,6 +33,7 @@ from numpy.typing import NDArray
 from coartic.errors import CoarticError
 from coartic.fit.baselines import Baselines, beats_step, flag_text
 from coartic.model import Utterance, evaluate_corpus
+from coartic.pauses import is_pause, utterances_for_table
 from coartic.table import ParameterTable
 
 F64 = NDArray[np.float64]
@@ -127,8 +128,20 @@ class Score:
         a, b = self.calibration(ch, predicted)
         f = np.concatenate(self.predicted[ch] if predicted is None else predicted)
         rc = np.where(np.isfinite(r), a + (b - 1.0) * f + r, np.nan)  # a + b·F − y
+        speech = np.concatenate([self.speech(u) for u in n_u])
         return {"samples": int(np.isfinite(r).sum()), "rmse_mm": _rms(r), "rmse_offset_removed_mm": _rms(ro),
-                "rmse_calibrated_mm": _rms(rc), "calibration_offset_mm": a, "calibration_scale": b}
+                "rmse_calibrated_mm": _rms(rc), "calibration_offset_mm": a, "calibration_scale": b,
+                # the samples inside speech segments only (every pause posture left out; the offset
+                # removed is still the whole utterance's)
+                "speech_samples": int(np.isfinite(r[speech]).sum()), "rmse_speech_mm": _rms(r[speech]),
+                "rmse_speech_offset_removed_mm": _rms(ro[speech])}
+
+    def speech(self, u: int) -> NDArray[np.bool_]:
+        """The samples of utterance ``u`` inside a segment that is no pause (``coartic.pauses.is_pause``)."""
+        utt = self.utterances[u]
+        seg = utt.sample_segments()
+        pause = np.array([is_pause(lab) for lab in utt.labels] + [True])  # -1 (outside every segment): not speech
+        return ~pause[seg]
 
     def channel_rows(self) -> list[dict[str, Any]]:
         rows = []
@@ -216,14 +229,18 @@ class Score:
         for r in self.channel_rows():
             lines.append(f"    {r['channel']}: RMSE {r['rmse_mm']:.4f} mm, offset removed {r['rmse_offset_removed_mm']:.4f} mm, "
                          f"speaker-calibrated {r['rmse_calibrated_mm']:.4f} mm (a = {r['calibration_offset_mm']:+.3f} mm, "
-                         f"b = {r['calibration_scale']:.4f}) ({r['samples']} samples)")
+                         f"b = {r['calibration_scale']:.4f}) ({r['samples']} samples); speech only (pauses left out) "
+                         f"{r['rmse_speech_mm']:.4f} mm, offset removed {r['rmse_speech_offset_removed_mm']:.4f} mm "
+                         f"({r['speech_samples']} samples)")
         base = [r for r in self.baseline_rows() if r["model"] != "table"]
         if base:
             lines.append("[[Baselines]] (fitted on the table's training data, scored on the same samples)")
             lines += [f"    {b}: not shown: {why}" for b, why in self.absent.items()]
             for r in base:
                 lines.append(f"    {r['channel']} {r['model']}: RMSE {r['rmse_mm']:.4f} mm, offset removed "
-                             f"{r['rmse_offset_removed_mm']:.4f} mm, speaker-calibrated {r['rmse_calibrated_mm']:.4f} mm")
+                             f"{r['rmse_offset_removed_mm']:.4f} mm, speaker-calibrated {r['rmse_calibrated_mm']:.4f} mm; "
+                             f"speech only {r['rmse_speech_mm']:.4f} mm, offset removed "
+                             f"{r['rmse_speech_offset_removed_mm']:.4f} mm")
         lines += [f"    WARNING: {f}" for f in self.flags()]
         lines.append("[[Utterances]]")
         for r in self.utterance_rows():
@@ -266,7 +283,7 @@ def score_utterances(table: ParameterTable, utterances: Sequence[Utterance],
     from coartic.speakers import speaker_mapping, table_speakers
 
     mapping = speaker_mapping(table, speaker)
-    utts = list(utterances)
+    utts = utterances_for_table(table, utterances)  # pauses as the table was fitted (coartic.pauses)
     if not utts:
         raise ScoreError("no utterance to score")
     chans = tuple(channels) if channels is not None else tuple(
@@ -296,7 +313,7 @@ def score_utterances(table: ParameterTable, utterances: Sequence[Utterance],
         predicted = {c: [mapping.apply(c, v) for v in evaluate_corpus(own, c, utts)] for c in chans}
     score = Score(table, chans, utts, predicted, speaker=speaker)
     if train is not None:
-        score.add_baselines(train)
+        score.add_baselines(utterances_for_table(table, train))
     if mapping is None and table_speakers(table):
         score.notes.append(f"the table was fitted on speakers {', '.join(table_speakers(table))}; without --speaker "
                            "it predicts the population (a = 0, b = 1, the table's targets)")

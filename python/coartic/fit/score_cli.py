@@ -66,8 +66,8 @@ def score_table(score: object) -> Table:
     who = f" as speaker {score.speaker}" if score.speaker is not None else ""
     t = Table(title=f"RMSE (mm){who} on {len(score.utterances)} recording(s) the fit did not see — bar {BAR_MM} mm",
               caption=score.caption())
-    for c in ("channel", "model", "as measured", "offset removed", "speaker-calibrated", "worst utterance",
-              "worst phoneme", "samples"):
+    for c in ("channel", "model", "as measured", "offset removed", "speech only", "speaker-calibrated",
+              "worst utterance", "worst phoneme", "samples"):
         t.add_column(c, justify="left" if c in ("channel", "model") else "right")
     utt = score.utterance_rows()
     ph = score.phoneme_rows()
@@ -75,10 +75,15 @@ def score_table(score: object) -> Table:
         ch = r["channel"]
         wu = max((x for x in utt if x["channel"] == ch), key=lambda x: x["rmse_mm"])
         wp = next((x for x in ph if x["channel"] == ch), None)  # sorted worst first
-        t.add_row(ch, "table", f"{r['rmse_mm']:.3f}", f"{r['rmse_offset_removed_mm']:.3f}",
+        t.add_row(ch, "table", f"{r['rmse_mm']:.3f}", f"{r['rmse_offset_removed_mm']:.3f}", _speech(r),
                   f"{r['rmse_calibrated_mm']:.3f}", f"{wu['rmse_mm']:.3f} ({escape(wu['utterance'])})",
                   f"{wp['rmse_mm']:.3f} ({escape(wp['phoneme'])})" if wp else "–", str(r["samples"]))
         for b in (x for x in score.baseline_rows() if x["channel"] == ch and x["model"] != "table"):
             t.add_row(ch, f"[dim]{b['model']}[/dim]", f"{b['rmse_mm']:.3f}", f"{b['rmse_offset_removed_mm']:.3f}",
-                      f"{b['rmse_calibrated_mm']:.3f}", "–", "–", str(b["samples"]))
+                      _speech(b), f"{b['rmse_calibrated_mm']:.3f}", "–", "–", str(b["samples"]))
     return t
+
+
+def _speech(row: dict[str, object]) -> str:
+    """The speech-only RMSE (pauses left out) as measured / offset removed."""
+    return f"{row['rmse_speech_mm']:.3f} / {row['rmse_speech_offset_removed_mm']:.3f}"

@@ -34,6 +34,7 @@ from coartic.io.errors import DataError
 from coartic.io.roles import RoleMap
 from coartic.settings import CHANNEL_SETTINGS, default
 from coartic.table import ALL_CHANNELS, CHANNELS, PARAMETERS, PAUSE, VARIANTS, ChannelSettings, domain_problem
+from coartic.pauses import PAUSE_MODES, is_pause
 from coartic.textfile import TextDecodeError, read_text
 
 ENGINES: tuple[str, ...] = ("scipy", "nlopt", "casadi")
@@ -57,17 +58,20 @@ DEFAULT_FIT_BOUNDS: dict[str, tuple[float, float]] = {
     "psi": (10.0, 1e5), "delta": (-0.08, 0.08),
 }
 DEFAULT_BETA_BOUNDS: tuple[float, float] = (0.05, 20.0)
-# The model of a spec that sets nothing: the one that beat the step model (each phoneme's mean) held
-# out on the real recordings we have (bench/real_data.py, docs/REAL_DATA.md): the rate-aware
-# dominance (plateau + handover), every phoneme's target free but one theta_bw and one theta_fw per
-# channel shared by every phoneme ([parameters] shared; only when [parameters] free is not given
-# either), and every target drawn toward the data's own mean over that phoneme's segments with sd
-# DEFAULT_TARGET_PRIOR mm ([parameters] target_prior). Per-phoneme dynamics fitted the training data
-# better and predicted held-out speech worse there.
-DEFAULT_FREE: tuple[str, ...] = ("target", "theta_bw", "theta_fw")
-DEFAULT_SHARED: tuple[str, ...] = ("theta_bw", "theta_fw")
-DEFAULT_TARGET_PRIOR: float | str | None = 0.3
-DEFAULT_POOLED: tuple[str, ...] = ()
+# The model of a spec that sets nothing: the rate-aware dominance (plateau + handover), each phoneme's
+# target, alpha, theta_bw and theta_fw free, the dynamics partially pooled toward one value per
+# channel with a pooling strength estimated from the data ([parameters] pooled: empirical Bayes,
+# coartic.estimation.pooling; it reaches one shared value when the data do not support more), and
+# every target drawn toward the data's own mean over its phoneme's segments with an sd estimated the
+# same way ([parameters] target_prior = "estimated"). Measured against one shared theta_bw, theta_fw
+# per channel (the previous default) and free per-phoneme dynamics, held out on the synthetic
+# session (by rate, and data-starved), its gestures flavour (by rate) and the German EMA (by
+# utterance and in time): never the worst of the three, and better than the step model on each
+# (bench/real_data.py, docs/REAL_DATA.md "Partial pooling").
+DEFAULT_FREE: tuple[str, ...] = ("target", "alpha", "theta_bw", "theta_fw")
+DEFAULT_SHARED: tuple[str, ...] = ()
+DEFAULT_TARGET_PRIOR: float | str | None = "estimated"
+DEFAULT_POOLED: tuple[str, ...] = ("alpha", "theta_bw", "theta_fw")
 SPEC_MODEL_DEFAULTS: dict[str, Any] = {"dominance": "plateau", "handover": True}
 DEFAULT_STAGES: tuple[tuple[str, ...], ...] = (
     ("target",),
@@ -615,6 +619,9 @@ class FitSpec:
     # shared dynamics
     speakers: Annotated[str, BeforeValidator(_one_of(SPEAKER_MODES))] = "none"
     speaker_column: Text = "speaker"
+    # "postures": initial, final and medial pauses are three rows, short pauses in a closure join
+    # it (coartic.pauses); "one": every pause is '#'
+    pauses: Annotated[str, BeforeValidator(_one_of(PAUSE_MODES))] = "postures"
     # emotion as a factor of the fit: "none", or "targets" (each emotion's targets a deviation from the
     # neutral ones, shrunk toward them by a scale the data estimate: coartic.estimation.emotions), the
     # emotion read from the manifest column emotion_column, neutral_emotion the reference
@@ -709,7 +716,7 @@ class FitSpec:
         are written in."""
         if self.reference_phoneme is not None:
             return self.reference_phoneme
-        present = [p for p in phonemes if p != PAUSE] or list(phonemes)
+        present = [p for p in phonemes if not is_pause(p)] or list(phonemes)
         return next((p for p in REFERENCE_ORDER if p in present), present[0] if present else DEFAULT_REFERENCE)
 
     def channel_settings(self, channel: str, beta: float | None = None,
@@ -762,7 +769,8 @@ DOCUMENT: dict[str, dict[str, str]] = {
     "": {"name": "name"},
     "model": {k: k for k in ("variant", "channels", "reference_phoneme", "apex_fraction", "edge_extent", "beta",
                              "fit_beta", "beta_bounds", "offsets", "dominance", "plateau_fraction", "handover",
-                             "speakers", "speaker_column", "emotions", "emotion_column", "neutral_emotion")},
+                             "speakers", "speaker_column", "pauses", "emotions", "emotion_column",
+                             "neutral_emotion")},
     "parameters": {"free": "free", "start": "start", "start_table": "start_table", "bounds": "bounds",
                    "target_margin": "target_margin", "prior": "priors", "prior_noise": "prior_noise",
                    "shared": "shared", "target_prior": "target_prior", "pooled": "pooled"},
@@ -843,6 +851,8 @@ def document_fields(raw: Mapping[str, Any], path: Path) -> dict[str, Any]:
         fields["pooled"] = ()  # likewise the pooled dynamics
     if isinstance(p, Mapping) and isinstance(p.get("pooled"), list) and "shared" not in p and "free" not in p:
         fields["shared"] = tuple(q for q in DEFAULT_SHARED if q not in p["pooled"])  # pooled instead of shared
+    if isinstance(p, Mapping) and isinstance(p.get("shared"), list) and "pooled" not in p and "free" not in p:
+        fields["pooled"] = tuple(q for q in DEFAULT_POOLED if q not in p["shared"])  # shared instead of pooled
     for key in ("pooled",):
         if isinstance(p, Mapping) and isinstance(p.get(key), list):
             frees = [p.get("free", list(DEFAULT_FREE))] + [o.get("free", []) for o in raw.get("override", [])

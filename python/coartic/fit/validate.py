@@ -28,10 +28,11 @@ from coartic.errors import CoarticError
 from coartic.fit.baselines import BASELINES
 from coartic.fit.data import load_utterances
 from coartic.model import Utterance
-from coartic.fit.heldout import BASELINE_COLUMNS, SplitScore, pooled
+from coartic.fit.heldout import BASELINE_COLUMNS, BaselineFigures, SplitScore, pooled
 from coartic.fit.result import BAR_MM, FitResult
 from coartic.fit.score import score_utterances, with_fallbacks
 from coartic.io.labelmap import LabelMap
+from coartic.pauses import utterances_for_table
 from coartic.errors import SpecError
 from coartic.fit.spec import FitSpec
 from coartic.outputs import atomic_write_text
@@ -46,7 +47,8 @@ def score(result: FitResult, test: Sequence[Utterance], split: str,
     table = result.table()
     out = []
     for ch, fit in result.channels.items():
-        test_ch, note = with_fallbacks(test, table, [ch], LabelMap.recorded(table))
+        # pauses as the table reads them (a pause row the split's training lacks: its nearest one)
+        test_ch, note = with_fallbacks(utterances_for_table(table, test), table, [ch], LabelMap.recorded(table))
         unknown = sorted({lab for u in test_ch for lab in u.labels} - set(fit.problem.phonemes))
         if unknown:
             raise UnseenPhonemes(f"{split}: the test utterances contain phonemes the training fit never saw, "
@@ -64,11 +66,14 @@ def score(result: FitResult, test: Sequence[Utterance], split: str,
         worst = max(vowel_rmse.items(), key=lambda kv: kv[1])
         row = sc.channel_rows()[0]
         n = fit.problem.data.n_valid
-        base = {r["model"]: (r["rmse_mm"], r["rmse_offset_removed_mm"], r["rmse_calibrated_mm"])
+        base = {r["model"]: (r["rmse_mm"], r["rmse_offset_removed_mm"], r["rmse_calibrated_mm"], r["rmse_speech_mm"],
+                             r["rmse_speech_offset_removed_mm"])
                 for r in sc.baseline_rows() if r["model"] != "table"}
         out.append(SplitScore(split, ch, fit.rmse, row["rmse_mm"], row["samples"], worst, row["rmse_offset_removed_mm"],
                               fit.rmse**2 * n, n, fit.packing.n_free, row["rmse_calibrated_mm"], base,
-                              other_session=sc.other_session))
+                              test_rmse_speech=row["rmse_speech_mm"],
+                              test_rmse_speech_offset_removed=row["rmse_speech_offset_removed_mm"],
+                              test_speech_samples=row["speech_samples"], other_session=sc.other_session))
         if fit.multistart is not None:  # how much the held-out error differs between the optima found
             for o in fit.multistart.optima:
                 params, beta = fit.packing.unpack(o.x)
@@ -237,14 +242,15 @@ def validate_all(spec: FitSpec, out: str | Path | None = None, utterances: Seque
         w.writerow(["split", "channel", "train_rmse_mm", "test_rmse_mm", "test_rmse_offset_removed_mm", "test_samples",
                     "worst_vowel", "worst_vowel_rmse_mm", "test_rmse_speaker_calibrated_mm",
                     *(f"{b}_{k}" for b in BASELINES for k in BASELINE_COLUMNS), "beats_step_model",
-                    "optima_test_rmse_mm"])
-        nan = (float("nan"),) * 3
+                    "optima_test_rmse_mm", "test_rmse_speech_mm", "test_rmse_speech_offset_removed_mm"])
+        nan = (float("nan"),) * len(BASELINE_COLUMNS)
         for sc in scores:
             w.writerow([sc.split, sc.channel, repr(sc.train_rmse), repr(sc.test_rmse), repr(sc.test_rmse_offset_removed),
                         sc.test_samples, sc.worst_vowel[0], repr(sc.worst_vowel[1]), repr(sc.test_rmse_calibrated),
                         *(repr(v) for b in BASELINES for v in sc.baselines.get(b, nan)), sc.beats_step,
                         # each multi-start optimum's held-out RMSE, best (in-sample) first
-                        ";".join(f"{v:.6g}" for v in sc.optima_test_rmse)])
+                        ";".join(f"{v:.6g}" for v in sc.optima_test_rmse), repr(sc.test_rmse_speech),
+                        repr(sc.test_rmse_speech_offset_removed)])
         atomic_write_text(Path(out) / "validation.csv", buf.getvalue())
     return scores
 
@@ -260,13 +266,14 @@ def validation_table(scores: Sequence[SplitScore]) -> Table:
     absent = {b: ("no split's test sentence has another token in its training data" if b == "warped" else
                   "not computed") for b in ("step", "constant", "warped") if b not in have}
     t = Table(title=f"Validation RMSE (mm) on data the fit did not see — bar {BAR_MM} mm",
-              caption=caption(have, absent) + " (as measured / offset removed); ✗ = the table does not beat the "
-                      "step model")
-    for c in ("split", "channel", "train", "test", "test, offset removed", *have, "worst vowel (test)"):
+              caption=caption(have, absent) + " (as measured / offset removed; speech only: pauses left out); ✗ = "
+                      "the table does not beat the step model")
+    for c in ("split", "channel", "train", "test", "test, offset removed", "test, speech only", *have,
+              "worst vowel (test)"):
         t.add_column(c, justify="left" if c in ("split", "channel") else "right")
 
     def pair(v: tuple[float, ...] | None) -> str:
-        return "–" if v is None else f"{v[0]:.3f} / {v[1]:.3f}"
+        return "–" if v is None else f"{v[0]:.3f} / {v[1]:.3f} (speech only {v[3]:.3f} / {v[4]:.3f})"
 
     def cell(v: float) -> str:
         col = "green" if v < BAR_MM else "red"
@@ -275,11 +282,18 @@ def validation_table(scores: Sequence[SplitScore]) -> Table:
     for sc in scores:
         mark = "" if sc.beats_step else " [bold red]✗[/bold red]"
         t.add_row(escape(sc.split), sc.channel + mark, f"{sc.train_rmse:.3f}", cell(sc.test_rmse),
-                  cell(sc.test_rmse_offset_removed), *(pair(sc.baselines.get(b)) for b in have),
+                  cell(sc.test_rmse_offset_removed),
+                  f"{sc.test_rmse_speech:.3f} / {sc.test_rmse_speech_offset_removed:.3f}",
+                  *(pair(sc.baselines.get(b)) for b in have),
                   f"{sc.worst_vowel[1]:.3f} ({escape(sc.worst_vowel[0])})")
     if len({sc.split for sc in scores}) > 1:
-        per = {b: pooled(scores, b) for b in have}
+        def both(b: str, ch: str) -> BaselineFigures | None:
+            a, s = pooled(scores, b).get(ch), pooled(scores, b, speech=True).get(ch)
+            return None if a is None else (a[0], a[1], float("nan"), *(s[:2] if s else (float("nan"),) * 2))
+
+        speech = pooled(scores, speech=True)
         for ch, (rm, ro, _) in pooled(scores).items():
-            t.add_row("[bold]all splits pooled[/bold]", ch, "", cell(rm), cell(ro),
-                      *(pair(per[b].get(ch)) for b in have), "")
+            rs, rso = speech[ch][:2] if ch in speech else (float("nan"), float("nan"))
+            t.add_row("[bold]all splits pooled[/bold]", ch, "", cell(rm), cell(ro), f"{rs:.3f} / {rso:.3f}",
+                      *(pair(both(b, ch)) for b in have), "")
     return t

@@ -19,7 +19,8 @@ from coartic.fit.heldout import pooled  # noqa: E402
 from coartic.fit.result import BAR_MM, ChannelFit, FitResult  # noqa: E402
 from coartic.model import Utterance, segment_weights  # noqa: E402
 from coartic.runtime.preview import MAX_SEGMENT_BOUNDARIES, MAX_SEGMENT_LABELS  # noqa: E402
-from coartic.table import PAUSE, ParameterTable  # noqa: E402
+from coartic.pauses import PAUSE_PHONEMES, is_pause  # noqa: E402
+from coartic.table import ParameterTable  # noqa: E402
 
 # The paper's Figure 1: lower lip opening for /a d a/, /a dz a/, /a l a/.
 FIGURE1_STIMULI = ("a d a", "a dz a", "a l a")
@@ -116,12 +117,13 @@ def segment_labels(ax: Any, labels: Sequence[str], starts: Sequence[float] | NDA
 
 
 def phoneme_colours(phonemes: Sequence[str]) -> dict[str, Any]:
-    """One colour per phoneme (the pause grey), the same in every panel of a figure."""
+    """One colour per phoneme (the pauses greys), the same in every panel of a figure."""
     palette = [plt.get_cmap(name)(k) for name in ("tab20", "tab20b", "tab20c") for k in range(20)]
-    others = [p for p in dict.fromkeys(phonemes) if p != PAUSE]
+    others = [p for p in dict.fromkeys(phonemes) if not is_pause(p)]
     colours: dict[str, Any] = {p: palette[k % len(palette)] for k, p in enumerate(others)}
-    if "#" in phonemes:
-        colours["#"] = (0.6, 0.6, 0.6, 1.0)
+    for k, p in enumerate(PAUSE_PHONEMES):  # '#' (initial), '#end', '#mid': three greys
+        if p in phonemes:
+            colours[p] = (0.6 - 0.15 * k, 0.6 - 0.15 * k, 0.6 - 0.15 * k, 1.0)
     return colours
 
 

@@ -19,14 +19,13 @@ FAP file and the ARKit curves for players whose faces have them.
 
 from __future__ import annotations
 
-from typing import Mapping
+from typing import Any, Mapping
 
 import numpy as np
 from numpy.typing import NDArray
 
 from coartic.emotions import expression_weights
 from coartic.runtime.animate import Animation
-from coartic.runtime.fap import FAP_VALUE_LIMIT, FapSequence
 
 F64 = NDArray[np.float64]
 
@@ -59,30 +58,41 @@ EXPRESSION_ARKIT: dict[str, dict[str, float]] = {
     "fear": {"browInnerUp": 0.8, "browOuterUpLeft": 0.3, "browOuterUpRight": 0.3, "browDownLeft": 0.2,
              "browDownRight": 0.2, "eyeWideLeft": 0.8, "eyeWideRight": 0.8},
 }
-# the eyelid FAPs the blinks also drive: the expression adds to the blink there
-LID_FAPS: tuple[int, ...] = (19, 20)
 
 
 def _intensities(animation: Animation) -> dict[str, F64]:
     return expression_weights(animation.table, animation.times)
 
 
-def add_expression_faps(seq: FapSequence, animation: Animation) -> FapSequence:
-    """``seq`` with the animation's expression (``EXPRESSION_FAPS`` times each frame's intensity)
-    added to its FAPs; ``seq`` itself when the animation speaks no emotion."""
-    weights = _intensities(animation)
-    if not weights:
-        return seq
-    mask, values = seq.mask.copy(), seq.values.copy()
+def table_asymmetry(animation: Animation, emotion: str) -> tuple[float, float]:
+    """(ASYMX, ASYMY) mm of ``emotion`` in the animation's table: a fit's (``metadata.emotions.asymmetry``,
+    measured on the corner markers) or a truth's; (0, 0) where the table has none."""
+    meta = ((animation.table.metadata or {}).get("emotions") or {}) if animation.table is not None else {}
+    per = (meta.get("asymmetry") or {}).get(emotion) or {}
+
+    def value(v: Any) -> float:
+        return float(v["value"]) if isinstance(v, dict) else float(v)
+
+    return value(per.get("ASYMX", 0.0)), value(per.get("ASYMY", 0.0))
+
+
+def expression_fap_offsets(animation: Animation, mns_mm: float, mw_mm: float) -> dict[int, F64]:
+    """FAP -> what the animation's expression adds to it per frame (FAP units): ``EXPRESSION_FAPS``
+    times each frame's intensity, and the table's corner asymmetries on the corners' FAPs (ASYMY half
+    up on the right corner, 13, and half down on the left, 12, in MNS; ASYMX half out on the right, 7,
+    and half in on the left, 6, in MW; ``mns_mm``, ``mw_mm`` the face's). {} without an emotion;
+    ``runtime.fap.animation_faps`` adds them."""
     added: dict[int, F64] = {}
-    for emotion, w in weights.items():
+    n = animation.n_frames
+    for emotion, w in _intensities(animation).items():
         for fap, v in EXPRESSION_FAPS.get(emotion, {}).items():
-            added[fap] = added.get(fap, np.zeros(seq.n_frames)) + v * w[: seq.n_frames]
-    for fap, a in added.items():
-        col = values[:, fap - 1].astype(np.float64) + a
-        values[:, fap - 1] = np.clip(np.rint(col), -FAP_VALUE_LIMIT, FAP_VALUE_LIMIT).astype(np.int64)
-        mask[:, fap - 1] = True
-    return FapSequence(name=seq.name, fps=seq.fps, mask=mask, values=values, first_frame=seq.first_frame)
+            added[fap] = added.get(fap, np.zeros(n)) + v * w
+        ax, ay = table_asymmetry(animation, emotion)
+        for fap, mm, unit in ((12, -ay / 2, mns_mm / 1024.0), (13, ay / 2, mns_mm / 1024.0),
+                              (6, -ax / 2, mw_mm / 1024.0), (7, ax / 2, mw_mm / 1024.0)):
+            if mm:
+                added[fap] = added.get(fap, np.zeros(n)) + (mm / unit) * w
+    return added
 
 
 def expression_arkit(animation: Animation) -> Mapping[str, F64]:

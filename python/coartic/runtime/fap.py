@@ -375,13 +375,27 @@ def animation_faps(animation: Animation, face: FaceUnits, name: str) -> FapSeque
     """The animation's FAPs in `face`'s units: lips and jaw from its channels and neutral face, the
     tongue from its table's tongue channels or the default (coartic.runtime.tongue), blinks, and the
     expression of an emotion it speaks with (coartic.runtime.expression)."""
-    from coartic.runtime.expression import add_expression_faps
+    from coartic.runtime.expression import expression_fap_offsets
     from coartic.runtime.tongue import tongue_channels
 
     faps = channels_to_faps(animation.channels, animation.neutral, face, name, animation.fps)
     tongue, rest, _ = tongue_channels(animation)
     # an emotion's brows, lids, cheeks and corners (coartic.runtime.expression), over the blinks
-    return add_expression_faps(add_blinks(add_tongue_faps(faps, tongue, rest, face)), animation)
+    return add_fap_offsets(add_blinks(add_tongue_faps(faps, tongue, rest, face)),
+                           expression_fap_offsets(animation, face.mns_mm, face.mw_mm))
+
+
+def add_fap_offsets(seq: FapSequence, offsets: Mapping[int, NDArray[np.float64]]) -> FapSequence:
+    """``seq`` with ``offsets`` (FAP -> values per frame, FAP units) added, each FAP sent; ``seq``
+    itself when there are none."""
+    if not offsets:
+        return seq
+    mask, values = seq.mask.copy(), seq.values.copy()
+    for fap, add in offsets.items():
+        col = values[:, fap - 1].astype(np.float64) + np.asarray(add, dtype=np.float64)[: seq.n_frames]
+        values[:, fap - 1] = np.clip(np.rint(col), -FAP_VALUE_LIMIT, FAP_VALUE_LIMIT).astype(np.int64)
+        mask[:, fap - 1] = True
+    return FapSequence(name=seq.name, fps=seq.fps, mask=mask, values=values, first_frame=seq.first_frame)
 
 
 def export_fap(animation: Animation, settings: ExportSettings) -> dict[str, Path]:

@@ -1,0 +1,206 @@
+"""Pauses as people label them (issue 25 item 2): one pause label, three postures.
+
+The recordings are files written here that reproduce each case of the English EMA: an open-lipped
+breath before the sentence, closed lips after it, and in a fast token a 20 ms "pause" inside the
+closure of a /p/. The lips move as a ground-truth table with its own initial and final pause
+postures says; the files are read back through the product's readers.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pytest
+
+import format_fixtures as ff
+from coartic import ParameterTable, trajectories
+from coartic.fit import run
+from coartic.fit.score import score_recordings
+from coartic.fit.spec import load_spec, parse_spec
+from coartic.pauses import (FINAL_PAUSE, MEDIAL_ALPHA, MEDIAL_PAUSE, POSTURES_RECORD, RECORD_KEY, is_pause,
+                            pause_postures)
+from coartic.table import PAUSE
+
+RATE = 200.0
+# Sentences of the written recordings: (labels, durations); '#' the pause label of the label files
+SENTENCES = (
+    (("#", "p", "a", "m", "i", "t", "u", "#"), (0.25, 0.08, 0.16, 0.08, 0.16, 0.07, 0.18, 0.30)),
+    (("#", "m", "i", "p", "a", "t", "i", "#"), (0.25, 0.08, 0.15, 0.09, 0.17, 0.07, 0.16, 0.30)),
+    (("#", "t", "u", "m", "a", "p", "i", "#"), (0.25, 0.07, 0.16, 0.08, 0.16, 0.08, 0.17, 0.30)),
+)
+
+
+def truth_table() -> ParameterTable:
+    """The synthetic session's ground truth with the English postures: the breath before the
+    sentence with open lips (both lips 4 mm above their /a/-less rest), closed lips after it (the
+    /p/ posture), and the rules of coartic.pauses recorded."""
+    t = ParameterTable.load(ff.TRUTH)
+    t.values[FINAL_PAUSE] = {c: dict(v) for c, v in t.values["p"].items()}
+    for c in ("ULO", "LLO"):
+        t.values[PAUSE][c]["target"] = 4.0
+    t.metadata[RECORD_KEY] = dict(POSTURES_RECORD)
+    return t
+
+
+def write_recording(tmp: Path, name: str, labels: tuple[str, ...], durations: tuple[float, ...],
+                    label_rows: list[tuple[float, float, str]] | None = None) -> tuple[Path, Path]:
+    """An EMA CSV of the lips and jaw moving as ``truth_table`` says over ``labels``, and its label
+    file (``label_rows`` if given: the labels as an aligner wrote them)."""
+    ends = np.cumsum(durations)
+    starts = np.concatenate([[0.0], ends[:-1]])
+    times = np.arange(int(np.floor(ends[-1] * RATE + 1e-6))) / RATE
+    ch = trajectories(truth_table(), list(labels), starts, ends, times, channels=["ULO", "LLO", "JO", "ULP"])
+    up, lo = ch["ULO"], ch["LLO"]
+    jaw, prot = ch["JO"] - ch["JO"][0], ch["ULP"] - ch["ULP"][0]
+    zeros = np.zeros_like(times)
+    sensors = {
+        "UL": np.stack([ff.REST["UL"][0] + prot, ff.REST["UL"][1] + up], axis=1),
+        "LL": np.stack([ff.REST["LL"][0] + prot, ff.REST["LL"][1] - lo], axis=1),
+        "JAW": np.stack([ff.REST["JAW"][0] - 0.2 * jaw, ff.REST["JAW"][1] - jaw], axis=1),
+        **{s: np.stack([ff.REST[s][0] + zeros, ff.REST[s][1] + zeros], axis=1) for s in ("TT", "TB", "TD")},
+    }
+    data = ff.write_lab_csv(tmp / f"{name}.csv", ff.Motion(times, sensors, starts, ends))
+    rows = label_rows or [(float(s), float(e), lab) for s, e, lab in zip(starts, ends, labels)]
+    lab = tmp / f"{name}.tsv"
+    lab.write_text("".join(f"{s!r}\t{e!r}\t{x if x != '#' else 'sil'}\n" for s, e, x in rows))
+    return data, lab
+
+
+def spec_for(tmp: Path, files: list[tuple[Path, Path]], pauses: str) -> Any:
+    path = tmp / f"spec_{pauses}.toml"
+    path.write_text(f"name = 'pauses {pauses}'\n[corpus]\nfiles = {json.dumps([str(d) for d, _ in files])}\n"
+                    f"labels = {json.dumps([str(lab) for _, lab in files])}\n"
+                    f"[model]\nchannels = ['LA']\npauses = '{pauses}'\n[fit]\nstarts = 1\n")
+    return load_spec(path)
+
+
+def test_rules_on_labels() -> None:
+    labels = ("#", "#", "m", "a", "#", "p", "a", "#", "t", "a", "p", "#", "p", "a", "#", "#")
+    durs = (0.2, 0.1, 0.08, 0.15, 0.02, 0.08, 0.15, 0.3, 0.07, 0.15, 0.05, 0.03, 0.05, 0.15, 0.2, 0.3)
+    ends = np.cumsum(durs)
+    starts = np.concatenate([[0.0], ends[:-1]])
+    labs, s, e, changes = pause_postures(labels, starts, ends)
+    # the leading pauses stay '#', the trailing ones are '#end'; the 300 ms pause mid-utterance is
+    # weak '#mid'; the 20 ms pause before /p/ joins the /p/ (its closure); the 30 ms pause between
+    # two /p/ joins them into one /p/
+    assert labs == ("#", "#", "m", "a", "p", "a", MEDIAL_PAUSE, "t", "a", "p", "a", FINAL_PAUSE, FINAL_PAUSE)
+    assert s[4] == pytest.approx(starts[4]) and e[4] == pytest.approx(ends[5])  # pause + /p/: one segment
+    assert s[9] == pytest.approx(starts[10]) and e[9] == pytest.approx(ends[12])  # p # p: one /p/
+    assert np.all(s[1:] == e[:-1])
+    said = [c.text() for c in changes]
+    assert any("(segment 5, 20 ms) is the silent closure of the /p/ after it" in x for x in said)
+    assert any("(segment 12, 30 ms) lies between two segments of /p/" in x for x in said)
+    assert any("(segment 8, 300 ms) lies inside the utterance: fitted as '#mid', weak" in x for x in said)
+    # applying the rules again changes nothing; a table without the rows keeps '#'
+    again = pause_postures(labs, s, e)
+    assert again[0] == labs and not again[3]
+    kept = pause_postures(labels, starts, ends, available={"#", "m", "a", "p", "t"})[0]
+    assert kept[6] == PAUSE and kept[-1] == PAUSE and kept[4] == "p"
+    # a table fitted on the second halves of utterances has '#end' but no '#'
+    assert pause_postures(labs, s, e, available={FINAL_PAUSE, MEDIAL_PAUSE, "m", "a", "p", "t"})[0][:2] == \
+        (FINAL_PAUSE, FINAL_PAUSE)
+    # a long pause before a stop, or a short one between different vowels, is a medial pause
+    long_before_stop = pause_postures(("#", "a", "#", "p", "a", "#"), [0, .1, .2, .35, .4, .5], [.1, .2, .35, .4, .5, .6])
+    assert long_before_stop[0][2] == MEDIAL_PAUSE
+    assert pause_postures(("a", "#", "i"), [0, .1, .12], [.1, .12, .2])[0] == ("a", MEDIAL_PAUSE, "i")
+    assert all(is_pause(p) for p in (PAUSE, FINAL_PAUSE, MEDIAL_PAUSE)) and not is_pause("p")
+
+
+def test_edge_postures_and_a_pause_inside_a_closure(tmp_path: Path) -> None:
+    """Leading open-lip pause, trailing closed-lip pause and a 20 ms pause inside a /p/ closure:
+    one pause target cannot fit them (LA error in the pauses), three postures can; the fit
+    report names the changes; score and the runtime read the table with its pause rows."""
+    files = [write_recording(tmp_path, f"s{k}", labels, durs) for k, (labels, durs) in enumerate(SENTENCES)]
+    # the fast token: the aligner wrote the first 20 ms of the /p/ closure as a pause
+    labels, durs = SENTENCES[2]  # # t u m a p i #: the /p/ is segment 6
+    ends = np.cumsum(durs)
+    starts = np.concatenate([[0.0], ends[:-1]])
+    rows = [(float(s), float(e), lab) for s, e, lab in zip(starts, ends, labels)]
+    rows[5:6] = [(float(starts[5]), float(starts[5]) + 0.02, "#"), (float(starts[5]) + 0.02, float(ends[5]), "p")]
+    files.append(write_recording(tmp_path, "fast", labels, durs, rows))
+
+    one = run(spec_for(tmp_path, files, "one"), quiet=True, report=False)
+    out = tmp_path / "postures"
+    three = run(spec_for(tmp_path, files, "postures"), out, quiet=True, report=False)
+    table = ParameterTable.load(out / "table.json")
+    assert {PAUSE, FINAL_PAUSE} <= set(table.phonemes) and table.metadata[RECORD_KEY]["mode"] == "postures"
+    # the final pause has the closed lips of /p/ (LA = 16 mm at rest + ULO + LLO = 11.5 mm), the
+    # initial one the open breath (16 + 4 + 4 = 24 mm)
+    la = {p: table.values[p]["LA"]["target"] for p in (PAUSE, FINAL_PAUSE)}
+    assert abs(la[FINAL_PAUSE] - 11.5) < 1.0 and abs(la[PAUSE] - 24.0) < 1.0
+
+    def pause_rmse(result: Any) -> float:
+        fit = result.channels["LA"]
+        r = fit.fitted - fit.problem.data.observed
+        d = fit.problem.data
+        pause = np.zeros(r.size, dtype=bool)
+        k = 0
+        for u in d.utterances:
+            seg = u.sample_segments()
+            labs = np.array([is_pause(x) for x in u.labels] + [True])
+            pause[k:k + u.times.size] = labs[seg]
+            k += u.times.size
+        ok = d.weights > 0
+        return float(np.sqrt(np.mean(r[pause & ok] ** 2)))
+
+    assert pause_rmse(three) < 0.5 * pause_rmse(one)
+    assert three.channels["LA"].rmse < one.channels["LA"].rmse
+    report = (out / "fit_report.txt").read_text()
+    assert "pauses: 4 utterance-final pause(s) fitted as '#end'" in report
+    assert "fast.csv: the pause at 0.720-0.740 s (segment 6, 20 ms) is the silent closure of the /p/ after it" in report
+
+    # `coartic score`'s figures: all samples and speech only, for the table and every baseline
+    held = write_recording(tmp_path, "held", SENTENCES[1][0], SENTENCES[1][1])
+    sc = score_recordings(out / "table.json", [held[0]], [held[1]], train=tmp_path / "spec_postures.toml")
+    for row in sc.baseline_rows():
+        assert row["speech_samples"] < row["samples"]
+        assert np.isfinite(row["rmse_speech_mm"]) and np.isfinite(row["rmse_speech_offset_removed_mm"])
+    assert {r["model"] for r in sc.baseline_rows()} >= {"table", "step", "constant"}
+    assert "speech only (pauses left out)" in sc.text()
+
+    # the runtime animates labels with pauses from the new table, and old tables still load
+    from coartic.runtime.animate import animate
+    from coartic.io.labels import read_labels
+    from coartic.io.labelmap import LabelMap
+
+    segs = LabelMap.model().apply(read_labels(files[-1][1]))
+    anim = animate(table, segs, 100.0, channels=["LA"])
+    final = anim.times > ends[-2] + 0.15
+    assert np.all(np.isfinite(anim.channels["LA"]))
+    assert abs(float(np.mean(anim.channels["LA"][final])) - la[FINAL_PAUSE]) < 1.5
+    old = json.loads((out / "table.json").read_text())
+    old["metadata"].pop(RECORD_KEY)
+    for p in (FINAL_PAUSE,):
+        for section in ("values", "parameters", "phonemes"):
+            if isinstance(old.get(section), dict):
+                old[section].pop(p, None)
+    (tmp_path / "old.json").write_text(json.dumps(old))
+    before = ParameterTable.load(tmp_path / "old.json")
+    assert FINAL_PAUSE not in before.phonemes
+    assert np.all(np.isfinite(animate(before, segs, 100.0, channels=["LA"]).channels["LA"]))
+
+
+def test_medial_pause_is_weak(tmp_path: Path) -> None:
+    """A medial pause's α starts (and, α not free, stays) at MEDIAL_ALPHA: its neighbours dominate."""
+    from coartic.estimation.problem import build_problem
+    from coartic.model import Utterance
+
+    times = np.arange(0, 1.0, 0.005)
+    u = Utterance(("#", "a", "#", "i", "#"), [0, .2, .4, .7, .9], [.2, .4, .7, .9, 1.0], times, "u",
+                  {"LA": np.sin(times * 6)}, {"LA": np.ones(times.size, dtype=bool)})
+    from coartic.fit.data import with_spec_pauses
+
+    s = parse_spec({"corpus": {"files": ["x"], "labels": ["y"]}, "model": {"channels": ["LA"]}}, tmp_path / "s.toml")
+    notes: list[str] = []
+    (v,) = with_spec_pauses(s, [u], notes)
+    assert v.labels == ("#", "a", MEDIAL_PAUSE, "i", FINAL_PAUSE)
+    assert any("'#mid', weak" in n for n in notes)
+    p = build_problem(s, [v], "LA")
+    row = p.phonemes.index(MEDIAL_PAUSE)
+    # the default frees α (pooled): the medial pause's starts at MEDIAL_ALPHA; where α is not free it stays there
+    assert p.packing.base[row, 1] == MEDIAL_ALPHA and f"{MEDIAL_PAUSE}.alpha" in p.packing.names()
+    fixed = build_problem(s.with_options(free=("target", "theta_bw", "theta_fw"), pooled=()), [v], "LA")
+    assert fixed.packing.base[row, 1] == MEDIAL_ALPHA and f"{MEDIAL_PAUSE}.alpha" not in fixed.packing.names()
