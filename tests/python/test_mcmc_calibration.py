@@ -61,6 +61,14 @@ enabled = false
 scope = "channel"
 ensembles = 2
 max_steps = 20000
+# Convergence checked every 1000 steps rather than the default 500: a check's cost grows with the
+# chain (3 CPU-s at 4000 steps, half the sampling of 500 steps of both ensembles) and both channels
+# converge at 7500-8000 steps (tau_max ~ 135; the 50 tau length rule decides), so half as many
+# checks cut the command's CPU time from 303 s to 253 s (same load, same run). The checks and their
+# thresholds are the command's own and --strict still requires every one to pass; the chains are
+# the same (same seed, chunks continue one random state), at most 500 steps longer before the
+# summary is taken: 54 identified, 52 covered in both runs.
+chunk_steps = 1000
 plots = false
 """
 
