@@ -50,7 +50,9 @@ table-italian-changed: setup
 	$(PY) -m coartic.cli fit fit/italian_tongue.toml --out results/italian_tongue --validate
 	$(PY) fit/ship_table.py --lips results/italian --tongue results/italian_tongue --session build/italian --keep-unchanged
 
-test: setup test-rust stubtest typecheck test-python test-core
+# test-core builds the wheel (build/core-wheel) that test-python's wheel test then installs
+test: setup test-rust stubtest typecheck test-core
+	COARTIC_WHEEL_DIR=$(CURDIR)/build/core-wheel $(MAKE) test-python
 
 # dist/coartic-VERSION-cp311-abi3-PLATFORM.whl: one wheel for every CPython >= 3.11 (pyo3's
 # abi3-py311), installed by pip without Rust (tests/python/test_wheel.py). Reuses make setup's build.
@@ -83,7 +85,7 @@ typecheck:
 	$(PY) -m mypy
 
 test-python:
-	$(PY) -m pytest -q -n 2 tests/python
+	$(PY) -m pytest -q -n 2 --dist loadfile tests/python
 
 # Each benchmark prints ratios measured in one run and saves its output in bench/results/.
 bench: setup

@@ -24,6 +24,11 @@ compgen -G "/usr/lib/postgresql/*/bin/initdb" >/dev/null || need_apt+=(postgresq
 command -v gltfpack >/dev/null 2>&1 || need_apt+=(gltfpack)
 command -v tovrmlx3d >/dev/null 2>&1 || need_apt+=(view3dscene)
 [ -f /usr/share/javascript/three/examples/js/loaders/GLTFLoader.js ] || need_apt+=(libjs-three)
+# Blender is not installed here (80 packages); where it is, its glTF importer needs NumPy in the
+# system Python that Debian's Blender runs (the Blender tests run only where Blender is)
+if command -v blender >/dev/null 2>&1 && ! /usr/bin/python3 -c "import numpy" >/dev/null 2>&1; then
+  need_apt+=(python3-numpy)
+fi
 if ((${#need_apt[@]})); then
   sudo_cmd=""
   [ "$(id -u)" -eq 0 ] || sudo_cmd="sudo"

@@ -125,3 +125,24 @@ def multistart_default(request: pytest.FixtureRequest, single_start_fits: int, m
         import coartic.fit.spec
 
         monkeypatch.setattr(coartic.fit.spec, "DEFAULT_STARTS", single_start_fits)
+
+
+# The files whose tests take longest, longest first (CPU seconds of a whole run, `pytest -n 2
+# --durations=50 tests/python`; docs/ARCHITECTURE.md, Tests). `make test-python` hands whole files to the two
+# workers (`--dist loadfile`, so a module's fixtures are built once) in collection order, each
+# worker taking the next file when it is nearly done: the longest files first, then every other
+# file holding a test marked `slow`, then the rest, so that no long file starts last and leaves one
+# worker idle at the end. Only the order changes: every test still runs.
+LONGEST_FIRST = ("test_mcmc_calibration.py",)
+
+
+def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
+    slow_files = {item.path.name for item in items if item.get_closest_marker("slow") is not None}
+
+    def rank(item: pytest.Item) -> tuple[int, int]:
+        name = item.path.name
+        if name in LONGEST_FIRST:
+            return 0, LONGEST_FIRST.index(name)
+        return (1 if name in slow_files else 2), 0
+
+    items.sort(key=rank)  # stable: the order inside a file, and among files of one rank, is kept

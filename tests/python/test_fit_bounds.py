@@ -209,7 +209,10 @@ def test_a_shared_parameter_is_reported_as_every_phonemes_everywhere(tmp_path: P
 
     from fit_helpers import german_utterance_spec
 
-    path = german_utterance_spec(tmp_path / "d.toml", '[model]\nchannels = ["JO"]\n')
+    # the previous default's freedom (one θ_bw, θ_fw per channel), given explicitly
+    path = german_utterance_spec(tmp_path / "d.toml", '[model]\nchannels = ["JO"]\n[parameters]\n'
+                                 'free = ["target", "theta_bw", "theta_fw"]\nshared = ["theta_bw", "theta_fw"]\n'
+                                 'target_prior = 0.3\n')
     res = run(path, tmp_path / "out", quiet=True, report=False)
     fit = res.channels["JO"]
     pk = fit.packing

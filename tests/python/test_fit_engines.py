@@ -113,7 +113,8 @@ def test_nlopt_fits_the_default_spec_polished_by_scipy_and_says_so(tmp_path: Pat
     result = run(spec.with_options(engine="nlopt"), tmp_path / "nlopt", quiet=True, report=False)
     fit = result.channels["LA"]
     assert fit.status == "converged" and fit.polished
-    assert fit.rmse == pytest.approx(scipy_fit.rmse, abs=1e-4)
+    # (the default's pooling sd is settled to 2 %: two engines' re-solves end within a few 1e-4 mm)
+    assert fit.rmse == pytest.approx(scipy_fit.rmse, abs=5e-4)
     assert "nlopt result -1 (FAILURE); polished by scipy least_squares" in fit.polished[-1]
     assert any("LA: polished" in line and "polished by scipy" in line for line in status_lines(result))
     assert "polished by scipy least_squares" in (tmp_path / "nlopt" / "fit_report.txt").read_text()

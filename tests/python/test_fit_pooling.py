@@ -174,3 +174,45 @@ def test_autocorrelated_residuals_count_as_fewer_samples() -> None:
     weights = np.ones(n * k)
     weights[::7] = 0.0
     assert residual_weight(np.where(weights > 0, ar.ravel(), 1e6), offsets, weights)[1] == pytest.approx(tau, rel=0.2)
+
+
+def test_mcmc_samples_the_pool_and_names_what_it_holds_fixed(tmp_path: Path, differ: list[model.Utterance]) -> None:
+    from coartic.mcmc.posterior import channel_posterior, phoneme_posterior
+    from coartic.mcmc.run import McmcConfig, channel_runs
+    from coartic.mcmc.sampler import SamplerSettings
+    from coartic.table import ParameterTable
+
+    s = spec_of(tmp_path, parameters={**POOLED, "target_prior": "estimated"}).with_options(starts=1)
+    run(s, tmp_path / "fit", utterances=differ, quiet=True, report=False)
+    table = ParameterTable.load(tmp_path / "fit" / "table.json")
+    prob = build_problem(s, differ, "LLO", table)
+    pool = prob.pool
+    assert pool is not None
+    joint = channel_posterior(prob.data, prob.packing, prob.options, pool=pool)
+    fams = ["sd(pooled theta_bw)", "sd(pooled theta_fw)", "sd(target prior)"]
+    assert joint.names[-3:] == fams and joint.names[: prob.packing.n_free] == prob.packing.names()
+    x0 = joint.start_point()
+    np.testing.assert_allclose(joint.to_natural(x0)[-3:], [pool.tau[f[3:-1]] for f in fams])
+    # the hierarchical prior: −½ Σ dev²/τ² − rank log τ per family; at the fit's τ its deviation part
+    # is the least-squares pool rows' −½ Σ rows² / noise²
+    held = phoneme_posterior(prob.data, prob.packing, prob.options, "a", pool=pool)
+    assert not any(n.startswith("sd(") for n in held.names)
+    n_rows = prob.n_residuals - prob.pool_size
+    rows = prob.residuals(prob.packing.pack())[n_rows:]
+    plain = phoneme_posterior(prob.data, prob.packing, prob.options, "a")
+    xa = held.start_point()
+    ranks = sum(pool.rank(f) * np.log(pool.tau[f]) for f in pool.families)
+    np.testing.assert_allclose(held.log_prior(xa[None]) - plain.log_prior(xa[None]),
+                               -0.5 * rows @ rows / pool.noise**2 - ranks, rtol=1e-9)
+    x1 = x0.copy()
+    x1[-1] += 0.5  # a wider target prior: the prior term changes by exactly its formula
+    dev = pool.deviations(prob.packing.base, prob.data.phonemes)[-1]
+    diff = joint.log_prior(x1[None]) - joint.log_prior(x0[None])
+    expect = -0.5 * (dev @ dev) * (np.exp(-2 * x1[-1]) - np.exp(-2 * x0[-1])) - pool.rank("target prior") * 0.5
+    np.testing.assert_allclose(diff, expect, rtol=1e-9)
+    # a per-phoneme run holds the pool's sd and the pause's parameters at the fit's values, and says so
+    cfg = McmcConfig(phonemes=("a",), noise=0.1, offsets="none", plots=False,
+                     settings=SamplerSettings(n_walkers=8, n_ensembles=1, chunk_steps=20, min_steps=20, max_steps=20))
+    runs, _ = channel_runs("LLO", prob.data, prob.packing, prob.options, cfg, tmp_path / "mcmc", progress=False,
+                           pool=pool)
+    assert set(runs[0].held_fixed) >= {"#.target", "i.theta_bw", *fams} and "a.target" not in runs[0].held_fixed

@@ -1,7 +1,8 @@
-"""The model recommended for real recordings (docs/REAL_DATA.md) as the default of a spec that sets
-nothing: rate-aware dominance, targets free with one shared theta_bw and theta_fw per channel
-(``[parameters] shared``), and every target drawn toward the data's own phoneme mean
-(``[parameters] target_prior``); the specs of fit/ that keep the paper's model say so."""
+"""The model recommended (docs/REAL_DATA.md) as the default of a spec that sets nothing: rate-aware
+dominance, each phoneme's target, alpha and theta free with the dynamics partially pooled
+(``[parameters] pooled``, coartic.estimation.pooling), and every target drawn toward the data's own
+phoneme mean (``[parameters] target_prior``, its sd estimated); one shared theta per channel
+(``[parameters] shared``) on request; the specs of fit/ that keep the paper's model say so."""
 
 from __future__ import annotations
 
@@ -18,8 +19,8 @@ from coartic.fit.baselines import Baselines
 from coartic.fit.choose import set_value
 from coartic.fit.score import score_recordings
 from coartic.fit.simulate import PHONEMES, vcv_utterances
-from coartic.fit.spec import (DEFAULT_FREE, DEFAULT_SHARED, DEFAULT_TARGET_PRIOR, SpecError, load_spec,
-                              parse_spec)
+from coartic.fit.spec import (DEFAULT_FREE, DEFAULT_POOLED, DEFAULT_SHARED, DEFAULT_TARGET_PRIOR, SpecError,
+                              load_spec, parse_spec)
 from coartic.table import PARAMETERS
 
 from fit_helpers import EMA, check_problem_derivatives
@@ -41,18 +42,22 @@ def utts() -> list[model.Utterance]:
 def test_a_spec_that_sets_nothing_is_the_recommended_model(tmp_path: Path) -> None:
     s = parsed(tmp_path)
     assert (s.dominance, s.handover, s.plateau_fraction) == ("plateau", True, 0.5)
-    assert s.free == DEFAULT_FREE == ("target", "theta_bw", "theta_fw")
-    assert s.shared == DEFAULT_SHARED == ("theta_bw", "theta_fw")
-    assert s.target_prior == DEFAULT_TARGET_PRIOR == 0.3
+    assert s.free == DEFAULT_FREE == ("target", "alpha", "theta_bw", "theta_fw")
+    assert s.pooled == DEFAULT_POOLED == ("alpha", "theta_bw", "theta_fw") and s.shared == DEFAULT_SHARED == ()
+    assert s.target_prior == DEFAULT_TARGET_PRIOR == "estimated"
     # the template shows the defaults: copying it changes nothing
     t = load_spec(ROOT / "fit" / "template.toml")
-    for key in ("variant", "dominance", "handover", "plateau_fraction", "free", "shared", "target_prior", "prior_noise"):
+    for key in ("variant", "dominance", "handover", "plateau_fraction", "free", "shared", "pooled", "target_prior",
+                "prior_noise"):
         assert getattr(t, key) == getattr(s, key), key
 
 
 def test_a_spec_that_lists_its_free_set_keeps_per_phoneme_dynamics(tmp_path: Path) -> None:
     s = parsed(tmp_path, parameters={"free": ["target", "alpha", "theta_bw"]})
-    assert s.shared == () and s.target_prior == DEFAULT_TARGET_PRIOR
+    assert s.shared == () and s.pooled == () and s.target_prior == DEFAULT_TARGET_PRIOR
+    # sharing some of the default's pooled dynamics pools the others
+    s = parsed(tmp_path, parameters={"shared": ["theta_bw"]})
+    assert s.shared == ("theta_bw",) and s.pooled == ("alpha", "theta_fw")
     s = parsed(tmp_path, parameters={"free": ["target", "alpha"], "shared": ["alpha"], "target_prior": "none"})
     assert s.shared == ("alpha",) and s.target_prior is None
 
@@ -102,7 +107,7 @@ def test_target_prior_rows_pull_toward_each_phonemes_segment_mean(tmp_path: Path
 def test_a_strong_target_prior_makes_the_targets_the_phoneme_means(tmp_path: Path, utts: list[model.Utterance]) -> None:
     """sd -> 0: the table is the step model's values under the dominance functions; without the
     prior the fitted targets leave them (the test can fail: the two differ)."""
-    base = parsed(tmp_path, model={"channels": ["LLO"], "dominance": "centre", "handover": False},
+    base = parsed(tmp_path, model={"channels": ["LLO"], "dominance": "centre", "handover": False, "pauses": "one"},
                   parameters={"free": ["target"], "target_prior": 0.001}, fit={"starts": 1})
     means = segment_means(utts, "LLO")
     for sd, close in ((0.001, True), (None, False)):
@@ -112,7 +117,8 @@ def test_a_strong_target_prior_makes_the_targets_the_phoneme_means(tmp_path: Pat
 
 
 def test_shared_dynamics_are_one_value_per_channel(tmp_path: Path, utts: list[model.Utterance]) -> None:
-    s = parsed(tmp_path, model={"channels": ["LLO"]}, fit={"starts": 1}, staging={"enabled": False})
+    s = parsed(tmp_path, model={"channels": ["LLO"]}, fit={"starts": 1}, staging={"enabled": False},
+               parameters={"free": ["target", "theta_bw", "theta_fw"], "shared": ["theta_bw", "theta_fw"]})
     prob = build_problem(s, utts, "LLO", phonemes=PHONEMES)
     assert prob.packing.n_free == len(PHONEMES) + 2  # every target, one theta_bw, one theta_fw
     fit = run(s, utterances=utts, quiet=True, report=False).channels["LLO"]

@@ -200,4 +200,7 @@ def test_medial_pause_is_weak(tmp_path: Path) -> None:
     assert any("'#mid', weak" in n for n in notes)
     p = build_problem(s, [v], "LA")
     row = p.phonemes.index(MEDIAL_PAUSE)
-    assert p.packing.base[row, 1] == MEDIAL_ALPHA and f"{MEDIAL_PAUSE}.alpha" not in p.packing.names()
+    # the default frees α (pooled): the medial pause's starts at MEDIAL_ALPHA; where α is not free it stays there
+    assert p.packing.base[row, 1] == MEDIAL_ALPHA and f"{MEDIAL_PAUSE}.alpha" in p.packing.names()
+    fixed = build_problem(s.with_options(free=("target", "theta_bw", "theta_fw"), pooled=()), [v], "LA")
+    assert fixed.packing.base[row, 1] == MEDIAL_ALPHA and f"{MEDIAL_PAUSE}.alpha" not in fixed.packing.names()

@@ -54,12 +54,22 @@ def no_rust_env() -> dict[str, str]:
     return env
 
 
-def test_wheel_installs_into_a_fresh_venv_without_rust_and_evaluates(tmp_path: Path) -> None:
+def built_wheel(tmp_path: Path) -> Path:
+    """The folder holding the wheel: `make test` builds it once, for `make test-core`, and passes it
+    here as COARTIC_WHEEL_DIR (the same maturin command); run alone, this test builds its own."""
+    given = os.environ.get("COARTIC_WHEEL_DIR")
+    if given:
+        return Path(given)
     dist = tmp_path / "dist"
     build = subprocess.run([sys.executable, "-m", "maturin", "build", "--release", "--quiet", "-o", str(dist)],
                            cwd=ROOT, capture_output=True, text=True, timeout=BUILD_TIMEOUT_S,
                            env={k: v for k, v in os.environ.items() if k != "CARGO_TARGET_DIR"})
     assert build.returncode == 0, build.stderr[-3000:]
+    return dist
+
+
+def test_wheel_installs_into_a_fresh_venv_without_rust_and_evaluates(tmp_path: Path) -> None:
+    dist = built_wheel(tmp_path)
     wheels = list(dist.glob("coartic-*.whl"))
     assert len(wheels) == 1, wheels
     wheel = wheels[0]

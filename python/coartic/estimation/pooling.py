@@ -32,8 +32,8 @@ residuals are not (a model error lasts many samples), and counted as n independe
 would swamp every prior (τ → ∞, per-phoneme fits, on any real recording). So the data are weighed
 as n_eff = w n samples, w = 1/τ_int from the residuals' integrated autocorrelation time (Geyer's
 initial positive sequence, as MCMC's effective sample size; ``residual_weight``): J, r and n above
-are scaled by √w, √w and w, and the MAP's prior rows by σ/√w. White residuals (the synthetic
-sessions) have w ≈ 1; the German EMA at 200 Hz about 1/8. It is minimised over log σ and every log τ_f within ``TAU_BOUNDS``; the fit
+are scaled by √w, √w and w, and the MAP's prior rows by σ/√w. White residuals have w ≈ 1,
+the synthetic sessions fitted with the rate-aware model 1/4-1/6, the German EMA at 200 Hz about 1/20 (computed once, at the first optimum, so that a pooled fit's smoother misfit does not feed back into w). It is minimised over log σ and every log τ_f within ``TAU_BOUNDS``; the fit
 then re-solves the MAP at the new τ and the two alternate until τ settles (``coartic.fit.staged.
 fit_pooled``). The effective number of parameters is the trace of the hat matrix,
 tr(A⁻¹ JᵀJ/σ²), and each family's γ_f = rank_f − tr(A⁻¹K_fᵀK_f)/τ_f² (0: pooled into one value,
@@ -115,6 +115,27 @@ class Pool:
                 out.append(Shrinkage(packing, groups, 1.0 if unit else self.noise))
         return out
 
+    def deviations(self, params: FloatArray, phonemes: Sequence[str]) -> list[FloatArray]:
+        """Per family (``families`` order), the unit-sd deviations [..., rows] of parameter matrices
+        ``params`` [..., n_phonemes, 10]: a group's members from their mean (on the log scale for log
+        parameters), each target from its segment mean. The prior is −½ Σ_f |dev_f|² / τ_f² − rank_f log τ_f."""
+        out = []
+        for fam in self.families:
+            if fam == TARGET_FAMILY:
+                rows = [phonemes.index(k.rpartition(".")[0]) for k in self.target_means]
+                out.append(params[..., rows, 0] - np.array(list(self.target_means.values())))
+                continue
+            parts = []
+            for g in self.groups:
+                if g.family != fam:
+                    continue
+                v = params[..., list(g.rows), g.column]
+                with np.errstate(divide="ignore", invalid="ignore"):
+                    u = np.log(v) if g.log else v
+                parts.append(u - u.mean(axis=-1, keepdims=True))
+            out.append(np.concatenate(parts, axis=-1))
+        return out
+
     @property
     def noise(self) -> float:
         """The noise the rows are weighed against: σ / √w."""
@@ -126,19 +147,22 @@ class Pool:
 
 
 def pool_from_spec(spec: FitSpec, channel: str, phonemes: Sequence[str], moving: NDArray[np.bool_],
-                   priors: Mapping[str, Prior], start: Pool | None = None) -> Pool | None:
+                   priors: Mapping[str, Prior], start: Pool | None = None,
+                   followers: frozenset[int] = frozenset()) -> Pool | None:
     """The channel's pool from ``[parameters] pooled`` (one group of every phoneme per parameter)
     and ``target_prior = "estimated"`` (the target priors ``priors`` holds, taken out of the fixed
     ones by the caller); None when the spec estimates nothing. ``start``: τ and σ to start from
-    (a fitted table's)."""
+    (a fitted table's). ``followers``: flat entries tied to another (a [[tie]], a speaker's or
+    emotion's row of a phoneme): not members of their own, each distinct value counts once."""
     groups = []
     for name in spec.pooled:
         k = PARAMETERS.index(name)
         if not moving[:, k].any():
             raise SpecError.at(spec.path, "parameters.pooled", f"{name} is free for no phoneme on {channel}: "
                                "nothing to pool")
-        if len(phonemes) >= 2:
-            groups.append(ShrinkGroup("parameters.pooled", tuple(phonemes), tuple(range(len(phonemes))), k,
+        rows = tuple(i for i in range(len(phonemes)) if i * len(PARAMETERS) + k not in followers)
+        if len(rows) >= 2:
+            groups.append(ShrinkGroup("parameters.pooled", tuple(phonemes[i] for i in rows), rows, k,
                                       TAU_START, name in LOG_PARAMETERS, family_of(name)))
     means = {k: p.mean for k, p in priors.items()} if spec.target_prior == "estimated" else {}
     if not groups and not means:

@@ -401,14 +401,13 @@ def build_problem(spec: FitSpec, utterances: Sequence[Utterance], channel: str, 
         table_emotion_meta(spec, table)  # a table fitted with emotions needs the spec that has them
     pool = None
     if spec.pooled or spec.target_prior == "estimated":
-        if spec.speakers == "targets" or spec.emotions == "targets":
-            raise SpecError.at(spec.path, "parameters.pooled" if spec.pooled else "parameters.target_prior",
-                               "estimated pooling cannot be combined with [model] speakers or emotions = \"targets\" yet: "
-                               "give the sd ([[shrink]], a target_prior number) or another speakers mode")
+        # (with per-speaker or per-emotion rows: every row's target toward its own segment mean, the
+        # dynamics tied across a phoneme's rows counted once)
         free_now = moving(ps.free, ps.ties)
         means = target_priors(1.0, data.utterances, channel, data.phonemes, ps.free, ps.priors)
         pool = pool_from_spec(spec, channel, data.phonemes, free_now, means,
-                              None if table is None else table_pool(table, channel))
+                              None if table is None else table_pool(table, channel),
+                              frozenset(f for f, _ in ps.ties))
     return ChannelProblem(data, ps.packing(), options, ps.priors, spec.prior_noise,
                           None if offset_sd is None else float(offset_sd), spec.speakers, spec.speaker_column,
                           shrink, rows, prior, pool)

@@ -58,17 +58,20 @@ DEFAULT_FIT_BOUNDS: dict[str, tuple[float, float]] = {
     "psi": (10.0, 1e5), "delta": (-0.08, 0.08),
 }
 DEFAULT_BETA_BOUNDS: tuple[float, float] = (0.05, 20.0)
-# The model of a spec that sets nothing: the one that beat the step model (each phoneme's mean) held
-# out on the real recordings we have (bench/real_data.py, docs/REAL_DATA.md): the rate-aware
-# dominance (plateau + handover), every phoneme's target free but one theta_bw and one theta_fw per
-# channel shared by every phoneme ([parameters] shared; only when [parameters] free is not given
-# either), and every target drawn toward the data's own mean over that phoneme's segments with sd
-# DEFAULT_TARGET_PRIOR mm ([parameters] target_prior). Per-phoneme dynamics fitted the training data
-# better and predicted held-out speech worse there.
-DEFAULT_FREE: tuple[str, ...] = ("target", "theta_bw", "theta_fw")
-DEFAULT_SHARED: tuple[str, ...] = ("theta_bw", "theta_fw")
-DEFAULT_TARGET_PRIOR: float | str | None = 0.3
-DEFAULT_POOLED: tuple[str, ...] = ()
+# The model of a spec that sets nothing: the rate-aware dominance (plateau + handover), each phoneme's
+# target, alpha, theta_bw and theta_fw free, the dynamics partially pooled toward one value per
+# channel with a pooling strength estimated from the data ([parameters] pooled: empirical Bayes,
+# coartic.estimation.pooling; it reaches one shared value when the data do not support more), and
+# every target drawn toward the data's own mean over its phoneme's segments with an sd estimated the
+# same way ([parameters] target_prior = "estimated"). Measured against one shared theta_bw, theta_fw
+# per channel (the previous default) and free per-phoneme dynamics, held out on the synthetic
+# session (by rate, and data-starved), its gestures flavour (by rate) and the German EMA (by
+# utterance and in time): never the worst of the three, and better than the step model on each
+# (bench/real_data.py, docs/REAL_DATA.md "Partial pooling").
+DEFAULT_FREE: tuple[str, ...] = ("target", "alpha", "theta_bw", "theta_fw")
+DEFAULT_SHARED: tuple[str, ...] = ()
+DEFAULT_TARGET_PRIOR: float | str | None = "estimated"
+DEFAULT_POOLED: tuple[str, ...] = ("alpha", "theta_bw", "theta_fw")
 SPEC_MODEL_DEFAULTS: dict[str, Any] = {"dominance": "plateau", "handover": True}
 DEFAULT_STAGES: tuple[tuple[str, ...], ...] = (
     ("target",),
@@ -848,6 +851,8 @@ def document_fields(raw: Mapping[str, Any], path: Path) -> dict[str, Any]:
         fields["pooled"] = ()  # likewise the pooled dynamics
     if isinstance(p, Mapping) and isinstance(p.get("pooled"), list) and "shared" not in p and "free" not in p:
         fields["shared"] = tuple(q for q in DEFAULT_SHARED if q not in p["pooled"])  # pooled instead of shared
+    if isinstance(p, Mapping) and isinstance(p.get("shared"), list) and "pooled" not in p and "free" not in p:
+        fields["pooled"] = tuple(q for q in DEFAULT_POOLED if q not in p["shared"])  # shared instead of pooled
     for key in ("pooled",):
         if isinstance(p, Mapping) and isinstance(p.get(key), list):
             frees = [p.get("free", list(DEFAULT_FREE))] + [o.get("free", []) for o in raw.get("override", [])

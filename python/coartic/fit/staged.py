@@ -149,7 +149,8 @@ def fit_pooled(problem: ChannelProblem, x: NDArray[np.float64], engine: str, opt
         j = problem.jacobian(x)
         nd = r.size - problem.pool_size
         d = problem.data
-        w, _ = residual_weight(r[: d.corpus.n_samples], d.sample_offsets, d.weights)
+        if k == 0:  # once, at the first optimum: a pooled fit's smoother misfit must not feed back into w
+            w, _ = residual_weight(r[: d.corpus.n_samples], d.sample_offsets, d.weights)
         est = estimate(r[:nd], j[:nd].toarray(), problem.pool, problem.packing, x, d.n_valid, w)
         if settled(problem.pool, est) or k == rounds:
             est = replace(est, rounds=k, settled=settled(problem.pool, est))

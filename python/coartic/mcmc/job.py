@@ -117,6 +117,8 @@ def record_posterior(table: Any, run: PosteriorRun) -> None:
     (the posteriors whose intervals are not to be trusted) up to date."""
     write_uncertainty(table, run.channel, run.summaries)
     meta = table.metadata.setdefault("mcmc", {})
+    if run.held_fixed:  # what the fit estimated but no posterior sampled: no interval for it
+        meta.setdefault("held_fixed", {})[run.channel] = list(run.held_fixed)
     bad = meta.setdefault("not_converged", [])
     if not run.result.converged and run.label not in bad:
         bad.append(run.label)
@@ -138,7 +140,7 @@ def sample_table(fit_spec: Any, cfg: McmcConfig, table: Any, table_path: Path, u
         check_fit_matches_data(table, table_path, channel, data, packing, options, allow_stale, speakers)
         done, interrupted = channel_runs(channel, data, packing, options, cfg, out, progress, on_done=on_done,
                                          spec_priors=problem_priors(problem),
-                                         spec_shrinkage=problem.shrink_groups, speakers=speakers)
+                                         spec_shrinkage=problem.shrink_groups, speakers=speakers, pool=problem.pool)
         runs += done
         if interrupted:
             return runs, True
@@ -213,6 +215,7 @@ def sample(spec: str | Path, fit: str | Path, out: str | Path, *, channels: Sequ
             add_to_fit_report(table_path.parent, directory, runs)
             index = [
                 {"label": x.label, "channel": x.channel, "phoneme": x.phoneme, "converged": x.result.converged,
+                 "held_fixed": x.held_fixed,
                  "directory": str(x.directory.relative_to(directory)),
                  "inference_data": str((x.directory / "posterior.nc").relative_to(directory)),
                  "images": [str(p.relative_to(directory)) for p in x.images]}

@@ -66,6 +66,10 @@ def mcmc_command(
                     max_steps=max_steps, progress=not quiet, allow_stale=allow_stale_fit, force=force)
     runs, interrupted = result.runs, result.interrupted
     print_table(console, _status_table(runs))
+    for ch, held in {r.channel: r.held_fixed for r in runs}.items():
+        if held:  # estimated by the fit, sampled by no posterior here: their intervals are not given
+            console.print(escape(f"{ch}: held at the least-squares values (sampled in no posterior): {', '.join(held)}"),
+                          soft_wrap=True, highlight=False)
     bad = verdict_lines(runs)
     # Verdicts as soft-wrapped lines (not a panel, whose title is cut at a narrow width).
     if interrupted:

@@ -10,7 +10,13 @@ Sampling coordinates are the least-squares problem's own internal vector x
 * times optional Gaussian priors on natural values, keyed ``"phoneme.parameter"`` (or ``"beta"``);
 * times the fit spec's shrinkage toward class means (``[[shrink]]``: ``coartic.estimation.penalties.Shrinkage``,
   the least-squares rows divided by prior_noise, so −½ Σ z²);
-* ``-inf`` outside the support (those walkers are not even sent to the core).
+* ``-inf`` outside the support (those walkers are not even sent to the core);
+* times the fit's partial pooling (``[parameters] pooled``, ``target_prior = "estimated"``:
+  ``coartic.estimation.pooling``): each family's hierarchical prior −½ Σ dev²/τ_f² − rank_f log τ_f,
+  with τ_f sampled as ``log sd(family)`` (log-uniform on ``TAU_BOUNDS``) or held at the fit's
+  estimate; the likelihood then counts the samples as the fit's evidence did, n_eff = w n (the
+  log-likelihood times w, the data weight the fit recorded: autocorrelated residuals hold fewer
+  independent samples than there are samples).
 
 The likelihood is Gaussian with noise level σ_n per valid sample: either fixed (a number, e.g. the
 least-squares residual RMS) or sampled as ``log_sigma_n`` with a uniform prior on
@@ -46,6 +52,7 @@ if TYPE_CHECKING:
     from coartic.estimation.data import ChannelData
     from coartic.estimation.packing import Packing
     from coartic.estimation.penalties import ShrinkGroup
+    from coartic.estimation.pooling import Pool
     from coartic.estimation.speakers import Speakers
 
 FloatArray = NDArray[np.float64]
@@ -97,6 +104,8 @@ class LogPosterior:
         shrinkage: Sequence[ShrinkGroup] = (),
         speakers: Speakers | None = None,
         speaker_start: Mapping[str, tuple[float, float]] | None = None,
+        pool: Pool | None = None,
+        sample_pool: bool = True,
     ) -> None:
         from coartic import _core
         from coartic.estimation.penalties import Shrinkage
@@ -204,6 +213,18 @@ class LogPosterior:
         self._extras = [(NOISE_NAME, "sigma_n", LOG_SIGMA_RANGE, True)] if self.noise is None else []
         if self.offset_sd is None:
             self._extras.append((OFFSET_NAME, OFFSET_NAME, OFFSET_RANGE, False))
+        # the pool's families: τ sampled (after the noise terms) or held at the fit's estimate
+        from coartic.estimation.pooling import TAU_BOUNDS
+
+        self.pool = pool
+        self.temper = 1.0 if pool is None else float(pool.temper)
+        self._pool_cols: list[int | None] = []
+        for fam in () if pool is None else pool.families:
+            if sample_pool:
+                self._pool_cols.append(self._n_model + len(self._extras))
+                self._extras.append((f"log sd({fam})", f"sd({fam})", (math.log(TAU_BOUNDS[0]), math.log(TAU_BOUNDS[1])), True))
+            else:
+                self._pool_cols.append(None)
         self.lower = np.append(lo, [e[2][0] for e in self._extras])
         self.upper = np.append(hi, [e[2][1] for e in self._extras])
         # coordinates that are logarithms of their natural value
@@ -282,6 +303,13 @@ class LogPosterior:
             with np.errstate(invalid="ignore"):
                 z = self.shrinkage.z(params)
             lp = lp - 0.5 * np.sum(np.where(np.isfinite(z), z, np.inf) ** 2, axis=1)
+        if self.pool is not None:
+            params, _ = self.matrices(x)
+            for fam, col, dev in zip(self.pool.families, self._pool_cols, self.pool.deviations(params, self.data.phonemes)):
+                log_tau = np.full(x.shape[0], math.log(self.pool.tau[fam])) if col is None else x[:, col]
+                with np.errstate(invalid="ignore"):
+                    q = np.sum(np.where(np.isfinite(dev), dev, np.inf) ** 2, axis=-1)
+                lp = lp - 0.5 * q * np.exp(-2.0 * log_tau) - self.pool.rank(fam) * log_tau
         return lp
 
     def speaker_coefficients(self, x: FloatArray) -> tuple[FloatArray, FloatArray]:
@@ -358,10 +386,10 @@ class LogPosterior:
         if ok.size:
             xs = x[ok]
             if self.offset_sd == 0.0:
-                lp[ok] += self.log_likelihood(self.sse(xs), self.sigma_n(xs))
+                lp[ok] += self.temper * self.log_likelihood(self.sse(xs), self.sigma_n(xs))
             else:
                 sse, sums = self.residual_sums(xs)
-                lp[ok] += self.log_likelihood(sse, self.sigma_n(xs), sums, self.offsets(xs))
+                lp[ok] += self.temper * self.log_likelihood(sse, self.sigma_n(xs), sums, self.offsets(xs))
         return lp
 
     # --- starting point, predictions, identity -------------------------------------------------
@@ -387,6 +415,8 @@ class LogPosterior:
             used = w > 0
             between = float(np.mean((sums[used] / w[used]) ** 2 - (self.noise or sigma) ** 2 / w[used]))
             extra.append(min(max(math.sqrt(max(between, 0.0)), 0.01 * sigma), OFFSET_RANGE[1] / 2))
+        if self.pool is not None:  # the fit's estimate of each sampled τ
+            extra += [math.log(self.pool.tau[f]) for f, c in zip(self.pool.families, self._pool_cols) if c is not None]
         return np.append(x, extra)
 
     def initial_ball(self, center: FloatArray, n: int, rng: np.random.Generator, scale: float = 1e-3) -> FloatArray:
@@ -419,6 +449,9 @@ class LogPosterior:
                        self.shrinkage.groups)).encode())
         if self.speakers is not None:
             h.update(repr((self.speakers.mode, self.speakers.names, self._spk_a.tolist(), self._spk_b.tolist())).encode())
+        if self.pool is not None:
+            h.update(repr((sorted(self.pool.tau.items()), self.pool.temper, self._pool_cols, self.pool.groups,
+                           sorted(self.pool.target_means.items()))).encode())
         for u in self.data.utterances:
             h.update(repr((u.name, u.labels)).encode())
             h.update(np.ascontiguousarray(u.starts).tobytes() + np.ascontiguousarray(u.ends).tobytes())
@@ -435,6 +468,7 @@ def phoneme_posterior(
     offset_sd: float | None = 0.0,
     shrinkage: Sequence[ShrinkGroup] = (),
     speakers: SpeakerTerms | None = None,
+    pool: Pool | None = None,
     **evaluators: Any,
 ) -> LogPosterior:
     """The posterior of one phoneme's free parameters on one channel (about 10 dimensions).
@@ -442,7 +476,9 @@ def phoneme_posterior(
     Every other phoneme stays at ``packing.base`` (the least-squares optimum), β is fixed, and only
     the utterances that contain the phoneme are evaluated (the others do not depend on it). With
     ``speakers``, the offset/scale of every speaker with such utterances is sampled too (a nuisance
-    for the phoneme; the reference speaker stays the fit's).
+    for the phoneme; the reference speaker stays the fit's). With the fit's ``pool``, the phoneme's
+    hierarchical prior terms with every τ held at the fit's estimate (the conditional posterior;
+    the joint ``channel_posterior`` samples τ).
     """
     if phoneme not in data.phonemes:
         raise McmcError(f"channel {data.channel}: phoneme {phoneme!r} does not occur (phonemes: {' '.join(data.phonemes)})")
@@ -460,7 +496,8 @@ def phoneme_posterior(
     names = set(packing.with_free(free, False).names())
     mine = {k: v for k, v in (priors or {}).items() if k in names}
     return LogPosterior(sub, packing.with_free(free, False), options, noise, mine, offset_sd=offset_sd,
-                        shrinkage=shrinkage, **_speaker_args(sub, speakers), **evaluators)
+                        shrinkage=shrinkage, **_speaker_args(sub, speakers), pool=pool, sample_pool=False,
+                        **evaluators)
 
 
 def channel_posterior(
@@ -472,12 +509,14 @@ def channel_posterior(
     offset_sd: float | None = 0.0,
     shrinkage: Sequence[ShrinkGroup] = (),
     speakers: SpeakerTerms | None = None,
+    pool: Pool | None = None,
     **evaluators: Any,
 ) -> LogPosterior:
     """The joint posterior of every free parameter of the channel (hundreds of dimensions: slow
-    for emcee, which is why per-phoneme posteriors are the default)."""
+    for emcee, which is why per-phoneme posteriors are the default), with the fit's ``pool``
+    each family's τ sampled too."""
     return LogPosterior(data, packing, options, noise, priors, offset_sd=offset_sd, shrinkage=shrinkage,
-                        **_speaker_args(data, speakers), **evaluators)
+                        **_speaker_args(data, speakers), pool=pool, **evaluators)
 
 
 @dataclass(frozen=True)

@@ -202,6 +202,8 @@ class PosteriorRun:
     start: NDArray[np.float64]
     summaries: list[ParameterSummary]
     images: list[Path]
+    # what the fit estimated on this channel that no posterior of it samples (held at the fit's value)
+    held_fixed: list[str] = field(default_factory=list)
 
     @property
     def label(self) -> str:
@@ -286,8 +288,11 @@ def channel_runs(
     spec_priors: Mapping[str, tuple[Any, ...]] | None = None,
     spec_shrinkage: Sequence[Any] = (),
     speakers: SpeakerTerms | None = None,
+    pool: Any = None,
 ) -> tuple[list[PosteriorRun], bool]:
-    """Every posterior the config asks for on one channel; returns them and whether interrupted."""
+    """Every posterior the config asks for on one channel; returns them and whether interrupted.
+    Each run's ``held_fixed`` names what the fit estimated but no posterior of the channel samples
+    (held at the least-squares value: e.g. the pause's parameters, a pool's sd in per-phoneme posteriors)."""
     noise: float | None
     if cfg.noise == "free":
         noise = None
@@ -310,7 +315,7 @@ def channel_runs(
     runs: list[PosteriorRun] = []
     if cfg.scope == "channel":
         jobs: list[tuple[str | None, Callable[[], LogPosterior]]] = [(None, lambda: channel_posterior(data, packing, options, noise, priors, offset_sd,
-                                                                                       spec_shrinkage, speakers=speakers))]
+                                                                                       spec_shrinkage, speakers=speakers, pool=pool))]
     else:
         # (with per-speaker targets the rows are "p|s": a phoneme named in [mcmc] phonemes means all its rows)
         base = [p.rpartition(SPEAKER_SEP)[0] or p if SPEAKER_SEP in p else p for p in data.phonemes]
@@ -322,15 +327,19 @@ def channel_runs(
 
         def job(p: str) -> Callable[[], LogPosterior]:
             return lambda: phoneme_posterior(data, packing, options, p, noise, priors, offset_sd, spec_shrinkage,
-                                             speakers=speakers)
+                                             speakers=speakers, pool=pool)
 
         jobs = [(p, job(p)) for p in wanted]
-    for phoneme, make in jobs:
-        post = make()
+    estimated = list(packing.names()) + ([f"sd({f})" for f in pool.families] if pool is not None else [])
+    posteriors = [(phoneme, make()) for phoneme, make in jobs]
+    sampled = {n for _, post in posteriors for n in post.names}
+    held = [n for n in estimated if n not in sampled]
+    for phoneme, post in posteriors:
         settings = replace(cfg.settings, n_walkers=walkers_for(post.dim, cfg.walkers))
         label = f"{channel} /{phoneme}/" if phoneme is not None else f"{channel} (joint)"
         directory = out / channel / (phoneme_dir(phoneme) if phoneme is not None else "_joint")
         r = sample_posterior(post, directory, settings, label, phoneme, cfg.plots, progress)
+        r.held_fixed = held
         runs.append(r)
         if on_done is not None:
             on_done(r)
