@@ -15,7 +15,7 @@ channels), or the path of a manifest CSV, read as a fit spec's ``[corpus] manife
 >>> trials = vcv_utterances(np.random.default_rng(0), repetitions=2)
 >>> model = Coarticulation(variant="modified", dominance="centre", handover=False,   # the model they are made with
 ...                        channels=["LLO"], staging=False, free=["target", "alpha", "theta_bw", "theta_fw", "k_r"],
-...                        spec={"parameters": {"target_prior": "none"}})
+...                        spec={"model": {"pauses": "one"}, "parameters": {"target_prior": "none"}})
 >>> sorted(model.fit(trials[::2]).table_.phonemes)
 ['#', 'a', 'i', 'l', 'p', 't']
 >>> round(model.score(trials[1::2]), 2)   # RMSE (mm) on the trials it did not see
@@ -40,6 +40,7 @@ from coartic.errors import CoarticError, UsageError
 from coartic.fit.result import FitResult
 from coartic.fit.spec import FitSpec, load_spec, parse_spec
 from coartic.model import Utterance, evaluate_corpus
+from coartic.pauses import utterances_for_table
 from coartic.table import ParameterTable
 
 Trials = Sequence[Utterance] | str | Path
@@ -138,7 +139,9 @@ class Coarticulation:
 
     def predict(self, trials: Trials) -> list[dict[str, NDArray[np.float64]]]:
         """Per trial, each channel's model trajectory at the trial's sample times (mm)."""
-        table, utts = self._fitted(), self.trials(trials)
+        table = self._fitted()
+        # the labels as the table reads them (the pause postures it was fitted with), as score does
+        utts = utterances_for_table(table, self.trials(trials))
         per_channel = {ch: evaluate_corpus(table, ch, utts) for ch in self.channels}
         return [{ch: per_channel[ch][i] for ch in self.channels} for i in range(len(utts))]
 

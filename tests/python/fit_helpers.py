@@ -33,10 +33,10 @@ def german_utterance_spec(path: Path, rest: str, name: str | None = None) -> Pat
 # and the freedom the tests were written for when they give none. A spec's defaults are the model
 # recommended for real recordings; a test of the mechanics states the model it means.
 PAPER: dict[str, dict[str, Any]] = {
-    "model": {"dominance": "centre", "handover": False},
+    "model": {"dominance": "centre", "handover": False, "pauses": "one"},
     "parameters": {"target_prior": "none", "free": ["target", "alpha", "theta_bw", "theta_fw"]},
 }
-PAPER_TOML = ('dominance = "centre"\nhandover = false\n', 'target_prior = "none"\n')  # [model], [parameters] lines
+PAPER_TOML = ('dominance = "centre"\nhandover = false\npauses = "one"\n', 'target_prior = "none"\n')  # [model], [parameters] lines
 
 
 def paper(raw: dict[str, Any]) -> dict[str, Any]:

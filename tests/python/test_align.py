@@ -261,7 +261,7 @@ def test_lips_from_the_audio_alone(tmp_path: Path) -> None:
     for name, (ema, lab) in (("train", u24), ("test", u20)):
         spec = tmp_path / f"{name}.toml"
         spec.write_text(f'[corpus]\nfiles = ["{ema}"]\nlabels = ["{lab}"]\nlabel_map = "german_sampa"\n{role}'
-                        '[model]\nchannels = ["LA", "JO"]\n[parameters]\nfree = ["target"]\n')
+                        '[model]\nchannels = ["LA", "JO"]\npauses = "one"\n[parameters]\nfree = ["target"]\n')
         specs.append(spec)
     table = run(specs[0], tmp_path / "fit", quiet=True, report=False).table()
     train = load_utterances(load_spec(specs[0]))

@@ -27,7 +27,7 @@ from coartic.table import PARAMETERS
 from fit_helpers import EMA, german_utterance_spec
 
 # target_prior = "none": the fit then minimises the SSE alone, which the in-sample comparisons compare
-SMALL = ('[model]\nchannels = ["JO"]\n[parameters]\ntarget_prior = "none"\nfree = ["target", "theta_bw", "theta_fw"]\n'
+SMALL = ('[model]\nchannels = ["JO"]\npauses = "one"\n[parameters]\ntarget_prior = "none"\nfree = ["target", "theta_bw", "theta_fw"]\n'
          'start = {{ theta_bw = {theta}, theta_fw = {theta} }}\n[fit]\nstarts = {starts}\nprobe = 5\nkeep = 2\n'
          'include_start = {inc}\n')
 

@@ -221,8 +221,9 @@ def test_mcmc_takes_the_options_from_the_table(tmp_path: Path, utts: list[model.
 def test_the_default_budget_ends_a_one_utterance_real_fit_converged(tmp_path: Path) -> None:
     # One German EMA utterance, jaw opening, all at once: 327 evaluations to converge, so the
     # former cap of 200 ended it at max-evaluations (docs/FITTING.md has the measurements).
-    spec = german_utterance_spec(tmp_path / "one.toml", '[model]\nchannels = ["JO"]\n[parameters]\n'
-                                 'free = ["target", "alpha", "theta_bw", "theta_fw", "k_r"]\n'
+    # the model of those measurements: one pause label, no target prior (the default regularises it)
+    spec = german_utterance_spec(tmp_path / "one.toml", '[model]\nchannels = ["JO"]\npauses = "one"\n[parameters]\n'
+                                 'target_prior = "none"\nfree = ["target", "alpha", "theta_bw", "theta_fw", "k_r"]\n'
                                  'start = { theta_bw = 40.0, theta_fw = 40.0 }\n[staging]\nenabled = false\n')
     fit = run(spec, quiet=True).channels["JO"]
     assert fit.status == "converged", fit.message

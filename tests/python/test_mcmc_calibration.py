@@ -46,6 +46,7 @@ channels = ["LLO", "JO"]
 reference_phoneme = "a"
 dominance = "centre"      # the generator's model (the paper's), not the default for real recordings
 handover = false
+pauses = "one"
 [parameters]
 # The parameters under test are free; the others start, and stay, at the generator's values, so the
 # model is the one that made the data.

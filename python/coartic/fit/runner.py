@@ -29,6 +29,7 @@ from coartic.errors import SpecError
 from coartic.fit.spec import FitSpec, load_spec
 from coartic.fit.multistart import MultiStart, fit_multistart
 from coartic.fit.staged import channel_status, fit_pooled, fit_staged
+from coartic.pauses import STAND_INS
 from coartic.table import ParameterTable
 
 
@@ -43,7 +44,10 @@ def start_values(spec: FitSpec, channel: str, phonemes: Sequence[str]) -> tuple[
         return None
     try:
         table = ParameterTable.load(spec.start_table)
-        return table.to_matrix(channel, phonemes)
+        # a table fitted with one pause label starts each pause posture from that pause's row
+        have = set(table.phonemes_for(channel))
+        rows = [ph if ph in have else next((s for s in STAND_INS.get(ph, ()) if s in have), ph) for ph in phonemes]
+        return table.to_matrix(channel, rows)
     except ValueError as e:
         raise SpecError.at(spec.path, "parameters.start_table", str(e)) from None
 
