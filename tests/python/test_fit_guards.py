@@ -86,7 +86,8 @@ def test_a_parameter_the_fit_does_not_depend_on_is_explained(tmp_path: Path) -> 
     res = run(spec(tmp_path, parameters={"free": ["target", "psi"]}), tmp_path / "out", utterances=utts(2),
               quiet=True, report=False)
     st = res.channels["LLO"].stats
-    assert st is not None and sorted(st.unidentified) == ["#.psi", "a.psi", "p.psi", "t.psi"]
+    # every phoneme's, the final pause's own row (#end, the default pause postures) included
+    assert st is not None and sorted(st.unidentified) == ["#.psi", "#end.psi", "a.psi", "p.psi", "t.psi"]
     assert all(w.startswith("the fitted trajectories do not depend on it (a zero Jacobian column): fix it")
                for w in st.unidentified_why.values())
     summary = json.loads((tmp_path / "out" / "summary.json").read_text())
