@@ -41,7 +41,7 @@ from coartic.speakers import SpeakerMapping
 from coartic.table import CHANNELS, PAUSE, ParameterTable
 
 if TYPE_CHECKING:
-    from coartic.runtime.exporters import ExportSettings
+    from coartic.runtime.exporters import ExportSettings, FaceAnimation
 
 # Half the vermilion height (mm) of an adult's upper and lower lip: the channels give where the lip
 # markers go, not how thick the lips are.
@@ -523,13 +523,15 @@ def mark_segments(
     return f"({n} segments: {' and '.join(left_out)} not drawn)" if left_out else ""
 
 
-def export_plot(animation: Animation, settings: ExportSettings) -> dict[str, Path]:
+def export_plot(fed: FaceAnimation, settings: ExportSettings) -> dict[str, Path]:
     """Exporter (coartic.runtime.exporters): channels.png."""
+    animation = fed.animation
     return {"plot": plot_channels(animation, settings.out / "channels.png", title=settings.name)}
 
 
-def export_preview(animation: Animation, settings: ExportSettings) -> dict[str, Path]:
+def export_preview(fed: FaceAnimation, settings: ExportSettings) -> dict[str, Path]:
     """Exporter: strip.png and preview.gif / .mp4 (settings.preview), the MP4 with the sound."""
+    animation = fed.animation
     strip = render_strip(animation, settings.table, settings.out / "strip.png", speaker=settings.mapping)
     preview = render_preview(animation, animation.neutral, settings.out / f"preview.{settings.preview}",
                              title=settings.name, progress=settings.progress, audio=settings.audio)
