@@ -12,7 +12,6 @@ import math
 from collections.abc import Container, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import TYPE_CHECKING
 
 import numpy as np
 from numpy.typing import NDArray
@@ -23,8 +22,6 @@ from coartic.runtime.errors import AnimationError, MissingPhonemeError
 from coartic.table import CHANNELS, PAUSE, ParameterTable
 from coartic.outputs import atomic_write_text
 
-if TYPE_CHECKING:
-    from coartic.runtime.exporters import ExportSettings
 
 # The most frames one animation may have (11 hours at 25 fps): channels, FAP text (~200 bytes a
 # frame) and preview grow with it, so a mistaken --fps 1e9 or a label ending at 1e6 s is refused
@@ -409,18 +406,3 @@ def write_segments_tsv(path: str | Path, segments: Segments, requested: Sequence
     for i, (shown, s, e) in enumerate(zip(segments.labels, segments.starts, segments.ends)):
         lines.append(f"{float(s)!r}\t{float(e)!r}\t{requested[i]}\t{shown}\t{source[i]}")
     atomic_write_text(path, "\n".join(lines) + "\n")
-
-
-def export_channels(animation: Animation, settings: ExportSettings) -> dict[str, Path]:
-    """Exporter (coartic.runtime.exporters): channels.csv."""
-    path = settings.out / "channels.csv"
-    write_channels_csv(path, animation)
-    return {"channels": path}
-
-
-def export_segments(animation: Animation, settings: ExportSettings) -> dict[str, Path]:
-    """Exporter: segments.tsv, the phonemes asked for, shown and their source labels."""
-    path = settings.out / "segments.tsv"
-    write_segments_tsv(path, animation.segments, settings.requested or animation.segments.labels,
-                       settings.source or animation.segments.labels)
-    return {"segments": path}

@@ -54,7 +54,7 @@ from coartic.runtime.rigs import (
 )
 
 if TYPE_CHECKING:
-    from coartic.runtime.exporters import ExportSettings
+    from coartic.runtime.exporters import ExportSettings, FaceAnimation
 
 BASIC_SHAPES = "ABCDEF"
 EXTENDED_SHAPES = "GHX"
@@ -350,9 +350,10 @@ def parse_rhubarb_formats(spec: str | None) -> tuple[str, ...]:
     return tuple(n for n in RHUBARB_FORMATS if n in names)
 
 
-def export_rhubarb(animation: Animation, settings: ExportSettings) -> dict[str, Path]:
+def export_rhubarb(fed: FaceAnimation, settings: ExportSettings) -> dict[str, Path]:
     """Exporter (coartic.runtime.exporters): NAME.rhubarb.tsv / .json / .xml / .dat, those of
     `settings.rig.rhubarb_formats`, with the extended shapes `settings.rig.extended_shapes`."""
+    animation = fed.animation
     extended = parse_extended_shapes(settings.rig.extended_shapes)
     formats = parse_rhubarb_formats(",".join(settings.rig.rhubarb_formats))
     cues = mouth_cues(animation, extended, int(round(settings.rig.hold * 100)))
