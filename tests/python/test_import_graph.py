@@ -17,9 +17,6 @@ ROOT = Path(__file__).resolve().parents[2] / "python"
 # The circles left (issue 28 item 1), each as the set of its modules' names: the helpers that remove
 # them empty this, and the test below fails until they do (and on any circle not listed).
 KNOWN_CIRCLES: set[frozenset[str]] = {
-    # the runtime's animation and its exporters (helper `speak`: one animation handed to every exporter)
-    frozenset({"coartic.runtime.animate", "coartic.runtime.exporters", "coartic.runtime.expression",
-               "coartic.runtime.fap", "coartic.runtime.tongue"}),
     # estimation naming the fit's spec and bound notes in annotations (helper `settings`: estimation
     # owns its inputs)
     frozenset({"coartic.estimation.emotions", "coartic.estimation.parameters", "coartic.estimation.problem",

@@ -48,7 +48,7 @@ class SplitScore:
     # the step model is then compared with the offsets removed only (coartic.evaluation.baselines.other_session)
     other_session: str | None = None
     # each test utterance's (SSE, valid samples) as measured, by name: the units `coartic compare`
-    # takes a held-out RMSE's standard error over (coartic.fit.compare.heldout_se)
+    # takes a held-out RMSE's standard error over (coartic.evaluation.compare.heldout_se)
     utterance_sse: dict[str, tuple[float, int]] = field(default_factory=dict)
 
     @property
