@@ -10,8 +10,9 @@ from __future__ import annotations
 import csv
 import math
 from collections.abc import Container, Mapping, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 from numpy.typing import NDArray
@@ -21,6 +22,9 @@ from coartic.io.labels import Segments
 from coartic.runtime.errors import AnimationError, MissingPhonemeError
 from coartic.table import CHANNELS, PAUSE, ParameterTable
 from coartic.outputs import atomic_write_text
+
+if TYPE_CHECKING:
+    from coartic.speakers import SpeakerMapping
 
 
 # The most frames one animation may have (11 hours at 25 fps): channels, FAP text (~200 bytes a
@@ -60,6 +64,8 @@ class Animation:
     # the time the frames were laid over (the sound's duration, else the labels' end), s; the frames
     # cover it to within half a frame (`duration`), Rhubarb's cues cover it exactly
     span: float | None = None
+    # the speaker of a multi-speaker table the channels are said as (a + b·F of `table`'s, coartic.speakers)
+    speaker: SpeakerMapping | None = None
 
     @property
     def modelled(self) -> list[str]:
@@ -93,6 +99,27 @@ class Animation:
         w = np.maximum(w, 0.0)
         out[:, near] = w / np.maximum(w.sum(axis=1, keepdims=True), np.finfo(float).tiny)
         return out
+
+    def resampled(self, fps: float) -> Animation:
+        """The same animation at another frame rate: the model evaluated anew at the new frames over
+        the same span (not the frames interpolated), as the speaker says it, with the same neutral
+        face. For cues finer than the frames (Rhubarb's centiseconds, coartic.runtime.rhubarb), so
+        that they do not depend on --fps. No contact snapping: it moves a frame by at most half of
+        one, which at such rates is below the cues' resolution."""
+        if self.table is None:
+            raise AnimationError("this animation does not carry the table that made it: it cannot be resampled")
+        fine = animate(self.table, self.segments, fps, duration=self.sound_duration, channels=self.modelled,
+                       substitutions=self.substitutions, snap_contacts=False)
+        channels = {}
+        for c, v in self.channels.items():
+            if c not in fine.channels:  # held at rest
+                channels[c] = np.full(fine.n_frames, v[0])
+            elif self.speaker is not None:
+                channels[c] = self.speaker.apply(c, fine.channels[c])
+            else:
+                channels[c] = fine.channels[c]
+        return replace(fine, channels=channels, at_rest=self.at_rest, neutral=self.neutral, span=self.span,
+                       speaker=self.speaker)
 
     @property
     def duration(self) -> float:

@@ -77,6 +77,7 @@ def speak_as(animation: Animation, mapping: SpeakerMapping | None, table: Parame
     if mapping is not None:
         for c in animation.modelled:
             animation.channels[c] = mapping.apply(c, animation.channels[c])
+        animation = replace(animation, speaker=mapping)
         if table is not None:
             return replace(animation, neutral=speaker_neutral(table, mapping))
     return animation
