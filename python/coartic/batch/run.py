@@ -40,7 +40,7 @@ from coartic.batch.layout import UNIT_FILE, is_done, land_dir, unit_dir
 from coartic.batch.spec import BatchSpec
 from coartic.batch.tasks import UnitFailed, UnitKey, UnitOutput, fit_unit, load_group, posterior_unit
 from coartic.console import LineProgress
-from coartic.errors import CoarticError
+from coartic.errors import CoarticError, UsageError
 from coartic.extras import require
 from coartic.model import Utterance
 from coartic.outputs import DeferredSignals, OutputDir
@@ -98,6 +98,11 @@ def land_unit(out: Path, spec: BatchSpec, result: UnitOutput) -> None:
 
 
 # ----------------------------------------------------------------------------- schedulers
+
+
+# Worker processes of a local cluster: each is a Python process with the core loaded (~150 MB), so
+# a typo (10**6) would exhaust the machine's memory before any unit ran.
+MAX_WORKERS = 1024
 
 
 def local_threads(workers: int) -> int:
@@ -189,6 +194,8 @@ def run_batch(spec: BatchSpec, out: str | Path, *, scheduler: str | None = None,
     landed is landed first. ``tls``: certificates for a ``tls://`` scheduler (``cluster_security``).
     """
     out = Path(out)
+    if workers is not None and not 1 <= workers <= MAX_WORKERS:
+        raise UsageError(f"workers = {workers}: between 1 and {MAX_WORKERS} worker processes")
     require_packages(spec, serial)
     console = console or Console(stderr=True, quiet=quiet)
     keys = plan_units(spec)

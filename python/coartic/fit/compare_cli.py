@@ -47,6 +47,8 @@ def compare_command(
     with OutputDir(out, "compare", identity, force=force, protect=specs) as d:
         cmp = compare(models, d, validate=validate, console=err, quiet=quiet)
     print_table(console, comparison_table(cmp), keys=2)
+    for n in cmp.factor_lines():
+        console.print(escape(n), soft_wrap=True, highlight=False)
     for n in cmp.notes:
         console.print(f"note: {escape(n)}", soft_wrap=True, highlight=False)
     console.print(escape(f"written: {out / 'compare.html'} (table and figure), compare.csv, one fit per spec"),
@@ -71,9 +73,10 @@ def comparison_table(cmp: object) -> Table:
     assert isinstance(cmp, Comparison)
     t = Table(title=f"Model comparison (RMSE in mm, bar {BAR_MM} mm; lower AIC/BIC is better)",
               caption="step model: each phoneme's training mean on the same held-out samples (as measured / no "
-                      "offsets); ✗ = the table does not beat it")
-    for c in ("model", "channel", "free", "RMSE", "held-out", "held-out, no offsets", "step model", "AIC", "BIC",
-              "status"):
+                      "offsets); ✗ = the table does not beat it. effective: the trace of the hat matrix. chosen (✓): "
+                      "within one SE of the lowest held-out RMSE, the fewest effective parameters")
+    for c in ("model", "channel", "free", "effective", "RMSE", "held-out ± SE", "held-out, no offsets", "step model",
+              "AIC", "BIC", "chosen", "status"):
         t.add_column(c, justify="left" if c in ("model", "channel", "status") else "right")
 
     def f(v: float, fmt: str, best: bool = False) -> str:
@@ -90,8 +93,11 @@ def comparison_table(cmp: object) -> Table:
         return s if r.beats_step else f"{s} [bold red]✗[/bold red]"
 
     for r in cmp.rows:
-        t.add_row(escape(r.model), r.channel, str(r.n_free), f(r.rmse, ".3f"),
-                  f(r.heldout_rmse, ".3f", cmp.best(r.channel, "heldout_rmse") == r.model),
+        held = f(r.heldout_rmse, ".3f", cmp.best(r.channel, "heldout_rmse") == r.model)
+        if math.isfinite(r.heldout_rmse_se):
+            held += f" ± {r.heldout_rmse_se:.3f}"
+        t.add_row(escape(r.model), r.channel, str(r.n_free), f(r.n_effective, ".1f"), f(r.rmse, ".3f"), held,
                   f(r.heldout_rmse_offset_removed, ".3f"), step(r), f(r.aic, ".1f"),
-                  f(r.bic, ".1f", cmp.best(r.channel, "bic") == r.model), escape(r.status))
+                  f(r.bic, ".1f", cmp.best(r.channel, "bic") == r.model),
+                  "✓" if cmp.chosen(r.channel) == r.model else "", escape(r.status))
     return t

@@ -47,6 +47,9 @@ class SplitScore:
     # why the test utterances are from another session or speaker than the training (None: the same):
     # the step model is then compared with the offsets removed only (coartic.fit.baselines.other_session)
     other_session: str | None = None
+    # each test utterance's (SSE, valid samples) as measured, by name: the units `coartic compare`
+    # takes a held-out RMSE's standard error over (coartic.fit.compare.heldout_se)
+    utterance_sse: dict[str, tuple[float, int]] = field(default_factory=dict)
 
     @property
     def beats_step(self) -> bool:

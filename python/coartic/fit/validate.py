@@ -57,11 +57,13 @@ def score(result: FitResult, test: Sequence[Utterance], split: str,
             notes.append(f"validation, {split}, {ch}: {note.replace(' (--strict refuses instead)', '')}")
         sc = score_utterances(table, test_ch, [ch], train=train)
         by_vowel: dict[str, list[float]] = {}
+        per_utterance: dict[str, tuple[float, int]] = {}
         for u, utt in enumerate(sc.utterances):
             r = sc.residuals(ch, u)
             a = by_vowel.setdefault(utt.meta.get("vowel", "?"), [0.0, 0.0])
             a[0] += float(np.nansum(r**2))
             a[1] += float(np.isfinite(r).sum())
+            per_utterance[utt.name] = (float(np.nansum(r**2)), int(np.isfinite(r).sum()))
         vowel_rmse = {v: float(np.sqrt(s / n)) for v, (s, n) in by_vowel.items() if n}
         worst = max(vowel_rmse.items(), key=lambda kv: kv[1])
         row = sc.channel_rows()[0]
@@ -73,7 +75,8 @@ def score(result: FitResult, test: Sequence[Utterance], split: str,
                               fit.rmse**2 * n, n, fit.packing.n_free, row["rmse_calibrated_mm"], base,
                               test_rmse_speech=row["rmse_speech_mm"],
                               test_rmse_speech_offset_removed=row["rmse_speech_offset_removed_mm"],
-                              test_speech_samples=row["speech_samples"], other_session=sc.other_session))
+                              test_speech_samples=row["speech_samples"], other_session=sc.other_session,
+                              utterance_sse=per_utterance))
         if fit.multistart is not None:  # how much the held-out error differs between the optima found
             for o in fit.multistart.optima:
                 params, beta = fit.packing.unpack(o.x)
