@@ -2,7 +2,7 @@
 
 A thin layer over the library's one fit and one scorer: ``fit`` is ``coartic.fit.run`` (the job of
 ``coartic fit``, on trials already loaded, nothing written), ``predict`` is
-``coartic.model.evaluate_corpus`` on the fitted table, ``score`` is ``coartic.fit.score``'s RMSE.
+``coartic.model.evaluate_corpus`` on the fitted table, ``score`` is ``coartic.evaluation.score``'s RMSE.
 The settings are estimation's (``coartic.estimation.settings``: the model, the parameters' freedom
 and bounds, priors and pooling, offsets, speakers and emotions), built in Python as lmfit's
 ``Parameters`` are; the fit's own options (channels, engine, staging, starts) are keywords. Both are
@@ -46,8 +46,7 @@ from coartic.errors import CoarticError, UsageError
 from coartic.estimation.settings import EstimationSettings
 from coartic.fit.result import FitResult
 from coartic.fit.spec import CorpusSpec, FitSpec, load_spec
-from coartic.model import Utterance, evaluate_corpus
-from coartic.pauses import utterances_for_table
+from coartic.model import Utterance, evaluate_corpus, utterances_for_table
 from coartic.table import ParameterTable
 
 Trials = Sequence[Utterance] | str | Path
@@ -166,9 +165,9 @@ class Coarticulation:
         return math.sqrt(sum(r["rmse_mm"] ** 2 * r["samples"] for r in rows) / n) if n else math.nan
 
     def score_report(self, trials: Trials) -> Any:
-        """``coartic.fit.score.Score`` of the fitted table on ``trials`` (RMSE per channel,
+        """``coartic.evaluation.score.Score`` of the fitted table on ``trials`` (RMSE per channel,
         utterance and phoneme, with and without offsets; ``save`` writes what ``coartic score`` does)."""
-        from coartic.fit.score import score_utterances
+        from coartic.evaluation.score import score_utterances
 
         return score_utterances(self._fitted(), self.trials(trials), channels=self.channels)
 
