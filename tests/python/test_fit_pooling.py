@@ -178,7 +178,7 @@ def test_autocorrelated_residuals_count_as_fewer_samples() -> None:
 
 def test_mcmc_samples_the_pool_and_names_what_it_holds_fixed(tmp_path: Path, differ: list[model.Utterance]) -> None:
     from coartic.mcmc.posterior import channel_posterior, phoneme_posterior
-    from coartic.mcmc.run import McmcConfig, channel_runs
+    from coartic.mcmc.run import ChannelSampling, McmcConfig, channel_runs
     from coartic.mcmc.sampler import SamplerSettings
     from coartic.table import ParameterTable
 
@@ -213,8 +213,8 @@ def test_mcmc_samples_the_pool_and_names_what_it_holds_fixed(tmp_path: Path, dif
     # a per-phoneme run holds the pool's sd and the pause's parameters at the fit's values, and says so
     cfg = McmcConfig(phonemes=("a",), noise=0.1, offsets="none", plots=False,
                      settings=SamplerSettings(n_walkers=8, n_ensembles=1, chunk_steps=20, min_steps=20, max_steps=20))
-    runs, _ = channel_runs("LLO", prob.data, prob.packing, prob.options, cfg, tmp_path / "mcmc", progress=False,
-                           pool=pool)
+    runs, _ = channel_runs(ChannelSampling("LLO", prob.data, prob.packing, prob.options, pool=pool), cfg,
+                           tmp_path / "mcmc", progress=False)
     assert set(runs[0].held_fixed) >= {"#.target", "i.theta_bw", *fams} and "a.target" not in runs[0].held_fixed
 
 

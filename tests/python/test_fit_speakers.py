@@ -258,7 +258,7 @@ def test_speaker_targets_table_score_and_mcmc(two_speakers, tmp_path: Path) -> N
     from coartic.fit.runner import run
     from coartic.evaluation.score import score_utterances
     from coartic.mcmc.posterior import phoneme_posterior
-    from coartic.mcmc.run import fixed_noise, problem_priors, table_problem, table_speakers
+    from coartic.mcmc.run import ChannelSampling, fixed_noise, problem_priors, table_problem, table_speakers
 
     utts, _ = two_speakers
     s = targets_spec()
@@ -293,6 +293,10 @@ def test_speaker_targets_table_score_and_mcmc(two_speakers, tmp_path: Path) -> N
     groups = table_problem(shrunk, table, "LLO", utts).shrink_groups
     assert groups and groups == build_problem(shrunk.estimation_settings(), utts, "LLO").shrink_groups
     assert [problem.data.phonemes[r] for r in groups[0].rows] == ["p|s1", "t|s1"]
+    # the seam MCMC samples through (sample_table) carries that problem's pieces, the groups included
+    sampling = ChannelSampling.of(table_problem(shrunk, table, "LLO", utts))
+    assert sampling.channel == "LLO" and tuple(sampling.shrinkage) == tuple(groups) and sampling.speakers is None
+    assert sampling.data.phonemes == problem.data.phonemes and sampling.pool is None and dict(sampling.priors) == {}
 
 
 @pytest.mark.parametrize("mode", ["none", "offset_scale"])
