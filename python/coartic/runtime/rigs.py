@@ -353,7 +353,7 @@ def write_visemes_json(path: Path, animation: Animation, weights: NDArray[np.flo
 def export_arkit(fed: FaceAnimation, settings: ExportSettings) -> dict[str, Path]:
     """Exporter (coartic.runtime.exporters): NAME.arkit.csv and NAME.arkit.json, shaped by the rig options."""
     animation = fed.animation
-    w = shape_curves(arkit_weights(animation), ARKIT_NAMES, animation.fps, settings.rig, fixed=tuple(ARKIT_BLINKS))
+    w = shape_curves(fed.once(arkit_weights), ARKIT_NAMES, animation.fps, settings.rig, fixed=tuple(ARKIT_BLINKS))
     return {"arkit_csv": write_curves_csv(settings.out / f"{settings.name}.arkit.csv", animation, ARKIT_NAMES, w),
             "arkit_json": write_arkit_json(settings.out / f"{settings.name}.arkit.json", animation, w,
                                            settings.audio_name())}
@@ -362,7 +362,7 @@ def export_arkit(fed: FaceAnimation, settings: ExportSettings) -> dict[str, Path
 def export_visemes(fed: FaceAnimation, settings: ExportSettings) -> dict[str, Path]:
     """Exporter: NAME.visemes.csv and NAME.visemes.json, in the name set `settings.rig.viseme_names`."""
     animation = fed.animation
-    names, w = named_visemes(viseme_weights(animation), settings.rig.viseme_names)
+    names, w = named_visemes(fed.once(viseme_weights), settings.rig.viseme_names)
     w = shape_curves(w, names, animation.fps, settings.rig, rest=names[0] if names[0].endswith("sil") else None)
     return {"visemes_csv": write_curves_csv(settings.out / f"{settings.name}.visemes.csv", animation, names, w),
             "visemes_json": write_visemes_json(settings.out / f"{settings.name}.visemes.json", animation, w,
