@@ -2,7 +2,7 @@
 
 A thin layer over the library's one fit and one scorer: ``fit`` is ``coartic.fit.run`` (the job of
 ``coartic fit``, on trials already loaded, nothing written), ``predict`` is
-``coartic.model.evaluate_corpus`` on the fitted table, ``score`` is ``coartic.fit.score``'s RMSE.
+``coartic.model.evaluate_corpus`` on the fitted table, ``score`` is ``coartic.evaluation.score``'s RMSE.
 The settings are a fit spec's (docs/FITTING.md), checked by the same parser, so every mistake is
 named as in a spec file.
 
@@ -39,8 +39,7 @@ from numpy.typing import NDArray
 from coartic.errors import CoarticError, UsageError
 from coartic.fit.result import FitResult
 from coartic.fit.spec import FitSpec, load_spec, parse_spec
-from coartic.model import Utterance, evaluate_corpus
-from coartic.pauses import utterances_for_table
+from coartic.model import Utterance, evaluate_corpus, utterances_for_table
 from coartic.table import ParameterTable
 
 Trials = Sequence[Utterance] | str | Path
@@ -157,9 +156,9 @@ class Coarticulation:
         return math.sqrt(sum(r["rmse_mm"] ** 2 * r["samples"] for r in rows) / n) if n else math.nan
 
     def score_report(self, trials: Trials) -> Any:
-        """``coartic.fit.score.Score`` of the fitted table on ``trials`` (RMSE per channel,
+        """``coartic.evaluation.score.Score`` of the fitted table on ``trials`` (RMSE per channel,
         utterance and phoneme, with and without offsets; ``save`` writes what ``coartic score`` does)."""
-        from coartic.fit.score import score_utterances
+        from coartic.evaluation.score import score_utterances
 
         return score_utterances(self._fitted(), self.trials(trials), channels=self.channels)
 

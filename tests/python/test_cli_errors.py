@@ -212,6 +212,21 @@ def test_start_counts_are_bounded_with_the_bound_in_the_message(tmp_path: Path) 
     assert code == 2 and "--starts" in text and "10000" in text, text
 
 
+def test_probe_lengths_and_worker_counts_are_bounded_with_the_bound_in_the_message(tmp_path: Path) -> None:
+    from fit_helpers import spec_of
+
+    from coartic.batch.run import MAX_WORKERS, run_batch
+    from coartic.errors import UsageError
+
+    with pytest.raises(SpecError, match=r"\[fit.probe\] 1000000000: at most 10000"):
+        spec_of(tmp_path, fit={"probe": 10**9})
+    code, text = run("batch", tmp_path / "b.toml", "--out", tmp_path / "o", "--workers", "1000000")
+    assert code == 2 and "--workers" in text and str(MAX_WORKERS) in text, text
+    with pytest.raises(UsageError, match=f"workers = 0: between 1 and {MAX_WORKERS}"):
+        run_batch(None, tmp_path / "o", workers=0)  # type: ignore[arg-type]  # refused before the spec is read
+    assert not (tmp_path / "o").exists()
+
+
 def test_beta_beyond_its_fit_box_is_refused(tmp_path: Path) -> None:
     from fit_helpers import spec_of
 
@@ -225,7 +240,7 @@ def test_a_holdout_repetition_that_is_not_there_is_said(tmp_path: Path) -> None:
     import numpy as np
 
     from coartic.fit.simulate import vcv_utterances
-    from coartic.fit.validate import splits
+    from coartic.evaluation.validate import splits
     from fit_helpers import spec_of
 
     for bad in (-1, 0):

@@ -37,7 +37,7 @@ def test_fit_is_coartic_fit_run_bit_for_bit(fitted: Coarticulation, trials: list
 
 def test_predict_is_the_table_evaluated_and_score_its_rmse(fitted: Coarticulation, trials: list) -> None:  # type: ignore[type-arg]
     from coartic.model import evaluate_corpus
-    from coartic.pauses import utterances_for_table
+    from coartic.model import utterances_for_table
 
     held = trials[1::2]
     pred = fitted.predict(held)

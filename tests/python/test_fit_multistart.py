@@ -18,7 +18,7 @@ from coartic.fit.engines import EngineResult, evaluation_budget, iteration_budge
 from coartic.fit.multistart import Optimum, cluster, fit_multistart, sobol_starts, spread_within, trajectory
 from coartic.estimation.problem import build_problem
 from coartic.fit.runner import run
-from coartic.fit.score import score_recordings
+from coartic.evaluation.score import score_recordings
 from coartic.errors import SpecError
 from coartic.fit.spec import load_spec
 from coartic.fit.staged import StageResult, channel_status
@@ -282,7 +282,7 @@ def test_validation_scores_every_optimum_held_out(tmp_path: Path) -> None:
     the split's fit_report.txt)."""
     from coartic.fit.simulate import vcv_utterances
     from coartic.fit.spec import parse_spec
-    from coartic.fit.validate import validate_all
+    from coartic.evaluation.validate import validate_all
 
     utts = vcv_utterances(np.random.default_rng(2), repetitions=2, noise=0.1)
     raw = {"corpus": {"files": ["x"], "labels": ["y"]}, "model": {"channels": ["LLO"]},

@@ -216,3 +216,26 @@ def test_mcmc_samples_the_pool_and_names_what_it_holds_fixed(tmp_path: Path, dif
     runs, _ = channel_runs("LLO", prob.data, prob.packing, prob.options, cfg, tmp_path / "mcmc", progress=False,
                            pool=pool)
     assert set(runs[0].held_fixed) >= {"#.target", "i.theta_bw", *fams} and "a.target" not in runs[0].held_fixed
+
+
+def test_a_pooled_fit_counts_every_evaluation(tmp_path: Path, differ: list[model.Utterance]) -> None:
+    """The fit's evaluations (fit_report.txt, summary.json's nfev, the cost benchmarks) are those of
+    the fit before the pooling's re-solves plus theirs, as the progress line counts them; they
+    counted the last re-solve alone (a pooled fit of the German EMA reported 21 of hundreds)."""
+    import io
+
+    from rich.console import Console
+    from rich.progress import TextColumn
+
+    from coartic.console import LineProgress
+    from coartic.fit.runner import fit_channel
+
+    s = spec_of(tmp_path, parameters={**POOLED, "target_prior": "estimated"}).with_options(starts=1)
+    buf = io.StringIO()
+    with LineProgress(TextColumn("{task.description}"), console=Console(file=buf, width=200, color_system=None)) as pr:
+        fit = fit_channel(s, differ, "LLO", pr)
+    assert fit.pooling is not None and fit.pooling.rounds >= 1  # re-solved at least once
+    last = [ln for ln in buf.getvalue().splitlines() if ln.startswith("LLO done")][-1]
+    assert f" {fit.nfev} evaluations " in last, (fit.nfev, last)
+    one = fit_staged(build_problem(s, differ, "LLO"), "scipy", {}, s.stages)[1].nfev
+    assert fit.nfev > one  # the fit before the re-solves, then theirs

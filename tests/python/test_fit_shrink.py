@@ -191,7 +191,7 @@ def test_ctrl_c_while_choosing_writes_no_fit(tmp_path: Path, utts: list[model.Ut
 
 
 def test_compare_varies_the_shrinkage_sd(tmp_path: Path) -> None:
-    from coartic.fit.compare import vary
+    from coartic.evaluation.compare import vary
 
     s = spec_of(tmp_path, shrink=[{"phonemes": ["p", "t"], "parameters": ["target"], "sd": 1.0},
                                   {"phonemes": ["a", "i"], "parameters": ["target"], "sd": 1.0}])
@@ -244,7 +244,7 @@ def test_a_chosen_model_option_is_what_the_table_records(tmp_path: Path, utts: l
     assert res.choice is not None
     chosen = res.choice.chosen["LLO"]
     assert res.table().channels["LLO"].plateau_fraction == chosen
-    from coartic.fit.score import score_utterances
+    from coartic.evaluation.score import score_utterances
 
     assert score_utterances(res.table(), utts, ["LLO"]).channel_rows()[0]["rmse_mm"] == pytest.approx(
         res.channels["LLO"].rmse, rel=1e-9)

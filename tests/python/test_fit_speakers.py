@@ -165,7 +165,7 @@ def test_score_maps_by_the_tables_speaker_and_calibrates(utts, fitted, tmp_path:
     from typer.testing import CliRunner
 
     from coartic.cli import app
-    from coartic.fit.score import score_utterances
+    from coartic.evaluation.score import score_utterances
     from coartic.speakers import SpeakerError
 
     res, table = fitted
@@ -256,7 +256,7 @@ def test_speaker_targets_gradient_and_recovery(two_speakers) -> None:  # type: i
 
 def test_speaker_targets_table_score_and_mcmc(two_speakers, tmp_path: Path) -> None:  # type: ignore[no-untyped-def]
     from coartic.fit.runner import run
-    from coartic.fit.score import score_utterances
+    from coartic.evaluation.score import score_utterances
     from coartic.mcmc.posterior import phoneme_posterior
     from coartic.mcmc.run import fixed_noise, problem_priors, table_problem, table_speakers
 
@@ -300,7 +300,7 @@ def test_held_out_speaker_validation(utts, mode: str, tmp_path: Path) -> None:  
     """[validate] group = "speaker": leave one speaker out, scored with the population mapping and
     after calibrating the held-out speaker's offset and scale on its own data."""
     from coartic.fit.runner import run
-    from coartic.fit.validate import validate_all
+    from coartic.evaluation.validate import validate_all
 
     three = list(utts)
     for u in utts:

@@ -15,9 +15,9 @@ from coartic import model
 from coartic.estimation.problem import build_problem
 from coartic.estimation.target_prior import segment_means
 from coartic.fit import run
-from coartic.fit.baselines import Baselines
+from coartic.evaluation.baselines import Baselines
 from coartic.fit.choose import set_value
-from coartic.fit.score import score_recordings
+from coartic.evaluation.score import score_recordings
 from coartic.fit.simulate import PHONEMES, vcv_utterances
 from coartic.fit.spec import (DEFAULT_FREE, DEFAULT_POOLED, DEFAULT_SHARED, DEFAULT_TARGET_PRIOR, SpecError,
                               load_spec, parse_spec)

@@ -324,3 +324,44 @@ def test_json_label_and_role_maps_refuse_duplicate_keys(tmp_path: Path) -> None:
     r = _write(tmp_path, "r.json", '{"UL": "ul", "UL": "ll"}')
     with pytest.raises(DataError, match=r"r\.json: line 1: key 'UL' appears twice"):
         RoleMap.from_file(r)
+
+
+# "the cat chose iron" as MFA's english_mfa model writes it: IPA phones, aspiration, length,
+# diphthongs, a syllabic dark l, spoken noise
+MFA_IPA = ("", "ð", "ə", "kʰ", "æ", "t", "tʃ", "ow", "z", "spn", "aj", "ɚ", "n", "ɫ̩", "iː", "ɡ", "ɹ", "ɝ", "")
+MFA_IPA_PHONEMES = ("#", "d", "e", "k", "a", "t", "tS", "o", "z", "#", "a", "e", "n", "l", "i", "g", "r", "e", "#")
+
+
+def _mfa_ipa_textgrid(path: Path) -> Path:
+    ends = np.cumsum([0.3] + [0.09] * (len(MFA_IPA) - 2) + [0.3])
+    starts = np.concatenate([[0.0], ends[:-1]])
+    xmax = float(ends[-1])
+    out = ['File type = "ooTextFile"', 'Object class = "TextGrid"', "", "xmin = 0", f"xmax = {xmax!r}",
+           "tiers? <exists>", "size = 2", "item []:"]
+    tiers = (("words", [(0.0, 0.3, ""), (0.3, float(ends[-2]), "the cat chose iron"), (float(ends[-2]), xmax, "")]),
+             ("phones", [(float(s), float(e), lab) for s, e, lab in zip(starts, ends, MFA_IPA)]))
+    for k, (name, items) in enumerate(tiers, start=1):
+        out += [f"    item [{k}]:", '        class = "IntervalTier"', f'        name = "{name}"', "        xmin = 0",
+                f"        xmax = {xmax!r}", f"        intervals: size = {len(items)}"]
+        for j, (s, e, lab) in enumerate(items, start=1):
+            out += [f"        intervals [{j}]:", f"            xmin = {s!r}", f"            xmax = {e!r}",
+                    f'            text = "{lab}"']
+    path.write_text("\n".join(out) + "\n", encoding="utf-8")
+    return path
+
+
+def test_mfa_ipa_textgrid_is_read_with_the_ipa_map(tmp_path: Path) -> None:
+    # MFA's IPA models (english_mfa, german_mfa, ...) write IPA phones: the built-in map 'ipa'
+    # (labelmaps/phones_ipa.tsv, also alignment by synthesis' phone map) reads them, and the default
+    # map's error points to it
+    seg = read_labels(_mfa_ipa_textgrid(tmp_path / "cat.TextGrid"))
+    assert seg.labels == MFA_IPA
+    with pytest.raises(DataError, match=r"phone 'ð' .*the built-in map ipa maps every label of this file: "
+                                        r"--label-map ipa"):
+        LabelMap.model().apply(seg)
+    assert resolve_label_map("ipa").apply(seg).labels == MFA_IPA_PHONEMES
+    m = LabelMap.builtin("ipa")
+    assert [m.map_label(x) for x in ("ˈa", "pʰ", "t̪", "ʉː", "ʔ", "sil", "sp", "ts", "tsʰ")] == [
+        "a", "p", "t", "u", "#", "#", "#", "ts", "ts"]
+    assert m.map_label("ǃ") is None and m.map_label("AA1") is None
+    assert LabelMap.from_record(m.to_record()) == m  # a table fitted with it records it whole

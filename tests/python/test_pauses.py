@@ -18,7 +18,7 @@ import pytest
 import format_fixtures as ff
 from coartic import ParameterTable, trajectories
 from coartic.fit import run
-from coartic.fit.score import score_recordings
+from coartic.evaluation.score import score_recordings
 from coartic.fit.spec import load_spec, parse_spec
 from coartic.pauses import (FINAL_PAUSE, MEDIAL_ALPHA, MEDIAL_PAUSE, POSTURES_RECORD, RECORD_KEY, is_pause,
                             pause_postures)

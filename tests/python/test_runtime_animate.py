@@ -96,6 +96,21 @@ def test_animate_file_writes_consistent_outputs(tmp_path: Path, labels: Path) ->
     assert (out / "segments.tsv").read_text().splitlines()[1].split("\t") == ["0.0", "0.3", "#", "#", "sil"]
 
 
+def test_the_faps_are_computed_once_for_every_exporter(tmp_path: Path, labels: Path,
+                                                       monkeypatch: pytest.MonkeyPatch) -> None:
+    # the FAP file, the glTF, the VRML and the result all take the one FAP sequence (issue 28: it
+    # was computed up to 4 times per run, the tongue animated through the model each time)
+    import coartic.runtime.tongue as tongue
+
+    calls = []
+    real = tongue.tongue_channels
+    monkeypatch.setattr(tongue, "tongue_channels", lambda a: calls.append(a) or real(a))
+    result = animate_file(labels, make_table(), tmp_path / "out", preview="none", gltf=True, vrml=True)
+    assert len(calls) == 1 and calls[0] is result.animation
+    assert {"fap", "gltf", "vrml"} <= set(result.files)
+    np.testing.assert_array_equal(read_fap(result.files["fap"]).values, result.faps.values)
+
+
 def test_resistant_targets_are_reached(labels: Path) -> None:
     table = make_table()
     from coartic.io.labelmap import LabelMap

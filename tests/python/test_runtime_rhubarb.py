@@ -91,18 +91,38 @@ def test_rhubarb_files_keep_its_minimum_durations(runs: dict[int, RuntimeOutput]
 
 
 def test_the_cues_do_not_follow_the_frame_grid(runs: dict[int, RuntimeOutput]) -> None:
-    """At 30 and 60 fps the same cues, centisecond for centisecond (the movement interpolated between
-    frames is the same); at 24 fps, whose frames are 4.2 cs apart, the same shape at the middle of
-    every segment (the /p/'s closure measured at 0.48-0.59 s against 0.41-0.52 s)."""
+    """At 24, 30 and 60 fps the same cues, centisecond for centisecond: the model is evaluated at
+    every centisecond (Animation.resampled), not the frames interpolated (at 24 fps, whose frames
+    are 4.2 cs apart, the /p/'s closure was measured at 0.48-0.59 s against 0.41-0.52 s)."""
     cues = {fps: mouth_cues(r.animation) for fps, r in runs.items()}
-    assert cues[30] == cues[60]
+    assert cues[24] == cues[30] == cues[60]
     seg = runs[60].animation.segments
 
-    def at(fps: int, cs: int) -> str:
-        return next(c.value for c in cues[fps] if c.start_cs <= cs < c.end_cs)
+    def at(cs: int) -> str:
+        return next(c.value for c in cues[24] if c.start_cs <= cs < c.end_cs)
 
     middles = [int((s + e) * 50) for s, e in zip(seg.starts, seg.ends)]
-    assert [at(24, m) for m in middles] == [at(60, m) for m in middles] == list("XDADGFHDXX")[:len(middles)]
+    assert [at(m) for m in middles] == list("XDADGFHDXX")[:len(middles)]
+    files = {fps: runs[fps].files["rhubarb_tsv"].read_text() for fps in runs}
+    assert files[24] == files[30] == files[60]
+
+
+def test_resampling_evaluates_the_model_as_the_speaker_says_it(tmp_path: Path) -> None:
+    # at its own rate without snapping, the resampled animation is the animation, a speaker's too
+    (tmp_path / "apafula.tsv").write_text(APAFULA)
+    table = ParameterTable.load(GROUND_TRUTH)
+    table.metadata = {**(table.metadata or {}), "speakers": {"mode": "offset_scale", "column": "speaker",
+                                                             "coefficients": {
+        c: {"s1": {"offset_mm": 0.0, "scale": 1.0}, "s2": {"offset_mm": 0.5, "scale": 1.2}} for c in table.channels}}}
+    for speaker in (None, "s2"):
+        anim = animate_file(tmp_path / "apafula.tsv", table, tmp_path / f"o{speaker}", fps=25.0, preview="none",
+                            snap_contacts=False, speaker=speaker).animation
+        again = anim.resampled(25.0)
+        assert again.neutral == anim.neutral and again.n_frames == anim.n_frames
+        for c in anim.channels:
+            np.testing.assert_allclose(again.channels[c], anim.channels[c], rtol=0, atol=1e-12)
+        fine = anim.resampled(100.0)
+        assert fine.n_frames == round(anim.sound_duration * 100) and fine.speaker is anim.speaker
 
 
 def test_extended_shapes_as_rhubarb_chooses_them(runs: dict[int, RuntimeOutput]) -> None:

@@ -10,6 +10,7 @@ import tempfile
 import unicodedata
 from dataclasses import dataclass
 from functools import lru_cache
+from importlib import resources
 from pathlib import Path
 
 import numpy as np
@@ -17,6 +18,7 @@ from numpy.typing import NDArray
 
 from coartic.align.audio import RATE
 from coartic.align.errors import AlignError
+from coartic.io.labelmap import IPA_TABLE
 from coartic.runtime.festival import LANGUAGES, PhoneMap
 from coartic.table import PAUSE
 
@@ -57,14 +59,8 @@ def default_engine(lang: str) -> str:
 
 @lru_cache(maxsize=1)
 def ipa_map() -> PhoneMap:
-    """phones_ipa.tsv: espeak-ng's IPA phones → model phonemes."""
-    return PhoneMap.load(Path(str(_resource("phones_ipa.tsv"))))
-
-
-def _resource(name: str) -> object:
-    from importlib import resources
-
-    return resources.files("coartic.runtime").joinpath(name)
+    """phones_ipa.tsv (coartic.io's labelmaps, also the label map 'ipa'): espeak-ng's IPA phones → model phonemes."""
+    return PhoneMap.load(Path(str(resources.files("coartic.io").joinpath("labelmaps", IPA_TABLE))))
 
 
 def ipa_phone(phone: str) -> str:

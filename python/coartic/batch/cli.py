@@ -10,6 +10,7 @@ from rich.console import Console
 from rich.markup import escape
 from rich.table import Table
 
+from coartic.batch.run import MAX_WORKERS
 from coartic.console import print_error, print_table
 from coartic.fit.result import BAR_MM
 
@@ -22,8 +23,8 @@ def batch_command(
     out: Path = typer.Option(..., "--out", "-o", help="output folder (new, or this batch's: finished units are kept)"),
     scheduler: Optional[str] = typer.Option(None, help="address of a running Dask scheduler, e.g. tcp://host:8786 "
                                             "(default: a local cluster of worker processes)"),
-    workers: Optional[int] = typer.Option(None, min=1, help="worker processes of the local cluster "
-                                          "(default: one per core, at most one per unit)"),
+    workers: Optional[int] = typer.Option(None, min=1, max=MAX_WORKERS, help="worker processes of the local cluster "
+                                          f"(default: one per core, at most one per unit; at most {MAX_WORKERS})"),
     serial: bool = typer.Option(False, "--serial", help="no Dask: every unit in this process, one after another"),
     force: bool = typer.Option(False, "--force", help="replace an output folder that holds another run's results"),
     report: bool = typer.Option(True, "--report/--no-report", help="write the figures and report.html"),

@@ -29,7 +29,7 @@ import shutil
 import time
 from collections import defaultdict
 from collections.abc import Callable, Iterator
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -37,35 +37,18 @@ from rich.console import Console
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
 from coartic.batch.layout import UNIT_FILE, is_done, land_dir, unit_dir
+from coartic.batch.outcome import BatchOutcome
 from coartic.batch.spec import BatchSpec
 from coartic.batch.tasks import UnitFailed, UnitKey, UnitOutput, fit_unit, load_group, posterior_unit
 from coartic.console import LineProgress
-from coartic.errors import CoarticError
+from coartic.errors import CoarticError, UsageError
 from coartic.extras import require
 from coartic.model import Utterance
 from coartic.outputs import DeferredSignals, OutputDir
 
 
-
 class ClusterError(CoarticError, ValueError):
     """The Dask cluster could not be started or reached; the message names the address."""
-
-
-@dataclass
-class BatchOutcome:
-    out: Path
-    total: int  # units of the batch
-    skipped: int  # finished by an earlier run
-    landed: list[UnitKey] = field(default_factory=list)
-    failed: dict[str, str] = field(default_factory=dict)  # unit label -> why
-    interrupted: bool = False
-    wall_s: float = 0.0
-    workers: int = 0  # 0: serial
-    threads: int | None = None  # rayon threads per worker
-
-    @property
-    def complete(self) -> bool:
-        return not self.failed and not self.interrupted
 
 
 def plan_units(spec: BatchSpec) -> list[UnitKey]:
@@ -98,6 +81,11 @@ def land_unit(out: Path, spec: BatchSpec, result: UnitOutput) -> None:
 
 
 # ----------------------------------------------------------------------------- schedulers
+
+
+# Worker processes of a local cluster: each is a Python process with the core loaded (~150 MB), so
+# a typo (10**6) would exhaust the machine's memory before any unit ran.
+MAX_WORKERS = 1024
 
 
 def local_threads(workers: int) -> int:
@@ -189,6 +177,8 @@ def run_batch(spec: BatchSpec, out: str | Path, *, scheduler: str | None = None,
     landed is landed first. ``tls``: certificates for a ``tls://`` scheduler (``cluster_security``).
     """
     out = Path(out)
+    if workers is not None and not 1 <= workers <= MAX_WORKERS:
+        raise UsageError(f"workers = {workers}: between 1 and {MAX_WORKERS} worker processes")
     require_packages(spec, serial)
     console = console or Console(stderr=True, quiet=quiet)
     keys = plan_units(spec)

@@ -36,13 +36,13 @@ from numpy.typing import NDArray
 from coartic.face.deform import FaceRig, default_rig
 from coartic.face.mesh import MOUTH_HALF_WIDTH, PART_NAMES, vertex_normals
 from coartic.runtime.errors import AnimationError
-from coartic.runtime.fap import BLINK_CLOSED, N_FAPS, FaceUnits, FapSequence, animation_faps, channels_to_faps
+from coartic.runtime.fap import BLINK_CLOSED, N_FAPS, FaceUnits, FapSequence, channels_to_faps
 from coartic.outputs import atomic_write_bytes
 from coartic.runtime.rigs import ARKIT_BASIS, ARKIT_BLINKS, ARKIT_NAMES, arkit_weights
 
 if TYPE_CHECKING:
     from coartic.runtime.animate import Animation
-    from coartic.runtime.exporters import ExportSettings
+    from coartic.runtime.exporters import ExportSettings, FaceAnimation
 
 GLB_MAGIC = 0x46546C67  # "glTF"
 CHUNK_JSON = 0x4E4F534A
@@ -594,9 +594,10 @@ def arkit_morphs(rig: FaceRig, neutral: dict[str, float], face: FaceUnits) -> tu
     return ARKIT_NAMES, fields
 
 
-def export_gltf(animation: Animation, settings: ExportSettings) -> dict[str, Path]:
+def export_gltf(fed: FaceAnimation, settings: ExportSettings) -> dict[str, Path]:
     """Exporter (coartic.runtime.exporters): NAME.glb with the FAP morph set, or ARKit's
     (`settings.gltf_morphs == "arkit"`, weights from coartic.runtime.rigs.arkit_weights)."""
+    animation = fed.animation
     path = settings.out / f"{settings.name}.glb"
     fap_file = settings.files["fap"].name if "fap" in settings.files else None
     if settings.gltf_morphs == "arkit":
@@ -604,6 +605,6 @@ def export_gltf(animation: Animation, settings: ExportSettings) -> dict[str, Pat
         write_glb(path, rig, arkit_weights(animation), animation.fps, settings.name, audio=settings.audio_name(),
                   fap_file=fap_file, morphs=arkit_morphs(rig, animation.neutral, settings.face))
     else:
-        write_face_glb(path, animation_faps(animation, settings.face, settings.name), audio=settings.audio_name(),
+        write_face_glb(path, fed.faps, audio=settings.audio_name(),
                        fap_file=fap_file, limited=settings.gltf_morphs == "eight")
     return {"gltf": path}

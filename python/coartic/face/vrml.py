@@ -21,13 +21,12 @@ from coartic.face.deform import FaceRig, default_rig
 from coartic.face.gltf import MM
 from coartic.face.mesh import PART_NAMES
 from coartic.runtime.errors import AnimationError
-from coartic.runtime.fap import FapSequence, animation_faps
+from coartic.runtime.fap import FapSequence
 from coartic.runtime.festival import wav_duration
 from coartic.outputs import atomic_write_text
 
 if TYPE_CHECKING:
-    from coartic.runtime.animate import Animation
-    from coartic.runtime.exporters import ExportSettings
+    from coartic.runtime.exporters import ExportSettings, FaceAnimation
 
 # An animated world keys every vertex of every moving part at every frame, ~58 kB of text per frame:
 # 1500 frames (a minute at 25 fps) is ~90 MB. Longer animations are refused (single frames are not).
@@ -147,9 +146,9 @@ def write_face_vrml(path: str | PathLike[str], faps: FapSequence, *, frames: Ite
     return written
 
 
-def export_vrml(animation: Animation, settings: ExportSettings) -> dict[str, Path]:
+def export_vrml(fed: FaceAnimation, settings: ExportSettings) -> dict[str, Path]:
     """Exporter (coartic.runtime.exporters): NAME.wrl, the face animated with the sound."""
-    faps = animation_faps(animation, settings.face, settings.name)
+    faps = fed.faps
     audio = settings.audio
     path = write_face_vrml(settings.out / f"{settings.name}.wrl", faps, audio=settings.audio_name(),
                            audio_seconds=wav_duration(audio) if audio is not None else None)[0]

@@ -10,11 +10,10 @@ from typing import Any, Callable, Mapping, Sequence
 import numpy as np
 
 from coartic.estimation.emotions import ASYMMETRY_META, corner_asymmetry
-from coartic.model import Utterance
+from coartic.model import Utterance, utterances_with_postures
 from coartic.errors import SpecError
 from coartic.fit.spec import FitSpec, synth_hint
 from coartic.io import DataError, load_trial
-from coartic.pauses import utterances_with_postures
 from coartic.textfile import TextDecodeError, read_text
 
 

@@ -229,8 +229,8 @@ def _fit_into(s: FitSpec, out: Path, console: Console, err: Console, validate: b
     for note in result.notes:
         console.print(f"[yellow]note:[/yellow] {escape(note)}", soft_wrap=True)
     if result.validation:
-        from coartic.fit.heldout import flags
-        from coartic.fit.validate import validation_table
+        from coartic.evaluation.heldout import flags
+        from coartic.evaluation.validate import validation_table
 
         print_table(console, validation_table(result.validation), keys=2)
         for f in flags(result.validation):

@@ -22,7 +22,7 @@ from typing import Any, Sequence
 import numpy as np
 from numpy.typing import NDArray
 
-from coartic import __version__
+from coartic._version import __version__
 from coartic.extras import require
 from coartic.fit.bounds import CATEGORY_TITLES, BoundNote, explain_bounds, summary_counts
 from coartic.estimation.emotions import asymmetry_metadata, channel_metadata
@@ -32,7 +32,7 @@ from coartic.estimation.pooling import PoolEstimate
 from coartic.estimation.problem import ChannelProblem
 from coartic.errors import UsageError
 from coartic.fit.spec import FitSpec
-from coartic.fit.heldout import baseline_summary, flags
+from coartic.evaluation.heldout import baseline_summary, flags
 from coartic.fit.multistart import MultiStart
 from coartic.fit.staged import StageResult
 from coartic.io.labelmap import resolve_label_map
@@ -223,7 +223,7 @@ class FitResult:
     started: str
     interrupted: bool = False
     notes: list[str] = field(default_factory=list)
-    validation: list[Any] | None = None  # coartic.fit.validate.SplitScore per split and channel
+    validation: list[Any] | None = None  # coartic.evaluation.validate.SplitScore per split and channel
     report: Path | None = None  # the HTML report, once written
     choice: Any = None  # coartic.fit.choose.Choice: the [choose] setting's CV curve and chosen values
 

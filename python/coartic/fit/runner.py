@@ -231,7 +231,7 @@ def run(spec: FitSpec | str | Path, out: str | Path | None = None, *, utterances
         done = ", ".join(result.channels) or "none"
         result.notes.append(f"interrupted by the user; channels finished or partly fitted: {done}")
     if validate and result.channels and not result.interrupted:
-        from coartic.fit.validate import validate_all
+        from coartic.evaluation.validate import validate_all
 
         try:
             result.validation = validate_all(spec, None if out is None else Path(out) / "validation",

@@ -88,6 +88,9 @@ MAX_STARTS = 10_000
 DEFAULT_REFERENCE = "a"
 REFERENCE_ORDER: tuple[str, ...] = (DEFAULT_REFERENCE, "E", "O", "e", "o", "i", "u")
 DEFAULT_PROBE = 10  # evaluations per stage in the probe every start gets
+# The probe ranks starts before the local fits go on: a probe as long as a local fit's whole budget
+# (coartic.fit.engines.evaluation_budget, thousands) is no longer a probe, and 10**9 is a typo.
+MAX_PROBE = 10_000
 # Fitted on a log scale: their bounds and log-scale priors need positive values.
 LOG_SCALE_PARAMETERS = ("alpha", "theta_bw", "theta_fw", "psi", "beta")
 
@@ -645,7 +648,7 @@ class FitSpec:
     # from [parameters.start]
     starts: Annotated[int, BeforeValidator(_count(1, MAX_STARTS))] = DEFAULT_STARTS
     seed: Annotated[int, BeforeValidator(_count(0))] = 0
-    probe: Annotated[int, BeforeValidator(_count(1))] = DEFAULT_PROBE
+    probe: Annotated[int, BeforeValidator(_count(1, MAX_PROBE))] = DEFAULT_PROBE
     # starts continued after the probe (None: multistart.default_keep)
     keep: Annotated[int | None, BeforeValidator(_optional(_count(1)))] = None
     include_start: Flag = True  # start 0 is [parameters.start] (always continued)

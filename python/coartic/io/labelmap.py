@@ -45,7 +45,13 @@ MODEL_VOWELS = ("i", "e", "E", "a", "O", "o", "u")
 MODEL_CONSONANTS = ("p", "b", "m", "f", "v", "t", "d", "n", "l", "r", "s", "z", "ts", "dz",
                     "tS", "dZ", "S", "k", "g", "J", "L", "j", "w")
 MODEL_PHONEMES = (PAUSE, *MODEL_VOWELS, *MODEL_CONSONANTS)
-BUILTIN = ("model", "german_sampa", "english_arpabet", "mocha", "timit")
+BUILTIN = ("model", "german_sampa", "english_arpabet", "mocha", "timit", "ipa")
+# The IPA phones of espeak-ng and of the Montreal Forced Aligner's IPA models (english_mfa,
+# german_mfa, ...) -> model phonemes: also the phone map of alignment by synthesis (coartic.align)
+IPA_TABLE = "phones_ipa.tsv"
+# marks an IPA phone may start with (stress); length, aspiration, palatalisation, syllabicity and
+# the like follow the phone and are left out, as is a diphthong's second part
+IPA_STRESS = "ˈˌ"
 PATTERN_PREFIX = "re:"
 # `fallback:<phoneme>` → comma-separated phonemes that stand in for it when a table lacks it
 FALLBACK_PREFIX = "fallback:"
@@ -93,11 +99,33 @@ class LabelMap:
     def builtin(cls, name: str) -> LabelMap:
         if name == "model":
             return cls.model()
+        if name == "ipa":
+            return cls.ipa()
         if name not in BUILTIN:
             raise DataError(f"no built-in label map {name!r}; built-in maps: {list(BUILTIN)}")
         res = resources.files("coartic.io").joinpath("labelmaps", f"{name}.tsv")
         m = cls._parse_tsv(res.read_text(encoding="utf-8"), f"builtin map {name!r} ({name}.tsv)")
         return cls(m.mapping, m.keep_unmapped, m.source, m.lines, m.patterns, name, m.fallbacks)
+
+    @classmethod
+    def ipa(cls) -> LabelMap:
+        """IPA phones (MFA's IPA models, espeak-ng) → model phonemes, from labelmaps/phones_ipa.tsv:
+        a label maps as the longest phone of the table it starts with (after a stress mark), so that
+        length, aspiration and other marks after it, and a diphthong's second part, are left out
+        ([tʃʰ] → tS, [aj] → a, [iː] → i, [ɫ̩] → l); MFA's pause labels and its spoken noise `spn`
+        are the pause."""
+        res = resources.files("coartic.io").joinpath("labelmaps", IPA_TABLE)
+        source = f"builtin map 'ipa' ({IPA_TABLE})"
+        rows = []
+        for no, raw in enumerate(res.read_text(encoding="utf-8").splitlines(), start=1):
+            if no > 1 and raw.strip() and not raw.startswith("#"):  # line 1: the header
+                phone, phoneme = raw.split("\t")[:2]
+                rows.append((phone, phoneme))
+        entries = {label: PAUSE for label in PAUSE_LABELS} | {"spn": PAUSE}
+        for phone, phoneme in sorted(rows, key=lambda r: -len(r[0])):  # [tʃ] before [t]
+            entries[f"{PATTERN_PREFIX}[{IPA_STRESS}]?{re.escape(phone)}.*"] = phoneme
+        m = cls.from_dict(entries, source)
+        return cls(m.mapping, m.keep_unmapped, m.source, m.lines, m.patterns, "ipa", m.fallbacks)
 
     @classmethod
     def from_dict(cls, d: Mapping[str, str], source: str = "<dict>") -> LabelMap:

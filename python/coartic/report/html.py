@@ -21,7 +21,7 @@ import markupsafe
 from rich.console import Console
 
 from coartic.fit.bounds import summary_counts
-from coartic.fit.heldout import flags, pooled
+from coartic.evaluation.heldout import flags, pooled
 from coartic.fit.result import BAR_MM, FitResult
 from coartic.report import plots
 from coartic.outputs import atomic_write_text

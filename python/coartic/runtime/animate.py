@@ -10,7 +10,7 @@ from __future__ import annotations
 import csv
 import math
 from collections.abc import Container, Mapping, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -24,7 +24,8 @@ from coartic.table import CHANNELS, PAUSE, ParameterTable
 from coartic.outputs import atomic_write_text
 
 if TYPE_CHECKING:
-    from coartic.runtime.exporters import ExportSettings
+    from coartic.speakers import SpeakerMapping
+
 
 # The most frames one animation may have (11 hours at 25 fps): channels, FAP text (~200 bytes a
 # frame) and preview grow with it, so a mistaken --fps 1e9 or a label ending at 1e6 s is refused
@@ -63,6 +64,8 @@ class Animation:
     # the time the frames were laid over (the sound's duration, else the labels' end), s; the frames
     # cover it to within half a frame (`duration`), Rhubarb's cues cover it exactly
     span: float | None = None
+    # the speaker of a multi-speaker table the channels are said as (a + b·F of `table`'s, coartic.speakers)
+    speaker: SpeakerMapping | None = None
 
     @property
     def modelled(self) -> list[str]:
@@ -96,6 +99,27 @@ class Animation:
         w = np.maximum(w, 0.0)
         out[:, near] = w / np.maximum(w.sum(axis=1, keepdims=True), np.finfo(float).tiny)
         return out
+
+    def resampled(self, fps: float) -> Animation:
+        """The same animation at another frame rate: the model evaluated anew at the new frames over
+        the same span (not the frames interpolated), as the speaker says it, with the same neutral
+        face. For cues finer than the frames (Rhubarb's centiseconds, coartic.runtime.rhubarb), so
+        that they do not depend on --fps. No contact snapping: it moves a frame by at most half of
+        one, which at such rates is below the cues' resolution."""
+        if self.table is None:
+            raise AnimationError("this animation does not carry the table that made it: it cannot be resampled")
+        fine = animate(self.table, self.segments, fps, duration=self.sound_duration, channels=self.modelled,
+                       substitutions=self.substitutions, snap_contacts=False)
+        channels = {}
+        for c, v in self.channels.items():
+            if c not in fine.channels:  # held at rest
+                channels[c] = np.full(fine.n_frames, v[0])
+            elif self.speaker is not None:
+                channels[c] = self.speaker.apply(c, fine.channels[c])
+            else:
+                channels[c] = fine.channels[c]
+        return replace(fine, channels=channels, at_rest=self.at_rest, neutral=self.neutral, span=self.span,
+                       speaker=self.speaker)
 
     @property
     def duration(self) -> float:
@@ -409,18 +433,3 @@ def write_segments_tsv(path: str | Path, segments: Segments, requested: Sequence
     for i, (shown, s, e) in enumerate(zip(segments.labels, segments.starts, segments.ends)):
         lines.append(f"{float(s)!r}\t{float(e)!r}\t{requested[i]}\t{shown}\t{source[i]}")
     atomic_write_text(path, "\n".join(lines) + "\n")
-
-
-def export_channels(animation: Animation, settings: ExportSettings) -> dict[str, Path]:
-    """Exporter (coartic.runtime.exporters): channels.csv."""
-    path = settings.out / "channels.csv"
-    write_channels_csv(path, animation)
-    return {"channels": path}
-
-
-def export_segments(animation: Animation, settings: ExportSettings) -> dict[str, Path]:
-    """Exporter: segments.tsv, the phonemes asked for, shown and their source labels."""
-    path = settings.out / "segments.tsv"
-    write_segments_tsv(path, animation.segments, settings.requested or animation.segments.labels,
-                       settings.source or animation.segments.labels)
-    return {"segments": path}

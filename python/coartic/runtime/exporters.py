@@ -1,10 +1,13 @@
-"""Every output of `coartic animate` and `speak` is an exporter fed the same `Animation`.
+"""Every output of `coartic animate` and `speak` is an exporter fed the same `FaceAnimation`.
 
-An exporter is a function `(animation, settings) -> {what: path}` that lives beside the code of its
-format (FAP in coartic.runtime.fap, glTF and VRML in coartic.face, the previews in
-coartic.runtime.preview, the rigs' curves and cues in coartic.runtime.rigs) and is named here by
-module, so that a run imports only the formats it writes (matplotlib only with a picture).
-`ExportSettings` holds how to write (names, face units, sound), never what: that is the animation.
+An exporter is a function `(fed, settings) -> {what: path}`. The always-written ones (channels,
+FAP file, segments) are here; the others live beside the code of their format (glTF and VRML in
+coartic.face, the previews in coartic.runtime.preview, the rigs' curves and cues in
+coartic.runtime.rigs and .rhubarb) and are named here by module, so that a run imports only the
+formats it writes. `FaceAnimation` is what to write, computed once for every exporter: the
+animation and its FAP sequence (the tongue through the model, blinks, expression). `ExportSettings`
+holds how to write (names, face units, sound). The formats' modules do not import this one back
+(but for annotations): it sits above them.
 """
 
 from __future__ import annotations
@@ -15,13 +18,13 @@ from importlib import import_module
 from pathlib import Path
 from typing import TYPE_CHECKING
 
+from coartic.runtime.animate import Animation, write_channels_csv, write_segments_tsv
 from coartic.runtime.errors import AnimationError
+from coartic.runtime.fap import FaceUnits, FapSequence, animation_faps, write_fap
 
 if TYPE_CHECKING:
     from rich.progress import Progress
 
-    from coartic.runtime.animate import Animation
-    from coartic.runtime.fap import FaceUnits
     from coartic.speakers import SpeakerMapping
     from coartic.table import ParameterTable
 
@@ -97,13 +100,51 @@ class ExportSettings:
         return self.audio.name if self.audio is not None else None
 
 
-Exporter = Callable[["Animation", ExportSettings], dict[str, Path]]
+@dataclass(frozen=True)
+class FaceAnimation:
+    """What every exporter is fed: the animation (channels, segments, neutral face, the table behind
+    them) and its FAP sequence in the face's units, computed once (`of`) for all of them."""
+
+    animation: Animation
+    faps: FapSequence
+
+    @classmethod
+    def of(cls, animation: Animation, settings: ExportSettings) -> FaceAnimation:
+        return cls(animation, animation_faps(animation, settings.face, settings.name))
+
+
+Exporter = Callable[[FaceAnimation, ExportSettings], dict[str, Path]]
+
+
+def export_channels(fed: FaceAnimation, settings: ExportSettings) -> dict[str, Path]:
+    """Exporter: channels.csv."""
+    path = settings.out / "channels.csv"
+    write_channels_csv(path, fed.animation)
+    return {"channels": path}
+
+
+def export_segments(fed: FaceAnimation, settings: ExportSettings) -> dict[str, Path]:
+    """Exporter: segments.tsv, the phonemes asked for, shown and their source labels."""
+    segments = fed.animation.segments
+    path = settings.out / "segments.tsv"
+    write_segments_tsv(path, segments, settings.requested or segments.labels, settings.source or segments.labels)
+    return {"segments": path}
+
+
+def export_fap(fed: FaceAnimation, settings: ExportSettings) -> dict[str, Path]:
+    """Exporter: NAME.fap."""
+    path = settings.out / f"{settings.name}.fap"
+    tmp = settings.out / f"{settings.name}.fap.part"
+    write_fap(tmp, fed.faps)
+    tmp.replace(path)
+    return {"fap": path}
+
 
 # name -> (module, function). Always written: channels, fap, segments; the others on request.
 EXPORTERS: dict[str, tuple[str, str]] = {
-    "channels": ("coartic.runtime.animate", "export_channels"),
-    "fap": ("coartic.runtime.fap", "export_fap"),
-    "segments": ("coartic.runtime.animate", "export_segments"),
+    "channels": ("coartic.runtime.exporters", "export_channels"),
+    "fap": ("coartic.runtime.exporters", "export_fap"),
+    "segments": ("coartic.runtime.exporters", "export_segments"),
     "gltf": ("coartic.face.gltf", "export_gltf"),
     "vrml": ("coartic.face.vrml", "export_vrml"),
     "arkit": ("coartic.runtime.rigs", "export_arkit"),
@@ -138,12 +179,15 @@ def load_exporter(name: str) -> Exporter:
     return fn
 
 
-def run_exports(animation: Animation, settings: ExportSettings, names: Sequence[str]) -> dict[str, Path]:
-    """Run the exporters `names` in order on one animation; every file is written atomically, the
-    exact outputs first (an interrupted preview loses nothing else). Returns {what: path}."""
+def run_exports(animation: Animation, settings: ExportSettings, names: Sequence[str]) -> FaceAnimation:
+    """Run the exporters `names` in order on one animation, fed to each with its FAP sequence
+    computed once; every file is written atomically, the exact outputs first (an interrupted preview
+    loses nothing else). What was written is in `settings.files` ({what: path}); returns what the
+    exporters were fed."""
     if settings.gltf_morphs not in GLTF_MORPH_SETS:
         raise AnimationError(f"--gltf-morphs {settings.gltf_morphs!r}: choose {', '.join(GLTF_MORPH_SETS)}")
+    fed = FaceAnimation.of(animation, settings)
     settings.out.mkdir(parents=True, exist_ok=True)
     for name in names:
-        settings.files.update(load_exporter(name)(animation, settings))
-    return settings.files
+        settings.files.update(load_exporter(name)(fed, settings))
+    return fed

@@ -18,7 +18,6 @@ from coartic.runtime.errors import AnimationError, FapFormatError
 
 if TYPE_CHECKING:
     from coartic.runtime.animate import Animation
-    from coartic.runtime.exporters import ExportSettings
 
 N_FAPS = 68
 
@@ -396,12 +395,3 @@ def add_fap_offsets(seq: FapSequence, offsets: Mapping[int, NDArray[np.float64]]
         values[:, fap - 1] = np.clip(np.rint(col), -FAP_VALUE_LIMIT, FAP_VALUE_LIMIT).astype(np.int64)
         mask[:, fap - 1] = True
     return FapSequence(name=seq.name, fps=seq.fps, mask=mask, values=values, first_frame=seq.first_frame)
-
-
-def export_fap(animation: Animation, settings: ExportSettings) -> dict[str, Path]:
-    """Exporter (coartic.runtime.exporters): NAME.fap."""
-    path = settings.out / f"{settings.name}.fap"
-    tmp = settings.out / f"{settings.name}.fap.part"
-    write_fap(tmp, animation_faps(animation, settings.face, settings.name))
-    tmp.replace(path)
-    return {"fap": path}

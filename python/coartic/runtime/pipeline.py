@@ -32,7 +32,7 @@ from coartic.runtime.animate import (
 )
 from coartic.runtime.errors import AnimationError, MissingPhonemeError
 from coartic.runtime.exporters import ExportSettings, RigOptions, parse_exports, run_exports
-from coartic.runtime.fap import FaceUnits, FapSequence, animation_faps
+from coartic.runtime.fap import FaceUnits, FapSequence
 from coartic.runtime.festival import (FestivalUtterance, PhoneMap, Synthesis, check_text, prepare_text,
                                       start_synthesis, wav_duration)
 from coartic.speakers import SpeakerMapping, speaker_mapping
@@ -76,6 +76,7 @@ def speak_as(animation: Animation, mapping: SpeakerMapping | None, table: Parame
     if mapping is not None:
         for c in animation.modelled:
             animation.channels[c] = mapping.apply(c, animation.channels[c])
+        animation = replace(animation, speaker=mapping)
         if table is not None:
             return replace(animation, neutral=speaker_neutral(table, mapping))
     return animation
@@ -158,9 +159,8 @@ def _write_outputs(
         settings.files["wav"] = audio
     names = ["channels", "fap", "segments", *(["gltf"] if gltf else []), *(["vrml"] if vrml else []), *exports,
              *(["plot", "preview"] if preview != "none" else [])]
-    files = run_exports(animation, settings, names)
-    faps = animation_faps(animation, face, name)
-    return RuntimeOutput(animation=animation, faps=faps, files=files)
+    fed = run_exports(animation, settings, names)
+    return RuntimeOutput(animation=animation, faps=fed.faps, files=settings.files)
 
 
 def animate_file(

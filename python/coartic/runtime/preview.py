@@ -17,31 +17,27 @@ import shutil
 import subprocess
 from collections.abc import Callable, Iterator, Mapping, Sequence
 from dataclasses import dataclass
-from functools import lru_cache
 from pathlib import Path
 from typing import TYPE_CHECKING
 
 import numpy as np
-from matplotlib.axes import Axes
-from matplotlib.backends.backend_agg import FigureCanvasAgg
-from matplotlib.colors import to_rgb
-from matplotlib.figure import Figure
-from matplotlib.font_manager import FontProperties, findfont
-from matplotlib.patches import Polygon, Rectangle
-from matplotlib.transforms import offset_copy
 from numpy.typing import NDArray
-from PIL import Image, ImageDraw, ImageFont
+from PIL import Image, ImageDraw
 from rich.progress import Progress
 
 from coartic.io.labels import Segments
 from coartic.outputs import atomic_path
+from coartic.runtime import raster
 from coartic.runtime.animate import Animation, neutral_posture, target_times
 from coartic.runtime.errors import AnimationError
+from coartic.runtime.raster import Box, Tile, equal_aspect, rgb
 from coartic.speakers import SpeakerMapping
 from coartic.table import CHANNELS, PAUSE, ParameterTable
 
 if TYPE_CHECKING:
-    from coartic.runtime.exporters import ExportSettings
+    from matplotlib.axes import Axes
+
+    from coartic.runtime.exporters import ExportSettings, FaceAnimation
 
 # Half the vermilion height (mm) of an adult's upper and lower lip: the channels give where the lip
 # markers go, not how thick the lips are.
@@ -137,44 +133,48 @@ def _front_half_width(neutral: Mapping[str, float]) -> float:
     return 0.9 * max(neutral["LR"], 20.0) + 10.0
 
 
-class FaceArtist:
-    """Front and side view on two axes, updated in place frame after frame."""
+# the front view's nose outline (mm), drawn in every front view of the preview
+_NOSE = np.array([[-12, NOSE_ABOVE_LIPS], [0, NOSE_ABOVE_LIPS + 10], [12, NOSE_ABOVE_LIPS],
+                  [0, NOSE_ABOVE_LIPS - 3]], dtype=float)
+# what the face views show (mm): the front window is _front_half_width wide, the side one this
+_VIEW_Y = (-CHIN_BELOW_LIPS - 35.0, NOSE_ABOVE_LIPS + 10.0)
+_SIDE_X = (-60.0, 30.0)
 
-    def __init__(self, front: Axes, side: Axes, neutral: Mapping[str, float]) -> None:
-        self.neutral = dict(neutral)
-        half = _front_half_width(neutral)
-        front.set_xlim(-half, half)
-        front.set_ylim(-CHIN_BELOW_LIPS - 35, NOSE_ABOVE_LIPS + 10)
-        side.set_xlim(-60, 30)
-        side.set_ylim(-CHIN_BELOW_LIPS - 35, NOSE_ABOVE_LIPS + 10)
-        for ax, title in ((front, "front"), (side, "side")):
-            ax.set_aspect("equal")
-            ax.set_xticks([])
-            ax.set_yticks([])
-            ax.set_facecolor(SKIN)
-            ax.set_title(title, fontsize=8)
-        nose = np.array([[-12, NOSE_ABOVE_LIPS], [0, NOSE_ABOVE_LIPS + 10], [12, NOSE_ABOVE_LIPS],
-                         [0, NOSE_ABOVE_LIPS - 3]], dtype=float)
-        front.add_patch(Polygon(nose, closed=True, fc="none", ec=EDGE, lw=1))
-        empty = np.zeros((3, 2))
-        self.upper = Polygon(empty, closed=True, fc=LIP, ec=EDGE, lw=1)
-        self.lower = Polygon(empty, closed=True, fc=LIP, ec=EDGE, lw=1)
-        self.mouth = Polygon(empty, closed=True, fc=MOUTH, ec="none")
-        for patch in (self.upper, self.lower, self.mouth):
-            front.add_patch(patch)
-        (self.chin,) = front.plot([], [], color=EDGE, lw=1.5)
-        (self.profile,) = side.plot([], [], color=EDGE, lw=1.5)
-        (self.markers,) = side.plot([], [], "o", color=LIP, ms=3)
 
-    def update(self, posture: Mapping[str, float]) -> MouthShape:
-        s = mouth_shape(posture, self.neutral)
-        for patch, xy in zip((self.upper, self.lower, self.mouth), front_outlines(s)):
-            patch.set_xy(xy)
-        self.chin.set_data(s.chin[:, 0], s.chin[:, 1])
-        smooth = _smooth_profile(s.profile)
-        self.profile.set_data(smooth[:, 0], smooth[:, 1])
-        self.markers.set_data(s.profile[[4, 7], 0], s.profile[[4, 7], 1])
-        return s
+def _front_box(cell: tuple[float, float, float, float], neutral: Mapping[str, float]) -> Box:
+    half = _front_half_width(neutral)
+    return equal_aspect(*cell, (-half, half), _VIEW_Y)
+
+
+def _side_box(cell: tuple[float, float, float, float]) -> Box:
+    return equal_aspect(*cell, _SIDE_X, _VIEW_Y)
+
+
+def draw_front(tile: Tile, s: MouthShape, nose: bool = True) -> None:
+    """The front view of posture `s` into `tile`: nose, both lips, the mouth opening, the chin."""
+    if nose:
+        tile.polygon(_NOSE, None, rgb(EDGE), 1.0)
+    upper, lower, mouth = front_outlines(s)
+    tile.polygon(upper, rgb(LIP), rgb(EDGE), 1.0)
+    tile.polygon(lower, rgb(LIP), rgb(EDGE), 1.0)
+    tile.polygon(mouth, rgb(MOUTH))
+    tile.line(s.chin[:, 0], s.chin[:, 1], rgb(EDGE), 1.5)
+
+
+def draw_side(tile: Tile, s: MouthShape) -> None:
+    """The side view: the profile, and the lip markers on it."""
+    smooth = _smooth_profile(s.profile)
+    tile.line(smooth[:, 0], smooth[:, 1], rgb(EDGE), 1.5)
+    tile.markers(s.profile[[4, 7], 0], s.profile[[4, 7], 1], rgb(LIP), 3.0)
+
+
+def _face_views(picture: Image.Image, front: Box, side: Box, s: MouthShape, dpi: float) -> None:
+    tile = Tile(front, rgb(SKIN), dpi)
+    draw_front(tile, s)
+    tile.paste_into(picture)
+    tile = Tile(side, rgb(SKIN), dpi)
+    draw_side(tile, s)
+    tile.paste_into(picture)
 
 
 def _smooth_profile(points: NDArray[np.float64]) -> NDArray[np.float64]:
@@ -203,59 +203,67 @@ def _require_channels(animation: Animation) -> None:
         raise AnimationError(f"the preview needs all six channels; missing {', '.join(missing)}")
 
 
-def _agg_figure(width: float, height: float, dpi: float) -> Figure:
-    """A figure drawn by Agg, without pyplot (whose import and figure bookkeeping the pictures need not)."""
-    fig = Figure(figsize=(width, height), dpi=dpi)
-    FigureCanvasAgg(fig)
-    return fig
-
-
-@lru_cache(maxsize=4)
-def _caption_font(size_px: float) -> ImageFont.FreeTypeFont:
-    # matplotlib's own default font (DejaVu Sans, shipped with it), so the caption matches the rest
-    return ImageFont.truetype(findfont(FontProperties()), size_px)
+def _grid(size: tuple[int, int], height_ratios: tuple[float, float] = (3.0, 1.0), hspace: float = 0.25,
+          wspace: float = 0.05) -> tuple[tuple[float, float, float, float], ...]:
+    """The cells (x0, y0, x1, y1 px) of a 2 × 2 grid in matplotlib's default figure margins
+    (left .125, right .9, bottom .11, top .88) with its spacing rules: top left, top right, bottom
+    row (both columns)."""
+    w, h = size
+    left, right, top, bottom = 0.125 * w, 0.9 * w, 0.12 * h, 0.89 * h
+    cell_w = (right - left) / (2 + wspace)
+    unit = (bottom - top) / (sum(height_ratios) + hspace * sum(height_ratios) / 2)
+    row0 = (top, top + height_ratios[0] * unit)
+    row1 = (row0[1] + hspace * sum(height_ratios) / 2 * unit, bottom)
+    return ((left, row0[0], left + cell_w, row0[1]), (right - cell_w, row0[0], right, row0[1]),
+            (left, row1[0], right, row1[1]))
 
 
 def _frames(animation: Animation, neutral: Mapping[str, float], title: str) -> Iterator[Image.Image]:
-    """RGB frames of the preview: front and side view over a trace of lip aperture with a cursor."""
+    """RGB frames of the preview: front and side view over a trace of lip aperture with a cursor.
+
+    Everything that does not move (axes, trace, labels) is drawn once as a background; each frame
+    is a copy of it with the two face views, the cursor and the caption drawn on."""
     _require_channels(animation)
-    fig = _agg_figure(6.4, 4.0, 80)
-    canvas = fig.canvas
-    gs = fig.add_gridspec(2, 2, height_ratios=[3, 1], hspace=0.25, wspace=0.05)
-    face = FaceArtist(fig.add_subplot(gs[0, 0]), fig.add_subplot(gs[0, 1]), neutral)
-    trace = fig.add_subplot(gs[1, :])
+    dpi, size = 80.0, (512, 320)
+    front_cell, side_cell, trace_cell = _grid(size)
+    front, side = _front_box(front_cell, neutral), _side_box(side_cell)
     la = animation.channels["ULO"] + animation.channels["LLO"]
-    trace.plot(animation.times, la, color=LIP, lw=1)
-    trace.set_ylabel("ULO+LLO (mm)", fontsize=7)
-    trace.tick_params(labelsize=6)
-    trace.set_xlim(0, max(animation.duration, 1e-3))
-    mark_segments([trace], animation.segments, color="0.8", fontsize=6, label_y=1.0)
-    cursor = trace.axvline(0.0, color="k", lw=1)
-    # Blitting: everything that does not move (axes, trace, labels, nose) is drawn once and kept as a
-    # background; each frame restores it and draws only the moving artists. The caption, new text
-    # every frame, is set by Pillow in matplotlib's font where it puts a suptitle (top centre, 2 %
-    # below the edge): matplotlib lays out and renders text anew on each draw, which took half of
-    # the frame's time (bench/runtime_speed.py).
-    moving = [face.upper, face.lower, face.mouth, face.chin, face.profile, face.markers, cursor]
-    for a in moving:
-        a.set_animated(True)
-    canvas.draw()
-    background = canvas.copy_from_bbox(fig.bbox)  # type: ignore[attr-defined]
-    size = canvas.get_width_height()
-    font = _caption_font(9 * fig.dpi / 72)
+    trace = Box(*trace_cell, (0.0, max(animation.duration, 1e-3)), raster.with_margins(float(la.min()), float(la.max())))
+    background = Image.new("RGB", size, raster.WHITE)
+    draw = ImageDraw.Draw(background)
+    tile = Tile(trace, raster.WHITE, dpi)
+    boundaries, labels, _ = segment_marks(animation.segments)
+    if boundaries:
+        tile.vlines(animation.segments.starts[1:], rgb("0.8"), 0.5)
+    tile.line(animation.times, la, rgb(LIP), 1.0)
+    tile.paste_into(background)
+    for box in (front, side, trace):
+        raster.frame(draw, box, dpi)
+    for box, name in ((front, "front"), (side, "side")):  # axes titles, 6 points above
+        raster.text(draw, (0.5 * (box.x0 + box.x1), round(box.y0) - 6 * dpi / 72), name, 8, dpi)
+    widest = raster.y_axis(draw, trace, dpi, 6)
+    raster.x_axis(draw, trace, dpi, 6)
+    reach = (raster.TICK_LENGTH + raster.TICK_PAD + raster.LABEL_PAD) * dpi / 72 + widest
+    raster.vertical_text(background, (round(trace.x0) - reach - raster.line_height(7, dpi), 0.5 * (trace.y0 + trace.y1)),
+                         "ULO+LLO (mm)", 7, dpi)
+    if labels:
+        raster.segment_labels_at(draw, trace, _segment_label_times(animation.segments), 6, dpi, 0.0)
+    font = raster.font(9 * dpi / 72)
     at = (0.5 * size[0], 0.02 * size[1])
+    cursor_top, cursor_bottom = round(trace.y0), round(trace.y0) + trace.height - 1
     for k in range(animation.n_frames):
         t = float(animation.times[k])
-        face.update(_posture(animation, k))
-        cursor.set_xdata([t, t])
-        canvas.restore_region(background)  # type: ignore[attr-defined]
-        for a in moving:
-            fig.draw_artist(a)
-        rgba = canvas.buffer_rgba()  # type: ignore[attr-defined]
-        frame = Image.frombuffer("RGBA", size, rgba, "raw", "RGBA", 0, 1).convert("RGB")
-        ImageDraw.Draw(frame).text(at, f"{title}   t = {t:6.3f} s   /{_label_at(animation, t)}/", fill="black",
-                                   font=font, anchor="ma")
+        frame = background.copy()
+        _face_views(frame, front, side, mouth_shape(_posture(animation, k), neutral), dpi)
+        fdraw = ImageDraw.Draw(frame)
+        x = round(float(trace.px(t, 0.0)[0]))
+        fdraw.line([(x, cursor_top), (x, cursor_bottom)], fill=raster.BLACK, width=1)
+        fdraw.text(at, f"{title}   t = {t:6.3f} s   /{_label_at(animation, t)}/", fill="black", font=font, anchor="ma")
         yield frame
+
+
+def _segment_label_times(segments: Segments) -> list[tuple[str, float]]:
+    return [(lab, 0.5 * (s + e)) for lab, s, e in zip(segments.labels, segments.starts, segments.ends) if lab != PAUSE]
 
 
 def gif_palette() -> Image.Image:
@@ -264,14 +272,14 @@ def gif_palette() -> Image.Image:
     The preview draws with a handful of fixed colours, so mapping each frame to them (no dither)
     takes well under a millisecond, against ~15 ms for a median-cut palette per frame.
     """
-    base = [np.array(to_rgb(c)) for c in (SKIN, LIP, MOUTH, EDGE, "white", "black", "0.8", "0.5")]
+    base = [np.array(rgb(c)) / 255.0 for c in (SKIN, LIP, MOUTH, EDGE, "1.0", "0.0", "0.8", "0.5")]
     colors = list(base)
     for i in range(len(base)):
         for j in range(i + 1, len(base)):
             colors += [(1 - f) * base[i] + f * base[j] for f in (0.25, 0.5, 0.75)]
-    rgb = np.clip(np.rint(np.array(colors) * 255), 0, 255).astype(np.uint8)
+    levels = np.clip(np.rint(np.array(colors) * 255), 0, 255).astype(np.uint8)
     pal = Image.new("P", (1, 1))
-    pal.putpalette(rgb.ravel().tolist() + [0] * (768 - rgb.size))
+    pal.putpalette(levels.ravel().tolist() + [0] * (768 - levels.size))
     return pal
 
 
@@ -359,25 +367,17 @@ def face_frames(animation: Animation, neutral: Mapping[str, float], size_px: int
     """RGB frames of the face alone, front and side view, for perceptual tests (coartic.perceive):
     no trace, no caption, no axis titles, nothing that names the phoneme on screen."""
     _require_channels(animation)
-    fig = _agg_figure(2 * size_px / 80, size_px / 80, 80)
-    front, side = fig.add_axes((0.0, 0.0, 0.5, 1.0)), fig.add_axes((0.5, 0.0, 0.5, 1.0))
-    face = FaceArtist(front, side, neutral)
-    for ax in (front, side):
-        ax.set_title("")
-    canvas = fig.canvas
-    moving = [face.upper, face.lower, face.mouth, face.chin, face.profile, face.markers]
-    for a in moving:
-        a.set_animated(True)
-    canvas.draw()
-    background = canvas.copy_from_bbox(fig.bbox)  # type: ignore[attr-defined]
-    size = canvas.get_width_height()
+    dpi = 80.0
+    front = _front_box((0.0, 0.0, float(size_px), float(size_px)), neutral)
+    side = _side_box((float(size_px), 0.0, 2.0 * size_px, float(size_px)))
+    background = Image.new("RGB", (2 * size_px, size_px), raster.WHITE)
+    draw = ImageDraw.Draw(background)
+    for box in (front, side):
+        raster.frame(draw, box, dpi)
     for k in range(animation.n_frames):
-        face.update(_posture(animation, k))
-        canvas.restore_region(background)  # type: ignore[attr-defined]
-        for a in moving:
-            fig.draw_artist(a)
-        rgba = canvas.buffer_rgba()  # type: ignore[attr-defined]
-        yield Image.frombuffer("RGBA", size, rgba, "raw", "RGBA", 0, 1).convert("RGB")
+        frame = background.copy()
+        _face_views(frame, front, side, mouth_shape(_posture(animation, k), neutral), dpi)
+        yield frame
 
 
 def render_face_video(animation: Animation, neutral: Mapping[str, float], path: str | Path, audio: Path | None,
@@ -426,110 +426,119 @@ def render_strip(
     values.update({c: np.full(t.size, neutral[c]) for c in CHANNELS if c not in values})
     cols = min(len(idx), per_row)
     rows = -(-len(idx) // per_row)
-    # One axes for the whole strip, in inches from the top left corner, a panel per phoneme drawn
-    # into it: an axes each (with its ticks machinery) and tight_layout made the strip cost as much
-    # as the whole GIF. Each panel is the front view's window (a preview frame's, cut below the nose).
-    fig = _agg_figure(STRIP_CELL[0] * cols, STRIP_CELL[1] * rows + 0.2, 100)
-    width, height = fig.get_size_inches()
-    ax = fig.add_axes((0.0, 0.0, 1.0, 1.0))
-    ax.set_axis_off()
-    ax.set_xlim(0.0, width)
-    ax.set_ylim(-height, 0.0)
+    # In inches from the top left corner, y up (as the strip was laid out on a matplotlib axes), a
+    # panel per phoneme: the front view's window (a preview frame's, cut below the nose).
+    dpi = 100.0
+    width, height = STRIP_CELL[0] * cols, STRIP_CELL[1] * rows + 0.2
+    picture = Image.new("RGB", (round(width * dpi), round(height * dpi)), raster.WHITE)
+    draw = ImageDraw.Draw(picture)
     half, bottom, top = _front_half_width(neutral), -CHIN_BELOW_LIPS - 20.0, 25.0
     scale = min(STRIP_PANEL[0] / (2 * half), STRIP_PANEL[1] / (top - bottom))  # inches per mm
     pw, ph = 2 * half * scale, (top - bottom) * scale
-    title_at = offset_copy(ax.transData, fig=fig, y=6, units="points")  # an axes title's pad
-    # add_artist, not add_patch: the limits are fixed above, and add_patch walked every patch's
-    # Bézier segments to widen them (a fifth of the strip's time)
     for j, i in enumerate(idx):
         row, col = divmod(j, per_row)
         cx = (col + 0.5) * STRIP_CELL[0]
         y_top = -0.1 - row * STRIP_CELL[1] - 0.5 * (STRIP_CELL[1] - ph) - 0.06  # room for the title above
-        window = Rectangle((cx - 0.5 * pw, y_top - ph), pw, ph, fc=SKIN, ec="none", zorder=0)
-        ax.add_artist(window)
-        s = mouth_shape({c: float(values[c][j]) for c in CHANNELS}, neutral)
-        origin = np.array([cx, y_top - scale * top])  # mm on the face -> inches on the strip
-        upper, lower, mouth = front_outlines(s)
-        for xy, style in ((upper, {"fc": LIP, "ec": EDGE, "lw": 1}), (lower, {"fc": LIP, "ec": EDGE, "lw": 1}),
-                          (mouth, {"fc": MOUTH, "ec": "none"})):
-            ax.add_artist(Polygon(origin + scale * xy, closed=True, clip_path=window, **style))
-        chin = origin + scale * s.chin
-        ax.plot(chin[:, 0], chin[:, 1], color=EDGE, lw=1.5, clip_path=window)
-        ax.add_artist(Rectangle((cx - 0.5 * pw, y_top - ph), pw, ph, fc="none", ec="black", lw=0.8, zorder=3))
-        ax.text(cx, y_top, f"/{seg.labels[i]}/ {t[j]:.2f}s", transform=title_at, ha="center", va="baseline",
-                fontsize=8)
+        window = Box((cx - 0.5 * pw) * dpi, -y_top * dpi, (cx + 0.5 * pw) * dpi, (ph - y_top) * dpi, (-half, half),
+                     (bottom, top))
+        tile = Tile(window, rgb(SKIN), dpi)
+        draw_front(tile, mouth_shape({c: float(values[c][j]) for c in CHANNELS}, neutral), nose=False)
+        tile.paste_into(picture)
+        raster.frame(draw, window, dpi)
+        raster.text(draw, (cx * dpi, -y_top * dpi - 6 * dpi / 72), f"/{seg.labels[i]}/ {t[j]:.2f}s", 8, dpi)
     path = Path(path)
     with atomic_path(path) as tmp:
-        fig.savefig(tmp)
+        raster.save_png(picture, tmp, dpi)
     return path
 
 
 def plot_channels(animation: Animation, path: str | Path, title: str = "") -> Path:
-    """The six channels over time with the segment labels: the numbers behind the preview."""
+    """The six channels over time with the segment labels: the numbers behind the preview.
+
+    A column of axes sharing x, 8 × (1.3 n + 0.6) inches at 100 dpi: the margins in inches where the
+    text has a fixed size (title, labels above the first axes, the time axis), the left one from
+    the widest y-axis (its tick labels depend on the data)."""
     names: Sequence[str] = [c for c in CHANNELS if c in animation.modelled]
-    fig = _agg_figure(8, 1.3 * len(names) + 0.6, 100)
-    axes = np.atleast_1d(fig.subplots(len(names), 1, sharex=True))
-    for ax, c in zip(axes, names):
-        ax.plot(animation.times, animation.channels[c], color=LIP, lw=1.2)
-        ax.set_ylabel(f"{c} (mm)", fontsize=8)
-        ax.tick_params(labelsize=7)
-    note = mark_segments(list(axes), animation.segments, color="0.85", fontsize=7)
-    axes[-1].set_xlabel("time (s)")
+    dpi, n = 100.0, len(names)
+    width, height = 8.0, 1.3 * n + 0.6
+    top, bottom, right, gap = 0.56, 0.54, 0.15, 0.22  # inches
+    axis_h = (height - top - bottom - gap * (n - 1)) / n
+    t0, t1 = float(animation.times[0]), float(animation.times[-1])
+    xlim = raster.with_margins(t0, t1)
+    ylims = [raster.with_margins(float(np.min(animation.channels[c])), float(np.max(animation.channels[c])))
+             for c in names]
+    # the y-axis labels' left edge 0.09 inch from the picture's edge, as tight_layout put them
+    probe = [Box(0.0, 0.0, 100.0, axis_h * dpi, xlim, ylim) for ylim in ylims]
+    reach = max(raster.y_axis_width(b, dpi, 7) for b in probe) + raster.LABEL_PAD * dpi / 72
+    x0 = 0.09 * dpi + raster.line_height(8, dpi) + reach
+    boxes = [Box(x0, (top + k * (axis_h + gap)) * dpi, (width - right) * dpi, (top + k * (axis_h + gap) + axis_h) * dpi,
+                 xlim, ylim) for k, ylim in enumerate(ylims)]
+    picture = Image.new("RGB", (round(width * dpi), round(height * dpi)), raster.WHITE)
+    draw = ImageDraw.Draw(picture)
+    boundaries, labels, note = segment_marks(animation.segments)
+    for k, (box, c) in enumerate(zip(boxes, names)):
+        tile = Tile(box, raster.WHITE, dpi)
+        if boundaries:
+            tile.vlines(animation.segments.starts[1:], rgb("0.85"), 0.5)
+        tile.line(animation.times, animation.channels[c], rgb(LIP), 1.2)
+        tile.paste_into(picture)
+        raster.frame(draw, box, dpi)
+        raster.y_axis(draw, box, dpi, 7)
+        raster.x_axis(draw, box, dpi, 7, labelled=k == n - 1)
+        raster.vertical_text(picture, (0.09 * dpi, 0.5 * (box.y0 + box.y1)), f"{c} (mm)", 8, dpi)
+    if labels:
+        raster.segment_labels_at(draw, boxes[0], _segment_label_times(animation.segments), 7, dpi,
+                                 0.02 * boxes[0].height)
+    last = boxes[-1]
+    below = (raster.TICK_LENGTH + raster.TICK_PAD + raster.LABEL_PAD) * dpi / 72 + raster.line_height(7, dpi)
+    raster.text(draw, (0.5 * (last.x0 + last.x1), round(last.y0) + last.height + below), "time (s)", 10, dpi,
+                anchor="mt")
     if title or note:
-        fig.suptitle("   ".join(t for t in (title, note) if t), fontsize=9)
-    _fit_margins(fig, list(axes))
+        raster.text(draw, (0.5 * width * dpi, 0.02 * height * dpi), "   ".join(t for t in (title, note) if t), 9, dpi,
+                    anchor="mt")
     path = Path(path)
     with atomic_path(path) as tmp:
-        fig.savefig(tmp)
+        raster.save_png(picture, tmp, dpi)
     return path
 
 
-def _fit_margins(fig: Figure, axes: list[Axes]) -> None:
-    """Margins for a column of axes sharing x, with labels above the first (mark_segments) and a
-    suptitle: fixed in inches where the text has a fixed size, the left one from the widest
-    y-axis (its tick labels depend on the data). What tight_layout gives, without its second full
-    layout of every text (a third of the figure's cost)."""
-    width, height = fig.get_size_inches()
-    left, pad = 0.75, 0.09  # inches; the ink then starts where tight_layout put it
-    fig.subplots_adjust(left=left / width, right=1 - 0.15 / width, top=1 - 0.56 / height, bottom=0.54 / height,
-                        hspace=0.22 / ((height - 1.1 - 0.22 * (len(axes) - 1)) / len(axes)))
-    renderer = fig.canvas.get_renderer()  # type: ignore[attr-defined]
-    x0 = min(b.x0 for b in (ax.yaxis.get_tightbbox(renderer) for ax in axes) if b is not None) / fig.dpi
-    fig.subplots_adjust(left=(left + pad - x0) / width)
+def segment_marks(segments: Segments) -> tuple[bool, bool, str]:
+    """Whether to draw the segment boundaries and the labels, and what was left out ("" when
+    nothing), for a title: past MAX_SEGMENT_BOUNDARIES / _LABELS segments they are not drawn."""
+    n = len(segments)
+    boundaries, labels = n - 1 <= MAX_SEGMENT_BOUNDARIES, n <= MAX_SEGMENT_LABELS
+    left_out = [what for what, drawn in (("boundaries", boundaries), ("labels", labels)) if not drawn]
+    return boundaries, labels, f"({n} segments: {' and '.join(left_out)} not drawn)" if left_out else ""
 
 
 def mark_segments(
     axes: Sequence[Axes], segments: Segments, *, color: str = "0.85", fontsize: float = 7,
     label_y: float = 1.02,
 ) -> str:
-    """Segment boundaries on every axis and the (non-pause) labels above the first, with bounded
-    work: one line collection per axis, nothing past MAX_SEGMENT_BOUNDARIES / _LABELS segments.
-    Returns what was left out ("" when everything was drawn), for the figure's title."""
-    n = len(segments)
-    left_out = []
-    if n - 1 <= MAX_SEGMENT_BOUNDARIES:
+    """On matplotlib axes (`coartic inspect --plot`): segment boundaries on every axis and the
+    (non-pause) labels above the first, with bounded work (`segment_marks`): one line collection
+    per axis. Returns what was left out ("" when everything was drawn), for the figure's title."""
+    boundaries, labels, note = segment_marks(segments)
+    if boundaries:
         for ax in axes:
             ax.vlines(segments.starts[1:], 0.0, 1.0, transform=ax.get_xaxis_transform(), colors=color,
                       lw=0.5, zorder=0)
-    else:
-        left_out.append("boundaries")
-    if n <= MAX_SEGMENT_LABELS:
-        for lab, s, e in zip(segments.labels, segments.starts, segments.ends):
-            if lab != PAUSE:
-                axes[0].text(0.5 * (s + e), label_y, lab, transform=axes[0].get_xaxis_transform(),
-                             ha="center", va="bottom", fontsize=fontsize)
-    else:
-        left_out.append("labels")
-    return f"({n} segments: {' and '.join(left_out)} not drawn)" if left_out else ""
+    if labels:
+        for lab, t in _segment_label_times(segments):
+            axes[0].text(t, label_y, lab, transform=axes[0].get_xaxis_transform(), ha="center", va="bottom",
+                         fontsize=fontsize)
+    return note
 
 
-def export_plot(animation: Animation, settings: ExportSettings) -> dict[str, Path]:
+def export_plot(fed: FaceAnimation, settings: ExportSettings) -> dict[str, Path]:
     """Exporter (coartic.runtime.exporters): channels.png."""
+    animation = fed.animation
     return {"plot": plot_channels(animation, settings.out / "channels.png", title=settings.name)}
 
 
-def export_preview(animation: Animation, settings: ExportSettings) -> dict[str, Path]:
+def export_preview(fed: FaceAnimation, settings: ExportSettings) -> dict[str, Path]:
     """Exporter: strip.png and preview.gif / .mp4 (settings.preview), the MP4 with the sound."""
+    animation = fed.animation
     strip = render_strip(animation, settings.table, settings.out / "strip.png", speaker=settings.mapping)
     preview = render_preview(animation, animation.neutral, settings.out / f"preview.{settings.preview}",
                              title=settings.name, progress=settings.progress, audio=settings.audio)

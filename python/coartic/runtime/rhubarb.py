@@ -4,9 +4,9 @@ Rhubarb (github.com/DanielSWolf/rhubarb-lip-sync) animates at a fixed 100 frames
 writes times in centiseconds; so do these cues, whatever `--fps` the animation has:
 
 1. **A shape every centisecond** of the sound (its duration truncated to 0.01 s, as Rhubarb's
-   metadata gives it), from the animation as a player shows it: its channels and dominance shares
-   interpolated linearly between frames (the glTF's LINEAR interpolation), so the cues follow the
-   movement, not the frame grid. `shape_at` says which shape and why.
+   metadata gives it), from the animation itself: the model evaluated at every centisecond
+   (`Animation.resampled`), so the cues are the same at every `--fps`, not tied to the frame grid.
+   `shape_at` says which shape and why.
 2. **Extended shapes** not chosen (`--extended-shapes`, any of G H X, all by default) become the
    basic shape Rhubarb puts in their place: G → A, H → C, X → A.
 3. **Minimum durations**: no cue is shorter than `MIN_CUE_CS` (7 cs, Rhubarb's minimum shape
@@ -54,7 +54,7 @@ from coartic.runtime.rigs import (
 )
 
 if TYPE_CHECKING:
-    from coartic.runtime.exporters import ExportSettings
+    from coartic.runtime.exporters import ExportSettings, FaceAnimation
 
 BASIC_SHAPES = "ABCDEF"
 EXTENDED_SHAPES = "GHX"
@@ -280,7 +280,9 @@ def mouth_cues(animation: Animation, extended: str = EXTENDED_SHAPES, minimum: i
     total = centiseconds(animation.sound_duration)
     if total < 1:
         raise AnimationError(f"the animation lasts {animation.sound_duration:.4f} s: shorter than Rhubarb's 0.01 s")
-    shapes = shape_at(animation, np.arange(total) / 100.0)
+    # the model at every centisecond, not the frames interpolated: the cues do not depend on --fps
+    fine = animation.resampled(100.0)
+    shapes = shape_at(fine, np.arange(total) / 100.0)
     shapes = [s if s in BASIC_SHAPES or s in extended else BASIC_OF[s] for s in shapes]
     return insert_tweens(hold_minimum(_runs(shapes), max(minimum, MIN_CUE_CS)))
 
@@ -350,9 +352,10 @@ def parse_rhubarb_formats(spec: str | None) -> tuple[str, ...]:
     return tuple(n for n in RHUBARB_FORMATS if n in names)
 
 
-def export_rhubarb(animation: Animation, settings: ExportSettings) -> dict[str, Path]:
+def export_rhubarb(fed: FaceAnimation, settings: ExportSettings) -> dict[str, Path]:
     """Exporter (coartic.runtime.exporters): NAME.rhubarb.tsv / .json / .xml / .dat, those of
     `settings.rig.rhubarb_formats`, with the extended shapes `settings.rig.extended_shapes`."""
+    animation = fed.animation
     extended = parse_extended_shapes(settings.rig.extended_shapes)
     formats = parse_rhubarb_formats(",".join(settings.rig.rhubarb_formats))
     cues = mouth_cues(animation, extended, int(round(settings.rig.hold * 100)))

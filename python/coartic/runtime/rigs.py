@@ -33,7 +33,7 @@ from coartic.runtime.fap import blink_profile
 from coartic.table import CHANNELS, PAUSE
 
 if TYPE_CHECKING:
-    from coartic.runtime.exporters import ExportSettings, RigOptions
+    from coartic.runtime.exporters import ExportSettings, FaceAnimation, RigOptions
 
 # Apple ARKit ARFaceAnchor.BlendShapeLocation, in Apple's documentation order.
 ARKIT_NAMES: tuple[str, ...] = (
@@ -344,16 +344,18 @@ def write_visemes_json(path: Path, animation: Animation, weights: NDArray[np.flo
     return path
 
 
-def export_arkit(animation: Animation, settings: ExportSettings) -> dict[str, Path]:
+def export_arkit(fed: FaceAnimation, settings: ExportSettings) -> dict[str, Path]:
     """Exporter (coartic.runtime.exporters): NAME.arkit.csv and NAME.arkit.json, shaped by the rig options."""
+    animation = fed.animation
     w = shape_curves(arkit_weights(animation), ARKIT_NAMES, animation.fps, settings.rig, fixed=tuple(ARKIT_BLINKS))
     return {"arkit_csv": write_curves_csv(settings.out / f"{settings.name}.arkit.csv", animation, ARKIT_NAMES, w),
             "arkit_json": write_arkit_json(settings.out / f"{settings.name}.arkit.json", animation, w,
                                            settings.audio_name())}
 
 
-def export_visemes(animation: Animation, settings: ExportSettings) -> dict[str, Path]:
+def export_visemes(fed: FaceAnimation, settings: ExportSettings) -> dict[str, Path]:
     """Exporter: NAME.visemes.csv and NAME.visemes.json, in the name set `settings.rig.viseme_names`."""
+    animation = fed.animation
     names, w = named_visemes(viseme_weights(animation), settings.rig.viseme_names)
     w = shape_curves(w, names, animation.fps, settings.rig, rest=names[0] if names[0].endswith("sil") else None)
     return {"visemes_csv": write_curves_csv(settings.out / f"{settings.name}.visemes.csv", animation, names, w),

@@ -8,7 +8,23 @@ utterance's offset removed), and the Gaussian information criteria of the full f
     AIC = n ln(SSE/n) + 2k,    BIC = n ln(SSE/n) + k ln n
 
 (n valid samples, k free parameters; lower is better, and only differences between specs fitted
-to the same samples mean anything, so specs on different data are flagged). ``out`` receives one
+to the same samples mean anything, so specs on different data are flagged).
+
+A prior or a pooling makes a free parameter cost less than one: each row also gives the *effective*
+number of parameters, the trace of the fit's hat matrix tr((JᵀJ + KᵀK)⁻¹ JᵀJ) at the optimum (J the
+data rows' Jacobian, K every prior row's: targets' prior, shrinkage, pooling, the emotions' deviation
+prior; Hastie, Tibshirani & Friedman §7.6), plus the speakers' profiled parameters. An emotion
+factor whose deviations the data pool into neutral (τ ≈ 0) adds about nothing to it.
+
+**The model chosen per channel** (``Comparison.chosen``, held out only): the one-standard-error rule
+over models, as ``[choose]`` applies it over a grid (``coartic.fit.choose``): among the models whose
+held-out RMSE is within one standard error of the lowest, the one with the fewest effective
+parameters (to 0.1; then the fewest free ones). The standard error is the lowest one's, over the
+held-out utterances (``heldout_se``: each utterance a unit, its SSE and samples; the ratio
+estimator's delta-method SE of the pooled MSE, carried to the RMSE). So a richer model, such as a
+table with ``[model] emotions = "targets"``, is chosen only when its held-out error is lower by more
+than the noise of that error, and ``Comparison.factor_lines`` says per channel whether the emotion
+factor was worth its parameters. ``out`` receives one
 directory per spec (its fit, as ``coartic fit`` writes it, without the HTML report), and
 ``compare.csv``, ``compare.txt``, ``compare.png`` and ``compare.html``. ``coartic compare`` is the
 command over it.
@@ -26,8 +42,8 @@ from typing import Any, Sequence
 
 from rich.console import Console
 
-from coartic.fit.baselines import BASELINES
-from coartic.fit.heldout import pooled
+from coartic.evaluation.baselines import BASELINES
+from coartic.evaluation.heldout import pooled
 from coartic.fit.result import BAR_MM, FitResult
 from coartic.fit.spec import FitSpec, load_spec
 from coartic.errors import UsageError
@@ -44,13 +60,16 @@ class Row:
     heldout_rmse: float = math.nan  # pooled over the validation splits, mm
     heldout_rmse_offset_removed: float = math.nan
     status: str = ""
-    # baseline -> pooled held-out (as measured, offset removed) on the same samples (coartic.fit.baselines)
+    # baseline -> pooled held-out (as measured, offset removed) on the same samples (coartic.evaluation.baselines)
     baselines: dict[str, tuple[float, float]] = field(default_factory=dict)
+    n_effective: float = math.nan  # the trace of the hat matrix (+ profiled parameters): effective_parameters
+    heldout_rmse_se: float = math.nan  # the held-out RMSE's standard error over the test utterances (heldout_se)
+    emotions: str = "none"  # the spec's [model] emotions
 
     @property
     def beats_step(self) -> bool:
         """Held out, the table beats the step model as measured and offset removed (or there is none)."""
-        from coartic.fit.baselines import beats_step
+        from coartic.evaluation.baselines import beats_step
 
         step = self.baselines.get("step")
         return step is None or beats_step((self.heldout_rmse, self.heldout_rmse_offset_removed), step)
@@ -65,7 +84,9 @@ class Row:
 
     def as_dict(self) -> dict[str, Any]:
         return {"model": self.model, "channel": self.channel, "free_parameters": self.n_free,
+                "effective_parameters": self.n_effective, "emotions": self.emotions,
                 "samples": self.n_samples, "rmse_mm": self.rmse, "heldout_rmse_mm": self.heldout_rmse,
+                "heldout_rmse_se_mm": self.heldout_rmse_se,
                 "heldout_rmse_offset_removed_mm": self.heldout_rmse_offset_removed, "aic": self.aic,
                 "bic": self.bic, "status": self.status,
                 **{f"heldout_{b}_{k}": (self.baselines[b][i] if b in self.baselines else math.nan)
@@ -88,14 +109,54 @@ class Comparison:
     def channels(self) -> list[str]:
         return list(dict.fromkeys(r.channel for r in self.rows))
 
+    def chosen(self, channel: str) -> str | None:
+        """The model the one-SE rule chooses on ``channel`` (module docstring): within one standard
+        error of the lowest held-out RMSE, the fewest effective parameters; None without held-out
+        figures (``--no-validate``)."""
+        cands = [r for r in self.rows if r.channel == channel and math.isfinite(r.heldout_rmse)]
+        if not cands:
+            return None
+        best = min(cands, key=lambda r: r.heldout_rmse)
+        limit = best.heldout_rmse + (best.heldout_rmse_se if math.isfinite(best.heldout_rmse_se) else 0.0)
+        within = [r for r in cands if r.heldout_rmse <= limit]
+        return min(within, key=lambda r: (round(r.n_effective, 1) if math.isfinite(r.n_effective) else r.n_free,
+                                          r.n_free, r.heldout_rmse)).model
+
+    def factor_lines(self) -> list[str]:
+        """Per channel, whether ``[model] emotions = "targets"`` was worth its parameters held out:
+        said when the comparison has models with and without the factor."""
+        out: list[str] = []
+        if len({r.emotions for r in self.rows}) < 2:
+            return out
+        for ch in self.channels():
+            pick = self.chosen(ch)
+            if pick is None:
+                continue
+            rows = {r.model: r for r in self.rows if r.channel == ch}
+            with_f = [r for r in rows.values() if r.emotions != "none" and math.isfinite(r.heldout_rmse)]
+            without = [r for r in rows.values() if r.emotions == "none" and math.isfinite(r.heldout_rmse)]
+            if not with_f or not without:
+                continue
+            a = min(without, key=lambda r: r.heldout_rmse)
+            b = min(with_f, key=lambda r: r.heldout_rmse)
+            worth = rows[pick].emotions != "none"
+            out.append(f"{ch}: the emotion factor is {'' if worth else 'not '}worth its parameters held out: "
+                       f"{b.heldout_rmse:.4f} ± {b.heldout_rmse_se:.4f} mm with it ({b.n_effective:.1f} effective of "
+                       f"{b.n_free} free), {a.heldout_rmse:.4f} ± {a.heldout_rmse_se:.4f} mm without "
+                       f"({a.n_effective:.1f} of {a.n_free}); chosen: {pick}")
+        return out
+
     def text(self) -> str:
         lines = [f"[[Comparison]] {len(self.models)} models"]
         lines += [f"    note: {n}" for n in self.notes]
+        lines += [f"    {n}" for n in self.factor_lines()]
         for ch in self.channels():
-            lines.append(f"[[{ch}]]  (best held-out: {self.best(ch, 'heldout_rmse')}, best BIC: {self.best(ch, 'bic')})")
+            lines.append(f"[[{ch}]]  (chosen, one-SE rule: {self.chosen(ch)}; best held-out: "
+                         f"{self.best(ch, 'heldout_rmse')}, best BIC: {self.best(ch, 'bic')})")
             for r in self.rows:
                 if r.channel == ch:
-                    lines.append(f"    {r.model}: k {r.n_free}, RMSE {r.rmse:.4f} mm, held-out {r.heldout_rmse:.4f} mm "
+                    lines.append(f"    {r.model}: k {r.n_free} (effective {r.n_effective:.1f}), RMSE {r.rmse:.4f} mm, "
+                                 f"held-out {r.heldout_rmse:.4f} ± {r.heldout_rmse_se:.4f} mm "
                                  f"(offset removed {r.heldout_rmse_offset_removed:.4f}), AIC {r.aic:.1f}, "
                                  f"BIC {r.bic:.1f} [{r.status}]"
                                  + "".join(f"; {b} {v[0]:.4f} (offset removed {v[1]:.4f})" for b, v in r.baselines.items())
@@ -110,10 +171,11 @@ class Comparison:
         paths = {"csv": out / "compare.csv", "text": out / "compare.txt", "figure": out / "compare.png",
                  "html": out / "compare.html"}
         buf = io.StringIO()
-        w = csv.DictWriter(buf, fieldnames=list(self.rows[0].as_dict()), lineterminator="\n")
+        w = csv.DictWriter(buf, fieldnames=[*self.rows[0].as_dict(), "chosen"], lineterminator="\n")
         w.writeheader()
         for r in self.rows:
-            w.writerow({k: (repr(v) if isinstance(v, float) else v) for k, v in r.as_dict().items()})
+            w.writerow({k: (repr(v) if isinstance(v, float) else v) for k, v in r.as_dict().items()}
+                       | {"chosen": self.chosen(r.channel) == r.model})
         atomic_write_text(paths["csv"], buf.getvalue())
         atomic_write_text(paths["text"], self.text())
         comparison_figure(self, paths["figure"])
@@ -127,7 +189,8 @@ class Comparison:
         env = jinja2.Environment(autoescape=True)
         page = env.from_string(_PAGE)
         return page.render(models=self.models, rows=[r.as_dict() for r in self.rows], notes=self.notes,
-                           figure=figure, bar=BAR_MM,
+                           figure=figure, bar=BAR_MM, factor=self.factor_lines(),
+                           chosen={ch: self.chosen(ch) for ch in self.channels()},
                            best={ch: (self.best(ch, "heldout_rmse"), self.best(ch, "bic")) for ch in self.channels()})
 
 
@@ -141,17 +204,22 @@ padding:3px 8px;text-align:right}td:first-child,td:nth-child(2){text-align:left}
 <p>Held-out RMSE: pooled over the validation splits (data each fit did not see). AIC/BIC: of the fit to
 all data, Gaussian errors; lower is better, differences matter only on the same samples. The paper's bar: {{ bar }} mm.
 Baselines on the same held-out samples (as measured / offset removed): the step model (each phoneme's training mean, no
-coarticulation; red where the table does not beat it) and the constant (the training mean).</p>
+coarticulation; red where the table does not beat it) and the constant (the training mean). Effective parameters:
+the trace of the hat matrix (a parameter a prior holds costs less than one). Chosen (✓): within one standard error of
+the lowest held-out RMSE, the model with the fewest effective parameters.</p>
+{% for n in factor %}<p><strong>{{ n }}</strong></p>{% endfor %}
 {% for n in notes %}<p><em>note:</em> {{ n }}</p>{% endfor %}
-<table><tr><th>model</th><th>channel</th><th>free</th><th>samples</th><th>RMSE (mm)</th><th>held-out RMSE (mm)</th>
-<th>held-out, offset removed</th><th>step model (held out)</th><th>constant (held out)</th><th>AIC</th><th>BIC</th><th>status</th></tr>
-{% for r in rows %}<tr><td>{{ r.model }}</td><td>{{ r.channel }}</td><td>{{ r.free_parameters }}</td><td>{{ r.samples }}</td>
+<table><tr><th>model</th><th>channel</th><th>free</th><th>effective</th><th>samples</th><th>RMSE (mm)</th><th>held-out RMSE (mm) ± SE</th>
+<th>held-out, offset removed</th><th>step model (held out)</th><th>constant (held out)</th><th>AIC</th><th>BIC</th><th>chosen</th><th>status</th></tr>
+{% for r in rows %}<tr><td>{{ r.model }}</td><td>{{ r.channel }}</td><td>{{ r.free_parameters }}</td>
+<td>{{ '%.1f' % r.effective_parameters }}</td><td>{{ r.samples }}</td>
 <td>{{ '%.4f' % r.rmse_mm }}</td>
-<td{% if best[r.channel][0] == r.model %} class="best"{% endif %}>{{ '%.4f' % r.heldout_rmse_mm }}</td>
+<td{% if best[r.channel][0] == r.model %} class="best"{% endif %}>{{ '%.4f' % r.heldout_rmse_mm }} ± {{ '%.4f' % r.heldout_rmse_se_mm }}</td>
 <td>{{ '%.4f' % r.heldout_rmse_offset_removed_mm }}</td>
 <td{% if not r.beats_step_model %} class="worse"{% endif %}>{{ '%.4f' % r.heldout_step_rmse_mm }} / {{ '%.4f' % r.heldout_step_rmse_offset_removed_mm }}</td>
 <td>{{ '%.4f' % r.heldout_constant_rmse_mm }} / {{ '%.4f' % r.heldout_constant_rmse_offset_removed_mm }}</td><td>{{ '%.1f' % r.aic }}</td>
-<td{% if best[r.channel][1] == r.model %} class="best"{% endif %}>{{ '%.1f' % r.bic }}</td><td>{{ r.status }}</td></tr>
+<td{% if best[r.channel][1] == r.model %} class="best"{% endif %}>{{ '%.1f' % r.bic }}</td>
+<td>{% if chosen[r.channel] == r.model %}✓{% endif %}</td><td>{{ r.status }}</td></tr>
 {% endfor %}</table>
 <p><img src="{{ figure }}" alt="held-out and in-sample RMSE per model and channel"></p>
 </body></html>
@@ -188,7 +256,7 @@ def comparison_figure(cmp: Comparison, path: Path) -> Path:
 # Spec settings ``--vary`` may scan (e.g. the prior strength, chosen by held-out RMSE instead of by hand).
 VARIABLE: dict[str, type] = {"prior_noise": float, "target_margin": float, "apex_fraction": float,
                              "edge_extent": float, "beta": float, "plateau_fraction": float, "offsets": str,
-                             "variant": str, "dominance": str}
+                             "variant": str, "dominance": str, "emotions": str}
 
 
 def vary(spec: FitSpec, key: str, values: Sequence[str]) -> list[FitSpec]:
@@ -269,7 +337,9 @@ def compare(specs: Sequence[FitSpec | str | PathLike[str]], out: str | PathLike[
             h = held.get(ch, (math.nan, math.nan, 0))
             # (+ the speakers' offsets and scales, profiled out of x but fitted all the same)
             rows.append(Row(model, ch, fit.packing.n_free + fit.problem.n_profiled, n, fit.rmse**2 * n, fit.rmse, h[0], h[1],
-                            fit.status, {b: v[ch][:2] for b, v in held_base.items() if ch in v}))
+                            fit.status, {b: v[ch][:2] for b, v in held_base.items() if ch in v},
+                            effective_parameters(fit.problem, fit.x) + fit.problem.n_profiled,
+                            heldout_se(res.validation or [], ch), s.emotions))
             if not rows[-1].beats_step:
                 cmp.notes.append(f"{model}: {ch}: held out, the table does not beat the step model (phoneme means, "
                                  f"no coarticulation): {h[0]:.3f} vs {rows[-1].baselines['step'][0]:.3f} mm as "
@@ -289,3 +359,40 @@ def compare(specs: Sequence[FitSpec | str | PathLike[str]], out: str | PathLike[
 
 def _dirname(model: str) -> str:
     return "".join(c if c.isalnum() or c in "-_." else "_" for c in model).strip("_")
+
+
+def effective_parameters(problem: Any, x: Any) -> float:
+    """The trace of the hat matrix of a channel's fit at ``x``: tr(H⁺ JᵀJ), H = JᵀJ + KᵀK the
+    Gauss-Newton Hessian of the whole objective (J the data rows, K every prior row after them),
+    H⁺ its pseudo-inverse (a direction nothing determines counts 0). Without priors: the number of
+    identified free parameters; a prior that holds a parameter at its mean: 0 for it. Invariant to
+    the parameterisation (log α or α), as a trace of a product with the inverse is."""
+    import numpy as np
+
+    from coartic.estimation.parameters import psd_pseudo_inverse
+
+    j = problem.jacobian(x)
+    n_data = problem.data.corpus.n_samples
+    jd = j[:n_data]
+    hd = np.asarray((jd.T @ jd).toarray())
+    h = np.asarray((j.T @ j).toarray())
+    if h.size == 0:
+        return 0.0
+    return float(np.sum(psd_pseudo_inverse(h)[0] * hd.T))
+
+
+def heldout_se(scores: Sequence[Any], channel: str) -> float:
+    """The standard error of the pooled held-out RMSE of ``channel`` over its test utterances
+    (every split's, each a unit with its SSE e_u and samples n_u): the pooled MSE m = Σe/Σn is a
+    ratio estimator, whose delta-method SE is √(U/(U−1) Σ(e_u − m n_u)²)/Σn; the RMSE's is that
+    over 2√m. NaN with fewer than two utterances (or none recorded)."""
+    units = [v for sc in scores if sc.channel == channel for v in getattr(sc, "utterance_sse", {}).values() if v[1] > 0]
+    if len(units) < 2:
+        return math.nan
+    n = float(sum(k for _, k in units))
+    m = sum(e for e, _ in units) / n
+    if m <= 0:
+        return 0.0
+    u = len(units)
+    var = u / (u - 1) * sum((e - m * k) ** 2 for e, k in units) / n**2
+    return math.sqrt(var) / (2.0 * math.sqrt(m))

@@ -32,8 +32,8 @@ def compare_command(
     (max-evaluations), had a failed stage (stage-failed) or a best optimum that one start only
     reached (best-found-once), as `coartic fit`; 2 an error (spec, data, output); 130 interrupted.
     """
-    from coartic.fit.compare import compare
-    from coartic.fit.compare import vary as vary_spec
+    from coartic.evaluation.compare import compare
+    from coartic.evaluation.compare import vary as vary_spec
     from coartic.fit.spec import FitSpec, load_spec, parse_grid
     from coartic.outputs import OutputDir
 
@@ -47,6 +47,8 @@ def compare_command(
     with OutputDir(out, "compare", identity, force=force, protect=specs) as d:
         cmp = compare(models, d, validate=validate, console=err, quiet=quiet)
     print_table(console, comparison_table(cmp), keys=2)
+    for n in cmp.factor_lines():
+        console.print(escape(n), soft_wrap=True, highlight=False)
     for n in cmp.notes:
         console.print(f"note: {escape(n)}", soft_wrap=True, highlight=False)
     console.print(escape(f"written: {out / 'compare.html'} (table and figure), compare.csv, one fit per spec"),
@@ -66,14 +68,15 @@ def compare_command(
 
 
 def comparison_table(cmp: object) -> Table:
-    from coartic.fit.compare import Comparison
+    from coartic.evaluation.compare import Comparison
 
     assert isinstance(cmp, Comparison)
     t = Table(title=f"Model comparison (RMSE in mm, bar {BAR_MM} mm; lower AIC/BIC is better)",
               caption="step model: each phoneme's training mean on the same held-out samples (as measured / no "
-                      "offsets); ✗ = the table does not beat it")
-    for c in ("model", "channel", "free", "RMSE", "held-out", "held-out, no offsets", "step model", "AIC", "BIC",
-              "status"):
+                      "offsets); ✗ = the table does not beat it. effective: the trace of the hat matrix. chosen (✓): "
+                      "within one SE of the lowest held-out RMSE, the fewest effective parameters")
+    for c in ("model", "channel", "free", "effective", "RMSE", "held-out ± SE", "held-out, no offsets", "step model",
+              "AIC", "BIC", "chosen", "status"):
         t.add_column(c, justify="left" if c in ("model", "channel", "status") else "right")
 
     def f(v: float, fmt: str, best: bool = False) -> str:
@@ -81,7 +84,7 @@ def comparison_table(cmp: object) -> Table:
         return f"[bold green]{s}[/bold green]" if best else s
 
     def step(r: object) -> str:
-        from coartic.fit.compare import Row
+        from coartic.evaluation.compare import Row
 
         assert isinstance(r, Row)
         if "step" not in r.baselines:
@@ -90,8 +93,11 @@ def comparison_table(cmp: object) -> Table:
         return s if r.beats_step else f"{s} [bold red]✗[/bold red]"
 
     for r in cmp.rows:
-        t.add_row(escape(r.model), r.channel, str(r.n_free), f(r.rmse, ".3f"),
-                  f(r.heldout_rmse, ".3f", cmp.best(r.channel, "heldout_rmse") == r.model),
+        held = f(r.heldout_rmse, ".3f", cmp.best(r.channel, "heldout_rmse") == r.model)
+        if math.isfinite(r.heldout_rmse_se):
+            held += f" ± {r.heldout_rmse_se:.3f}"
+        t.add_row(escape(r.model), r.channel, str(r.n_free), f(r.n_effective, ".1f"), f(r.rmse, ".3f"), held,
                   f(r.heldout_rmse_offset_removed, ".3f"), step(r), f(r.aic, ".1f"),
-                  f(r.bic, ".1f", cmp.best(r.channel, "bic") == r.model), escape(r.status))
+                  f(r.bic, ".1f", cmp.best(r.channel, "bic") == r.model),
+                  "✓" if cmp.chosen(r.channel) == r.model else "", escape(r.status))
     return t
