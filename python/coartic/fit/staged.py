@@ -212,9 +212,8 @@ def fit_pooled_best(problem: ChannelProblem, xs: Sequence[NDArray[np.float64]], 
         start = problem.with_packing(pk.with_free(pk.free, pk.beta_free, *pk.unpack(x)))
         start.nfev = start.njev = 0
         out = fit_pooled(start, start.packing.pack(), engine, options, w=w)
-        if out[1] is not None:
-            nfev += out[1].nfev
-            njev += out[1].njev
+        nfev += out[0].nfev  # this candidate's evaluations in all (fit_pooled's count from 0)
+        njev += out[0].njev
         if out[1] is not None and out[1].status == "interrupted":
             best = out if best is None else best
             break
@@ -227,9 +226,10 @@ def fit_pooled_best(problem: ChannelProblem, xs: Sequence[NDArray[np.float64]], 
     prob, res, est = best
     chosen = next((k for k, c in enumerate(tried) if c["log_evidence"] == est.log_evidence), 0)
     est = replace(est, candidates=tuple(tried), chosen=chosen)
-    if res is None and len(xs) > 1 and chosen > 0:  # the kept one needed no re-solve, others did
-        x = prob.packing.pack()
-        res = EngineResult(x, "converged", "empirical Bayes settled at this optimum", nfev, njev)
+    # the fit's evaluations: those before (the multi-start's) and every candidate's
+    prob.nfev, prob.njev = problem.nfev + nfev, problem.njev + njev
+    if res is None and chosen > 0:  # the kept optimum needed no re-solve: it is the result all the same
+        res = EngineResult(prob.packing.pack(), "converged", "empirical Bayes settled at this optimum", nfev, njev)
     elif res is not None:
         res = EngineResult(res.x, res.status, res.message, nfev, njev)
     return prob, res, est
