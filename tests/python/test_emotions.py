@@ -126,7 +126,7 @@ def test_deviation_prior_is_a_gaussian_on_the_difference(session: Path, tmp_path
     deviation toward 0, not the neutral target toward the emotion."""
     spec = load_spec(write_spec(tmp_path / "s.toml", session / "manifest.csv", ["LR"]))
     utts = load_utterances(spec)
-    problem = build_problem(spec, utts, "LR")
+    problem = build_problem(spec.estimation_settings(), utts, "LR")
     rows = problem.speaker_rows
     assert rows is not None and rows.factor == "emotions" and rows.names[0] == "neutral"
     prior = EmotionPrior({e: 0.5 for e in rows.names[1:]}, 0.1)
@@ -153,7 +153,7 @@ def test_spec_refuses_emotions_with_speakers_and_a_corpus_without_neutral(sessio
                     encoding="utf-8")
     spec = load_spec(path)
     with pytest.raises(SpecError, match="no trial has emotion = 'calm'"):
-        build_problem(spec, load_utterances(spec), "LR")
+        build_problem(spec.estimation_settings(), load_utterances(spec), "LR")
 
 
 @pytest.fixture(scope="module")
@@ -198,7 +198,7 @@ def test_mcmc_intervals_of_the_deviations(session: Path, fitted: tuple[Path, Pat
 
     spec = load_spec(fitted[0])
     table = ParameterTable.load(fitted[1] / "table.json")
-    problem = build_problem(spec, load_utterances(spec), "LR", table)
+    problem = build_problem(spec.estimation_settings(), load_utterances(spec), "LR", table)
     assert problem.emotion_prior is not None  # the fit's τ, read back from the table
     got = deviation_intervals(problem, "a", tmp_path / "mcmc", SamplerSettings(n_ensembles=2, min_steps=300,
                                                                                  chunk_steps=150))

@@ -24,7 +24,7 @@ def make_problem(free: list[str] = FREE, noise: float = 0.1, **extra: Any) -> Ch
     utts = vcv_utterances(np.random.default_rng(11), repetitions=1, noise=noise)
     raw = {"corpus": {"files": ["x"], "labels": ["y"]}, "model": {"channels": ["LLO"]},
            "parameters": {"free": free}, **extra}
-    return build_problem(parse_spec(paper(raw), Path("/tmp/spec.toml")), utts, "LLO", phonemes=PHONEMES)
+    return build_problem(parse_spec(paper(raw), Path("/tmp/spec.toml")).estimation_settings(), utts, "LLO", phonemes=PHONEMES)
 
 
 def recovered(problem: ChannelProblem, x: np.ndarray) -> np.ndarray:

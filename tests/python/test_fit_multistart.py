@@ -51,7 +51,7 @@ def small_problem(tmp_path: Path, theta: float = 40.0, starts: int = 4, inc: str
     spec = load_spec(utterance_0024_spec(tmp_path / f"s{theta}_{starts}_{inc}.toml",
                                          SMALL.format(theta=theta, starts=starts, inc=inc)))
     utts = load_utterances(spec, manifest_rows(spec))
-    return spec, utts, build_problem(spec, utts, "JO")
+    return spec, utts, build_problem(spec.estimation_settings(), utts, "JO")
 
 
 def test_sobol_starts_cover_the_boxes_in_log_scale_and_keep_the_data_targets(tmp_path: Path) -> None:
@@ -337,7 +337,7 @@ def test_stopping_rule_ends_a_well_identified_search_after_two_starts(tmp_path: 
     d = ms.as_dict(fit.problem.data.n_valid)
     assert d["best_share"] == 1.0 and d["probed"] == 0 and "stopping rule" in d["stopped"]
     # without the rule (confirm = 0) the same search probes every start
-    prob = build_problem(load_spec(defaults_spec(tmp_path / "x.toml")), fit.problem.data.utterances, "JO")
+    prob = build_problem(load_spec(defaults_spec(tmp_path / "x.toml")).estimation_settings(), fit.problem.data.utterances, "JO")
     spec = load_spec(defaults_spec(tmp_path / "y.toml", 8))
     _, _, _, old = fit_multistart(prob, "scipy", {}, spec.stages, 8, probe=10, confirm=0)
     assert old.probed == 7 and old.nfev > ms.nfev

@@ -55,10 +55,11 @@ def start_values(spec: FitSpec, channel: str, phonemes: Sequence[str]) -> tuple[
 def fit_channel(spec: FitSpec, utterances: Sequence[Utterance], channel: str,
                 progress: Progress | None = None) -> ChannelFit:
     """Fit one channel (staged if the spec says so); never raises on a bad start or Ctrl-C."""
-    problem: ChannelProblem = build_problem(spec, utterances, channel)
+    settings = spec.estimation_settings()
+    problem: ChannelProblem = build_problem(settings, utterances, channel)
     start = start_values(spec, channel, problem.phonemes)
     if start is not None:
-        problem = build_problem(spec, utterances, channel, start=start)
+        problem = build_problem(settings, utterances, channel, start=start)
     if problem.packing.n_free == 0:  # no start, stage or engine has anything to move: say so, not "converged"
         raise SpecError.at(spec.path, "parameters.free", f"{channel}: no parameter is free (free = "
                            f"{list(spec.free)!r}, and no [[override]] or fit_beta frees one): nothing to fit; free "
