@@ -193,12 +193,17 @@ class PoolEstimate:
     settled: bool = True
     temper: float = 1.0  # w = n_eff / n (residual_weight): 1 / the residuals' autocorrelation time
     n_valid: int = 0  # the samples n
+    # empirical Bayes run from several optima (a multi-start's; coartic.fit.staged.fit_pooled_best):
+    # each one's objective at the starting τ, settled log evidence, data RMSE and effective
+    # parameters, and the index of the one kept (the highest evidence)
+    candidates: tuple[dict[str, float], ...] = ()
+    chosen: int = 0
 
     def as_dict(self) -> dict[str, object]:
         return {"sigma_mm": self.sigma, "effective_parameters": self.effective, "free_parameters": self.n_free,
                 "rounds": self.rounds, "settled": bool(self.settled), "data_weight": self.temper,
-                "samples": self.n_valid,
-
+                "samples": self.n_valid, "log_evidence": self.log_evidence,
+                "candidates": [dict(c) for c in self.candidates], "chosen": self.chosen,
                 "families": {f: {"sd": t, "effective_parameters": self.family_effective[f], "rank": self.rank[f],
                                  "at_bound": self.at_bound.get(f, "")} for f, t in self.tau.items()}}
 

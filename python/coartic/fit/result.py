@@ -550,6 +550,12 @@ def pooling_lines(est: PoolEstimate) -> list[str]:
              f"n_eff = {est.temper * est.n_valid:.0f} of {est.n_valid})",
              f"        effective parameters: {est.effective:.2f} of {est.n_free} free (trace of the hat matrix)"]
     lines += [f"        {est.line(f)}" for f in est.tau]
+    if len(est.candidates) > 1:  # empirical Bayes from several of the multi-start's optima (fit_pooled_best)
+        lines.append(f"        estimated from each of {len(est.candidates)} optima of the multi-start, the highest evidence "
+                     f"kept (optimum {est.chosen + 1}; data weight {est.temper:.3g} for all):")
+        lines += [f"          {'*' if k == est.chosen else ' '} optimum {k + 1}: objective {c['objective_start']:.6g} at the "
+                  f"starting sd -> log evidence {c['log_evidence']:.3f}, RMSE {c['rmse_mm']:.4f} mm, "
+                  f"{c['effective_parameters']:.2f} effective parameters" for k, c in enumerate(est.candidates)]
     return lines
 
 

@@ -28,7 +28,7 @@ from coartic.fit.result import ChannelFit, FitResult, finish_channel, now
 from coartic.errors import SpecError
 from coartic.fit.spec import FitSpec, load_spec
 from coartic.fit.multistart import MultiStart, fit_multistart
-from coartic.fit.staged import channel_status, fit_pooled, fit_staged
+from coartic.fit.staged import EB_CANDIDATES, channel_status, fit_pooled, fit_pooled_best, fit_staged
 from coartic.pauses import STAND_INS
 from coartic.table import ParameterTable
 
@@ -110,7 +110,18 @@ def fit_channel(spec: FitSpec, utterances: Sequence[Utterance], channel: str,
             # partial pooling: the pool's sd estimated from the data, the fit re-solved at it
             if progress is not None and task is not None:
                 progress.update(task, description=f"{channel} pooling (sd estimated)")
-            final, pooled_res, pooling = fit_pooled(final, res.x, spec.engine, spec.engine_options)
+            if multi is not None and len(multi.optima) > 1:
+                # every distinct optimum's empirical Bayes, the highest evidence kept (fit_pooled_best)
+                others = [o for o in sorted(multi.optima[1:], key=lambda o: o.objective)]
+                picked = others[:EB_CANDIDATES - 1]
+                zero = next((o for o in others if 0 in o.starts), None)
+                if zero is not None and zero not in picked:  # start 0's (the single fit's) always
+                    picked.append(zero)
+                final, pooled_res, pooling = fit_pooled_best(
+                    final, [res.x] + [o.x for o in picked], spec.engine, spec.engine_options,
+                    [multi.best.objective] + [o.objective for o in picked])
+            else:
+                final, pooled_res, pooling = fit_pooled(final, res.x, spec.engine, spec.engine_options)
             if pooled_res is not None:
                 keep = res.status == "converged" and pooled_res.status == "converged"
                 res = EngineResult(pooled_res.x, res.status if keep else pooled_res.status,
