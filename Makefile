@@ -6,7 +6,7 @@
 #   make table-italian   regenerate python/coartic/runtime/italian_table.json (and its provenance)
 #   make table-italian-changed   the same, refitting only the lip and jaw channels whose data changed
 PY := .venv/bin/python
-.PHONY: setup fit fit-emotive test test-rust test-python test-core stubtest typecheck bench clean wheel table-italian table-italian-changed
+.PHONY: setup fit fit-emotive test test-rust test-python test-python-core-wheel test-core core-wheel core-tests stubtest typecheck bench clean wheel table-italian table-italian-changed
 
 setup:
 	./scripts/setup.sh
@@ -50,8 +50,15 @@ table-italian-changed: setup
 	$(PY) -m coartic.cli fit fit/italian_tongue.toml --out results/italian_tongue --validate
 	$(PY) fit/ship_table.py --lips results/italian --tongue results/italian_tongue --session build/italian --keep-unchanged
 
-# test-core builds the wheel (build/core-wheel) that test-python's wheel test then installs
-test: setup test-rust stubtest typecheck test-core
+# The core wheel (build/core-wheel) is built first: core-tests installs it, and test-python's wheel
+# test installs the same wheel. Then the five parts run side by side (-j3, each part's output printed
+# whole when it ends, every part run and any failure failing make test), the longest first: mypy,
+# stubtest and the core environment's pip and tests use one core each, and one after the other they
+# left the second core idle while the Python tests waited (bench/results/test_suite_cpu.txt).
+test: setup core-wheel
+	$(MAKE) -j3 --output-sync=target --keep-going test-python-core-wheel typecheck test-rust core-tests stubtest
+
+test-python-core-wheel:
 	COARTIC_WHEEL_DIR=$(CURDIR)/build/core-wheel $(MAKE) test-python
 
 # dist/coartic-VERSION-cp311-abi3-PLATFORM.whl: one wheel for every CPython >= 3.11 (pyo3's
@@ -64,9 +71,16 @@ wheel: setup
 # (the extras' commands must name their extra: tests/python/test_extras.py).
 CORE_TESTS := tests/python/test_extras.py tests/python/test_io_formats.py tests/python/test_io_carstens.py \
 	tests/python/test_core_model.py tests/python/test_table.py
-test-core: setup
-	rm -rf build/core-wheel build/core-env
+test-core: core-wheel
+	$(MAKE) core-tests
+
+core-wheel: setup
+	rm -rf build/core-wheel
 	$(PY) -m maturin build --release --quiet -o build/core-wheel
+
+# the tests of test-core on the wheel core-wheel built
+core-tests:
+	rm -rf build/core-env
 	python3 -m venv build/core-env
 	build/core-env/bin/pip install -q build/core-wheel/coartic-*.whl pytest hypothesis
 	cd build && COARTIC_CORE_ONLY=1 core-env/bin/python -m pytest -q -p no:cacheprovider \

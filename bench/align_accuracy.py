@@ -13,7 +13,7 @@
 4. **End to end, the lips**: fit utterance 0024 (fit/ema_german_defaults_0024.toml: the default model, MAUS labels), then
    predict 0020's lip aperture (LA) and jaw opening (JO) from its MAUS labels and from its audio
    alone (aligned by coartic), each against the step model (phoneme means of 0024) on the same
-   segments: RMSE as measured, offset removed and speaker-calibrated (coartic.fit.score).
+   segments: RMSE as measured, offset removed and speaker-calibrated (coartic.evaluation.score).
 
 Output in bench/results/align_accuracy.txt:
 
@@ -160,7 +160,7 @@ def german_boundaries(data: Path, lines: list[str], ratios: list[str]) -> dict[s
 def lips(data: Path, aligned: dict[str, Segments], lines: list[str]) -> None:
     from coartic.fit import load_spec, run
     from coartic.fit.data import load_utterances
-    from coartic.fit.score import score_utterances, with_fallbacks
+    from coartic.evaluation.score import score_utterances, with_fallbacks
     from coartic.model import Utterance
 
     lines += ["## 4. end to end: fit 0024 (fit/ema_german_defaults_0024.toml, MAUS labels), predict 0020's lips from its labels or its audio",

@@ -2,8 +2,8 @@
 constant (training mean) and the step model (each phoneme's training mean, no coarticulation)?
 
 With the product's own fit (``coartic.fit.run``, fit/ema_german.toml's settings: modified model,
-target, alpha, theta_bw, theta_fw and k_r free, staged) and scorer (``coartic.fit.score``, the
-baselines of ``coartic.fit.baselines`` on exactly the same samples), on the two utterances of
+target, alpha, theta_bw, theta_fw and k_r free, staged) and scorer (``coartic.evaluation.score``, the
+baselines of ``coartic.evaluation.baselines`` on exactly the same samples), on the two utterances of
 tests/data/realdata/emu-ema-german (speaker mo1, LA and JO):
 
 1. **Another sentence**: fit utterance 0024 alone (fit/ema_german_0024.toml), predict 0020. This is
@@ -29,9 +29,9 @@ from pathlib import Path
 
 from coartic.fit import load_spec, run
 from coartic.fit.data import load_utterances
-from coartic.fit.score import Score, score_utterances, with_fallbacks
+from coartic.evaluation.score import Score, score_utterances, with_fallbacks
 from coartic.io.labelmap import LabelMap
-from coartic.fit.validate import halves  # noqa: F401  (bench/real_data.py imports it from here)
+from coartic.evaluation.validate import halves  # noqa: F401  (bench/real_data.py imports it from here)
 
 ROOT = Path(__file__).resolve().parents[1]
 OUT = ROOT / "bench" / "results" / "baselines_german.txt"

@@ -1,6 +1,6 @@
 """Does a fitted table predict speech it was not fitted on? (issue 10 item 5)
 
-With the product's own fitting (``coartic.fit.run`` and ``coartic.fit.validate``, exactly what
+With the product's own fitting (``coartic.fit.run`` and ``coartic.evaluation.validate``, exactly what
 ``coartic fit --validate`` does), for each model variant the core offers:
 
 1. **Gestures flavour** of the synthetic session (``coartic corpus synth DIR --flavour gestures``:
@@ -40,7 +40,7 @@ from coartic.fit.data import load_utterances
 from coartic.estimation.data import ChannelData
 from coartic.model import Utterance
 from coartic.fit.spec import FitSpec, Override
-from coartic.fit.validate import score, splits
+from coartic.evaluation.validate import score, splits
 from coartic.outputs import atomic_write_text
 from coartic.table import PARAMETERS
 
@@ -130,7 +130,7 @@ def gestures(manifest: Path, variants: Sequence[str], channels: tuple[str, ...],
                 print("\n".join(out[-len(res.choice.text_lines()):]), flush=True)
             for s in score(res, test, split):
                 fit = res.channels[s.channel]
-                # each with its category (coartic.fit.bounds: domain, active, optimal, insensitive, unexplained)
+                # each with its category (coartic.estimation.bounds: domain, active, optimal, insensitive, unexplained)
                 notes = fit.stats.bounds if fit.stats is not None else {}
                 at = [f"{nm}({notes[nm].category if nm in notes else '?'})"
                       for nm in (fit.stats.at_bound if fit.stats is not None else [])]

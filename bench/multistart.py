@@ -155,7 +155,7 @@ def heldout(which: Sequence[str] = ("one start", "previous default", "default"))
     between the two fits of each kind."""
     import real_data  # bench/real_data.py: its splits, prediction (fallbacks, transfer) and masking
 
-    from coartic.fit.score import score_utterances
+    from coartic.evaluation.score import score_utterances
     from coartic.io.labelmap import resolve_label_map
     from coartic.fit import run
 

@@ -3,7 +3,7 @@
 Held-out RMSE of ``[model] pauses = "one"`` (every pause is '#', as before) and ``"postures"``
 (the default: the initial pause '#', the final '#end', medial '#mid', short pauses in a closure
 joined to it; coartic.pauses), each fitted with the product's own ``coartic.fit.run`` and
-validated by ``coartic.fit.validate`` (as ``coartic fit --validate`` / ``--validate-by``): the
+validated by ``coartic.evaluation.validate`` (as ``coartic fit --validate`` / ``--validate-by``): the
 table's and the baselines' RMSE (step = each phoneme's training mean, constant = the training mean)
 on the same held-out samples, on all of them and on the speech samples only (every pause left out),
 pooled over the splits. Corpora:
@@ -33,9 +33,9 @@ ROOT = Path(__file__).resolve().parents[1]
 
 from coartic.fit import load_spec, run  # noqa: E402
 from coartic.fit.data import load_utterances, with_spec_pauses  # noqa: E402
-from coartic.fit.heldout import pooled  # noqa: E402
+from coartic.evaluation.heldout import pooled  # noqa: E402
 from coartic.fit.spec import FitSpec  # noqa: E402
-from coartic.fit.validate import validate_all  # noqa: E402
+from coartic.evaluation.validate import validate_all  # noqa: E402
 from coartic.outputs import atomic_write_text  # noqa: E402
 
 MODES = ("one", "postures")
@@ -91,7 +91,7 @@ def english_like() -> list[str]:
     sys.path.insert(0, str(ROOT / "tests" / "python"))
     from test_pauses import SENTENCES, spec_for, write_recording
 
-    from coartic.fit.score import score_recordings
+    from coartic.evaluation.score import score_recordings
 
     tmp = Path(tempfile.mkdtemp(prefix="pauses_"))
     files = [write_recording(tmp, f"s{k}", labels, durs) for k, (labels, durs) in enumerate(SENTENCES)]

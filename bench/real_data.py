@@ -8,7 +8,7 @@ theta_bw and theta_fw per channel for every phoneme, ``[parameters] shared``) an
 classes and scales of bench/generalisation.py; "tprior:SD", ``[parameters] target_prior = SD``;
 "tprior-cv", that sd chosen by CV inside the training data). Every cell is fitted with the product's own
 ``coartic.fit.run`` (its global estimation included: the spec's default ``[fit] starts``) and
-scored with ``coartic.fit.score`` next to the baselines of ``coartic.fit.baselines`` (constant =
+scored with ``coartic.evaluation.score`` next to the baselines of ``coartic.evaluation.baselines`` (constant =
 training mean, step = each phoneme's training mean) on exactly the same samples:
 
 - **leave one utterance out**: fit one utterance, predict the other. The two German utterances
@@ -56,11 +56,11 @@ from baselines_german import halves  # noqa: E402
 from generalisation import VARIANTS, shrink_options  # noqa: E402
 
 from coartic.fit import load_spec, run  # noqa: E402
-from coartic.fit.baselines import Baselines  # noqa: E402
+from coartic.evaluation.baselines import Baselines  # noqa: E402
 from coartic.fit.data import load_utterances  # noqa: E402
 from coartic.model import Utterance  # noqa: E402
 from coartic.fit.result import FitResult  # noqa: E402
-from coartic.fit.score import score_utterances, with_fallbacks  # noqa: E402
+from coartic.evaluation.score import score_utterances, with_fallbacks  # noqa: E402
 from coartic.fit.spec import FitSpec, Override, parse_spec  # noqa: E402
 from coartic.io.labelmap import resolve_label_map  # noqa: E402
 from coartic.outputs import atomic_write_text  # noqa: E402

@@ -93,7 +93,7 @@ def main() -> None:
         render_preview(anim, neutral, Path(tmp) / "p.mp4", audio=said.files["wav"])
         t_mp4 = (time.perf_counter() - t0) / n
         period = 1.0 / anim.fps
-        for what, t in (("drawing the frames (matplotlib blitted, caption by Pillow)", t_frames), ("GIF (the default)", t_gif),
+        for what, t in (("drawing the frames (Pillow, background drawn once)", t_frames), ("GIF (the default)", t_gif),
                         ("MP4 with the sound (ffmpeg, x264 veryfast)", t_mp4)):
             lines.append(f"  {what}: {1000 * t:.1f} ms per frame = {t / period:.2f} x real time")
     text = "\n".join(lines) + "\n"

@@ -2,8 +2,9 @@
 
 In-process, after one warm-up (fonts loaded): channels.png, strip.png and preview.gif of the 2-s
 sentence of bench/startup.py, each the median CPU time (user + system, time.process_time) of
---rounds runs; and, in fresh interpreters, the import of coartic.runtime.preview (matplotlib and
-Pillow) beyond what `speak --preview none` imports. bench/startup.py measures the whole command.
+--rounds runs; and, in fresh interpreters, the import of coartic.runtime.preview (Pillow and
+coartic.runtime.raster; matplotlib before they drew with Pillow alone) beyond what `speak --preview
+none` imports. bench/startup.py measures the whole command.
 
 Run: .venv/bin/python bench/speak_pictures.py [--rounds 5] [--out bench/results/speak_pictures.txt]
 """
@@ -57,7 +58,7 @@ def main() -> None:
         from coartic.runtime.preview import plot_channels, render_preview, render_strip
 
         a = res.animation
-        rows = [("import coartic.runtime.preview (matplotlib, Pillow)", statistics.median(imports)),
+        rows = [("import coartic.runtime.preview (Pillow)", statistics.median(imports)),
                 ("channels.png", cpu(lambda: plot_channels(a, out / "channels.png", title="x"), args.rounds)),
                 ("strip.png", cpu(lambda: render_strip(a, table, out / "strip.png"), args.rounds)),
                 (f"preview.gif ({a.n_frames} frames)",

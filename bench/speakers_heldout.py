@@ -2,7 +2,7 @@
 
 For each ``[model] speakers`` mode (none, offset, offset_scale, targets: docs/FITTING.md, "Several
 speakers in one fit"), with the product's own fitting and validation (``coartic.fit.run`` and
-``coartic.fit.validate`` with ``[validate] group = "speaker"``, what ``coartic fit --validate``
+``coartic.evaluation.validate`` with ``[validate] group = "speaker"``, what ``coartic fit --validate``
 does):
 
 * **in-sample**: one fit of every speaker together; RMSE of each speaker's own prediction (a_s +
@@ -37,7 +37,7 @@ import numpy as np
 
 from coartic.fit import load_spec, run
 from coartic.fit.data import load_utterances
-from coartic.fit.validate import kfold_splits, score
+from coartic.evaluation.validate import kfold_splits, score
 from coartic.outputs import atomic_write_text
 
 ROOT = Path(__file__).resolve().parents[1]

@@ -17,7 +17,7 @@ sys.path.insert(0, str(ROOT / "tests" / "python"))
 from fit_helpers import EMA  # noqa: E402
 
 from coartic.fit import load_spec, run  # noqa: E402
-from coartic.fit.score import score_recordings  # noqa: E402
+from coartic.evaluation.score import score_recordings  # noqa: E402
 
 
 def main() -> None:

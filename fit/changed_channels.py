@@ -35,7 +35,7 @@ from typing import Any
 
 import numpy as np
 
-from coartic.io.trial import load_trial
+from coartic.io.load import load_trial
 from coartic.outputs import atomic_write_text
 from coartic.runtime.shipped import shipped_provenance
 from coartic.table import CHANNELS

@@ -76,8 +76,8 @@ def held_out_baselines(session: Path, spec_path: str, channels: list[str]) -> di
     table the runtime used before: for the lips the default session's 3-vowel table with the Italian
     phone map's fallbacks, for the tongue the class default of coartic.runtime.tongue."""
     from coartic.fit.data import load_utterances
-    from coartic.fit.score import score_utterances
-    from coartic.fit.validate import splits
+    from coartic.evaluation.score import score_utterances
+    from coartic.evaluation.validate import splits
 
     spec = load_spec(ROOT / spec_path)
     truth = ParameterTable.load(session / "ground_truth.json")

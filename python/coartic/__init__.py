@@ -10,13 +10,14 @@ nor SciPy.
 from importlib import import_module
 from typing import TYPE_CHECKING, Any
 
+from coartic._version import __version__
+
 if TYPE_CHECKING:
     from coartic.estimator import Coarticulation
-    from coartic.io.trial import Trial, load_trial
+    from coartic.io.load import load_trial
+    from coartic.io.trial import Trial
     from coartic.model import build_corpus, trajectories
     from coartic.table import ALL_CHANNELS, CHANNELS, PARAMETERS, TONGUE_CHANNELS, ParameterTable
-
-__version__ = "0.1.0"
 
 # name -> the module that defines it
 _LAZY: dict[str, str] = {
@@ -28,7 +29,7 @@ _LAZY: dict[str, str] = {
     "TONGUE_CHANNELS": "coartic.table",
     "Trial": "coartic.io.trial",
     "build_corpus": "coartic.model",
-    "load_trial": "coartic.io.trial",
+    "load_trial": "coartic.io.load",
     "trajectories": "coartic.model",
 }
 

@@ -17,7 +17,7 @@ from typing import Annotated, Any
 import typer
 from typer.core import TyperCommand, TyperGroup
 
-from coartic import __version__
+from coartic._version import __version__
 from coartic.console import handled, show_data_warnings
 
 YOUNG_GENERATION = 10_000  # objects between two collections of the youngest generation (main)
@@ -29,10 +29,10 @@ COMMANDS: dict[str, tuple[str, str, str]] = {
                 "Summarise a recording: markers, rate, frames, gaps per marker, labels, channels."),
     "fit": ("coartic.fit.fit_cli", "fit_command",
             "Fit the coarticulation model to a corpus by least squares (MODEL.md §5)."),
-    "score": ("coartic.fit.score_cli", "score_command",
+    "score": ("coartic.evaluation.score_cli", "score_command",
               "Predict recordings the fit did not see and report the RMSE (also after removing a per-utterance "
               "offset, and after calibrating the speaker's offset and scale on these recordings)."),
-    "compare": ("coartic.fit.compare_cli", "compare_command",
+    "compare": ("coartic.evaluation.compare_cli", "compare_command",
                 "Fit every spec on its data and compare: free parameters, RMSE, held-out RMSE, AIC, BIC."),
     "mcmc": ("coartic.mcmc.mcmc_cli", "mcmc_command",
              "Sample the posterior of the fitted parameters with emcee, check convergence, write intervals."),

@@ -21,8 +21,8 @@ from coartic import _core
 from coartic.errors import CoarticError
 from coartic.io.errors import DataError
 from coartic.io.labelmap import LabelMap, resolve_label_map
-from coartic.pauses import utterances_for_table
-from coartic.table import N_PARAMS, PARAMETERS, ChannelSettings, ParameterTable
+from coartic.pauses import FINAL_PAUSE, SHORT_PAUSE_S, pause_postures, recorded, recorded_short
+from coartic.table import N_PARAMS, PARAMETERS, PAUSE, ChannelSettings, ParameterTable
 
 F64 = npt.NDArray[np.float64]
 
@@ -109,6 +109,43 @@ class Utterance:
         i = np.searchsorted(self.starts, self.times, side="right") - 1
         inside = (i >= 0) & (self.times < self.ends[np.clip(i, 0, None)])
         return np.where(inside, i, -1).astype(np.int64)
+
+
+def utterances_for_table(table: ParameterTable, utterances: Sequence[Utterance]) -> list[Utterance]:
+    """The utterances (labels already the table's phonemes) as ``table`` reads them: with the pause
+    postures it was fitted with (``coartic.pauses.recorded``; samples, channels and meta kept), as
+    they are for a table that records none."""
+    if not recorded(table.metadata):
+        return list(utterances)
+    short, have = recorded_short(table.metadata), set(table.phonemes)
+    out = []
+    for u in utterances:
+        labs, s, e, _ = pause_postures(u.labels, u.starts, u.ends, short, have)
+        out.append(u if labs == u.labels and s.size == u.starts.size else
+                   Utterance(labs, s, e, u.times, u.name, u.observed, u.valid, u.meta))
+    return out
+
+
+def utterances_with_postures(utterances: Sequence[Utterance], short: float = SHORT_PAUSE_S
+                             ) -> tuple[list[Utterance], list[str]]:
+    """``coartic.pauses.pause_postures`` on every utterance (samples, channels and meta kept), and a note naming
+    each change but the final pauses' (one per utterance, counted in one note)."""
+    out: list[Utterance] = []
+    notes: list[str] = []
+    finals = 0
+    for u in utterances:
+        labels, starts, ends, changes = pause_postures(u.labels, u.starts, u.ends, short)
+        if not changes:
+            out.append(u)
+            continue
+        out.append(Utterance(labels, starts, ends, u.times, u.name, u.observed, u.valid, u.meta))
+        finals += sum(c.became == FINAL_PAUSE for c in changes)
+        where = u.meta.get("file") or u.name
+        notes += [f"pauses: {where}: {c.text()}" for c in changes if c.became != FINAL_PAUSE]
+    if finals:
+        notes.insert(0, f"pauses: {finals} utterance-final pause(s) fitted as {FINAL_PAUSE!r} (their own target), "
+                        f"apart from the initial {PAUSE!r}")
+    return out, notes
 
 
 def build_corpus(utterances: Sequence[Utterance], phonemes: Sequence[str]) -> _core.Corpus:

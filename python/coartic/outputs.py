@@ -31,6 +31,7 @@ from pathlib import Path
 from types import FrameType, TracebackType
 from typing import Any, Callable, Iterator, Mapping, Sequence
 
+from coartic._version import __version__
 from coartic.errors import CoarticError
 
 RUN_MARKER = "coartic_run.json"
@@ -417,7 +418,7 @@ class OutputDir:
     def _write_marker(self, directory: Path, status: str) -> None:
         doc = {"schema": RUN_SCHEMA, "command": self.command, "identity": self.identity, "status": status,
                "started": self.started, "finished": None if status == "running" else _now(),
-               "argv": sys.argv, "pid": os.getpid(), "coartic": _version()}
+               "argv": sys.argv, "pid": os.getpid(), "coartic": __version__}
         atomic_write_text(directory / RUN_MARKER, json.dumps(doc, indent=1, ensure_ascii=False) + "\n")
 
     def commit(self) -> None:
@@ -466,15 +467,6 @@ class OutputDir:
 
     def _wrote_something(self) -> bool:
         return self.path.exists() and any(p.name != RUN_MARKER for p in self.path.iterdir())
-
-
-def _version() -> str:
-    try:
-        from coartic import __version__
-
-        return __version__
-    except ImportError:  # pragma: no cover - only while the package itself is broken
-        return "unknown"
 
 
 __all__ = ["OutputDir", "OutputError", "DeferredSignals", "atomic_path", "atomic_write_bytes", "check_output_file",

@@ -19,7 +19,9 @@ its own row of the table:
 Every change is named (``PauseChange``) for the fit report. A fit with ``[model] pauses =
 "postures"`` (the default) records ``POSTURES_RECORD`` in its table's metadata under
 ``RECORD_KEY``; whoever evaluates that table on labels (``coartic.model.trajectories``, ``coartic
-score``, the runtime) applies the same rules, and a table that records none (older tables, the
+score``, the runtime) applies the same rules (on utterances: ``coartic.model.utterances_for_table``
+and ``utterances_with_postures``, beside the utterance type; this module works on labels and sits
+below the model), and a table that records none (older tables, the
 shipped Italian table) keeps one pause phoneme ``#``. The rules touch only ``#`` labels, so
 applying them twice changes nothing.
 """
@@ -28,16 +30,12 @@ from __future__ import annotations
 
 from collections.abc import Container, Mapping, Sequence
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
 
 from coartic.table import PAUSE
-
-if TYPE_CHECKING:
-    from coartic.model import Utterance
-    from coartic.table import ParameterTable
 
 FINAL_PAUSE = "#end"
 MEDIAL_PAUSE = "#mid"
@@ -151,21 +149,6 @@ def pause_postures(labels: Sequence[str], starts: Sequence[float] | NDArray[np.f
     return tuple(labs), s, e, changes
 
 
-def utterances_for_table(table: ParameterTable, utterances: Sequence[Utterance]) -> list[Utterance]:
-    """The utterances (labels already the table's phonemes) as ``table`` reads them: with the pause
-    postures it was fitted with (``recorded``; samples, channels and meta kept), as they are for a
-    table that records none."""
-    if not recorded(table.metadata):
-        return list(utterances)
-    short, have = recorded_short(table.metadata), set(table.phonemes)
-    out = []
-    for u in utterances:
-        labs, s, e, _ = pause_postures(u.labels, u.starts, u.ends, short, have)
-        out.append(u if labs == u.labels and s.size == u.starts.size else
-                   type(u)(labs, s, e, u.times, u.name, u.observed, u.valid, u.meta))
-    return out
-
-
 def recorded(metadata: Mapping[str, Any]) -> bool:
     """Whether a table's metadata says it was fitted with pause postures (``RECORD_KEY``)."""
     rec = metadata.get(RECORD_KEY)
@@ -177,26 +160,3 @@ def recorded_short(metadata: Mapping[str, Any]) -> float:
     rec = metadata.get(RECORD_KEY)
     value = rec.get("short_pause_s") if isinstance(rec, Mapping) else None
     return float(value) if isinstance(value, (int, float)) and not isinstance(value, bool) else SHORT_PAUSE_S
-
-
-def utterances_with_postures(utterances: Sequence[Utterance], short: float = SHORT_PAUSE_S
-                             ) -> tuple[list[Utterance], list[str]]:
-    """``pause_postures`` on every utterance (samples, channels and meta kept), and a note naming
-    each change but the final pauses' (one per utterance, counted in one note)."""
-    out: list[Utterance] = []
-    notes: list[str] = []
-    finals = 0
-    for u in utterances:
-        labels, starts, ends, changes = pause_postures(u.labels, u.starts, u.ends, short)
-        if not changes:
-            out.append(u)
-            continue
-        # type(u): coartic.model.Utterance, which imports this module (no import circle)
-        out.append(type(u)(labels, starts, ends, u.times, u.name, u.observed, u.valid, u.meta))
-        finals += sum(c.became == FINAL_PAUSE for c in changes)
-        where = u.meta.get("file") or u.name
-        notes += [f"pauses: {where}: {c.text()}" for c in changes if c.became != FINAL_PAUSE]
-    if finals:
-        notes.insert(0, f"pauses: {finals} utterance-final pause(s) fitted as {FINAL_PAUSE!r} (their own target), "
-                        f"apart from the initial {PAUSE!r}")
-    return out, notes

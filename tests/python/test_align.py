@@ -251,7 +251,7 @@ def test_lips_from_the_audio_alone(tmp_path: Path) -> None:
     2.39 mm, JO 1.83 vs 2.09 mm; bench/align_accuracy.py has the full fit)."""
     from coartic.fit import load_spec, run
     from coartic.fit.data import load_utterances
-    from coartic.fit.score import score_utterances, with_fallbacks
+    from coartic.evaluation.score import score_utterances, with_fallbacks
     from coartic.model import Utterance
 
     u24 = (DATA / "dfgspp_mo1_prosody_0024_ema.csv", DATA / "dfgspp_mo1_prosody_0024_Segment.tsv")

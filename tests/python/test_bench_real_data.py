@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 
 from coartic.fit import load_spec
-from coartic.fit.baselines import Baselines
+from coartic.evaluation.baselines import Baselines
 from coartic.fit.data import load_utterances
 
 ROOT = Path(__file__).resolve().parents[2]

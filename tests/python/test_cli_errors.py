@@ -240,7 +240,7 @@ def test_a_holdout_repetition_that_is_not_there_is_said(tmp_path: Path) -> None:
     import numpy as np
 
     from coartic.fit.simulate import vcv_utterances
-    from coartic.fit.validate import splits
+    from coartic.evaluation.validate import splits
     from fit_helpers import spec_of
 
     for bad in (-1, 0):

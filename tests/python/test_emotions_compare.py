@@ -15,8 +15,8 @@ import pytest
 from typer.testing import CliRunner
 
 from coartic.cli import app
-from coartic.fit.compare import compare, heldout_se, vary
-from coartic.fit.heldout import SplitScore
+from coartic.evaluation.compare import compare, heldout_se, vary
+from coartic.evaluation.heldout import SplitScore
 from coartic.fit.spec import load_spec
 from coartic.synthetic_cli import load_generator
 

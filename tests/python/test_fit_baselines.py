@@ -1,4 +1,4 @@
-"""Baselines of every held-out figure (coartic.fit.baselines, issue 19 item 4): hand-computed values
+"""Baselines of every held-out figure (coartic.evaluation.baselines, issue 19 item 4): hand-computed values
 on a tiny corpus, and the flag raised when a table does not beat the step model."""
 
 from __future__ import annotations
@@ -10,10 +10,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from coartic.fit.baselines import Baselines, beats_step, warp_times
-from coartic.fit.compare import Row
-from coartic.fit.score import Score
-from coartic.fit.heldout import SplitScore, flags, pooled
+from coartic.evaluation.baselines import Baselines, beats_step, warp_times
+from coartic.evaluation.compare import Row
+from coartic.evaluation.score import Score
+from coartic.evaluation.heldout import SplitScore, flags, pooled
 from coartic.model import Utterance
 from coartic.table import ParameterTable
 
@@ -166,7 +166,7 @@ def test_fit_validate_writes_the_baselines_into_summary_report_and_csv(tmp_path:
 
 def test_compare_reports_the_step_model_held_out(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     import coartic.fit.runner as runner
-    from coartic.fit.compare import compare
+    from coartic.evaluation.compare import compare
     from coartic.fit.simulate import vcv_utterances
     from coartic.fit.spec import parse_spec
 

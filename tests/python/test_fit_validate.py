@@ -11,7 +11,7 @@ from coartic.fit.simulate import vcv_utterances
 from coartic.errors import SpecError
 from coartic.fit.spec import parse_spec
 from coartic.fit.runner import run
-from coartic.fit.validate import splits, validate_all
+from coartic.evaluation.validate import splits, validate_all
 
 from fit_helpers import paper
 
@@ -67,7 +67,7 @@ def test_kfold_by_any_grouping_without_a_manifest(tmp_path: Path) -> None:
 
 
 def test_kfold_scores_pooled_with_and_without_offsets(tmp_path: Path) -> None:
-    from coartic.fit.heldout import pooled
+    from coartic.evaluation.heldout import pooled
 
     utts = vcv_utterances(np.random.default_rng(4), repetitions=2, rates={"normal": 1.0}, noise=0.1)
     raw = {"corpus": {"files": ["x"], "labels": ["y"]}, "model": {"channels": ["LLO"]},
@@ -98,7 +98,7 @@ def test_time_split_from_the_command_line_with_class_fallbacks(tmp_path: Path) -
     from typer.testing import CliRunner
 
     from coartic.cli import app
-    from coartic.fit.validate import halves
+    from coartic.evaluation.validate import halves
 
     utts = vcv_utterances(np.random.default_rng(2), repetitions=1, rates={"normal": 1.0})
     sp = splits(spec(tmp_path, group="time"), utts)

@@ -1,6 +1,10 @@
-"""The package's import graph has no circle (issue 21): each module imports only modules below it,
-whether at the top or inside a function (a function-level import must not hide a circle).
-Imports under ``if TYPE_CHECKING:`` are for annotations only and are left out."""
+"""The package's import graph has no circle (issues 21, 28): each module imports only modules below
+it, whether at the top, inside a function or under ``if TYPE_CHECKING:`` (a function-level or
+annotation-only import must not hide a circle: the modules still depend on each other).
+
+The circles still there are listed by name in ``KNOWN_CIRCLES``, each with the issue's work that
+removes it; the test asserts that the package has exactly those, so that it fails on a new circle
+and on one removed without emptying its entry here."""
 
 from __future__ import annotations
 
@@ -10,17 +14,30 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[2] / "python"
 
 
+# The circles left, each as the set of its modules' names: the work that removes one empties its
+# entry, and the test below fails until it does (and on any circle not listed). None is left: the
+# last, estimation naming the fit's spec and bound notes in annotations, went when estimation came
+# to own its inputs (issue 28 item 1: coartic.estimation.settings).
+KNOWN_CIRCLES: set[frozenset[str]] = set()
+
+
 def modules(root: Path) -> dict[str, Path]:
+    """Every module of the package by name: the Python files, and the compiled extension by its stub
+    (``_core.pyi``), so that ``from coartic import _core`` is the extension, not the package."""
     out = {}
-    for p in (root / "coartic").rglob("*.py"):
+    for p in sorted((root / "coartic").rglob("*.py*")):
+        if p.suffix not in (".py", ".pyi"):
+            continue
         parts = p.relative_to(root).with_suffix("").parts
-        out[".".join(parts[:-1] if parts[-1] == "__init__" else parts)] = p
+        out.setdefault(".".join(parts[:-1] if parts[-1] == "__init__" else parts), p)
     return out
 
 
-def import_graph(root: Path) -> dict[str, set[str]]:
+def import_graph(root: Path, type_only: bool = True) -> dict[str, set[str]]:
     """module -> the package's modules it imports (a name imported from a package counts as the
-    submodule of that name when there is one, else as the package)."""
+    submodule of that name when there is one, else as the package; a relative import is resolved
+    against the importing module's package). ``type_only``: imports under ``if TYPE_CHECKING:``
+    count too."""
     mods = modules(root)
 
     def owner(name: str) -> str | None:
@@ -31,9 +48,9 @@ def import_graph(root: Path) -> dict[str, set[str]]:
     graph: dict[str, set[str]] = {}
     for m, path in mods.items():
         tree = ast.parse(path.read_text(encoding="utf-8"))
-        typing_only = {id(n) for node in ast.walk(tree)
-                       if isinstance(node, ast.If) and "TYPE_CHECKING" in ast.unparse(node.test)
-                       for n in ast.walk(node)}
+        typing_only = set() if type_only else {
+            id(n) for node in ast.walk(tree)
+            if isinstance(node, ast.If) and "TYPE_CHECKING" in ast.unparse(node.test) for n in ast.walk(node)}
         edges: set[str] = set()
         for node in ast.walk(tree):
             if id(node) in typing_only:
@@ -85,29 +102,71 @@ def circles(graph: dict[str, set[str]]) -> list[list[str]]:
     return found
 
 
-def test_the_package_has_no_import_circle() -> None:
-    assert circles(import_graph(ROOT)) == []
+def test_the_package_has_no_import_circle_but_the_known_ones() -> None:
+    found = {frozenset(c) for c in circles(import_graph(ROOT))}
+    assert found - KNOWN_CIRCLES == set(), "new import circle(s)"
+    assert KNOWN_CIRCLES - found == set(), "circle(s) removed: take them out of KNOWN_CIRCLES"
+
+
+def test_the_package_is_a_facade_at_the_top() -> None:
+    # coartic/__init__.py names the estimator, the trial and the table (for type checkers); no
+    # module of the package imports the package back (the version is coartic._version's)
+    graph = import_graph(ROOT)
+    assert {"coartic.estimator", "coartic.table"} <= graph["coartic"]
+    assert sorted(m for m, targets in graph.items() if "coartic" in targets) == []
+
+
+# The parts above estimation (docs/ARCHITECTURE.md, "Layers"): those that build its settings and use
+# its problem.
+ABOVE: tuple[str, ...] = ("fit", "mcmc", "evaluation", "report", "cli", "runtime", "batch", "estimator")
 
 
 def above(module: str) -> bool:
-    return module.split(".")[:2] in (["coartic", "fit"], ["coartic", "mcmc"])
+    parts = module.split(".")
+    return len(parts) > 1 and parts[0] == "coartic" and parts[1] in ABOVE
 
 
-def test_estimation_imports_nothing_from_fit_or_mcmc() -> None:
-    # the shared problem sits below least squares and MCMC (issue 21); what it needs of the spec it
-    # reads through the spec's attributes (FitSpec is named in annotations only)
+def test_estimation_imports_nothing_above_it_type_only_imports_included() -> None:
+    # the shared problem sits below least squares and MCMC (issue 21) and owns its inputs (issue 28):
+    # build_problem takes coartic.estimation.settings, which a fit spec builds; no annotation names
+    # the spec, and the at-bound notes are estimation's own
     graph = import_graph(ROOT)
     estimation = {m for m in graph if m.split(".")[:2] == ["coartic", "estimation"]}
-    assert "coartic.estimation.problem" in estimation  # the check sees the package
+    assert {"coartic.estimation.problem", "coartic.estimation.settings", "coartic.estimation.bounds"} <= estimation
     assert {(m, t) for m in estimation for t in graph[m] if above(t)} == set()
 
 
-def test_a_circle_is_found(tmp_path: Path) -> None:
-    # the check itself: a function-level import closing a circle is seen, a TYPE_CHECKING one is not
+def test_the_estimation_check_sees_type_only_and_function_imports(tmp_path: Path) -> None:
+    # the check itself: an import inside `if TYPE_CHECKING:` or inside a function is an arrow up
     pkg = tmp_path / "coartic"
-    pkg.mkdir()
-    (pkg / "__init__.py").write_text("")
-    (pkg / "a.py").write_text("from coartic.b import g\n")
+    (pkg / "estimation").mkdir(parents=True)
+    (pkg / "fit").mkdir()
+    for init in (pkg / "__init__.py", pkg / "estimation" / "__init__.py", pkg / "fit" / "__init__.py"):
+        init.write_text("")
+    (pkg / "fit" / "spec.py").write_text("class FitSpec: ...\n")
+    (pkg / "report.py").write_text("")
+    (pkg / "estimation" / "a.py").write_text("from typing import TYPE_CHECKING\nif TYPE_CHECKING:\n"
+                                             "    from coartic.fit.spec import FitSpec\n")
+    (pkg / "estimation" / "b.py").write_text("def f():\n    import coartic.report\n")
+    graph = import_graph(tmp_path)
+    assert graph["coartic.estimation.a"] == {"coartic.fit.spec"} and above("coartic.fit.spec")
+    assert graph["coartic.estimation.b"] == {"coartic.report"} and above("coartic.report")
+
+
+def test_a_circle_is_found(tmp_path: Path) -> None:
+    # the check itself: a function-level import closing a circle is seen, and so is a TYPE_CHECKING
+    # one and a relative one; `from coartic import x` is the submodule x (the extension by its stub)
+    pkg = tmp_path / "coartic"
+    (pkg / "sub").mkdir(parents=True)
+    (pkg / "__init__.py").write_text("from typing import TYPE_CHECKING\nif TYPE_CHECKING:\n    from coartic.a import f\n")
+    (pkg / "_ext.pyi").write_text("def h() -> None: ...\n")
+    (pkg / "a.py").write_text("from coartic import _ext\nfrom coartic.b import g\n")
     (pkg / "b.py").write_text("def g():\n    from coartic.a import x\n")
-    (pkg / "c.py").write_text("from typing import TYPE_CHECKING\nif TYPE_CHECKING:\n    from coartic.a import x\n")
-    assert circles(import_graph(tmp_path)) == [["coartic.a", "coartic.b"]]
+    (pkg / "c.py").write_text("from typing import TYPE_CHECKING\nif TYPE_CHECKING:\n    from coartic.sub.d import y\n")
+    (pkg / "sub" / "__init__.py").write_text("")
+    (pkg / "sub" / "d.py").write_text("from .. import c\n")
+    graph = import_graph(tmp_path)
+    assert graph["coartic.a"] == {"coartic._ext", "coartic.b"}
+    assert graph["coartic.sub.d"] == {"coartic.c"}
+    assert circles(graph) == [["coartic.a", "coartic.b"], ["coartic.c", "coartic.sub.d"]]
+    assert circles(import_graph(tmp_path, type_only=False)) == [["coartic.a", "coartic.b"]]

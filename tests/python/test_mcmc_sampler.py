@@ -238,3 +238,32 @@ def test_check_rejects_bad_acceptance() -> None:
     assert any("ensemble 0: acceptance fraction 0.020" in p for p in r.problems)
     assert not any("ensemble 1" in p for p in r.problems)
     json.dumps(r.to_dict())  # serialisable for the run's summary file
+
+
+def test_checks_between_chunks_skip_only_what_cannot_change_the_decision(tmp_path: Path) -> None:
+    # A chain no longer than 50 tau fails whatever else is found: skip_when_short leaves out the tau
+    # stability, R-hat and ESS (partial report), with the same verdict; a long enough chain gets the
+    # complete check either way.
+    rng = np.random.default_rng(1)
+    walk = np.cumsum(rng.standard_normal((300, 8, 2)), axis=0)  # tau of the order of the chain
+    chains = [walk, np.cumsum(rng.standard_normal((300, 8, 2)), axis=0)]
+    full = convergence.check(chains, [0.3, 0.3], ["u", "v"])
+    quick = convergence.check(chains, [0.3, 0.3], ["u", "v"], skip_when_short=True)
+    assert not full.converged and not quick.converged and quick.partial and not full.partial
+    assert quick.tau == full.tau and quick.problems[0] == full.problems[0]
+    assert quick.problems[0].startswith("chain too short")
+    assert np.isnan(quick.tau_change) and all(np.isnan(quick.rhat)) and all(np.isnan(quick.ess_bulk))
+    white = [rng.standard_normal((2000, 8, 2)) for _ in range(2)]
+    a = convergence.check(white, [0.3, 0.3], ["u", "v"])
+    b = convergence.check(white, [0.3, 0.3], ["u", "v"], skip_when_short=True)
+    assert a == b and not b.partial
+    # A run stopped at max_steps while too short still returns a complete report (the sampler
+    # completes a partial last check), and its chains are those of a run checked completely.
+    s = settings(chunk_steps=100, min_steps=100, max_steps=300)
+    r = sampler.run(gaussian, ball, NAMES, tmp_path / "c", s, progress=False)
+    assert r.report is not None and not r.report.partial and not r.converged
+    assert r.report.problems[0].startswith("chain too short"), r.report.problems
+    assert np.all(np.isfinite(r.report.ess_bulk)) and np.isfinite(r.report.tau_change)
+    assert [h["steps"] for h in r.history] == [100.0, 200.0, 300.0]  # one entry per check
+    again = convergence.check(r.chains, r.report.acceptance, NAMES)
+    assert again == r.report

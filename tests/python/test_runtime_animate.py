@@ -109,6 +109,15 @@ def test_the_faps_are_computed_once_for_every_exporter(tmp_path: Path, labels: P
     assert len(calls) == 1 and calls[0] is result.animation
     assert {"fap", "gltf", "vrml"} <= set(result.files)
     np.testing.assert_array_equal(read_fap(result.files["fap"]).values, result.faps.values)
+    # the ARKit weights of the glTF's morph set and of the curves: computed once too
+    import coartic.runtime.expression as expression
+
+    weighed = []
+    arkit = expression.expression_arkit
+    monkeypatch.setattr(expression, "expression_arkit", lambda a: weighed.append(a) or arkit(a))
+    result = animate_file(labels, make_table(), tmp_path / "arkit", preview="none", gltf=True, gltf_morphs="arkit",
+                          exports="arkit")
+    assert len(weighed) == 1 and {"gltf", "arkit_csv"} <= set(result.files)
 
 
 def test_resistant_targets_are_reached(labels: Path) -> None:

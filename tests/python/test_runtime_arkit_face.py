@@ -76,21 +76,24 @@ def test_every_viseme_of_the_arkit_face_is_the_fap_face(shots: dict[str, dict[st
     tooth pixels within 11 %, cavity pixels within 15 px or 3 %, the lips' opening within 6 px. The
     mapping before (every lip retraction a roll, presses from either lip alone, rounding from the
     narrowing alone) failed each: 1.6 % of the pixels off at /f/ after /u/, the cavity of /f v/
-    halved (the incisors hidden), /o u/ 22 and 14 % fewer teeth and 9 and 8 px less open."""
+    halved (the incisors hidden), /o u/ 22 and 14 % fewer teeth and 9 and 8 px less open.
+
+    /f/ after /u/: its corners are still narrowed while the lower lip rolls in under the incisors.
+    ARKit has no narrowing without protrusion, so the rounding gives way to the roll: the incisors
+    show as on the FAP face (7 % fewer tooth pixels, the slit 4 px open against 7; with the rounding
+    kept, 17 % fewer and 1 px), the corners are wider (182 cavity pixels at the corners against 16,
+    1.1 % of the pixels off)."""
     for ph, pair in shots.items():
         img = {m: np.asarray(Image.open(p).convert("RGB"), dtype=np.int16) for m, p in pair.items()}
         assert img["fap"].std() > 10, ph  # a face, not a blank canvas
         differ = float((np.abs(img["arkit"] - img["fap"]).max(axis=2) > 40).mean())
-        assert differ < 0.008, (ph, differ)
+        assert differ < (0.012 if ph == "f_after_u" else 0.008), (ph, differ)
         px = {m: {k: int(v.sum()) for k, v in mouth_pixels(p).items()} for m, p in pair.items()}
         fap, ark = px["fap"], px["arkit"]
-        # out of the rounded /u/ the lower lip rolls back while the corners stay narrowed: a pucker
-        # pushes both lips forward, so a little less of the incisors shows (17 % fewer tooth pixels)
-        assert abs(ark["teeth"] - fap["teeth"]) <= (0.2 if ph == "f_after_u" else 0.12) * fap["teeth"], (ph, px)
-        assert abs(ark["dark"] - fap["dark"]) <= max(20, 0.15 * fap["dark"]), (ph, px)
+        assert abs(ark["teeth"] - fap["teeth"]) <= 0.12 * fap["teeth"], (ph, px)
+        if ph != "f_after_u":  # the wider corners show the mouth's inside there (above)
+            assert abs(ark["dark"] - fap["dark"]) <= max(20, 0.15 * fap["dark"]), (ph, px)
         opening = {m: mouth_opening(p) for m, p in pair.items()}
-        if ph == "f_after_u":  # ... and the lips' slit closes (1 px against 7): docs/RUNTIME.md
-            continue
         assert abs(opening["arkit"] - opening["fap"]) <= max(3.0, 0.35 * opening["fap"]), (ph, opening)
     # the labiodentals show the upper incisors over the lower lip in both faces
     for ph in ("f", "v"):

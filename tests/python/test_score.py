@@ -10,7 +10,7 @@ from typer.testing import CliRunner
 
 from coartic.cli import app
 from coartic.fit import run
-from coartic.fit.score import score_recordings, score_utterances
+from coartic.evaluation.score import score_recordings, score_utterances
 from coartic.fit.simulate import PHONEMES, TRUTH, vcv_utterances
 from coartic.table import ParameterTable
 
@@ -127,7 +127,7 @@ def test_the_table_records_the_role_map_and_score_applies_it(ema_fit: tuple[Path
 
 
 def test_score_refuses_a_channel_it_could_not_compute() -> None:
-    from coartic.fit.score import ScoreError
+    from coartic.evaluation.score import ScoreError
 
     utts = vcv_utterances(np.random.default_rng(5), repetitions=1, rates={"normal": 1.0}, noise=0.1)
     for u in utts:  # JO = 0 everywhere: what a missing jaw sensor once gave
@@ -173,7 +173,7 @@ def test_baselines_from_the_recorded_spec_or_train(ema_fit: tuple[Path, float], 
 def test_score_shows_every_baseline_it_names_or_says_why_not(ema_fit: tuple[Path, float]) -> None:
     """Issue 25 item 3: the caption listed a warped-token baseline it did not show. Scored on its own
     (only) training recording, there is no other token of the sentence: the caption says so."""
-    from coartic.fit.score_cli import score_table
+    from coartic.evaluation.score_cli import score_table
 
     table_path, _ = ema_fit
     sc = score_recordings(table_path, [U20[0]], [U20[1]], channels=["JO"])
@@ -191,7 +191,7 @@ def test_the_step_flag_compares_like_with_like_for_another_session() -> None:
     flagged "worse than the step model" on the raw figure while it won with the offsets removed. A test
     recording in no directory of the training files (or of a speaker the training lacks) is compared
     with the offsets removed only, and the flag and the notes say why."""
-    from coartic.fit.baselines import other_session
+    from coartic.evaluation.baselines import other_session
     from coartic.model import Utterance
 
     rng = np.random.default_rng(7)

@@ -18,20 +18,18 @@ import math
 import shutil
 from collections.abc import Sequence
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import jinja2
 import numpy as np
 
 from coartic.batch.layout import is_done, land_dir, unit_dir
+from coartic.batch.outcome import BatchOutcome
 from coartic.batch.spec import BatchSpec
 from coartic.batch.tasks import UnitFailed, UnitKey
 from coartic.fit.result import BAR_MM
 from coartic.outputs import atomic_write_bytes
 from coartic.table import PARAMETERS, ParameterTable
-
-if TYPE_CHECKING:
-    from coartic.batch.run import BatchOutcome
 
 # The parameters whose spread across speakers the report plots (shape and timing offsets are
 # mostly fixed or small; they are in spread.csv all the same).

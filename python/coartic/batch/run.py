@@ -29,7 +29,7 @@ import shutil
 import time
 from collections import defaultdict
 from collections.abc import Callable, Iterator
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -37,6 +37,7 @@ from rich.console import Console
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
 from coartic.batch.layout import UNIT_FILE, is_done, land_dir, unit_dir
+from coartic.batch.outcome import BatchOutcome
 from coartic.batch.spec import BatchSpec
 from coartic.batch.tasks import UnitFailed, UnitKey, UnitOutput, fit_unit, load_group, posterior_unit
 from coartic.console import LineProgress
@@ -46,26 +47,8 @@ from coartic.model import Utterance
 from coartic.outputs import DeferredSignals, OutputDir
 
 
-
 class ClusterError(CoarticError, ValueError):
     """The Dask cluster could not be started or reached; the message names the address."""
-
-
-@dataclass
-class BatchOutcome:
-    out: Path
-    total: int  # units of the batch
-    skipped: int  # finished by an earlier run
-    landed: list[UnitKey] = field(default_factory=list)
-    failed: dict[str, str] = field(default_factory=dict)  # unit label -> why
-    interrupted: bool = False
-    wall_s: float = 0.0
-    workers: int = 0  # 0: serial
-    threads: int | None = None  # rayon threads per worker
-
-    @property
-    def complete(self) -> bool:
-        return not self.failed and not self.interrupted
 
 
 def plan_units(spec: BatchSpec) -> list[UnitKey]:
@@ -83,8 +66,8 @@ def output_dir(spec: BatchSpec, out: Path, force: bool = False) -> OutputDir:
     ``force``; two runs never write it at once."""
     identity = {"spec": str(spec.path.resolve()), "fingerprint": spec.fingerprint}
     return OutputDir(out, "batch", identity, force=force, staged=False,
-                     protect=[spec.path, spec.fit.path, *(g.spec.corpus.manifest for g in spec.groups
-                                                          if g.spec.corpus.manifest is not None)])
+                     protect=[spec.path, spec.fit.path, *(g.spec.corpus_spec.manifest for g in spec.groups
+                                                          if g.spec.corpus_spec.manifest is not None)])
 
 
 def land_unit(out: Path, spec: BatchSpec, result: UnitOutput) -> None:

@@ -1,6 +1,6 @@
 """Every target drawn toward the data's own mean of its phoneme (``[parameters] target_prior``).
 
-The step model (each phoneme's mean over its segments, ``coartic.fit.baselines``) is what a fitted
+The step model (each phoneme's mean over its segments, ``coartic.evaluation.baselines``) is what a fitted
 table must beat held out; on little data a free target can sit far from anything its phoneme's
 segments show (a short consonant's target is extrapolated from a few samples and its neighbours)
 and carry that error to every new utterance. A Gaussian prior ``target ~ N(segment mean, sd)``

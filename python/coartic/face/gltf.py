@@ -602,7 +602,7 @@ def export_gltf(fed: FaceAnimation, settings: ExportSettings) -> dict[str, Path]
     fap_file = settings.files["fap"].name if "fap" in settings.files else None
     if settings.gltf_morphs == "arkit":
         rig = default_rig()
-        write_glb(path, rig, arkit_weights(animation), animation.fps, settings.name, audio=settings.audio_name(),
+        write_glb(path, rig, fed.once(arkit_weights), animation.fps, settings.name, audio=settings.audio_name(),
                   fap_file=fap_file, morphs=arkit_morphs(rig, animation.neutral, settings.face))
     else:
         write_face_glb(path, fed.faps, audio=settings.audio_name(),

@@ -1,8 +1,8 @@
 """A setting chosen by k-fold cross-validation on the training data (``[choose]``, ``coartic fit --choose``).
 
 For each value of the grid, the training utterances are split by ``group`` into ``folds`` folds
-(``coartic.fit.validate.kfold_splits``, as ``[validate] group`` does), each fold is held out once
-and scored by ``coartic.fit.validate.score``; the value is then chosen per channel and the fit
+(``coartic.evaluation.validate.kfold_splits``, as ``[validate] group`` does), each fold is held out once
+and scored by ``coartic.evaluation.validate.score``; the value is then chosen per channel and the fit
 (``coartic.fit.run``) is made on all training data with it. Nothing outside the utterances given
 takes part: inside ``--validate`` every split chooses on its own training utterances (nested
 cross-validation), so the held-out data never tune the strength.
@@ -35,7 +35,7 @@ from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, T
 
 from coartic.console import LineProgress
 from coartic.model import Utterance
-from coartic.fit.validate import FitFunction, UnseenPhonemes, kfold_splits, score
+from coartic.evaluation.validate import FitFunction, UnseenPhonemes, kfold_splits, score
 from coartic.errors import SpecError
 from coartic.fit.spec import CHOOSABLE, Choose, FitSpec, choose_base, make_choose, parse_grid
 from coartic.errors import UsageError

@@ -10,7 +10,7 @@ from rich.console import Console
 from rich.markup import escape
 from rich.table import Table
 
-from coartic.fit.bounds import summary_counts
+from coartic.estimation.bounds import summary_counts
 from coartic.fit.result import BAR_MM, UNIDENTIFIED_ADVICE, FitResult
 from coartic.errors import SpecError
 from coartic.fit.spec import ENGINES, MAX_STARTS, VALIDATE_GROUPS, FitSpec, load_spec
@@ -201,7 +201,7 @@ def fit_output(spec: FitSpec, out: Path, force: bool = False) -> OutputDir:
         except (OSError, ValueError, KeyError, TypeError):
             return False
 
-    c = spec.corpus
+    c = spec.corpus_spec
     inputs = [spec.path, *(p for p in (c.manifest, spec.start_table) if p is not None), *c.files, *c.labels]
     return OutputDir(out, "fit", {"spec": str(spec_path), "channels": ",".join(spec.channels)},
                      force=force, protect=inputs, recognise=legacy)
@@ -229,8 +229,8 @@ def _fit_into(s: FitSpec, out: Path, console: Console, err: Console, validate: b
     for note in result.notes:
         console.print(f"[yellow]note:[/yellow] {escape(note)}", soft_wrap=True)
     if result.validation:
-        from coartic.fit.heldout import flags
-        from coartic.fit.validate import validation_table
+        from coartic.evaluation.heldout import flags
+        from coartic.evaluation.validate import validation_table
 
         print_table(console, validation_table(result.validation), keys=2)
         for f in flags(result.validation):

@@ -16,7 +16,7 @@ if TYPE_CHECKING:  # "X as X": re-exported for the type checker (__all__ below i
     from coartic.io.labels import Segments as Segments, read_labels as read_labels
     from coartic.io.roles import RoleMap as RoleMap
     from coartic.io.trial import Channels as Channels, Trial as Trial, common_rate as common_rate
-    from coartic.io.trial import load_trial as load_trial
+    from coartic.io.load import load_trial as load_trial
     from coartic.table import ALL_CHANNELS as ALL_CHANNELS, PAUSE as PAUSE
 
 # name -> the module that defines it
@@ -33,7 +33,7 @@ _LAZY: dict[str, str] = {
     "Segments": "coartic.io.labels",
     "Trial": "coartic.io.trial",
     "common_rate": "coartic.io.trial",
-    "load_trial": "coartic.io.trial",
+    "load_trial": "coartic.io.load",
     "read_labels": "coartic.io.labels",
 }
 

@@ -13,7 +13,8 @@ from rich.table import Table
 
 from coartic.io.errors import DataError
 from coartic.io.gaps import DEFAULT_MAX_GAP, Gap, fill_gaps
-from coartic.io.trial import Channels, Trial, load_trial
+from coartic.io.load import load_trial
+from coartic.io.trial import Channels, Trial
 from coartic.console import EXIT_NOTHING
 from coartic.errors import UsageError
 

@@ -16,6 +16,12 @@ A run is declared converged only when every one of these holds (docs/MCMC.md exp
 R-hat is computed with one chain per ensemble (its walkers pooled step by step), because walkers of
 one ensemble are not independent of each other; ensembles are. ESS treats every walker as a chain
 (ArviZ's convention for emcee output).
+
+While sampling, most checks find the chain shorter than 50 τ; such a run cannot pass whatever the
+other checks say, so ``check(..., skip_when_short=True)`` (the sampler's checks between chunks)
+then leaves out the τ stability, R-hat and ESS (two thirds of a check's cost: a second τ over the
+chain less its last ``TAU_STEP`` steps, ArviZ per parameter) and marks the report ``partial``. The
+decision is the same and the sampler's final report is always complete.
 """
 
 from __future__ import annotations
@@ -56,6 +62,9 @@ class ConvergenceReport:
     thin: int
     converged: bool
     problems: list[str] = field(default_factory=list)
+    # True when the chain was too short to pass and tau_change, R-hat and ESS were not computed
+    # (nan): check(..., skip_when_short=True)
+    partial: bool = False
 
     def to_dict(self) -> dict[str, Any]:
         return {k: _jsonable(v) for k, v in asdict(self).items()}
@@ -148,8 +157,14 @@ def check(
     chains: Sequence[NDArray[np.float64]],
     acceptance: Sequence[float],
     names: Sequence[str] | None = None,
+    skip_when_short: bool = False,
 ) -> ConvergenceReport:
-    """Diagnose a set of independent ensembles, each chain shaped (steps, walkers, dim)."""
+    """Diagnose a set of independent ensembles, each chain shaped (steps, walkers, dim).
+
+    ``skip_when_short``: when the chain is no longer than ``MIN_TAU_MULTIPLE`` τ (the run fails
+    whatever else is found), leave out the τ stability, R-hat and ESS and return a ``partial``
+    report (module docstring).
+    """
     if not chains:
         raise McmcError("convergence check: no ensembles given")
     n_steps = min(c.shape[0] for c in chains)
@@ -158,7 +173,12 @@ def check(
     every_walker = np.concatenate([c[:n_steps] for c in chains], axis=1)
     tau = autocorr_time(every_walker)
     tau_max = float(np.max(tau)) if tau.size else 0.0
-    if n_steps > 2 * TAU_STEP:
+    finite_tau = np.isfinite(tau_max) and tau_max > 0
+    short = not finite_tau or n_steps <= MIN_TAU_MULTIPLE * tau_max
+    partial = skip_when_short and short
+    if partial:
+        change = float("nan")
+    elif n_steps > 2 * TAU_STEP:
         before = autocorr_time(every_walker[: n_steps - TAU_STEP])
         with np.errstate(invalid="ignore", divide="ignore"):
             change = float(np.max(np.abs(tau - before) / tau))
@@ -167,7 +187,6 @@ def check(
         change = float("inf")
 
     problems: list[str] = []
-    finite_tau = np.isfinite(tau_max) and tau_max > 0
     if not finite_tau:
         problems.append("the autocorrelation time could not be estimated")
     elif n_steps <= MIN_TAU_MULTIPLE * tau_max:
@@ -176,7 +195,7 @@ def check(
             f"chain too short: {n_steps} steps <= {MIN_TAU_MULTIPLE:g} x tau = "
             f"{MIN_TAU_MULTIPLE * tau_max:.0f} (slowest parameter: {worst}, tau = {tau_max:.1f})"
         )
-    if not change < MAX_TAU_CHANGE:
+    if not partial and not change < MAX_TAU_CHANGE:
         problems.append(
             "autocorrelation time not yet stable"
             + ("" if not np.isfinite(change) else f": changed by {100 * change:.1f} % over the last {TAU_STEP} steps (need < {100 * MAX_TAU_CHANGE:g} %)")
@@ -189,18 +208,22 @@ def check(
     # Discard a few τ of burn-in and thin by about τ/2: the draws left are what the summary uses.
     burn_in = int(min(np.ceil(3 * tau_max), n_steps // 2)) if finite_tau else n_steps // 2
     thin = max(1, int(tau_max // 2)) if finite_tau else 1
-    if len(range(burn_in, n_steps, thin)) >= 4:
+    if partial:
+        rhat, bulk, tail = np.full(dim, np.nan), np.full(dim, np.nan), np.full(dim, np.nan)
+        problems.append("tau stability, R-hat and ESS not computed: the chain is too short to pass whatever they say")
+    elif len(range(burn_in, n_steps, thin)) >= 4:
         rhat, bulk, tail = rhat_ess([c[:n_steps] for c in chains], burn_in, thin)
     else:
         rhat, bulk, tail = np.full(dim, np.nan), np.zeros(dim), np.zeros(dim)
         problems.append("too few draws after burn-in for R-hat and ESS")
     if len(chains) < 2:
         problems.append("a single ensemble: R-hat between independent ensembles cannot be computed")
-    else:
+    elif not partial:
         for j in np.flatnonzero(~(rhat < MAX_RHAT)):
             problems.append(f"R-hat of {names[j]} = {rhat[j]:.4f} (need < {MAX_RHAT})")
-    for j in np.flatnonzero(~(np.minimum(bulk, tail) >= MIN_ESS)):
-        problems.append(f"ESS of {names[j]}: bulk {bulk[j]:.0f}, tail {tail[j]:.0f} (need >= {MIN_ESS:g})")
+    if not partial:
+        for j in np.flatnonzero(~(np.minimum(bulk, tail) >= MIN_ESS)):
+            problems.append(f"ESS of {names[j]}: bulk {bulk[j]:.0f}, tail {tail[j]:.0f} (need >= {MIN_ESS:g})")
 
     return ConvergenceReport(
         n_steps=int(n_steps),
@@ -217,4 +240,5 @@ def check(
         thin=thin,
         converged=not problems,
         problems=problems,
+        partial=partial,
     )

@@ -15,18 +15,22 @@ import json
 import os
 from dataclasses import dataclass, replace
 from pathlib import Path
-from typing import Any, Callable, Sequence
+from typing import TYPE_CHECKING, Any, Callable, Sequence
 
 from coartic.extras import require
 from coartic.fit.data import load_utterances
 from coartic.mcmc import plots
 from coartic.mcmc.idata import split_name
-from coartic.mcmc.run import (SCOPES, McmcConfig, PosteriorRun, channel_runs, fixed_noise, problem_priors, read_spec,
+from coartic.mcmc.run import (SCOPES, ChannelSampling, McmcConfig, PosteriorRun, channel_runs, fixed_noise, read_spec,
                               table_problem, table_speakers)
 from coartic.mcmc.summary import QUANTILE_LEVELS, write_uncertainty
 from coartic.outputs import OutputDir, OutputError, atomic_write_text, read_marker
 from coartic.table import ParameterTable
 from coartic.mcmc.errors import McmcConfigError, McmcError
+from coartic.model import Utterance
+
+if TYPE_CHECKING:
+    from coartic.fit.spec import FitSpec
 
 
 def find_table(fit: Path) -> Path:
@@ -77,15 +81,16 @@ def mcmc_output(spec: Path, fit: Path, table_path: Path, out: Path, force: bool 
 STALE_TOLERANCE = 0.01
 
 
-def check_fit_matches_data(table: Any, table_path: Path, channel: str, data: Any, packing: Any, options: Any,
-                           allow_stale: bool = False, speakers: Any = None) -> None:
+def check_fit_matches_data(table: ParameterTable, table_path: Path, sampling: ChannelSampling,
+                           allow_stale: bool = False) -> None:
     """Refuse a table fitted to other data: the RMSE at its values on the data loaded now must be
     the RMSE the fit recorded (metadata.rmse), to 1 %. Otherwise the walkers would not start at the
     optimum and every per-phoneme posterior would be conditioned on values that no longer fit."""
+    channel = sampling.channel
     recorded = (table.metadata or {}).get("rmse", {}).get(channel)
     if recorded is None or allow_stale:
         return
-    now = fixed_noise(data, packing, options, speakers=speakers)
+    now = fixed_noise(sampling.data, sampling.packing, sampling.options, speakers=sampling.speakers)
     if abs(now - recorded) > STALE_TOLERANCE * recorded:
         raise McmcError(
             f"{table_path}: fitted to other data than the spec gives now: on {channel} the RMSE at the table's "
@@ -112,7 +117,7 @@ def configure(cfg: McmcConfig, *, channels: Sequence[str] | None = None, phoneme
     return cfg
 
 
-def record_posterior(table: Any, run: PosteriorRun) -> None:
+def record_posterior(table: ParameterTable, run: PosteriorRun) -> None:
     """Put a finished posterior's quantiles into ``table`` and keep metadata.mcmc.not_converged
     (the posteriors whose intervals are not to be trusted) up to date."""
     write_uncertainty(table, run.channel, run.summaries)
@@ -126,7 +131,8 @@ def record_posterior(table: Any, run: PosteriorRun) -> None:
         bad.remove(run.label)
 
 
-def sample_table(fit_spec: Any, cfg: McmcConfig, table: Any, table_path: Path, utterances: Sequence[Any], out: Path,
+def sample_table(fit_spec: FitSpec, cfg: McmcConfig, table: ParameterTable, table_path: Path,
+                 utterances: Sequence[Utterance], out: Path,
                  *, progress: bool = False, allow_stale: bool = False,
                  on_done: Callable[[PosteriorRun], None] | None = None) -> tuple[list[PosteriorRun], bool]:
     """Every posterior ``cfg`` asks for around the fitted ``table`` (read from ``table_path``), on
@@ -134,13 +140,10 @@ def sample_table(fit_spec: Any, cfg: McmcConfig, table: Any, table_path: Path, u
     posteriors after it are not started)."""
     runs: list[PosteriorRun] = []
     for channel in cfg.channels or fit_spec.channels:
-        problem = table_problem(fit_spec, table, channel, utterances)
-        data, packing, options = problem.data, problem.packing, problem.options
-        speakers = table_speakers(fit_spec, table, channel)
-        check_fit_matches_data(table, table_path, channel, data, packing, options, allow_stale, speakers)
-        done, interrupted = channel_runs(channel, data, packing, options, cfg, out, progress, on_done=on_done,
-                                         spec_priors=problem_priors(problem),
-                                         spec_shrinkage=problem.shrink_groups, speakers=speakers, pool=problem.pool)
+        sampling = ChannelSampling.of(table_problem(fit_spec, table, channel, utterances),
+                                      table_speakers(fit_spec, table, channel))
+        check_fit_matches_data(table, table_path, sampling, allow_stale)
+        done, interrupted = channel_runs(sampling, cfg, out, progress, on_done=on_done)
         runs += done
         if interrupted:
             return runs, True
@@ -154,7 +157,7 @@ class McmcResult:
     out: Path
     runs: list[PosteriorRun]
     interrupted: bool
-    table: Any  # coartic.table.ParameterTable with the posterior quantiles
+    table: ParameterTable  # with the posterior quantiles
 
     @property
     def converged(self) -> bool:

@@ -49,6 +49,7 @@ from numpy.typing import NDArray
 from coartic.mcmc.errors import McmcError
 
 if TYPE_CHECKING:
+    from coartic import _core
     from coartic.estimation.data import ChannelData
     from coartic.estimation.packing import Packing
     from coartic.estimation.penalties import ShrinkGroup
@@ -57,6 +58,9 @@ if TYPE_CHECKING:
 
 FloatArray = NDArray[np.float64]
 BatchFn = Callable[..., FloatArray]
+# A prior as LogPosterior takes it: (mean, sd) on the natural value, or (mean, sd, True) on its
+# logarithm (mean: the median), as the fit spec's [parameters.prior] with scale = "log" gives it.
+PriorTerm = tuple[float, float] | tuple[float, float, bool]
 
 # Finite prior ranges (natural units) for sides the bounds leave open.
 PRIOR_RANGE: dict[str, tuple[float, float]] = {
@@ -94,9 +98,9 @@ class LogPosterior:
         self,
         data: ChannelData,
         packing: Packing,
-        options: Any,
+        options: _core.ModelOptions,
         noise: float | None = None,
-        priors: Mapping[str, tuple[float, float]] | None = None,
+        priors: Mapping[str, PriorTerm] | None = None,
         sse_batch: BatchFn | None = None,
         evaluate_batch: BatchFn | None = None,
         offset_sd: float | None = 0.0,
@@ -461,10 +465,10 @@ class LogPosterior:
 def phoneme_posterior(
     data: ChannelData,
     packing: Packing,
-    options: Any,
+    options: _core.ModelOptions,
     phoneme: str,
     noise: float | None = None,
-    priors: Mapping[str, tuple[float, float]] | None = None,
+    priors: Mapping[str, PriorTerm] | None = None,
     offset_sd: float | None = 0.0,
     shrinkage: Sequence[ShrinkGroup] = (),
     speakers: SpeakerTerms | None = None,
@@ -503,9 +507,9 @@ def phoneme_posterior(
 def channel_posterior(
     data: ChannelData,
     packing: Packing,
-    options: Any,
+    options: _core.ModelOptions,
     noise: float | None = None,
-    priors: Mapping[str, tuple[float, float]] | None = None,
+    priors: Mapping[str, PriorTerm] | None = None,
     offset_sd: float | None = 0.0,
     shrinkage: Sequence[ShrinkGroup] = (),
     speakers: SpeakerTerms | None = None,

@@ -11,20 +11,30 @@ import json
 import math
 from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import Any, Callable, Mapping, Sequence
+from typing import TYPE_CHECKING, Any, Callable, Mapping, Sequence
 
 import numpy as np
 from numpy.typing import NDArray
 
+from coartic.estimation.data import ChannelData
+from coartic.estimation.packing import Packing
+from coartic.estimation.penalties import ShrinkGroup
+from coartic.estimation.pooling import Pool
 from coartic.estimation.problem import ChannelProblem, build_problem
 from coartic.estimation.speakers import SPEAKER_SEP, table_speaker_meta
 from coartic.mcmc import idata, plots, sampler, summary
-from coartic.mcmc.posterior import LogPosterior, SpeakerTerms, channel_posterior, phoneme_posterior
+from coartic.mcmc.posterior import BatchFn, LogPosterior, PriorTerm, SpeakerTerms, channel_posterior, phoneme_posterior
 from coartic.mcmc.sampler import SamplerSettings, SamplingResult
 from coartic.mcmc.summary import ParameterSummary
 from coartic.outputs import atomic_write_text
 from coartic.pauses import is_pause
 from coartic.mcmc.errors import McmcConfigError, McmcError
+from coartic.model import Utterance
+from coartic.table import ParameterTable
+
+if TYPE_CHECKING:  # the spec module loads pydantic: read_spec imports it when it runs
+    from coartic import _core
+    from coartic.fit.spec import FitSpec
 
 SCOPES = ("phonemes", "channel")
 
@@ -42,7 +52,7 @@ class McmcConfig:
     plots: bool = True
 
 
-def parse_config(raw: Any, path: Path, fit_spec: Any = None) -> McmcConfig:
+def parse_config(raw: Any, path: Path, fit_spec: FitSpec | None = None) -> McmcConfig:
     """Read the ``[mcmc]`` table of a spec (or an empty one); errors name the file and key. The
     least-squares fit's per-utterance offsets with a given sd (``[model] offsets = τ`` of
     ``fit_spec``) are the posterior's too unless ``[mcmc] offsets`` says otherwise."""
@@ -140,7 +150,7 @@ def _parse_config(raw: Any, path: Path) -> McmcConfig:
     return cfg
 
 
-def read_spec(path: str | Path) -> tuple[Any, McmcConfig]:
+def read_spec(path: str | Path) -> tuple[FitSpec, McmcConfig]:
     """The fit spec and the MCMC configuration from its ``[mcmc]`` table."""
     from coartic.fit.spec import parse_spec, read_document
 
@@ -150,7 +160,7 @@ def read_spec(path: str | Path) -> tuple[Any, McmcConfig]:
     return spec, parse_config(raw.get("mcmc"), path, spec)
 
 
-def table_problem(fit_spec: Any, table: Any, channel: str, utterances: Sequence[Any]) -> ChannelProblem:
+def table_problem(fit_spec: FitSpec, table: ParameterTable, channel: str, utterances: Sequence[Utterance]) -> ChannelProblem:
     """The problem of one channel for sampling around a fitted table: the one constructor
     (``coartic.estimation.problem.build_problem`` with the table: its options, values and speakers'
     targets; the spec's free set, bounds, ties, priors and shrinkage), with the value ``[choose]``
@@ -161,15 +171,15 @@ def table_problem(fit_spec: Any, table: Any, channel: str, utterances: Sequence[
     choice = (table.metadata or {}).get("choice") or {}
     if choice.get("key") and channel in choice.get("chosen", {}):
         fit_spec = set_value(fit_spec, choice["key"], float(choice["chosen"][channel]))
-    return build_problem(fit_spec, utterances, channel, table)
+    return build_problem(fit_spec.estimation_settings(), utterances, channel, table)
 
 
-def table_speakers(fit_spec: Any, table: Any, channel: str) -> SpeakerTerms | None:
+def table_speakers(fit_spec: FitSpec, table: ParameterTable, channel: str) -> SpeakerTerms | None:
     """The speakers ([model] speakers) the table was fitted with on ``channel``, for the posterior:
     mode and column must be the spec's (else refused: the posterior would not be the fit's model),
     the speakers and their least-squares (a_s, b_s) come from the table's metadata. None without
     speakers, and with per-speaker targets (sampled as the problem's own rows: ``table_problem``)."""
-    meta = table_speaker_meta(fit_spec, table)
+    meta = table_speaker_meta(fit_spec.estimation_settings().groups, str(fit_spec.path), table)
     if fit_spec.speakers in ("none", "targets"):
         return None
     coefs = (meta.get("coefficients") or {}).get(channel)
@@ -179,11 +189,34 @@ def table_speakers(fit_spec: Any, table: Any, channel: str) -> SpeakerTerms | No
     return SpeakerTerms(fit_spec.speakers, fit_spec.speaker_column, tuple(start), start)
 
 
-def problem_priors(problem: ChannelProblem) -> dict[str, tuple[Any, ...]]:
+def problem_priors(problem: ChannelProblem) -> dict[str, PriorTerm]:
     """The problem's priors (the spec's ``[parameters.prior]`` on its free entries, per speaker row
     with per-speaker targets) as ``LogPosterior`` takes them: (mean, sd), or (mean, sd, True) on log
     values. ``[mcmc] priors`` add to and override them."""
-    return {k: (p.mean, p.sd) + ((True,) if p.log else ()) for k, p in problem.priors.items()}
+    return {k: (p.mean, p.sd, True) if p.log else (p.mean, p.sd) for k, p in problem.priors.items()}
+
+
+@dataclass(frozen=True)
+class ChannelSampling:
+    """What the MCMC samples on one channel, taken from the least-squares problem around a fitted
+    table: the one typed seam between fitting (``coartic.estimation``, ``coartic.fit``) and this
+    package. ``ChannelSampling.of(problem, speakers)`` makes it (``sample_table``); a caller with
+    its own data and packing (tests, benchmarks) builds it field by field."""
+
+    channel: str
+    data: ChannelData  # the channel's utterances as the core's corpus, observations and weights
+    packing: Packing  # free entries at the fit's values (the walkers' start), boxes, ties
+    options: _core.ModelOptions  # the channel's model options (variant, a, Λ, dominance)
+    # the spec's [parameters.prior] on free entries (``problem_priors``); [mcmc] priors add to them
+    priors: Mapping[str, PriorTerm] = field(default_factory=dict)
+    shrinkage: Sequence[ShrinkGroup] = ()  # the spec's [[shrink]] (and emotions') groups
+    speakers: SpeakerTerms | None = None  # the table's speakers' (a_s, b_s) (``table_speakers``)
+    pool: Pool | None = None  # the fit's partial pooling, its sds at the fit's estimate
+
+    @classmethod
+    def of(cls, problem: ChannelProblem, speakers: SpeakerTerms | None = None) -> ChannelSampling:
+        return cls(problem.data.channel, problem.data, problem.packing, problem.options, problem_priors(problem),
+                   tuple(problem.shrink_groups), speakers, problem.pool)
 
 
 def walkers_for(dim: int, requested: int) -> int:
@@ -259,7 +292,7 @@ def sample_posterior(
     return PosteriorRun(posterior.channel, phoneme, directory, posterior, result, x0, summaries, images)
 
 
-def fixed_noise(data: Any, packing: Any, options: Any, sse_batch: Callable[..., Any] | None = None,
+def fixed_noise(data: ChannelData, packing: Packing, options: _core.ModelOptions, sse_batch: BatchFn | None = None,
                 speakers: SpeakerTerms | None = None) -> float:
     """σ_n fixed at the least-squares residual RMS of the whole channel (each speaker's a_s + b_s·F
     with ``speakers``)."""
@@ -276,23 +309,13 @@ def fixed_noise(data: Any, packing: Any, options: Any, sse_batch: Callable[..., 
     return math.sqrt(sse / max(int(np.count_nonzero(data.weights > 0)), 1))
 
 
-def channel_runs(
-    channel: str,
-    data: Any,
-    packing: Any,
-    options: Any,
-    cfg: McmcConfig,
-    out: Path,
-    progress: bool = True,
-    on_done: Callable[[PosteriorRun], None] | None = None,
-    spec_priors: Mapping[str, tuple[Any, ...]] | None = None,
-    spec_shrinkage: Sequence[Any] = (),
-    speakers: SpeakerTerms | None = None,
-    pool: Any = None,
-) -> tuple[list[PosteriorRun], bool]:
+def channel_runs(sampling: ChannelSampling, cfg: McmcConfig, out: Path, progress: bool = True,
+                 on_done: Callable[[PosteriorRun], None] | None = None) -> tuple[list[PosteriorRun], bool]:
     """Every posterior the config asks for on one channel; returns them and whether interrupted.
     Each run's ``held_fixed`` names what the fit estimated but no posterior of the channel samples
     (held at the least-squares value: e.g. the pause's parameters, a pool's sd in per-phoneme posteriors)."""
+    channel, data, packing, options = sampling.channel, sampling.data, sampling.packing, sampling.options
+    speakers, pool, spec_shrinkage = sampling.speakers, sampling.pool, sampling.shrinkage
     noise: float | None
     if cfg.noise == "free":
         noise = None
@@ -307,7 +330,7 @@ def channel_runs(
         offset_sd = 0.0
     else:
         offset_sd = float(cfg.offsets)
-    priors = {**(spec_priors or {}), **cfg.priors.get(channel, {})}
+    priors: dict[str, PriorTerm] = {**sampling.priors, **cfg.priors.get(channel, {})}
     known = set(packing.names())
     for name in priors:
         if name not in known:

@@ -408,13 +408,16 @@ def run(
     report: ConvergenceReport | None = None
     interrupted = False
 
-    def diagnose() -> ConvergenceReport | None:
+    def diagnose(skip_when_short: bool = False) -> ConvergenceReport | None:
+        """The checks between chunks skip what cannot change their decision (convergence.check);
+        the report returned with the chains is always complete."""
         n = min(len(c) for c in chains)
         if n < 4:
             return None
         acc = [float(np.mean(a)) / len(c) for a, c in zip(accepted, chains)]
-        r = convergence.check([c[:n] for c in chains], acc, names)
-        history.append({"steps": float(n), "tau_max": r.tau_max})
+        r = convergence.check([c[:n] for c in chains], acc, names, skip_when_short=skip_when_short)
+        if not history or history[-1]["steps"] != n:  # a partial report completed: one check
+            history.append({"steps": float(n), "tau_max": r.tau_max})
         return r
 
     from rich.console import Console
@@ -440,7 +443,7 @@ def run(
                 n = min(len(c) for c in chains)
                 if n >= max(settings.min_steps, 4) and (report is None or report.n_steps != n):
                     with signals.saving():  # a Ctrl-C here waits until the check is done
-                        report = diagnose()
+                        report = diagnose(skip_when_short=True)
                     if report is not None:
                         bar.update(task, status=f"tau {report.tau_max:.0f}, N/tau {n / max(report.tau_max, 1e-9):.0f}")
                         if stop_when_converged and report.converged:
@@ -469,7 +472,7 @@ def run(
         except KeyboardInterrupt:  # outside a chunk (e.g. during a convergence check): every chunk is saved
             interrupted = True
     n = min(len(c) for c in chains)
-    if report is None or report.n_steps != n:
+    if report is None or report.n_steps != n or report.partial:
         report = diagnose()
     acceptance = [float(np.mean(a)) / max(len(c), 1) for a, c in zip(accepted, chains)]
     return SamplingResult(list(names), chains, lps, acceptance, report, interrupted, history)

@@ -5,7 +5,7 @@ A condition's face is the table's coarticulated animation (`model`; with an `emo
 emotion blended in as `coartic speak --emotion` does: the lips' emotional targets — the preview face
 has no brows, lids or cheeks, so the expression outside the mouth is not in these videos), the same table with each
 phoneme's target held over its segment (`step`: keyframe lip-sync, the runtime's analogue of the
-fit's step baseline, coartic.fit.baselines), or the face at rest (`still`: the audio-alone baseline
+fit's step baseline, coartic.evaluation.baselines), or the face at rest (`still`: the audio-alone baseline
 of audiovisual intelligibility). Festival speaks each item once per table; every condition of an
 item shares that table's timing, and every stimulus of an item the first table's sound.
 

@@ -20,8 +20,8 @@ import jinja2
 import markupsafe
 from rich.console import Console
 
-from coartic.fit.bounds import summary_counts
-from coartic.fit.heldout import flags, pooled
+from coartic.estimation.bounds import summary_counts
+from coartic.evaluation.heldout import flags, pooled
 from coartic.fit.result import BAR_MM, FitResult
 from coartic.report import plots
 from coartic.outputs import atomic_write_text
@@ -33,7 +33,7 @@ _TEMPLATES = Path(__file__).with_name("templates")
 
 def _ground_truth(result: FitResult) -> ParameterTable | None:
     """The session's ground_truth.json beside the manifest, when there is one (synthetic data)."""
-    m = result.spec.corpus.manifest
+    m = None if result.spec.corpus is None else result.spec.corpus.manifest
     if m is None or not (m.parent / "ground_truth.json").is_file():
         return None
     try:

@@ -15,7 +15,7 @@ from matplotlib.lines import Line2D  # noqa: E402
 from matplotlib.patches import Rectangle  # noqa: E402
 from numpy.typing import NDArray  # noqa: E402
 
-from coartic.fit.heldout import pooled  # noqa: E402
+from coartic.evaluation.heldout import pooled  # noqa: E402
 from coartic.fit.result import BAR_MM, ChannelFit, FitResult  # noqa: E402
 from coartic.model import Utterance, segment_weights  # noqa: E402
 from coartic.runtime.preview import MAX_SEGMENT_BOUNDARIES, MAX_SEGMENT_LABELS  # noqa: E402
@@ -375,8 +375,8 @@ def truth_figure(result: FitResult, truth: ParameterTable) -> Figure | None:
 def heldout_figure(result: FitResult) -> Figure | None:
     """Per channel: the fit's own RMSE and the held-out RMSE (every split's test samples pooled), as
     measured and with each utterance's offset removed, then each baseline's held-out RMSE on the
-    same samples (``coartic.fit.baselines``, those the validation computed), the bar dashed."""
-    from coartic.fit.baselines import BASELINES, TITLES
+    same samples (``coartic.evaluation.baselines``, those the validation computed), the bar dashed."""
+    from coartic.evaluation.baselines import BASELINES, TITLES
 
     scores = result.validation or []
     held = pooled(scores)

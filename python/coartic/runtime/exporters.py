@@ -16,7 +16,7 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from importlib import import_module
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any, TypeVar
 
 from coartic.runtime.animate import Animation, write_channels_csv, write_segments_tsv
 from coartic.runtime.errors import AnimationError
@@ -100,17 +100,30 @@ class ExportSettings:
         return self.audio.name if self.audio is not None else None
 
 
+T = TypeVar("T")
+
+
 @dataclass(frozen=True)
 class FaceAnimation:
     """What every exporter is fed: the animation (channels, segments, neutral face, the table behind
-    them) and its FAP sequence in the face's units, computed once (`of`) for all of them."""
+    them) and its FAP sequence in the face's units, computed once (`of`) for all of them; what
+    several exporters derive from the animation alike (the ARKit weights of the glTF and of the
+    curves) is computed once too (`once`)."""
 
     animation: Animation
     faps: FapSequence
+    _derived: dict[Any, Any] = field(default_factory=dict, compare=False, repr=False)
 
     @classmethod
     def of(cls, animation: Animation, settings: ExportSettings) -> FaceAnimation:
         return cls(animation, animation_faps(animation, settings.face, settings.name))
+
+    def once(self, derive: Callable[[Animation], T]) -> T:
+        """`derive(self.animation)`, computed by the first exporter that asks, given to the others."""
+        if derive not in self._derived:
+            self._derived[derive] = derive(self.animation)
+        out: T = self._derived[derive]
+        return out
 
 
 Exporter = Callable[[FaceAnimation, ExportSettings], dict[str, Path]]

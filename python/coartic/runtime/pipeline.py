@@ -33,6 +33,7 @@ from coartic.runtime.animate import (
 from coartic.runtime.errors import AnimationError, MissingPhonemeError
 from coartic.runtime.exporters import ExportSettings, RigOptions, parse_exports, run_exports
 from coartic.runtime.fap import FaceUnits, FapSequence
+from coartic.runtime.markup import apply_to_utterance
 from coartic.runtime.festival import (FestivalUtterance, PhoneMap, Synthesis, check_text, prepare_text,
                                       start_synthesis, wav_duration)
 from coartic.speakers import SpeakerMapping, speaker_mapping
@@ -281,6 +282,8 @@ def speak_text(
     run = synthesis or start_synthesis(text, stretch=stretch, voice=voice, festival=festival, lang=lang)
     with run:
         utt = run.result(out / f"{name}.wav")
+    # an emotion markup's words, now timed: its spans (coartic.runtime.markup; any other table as it is)
+    table = apply_to_utterance(table, utt)
     phonemes = pmap.to_phonemes(utt.phones)
     ends = utt.ends.copy()
     # Festival's WAV runs a few ms past the last segment: the final pause lasts to the end of the sound.

@@ -146,6 +146,12 @@ def arkit_weights(animation: Animation) -> NDArray[np.float64]:
     narrowing = np.maximum(-d["LR"], 0.0)
     rounding = np.clip((narrowing * NARROW_MM + protrusion * PROTRUDE_MM) / (NARROW_MM**2 + PROTRUDE_MM**2),
                        0.0, 1.0)
+    # a lower lip rolled in under the upper incisors (/f v/) is not pushed forwards too: the
+    # rounding's protrusion of both lips pushed it out of its roll (at an /f/ after /u/, whose
+    # corners are still narrowed, the incisors hid and the lips closed to a slit), so the rounding
+    # gives way as far as the lip rolls: the incisors show as on the FAP face, the corners are wider
+    roll = lower_lip_roll(d["LLP"], d["LLO"])
+    rounding = rounding * (1.0 - roll)
     funnel = np.minimum(rounding, np.maximum(np.minimum(upper, lower), 0.0) / (FUNNEL_OPEN_MM / 2))
     w["mouthFunnel"], w["mouthPucker"] = funnel, rounding - funnel
     upper, lower = upper - funnel * FUNNEL_OPEN_MM / 2, lower - funnel * FUNNEL_OPEN_MM / 2
@@ -158,7 +164,7 @@ def arkit_weights(animation: Animation) -> NDArray[np.float64]:
         w[f"mouthStretch{side}"] = np.clip(d["LR"] / (2.0 * STRETCH_MM), 0.0, 1.0)
     for name in ARKIT_BLINKS:
         w[name] = blink_profile(animation.times)
-    w["mouthRollLower"] = lower_lip_roll(d["LLP"], d["LLO"])
+    w["mouthRollLower"] = roll
     from coartic.runtime.expression import expression_arkit  # an emotion's brows, eyes, cheeks, smile
 
     for name, add in expression_arkit(animation).items():
@@ -347,7 +353,7 @@ def write_visemes_json(path: Path, animation: Animation, weights: NDArray[np.flo
 def export_arkit(fed: FaceAnimation, settings: ExportSettings) -> dict[str, Path]:
     """Exporter (coartic.runtime.exporters): NAME.arkit.csv and NAME.arkit.json, shaped by the rig options."""
     animation = fed.animation
-    w = shape_curves(arkit_weights(animation), ARKIT_NAMES, animation.fps, settings.rig, fixed=tuple(ARKIT_BLINKS))
+    w = shape_curves(fed.once(arkit_weights), ARKIT_NAMES, animation.fps, settings.rig, fixed=tuple(ARKIT_BLINKS))
     return {"arkit_csv": write_curves_csv(settings.out / f"{settings.name}.arkit.csv", animation, ARKIT_NAMES, w),
             "arkit_json": write_arkit_json(settings.out / f"{settings.name}.arkit.json", animation, w,
                                            settings.audio_name())}
@@ -356,7 +362,7 @@ def export_arkit(fed: FaceAnimation, settings: ExportSettings) -> dict[str, Path
 def export_visemes(fed: FaceAnimation, settings: ExportSettings) -> dict[str, Path]:
     """Exporter: NAME.visemes.csv and NAME.visemes.json, in the name set `settings.rig.viseme_names`."""
     animation = fed.animation
-    names, w = named_visemes(viseme_weights(animation), settings.rig.viseme_names)
+    names, w = named_visemes(fed.once(viseme_weights), settings.rig.viseme_names)
     w = shape_curves(w, names, animation.fps, settings.rig, rest=names[0] if names[0].endswith("sil") else None)
     return {"visemes_csv": write_curves_csv(settings.out / f"{settings.name}.visemes.csv", animation, names, w),
             "visemes_json": write_visemes_json(settings.out / f"{settings.name}.visemes.json", animation, w,

@@ -54,6 +54,7 @@ GltfMorphsOpt = Annotated[str, typer.Option("--gltf-morphs", help="The glTF's mo
 EmotionOpt = Annotated[str | None, typer.Option("--emotion", help="Speak with this emotion of a table fitted with [model] emotions (joy, surprise, sadness, disgust, anger, fear; docs/EMOTIONS.md).")]
 IntensityOpt = Annotated[float, typer.Option("--intensity", help="With --emotion: 0 = neutral, 1 = the emotion as fitted (up to 1.5).")]
 EmotionSpansOpt = Annotated[Path | None, typer.Option("--emotion-spans", help="Emotions over time: a TSV of spans 'start end emotion \\[intensity]' (s), ramped in and out over 0.2 s (docs/EMOTIONS.md).")]
+EmotionMarkupOpt = Annotated[Path | None, typer.Option("--emotion-markup", help="The text to say with its emotions as APML-like markup: <performative affect=\"joy\" intensity=\"0.6\">words</performative> inside one root element (docs/EMOTIONS.md); instead of TEXT.")]
 ExtendedOpt = Annotated[str, typer.Option("--extended-shapes", help="Rhubarb's extended mouth shapes the cues may use: any of G H X (as Rhubarb's --extendedShapes; \"\" for the six basic shapes A-F).")]
 RhubarbFormatsOpt = Annotated[str, typer.Option("--rhubarb-formats", help="Rhubarb's cue files to write with --export rhubarb: any of tsv, json, xml, dat (Moho / OpenToonz switch data, at --fps 24 to 100), comma-separated.")]
 PrestonBlairOpt = Annotated[bool, typer.Option("--preston-blair", help="Preston Blair's shape names (MBP, etc, E, AI, O, U, FV, L, rest) in Rhubarb's DAT file, as Rhubarb's --datUsePrestonBlair.")]
@@ -131,17 +132,24 @@ def _moved(result: RuntimeOutput, staging: Path, out: Path) -> RuntimeOutput:
 def _run_staged(table: Path | None, out: Path, command: str, identity: dict[str, str], force: bool,
                 protect: list[Path], make: Callable[[ParameterTable, Path, Progress], RuntimeOutput],
                 phone_map: str = "phones_italian.tsv", emotion: str | None = None, intensity: float = 1.0,
-                emotion_spans: Path | None = None) -> None:
+                emotion_spans: Path | None = None, markup: Any = None) -> None:
     """Load the table, run ``make`` into the staging directory of ``out`` with a progress bar, and
     report what was written (where it is once swapped in). ``emotion`` at ``intensity``: the table's
-    emotion blended in first, or ``emotion_spans`` over time (coartic.emotions)."""
+    emotion blended in first, or ``emotion_spans`` over time (coartic.emotions), or ``markup``'s
+    (coartic.runtime.markup.Markup: timed once the words are said)."""
     from coartic.emotions import EmotionError, emotion_table, read_emotion_spans, with_emotion_spans
     from coartic.outputs import OutputDir
+    from coartic.runtime.markup import with_markup
 
-    if emotion is not None and emotion_spans is not None:
-        raise EmotionError(f"--emotion {emotion} and --emotion-spans {emotion_spans}: give one (a span file "
-                           "can hold a single span over the whole utterance)")
+    given = [o for o, v in (("--emotion", emotion), ("--emotion-spans", emotion_spans), ("--emotion-markup", markup))
+             if v is not None]
+    if len(given) > 1:
+        raise EmotionError(f"{' and '.join(given)}: give one (a span file or a markup can hold a single emotion over "
+                           "the whole utterance)")
     t = emotion_table(_load_table(table), emotion, intensity)
+    if markup is not None:
+        t = with_markup(t, markup)
+        identity = identity | {"emotion_markup": markup.source}
     if emotion is not None:
         identity = identity | {"emotion": emotion, "intensity": repr(float(intensity))}
     if emotion_spans is not None:
@@ -270,8 +278,8 @@ def _animate_recording(wav: Path, out: Path, table: Path | None, fps: float, tex
 
 
 def speak_command(
-    text: Annotated[str, typer.Argument(help="Text to say, e.g. \"Il babbo mangia la pappa.\" (Italian; --lang en for English)")],
     out: OutOpt,
+    text: Annotated[str | None, typer.Argument(help="Text to say, e.g. \"Il babbo mangia la pappa.\" (Italian; --lang en for English); or --emotion-markup FILE instead")] = None,
     table: TableOpt = None,
     fps: FpsOpt = 25.0,
     lang: Annotated[str, typer.Option("--lang", help=f"Language of the text: {', '.join(LANGUAGES)} (Festival's Italian or English voice; English phones are mapped onto the model's Italian phonemes by phones_english.tsv).")] = "it",
@@ -289,6 +297,7 @@ def speak_command(
     emotion: EmotionOpt = None,
     intensity: IntensityOpt = 1.0,
     emotion_spans: EmotionSpansOpt = None,
+    emotion_markup: EmotionMarkupOpt = None,
     export: ExportOpt = None,
     gltf_morphs: GltfMorphsOpt = "fap",
     extended_shapes: ExtendedOpt = "GHX",
@@ -305,6 +314,17 @@ def speak_command(
     all as long as the WAV.
 
     The files are written beside --out and swapped in together when all are done (docs/OUTPUTS.md)."""
+    markup = None
+    if emotion_markup is not None:
+        from coartic.runtime.markup import read_markup
+
+        if text is not None:
+            raise AnimationError(f"TEXT {text!r} and --emotion-markup {emotion_markup}: give one (the markup holds "
+                                 "the words to say)")
+        markup = read_markup(emotion_markup)
+        text = markup.text
+    if text is None:
+        raise AnimationError("no text to say: give TEXT, or --emotion-markup FILE")
     if lang not in LANGUAGES:
         raise AnimationError(f"--lang {lang!r} is not a language coartic can speak (known: {', '.join(LANGUAGES)})")
     _warn_fps(fps)
@@ -325,5 +345,6 @@ def speak_command(
 
         # the identity of an Italian run stays {"text": ...}: outputs written before --lang existed are its own
         identity = {"text": text} | ({"lang": lang} if lang != "it" else {})
-        _run_staged(table, out, "speak", identity, force, [table] if table is not None else [], make,
-                    LANGUAGES[lang][1], emotion, intensity, emotion_spans)
+        _run_staged(table, out, "speak", identity, force,
+                    [*([table] if table is not None else []), *([emotion_markup] if emotion_markup else [])], make,
+                    LANGUAGES[lang][1], emotion, intensity, emotion_spans, markup)

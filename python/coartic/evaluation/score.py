@@ -31,9 +31,9 @@ import numpy as np
 from numpy.typing import NDArray
 
 from coartic.errors import CoarticError
-from coartic.fit.baselines import Baselines, beats_step, flag_text
-from coartic.model import Utterance, evaluate_corpus
-from coartic.pauses import is_pause, utterances_for_table
+from coartic.evaluation.baselines import Baselines, beats_step, flag_text
+from coartic.model import Utterance, evaluate_corpus, utterances_for_table
+from coartic.pauses import is_pause
 from coartic.table import ParameterTable
 
 F64 = NDArray[np.float64]
@@ -51,7 +51,7 @@ class Score:
     predicted: dict[str, list[F64]]  # channel -> one array per utterance
     notes: list[str] = field(default_factory=list)
     speaker: str | None = None  # the table's speaker whose mapping the predictions carry
-    # baseline -> channel -> predictions per utterance (coartic.fit.baselines; add_baselines)
+    # baseline -> channel -> predictions per utterance (coartic.evaluation.baselines; add_baselines)
     baselines: dict[str, dict[str, list[F64]]] = field(default_factory=dict)
     # baseline -> why it is not shown (e.g. warped: no other token of the sentence; every one when no
     # training data were found)
@@ -152,7 +152,7 @@ class Score:
         return rows
 
     def baseline_rows(self) -> list[dict[str, Any]]:
-        """Per channel, the table and each baseline (``coartic.fit.baselines``) on the same
+        """Per channel, the table and each baseline (``coartic.evaluation.baselines``) on the same
         samples: RMSE as measured, offset removed and speaker-calibrated."""
         rows = []
         for ch in self.channels:
@@ -179,7 +179,7 @@ class Score:
     def add_baselines(self, train: Sequence[Utterance]) -> None:
         """Fit the baselines on ``train`` (the table's training utterances) and predict these samples."""
 
-        from coartic.fit.baselines import other_session
+        from coartic.evaluation.baselines import other_session
 
         b = Baselines.fit(train, self.channels)
         self.other_session = other_session(self.utterances, train)
@@ -196,7 +196,7 @@ class Score:
 
     def caption(self) -> str:
         """What each baseline shown is, and why each one not shown is absent."""
-        from coartic.fit.baselines import BASELINES, caption
+        from coartic.evaluation.baselines import BASELINES, caption
 
         absent = dict(self.absent)
         if not self.baselines:  # none at all: the note that says why (no training spec found)
@@ -278,7 +278,7 @@ def score_utterances(table: ParameterTable, utterances: Sequence[Utterance],
     observed channels (default: the table's channels the utterances carry); with ``speaker``, the
     predictions are that speaker's (``coartic.speakers.speaker_mapping``: an unknown name, or a
     table without speakers, is an error). With ``train`` (the utterances the table was fitted on),
-    the baselines too (``coartic.fit.baselines``, ``Score.baseline_rows``)."""
+    the baselines too (``coartic.evaluation.baselines``, ``Score.baseline_rows``)."""
     from coartic.emotions import evaluate_by_emotion
     from coartic.speakers import speaker_mapping, table_speakers
 
@@ -337,7 +337,7 @@ def score_recordings(table: ParameterTable | str | PathLike[str], files: Sequenc
     the role map and axes the table records (``RoleMap.recorded``). A phoneme the table lacks is
     replaced by its phonetic class's fallback the table has (the label map's, ``with_fallbacks``;
     said in the notes) unless ``strict``; one with none is a ScoreError naming the corpus
-    label, the phoneme and the file. The baselines (``coartic.fit.baselines``) are fitted on the
+    label, the phoneme and the file. The baselines (``coartic.evaluation.baselines``) are fitted on the
     training corpus of ``train`` (a fit spec), by default the spec the table records if it is found.
     """
     from coartic.fit.data import load_rows

@@ -36,7 +36,7 @@ def score_command(
 ) -> None:
     """Predict recordings the fit did not see and report the RMSE (also after removing a
     per-utterance offset, and after calibrating the speaker's offset and scale on these recordings)."""
-    from coartic.fit.score import score_recordings
+    from coartic.evaluation.score import score_recordings
 
     console = Console()
     chans = [c.strip() for c in channels.split(",") if c.strip()] if channels else None
@@ -60,7 +60,7 @@ def score_command(
 
 
 def score_table(score: object) -> Table:
-    from coartic.fit.score import Score
+    from coartic.evaluation.score import Score
 
     assert isinstance(score, Score)
     who = f" as speaker {score.speaker}" if score.speaker is not None else ""

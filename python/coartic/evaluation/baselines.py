@@ -11,7 +11,7 @@ Fitted on the training utterances, evaluated on exactly the samples the table is
   their warped trajectories. Only where such a token exists.
 
 ``Baselines.fit(train, channels)`` keeps what they need; ``predict(test, channel)`` gives each
-baseline's predictions, one array per test utterance, which ``coartic.fit.score`` scores like the
+baseline's predictions, one array per test utterance, which ``coartic.evaluation.score`` scores like the
 table's (as measured, each utterance's offset removed, speaker-calibrated). ``beats_step`` is the
 flag the score, the validation and the comparison raise when the table does not beat the step model.
 """

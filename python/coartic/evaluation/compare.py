@@ -42,8 +42,8 @@ from typing import Any, Sequence
 
 from rich.console import Console
 
-from coartic.fit.baselines import BASELINES
-from coartic.fit.heldout import pooled
+from coartic.evaluation.baselines import BASELINES
+from coartic.evaluation.heldout import pooled
 from coartic.fit.result import BAR_MM, FitResult
 from coartic.fit.spec import FitSpec, load_spec
 from coartic.errors import UsageError
@@ -60,7 +60,7 @@ class Row:
     heldout_rmse: float = math.nan  # pooled over the validation splits, mm
     heldout_rmse_offset_removed: float = math.nan
     status: str = ""
-    # baseline -> pooled held-out (as measured, offset removed) on the same samples (coartic.fit.baselines)
+    # baseline -> pooled held-out (as measured, offset removed) on the same samples (coartic.evaluation.baselines)
     baselines: dict[str, tuple[float, float]] = field(default_factory=dict)
     n_effective: float = math.nan  # the trace of the hat matrix (+ profiled parameters): effective_parameters
     heldout_rmse_se: float = math.nan  # the held-out RMSE's standard error over the test utterances (heldout_se)
@@ -69,7 +69,7 @@ class Row:
     @property
     def beats_step(self) -> bool:
         """Held out, the table beats the step model as measured and offset removed (or there is none)."""
-        from coartic.fit.baselines import beats_step
+        from coartic.evaluation.baselines import beats_step
 
         step = self.baselines.get("step")
         return step is None or beats_step((self.heldout_rmse, self.heldout_rmse_offset_removed), step)

@@ -32,8 +32,8 @@ def compare_command(
     (max-evaluations), had a failed stage (stage-failed) or a best optimum that one start only
     reached (best-found-once), as `coartic fit`; 2 an error (spec, data, output); 130 interrupted.
     """
-    from coartic.fit.compare import compare
-    from coartic.fit.compare import vary as vary_spec
+    from coartic.evaluation.compare import compare
+    from coartic.evaluation.compare import vary as vary_spec
     from coartic.fit.spec import FitSpec, load_spec, parse_grid
     from coartic.outputs import OutputDir
 
@@ -68,7 +68,7 @@ def compare_command(
 
 
 def comparison_table(cmp: object) -> Table:
-    from coartic.fit.compare import Comparison
+    from coartic.evaluation.compare import Comparison
 
     assert isinstance(cmp, Comparison)
     t = Table(title=f"Model comparison (RMSE in mm, bar {BAR_MM} mm; lower AIC/BIC is better)",
@@ -84,7 +84,7 @@ def comparison_table(cmp: object) -> Table:
         return f"[bold green]{s}[/bold green]" if best else s
 
     def step(r: object) -> str:
-        from coartic.fit.compare import Row
+        from coartic.evaluation.compare import Row
 
         assert isinstance(r, Row)
         if "step" not in r.baselines:

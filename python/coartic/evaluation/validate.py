@@ -8,7 +8,7 @@ halves fitted and the second held out, then the reverse. Otherwise: fit on repet
 ``holdout_repetition`` and report RMSE on it; fit on ``train_rate`` and report RMSE on
 ``test_rate`` (the model's claim is that the same parameters hold at a faster rate). Each split is
 a full fit of every channel (``run`` with the split's utterances), scored by
-``coartic.fit.score`` (as measured and with each utterance's offset removed).
+``coartic.evaluation.score`` (as measured and with each utterance's offset removed).
 """
 
 from __future__ import annotations
@@ -25,14 +25,13 @@ from rich.markup import escape
 from rich.table import Table
 
 from coartic.errors import CoarticError
-from coartic.fit.baselines import BASELINES
+from coartic.evaluation.baselines import BASELINES
 from coartic.fit.data import load_utterances
-from coartic.model import Utterance
-from coartic.fit.heldout import BASELINE_COLUMNS, BaselineFigures, SplitScore, pooled
+from coartic.model import Utterance, utterances_for_table
+from coartic.evaluation.heldout import BASELINE_COLUMNS, BaselineFigures, SplitScore, pooled
 from coartic.fit.result import BAR_MM, FitResult
-from coartic.fit.score import score_utterances, with_fallbacks
+from coartic.evaluation.score import score_utterances, with_fallbacks
 from coartic.io.labelmap import LabelMap
-from coartic.pauses import utterances_for_table
 from coartic.errors import SpecError
 from coartic.fit.spec import FitSpec
 from coartic.outputs import atomic_write_text
@@ -40,7 +39,7 @@ from coartic.outputs import atomic_write_text
 
 def score(result: FitResult, test: Sequence[Utterance], split: str,
           train: Sequence[Utterance] | None = None, notes: list[str] | None = None) -> list[SplitScore]:
-    """RMSE of the fitted table on utterances the fit did not see (``coartic.fit.score``); with
+    """RMSE of the fitted table on utterances the fit did not see (``coartic.evaluation.score``); with
     ``train`` (the split's training utterances), the baselines' on the same samples too. A held-out
     phoneme the training lacks is scored as its phonetic class's fallback the table has (the label
     map's, as ``coartic score`` does; said in ``notes``); one with none is ``UnseenPhonemes``."""
@@ -206,7 +205,7 @@ def _rep(u: Utterance) -> str | None:
 
 class FitFunction(Protocol):
     """What validation and ``[choose]`` fit each split with: ``coartic.fit.run`` (passed in by the
-    runner, so that this module does not import the module that calls it)."""
+    runner and by ``[choose]``, so that this module does not import the modules that call it)."""
 
     def __call__(self, spec: FitSpec, out: str | Path | None = None, *, utterances: Sequence[Utterance] | None = ...,
                  console: Console | None = ..., quiet: bool = ..., report: bool = ...) -> FitResult: ...
@@ -263,7 +262,7 @@ def _dirname(split: str) -> str:
 
 
 def validation_table(scores: Sequence[SplitScore]) -> Table:
-    from coartic.fit.baselines import caption
+    from coartic.evaluation.baselines import caption
 
     have = [b for b in ("step", "constant", "warped") if any(b in sc.baselines for sc in scores)]
     absent = {b: ("no split's test sentence has another token in its training data" if b == "warped" else

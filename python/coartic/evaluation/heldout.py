@@ -1,7 +1,7 @@
 """Held-out scores and what is said of them: one split's scores (``SplitScore``), the RMSE pooled
 over splits, the flags where the table does not beat the step model, and summary.json's part.
 
-Below ``coartic.fit.validate`` (which makes the scores by fitting and scoring splits), the fit's
+Below ``coartic.evaluation.validate`` (which makes the scores by fitting and scoring splits), the fit's
 result and the report, which all read them.
 """
 
@@ -12,7 +12,7 @@ from typing import Sequence
 
 import numpy as np
 
-from coartic.fit.baselines import beats_step, flag_text
+from coartic.evaluation.baselines import beats_step, flag_text
 
 # the baselines' columns of validation.csv, each prefixed by the baseline's name
 BASELINE_COLUMNS = ("rmse_mm", "rmse_offset_removed_mm", "rmse_speaker_calibrated_mm", "rmse_speech_mm",
@@ -32,7 +32,7 @@ class SplitScore:
     train_sse: float = float("nan")
     train_samples: int = 0
     n_free: int = 0
-    # after calibrating the test speaker's offset and scale on the test data (coartic.fit.score)
+    # after calibrating the test speaker's offset and scale on the test data (coartic.evaluation.score)
     test_rmse_calibrated: float = float("nan")
     # baseline -> (as measured, offset removed, speaker-calibrated, speech only as measured and offset
     # removed) test RMSE on the same samples (BASELINE_COLUMNS)
@@ -40,15 +40,15 @@ class SplitScore:
     # a multi-start's distinct optima ([fit] starts > 1): each one's test RMSE, best in-sample first
     optima_test_rmse: tuple[float, ...] = ()
     # the test samples inside speech segments only (every pause posture left out): as measured,
-    # offset removed (coartic.fit.score: "rmse_speech_mm")
+    # offset removed (coartic.evaluation.score: "rmse_speech_mm")
     test_rmse_speech: float = float("nan")
     test_rmse_speech_offset_removed: float = float("nan")
     test_speech_samples: int = 0
     # why the test utterances are from another session or speaker than the training (None: the same):
-    # the step model is then compared with the offsets removed only (coartic.fit.baselines.other_session)
+    # the step model is then compared with the offsets removed only (coartic.evaluation.baselines.other_session)
     other_session: str | None = None
     # each test utterance's (SSE, valid samples) as measured, by name: the units `coartic compare`
-    # takes a held-out RMSE's standard error over (coartic.fit.compare.heldout_se)
+    # takes a held-out RMSE's standard error over (coartic.evaluation.compare.heldout_se)
     utterance_sse: dict[str, tuple[float, int]] = field(default_factory=dict)
 
     @property
@@ -69,7 +69,7 @@ class SplitScore:
 def pooled(scores: Sequence[SplitScore], model: str = "table", speech: bool = False) -> dict[str, tuple[float, float, int]]:
     """Per channel, the held-out RMSE over every split's test samples together (as measured,
     offset removed, samples): the one number a k-fold validation gives. ``model``: the table, or
-    a baseline (``coartic.fit.baselines``; a channel some split lacks it on is left out).
+    a baseline (``coartic.evaluation.baselines``; a channel some split lacks it on is left out).
     ``speech``: over the speech samples only (pauses left out)."""
     acc: dict[str, list[float]] = {}
     lacking: set[str] = set()
