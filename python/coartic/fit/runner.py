@@ -126,8 +126,14 @@ def fit_channel(spec: FitSpec, utterances: Sequence[Utterance], channel: str,
                 final, pooled_res, pooling = fit_pooled(final, res.x, spec.engine, spec.engine_options)
             if pooled_res is not None:
                 keep = res.status == "converged" and pooled_res.status == "converged"
-                res = EngineResult(pooled_res.x, res.status if keep else pooled_res.status,
-                                   res.message if keep else f"re-solving at the estimated pooling sd: {pooled_res.message}",
+                status = res.status if keep else pooled_res.status
+                message = res.message if keep else f"re-solving at the estimated pooling sd: {pooled_res.message}"
+                if pooled_res.status in ("failed", "non-finite start"):
+                    # the fit itself converged; a re-solve at a later pooling sd did not, and the
+                    # optimum of the last round that did is kept (fit_pooled): unconfirmed, not lost
+                    status = "stage-failed"
+                    message += "; the optimum at the last pooling sd that converged is kept (the sd not settled)"
+                res = EngineResult(pooled_res.x, status, message,
                                    res.nfev + pooled_res.nfev, res.njev + pooled_res.njev)
     status, message = channel_status(res, stages, multi is not None and multi.best_found_once)
     try:

@@ -35,7 +35,8 @@ class StageResult:
 # - "interrupted": Ctrl-C; the best point so far was kept
 # - "failed", "non-finite start": the engine produced no fit (coartic fit stops, exit status 2)
 # - "max-evaluations": a stage or the final fit stopped at its evaluation or iteration limit
-# - "stage-failed": an earlier stage failed, the final fit went on from its best point and converged
+# - "stage-failed": an earlier stage failed, the final fit went on from its best point and converged;
+#   or the fit converged and a partial pooling re-solve at a later sd failed (that round's optimum kept)
 # - "best-found-once": a multi-start whose best optimum only one start reached
 # - "converged"
 STATUSES = ("interrupted", "failed", "non-finite start", "max-evaluations", "stage-failed", "best-found-once",
@@ -165,12 +166,16 @@ def fit_pooled(problem: ChannelProblem, x: NDArray[np.float64], engine: str, opt
         if settled(problem.pool, est) or k == rounds:
             est = replace(est, rounds=k, settled=settled(problem.pool, est))
             break
+        before = problem
         problem = problem.with_pool(problem.pool.with_scales(est.tau, est.sigma, est.temper))
         problem.nfev = problem.njev = 0  # the engines report the problem's own counts
         res = minimize(problem, x, options)
         nfev += problem.nfev
         njev += problem.njev
         if res.status in ("interrupted", "failed", "non-finite start"):
+            # the last optimum kept is the previous round's, so its problem (pool at that round's τ,
+            # σ) is kept with it: statistics at the new τ around the old optimum would be neither fit
+            problem = before if res.status != "interrupted" else problem
             est = replace(est, rounds=k + 1, settled=False)
             break
         x = res.x
