@@ -214,6 +214,7 @@ def fit_pooled_best(problem: ChannelProblem, xs: Sequence[NDArray[np.float64]], 
     r0 = problem.residuals(xs[weigh_at])
     w, _ = residual_weight(r0[: d.corpus.n_samples], d.sample_offsets, d.weights)
     best: tuple[ChannelProblem, EngineResult | None, PoolEstimate] | None = None
+    best_ok = False
     tried: list[dict[str, float]] = []
     nfev = njev = 0
     for i, x in enumerate(xs):
@@ -229,11 +230,13 @@ def fit_pooled_best(problem: ChannelProblem, xs: Sequence[NDArray[np.float64]], 
         tried.append({"objective_start": float(objectives[i]) if objectives is not None else float("nan"),
                       "log_evidence": out[2].log_evidence, "rmse_mm": out[0].data_rmse(out[0].packing.pack()),
                       "effective_parameters": out[2].effective})
-        if best is None or out[2].log_evidence > best[2].log_evidence:
-            best = out
+        # a candidate whose re-solve failed (its τ not settled) wins only over others that failed too
+        ok = out[1] is None or out[1].status not in ("failed", "non-finite start")
+        if best is None or (ok, out[2].log_evidence) > (best_ok, best[2].log_evidence):
+            best, best_ok = out, ok
     assert best is not None
     prob, res, est = best
-    chosen = next((k for k, c in enumerate(tried) if c["log_evidence"] == est.log_evidence), 0)
+    chosen = next((k for k, c in enumerate(tried) if c["log_evidence"] == est.log_evidence), 0)  # (the kept one's)
     est = replace(est, candidates=tuple(tried), chosen=chosen)
     # the fit's evaluations: those before (the multi-start's) and every candidate's
     prob.nfev, prob.njev = problem.nfev + nfev, problem.njev + njev
