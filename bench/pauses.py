@@ -2,7 +2,7 @@
 
 Held-out RMSE of ``[model] pauses = "one"`` (every pause is '#', as before) and ``"postures"``
 (the default: the initial pause '#', the final '#end', medial '#mid', short pauses in a closure
-joined to it; coartic.pauses), each fitted with the product's own ``coartic.fit.run`` and
+joined to it; coartic.pauses), each fitted with the product's own fit job (``coartic.jobs.fit``) and
 validated by ``coartic.evaluation.validate`` (as ``coartic fit --validate`` / ``--validate-by``): the
 table's and the baselines' RMSE (step = each phoneme's training mean, constant = the training mean)
 on the same held-out samples, on all of them and on the speech samples only (every pause left out),
