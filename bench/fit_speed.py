@@ -32,7 +32,7 @@ def main() -> str:
                           repetitions=5, noise=0.1)
     raw = {"corpus": {"files": ["x"], "labels": ["y"]}, "model": {"channels": ["LLO"]},
            "parameters": {"free": ["target", "alpha", "theta_bw", "theta_fw", "c_bw", "c_fw", "k_r", "delta"]}}
-    problem = build_problem(parse_spec(raw, ROOT / "bench" / "fit_speed.toml"), utts, "LLO", phonemes=PHONEMES)
+    problem = build_problem(parse_spec(raw, ROOT / "bench" / "fit_speed.toml").estimation_settings(), utts, "LLO", phonemes=PHONEMES)
     data, pk = problem.data, problem.packing
     row = {p: i for i, p in enumerate(data.phonemes)}
     x0 = pk.pack()

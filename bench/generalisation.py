@@ -131,7 +131,7 @@ def gestures(manifest: Path, variants: Sequence[str], channels: tuple[str, ...],
                 print("\n".join(out[-len(res.choice.text_lines()):]), flush=True)
             for s in score(res, test, split):
                 fit = res.channels[s.channel]
-                # each with its category (coartic.fit.bounds: domain, active, optimal, insensitive, unexplained)
+                # each with its category (coartic.estimation.bounds: domain, active, optimal, insensitive, unexplained)
                 notes = fit.stats.bounds if fit.stats is not None else {}
                 at = [f"{nm}({notes[nm].category if nm in notes else '?'})"
                       for nm in (fit.stats.at_bound if fit.stats is not None else [])]

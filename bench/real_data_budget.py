@@ -57,7 +57,7 @@ def main() -> int:
             for name, train, test in splits(utts):
                 for ch in spec.channels:
                     one = spec.with_options(channels=(ch,))
-                    prob = build_problem(one, train, ch)
+                    prob = build_problem(one.estimation_settings(), train, ch)
                     # the budget of the biggest stage: the full free set's is an upper bound
                     default = evaluation_budget(prob)
                     for label, opts in (("default", {}), (f"{a.factor}x", {"max_nfev": a.factor * default})):

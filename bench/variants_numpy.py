@@ -44,7 +44,7 @@ sys.path.insert(0, str(ROOT / "tests" / "python"))
 import numpy_model as nm  # type: ignore[import-not-found]  # noqa: E402
 
 from coartic.model import Utterance  # noqa: E402
-from coartic.fit.spec import DEFAULT_FIT_BOUNDS, DEFAULT_START  # noqa: E402
+from coartic.estimation.settings import DEFAULT_FIT_BOUNDS, DEFAULT_START  # noqa: E402
 from coartic.io import load_trial  # noqa: E402
 from coartic.table import PARAMETERS  # noqa: E402
 

@@ -1,21 +1,27 @@
-"""An estimator-style entry point: ``Coarticulation(...).fit(trials).predict(trials)``, ``.score(trials)``.
+"""An estimator-style entry point: ``Coarticulation(settings).fit(trials).predict(trials)``, ``.score(trials)``.
 
 A thin layer over the library's one fit and one scorer: ``fit`` is ``coartic.fit.run`` (the fit
 ``coartic fit`` runs, on trials already loaded, nothing written), ``predict`` is
 ``coartic.model.evaluate_corpus`` on the fitted table, ``score`` is ``coartic.evaluation.score``'s RMSE.
-The settings are a fit spec's (docs/FITTING.md), checked by the same parser, so every mistake is
-named as in a spec file.
+The settings are estimation's (``coartic.estimation.settings``: the model, the parameters' freedom
+and bounds, priors and pooling, offsets, speakers and emotions), built in Python as lmfit's
+``Parameters`` are; the fit's own options (channels, engine, staging, starts) are keywords. Both are
+checked as a spec file is, so a mistake is named by the key a spec file would have
+(``Coarticulation.from_spec`` takes a spec file instead).
 
 Trials are ``coartic.model.Utterance`` objects (labels, segment times, sample times, observed
 channels), or the path of a manifest CSV, read as a fit spec's ``[corpus] manifest``.
 
 >>> import numpy as np
 >>> from coartic import Coarticulation
+>>> from coartic.estimation.settings import EstimationSettings, ModelSettings, ParameterSettings, PriorSettings
 >>> from coartic.fit.simulate import vcv_utterances   # /aCa/, /iCi/ made by the model, 0.1 mm noise
 >>> trials = vcv_utterances(np.random.default_rng(0), repetitions=2)
->>> model = Coarticulation(variant="modified", dominance="centre", handover=False,   # the model they are made with
-...                        channels=["LLO"], staging=False, free=["target", "alpha", "theta_bw", "theta_fw", "k_r"],
-...                        spec={"model": {"pauses": "one"}, "parameters": {"target_prior": "none"}})
+>>> settings = EstimationSettings(
+...     model=ModelSettings(dominance="centre", handover=False, pauses="one"),   # the model they are made with
+...     parameters=ParameterSettings(free=("target", "alpha", "theta_bw", "theta_fw", "k_r")),
+...     priors=PriorSettings(target_prior=None, pooled=()))
+>>> model = Coarticulation(settings, channels=["LLO"], staging=False)
 >>> sorted(model.fit(trials[::2]).table_.phonemes)
 ['#', 'a', 'i', 'l', 'p', 't']
 >>> round(model.score(trials[1::2]), 2)   # RMSE (mm) on the trials it did not see
@@ -37,13 +43,14 @@ import numpy as np
 from numpy.typing import NDArray
 
 from coartic.errors import CoarticError, UsageError
+from coartic.estimation.settings import EstimationSettings
 from coartic.fit.result import FitResult
-from coartic.fit.spec import FitSpec, load_spec, parse_spec
+from coartic.fit.spec import CorpusSpec, FitSpec, load_spec
 from coartic.model import Utterance, evaluate_corpus, utterances_for_table
 from coartic.table import ParameterTable
 
 Trials = Sequence[Utterance] | str | Path
-# what a spec built from keyword settings is called in error messages
+# what settings built in Python are called in error messages (a spec file's are named by its path)
 SETTINGS_NAME = Path("<Coarticulation settings>")
 
 
@@ -54,33 +61,33 @@ class NotFittedError(CoarticError, RuntimeError):
 class Coarticulation:
     """The coarticulation model as an estimator: settings now, data at ``fit``.
 
-    ``variant``, ``channels`` and any other ``[model]`` key of a fit spec (``reference_phoneme``,
-    ``dominance``, ``plateau_fraction``, ``fit_beta``, ``speakers``, ...) as keywords; ``free``
-    is ``[parameters] free``, ``engine`` ``[engine] name``, ``staging`` ``[staging] enabled``;
-    ``spec`` adds whole sections as a fit spec's TOML document would (``{"parameters": {"bounds":
-    ...}, "tie": [...]}``). ``Coarticulation.from_spec(path)`` takes a spec file as it is.
+    ``settings`` (``coartic.estimation.settings.EstimationSettings``; default: a spec's defaults) say
+    what is estimated; ``channels`` which channels are fitted; ``fit`` takes any other option of a
+    fit spec's ``[engine]``, ``[staging]``, ``[fit]`` and ``[gaps]`` by its field name (``engine``,
+    ``engine_options``, ``staging``, ``stages``, ``starts``, ``seed``, ``probe``, ``keep``,
+    ``include_start``, ``max_gap``). ``Coarticulation.from_spec(path)`` takes a spec file as it is.
 
     After ``fit``: ``result_`` (``coartic.fit.result.FitResult``: statistics, ``to_dataframe()``)
     and ``table_`` (``coartic.table.ParameterTable``: ``save``, ``to_dataframe()``).
     """
 
-    def __init__(self, variant: str = "modified", channels: Sequence[str] = ("LLO",), *,
-                 free: Sequence[str] | None = None, engine: str | None = None, staging: bool | None = None,
-                 spec: dict[str, Any] | None = None, **model: Any) -> None:
-        doc: dict[str, Any] = {k: (dict(v) if isinstance(v, dict) else v) for k, v in (spec or {}).items()}
-        doc.setdefault("name", "Coarticulation")
-        # the trials come to fit(); the spec parser needs a corpus, which is never read
-        doc.setdefault("corpus", {"manifest": "<trials given to fit>"})
-        doc["model"] = {**doc.get("model", {}), "variant": variant, "channels": list(channels), **model}
-        if free is not None:
-            doc["parameters"] = {**doc.get("parameters", {}), "free": list(free)}
-        if engine is not None:
-            doc["engine"] = {**doc.get("engine", {}), "name": engine}
-        if staging is not None:
-            doc["staging"] = {**doc.get("staging", {}), "enabled": staging}
-        self.spec: FitSpec = parse_spec(doc, SETTINGS_NAME)  # SpecError names the key, as for a file
+    def __init__(self, settings: EstimationSettings | None = None, channels: Sequence[str] = ("LLO",),
+                 **fit: Any) -> None:
+        if settings is not None and not isinstance(settings, EstimationSettings):
+            raise UsageError(f"settings: expected coartic.estimation.settings.EstimationSettings, got "
+                             f"{type(settings).__name__}")
+        settings = settings or EstimationSettings()
+        # checked as a spec file is: SpecError names the key a file would have
+        path = SETTINGS_NAME if settings.source is None else Path(settings.source)
+        self.spec: FitSpec = FitSpec.from_settings(settings, path, "Coarticulation",
+                                                   channels=tuple(channels), **fit)
         self.result_: FitResult | None = None
         self.table_: ParameterTable | None = None
+
+    @property
+    def settings(self) -> EstimationSettings:
+        """The estimation settings (a spec file's, with ``from_spec``)."""
+        return self.spec.estimation_settings()
 
     @classmethod
     def from_spec(cls, path: str | Path) -> Coarticulation:
@@ -110,8 +117,10 @@ class Coarticulation:
         if trials is None:
             return load_utterances(self.spec)
         if isinstance(trials, (str, Path)):
-            return load_utterances(self.spec.with_options(corpus=replace(self.spec.corpus, manifest=Path(trials),
-                                                                         files=(), labels=())))
+            own = self.spec.corpus
+            corpus = (CorpusSpec(manifest=Path(trials)) if own is None
+                      else replace(own, manifest=Path(trials), files=(), labels=()))
+            return load_utterances(self.spec.with_options(corpus=corpus))
         utts = list(trials)
         bad = [type(u).__name__ for u in utts if not isinstance(u, Utterance)]
         if bad:

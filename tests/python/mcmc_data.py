@@ -9,7 +9,7 @@ from coartic import _core
 from coartic.estimation.data import ChannelData
 from coartic.estimation.packing import Packing
 from coartic.model import Utterance
-from coartic.fit.spec import DEFAULT_BETA_BOUNDS, DEFAULT_FIT_BOUNDS
+from coartic.estimation.settings import DEFAULT_BETA_BOUNDS, DEFAULT_FIT_BOUNDS
 from coartic.table import PARAMETERS
 
 PHONEMES = ("#", "a", "i", "u", "p", "t", "l")

@@ -126,7 +126,7 @@ def test_deviation_prior_is_a_gaussian_on_the_difference(session: Path, tmp_path
     deviation toward 0, not the neutral target toward the emotion."""
     spec = load_spec(write_spec(tmp_path / "s.toml", session / "manifest.csv", ["LR"]))
     utts = load_utterances(spec)
-    problem = build_problem(spec, utts, "LR")
+    problem = build_problem(spec.estimation_settings(), utts, "LR")
     rows = problem.speaker_rows
     assert rows is not None and rows.factor == "emotions" and rows.names[0] == "neutral"
     prior = EmotionPrior({e: 0.5 for e in rows.names[1:]}, 0.1)
@@ -153,7 +153,7 @@ def test_spec_refuses_emotions_with_speakers_and_a_corpus_without_neutral(sessio
                     encoding="utf-8")
     spec = load_spec(path)
     with pytest.raises(SpecError, match="no trial has emotion = 'calm'"):
-        build_problem(spec, load_utterances(spec), "LR")
+        build_problem(spec.estimation_settings(), load_utterances(spec), "LR")
 
 
 @pytest.fixture(scope="module")
@@ -190,21 +190,33 @@ def test_reduced_emotive_fit_recovers_every_deviation(session: Path, fitted: tup
 
 
 def test_mcmc_intervals_of_the_deviations(session: Path, fitted: tuple[Path, Path], tmp_path: Path) -> None:
-    """The joint posterior of /a/'s targets (neutral and every emotion) on LR of a fitted reduced
-    session: each deviation's 95 % interval around the least-squares one, credible where the truth
-    moves (every emotion moves LR by 1-4 mm), and holding the truth."""
-    from coartic.mcmc.emotions import deviation_intervals
+    """The joint posterior of /a/'s targets (neutral and every emotion) on both channels of the fitted
+    reduced session (``session_intervals``, as fit/emotion_intervals.py runs it over the whole
+    session): on LR every emotion moves /a/ by 1-4 mm, each deviation credible and its interval
+    holding the truth; on LLO the planted ones (surprise +2, sadness -1.2, anger +1 mm) are credible
+    and the three the truth leaves at 0 (joy, disgust, fear) are not; the report says so."""
+    from coartic.mcmc.emotions import credible_report, session_intervals, write_intervals
     from coartic.mcmc.sampler import SamplerSettings
 
     spec = load_spec(fitted[0])
     table = ParameterTable.load(fitted[1] / "table.json")
-    problem = build_problem(spec, load_utterances(spec), "LR", table)
-    assert problem.emotion_prior is not None  # the fit's τ, read back from the table
-    got = deviation_intervals(problem, "a", tmp_path / "mcmc", SamplerSettings(n_ensembles=2, min_steps=300,
-                                                                                 chunk_steps=150))
-    truth = ParameterTable.load(session / "ground_truth.json").metadata["emotions"]["channels"]["LR"]["deviations"]
-    assert {d.emotion for d in got} == {"joy", "surprise", "sadness", "disgust", "anger", "fear"}
+    got = session_intervals(spec, load_utterances(spec), table, tmp_path / "mcmc",
+                            SamplerSettings(n_ensembles=2, min_steps=300, chunk_steps=150), phonemes=["a"])
+    truth = ParameterTable.load(session / "ground_truth.json").metadata["emotions"]["channels"]
+    assert {(d.channel, d.emotion) for d in got} == {(c, e) for c in ("LR", "LLO") for e in
+                                                     ("joy", "surprise", "sadness", "disgust", "anger", "fear")}
     for d in got:
-        assert d.q2_5 < d.fitted < d.q97_5 and d.credible, d
-        assert d.q2_5 - 0.05 <= truth[d.emotion]["a"] <= d.q97_5 + 0.05, d
-        assert d.q97_5 - d.q2_5 < 0.3, d
+        t = truth[d.channel]["deviations"][d.emotion]["a"]
+        assert d.credible == (t != 0.0), d  # planted: credible; zero: not
+        assert abs(d.fitted - t) <= 0.3, d  # fit/check_emotions.py's tolerance
+        if d.channel == "LR":  # (LLO's intervals, conditional on the dynamics, sit up to 0.1 mm off the truth)
+            assert d.q2_5 < d.fitted < d.q97_5 and d.q97_5 - d.q2_5 < 0.3, d
+            assert d.q2_5 - 0.05 <= t <= d.q97_5 + 0.05, d
+    assert {d.emotion for d in got if d.channel == "LLO" and d.credible} == {"surprise", "sadness", "anger"}
+    report = credible_report(got, truth)
+    assert "LLO: 3 of 6 credible; truth: 3 of its 3 non-zero credible, 0 of its 3 zero ones called credible" in report
+    assert "    joy: none credible" in report and "    surprise: a +2." in report
+    paths = write_intervals(got, tmp_path / "out", truth)
+    with paths["csv"].open(encoding="utf-8") as f:
+        assert len(list(csv.DictReader(f))) == 12
+    assert paths["text"].read_text(encoding="utf-8") == report

@@ -205,6 +205,35 @@ def test_expression_outside_the_mouth_in_faps_and_arkit(tmp_path: Path) -> None:
     assert arkit_weights(animate(TRUTH, seg, 25.0))[:, ARKIT_NAMES.index("browInnerUp")].max() == 0.0
 
 
+def test_fap_file_carries_the_high_level_expression(tmp_path: Path) -> None:
+    """MPEG-4 FAP 2 beside the low-level FAPs, read back from the file: joy at 0.6 is
+    expression_select1 = 1 (joy) at intensity 38 of 63; spans switch the selects through their ramps
+    (both emotions of a crossing, the stronger first); neutral speech sends no FAP 2."""
+    from coartic.emotions import EmotionSpan, with_emotion_spans
+    from coartic.runtime.fap import EXPRESSION_SELECT, FaceUnits, animation_faps, read_fap, write_fap
+
+    seg = Segments(("#", "a", "b", "a", "#"), np.array([0.0, 0.4, 0.56, 0.64, 0.8]),
+                   np.array([0.4, 0.56, 0.64, 0.8, 1.6]))
+    path = tmp_path / "joy.fap"
+    write_fap(path, animation_faps(animate(emotion_table(TRUTH, "joy", 0.6), seg, 25.0), FaceUnits(), "joy"))
+    back = read_fap(path)
+    assert back.mask[:, 1].all() and back.mask[:, 40].all()  # FAP 2 and the cheeks, every frame
+    assert back.expression is not None
+    np.testing.assert_array_equal(back.expression, np.tile([1, 38, 0, 0, 0, 0], (back.n_frames, 1)))
+    assert (back.column(41) == 108).all()  # the low-level cheeks as before: 0.6 x 180 ENS
+    spans = with_emotion_spans(TRUTH, [EmotionSpan(0.0, 0.8, "surprise"), EmotionSpan(0.8, 1.6, "anger", 0.5)])
+    write_fap(path, animation_faps(animate(spans, seg, 25.0), FaceUnits(), "spans"))
+    e = read_fap(path).expression
+    assert e is not None
+    assert list(e[10]) == [EXPRESSION_SELECT["surprise"], 63, 0, 0, 0, 0]  # 0.4 s: surprise alone
+    assert list(e[30]) == [EXPRESSION_SELECT["anger"], 32, 0, 0, 0, 0]  # 1.2 s: anger at 0.5
+    crossing = e[20]  # 0.8 s, the boundary: surprise ramping out (0.5), anger in (0.25)
+    assert crossing[[0, 2, 4, 5]].tolist() == [EXPRESSION_SELECT["surprise"], EXPRESSION_SELECT["anger"], 0, 0]
+    assert abs(crossing[1] - 31.5) <= 0.5 and abs(crossing[3] - 15.75) <= 0.5
+    write_fap(path, animation_faps(animate(TRUTH, seg, 25.0), FaceUnits(), "neutral"))
+    assert not read_fap(path).mask[:, 1].any() and read_fap(path).expression is None
+
+
 def test_chromium_shows_each_emotion_and_the_closure_stays(tmp_path: Path) -> None:
     """The face in headless Chromium at the /a/ of /a b a/: surprise opens the mouth wider than
     neutral and sadness less; at the /b/ the lips touch as in neutral speech for every emotion."""

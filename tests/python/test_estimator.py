@@ -1,6 +1,9 @@
-"""coartic.Coarticulation: the estimator over the one fit layer (coartic.fit.run) and the scorer."""
+"""coartic.Coarticulation: the estimator over the one fit layer (coartic.fit.run) and the scorer, taking
+estimation's settings objects built in Python (coartic.estimation.settings)."""
 
 from __future__ import annotations
+
+from pathlib import Path
 
 import numpy as np
 import pandas as pd
@@ -8,15 +11,20 @@ import pytest
 
 from coartic import Coarticulation
 from coartic.estimator import NotFittedError
+from coartic.estimation.problem import build_problem
+from coartic.estimation.settings import (EstimationSettings, GroupSettings, ModelSettings, Override,
+                                         ParameterSettings, PriorSettings, Shrink, Tie)
 from coartic.fit import run
+from coartic.fit.spec import FitSpec, parse_spec
 from coartic.fit.simulate import vcv_utterances
 from coartic.errors import SpecError
 
 from fit_helpers import PAPER_TOML
 
-FREE = ["target", "alpha", "theta_bw", "theta_fw", "k_r"]
+FREE = ("target", "alpha", "theta_bw", "theta_fw", "k_r")
 # the paper's model, which the synthetic trials are made with (fit_helpers.PAPER)
-PAPER_KW: dict = {"dominance": "centre", "handover": False, "spec": {"model": {"pauses": "one"}, "parameters": {"target_prior": "none"}}}  # type: ignore[type-arg]
+PAPER = EstimationSettings(model=ModelSettings(dominance="centre", handover=False, pauses="one"),
+                           parameters=ParameterSettings(free=FREE), priors=PriorSettings(target_prior=None, pooled=()))
 
 
 @pytest.fixture(scope="module")
@@ -26,13 +34,15 @@ def trials() -> list:  # type: ignore[type-arg]
 
 @pytest.fixture(scope="module")
 def fitted(trials: list) -> Coarticulation:  # type: ignore[type-arg]
-    return Coarticulation(channels=["LLO"], staging=False, free=FREE, **PAPER_KW).fit(trials[::2])
+    return Coarticulation(PAPER, channels=["LLO"], staging=False).fit(trials[::2])
 
 
 def test_fit_is_coartic_fit_run_bit_for_bit(fitted: Coarticulation, trials: list) -> None:  # type: ignore[type-arg]
     direct = run(fitted.spec, utterances=trials[::2], quiet=True)
     assert fitted.table_ is not None and fitted.table_.values == direct.table().values
-    assert fitted.spec.variant == "modified" and fitted.spec.free == tuple(FREE) and not fitted.spec.staging
+    assert fitted.spec.variant == "modified" and fitted.spec.free == FREE and not fitted.spec.staging
+    assert fitted.settings.parameters.free == FREE and fitted.settings.model.dominance == "centre"
+    assert fitted.table_.metadata["corpus"] == "trials given in Python"
 
 
 def test_predict_is_the_table_evaluated_and_score_its_rmse(fitted: Coarticulation, trials: list) -> None:  # type: ignore[type-arg]
@@ -69,12 +79,23 @@ def test_results_convert_to_dataframes(fitted: Coarticulation) -> None:
 
 
 def test_mistakes_are_named(trials: list) -> None:  # type: ignore[type-arg]
+    # a setting built in Python is checked as the spec file's key it would be written with
     with pytest.raises(SpecError, match=r"<Coarticulation settings>: \[model.variant\] 'modifed'"):
-        Coarticulation(variant="modifed")
-    with pytest.raises(SpecError, match=r"\[model\] unknown key\(s\) \['dominanse'\]"):
-        Coarticulation(dominanse="segment")
+        Coarticulation(EstimationSettings(model=ModelSettings(variant="modifed")))
     with pytest.raises(SpecError, match=r"\[parameters.free\].*'kr'"):
-        Coarticulation(free=["kr"])
+        Coarticulation(EstimationSettings(parameters=ParameterSettings(free=("kr",))))
+    with pytest.raises(SpecError, match=r"\[parameters.bounds.theta_bw\] low 5.0 must be below high 1.0"):
+        Coarticulation(EstimationSettings(parameters=ParameterSettings(bounds={"theta_bw": (5.0, 1.0)})))
+    with pytest.raises(SpecError, match=r"<Coarticulation settings>: \[tie #1.phonemes\] a tie needs two phonemes or more"):
+        Coarticulation(EstimationSettings(parameters=ParameterSettings(ties=(Tie(("p",), ("theta_bw",)),))))
+    with pytest.raises(SpecError, match=r"FitSpec has no field\(s\) \['dominanse'\]"):
+        Coarticulation(dominanse="segment")
+    with pytest.raises(SpecError, match=r"free: an estimation setting, given in the settings"):
+        Coarticulation(free=["target"])
+    with pytest.raises(SpecError, match=r"\[corpus\] no corpus to read"):
+        Coarticulation().fit(None)
+    with pytest.raises(TypeError, match="expected coartic.estimation.settings.EstimationSettings, got dict"):
+        Coarticulation({"model": {}})  # type: ignore[arg-type]
     with pytest.raises(NotFittedError, match="call fit"):
         Coarticulation().predict(trials)
     with pytest.raises(TypeError, match="got ndarray"):
@@ -88,11 +109,41 @@ def test_trials_from_a_manifest_and_a_spec_file(tmp_path) -> None:  # type: igno
     from coartic.synthetic_cli import load_generator
 
     manifest = load_generator().generate(tmp_path / "session", quick=True, progress=False, consonants=["p"])
-    model = Coarticulation(channels=["LLO"], staging=False, free=FREE, **PAPER_KW).fit(manifest)
+    model = Coarticulation(PAPER, channels=["LLO"], staging=False).fit(manifest)
     assert model.result_ is not None and model.result_.channels["LLO"].rmse < 0.3
     assert model.score(manifest) == pytest.approx(model.result_.channels["LLO"].rmse, rel=1e-9)
     spec = tmp_path / "spec.toml"
     spec.write_text(f'[corpus]\nmanifest = "{manifest}"\n[model]\nchannels = ["LLO"]\n{PAPER_TOML[0]}[parameters]\n'
-                    f'{PAPER_TOML[1]}free = {FREE!r}\n[staging]\nenabled = false\n'.replace("'", '"'))
+                    f'{PAPER_TOML[1]}free = {list(FREE)!r}\n[staging]\nenabled = false\n'.replace("'", '"'))
     again = Coarticulation.from_spec(spec).fit(None)
     assert again.table_ is not None and model.table_ is not None and again.table_.values == model.table_.values
+
+
+def test_a_spec_and_the_settings_it_builds_are_one_problem(trials: list) -> None:  # type: ignore[type-arg]
+    """The TOML spec is one way to write the settings: its settings give a spec back that gives the
+    same settings, and settings built in Python (defaults included) give the problem the file does."""
+    raw = {"corpus": {"manifest": "m.csv"}, "model": {"channels": ["LLO"], "fit_beta": True, "speakers": "none"},
+           "parameters": {"free": ["target", "alpha", "theta_bw"], "start": {"theta_bw": 40.0},
+                          "bounds": {"alpha": [0.1, 10.0]}, "prior": {"p.alpha": [1.0, 0.5]}, "pooled": ["theta_bw"]},
+           "override": [{"phonemes": ["p"], "free": ["k_r"], "start": {"k_r": 0.9}}],
+           "tie": [{"phonemes": ["t", "l"], "parameters": ["theta_bw"]}],
+           "shrink": [{"phonemes": ["a", "i"], "parameters": ["alpha"], "sd": 0.5, "scale": "log"}]}
+    spec = parse_spec(raw, Path("/tmp/x.toml"))
+    settings = spec.estimation_settings()
+    again = FitSpec.from_settings(settings, spec.path, spec.name, spec.corpus, channels=spec.channels)
+    assert again.estimation_settings() == settings and again == spec
+    built = EstimationSettings(
+        model=ModelSettings(), groups=GroupSettings(),
+        parameters=ParameterSettings(free=("target", "alpha", "theta_bw"), fit_beta=True, start={"theta_bw": 40.0},
+                                     bounds={"alpha": (0.1, 10.0)},
+                                     overrides=(Override(("p",), free=("k_r",), start={"k_r": 0.9}),),
+                                     ties=(Tie(("t", "l"), ("theta_bw",)),)),
+        priors=PriorSettings(priors={"p.alpha": (1.0, 0.5, False)}, pooled=("theta_bw",),
+                             shrinks=(Shrink(("a", "i"), ("alpha",), 0.5, log=True, key="shrink #1"),)))
+    for a, b in [(settings, built), (parse_spec({"corpus": {"manifest": "m.csv"}}, Path("/tmp/y.toml"))
+                                     .estimation_settings(), EstimationSettings())]:
+        pa, pb = build_problem(a, trials, "LLO"), build_problem(b, trials, "LLO")
+        assert pa.packing.names() == pb.packing.names() and pa.packing.bound_sources == pb.packing.bound_sources
+        np.testing.assert_array_equal(pa.packing.pack(), pb.packing.pack())
+        np.testing.assert_array_equal(pa.residuals(pa.packing.pack()), pb.residuals(pb.packing.pack()))
+        assert pa.priors == pb.priors and pa.shrink_groups == pb.shrink_groups

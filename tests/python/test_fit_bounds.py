@@ -1,4 +1,4 @@
-"""Every free parameter at a bound is explained from the fit itself (coartic.fit.bounds): each category
+"""Every free parameter at a bound is explained from the fit itself (coartic.estimation.bounds): each category
 on a case built to produce it, and the explanation in fit_report.txt, parameters.csv, summary.json
 and the HTML report (escaped)."""
 
@@ -14,7 +14,8 @@ from typing import Any
 import numpy as np
 import pytest
 
-from coartic.fit.bounds import CATEGORIES, summary_counts
+from coartic.estimation.bounds import summary_counts
+from coartic.estimation.parameters import CATEGORIES
 from coartic.fit.result import FitResult, finish_channel
 from coartic.jobs.fit import fit_job
 from coartic.fit.simulate import PHONEMES, TRUTH, vcv_utterances
@@ -127,7 +128,7 @@ def test_optimal_and_unexplained(built: tuple[FitResult, Path]) -> None:
 
     start = TRUTH.copy()
     start[ROW["t"], K["k_r"]] = 0.0
-    pr = build_problem(s, utterances(11), "LLO", start=(start, 1.0), phonemes=PHONEMES)
+    pr = build_problem(s.estimation_settings(), utterances(11), "LLO", start=(start, 1.0), phonemes=PHONEMES)
     bad = finish_channel(pr, pr.packing.pack(), "interrupted", "", 0.0, [])
     assert bad.stats is not None
     u = bad.stats.bounds["t.k_r"]
@@ -150,7 +151,7 @@ def test_saturated_direction_is_not_binding(tmp_path: Path) -> None:
     start = made.copy()
     start[ROW["t"], K["theta_fw"]] = 1e6
     s = spec(tmp_path, ["target", "theta_fw"], override=[{"phonemes": ["t"], "bounds": {"theta_fw": [0.5, 1e6]}}])
-    pr = build_problem(s, utterances(13, made), "LLO", start=(start, 1.0), phonemes=PHONEMES)
+    pr = build_problem(s.estimation_settings(), utterances(13, made), "LLO", start=(start, 1.0), phonemes=PHONEMES)
     fit = finish_channel(pr, pr.packing.pack(), "converged", "", 0.0, [])
     assert fit.stats is not None
     n = fit.stats.bounds["t.theta_fw"]
@@ -204,7 +205,7 @@ def test_a_shared_parameter_is_reported_as_every_phonemes_everywhere(tmp_path: P
     of /#/" (its carrier's) when it is every phoneme's. The reading, fit_report.txt and parameters.csv
     say whose value it is; a [[tie]] names the tied phonemes."""
     from coartic.estimation.packing import tie_group
-    from coartic.fit.bounds import explain_bounds, reading
+    from coartic.estimation.bounds import explain_bounds, reading
     from coartic.fit.result import parameter_stats
 
     from fit_helpers import german_utterance_spec

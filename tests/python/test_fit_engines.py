@@ -24,7 +24,7 @@ def make_problem(free: list[str] = FREE, noise: float = 0.1, **extra: Any) -> Ch
     utts = vcv_utterances(np.random.default_rng(11), repetitions=1, noise=noise)
     raw = {"corpus": {"files": ["x"], "labels": ["y"]}, "model": {"channels": ["LLO"]},
            "parameters": {"free": free}, **extra}
-    return build_problem(parse_spec(paper(raw), Path("/tmp/spec.toml")), utts, "LLO", phonemes=PHONEMES)
+    return build_problem(parse_spec(paper(raw), Path("/tmp/spec.toml")).estimation_settings(), utts, "LLO", phonemes=PHONEMES)
 
 
 def recovered(problem: ChannelProblem, x: np.ndarray) -> np.ndarray:
@@ -118,9 +118,12 @@ def test_nlopt_fits_the_default_spec_polished_by_scipy_and_says_so(tmp_path: Pat
     assert "nlopt result -1 (FAILURE); polished by scipy least_squares" in fit.polished[-1]
     assert any("LA: polished" in line and "polished by scipy" in line for line in status_lines(result))
     assert "polished by scipy least_squares" in (tmp_path / "nlopt" / "fit_report.txt").read_text()
-    # polish = "none": the failure stands. With the default's staging (targets first) it is the
-    # first stage's, said in the status (stage-failed: exit 3 in `coartic fit`), the next stage going
-    # on from its best point
+    # polish = "none": the failure stands, said in the status (stage-failed: exit 3 in `coartic fit`),
+    # whether it is a stage's (the next stage going on from its best point) or a partial-pooling
+    # re-solve's (the optimum at the last sd that converged kept, written, not refused)
     unpolished = run(spec.with_options(engine="nlopt", engine_options={"polish": "none"}), quiet=True).channels["LA"]
     assert unpolished.status == "stage-failed" and not unpolished.polished
     assert "local lbfgs: nlopt result -1 (FAILURE)" in unpolished.message
+    # the optimum at the last sd that converged is kept, and the pooling says it did not settle
+    assert np.isfinite(unpolished.rmse) and unpolished.pooling is not None and not unpolished.pooling.settled
+    assert "the optimum at the last pooling sd that converged is kept" in unpolished.message

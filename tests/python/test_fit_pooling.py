@@ -78,7 +78,7 @@ def test_the_evidence_is_the_exact_marginal_likelihood_of_a_linear_model() -> No
 def test_pooled_rows_have_exact_derivatives(tmp_path: Path, differ: list[model.Utterance]) -> None:
     s = spec_of(tmp_path, parameters={**POOLED, "free": ["target", "alpha", "theta_bw", "theta_fw"],
                                       "pooled": ["alpha", "theta_bw"], "target_prior": "estimated"})
-    prob = build_problem(s, differ, "LLO")
+    prob = build_problem(s.estimation_settings(), differ, "LLO")
     assert prob.pool is not None and set(prob.pool.families) == {"pooled alpha", "pooled theta_bw", "target prior"}
     n = len(prob.data.phonemes)
     assert prob.pool_size == 2 * n + n  # every phoneme in each group (the reference's fixed alpha too), every target
@@ -109,11 +109,11 @@ def test_the_estimated_sd_follows_how_much_the_phonemes_differ(tmp_path: Path, t
 @pytest.mark.parametrize("tau, other", [(1e-4, {"shared": ["theta_bw", "theta_fw"]}), (1e4, {})])
 def test_the_limits_are_the_shared_and_the_per_phoneme_fits(tmp_path: Path, differ: list[model.Utterance],
                                                             tau: float, other: dict[str, list[str]]) -> None:
-    pooled = build_problem(spec_of(tmp_path, parameters=POOLED), differ, "LLO")
+    pooled = build_problem(spec_of(tmp_path, parameters=POOLED).estimation_settings(), differ, "LLO")
     assert pooled.pool is not None
     pooled = pooled.with_pool(pooled.pool.with_scales({f: tau for f in pooled.pool.families}, 0.1))
     p_fit, p_res, _ = fit_staged(pooled, "scipy", {}, None)
-    ref = build_problem(spec_of(tmp_path, parameters={"free": POOLED["free"], **other}), differ, "LLO")
+    ref = build_problem(spec_of(tmp_path, parameters={"free": POOLED["free"], **other}).estimation_settings(), differ, "LLO")
     r_fit, r_res, _ = fit_staged(ref, "scipy", {}, None)
     a, b = p_fit.packing.unpack(p_res.x)[0], r_fit.packing.unpack(r_res.x)[0]
     np.testing.assert_allclose(a[:, [BW, FW]], b[:, [BW, FW]], rtol=2e-3)
@@ -141,7 +141,7 @@ def test_outputs_say_which_sd_was_found_and_the_effective_parameters(tmp_path: P
     # the table's sd is where a problem built on it starts (MCMC samples around it)
     from coartic.table import ParameterTable
 
-    again = build_problem(s, differ, "LLO", ParameterTable.load(tmp_path / "out" / "table.json"))
+    again = build_problem(s.estimation_settings(), differ, "LLO", ParameterTable.load(tmp_path / "out" / "table.json"))
     assert again.pool is not None and again.pool.tau == est.tau and again.pool.sigma == est.sigma
 
 
@@ -186,7 +186,7 @@ def test_mcmc_samples_the_pool_and_names_what_it_holds_fixed(tmp_path: Path, dif
     s = spec_of(tmp_path, parameters={**POOLED, "target_prior": "estimated"}).with_options(starts=1)
     fit_job(s, tmp_path / "fit", utterances=differ, quiet=True, report=False)
     table = ParameterTable.load(tmp_path / "fit" / "table.json")
-    prob = build_problem(s, differ, "LLO", table)
+    prob = build_problem(s.estimation_settings(), differ, "LLO", table)
     pool = prob.pool
     assert pool is not None
     joint = channel_posterior(prob.data, prob.packing, prob.options, pool=pool)
@@ -238,5 +238,5 @@ def test_a_pooled_fit_counts_every_evaluation(tmp_path: Path, differ: list[model
     assert fit.pooling is not None and fit.pooling.rounds >= 1  # re-solved at least once
     last = [ln for ln in buf.getvalue().splitlines() if ln.startswith("LLO done")][-1]
     assert f" {fit.nfev} evaluations " in last, (fit.nfev, last)
-    one = fit_staged(build_problem(s, differ, "LLO"), "scipy", {}, s.stages)[1].nfev
+    one = fit_staged(build_problem(s.estimation_settings(), differ, "LLO"), "scipy", {}, s.stages)[1].nfev
     assert fit.nfev > one  # the fit before the re-solves, then theirs

@@ -11,7 +11,8 @@ from coartic.estimation.packing import LOG_COLUMNS
 from coartic.estimation.problem import ChannelProblem, build_problem
 from coartic.fit.simulate import PHONEMES, TRUTH, vcv_utterances
 from coartic.errors import SpecError
-from coartic.fit.spec import REFERENCE_ORDER, parse_spec
+from coartic.estimation.settings import REFERENCE_ORDER
+from coartic.fit.spec import parse_spec
 from coartic.table import PARAMETERS
 
 from fit_helpers import paper
@@ -28,7 +29,7 @@ def utts():  # type: ignore[no-untyped-def]
 
 
 def test_pack_unpack_round_trip(utts) -> None:  # type: ignore[no-untyped-def]
-    p = build_problem(spec(model={"channels": ["LLO"], "fit_beta": True}), utts, "LLO", start=(TRUTH, 1.0),
+    p = build_problem(spec(model={"channels": ["LLO"], "fit_beta": True}).estimation_settings(), utts, "LLO", start=(TRUTH, 1.0),
                       phonemes=PHONEMES)
     pk = p.packing
     x = pk.pack(TRUTH, 1.0)
@@ -53,7 +54,7 @@ def test_pack_unpack_round_trip(utts) -> None:  # type: ignore[no-untyped-def]
 
 def test_jacobian_matches_finite_differences(utts) -> None:  # type: ignore[no-untyped-def]
     s = spec(model={"channels": ["LLO"], "fit_beta": True})
-    p = build_problem(s, utts, "LLO", start=(TRUTH * np.where(LOG_COLUMNS, 1.1, 1.0), 1.2), phonemes=PHONEMES)
+    p = build_problem(s.estimation_settings(), utts, "LLO", start=(TRUTH * np.where(LOG_COLUMNS, 1.1, 1.0), 1.2), phonemes=PHONEMES)
     x = p.packing.pack()
     x = np.clip(x, *p.packing.bounds())
     jac = p.jacobian(x).toarray()
@@ -81,7 +82,7 @@ def test_masked_samples_do_not_count(utts) -> None:  # type: ignore[no-untyped-d
     u.observed["LLO"] = u.observed["LLO"].copy()
     u.valid["LLO"][5:15] = False
     u.observed["LLO"][5:15] = np.nan  # a long gap: masked, never NaN in the objective
-    p = build_problem(spec(), utts, "LLO", start=(TRUTH, 1.0), phonemes=PHONEMES)
+    p = build_problem(spec().estimation_settings(), utts, "LLO", start=(TRUTH, 1.0), phonemes=PHONEMES)
     r = p.residuals(p.packing.pack())
     assert np.all(np.isfinite(r)) and np.all(r[5:15] == 0.0)
     assert p.data.n_valid == p.data.corpus.n_samples - 10
@@ -90,16 +91,16 @@ def test_masked_samples_do_not_count(utts) -> None:  # type: ignore[no-untyped-d
 def test_free_set_overrides_and_variant(utts) -> None:  # type: ignore[no-untyped-def]
     s = spec(override=[{"phonemes": ["p"], "fixed": {"k_r": 1.0}}, {"phonemes": ["t"], "free": ["sigma"]}],
              parameters={"free": ["target", "k_r"]})
-    pk = build_problem(s, utts, "LLO", phonemes=PHONEMES).packing
+    pk = build_problem(s.estimation_settings(), utts, "LLO", phonemes=PHONEMES).packing
     names = pk.names()
     assert "p.k_r" not in names and "t.k_r" in names and "t.sigma" in names and "l.sigma" not in names
     assert pk.base[PHONEMES.index("p"), PARAMETERS.index("k_r")] == 1.0
-    orig = build_problem(spec(model={"channels": ["LLO"], "variant": "original"}), utts, "LLO").packing
+    orig = build_problem(spec(model={"channels": ["LLO"], "variant": "original"}).estimation_settings(), utts, "LLO").packing
     assert not any(n.endswith((".k_r", ".sigma", ".psi")) for n in orig.names())
 
 
 def test_targets_start_from_data(utts) -> None:  # type: ignore[no-untyped-def]
-    pk = build_problem(spec(), utts, "LLO", phonemes=PHONEMES).packing
+    pk = build_problem(spec().estimation_settings(), utts, "LLO", phonemes=PHONEMES).packing
     # the mid-segment mean is near the target for vowels and the always-reached /p/
     for ph in ("a", "p"):
         i = PHONEMES.index(ph)
@@ -108,7 +109,7 @@ def test_targets_start_from_data(utts) -> None:  # type: ignore[no-untyped-def]
 
 def test_reference_phoneme_must_occur(utts) -> None:  # type: ignore[no-untyped-def]
     with pytest.raises(SpecError, match=r"\[model.reference_phoneme\] 'u'"):
-        build_problem(spec(model={"channels": ["LLO"], "reference_phoneme": "u"}), utts, "LLO")
+        build_problem(spec(model={"channels": ["LLO"], "reference_phoneme": "u"}).estimation_settings(), utts, "LLO")
 
 
 def test_reference_phoneme_chosen_from_the_data_when_the_spec_names_none(utts) -> None:  # type: ignore[no-untyped-def]
@@ -118,20 +119,20 @@ def test_reference_phoneme_chosen_from_the_data_when_the_spec_names_none(utts) -
     no_a = [u for u in utts if "a" not in u.labels]
     s = spec()
     assert s.reference_phoneme is None
-    p = build_problem(s, no_a, "LLO")
+    p = build_problem(s.estimation_settings(), no_a, "LLO")
     assert "a" not in p.phonemes and "i" in p.phonemes
     ref = s.reference_for(p.phonemes)
     assert ref == next(q for q in REFERENCE_ORDER if q in p.phonemes) == "i"
     names = p.packing.names()
     assert f"{ref}.alpha" not in names and all(f"{q}.alpha" in names for q in p.phonemes if q != ref)
     assert s.channel_settings("LLO", phonemes=p.phonemes).reference_phoneme == ref
-    assert build_problem(s, utts, "LLO").packing.names().count("a.alpha") == 0  # /a/ when present
+    assert build_problem(s.estimation_settings(), utts, "LLO").packing.names().count("a.alpha") == 0  # /a/ when present
     named = spec(model={"channels": ["LLO"], "reference_phoneme": "u"})
     assert named.reference_for(p.phonemes) == "u"
 
 
 def test_best_point_tracked(utts) -> None:  # type: ignore[no-untyped-def]
-    p: ChannelProblem = build_problem(spec(), utts, "LLO", phonemes=PHONEMES)
+    p: ChannelProblem = build_problem(spec().estimation_settings(), utts, "LLO", phonemes=PHONEMES)
     x0 = p.packing.pack()
     s0 = p.sse(x0)
     x1 = p.packing.pack(TRUTH, 1.0)

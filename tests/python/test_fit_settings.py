@@ -44,11 +44,11 @@ def test_settings_the_spec_gives_are_honoured(tmp_path: Path, utts: list[model.U
     data = ChannelData.build(utts, "LLO", PHONEMES)
     # global target box and target start: today both were replaced by the data's
     s = spec_of(tmp_path, parameters={"free": ["target"], "bounds": {"target": [-3.0, 14.0]}, "start": {"target": 1.0}})
-    pk = ParameterSet.from_spec(s, data).packing()
+    pk = ParameterSet.from_settings(s.estimation_settings(), data).packing()
     assert np.all(pk.lower[:, 0] == -3.0) and np.all(pk.upper[:, 0] == 14.0)
     assert np.all(pk.base[:, 0] == 1.0)
     # without them: the data range widened by target_margin, and data targets
-    pk = ParameterSet.from_spec(spec_of(tmp_path), data).packing()
+    pk = ParameterSet.from_settings(spec_of(tmp_path).estimation_settings(), data).packing()
     assert pk.lower[0, 0] == pytest.approx(data.observed[data.weights > 0].min() - 5.0)
 
 
@@ -62,13 +62,13 @@ def test_a_start_outside_its_bounds_is_refused(tmp_path: Path, utts: list[model.
                                                sections: dict[str, Any], key: str) -> None:
     data = ChannelData.build(utts, "LLO", PHONEMES)
     with pytest.raises(SpecError, match="outside its bounds") as e:
-        ParameterSet.from_spec(spec_of(tmp_path, **sections), data).packing()
+        ParameterSet.from_settings(spec_of(tmp_path, **sections).estimation_settings(), data).packing()
     assert key in str(e.value) and "spec.toml" in str(e.value)
 
 
 def test_a_default_start_outside_narrowed_bounds_starts_on_the_bound(tmp_path: Path, utts: list[model.Utterance]) -> None:
     s = spec_of(tmp_path, parameters={"free": ["target", "theta_bw"], "bounds": {"theta_bw": [50.0, 100.0]}})
-    pk = ParameterSet.from_spec(s, ChannelData.build(utts, "LLO", PHONEMES)).packing()
+    pk = ParameterSet.from_settings(s.estimation_settings(), ChannelData.build(utts, "LLO", PHONEMES)).packing()
     assert np.all(pk.base[1:, PARAMETERS.index("theta_bw")] == 50.0)
 
 
@@ -236,7 +236,7 @@ def prior_problem(tmp_path: Path, utts: list[model.Utterance], prior: dict[str, 
 
     s = spec_of(tmp_path, parameters={"free": ["target", "theta_bw", "theta_fw", "k_r"], "prior": prior,
                                       "prior_noise": noise})
-    return build_problem(s, utts, "LLO", phonemes=PHONEMES)
+    return build_problem(s.estimation_settings(), utts, "LLO", phonemes=PHONEMES)
 
 
 def test_priors_are_penalties_with_exact_derivatives(tmp_path: Path, utts: list[model.Utterance]) -> None:
@@ -276,7 +276,7 @@ def test_per_utterance_offsets_are_profiled_with_exact_derivatives(tmp_path: Pat
 
     s = spec_of(tmp_path, parameters={"free": ["target", "theta_bw", "k_r"], "prior_noise": 0.3},
                 model={"channels": ["LLO"], "offsets": offsets})
-    prob = build_problem(s, utts, "LLO", phonemes=PHONEMES)
+    prob = build_problem(s.estimation_settings(), utts, "LLO", phonemes=PHONEMES)
     x = prob.packing.pack() + 0.03
     assert prob.n_residuals == prob.data.corpus.n_samples + (0 if offsets == "free" else len(utts))
     check_problem_derivatives(prob, x, step=3)
@@ -311,8 +311,8 @@ def test_tied_parameters_share_one_value_with_exact_derivatives(tmp_path: Path, 
 
     free = ["target", "theta_bw", "theta_fw", "k_r"]
     ties = [{"phonemes": ["p", "t"], "parameters": ["theta_bw", "theta_fw"]}, {"phonemes": ["a", "i"], "parameters": ["k_r"]}]
-    untied = build_problem(spec_of(tmp_path, parameters={"free": free}), utts, "LLO", phonemes=PHONEMES)
-    prob = build_problem(spec_of(tmp_path, parameters={"free": free}, tie=ties), utts, "LLO", phonemes=PHONEMES)
+    untied = build_problem(spec_of(tmp_path, parameters={"free": free}).estimation_settings(), utts, "LLO", phonemes=PHONEMES)
+    prob = build_problem(spec_of(tmp_path, parameters={"free": free}, tie=ties).estimation_settings(), utts, "LLO", phonemes=PHONEMES)
     assert prob.packing.n_free == untied.packing.n_free - 3
     x = prob.packing.pack() + 0.04
     params, _ = prob.packing.unpack(x)
@@ -345,7 +345,7 @@ def test_bad_ties_are_refused(tmp_path: Path, tie: dict[str, Any], words: str) -
 def test_a_tie_of_fixed_values_is_refused(tmp_path: Path, utts: list[model.Utterance]) -> None:
     s = spec_of(tmp_path, tie=[{"phonemes": ["p", "t"], "parameters": ["k_r"]}])  # k_r is not free
     with pytest.raises(SpecError, match=r"\[tie #1\] k_r is free for none of"):
-        ParameterSet.from_spec(s, ChannelData.build(utts, "LLO", PHONEMES)).packing()
+        ParameterSet.from_settings(s.estimation_settings(), ChannelData.build(utts, "LLO", PHONEMES)).packing()
 
 
 def test_a_tie_over_a_member_an_override_fixes_is_refused(tmp_path: Path, utts: list[model.Utterance]) -> None:
@@ -355,7 +355,7 @@ def test_a_tie_over_a_member_an_override_fixes_is_refused(tmp_path: Path, utts: 
                 override=[{"phonemes": ["t"], "fixed": {"theta_bw": 30.0}}])
     with pytest.raises(SpecError, match=r"\[tie #1\] ties theta_bw of \['p', 't'\] on LLO, but t.theta_bw is fixed "
                        r"\(\[override #1.fixed.theta_bw\]\)") as e:
-        ParameterSet.from_spec(s, ChannelData.build(utts, "LLO", PHONEMES)).packing()
+        ParameterSet.from_settings(s.estimation_settings(), ChannelData.build(utts, "LLO", PHONEMES)).packing()
     assert e.value.key == "tie #1" and e.value.phoneme == "t" and e.value.file == tmp_path / "spec.toml"
 
 
@@ -367,13 +367,13 @@ def test_overlapping_ties_are_refused_for_what_they_are(tmp_path: Path, utts: li
     with pytest.raises(SpecError, match=r"\[tie #2\] ties theta_bw of \['t', 'a'\] on LLO, but t.theta_bw is in "
                        r"\[\[tie\]\] #1 already: a parameter is tied by one \[\[tie\]\] only; put the phonemes of "
                        "both in one tie") as e:
-        ParameterSet.from_spec(s, ChannelData.build(utts, "LLO", PHONEMES)).packing()
+        ParameterSet.from_settings(s.estimation_settings(), ChannelData.build(utts, "LLO", PHONEMES)).packing()
     assert (e.value.key, e.value.phoneme, e.value.parameter) == ("tie #2", "t", "theta_bw")
     # ties of other parameters over the same phonemes do not overlap
     ok = spec_of(tmp_path, parameters={"free": ["target", "theta_bw", "theta_fw"]},
                  tie=[{"phonemes": ["p", "t"], "parameters": ["theta_bw"]},
                       {"phonemes": ["t", "a"], "parameters": ["theta_fw"]}])
-    ParameterSet.from_spec(ok, ChannelData.build(utts, "LLO", PHONEMES)).packing()
+    ParameterSet.from_settings(ok.estimation_settings(), ChannelData.build(utts, "LLO", PHONEMES)).packing()
 
 
 @pytest.mark.parametrize("kind, table", [

@@ -36,7 +36,7 @@ def test_shrinkage_rows_have_exact_derivatives(tmp_path: Path, utts: list[model.
                 tie=[{"phonemes": ["i", "a"], "parameters": ["k_r"]}],
                 shrink=[{"phonemes": ["a", "i", "p"], "parameters": ["alpha", "theta_bw"], "sd": 0.3, "scale": "log"},
                         {"phonemes": ["a", "i", "t"], "parameters": ["k_r", "target"], "sd": 0.2}])
-    prob = build_problem(s, utts, "LLO", phonemes=PHONEMES)
+    prob = build_problem(s.estimation_settings(), utts, "LLO", phonemes=PHONEMES)
     assert prob.shrinkage.size == 4 * 3
     x = prob.packing.pack() + np.random.default_rng(1).normal(0.0, 0.05, prob.packing.n_free)
     check_problem_derivatives(prob, x)
@@ -166,7 +166,7 @@ def test_shrinkage_of_fixed_values_and_bad_choose_options_are_refused(tmp_path: 
                                                                      utts: list[model.Utterance]) -> None:
     s = spec_of(tmp_path, shrink=[{"phonemes": ["p", "t"], "parameters": ["k_r"], "sd": 0.1}])  # k_r not free
     with pytest.raises(SpecError, match=r"\[shrink #1\] k_r is free for none of \['p', 't'\] on LLO"):
-        build_problem(s, [u for u in vcv_utterances(np.random.default_rng(0), repetitions=1, rates={"n": 1.0},
+        build_problem(s.estimation_settings(), [u for u in vcv_utterances(np.random.default_rng(0), repetitions=1, rates={"n": 1.0},
                                                      consonants=("p", "t"))], "LLO")
     with pytest.raises(SpecError, match=r"\[--choose.values\] shrink.sd takes positive numbers"):
         parse_choose(s, "shrink.sd=0,1")

@@ -49,7 +49,7 @@ def start() -> np.ndarray:
 
 @pytest.mark.parametrize("mode", ["offset", "offset_scale"])
 def test_speaker_jacobian_matches_finite_differences(utts, mode: str) -> None:  # type: ignore[no-untyped-def]
-    p = build_problem(spec(mode), utts, "LLO", start=(start(), 1.0), phonemes=PHONEMES)
+    p = build_problem(spec(mode).estimation_settings(), utts, "LLO", start=(start(), 1.0), phonemes=PHONEMES)
     x = p.packing.pack()
     jac = p.jacobian(x).toarray()
     for j in range(p.packing.n_free):
@@ -67,7 +67,7 @@ def test_speaker_jacobian_matches_finite_differences(utts, mode: str) -> None:  
 
 
 def fit(utts, mode: str):  # type: ignore[no-untyped-def]
-    p = build_problem(spec(mode), utts, "LLO", start=(start(), 1.0), phonemes=PHONEMES)
+    p = build_problem(spec(mode).estimation_settings(), utts, "LLO", start=(start(), 1.0), phonemes=PHONEMES)
     res = least_squares(p.residuals, p.packing.pack(), jac=p.jacobian, bounds=p.packing.bounds(), x_scale="jac")
     rmse = float(np.sqrt(np.sum(res.fun[: p.data.corpus.n_samples] ** 2) / p.data.n_valid))
     return p, res.x, rmse
@@ -95,7 +95,7 @@ def test_speakers_need_the_column_and_a_known_mode(utts) -> None:  # type: ignor
     bare = [copy.copy(u) for u in utts[:2]]
     bare[1].meta = {}
     with pytest.raises(ValueError, match="has no 'speaker'"):
-        build_problem(spec("offset"), bare, "LLO", start=(TRUTH, 1.0), phonemes=PHONEMES)
+        build_problem(spec("offset").estimation_settings(), bare, "LLO", start=(TRUTH, 1.0), phonemes=PHONEMES)
     with pytest.raises(SpecError, match="model.speakers"):
         spec("scale")
 
@@ -223,7 +223,7 @@ def targets_spec(mode: str = "targets", **sections):  # type: ignore[no-untyped-
 
 def test_speaker_targets_gradient_and_recovery(two_speakers) -> None:  # type: ignore[no-untyped-def]
     utts, s2 = two_speakers
-    p = build_problem(targets_spec(), utts, "LLO", start=(TRUTH, 1.0), phonemes=PHONEMES)
+    p = build_problem(targets_spec().estimation_settings(), utts, "LLO", start=(TRUTH, 1.0), phonemes=PHONEMES)
     names = p.packing.names()
     # one target per speaker and phoneme, the dynamics once (the first speaker's rows lead)
     assert "a|s2.target" in names and "a|s1.theta_bw" in names and "a|s2.theta_bw" not in names
@@ -249,7 +249,7 @@ def test_speaker_targets_gradient_and_recovery(two_speakers) -> None:  # type: i
     table = p.table_matrix(params)
     np.testing.assert_allclose(table[:, TARGET], [(own["s1"][ph] + own["s2"][ph]) / 2 for ph in PHONEMES])
     np.testing.assert_allclose(table[:, 1:], params[: len(PHONEMES), 1:])
-    q = build_problem(targets_spec("offset_scale"), utts, "LLO", start=(TRUTH, 1.0), phonemes=PHONEMES)
+    q = build_problem(targets_spec("offset_scale").estimation_settings(), utts, "LLO", start=(TRUTH, 1.0), phonemes=PHONEMES)
     rq = least_squares(q.residuals, q.packing.pack(), jac=q.jacobian, bounds=q.packing.bounds(), x_scale="jac")
     assert float(np.sqrt(np.sum(rq.fun**2) / q.data.n_valid)) > 2 * rmse  # an affine map cannot do it
 
@@ -291,7 +291,7 @@ def test_speaker_targets_table_score_and_mcmc(two_speakers, tmp_path: Path) -> N
     # (MCMC once looked the class up among the "p|s" rows, found none and sampled without it)
     shrunk = targets_spec(shrink=[{"phonemes": ["p", "t"], "parameters": ["theta_bw"], "sd": 0.3, "scale": "log"}])
     groups = table_problem(shrunk, table, "LLO", utts).shrink_groups
-    assert groups and groups == build_problem(shrunk, utts, "LLO").shrink_groups
+    assert groups and groups == build_problem(shrunk.estimation_settings(), utts, "LLO").shrink_groups
     assert [problem.data.phonemes[r] for r in groups[0].rows] == ["p|s1", "t|s1"]
     # the seam MCMC samples through (sample_table) carries that problem's pieces, the groups included
     sampling = ChannelSampling.of(table_problem(shrunk, table, "LLO", utts))

@@ -20,8 +20,8 @@ from coartic.evaluation.baselines import Baselines
 from coartic.fit.choose import set_value
 from coartic.evaluation.score import score_recordings
 from coartic.fit.simulate import PHONEMES, vcv_utterances
-from coartic.fit.spec import (DEFAULT_FREE, DEFAULT_POOLED, DEFAULT_SHARED, DEFAULT_TARGET_PRIOR, SpecError,
-                              load_spec, parse_spec)
+from coartic.estimation.settings import DEFAULT_FREE, DEFAULT_POOLED, DEFAULT_SHARED, DEFAULT_TARGET_PRIOR
+from coartic.fit.spec import SpecError, load_spec, parse_spec
 from coartic.table import PARAMETERS
 
 from fit_helpers import EMA, check_problem_derivatives
@@ -83,7 +83,7 @@ def test_bad_settings_name_their_key(tmp_path: Path, parameters: dict[str, objec
 def test_target_prior_rows_pull_toward_each_phonemes_segment_mean(tmp_path: Path, utts: list[model.Utterance]) -> None:
     s = parsed(tmp_path, model={"channels": ["LLO"]}, parameters={"free": ["target", "theta_bw"], "target_prior": 0.5,
                                                                    "prior_noise": 0.7})
-    prob = build_problem(s, utts, "LLO", phonemes=PHONEMES)
+    prob = build_problem(s.estimation_settings(), utts, "LLO", phonemes=PHONEMES)
     means = segment_means(utts, "LLO")
     # by hand: every sample inside a segment of the phoneme, over every utterance
     y = np.concatenate([u.observed["LLO"] for u in utts])
@@ -101,7 +101,7 @@ def test_target_prior_rows_pull_toward_each_phonemes_segment_mean(tmp_path: Path
     check_problem_derivatives(prob, x + 0.05)
     # an explicit prior on a target wins over the data's
     s2 = s.with_options(priors={"p.target": (1.0, 2.0, False)})
-    pri = build_problem(s2, utts, "LLO", phonemes=PHONEMES).priors
+    pri = build_problem(s2.estimation_settings(), utts, "LLO", phonemes=PHONEMES).priors
     assert (pri["p.target"].mean, pri["p.target"].sd) == (1.0, 2.0) and pri["t.target"].mean == pytest.approx(means["t"])
 
 
@@ -120,7 +120,7 @@ def test_a_strong_target_prior_makes_the_targets_the_phoneme_means(tmp_path: Pat
 def test_shared_dynamics_are_one_value_per_channel(tmp_path: Path, utts: list[model.Utterance]) -> None:
     s = parsed(tmp_path, model={"channels": ["LLO"]}, fit={"starts": 1}, staging={"enabled": False},
                parameters={"free": ["target", "theta_bw", "theta_fw"], "shared": ["theta_bw", "theta_fw"]})
-    prob = build_problem(s, utts, "LLO", phonemes=PHONEMES)
+    prob = build_problem(s.estimation_settings(), utts, "LLO", phonemes=PHONEMES)
     assert prob.packing.n_free == len(PHONEMES) + 2  # every target, one theta_bw, one theta_fw
     fit = run(s, utterances=utts, quiet=True).channels["LLO"]
     for k in (BW, FW):

@@ -199,9 +199,9 @@ def test_medial_pause_is_weak(tmp_path: Path) -> None:
     (v,) = with_spec_pauses(s, [u], notes)
     assert v.labels == ("#", "a", MEDIAL_PAUSE, "i", FINAL_PAUSE)
     assert any("'#mid', weak" in n for n in notes)
-    p = build_problem(s, [v], "LA")
+    p = build_problem(s.estimation_settings(), [v], "LA")
     row = p.phonemes.index(MEDIAL_PAUSE)
     # the default frees α (pooled): the medial pause's starts at MEDIAL_ALPHA; where α is not free it stays there
     assert p.packing.base[row, 1] == MEDIAL_ALPHA and f"{MEDIAL_PAUSE}.alpha" in p.packing.names()
-    fixed = build_problem(s.with_options(free=("target", "theta_bw", "theta_fw"), pooled=()), [v], "LA")
+    fixed = build_problem(s.with_options(free=("target", "theta_bw", "theta_fw"), pooled=()).estimation_settings(), [v], "LA")
     assert fixed.packing.base[row, 1] == MEDIAL_ALPHA and f"{MEDIAL_PAUSE}.alpha" not in fixed.packing.names()

@@ -182,7 +182,7 @@ def test_report_of_a_very_long_utterance_is_bounded(tmp_path: Path) -> None:
 
     utts = sentence(np.random.default_rng(4), n_words=2500)
     spec = make_spec(tmp_path, ["target"])
-    problem = build_problem(spec, utts, "LLO", start=(TRUTH.copy(), 1.0), phonemes=PHONEMES)
+    problem = build_problem(spec.estimation_settings(), utts, "LLO", start=(TRUTH.copy(), 1.0), phonemes=PHONEMES)
     x = problem.packing.pack()
     # the model at the truth, unfitted: a fit of 5000 segments would cost the test budget
     fit = ChannelFit("LLO", problem, x, TRUTH.copy(), 1.0, "converged", "", 0, 0.0,

@@ -13,6 +13,7 @@ import numpy as np
 import pytest
 
 from coartic.face.viewer import chromium_program
+from coartic.evaluation.heldout import held_out
 from coartic.jobs.fit import fit_job
 from coartic.fit.simulate import vcv_utterances
 from coartic.fit.spec import load_spec, parse_spec
@@ -94,7 +95,7 @@ def test_report_of_synthetic_vcvs_shows_the_held_out_figure_with_baselines(chrom
            "parameters": {"free": ["target", "alpha", "theta_bw", "theta_fw", "k_r"]},
            "staging": {"enabled": False}, "override": [{"phonemes": ["p"], "bounds": {"k_r": [0.0, 0.8]}}]}
     result = fit_job(parse_spec(paper(raw), tmp_path / "spec.toml"), tmp_path / "out", utterances=utts, quiet=True, validate=True)
-    assert result.validation
+    assert held_out(result)
     html = (tmp_path / "out" / "report.html").read_text(encoding="utf-8")
     m = layout(chromium, tmp_path / "out" / "report.html", tmp_path)
     check_reads_well(m, html)

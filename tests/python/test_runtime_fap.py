@@ -29,13 +29,18 @@ def fap_sequences(draw: st.DrawFn) -> FapSequence:
     n = draw(st.integers(0, 6))
     mask = np.array(draw(st.lists(st.lists(st.booleans(), min_size=N_FAPS, max_size=N_FAPS),
                                   min_size=n, max_size=n)), dtype=bool).reshape(n, N_FAPS)
-    mask[:, :2] = False  # viseme and expression are high-level FAPs, refused (tested below)
+    mask[:, 0] = False  # the viseme is a high-level FAP coartic does not write, refused (tested below)
     values = np.array(draw(st.lists(st.integers(-(2**40), 2**40), min_size=n * N_FAPS, max_size=n * N_FAPS)),
                       dtype=np.int64).reshape(n, N_FAPS)
+    # the expression (FAP 2): six fields where sent, each within its range
+    fields = np.array([[draw(st.integers(0, 6)), draw(st.integers(0, 63)), draw(st.integers(0, 6)),
+                        draw(st.integers(0, 63)), draw(st.integers(0, 1)), draw(st.integers(0, 1))] for _ in range(n)],
+                      dtype=np.int64).reshape(n, 6)
     name = draw(st.text(st.characters(min_codepoint=33, max_codepoint=126), min_size=1, max_size=12))
     fps = draw(st.one_of(st.integers(1, 200).map(float), st.floats(0.01, 1000.0, allow_nan=False)))
     first = draw(st.integers(0, 5))
-    return FapSequence(name=name, fps=fps, mask=mask, values=values, first_frame=first)
+    return FapSequence(name=name, fps=fps, mask=mask, values=values, first_frame=first,
+                       expression=fields if mask[:, 1].any() else None)
 
 
 @settings(max_examples=60, deadline=None)
@@ -81,6 +86,11 @@ GOOD = "2.1 test 25 2\n" + " ".join(["0", "0", "1"] + ["0"] * 65) + "\n0 10\n" +
         (GOOD.replace("\n0 10\n", "\n0 10 11\n"), "line 3: frame 0 has 2 values but its mask (line 2) selects 1"),
         (GOOD.replace("\n1 12\n", "\n3 12\n"), "line 5: frame number 3, expected 1"),
         (GOOD.replace("0 0 1 0", "1 0 1 0", 1), "line 2: FAP 1 (viseme) is set"),
+        # FAP 2 takes six values (expression_select1 .. expression_def), each within its range
+        (GOOD.replace("0 0 1 0", "0 1 1 0", 1), "line 3: frame 0 has 1 values but its mask (line 2) selects 2 FAPs "
+                                                "(7 values: FAP 2 takes 6)"),
+        (GOOD.replace("0 0 1 0", "0 1 1 0", 1).replace("\n0 10\n", "\n0 7 10 0 0 0 0 10\n"),
+         "line 3: frame 0: FAP 2 (expression): expression_select1 = 7 is not within 0-6"),
     ],
 )
 def test_malformed_fap_files_name_the_line(tmp_path: Path, text: str, needle: str) -> None:
@@ -148,7 +158,12 @@ def test_mapping_rejects_bad_channels_and_units() -> None:
         FaceUnits(mns_mm=0.0)
     high = np.zeros((1, N_FAPS), bool)
     high[0, 1] = True
-    with pytest.raises(AnimationError, match=r"FAP 2 \(expression\) is a high-level FAP"):
+    with pytest.raises(AnimationError, match=r"FAP 2 \(expression\) is sent without its six values"):
         FapSequence("x", 25.0, high, np.zeros((1, N_FAPS), np.int64))
+    with pytest.raises(AnimationError, match=r"frame 0: FAP 2 \(expression\): expression_intensity1 = 64"):
+        FapSequence("x", 25.0, high, np.zeros((1, N_FAPS), np.int64), expression=np.array([[1, 64, 0, 0, 0, 0]]))
+    high[0, 0] = True
+    with pytest.raises(AnimationError, match=r"FAP 1 \(viseme\) is a high-level FAP"):
+        FapSequence("x", 25.0, high, np.zeros((1, N_FAPS), np.int64), expression=np.zeros((1, 6), np.int64))
     with pytest.raises(AnimationError, match="one word"):
         FapSequence("two words", 25.0, np.zeros((0, N_FAPS), bool), np.zeros((0, N_FAPS), np.int64))

@@ -66,8 +66,8 @@ def output_dir(spec: BatchSpec, out: Path, force: bool = False) -> OutputDir:
     ``force``; two runs never write it at once."""
     identity = {"spec": str(spec.path.resolve()), "fingerprint": spec.fingerprint}
     return OutputDir(out, "batch", identity, force=force, staged=False,
-                     protect=[spec.path, spec.fit.path, *(g.spec.corpus.manifest for g in spec.groups
-                                                          if g.spec.corpus.manifest is not None)])
+                     protect=[spec.path, spec.fit.path, *(g.spec.corpus_spec.manifest for g in spec.groups
+                                                          if g.spec.corpus_spec.manifest is not None)])
 
 
 def land_unit(out: Path, spec: BatchSpec, result: UnitOutput) -> None:

@@ -175,7 +175,7 @@ def load_batch_spec(path: str | Path) -> BatchSpec:
     # The fit spec's own reading of the data (label map, role map, file column) is kept; which rows
     # are read is the batch's.
     def corpus(**where: Any) -> CorpusSpec:
-        return replace(fit.corpus, **{"manifest": None, "files": (), "labels": (), "select": select, "limit": None,
+        return replace(fit.corpus_spec, **{"manifest": None, "files": (), "labels": (), "select": select, "limit": None,
                                       **where})
 
     hashes = {"batch spec": _sha(path, "top level", path), "fit spec": _sha(fit_path, "fit", path)}
@@ -229,7 +229,7 @@ def load_batch_spec(path: str | Path) -> BatchSpec:
             hashes[f"manifest {folder.name}"] = _sha(manifest, "corpus.folders", path)
         # The pooled fit gets its data from the groups' loads, never from these: the manifests only
         # name its corpus (as data and label files both, which a corpus of files needs in pairs).
-        manifests = tuple(g.spec.corpus.manifest for g in groups if g.spec.corpus.manifest is not None)
+        manifests = tuple(g.spec.corpus_spec.manifest for g in groups if g.spec.corpus_spec.manifest is not None)
         pooled_corpus = corpus(files=manifests, labels=manifests)
     if len(groups) > MAX_GROUPS:
         raise _err(path, "corpus", f"{len(groups)} groups: at most {MAX_GROUPS}")

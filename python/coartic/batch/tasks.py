@@ -100,7 +100,7 @@ def load_group(spec: FitSpec, group: str | None, threads: int | None = None) -> 
     cap_threads(threads)
     from coartic.fit.data import load_utterances, manifest_rows
 
-    manifest = spec.corpus.manifest
+    manifest = spec.corpus_spec.manifest
     if manifest is not None and not manifest.is_file():
         # the usual cause on a cluster: the recordings are not where the client read them
         raise UnitFailed(f"group {group}: {manifest} is not readable on the worker at {socket.gethostname()} "

@@ -19,7 +19,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import Any, Mapping, Sequence
+from typing import TYPE_CHECKING, Any, Mapping, Sequence
 
 import numpy as np
 from numpy.typing import NDArray
@@ -29,7 +29,10 @@ from coartic.estimation.parameters import psd_pseudo_inverse
 from coartic.estimation.penalties import ShrinkGroup
 from coartic.estimation.speakers import SpeakerRows, utterance_speakers
 from coartic.model import Utterance
-from coartic.table import PARAMETERS, TableError
+from coartic.table import PARAMETERS, ParameterTable, TableError
+
+if TYPE_CHECKING:
+    from coartic.estimation.settings import GroupSettings
 
 FloatArray = NDArray[np.float64]
 # Ekman's six, in the order the papers list them; other names follow in order of appearance
@@ -154,21 +157,21 @@ def channel_metadata(problem: Any, x: FloatArray) -> dict[str, Any]:
             **(problem.emotion_prior.as_dict() if problem.emotion_prior is not None else {})}
 
 
-def table_emotion_meta(spec: Any, table: Any) -> dict[str, Any]:
-    """A fitted table's ``metadata.emotions``, refused (``TableError`` naming the table and the spec)
-    unless the spec has the same ``[model] emotions`` and column: a problem around the table must be
-    the model it was fitted with. ``{}`` for a table fitted without emotions."""
+def table_emotion_meta(groups: GroupSettings, where: str, table: ParameterTable) -> dict[str, Any]:
+    """A fitted table's ``metadata.emotions``, refused (``TableError`` naming the table and ``where``,
+    the settings' spec file) unless ``groups`` have the same ``[model] emotions`` and column: a problem
+    around the table must be the model it was fitted with. ``{}`` for a table fitted without emotions."""
     raw = (table.metadata or {}).get("emotions")
     meta: dict[str, Any] = raw if isinstance(raw, dict) else {}
     told = meta.get("mode")
-    if spec.emotions == "none":
+    if groups.emotions == "none":
         if told:
-            raise TableError(f"{table.source}: fitted with [model] emotions = {told!r}, but {spec.path} has none: "
+            raise TableError(f"{table.source}: fitted with [model] emotions = {told!r}, but {where} has none: "
                              "use the spec the table was fitted with")
         return meta
-    if told != spec.emotions or meta.get("column") != spec.emotion_column:
-        raise TableError(f"{table.source}: {spec.path} has [model] emotions = {spec.emotions!r} (column "
-                         f"{spec.emotion_column!r}), but the table was fitted with "
+    if told != groups.emotions or meta.get("column") != groups.emotion_column:
+        raise TableError(f"{table.source}: {where} has [model] emotions = {groups.emotions!r} (column "
+                         f"{groups.emotion_column!r}), but the table was fitted with "
                          f"{'no emotions' if not told else repr(told) + ' (column ' + repr(meta.get('column')) + ')'}: "
                          "use the spec the table was fitted with")
     return meta

@@ -49,7 +49,7 @@ class Packing:
     # free itself but always takes its leader's value; the leader's Jacobian column is the sum.
     ties: tuple[tuple[int, int], ...] = ()
     # "phoneme.parameter" (and "beta") -> the spec key or default its box came from, so that a
-    # parameter at a bound is explained by where the bound comes from (coartic.fit.bounds).
+    # parameter at a bound is explained by where the bound comes from (coartic.estimation.bounds).
     bound_sources: Mapping[str, str] | None = None
 
     def __post_init__(self) -> None:

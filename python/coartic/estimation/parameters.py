@@ -1,12 +1,13 @@
 """The parameters of one channel's fit, lmfit-style: per phoneme and parameter its value, whether it
 is free, its bounds, its prior and (after a fit) its standard error.
 
-``ParameterSet.from_spec`` is where a fit spec becomes numbers (the one place: least squares, MCMC
-and the report all start from it); ``packing()`` gives the engines' view (``coartic.estimation.packing.
+``ParameterSet.from_settings`` is where the settings (``coartic.estimation.settings``, a fit spec's
+or built in Python) become numbers (the one place: least squares, MCMC and the report all start
+from it); ``packing()`` gives the engines' view (``coartic.estimation.packing.
 Packing``: the free entries as an internal vector x), and ``ChannelFit.parameters`` the fitted set
 with standard errors, which ``parameters.csv`` and ``fit_report.txt`` print.
 
-A setting the spec makes is honoured or refused, never dropped: a global ``[parameters.bounds]
+A setting is honoured or refused, never dropped: a global ``[parameters.bounds]
 target`` replaces the data range, a ``target`` start replaces the data targets, and a start the
 spec gives outside its bounds is an error naming the key (a default start outside bounds the spec
 narrowed starts on the nearest bound).
@@ -15,8 +16,8 @@ narrowed starts on the nearest bound).
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
-from typing import TYPE_CHECKING, Iterator, Mapping
+from dataclasses import asdict, dataclass
+from typing import TYPE_CHECKING, Any, Iterator, Mapping
 
 import numpy as np
 from numpy.typing import NDArray
@@ -28,10 +29,9 @@ from coartic.pauses import MEDIAL_ALPHA, MEDIAL_PAUSE
 from coartic.table import N_PARAMS, PARAMETERS
 
 
-if TYPE_CHECKING:  # annotations only: the spec and the at-bound notes are fit's, above this package
+if TYPE_CHECKING:  # annotations only
     from coartic.estimation.data import ChannelData
-    from coartic.fit.bounds import BoundNote
-    from coartic.fit.spec import FitSpec
+    from coartic.estimation.settings import EstimationSettings
 
 FloatArray = NDArray[np.float64]
 BoolArray = NDArray[np.bool_]
@@ -42,6 +42,57 @@ def psd_pseudo_inverse(a: FloatArray, rtol: float = 1e-10) -> tuple[FloatArray, 
     w, v = np.linalg.eigh(a)
     keep = w > rtol * max(float(w.max()) if w.size else 0.0, 1e-300)
     return (v[:, keep] / w[keep]) @ v[:, keep].T, v, keep
+
+
+# Why a free parameter sits on a bound (coartic.estimation.bounds computes a BoundNote for each).
+CATEGORIES: tuple[str, ...] = ("domain", "active", "optimal", "insensitive", "unexplained")
+CATEGORY_TITLES: dict[str, str] = {
+    "domain": "model domain — by design",
+    "active": "active — the data pull beyond the bound",
+    "optimal": "not binding — a wider box would not change the fit",
+    "insensitive": "insensitive — not constrained by the data",
+    "unexplained": "UNEXPLAINED — the fit is not held at this bound",
+}
+
+@dataclass(frozen=True)
+class BoundNote:
+    """The explanation of one free parameter at a bound (``parameters.csv``, ``summary.json``)."""
+
+    name: str
+    phoneme: str
+    parameter: str
+    value: float
+    side: str  # "lower" | "upper"
+    bound: float
+    source: str  # where the box comes from: "model domain …", a spec key, or the defaults
+    category: str  # one of CATEGORIES
+    gradient: float  # d(SSE)/dx at the fit, x the fitted coordinate (ln value for log-fitted parameters)
+    gradient_of: str  # "ln theta_bw" or "k_r": what x is
+    gain_held_chi2: float  # best measured SSE decrease past the bound, others held (Δχ²); NaN: not probed
+    held_value: float  # the value past the bound where it was measured
+    gain_gn_chi2: float  # Gauss–Newton estimate with the interior parameters re-adjusted (Δχ²)
+    gain_gn_measured_chi2: float  # the model evaluated along that direction (Δχ²); NaN: not probed
+    range_chi2: float  # the largest SSE rise over the whole box, others held (Δχ²)
+    beyond_chi2: float  # the largest SSE rise past the bound, others held (Δχ²)
+    rmse: float  # the channel's RMSE as fitted (mm)
+    rmse_relaxed: float  # the RMSE with the best measured gain (mm)
+    partner: str  # the free parameter most correlated with it ("" if none)
+    partner_corr: float
+    explanation: str  # the category's sentence, with numbers
+    reading: str  # what the bound means for the model (MODEL.md names)
+    shared_by: tuple[str, ...] = ()  # the phonemes that share this one value ([parameters] shared, [[tie]])
+
+    @property
+    def title(self) -> str:
+        return CATEGORY_TITLES[self.category]
+
+    def as_dict(self) -> dict[str, Any]:
+        d = asdict(self)
+        return {k: (None if isinstance(v, float) and not math.isfinite(v) else v) for k, v in d.items()}
+
+    def short(self) -> str:
+        """One line: name, value, side, category."""
+        return f"{self.name} = {self.value:.4g} at its {self.side} bound {self.bound:.4g}: {self.title}"
 
 
 # Parameters that the original model (eq. 1) ignores: never free there.
@@ -64,7 +115,7 @@ class Parameter:
     at_bound: bool = False
     identified: bool = True
     tied_to: str | None = None  # "phoneme.parameter" whose value this entry takes ([[tie]])
-    bound_note: BoundNote | None = None  # why it is at a bound (coartic.fit.bounds), after a fit
+    bound_note: BoundNote | None = None  # why it is at a bound (coartic.estimation.bounds), after a fit
     shared_by: tuple[str, ...] = ()  # the phonemes whose one value this is ([parameters] shared, [[tie]]), carrier first
 
     @property
@@ -138,30 +189,30 @@ class ParameterSet(Mapping[str, Parameter]):
 
     # ------------------------------------------------------------------ building
     @classmethod
-    def from_spec(cls, spec: FitSpec, data: ChannelData,
-                  start: tuple[FloatArray, float] | None = None) -> ParameterSet:
-        """Free set, bounds, priors and starting values of one channel from the spec.
+    def from_settings(cls, settings: EstimationSettings, data: ChannelData,
+                      start: tuple[FloatArray, float] | None = None) -> ParameterSet:
+        """Free set, bounds, priors and starting values of one channel from the settings.
 
         Targets start at the mean observed value at each phoneme's segment midpoints (a good start
-        for the targets-first stage) unless the spec gives a ``target`` start; the rest from
+        for the targets-first stage) unless the settings give a ``target`` start; the rest from
         ``[parameters.start]`` and the overrides, or from ``start`` (a start table's matrix and β).
         The reference phoneme has α fixed at 1 (MODEL.md §1: α is scale-free).
         """
+        par, model, where = settings.parameters, settings.model, settings.source
         ch, phon = data.channel, data.phonemes
         n = len(phon)
         free = np.zeros((n, N_PARAMS), dtype=bool)
         for k, p in enumerate(PARAMETERS):
-            free[:, k] = p in spec.free and not (spec.variant == "original" and p in MODIFIED_ONLY)
-        inf = (-np.inf, np.inf)
-        lower = np.array([spec.bounds.get(p, inf)[0] for p in PARAMETERS])[None, :].repeat(n, 0)
-        upper = np.array([spec.bounds.get(p, inf)[1] for p in PARAMETERS])[None, :].repeat(n, 0)
-        # where each box comes from (coartic.fit.bounds explains a parameter at a bound by it)
-        source = np.array([spec.bound_source(p) for p in PARAMETERS], dtype=object)[None, :].repeat(n, 0)
-        if "target" not in spec.bounds:  # no global target box: the data range, widened
+            free[:, k] = p in par.free and not (model.variant == "original" and p in MODIFIED_ONLY)
+        lower = np.array([par.box(p)[0] for p in PARAMETERS])[None, :].repeat(n, 0)
+        upper = np.array([par.box(p)[1] for p in PARAMETERS])[None, :].repeat(n, 0)
+        # where each box comes from (coartic.estimation.bounds explains a parameter at a bound by it)
+        source = np.array([par.bound_source(p) for p in PARAMETERS], dtype=object)[None, :].repeat(n, 0)
+        if "target" not in par.bounds:  # no global target box: the data range, widened
             valid_y = data.observed[data.weights > 0]
-            lower[:, 0] = float(valid_y.min()) - spec.target_margin
-            upper[:, 0] = float(valid_y.max()) + spec.target_margin
-        for p, (lo, hi) in spec.channel_bounds.get(ch, {}).items():
+            lower[:, 0] = float(valid_y.min()) - par.target_margin
+            upper[:, 0] = float(valid_y.max()) + par.target_margin
+        for p, (lo, hi) in par.channel_bounds.get(ch, {}).items():
             k = PARAMETERS.index(p)
             lower[:, k], upper[:, k] = lo, hi
             source[:, k] = f"[parameters.bounds.{ch}] {p}"
@@ -172,17 +223,17 @@ class ParameterSet(Mapping[str, Parameter]):
         if start is not None:
             base, beta = np.array(start[0], dtype=np.float64), float(start[1])
         else:
-            base = np.array([spec.start[p] for p in PARAMETERS], dtype=np.float64)[None, :].repeat(n, 0)
+            base = np.array([par.start_of(p) for p in PARAMETERS], dtype=np.float64)[None, :].repeat(n, 0)
             for k, p in enumerate(PARAMETERS):
-                if p in spec.start_given:
+                if p in par.given:
                     origin[:, k] = f"parameters.start.{p}"
-            if "target" not in spec.start_given:
+            if "target" not in par.given:
                 base[:, 0] = data_targets(data)
-            beta = spec.beta
+            beta = model.beta
 
         if MEDIAL_PAUSE in phon and start is None:  # a weak medial pause: its neighbours dominate it (coartic.pauses)
             base[phon.index(MEDIAL_PAUSE), PARAMETERS.index("alpha")] = MEDIAL_ALPHA
-        for j, o in enumerate(spec.overrides):
+        for j, o in enumerate(par.overrides):
             for i, p in enumerate(phon):
                 if not o.applies(p, ch):
                     continue
@@ -202,9 +253,9 @@ class ParameterSet(Mapping[str, Parameter]):
                     # named (for errors) but never checked against bounds: a fixed value is not free
                     base[i, k], free[i, k], origin[i, k] = val, False, f"override #{j + 1}.fixed.{name}"
 
-        ref = spec.reference_for(phon)
+        ref = model.reference_for(phon)
         if ref not in phon:
-            raise SpecError.at(spec.path, "model.reference_phoneme", f"{ref!r} does not occur in "
+            raise SpecError.at(where, "model.reference_phoneme", f"{ref!r} does not occur in "
                                f"the {ch} data (phonemes: {' '.join(phon)}); name one that does, or leave "
                                "reference_phoneme out to let the data choose")
         r = phon.index(ref)
@@ -213,7 +264,7 @@ class ParameterSet(Mapping[str, Parameter]):
 
         ties: list[tuple[int, int]] = []
         tied_by: dict[tuple[int, int], int] = {}  # (phoneme row, parameter) -> the [[tie]] that holds it
-        for j, t in enumerate(spec.ties):
+        for j, t in enumerate(par.ties):
             if t.channels is not None and ch not in t.channels:
                 continue
             rows = [phon.index(p) for p in t.phonemes if p in phon]
@@ -221,12 +272,12 @@ class ParameterSet(Mapping[str, Parameter]):
                 k = PARAMETERS.index(name)
                 members = [i for i in rows if free[i, k]]
                 if len(rows) >= 2 and not members:
-                    raise SpecError.at(spec.path, f"tie #{j + 1}", f"{name} is free for none of {list(t.phonemes)} "
+                    raise SpecError.at(where, f"tie #{j + 1}", f"{name} is free for none of {list(t.phonemes)} "
                                        f"on {ch}: nothing to tie")
                 again = [i for i in rows if (i, k) in tied_by]
                 if again:
                     i = again[0]
-                    raise SpecError.at(spec.path, f"tie #{j + 1}", f"ties {name} of {list(t.phonemes)} on {ch}, but "
+                    raise SpecError.at(where, f"tie #{j + 1}", f"ties {name} of {list(t.phonemes)} on {ch}, but "
                                        f"{phon[i]}.{name} is in [[tie]] #{tied_by[i, k] + 1} already: a parameter is "
                                        f"tied by one [[tie]] only; put the phonemes of both in one tie",
                                        phoneme=phon[i], parameter=name)
@@ -235,7 +286,7 @@ class ParameterSet(Mapping[str, Parameter]):
                     # a tie means one shared value: a member held at its own value would silently not share it
                     i = held[0]
                     by = f"[{origin[i, k]}]" if origin[i, k] else f"{name} is not in [parameters] free for it"
-                    raise SpecError.at(spec.path, f"tie #{j + 1}", f"ties {name} of {list(t.phonemes)} on {ch}, but "
+                    raise SpecError.at(where, f"tie #{j + 1}", f"ties {name} of {list(t.phonemes)} on {ch}, but "
                                        f"{phon[i]}.{name} is fixed ({by}): free it, or take {phon[i]} out of the tie",
                                        phoneme=phon[i])
                 if len(members) < 2:
@@ -246,38 +297,38 @@ class ParameterSet(Mapping[str, Parameter]):
                     free[i, k] = False
                     base[i, k] = base[leader, k]
                     ties.append((i * N_PARAMS + k, leader * N_PARAMS + k))
-        for name in spec.shared:  # one value per channel: every phoneme where it is free takes the first's
+        for name in par.shared:  # one value per channel: every phoneme where it is free takes the first's
             k = PARAMETERS.index(name)
             members = [i for i in range(n) if free[i, k]]
             for i in members[1:]:
                 free[i, k] = False
                 base[i, k] = base[members[0], k]
                 ties.append((i * N_PARAMS + k, members[0] * N_PARAMS + k))
-        priors = expand_priors(spec, ch, tuple(phon), free, spec.fit_beta and spec.variant == "modified")
-        if not isinstance(spec.target_prior, str):  # "estimated": a family of the pool (build_problem)
-            priors.update(target_priors(spec.target_prior, data.utterances, ch, phon, free, priors))
+        priors = expand_priors(settings, ch, tuple(phon), free, par.fit_beta and model.variant == "modified")
+        if not isinstance(settings.priors.target_prior, str):  # "estimated": a family of the pool (build_problem)
+            priors.update(target_priors(settings.priors.target_prior, data.utterances, ch, phon, free, priors))
         bad = lower > upper
         if bad.any():
             i, k = map(int, np.argwhere(bad)[0])
-            raise SpecError.at(spec.path, f"parameters.bounds.{PARAMETERS[k]}", f"bounds of {phon[i]}.{PARAMETERS[k]} on "
+            raise SpecError.at(where, f"parameters.bounds.{PARAMETERS[k]}", f"bounds of {phon[i]}.{PARAMETERS[k]} on "
                                f"{ch}: low {lower[i, k]} > high {upper[i, k]} (with the overrides)", phon[i],
                                parameter=PARAMETERS[k])
         outside = free & ((base < lower) | (base > upper)) & (origin != "")
         if outside.any():
             i, k = map(int, np.argwhere(outside)[0])
-            raise SpecError.at(spec.path, str(origin[i, k]), f"start {base[i, k]:g} of {phon[i]}.{PARAMETERS[k]} on {ch} "
+            raise SpecError.at(where, str(origin[i, k]), f"start {base[i, k]:g} of {phon[i]}.{PARAMETERS[k]} on {ch} "
                                f"is outside its bounds [{lower[i, k]:g}, {upper[i, k]:g}]", phoneme=phon[i])
         # A default (or data, or start-table) value outside a box starts on its nearest bound.
         base = np.where(free, np.clip(base, lower, upper), base)
-        beta_free = spec.fit_beta and spec.variant == "modified"
-        beta = float(np.clip(beta, *spec.beta_bounds)) if beta_free else beta
-        ps = cls(ch, tuple(phon), base, free, lower, upper, beta, beta_free, spec.beta_bounds, priors=priors,
+        beta_free = par.fit_beta and model.variant == "modified"
+        beta = float(np.clip(beta, *par.beta_bounds)) if beta_free else beta
+        ps = cls(ch, tuple(phon), base, free, lower, upper, beta, beta_free, par.beta_bounds, priors=priors,
                  origins=origin)
         ps.ties = tuple(ties)
         ps.bound_sources = {f"{p}.{q}": str(source[i, k])
                             for i, p in enumerate(phon) for k, q in enumerate(PARAMETERS) if free[i, k]}
         if beta_free:
-            ps.bound_sources[BETA] = spec.bound_source(BETA)
+            ps.bound_sources[BETA] = par.bound_source(BETA)
         return ps
 
     def packing(self) -> Packing:
@@ -328,18 +379,19 @@ class ParameterSet(Mapping[str, Parameter]):
         return out
 
 
-def expand_priors(spec: FitSpec, channel: str, phonemes: tuple[str, ...], free: BoolArray,
+def expand_priors(settings: EstimationSettings, channel: str, phonemes: tuple[str, ...], free: BoolArray,
                   beta_free: bool) -> dict[str, Prior]:
     """``[parameters.prior]`` per free entry of one channel: "theta_bw" applies to every phoneme whose
     θ_bw is free, "p.k_r" to one (a more specific key wins). A prior on nothing free is refused; one
     on a phoneme absent from this channel's data applies to nothing here."""
     out: dict[str, Prior] = {}
-    for key in sorted(spec.priors, key=lambda k: "." in k):  # global keys first, specific ones override
-        mean, sd, log = spec.priors[key]
+    given, where = settings.priors.priors, settings.source
+    for key in sorted(given, key=lambda k: "." in k):  # global keys first, specific ones override
+        mean, sd, log = given[key]
         phoneme, _, name = key.rpartition(".")
         if name == BETA:
             if not beta_free:
-                raise SpecError.at(spec.path, f"parameters.prior.{key}", f"beta is not fitted ([model] fit_beta)")
+                raise SpecError.at(where, f"parameters.prior.{key}", f"beta is not fitted ([model] fit_beta)")
             out[BETA] = Prior(mean, sd, log)
             continue
         k = PARAMETERS.index(name)
@@ -347,12 +399,12 @@ def expand_priors(spec: FitSpec, channel: str, phonemes: tuple[str, ...], free: 
             if phoneme not in phonemes:
                 continue
             if not free[phonemes.index(phoneme), k]:
-                raise SpecError.at(spec.path, f"parameters.prior.{key}", f"{key} is not free on {channel}: a prior on "
+                raise SpecError.at(where, f"parameters.prior.{key}", f"{key} is not free on {channel}: a prior on "
                                    "a fixed value would do nothing")
             out[key] = Prior(mean, sd, log)
         else:
             if not free[:, k].any():
-                raise SpecError.at(spec.path, f"parameters.prior.{key}", f"{name} is free for no phoneme on {channel}")
+                raise SpecError.at(where, f"parameters.prior.{key}", f"{name} is free for no phoneme on {channel}")
             for i, p in enumerate(phonemes):
                 if free[i, k]:
                     out[f"{p}.{name}"] = Prior(mean, sd, log)

@@ -5,6 +5,7 @@ spec ``[[shrink]]``), each with its exact Jacobian."""
 from __future__ import annotations
 
 from dataclasses import dataclass
+from pathlib import Path
 from typing import TYPE_CHECKING, Mapping, Sequence
 
 import numpy as np
@@ -15,8 +16,8 @@ from coartic.estimation.packing import Packing, Prior
 from coartic.errors import SpecError
 from coartic.table import N_PARAMS, PARAMETERS
 
-if TYPE_CHECKING:  # annotations only: the spec is fit's, above this package
-    from coartic.fit.spec import FitSpec
+if TYPE_CHECKING:
+    from coartic.estimation.settings import Shrink
 
 FloatArray = NDArray[np.float64]
 BoolArray = NDArray[np.bool_]
@@ -182,12 +183,14 @@ class Shrinkage(PenaltyRows):
         return Shrinkage(packing, self.groups, self.noise)
 
 
-def shrink_groups(spec: FitSpec, channel: str, phonemes: Sequence[str], free: BoolArray) -> list[ShrinkGroup]:
-    """The spec's ``[[shrink]]`` tables as groups of one channel: members present in its data; a
-    class with two members or more present but the parameter free for none of them is refused (a
-    shrinkage of fixed values would do nothing), one with fewer than two present applies to nothing."""
+def shrink_groups(shrinks: Sequence[Shrink], source: Path | str | None, channel: str, phonemes: Sequence[str],
+                  free: BoolArray) -> list[ShrinkGroup]:
+    """The ``[[shrink]]`` tables (``source``: the spec file its errors name) as groups of one channel:
+    members present in its data; a class with two members or more present but the parameter free for
+    none of them is refused (a shrinkage of fixed values would do nothing), one with fewer than two
+    present applies to nothing."""
     out = []
-    for s in spec.shrinks:
+    for s in shrinks:
         if s.channels is not None and channel not in s.channels:
             continue
         rows = tuple(phonemes.index(p) for p in s.phonemes if p in phonemes)
@@ -196,7 +199,7 @@ def shrink_groups(spec: FitSpec, channel: str, phonemes: Sequence[str], free: Bo
         for name in s.parameters:
             k = PARAMETERS.index(name)
             if not free[list(rows), k].any():
-                raise SpecError.at(spec.path, s.key, f"{name} is free for none of {list(s.phonemes)} on {channel}: "
+                raise SpecError.at(source, s.key, f"{name} is free for none of {list(s.phonemes)} on {channel}: "
                                    "nothing to shrink")
             members = tuple(phonemes[i] for i in rows)
             out.append(ShrinkGroup(s.key, members, rows, k, s.sd, s.log))

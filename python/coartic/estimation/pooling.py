@@ -55,8 +55,8 @@ from coartic.estimation.penalties import Penalty, PenaltyRows, ShrinkGroup, Shri
 from coartic.errors import SpecError
 from coartic.table import PARAMETERS
 
-if TYPE_CHECKING:  # annotations only: the spec is fit's, above this package
-    from coartic.fit.spec import FitSpec
+if TYPE_CHECKING:
+    from coartic.estimation.settings import EstimationSettings
 
 FloatArray = NDArray[np.float64]
 
@@ -146,30 +146,31 @@ class Pool:
                        temper=self.temper if temper is None else float(temper))
 
 
-def pool_from_spec(spec: FitSpec, channel: str, phonemes: Sequence[str], moving: NDArray[np.bool_],
+def pool_from_settings(settings: EstimationSettings, channel: str, phonemes: Sequence[str], moving: NDArray[np.bool_],
                    priors: Mapping[str, Prior], start: Pool | None = None,
                    followers: frozenset[int] = frozenset()) -> Pool | None:
     """The channel's pool from ``[parameters] pooled`` (one group of every phoneme per parameter)
     and ``target_prior = "estimated"`` (the target priors ``priors`` holds, taken out of the fixed
-    ones by the caller); None when the spec estimates nothing. ``start``: τ and σ to start from
+    ones by the caller); None when the settings estimate nothing. ``start``: τ and σ to start from
     (a fitted table's). ``followers``: flat entries tied to another (a [[tie]], a speaker's or
     emotion's row of a phoneme): not members of their own, each distinct value counts once."""
     groups = []
-    for name in spec.pooled:
+    pri = settings.priors
+    for name in pri.pooled:
         k = PARAMETERS.index(name)
         if not moving[:, k].any():
-            raise SpecError.at(spec.path, "parameters.pooled", f"{name} is free for no phoneme on {channel}: "
+            raise SpecError.at(settings.source, "parameters.pooled", f"{name} is free for no phoneme on {channel}: "
                                "nothing to pool")
         rows = tuple(i for i in range(len(phonemes)) if i * len(PARAMETERS) + k not in followers)
         if len(rows) >= 2:
             groups.append(ShrinkGroup("parameters.pooled", tuple(phonemes[i] for i in rows), rows, k,
                                       TAU_START, name in LOG_PARAMETERS, family_of(name)))
-    means = {k: p.mean for k, p in priors.items()} if spec.target_prior == "estimated" else {}
+    means = {k: p.mean for k, p in priors.items()} if pri.target_prior == "estimated" else {}
     if not groups and not means:
         return None
-    pool = Pool(tuple(groups), means, {}, spec.prior_noise)
+    pool = Pool(tuple(groups), means, {}, pri.prior_noise)
     tau = {f: TAU_START for f in pool.families}
-    sigma = spec.prior_noise
+    sigma = pri.prior_noise
     if start is not None:
         tau.update({f: t for f, t in start.tau.items() if f in tau})
         sigma = start.sigma
@@ -192,12 +193,17 @@ class PoolEstimate:
     settled: bool = True
     temper: float = 1.0  # w = n_eff / n (residual_weight): 1 / the residuals' autocorrelation time
     n_valid: int = 0  # the samples n
+    # empirical Bayes run from several optima (a multi-start's; coartic.fit.staged.fit_pooled_best):
+    # each one's objective at the starting τ, settled log evidence, data RMSE and effective
+    # parameters, and the index of the one kept (the highest evidence)
+    candidates: tuple[dict[str, float], ...] = ()
+    chosen: int = 0
 
     def as_dict(self) -> dict[str, object]:
         return {"sigma_mm": self.sigma, "effective_parameters": self.effective, "free_parameters": self.n_free,
                 "rounds": self.rounds, "settled": bool(self.settled), "data_weight": self.temper,
-                "samples": self.n_valid,
-
+                "samples": self.n_valid, "log_evidence": self.log_evidence,
+                "candidates": [dict(c) for c in self.candidates], "chosen": self.chosen,
                 "families": {f: {"sd": t, "effective_parameters": self.family_effective[f], "rank": self.rank[f],
                                  "at_bound": self.at_bound.get(f, "")} for f, t in self.tau.items()}}
 

@@ -20,7 +20,7 @@ gradient, and a tracker of the best point seen (so Ctrl-C can keep it).
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING, Any, Callable, Mapping, Sequence
+from typing import Any, Callable, Mapping, Sequence
 
 import numpy as np
 import scipy.sparse as sp
@@ -34,16 +34,14 @@ from coartic.estimation.offsets import Offsets
 from coartic.estimation.packing import Packing, Prior, moving
 from coartic.estimation.parameters import ParameterSet
 from coartic.estimation.penalties import Penalty, PenaltyRows, ShrinkGroup, Shrinkage, shrink_groups
-from coartic.estimation.pooling import Pool, pool_from_spec
+from coartic.estimation.pooling import Pool, pool_from_settings
+from coartic.estimation.settings import EstimationSettings
 from coartic.estimation.speakers import SpeakerRows, Speakers, expand_speaker_targets, table_speaker_meta
 from coartic.estimation.target_prior import target_priors
 from coartic.errors import SpecError
 from coartic.jacobian import JacobianBuffer
 from coartic.model import Utterance, channel_options, core_error, model_options
 from coartic.table import PARAMETERS, ParameterTable, TableError
-
-if TYPE_CHECKING:  # annotations only: the spec is fit's, above this package
-    from coartic.fit.spec import FitSpec
 
 FloatArray = NDArray[np.float64]
 
@@ -336,86 +334,88 @@ class ChannelProblem:
         return p
 
 
-def build_problem(spec: FitSpec, utterances: Sequence[Utterance], channel: str, table: ParameterTable | None = None,
-                  *, start: tuple[FloatArray, float] | None = None,
+def build_problem(settings: EstimationSettings, utterances: Sequence[Utterance], channel: str,
+                  table: ParameterTable | None = None, *, start: tuple[FloatArray, float] | None = None,
                   phonemes: Sequence[str] | None = None) -> ChannelProblem:
-    """The channel's problem from a spec and loaded utterances: the one constructor that least
-    squares (and through it validation, ``[choose]``, compare and batch) and MCMC use.
+    """The channel's problem from the settings (``coartic.estimation.settings``: a fit spec's,
+    ``FitSpec.estimation_settings()``, or built in Python) and loaded utterances: the one constructor
+    that least squares (and through it validation, ``[choose]``, compare and batch) and MCMC use.
 
     Without ``table`` it is the problem a fit solves: the model options from the settings the fitted
-    table will record (``spec.channel_settings``), values from ``start`` (a matrix and β, e.g. a
-    ``[parameters] start_table``'s) or the spec's starts and the data's targets. With ``table`` (a
-    fitted table) it is that table's problem, as MCMC samples around it:
-    the options from the table's own channel settings (the model it was fitted with), its values
-    as the start, with ``[model] speakers = "targets"`` each speaker's own targets from its
-    metadata; a table of another variant than the spec's, or fitted with other speakers, is refused
-    (``TableError`` naming the table). The free set, bounds, ties, priors and shrinkage are the
-    spec's either way (the spec's ``[choose]``-able values as given: apply a table's chosen value to
-    the spec first).
+    table will record (``ModelSettings.channel_settings``), values from ``start`` (a matrix and β,
+    e.g. a ``[parameters] start_table``'s) or the settings' starts and the data's targets. With
+    ``table`` (a fitted table) it is that table's problem, as MCMC samples around it: the options
+    from the table's own channel settings (the model it was fitted with), its values as the start,
+    with ``[model] speakers = "targets"`` each speaker's own targets from its metadata; a table of
+    another variant than the settings', or fitted with other speakers, is refused (``TableError``
+    naming the table). The free set, bounds, ties, priors and shrinkage are the settings' either way
+    (the ``[choose]``-able values as given: apply a table's chosen value to the settings first).
     """
+    model, groups, source = settings.model, settings.groups, settings.source
     where = table.source if table is not None and table.source else "the table"
     if table is not None:
         if channel not in table.channels:
             raise TableError(f"{where}: the table has no channel {channel!r} (channels: {', '.join(table.channels)})")
-        if table.variant != spec.variant:
-            raise TableError(f"{where}: a table of the {table.variant!r} model, but {spec.path} [model] variant = "
-                             f"{spec.variant!r}: use the spec the table was fitted with")
+        if table.variant != model.variant:
+            raise TableError(f"{where}: a table of the {table.variant!r} model, but {settings.where} [model] variant = "
+                             f"{model.variant!r}: use the spec the table was fitted with")
     data = ChannelData.build(utterances, channel, phonemes)
     if table is None:
-        # Options from the settings the fitted table will record (spec.channel_settings): one source.
-        options = channel_options(spec.variant, spec.channel_settings(channel, phonemes=data.phonemes))
+        # Options from the settings the fitted table will record (channel_settings): one source.
+        options = channel_options(model.variant, model.channel_settings(channel, phonemes=data.phonemes))
     else:
         options = model_options(table, channel)
         start = table.to_matrix(channel, data.phonemes)
-    ps = ParameterSet.from_spec(spec, data, start)
-    offset_sd = {"none": None, "free": np.inf}.get(str(spec.offsets), spec.offsets)
-    shrink = shrink_groups(spec, channel, data.phonemes, moving(ps.free, ps.ties))
+    ps = ParameterSet.from_settings(settings, data, start)
+    offset_sd = groups.offset_sd
+    shrink = shrink_groups(settings.priors.shrinks, source, channel, data.phonemes, moving(ps.free, ps.ties))
     rows = None
-    meta = None if table is None else table_speaker_meta(spec, table)
-    if spec.speakers == "targets":
+    meta = None if table is None else table_speaker_meta(groups, settings.where, table)
+    data_start = start is None and "target" not in settings.parameters.given
+    if groups.speakers == "targets":
         if meta is None:
-            data, ps, rows = expand_speaker_targets(spec, data, ps, data_start=start is None and
-                                                    "target" not in spec.start_given)
+            data, ps, rows = expand_speaker_targets(settings, data, ps, data_start=data_start)
         else:
             own = (meta.get("targets") or {}).get(channel)
             if not own:
                 raise TableError(f"{where}: metadata.speakers has no targets for channel {channel}")
-            data, ps, rows = expand_speaker_targets(spec, data, ps, data_start=False, names=tuple(own),
+            data, ps, rows = expand_speaker_targets(settings, data, ps, data_start=False, names=tuple(own),
                                                     start_targets=own)
-        shrink = rows.shrink_groups(spec, shrink)
+        shrink = rows.shrink_groups(source, shrink)
     prior = None
-    if spec.emotions == "targets":
+    if groups.emotions == "targets":
         if table is None:
-            names = emotion_names(data.utterances, spec.emotion_column, spec.neutral_emotion)
-            data, ps, rows = expand_speaker_targets(spec, data, ps, data_start=start is None and
-                                                    "target" not in spec.start_given, names=names, factor="emotions")
+            names = emotion_names(data.utterances, groups.emotion_column, groups.neutral_emotion)
+            data, ps, rows = expand_speaker_targets(settings, data, ps, data_start=data_start, names=names,
+                                                    factor="emotions")
         else:
-            emo = table_emotion_meta(spec, table).get("channels", {}).get(channel)
+            emo = table_emotion_meta(groups, settings.where, table).get("channels", {}).get(channel)
             if not emo:
                 raise TableError(f"{where}: metadata.emotions has no channel {channel}")
-            data, ps, rows = expand_speaker_targets(spec, data, ps, data_start=False, names=tuple(emo["targets"]),
+            data, ps, rows = expand_speaker_targets(settings, data, ps, data_start=False, names=tuple(emo["targets"]),
                                                     start_targets=emo["targets"], factor="emotions")
             prior = EmotionPrior.from_dict(emo) if "tau" in emo else None
-        shrink = rows.shrink_groups(spec, shrink)
+        shrink = rows.shrink_groups(source, shrink)
     elif table is not None:
-        table_emotion_meta(spec, table)  # a table fitted with emotions needs the spec that has them
+        # a table fitted with emotions needs the settings that have them
+        table_emotion_meta(groups, settings.where, table)
     pool = None
-    if spec.pooled or spec.target_prior == "estimated":
+    pri = settings.priors
+    if pri.pooled or pri.target_prior == "estimated":
         # (with per-speaker or per-emotion rows: every row's target toward its own segment mean, the
         # dynamics tied across a phoneme's rows counted once)
         free_now = moving(ps.free, ps.ties)
         means = target_priors(1.0, data.utterances, channel, data.phonemes, ps.free, ps.priors)
-        pool = pool_from_spec(spec, channel, data.phonemes, free_now, means,
-                              None if table is None else table_pool(table, channel),
-                              frozenset(f for f, _ in ps.ties))
-    return ChannelProblem(data, ps.packing(), options, ps.priors, spec.prior_noise,
-                          None if offset_sd is None else float(offset_sd), spec.speakers, spec.speaker_column,
-                          shrink, rows, prior, pool)
+        pool = pool_from_settings(settings, channel, data.phonemes, free_now, means,
+                                  None if table is None else table_pool(table, channel),
+                                  frozenset(f for f, _ in ps.ties))
+    return ChannelProblem(data, ps.packing(), options, ps.priors, pri.prior_noise, offset_sd, groups.speakers,
+                          groups.speaker_column, shrink, rows, prior, pool)
 
 
 def table_pool(table: ParameterTable, channel: str) -> Pool | None:
     """The τ and σ a fitted table records for ``channel`` (``metadata.pooling``) as a Pool holding
-    only those scales (``pool_from_spec`` starts from them), or None."""
+    only those scales (``pool_from_settings`` starts from them), or None."""
     rec = (table.metadata.get("pooling") or {}).get(channel)
     if not isinstance(rec, dict):
         return None

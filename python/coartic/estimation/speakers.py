@@ -6,6 +6,7 @@ out of least squares (``Speakers``), or every speaker's own targets as rows of t
 from __future__ import annotations
 
 from dataclasses import dataclass, replace
+from pathlib import Path
 from typing import TYPE_CHECKING, Any, Mapping, Sequence
 
 import numpy as np
@@ -20,8 +21,8 @@ from coartic.errors import SpecError
 from coartic.model import Utterance
 from coartic.table import N_PARAMS, PARAMETERS, ParameterTable, TableError
 
-if TYPE_CHECKING:  # annotations only: the spec is fit's, above this package
-    from coartic.fit.spec import FitSpec
+if TYPE_CHECKING:
+    from coartic.estimation.settings import EstimationSettings, GroupSettings
 
 FloatArray = NDArray[np.float64]
 
@@ -183,18 +184,18 @@ class SpeakerRows:
             out[self.names[s]][self.base[p]] = float(params[r, k])
         return out
 
-    def shrink_groups(self, spec: FitSpec, groups: Sequence[ShrinkGroup]) -> list[ShrinkGroup]:
+    def shrink_groups(self, source: Path | str | None, groups: Sequence[ShrinkGroup]) -> list[ShrinkGroup]:
         """The base phonemes' [[shrink]] groups on the leader rows (targets are per speaker: refused)."""
         out = []
         for g in groups:
             if g.parameter == "target":
-                raise SpecError.at(spec.path, g.key, f"shrinks target, but [model] {self.factor} = \"targets\" gives "
+                raise SpecError.at(source, g.key, f"shrinks target, but [model] {self.factor} = \"targets\" gives "
                                    f"every {self.factor[:-1]} its own targets: shrink the dynamics only")
             out.append(replace(g, rows=tuple(self.leader(i) for i in g.rows)))
         return out
 
 
-def expand_speaker_targets(spec: FitSpec, data: ChannelData, ps: ParameterSet, data_start: bool = True,
+def expand_speaker_targets(settings: EstimationSettings, data: ChannelData, ps: ParameterSet, data_start: bool = True,
                            names: Sequence[str] | None = None,
                            start_targets: Mapping[str, Mapping[str, float]] | None = None,
                            factor: str = "speakers") -> tuple[ChannelData, ParameterSet, SpeakerRows]:
@@ -207,17 +208,18 @@ def expand_speaker_targets(spec: FitSpec, data: ChannelData, ps: ParameterSet, d
     ``factor`` "emotions" makes the same rows per emotion (``[model] emotions = "targets"``, column
     ``[model] emotion_column``; ``names`` then starts with the neutral emotion, whose rows lead, so
     every phoneme must occur in a neutral trial)."""
-    column = spec.speaker_column if factor == "speakers" else spec.emotion_column
+    column = settings.groups.speaker_column if factor == "speakers" else settings.groups.emotion_column
+    where = settings.source
     spk = utterance_speakers(data.utterances, "targets", column, names, factor)
     bad = [n for n in spk if SPEAKER_SEP in n]
     if bad:
-        raise SpecError.at(spec.path, "model", f"{factor} = \"targets\": {factor[:-1]} name {bad[0]!r} contains "
+        raise SpecError.at(where, "model", f"{factor} = \"targets\": {factor[:-1]} name {bad[0]!r} contains "
                            f"{SPEAKER_SEP!r}")
     kt = PARAMETERS.index("target")
     for f, ld in ps.ties:
         if f % N_PARAMS == kt:
-            tie = next((f"tie #{i + 1}.parameters" for i, t in enumerate(spec.ties) if "target" in t.parameters), "tie")
-            raise SpecError.at(spec.path, tie, "a tie of target cannot be combined with "
+            tie = next((f"tie #{i + 1}.parameters" for i, t in enumerate(settings.parameters.ties) if "target" in t.parameters), "tie")
+            raise SpecError.at(where, tie, "a tie of target cannot be combined with "
                                f"[model] {factor} = \"targets\" (every {factor[:-1]} has its own targets)",
                                parameter="target")
     base = tuple(data.phonemes)
@@ -226,7 +228,7 @@ def expand_speaker_targets(spec: FitSpec, data: ChannelData, ps: ParameterSet, d
     if factor == "emotions":
         alone = [base[p] for p in range(len(base)) if (p, 0) not in occurs]
         if alone:
-            raise SpecError.at(spec.path, "model", f"emotions = \"targets\": phoneme(s) {', '.join(alone)} occur in "
+            raise SpecError.at(where, "model", f"emotions = \"targets\": phoneme(s) {', '.join(alone)} occur in "
                                f"no {spk[0]!r} trial: each emotion is fitted as a deviation from the neutral "
                                f"target, so record them neutrally too (or drop them with [corpus] select)")
     sr = SpeakerRows(spk, base, rows, factor)
@@ -276,21 +278,21 @@ def expand_speaker_targets(spec: FitSpec, data: ChannelData, ps: ParameterSet, d
     return data_x, out, sr
 
 
-def table_speaker_meta(spec: FitSpec, table: ParameterTable) -> dict[str, Any]:
-    """A fitted table's ``metadata.speakers``, refused (``TableError`` naming the table and the spec)
-    unless the spec has the same ``[model] speakers`` and column: a problem around the table must be
-    the model it was fitted with. ``{}`` for a table fitted without speakers."""
+def table_speaker_meta(groups: GroupSettings, where: str, table: ParameterTable) -> dict[str, Any]:
+    """A fitted table's ``metadata.speakers``, refused (``TableError`` naming the table and ``where``,
+    the settings' spec file) unless ``groups`` have the same ``[model] speakers`` and column: a problem
+    around the table must be the model it was fitted with. ``{}`` for a table fitted without speakers."""
     raw = (table.metadata or {}).get("speakers")
     meta: dict[str, Any] = raw if isinstance(raw, dict) else {}
-    mode, told = spec.speakers, meta.get("mode")
+    mode, told = groups.speakers, meta.get("mode")
     if mode == "none":
         if told:
-            raise TableError(f"{table.source}: fitted with [model] speakers = {told!r}, but {spec.path} has none: "
+            raise TableError(f"{table.source}: fitted with [model] speakers = {told!r}, but {where} has none: "
                              "use the spec the table was fitted with")
         return meta
-    if told != mode or meta.get("column") != spec.speaker_column:
-        raise TableError(f"{table.source}: {spec.path} has [model] speakers = {mode!r} (column "
-                         f"{spec.speaker_column!r}), but the table was fitted with "
+    if told != mode or meta.get("column") != groups.speaker_column:
+        raise TableError(f"{table.source}: {where} has [model] speakers = {mode!r} (column "
+                         f"{groups.speaker_column!r}), but the table was fitted with "
                          f"{'no speakers' if not told else repr(told) + ' (column ' + repr(meta.get('column')) + ')'}: "
                          "use the spec the table was fitted with")
     return meta

@@ -19,7 +19,7 @@ from coartic.textfile import TextDecodeError, read_text
 
 def manifest_rows(spec: FitSpec) -> list[dict[str, str | None]]:
     """The manifest's rows, kept by ``[corpus] select`` and ``limit``; paths made absolute."""
-    c = spec.corpus
+    c = spec.corpus_spec
     if c.manifest is None:
         labels: Sequence[Path | None] = c.labels or [None] * len(c.files)
         rows = [{c.file_column: str(f), "labels": None if lab is None else str(lab), "stimulus": f.stem}
@@ -79,9 +79,10 @@ def load_utterances(spec: FitSpec, rows: Sequence[Mapping[str, str | None]] | No
     """One Utterance per trial with the spec's channels (gaps filled up to max_gap, longer ones
     masked), pauses given their posture (``with_spec_pauses``; each change named in ``notes``)."""
     rows = manifest_rows(spec) if rows is None else rows
-    utts = load_rows(rows, spec.channels, file_column=spec.corpus.file_column, label_map=spec.corpus.label_map,
-                     role_map=spec.corpus.role_map, max_gap=spec.max_gap, where=f"the corpus in {spec.path}",
-                     progress=progress, asymmetry=spec.emotions != "none")
+    c = spec.corpus_spec
+    utts = load_rows(rows, spec.channels, file_column=c.file_column, label_map=c.label_map, role_map=c.role_map,
+                     max_gap=spec.max_gap, where=f"the corpus in {spec.path}", progress=progress,
+                     asymmetry=spec.emotions != "none")
     return with_spec_pauses(spec, utts, notes)
 
 

@@ -5,7 +5,7 @@ the weighted residuals in the fitted (internal) coordinates at the optimum and s
 cov = s² (JᵀJ)⁺. Directions of JᵀJ with eigenvalues below ``rtol`` × the largest are not
 identified by the data: the pseudo-inverse drops them and every parameter that loads on them is
 flagged. Standard errors are carried to natural units by the transform's derivative (delta method).
-Every free parameter at a bound gets a computed explanation (``coartic.fit.bounds``): which bound,
+Every free parameter at a bound gets a computed explanation (``coartic.estimation.bounds``): which bound,
 where it comes from, whether the data pull past it, and what that means for the model.
 """
 
@@ -24,9 +24,9 @@ from numpy.typing import NDArray
 
 from coartic._version import __version__
 from coartic.extras import require
-from coartic.fit.bounds import CATEGORY_TITLES, BoundNote, explain_bounds, summary_counts
+from coartic.estimation.bounds import explain_bounds, summary_counts
 from coartic.estimation.emotions import asymmetry_metadata, channel_metadata
-from coartic.estimation.parameters import ParameterSet, psd_pseudo_inverse
+from coartic.estimation.parameters import CATEGORY_TITLES, BoundNote, ParameterSet, psd_pseudo_inverse
 from coartic.estimation.packing import Packing, shared_words
 from coartic.estimation.pooling import PoolEstimate
 from coartic.estimation.problem import ChannelProblem
@@ -56,7 +56,7 @@ class ParameterStats:
     unidentified: list[str]  # names loading on directions the data do not determine
     s2: float  # residual variance (mm²)
     dof: int
-    # why each parameter in at_bound is there, computed from the fit (coartic.fit.bounds)
+    # why each parameter in at_bound is there, computed from the fit (coartic.estimation.bounds)
     bounds: dict[str, BoundNote] = field(default_factory=dict)
     # why each parameter in unidentified is not identified, and what to do (unidentified_reasons)
     unidentified_why: dict[str, str] = field(default_factory=dict)
@@ -308,7 +308,8 @@ class FitResult:
             t.set_from_matrix(ch, list(fit.problem.phonemes), fit.problem.table_matrix(fit.params), fit.beta)
         t.metadata = {
             "method": f"least squares ({s.engine}{', staged' if s.staging else ''})",
-            "corpus": str(s.corpus.manifest or [str(f) for f in s.corpus.files]),
+            "corpus": ("trials given in Python" if s.corpus is None
+                       else str(s.corpus.manifest or [str(f) for f in s.corpus.files])),
             "spec": str(s.path),
             "date": self.started,
             "software": f"coartic {__version__}",
@@ -350,8 +351,9 @@ class FitResult:
         if s.pauses == "postures":  # whoever evaluates the table gives pauses the same postures
             t.metadata[PAUSES_RECORD_KEY] = dict(POSTURES_RECORD)
         # the map the corpus labels went through, so trajectories/animate/score read labels alike
-        resolve_label_map(s.corpus.label_map).record_in(t)
-        if s.corpus.role_map is not None:  # and the sensors' roles and axes, so that score reads alike
+        resolve_label_map(None if s.corpus is None else s.corpus.label_map).record_in(t)
+        # and the sensors' roles and axes, so that score reads alike
+        if s.corpus is not None and s.corpus.role_map is not None:
             t.metadata[ROLE_RECORD_KEY] = resolve_role_map(s.corpus.role_map).to_record()
         return t
 
@@ -492,7 +494,7 @@ class FitResult:
                    "notes": list(self.notes),  # the small-data warnings among them (coartic.fit.guards)
                    "channels": {ch: {"rmse_mm": f.rmse, "status": f.status, "message": f.message, "nfev": f.nfev,
                                      "wall_time_s": f.wall_time, "at_bound": f.stats.at_bound if f.stats else [],
-                                     # why each is at its bound (coartic.fit.bounds.BoundNote fields)
+                                     # why each is at its bound (coartic.estimation.bounds.BoundNote fields)
                                      "at_bound_explained": [b.as_dict() for b in f.stats.bounds.values()]
                                      if f.stats else [],
                                      "unidentified": f.stats.unidentified if f.stats else [],
@@ -577,6 +579,12 @@ def pooling_lines(est: PoolEstimate) -> list[str]:
              f"n_eff = {est.temper * est.n_valid:.0f} of {est.n_valid})",
              f"        effective parameters: {est.effective:.2f} of {est.n_free} free (trace of the hat matrix)"]
     lines += [f"        {est.line(f)}" for f in est.tau]
+    if len(est.candidates) > 1:  # empirical Bayes from several of the multi-start's optima (fit_pooled_best)
+        lines.append(f"        estimated from each of {len(est.candidates)} optima of the multi-start, the highest evidence "
+                     f"kept (optimum {est.chosen + 1}; data weight {est.temper:.3g} for all):")
+        lines += [f"          {'*' if k == est.chosen else ' '} optimum {k + 1}: objective {c['objective_start']:.6g} at the "
+                  f"starting sd -> log evidence {c['log_evidence']:.3f}, RMSE {c['rmse_mm']:.4f} mm, "
+                  f"{c['effective_parameters']:.2f} effective parameters" for k, c in enumerate(est.candidates)]
     return lines
 
 

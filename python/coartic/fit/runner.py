@@ -30,7 +30,7 @@ from coartic.fit.result import ChannelFit, Chosen, FitResult, finish_channel, no
 from coartic.errors import SpecError, UsageError
 from coartic.fit.spec import FitSpec, load_spec
 from coartic.fit.multistart import MultiStart, fit_multistart
-from coartic.fit.staged import channel_status, fit_pooled, fit_staged
+from coartic.fit.staged import EB_CANDIDATES, channel_status, fit_pooled, fit_pooled_best, fit_staged
 from coartic.pauses import STAND_INS
 from coartic.table import ParameterTable
 
@@ -57,10 +57,11 @@ def start_values(spec: FitSpec, channel: str, phonemes: Sequence[str]) -> tuple[
 def fit_channel(spec: FitSpec, utterances: Sequence[Utterance], channel: str,
                 progress: Progress | None = None) -> ChannelFit:
     """Fit one channel (staged if the spec says so); never raises on a bad start or Ctrl-C."""
-    problem: ChannelProblem = build_problem(spec, utterances, channel)
+    settings = spec.estimation_settings()
+    problem: ChannelProblem = build_problem(settings, utterances, channel)
     start = start_values(spec, channel, problem.phonemes)
     if start is not None:
-        problem = build_problem(spec, utterances, channel, start=start)
+        problem = build_problem(settings, utterances, channel, start=start)
     if problem.packing.n_free == 0:  # no start, stage or engine has anything to move: say so, not "converged"
         raise SpecError.at(spec.path, "parameters.free", f"{channel}: no parameter is free (free = "
                            f"{list(spec.free)!r}, and no [[override]] or fit_beta frees one): nothing to fit; free "
@@ -111,11 +112,28 @@ def fit_channel(spec: FitSpec, utterances: Sequence[Utterance], channel: str,
             # partial pooling: the pool's sd estimated from the data, the fit re-solved at it
             if progress is not None and task is not None:
                 progress.update(task, description=f"{channel} pooling (sd estimated)")
-            final, pooled_res, pooling = fit_pooled(final, res.x, spec.engine, spec.engine_options)
+            if multi is not None and len(multi.optima) > 1:
+                # every distinct optimum's empirical Bayes, the highest evidence kept (fit_pooled_best)
+                others = [o for o in sorted(multi.optima[1:], key=lambda o: o.objective)]
+                picked = others[:EB_CANDIDATES - 1]
+                zero = next((o for o in others if 0 in o.starts), None)
+                if zero is not None and zero not in picked:  # start 0's (the single fit's) always
+                    picked.append(zero)
+                final, pooled_res, pooling = fit_pooled_best(
+                    final, [res.x] + [o.x for o in picked], spec.engine, spec.engine_options,
+                    [multi.best.objective] + [o.objective for o in picked])
+            else:
+                final, pooled_res, pooling = fit_pooled(final, res.x, spec.engine, spec.engine_options)
             if pooled_res is not None:
                 keep = res.status == "converged" and pooled_res.status == "converged"
-                res = EngineResult(pooled_res.x, res.status if keep else pooled_res.status,
-                                   res.message if keep else f"re-solving at the estimated pooling sd: {pooled_res.message}",
+                status = res.status if keep else pooled_res.status
+                message = res.message if keep else f"re-solving at the estimated pooling sd: {pooled_res.message}"
+                if pooled_res.status in ("failed", "non-finite start"):
+                    # the fit itself converged; a re-solve at a later pooling sd did not, and the
+                    # optimum of the last round that did is kept (fit_pooled): unconfirmed, not lost
+                    status = "stage-failed"
+                    message += "; the optimum at the last pooling sd that converged is kept (the sd not settled)"
+                res = EngineResult(pooled_res.x, status, message,
                                    res.nfev + pooled_res.nfev, res.njev + pooled_res.njev)
     status, message = channel_status(res, stages, multi is not None and multi.best_found_once)
     try:

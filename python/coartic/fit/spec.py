@@ -30,11 +30,16 @@ from pydantic.dataclasses import dataclass
 from pydantic_core import ArgsKwargs, PydanticCustomError
 
 from coartic.errors import SpecError
+from coartic.estimation import settings as est
+from coartic.estimation.settings import (DEFAULT_BETA_BOUNDS, DEFAULT_FIT_BOUNDS, DEFAULT_FREE, DEFAULT_POOLED,
+                                         DEFAULT_REFERENCE, DEFAULT_SHARED, DEFAULT_START, DEFAULT_TARGET_PRIOR,
+                                         SPEC_MODEL_DEFAULTS, EstimationSettings, GroupSettings, ModelSettings,
+                                         ParameterSettings, PriorSettings)
 from coartic.io.errors import DataError
 from coartic.io.roles import RoleMap
 from coartic.settings import CHANNEL_SETTINGS, default
 from coartic.table import ALL_CHANNELS, CHANNELS, PARAMETERS, PAUSE, VARIANTS, ChannelSettings, domain_problem
-from coartic.pauses import PAUSE_MODES, is_pause
+from coartic.pauses import PAUSE_MODES
 from coartic.textfile import TextDecodeError, read_text
 
 ENGINES: tuple[str, ...] = ("scipy", "nlopt", "casadi")
@@ -44,35 +49,6 @@ VALIDATE_GROUPS: tuple[str, ...] = ("utterance", "sentence", "rate", "speaker", 
 SPEAKER_MODES: tuple[str, ...] = ("none", "offset", "offset_scale", "targets")
 EMOTION_MODES: tuple[str, ...] = ("none", "targets")
 
-# Starting values of the dynamics; targets start from the data (mean value at the target times).
-DEFAULT_START: dict[str, float] = {
-    "target": 0.0, "alpha": 1.0, "theta_bw": 30.0, "theta_fw": 30.0, "c_bw": 1.0, "c_fw": 1.0,
-    "k_r": 0.5, "sigma": 0.0, "psi": 500.0, "delta": 0.0,
-}
-# Fitting bounds (natural units). MODEL.md allows (0, inf) for alpha, theta and psi; a fit needs
-# finite boxes (global engines search them, and a log transform needs them away from 0), so these
-# are wide practical boxes. Target bounds default to the data range widened by `target_margin`.
-DEFAULT_FIT_BOUNDS: dict[str, tuple[float, float]] = {
-    "alpha": (1e-2, 1e2), "theta_bw": (0.5, 2000.0), "theta_fw": (0.5, 2000.0),
-    "c_bw": (0.5, 3.0), "c_fw": (0.5, 3.0), "k_r": (0.0, 1.0), "sigma": (-0.5, 0.5),
-    "psi": (10.0, 1e5), "delta": (-0.08, 0.08),
-}
-DEFAULT_BETA_BOUNDS: tuple[float, float] = (0.05, 20.0)
-# The model of a spec that sets nothing: the rate-aware dominance (plateau + handover), each phoneme's
-# target, alpha, theta_bw and theta_fw free, the dynamics partially pooled toward one value per
-# channel with a pooling strength estimated from the data ([parameters] pooled: empirical Bayes,
-# coartic.estimation.pooling; it reaches one shared value when the data do not support more), and
-# every target drawn toward the data's own mean over its phoneme's segments with an sd estimated the
-# same way ([parameters] target_prior = "estimated"). Measured against one shared theta_bw, theta_fw
-# per channel (the previous default) and free per-phoneme dynamics, held out on the synthetic
-# session (by rate, and data-starved), its gestures flavour (by rate) and the German EMA (by
-# utterance and in time): never the worst of the three, and better than the step model on each
-# (bench/real_data.py, docs/REAL_DATA.md "Partial pooling").
-DEFAULT_FREE: tuple[str, ...] = ("target", "alpha", "theta_bw", "theta_fw")
-DEFAULT_SHARED: tuple[str, ...] = ()
-DEFAULT_TARGET_PRIOR: float | str | None = "estimated"
-DEFAULT_POOLED: tuple[str, ...] = ("alpha", "theta_bw", "theta_fw")
-SPEC_MODEL_DEFAULTS: dict[str, Any] = {"dominance": "plateau", "handover": True}
 DEFAULT_STAGES: tuple[tuple[str, ...], ...] = (
     ("target",),
     ("alpha", "theta_bw", "theta_fw", "c_bw", "c_fw", "delta"),
@@ -83,10 +59,6 @@ DEFAULT_STARTS = 32
 # A start is a local fit from its own point, and their Sobol points are drawn at once: a bound that
 # turns a typo (10**9) into an error naming it, not a MemoryError hours later.
 MAX_STARTS = 10_000
-# The reference phoneme (α = 1) of a spec that names none: the first of these the data have, /a/
-# first (the paper's), then the other vowels from open to close (FitSpec.reference_for).
-DEFAULT_REFERENCE = "a"
-REFERENCE_ORDER: tuple[str, ...] = (DEFAULT_REFERENCE, "E", "O", "e", "o", "i", "u")
 DEFAULT_PROBE = 10  # evaluations per stage in the probe every start gets
 # The probe ranks starts before the local fits go on: a probe as long as a local fit's whole budget
 # (coartic.fit.engines.evaluation_budget, thousands) is no longer a probe, and 10**9 is a typo.
@@ -421,8 +393,8 @@ def _spec_errors(cls: type[T]) -> type[T]:
 
 @_spec_errors
 @dataclass(frozen=True, config=_STRICT)
-class Override:
-    """Per-phoneme (optionally per-channel) changes to which parameters are free, their start and bounds."""
+class Override(est.Override):
+    """``[[override]]``: estimation's Override (coartic.estimation.settings), checked as a spec's table."""
 
     phonemes: Annotated[tuple[str, ...], BeforeValidator(_names)]
     channels: Annotated[tuple[str, ...] | None, BeforeValidator(_optional(_channels))] = None  # None: every channel
@@ -430,9 +402,6 @@ class Override:
     free: Parameters = ()  # made free (even if not in the global list)
     start: ParamValues = dataclasses.field(default_factory=dict)
     bounds: Bounds = dataclasses.field(default_factory=dict)
-
-    def applies(self, phoneme: str, channel: str) -> bool:
-        return phoneme in self.phonemes and (self.channels is None or channel in self.channels)
 
 
 def _group(v: Any) -> tuple[str, ...]:
@@ -444,9 +413,8 @@ def _group(v: Any) -> tuple[str, ...]:
 
 @_spec_errors
 @dataclass(frozen=True, config=_STRICT)
-class Tie:
-    """Parameters shared by a group of phonemes (e.g. θ and c by place of articulation): the first
-    phoneme of the group present in a channel's data carries the value, the others take it."""
+class Tie(est.Tie):
+    """``[[tie]]``: estimation's Tie (coartic.estimation.settings), checked as a spec's table."""
 
     phonemes: Annotated[tuple[str, ...], BeforeValidator(_group)]
     parameters: Parameters
@@ -469,11 +437,9 @@ def _distinct_params(v: Any) -> tuple[str, ...]:
 
 @_spec_errors
 @dataclass(frozen=True, config=_STRICT)
-class Shrink:
-    """Shrinkage of a class of phonemes toward its class mean (``[[shrink]]``): for each parameter,
-    one penalty row per member, ``prior_noise · (v_i − mean_class(v)) / sd`` (v the value, or its
-    logarithm with ``log``), the mean over every member present in the channel's data (fixed ones
-    count in the mean). In the spec, ``scale = "log"`` is ``log = true``."""
+class Shrink(est.Shrink):
+    """``[[shrink]]``: estimation's Shrink (coartic.estimation.settings), checked as a spec's table.
+    In the spec, ``scale = "log"`` is ``log = true``."""
 
     phonemes: Annotated[tuple[str, ...], BeforeValidator(_class)]
     parameters: Annotated[tuple[str, ...], BeforeValidator(_distinct_params)]
@@ -584,7 +550,8 @@ class CorpusSpec:
 class FitSpec:
     path: Path  # the spec file (errors and relative paths refer to it)
     name: Text
-    corpus: CorpusSpec
+    # where the trials are read from; None: they are given in Python (coartic.Coarticulation.fit)
+    corpus: CorpusSpec | None
     channels: Channels = CHANNELS
     variant: Annotated[str, BeforeValidator(_one_of(VARIANTS))] = "modified"
     # α = 1 for it (MODEL.md §1); None: chosen from the data (FitSpec.reference_for)
@@ -711,44 +678,70 @@ class FitSpec:
         SpecError names the spec file and the key of the field at fault."""
         return dataclasses.replace(self, **changes)
 
+    @property
+    def corpus_spec(self) -> CorpusSpec:
+        """The ``[corpus]`` the trials are read from; a SpecError when the trials are given in Python
+        (a spec built by ``from_settings`` without one)."""
+        if self.corpus is None:
+            raise SpecError.at(self.path, "corpus", "no corpus to read: the trials are given in Python (pass them "
+                               "to fit, or a manifest path)")
+        return self.corpus
+
+    @classmethod
+    def from_settings(cls, settings: EstimationSettings, path: Path, name: str, corpus: CorpusSpec | None = None,
+                      **fields: Any) -> FitSpec:
+        """The spec of a fit with these estimation settings (built in Python: ``coartic.Coarticulation``)
+        and the fit's own ``fields`` (channels, engine, staging, starts, ...), checked as a spec file
+        is: a SpecError names ``path`` and the key each setting is written with in a file."""
+        twice = sorted(set(fields) & set(est.PART_OF))
+        if twice:
+            raise SpecError.at(path, None, f"{', '.join(twice)}: an estimation setting, given in the settings "
+                               "(coartic.estimation.settings), not beside them")
+        values: dict[str, Any] = {f.name: getattr(part, f.name) for part in (settings.model, settings.parameters,
+                                                                           settings.priors, settings.groups)
+                                  for f in dataclasses.fields(part)}
+        par = settings.parameters
+
+        def tables(items: Sequence[Any]) -> list[dict[str, Any]]:
+            # estimation's Override/Tie/Shrink as tables, checked as the file's [[override]] #N ... are
+            return [{f.name: getattr(o, f.name) for f in dataclasses.fields(o)} for o in items]
+
+        values.update(start={**DEFAULT_START, **par.start}, start_given=par.given,
+                      bounds={**DEFAULT_FIT_BOUNDS, **par.bounds}, overrides=tables(par.overrides),
+                      ties=tables(par.ties), shrinks=tables(settings.priors.shrinks))
+        # DEFAULT_STARTS read now, as a file's parse reads it (the tests set it to 1)
+        return cls(path=path, name=name, corpus=corpus, **values, **{"starts": DEFAULT_STARTS, **fields})
+
+    def estimation_settings(self) -> EstimationSettings:
+        """The estimation settings this spec writes (``coartic.estimation.settings``): what
+        ``build_problem`` takes; errors in them name this spec file."""
+        return EstimationSettings(
+            model=ModelSettings(variant=self.variant, reference_phoneme=self.reference_phoneme,
+                                apex_fraction=self.apex_fraction, edge_extent=self.edge_extent,
+                                dominance=self.dominance, plateau_fraction=self.plateau_fraction,
+                                handover=self.handover, beta=self.beta, pauses=self.pauses),
+            parameters=ParameterSettings(free=self.free, shared=self.shared, fit_beta=self.fit_beta,
+                                         start=self.start, start_given=self.start_given, bounds=self.bounds,
+                                         channel_bounds=self.channel_bounds, beta_bounds=self.beta_bounds,
+                                         target_margin=self.target_margin, overrides=self.overrides,
+                                         ties=self.ties),
+            priors=PriorSettings(priors=self.priors, prior_noise=self.prior_noise, target_prior=self.target_prior,
+                                 pooled=self.pooled, shrinks=self.shrinks),
+            groups=GroupSettings(offsets=self.offsets, speakers=self.speakers, speaker_column=self.speaker_column,
+                                 emotions=self.emotions, emotion_column=self.emotion_column,
+                                 neutral_emotion=self.neutral_emotion),
+            source=self.path)
+
     def reference_for(self, phonemes: Sequence[str]) -> str:
-        """The reference phoneme (α = 1) of a channel whose data have ``phonemes``: the spec's
-        ``[model] reference_phoneme`` if it names one, else the first of REFERENCE_ORDER the data
-        have (/a/, then the other vowels from open to close), else the first non-pause phoneme.
-        α is scale-free, so which phoneme holds α = 1 changes no fit, only the scale the others' α
-        are written in."""
-        if self.reference_phoneme is not None:
-            return self.reference_phoneme
-        present = [p for p in phonemes if not is_pause(p)] or list(phonemes)
-        return next((p for p in REFERENCE_ORDER if p in present), present[0] if present else DEFAULT_REFERENCE)
+        """The reference phoneme (α = 1) of a channel whose data have ``phonemes``
+        (``ModelSettings.reference_for``)."""
+        return self.estimation_settings().model.reference_for(phonemes)
 
     def channel_settings(self, channel: str, beta: float | None = None,
                          phonemes: Sequence[str] | None = None) -> ChannelSettings:
-        """The settings a fit of ``channel`` uses and writes into its table (``beta``: the fitted
-        value; default the spec's; ``phonemes``: the channel's, for the reference phoneme the spec
-        leaves to the data). The fit's model options are made from them
-        (``coartic.model.channel_options``), so a table evaluates as it was fitted."""
-        ref = self.reference_for(phonemes) if phonemes is not None else (self.reference_phoneme or DEFAULT_REFERENCE)
-        return ChannelSettings(reference_phoneme=ref, beta=self.beta if beta is None else beta,
-                               edge_extent=self.edge_extent, apex_fraction=self.apex_fraction,
-                               dominance=self.dominance, plateau_fraction=self.plateau_fraction,
-                               handover=self.handover)
-
-    def bound_source(self, parameter: str) -> str:
-        """Where the box of ``parameter`` (or ``"beta"``) comes from when no channel bound or
-        override sets it: the spec key that changed it, the data range (targets), or the defaults
-        here (``DEFAULT_FIT_BOUNDS``, ``DEFAULT_BETA_BOUNDS``). ``ParameterSet.from_spec`` records
-        it for each free entry, so that a parameter at a bound is explained by it (coartic.fit.bounds)."""
-        if parameter == "beta":
-            return ("[model] beta_bounds" if tuple(self.beta_bounds) != DEFAULT_BETA_BOUNDS
-                    else "the default beta_bounds (DEFAULT_BETA_BOUNDS, coartic/fit/spec.py)")
-        if parameter == "target" and "target" not in self.bounds:
-            return f"the data range widened by [parameters] target_margin = {self.target_margin:g} mm"
-        if parameter in self.bounds and tuple(self.bounds[parameter]) != DEFAULT_FIT_BOUNDS.get(parameter):
-            return f"[parameters.bounds] {parameter}"
-        if parameter in ("alpha", "theta_bw", "theta_fw", "psi"):
-            return "the default box (DEFAULT_FIT_BOUNDS, coartic/fit/spec.py; MODEL.md §1 allows (0, inf))"
-        return "the default box (DEFAULT_FIT_BOUNDS, coartic/fit/spec.py; MODEL.md §1's default bounds)"
+        """The settings a fit of ``channel`` uses and writes into its table
+        (``ModelSettings.channel_settings``)."""
+        return self.estimation_settings().model.channel_settings(channel, beta, phonemes)
 
 
 def _choose_shrinks(key: str, shrinks: tuple[Shrink, ...]) -> str | None:

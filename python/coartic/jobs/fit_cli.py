@@ -11,7 +11,7 @@ from rich.markup import escape
 from rich.table import Table
 
 from coartic.evaluation.heldout import flags, held_out
-from coartic.fit.bounds import summary_counts
+from coartic.estimation.bounds import summary_counts
 from coartic.fit.result import BAR_MM, UNIDENTIFIED_ADVICE, FitResult
 from coartic.errors import SpecError
 from coartic.fit.spec import ENGINES, MAX_STARTS, VALIDATE_GROUPS, FitSpec, load_spec
@@ -202,7 +202,7 @@ def fit_output(spec: FitSpec, out: Path, force: bool = False) -> OutputDir:
         except (OSError, ValueError, KeyError, TypeError):
             return False
 
-    c = spec.corpus
+    c = spec.corpus_spec
     inputs = [spec.path, *(p for p in (c.manifest, spec.start_table) if p is not None), *c.files, *c.labels]
     return OutputDir(out, "fit", {"spec": str(spec_path), "channels": ",".join(spec.channels)},
                      force=force, protect=inputs, recognise=legacy)

@@ -171,7 +171,7 @@ def table_problem(fit_spec: FitSpec, table: ParameterTable, channel: str, uttera
     choice = (table.metadata or {}).get("choice") or {}
     if choice.get("key") and channel in choice.get("chosen", {}):
         fit_spec = set_value(fit_spec, choice["key"], float(choice["chosen"][channel]))
-    return build_problem(fit_spec, utterances, channel, table)
+    return build_problem(fit_spec.estimation_settings(), utterances, channel, table)
 
 
 def table_speakers(fit_spec: FitSpec, table: ParameterTable, channel: str) -> SpeakerTerms | None:
@@ -179,7 +179,7 @@ def table_speakers(fit_spec: FitSpec, table: ParameterTable, channel: str) -> Sp
     mode and column must be the spec's (else refused: the posterior would not be the fit's model),
     the speakers and their least-squares (a_s, b_s) come from the table's metadata. None without
     speakers, and with per-speaker targets (sampled as the problem's own rows: ``table_problem``)."""
-    meta = table_speaker_meta(fit_spec, table)
+    meta = table_speaker_meta(fit_spec.estimation_settings().groups, str(fit_spec.path), table)
     if fit_spec.speakers in ("none", "targets"):
         return None
     coefs = (meta.get("coefficients") or {}).get(channel)

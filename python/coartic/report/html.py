@@ -20,7 +20,7 @@ import jinja2
 import markupsafe
 from rich.console import Console
 
-from coartic.fit.bounds import summary_counts
+from coartic.estimation.bounds import summary_counts
 from coartic.evaluation.choose import Choice
 from coartic.evaluation.heldout import flags, held_out, pooled
 from coartic.fit.result import BAR_MM, FitResult
@@ -34,7 +34,7 @@ _TEMPLATES = Path(__file__).with_name("templates")
 
 def _ground_truth(result: FitResult) -> ParameterTable | None:
     """The session's ground_truth.json beside the manifest, when there is one (synthetic data)."""
-    m = result.spec.corpus.manifest
+    m = None if result.spec.corpus is None else result.spec.corpus.manifest
     if m is None or not (m.parent / "ground_truth.json").is_file():
         return None
     try:

@@ -15,6 +15,13 @@ FAP units (ISO/IEC 14496-2): brows and cheeks ENS (eye-nose separation / 1024), 
 diameter / 1024; positive closes), lip corners MNS (positive up). The face coartic ships
 (``coartic.face``) moves the upper eyelids and the lip corners; brows and cheeks are written to the
 FAP file and the ARKit curves for players whose faces have them.
+
+The same emotion goes into the FAP file as MPEG-4's high-level expression too (FAP 2,
+``runtime.fap.expression_fap2``): per frame the two strongest emotions as expression_select1/2 (MPEG-4's codes,
+``runtime.fap.EXPRESSION_SELECT``) with their intensities on MPEG-4's 0-63 (63 the expression as
+recorded: an intensity above 1 is sent as 63, its excess carried by the low-level FAPs only),
+init_face and expression_def 0 (the player's own expression tables); a frame without an emotion
+sends expression 0 (none), so that a player does not keep the last one.
 """
 
 from __future__ import annotations
@@ -102,3 +109,4 @@ def expression_arkit(animation: Animation) -> Mapping[str, F64]:
         for name, v in EXPRESSION_ARKIT.get(emotion, {}).items():
             out[name] = out.get(name, np.zeros(animation.n_frames)) + v * w
     return out
+

@@ -69,9 +69,30 @@ OUTER_TWIN: dict[int, int] = {51: 4, 52: 5, 53: 6, 54: 7, 55: 8, 56: 9, 57: 10, 
 # No channel measures the corners' vertical position: 12/13 (and 59/60) are sent as 0 so that a
 # player holds the corners at neutral instead of keeping whatever an earlier stream left there.
 CORNER_LIFTS: tuple[int, ...] = (12, 13)
-# Viseme and expression carry several values each (selects, blend, intensities); coartic drives
-# the low-level lip and jaw FAPs instead and does not read or write them.
+# Viseme and expression carry several values each (selects, blend, intensities). coartic drives the
+# lips with the low-level FAPs and does not write the viseme (FAP 1, refused when read); it writes
+# the expression (FAP 2) of an emotion it speaks with, alongside the low-level FAPs of the brows,
+# lids, cheeks and corners (coartic.runtime.expression). In the FAP text file a sent FAP 2 takes
+# these six values in its place (ISO/IEC 14496-2 C.1.3, the FAP 2 fields, and Xface's FAP file loader):
+# expression_select1 (EXPRESSION_SELECT: 0 none .. 6 surprise), expression_intensity1 (0-63),
+# expression_select2, expression_intensity2, init_face and expression_def (0 or 1 each).
 HIGH_LEVEL_FAPS: tuple[int, ...] = (1, 2)
+EXPRESSION_FAP = 2
+EXPRESSION_FIELDS: tuple[str, ...] = ("expression_select1", "expression_intensity1", "expression_select2",
+                                      "expression_intensity2", "init_face", "expression_def")
+EXPRESSION_SELECT: dict[str, int] = {"joy": 1, "sadness": 2, "anger": 3, "fear": 4, "disgust": 5, "surprise": 6}
+EXPRESSION_INTENSITY_MAX = 63
+# each field's (lowest, highest) value
+_EXPRESSION_RANGE: tuple[tuple[int, int], ...] = ((0, 6), (0, EXPRESSION_INTENSITY_MAX), (0, 6),
+                                                  (0, EXPRESSION_INTENSITY_MAX), (0, 1), (0, 1))
+
+
+def expression_field_error(row: NDArray[np.int64] | list[int]) -> str | None:
+    """What is wrong with one frame's six FAP 2 values (EXPRESSION_FIELDS), or None."""
+    for name, v, (lo, hi) in zip(EXPRESSION_FIELDS, row, _EXPRESSION_RANGE):
+        if not lo <= int(v) <= hi:
+            return f"{name} = {int(v)} is not within {lo}-{hi}"
+    return None
 MW_FAPS: frozenset[int] = frozenset({6, 7, 53, 54, 43, 45})
 LIP_JAW_FAPS: tuple[int, ...] = tuple(sorted({*_INNER, *CORNER_LIFTS, *OUTER_TWIN}))
 FAP_CHANNELS: tuple[str, ...] = ("ULO", "LLO", "ULP", "LLP", "LR", "JO")
@@ -120,6 +141,8 @@ class FapSequence:
     mask: NDArray[np.bool_]
     values: NDArray[np.int64]
     first_frame: int = 0
+    # FAP 2's six values per frame (EXPRESSION_FIELDS), where the mask sends FAP 2; None: not sent
+    expression: NDArray[np.int64] | None = None
 
     def __post_init__(self) -> None:
         self.mask = np.ascontiguousarray(self.mask, dtype=bool)
@@ -133,14 +156,32 @@ class FapSequence:
             raise AnimationError(f"FAP sequence name must be one word without spaces, got {self.name!r}")
         if not (math.isfinite(self.fps) and self.fps > 0):
             raise AnimationError(f"FAP sequence {self.name!r}: fps must be positive, got {self.fps!r}")
-        high = np.flatnonzero(self.mask[:, [f - 1 for f in HIGH_LEVEL_FAPS]].any(axis=0))
-        if high.size:
-            fap = HIGH_LEVEL_FAPS[int(high[0])]
+        if self.mask[:, 0].any():
             raise AnimationError(
-                f"FAP sequence {self.name!r}: FAP {fap} ({FAP_NAMES[fap - 1]}) is a high-level FAP with several "
-                "values per frame; only the low-level FAPs 3-68 (one integer each) are supported"
+                f"FAP sequence {self.name!r}: FAP 1 ({FAP_NAMES[0]}) is a high-level FAP with several values per "
+                "frame; coartic drives the lips with the low-level FAPs 3-68 and writes no viseme"
             )
+        sent = self.mask[:, EXPRESSION_FAP - 1]
+        if self.expression is not None:
+            self.expression = np.ascontiguousarray(self.expression, dtype=np.int64)
+            if self.expression.shape != (self.n_frames, len(EXPRESSION_FIELDS)):
+                raise AnimationError(f"FAP sequence {self.name!r}: the expression (FAP 2) must be (frames, "
+                                     f"{len(EXPRESSION_FIELDS)}), got {self.expression.shape}")
+            self.expression[~sent] = 0
+            for f in np.flatnonzero(sent):
+                why = expression_field_error(self.expression[f])
+                if why is not None:
+                    raise AnimationError(f"FAP sequence {self.name!r}, frame {int(f)}: FAP 2 (expression): {why}")
+        elif sent.any():
+            raise AnimationError(f"FAP sequence {self.name!r}: FAP 2 (expression) is sent without its six values "
+                                 f"({', '.join(EXPRESSION_FIELDS)})")
         self.values[~self.mask] = 0
+        self.values[:, EXPRESSION_FAP - 1] = 0  # FAP 2's values are its six fields'
+
+    def with_arrays(self, mask: NDArray[np.bool_], values: NDArray[np.int64]) -> FapSequence:
+        """The same sequence (name, rate, first frame, FAP 2) with another mask and values."""
+        return FapSequence(name=self.name, fps=self.fps, mask=mask, values=values, first_frame=self.first_frame,
+                           expression=self.expression)
 
     @property
     def n_frames(self) -> int:
@@ -159,7 +200,12 @@ class FapSequence:
             and (self.first_frame == other.first_frame or self.n_frames == 0)  # no frame, no number
             and np.array_equal(self.mask, other.mask)
             and np.array_equal(self.values, other.values)
+            and np.array_equal(self._fields(), other._fields())
         )
+
+    def _fields(self) -> NDArray[np.int64]:
+        return (self.expression if self.expression is not None
+                else np.zeros((self.n_frames, len(EXPRESSION_FIELDS)), dtype=np.int64))
 
 
 def channels_to_faps(
@@ -221,7 +267,10 @@ def write_fap(path: str | Path, seq: FapSequence) -> None:
     for f in range(seq.n_frames):
         m = seq.mask[f]
         lines.append(" ".join("1" if b else "0" for b in m))
-        lines.append(" ".join([str(seq.first_frame + f), *(str(int(v)) for v in seq.values[f][m])]))
+        values = [str(int(v)) for v in seq.values[f][m]]
+        if m[EXPRESSION_FAP - 1] and seq.expression is not None:  # FAP 2: its six fields in its place
+            values[0:1] = [str(int(v)) for v in seq.expression[f]]
+        lines.append(" ".join([str(seq.first_frame + f), *values]))
     Path(path).write_text("\n".join(lines) + "\n", encoding="ascii")
 
 
@@ -265,6 +314,7 @@ def read_fap(path: str | Path) -> FapSequence:
         )
     mask = np.zeros((n, N_FAPS), dtype=bool)
     values = np.zeros((n, N_FAPS), dtype=np.int64)
+    expression: NDArray[np.int64] | None = None
     first_frame = 0
     for f in range(n):
         mline, mtok = body[2 * f]
@@ -275,12 +325,11 @@ def read_fap(path: str | Path) -> FapSequence:
                 + ("" if len(mtok) != N_FAPS else f" including {next(t for t in mtok if t not in ('0', '1'))!r}")
             )
         m = np.array([t == "1" for t in mtok])
-        for fap in HIGH_LEVEL_FAPS:
-            if m[fap - 1]:
-                raise FapFormatError(
-                    f"{path}, line {mline}: FAP {fap} ({FAP_NAMES[fap - 1]}) is set; high-level FAPs "
-                    "(several values per frame) are not read, only the low-level FAPs 3-68"
-                )
+        if m[0]:
+            raise FapFormatError(
+                f"{path}, line {mline}: FAP 1 ({FAP_NAMES[0]}) is set; the viseme (several values per frame) "
+                "is not read, only the expression (FAP 2) and the low-level FAPs 3-68"
+            )
         vline, vtok = body[2 * f + 1]
         try:
             ints = [int(t) for t in vtok]
@@ -293,14 +342,26 @@ def read_fap(path: str | Path) -> FapSequence:
             raise FapFormatError(
                 f"{path}, line {vline}: frame number {ints[0]}, expected {first_frame + f} (frames are consecutive)"
             )
-        if len(ints) - 1 != int(m.sum()):
+        extra = len(EXPRESSION_FIELDS) - 1 if m[EXPRESSION_FAP - 1] else 0  # FAP 2 takes six values
+        if len(ints) - 1 != int(m.sum()) + extra:
             raise FapFormatError(
                 f"{path}, line {vline}: frame {ints[0]} has {len(ints) - 1} values but its mask "
                 f"(line {mline}) selects {int(m.sum())} FAPs"
+                + (f" ({int(m.sum()) + extra} values: FAP 2 takes {len(EXPRESSION_FIELDS)})" if extra else "")
             )
         mask[f] = m
-        values[f, m] = ints[1:]
-    return FapSequence(name=name, fps=fps, mask=mask, values=values, first_frame=first_frame)
+        rest = ints[1:]
+        if extra:
+            fields = rest[: len(EXPRESSION_FIELDS)]
+            why = expression_field_error(fields)
+            if why is not None:
+                raise FapFormatError(f"{path}, line {vline}: frame {ints[0]}: FAP 2 (expression): {why}")
+            if expression is None:
+                expression = np.zeros((n, len(EXPRESSION_FIELDS)), dtype=np.int64)
+            expression[f] = fields
+            rest = [0, *rest[len(EXPRESSION_FIELDS):]]
+        values[f, m] = rest
+    return FapSequence(name=name, fps=fps, mask=mask, values=values, first_frame=first_frame, expression=expression)
 
 
 # Tongue channels (docs/DATA.md: EMA tongue tip and body, head frame, mm from rest) → MPEG-4 tongue
@@ -341,7 +402,7 @@ def add_tongue_faps(seq: FapSequence, channels: Mapping[str, NDArray[np.float64]
     for fap in TONGUE_ZERO_FAPS:
         values[:, fap - 1] = 0
         mask[:, fap - 1] = True
-    return FapSequence(name=seq.name, fps=seq.fps, mask=mask, values=values, first_frame=seq.first_frame)
+    return seq.with_arrays(mask, values)
 
 
 def blink_profile(times: NDArray[np.float64]) -> NDArray[np.float64]:
@@ -367,7 +428,7 @@ def add_blinks(seq: FapSequence) -> FapSequence:
     for fap in BLINK_FAPS:
         values[:, fap - 1] = closed
         mask[:, fap - 1] = True
-    return FapSequence(name=seq.name, fps=seq.fps, mask=mask, values=values, first_frame=seq.first_frame)
+    return seq.with_arrays(mask, values)
 
 
 def animation_faps(animation: Animation, face: FaceUnits, name: str) -> FapSequence:
@@ -379,9 +440,47 @@ def animation_faps(animation: Animation, face: FaceUnits, name: str) -> FapSeque
 
     faps = channels_to_faps(animation.channels, animation.neutral, face, name, animation.fps)
     tongue, rest, _ = tongue_channels(animation)
-    # an emotion's brows, lids, cheeks and corners (coartic.runtime.expression), over the blinks
-    return add_fap_offsets(add_blinks(add_tongue_faps(faps, tongue, rest, face)),
-                           expression_fap_offsets(animation, face.mns_mm, face.mw_mm))
+    # an emotion's brows, lids, cheeks and corners (coartic.runtime.expression), over the blinks, and
+    # the same emotion as the high-level expression (FAP 2) for players that render it
+    low = add_fap_offsets(add_blinks(add_tongue_faps(faps, tongue, rest, face)),
+                          expression_fap_offsets(animation, face.mns_mm, face.mw_mm))
+    return with_expression(low, expression_fap2(animation))
+
+
+def expression_fap2(animation: Animation) -> NDArray[np.int64] | None:
+    """FAP 2's six values per frame (EXPRESSION_FIELDS) of the emotion the animation speaks with
+    (``coartic.runtime.expression``'s docstring: the two strongest per frame, intensities on 0-63);
+    None without one (the FAP file then does not send FAP 2)."""
+    from coartic.emotions import expression_weights
+
+    weights = {e: w for e, w in expression_weights(animation.table, animation.times).items()
+               if e in EXPRESSION_SELECT}
+    if not weights:
+        return None
+    names = list(weights)
+    w = np.stack([np.asarray(weights[e], dtype=np.float64) for e in names], axis=1)  # (frames, emotions)
+    q = np.rint(np.clip(w, 0.0, 1.0) * EXPRESSION_INTENSITY_MAX).astype(np.int64)
+    order = np.argsort(-w, axis=1, kind="stable")
+    out = np.zeros((animation.n_frames, len(EXPRESSION_FIELDS)), dtype=np.int64)
+    codes = np.array([EXPRESSION_SELECT[e] for e in names], dtype=np.int64)
+    rows = np.arange(animation.n_frames)
+    for slot in range(min(2, len(names))):
+        k = order[:, slot]
+        level = q[rows, k]
+        out[:, 2 * slot] = np.where(level > 0, codes[k], 0)
+        out[:, 2 * slot + 1] = level
+    return out
+
+
+def with_expression(seq: FapSequence, fields: NDArray[np.int64] | None) -> FapSequence:
+    """``seq`` sending FAP 2 in every frame with ``fields`` (frames, 6: EXPRESSION_FIELDS); ``seq``
+    itself for None."""
+    if fields is None:
+        return seq
+    mask = seq.mask.copy()
+    mask[:, EXPRESSION_FAP - 1] = True
+    return FapSequence(name=seq.name, fps=seq.fps, mask=mask, values=seq.values, first_frame=seq.first_frame,
+                       expression=fields)
 
 
 def add_fap_offsets(seq: FapSequence, offsets: Mapping[int, NDArray[np.float64]]) -> FapSequence:
@@ -394,4 +493,4 @@ def add_fap_offsets(seq: FapSequence, offsets: Mapping[int, NDArray[np.float64]]
         col = values[:, fap - 1].astype(np.float64) + np.asarray(add, dtype=np.float64)[: seq.n_frames]
         values[:, fap - 1] = np.clip(np.rint(col), -FAP_VALUE_LIMIT, FAP_VALUE_LIMIT).astype(np.int64)
         mask[:, fap - 1] = True
-    return FapSequence(name=seq.name, fps=seq.fps, mask=mask, values=values, first_frame=seq.first_frame)
+    return seq.with_arrays(mask, values)

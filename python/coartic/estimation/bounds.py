@@ -38,13 +38,13 @@ MODEL.md's terms (dominance, resistance, shape, target).
 from __future__ import annotations
 
 import math
-from dataclasses import asdict, dataclass
 from typing import TYPE_CHECKING, Any, Sequence
 
 import numpy as np
 from numpy.typing import NDArray
 
-from coartic.estimation.parameters import psd_pseudo_inverse
+# BoundNote, the record this module computes, lives with the parameter it explains
+from coartic.estimation.parameters import CATEGORIES, BoundNote, psd_pseudo_inverse
 from coartic.estimation.packing import shared_words, tie_group
 from coartic.settings import default
 
@@ -53,14 +53,6 @@ if TYPE_CHECKING:
 
 FloatArray = NDArray[np.float64]
 
-CATEGORIES: tuple[str, ...] = ("domain", "active", "optimal", "insensitive", "unexplained")
-CATEGORY_TITLES: dict[str, str] = {
-    "domain": "model domain — by design",
-    "active": "active — the data pull beyond the bound",
-    "optimal": "not binding — a wider box would not change the fit",
-    "insensitive": "insensitive — not constrained by the data",
-    "unexplained": "UNEXPLAINED — the fit is not held at this bound",
-}
 # Δχ² (SSE in units of s²) below which a change is within the noise.
 CHI2_NOISE = 1.0
 # Limits of the model itself (MODEL.md §1 table and §3.1: the extents weigh the next one by 1 − k_R;
@@ -73,47 +65,6 @@ LIP_CHANNELS = frozenset({"ULO", "LLO", "ULP", "LLP", "LR", "LA"})
 STEPS_OUT = (0.01, 0.03, 0.1, 0.3, 1.0)
 STEPS_IN = (0.01, 0.03, 0.1, 0.25, 0.5, 0.75, 1.0)
 GN_SCALES = (0.05, 0.1, 0.25, 0.5, 1.0)
-
-
-@dataclass(frozen=True)
-class BoundNote:
-    """The explanation of one free parameter at a bound (``parameters.csv``, ``summary.json``)."""
-
-    name: str
-    phoneme: str
-    parameter: str
-    value: float
-    side: str  # "lower" | "upper"
-    bound: float
-    source: str  # where the box comes from: "model domain …", a spec key, or the defaults
-    category: str  # one of CATEGORIES
-    gradient: float  # d(SSE)/dx at the fit, x the fitted coordinate (ln value for log-fitted parameters)
-    gradient_of: str  # "ln theta_bw" or "k_r": what x is
-    gain_held_chi2: float  # best measured SSE decrease past the bound, others held (Δχ²); NaN: not probed
-    held_value: float  # the value past the bound where it was measured
-    gain_gn_chi2: float  # Gauss–Newton estimate with the interior parameters re-adjusted (Δχ²)
-    gain_gn_measured_chi2: float  # the model evaluated along that direction (Δχ²); NaN: not probed
-    range_chi2: float  # the largest SSE rise over the whole box, others held (Δχ²)
-    beyond_chi2: float  # the largest SSE rise past the bound, others held (Δχ²)
-    rmse: float  # the channel's RMSE as fitted (mm)
-    rmse_relaxed: float  # the RMSE with the best measured gain (mm)
-    partner: str  # the free parameter most correlated with it ("" if none)
-    partner_corr: float
-    explanation: str  # the category's sentence, with numbers
-    reading: str  # what the bound means for the model (MODEL.md names)
-    shared_by: tuple[str, ...] = ()  # the phonemes that share this one value ([parameters] shared, [[tie]])
-
-    @property
-    def title(self) -> str:
-        return CATEGORY_TITLES[self.category]
-
-    def as_dict(self) -> dict[str, Any]:
-        d = asdict(self)
-        return {k: (None if isinstance(v, float) and not math.isfinite(v) else v) for k, v in d.items()}
-
-    def short(self) -> str:
-        """One line: name, value, side, category."""
-        return f"{self.name} = {self.value:.4g} at its {self.side} bound {self.bound:.4g}: {self.title}"
 
 
 def explain_bounds(problem: ChannelProblem, x: FloatArray, at_bound: Sequence[str], jac: Any, r: FloatArray,
