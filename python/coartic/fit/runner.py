@@ -119,9 +119,11 @@ def fit_channel(spec: FitSpec, utterances: Sequence[Utterance], channel: str,
                 zero = next((o for o in others if 0 in o.starts), None)
                 if zero is not None and zero not in picked:  # start 0's (the single fit's) always
                     picked.append(zero)
+                # the data weight from start 0's optimum (the single fit's, whatever the seed), else the best's
+                at = next((k + 1 for k, o in enumerate(picked) if 0 in o.starts), 0)
                 final, pooled_res, pooling = fit_pooled_best(
                     final, [res.x] + [o.x for o in picked], spec.engine, spec.engine_options,
-                    [multi.best.objective] + [o.objective for o in picked])
+                    [multi.best.objective] + [o.objective for o in picked], weigh_at=at)
             else:
                 final, pooled_res, pooling = fit_pooled(final, res.x, spec.engine, spec.engine_options)
             if pooled_res is not None:
