@@ -154,7 +154,7 @@ def report(res: dict[str, tuple[float, float, str]], n_files: int, jobs: int, be
     est = schedule(cpu, names, startup)
     lines.append(
         f"# estimated quiet 2-core wall of make test-python (files in conftest order to the first free worker): {est:.0f} s "
-        f"= {est / 60:.1f} min (lower bound total/2: {total / 2 / 60:.1f} min)"
+        f"= {est / 60:.1f} min (total/2, every file paying its own start-up: {total / 2 / 60:.1f} min)"
     )
     return "\n".join(lines) + "\n"
 
