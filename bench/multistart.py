@@ -1,7 +1,7 @@
 """Multi-start estimation (coartic.fit.multistart): its cost as a ratio to one start, the share of
 starts that reach the best optimum, against nlopt's global MLSL and against the single start.
 
-    .venv/bin/python bench/multistart.py [synthetic|german|workers|heldout|cost|cost-per-phoneme|cost-gestures ...]
+    .venv/bin/python bench/multistart.py [synthetic|german|workers|heldout|cost|cost-per-phoneme|cost-gestures|confirm-gestures ...]
                                                                       (default: the first four)
 
 - synthetic: LLO of the synthetic session, the 150 trials of /p f t l s/ (fit/synthetic.toml;
@@ -23,6 +23,8 @@ starts that reach the best optimum, against nlopt's global MLSL and against the 
   cost-per-phoneme: the same with per-phoneme dynamics, nothing pooled
   (bench/results/multistart_cost-per-phoneme.txt); cost-gestures: the gestures flavour's LLO, with
   the rule only (bench/results/multistart_cost-gestures.txt).
+  confirm-gestures: the stopping rule's confirming start on a part of the gestures flavour, drawn
+  entry by entry (the default) and per family (bench/results/multistart_confirm-gestures.txt).
   Costs are evaluations (exact) and CPU seconds of this process (time.process_time: every thread,
   the core's rayon workers included; a short fit repeated, MIN_CPU): the machine is shared, and
   wall times there measure the other jobs.
@@ -180,7 +182,7 @@ def heldout(which: Sequence[str] = ("one start", "previous default", "default"))
         for label, s, previous in fits:
             t0 = time.perf_counter()
             with previous_default() if previous else contextlib.nullcontext():
-                trained = run(s, utterances=train, quiet=True, report=False)
+                trained = run(s, utterances=train, quiet=True)
             wall = time.perf_counter() - t0
             for ch in s.channels:
                 fit = trained.channels[ch]
@@ -299,6 +301,73 @@ def gestures_data() -> tuple[FitSpec, list[Utterance]]:
     return spec, load_utterances(spec, manifest_rows(spec))
 
 
+def family_starts(packing: Any, n: int, seed: int) -> Any:
+    """``n`` starts drawn as a ``[parameters.start]`` is given: one value per parameter family (α,
+    θ_bw, ..., δ), every phoneme at the same place in its box (engine coordinates), from a scrambled
+    Sobol sequence over the families; targets stay at the packing's own values. The alternative to
+    the multi-start's start 1 (sobol_starts: every entry on its own) measured by ``confirm``."""
+    import warnings
+
+    import numpy as np
+    from scipy.stats import qmc
+
+    from coartic.table import PARAMETERS
+
+    x0 = packing.pack()
+    lo, hi = packing.bounds()
+    cols = multistart._columns(packing)
+    drawn = (cols != PARAMETERS.index("target")) & np.isfinite(lo) & np.isfinite(hi) & (hi > lo)
+    out = np.tile(x0, (n, 1))
+    families = sorted(set(cols[drawn].tolist()))
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", UserWarning)
+        u = qmc.Sobol(len(families), scramble=True, seed=seed).random(n)
+    for k, f in enumerate(families):
+        m = drawn & (cols == f)
+        out[:, m] = lo[m] + u[:, [k]] * (hi[m] - lo[m])
+    return out
+
+
+def confirm_gestures() -> list[str]:
+    """What the stopping rule's confirming start costs and where it ends on the gestures flavour
+    (LLO, the normal rate's repetition 1: 63 trials, the spec's 207 free parameters): one staged fit
+    (the spec's stages, full budget) from start 0 ([parameters.start]), from the multi-start's start 1
+    (sobol_starts, seed 0) and from start 1 drawn per family (family_starts, seed 0); CPU and
+    evaluations as ratios to start 0's, the objective, the data RMSE, and whether it is start 0's
+    optimum (multistart.cluster)."""
+    from coartic.estimation.problem import build_problem
+    from coartic.fit.staged import channel_status, fit_staged
+
+    spec = load_spec(ROOT / "fit/gestures_rate_aware.toml")
+    rows = [r for r in manifest_rows(spec) if r.get("rate") == "normal" and r.get("repetition") == "1"]
+    utts = load_utterances(spec, rows)
+    prob = build_problem(spec, utts, "LLO")
+    full = prob.packing
+    out = [f"confirming start, gestures flavour LLO, normal rate repetition 1 ({len(utts)} trials, "
+           f"{full.n_free} free; fit/gestures_rate_aware.toml): one staged fit from each start"]
+    print(out[0], flush=True)
+    starts = [("start 0 ([parameters.start])", None), ("start 1, every entry drawn (the default)",
+                                                       multistart.sobol_starts(full, 32, 0)[1]),
+              ("start 1, drawn per family", family_starts(full, 32, 0)[1])]
+    ends = []
+    for label, x in starts:
+        p = prob.with_packing(full if x is None else full.with_free(full.free, full.beta_free, *full.unpack(x)))
+        p.nfev = p.njev = 0
+        t0 = time.process_time()
+        f, r, st = fit_staged(p, spec.engine, spec.engine_options, spec.stages if spec.staging else None)
+        cpu = time.process_time() - t0
+        xe = f.packing.pack()
+        ends.append((label, xe, st[-1].sse_end, f.nfev, cpu, channel_status(r, st)[0], prob.data_rmse(xe)))
+    _, x0, s0, n0, c0, _, _ = ends[0]
+    for label, x, s, n, c, status, rmse in ends:
+        same = len(multistart.cluster([x0, x], [s0, s], [multistart.trajectory(prob, x0), multistart.trajectory(prob, x)],
+                                      prob.data.n_valid, [0, 1], ["", ""], n_free=full.n_free)) == 1
+        out.append(f"  {label:<42} objective {s:10.4f}  data RMSE {rmse:.4f} mm  {n:5d} evals = {n / n0:5.2f}x  "
+                   f"CPU {c:7.2f} s = {c / c0:5.2f}x  [{status}]  " + ("start 0's optimum" if same else "another optimum"))
+        print(out[-1], flush=True)
+    return out
+
+
 def main(parts: Sequence[str]) -> None:
     lines: list[str] = []
     name = "multistart.txt" if set(parts) >= {"synthetic", "german", "workers"} else f"multistart_{'_'.join(parts)}.txt"
@@ -330,13 +399,15 @@ def main(parts: Sequence[str]) -> None:
             spec, utts = gestures_data()
             lines += cost(f"cost, gestures flavour, LLO, {len(utts)} trials (fit/gestures_rate_aware.toml)", spec, utts,
                           ["LLO"], before=False)
+        elif part == "confirm-gestures":
+            lines += confirm_gestures()
         elif part == "heldout":
             lines += heldout()
         elif part.startswith("heldout-"):  # one kind of fit only, e.g. heldout-default (the run is long)
             lines += heldout([part.removeprefix("heldout-").replace("-", " ")])
         else:
             raise SystemExit(f"unknown part {part!r} (synthetic, german, workers, heldout, cost, cost-per-phoneme, "
-                             "cost-gestures)")
+                             "cost-gestures, confirm-gestures)")
         save()
     print(f"saved bench/results/{name}")
 

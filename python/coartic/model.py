@@ -21,7 +21,7 @@ from coartic import _core
 from coartic.errors import CoarticError
 from coartic.io.errors import DataError
 from coartic.io.labelmap import LabelMap, resolve_label_map
-from coartic.pauses import FINAL_PAUSE, SHORT_PAUSE_S, pause_postures, recorded, recorded_short
+from coartic.pauses import FINAL_PAUSE, MEDIAL_PAUSE, SHORT_PAUSE_S, pause_postures, recorded, recorded_short
 from coartic.table import N_PARAMS, PARAMETERS, PAUSE, ChannelSettings, ParameterTable
 
 F64 = npt.NDArray[np.float64]
@@ -133,19 +133,45 @@ def utterances_with_postures(utterances: Sequence[Utterance], short: float = SHO
     out: list[Utterance] = []
     notes: list[str] = []
     finals = 0
-    for u in utterances:
-        labels, starts, ends, changes = pause_postures(u.labels, u.starts, u.ends, short)
-        if not changes:
+    done = [(u, *pause_postures(u.labels, u.starts, u.ends, short)) for u in utterances]
+    # A posture no sample shows is not fitted: a row whose segments hold no valid sample in any
+    # channel is determined only through its reach into the neighbours, its target unidentified
+    # (the German EMA's final pauses lie where the recordings are NaN: their '#end' target went to
+    # the bottom of its box, flagged "not identified", and the unpooled per-phoneme fit became
+    # start-dependent, 0.82 mm held out, docs/REAL_DATA.md). Those pauses stay '#', and a table
+    # without the row reads them as '#' too (STAND_INS).
+    unseen = [p for p in (FINAL_PAUSE, MEDIAL_PAUSE)
+              if any(p in labels for _, labels, _, _, _ in done)
+              and not any(lab == p and _observed(u, s, e) for u, labels, starts, ends, _ in done
+                          for lab, s, e in zip(labels, starts, ends))]
+    for u, labels, starts, ends, changes in done:
+        if unseen:
+            labels = tuple(PAUSE if lab in unseen else lab for lab in labels)
+            changes = [c for c in changes if c.became not in unseen]
+        if not changes and labels == u.labels and starts.size == u.starts.size:
             out.append(u)
             continue
         out.append(Utterance(labels, starts, ends, u.times, u.name, u.observed, u.valid, u.meta))
         finals += sum(c.became == FINAL_PAUSE for c in changes)
         where = u.meta.get("file") or u.name
         notes += [f"pauses: {where}: {c.text()}" for c in changes if c.became != FINAL_PAUSE]
+    notes += [f"pauses: no {'utterance-final' if p == FINAL_PAUSE else 'medial'} pause has a valid sample in any "
+              f"channel: none is fitted as {p!r} (a posture no sample shows cannot be estimated); they stay "
+              f"{PAUSE!r}" for p in unseen]
     if finals:
         notes.insert(0, f"pauses: {finals} utterance-final pause(s) fitted as {FINAL_PAUSE!r} (their own target), "
                         f"apart from the initial {PAUSE!r}")
     return out, notes
+
+
+def _observed(u: Utterance, start: float, end: float) -> bool:
+    """Whether any channel of ``u`` has a valid, finite sample in [start, end) (an utterance that
+    carries no channels counts as observed: nothing to tell)."""
+    if not u.valid:
+        return True
+    inside = (u.times >= start) & (u.times < end)
+    return any(bool(np.any(v[inside] & np.isfinite(u.observed[ch][inside]))) if ch in u.observed
+               else bool(np.any(v[inside])) for ch, v in u.valid.items())
 
 
 def build_corpus(utterances: Sequence[Utterance], phonemes: Sequence[str]) -> _core.Corpus:

@@ -17,8 +17,8 @@ from rich.table import Table
 from coartic.batch.cli import rmse_table as batch_table
 from coartic.console import LineProgress, print_table
 from coartic.evaluation.compare import Comparison, Row
-from coartic.evaluation.compare_cli import comparison_table
-from coartic.fit.fit_cli import rmse_table as fit_table
+from coartic.jobs.compare_cli import comparison_table
+from coartic.jobs.fit_cli import rmse_table as fit_table
 from coartic.mcmc.mcmc_cli import _status_table as mcmc_table
 
 WIDTHS = (40, 80, 200)

@@ -18,6 +18,7 @@ import pytest
 import format_fixtures as ff
 from coartic import ParameterTable, trajectories
 from coartic.fit import run
+from coartic.jobs.fit import fit_job
 from coartic.evaluation.score import score_recordings
 from coartic.fit.spec import load_spec, parse_spec
 from coartic.pauses import (FINAL_PAUSE, MEDIAL_ALPHA, MEDIAL_PAUSE, POSTURES_RECORD, RECORD_KEY, is_pause,
@@ -122,9 +123,9 @@ def test_edge_postures_and_a_pause_inside_a_closure(tmp_path: Path) -> None:
     rows[5:6] = [(float(starts[5]), float(starts[5]) + 0.02, "#"), (float(starts[5]) + 0.02, float(ends[5]), "p")]
     files.append(write_recording(tmp_path, "fast", labels, durs, rows))
 
-    one = run(spec_for(tmp_path, files, "one"), quiet=True, report=False)
+    one = run(spec_for(tmp_path, files, "one"), quiet=True)
     out = tmp_path / "postures"
-    three = run(spec_for(tmp_path, files, "postures"), out, quiet=True, report=False)
+    three = fit_job(spec_for(tmp_path, files, "postures"), out, quiet=True, report=False)
     table = ParameterTable.load(out / "table.json")
     assert {PAUSE, FINAL_PAUSE} <= set(table.phonemes) and table.metadata[RECORD_KEY]["mode"] == "postures"
     # the final pause has the closed lips of /p/ (LA = 16 mm at rest + ULO + LLO = 11.5 mm), the
@@ -204,3 +205,31 @@ def test_medial_pause_is_weak(tmp_path: Path) -> None:
     assert p.packing.base[row, 1] == MEDIAL_ALPHA and f"{MEDIAL_PAUSE}.alpha" in p.packing.names()
     fixed = build_problem(s.with_options(free=("target", "theta_bw", "theta_fw"), pooled=()).estimation_settings(), [v], "LA")
     assert fixed.packing.base[row, 1] == MEDIAL_ALPHA and f"{MEDIAL_PAUSE}.alpha" not in fixed.packing.names()
+
+
+def test_a_posture_no_sample_shows_stays_the_pause() -> None:
+    """The German EMA's final pauses lie where the recordings are NaN: a '#end' row fitted from them
+    has no sample of its own (its target went to the bottom of its box, not identified). A final or
+    medial pause row with no valid sample in any channel over the corpus stays '#', with a note;
+    one utterance whose final pause is measured keeps the row for every utterance."""
+    from coartic.model import Utterance, utterances_with_postures
+
+    times = np.arange(0.0, 1.0, 0.01)
+
+    def utt(name: str, measured_to: float) -> Utterance:
+        y = np.where(times < measured_to, 20.0, np.nan)
+        return Utterance(["#", "a", "#", "p", "a", "#"], [0.0, 0.2, 0.4, 0.55, 0.65, 0.8],
+                         [0.2, 0.4, 0.55, 0.65, 0.8, 1.0], times, name, {"LA": y}, {"LA": np.isfinite(y)})
+
+    blind = [utt("x", 0.5), utt("y", 0.75)]  # the medial pause (0.40-0.55) measured, no final pause
+    out, notes = utterances_with_postures(blind)
+    assert [u.labels for u in out] == [("#", "a", MEDIAL_PAUSE, "p", "a", PAUSE)] * 2
+    assert any(f"no utterance-final pause has a valid sample in any channel: none is fitted as {FINAL_PAUSE!r}" in n
+               for n in notes)
+    assert not any("utterance-final pause(s) fitted as" in n for n in notes)
+    assert [u.labels for u in utterances_with_postures(out)[0]] == [u.labels for u in out]  # twice: the same
+    seen, notes = utterances_with_postures([utt("x", 0.5), utt("z", 1.0)])  # z's final pause is measured
+    assert [u.labels[-1] for u in seen] == [FINAL_PAUSE, FINAL_PAUSE]
+    assert not any("has a valid sample" in n for n in notes)
+    none, _ = utterances_with_postures([utt("w", 0.3)])  # nothing measured after 0.3 s: neither row
+    assert none[0].labels == ("#", "a", PAUSE, "p", "a", PAUSE)

@@ -15,22 +15,37 @@ A fit spec (``coartic.fit.spec.FitSpec``, one TOML file) is one way to write the
 ``coartic.Coarticulation``. The defaults here are a spec's defaults (docs/FITTING.md): a spec
 that sets nothing and ``EstimationSettings()`` are the same problem.
 
-Errors in the settings name ``source`` (the spec file, when there is one) and the spec key the
-setting is written with (``SpecError``), so a mistake reads the same from a file and from Python.
+The settings check themselves: each class is a pydantic dataclass whose fields have the checks of
+``coartic.estimation.checks`` (the fit spec's, one definition), and construction raises a
+``SpecError`` naming the spec key the setting is written with (``ModelSettings(variant="modifed")``:
+``[model.variant] 'modifed': expected one of modified, original``; ``EstimationSettings`` adds its
+``source``, the spec file when there is one). What no part can check alone (the reference phoneme's
+α in a tie, pooled and shared at once, β above its box) is checked by ``EstimationSettings``, with
+the function the fit spec calls too (``check_together``). So settings built in Python and handed
+straight to ``build_problem`` are refused as a spec file's are, in the same words.
 """
 
 from __future__ import annotations
 
 import dataclasses
 import math
-from collections.abc import Mapping, Sequence
-from dataclasses import dataclass, field
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import field
 from pathlib import Path
-from typing import Any
+from typing import Annotated, Any
 
-from coartic.pauses import is_pause
+from pydantic import BeforeValidator, ValidationError, model_validator
+from pydantic.dataclasses import dataclass
+
+from coartic.errors import SpecError
+from coartic.estimation.checks import (EMOTION_MODES, LOG_SCALE_PARAMETERS, SPEAKER_MODES, STRICT, Bounds, Flag,
+                                       Number, Parameters, ParamValues, Positive, Text, _bad, _beta_bounds,
+                                       _channel_bounds, _channels, _class, _distinct_params, _group, _names,
+                                       _offsets, _one_of, _optional, _text, _pooled, _priors, _setting, _shared,
+                                       _target_prior, key_of, schema_error, spec_errors)
+from coartic.pauses import PAUSE_MODES, is_pause
 from coartic.settings import default
-from coartic.table import ChannelSettings
+from coartic.table import VARIANTS, ChannelSettings
 
 # Starting values of the dynamics; targets start from the data (mean value at the target times).
 DEFAULT_START: dict[str, float] = {
@@ -68,23 +83,115 @@ REFERENCE_ORDER: tuple[str, ...] = (DEFAULT_REFERENCE, "E", "O", "e", "o", "i", 
 # Where the default boxes are written, for the sentences that explain a parameter at a bound.
 _DEFAULTS_HOME = "coartic/estimation/settings.py"
 
+# setting -> the spec key it is written with (errors name it): the sections of docs/FITTING.md
+SPEC_KEYS: dict[str, str] = {
+    **{f: f"model.{f}" for f in ("variant", "reference_phoneme", "apex_fraction", "edge_extent", "dominance",
+                                 "plateau_fraction", "handover", "beta", "pauses", "fit_beta", "beta_bounds",
+                                 "offsets", "speakers", "speaker_column", "emotions", "emotion_column",
+                                 "neutral_emotion")},
+    **{f: f"parameters.{f}" for f in ("free", "shared", "start", "bounds", "target_margin", "prior_noise",
+                                      "target_prior", "pooled")},
+    "start_given": "parameters.start", "channel_bounds": "parameters.bounds", "priors": "parameters.prior",
+    "overrides": "override", "ties": "tie", "shrinks": "shrink",
+}
+# the settings that are lists of tables ([[override]] #N ...)
+TABLE_LISTS: tuple[str, ...] = ("overrides", "ties", "shrinks")
 
-@dataclass(frozen=True)
+
+def spec_key(loc: Sequence[str | int]) -> str:
+    """The spec key of a place in the settings: ("overrides", 2, "fixed") -> "override #3.fixed"."""
+    return key_of(loc, SPEC_KEYS, TABLE_LISTS)
+
+
+def table_keys(part: type) -> list[str]:
+    """The keys a ``[[override]]``, ``[[tie]]`` or ``[[shrink]]`` table may have (Shrink's ``log`` is
+    ``scale`` there, its ``key`` no key)."""
+    names = [f.name for f in dataclasses.fields(part)]
+    return [{"log": "scale"}.get(n, n) for n in names if not (part is Shrink and n == "key")]
+
+
+def _settings_error(e: ValidationError, file: Any, cls: type) -> SpecError:
+    # a table built alone is named by its section ([override.free]); the parts by their fields' keys
+    root: tuple[str | int, ...] = {"Override": ("override",), "Tie": ("tie",), "Shrink": ("shrink",)}.get(
+        cls.__name__, ())
+    tables = {"override": Override, "tie": Tie, "shrink": Shrink, "overrides": Override, "ties": Tie,
+              "shrinks": Shrink}
+    return schema_error(e, file, root, spec_key,
+                        lambda head: table_keys(tables[head]) if head in tables else None, cls.__name__)
+
+
+def check_groups(get: Callable[[str], Any]) -> None:
+    """Group settings that cannot go together; ``get`` reads a setting by name (the settings' or a
+    fit spec's: one check for both)."""
+    if get("speakers") != "none" and get("offsets") != "none":
+        raise _bad("cannot be combined with [model] offsets yet: choose one", ("speakers",))
+    if get("emotions") != "none" and (get("offsets") != "none" or get("speakers") != "none"):
+        raise _bad("cannot be combined with [model] offsets or speakers yet: choose one", ("emotions",))
+
+
+def check_ties_shared(get: Callable[[str], Any]) -> None:
+    tied = {q for t in get("ties") for q in t.parameters} & set(get("shared"))
+    if tied:
+        raise _bad(f"{', '.join(sorted(tied))} is both shared by every phoneme and in a [[tie]]: one or the other",
+                   ("shared",))
+
+
+def check_together(get: Callable[[str], Any]) -> None:
+    """What no part of the settings can check alone (the groups, the reference phoneme's α in ties
+    and overrides, pooled and shared at once, β above its box), in the order a spec reports them;
+    ``get`` reads a setting by name. ``EstimationSettings`` and ``FitSpec`` call it."""
+    check_groups(get)
+    ref = get("reference_phoneme") or DEFAULT_REFERENCE
+    for i, t in enumerate(get("ties")):
+        if ref in t.phonemes and "alpha" in t.parameters:
+            raise _bad(f"ties alpha of the reference phoneme {ref!r}, which is fixed at 1", ("ties", i),
+                       phoneme=ref, parameter="alpha")
+    for i, o in enumerate(get("overrides")):
+        # alpha is scale-free: the reference phoneme's is 1 by definition (MODEL.md §1)
+        if ref in o.phonemes and ("alpha" in o.free or "alpha" in o.start or "alpha" in o.bounds
+                                  or o.fixed.get("alpha", 1.0) != 1.0):
+            raise _bad(f"sets alpha of the reference phoneme {ref!r}, which is fixed at 1 (alpha is "
+                       "scale-free); choose another [model] reference_phoneme to fit it", ("overrides", i),
+                       phoneme=ref, parameter="alpha")
+    both = set(get("pooled")) & set(get("shared"))
+    if both:
+        raise _bad(f"{', '.join(sorted(both))} is both shared by every phoneme and pooled: one or the other "
+                   "(pooled with its sd estimated reaches shared when the data say so)", ("pooled",))
+    check_ties_shared(get)
+    beta, beta_bounds = get("beta"), get("beta_bounds")
+    if beta > beta_bounds[1]:
+        # the model takes any beta >= 0, but past the box a fit may search, rho(u) is gone within a
+        # hair of the target: a typo (1e308) must not read as a model that fits badly
+        raise _bad(f"beta = {beta:g} is above {beta_bounds[1]:g}, the upper end of [model] beta_bounds "
+                   "(the largest beta a fit may reach): lower beta, or widen beta_bounds", ("beta",),
+                   parameter="beta", value=beta)
+
+
+_checked = spec_errors(_settings_error)
+
+
+@_checked
+@dataclass(frozen=True, config=STRICT)
 class ModelSettings:
     """The model a fitted table records (spec ``[model]``): ``variant`` "modified" or "original",
     the reference phoneme (α = 1; None: chosen from the data), the channel settings of
     ``coartic.settings`` (apex fraction, edge extent, dominance, plateau fraction, handover), the
     start (or fixed value) of β, and how pauses are labelled ("postures" or "one")."""
 
-    variant: str = "modified"
-    reference_phoneme: str | None = None
-    apex_fraction: float = default("apex_fraction")
-    edge_extent: float = default("edge_extent")
-    dominance: str = SPEC_MODEL_DEFAULTS["dominance"]
-    plateau_fraction: float = default("plateau_fraction")
-    handover: bool = SPEC_MODEL_DEFAULTS["handover"]
-    beta: float = default("beta")
-    pauses: str = "postures"
+    variant: Annotated[str, BeforeValidator(_one_of(VARIANTS))] = "modified"
+    # α = 1 for it (MODEL.md §1); None: chosen from the data (reference_for)
+    reference_phoneme: Annotated[str | None, BeforeValidator(_optional(_text))] = None
+    # the model's channel settings: defaults and ranges from coartic.settings
+    apex_fraction: Annotated[float, BeforeValidator(_setting("apex_fraction"))] = default("apex_fraction")
+    edge_extent: Annotated[float, BeforeValidator(_setting("edge_extent"))] = default("edge_extent")
+    # the rate-aware options of docs/MODEL.md §2.1
+    dominance: Annotated[str, BeforeValidator(_setting("dominance"))] = SPEC_MODEL_DEFAULTS["dominance"]
+    plateau_fraction: Annotated[float, BeforeValidator(_setting("plateau_fraction"))] = default("plateau_fraction")
+    handover: Annotated[bool, BeforeValidator(_setting("handover"))] = SPEC_MODEL_DEFAULTS["handover"]
+    beta: Annotated[float, BeforeValidator(_setting("beta"))] = default("beta")
+    # "postures": initial, final and medial pauses are three rows, short pauses in a closure join
+    # it (coartic.pauses); "one": every pause is '#'
+    pauses: Annotated[str, BeforeValidator(_one_of(PAUSE_MODES))] = "postures"
 
     def reference_for(self, phonemes: Sequence[str]) -> str:
         """The reference phoneme (α = 1) of a channel whose data have ``phonemes``: the one
@@ -109,49 +216,72 @@ class ModelSettings:
                                handover=self.handover)
 
 
-@dataclass(frozen=True)
+@_checked
+@dataclass(frozen=True, config=STRICT)
 class Override:
     """Per-phoneme (optionally per-channel) changes to which parameters are free, their start and
     bounds (spec ``[[override]]``)."""
 
-    phonemes: tuple[str, ...]
-    channels: tuple[str, ...] | None = None  # None: every channel
-    fixed: dict[str, float] = field(default_factory=dict)  # fixed at this value
-    free: tuple[str, ...] = ()  # made free (even if not in the global list)
-    start: dict[str, float] = field(default_factory=dict)
-    bounds: dict[str, tuple[float, float]] = field(default_factory=dict)
+    phonemes: Annotated[tuple[str, ...], BeforeValidator(_names)]
+    channels: Annotated[tuple[str, ...] | None, BeforeValidator(_optional(_channels))] = None  # None: every channel
+    fixed: ParamValues = field(default_factory=dict)  # fixed at this value
+    free: Parameters = ()  # made free (even if not in the global list)
+    start: ParamValues = field(default_factory=dict)
+    bounds: Bounds = field(default_factory=dict)
 
     def applies(self, phoneme: str, channel: str) -> bool:
         return phoneme in self.phonemes and (self.channels is None or channel in self.channels)
 
 
-@dataclass(frozen=True)
+@_checked
+@dataclass(frozen=True, config=STRICT)
 class Tie:
     """Parameters shared by a group of phonemes (spec ``[[tie]]``, e.g. θ and c by place of
     articulation): the first phoneme of the group present in a channel's data carries the value,
     the others take it."""
 
-    phonemes: tuple[str, ...]
-    parameters: tuple[str, ...]
-    channels: tuple[str, ...] | None = None  # None: every channel
+    phonemes: Annotated[tuple[str, ...], BeforeValidator(_group)]
+    parameters: Parameters
+    channels: Annotated[tuple[str, ...] | None, BeforeValidator(_optional(_channels))] = None  # None: every channel
 
 
-@dataclass(frozen=True)
+@_checked
+@dataclass(frozen=True, config=STRICT)
 class Shrink:
     """Shrinkage of a class of phonemes toward its class mean (spec ``[[shrink]]``): for each
     parameter, one penalty row per member, ``prior_noise · (v_i − mean_class(v)) / sd`` (v the value,
     or its logarithm with ``log``), the mean over every member present in the channel's data (fixed
-    ones count in the mean)."""
+    ones count in the mean). In a spec, ``scale = "log"`` is ``log = true``."""
 
-    phonemes: tuple[str, ...]
-    parameters: tuple[str, ...]
-    sd: float
-    log: bool = False
-    channels: tuple[str, ...] | None = None  # None: every channel
+    phonemes: Annotated[tuple[str, ...], BeforeValidator(_class)]
+    parameters: Annotated[tuple[str, ...], BeforeValidator(_distinct_params)]
+    sd: Positive
+    log: Flag = False
+    channels: Annotated[tuple[str, ...] | None, BeforeValidator(_optional(_channels))] = None  # None: every channel
     key: str = "shrink"  # the spec key its errors and reports are named by ("shrink #2")
 
+    @model_validator(mode="before")
+    @classmethod
+    def _scale(cls, data: Any) -> Any:
+        if isinstance(data, Mapping) and "scale" in data:
+            data = dict(data)
+            scale = data.pop("scale")
+            if scale not in ("natural", "log"):
+                raise _bad(f"{scale!r}: expected \"natural\" or \"log\"", ("scale",))
+            data["log"] = scale == "log"
+        return data
 
-@dataclass(frozen=True)
+    @model_validator(mode="after")
+    def _log_scale(self) -> Shrink:
+        bad = [p for p in self.parameters if p not in LOG_SCALE_PARAMETERS]
+        if self.log and bad:
+            raise _bad(f"log scale needs positive parameters ({', '.join(LOG_SCALE_PARAMETERS[:-1])}), "
+                       f"not {bad}: shrink those in another [[shrink]] on the natural scale", ("scale",))
+        return self
+
+
+@_checked
+@dataclass(frozen=True, config=STRICT)
 class ParameterSettings:
     """Which parameters are free, where they start and the boxes they are fitted in (spec
     ``[parameters]`` free, shared, start, bounds, target_margin; ``[[override]]``, ``[[tie]]``;
@@ -164,18 +294,24 @@ class ParameterSettings:
     for the others; a ``target`` box replaces the data range widened by ``target_margin`` mm),
     ``channel_bounds`` the boxes of one channel."""
 
-    free: tuple[str, ...] = DEFAULT_FREE
+    free: Parameters = DEFAULT_FREE
     # free parameters with one value per channel, shared by every phoneme where they are free
-    shared: tuple[str, ...] = DEFAULT_SHARED
-    fit_beta: bool = False
-    start: dict[str, float] = field(default_factory=dict)
+    shared: Annotated[tuple[str, ...], BeforeValidator(_shared)] = DEFAULT_SHARED
+    fit_beta: Flag = False
+    start: ParamValues = field(default_factory=dict)
     start_given: frozenset[str] | None = None  # None: the keys of start
-    bounds: dict[str, tuple[float, float]] = field(default_factory=dict)
-    channel_bounds: dict[str, dict[str, tuple[float, float]]] = field(default_factory=dict)
-    beta_bounds: tuple[float, float] = DEFAULT_BETA_BOUNDS
-    target_margin: float = 5.0  # mm beyond the observed range for the default target box
+    bounds: Bounds = field(default_factory=dict)
+    channel_bounds: Annotated[dict[str, dict[str, tuple[float, float]]], BeforeValidator(_channel_bounds)] = field(
+        default_factory=dict)
+    beta_bounds: Annotated[tuple[float, float], BeforeValidator(_beta_bounds)] = DEFAULT_BETA_BOUNDS
+    target_margin: Number = 5.0  # mm beyond the observed range for the default target box
     overrides: tuple[Override, ...] = ()
     ties: tuple[Tie, ...] = ()
+
+    @model_validator(mode="after")
+    def _consistent(self) -> ParameterSettings:
+        check_ties_shared(lambda name: getattr(self, name))
+        return self
 
     def start_of(self, parameter: str) -> float:
         """The start of ``parameter`` (``"beta"`` is the model's)."""
@@ -210,7 +346,8 @@ class ParameterSettings:
         return f"the default box (DEFAULT_FIT_BOUNDS, {_DEFAULTS_HOME}; MODEL.md §1's default bounds)"
 
 
-@dataclass(frozen=True)
+@_checked
+@dataclass(frozen=True, config=STRICT)
 class PriorSettings:
     """Priors and pooling (spec ``[parameters]`` prior, prior_noise, target_prior, pooled;
     ``[[shrink]]``): Gaussian priors ``"parameter"`` (every phoneme), ``"phoneme.parameter"`` or
@@ -219,26 +356,32 @@ class PriorSettings:
     ``pooled`` the free parameters drawn toward one value per channel with an sd estimated from the
     data (coartic.estimation.pooling); ``shrinks`` classes shrunk toward their means."""
 
-    priors: dict[str, tuple[float, float, bool]] = field(default_factory=dict)
-    prior_noise: float = 1.0
-    target_prior: float | str | None = DEFAULT_TARGET_PRIOR
-    pooled: tuple[str, ...] = DEFAULT_POOLED
+    priors: Annotated[dict[str, tuple[float, float, bool]], BeforeValidator(_priors)] = field(default_factory=dict)
+    prior_noise: Positive = 1.0
+    target_prior: Annotated[float | str | None, BeforeValidator(_target_prior)] = DEFAULT_TARGET_PRIOR
+    pooled: Annotated[tuple[str, ...], BeforeValidator(_pooled)] = DEFAULT_POOLED
     shrinks: tuple[Shrink, ...] = ()
 
 
-@dataclass(frozen=True)
+@_checked
+@dataclass(frozen=True, config=STRICT)
 class GroupSettings:
     """Structure across utterances (spec ``[model]`` offsets, speakers, emotions): per-utterance
     offsets ("none", "free" or their sd in mm); several speakers ("none", "offset", "offset_scale" or
     "targets"), read from the utterances' ``speaker_column``; emotions ("none" or "targets"), read
     from ``emotion_column``, ``neutral_emotion`` the reference."""
 
-    offsets: str | float = "none"
-    speakers: str = "none"
-    speaker_column: str = "speaker"
-    emotions: str = "none"
-    emotion_column: str = "emotion"
-    neutral_emotion: str = "neutral"
+    offsets: Annotated[str | float, BeforeValidator(_offsets)] = "none"
+    speakers: Annotated[str, BeforeValidator(_one_of(SPEAKER_MODES))] = "none"
+    speaker_column: Text = "speaker"
+    emotions: Annotated[str, BeforeValidator(_one_of(EMOTION_MODES))] = "none"
+    emotion_column: Text = "emotion"
+    neutral_emotion: Text = "neutral"
+
+    @model_validator(mode="after")
+    def _consistent(self) -> GroupSettings:
+        check_groups(lambda name: getattr(self, name))
+        return self
 
     @property
     def offset_sd(self) -> float | None:
@@ -248,7 +391,8 @@ class GroupSettings:
         return float(self.offsets)
 
 
-@dataclass(frozen=True)
+@spec_errors(_settings_error, "source")
+@dataclass(frozen=True, config=STRICT)
 class EstimationSettings:
     """Everything ``build_problem`` needs besides the data: the model, the parameters' freedom and
     bounds, priors and pooling, and the groups (offsets, speakers, emotions). ``source`` is what
@@ -259,6 +403,11 @@ class EstimationSettings:
     priors: PriorSettings = field(default_factory=PriorSettings)
     groups: GroupSettings = field(default_factory=GroupSettings)
     source: Path | str | None = None
+
+    @model_validator(mode="after")
+    def _consistent(self) -> EstimationSettings:
+        check_together(lambda name: getattr(getattr(self, PART_OF[name]), name))
+        return self
 
     @property
     def where(self) -> str:

@@ -18,27 +18,31 @@ See ``fit/template.toml`` for a commented example of every key.
 from __future__ import annotations
 
 import dataclasses
-import functools
 import math
 import tomllib
-from collections.abc import Callable, Iterable, Mapping, Sequence
+from collections.abc import Iterable, Mapping, Sequence
 from pathlib import Path
-from typing import Annotated, Any, TypeVar
+from typing import Annotated, Any
 
-from pydantic import BeforeValidator, ConfigDict, ValidationError, ValidationInfo, model_validator
+from pydantic import BeforeValidator, ValidationError, model_validator
 from pydantic.dataclasses import dataclass
-from pydantic_core import ArgsKwargs, PydanticCustomError
+from pydantic_core import ArgsKwargs
 
 from coartic.errors import SpecError
 from coartic.estimation import settings as est
+from coartic.estimation.checks import (EMOTION_MODES, LOG_SCALE_PARAMETERS, SPEAKER_MODES, STRICT, Bounds, Channels,
+                                       Flag, Names, Number, Parameters, ParamValues, Positive, Text, _bad,
+                                       _beta_bounds, _channel_bounds, _count, _number, _offsets, _one_of, _optional,
+                                       _params_or_beta, _pooled, _priors, _setting, _shared, _target_prior, _text,
+                                       key_of, schema_error, spec_errors)
 from coartic.estimation.settings import (DEFAULT_BETA_BOUNDS, DEFAULT_FIT_BOUNDS, DEFAULT_FREE, DEFAULT_POOLED,
-                                         DEFAULT_REFERENCE, DEFAULT_SHARED, DEFAULT_START, DEFAULT_TARGET_PRIOR,
-                                         SPEC_MODEL_DEFAULTS, EstimationSettings, GroupSettings, ModelSettings,
-                                         ParameterSettings, PriorSettings)
+                                         DEFAULT_SHARED, DEFAULT_START, DEFAULT_TARGET_PRIOR, SPEC_MODEL_DEFAULTS,
+                                         EstimationSettings, GroupSettings, ModelSettings, ParameterSettings,
+                                         PriorSettings, check_together, table_keys)
 from coartic.io.errors import DataError
 from coartic.io.roles import RoleMap
 from coartic.settings import CHANNEL_SETTINGS, default
-from coartic.table import ALL_CHANNELS, CHANNELS, PARAMETERS, PAUSE, VARIANTS, ChannelSettings, domain_problem
+from coartic.table import CHANNELS, VARIANTS, ChannelSettings
 from coartic.pauses import PAUSE_MODES
 from coartic.textfile import TextDecodeError, read_text
 
@@ -46,8 +50,6 @@ ENGINES: tuple[str, ...] = ("scipy", "nlopt", "casadi")
 # [validate] group: what a k-fold validation holds out together (manifest columns, or the file).
 # "time": each utterance cut at its middle segment, one half fitted, the other held out (both ways)
 VALIDATE_GROUPS: tuple[str, ...] = ("utterance", "sentence", "rate", "speaker", "repetition", "time")
-SPEAKER_MODES: tuple[str, ...] = ("none", "offset", "offset_scale", "targets")
-EMOTION_MODES: tuple[str, ...] = ("none", "targets")
 
 DEFAULT_STAGES: tuple[tuple[str, ...], ...] = (
     ("target",),
@@ -63,8 +65,6 @@ DEFAULT_PROBE = 10  # evaluations per stage in the probe every start gets
 # The probe ranks starts before the local fits go on: a probe as long as a local fit's whole budget
 # (coartic.fit.engines.evaluation_budget, thousands) is no longer a probe, and 10**9 is a typo.
 MAX_PROBE = 10_000
-# Fitted on a log scale: their bounds and log-scale priors need positive values.
-LOG_SCALE_PARAMETERS = ("alpha", "theta_bw", "theta_fw", "psi", "beta")
 
 # Settings ``[choose]`` / ``coartic fit --choose`` may choose by cross-validation, and which end of a
 # grid is the stronger regularisation (the one-standard-error rule moves toward it): -1 smaller values,
@@ -73,243 +73,11 @@ CHOOSABLE: dict[str, int] = {"shrink.sd": -1, "prior_noise": +1, "plateau_fracti
 CHOOSE_RULES: tuple[str, ...] = ("min", "1se")
 
 
-# --------------------------------------------------------------------------- field types
-# Each check raises a PydanticCustomError whose context may hold ``loc`` (a place below the field,
-# e.g. the parameter of a table) and ``phoneme``/``parameter``/``value``: spec_error() turns them
-# into the SpecError's key and attributes.
-
-
-def _bad(message: str, loc: tuple[str | int, ...] = (), **place: Any) -> PydanticCustomError:
-    return PydanticCustomError("coartic_spec", "{message}", {"message": message, "loc": loc, **place})
-
-
-def _number(v: Any) -> float:
-    # TOML has nan: refused here, once, so that no comparison downstream lets it through
-    if isinstance(v, bool) or not isinstance(v, (int, float)) or math.isnan(v):
-        raise _bad(f"expected a number, got {v!r}")
-    return float(v)
-
-
-def _positive(v: Any) -> float:
-    x = _number(v)
-    if not (x > 0 and math.isfinite(x)):
-        raise _bad(f"{x} must be a positive number")
-    return x
-
-
-def _flag(v: Any) -> bool:
-    if not isinstance(v, bool):
-        raise _bad(f"expected true or false, got {v!r}")
-    return v
-
-
-def _count(low: int, high: int | None = None) -> Callable[[Any], int]:
-    def check(v: Any) -> int:
-        if isinstance(v, bool) or not isinstance(v, int) or v < low:
-            raise _bad(f"expected {'a positive integer' if low == 1 else f'an integer >= {low}'}, got {v!r}")
-        if high is not None and v > high:
-            raise _bad(f"{v}: at most {high}; lower it")
-        return v
-    return check
-
-
-def _optional(check: Callable[[Any], Any]) -> Callable[[Any], Any]:
-    return lambda v: None if v is None else check(v)
-
-
-def _one_of(choices: tuple[str, ...], what: str = "") -> Callable[[Any], str]:
-    def check(v: Any) -> str:
-        if v not in choices:
-            raise _bad(f"{v!r}: {what or 'expected one of'} ({', '.join(choices)})" if what
-                       else f"{v!r}: expected one of {', '.join(choices)}")
-        return str(v)
-    return check
-
-
-def _names(v: Any) -> tuple[str, ...]:
-    """A string or a list of strings (``phonemes = "p"`` is ``["p"]``)."""
-    if isinstance(v, str):
-        return (v,)
-    if not isinstance(v, (list, tuple)) or not all(isinstance(s, str) for s in v):
-        raise _bad(f"expected a list of strings, got {v!r}")
-    return tuple(v)
-
-
-def _known(allowed: tuple[str, ...], what: str) -> Callable[[Any], tuple[str, ...]]:
-    def check(v: Any) -> tuple[str, ...]:
-        names = _names(v)
-        for n in names:
-            if n not in allowed:
-                raise _bad(f"unknown {what} {n!r}; known: {', '.join(allowed)}",
-                           parameter=n if what == "parameter" else None)
-        return names
-    return check
-
-
-_params = _known(PARAMETERS, "parameter")
-_params_or_beta = _known(PARAMETERS + ("beta",), "parameter")
-_channels = _known(ALL_CHANNELS, "channel")
-
 
 def _stages(v: Any) -> tuple[tuple[str, ...], ...]:
     if not isinstance(v, (list, tuple)) or not v:
         raise _bad("expected a list of parameter lists")
     return tuple(_params_or_beta(st) for st in v)
-
-
-def _setting(name: str) -> Callable[[Any], Any]:
-    """A ``[model]`` channel setting checked against coartic.settings (its one definition)."""
-    setting = CHANNEL_SETTINGS[name]
-
-    def check(v: Any) -> Any:
-        problem = setting.problem(v)
-        if problem is not None:
-            raise _bad(f"{name} = {v!r} {problem} ({setting.meaning})", parameter=name, value=v)
-        return v if setting.flag or setting.choices else float(v)
-    return check
-
-
-def _param_values(v: Any, info: ValidationInfo) -> dict[str, float]:
-    """``parameter = value`` pairs (starts, fixed values), each in its parameter's model domain
-    (MODEL.md §1); in an ``[[override]]`` the errors name its phonemes."""
-    if not isinstance(v, Mapping):
-        raise _bad(f"expected a table of parameter = value, got {v!r}")
-    _params(tuple(v))
-    phonemes: tuple[str, ...] = tuple((info.data or {}).get("phonemes", ()))
-    out: dict[str, float] = {}
-    for k, x in v.items():
-        try:
-            out[k] = _number(x)
-        except PydanticCustomError:
-            raise _bad(f"expected a number, got {x!r}", (k,), parameter=k) from None
-        problem = domain_problem(k, out[k])
-        if problem is not None:
-            whose = f" (of {', '.join(phonemes)})" if phonemes else ""
-            raise _bad(f"{k} = {out[k]:g}{whose} {problem}, the model's domain of {k}", (k,), parameter=k,
-                       value=out[k], phoneme=", ".join(phonemes) or None)
-    return out
-
-
-def _interval(v: Any, loc: tuple[str | int, ...] = ()) -> tuple[float, float]:
-    if not isinstance(v, (list, tuple)) or len(v) != 2:
-        raise _bad(f"expected [low, high], got {v!r}", loc)
-    try:
-        return _number(v[0]), _number(v[1])
-    except PydanticCustomError as e:
-        raise _bad(str(e), loc) from None
-
-
-def _bounds(v: Any) -> dict[str, tuple[float, float]]:
-    """``parameter = [low, high]`` boxes; a log-scale parameter's low must be positive."""
-    if not isinstance(v, Mapping):
-        raise _bad(f"expected a table of parameter = [low, high], got {v!r}")
-    _params(tuple(v))
-    out: dict[str, tuple[float, float]] = {}
-    for k, x in v.items():
-        lo, hi = _interval(x, (k,))
-        if not lo < hi:
-            raise _bad(f"low {lo} must be below high {hi}", (k,), parameter=k)
-        if k in LOG_SCALE_PARAMETERS and lo <= 0:
-            raise _bad(f"low {lo} must be > 0 (fitted on a log scale)", (k,), parameter=k, value=lo)
-        out[k] = (lo, hi)
-    return out
-
-
-def _channel_bounds(v: Any) -> dict[str, dict[str, tuple[float, float]]]:
-    if not isinstance(v, Mapping):
-        raise _bad(f"expected a table channel = {{ parameter = [low, high] }}, got {v!r}")
-    _channels(tuple(v))
-    out = {}
-    for ch, b in v.items():
-        try:
-            out[ch] = _bounds(b)
-        except PydanticCustomError as e:
-            ctx = e.context or {}
-            raise _bad(str(e), (ch, *ctx.get("loc", ())), parameter=ctx.get("parameter")) from None
-    return out
-
-
-def _beta_bounds(v: Any) -> tuple[float, float]:
-    lo, hi = _interval(v)
-    if not 0.0 <= lo < hi:
-        raise _bad(f"need 0 <= low < high, got {(lo, hi)}")
-    return lo, hi
-
-
-def _prior(key: str, v: Any) -> tuple[float, float, bool]:
-    """[mean, sd] on the natural value, or { mean = m, sd = s, scale = "log" } on its logarithm (m
-    its median); (mean, sd, log) as given back by a FitSpec re-validated."""
-    name = key.rpartition(".")[2]
-    _params_or_beta((name,))
-    if isinstance(v, (list, tuple)) and len(v) == 2:
-        mean, sd, scale = _number(v[0]), _number(v[1]), "natural"
-    elif isinstance(v, tuple) and len(v) == 3 and isinstance(v[2], bool):
-        mean, sd, scale = _number(v[0]), _number(v[1]), "log" if v[2] else "natural"
-    elif isinstance(v, Mapping):
-        unknown = sorted(set(v) - {"mean", "sd", "scale"})
-        if unknown:
-            raise _bad(f"unknown key(s) {unknown}; allowed: ['mean', 'scale', 'sd']")
-        if "mean" not in v or "sd" not in v:
-            raise _bad("needs mean and sd")
-        mean, sd, scale = _number(v["mean"]), _number(v["sd"]), v.get("scale", "natural")
-    else:
-        raise _bad(f"expected [mean, sd] or {{ mean, sd, scale }}, got {v!r}")
-    if scale not in ("natural", "log"):
-        raise _bad(f"scale = {scale!r}: expected \"natural\" or \"log\"")
-    if not (math.isfinite(mean) and math.isfinite(sd) and sd > 0):
-        raise _bad(f"needs a finite mean and a positive sd, got mean {mean}, sd {sd}")
-    if scale == "log" and (name not in LOG_SCALE_PARAMETERS or mean <= 0):
-        raise _bad(f"a log-scale prior needs a positive parameter ({', '.join(LOG_SCALE_PARAMETERS)}) "
-                   f"and a positive mean, got {name} with mean {mean}")
-    return mean, sd, scale == "log"
-
-
-def _priors(v: Any) -> dict[str, tuple[float, float, bool]]:
-    """``[parameters.prior]``: key "parameter", "phoneme.parameter" or "beta"."""
-    if not isinstance(v, Mapping):
-        raise _bad(f"expected a table \"phoneme.parameter\" = [mean, sd], got {v!r}")
-    out = {}
-    for key, x in v.items():
-        try:
-            out[key] = _prior(key, x)
-        except PydanticCustomError as e:
-            raise _bad(str(e), (key,)) from None
-    return out
-
-
-def _target_prior(v: Any) -> float | str | None:
-    """``[parameters] target_prior``: "none" (or None), "estimated" (its sd estimated from the data,
-    coartic.estimation.pooling), or the prior's sd in mm."""
-    if v is None or v == "none":
-        return None
-    if v == "estimated":
-        return "estimated"
-    if isinstance(v, bool) or not isinstance(v, (int, float)) or not (math.isfinite(v) and v > 0):
-        raise _bad(f"{v!r}: expected \"none\", \"estimated\" or a positive number (the sd in mm of every target "
-                   "around its phoneme's mean in the data)")
-    return float(v)
-
-
-def _shared(v: Any) -> tuple[str, ...]:
-    names = _params(v)
-    if "target" in names:
-        raise _bad("target cannot be shared: one target for every phoneme is the constant model", parameter="target")
-    return names
-
-
-def _pooled(v: Any) -> tuple[str, ...]:
-    names = _params(v)
-    if "target" in names:
-        raise _bad("target cannot be pooled toward one value (the constant model): use target_prior = \"estimated\"",
-                   parameter="target")
-    return names
-
-
-def _offsets(v: Any) -> str | float:
-    if isinstance(v, bool) or not (v in ("none", "free") or (
-            isinstance(v, (int, float)) and math.isfinite(v) and v > 0)):
-        raise _bad(f"{v!r}: expected \"none\", \"free\" or a positive number (the offsets' sd in mm)")
-    return v if isinstance(v, str) else float(v)
 
 
 def _path(v: Any) -> Path:
@@ -350,122 +118,28 @@ def _table(v: Any) -> dict[str, Any]:
     return dict(v)
 
 
-def _text(v: Any) -> str:
-    if not isinstance(v, str) or not v:
-        raise _bad(f"{v!r}: expected a non-empty string")
-    return v
-
-
-Number = Annotated[float, BeforeValidator(_number)]
-Positive = Annotated[float, BeforeValidator(_positive)]
-Flag = Annotated[bool, BeforeValidator(_flag)]
-Text = Annotated[str, BeforeValidator(_text)]
-Names = Annotated[tuple[str, ...], BeforeValidator(_names)]
-Parameters = Annotated[tuple[str, ...], BeforeValidator(_params)]
-Channels = Annotated[tuple[str, ...], BeforeValidator(_channels)]
-ParamValues = Annotated[dict[str, float], BeforeValidator(_param_values)]
-Bounds = Annotated[dict[str, tuple[float, float]], BeforeValidator(_bounds)]
 SpecPath = Annotated[Path, BeforeValidator(_path)]
 
-_STRICT = ConfigDict(extra="forbid", arbitrary_types_allowed=True)
-T = TypeVar("T")
+_STRICT = STRICT
 
 
-def _spec_errors(cls: type[T]) -> type[T]:
-    """Construction (and ``dataclasses.replace``) raises SpecError, named like a spec's own
-    errors, instead of pydantic's ValidationError: every coartic error is a CoarticError."""
-    init = cls.__init__
+def _fit_error(e: ValidationError, file: Any, cls: type) -> SpecError:
+    return spec_error(e, file, _ROOTS.get(cls.__name__, ()))
 
-    @functools.wraps(init)
-    def __init__(self: Any, *args: Any, **kwargs: Any) -> None:
-        try:
-            init(self, *args, **kwargs)
-        except ValidationError as e:
-            file = (kwargs["path"] if "path" in kwargs else args[0] if args else None) if cls is FitSpec else None
-            raise spec_error(e, file, _ROOTS.get(cls.__name__, ())) from None
 
-    cls.__init__ = __init__  # type: ignore[method-assign]
-    return cls
+# Construction (and ``dataclasses.replace``) raises SpecError, named like a spec's own errors,
+# instead of pydantic's ValidationError: every coartic error is a CoarticError.
+_spec_errors = spec_errors(_fit_error, "path")  # a FitSpec names its file
 
 
 # --------------------------------------------------------------------------- the schema
 
 
-@_spec_errors
-@dataclass(frozen=True, config=_STRICT)
-class Override(est.Override):
-    """``[[override]]``: estimation's Override (coartic.estimation.settings), checked as a spec's table."""
-
-    phonemes: Annotated[tuple[str, ...], BeforeValidator(_names)]
-    channels: Annotated[tuple[str, ...] | None, BeforeValidator(_optional(_channels))] = None  # None: every channel
-    fixed: ParamValues = dataclasses.field(default_factory=dict)  # fixed at this value
-    free: Parameters = ()  # made free (even if not in the global list)
-    start: ParamValues = dataclasses.field(default_factory=dict)
-    bounds: Bounds = dataclasses.field(default_factory=dict)
-
-
-def _group(v: Any) -> tuple[str, ...]:
-    names = _names(v)
-    if len(set(names)) < 2:
-        raise _bad(f"a tie needs two phonemes or more, got {list(names)}")
-    return names
-
-
-@_spec_errors
-@dataclass(frozen=True, config=_STRICT)
-class Tie(est.Tie):
-    """``[[tie]]``: estimation's Tie (coartic.estimation.settings), checked as a spec's table."""
-
-    phonemes: Annotated[tuple[str, ...], BeforeValidator(_group)]
-    parameters: Parameters
-    channels: Annotated[tuple[str, ...] | None, BeforeValidator(_optional(_channels))] = None  # None: every channel
-
-
-def _class(v: Any) -> tuple[str, ...]:
-    names = _names(v)
-    if len(set(names)) < 2 or len(set(names)) != len(names):
-        raise _bad(f"a class needs two distinct phonemes or more, got {list(names)}")
-    return names
-
-
-def _distinct_params(v: Any) -> tuple[str, ...]:
-    names = _params(v)
-    if not names or len(set(names)) != len(names):
-        raise _bad(f"expected distinct parameters, got {list(names)}")
-    return names
-
-
-@_spec_errors
-@dataclass(frozen=True, config=_STRICT)
-class Shrink(est.Shrink):
-    """``[[shrink]]``: estimation's Shrink (coartic.estimation.settings), checked as a spec's table.
-    In the spec, ``scale = "log"`` is ``log = true``."""
-
-    phonemes: Annotated[tuple[str, ...], BeforeValidator(_class)]
-    parameters: Annotated[tuple[str, ...], BeforeValidator(_distinct_params)]
-    sd: Positive
-    log: Flag = False
-    channels: Annotated[tuple[str, ...] | None, BeforeValidator(_optional(_channels))] = None  # None: every channel
-    key: str = "shrink"  # the spec key its errors and reports are named by ("shrink #2")
-
-    @model_validator(mode="before")
-    @classmethod
-    def _scale(cls, data: Any) -> Any:
-        if isinstance(data, Mapping) and "scale" in data:
-            data = dict(data)
-            scale = data.pop("scale")
-            if scale not in ("natural", "log"):
-                raise _bad(f"{scale!r}: expected \"natural\" or \"log\"", ("scale",))
-            data["log"] = scale == "log"
-        return data
-
-    @model_validator(mode="after")
-    def _log_scale(self) -> Shrink:
-        bad = [p for p in self.parameters if p not in LOG_SCALE_PARAMETERS]
-        if self.log and bad:
-            raise _bad(f"log scale needs positive parameters ({', '.join(LOG_SCALE_PARAMETERS[:-1])}), "
-                       f"not {bad}: shrink those in another [[shrink]] on the natural scale", ("scale",))
-        return self
+# [[override]], [[tie]] and [[shrink]] are estimation's own classes, which check themselves
+# (coartic.estimation.settings): a spec's table and one built in Python are checked alike.
+Override = est.Override
+Tie = est.Tie
+Shrink = est.Shrink
 
 
 def _grid(v: Any) -> tuple[float, ...]:
@@ -633,36 +307,8 @@ class FitSpec:
         """What no field can check alone."""
         if not self.channels:
             raise _bad("no channel to fit", ("channels",))
-        if self.speakers != "none" and self.offsets != "none":
-            raise _bad("cannot be combined with [model] offsets yet: choose one", ("speakers",))
-        if self.emotions != "none" and (self.offsets != "none" or self.speakers != "none"):
-            raise _bad("cannot be combined with [model] offsets or speakers yet: choose one", ("emotions",))
-        ref = self.reference_phoneme or DEFAULT_REFERENCE
-        for i, t in enumerate(self.ties):
-            if ref in t.phonemes and "alpha" in t.parameters:
-                raise _bad(f"ties alpha of the reference phoneme {ref!r}, which is fixed at 1", ("ties", i),
-                           phoneme=ref, parameter="alpha")
-        for i, o in enumerate(self.overrides):
-            # alpha is scale-free: the reference phoneme's is 1 by definition (MODEL.md §1)
-            if ref in o.phonemes and ("alpha" in o.free or "alpha" in o.start or "alpha" in o.bounds
-                                      or o.fixed.get("alpha", 1.0) != 1.0):
-                raise _bad(f"sets alpha of the reference phoneme {ref!r}, which is fixed at 1 (alpha is "
-                           "scale-free); choose another [model] reference_phoneme to fit it", ("overrides", i),
-                           phoneme=ref, parameter="alpha")
-        both = set(self.pooled) & set(self.shared)
-        if both:
-            raise _bad(f"{', '.join(sorted(both))} is both shared by every phoneme and pooled: one or the other "
-                       "(pooled with its sd estimated reaches shared when the data say so)", ("pooled",))
-        tied = {q for t in self.ties for q in t.parameters} & set(self.shared)
-        if tied:
-            raise _bad(f"{', '.join(sorted(tied))} is both shared by every phoneme and in a [[tie]]: one or the other",
-                       ("shared",))
-        if self.beta > self.beta_bounds[1]:
-            # the model takes any beta >= 0, but past the box a fit may search, rho(u) is gone within a
-            # hair of the target: a typo (1e308) must not read as a model that fits badly
-            raise _bad(f"beta = {self.beta:g} is above {self.beta_bounds[1]:g}, the upper end of [model] beta_bounds "
-                       "(the largest beta a fit may reach): lower beta, or widen beta_bounds", ("beta",),
-                       parameter="beta", value=self.beta)
+        # the estimation settings' own checks across their parts, in their words
+        check_together(lambda name: getattr(self, name))
         if self.keep is not None and self.starts > 1 and self.keep > self.starts:
             raise _bad(f"{self.keep}: more than the {self.starts} starts", ("keep",))
         if self.validate_folds is not None and self.validate_group is None:
@@ -888,69 +534,22 @@ def document_fields(raw: Mapping[str, Any], path: Path) -> dict[str, Any]:
 
 
 def _keys_of(part: type) -> list[str]:
-    """The keys a part's spec table may have (Shrink's ``log`` is ``scale`` there, its ``key`` no key)."""
-    names = [f.name for f in dataclasses.fields(part)]
-    return [{"log": "scale"}.get(n, n) for n in names if not (part is Shrink and n == "key")]
+    """The keys a part's spec table may have (``table_keys``: Shrink's ``log`` is ``scale`` there)."""
+    return table_keys(part)
 
 
 def _key_of(loc: Iterable[str | int]) -> str:
     """The spec key of a schema location: ("overrides", 2, "fixed", "theta_bw") ->
     "override #3.fixed.theta_bw", ("plateau_fraction",) -> "model.plateau_fraction"."""
-    parts = list(loc)
-    if not parts:
-        return "top level"
-    head = str(parts.pop(0))
-    key = FIELD_KEYS.get(head, head)
-    if head in ARRAYS.values() and parts and isinstance(parts[0], int):
-        key += f" #{int(parts.pop(0)) + 1}"
-    for p in parts:
-        key += f".{p}"
-    return key
-
-
-_MESSAGES: dict[str, str] = {
-    "missing": "missing", "dict_type": "expected a table", "dataclass_type": "expected a table",
-    "dataclass_args_type": "expected a table", "tuple_type": "expected a list", "string_type": "expected a string",
-    "float_type": "expected a number", "int_type": "expected an integer", "bool_type": "expected true or false",
-}
+    return key_of(loc, FIELD_KEYS, ARRAYS.values())
 
 
 def spec_error(e: ValidationError, file: Path | str | None, root: tuple[str | int, ...] = ()) -> SpecError:
-    """One SpecError of a schema's ValidationError: every problem as ``file: [key] message``, the
-    first one's place in the attributes. ``root``: the location of the part validated (a Choose
-    alone is ``[choose]``)."""
-    problems: list[tuple[str, str, dict[str, Any]]] = []
-    unknown: dict[tuple[Any, ...], list[str]] = {}
-    for err in e.errors(include_url=False):
-        loc = (*root, *err["loc"])
-        ctx = dict(err.get("ctx") or {})
-        if err["type"] == "unexpected_keyword_argument":
-            unknown.setdefault(loc[:-1], []).append(str(loc[-1]))
-            continue
-        if err["type"] == "coartic_spec":
-            loc = (*loc, *ctx.pop("loc", ()))
-            message = str(ctx.pop("message"))
-        elif err["type"] == "missing":
-            loc, message = loc[:-1], f"missing key {loc[-1]!r}"
-        else:
-            message = f"{_MESSAGES.get(err['type'], err['msg'])}, got {err['input']!r}"
-        ctx.pop("error", None)
-        problems.append((_key_of(loc), message, ctx))
-    for loc, names in unknown.items():
-        if not loc:  # FitSpec(...) or with_options given a name that is no field (a TOML key never gets here)
-            problems.append(("top level", f"FitSpec has no field(s) {sorted(names)}", {}))
-            continue
-        part = _PARTS.get(str(loc[0]))
-        allowed = "" if part is None else f"; allowed: {sorted(_keys_of(part))}"
-        problems.append((_key_of(loc), f"unknown key(s) {sorted(names)}{allowed}", {}))
-    key, message, place = problems[0]
-    where = f"{file}: " if file is not None else ""
-    first = SpecError.at(file, key, message, place.get("phoneme"), parameter=place.get("parameter"),
-                         value=place.get("value"))
-    if len(problems) > 1:
-        first.args = ("\n".join(f"{where}[{k}] {m}" for k, m, _ in problems),)
-    first.problems = tuple((k, m) for k, m, _ in problems)
-    return first
+    """One SpecError of a FitSpec's (or a part's) ValidationError: every problem as ``file: [key]
+    message``, the first one's place in the attributes (``coartic.estimation.checks.schema_error``).
+    ``root``: the location of the part validated (a Choose alone is ``[choose]``)."""
+    return schema_error(e, file, root, _key_of,
+                        lambda head: _keys_of(_PARTS[head]) if head in _PARTS else None, "FitSpec")
 
 
 def read_document(path: Path) -> dict[str, Any]:
