@@ -168,7 +168,7 @@ def lips(data: Path, aligned: dict[str, Segments], lines: list[str]) -> None:
               f"{'channel':8s}{'labels of 0020':16s}{'model':8s}{'as measured':>13s}{'offset removed':>16s}"
               f"{'calibrated':>12s}{'samples':>9s}"]
     spec = load_spec(ROOT / "fit" / "ema_german_defaults_0024.toml")
-    res = run(spec, quiet=True, report=False)
+    res = run(spec, quiet=True)
     table = res.table()
     both = load_utterances(load_spec(ROOT / "fit" / "ema_german.toml"))
     by_id = {u.name.rsplit("_", 2)[-2]: u for u in both}

@@ -56,14 +56,14 @@ def main() -> int:
     by_id = {u.name.rsplit("_", 2)[-2]: u for u in utts}  # "0020", "0024"
 
     one = load_spec(ROOT / "fit" / "ema_german_0024.toml")
-    res = run(one, quiet=True, report=False)
+    res = run(one, quiet=True)
     test, note = with_fallbacks([by_id["0020"]], res.table(), one.channels, LabelMap.builtin("german_sampa"))
     sc = score_utterances(res.table(), test, one.channels, train=[by_id["0024"]])
     sc.notes += [note] if note else []
     report += lines("1. another sentence: fit 0024 (fit/ema_german_0024.toml), predict 0020", sc)
 
     first, second = zip(*(halves(u) for u in utts))
-    res = run(both, utterances=list(first), quiet=True, report=False)
+    res = run(both, utterances=list(first), quiet=True)
     test, note = with_fallbacks(list(second), res.table(), both.channels, LabelMap.builtin("german_sampa"))
     sc = score_utterances(res.table(), test, both.channels, train=list(first))
     sc.notes += [note] if note else []

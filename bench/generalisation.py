@@ -40,6 +40,7 @@ from coartic.fit.data import load_utterances
 from coartic.estimation.data import ChannelData
 from coartic.model import Utterance
 from coartic.fit.spec import FitSpec, Override
+from coartic.evaluation.choose import cross_validate
 from coartic.evaluation.validate import score, splits
 from coartic.outputs import atomic_write_text
 from coartic.table import PARAMETERS
@@ -124,7 +125,7 @@ def gestures(manifest: Path, variants: Sequence[str], channels: tuple[str, ...],
             continue
         for split, train, test in splits(spec, utts):
             t0 = time.process_time()
-            res = run(spec, utterances=train, quiet=True, report=False)
+            res = run(spec, utterances=train, quiet=True, choose=cross_validate)
             if res.choice is not None:  # the CV curve inside this split's training data
                 out.extend(f"{'':15s}   {line}" for line in res.choice.text_lines())
                 print("\n".join(out[-len(res.choice.text_lines()):]), flush=True)
@@ -144,7 +145,7 @@ def gestures(manifest: Path, variants: Sequence[str], channels: tuple[str, ...],
 def select_plateau_fraction(manifest: Path, grid: Sequence[float], channels: tuple[str, ...],
                             out: list[str]) -> None:
     """Choose h (plateau_fraction of the rate-aware variant) as a user with only normal-rate data
-    would: ``[choose]`` (coartic.fit.choose) by 5-fold cross-validation over repetitions *within
+    would: ``[choose]`` (coartic.evaluation.choose) by 5-fold cross-validation over repetitions *within
     the normal rate*, lowest mean held-out RMSE; then score the chosen h on the fast rate, which
     took no part in the choice."""
     from coartic.fit.spec import Choose
@@ -158,7 +159,7 @@ def select_plateau_fraction(manifest: Path, grid: Sequence[float], channels: tup
                f"({len(normal)} trials); the {base.test_rate} rate ({len(fast)} trials) is scored only after")
     spec = base.with_options(**VARIANTS["rate-aware"],
                              choose=Choose("plateau_fraction", tuple(sorted(grid)), "repetition", 5, "min"))
-    res = run(spec, utterances=normal, quiet=True, report=False)
+    res = run(spec, utterances=normal, quiet=True, choose=cross_validate)
     assert res.choice is not None
     out.extend(res.choice.text_lines())
     for s in score(res, fast, f"fit {base.train_rate}, test {base.test_rate}"):
@@ -202,8 +203,8 @@ def german(variants: Sequence[str], out: list[str]) -> None:
             continue
         for k, held in enumerate(utts):
             train = [u for j, u in enumerate(utts) if j != k]
-            trained = run(spec, utterances=train, quiet=True, report=False)
-            own = run(spec, utterances=[held], quiet=True, report=False)
+            trained = run(spec, utterances=train, quiet=True, choose=cross_validate)
+            own = run(spec, utterances=[held], quiet=True, choose=cross_validate)
             for ch in spec.channels:
                 fit = trained.channels[ch]
                 known = set(fit.phonemes)
@@ -218,7 +219,7 @@ def german(variants: Sequence[str], out: list[str]) -> None:
                 # shared members at their trained values; a class with no unseen member has nothing free.
                 tspec = spec.with_options(channels=(ch,), overrides=spec.overrides + fixes,
                                           shrinks=tuple(g for g in spec.shrinks if set(g.phonemes) & set(unseen)))
-                transfer = run(tspec, utterances=[held], quiet=True, report=False).channels[ch]
+                transfer = run(tspec, utterances=[held], quiet=True, choose=cross_validate).channels[ch]
                 mine = own.channels[ch]
                 data = transfer.problem.data
                 # Samples inside segments of shared phonemes (the ones the training fit can speak for).

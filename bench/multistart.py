@@ -182,7 +182,7 @@ def heldout(which: Sequence[str] = ("one start", "previous default", "default"))
         for label, s, previous in fits:
             t0 = time.perf_counter()
             with previous_default() if previous else contextlib.nullcontext():
-                trained = run(s, utterances=train, quiet=True, report=False)
+                trained = run(s, utterances=train, quiet=True)
             wall = time.perf_counter() - t0
             for ch in s.channels:
                 fit = trained.channels[ch]

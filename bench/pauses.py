@@ -2,7 +2,7 @@
 
 Held-out RMSE of ``[model] pauses = "one"`` (every pause is '#', as before) and ``"postures"``
 (the default: the initial pause '#', the final '#end', medial '#mid', short pauses in a closure
-joined to it; coartic.pauses), each fitted with the product's own ``coartic.fit.run`` and
+joined to it; coartic.pauses), each fitted with the product's own fit job (``coartic.jobs.fit``) and
 validated by ``coartic.evaluation.validate`` (as ``coartic fit --validate`` / ``--validate-by``): the
 table's and the baselines' RMSE (step = each phoneme's training mean, constant = the training mean)
 on the same held-out samples, on all of them and on the speech samples only (every pause left out),
@@ -31,7 +31,8 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
 
-from coartic.fit import load_spec, run  # noqa: E402
+from coartic.fit import load_spec  # noqa: E402
+from coartic.jobs.fit import fit_job  # noqa: E402
 from coartic.fit.data import load_utterances, with_spec_pauses  # noqa: E402
 from coartic.evaluation.heldout import pooled  # noqa: E402
 from coartic.fit.spec import FitSpec  # noqa: E402
@@ -66,7 +67,7 @@ def lines_for(name: str, spec: FitSpec, groups: list[str | None]) -> list[str]:
             if group is not None:
                 s = s.with_options(validate_group=group)
             notes: list[str] = []
-            scores = validate_all(s, None, utterances=with_spec_pauses(s, utts, notes), quiet=True, notes=notes, fit=run)
+            scores = validate_all(s, None, utterances=with_spec_pauses(s, utts, notes), quiet=True, notes=notes, fit=fit_job)
             per = {m: (pooled(scores, m), pooled(scores, m, speech=True)) for m in MODELS}
             for ch in spec.channels:
                 cells = ""
@@ -104,7 +105,7 @@ def english_like() -> list[str]:
     out = ["## english-like: tests/python/test_pauses.py's files, 3 sentences fitted, the fast token scored (LA)",
            f"{'pauses':9s} {'model':9s}{'all':>16s}{'speech':>16s}{'samples':>9s}"]
     for mode in MODES:
-        run(spec_for(tmp, files, mode), tmp / mode, quiet=True, report=False)
+        fit_job(spec_for(tmp, files, mode), tmp / mode, quiet=True, report=False)
         sc = score_recordings(tmp / mode / "table.json", [held[0]], [held[1]], train=tmp / f"spec_{mode}.toml")
         for r in sc.baseline_rows():
             if r["model"] in MODELS:

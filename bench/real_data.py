@@ -191,7 +191,7 @@ def fit_and_score(spec: FitSpec, train: Sequence[Utterance], test: Sequence[Utte
     table's and baselines' RMSE on the samples of the phonemes ``train`` has (raw and offset
     removed), and how it went."""
     if trained is None:
-        trained = run(spec, utterances=list(train), quiet=True, report=False)
+        trained = run(spec, utterances=list(train), quiet=True)
     seen = {lab for u in train for lab in u.labels}
     fit = trained.channels[channel]
     table, mapped, notes = predict_channel(spec, trained, channel, test, label_map, unseen, train)
@@ -338,7 +338,7 @@ def predict_channel(spec: FitSpec, trained: FitResult, channel: str, test: Seque
     if hasattr(tspec, "starts"):  # a handful of free parameters: one local fit
         tspec = tspec.with_options(starts=1)
     notes.append(f"{channel}: /{' '.join(missing)}/ fitted on the test data (no fallback trained), not scored")
-    return run(tspec, utterances=list(mapped), quiet=True, report=False).table(), mapped, notes
+    return run(tspec, utterances=list(mapped), quiet=True).table(), mapped, notes
 
 
 def evaluate_cell(base: FitSpec, utts: Sequence[Utterance], variant: str, freedom: Sequence[str] | str, reg: str,

@@ -62,7 +62,7 @@ def main() -> int:
                     default = evaluation_budget(prob)
                     for label, opts in (("default", {}), (f"{a.factor}x", {"max_nfev": a.factor * default})):
                         sp = one.with_options(engine_options=opts)
-                        res = run(sp, utterances=train, quiet=True, report=False)
+                        res = run(sp, utterances=train, quiet=True)
                         fit = res.channels[ch]
                         sse = fit.rmse ** 2 * fit.problem.data.n_valid
                         got = fit_and_score(sp, train, test, ch, label_map, "constant", trained=res)

@@ -79,10 +79,10 @@ def main() -> int:
     for mode in modes:
         spec = base.with_options(speakers=mode, validate_group="speaker")
         t0 = time.process_time()
-        full = run(spec, utterances=utts, quiet=True, report=False)
+        full = run(spec, utterances=utts, quiet=True)
         held: dict[str, list[tuple[str, float, float, int]]] = {c: [] for c in channels}
         for split, train, test in kfold_splits(spec, utts):
-            res = run(spec, utterances=train, quiet=True, report=False)
+            res = run(spec, utterances=train, quiet=True)
             for sc in score(res, test, split):
                 held[sc.channel].append((test[0].meta["speaker"], sc.test_rmse, sc.test_rmse_calibrated,
                                          sc.test_samples))

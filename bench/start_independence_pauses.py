@@ -16,7 +16,8 @@ sys.path.insert(0, str(ROOT / "tests" / "python"))
 
 from fit_helpers import EMA  # noqa: E402
 
-from coartic.fit import load_spec, run  # noqa: E402
+from coartic.fit import load_spec  # noqa: E402
+from coartic.jobs.fit import fit_job  # noqa: E402
 from coartic.evaluation.score import score_recordings  # noqa: E402
 
 
@@ -27,7 +28,7 @@ def main() -> None:
             spec = spec.with_options(starts=starts, seed=seed, pauses=pauses,
                                      start={**spec.start, "theta_bw": theta, "theta_fw": theta})
             out = Path(tempfile.mkdtemp()) / "o"
-            run(spec, out, quiet=True, report=False)
+            fit_job(spec, out, quiet=True, report=False)
             sc = score_recordings(out / "table.json", [EMA / "dfgspp_mo1_prosody_0020_ema.csv"],
                                   [EMA / "dfgspp_mo1_prosody_0020_Segment.tsv"])
             print(pauses, starts, theta, {r["channel"]: round(r["rmse_mm"], 3) for r in sc.channel_rows()},

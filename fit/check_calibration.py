@@ -114,7 +114,7 @@ def main() -> None:
     fixed = [p for p in args.fix_kr.split(",") if p]
     override = f"[[override]]\nphonemes = {fixed!r}\nfixed = {{ k_r = 1.0 }}".replace("'", '"') if fixed else ""
 
-    from coartic.fit import run
+    from coartic.jobs.fit import fit_job
     from coartic.fit.data import load_utterances
     from coartic.fit.spec import load_spec
     from coartic.synthetic_cli import load_generator
@@ -136,7 +136,7 @@ def main() -> None:
             recorded = load_utterances(spec)
             rng = np.random.default_rng(seed)
             independent = []
-            results = {"recorded": run(spec, root / "recorded", utterances=recorded, quiet=True)}
+            results = {"recorded": fit_job(spec, root / "recorded", utterances=recorded, quiet=True)}
             data = results["recorded"].channels[ch].problem.data
             valid = data.weights > 0
             rms = float(np.sqrt(np.mean((data.observed - np.asarray(results["recorded"].channels[ch].fitted))[valid] ** 2)))
@@ -144,7 +144,7 @@ def main() -> None:
                 clean = np.load(root / "session" / u.meta["truth"])[ch]
                 noisy = clean + rng.normal(0.0, rms, clean.size)
                 independent.append(replace(u, observed={ch: np.where(u.valid[ch], noisy, np.nan)}))
-            results["independent"] = run(spec, root / "independent", utterances=independent, quiet=True)
+            results["independent"] = fit_job(spec, root / "independent", utterances=independent, quiet=True)
             for name, result in results.items():
                 z[name] += z_scores(root / name, truth, ch)
                 cf = result.channels[ch]

@@ -9,15 +9,16 @@ from __future__ import annotations
 
 import sys
 
-import coartic.fit
 from coartic.fit.spec import load_spec
+from coartic.jobs.fit import fit_job
 
 
 def main(spec_path: str, out: str, channels: str | None) -> None:
     spec = load_spec(spec_path)
     if channels:
         spec = spec.with_options(channels=tuple(channels.split(",")))
-    result = coartic.fit.run(spec, out)  # fits, and writes table.json, rmse.csv, ... into `out`
+    result = fit_job(spec, out)  # fits, and writes table.json, rmse.csv, ... into `out`
+    # (coartic.fit.run(spec) fits and returns the same result without writing anything)
     for row in result.rmse_rows():
         if row["group"] in ("all", "vowel"):
             print(f"{row['channel']:4} {row['group']:6} {row['value']:4} RMSE {row['rmse_mm']:.3f} mm")

@@ -27,12 +27,12 @@ YOUNG_GENERATION = 10_000  # objects between two collections of the youngest gen
 COMMANDS: dict[str, tuple[str, str, str]] = {
     "inspect": ("coartic.io.inspect_cli", "inspect_command",
                 "Summarise a recording: markers, rate, frames, gaps per marker, labels, channels."),
-    "fit": ("coartic.fit.fit_cli", "fit_command",
+    "fit": ("coartic.jobs.fit_cli", "fit_command",
             "Fit the coarticulation model to a corpus by least squares (MODEL.md §5)."),
     "score": ("coartic.evaluation.score_cli", "score_command",
               "Predict recordings the fit did not see and report the RMSE (also after removing a per-utterance "
               "offset, and after calibrating the speaker's offset and scale on these recordings)."),
-    "compare": ("coartic.evaluation.compare_cli", "compare_command",
+    "compare": ("coartic.jobs.compare_cli", "compare_command",
                 "Fit every spec on its data and compare: free parameters, RMSE, held-out RMSE, AIC, BIC."),
     "mcmc": ("coartic.mcmc.mcmc_cli", "mcmc_command",
              "Sample the posterior of the fitted parameters with emcee, check convergence, write intervals."),

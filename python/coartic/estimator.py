@@ -1,7 +1,7 @@
 """An estimator-style entry point: ``Coarticulation(settings).fit(trials).predict(trials)``, ``.score(trials)``.
 
-A thin layer over the library's one fit and one scorer: ``fit`` is ``coartic.fit.run`` (the job of
-``coartic fit``, on trials already loaded, nothing written), ``predict`` is
+A thin layer over the library's one fit and one scorer: ``fit`` is ``coartic.fit.run`` (the fit
+``coartic fit`` runs, on trials already loaded, nothing written), ``predict`` is
 ``coartic.model.evaluate_corpus`` on the fitted table, ``score`` is ``coartic.evaluation.score``'s RMSE.
 The settings are estimation's (``coartic.estimation.settings``: the model, the parameters' freedom
 and bounds, priors and pooling, offsets, speakers and emotions), built in Python as lmfit's
@@ -137,11 +137,13 @@ class Coarticulation:
     # ------------------------------------------------------------------ estimator
 
     def fit(self, trials: Trials | None) -> Coarticulation:
-        """Fit every channel on ``trials`` with ``coartic.fit.run`` (nothing is written); returns
-        self. Raises ``coartic.fit.runner.FitFailed`` when an engine fails, naming the channel."""
+        """Fit every channel on ``trials`` with ``coartic.fit.run`` (nothing is written; a ``[choose]``
+        setting chosen by ``coartic.evaluation.choose.cross_validate`` on them); returns self. Raises
+        ``coartic.fit.runner.FitFailed`` when an engine fails, naming the channel."""
+        from coartic.evaluation.choose import cross_validate
         from coartic.fit.runner import run
 
-        result = run(self.spec, None, utterances=self.trials(trials), quiet=True, report=False)
+        result = run(self.spec, utterances=self.trials(trials), quiet=True, choose=cross_validate)
         self.result_, self.table_ = result, result.table()
         return self
 

@@ -249,7 +249,8 @@ def test_lips_from_the_audio_alone(tmp_path: Path) -> None:
     predicts 0020's lip aperture and jaw opening from 0020's audio alone (aligned by coartic): better
     than the constant, and not far from the same table on 0020's MAUS labels (measured: LA 3.58 vs
     2.39 mm, JO 1.83 vs 2.09 mm; bench/align_accuracy.py has the full fit)."""
-    from coartic.fit import load_spec, run
+    from coartic.fit import load_spec
+    from coartic.jobs.fit import fit_job
     from coartic.fit.data import load_utterances
     from coartic.evaluation.score import score_utterances, with_fallbacks
     from coartic.model import Utterance
@@ -263,7 +264,7 @@ def test_lips_from_the_audio_alone(tmp_path: Path) -> None:
         spec.write_text(f'[corpus]\nfiles = ["{ema}"]\nlabels = ["{lab}"]\nlabel_map = "german_sampa"\n{role}'
                         '[model]\nchannels = ["LA", "JO"]\npauses = "one"\n[parameters]\nfree = ["target"]\n')
         specs.append(spec)
-    table = run(specs[0], tmp_path / "fit", quiet=True, report=False).table()
+    table = fit_job(specs[0], tmp_path / "fit", quiet=True, report=False).table()
     train = load_utterances(load_spec(specs[0]))
     (test,) = load_utterances(load_spec(specs[1]))
     seg = align_recording(WAV, TEXT, "de").segments()

@@ -155,11 +155,11 @@ def test_speakers_differ_in_target_scale_and_rate_and_record_their_truth(corpus:
 
 
 def test_serial_batch_writes_what_coartic_fit_writes_for_each_speaker(corpus: Path, serial: Path) -> None:
-    from coartic.fit import run
+    from coartic.jobs.fit import fit_job
 
     spec = load_batch_spec(corpus / "batch.toml")
     group = spec.groups[1]
-    run(group.spec, corpus / "fit-s02", quiet=True, report=False)
+    fit_job(group.spec, corpus / "fit-s02", quiet=True, report=False)
     for name in TABLE_FILES:
         assert (serial / "groups/s02" / name).read_bytes() == (corpus / "fit-s02" / name).read_bytes(), name
     table = ParameterTable.load(serial / "groups/s02/table.json")

@@ -11,7 +11,7 @@ from typer.testing import CliRunner
 
 from coartic.cli import app
 from fit_helpers import german_utterance_spec
-from coartic.evaluation.compare import compare
+from coartic.jobs.compare import compare
 
 
 def write_spec(tmp_path: Path, name: str, variant: str, free: str, validate: str = "") -> Path:

@@ -19,7 +19,7 @@ from coartic.errors import SpecError
 from coartic.estimation.emotions import EmotionPrior, pairs, shrink_groups
 from coartic.estimation.penalties import Shrinkage
 from coartic.estimation.problem import build_problem
-from coartic.fit import run
+from coartic.jobs.fit import fit_job
 from coartic.fit.data import load_utterances
 from coartic.fit.spec import load_spec
 from coartic.synthetic_cli import load_generator
@@ -161,7 +161,7 @@ def fitted(session: Path, tmp_path_factory: pytest.TempPathFactory) -> tuple[Pat
     """The reduced session fitted on LR and LLO: (spec, output folder)."""
     tmp = tmp_path_factory.mktemp("emotive_fit")
     spec = write_spec(tmp / "s.toml", session / "manifest.csv", ["LR", "LLO"])
-    run(spec, tmp / "fit")
+    fit_job(spec, tmp / "fit")
     return spec, tmp / "fit"
 
 

@@ -15,7 +15,8 @@ import pytest
 from typer.testing import CliRunner
 
 from coartic.cli import app
-from coartic.evaluation.compare import compare, heldout_se, vary
+from coartic.evaluation.compare import heldout_se, vary
+from coartic.jobs.compare import compare
 from coartic.evaluation.heldout import SplitScore
 from coartic.fit.spec import load_spec
 from coartic.synthetic_cli import load_generator

@@ -38,7 +38,7 @@ def fitted(trials: list) -> Coarticulation:  # type: ignore[type-arg]
 
 
 def test_fit_is_coartic_fit_run_bit_for_bit(fitted: Coarticulation, trials: list) -> None:  # type: ignore[type-arg]
-    direct = run(fitted.spec, None, utterances=trials[::2], quiet=True, report=False)
+    direct = run(fitted.spec, utterances=trials[::2], quiet=True)
     assert fitted.table_ is not None and fitted.table_.values == direct.table().values
     assert fitted.spec.variant == "modified" and fitted.spec.free == FREE and not fitted.spec.staging
     assert fitted.settings.parameters.free == FREE and fitted.settings.model.dominance == "centre"

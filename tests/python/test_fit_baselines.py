@@ -136,16 +136,17 @@ def test_validation_and_compare_flags() -> None:
 
 
 def test_fit_validate_writes_the_baselines_into_summary_report_and_csv(tmp_path: Path) -> None:
-    from coartic.fit import run
+    from coartic.evaluation.heldout import held_out
     from coartic.fit.simulate import vcv_utterances
     from coartic.fit.spec import parse_spec
+    from coartic.jobs.fit import fit_job
 
     utts = vcv_utterances(np.random.default_rng(2), repetitions=2, rates={"normal": 1.0}, noise=0.1)
     raw = {"corpus": {"files": ["x"], "labels": ["y"]}, "model": {"channels": ["LLO"]},
            "parameters": {"free": ["target"]}, "staging": {"enabled": False}, "validate": {"holdout_repetition": 2}}
-    res = run(parse_spec(raw, tmp_path / "spec.toml"), tmp_path / "out", utterances=utts, validate=True,
-              quiet=True, report=True)
-    assert res.validation and set(res.validation[0].baselines) == {"constant", "step", "warped"}
+    res = fit_job(parse_spec(raw, tmp_path / "spec.toml"), tmp_path / "out", utterances=utts, validate=True, quiet=True, report=True)
+    scores = held_out(res)
+    assert scores and set(scores[0].baselines) == {"constant", "step", "warped"}
     summary = json.loads((tmp_path / "out" / "summary.json").read_text())
     split = summary["validation"]["splits"][0]
     assert split["split"] == "repetition 2 held out" and {"table", "step", "constant", "warped"} <= set(split)
@@ -158,29 +159,28 @@ def test_fit_validate_writes_the_baselines_into_summary_report_and_csv(tmp_path:
     # a table worse than the step model: flagged in the report
     from coartic.report.html import write_report
 
-    res.validation[0].test_rmse = 99.0
+    scores[0].test_rmse = 99.0
     write_report(res, tmp_path / "out")
     html = (tmp_path / "out" / "report.html").read_text()
     assert "Worse than the step model: repetition 2 held out: LLO: the table does not beat the step model" in html
 
 
 def test_compare_reports_the_step_model_held_out(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
-    import coartic.fit.runner as runner
-    from coartic.evaluation.compare import compare
+    import coartic.jobs.compare as job
     from coartic.fit.simulate import vcv_utterances
     from coartic.fit.spec import parse_spec
 
     utts = vcv_utterances(np.random.default_rng(2), repetitions=2, rates={"normal": 1.0}, noise=0.1)
-    real_run = runner.run
+    real_job = job.fit_job
 
-    def run_on_vcv(spec, out=None, **kw):  # type: ignore[no-untyped-def]
+    def fit_on_vcv(spec, out=None, **kw):  # type: ignore[no-untyped-def]
         kw.setdefault("utterances", utts)  # the specs' corpus: these utterances, not files
-        return real_run(spec, out, **kw)
+        return real_job(spec, out, **kw)
 
-    monkeypatch.setattr(runner, "run", run_on_vcv)
+    monkeypatch.setattr(job, "fit_job", fit_on_vcv)
     raw = {"corpus": {"files": ["x"], "labels": ["y"]}, "model": {"channels": ["LLO"]},
            "parameters": {"free": ["target"]}, "staging": {"enabled": False}, "validate": {"holdout_repetition": 2}}
-    cmp = compare([parse_spec(raw, tmp_path / "spec.toml")], tmp_path / "out")
+    cmp = job.compare([parse_spec(raw, tmp_path / "spec.toml")], tmp_path / "out")
     row = cmp.rows[0]
     assert set(row.baselines) == {"constant", "step", "warped"} and row.beats_step
     assert row.heldout_rmse < row.baselines["step"][0] < row.baselines["constant"][0]

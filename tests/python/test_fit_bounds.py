@@ -17,7 +17,7 @@ import pytest
 from coartic.estimation.bounds import summary_counts
 from coartic.estimation.parameters import CATEGORIES
 from coartic.fit.result import FitResult, finish_channel
-from coartic.fit.runner import run
+from coartic.jobs.fit import fit_job
 from coartic.fit.simulate import PHONEMES, TRUTH, vcv_utterances
 from coartic.fit.spec import parse_spec
 from coartic.model import Utterance
@@ -76,7 +76,7 @@ def built(tmp_path_factory: pytest.TempPathFactory) -> tuple[FitResult, Path]:
              override=[{"phonemes": ["t"], "bounds": {"theta_fw": [0.5, 20.0]}},
                        {"phonemes": ["l"], "free": ["psi"], "start": {"psi": 10.0}}])
     out = tmp / "out"
-    return run(s, out, utterances=utts, quiet=True), out
+    return fit_job(s, out, utterances=utts, quiet=True), out
 
 
 def notes(result: FitResult) -> dict[str, Any]:
@@ -134,7 +134,7 @@ def test_optimal_and_unexplained(built: tuple[FitResult, Path]) -> None:
     u = bad.stats.bounds["t.k_r"]
     assert u.category == "unexplained" and "inside the box, the SSE is lower" in u.explanation
     assert "UNEXPLAINED" in FitResult(s, {"LLO": bad}, "now").report_text()
-    from coartic.fit.fit_cli import warning_lines
+    from coartic.jobs.fit_cli import warning_lines
 
     assert any(line.startswith("[red]LLO: ") and "UNEXPLAINED" in line
                for line in warning_lines(FitResult(s, {"LLO": bad}, "now")))
@@ -178,7 +178,7 @@ def test_report_csv_and_json_carry_the_explanations(built: tuple[FitResult, Path
     got = {d["name"]: d for d in doc["channels"]["LLO"]["at_bound_explained"]}
     assert set(got) == set(doc["channels"]["LLO"]["at_bound"]) == set(nb)
     assert got["l.psi"]["category"] == "insensitive" and got["t.theta_fw"]["bound"] == pytest.approx(20.0)
-    from coartic.fit.fit_cli import warning_lines
+    from coartic.jobs.fit_cli import warning_lines
 
     assert f"[yellow]LLO: {len(nb)} parameter(s) at a bound[/yellow]: {summary_counts(nb)}" in warning_lines(result)[0]
     html = (out / "report.html").read_text()
@@ -193,7 +193,7 @@ def test_html_escapes_names_in_the_explanations(tmp_path: Path) -> None:
         u.labels = tuple(evil if x == "t" else x for x in u.labels)
     s = spec(tmp_path, ["target", "theta_fw"],
              override=[{"phonemes": [evil], "bounds": {"theta_fw": [0.5, 20.0]}}])
-    result = run(s, tmp_path / "out", utterances=utts, quiet=True, report=False)
+    result = fit_job(s, tmp_path / "out", utterances=utts, quiet=True, report=False)
     st = result.channels["LLO"].stats
     assert st is not None and f"{evil}.theta_fw" in st.bounds
     html = write_report(result, tmp_path / "out").read_text()
@@ -214,7 +214,7 @@ def test_a_shared_parameter_is_reported_as_every_phonemes_everywhere(tmp_path: P
     path = german_utterance_spec(tmp_path / "d.toml", '[model]\nchannels = ["JO"]\n[parameters]\n'
                                  'free = ["target", "theta_bw", "theta_fw"]\nshared = ["theta_bw", "theta_fw"]\n'
                                  'target_prior = 0.3\n')
-    res = run(path, tmp_path / "out", quiet=True, report=False)
+    res = fit_job(path, tmp_path / "out", quiet=True, report=False)
     fit = res.channels["JO"]
     pk = fit.packing
     carrier = next(nm for nm in pk.names() if nm.endswith(".theta_bw"))
@@ -237,7 +237,7 @@ def test_a_shared_parameter_is_reported_as_every_phonemes_everywhere(tmp_path: P
     # a [[tie]] of two phonemes: named as tied across them
     tied = german_utterance_spec(tmp_path / "t.toml", '[model]\nchannels = ["JO"]\n[parameters]\nfree = ["target", '
                                  '"alpha"]\n[[tie]]\nphonemes = ["e", "i"]\nparameters = ["alpha"]\n')
-    fit = run(tied, tmp_path / "tied", quiet=True, report=False).channels["JO"]
+    fit = fit_job(tied, tmp_path / "tied", quiet=True, report=False).channels["JO"]
     assert set(fit.parameters["e.alpha"].shared_by) == set(fit.parameters["i.alpha"].shared_by) == {"e", "i"}
     text = (tmp_path / "tied" / "fit_report.txt").read_text()
     assert "(one alpha tied across them)" in text

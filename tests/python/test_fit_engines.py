@@ -104,12 +104,13 @@ def test_nlopt_fits_the_default_spec_polished_by_scipy_and_says_so(tmp_path: Pat
     L-BFGS fails to take a step from it (nlopt's generic FAILURE); the fit is finished by scipy's
     least_squares from that point instead of refused, and the status says so everywhere."""
     from coartic.fit import load_spec, run
-    from coartic.fit.fit_cli import status_lines
+    from coartic.jobs.fit import fit_job
+    from coartic.jobs.fit_cli import status_lines
 
     root = Path(__file__).resolve().parents[2]
     spec = load_spec(root / "fit" / "ema_german_defaults_0024.toml").with_options(channels=("LA",), starts=1)
-    scipy_fit = run(spec, quiet=True, report=False).channels["LA"]
-    result = run(spec.with_options(engine="nlopt"), tmp_path / "nlopt", quiet=True, report=False)
+    scipy_fit = run(spec, quiet=True).channels["LA"]
+    result = fit_job(spec.with_options(engine="nlopt"), tmp_path / "nlopt", quiet=True, report=False)
     fit = result.channels["LA"]
     assert fit.status == "converged" and fit.polished
     # (the default's pooling sd is settled to 2 %: two engines' re-solves end within a few 1e-4 mm)
@@ -120,8 +121,7 @@ def test_nlopt_fits_the_default_spec_polished_by_scipy_and_says_so(tmp_path: Pat
     # polish = "none": the failure stands, said in the status (stage-failed: exit 3 in `coartic fit`),
     # whether it is a stage's (the next stage going on from its best point) or a partial-pooling
     # re-solve's (the optimum at the last sd that converged kept, written, not refused)
-    unpolished = run(spec.with_options(engine="nlopt", engine_options={"polish": "none"}), quiet=True,
-                     report=False).channels["LA"]
+    unpolished = run(spec.with_options(engine="nlopt", engine_options={"polish": "none"}), quiet=True).channels["LA"]
     assert unpolished.status == "stage-failed" and not unpolished.polished
     assert "local lbfgs: nlopt result -1 (FAILURE)" in unpolished.message
     # the optimum at the last sd that converged is kept, and the pooling says it did not settle

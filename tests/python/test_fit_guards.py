@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 
 from coartic.fit import run
+from coartic.jobs.fit import fit_job
 from coartic.fit.guards import small_data_notes
 from coartic.estimation.parameters import psd_pseudo_inverse
 from coartic.fit.result import unidentified_reasons
@@ -31,7 +32,7 @@ def utts(n: int):  # type: ignore[no-untyped-def]
 def test_free_offsets_on_one_utterance_refused_with_the_alternative(tmp_path: Path) -> None:
     s = spec(tmp_path, model={"channels": ["LLO"], "offsets": "free"})
     with pytest.raises(SpecError, match=r"\[model.offsets\] \"free\" on 1 utterance: .*confounded.*offsets = \"none\""):
-        run(s, utterances=utts(1), quiet=True, report=False)
+        run(s, utterances=utts(1), quiet=True)
     assert small_data_notes(s, utts(2)) == []  # two utterances: allowed
     shrunk = spec(tmp_path, model={"channels": ["LLO"], "offsets": 0.5})
     notes = small_data_notes(shrunk, utts(1))
@@ -42,7 +43,7 @@ def test_choose_without_enough_groups(tmp_path: Path) -> None:
     s = spec(tmp_path, choose={"key": "prior_noise", "values": [0.1, 1.0], "group": "utterance"})
     with pytest.raises(SpecError, match=r"\[choose\] group = 'utterance': the 1 training utterance\(s\) form 1 .*"
                                         r"coartic compare --vary prior_noise"):
-        run(s, utterances=utts(1), quiet=True, report=False)
+        run(s, utterances=utts(1), quiet=True)
     notes = small_data_notes(s, utts(2))
     assert len(notes) == 1 and "two folds only" in notes[0] and "one-SE rule" in notes[0]
     assert small_data_notes(s, utts(3)) == []
@@ -73,7 +74,7 @@ def test_a_phoneme_without_samples_is_said(tmp_path: Path) -> None:
     for u in us:
         if "l" in u.labels:
             u.valid["LLO"] = np.zeros_like(u.valid["LLO"])
-    res = run(spec(tmp_path), tmp_path / "out", utterances=us, quiet=True, report=False)
+    res = fit_job(spec(tmp_path), tmp_path / "out", utterances=us, quiet=True, report=False)
     assert "l" not in res.channels["LLO"].problem.phonemes
     said = "LLO: phoneme(s) l occur only in utterances with no valid LLO sample"
     assert any(n.startswith(said) for n in res.notes)
@@ -83,8 +84,7 @@ def test_a_phoneme_without_samples_is_said(tmp_path: Path) -> None:
 
 def test_a_parameter_the_fit_does_not_depend_on_is_explained(tmp_path: Path) -> None:
     # psi (the shape rate) with sigma fixed at 0: S is off, the trajectories do not depend on psi
-    res = run(spec(tmp_path, parameters={"free": ["target", "psi"]}), tmp_path / "out", utterances=utts(2),
-              quiet=True, report=False)
+    res = fit_job(spec(tmp_path, parameters={"free": ["target", "psi"]}), tmp_path / "out", utterances=utts(2), quiet=True, report=False)
     st = res.channels["LLO"].stats
     # every phoneme's, the final pause's own row (#end, the default pause postures) included
     assert st is not None and sorted(st.unidentified) == ["#.psi", "#end.psi", "a.psi", "p.psi", "t.psi"]

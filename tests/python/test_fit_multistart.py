@@ -18,6 +18,7 @@ from coartic.fit.engines import EngineResult, evaluation_budget, iteration_budge
 from coartic.fit.multistart import Optimum, cluster, fit_multistart, sobol_starts, spread_within, trajectory
 from coartic.estimation.problem import build_problem
 from coartic.fit.runner import run
+from coartic.jobs.fit import fit_job
 from coartic.evaluation.score import score_recordings
 from coartic.errors import SpecError
 from coartic.fit.spec import load_spec
@@ -115,7 +116,7 @@ def test_fit_is_independent_of_the_start_held_out_on_real_ema(tmp_path: Path) ->
         spec, utts, _ = small_problem(tmp_path, theta, starts)
         spec = spec.with_options(seed=seed, keep=None, probe=10)  # the default [fit] but for the start
         out = tmp_path / f"out{starts}_{theta}"
-        fit = run(spec, out, quiet=True, report=False).channels["JO"]
+        fit = fit_job(spec, out, quiet=True, report=False).channels["JO"]
         rmse[starts, theta] = fit.rmse
         sc = score_recordings(out / "table.json", [EMA / "dfgspp_mo1_prosody_0020_ema.csv"],
                               [EMA / "dfgspp_mo1_prosody_0020_Segment.tsv"], channels=["JO"])
@@ -144,7 +145,7 @@ def test_the_default_spec_is_start_independent_held_out_with_pause_postures(tmp_
         assert spec.pauses == "postures" and spec.starts == 32  # the defaults, as a user gets them
         spec = spec.with_options(channels=("LA",), seed=seed, start={**spec.start, "theta_bw": theta, "theta_fw": theta})
         out = tmp_path / f"o{seed}"
-        fit = run(spec, out, quiet=True, report=False).channels["LA"]
+        fit = fit_job(spec, out, quiet=True, report=False).channels["LA"]
         # its final pauses hold no valid sample: no '#end' row (coartic.model.utterances_with_postures)
         assert "#end" not in fit.problem.phonemes and "#" in fit.problem.phonemes
         pools[seed] = fit.pooling
@@ -264,7 +265,7 @@ def test_status_words_are_never_cut(width: int) -> None:
     from types import SimpleNamespace
 
     from coartic.console import print_table
-    from coartic.fit.fit_cli import rmse_table, status_lines
+    from coartic.jobs.fit_cli import rmse_table, status_lines
 
     statuses = {"ULO": "max-evaluations", "LLO": "best-found-once", "JO": "stage-failed", "LA": "converged"}
     chans = {}
@@ -296,7 +297,7 @@ def test_validation_scores_every_optimum_held_out(tmp_path: Path) -> None:
            # a fixed target prior: an estimated one re-solves the best optimum at its sd after the multi-start
            "parameters": {"free": ["target", "theta_bw"], "target_prior": 0.3}, "staging": {"enabled": False},
            "fit": {"starts": 3, "probe": 3, "keep": 2}, "validate": {"holdout_repetition": 2, "test_rate": None}}
-    scores = validate_all(parse_spec(raw, tmp_path / "spec.toml"), tmp_path / "val", utterances=utts, fit=run)
+    scores = validate_all(parse_spec(raw, tmp_path / "spec.toml"), tmp_path / "val", utterances=utts, fit=fit_job)
     sc = scores[0]
     assert 1 <= len(sc.optima_test_rmse) <= 2 and sc.optima_test_rmse[0] == pytest.approx(sc.test_rmse)
     assert "optima_test_rmse_mm" in (tmp_path / "val" / "validation.csv").read_text().splitlines()[0]

@@ -18,6 +18,7 @@ from coartic.estimation.penalties import ShrinkGroup
 from coartic.estimation.pooling import TAU_BOUNDS, Evidence, Pool, family_of, residual_weight
 from coartic.estimation.problem import build_problem
 from coartic.fit import run
+from coartic.jobs.fit import fit_job
 from coartic.fit.simulate import TRUTH, vcv_utterances
 from coartic.fit.spec import SpecError
 from coartic.fit.staged import fit_staged
@@ -88,7 +89,7 @@ def test_pooled_rows_have_exact_derivatives(tmp_path: Path, differ: list[model.U
 @pytest.mark.parametrize("truth, expect", [(WELL, "differ"), (SAME, "share")])
 def test_the_estimated_sd_follows_how_much_the_phonemes_differ(tmp_path: Path, truth: np.ndarray, expect: str) -> None:
     s = spec_of(tmp_path, parameters=POOLED).with_options(starts=1)
-    fit = run(s, utterances=utterances(truth), quiet=True, report=False).channels["LLO"]
+    fit = run(s, utterances=utterances(truth), quiet=True).channels["LLO"]
     est = fit.pooling
     assert est is not None and est.settled and fit.status == "converged"
     true_sd = float(np.std(np.log(truth[:, [BW, FW]]), axis=0, ddof=1).mean())
@@ -122,7 +123,7 @@ def test_the_limits_are_the_shared_and_the_per_phoneme_fits(tmp_path: Path, diff
 def test_outputs_say_which_sd_was_found_and_the_effective_parameters(tmp_path: Path,
                                                                       differ: list[model.Utterance]) -> None:
     s = spec_of(tmp_path, parameters={**POOLED, "target_prior": "estimated"}).with_options(starts=1)
-    res = run(s, tmp_path / "out", utterances=differ, quiet=True, report=False)
+    res = fit_job(s, tmp_path / "out", utterances=differ, quiet=True, report=False)
     est = res.channels["LLO"].pooling
     assert est is not None and set(est.tau) == {"pooled theta_bw", "pooled theta_fw", "target prior"}
     assert 0 < est.effective <= est.n_free
@@ -183,7 +184,7 @@ def test_mcmc_samples_the_pool_and_names_what_it_holds_fixed(tmp_path: Path, dif
     from coartic.table import ParameterTable
 
     s = spec_of(tmp_path, parameters={**POOLED, "target_prior": "estimated"}).with_options(starts=1)
-    run(s, tmp_path / "fit", utterances=differ, quiet=True, report=False)
+    fit_job(s, tmp_path / "fit", utterances=differ, quiet=True, report=False)
     table = ParameterTable.load(tmp_path / "fit" / "table.json")
     prob = build_problem(s.estimation_settings(), differ, "LLO", table)
     pool = prob.pool

@@ -11,7 +11,7 @@ import pytest
 from typer.testing import CliRunner
 
 from coartic.cli import app
-from coartic.fit import run
+from coartic.jobs.fit import fit_job
 from coartic.fit.spec import load_spec
 from coartic.table import ParameterTable
 
@@ -69,7 +69,7 @@ EMA_RMSE_LIMIT = {"LA": 0.60, "JO": 0.21}
 
 @pytest.mark.slow
 def test_real_ema_rmse_does_not_get_worse(tmp_path: Path) -> None:
-    result = run(load_spec(ROOT / "fit" / "ema_german.toml"), tmp_path, quiet=True)
+    result = fit_job(load_spec(ROOT / "fit" / "ema_german.toml"), tmp_path, quiet=True)
     assert not result.interrupted
     for ch, limit in EMA_RMSE_LIMIT.items():
         assert result.channels[ch].rmse < limit, f"{ch}: RMSE {result.channels[ch].rmse:.3f} mm > {limit}"

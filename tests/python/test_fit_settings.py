@@ -15,6 +15,7 @@ from fit_helpers import check_problem_derivatives, german_utterance_spec, spec_o
 from coartic import model
 from coartic.cli import app
 from coartic.fit import run
+from coartic.jobs.fit import fit_job
 from coartic.fit.data import load_utterances, manifest_rows
 from coartic.io import DataError
 from coartic.estimation.parameters import ParameterSet
@@ -119,7 +120,7 @@ def test_a_failed_engine_is_an_error_naming_the_channel(tmp_path: Path, utts: li
     # every tolerance 0: least_squares refuses to start; today the start values became the table
     s = spec_of(tmp_path, engine={"options": {"ftol": 0.0, "xtol": 0.0, "gtol": 0.0}})
     with pytest.raises(FitFailed, match=r"channel LLO: the scipy engine failed \(failed\): .*tolerances") as e:
-        run(s, tmp_path / "out", utterances=utts, quiet=True, report=False)
+        fit_job(s, tmp_path / "out", utterances=utts, quiet=True, report=False)
     assert "nothing was written for LLO" in str(e.value)
     assert not (tmp_path / "out" / "table.json").exists()
 
@@ -184,7 +185,7 @@ def test_files_that_carry_their_own_labels_need_no_label_file(tmp_path: Path) ->
 
 def test_run_writes_what_the_command_writes_and_the_parameter_set(tmp_path: Path, utts: list[model.Utterance]) -> None:
     s = spec_of(tmp_path, parameters={"free": ["target", "theta_bw"]}, model={"channels": ["LLO"], "edge_extent": 0.4})
-    result = run(s, tmp_path / "out", utterances=utts, quiet=True)
+    result = fit_job(s, tmp_path / "out", utterances=utts, quiet=True)
     for f in ("table.json", "table.csv", "rmse.csv", "parameters.csv", "fit_report.txt", "summary.json",
               "report.html"):
         assert (tmp_path / "out" / f).is_file(), f
@@ -207,7 +208,7 @@ def test_mcmc_takes_the_options_from_the_table(tmp_path: Path, utts: list[model.
     from coartic.mcmc.run import table_problem
 
     s = spec_of(tmp_path, parameters={"free": ["target"]})
-    table = run(s, None, utterances=utts, quiet=True).table()
+    table = run(s, utterances=utts, quiet=True).table()
     table.channels["LLO"].edge_extent = 0.25
     table.channels["LLO"].apex_fraction = 0.4
     table.source = str(tmp_path / "t.json")
@@ -249,7 +250,7 @@ def test_priors_are_penalties_with_exact_derivatives(tmp_path: Path, utts: list[
 
 def test_a_prior_pulls_the_fit_and_is_reported(tmp_path: Path, utts: list[model.Utterance]) -> None:
     s = spec_of(tmp_path, parameters={"free": ["target", "k_r"], "prior": {"t.k_r": [0.95, 0.001]}})
-    fit = run(s, tmp_path / "out", utterances=utts, quiet=True, report=False).channels["LLO"]
+    fit = fit_job(s, tmp_path / "out", utterances=utts, quiet=True, report=False).channels["LLO"]
     assert fit.parameters["t.k_r"].value == pytest.approx(0.95, abs=0.01)  # the truth is 0.3
     assert fit.parameters["t.k_r"].prior is not None and fit.parameters["p.k_r"].prior is None
     assert "prior N(0.95, 0.001)" in (tmp_path / "out" / "fit_report.txt").read_text()
@@ -291,7 +292,7 @@ def test_offsets_recover_shifted_recordings(tmp_path: Path) -> None:
     for offsets in ("none", "free"):
         s = spec_of(tmp_path, parameters={"free": ["target", "alpha", "theta_bw", "theta_fw", "k_r"]},
                     model={"channels": ["LLO"], "offsets": offsets}, staging={"enabled": False})
-        fits[offsets] = run(s, None, utterances=utts, quiet=True).channels["LLO"]
+        fits[offsets] = run(s, utterances=utts, quiet=True).channels["LLO"]
     prob = fits["free"].problem
     b = prob.utterance_offsets(fits["free"].x)
     # offsets are identified up to a common constant (the targets absorb their mean)
@@ -301,7 +302,7 @@ def test_offsets_recover_shifted_recordings(tmp_path: Path) -> None:
 
 def test_a_stage_that_did_not_converge_says_why(tmp_path: Path, utts: list[model.Utterance]) -> None:
     s = spec_of(tmp_path, parameters={"free": ["target", "theta_bw"]}, engine={"options": {"max_nfev": 2}})
-    text = run(s, None, utterances=utts, quiet=True).report_text()
+    text = run(s, utterances=utts, quiet=True).report_text()
     assert "[max-evaluations]: The maximum number of function evaluations is exceeded." in text
 
 
@@ -323,11 +324,11 @@ def test_tied_parameters_share_one_value_with_exact_derivatives(tmp_path: Path, 
 def test_a_fit_with_ties_reports_them(tmp_path: Path, utts: list[model.Utterance]) -> None:
     s = spec_of(tmp_path, parameters={"free": ["target", "theta_bw"]},
                 tie=[{"phonemes": ["p", "t"], "parameters": ["theta_bw"]}])
-    fit = run(s, None, utterances=utts, quiet=True).channels["LLO"]
+    fit = run(s, utterances=utts, quiet=True).channels["LLO"]
     ps = fit.parameters
     assert ps["t.theta_bw"].tied_to == "p.theta_bw" and not ps["t.theta_bw"].free
     assert ps["t.theta_bw"].value == ps["p.theta_bw"].value and ps["t.theta_bw"].stderr == ps["p.theta_bw"].stderr
-    assert run(s, None, utterances=utts, quiet=True).table().values["t"]["LLO"]["theta_bw"] == ps["p.theta_bw"].value
+    assert run(s, utterances=utts, quiet=True).table().values["t"]["LLO"]["theta_bw"] == ps["p.theta_bw"].value
 
 
 @pytest.mark.parametrize("tie, words", [
@@ -394,7 +395,7 @@ def test_ties_and_shrinks_of_phonemes_absent_from_the_corpus(tmp_path: Path, utt
                    **{kind: [{**table, "phonemes": ["p", "t", "f"]}]})
     assert check_overrides(some, utts) == [f"[{kind} #1] phonemes ['f'] do not occur in the corpus: not applied to them"]
     if kind == "shrink":  # the table records the members the shrinkage was applied to
-        shrinkage = run(some, None, utterances=utts, quiet=True).table().metadata["shrinkage"]
+        shrinkage = run(some, utterances=utts, quiet=True).table().metadata["shrinkage"]
         assert shrinkage[0]["phonemes"] == ["p", "t"]
 
 
@@ -415,7 +416,7 @@ def test_mcmc_has_the_priors_of_the_fit_spec(tmp_path: Path, utts: list[model.Ut
     s = spec_of(tmp_path, parameters={"free": ["target", "theta_bw", "k_r"],
                                       "prior": {"theta_bw": {"mean": 30.0, "sd": 0.5, "scale": "log"},
                                                 "p.k_r": [0.9, 0.05]}})
-    table = run(s, None, utterances=utts, quiet=True).table()
+    table = run(s, utterances=utts, quiet=True).table()
     problem = table_problem(s, table, "LLO", utts)
     data, packing, opts = problem.data, problem.packing, problem.options
     pri = problem_priors(problem)

@@ -14,7 +14,9 @@ import pytest
 from coartic import model
 from fit_helpers import check_problem_derivatives, spec_of
 from coartic.fit import run
-from coartic.fit.choose import Choice, CurvePoint, parse_choose, set_value
+from coartic.jobs.fit import fit_job
+from coartic.evaluation.choose import Choice, CurvePoint
+from coartic.fit.choose import parse_choose, set_value
 from coartic.estimation.problem import build_problem
 from coartic.fit.simulate import PHONEMES, vcv_utterances
 from coartic.errors import SpecError
@@ -58,7 +60,7 @@ def test_a_shrink_row_pulls_an_outlier_toward_its_class(tmp_path: Path, utts: li
     fits = {}
     for name, shrink in (("free", []), ("shrunk", [{"phonemes": ["a", "i", "p", "t"], "parameters": ["k_r"], "sd": 0.02}])):
         s = spec_of(tmp_path, parameters=free, shrink=shrink)
-        res = run(s, tmp_path / name, utterances=utts, quiet=True, report=False)
+        res = fit_job(s, tmp_path / name, utterances=utts, quiet=True, report=False)
         fits[name] = res.channels["LLO"]
     row = {p: i for i, p in enumerate(fits["free"].phonemes)}
     for name in fits:
@@ -79,7 +81,7 @@ def test_cross_validation_chooses_the_strength(tmp_path: Path, utts: list[model.
     # repetitions badly, so CV must choose the weak end of the grid, then fit all data with it
     s = spec_of(tmp_path, shrink=[{"phonemes": ["p", "t"], "parameters": ["target"], "sd": 1.0}],
                 choose={"key": "shrink.sd", "values": [100.0, 0.001], "group": "repetition", "folds": 2})
-    res = run(s, tmp_path / "out", utterances=utts, quiet=True, report=True)
+    res = fit_job(s, tmp_path / "out", utterances=utts, quiet=True, report=True)
     assert 'src="choose.png"' in (tmp_path / "out" / "report.html").read_text()
     ch = res.choice
     assert ch is not None and ch.chosen == {"LLO": 100.0} and len(ch.folds) == 2
@@ -117,7 +119,7 @@ def test_mcmc_has_the_shrinkage_of_the_fit_spec(tmp_path: Path, utts: list[model
 
     s = spec_of(tmp_path, parameters={"free": ["target", "theta_bw"]},
                 shrink=[{"phonemes": ["a", "i", "p", "t"], "parameters": ["theta_bw"], "sd": 0.5, "scale": "log"}])
-    table = run(s, None, utterances=utts, quiet=True).table()
+    table = run(s, utterances=utts, quiet=True).table()
     problem = table_problem(s, table, "LLO", utts)
     data, packing, opts = problem.data, problem.packing, problem.options
     groups = problem.shrink_groups
@@ -176,7 +178,7 @@ def test_shrinkage_of_fixed_values_and_bad_choose_options_are_refused(tmp_path: 
 
 def test_ctrl_c_while_choosing_writes_no_fit(tmp_path: Path, utts: list[model.Utterance],
                                             monkeypatch: pytest.MonkeyPatch) -> None:
-    import coartic.fit.choose as choose
+    import coartic.evaluation.choose as choose
 
     def interrupted(*args: Any, **kwargs: Any) -> Any:
         raise KeyboardInterrupt
@@ -184,7 +186,7 @@ def test_ctrl_c_while_choosing_writes_no_fit(tmp_path: Path, utts: list[model.Ut
     monkeypatch.setattr(choose, "score", interrupted)  # the scoring of a fold, as [choose] calls it
     s = spec_of(tmp_path, shrink=[{"phonemes": ["p", "t"], "parameters": ["target"], "sd": 1.0}],
                 choose={"key": "shrink.sd", "values": [100.0, 0.001], "group": "repetition", "folds": 2})
-    res = run(s, tmp_path / "out", utterances=utts, quiet=True, report=False)
+    res = fit_job(s, tmp_path / "out", utterances=utts, quiet=True, report=False)
     assert res.interrupted and not res.channels and res.choice is None
     assert "interrupted while choosing shrink.sd" in " ".join(res.notes)
     assert not (tmp_path / "out" / "table.json").exists() and not (tmp_path / "out" / "choose.csv").exists()
@@ -240,8 +242,8 @@ def test_a_chosen_model_option_is_what_the_table_records(tmp_path: Path, utts: l
     s = spec_of(tmp_path, model={"channels": ["LLO"], "dominance": "plateau", "plateau_fraction": 0.5},
                 choose={"key": "plateau_fraction", "values": [0.0, 1.0], "group": "repetition", "folds": 2,
                         "rule": "min"})
-    res = run(s, None, utterances=utts, quiet=True)
-    assert res.choice is not None
+    res = fit_job(s, utterances=utts, quiet=True, report=False)  # the job: the choice is an evaluation
+    assert isinstance(res.choice, Choice)
     chosen = res.choice.chosen["LLO"]
     assert res.table().channels["LLO"].plateau_fraction == chosen
     from coartic.evaluation.score import score_utterances

@@ -106,7 +106,7 @@ def fitted(utts):  # type: ignore[no-untyped-def]
     """coartic.fit.run with [model] speakers = "offset_scale" on the two speakers, and its table."""
     from coartic.fit.runner import run
 
-    res = run(spec("offset_scale"), utterances=utts, quiet=True, report=False)
+    res = run(spec("offset_scale"), utterances=utts, quiet=True)
     return res, res.table()
 
 
@@ -255,14 +255,14 @@ def test_speaker_targets_gradient_and_recovery(two_speakers) -> None:  # type: i
 
 
 def test_speaker_targets_table_score_and_mcmc(two_speakers, tmp_path: Path) -> None:  # type: ignore[no-untyped-def]
-    from coartic.fit.runner import run
+    from coartic.jobs.fit import fit_job
     from coartic.evaluation.score import score_utterances
     from coartic.mcmc.posterior import phoneme_posterior
     from coartic.mcmc.run import ChannelSampling, fixed_noise, problem_priors, table_problem, table_speakers
 
     utts, _ = two_speakers
     s = targets_spec()
-    res = run(s, tmp_path / "fit", utterances=utts, quiet=True)  # what coartic fit writes, the report too
+    res = fit_job(s, tmp_path / "fit", utterances=utts, quiet=True)  # what coartic fit writes, the report too
     assert (tmp_path / "fit" / "report.html").is_file()
     fit, table = res.channels["LLO"], res.table()
     meta = table.metadata["speakers"]
@@ -303,7 +303,7 @@ def test_speaker_targets_table_score_and_mcmc(two_speakers, tmp_path: Path) -> N
 def test_held_out_speaker_validation(utts, mode: str, tmp_path: Path) -> None:  # type: ignore[no-untyped-def]
     """[validate] group = "speaker": leave one speaker out, scored with the population mapping and
     after calibrating the held-out speaker's offset and scale on its own data."""
-    from coartic.fit.runner import run
+    from coartic.jobs.fit import fit_job
     from coartic.evaluation.validate import validate_all
 
     three = list(utts)
@@ -316,7 +316,7 @@ def test_held_out_speaker_validation(utts, mode: str, tmp_path: Path) -> None:  
     raw = {"corpus": {"files": ["x"], "labels": ["y"]}, "model": {"channels": ["LLO"], "speakers": mode},
            "parameters": {"free": ["target", "theta_bw"]}, "validate": {"group": "speaker"}}
     s = parse_spec(raw, Path("/tmp/test_spec.toml"))
-    scores = validate_all(s, tmp_path / "validation", utterances=three, fit=run)
+    scores = validate_all(s, tmp_path / "validation", utterances=three, fit=fit_job)
     assert [sc.split for sc in scores] == [f"fold {i}/3 (speaker s{i} held out)" for i in (1, 2, 3)]
     for sc in scores:
         # a speaker the table never saw: calibrating its offset and scale on its own data removes

@@ -15,6 +15,7 @@ from coartic import model
 from coartic.estimation.problem import build_problem
 from coartic.estimation.target_prior import segment_means
 from coartic.fit import run
+from coartic.jobs.fit import fit_job
 from coartic.evaluation.baselines import Baselines
 from coartic.fit.choose import set_value
 from coartic.evaluation.score import score_recordings
@@ -111,7 +112,7 @@ def test_a_strong_target_prior_makes_the_targets_the_phoneme_means(tmp_path: Pat
                   parameters={"free": ["target"], "target_prior": 0.001}, fit={"starts": 1})
     means = segment_means(utts, "LLO")
     for sd, close in ((0.001, True), (None, False)):
-        fit = run(base.with_options(target_prior=sd), utterances=utts, quiet=True, report=False).channels["LLO"]
+        fit = run(base.with_options(target_prior=sd), utterances=utts, quiet=True).channels["LLO"]
         gap = max(abs(fit.params[i, T] - means[p]) for i, p in enumerate(fit.phonemes))
         assert (gap < 0.05) == close, (sd, gap)
 
@@ -121,7 +122,7 @@ def test_shared_dynamics_are_one_value_per_channel(tmp_path: Path, utts: list[mo
                parameters={"free": ["target", "theta_bw", "theta_fw"], "shared": ["theta_bw", "theta_fw"]})
     prob = build_problem(s.estimation_settings(), utts, "LLO", phonemes=PHONEMES)
     assert prob.packing.n_free == len(PHONEMES) + 2  # every target, one theta_bw, one theta_fw
-    fit = run(s, utterances=utts, quiet=True, report=False).channels["LLO"]
+    fit = run(s, utterances=utts, quiet=True).channels["LLO"]
     for k in (BW, FW):
         assert np.ptp(fit.params[:, k]) == 0.0 and fit.params[0, k] != s.start[PARAMETERS[k]]
 
@@ -153,7 +154,7 @@ def test_a_spec_that_sets_nothing_beats_the_step_model_on_real_ema(tmp_path: Pat
     JO, with `coartic score`'s own scoring of every segment)."""
     spec = load_spec(ROOT / "fit" / "ema_german_defaults_0024.toml")
     assert spec.target_prior == DEFAULT_TARGET_PRIOR and spec.shared == DEFAULT_SHARED  # it sets nothing
-    run(spec, tmp_path / "fit", quiet=True, report=False)
+    fit_job(spec, tmp_path / "fit", quiet=True, report=False)
     sc = score_recordings(tmp_path / "fit" / "table.json", [EMA / "dfgspp_mo1_prosody_0020_ema.csv"],
                           [EMA / "dfgspp_mo1_prosody_0020_Segment.tsv"], channels=["LA", "JO"])
     assert sc.flags() == []

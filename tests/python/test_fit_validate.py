@@ -10,7 +10,7 @@ import pytest
 from coartic.fit.simulate import vcv_utterances
 from coartic.errors import SpecError
 from coartic.fit.spec import parse_spec
-from coartic.fit.runner import run
+from coartic.jobs.fit import fit_job
 from coartic.evaluation.validate import splits, validate_all
 
 from fit_helpers import paper
@@ -28,7 +28,7 @@ def test_splits_and_scores(tmp_path: Path) -> None:
     s = spec(tmp_path, holdout_repetition=3)
     names = [(n, len(tr), len(te)) for n, tr, te in splits(s, utts)]
     assert names == [("repetition 3 held out", 24, 12), ("fit normal rate, test fast rate", 18, 18)]
-    scores = validate_all(s, tmp_path / "val", utterances=utts, fit=run)
+    scores = validate_all(s, tmp_path / "val", utterances=utts, fit=fit_job)
     assert [sc.split for sc in scores] == ["repetition 3 held out", "fit normal rate, test fast rate"]
     for sc in scores:
         # the model made the data: held-out RMSE stays at the noise level
@@ -73,7 +73,7 @@ def test_kfold_scores_pooled_with_and_without_offsets(tmp_path: Path) -> None:
     raw = {"corpus": {"files": ["x"], "labels": ["y"]}, "model": {"channels": ["LLO"]},
            "parameters": {"free": ["target"]}, "validate": {"group": "repetition"}}
     s = parse_spec(raw, tmp_path / "spec.toml")
-    scores = validate_all(s, tmp_path / "val", utterances=utts, fit=run)
+    scores = validate_all(s, tmp_path / "val", utterances=utts, fit=fit_job)
     assert len(scores) == 2 and all(np.isfinite(sc.test_rmse_offset_removed) for sc in scores)
     rm, ro, n = pooled(scores)["LLO"]
     assert n == sum(sc.test_samples for sc in scores) and ro <= rm + 1e-12

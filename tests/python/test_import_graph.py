@@ -118,7 +118,7 @@ def test_the_package_is_a_facade_at_the_top() -> None:
 
 # The parts above estimation (docs/ARCHITECTURE.md, "Layers"): those that build its settings and use
 # its problem.
-ABOVE: tuple[str, ...] = ("fit", "mcmc", "evaluation", "report", "cli", "runtime", "batch", "estimator")
+ABOVE: tuple[str, ...] = ("fit", "mcmc", "evaluation", "report", "jobs", "cli", "runtime", "batch", "estimator")
 
 
 def above(module: str) -> bool:
@@ -151,6 +151,58 @@ def test_the_estimation_check_sees_type_only_and_function_imports(tmp_path: Path
     graph = import_graph(tmp_path)
     assert graph["coartic.estimation.a"] == {"coartic.fit.spec"} and above("coartic.fit.spec")
     assert graph["coartic.estimation.b"] == {"coartic.report"} and above("coartic.report")
+
+
+# The shared problem, the fitting library, what evaluates its results and the application that
+# writes them, lowest first (issue 28 item 2): a module of each package imports none of a later
+# one's, at the top, inside a function or under TYPE_CHECKING.
+LAYERS = ("coartic.estimation", "coartic.fit", "coartic.evaluation", "coartic.report", "coartic.jobs")
+
+
+def package(module: str, packages: tuple[str, ...] = LAYERS) -> str | None:
+    return next((p for p in packages if module == p or module.startswith(p + ".")), None)
+
+
+def upward_arrows(graph: dict[str, set[str]], layers: tuple[str, ...] = LAYERS) -> set[tuple[str, str]]:
+    """(module, imported module) for every import from a package of ``layers`` into a later one."""
+    rank = {p: i for i, p in enumerate(layers)}
+    out = set()
+    for m, targets in graph.items():
+        src = package(m, layers)
+        for t in targets:
+            dst = package(t, layers)
+            if src is not None and dst is not None and rank[dst] > rank[src]:
+                out.add((m, t))
+    return out
+
+
+def test_the_library_sits_below_evaluation_and_the_application() -> None:
+    # fit -> estimation; evaluation -> fit; report -> evaluation, fit; jobs -> evaluation, fit, report;
+    # never back
+    graph = import_graph(ROOT)
+    assert {"coartic.fit.runner", "coartic.evaluation.validate", "coartic.report.html", "coartic.jobs.fit"} <= set(graph)
+    assert upward_arrows(graph) == set()
+    # and the arrows that are meant to be there are seen (the check sees the packages' imports)
+    assert "coartic.fit.runner" in graph["coartic.evaluation.choose"]
+    assert {"coartic.fit.runner", "coartic.evaluation.validate", "coartic.report.html"} <= graph["coartic.jobs.fit"]
+
+
+def test_an_upward_arrow_is_found(tmp_path: Path) -> None:
+    # the layering check itself: a fit module calling up into evaluation inside a function, and one
+    # naming a job's type under TYPE_CHECKING, are both upward arrows (the old runner's and result's)
+    pkg = tmp_path / "coartic"
+    for sub in ("fit", "evaluation", "report", "jobs"):
+        (pkg / sub).mkdir(parents=True)
+        (pkg / sub / "__init__.py").write_text("")
+    (pkg / "__init__.py").write_text("")
+    (pkg / "fit" / "runner.py").write_text("def run():\n    from coartic.evaluation.validate import validate_all\n")
+    (pkg / "fit" / "result.py").write_text("from typing import TYPE_CHECKING\nif TYPE_CHECKING:\n"
+                                           "    from coartic.jobs.fit import Job\n")
+    (pkg / "evaluation" / "validate.py").write_text("from coartic.fit.runner import run\n")
+    (pkg / "jobs" / "fit.py").write_text("from coartic.fit.runner import run\nfrom coartic.report import html\n")
+    (pkg / "report" / "html.py").write_text("from coartic.evaluation.validate import x\n")
+    assert upward_arrows(import_graph(tmp_path)) == {("coartic.fit.runner", "coartic.evaluation.validate"),
+                                                     ("coartic.fit.result", "coartic.jobs.fit")}
 
 
 def test_a_circle_is_found(tmp_path: Path) -> None:

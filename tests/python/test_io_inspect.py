@@ -61,7 +61,7 @@ def test_inspect_plot_into_a_missing_folder_is_an_error_first(tmp_path: Path) ->
 
 def test_fit_channels_option_treats_la_like_the_others(tmp_path: Path,
                                                       monkeypatch: pytest.MonkeyPatch) -> None:
-    import coartic.fit.runner as runner
+    import coartic.jobs.fit as job
 
     spec = tmp_path / "s.toml"
     spec.write_text(f"""
@@ -74,11 +74,11 @@ channels = ["LA"]
 """)
     seen: list[tuple[str, ...]] = []
 
-    def run(s: Any, out: Path, **kw: Any) -> None:  # the option is what is tested, not the fit
+    def fit_job(s: Any, out: Path, **kw: Any) -> None:  # the option is what is tested, not the fit
         seen.append(s.channels)
         raise ValueError("stop here")
 
-    monkeypatch.setattr(runner, "run", run)
+    monkeypatch.setattr(job, "fit_job", fit_job)
     for chans in ("JO", "LA,JO"):  # JO is not in the spec either: it may be named like LA
         r = CliRunner().invoke(app, ["fit", str(spec), "--out", str(tmp_path / "o"), "--channels", chans])
         assert "stop here" in r.output, r.output

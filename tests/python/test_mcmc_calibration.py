@@ -79,7 +79,7 @@ def test_synthetic_session_truth_inside_95_percent_interval_for_90_percent_of_id
     from typer.testing import CliRunner
 
     from coartic.cli import app
-    from coartic.fit import run
+    from coartic.jobs.fit import fit_job
     from coartic.synthetic_cli import load_generator
     from coartic.table import ParameterTable
 
@@ -88,7 +88,7 @@ def test_synthetic_session_truth_inside_95_percent_interval_for_90_percent_of_id
     manifest = generator.generate(tmp_path / "session", quick=True, progress=False, consonants=["p", "t", "f"])
     spec = tmp_path / "spec.toml"
     spec.write_text(SESSION_SPEC.format(manifest=manifest, truth=generator.GROUND_TRUTH))
-    run(spec, tmp_path / "fit", quiet=True)
+    fit_job(spec, tmp_path / "fit", quiet=True)
     result = CliRunner().invoke(app, ["mcmc", str(spec), "--fit", str(tmp_path / "fit"), "--out", str(tmp_path / "mcmc"), "--strict", "--quiet"])
     assert result.exit_code == 0, result.output  # --strict: status 2 unless every convergence check passed
 

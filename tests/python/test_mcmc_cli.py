@@ -39,7 +39,7 @@ max_steps = 200
 
 @pytest.fixture(scope="module")
 def fitted(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, Path]:
-    from coartic.fit import run
+    from coartic.jobs.fit import fit_job
     from coartic.report.html import write_report
     from coartic.synthetic_cli import load_generator
 
@@ -47,7 +47,7 @@ def fitted(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, Path]:
     manifest = load_generator().generate(root / "session", quick=True, progress=False, consonants=["p"])
     spec = root / "spec.toml"
     spec.write_text(SPEC.format(manifest=manifest, mcmc=MCMC))
-    result = run(spec, root / "fit", quiet=True)  # the least-squares fit ignores [mcmc]
+    result = fit_job(spec, root / "fit", quiet=True)  # the least-squares fit ignores [mcmc]
     write_report(result, root / "fit")
     return spec, root / "fit"
 
@@ -188,7 +188,7 @@ def test_mcmc_command_samples_a_speakers_fit(tmp_path: Path) -> None:
     """`coartic mcmc` on a fit with [model] speakers = "offset_scale": the speakers' offset and scale
     are sampled (summary.json), the table gets the phoneme's quantiles only, and a spec without the
     speakers is refused for that table (exit 2, naming both)."""
-    from coartic.fit import run
+    from coartic.jobs.fit import fit_job
     from coartic.synthetic_cli import load_generator
 
     manifest = load_generator().generate(tmp_path / "session", quick=True, progress=False, consonants=["p"],
@@ -198,7 +198,7 @@ def test_mcmc_command_samples_a_speakers_fit(tmp_path: Path) -> None:
     text = SPEC.format(manifest=manifest, mcmc=mcmc).replace('select = { vowel = ["a"] }',
                                                               'select = { vowel = ["a"], repetition = ["1"] }')
     spec.write_text(text.replace('reference_phoneme = "a"', 'reference_phoneme = "a"\nspeakers = "offset_scale"'))
-    run(spec, tmp_path / "fit", quiet=True, report=False)
+    fit_job(spec, tmp_path / "fit", quiet=True, report=False)
     out = tmp_path / "mcmc"
     r = CliRunner().invoke(app, ["mcmc", str(spec), "--fit", str(tmp_path / "fit"), "--out", str(out), "--quiet"])
     assert r.exit_code == 0, r.output

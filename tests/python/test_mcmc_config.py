@@ -71,3 +71,13 @@ def test_offsets_follow_the_least_squares_model_unless_mcmc_says() -> None:
     assert parse_config({"offsets": "none"}, SPEC, SimpleNamespace(offsets=0.05)).offsets == "none"
     assert parse_config(None, SPEC, SimpleNamespace(offsets="free")).offsets == "free"
     assert parse_config(None, SPEC, SimpleNamespace(offsets="none")).offsets == "free"
+
+
+def test_every_mistake_is_reported_at_once() -> None:
+    """The table is a schema (coartic.mcmc.config): several bad keys are named together, one a line."""
+    with pytest.raises(McmcConfigError) as caught:
+        parse_config({"scope": "all", "ball": 2, "plots": "yes"}, SPEC)
+    assert str(caught.value).splitlines() == [
+        "fit/x.toml: [mcmc] scope: 'all': expected one of phonemes, channel",
+        "fit/x.toml: [mcmc] ball: expected a number in (0, 1), got 2",
+        "fit/x.toml: [mcmc] plots: expected true or false, got 'yes'"]

@@ -18,6 +18,7 @@ import pytest
 import format_fixtures as ff
 from coartic import ParameterTable, trajectories
 from coartic.fit import run
+from coartic.jobs.fit import fit_job
 from coartic.evaluation.score import score_recordings
 from coartic.fit.spec import load_spec, parse_spec
 from coartic.pauses import (FINAL_PAUSE, MEDIAL_ALPHA, MEDIAL_PAUSE, POSTURES_RECORD, RECORD_KEY, is_pause,
@@ -122,9 +123,9 @@ def test_edge_postures_and_a_pause_inside_a_closure(tmp_path: Path) -> None:
     rows[5:6] = [(float(starts[5]), float(starts[5]) + 0.02, "#"), (float(starts[5]) + 0.02, float(ends[5]), "p")]
     files.append(write_recording(tmp_path, "fast", labels, durs, rows))
 
-    one = run(spec_for(tmp_path, files, "one"), quiet=True, report=False)
+    one = run(spec_for(tmp_path, files, "one"), quiet=True)
     out = tmp_path / "postures"
-    three = run(spec_for(tmp_path, files, "postures"), out, quiet=True, report=False)
+    three = fit_job(spec_for(tmp_path, files, "postures"), out, quiet=True, report=False)
     table = ParameterTable.load(out / "table.json")
     assert {PAUSE, FINAL_PAUSE} <= set(table.phonemes) and table.metadata[RECORD_KEY]["mode"] == "postures"
     # the final pause has the closed lips of /p/ (LA = 16 mm at rest + ULO + LLO = 11.5 mm), the

@@ -13,7 +13,7 @@ from coartic import _core
 from coartic.estimation.problem import ChannelProblem
 from coartic.model import Utterance, build_corpus
 from coartic.fit.result import FitResult
-from coartic.fit.runner import run
+from coartic.jobs.fit import fit_job
 from coartic.fit.simulate import PHONEMES, TRUTH, vcv_utterances
 from coartic.fit.spec import parse_spec
 from coartic.report.html import write_report
@@ -35,7 +35,7 @@ def fitted(tmp_path_factory: pytest.TempPathFactory) -> tuple[FitResult, Path]:
     tmp = tmp_path_factory.mktemp("fit")
     utts = vcv_utterances(np.random.default_rng(5), repetitions=2)
     spec = make_spec(tmp, ["target", "alpha", "theta_bw", "theta_fw", "k_r", "psi"])
-    return run(spec, tmp / "out", utterances=utts, quiet=True), tmp / "out"
+    return fit_job(spec, tmp / "out", utterances=utts, quiet=True), tmp / "out"
 
 
 def test_statistics_flags(fitted: tuple[FitResult, Path]) -> None:
@@ -94,7 +94,7 @@ def test_interrupted_run_keeps_best_point(tmp_path: Path, monkeypatch: pytest.Mo
     monkeypatch.setattr(ChannelProblem, "residuals", residuals)
     spec = make_spec(tmp_path, ["target", "alpha"])
     spec = spec.with_options(channels=("LLO", "LLO"))
-    result = run(spec, tmp_path / "out", utterances=utts, quiet=True)
+    result = fit_job(spec, tmp_path / "out", utterances=utts, quiet=True)
     assert result.interrupted and list(result.channels) == ["LLO"]
     summary = json.loads((tmp_path / "out" / "summary.json").read_text())
     assert summary["interrupted"] and summary["channels"]["LLO"]["status"] == "interrupted"
@@ -109,7 +109,7 @@ def test_report_escapes_names_and_manifest_cells(tmp_path: Path) -> None:
         u.meta["repetition"] = "<img src=x onerror=alert(2)>" + u.meta["repetition"]
     raw = {"name": "<script>alert(1)</script>", "corpus": {"files": ["x"], "labels": ["y"]},
            "model": {"channels": ["LLO"]}, "parameters": {"free": ["target"]}, "staging": {"enabled": False}}
-    result = run(parse_spec(raw, tmp_path / "spec.toml"), tmp_path / "out", utterances=utts, quiet=True)
+    result = fit_job(parse_spec(raw, tmp_path / "spec.toml"), tmp_path / "out", utterances=utts, quiet=True)
     (tmp_path / "out" / "report_mcmc.html").write_text("<section class=\"mcmc\"><h3>LLO /p/</h3></section>")
     html = write_report(result, tmp_path / "out").read_text()
     assert "<script>" not in html and "<img src=x" not in html
@@ -144,7 +144,7 @@ def test_report_of_a_sentence_reads_well(tmp_path: Path) -> None:
 
     utts = sentence(np.random.default_rng(3))
     spec = make_spec(tmp_path, ["target"])
-    result = run(spec, tmp_path / "out", utterances=utts, quiet=True)
+    result = fit_job(spec, tmp_path / "out", utterances=utts, quiet=True)
     fit = result.channels["LLO"]
     fig = plots.trajectory_figure(fit, result.table(), [0])
     fig.canvas.draw()

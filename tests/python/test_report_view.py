@@ -13,7 +13,8 @@ import numpy as np
 import pytest
 
 from coartic.face.viewer import chromium_program
-from coartic.fit.runner import run
+from coartic.evaluation.heldout import held_out
+from coartic.jobs.fit import fit_job
 from coartic.fit.simulate import vcv_utterances
 from coartic.fit.spec import load_spec, parse_spec
 from fit_helpers import PAPER_TOML, german_utterance_spec, paper
@@ -77,7 +78,7 @@ def test_report_of_a_real_sentence_leads_with_the_figures(chromium: str, tmp_pat
                                  'reference_phoneme = "a"\n' + PAPER_TOML[0] + '[parameters]\n' + PAPER_TOML[1] +
                                  'free = ["target", "alpha", "k_r"]\n'
                                  '[staging]\nenabled = false\n', name="German EMA, one sentence")
-    result = run(load_spec(spec), tmp_path / "out", quiet=True)
+    result = fit_job(load_spec(spec), tmp_path / "out", quiet=True)
     html = (tmp_path / "out" / "report.html").read_text(encoding="utf-8")
     st = result.channels["LA"].stats
     assert st is not None and len(st.at_bound) >= 5  # a real sentence: many parameters at a bound
@@ -93,9 +94,8 @@ def test_report_of_synthetic_vcvs_shows_the_held_out_figure_with_baselines(chrom
     raw = {"name": "synthetic VCVs", "corpus": {"files": ["x"], "labels": ["y"]}, "model": {"channels": ["LLO"]},
            "parameters": {"free": ["target", "alpha", "theta_bw", "theta_fw", "k_r"]},
            "staging": {"enabled": False}, "override": [{"phonemes": ["p"], "bounds": {"k_r": [0.0, 0.8]}}]}
-    result = run(parse_spec(paper(raw), tmp_path / "spec.toml"), tmp_path / "out", utterances=utts, quiet=True,
-                 validate=True)
-    assert result.validation
+    result = fit_job(parse_spec(paper(raw), tmp_path / "spec.toml"), tmp_path / "out", utterances=utts, quiet=True, validate=True)
+    assert held_out(result)
     html = (tmp_path / "out" / "report.html").read_text(encoding="utf-8")
     m = layout(chromium, tmp_path / "out" / "report.html", tmp_path)
     check_reads_well(m, html)

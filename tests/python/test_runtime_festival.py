@@ -204,15 +204,21 @@ def test_festival_runs_while_the_caller_goes_on_and_stops_with_it(tmp_path: Path
 
     fake = tmp_path / "festival"
     pidfile = tmp_path / "pid"
-    fake.write_text(f"#!/bin/sh\necho $$ > {pidfile}\nexec {shutil.which('sleep')} 60\n")
+    # the pid written whole then renamed: the file must never be seen empty (a redirection creates
+    # it before echo writes)
+    fake.write_text(f"#!/bin/sh\necho $$ > {pidfile}.tmp && {shutil.which('mv')} {pidfile}.tmp {pidfile}\n"
+                    f"exec {shutil.which('sleep')} 60\n")
     fake.chmod(fake.stat().st_mode | stat.S_IEXEC)
     monkeypatch.setenv("PATH", str(tmp_path))
-    t0 = time.monotonic()
     with start_synthesis("ciao") as run:
-        assert time.monotonic() - t0 < 30  # returned while Festival still runs
-        while not pidfile.exists():
+        for _ in range(12_000):  # a guard against hanging, not a timing check: Festival started at once
+            if pidfile.exists():
+                break
             time.sleep(0.01)
+        else:
+            pytest.fail("the fake festival never started")
         pid = pidfile.read_text().strip()
+        os.kill(int(pid), 0)  # returned while Festival still runs (it sleeps until stopped)
     # leaving the block (here without taking the result: an error elsewhere) stopped it
     with pytest.raises(ProcessLookupError):
         os.kill(int(pid), 0)

@@ -9,7 +9,7 @@ import pytest
 from typer.testing import CliRunner
 
 from coartic.cli import app
-from coartic.fit import run
+from coartic.jobs.fit import fit_job
 from coartic.evaluation.score import score_recordings, score_utterances
 from coartic.fit.simulate import PHONEMES, TRUTH, vcv_utterances
 from coartic.table import ParameterTable
@@ -55,7 +55,7 @@ def ema_fit(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, float]:
     spec.write_text(f'[corpus]\nfiles = ["{U20[0]}"]\nlabels = ["{U20[1]}"]\nlabel_map = "german_sampa"\n'
                     'role_map = { UL = "ul", LL = "ll", JAW = "jw", axes = { vertical = "+z", anterior = "-y" } }\n'
                     '[model]\nchannels = ["JO"]\n[parameters]\nfree = ["target"]\n')
-    result = run(spec, out / "fit", quiet=True, report=False)
+    result = fit_job(spec, out / "fit", quiet=True, report=False)
     return out / "fit" / "table.json", result.channels["JO"].rmse
 
 

@@ -7,7 +7,7 @@ Two kinds of task:
     ``Utterance`` list: NumPy arrays and strings, which pickle. A ``coartic._core.Corpus`` (a PyO3
     class) does not pickle, and need not: the fit below builds it on the worker from these arrays.
 ``fit_unit(spec, utterance_lists, key, ...)``
-    fits one channel with ``coartic.fit.run`` (the library's whole least-squares job, as
+    fits one channel with ``coartic.jobs.fit.fit_job`` (the whole least-squares job, as
     ``coartic fit`` runs it) into a temporary folder on the worker, and returns the files it wrote
     as bytes. The client lands them in the output folder: workers need no write access to it, only
     read access to the recordings.
@@ -71,11 +71,11 @@ class UnitKey:
 
 @dataclass
 class UnitOutput:
-    """What a unit sends back: the files ``coartic.fit.run`` wrote, and where and how long it ran."""
+    """What a unit sends back: the files the fit job wrote, and where and how long it ran."""
 
     key: UnitKey
     files: dict[str, bytes]
-    compute_s: float  # the fit itself (coartic.fit.run), on the worker
+    compute_s: float  # the fit itself (coartic.jobs.fit.fit_job), on the worker
     load_s: float  # unpacking the data (the Corpus is built inside the fit)
     host: str
     pid: int
@@ -115,7 +115,7 @@ def load_group(spec: FitSpec, group: str | None, threads: int | None = None) -> 
 
 def fit_unit(spec: FitSpec, utterance_lists: Sequence[Sequence[Utterance]], key: UnitKey,
              threads: int | None = None, before: Callable[[UnitKey], None] | None = None) -> UnitOutput:
-    """Fit ``key.channel`` on the concatenated utterance lists with ``coartic.fit.run``.
+    """Fit ``key.channel`` on the concatenated utterance lists with the fit job (``coartic.jobs.fit``).
 
     ``before`` is called first, on the worker, with the unit's key (fault injection in tests).
     Raises UnitFailed when the engine did not finish (nothing of it is landed).
@@ -125,13 +125,13 @@ def fit_unit(spec: FitSpec, utterance_lists: Sequence[Sequence[Utterance]], key:
         before(key)
     t0 = time.perf_counter()
     utts = [u for lst in utterance_lists for u in lst]
-    from coartic.fit import run  # (a worker's first unit imports it: not part of the fit's time)
+    from coartic.jobs.fit import fit_job  # (a worker's first unit imports it: not part of the fit's time)
 
     t1 = time.perf_counter()
     c1 = time.process_time()
 
     with tempfile.TemporaryDirectory(prefix="coartic-unit-") as tmp:
-        result = run(spec.with_options(channels=(key.channel,)), tmp, utterances=utts, quiet=True, report=False)
+        result = fit_job(spec.with_options(channels=(key.channel,)), tmp, utterances=utts, quiet=True, report=False)
         t2 = time.perf_counter()
         c2 = time.process_time()
         fit = result.channels.get(key.channel)

@@ -1,7 +1,8 @@
 """Model comparison: several fit specs side by side, by held-out RMSE and by AIC/BIC.
 
-``compare(specs, out)`` fits every spec (``coartic.fit.run`` with its validation: the k-fold of
-``[validate] group`` or the held-out repetition and rate) and tabulates per spec and channel: free
+``coartic.jobs.compare.compare(specs, out)`` fits every spec (the fit job with its validation: the
+k-fold of ``[validate] group`` or the held-out repetition and rate); ``Comparison`` tabulates per spec
+and channel (``Row``): free
 parameters, in-sample RMSE, held-out RMSE (pooled over the splits, as measured and with each
 utterance's offset removed), and the Gaussian information criteria of the full fit
 
@@ -17,17 +18,17 @@ prior; Hastie, Tibshirani & Friedman §7.6), plus the speakers' profiled paramet
 factor whose deviations the data pool into neutral (τ ≈ 0) adds about nothing to it.
 
 **The model chosen per channel** (``Comparison.chosen``, held out only): the one-standard-error rule
-over models, as ``[choose]`` applies it over a grid (``coartic.fit.choose``): among the models whose
+over models, as ``[choose]`` applies it over a grid (``coartic.evaluation.choose``): among the models whose
 held-out RMSE is within one standard error of the lowest, the one with the fewest effective
 parameters (to 0.1; then the fewest free ones). The standard error is the lowest one's, over the
 held-out utterances (``heldout_se``: each utterance a unit, its SSE and samples; the ratio
 estimator's delta-method SE of the pooled MSE, carried to the RMSE). So a richer model, such as a
 table with ``[model] emotions = "targets"``, is chosen only when its held-out error is lower by more
 than the noise of that error, and ``Comparison.factor_lines`` says per channel whether the emotion
-factor was worth its parameters. ``out`` receives one
-directory per spec (its fit, as ``coartic fit`` writes it, without the HTML report), and
-``compare.csv``, ``compare.txt``, ``compare.png`` and ``compare.html``. ``coartic compare`` is the
-command over it.
+factor was worth its parameters. ``Comparison.save`` writes ``compare.csv``, ``compare.txt``,
+``compare.png`` and ``compare.html`` (the job adds one directory per spec: its fit, as ``coartic fit``
+writes it, without the HTML report). ``coartic compare`` is the command over the job
+(``coartic.jobs.compare_cli``).
 """
 
 from __future__ import annotations
@@ -40,13 +41,9 @@ from os import PathLike
 from pathlib import Path
 from typing import Any, Sequence
 
-from rich.console import Console
-
 from coartic.evaluation.baselines import BASELINES
-from coartic.evaluation.heldout import pooled
 from coartic.fit.result import BAR_MM, FitResult
-from coartic.fit.spec import FitSpec, load_spec
-from coartic.errors import UsageError
+from coartic.fit.spec import FitSpec
 
 
 @dataclass
@@ -305,60 +302,6 @@ def vary(spec: FitSpec, key: str, values: Sequence[str]) -> list[FitSpec]:
         doc["name"] = f"{spec.name}, {key} = {v}"
         out.append(parse_spec(doc, spec.path))
     return out
-
-
-def compare(specs: Sequence[FitSpec | str | PathLike[str]], out: str | PathLike[str] | None = None, *,
-            validate: bool = True, console: Console | None = None, quiet: bool = True) -> Comparison:
-    """Fit each spec (with its validation) and compare them; with ``out``, write everything there."""
-    from coartic.fit.runner import check_engine_options, run
-
-    loaded = [s if isinstance(s, FitSpec) else load_spec(Path(s)) for s in specs]
-    if len(loaded) < 1:
-        raise UsageError("no spec to compare")
-    for s in loaded:  # every spec's mistakes before the first fit, not after it
-        check_engine_options(s)
-    models: list[str] = []
-    for i, s in enumerate(loaded):
-        models.append(f"{i + 1}. {s.name} ({s.path.name})")
-    rows: list[Row] = []
-    results: list[FitResult] = []
-    cmp = Comparison(models, rows, results)
-    for model, s in zip(models, loaded):
-        if console is not None and not quiet:
-            console.print(f"[bold]compare[/bold]: fitting {model}", highlight=False)
-        sub = None if out is None else Path(out) / _dirname(model)
-        res = run(s, sub, validate=validate, report=False, console=console, quiet=quiet)
-        results.append(res)
-        cmp.notes += [f"{model}: {n}" for n in res.notes]
-        held = pooled(res.validation or [])
-        held_base = {b: pooled(res.validation or [], b) for b in BASELINES}
-        for ch, fit in res.channels.items():
-            n = fit.problem.data.n_valid
-            h = held.get(ch, (math.nan, math.nan, 0))
-            # (+ the speakers' offsets and scales, profiled out of x but fitted all the same)
-            rows.append(Row(model, ch, fit.packing.n_free + fit.problem.n_profiled, n, fit.rmse**2 * n, fit.rmse, h[0], h[1],
-                            fit.status, {b: v[ch][:2] for b, v in held_base.items() if ch in v},
-                            effective_parameters(fit.problem, fit.x) + fit.problem.n_profiled,
-                            heldout_se(res.validation or [], ch), s.emotions))
-            if not rows[-1].beats_step:
-                cmp.notes.append(f"{model}: {ch}: held out, the table does not beat the step model (phoneme means, "
-                                 f"no coarticulation): {h[0]:.3f} vs {rows[-1].baselines['step'][0]:.3f} mm as "
-                                 f"measured, {h[1]:.3f} vs {rows[-1].baselines['step'][1]:.3f} mm offset removed")
-        if res.interrupted:
-            cmp.notes.append(f"interrupted while fitting {model}")
-            break
-    for ch in cmp.channels():
-        ns = {r.n_samples for r in rows if r.channel == ch}
-        if len(ns) > 1:
-            cmp.notes.append(f"{ch}: the models were fitted to different numbers of samples ({sorted(ns)}): "
-                             "their AIC/BIC cannot be compared")
-    if out is not None and rows:
-        cmp.save(out)
-    return cmp
-
-
-def _dirname(model: str) -> str:
-    return "".join(c if c.isalnum() or c in "-_." else "_" for c in model).strip("_")
 
 
 def effective_parameters(problem: Any, x: Any) -> float:

@@ -1,18 +1,22 @@
 """Held-out scores and what is said of them: one split's scores (``SplitScore``), the RMSE pooled
 over splits, the flags where the table does not beat the step model, and summary.json's part.
 
-Below ``coartic.evaluation.validate`` (which makes the scores by fitting and scoring splits), the fit's
-result and the report, which all read them.
+Below ``coartic.evaluation.validate`` (which makes the scores by fitting and scoring splits) and the
+report, which read them; above the fit, whose result carries them as ``Validation`` (the fit's
+``HeldOut``: the fit writes their lines without importing this module).
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Sequence
+from typing import TYPE_CHECKING, Sequence
 
 import numpy as np
 
 from coartic.evaluation.baselines import beats_step, flag_text
+
+if TYPE_CHECKING:
+    from coartic.fit.result import FitResult
 
 # the baselines' columns of validation.csv, each prefixed by the baseline's name
 BASELINE_COLUMNS = ("rmse_mm", "rmse_offset_removed_mm", "rmse_speaker_calibrated_mm", "rmse_speech_mm",
@@ -115,3 +119,32 @@ def baseline_summary(scores: Sequence[SplitScore]) -> dict[str, object]:
                         **{b: dict(zip(BASELINE_COLUMNS, v)) for b, v in sc.baselines.items()},
                         "beats_step_model": sc.beats_step, "other_session": sc.other_session} for sc in scores],
             "flags": flags(scores)}
+
+
+@dataclass
+class Validation:
+    """A fit's held-out scores as its result carries them (``FitResult.validation``, the fit's
+    ``HeldOut``): the last section of fit_report.txt and summary.json's ``"validation"``."""
+
+    scores: list[SplitScore]
+
+    def text_lines(self) -> list[str]:
+        if not self.scores:
+            return []
+        lines = ["", "[[Validation]] (held-out RMSE in mm as measured / offset removed; baselines on the same "
+                 "samples: constant = training mean, step = each phoneme's training mean, warped = another "
+                 "token of the sentence)"]
+        for sc in self.scores:
+            base = "".join(f", {b} {v[0]:.4f} / {v[1]:.4f}" for b, v in sc.baselines.items())
+            lines.append(f"    {sc.split}, {sc.channel}: table {sc.test_rmse:.4f} / "
+                         f"{sc.test_rmse_offset_removed:.4f}{base}")
+        return lines + [f"    WARNING: {f}" for f in flags(self.scores)]
+
+    def summary(self) -> dict[str, object] | None:
+        return baseline_summary(self.scores) if self.scores else None
+
+
+def held_out(result: FitResult) -> list[SplitScore]:
+    """The split scores a fit's result carries (none when it was not validated)."""
+    v = result.validation
+    return v.scores if isinstance(v, Validation) else []

@@ -7,7 +7,7 @@ time``) splits in time instead: every utterance cut at its middle segment (``hal
 halves fitted and the second held out, then the reverse. Otherwise: fit on repetitions other than
 ``holdout_repetition`` and report RMSE on it; fit on ``train_rate`` and report RMSE on
 ``test_rate`` (the model's claim is that the same parameters hold at a faster rate). Each split is
-a full fit of every channel (``run`` with the split's utterances), scored by
+a full fit of every channel (the fit job with the split's utterances), scored by
 ``coartic.evaluation.score`` (as measured and with each utterance's offset removed).
 """
 
@@ -26,7 +26,7 @@ from rich.table import Table
 
 from coartic.errors import CoarticError
 from coartic.evaluation.baselines import BASELINES
-from coartic.fit.data import load_utterances
+from coartic.fit.data import group_of, load_utterances
 from coartic.model import Utterance, utterances_for_table
 from coartic.evaluation.heldout import BASELINE_COLUMNS, BaselineFigures, SplitScore, pooled
 from coartic.fit.result import BAR_MM, FitResult
@@ -88,20 +88,6 @@ def score(result: FitResult, test: Sequence[Utterance], split: str,
 
 class UnseenPhonemes(CoarticError, ValueError):
     """A held-out utterance has a phoneme its training split lacks: the table cannot predict it."""
-
-
-def group_of(u: Utterance, group: str, spec: FitSpec) -> str:
-    """The value of ``[validate] group`` for an utterance: its manifest column, the sentence (or
-    stimulus), or for "utterance" its file."""
-    if group == "utterance":
-        return u.meta.get("file") or u.name
-    keys = ("sentence", "stimulus") if group == "sentence" else (group,)
-    for k in keys:
-        if k in u.meta:
-            v = u.meta[k]
-            return str(int(v)) if group == "repetition" and v.isdigit() else v
-    raise SpecError.at(spec.path, "validate.group", f"{group!r}: the corpus has no {' or '.join(map(repr, keys))} "
-                       "column (a manifest column), so its utterances cannot be grouped by it")
 
 
 def halves(u: Utterance) -> tuple[Utterance, Utterance]:
@@ -204,8 +190,8 @@ def _rep(u: Utterance) -> str | None:
 
 
 class FitFunction(Protocol):
-    """What validation and ``[choose]`` fit each split with: ``coartic.fit.run`` (passed in by the
-    runner and by ``[choose]``, so that this module does not import the modules that call it)."""
+    """What validation fits each split with, writing it into ``out``: ``coartic.jobs.fit.fit_job``
+    (passed in by the job, so that evaluation does not import the application above it)."""
 
     def __call__(self, spec: FitSpec, out: str | Path | None = None, *, utterances: Sequence[Utterance] | None = ...,
                  console: Console | None = ..., quiet: bool = ..., report: bool = ...) -> FitResult: ...
@@ -214,7 +200,7 @@ class FitFunction(Protocol):
 def validate_all(spec: FitSpec, out: str | Path | None = None, utterances: Sequence[Utterance] | None = None,
                  console: Console | None = None, quiet: bool = False,
                  notes: list[str] | None = None, *, fit: FitFunction) -> list[SplitScore]:
-    """Fit each split's training utterances with ``fit`` (``coartic.fit.run``) and score its
+    """Fit each split's training utterances with ``fit`` (``coartic.jobs.fit.fit_job``) and score its
     held-out ones; ``out`` receives one directory per split and ``validation.csv``. A fold whose
     held-out utterances have a phoneme its training lacks cannot be scored: it is skipped with a
     note (in ``notes``)."""

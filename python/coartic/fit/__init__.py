@@ -1,6 +1,8 @@
 """Least-squares fitting of the coarticulation model (MODEL.md §5) to recorded channels.
 
-``run(spec)`` is the whole job in one call (the ``coartic fit`` command calls it too).
+``run(spec)`` fits every channel and returns the result; it writes nothing. The job that also
+validates and writes the files and the report (what ``coartic fit`` runs) is
+``coartic.jobs.fit.fit_job(spec, out)``.
 """
 
 from typing import TYPE_CHECKING

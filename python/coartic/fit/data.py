@@ -140,3 +140,17 @@ def select(utterances: list[Utterance], **criteria: tuple[str, ...] | str) -> li
     def ok(u: Utterance) -> bool:
         return all(u.meta.get(k) in ((v,) if isinstance(v, str) else v) for k, v in criteria.items())
     return [u for u in utterances if ok(u)]
+
+
+def group_of(u: Utterance, group: str, spec: FitSpec) -> str:
+    """The value of ``[validate] group`` for an utterance: its manifest column, the sentence (or
+    stimulus), or for "utterance" its file."""
+    if group == "utterance":
+        return u.meta.get("file") or u.name
+    keys = ("sentence", "stimulus") if group == "sentence" else (group,)
+    for k in keys:
+        if k in u.meta:
+            v = u.meta[k]
+            return str(int(v)) if group == "repetition" and v.isdigit() else v
+    raise SpecError.at(spec.path, "validate.group", f"{group!r}: the corpus has no {' or '.join(map(repr, keys))} "
+                       "column (a manifest column), so its utterances cannot be grouped by it")

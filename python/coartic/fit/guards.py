@@ -45,7 +45,7 @@ def small_data_notes(spec: FitSpec, utterances: Sequence[Utterance]) -> list[str
                          f"{ch} for them; mask fewer samples ([corpus] max_gap) or add recordings that carry them")
     c = spec.choose
     if c is not None:
-        from coartic.evaluation.validate import group_of
+        from coartic.fit.data import group_of
 
         groups = sorted({group_of(u, c.group, spec) for u in utterances})
         if len(groups) < 2:

@@ -17,7 +17,7 @@ import io
 import json
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Sequence
+from typing import Any, Protocol, Sequence
 
 import numpy as np
 from numpy.typing import NDArray
@@ -32,10 +32,10 @@ from coartic.estimation.pooling import PoolEstimate
 from coartic.estimation.problem import ChannelProblem
 from coartic.errors import UsageError
 from coartic.fit.spec import FitSpec
-from coartic.evaluation.heldout import baseline_summary, flags
 from coartic.fit.multistart import MultiStart
 from coartic.fit.staged import StageResult
 from coartic.io.labelmap import resolve_label_map
+from coartic.model import Utterance
 from coartic.pauses import POSTURES_RECORD, RECORD_KEY as PAUSES_RECORD_KEY
 from coartic.io.roles import ROLE_RECORD_KEY, resolve_role_map
 from coartic.outputs import atomic_path, atomic_write_text
@@ -214,6 +214,42 @@ def finish_channel(problem: ChannelProblem, x: FloatArray, status: str, message:
                       stages, stats, fitted)
 
 
+class HeldOut(Protocol):
+    """What the fit's files say of a held-out validation made above the fit (evaluation:
+    ``coartic.evaluation.heldout.Validation``): the fit does not import what scores it."""
+
+    def text_lines(self) -> list[str]:
+        """fit_report.txt's last section (none: no split scored)."""
+        ...
+
+    def summary(self) -> dict[str, object] | None:
+        """summary.json's ``"validation"`` (None: no split scored)."""
+        ...
+
+
+class Chosen(Protocol):
+    """A ``[choose]`` setting chosen by cross-validation above the fit (evaluation:
+    ``coartic.evaluation.choose.Choice``): what the fit's table, report and files need of it."""
+
+    notes: list[str]
+
+    def spec_for(self, spec: FitSpec, channel: str) -> FitSpec:
+        """The spec the final fit of ``channel`` uses: the chosen value, no ``[choose]``."""
+        ...
+
+    def metadata(self) -> dict[str, Any]:
+        """The table's ``"choice"`` metadata."""
+        ...
+
+    def text_lines(self) -> list[str]:
+        """fit_report.txt's ``[[Choice]]`` section."""
+        ...
+
+    def save(self, out: str | Path) -> dict[str, Path]:
+        """Its own files beside the fit's (choose.csv, choose.png)."""
+        ...
+
+
 @dataclass
 class FitResult:
     """Every channel's fit, and what was asked for."""
@@ -223,9 +259,11 @@ class FitResult:
     started: str
     interrupted: bool = False
     notes: list[str] = field(default_factory=list)
-    validation: list[Any] | None = None  # coartic.evaluation.validate.SplitScore per split and channel
+    validation: HeldOut | None = None  # the held-out scores (coartic.evaluation.heldout.Validation)
     report: Path | None = None  # the HTML report, once written
-    choice: Any = None  # coartic.fit.choose.Choice: the [choose] setting's CV curve and chosen values
+    choice: Chosen | None = None  # the [choose] setting's CV curve and chosen values (coartic.evaluation.choose)
+    # the utterances fitted (loaded, or as given with the spec's pauses): what a validation splits
+    utterances: list[Utterance] = field(default_factory=list)
 
     # ---------------------------------------------------------------- tables
     def rmse_rows(self) -> list[dict[str, Any]]:
@@ -425,16 +463,8 @@ class FitResult:
             if strong:
                 lines.append("    [[Correlations]] (|r| > 0.5, strongest first)")
                 lines += [f"        C({a}, {b}) = {r:+.3f}" for a, b, r in strong]
-        if self.validation:
-
-            lines += ["", "[[Validation]] (held-out RMSE in mm as measured / offset removed; baselines on the same "
-                      "samples: constant = training mean, step = each phoneme's training mean, warped = another "
-                      "token of the sentence)"]
-            for sc in self.validation:
-                base = "".join(f", {b} {v[0]:.4f} / {v[1]:.4f}" for b, v in sc.baselines.items())
-                lines.append(f"    {sc.split}, {sc.channel}: table {sc.test_rmse:.4f} / "
-                             f"{sc.test_rmse_offset_removed:.4f}{base}")
-            lines += [f"    WARNING: {f}" for f in flags(self.validation)]
+        if self.validation is not None:
+            lines += self.validation.text_lines()
         return "\n".join(lines) + "\n"
 
     # ---------------------------------------------------------------- output
@@ -482,9 +512,8 @@ class FitResult:
                                      else f.multistart.as_dict(f.problem.data.n_valid),
                                      "pooling": None if f.pooling is None else f.pooling.as_dict()}
                                 for ch, f in self.channels.items()}}
-        if self.validation:
-
-            summary["validation"] = baseline_summary(self.validation)
+        if self.validation is not None and (held := self.validation.summary()) is not None:
+            summary["validation"] = held
         atomic_write_text(paths["summary"], json.dumps(summary, indent=2))
         if self.choice is not None:
             paths |= self.choice.save(out)

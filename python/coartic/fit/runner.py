@@ -1,16 +1,18 @@
-"""The whole least-squares job: load the corpus, fit every channel, collect and save the result.
+"""The least-squares fit of a spec: load the corpus, fit every channel, return the result.
 
-``run(spec)`` is what ``coartic fit`` calls. Channels are fitted one after the other (the Rust core
-already uses both cores inside each evaluation). When ``out`` is given, the result is written after
-every channel, so an interrupted run keeps what it finished; Ctrl-C during a channel keeps that
-channel's best point, marks the result interrupted, writes it and stops.
+``run(spec)`` returns the ``FitResult`` and writes nothing: the job that also validates, writes the
+files and the report is ``coartic.jobs.fit`` (what ``coartic fit`` calls), which saves the result
+after every channel through ``run``'s ``on_channel``, so an interrupted run keeps what it finished.
+Channels are fitted one after the other (the Rust core already uses both cores inside each
+evaluation); Ctrl-C during a channel keeps that channel's best point, marks the result interrupted
+and stops.
 """
 
 from __future__ import annotations
 
 import time
 from pathlib import Path
-from typing import Sequence
+from typing import Callable, Sequence
 
 import numpy as np
 from rich.console import Console
@@ -24,8 +26,8 @@ from coartic.fit.engines import EngineResult, OptionError, check_options
 from coartic.estimation.emotions import estimate_prior
 from coartic.estimation.problem import ChannelProblem, build_problem
 from coartic.model import Utterance
-from coartic.fit.result import ChannelFit, FitResult, finish_channel, now
-from coartic.errors import SpecError
+from coartic.fit.result import ChannelFit, Chosen, FitResult, finish_channel, now
+from coartic.errors import SpecError, UsageError
 from coartic.fit.spec import FitSpec, load_spec
 from coartic.fit.multistart import MultiStart, fit_multistart
 from coartic.fit.staged import EB_CANDIDATES, channel_status, fit_pooled, fit_pooled_best, fit_staged
@@ -151,7 +153,11 @@ def fit_channel(spec: FitSpec, utterances: Sequence[Utterance], channel: str,
 
 class FitFailed(CoarticError, ValueError):
     """An engine failed on a channel (its result would be the unfitted start values): the message
-    names the channel, the engine and the engine's own words."""
+    names the channel, the engine and the engine's own words; ``channel`` is the channel."""
+
+    def __init__(self, message: str, channel: str = "") -> None:
+        super().__init__(message)
+        self.channel = channel
 
 
 # Engine outcomes that leave no fitted values: the run stops and says so, instead of writing the
@@ -159,24 +165,32 @@ class FitFailed(CoarticError, ValueError):
 FAILED_STATUSES = ("failed", "non-finite start")
 
 
-def run(spec: FitSpec | str | Path, out: str | Path | None = None, *, utterances: Sequence[Utterance] | None = None,
-        console: Console | None = None, quiet: bool = False, validate: bool = False,
-        report: bool = True) -> FitResult:
-    """Fit every channel of ``spec`` and return the FitResult; with ``out``, write everything there.
+# What the caller is told after each channel (the job saves the result then, so that an interrupted
+# run keeps what it finished); and what chooses a ``[choose]`` setting on the (training) utterances
+# before the fit (``coartic.evaluation.choose.cross_validate``: an evaluation, above the fit).
+ChannelDone = Callable[[FitResult], None]
+Chooser = Callable[[FitSpec, Sequence[Utterance], Progress], Chosen]
 
-    ``out`` receives what ``coartic fit SPEC --out DIR`` writes (the command only calls this):
-    ``table.json``/``table.csv``, ``rmse.csv``, ``parameters.csv``, ``fit_report.txt``,
-    ``fitted.npz``, ``summary.json``, with ``report=True`` the HTML report and its figures, and
-    with ``validate=True`` the held-out fits in ``validation/`` (their scores also in
-    ``result.validation``). The result is written after every channel, so an interrupted run keeps
-    what it finished.
+
+def run(spec: FitSpec | str | Path, *, utterances: Sequence[Utterance] | None = None,
+        console: Console | None = None, quiet: bool = False, on_channel: ChannelDone | None = None,
+        choose: Chooser | None = None) -> FitResult:
+    """Fit every channel of ``spec`` and return the FitResult; nothing is written.
+
+    ``on_channel(result)`` is called after every channel is added to the result (and when a
+    channel is interrupted), so that a caller can save what is finished: ``coartic.jobs.fit``
+    writes the result there, and the validation and the report at the end. ``choose`` makes the
+    ``[choose]`` setting's choice on the utterances before the fit (a spec with ``[choose]``
+    needs it: ``coartic.evaluation.choose.cross_validate``, which ``coartic.jobs.fit.fit_job`` passes).
+    Ctrl-C during a channel keeps that channel's best point, marks the result interrupted and
+    stops.
 
     ``utterances`` skips loading (e.g. a validation split of already loaded data).
 
     Raises
     ------
     FitFailed
-        An engine failed on a channel (nothing is written for it); names the channel.
+        An engine failed on a channel (it is not in the result); names the channel.
     SpecError, DataError
         A spec or data problem, naming the file and key.
     """
@@ -209,11 +223,14 @@ def run(spec: FitSpec | str | Path, out: str | Path | None = None, *, utterances
         from coartic.fit.guards import small_data_notes
 
         result.notes += small_data_notes(spec, utterances)  # settings the data cannot support: refused or warned
-        if spec.choose is not None:  # the setting first, by k-fold CV on these (training) utterances
-            from coartic.fit.choose import cross_validate
-
+        result.utterances = list(utterances)
+        if spec.choose is not None:  # the setting first, on these (training) utterances
+            if choose is None:
+                raise UsageError(f"{spec.path}: [choose] {spec.choose.key} is chosen by cross-validation, an "
+                                 "evaluation above the fit: fit it with coartic.jobs.fit.fit_job (what coartic fit "
+                                 "runs), or pass choose=coartic.evaluation.choose.cross_validate")
             try:
-                result.choice = cross_validate(spec, utterances, progress, fit=run)
+                result.choice = choose(spec, utterances, progress)
             except KeyboardInterrupt:
                 result.interrupted = True
                 result.notes.append(f"interrupted while choosing {spec.choose.key} by cross-validation: nothing was fitted")
@@ -227,35 +244,18 @@ def run(spec: FitSpec | str | Path, out: str | Path | None = None, *, utterances
                 result.interrupted = True
                 break
             if fit.status in FAILED_STATUSES:
-                raise FitFailed(f"channel {ch}: the {spec.engine} engine failed ({fit.status}): {fit.message}"
-                                + (f"; nothing was written for {ch}" if out is not None else ""))
+                raise FitFailed(f"channel {ch}: the {spec.engine} engine failed ({fit.status}): {fit.message}",
+                                channel=ch)
             result.channels[ch] = fit
             if fit.status == "interrupted":
                 result.interrupted = True
-            if out is not None:
-                result.save(out)
+            if on_channel is not None:
+                on_channel(result)
             if result.interrupted:
                 break
     if result.interrupted:
         done = ", ".join(result.channels) or "none"
         result.notes.append(f"interrupted by the user; channels finished or partly fitted: {done}")
-    if validate and result.channels and not result.interrupted:
-        from coartic.evaluation.validate import validate_all
-
-        try:
-            result.validation = validate_all(spec, None if out is None else Path(out) / "validation",
-                                             utterances=utterances, console=console, quiet=quiet,
-                                             notes=result.notes, fit=run)
-        except KeyboardInterrupt:
-            result.notes.append("validation interrupted by the user")
-        except SpecError as e:  # e.g. no repetition or rate to hold out: said, not raised
-            result.notes.append(f"no validation: {e}")
-    if out is not None:
-        result.save(out)
-        if report and result.channels:
-            from coartic.report.html import write_report
-
-            result.report = write_report(result, out, console=None if quiet else console)
     return result
 
 

@@ -21,8 +21,9 @@ from coartic.extras import require
 from coartic.fit.data import load_utterances
 from coartic.mcmc import plots
 from coartic.mcmc.idata import split_name
-from coartic.mcmc.run import (SCOPES, ChannelSampling, McmcConfig, PosteriorRun, channel_runs, fixed_noise, read_spec,
+from coartic.mcmc.run import (ChannelSampling, McmcConfig, PosteriorRun, channel_runs, fixed_noise, read_spec,
                               table_problem, table_speakers)
+from coartic.mcmc.sampler import SCOPES
 from coartic.mcmc.summary import QUANTILE_LEVELS, write_uncertainty
 from coartic.outputs import OutputDir, OutputError, atomic_write_text, read_marker
 from coartic.table import ParameterTable

@@ -36,8 +36,6 @@ if TYPE_CHECKING:  # the spec module loads pydantic: read_spec imports it when i
     from coartic import _core
     from coartic.fit.spec import FitSpec
 
-SCOPES = ("phonemes", "channel")
-
 
 @dataclass
 class McmcConfig:
@@ -65,88 +63,34 @@ def parse_config(raw: Any, path: Path, fit_spec: FitSpec | None = None) -> McmcC
 
 
 def _parse_config(raw: Any, path: Path) -> McmcConfig:
-    if raw is None:
-        return McmcConfig()
-    if not isinstance(raw, dict):
-        raise McmcConfigError(f"{path}: [mcmc] must be a table, got {raw!r}")
+    # the keys checked by the schema (coartic.mcmc.config, the fit spec's machinery); what needs the
+    # sampler (steps against each other, memory) checked here
+    from coartic.mcmc.config import parse_section
+
+    sec = parse_section(raw, path)
 
     def err(key: str, msg: str) -> McmcConfigError:
         return McmcConfigError(f"{path}: [mcmc] {key}: {msg}")
 
-    allowed = {"scope", "phonemes", "channels", "noise", "offsets", "priors", "walkers", "ensembles", "chunk_steps", "min_steps",
-               "max_steps", "seed", "ball", "plots", "moves"}
-    unknown = sorted(set(raw) - allowed)
-    if unknown:
-        raise err(", ".join(unknown), f"unknown key(s); allowed: {', '.join(sorted(allowed))}")
-    cfg = McmcConfig()
-    scope = raw.get("scope", cfg.scope)
-    if scope not in SCOPES:
-        raise err("scope", f"{scope!r}: expected one of {', '.join(SCOPES)}")
-    cfg.scope = scope
-    for key in ("phonemes", "channels"):
-        if key in raw:
-            v = raw[key]
-            if not isinstance(v, list) or not all(isinstance(s, str) for s in v):
-                raise err(key, f"expected a list of strings, got {v!r}")
-            setattr(cfg, key, tuple(v))
-    noise = raw.get("noise", cfg.noise)
-    if isinstance(noise, bool) or not (noise in ("free", "fit") or (isinstance(noise, (int, float)) and noise > 0)):
-        raise err("noise", f"{noise!r}: expected \"free\", \"fit\" or a positive number (mm)")
-    cfg.noise = float(noise) if isinstance(noise, (int, float)) else noise
-    offsets = raw.get("offsets", cfg.offsets)
-    if isinstance(offsets, bool) or not (offsets in ("free", "none") or (isinstance(offsets, (int, float)) and offsets > 0)):
-        raise err("offsets", f"{offsets!r}: expected \"free\", \"none\" or a positive number (mm)")
-    cfg.offsets = float(offsets) if isinstance(offsets, (int, float)) else offsets
-    pri = raw.get("priors", {})
-    if not isinstance(pri, dict):
-        raise err("priors", f"expected a table \"CHANNEL.phoneme.parameter\" = [mean, sd], got {pri!r}")
-    for key, v in pri.items():
-        parts = key.split(".")
-        if len(parts) == 2 and parts[1] == "beta":
-            ch, name = parts[0], "beta"
-        elif len(parts) == 3:
-            ch, name = parts[0], f"{parts[1]}.{parts[2]}"
-        else:
-            raise err(f"priors.{key}", "expected a key \"CHANNEL.phoneme.parameter\" (or \"CHANNEL.beta\")")
-        if not (isinstance(v, list) and len(v) == 2 and all(isinstance(x, (int, float)) and not isinstance(x, bool) for x in v)):
-            raise err(f"priors.{key}", f"expected [mean, sd], got {v!r}")
-        if not (v[1] > 0 and math.isfinite(v[0]) and math.isfinite(v[1])):
-            raise err(f"priors.{key}", f"sd must be positive and both finite, got {v!r}")
-        cfg.priors.setdefault(ch, {})[name] = (float(v[0]), float(v[1]))
-    ints = {"walkers": 0, "ensembles": 1, "chunk_steps": 1, "min_steps": 1, "max_steps": 1, "seed": 0}
+    cfg = McmcConfig(scope=sec.scope, phonemes=sec.phonemes, channels=sec.channels, noise=sec.noise,
+                     priors=sec.priors, walkers=sec.walkers, plots=sec.plots)
+    if sec.offsets is not None:
+        cfg.offsets = sec.offsets
     s = cfg.settings
-    for key, least in ints.items():
-        if key in raw:
-            v = raw[key]
-            if isinstance(v, bool) or not isinstance(v, int) or v < least:
-                raise err(key, f"expected an integer >= {least}, got {v!r}")
-    cfg.walkers = int(raw.get("walkers", 0))
-    s.n_ensembles = int(raw.get("ensembles", s.n_ensembles))
-    s.chunk_steps = int(raw.get("chunk_steps", s.chunk_steps))
-    s.min_steps = int(raw.get("min_steps", s.min_steps))
-    s.max_steps = int(raw.get("max_steps", s.max_steps))
-    s.seed = int(raw.get("seed", s.seed))
+    s.n_ensembles = s.n_ensembles if sec.ensembles is None else sec.ensembles
+    s.chunk_steps = s.chunk_steps if sec.chunk_steps is None else sec.chunk_steps
+    s.min_steps = s.min_steps if sec.min_steps is None else sec.min_steps
+    s.max_steps = s.max_steps if sec.max_steps is None else sec.max_steps
+    s.seed = s.seed if sec.seed is None else sec.seed
+    s.ball = s.ball if sec.ball is None else sec.ball
+    s.moves = s.moves if sec.moves is None else sec.moves
     if s.min_steps > s.max_steps:
         raise err("min_steps", f"{s.min_steps} exceeds max_steps = {s.max_steps}")
     try:  # chains too large for memory: refused now (at one dimension, a lower bound), not hours later
         replace(s, n_walkers=walkers_for(1, cfg.walkers)).check_memory(1)
     except ValueError as exc:
-        keys = [k for k in ("max_steps", "walkers", "ensembles", "chunk_steps") if k in raw]
+        keys = [k for k in ("max_steps", "walkers", "ensembles", "chunk_steps") if k in (raw or {})]
         raise err(", ".join(keys) or "max_steps", str(exc)) from None
-    ball = raw.get("ball", s.ball)
-    if isinstance(ball, bool) or not isinstance(ball, (int, float)) or not 0 < ball < 1:
-        raise err("ball", f"expected a number in (0, 1), got {ball!r}")
-    s.ball = float(ball)
-    moves = raw.get("moves", s.moves)
-    try:
-        sampler.check_moves(moves)
-    except ValueError as exc:
-        raise err("moves", str(exc)) from None
-    s.moves = moves
-    pl = raw.get("plots", True)
-    if not isinstance(pl, bool):
-        raise err("plots", f"expected true or false, got {pl!r}")
-    cfg.plots = pl
     return cfg
 
 

@@ -70,6 +70,10 @@ def check_moves(name: str) -> None:
         raise McmcConfigError(f"unknown moves {name!r}; expected one of {', '.join(MOVES)}")
 
 
+# [mcmc] scope: one posterior per phoneme per channel ("phonemes"), or one per channel
+SCOPES: tuple[str, ...] = ("phonemes", "channel")
+
+
 @dataclass
 class SamplerSettings:
     """How long and how wide to sample. Defaults suit the ~10-dimensional per-phoneme posteriors."""

@@ -21,7 +21,8 @@ import markupsafe
 from rich.console import Console
 
 from coartic.estimation.bounds import summary_counts
-from coartic.evaluation.heldout import flags, pooled
+from coartic.evaluation.choose import Choice
+from coartic.evaluation.heldout import flags, held_out, pooled
 from coartic.fit.result import BAR_MM, FitResult
 from coartic.report import plots
 from coartic.outputs import atomic_write_text
@@ -104,12 +105,12 @@ def write_report(result: FitResult, out: str | Path, console: Console | None = N
         "residuals")
     add(plots.rmse_map_figure(result), "rmse_map.png",
         f"RMSE per consonant and vowel context; red outline: at or above the {BAR_MM} mm bar.", "residuals")
-    if result.validation:
+    if held_out(result):
         add(plots.heldout_figure(result), "heldout.png",
             "RMSE per channel on the samples the fit did not see (every split pooled), as measured and with each "
             "utterance's offset removed, beside the fit's own RMSE and the baselines' held-out RMSE on the same "
             f"samples (dashed: the {BAR_MM} mm bar).", "heldout")
-    if result.choice is not None and (out / "choose.png").is_file():  # written by result.save (choose.csv beside it)
+    if isinstance(result.choice, Choice) and (out / "choose.png").is_file():  # written by result.save (choose.csv beside it)
         figures["other"].append({"src": "choose.png", "caption": f"{result.choice.choose.key} chosen by "
                                  "cross-validation on the training data: mean held-out RMSE ± one SE over the folds; "
                                  f"star: the chosen value (rule {result.choice.choose.rule}). The numbers are in "
@@ -136,7 +137,7 @@ def write_report(result: FitResult, out: str | Path, console: Console | None = N
         result=result, spec=result.spec, bar=BAR_MM, figures=figures, sections=SECTIONS,
         group_rows=[r for r in result.rmse_rows() if r["group"] != "all"],
         channels=result.channels, report_text=result.report_text(), extras=extras,
-        validation=_validation_rows(out), validation_flags=flags(result.validation or []),
+        validation=_validation_rows(out), validation_flags=flags(held_out(result)),
         heldout=_heldout_summary(result), bounds=bounds, settings=settings,
         bound_counts={c: summary_counts(f.stats.bounds) if f.stats else "" for c, f in result.channels.items()})
     path = out / "report.html"
@@ -151,7 +152,7 @@ def _heldout_summary(result: FitResult) -> dict[str, tuple[float, float, int]]:
     """Per channel, the held-out RMSE over every split's test samples (as measured, offset
     removed, samples): the summary table's column."""
 
-    return pooled(result.validation or [])
+    return pooled(held_out(result))
 
 
 def _validation_rows(out: Path) -> list[dict[str, str]]:

@@ -15,7 +15,7 @@ from matplotlib.lines import Line2D  # noqa: E402
 from matplotlib.patches import Rectangle  # noqa: E402
 from numpy.typing import NDArray  # noqa: E402
 
-from coartic.evaluation.heldout import pooled  # noqa: E402
+from coartic.evaluation.heldout import held_out, pooled  # noqa: E402
 from coartic.fit.result import BAR_MM, ChannelFit, FitResult  # noqa: E402
 from coartic.model import Utterance, segment_weights  # noqa: E402
 from coartic.runtime.preview import MAX_SEGMENT_BOUNDARIES, MAX_SEGMENT_LABELS  # noqa: E402
@@ -378,7 +378,7 @@ def heldout_figure(result: FitResult) -> Figure | None:
     same samples (``coartic.evaluation.baselines``, those the validation computed), the bar dashed."""
     from coartic.evaluation.baselines import BASELINES, TITLES
 
-    scores = result.validation or []
+    scores = held_out(result)
     held = pooled(scores)
     chans = [ch for ch in result.channels if ch in held]
     if not chans:

@@ -32,7 +32,7 @@ def compare_command(
     (max-evaluations), had a failed stage (stage-failed) or a best optimum that one start only
     reached (best-found-once), as `coartic fit`; 2 an error (spec, data, output); 130 interrupted.
     """
-    from coartic.evaluation.compare import compare
+    from coartic.jobs.compare import compare
     from coartic.evaluation.compare import vary as vary_spec
     from coartic.fit.spec import FitSpec, load_spec, parse_grid
     from coartic.outputs import OutputDir
@@ -56,7 +56,7 @@ def compare_command(
     if any(res.interrupted for res in cmp.results):
         raise typer.Exit(130)
     from coartic.console import EXIT_UNCONFIRMED
-    from coartic.fit.fit_cli import STATUS_ADVICE
+    from coartic.jobs.fit_cli import STATUS_ADVICE
     from coartic.fit.staged import UNCONFIRMED_STATUSES
 
     unconfirmed = [r for r in cmp.rows if r.status in UNCONFIRMED_STATUSES]

@@ -10,6 +10,7 @@ from rich.console import Console
 from rich.markup import escape
 from rich.table import Table
 
+from coartic.evaluation.heldout import flags, held_out
 from coartic.estimation.bounds import summary_counts
 from coartic.fit.result import BAR_MM, UNIDENTIFIED_ADVICE, FitResult
 from coartic.errors import SpecError
@@ -210,14 +211,15 @@ def fit_output(spec: FitSpec, out: Path, force: bool = False) -> OutputDir:
 def _fit_into(s: FitSpec, out: Path, console: Console, err: Console, validate: bool, report: bool,
               quiet: bool) -> FitResult:
     """The fit, its validation and report, written into ``out`` (the staging directory) by
-    ``coartic.fit.run`` (progress on ``err``); the results printed on ``console``."""
-    from coartic.fit.runner import run
+    ``coartic.jobs.fit.fit_job`` (progress on ``err``); the results printed on ``console``."""
+    from coartic.evaluation.choose import Choice
+    from coartic.jobs.fit import fit_job
 
-    result = run(s, out, console=err, quiet=quiet, validate=validate, report=report)
+    result = fit_job(s, out, console=err, quiet=quiet, validate=validate, report=report)
     if not result.channels:
         return result
     print_table(console, rmse_table(result))
-    if result.choice is not None:
+    if isinstance(result.choice, Choice):
         c = result.choice
         console.print(escape(f"{c.choose.key} chosen by cross-validation on the training data (rule {c.choose.rule}): "
                              + ", ".join(f"{ch} {v:g}" for ch, v in c.chosen.items())
@@ -228,11 +230,11 @@ def _fit_into(s: FitSpec, out: Path, console: Console, err: Console, validate: b
         console.print(line, soft_wrap=True)
     for note in result.notes:
         console.print(f"[yellow]note:[/yellow] {escape(note)}", soft_wrap=True)
-    if result.validation:
-        from coartic.evaluation.heldout import flags
+    scores = held_out(result)
+    if scores:
         from coartic.evaluation.validate import validation_table
 
-        print_table(console, validation_table(result.validation), keys=2)
-        for f in flags(result.validation):
+        print_table(console, validation_table(scores), keys=2)
+        for f in flags(scores):
             console.print(f"[bold red]WORSE THAN THE STEP MODEL[/bold red] {escape(f)}", soft_wrap=True, highlight=False)
     return result
