@@ -50,9 +50,14 @@ def main(argv: list[str] | None = None) -> int:
     def said(ch: str, ph: str, done: int, total: int) -> None:
         print(f"[{done}/{total}] {ch} /{ph}/ sampled", file=sys.stderr, flush=True)
 
-    out = session_intervals(spec, utterances, table, a.out, settings,
-                            [c for c in a.channels.split(",") if c] or None,
-                            [p for p in a.phonemes.split(",") if p] or None, said)
+    try:
+        out = session_intervals(spec, utterances, table, a.out, settings,
+                                [c for c in a.channels.split(",") if c] or None,
+                                [p for p in a.phonemes.split(",") if p] or None, said)
+    except KeyboardInterrupt as e:
+        print(f"interrupted ({e or 'Ctrl-C'}): the posteriors sampled so far are kept in {a.out}; "
+              "rerun the same command to resume", file=sys.stderr)
+        return 130
     paths = write_intervals(out, a.out, truth)
     print(paths["text"].read_text(encoding="utf-8"), end="")
     print(f"written: {paths['csv']}, {paths['text']}")

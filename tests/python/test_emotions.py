@@ -220,3 +220,26 @@ def test_mcmc_intervals_of_the_deviations(session: Path, fitted: tuple[Path, Pat
     with paths["csv"].open(encoding="utf-8") as f:
         assert len(list(csv.DictReader(f))) == 12
     assert paths["text"].read_text(encoding="utf-8") == report
+
+
+def test_an_interrupted_deviation_posterior_stops_the_session_and_keeps_its_chains(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """SIGTERM or Ctrl-C inside one posterior (the sampler saves its chains and returns interrupted):
+    no interval from the partial chain and no next posterior (before, the loop went on to the next
+    phoneme and a kill did not stop the run)."""
+    from types import SimpleNamespace
+
+    import coartic.mcmc.emotions as me
+
+    sampled: list[str] = []
+
+    def sample(post: object, directory: Path, *args: object, **kw: object) -> SimpleNamespace:
+        sampled.append(str(directory))
+        return SimpleNamespace(result=SimpleNamespace(interrupted=True))
+
+    monkeypatch.setattr(me, "deviation_posterior", lambda problem, phoneme: None)
+    monkeypatch.setattr(me, "sample_posterior", sample)
+    problem = SimpleNamespace(speaker_rows=object(), data=SimpleNamespace(channel="LR"))
+    with pytest.raises(KeyboardInterrupt, match=r"LR /a/: interrupted; its chains are kept in"):
+        me.deviation_intervals(problem, "a", tmp_path / "LR" / "a")  # type: ignore[arg-type]
+    assert sampled == [str(tmp_path / "LR" / "a")]

@@ -89,6 +89,10 @@ def deviation_intervals(problem: ChannelProblem, phoneme: str, directory: Path,
     post = deviation_posterior(problem, phoneme)
     run = sample_posterior(post, directory, settings or SamplerSettings(), f"{problem.data.channel} /{phoneme}/ "
                            "emotions", phoneme, make_plots=False, progress=False)
+    if run.result.interrupted:
+        # Ctrl-C or kill while sampling: the chains are saved (a rerun resumes them); no interval
+        # from a partial chain, and no next posterior either (the user asked the whole run to stop)
+        raise KeyboardInterrupt(f"{problem.data.channel} /{phoneme}/: interrupted; its chains are kept in {directory}")
     draws = run.result.draws()
     names = run.result.names
     params, _ = problem.packing.unpack(problem.packing.pack())
@@ -115,7 +119,9 @@ def session_intervals(spec: Any, utterances: Sequence[Any], table: Any, director
     """Every deviation of a fit with ``[model] emotions = "targets"``: for each channel (default the
     table's) and each phoneme of its emotion rows (default all, pauses included), the joint posterior
     of the phoneme's targets (``deviation_intervals``) sampled into ``directory/<channel>/<phoneme>``.
-    ``on_done(channel, phoneme, done, total)`` after each posterior."""
+    ``on_done(channel, phoneme, done, total)`` after each posterior. An interrupted posterior (Ctrl-C,
+    SIGTERM) raises KeyboardInterrupt: the posteriors done and the interrupted one's chains are kept,
+    and the same call resumes."""
     from coartic.estimation.problem import build_problem
 
     chans = list(channels) if channels else list(table.channels)
