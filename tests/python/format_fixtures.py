@@ -301,16 +301,7 @@ def write_mfa_textgrid(path: Path, m: Motion, labels: tuple[str, ...] = ARPABET_
              (float(m.ends[-2]), xmax, "")]
     phones = [(float(s), float(e), "" if lab == "sil" else lab)
               for s, e, lab in zip(m.starts, m.ends, labels)]
-    out = ['File type = "ooTextFile"', 'Object class = "TextGrid"', "", "xmin = 0",
-           f"xmax = {xmax!r}", "tiers? <exists>", "size = 2", "item []:"]
-    for k, (name, items) in enumerate((("words", words), ("phones", phones)), start=1):
-        out += [f"    item [{k}]:", '        class = "IntervalTier"', f'        name = "{name}"',
-                "        xmin = 0", f"        xmax = {xmax!r}", f"        intervals: size = {len(items)}"]
-        for j, (s, e, lab) in enumerate(items, start=1):
-            out += [f"        intervals [{j}]:", f"            xmin = {s!r}", f"            xmax = {e!r}",
-                    f'            text = "{lab}"']
-    path.write_text("\n".join(out) + "\n")
-    return path
+    return write_textgrid(path, [("words", words), ("phones", phones)])
 
 
 def write_tsv_labels(path: Path, m: Motion, labels: tuple[str, ...]) -> Path:
@@ -349,3 +340,18 @@ if __name__ == "__main__":
         sys.exit("usage: python tests/python/format_fixtures.py OUT")
     for name, (data, labels, lmap) in write_all(Path(sys.argv[1])).items():
         print(f"{name}: {data} {labels} (label map {lmap})")
+
+
+def write_textgrid(path: Path, tiers: list[tuple[str, list[tuple[float, float, str]]]]) -> Path:
+    """A long-format Praat TextGrid of interval tiers: (name, [(xmin, xmax, text), ...]) each."""
+    xmax = max(e for _, items in tiers for _, e, _ in items)
+    out = ['File type = "ooTextFile"', 'Object class = "TextGrid"', "", "xmin = 0", f"xmax = {xmax!r}",
+           "tiers? <exists>", f"size = {len(tiers)}", "item []:"]
+    for k, (name, items) in enumerate(tiers, start=1):
+        out += [f"    item [{k}]:", '        class = "IntervalTier"', f'        name = "{name}"', "        xmin = 0",
+                f"        xmax = {xmax!r}", f"        intervals: size = {len(items)}"]
+        for j, (s, e, lab) in enumerate(items, start=1):
+            out += [f"        intervals [{j}]:", f"            xmin = {s!r}", f"            xmax = {e!r}",
+                    f'            text = "{lab}"']
+    path.write_text("\n".join(out) + "\n", encoding="utf-8")
+    return path

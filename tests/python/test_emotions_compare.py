@@ -21,25 +21,10 @@ from coartic.evaluation.heldout import SplitScore
 from coartic.fit.spec import load_spec
 from coartic.synthetic_cli import load_generator
 
-SPEC = """name = "emotive reduced"
-[corpus]
-manifest = "{manifest}"
-[model]
-dominance = "centre"
-handover = false
-channels = ["LR"]
-reference_phoneme = "a"
-emotions = "targets"
-[parameters]
-target_prior = "none"
-free = ["target", "alpha", "theta_bw", "theta_fw", "c_bw", "c_fw", "k_r", "delta"]
-[staging]
-enabled = true
-[fit]
-starts = 1
-[validate]
-group = "rate"
-"""
+from test_emotions import SPEC as EMOTIVE_SPEC
+
+# the reduced emotive spec of test_emotions on LR, validated by rate (fit one rate, score the other)
+SPEC = EMOTIVE_SPEC.replace("channels = {channels}", 'channels = ["LR"]') + '[validate]\ngroup = "rate"\n'
 
 
 def session(out: Path, gen: ModuleType, monkeypatch: pytest.MonkeyPatch | None = None) -> Path:

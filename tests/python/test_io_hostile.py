@@ -140,24 +140,10 @@ def test_label_times_before_the_recording_are_refused(tmp_path: Path) -> None:
         read_labels(p)
 
 
-def _textgrid(path: Path, tiers: list[tuple[str, list[tuple[float, float, str]]]]) -> Path:
-    xmax = max(e for _, items in tiers for _, e, _ in items)
-    out = ['File type = "ooTextFile"', 'Object class = "TextGrid"', "", "xmin = 0", f"xmax = {xmax!r}",
-           "tiers? <exists>", f"size = {len(tiers)}", "item []:"]
-    for k, (name, items) in enumerate(tiers, start=1):
-        out += [f"    item [{k}]:", '        class = "IntervalTier"', f'        name = "{name}"', "        xmin = 0",
-                f"        xmax = {xmax!r}", f"        intervals: size = {len(items)}"]
-        for j, (s, e, lab) in enumerate(items, start=1):
-            out += [f"        intervals [{j}]:", f"            xmin = {s!r}", f"            xmax = {e!r}",
-                    f'            text = "{lab}"']
-    path.write_text("\n".join(out) + "\n")
-    return path
-
-
 def test_an_mfa_textgrid_of_two_speakers_asks_which(tmp_path: Path) -> None:
     a = [(0.0, 0.2, ""), (0.2, 0.4, "P"), (0.4, 0.6, "AA1")]
     b = [(0.0, 0.3, ""), (0.3, 0.6, "M")]
-    p = _textgrid(tmp_path / "two.TextGrid", [("spk1 - words", a), ("spk1 - phones", a),
+    p = ff.write_textgrid(tmp_path / "two.TextGrid", [("spk1 - words", a), ("spk1 - phones", a),
                                               ("spk2 - words", b), ("spk2 - phones", b)])
     with pytest.raises(DataError, match=r"two\.TextGrid: 2 phone tiers \('spk1 - phones', 'spk2 - phones'; one "
                                         r"per speaker.*--tier 'spk1 - phones'"):
@@ -166,10 +152,10 @@ def test_an_mfa_textgrid_of_two_speakers_asks_which(tmp_path: Path) -> None:
 
 
 def test_an_empty_phones_tier_says_so(tmp_path: Path) -> None:
-    p = _textgrid(tmp_path / "empty.TextGrid", [("words", [(0.0, 1.0, "")]), ("phones", [(0.0, 1.0, "")])])
+    p = ff.write_textgrid(tmp_path / "empty.TextGrid", [("words", [(0.0, 1.0, "")]), ("phones", [(0.0, 1.0, "")])])
     with pytest.raises(DataError, match=r"empty\.TextGrid: tier 'phones' holds no label \(1 empty interval"):
         read_labels(p)
-    none = _textgrid(tmp_path / "none.TextGrid", [("words", [(0.0, 1.0, "")]), ("phones", [])])
+    none = ff.write_textgrid(tmp_path / "none.TextGrid", [("words", [(0.0, 1.0, "")]), ("phones", [])])
     with pytest.raises(DataError, match=r"none\.TextGrid: tier 'phones' holds no label \(no interval\)"):
         read_labels(none)
 

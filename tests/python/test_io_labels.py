@@ -11,6 +11,7 @@ import pytest
 from coartic.io import DataError, LabelMap, Segments, read_labels
 from coartic.io.labelmap import resolve_label_map
 from coartic.io.labels import write_tsv
+from format_fixtures import write_textgrid
 
 LONG_TG = '''File type = "ooTextFile"
 Object class = "TextGrid"
@@ -336,18 +337,9 @@ def _mfa_ipa_textgrid(path: Path) -> Path:
     ends = np.cumsum([0.3] + [0.09] * (len(MFA_IPA) - 2) + [0.3])
     starts = np.concatenate([[0.0], ends[:-1]])
     xmax = float(ends[-1])
-    out = ['File type = "ooTextFile"', 'Object class = "TextGrid"', "", "xmin = 0", f"xmax = {xmax!r}",
-           "tiers? <exists>", "size = 2", "item []:"]
-    tiers = (("words", [(0.0, 0.3, ""), (0.3, float(ends[-2]), "the cat chose iron"), (float(ends[-2]), xmax, "")]),
-             ("phones", [(float(s), float(e), lab) for s, e, lab in zip(starts, ends, MFA_IPA)]))
-    for k, (name, items) in enumerate(tiers, start=1):
-        out += [f"    item [{k}]:", '        class = "IntervalTier"', f'        name = "{name}"', "        xmin = 0",
-                f"        xmax = {xmax!r}", f"        intervals: size = {len(items)}"]
-        for j, (s, e, lab) in enumerate(items, start=1):
-            out += [f"        intervals [{j}]:", f"            xmin = {s!r}", f"            xmax = {e!r}",
-                    f'            text = "{lab}"']
-    path.write_text("\n".join(out) + "\n", encoding="utf-8")
-    return path
+    return write_textgrid(path, [
+        ("words", [(0.0, 0.3, ""), (0.3, float(ends[-2]), "the cat chose iron"), (float(ends[-2]), xmax, "")]),
+        ("phones", [(float(s), float(e), lab) for s, e, lab in zip(starts, ends, MFA_IPA)])])
 
 
 def test_mfa_ipa_textgrid_is_read_with_the_ipa_map(tmp_path: Path) -> None:
