@@ -22,7 +22,8 @@ from pydantic_core import PydanticCustomError
 
 from coartic.errors import SpecError
 from coartic.settings import CHANNEL_SETTINGS
-from coartic.table import ALL_CHANNELS, PARAMETERS, domain_problem
+from coartic.pauses import PAUSE_MODES
+from coartic.table import ALL_CHANNELS, PARAMETERS, VARIANTS, domain_problem
 
 # Fitted on a log scale: their bounds and log-scale priors need positive values.
 LOG_SCALE_PARAMETERS = ("alpha", "theta_bw", "theta_fw", "psi", "beta")
@@ -280,6 +281,16 @@ Parameters = Annotated[tuple[str, ...], BeforeValidator(_params)]
 Channels = Annotated[tuple[str, ...], BeforeValidator(_channels)]
 ParamValues = Annotated[dict[str, float], BeforeValidator(_param_values)]
 Bounds = Annotated[dict[str, tuple[float, float]], BeforeValidator(_bounds)]
+# the [model] keys, typed once for the fit spec's flat fields and estimation.settings.ModelSettings
+Variant = Annotated[str, BeforeValidator(_one_of(VARIANTS))]
+ReferencePhoneme = Annotated[str | None, BeforeValidator(_optional(_text))]
+ApexFraction = Annotated[float, BeforeValidator(_setting("apex_fraction"))]
+EdgeExtent = Annotated[float, BeforeValidator(_setting("edge_extent"))]
+Dominance = Annotated[str, BeforeValidator(_setting("dominance"))]
+PlateauFraction = Annotated[float, BeforeValidator(_setting("plateau_fraction"))]
+Handover = Annotated[bool, BeforeValidator(_setting("handover"))]
+Beta = Annotated[float, BeforeValidator(_setting("beta"))]
+PauseMode = Annotated[str, BeforeValidator(_one_of(PAUSE_MODES))]
 
 def _group(v: Any) -> tuple[str, ...]:
     names = _names(v)

@@ -38,14 +38,15 @@ from pydantic import BeforeValidator, ValidationError, model_validator
 from pydantic.dataclasses import dataclass
 
 from coartic.errors import SpecError
-from coartic.estimation.checks import (EMOTION_MODES, LOG_SCALE_PARAMETERS, SPEAKER_MODES, STRICT, Bounds, Flag,
-                                       Number, Parameters, ParamValues, Positive, Text, _bad, _beta_bounds,
-                                       _channel_bounds, _channels, _class, _distinct_params, _group, _names,
-                                       _offsets, _one_of, _optional, _text, _pooled, _priors, _setting, _shared,
-                                       _target_prior, key_of, schema_error, spec_errors)
-from coartic.pauses import PAUSE_MODES, is_pause
+from coartic.estimation.checks import (ApexFraction, Beta, Bounds, Dominance, EMOTION_MODES, EdgeExtent, Flag,
+                                       Handover, LOG_SCALE_PARAMETERS, Number, ParamValues, Parameters, PauseMode,
+                                       PlateauFraction, Positive, ReferencePhoneme, SPEAKER_MODES, STRICT, Text,
+                                       Variant, _bad, _beta_bounds, _channel_bounds, _channels, _class,
+                                       _distinct_params, _group, _names, _offsets, _one_of, _optional, _pooled,
+                                       _priors, _shared, _target_prior, key_of, schema_error, spec_errors)
+from coartic.pauses import is_pause
 from coartic.settings import default
-from coartic.table import VARIANTS, ChannelSettings
+from coartic.table import ChannelSettings
 
 # Starting values of the dynamics; targets start from the data (mean value at the target times).
 DEFAULT_START: dict[str, float] = {
@@ -178,20 +179,20 @@ class ModelSettings:
     ``coartic.settings`` (apex fraction, edge extent, dominance, plateau fraction, handover), the
     start (or fixed value) of β, and how pauses are labelled ("postures" or "one")."""
 
-    variant: Annotated[str, BeforeValidator(_one_of(VARIANTS))] = "modified"
+    variant: Variant = "modified"
     # α = 1 for it (MODEL.md §1); None: chosen from the data (reference_for)
-    reference_phoneme: Annotated[str | None, BeforeValidator(_optional(_text))] = None
+    reference_phoneme: ReferencePhoneme = None
     # the model's channel settings: defaults and ranges from coartic.settings
-    apex_fraction: Annotated[float, BeforeValidator(_setting("apex_fraction"))] = default("apex_fraction")
-    edge_extent: Annotated[float, BeforeValidator(_setting("edge_extent"))] = default("edge_extent")
+    apex_fraction: ApexFraction = default("apex_fraction")
+    edge_extent: EdgeExtent = default("edge_extent")
     # the rate-aware options of docs/MODEL.md §2.1
-    dominance: Annotated[str, BeforeValidator(_setting("dominance"))] = SPEC_MODEL_DEFAULTS["dominance"]
-    plateau_fraction: Annotated[float, BeforeValidator(_setting("plateau_fraction"))] = default("plateau_fraction")
-    handover: Annotated[bool, BeforeValidator(_setting("handover"))] = SPEC_MODEL_DEFAULTS["handover"]
-    beta: Annotated[float, BeforeValidator(_setting("beta"))] = default("beta")
+    dominance: Dominance = SPEC_MODEL_DEFAULTS["dominance"]
+    plateau_fraction: PlateauFraction = default("plateau_fraction")
+    handover: Handover = SPEC_MODEL_DEFAULTS["handover"]
+    beta: Beta = default("beta")
     # "postures": initial, final and medial pauses are three rows, short pauses in a closure join
     # it (coartic.pauses); "one": every pause is '#'
-    pauses: Annotated[str, BeforeValidator(_one_of(PAUSE_MODES))] = "postures"
+    pauses: PauseMode = "postures"
 
     def reference_for(self, phonemes: Sequence[str]) -> str:
         """The reference phoneme (α = 1) of a channel whose data have ``phonemes``: the one

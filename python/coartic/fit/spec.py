@@ -30,10 +30,11 @@ from pydantic_core import ArgsKwargs
 
 from coartic.errors import SpecError
 from coartic.estimation import settings as est
-from coartic.estimation.checks import (EMOTION_MODES, LOG_SCALE_PARAMETERS, SPEAKER_MODES, STRICT, Bounds, Channels,
-                                       Flag, Names, Number, Parameters, ParamValues, Positive, Text, _bad,
-                                       _beta_bounds, _channel_bounds, _count, _number, _offsets, _one_of, _optional,
-                                       _params_or_beta, _pooled, _priors, _setting, _shared, _target_prior, _text,
+from coartic.estimation.checks import (ApexFraction, Beta, Bounds, Channels, Dominance, EMOTION_MODES, EdgeExtent,
+                                       Flag, Handover, LOG_SCALE_PARAMETERS, Names, Number, ParamValues, Parameters,
+                                       PauseMode, PlateauFraction, Positive, ReferencePhoneme, SPEAKER_MODES, STRICT,
+                                       Text, Variant, _bad, _beta_bounds, _channel_bounds, _count, _number, _offsets,
+                                       _one_of, _optional, _params_or_beta, _pooled, _priors, _shared, _target_prior,
                                        key_of, schema_error, spec_errors)
 from coartic.estimation.settings import (DEFAULT_BETA_BOUNDS, DEFAULT_FIT_BOUNDS, DEFAULT_FREE, DEFAULT_POOLED,
                                          DEFAULT_SHARED, DEFAULT_START, DEFAULT_TARGET_PRIOR, SPEC_MODEL_DEFAULTS,
@@ -42,8 +43,7 @@ from coartic.estimation.settings import (DEFAULT_BETA_BOUNDS, DEFAULT_FIT_BOUNDS
 from coartic.io.errors import DataError
 from coartic.io.roles import RoleMap
 from coartic.settings import CHANNEL_SETTINGS, default
-from coartic.table import CHANNELS, VARIANTS, ChannelSettings
-from coartic.pauses import PAUSE_MODES
+from coartic.table import CHANNELS, ChannelSettings
 from coartic.textfile import TextDecodeError, read_text
 
 ENGINES: tuple[str, ...] = ("scipy", "nlopt", "casadi")
@@ -227,17 +227,17 @@ class FitSpec:
     # where the trials are read from; None: they are given in Python (coartic.Coarticulation.fit)
     corpus: CorpusSpec | None
     channels: Channels = CHANNELS
-    variant: Annotated[str, BeforeValidator(_one_of(VARIANTS))] = "modified"
+    variant: Variant = "modified"
     # α = 1 for it (MODEL.md §1); None: chosen from the data (FitSpec.reference_for)
-    reference_phoneme: Annotated[str | None, BeforeValidator(_optional(_text))] = None
+    reference_phoneme: ReferencePhoneme = None
     # the model's channel settings: defaults and ranges from coartic.settings
-    apex_fraction: Annotated[float, BeforeValidator(_setting("apex_fraction"))] = default("apex_fraction")
-    edge_extent: Annotated[float, BeforeValidator(_setting("edge_extent"))] = default("edge_extent")
+    apex_fraction: ApexFraction = default("apex_fraction")
+    edge_extent: EdgeExtent = default("edge_extent")
     # the rate-aware options of docs/MODEL.md §2.1 (defaults: today's model)
-    dominance: Annotated[str, BeforeValidator(_setting("dominance"))] = SPEC_MODEL_DEFAULTS["dominance"]
-    plateau_fraction: Annotated[float, BeforeValidator(_setting("plateau_fraction"))] = default("plateau_fraction")
-    handover: Annotated[bool, BeforeValidator(_setting("handover"))] = SPEC_MODEL_DEFAULTS["handover"]
-    beta: Annotated[float, BeforeValidator(_setting("beta"))] = default("beta")
+    dominance: Dominance = SPEC_MODEL_DEFAULTS["dominance"]
+    plateau_fraction: PlateauFraction = default("plateau_fraction")
+    handover: Handover = SPEC_MODEL_DEFAULTS["handover"]
+    beta: Beta = default("beta")
     fit_beta: Flag = False
     beta_bounds: Annotated[tuple[float, float], BeforeValidator(_beta_bounds)] = DEFAULT_BETA_BOUNDS
     free: Parameters = DEFAULT_FREE
@@ -265,7 +265,7 @@ class FitSpec:
     speaker_column: Text = "speaker"
     # "postures": initial, final and medial pauses are three rows, short pauses in a closure join
     # it (coartic.pauses); "one": every pause is '#'
-    pauses: Annotated[str, BeforeValidator(_one_of(PAUSE_MODES))] = "postures"
+    pauses: PauseMode = "postures"
     # emotion as a factor of the fit: "none", or "targets" (each emotion's targets a deviation from the
     # neutral ones, shrunk toward them by a scale the data estimate: coartic.estimation.emotions), the
     # emotion read from the manifest column emotion_column, neutral_emotion the reference
