@@ -114,7 +114,7 @@ def fit_channel(spec: FitSpec, utterances: Sequence[Utterance], channel: str,
                 progress.update(task, description=f"{channel} pooling (sd estimated)")
             if multi is not None and len(multi.optima) > 1:
                 # every distinct optimum's empirical Bayes, the highest evidence kept (fit_pooled_best)
-                others = [o for o in sorted(multi.optima[1:], key=lambda o: o.objective)]
+                others = sorted(multi.optima[1:], key=lambda o: o.objective)
                 picked = others[:EB_CANDIDATES - 1]
                 zero = next((o for o in others if 0 in o.starts), None)
                 if zero is not None and zero not in picked:  # start 0's (the single fit's) always
