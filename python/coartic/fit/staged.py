@@ -215,6 +215,7 @@ def fit_pooled_best(problem: ChannelProblem, xs: Sequence[NDArray[np.float64]], 
     w, _ = residual_weight(r0[: d.corpus.n_samples], d.sample_offsets, d.weights)
     best: tuple[ChannelProblem, EngineResult | None, PoolEstimate] | None = None
     best_ok = False
+    chosen = 0  # the kept candidate's index in ``tried``
     tried: list[dict[str, float]] = []
     nfev = njev = 0
     for i, x in enumerate(xs):
@@ -233,10 +234,9 @@ def fit_pooled_best(problem: ChannelProblem, xs: Sequence[NDArray[np.float64]], 
         # a candidate whose re-solve failed (its τ not settled) wins only over others that failed too
         ok = out[1] is None or out[1].status not in ("failed", "non-finite start")
         if best is None or (ok, out[2].log_evidence) > (best_ok, best[2].log_evidence):
-            best, best_ok = out, ok
+            best, best_ok, chosen = out, ok, len(tried) - 1
     assert best is not None
     prob, res, est = best
-    chosen = next((k for k, c in enumerate(tried) if c["log_evidence"] == est.log_evidence), 0)  # (the kept one's)
     est = replace(est, candidates=tuple(tried), chosen=chosen)
     # the fit's evaluations: those before (the multi-start's) and every candidate's
     prob.nfev, prob.njev = problem.nfev + nfev, problem.njev + njev
