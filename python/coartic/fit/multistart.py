@@ -13,12 +13,15 @@ real recordings the answer of one local fit depended more on its start than on t
    than the single fit: from 32 random starts alone the synthetic session's LLO ended at 0.157 mm
    with one seed, where the single fit reaches the noise floor, 0.135 (bench/multistart.py). Without
    it the result does not depend on ``[parameters.start]`` at all;
-2. *confirms* first: the first ``CONFIRM`` starts (start 0 and the first drawn one) are each fitted
-   in full (the staged fit, the engine's whole budget), one after the other; when they end in one
-   optimum the search stops there. This is the stopping rule: the best optimum reached from
-   ``CONFIRM`` independent starts. A well-identified problem then costs about two single fits
-   instead of 13-28 (the defaults spec on the German EMA, bench/multistart.py cost), and a problem
-   with several optima goes on to the search below, which the rule stops as soon as it is met again;
+2. *confirms* first (the stopping rule): start 0 is fitted in full (the staged fit, the engine's
+   whole budget), then ``RETURNS`` perturbed restarts from its optimum (``hop``, the polish's
+   restarts) are refitted within one single fit's evaluations: when each comes back to start 0's
+   optimum and none finds better, the search stops there (the *return test*). Otherwise start 1,
+   the first drawn start, is fitted in full too, and when it ends in the best optimum the search
+   stops there: the best reached from ``CONFIRM`` independent starts. A well-identified problem
+   then costs 1.2-1.6 single fits instead of 13-28 (the defaults spec on the German EMA, the
+   gestures flavour: bench/multistart.py cost, cost-gestures-rep1), and a problem with several
+   optima goes on to the search below, which the rule stops as soon as it is met again;
 3. otherwise runs a short probe from every other start (the staged fit with every stage capped at
    ``probe`` evaluations) and ranks the probes by their objective; the best of them are continued
    to convergence (one joint fit with the engine's full budget) until ``keep`` starts in all have
