@@ -222,7 +222,7 @@ def cost_line(label: str, fit: Any, cpu: float, one: Any, one_cpu: float) -> str
     extra = ""
     if ms is not None:
         extra = (f"; best reached from {ms.best.hits} of {len(ms.continued)} continued ({ms.share:.0%}), "
-                 f"{ms.probed} probed, {len(ms.optima)} optima; stopped: {ms.stopped}")
+                 f"{ms.probed} probed, {len(ms.optima)} optima, {ms.returns} return-test restarts; stopped: {ms.stopped}")
     pool = getattr(fit, "pooling", None)
     if pool is not None:  # the empirical Bayes that follows the search: where it ended
         extra += (f"; pooling: log evidence {pool.log_evidence:.2f}, {pool.effective:.1f} effective parameters, "
@@ -348,7 +348,7 @@ def confirm_gestures() -> list[str]:
     spec = load_spec(ROOT / "fit/gestures_rate_aware.toml")
     rows = [r for r in manifest_rows(spec) if r.get("rate") == "normal" and r.get("repetition") == "1"]
     utts = load_utterances(spec, rows)
-    prob = build_problem(spec, utts, "LLO")
+    prob = build_problem(spec.estimation_settings(), utts, "LLO")
     full = prob.packing
     out = [f"confirming start, gestures flavour LLO, normal rate repetition 1 ({len(utts)} trials, "
            f"{full.n_free} free; fit/gestures_rate_aware.toml): one staged fit from each start"]
