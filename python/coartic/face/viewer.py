@@ -37,6 +37,9 @@ from coartic.outputs import atomic_path, atomic_write_text
 PAGE_NAME = "view.html"
 # --view presets: how far the face is turned, in degrees (+: its left side towards the camera)
 VIEW_PRESETS: dict[str, float] = {"front": 0.0, "three-quarter": 35.0, "profile": 90.0}
+# headless, software WebGL (SwiftShader): the same picture on any machine, with or without a GPU
+SCREENSHOT_FLAGS = ("--headless", "--no-sandbox", "--disable-gpu", "--use-angle=swiftshader", "--enable-unsafe-swiftshader",
+                    "--hide-scrollbars", "--no-first-run", "--mute-audio")
 CHROMIUM_NAMES = ("chromium", "chromium-browser", "google-chrome", "google-chrome-stable")
 
 
@@ -209,6 +212,15 @@ def chromium_program() -> str:
     raise AnimationError("no Chromium on PATH (Debian package 'chromium'; scripts/setup.sh installs it)")
 
 
+def screenshot_url(page: str | os.PathLike[str], *, frame: int | None = None, face_only: int | None = None,
+                   yaw: float | None = None, zoom: float | None = None, section: bool = False) -> str:
+    """The file URL `screenshot` opens (the tests' shared Chromium opens the same one)."""
+    query = page_query(frame, yaw, zoom, section)
+    if face_only is not None:
+        query += ("&" if query else "?") + f"face={int(face_only)}"
+    return Path(page).resolve().as_uri() + query
+
+
 def screenshot(page: str | os.PathLike[str], png: str | os.PathLike[str], *, frame: int | None = None,
                face_only: int | None = None, size: tuple[int, int] = (1130, 580), yaw: float | None = None,
                zoom: float | None = None, section: bool = False, timeout: float = 60.0) -> Path:
@@ -216,18 +228,13 @@ def screenshot(page: str | os.PathLike[str], png: str | os.PathLike[str], *, fra
 
     `face_only=N` shows only the face, on an N x N canvas at the top left; `yaw` turns it (degrees).
     """
-    query = page_query(frame, yaw, zoom, section)
-    if face_only is not None:
-        query += ("&" if query else "?") + f"face={int(face_only)}"
-    url = Path(page).resolve().as_uri() + query
+    url = screenshot_url(page, frame=frame, face_only=face_only, yaw=yaw, zoom=zoom, section=section)
     png = Path(png)
     with tempfile.TemporaryDirectory(prefix="coartic-chromium-") as profile:
         shot = Path(profile) / "shot.png"
         cmd: Sequence[str] = [
-            chromium_program(), "--headless", "--no-sandbox", "--disable-gpu", "--use-angle=swiftshader",
-            "--enable-unsafe-swiftshader", "--hide-scrollbars", "--no-first-run", "--mute-audio",
-            f"--user-data-dir={profile}", f"--window-size={size[0]},{size[1]}", "--virtual-time-budget=5000",
-            f"--screenshot={shot}", url,
+            chromium_program(), *SCREENSHOT_FLAGS, f"--user-data-dir={profile}", f"--window-size={size[0]},{size[1]}",
+            "--virtual-time-budget=5000", f"--screenshot={shot}", url,
         ]
         try:
             proc = subprocess.run(cmd, capture_output=True, timeout=timeout)
