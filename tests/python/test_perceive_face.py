@@ -15,8 +15,6 @@ from PIL import Image
 from face_helpers import eyes_of, upper_face
 from perceive_helpers import write_spec
 
-pytestmark = [pytest.mark.festival]
-
 ROOT = Path(__file__).resolve().parents[2]
 SIZE = 200
 FPS = 10
@@ -52,6 +50,7 @@ def frame_png(video: Path, k: int, png: Path) -> Path:
     return png
 
 
+@pytest.mark.festival
 def test_emotion_stimuli_show_the_3d_face_with_its_brows_and_sound(tmp_path: Path) -> None:
     """Surprise and anger on /aba/: each video is the 3-D face (eye whites: the 2-D preview has no
     eyes) at the study's size and frame rate, with the item's sound as its track; surprise's brows
@@ -90,3 +89,18 @@ def test_emotion_stimuli_show_the_3d_face_with_its_brows_and_sound(tmp_path: Pat
     assert all(m["sclera"] > 50 for m in measured.values()), measured
     img = np.asarray(Image.open(faces["angry"]).convert("RGB"))
     assert img.shape == (SIZE, SIZE, 3)
+
+
+def test_without_chromium_the_3d_render_says_what_to_do(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """No Chromium on PATH: prepare stops before Festival, naming the spec, the key and the way out."""
+    from coartic.perceive.spec import read_study
+    from coartic.perceive.stimuli import prepare_stimuli
+    from coartic.runtime.errors import AnimationError
+
+    monkeypatch.setenv("PATH", str(tmp_path))  # nothing there: no chromium, no festival either
+    (tmp_path / "emotive.json").write_text("{}", encoding="utf-8")
+    spec = read_study(write_spec(tmp_path, EMOTION_STUDY))
+    with pytest.raises(AnimationError, match=r'study.toml: \[stimuli\] render = "3d" draws the face in Chromium: '
+                                             r'no Chromium on PATH .*; or set render = "2d"'):
+        prepare_stimuli(spec, tmp_path / "study")
+    assert not (tmp_path / "study").exists()

@@ -208,6 +208,14 @@ def prepare_stimuli(spec: StudySpec, out: Path, progress: Any = None) -> dict[st
     from coartic.outputs import atomic_write_text
     from coartic.runtime.preview import render_face_video, write_video
 
+    if spec.render == "3d":  # before Festival says anything: without Chromium no 3-D face
+        from coartic.face.viewer import chromium_program
+
+        try:
+            chromium_program()
+        except AnimationError as err:
+            raise AnimationError(f"{spec.path}: [stimuli] render = \"3d\" draws the face in Chromium: {err}; "
+                                 "or set render = \"2d\" (the runtime's preview face)") from None
     work = out / "work"
     stim_dir = out / "stimuli"
     stim_dir.mkdir(parents=True, exist_ok=True)
