@@ -3,8 +3,9 @@
 A fit with ``[model] emotions = "targets"`` (docs/EMOTIONS.md) records in ``metadata.emotions``, per
 channel, each emotion's deviations d = T(p|e) − T(p|neutral) from the table's (neutral) targets.
 ``emotion_table(table, "joy", 0.6)`` is the table with every target T + 0.6·d: the model is linear
-in the targets and the emotions share the dynamics, so intensity s gives F_neutral + s·(F_e − F_neutral)
-exactly. Where a phoneme makes a contact (k_R = 1 on ULO or LLO: the closure of /p b m/, the
+in the targets, so where the emotions share the dynamics (``[model] emotions = "targets"``) intensity s
+gives F_neutral + s·(F_e − F_neutral) exactly; a table fitted with ``"targets+dynamics"`` also has
+each emotion's log deviations of α, θ_bw, θ_fw, applied as v·exp(s·δ). Where a phoneme makes a contact (k_R = 1 on ULO or LLO: the closure of /p b m/, the
 lower lip on the teeth for /f v/) its target there is kept neutral at every intensity: the
 contact is phonological, and Magno Caldognetto et al. (2003, 2004) found lip opening keeping the
 phonological contrasts under every emotion.
