@@ -89,7 +89,7 @@ def synth(
     emotion_dynamics: Annotated[
         bool,
         typer.Option("--emotion-dynamics", help="emotive: also plant each emotion's own rates "
-                     "(emotions.toml [dynamics]; by default every emotion keeps the neutral dynamics)."),
+                     "(emotions.toml \\[dynamics]; by default every emotion keeps the neutral dynamics)."),
     ] = False,
 ) -> None:
     """Generate the session: C3D + CSV markers, TextGrid + .lab labels, manifest, ground truth."""
