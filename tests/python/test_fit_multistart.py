@@ -186,7 +186,7 @@ def test_multistart_is_deterministic_and_reports_its_optima(tmp_path: Path) -> N
     # every continued start ended in some optimum (its polishing restarts may reach others too)
     assert set().union(*(o.starts for o in ms.optima)) == set(ms.continued)
     # the return test's restart from start 0's optimum stopped at its cap (8 evaluations): not a return
-    assert ms.returns == 1 and "came back" not in ms.stopped
+    assert 1 <= ms.returns <= 2 and "reached again" not in ms.stopped
     assert ms.hops == sum(len(o.members) for o in ms.optima) - 2 - ms.returns and set(ms.chains) <= set(ms.continued)
     assert ms.best.objective == min(ms.final_objective.values()) == pytest.approx(prob.with_packing(a[0].packing).sse(a[1].x))
     # the best start's stages: its probe's then its continued fit, or start 0's own staged fit
@@ -344,7 +344,7 @@ def test_stopping_rule_ends_a_well_identified_search_after_one_start_and_its_ret
     fit = run(load_spec(defaults_spec(tmp_path / "many.toml")), quiet=True).channels["JO"]
     ms = fit.multistart
     assert ms is not None and ms.continued == [0] and ms.probed == 0 and ms.returns == 1
-    assert "1 perturbed restart from start 0's optimum came back" in ms.stopped and fit.status == "converged"
+    assert "reached again from a perturbed restart (1 of at most 2 run)" in ms.stopped and fit.status == "converged"
     assert ms.best.hits == 1 and len(ms.best.members) == 2  # start 0's end and its restart's, one optimum
     assert fit.nfev <= 2.0 * one.nfev, (fit.nfev, one.nfev)
     assert fit.rmse == pytest.approx(one.rmse, abs=1e-6)
