@@ -45,6 +45,7 @@ import math
 import sys
 import time
 from pathlib import Path
+from types import SimpleNamespace
 from typing import Any, Sequence
 
 import numpy as np
@@ -60,6 +61,7 @@ from coartic.evaluation.baselines import Baselines  # noqa: E402
 from coartic.fit.data import load_utterances  # noqa: E402
 from coartic.model import Utterance  # noqa: E402
 from coartic.fit.result import FitResult  # noqa: E402
+from coartic.evaluation.compare import heldout_se  # noqa: E402
 from coartic.evaluation.score import score_utterances, with_fallbacks  # noqa: E402
 from coartic.fit.spec import FitSpec, Override, parse_spec  # noqa: E402
 from coartic.io.labelmap import resolve_label_map  # noqa: E402
@@ -424,6 +426,116 @@ def summary_lines(rows: Sequence[dict[str, Any]]) -> list[str]:
     return out
 
 
+def utterance_units(rows: Sequence[dict[str, Any]], channel: str | None = None,
+                    model: str = "table") -> dict[tuple[str, str], tuple[float, int]]:
+    """Each held-out test utterance of ``rows`` (speech only, as measured: the rows' scored
+    segments) as a unit (split, utterance) -> (SSE of ``model``, "table" or "step", samples),
+    summed over the channels (or ``channel``'s only): the units of ``heldout_se``."""
+    units: dict[tuple[str, str], tuple[float, int]] = {}
+    for r in rows:
+        if channel is not None and r["channel"] != channel:
+            continue
+        for utt, _, _, n, table, step, _ in r.get("segments") or ():
+            rmse = table if model == "table" else step
+            e, k = units.get((r["split"], utt), (0.0, 0))
+            units[(r["split"], utt)] = (e + rmse**2 * n, k + n)
+    return units
+
+
+def unit_se(units: dict[tuple[str, str], tuple[float, int]]) -> float:
+    """The standard error of the pooled RMSE over these units, as ``coartic compare`` takes it
+    (coartic.evaluation.compare.heldout_se: each test utterance a unit, the delta method)."""
+    return heldout_se([SimpleNamespace(channel="", utterance_sse=units)], "")
+
+
+def paired_se(a: dict[tuple[str, str], tuple[float, int]], b: dict[tuple[str, str], tuple[float, int]]) -> float:
+    """The standard error of RMSE(a) - RMSE(b) over the units both score (the same samples): each
+    unit's influence on either pooled RMSE by the delta method of ``heldout_se``, differenced, so
+    what the two models share (a hard utterance) cancels. NaN with fewer than two units."""
+    keys = [k for k in a if k in b and a[k][1] > 0]
+    if len(keys) < 2:
+        return math.nan
+    n = float(sum(a[k][1] for k in keys))
+    ma, mb = sum(a[k][0] for k in keys) / n, sum(b[k][0] for k in keys) / n
+    if ma <= 0 or mb <= 0:
+        return math.nan
+    d = [(a[k][0] - ma * a[k][1]) / (2 * math.sqrt(ma) * n) - (b[k][0] - mb * b[k][1]) / (2 * math.sqrt(mb) * n)
+         for k in keys]
+    return math.sqrt(len(keys) / (len(keys) - 1) * sum(x * x for x in d))
+
+
+def noise_lines(rows: Sequence[dict[str, Any]]) -> list[str]:
+    """Held-out RMSE (speech only, as measured) ± its SE over the test utterances per cell, per
+    channel and pooled over the channels; then every other cell against the pooled default
+    ("pooled", "tprior-eb"; else the best): the difference and its paired SE, and whether it
+    exceeds one SE (the margin ``coartic compare``'s one-SE rule treats as noise)."""
+    cells: dict[tuple[str, str, str, str], list[dict[str, Any]]] = {}
+    for r in rows:
+        cells.setdefault(cell_key(r), []).append(r)
+    if not any(r.get("segments") for r in rows):
+        return []
+    channels = list(dict.fromkeys(r["channel"] for r in rows))
+    out = [f"{'variant':11s} {'freedom':9s} {'reg':10s} {'held-out ± SE':>15s}  "
+           + "  ".join(f"{ch + ' ± SE':>15s}" for ch in channels) + "  units"]
+    for (v, f, g, _), rs in sorted(cells.items(), key=lambda kv: pooled(kv[1], "table")):
+        per = "  ".join(f"{pooled([r for r in rs if r['channel'] == ch], 'table'):7.3f} ± {unit_se(utterance_units(rs, ch)):5.3f}"
+                        for ch in channels)
+        out.append(f"{v:11s} {f:9s} {g:10s} {pooled(rs, 'table'):7.3f} ± {unit_se(utterance_units(rs)):5.3f}  {per}  "
+                   f"{len(utterance_units(rs))}")
+    ref = next((k for k in cells if k[1] == "pooled" and k[2] == "tprior-eb"),
+               min(cells, key=lambda k: pooled(cells[k], "table")))
+    base = cells[ref]
+    out.append(f"against {' '.join(ref[:3])}: its RMSE minus the other's (< 0: it is lower), ± the paired SE; "
+               "'noise' when within one SE")
+    for key, rs in [*((k, v) for k, v in cells.items() if k != ref), (("", "step", "model", ""), base)]:
+        other = "step" if key[1] == "step" else "table"
+        parts = []
+        for ch in [None, *channels]:
+            a, b = utterance_units(base, ch), utterance_units(rs, ch, other)
+            sel = [r for r in base if ch is None or r["channel"] == ch], [r for r in rs if ch is None or r["channel"] == ch]
+            d, se = pooled(sel[0], "table") - pooled(sel[1], other), paired_se(a, b)
+            word = "noise" if abs(d) <= se else ("lower" if d < 0 else "HIGHER")
+            parts.append(f"{ch or 'all'} {d:+.3f} ± {se:.3f} {word}")
+        out.append(f"  vs {' '.join(key[:3]).strip()}: " + "; ".join(parts))
+    return out
+
+
+# docs/REAL_DATA.md's names of the cells it compares (freedom, regularisation)
+NAMED_CELLS = {("t+shared", "tprior:0.3"): "shared", ("pooled", "tprior-eb"): "pooled (default)",
+               ("tat", "tprior:0.3"): "per-phoneme", ("pooled", "tprior:0.3"): "pooled, target sd 0.3"}
+
+
+def markdown_lines(rows: Sequence[dict[str, Any]]) -> list[str]:
+    """docs/REAL_DATA.md's tables: per (split, channel) and pooled over them, each named cell's
+    held-out RMSE as "speech as measured / speech offset removed / all samples" (mm), then the step
+    model's and the constant's on the same samples (the first named cell's rows: every cell scores
+    the same samples), and the pooled figures' SE over the test utterances (speech, as measured)."""
+    cells = {NAMED_CELLS[(r["freedom"], r["reg"])]: [] for r in rows if (r["freedom"], r["reg"]) in NAMED_CELLS}
+    for r in rows:
+        if (r["freedom"], r["reg"]) in NAMED_CELLS:
+            cells[NAMED_CELLS[(r["freedom"], r["reg"])]].append(r)
+    if not cells:
+        return []
+    names = [n for n in NAMED_CELLS.values() if n in cells]
+    ref = cells[names[0]]
+
+    def fig(rs: Sequence[dict[str, Any]], m: str) -> str:
+        return f"{pooled(rs, m):.3f} / {pooled(rs, m + '_off'):.3f} / {pooled(rs, m, '_all'):.3f}"
+
+    out = ["| split | ch | " + " | ".join(names) + " | step | constant |",
+           "|---" * (len(names) + 4) + "|"]
+    groups = [(f"{r['split']}", r["channel"]) for r in ref]
+    for split, ch in dict.fromkeys(groups):
+        sel = {n: [r for r in cells[n] if r["split"] == split and r["channel"] == ch] for n in names}
+        out.append(f"| {split} | {ch} | " + " | ".join(fig(sel[n], "table") for n in names)
+                   + f" | {fig(sel[names[0]], 'step')} | {fig(sel[names[0]], 'constant')} |")
+    out.append(f"| **pooled** | all | " + " | ".join(fig(cells[n], "table") for n in names)
+               + f" | {fig(ref, 'step')} | {fig(ref, 'constant')} |")
+    out.append(f"| SE (speech, as measured) | all | " + " | ".join(f"± {unit_se(utterance_units(cells[n])):.3f}" for n in names)
+               + f" | ± {unit_se(utterance_units(ref, model='step')):.3f} | |")
+    return out
+
+
 def row_line(r: dict[str, Any]) -> str:
     sd = f"  sd {r['tprior_sd']:g}" if "tprior_sd" in r else ""
     if r.get("pooling"):
@@ -455,6 +567,8 @@ def main() -> int:
     ap.add_argument("--starts", type=int, default=None, help="[fit] starts of every fit (default: the spec default)")
     ap.add_argument("--theta-start", type=float, default=None,
                     help="start of theta_bw and theta_fw (default: the corpus spec's): is the fit start-independent?")
+    ap.add_argument("--pauses", default=None, choices=("postures", "one"),
+                    help="[model] pauses of every fit (default: the corpus spec's; a spec that sets nothing: postures)")
     ap.add_argument("--losses", action="store_true", help="also print where each cell loses to the step model")
     ap.add_argument("--unseen", default="constant", choices=("transfer", "constant"),
                     help="test phonemes with no class fallback trained: fitted on the test data (transfer) or "
@@ -484,12 +598,14 @@ def main() -> int:
         channels = a.channels or corpus.channels
         which = (a.splits or corpus.splits).split(",")
         base = corpus_spec(corpus).with_options(channels=tuple(channels.split(",")))
+        if a.pauses is not None:
+            base = base.with_options(pauses=a.pauses)
         if a.theta_start is not None:
             base = base.with_options(start={**base.parameters.start, "theta_bw": a.theta_start, "theta_fw": a.theta_start})
-        starts = a.starts if a.starts is not None else getattr(base, "starts", 1)
+        starts = a.starts if a.starts is not None else base.fit.starts
         utts = load_utterances(base)
         lines += [f"## {corpus.name}: {corpus.spec.relative_to(ROOT) if corpus.manifest is None else 'a spec that sets nothing but ' + str(corpus.manifest.relative_to(ROOT))}, channels {channels}, splits {','.join(which)}; source {corpus.source}; "
-                  f"licence {corpus.licence}", f"fits: [fit] starts = {starts}; theta start {base.parameters.start_of('theta_bw'):g}; shrink sd = {SHRINK_SD} when on; nolast: without each test "
+                  f"licence {corpus.licence}", f"fits: [fit] starts = {starts}; theta start {base.parameters.start_of('theta_bw'):g}; pauses {base.model.pauses}; shrink sd = {SHRINK_SD} when on; nolast: without each test "
                   "utterance's last segment",
                   ROW_HEADER]
         print("\n".join(lines), flush=True)
@@ -534,6 +650,14 @@ def merge(parts: Sequence[Path], out: Path) -> int:
     lines = [line for p in parts for line in p.read_text(encoding="utf-8").splitlines()]
     lines += ["", "## summary of all the parts above: pooled over splits and channels, best held-out (raw) first",
               *summary_lines(rows)]
+    table = markdown_lines(rows)
+    if table:
+        lines += ["", "## docs/REAL_DATA.md: held-out RMSE (mm), speech as measured / speech offset removed / all samples",
+                  *table]
+    noise = noise_lines(rows)
+    if noise:
+        lines += ["", "## noise: held-out RMSE (speech only, as measured) ± its standard error over the test utterances "
+                  "(coartic compare's heldout_se), per cell; the default against each other cell, paired", *noise]
     atomic_write_text(out.with_suffix(".json"), json.dumps(rows))
     atomic_write_text(out, "\n".join(lines) + "\n")
     print("\n".join(lines[-len(summary_lines(rows)) - 1:]))

@@ -105,3 +105,52 @@ def test_merge_counts_a_cell_run_in_two_parts_once(tmp_path: Path) -> None:
     rd.merge([tmp_path / "a.txt", tmp_path / "b.txt"], tmp_path / "m.txt")
     merged = json.loads((tmp_path / "m.json").read_text())
     assert len(merged) == 2 and " 2/2 2/2 " in (tmp_path / "m.txt").read_text()
+
+
+def test_noise_units_and_paired_se_by_hand() -> None:
+    """The noise of docs/REAL_DATA.md: each test utterance a unit (its SSE summed over segments and
+    channels), compare's heldout_se over them, and the paired SE of a difference, by hand."""
+    rd = bench()
+    # two cells on the same three test utterances (one channel); segments [utt, i, phoneme, n, table, step, dSSE]
+    seg_a = [["u1", 0, "a", 4, 1.0, 2.0, 0.0], ["u1", 1, "b", 4, 3.0, 2.0, 0.0], ["u2", 0, "a", 8, 2.0, 2.0, 0.0],
+             ["u3", 0, "a", 4, 1.0, 3.0, 0.0]]
+    seg_b = [[u, i, p, n, t + 0.5, s, d] for u, i, p, n, t, s, d in seg_a]
+    units = rd.utterance_units([{"split": "rate", "channel": "LA", "segments": seg_a}])
+    assert units == {("rate", "u1"): (4 * 1.0 + 4 * 9.0, 8), ("rate", "u2"): (32.0, 8), ("rate", "u3"): (4.0, 4)}
+    assert rd.utterance_units([{"split": "rate", "channel": "LA", "segments": seg_a}], model="step")[("rate", "u3")] == (36.0, 4)
+    e = np.array([40.0, 32.0, 4.0])
+    n = np.array([8.0, 8.0, 4.0])
+    m = e.sum() / n.sum()
+    se = math.sqrt(3 / 2 * np.sum((e - m * n) ** 2)) / n.sum() / (2 * math.sqrt(m))
+    assert rd.unit_se(units) == pytest.approx(se, rel=1e-12)
+    other = rd.utterance_units([{"split": "rate", "channel": "LA", "segments": seg_b}])
+    assert rd.paired_se(units, units) == 0.0
+    eb = np.array([other[("rate", u)][0] for u in ("u1", "u2", "u3")])
+    mb = eb.sum() / n.sum()
+    d = (e - m * n) / (2 * math.sqrt(m) * n.sum()) - (eb - mb * n) / (2 * math.sqrt(mb) * n.sum())
+    assert rd.paired_se(units, other) == pytest.approx(math.sqrt(3 / 2 * np.sum(d**2)), rel=1e-12)
+    # only the units both score count; fewer than two: no SE
+    assert math.isnan(rd.paired_se(units, {("rate", "u1"): other[("rate", "u1")]}))
+
+
+def test_markdown_and_noise_lines_name_the_default_against_each_cell() -> None:
+    rd = bench()
+    common = {"variant": "rate-aware", "split": "rate", "channel": "LA", "unseen": "constant", "starts": 1, "theta0": 30.0,
+              "samples": 12, "samples_all": 20, "in_sample": 0.1, "constant": 3.0, "constant_off": 3.0,
+              "constant_all": 3.0, "constant_off_all": 3.0, "step": 2.0, "step_off": 2.0, "step_all": 2.0,
+              "step_off_all": 2.0, "notes": []}
+    segs = [["u1", 0, "a", 6, 1.0, 2.0, 0.0], ["u2", 0, "a", 6, 1.2, 2.0, 0.0]]
+    rows = [{**common, "freedom": f, "reg": g, "table": t, "table_off": t, "table_all": t, "table_off_all": t,
+             "segments": [[u, i, p, n, x * t, s, d] for u, i, p, n, x, s, d in segs]}
+            for f, g, t in (("t+shared", "tprior:0.3", 1.5), ("pooled", "tprior-eb", 1.0), ("tat", "tprior:0.3", 1.2))]
+    table = rd.markdown_lines(rows)
+    assert table[0] == "| split | ch | shared | pooled (default) | per-phoneme | step | constant |"
+    assert table[2].startswith("| rate | LA | 1.500 / 1.500 / 1.500 | 1.000 / 1.000 / 1.000 | 1.200 / 1.200 / 1.200 | 2.000 / 2.000 / 2.000")
+    noise = rd.noise_lines(rows)
+    assert noise[1].startswith("rate-aware  pooled ")  # lowest first
+    against = [x for x in noise if x.startswith("  vs ")]
+    assert [x.split(": ")[0] for x in against] == ["  vs rate-aware t+shared tprior:0.3", "  vs rate-aware tat tprior:0.3",
+                                                   "  vs step model"]
+    # every cell scales one pattern (RMSE 1.1, SE 0.1 over the two utterances), so each difference is
+    # (t_a - t_b) times the first and its paired SE (t_a - t_b) times the second: lower, beyond one SE
+    assert all(" lower" in x and "noise" not in x for x in against)
