@@ -173,7 +173,7 @@ def test_shrinkage_of_fixed_values_and_bad_choose_options_are_refused(tmp_path: 
     with pytest.raises(SpecError, match=r"--choose 'shrink.sd': expected KEY=V1,V2"):
         parse_choose(s, "shrink.sd")
     assert parse_choose(s, "shrink.sd=1, 0.1").choose == Choose("shrink.sd", (0.1, 1.0), "utterance", 5, "1se")
-    assert set_value(s, "shrink #1.sd", 0.5).shrinks[0].sd == 0.5
+    assert set_value(s, "shrink #1.sd", 0.5).priors.shrinks[0].sd == 0.5
 
 
 def test_ctrl_c_while_choosing_writes_no_fit(tmp_path: Path, utts: list[model.Utterance],

@@ -21,7 +21,7 @@ from coartic.fit.choose import set_value
 from coartic.evaluation.score import score_recordings
 from coartic.fit.simulate import PHONEMES, vcv_utterances
 from coartic.estimation.settings import DEFAULT_FREE, DEFAULT_POOLED, DEFAULT_SHARED, DEFAULT_TARGET_PRIOR
-from coartic.fit.spec import SpecError, load_spec, parse_spec
+from coartic.fit.spec import SETTING_SECTION, SpecError, load_spec, parse_spec
 from coartic.table import PARAMETERS
 
 from fit_helpers import EMA, check_problem_derivatives
@@ -50,7 +50,8 @@ def test_a_spec_that_sets_nothing_is_the_recommended_model(tmp_path: Path) -> No
     t = load_spec(ROOT / "fit" / "template.toml")
     for key in ("variant", "dominance", "handover", "plateau_fraction", "free", "shared", "pooled", "target_prior",
                 "prior_noise"):
-        assert getattr(t, key) == getattr(s, key), key
+        section = SETTING_SECTION[key]  # the part of the nested spec that holds it
+        assert getattr(getattr(t, section), key) == getattr(getattr(s, section), key), key
 
 
 def test_a_spec_that_lists_its_free_set_keeps_per_phoneme_dynamics(tmp_path: Path) -> None:
@@ -130,7 +131,7 @@ def test_shared_dynamics_are_one_value_per_channel(tmp_path: Path, utts: list[mo
 def test_cross_validation_can_choose_the_target_prior(tmp_path: Path) -> None:
     s = parsed(tmp_path, choose={"key": "target_prior", "values": [0.1, 1.0], "group": "repetition", "folds": 2})
     assert s.choose is not None and s.choose.rule == "1se"
-    assert set_value(s, "target_prior", 0.1).target_prior == 0.1
+    assert set_value(s, "target_prior", 0.1).priors.target_prior == 0.1
 
 
 def test_the_specs_of_fit_keep_the_model_their_figures_were_measured_with() -> None:
