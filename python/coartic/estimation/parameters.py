@@ -150,6 +150,8 @@ class ParameterSet(Mapping[str, Parameter]):
         self.origins = origins
         # (follower, leader) flat indices of [[tie]]d entries (Packing.ties)
         self.ties: tuple[tuple[int, int], ...] = ()
+        # entries that are linear combinations of others (Packing.mixes: intensities' targets)
+        self.mixes: tuple[tuple[int, tuple[tuple[int, float], ...]], ...] = ()
         # free name -> where its box comes from (a spec key or a default): Packing.bound_sources
         self.bound_sources: dict[str, str] = {}
 
@@ -347,7 +349,7 @@ class ParameterSet(Mapping[str, Parameter]):
         """The engines' view: the free entries, their bounds and the transform to x."""
         return Packing(self.phonemes, self.free.copy(), self.beta_free, self.lower.copy(), self.upper.copy(),
                        self.beta_bounds, self.matrix.copy(), self.beta, self.origins, self.ties,
-                       dict(self.bound_sources))
+                       dict(self.bound_sources), self.mixes)
 
     @classmethod
     def from_packing(cls, channel: str, packing: Packing, names: list[str] | None = None,
@@ -363,6 +365,7 @@ class ParameterSet(Mapping[str, Parameter]):
                  at_bound=frozenset(at_bound or ()), unidentified=frozenset(unidentified or ()),
                  bound_notes=bound_notes)
         ps.ties = tuple(packing.ties)
+        ps.mixes = tuple(packing.mixes)
         ps.bound_sources = dict(packing.bound_sources or {})
         return ps
 
