@@ -22,6 +22,6 @@ for e in neutral joy surprise sadness disgust anger fear; do
   if [ "$e" = neutral ]; then extra=""; else extra="--emotion $e"; fi
   # shellcheck disable=SC2086
   "$py" -m coartic.cli animate "$work/abava.tsv" --table "$work/emotive.json" $extra -o "$work/$e" --preview none --gltf > /dev/null
-  "$py" -m coartic.cli view "$work/$e" --frame 30 --face-only 260 --zoom 1.4 --screenshot "docs/img/emotion/$e.png" > /dev/null
+  "$py" -m coartic.cli view "$work/$e" --frame 30 --face-only 260 --zoom 1.15 --screenshot "docs/img/emotion/$e.png" > /dev/null
 done
 echo "emotion figures written to docs/img/emotion/"

@@ -31,6 +31,7 @@ items = ["aba", "ava"]
 snr_db = [0.0]
 fps = 10
 size_px = 64
+render = "2d"  # the server is under test here; the 3-D face's videos are test_perceive_face's
 
 [[condition]]
 name = "coarticulation"

@@ -42,7 +42,14 @@ dominance = "centre"      # the paper's model, which the synthetic speakers are 
 handover = false
 [parameters]
 target_prior = "none"
-free = ["target", "alpha", "theta_bw", "theta_fw", "k_r"]
+free = ["target", "alpha", "theta_bw", "theta_fw"]
+# k_R free for the consonants only: the vowels' k_R are not identified on JO by these trials
+# (docs/MCMC.md), and left free there s01's JO fit wandered along them until it ran out of its
+# evaluation budget (3431 evaluations, 18 CPU-s, two thirds of a whole batch's fitting; with them
+# at their start value it converges in under a second, RMSE 0.142 mm against 0.140)
+[[override]]
+phonemes = ["p", "t"]
+free = ["k_r"]
 [staging]
 enabled = false
 [mcmc]                    # the posteriors of /p/ on LLO, short chains (the batch test is about scheduling)

@@ -84,7 +84,7 @@ def test_glb_reads_back_with_pygltflib(run: Path) -> None:
     assert mesh.extras["targetNames"] == names
     assert names[:3] == ["lower_t_midlip", "lower_t_midlip_neg", "raise_b_midlip"]
     # every signed field twice, the four turns' 1 - cos θ once
-    assert len(names) == 2 * len(TARGET_NAMES) - 4 and "raise_tongue_tip" in names and "close_t_l_eyelid_sin" in names
+    assert len(names) == 2 * len(TARGET_NAMES) - 6 and "raise_tongue_tip" in names and "close_t_l_eyelid_sin" in names
     for p in mesh.primitives:  # smooth normals, unit length
         normals = accessor_array(g.to_dict(), g.binary_blob(), p.attributes.NORMAL)
         np.testing.assert_allclose(np.linalg.norm(normals, axis=1), 1.0, atol=1e-5)
@@ -336,3 +336,27 @@ def test_blender_imports_and_plays_the_glb(run: Path, tmp_path: Path) -> None:
         co = np.array(got["co"][str(k)])  # Blender is z-up: (x, y, z) = glTF's (x, -z, y)
         mm = np.column_stack([co[:, 0], co[:, 2], -co[:, 1]]) * 1000
         np.testing.assert_allclose(mm, rig.pose(plain[k]), atol=1e-3)
+
+
+def test_arkit_morph_set_moves_the_brows_lids_cheeks_and_corners() -> None:
+    """The ARKit glTF's expression shapes are coartic's face posed at their FAPs
+    (coartic.runtime.expression.ARKIT_EXPRESSION): browInnerUp raises the brows' inner ends
+    320 ENS, browDownLeft lowers the left brow only, eyeWideLeft lifts the left upper lid,
+    cheekSquintRight lifts the right cheek, mouthSmileLeft lifts the left corner (its inner and
+    outer FAPs together: the whole 150 MNS); a shape coartic does not drive (noseSneerLeft) moves nothing."""
+    from coartic.face.gltf import arkit_morphs
+    from coartic.runtime.fap import FaceUnits
+    from coartic.runtime.rigs import ARKIT_NAMES
+
+    rig = default_rig()
+    m = rig.mesh
+    neutral = {"ULO": 0.0, "LLO": 0.0, "ULP": 0.0, "LLP": 0.0, "LR": 50.0, "JO": 0.0}
+    names, fields = arkit_morphs(rig, neutral, FaceUnits())
+    field = {n: fields[names.index(n)] for n in ARKIT_NAMES}
+    y = {n: {fp: float(f[m.feature_points[fp], 1]) for fp in m.feature_points} for n, f in field.items()}
+    assert y["browInnerUp"]["4.1"] == pytest.approx(320 * m.ens / 1024) == y["browInnerUp"]["4.2"]
+    assert y["browDownLeft"]["4.3"] == pytest.approx(-200 * m.ens / 1024) and y["browDownLeft"]["4.4"] == 0.0
+    assert y["eyeWideLeft"]["3.1"] == pytest.approx(300 * m.irisd / 1024) and y["eyeWideLeft"]["3.2"] == 0.0
+    assert y["cheekSquintRight"]["5.4"] == pytest.approx(300 * m.ens / 1024) and y["cheekSquintRight"]["5.3"] == 0.0
+    assert y["mouthSmileLeft"]["2.4"] == pytest.approx(150 * m.mns / 1024) and abs(y["mouthSmileLeft"]["2.5"]) < 1e-12
+    assert not field["noseSneerLeft"].any()

@@ -8,7 +8,12 @@ import numpy as np
 import pytest
 
 from coartic.face.deform import (
+    BROW_RAISE,
+    BROW_SQUEEZE,
+    CHEEK_LIFT,
     JAW_FAP,
+    LOWER_LID_FAPS,
+    UPPER_FACE_FAPS,
     LIP_FAPS,
     TARGET_NAMES,
     TARGET_VALUE,
@@ -308,6 +313,38 @@ def test_blinks_close_the_eyes(rig: FaceRig, tmp_path: Path) -> None:
         pupil = eye_centre(EYE_X if side == "l" else -EYE_X)[1]
         assert pose[peak, m_fp(rig, fp), 1] < pupil - 5.0
         assert pose[0, m_fp(rig, fp), 1] > pupil + 3.0
+
+
+@pytest.mark.parametrize("fap", UPPER_FACE_FAPS)
+def test_each_upper_face_fap_moves_its_point_and_not_the_lips(rig: FaceRig, fap: int) -> None:
+    """The brows (31-38) and cheeks (41, 42) an emotion moves: each FAP moves its feature point by
+    exactly value x FAPU (ENS; ES for the squeeze, the left brow's inner end to the face's right),
+    moves only the skin, and nothing of the lips, jaw or teeth (the /p b m/ and /f v/ contacts are
+    the lip FAPs' alone)."""
+    m = rig.mesh
+    d = displaced(rig, {fap: 300})
+    fp = {**BROW_RAISE, **CHEEK_LIFT, **BROW_SQUEEZE}[fap]
+    unit = m.es if fap in BROW_SQUEEZE else m.ens
+    direction = {37: [-1, 0, 0], 38: [1, 0, 0]}.get(fap, [0, 1, 0])
+    np.testing.assert_allclose(d[m.feature_points[fp]], 300 * unit / 1024 * np.array(direction), atol=1e-9)
+    assert rig.fapu(fap) == unit / 1024
+    moved = np.abs(d).max(axis=1) > 0
+    assert moved.sum() > 40 and not (moved & ~m.in_part("skin")).any()
+    mouth = (np.abs(m.vertices[:, 1]) < 16.0) & (np.abs(m.vertices[:, 0]) < 34.0)
+    assert not (moved & mouth).any() and not moved[m.slit].any()
+    # the brows' zones do not reach the other brow, nor the eye's lower half
+    assert not (moved & (m.vertices[:, 1] < 62.0) & (fap not in CHEEK_LIFT)).any()
+
+
+def test_lower_lids_rise_and_upper_lids_open_wide(rig: FaceRig) -> None:
+    """close_b_l/r_eyelid (21, 22) raise the lower lids' edges (3.3, 3.4) by value x IRISD / 1024;
+    a negative close_t (19: eyeWide, surprise) lifts the upper lid's edge as much."""
+    m = rig.mesh
+    for fap, (side, fp) in LOWER_LID_FAPS.items():
+        d = displaced(rig, {fap: 300})
+        assert d[m.feature_points[fp], 1] == pytest.approx(300 * m.irisd / 1024, abs=1e-9)
+        assert not (np.abs(d).max(axis=1) > 0)[~m.lower_lid[side]].any()
+    assert displaced(rig, {19: -300})[m.feature_points["3.1"], 1] == pytest.approx(300 * m.irisd / 1024, abs=1e-9)
 
 
 def m_fp(rig: FaceRig, fp: str) -> int:

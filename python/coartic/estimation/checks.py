@@ -28,7 +28,9 @@ from coartic.table import ALL_CHANNELS, PARAMETERS, VARIANTS, domain_problem
 # Fitted on a log scale: their bounds and log-scale priors need positive values.
 LOG_SCALE_PARAMETERS = ("alpha", "theta_bw", "theta_fw", "psi", "beta")
 SPEAKER_MODES: tuple[str, ...] = ("none", "offset", "offset_scale", "targets")
-EMOTION_MODES: tuple[str, ...] = ("none", "targets")
+# "targets": a target per (phoneme, emotion), dynamics shared; "targets+dynamics": also each emotion's
+# own alpha, theta_bw, theta_fw per phoneme, pooled toward neutral (coartic.estimation.emotions)
+EMOTION_MODES: tuple[str, ...] = ("none", "targets", "targets+dynamics")
 
 # Every schema refuses keys it does not know (a typo is an error, not a default silently kept).
 STRICT = ConfigDict(extra="forbid", arbitrary_types_allowed=True)

@@ -31,8 +31,8 @@ from functools import lru_cache
 import numpy as np
 from numpy.typing import NDArray
 
-from coartic.face.mesh import (EYE_RADIUS, EYE_X, JAW_PIVOT, LID_OPEN_ELEVATION, MOUTH_HALF_WIDTH, FaceMesh, build_face,
-                               eye_centre, skin_depth)
+from coartic.face.mesh import (EYE_RADIUS, EYE_X, JAW_PIVOT, LID_LOWER_ELEVATION, LID_OPEN_ELEVATION, MOUTH_HALF_WIDTH,
+                               FaceMesh, build_face, eye_centre, skin_depth)
 from coartic.runtime.errors import AnimationError
 from coartic.runtime.fap import FAP_NAMES, MW_FAPS, N_FAPS, FapSequence
 
@@ -110,6 +110,25 @@ ON_JAW_FAPS: frozenset[int] = LOWER_LIP_FAPS | {44, 45, 46}
 # Eyelids: close_t_l_eyelid (19) and close_t_r_eyelid (20) turn the upper lid down about the eye's
 # centre, in IRISD (iris diameter / 1024) of the lid's edge midpoint 3.1 / 3.2.
 LID_FAPS: dict[int, tuple[str, str]] = {19: ("l", "3.1"), 20: ("r", "3.2")}
+# The upper face, which an emotion moves (coartic.runtime.expression; ISO/IEC 14496-2 groups 3-5):
+# raise_l/r_i/m/o_eyebrow (31-36, ENS, up) at the brows' inner ends, tops and outer ends, the
+# squeeze (37, 38, ES) drawing the inner ends towards the midline, lift_l/r_cheek (41, 42, ENS, up)
+# at the cheekbones (5.3, 5.4), and close_b_l/r_eyelid (21, 22, IRISD, up) turning each lower lid
+# up about its eye's centre. Each brow FAP moves its point exactly and fades to the brow's next
+# point (raised cosines along the brow that add up to 1 between its points), to nothing at the
+# midline and 15 mm past the outer end, and in height over the socket's rim below (to nothing at
+# BROW_BELOW_MM) and the forehead above (at BROW_ABOVE_MM). The lips are out of every zone's reach:
+# an expression leaves the /p b m/ closure and the /f v/ contact to the lip FAPs.
+BROW_RAISE: dict[int, str] = {31: "4.1", 32: "4.2", 33: "4.3", 34: "4.4", 35: "4.5", 36: "4.6"}
+BROW_SQUEEZE: dict[int, str] = {37: "4.1", 38: "4.2"}
+CHEEK_LIFT: dict[int, str] = {41: "5.3", 42: "5.4"}
+UPPER_FACE_FAPS: tuple[int, ...] = tuple(sorted({*BROW_RAISE, *BROW_SQUEEZE, *CHEEK_LIFT}))
+ES_FAPS: frozenset[int] = frozenset(BROW_SQUEEZE)
+LOWER_LID_FAPS: dict[int, tuple[str, str]] = {21: ("l", "3.3"), 22: ("r", "3.4")}
+BROW_BELOW_MM = (66.0, 74.0)  # y: no movement under the first, all of it above the second
+BROW_ABOVE_MM = (88.0, 112.0)  # y: all of it under the first, none above the second (the hairline)
+BROW_PAST_OUTER_MM = 15.0
+CHEEK_RADIUS_MM = 22.0
 # A lower lip pulled back and up rolls in (its inner edge goes back and down, behind the upper
 # incisors, as at /f v/): at ROLL_MAX when it is ROLL_FULL_MM behind rest and not lowered, none
 # once it has dropped ROLL_OPEN_MM from the upper lip's level (an open mouth does not roll its lip).
@@ -127,7 +146,10 @@ TARGET_NAMES: tuple[str, ...] = (*(FAP_NAMES[f - 1] for f in LIP_FAPS), *(FAP_NA
                                  "funnel_lips",
                                  "open_jaw_sin", "open_jaw_1mcos", "roll_b_lip_sin", "roll_b_lip_1mcos",
                                  "close_t_l_eyelid_sin", "close_t_l_eyelid_1mcos",
-                                 "close_t_r_eyelid_sin", "close_t_r_eyelid_1mcos")
+                                 "close_t_r_eyelid_sin", "close_t_r_eyelid_1mcos",
+                                 *(FAP_NAMES[f - 1] for f in UPPER_FACE_FAPS),
+                                 "close_b_l_eyelid_sin", "close_b_l_eyelid_1mcos",
+                                 "close_b_r_eyelid_sin", "close_b_r_eyelid_1mcos")
 # A morph target is the displacement at FAP value 1024 (one whole MNS or MW), so that the weights,
 # value / 1024, stay within ±1 for speech and a rig's sliders (Blender clamps to 0..1 by default
 # but the animation plays any value).
@@ -181,10 +203,8 @@ class FaceRig:
         return TARGET_NAMES
 
     def fapu(self, fap: int) -> float:
-        """This face's FAPU (mm) for a lip, jaw, tongue or eyelid FAP."""
-        if fap in LID_FAPS:
-            return self.mesh.irisd / 1024.0
-        return (self.mesh.mw if fap in MW_FAPS else self.mesh.mns) / 1024.0
+        """This face's FAPU (mm) for a lip, jaw, tongue, eyelid, brow or cheek FAP."""
+        return face_fapu(self.mesh, fap)
 
     def index(self, name: str) -> int:
         return TARGET_NAMES.index(name)
@@ -195,6 +215,14 @@ class FaceRig:
         drop = np.asarray(close, dtype=float) * self.mesh.irisd / 1024.0
         e0 = LID_OPEN_ELEVATION
         theta: NDArray[np.float64] = e0 - np.arcsin(np.clip(math.sin(e0) - drop / r, -1.0, 1.0))
+        return theta
+
+    def lower_lid_angle(self, close: NDArray[np.float64]) -> NDArray[np.float64]:
+        """Rotation (rad, up) of a lower lid that raises its edge midpoint by close × IRISD / 1024."""
+        r = EYE_RADIUS + 0.6
+        rise = np.asarray(close, dtype=float) * self.mesh.irisd / 1024.0
+        e0 = LID_LOWER_ELEVATION
+        theta: NDArray[np.float64] = np.arcsin(np.clip(math.sin(e0) + rise / r, -1.0, 1.0)) - e0
         return theta
 
     def roll_angle(self, values: NDArray[np.float64]) -> NDArray[np.float64]:
@@ -246,6 +274,10 @@ class FaceRig:
         for fap in LID_FAPS:
             lid = self.lid_angle(values[:, fap - 1])
             cols += [np.sin(lid), 1.0 - np.cos(lid)]
+        cols.append(values[:, [f - 1 for f in UPPER_FACE_FAPS]] / TARGET_VALUE)
+        for fap in LOWER_LID_FAPS:
+            lid = self.lower_lid_angle(values[:, fap - 1])
+            cols += [np.sin(lid), 1.0 - np.cos(lid)]
         out: NDArray[np.float64] = np.column_stack(cols)
         return out
 
@@ -254,6 +286,18 @@ class FaceRig:
         w = np.asarray(weights, dtype=float)
         out: NDArray[np.float64] = self.mesh.vertices + np.tensordot(w, self.targets, axes=(w.ndim - 1, 0))
         return out
+
+
+def face_fapu(mesh: FaceMesh, fap: int) -> float:
+    """The mesh's FAPU (mm) of `fap`: IRISD for the eyelids, ES for the brows' squeeze, ENS for the
+    brows' and cheeks' raise, MW or MNS for the lips, jaw and tongue (ISO/IEC 14496-2's table)."""
+    if fap in LID_FAPS or fap in LOWER_LID_FAPS:
+        return mesh.irisd / 1024.0
+    if fap in ES_FAPS:
+        return mesh.es / 1024.0
+    if fap in BROW_RAISE or fap in CHEEK_LIFT:
+        return mesh.ens / 1024.0
+    return (mesh.mw if fap in MW_FAPS else mesh.mns) / 1024.0
 
 
 def held_values(faps: FapSequence) -> NDArray[np.float64]:
@@ -276,7 +320,8 @@ def _region_mask(mesh: FaceMesh, region: str) -> NDArray[np.bool_]:
 
 def build_rig(mesh: FaceMesh) -> FaceRig:
     """Displacement fields of every lip FAP and of the jaw on `mesh`."""
-    for fp in {z.point for z in ZONES} | {"2.1", "9.15", "6.1", "6.2", "3.1", "3.2"}:
+    for fp in ({z.point for z in ZONES} | {"2.1", "9.15", "6.1", "6.2", "3.1", "3.2", "3.3", "3.4", "3.5", "3.6"}
+               | set(BROW_RAISE.values()) | set(CHEEK_LIFT.values())):
         if fp not in mesh.feature_points:
             raise AnimationError(f"the face mesh has no feature point {fp}, needed by the FAP zones")
     verts = mesh.vertices
@@ -313,7 +358,43 @@ def build_rig(mesh: FaceMesh) -> FaceRig:
     for side in ("l", "r"):
         centre = eye_centre(EYE_X if side == "l" else -EYE_X)
         targets += _rotation(verts, (centre[1], centre[2]), mesh.upper_lid[side].astype(float))
+    upper_face = upper_face_fields(mesh)
+    targets += [upper_face[f] * face_fapu(mesh, f) * TARGET_VALUE for f in UPPER_FACE_FAPS]
+    for side, _ in LOWER_LID_FAPS.values():
+        centre = eye_centre(EYE_X if side == "l" else -EYE_X)
+        targets += _rotation(verts, (centre[1], centre[2]), mesh.lower_lid[side].astype(float), backwards=True)
     return FaceRig(mesh=mesh, targets=np.stack(targets), jaw=jaw)
+
+
+def _hat(u: NDArray[np.float64], knots: tuple[float, float, float]) -> NDArray[np.float64]:
+    """1 at knots[1], falling as a raised cosine to 0 at knots[0] and knots[2] (0 beyond): hats on
+    consecutive knots add up to 1 between them."""
+    lo, mid, hi = knots
+    t = np.where(u < mid, (mid - u) / (mid - lo), (u - mid) / (hi - mid))
+    return raised_cosine(np.clip(t, 0.0, 1.0), 1.0) * (u > lo) * (u < hi)
+
+
+def upper_face_fields(mesh: FaceMesh) -> dict[int, NDArray[np.float64]]:
+    """Each brow and cheek FAP's displacement (n, 3) per FAP unit of movement at its feature point
+    (1 mm there; the module's comment at BROW_RAISE): on the skin only."""
+    x, y = mesh.vertices[:, 0], mesh.vertices[:, 1]
+    skin = mesh.in_part("skin").astype(float)
+    height = _smooth01((y - BROW_BELOW_MM[0]) / (BROW_BELOW_MM[1] - BROW_BELOW_MM[0])) * _smooth01(
+        (BROW_ABOVE_MM[1] - y) / (BROW_ABOVE_MM[1] - BROW_ABOVE_MM[0]))
+    out: dict[int, NDArray[np.float64]] = {}
+    for side, raises, squeeze in ((1.0, (31, 33, 35), 37), (-1.0, (32, 34, 36), 38)):
+        u = side * x  # distance from the midline towards this brow
+        at = [side * mesh.point(BROW_RAISE[f])[0] for f in raises]
+        knots = [0.0, *at, at[-1] + BROW_PAST_OUTER_MM]
+        for j, fap in enumerate(raises):
+            w = _hat(u, (knots[j], knots[j + 1], knots[j + 2])) * height * skin
+            out[fap] = np.outer(w, Y)
+            if j == 0:  # the squeeze draws the inner end towards the midline (MPEG-4: the left brow's to the right)
+                out[squeeze] = np.outer(w, -side * X)
+    for fap, fp in CHEEK_LIFT.items():
+        d = np.hypot(x - mesh.point(fp)[0], y - mesh.point(fp)[1])
+        out[fap] = np.outer(raised_cosine(d, CHEEK_RADIUS_MM) * skin, Y)
+    return out
 
 
 def _rotation(verts: NDArray[np.float64], axis_yz: tuple[float, float], weight: NDArray[np.float64],

@@ -562,8 +562,12 @@ def arkit_morphs(rig: FaceRig, neutral: dict[str, float], face: FaceUnits) -> tu
     rig as the FAP morph set; the jaw's turn taken at its full angle, as a blendshape is linear).
     A Left/Right pair is the pair's symmetric movement split between the face's sides
     (`_side_share`; Left = the face's own left), so the two at equal weights add up to it. The
-    eyeBlinkLeft/Right shut the lid of FAP 19/20 as the FAP file's blinks do. The shapes coartic
-    does not drive (gaze, brows, cheeks, nose, tongueOut) are present and move nothing."""
+    eyeBlinkLeft/Right shut the lid of FAP 19/20 as the FAP file's blinks do; an emotion's shapes
+    (brows, eyeWide, eyeSquint, cheekSquint, mouthSmile, mouthFrown) are the face posed at their
+    FAPs (coartic.runtime.expression.ARKIT_EXPRESSION), each on its own side already. The shapes
+    coartic does not drive (gaze, nose, cheekPuff, tongueOut, ...) are present and move nothing."""
+    from coartic.runtime.expression import ARKIT_EXPRESSION
+
     fields = np.zeros((len(ARKIT_NAMES), rig.mesh.n_vertices, 3))
     left = _side_share(rig.mesh.vertices[:, 0])[:, None]
 
@@ -573,12 +577,20 @@ def arkit_morphs(rig: FaceRig, neutral: dict[str, float], face: FaceUnits) -> tu
         out: NDArray[np.float64] = rig.pose(rig.weights(faps)[0]) - rig.mesh.vertices
         return out
 
+    def at_faps(values: dict[int, float]) -> NDArray[np.float64]:
+        mask = np.zeros((1, N_FAPS), dtype=bool)
+        held = np.zeros((1, N_FAPS), dtype=np.int64)
+        for fap, v in values.items():
+            mask[0, fap - 1], held[0, fap - 1] = True, int(round(v))
+        out: NDArray[np.float64] = rig.pose(rig.weights(FapSequence("arkit", 25.0, mask, held))[0]) - rig.mesh.vertices
+        return out
+
     for k, name in enumerate(ARKIT_NAMES):
         if name in ARKIT_BLINKS:  # the lid shut as the FAP file's blinks shut it
-            mask = np.zeros((1, N_FAPS), dtype=bool)
-            mask[0, ARKIT_BLINKS[name] - 1] = True
-            shut = FapSequence("arkit", 25.0, mask, np.where(mask, BLINK_CLOSED, 0))
-            fields[k] = rig.pose(rig.weights(shut)[0]) - rig.mesh.vertices
+            fields[k] = at_faps({ARKIT_BLINKS[name]: BLINK_CLOSED})
+            continue
+        if name in ARKIT_EXPRESSION:
+            fields[k] = at_faps(ARKIT_EXPRESSION[name])
             continue
         if name not in ARKIT_BASIS:
             continue

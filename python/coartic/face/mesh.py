@@ -48,10 +48,16 @@ EYE_X = 32.0  # the left eye's centre; the right one's is at -EYE_X
 EYE_Y = 62.0
 EYE_RADIUS = 11.0
 LID_OPEN_ELEVATION = 0.30  # rad above the eye's centre: the open upper lid's edge, over the iris's top
+LID_LOWER_ELEVATION = -0.42  # rad: the lower lid's edge, under the iris
 # The lips' inner (mucosal) surface: rows going in from the lip line, (up or down, back) in mm at
 # the midline, scaled to 0 at the corners. They keep in front of the teeth and gums at rest.
 LIP_INNER_ROWS = ((0.8, 2.2), (2.8, 4.6), (6.5, 6.3), (10.5, 7.4))
 LOWER_LIP_INNER_ROWS = ((0.8, 2.2), (2.8, 4.8), (6.5, 8.0), (9.5, 10.8))
+# Feature points of the upper face on the skin (x, y mm; the face's left, the right mirrored): the
+# brows' inner ends, tops and outer ends (MPEG-4 4.1, 4.3, 4.5; under the drawn brow band) and the
+# cheeks (5.3, on the cheekbone under the eye), each the skin vertex nearest these places.
+UPPER_FACE_POINTS: dict[str, tuple[float, float]] = {"4.1": (15.0, 78.5), "4.3": (30.0, 80.0), "4.5": (45.0, 78.0),
+                                                     "5.3": (36.0, 38.0)}
 # Where the jaw turns: the temporomandibular joints, on the axis x through this point (y, z).
 JAW_PIVOT = (22.0, -85.0)
 
@@ -72,6 +78,7 @@ class FaceMesh:
     feature_points: dict[str, int]  # MPEG-4 feature point "g.n" -> vertex index
     slit: NDArray[np.int64] = field(default_factory=lambda: np.zeros((0, 2), dtype=np.int64))  # (k, 2): upper, lower copy along the cut
     upper_lid: dict[str, NDArray[np.bool_]] = field(default_factory=dict)  # "l"/"r" -> (n,) the upper lid's vertices
+    lower_lid: dict[str, NDArray[np.bool_]] = field(default_factory=dict)  # "l"/"r" -> (n,) the lower lid's vertices
 
     @property
     def n_vertices(self) -> int:
@@ -98,6 +105,17 @@ class FaceMesh:
     def mw(self) -> float:
         """Mouth width, mm: between the lip corners (8.3 left, 8.4 right)."""
         return float(self.point("8.3")[0] - self.point("8.4")[0])
+
+    @property
+    def ens(self) -> float:
+        """Eye-nose separation, mm: the left pupil (3.5) above the nose base (9.15); the brows' and
+        cheeks' FAPU is ENS / 1024."""
+        return float(self.point("3.5")[1] - self.point("9.15")[1])
+
+    @property
+    def es(self) -> float:
+        """Eye separation, mm: between the pupils (3.5 left, 3.6 right); the brows' squeeze is in ES / 1024."""
+        return float(self.point("3.5")[0] - self.point("3.6")[0])
 
 
 def _grid_x(u: NDArray[np.float64], y: NDArray[np.float64]) -> NDArray[np.float64]:
@@ -275,6 +293,11 @@ def _skin() -> tuple[NDArray[np.float64], NDArray[np.bool_], NDArray[np.int64], 
     fps["8.4"] = fps["2.5"]
     fps["9.15"] = int(index[int(np.argmin(np.abs(y_rows - NOSE_BASE_Y))), mid])
     fps["2.1"] = int(index[0, mid])  # bottom of the chin
+    grid = vertices[:index.size, :2]
+    for name, (px, py) in UPPER_FACE_POINTS.items():
+        group, n = name.split(".")
+        for fp, sx in ((name, px), (f"{group}.{int(n) + 1}", -px)):  # the right side's number is the next one
+            fps[fp] = int(np.argmin(np.hypot(grid[:, 0] - sx, grid[:, 1] - py)))
     slit = np.column_stack([index[lip_row, cut_cols], lower_copy])
     return vertices, upper, np.array(tris, dtype=np.int64), slit, fps, colors
 
@@ -439,15 +462,15 @@ def _eye(cx: float) -> tuple[NDArray[np.float64], NDArray[np.int64], NDArray[np.
     return v, np.concatenate([tris, np.array(caps, dtype=np.int64)]), colors
 
 
-def _lids(cx: float) -> tuple[NDArray[np.float64], NDArray[np.int64], NDArray[np.float64], NDArray[np.bool_], int]:
+def _lids(cx: float) -> tuple[NDArray[np.float64], NDArray[np.int64], NDArray[np.float64], NDArray[np.bool_], int, int]:
     """Upper and lower eyelid of one eye: sphere patches just outside the eyeball. The upper lid
-    (rows marked True) turns down about the eye's centre to blink; the lower one does not move.
-    Returns vertices, triangles, colours, the upper-lid mask, and the upper lid's edge midpoint
-    (feature point 3.1 / 3.2)."""
+    (rows marked True) turns down about the eye's centre to blink, the lower one (the rest) up.
+    Returns vertices, triangles, colours, the upper-lid mask, and the upper and lower lids' edge
+    midpoints (feature points 3.1 / 3.2 and 3.3 / 3.4)."""
     c = eye_centre(cx)
     n_e, n_a = 6, 11
     up = _sphere_patch(c, EYE_RADIUS + 0.8, (LID_OPEN_ELEVATION, 1.1), 1.25, n_e, n_a)
-    low = _sphere_patch(c, EYE_RADIUS + 0.6, (-1.3, -0.42), 1.25, 4, n_a)
+    low = _sphere_patch(c, EYE_RADIUS + 0.6, (-1.3, LID_LOWER_ELEVATION), 1.25, 4, n_a)
     v = np.concatenate([up, low])
     tris = np.concatenate([_grid_triangles(n_e, n_a), _grid_triangles(4, n_a, offset=up.shape[0])])
     colors = np.tile(SKIN_LID, (v.shape[0], 1))
@@ -455,7 +478,7 @@ def _lids(cx: float) -> tuple[NDArray[np.float64], NDArray[np.int64], NDArray[np
     colors[up.shape[0] + 3 * n_a:] = LASH
     is_upper = np.zeros(v.shape[0], dtype=bool)
     is_upper[: up.shape[0]] = True
-    return v, tris, colors, is_upper, n_a // 2
+    return v, tris, colors, is_upper, n_a // 2, up.shape[0] + 3 * n_a + n_a // 2  # the lower lid's top row: its edge
 
 
 def _skull() -> tuple[NDArray[np.float64], NDArray[np.int64], NDArray[np.float64]]:
@@ -587,13 +610,14 @@ def build_face() -> FaceMesh:
         tv, tt, tc = _teeth(up)
         parts.append((name, tv, tt, tc))
     ev_l, et_l, ec_l = _eye(EYE_X)
+    eye_pupil = ev_l.shape[0] - 2  # _eye's front pole (the last two vertices are the poles)
     ev_r, et_r, ec_r = _eye(-EYE_X)
     parts.append(("eyes", np.concatenate([ev_l, ev_r]), np.concatenate([et_l, et_r + ev_l.shape[0]]),
                   np.concatenate([ec_l, ec_r])))
     tg_v, tg_t, tg_fps = _tongue()
     parts.append(("tongue", tg_v, tg_t, np.tile(TONGUE, (tg_v.shape[0], 1))))
-    lv_l, lt_l, lc_l, lu_l, mid_l = _lids(EYE_X)
-    lv_r, lt_r, lc_r, lu_r, mid_r = _lids(-EYE_X)
+    lv_l, lt_l, lc_l, lu_l, mid_l, low_l = _lids(EYE_X)
+    lv_r, lt_r, lc_r, lu_r, mid_r, low_r = _lids(-EYE_X)
     parts.append(("eyelids", np.concatenate([lv_l, lv_r]), np.concatenate([lt_l, lt_r + lv_l.shape[0]]),
                   np.concatenate([lc_l, lc_r])))
     parts.append(("skull", *_skull()))
@@ -612,10 +636,16 @@ def build_face() -> FaceMesh:
     fps.update({k: v + starts["tongue"] for k, v in tg_fps.items()})
     fps["3.1"] = starts["eyelids"] + mid_l  # upper lid edge midpoints, left and right
     fps["3.2"] = starts["eyelids"] + lv_l.shape[0] + mid_r
-    lid_left = np.zeros(offset, dtype=bool)
-    lid_left[starts["eyelids"]:starts["eyelids"] + lv_l.shape[0]] = lu_l
-    lid_right = np.zeros(offset, dtype=bool)
-    lid_right[starts["eyelids"] + lv_l.shape[0]:starts["eyelids"] + lv_l.shape[0] + lv_r.shape[0]] = lu_r
+    fps["3.3"] = starts["eyelids"] + low_l  # lower lid edge midpoints
+    fps["3.4"] = starts["eyelids"] + lv_l.shape[0] + low_r
+    fps["3.5"] = starts["eyes"] + eye_pupil  # the pupils: the eyeballs' front poles
+    fps["3.6"] = starts["eyes"] + ev_l.shape[0] + eye_pupil
+    lids: dict[str, dict[str, NDArray[np.bool_]]] = {"upper": {}, "lower": {}}
+    for side, first, upper_mask in (("l", starts["eyelids"], lu_l), ("r", starts["eyelids"] + lv_l.shape[0], lu_r)):
+        for which, rows in (("upper", upper_mask), ("lower", ~upper_mask)):
+            mask = np.zeros(offset, dtype=bool)
+            mask[first:first + rows.size] = rows
+            lids[which][side] = mask
     return FaceMesh(vertices=np.concatenate(vertices), colors=np.concatenate(colors), part=np.concatenate(part),
                     upper=all_upper, triangles=tris, feature_points=fps, slit=slit,
-                    upper_lid={"l": lid_left, "r": lid_right})
+                    upper_lid=lids["upper"], lower_lid=lids["lower"])

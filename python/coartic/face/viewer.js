@@ -464,6 +464,16 @@ function start() {
   }
   show(params.has("frame") ? Number(params.get("frame")) / fps : params.has("t") ? Number(params.get("t")) : 0);
   window.coarticView = {show, play, stop, nFrames, fps};
+  if (params.get("render") === "1") {
+    // ?render=1: every frame drawn in turn, each as a PNG data URL on its own line of a "frames" pre element,
+    // for a headless Chromium's --dump-dom (coartic.face.viewer.render_frames: the perceptual tests' videos)
+    const out = [];
+    for (let k = 0; k < nFrames; k++) { view.draw(k / fps); out.push(canvas.toDataURL("image/png")); }
+    const pre = document.createElement("pre");
+    pre.id = "frames";
+    pre.textContent = out.join("\n");
+    document.body.appendChild(pre);
+  }
   if (params.get("play") === "1") play();  // ?play=1 starts at once (a browser may ask for a click first)
   document.title = `${data.name} - coartic view`;
 }

@@ -7,7 +7,8 @@ The WAV is played by an <audio> element and is the clock: the face shows the wei
 sound's current time, so picture and voice stay in sync.
 
 `screenshot` runs a headless Chromium (Debian's `chromium`) on the page at a chosen frame: the
-README's figure and the viewer's test come from it.
+README's figure and the viewer's test come from it. `render_frames` draws every frame in one
+Chromium (the perceptual tests' videos of the 3-D face, coartic.perceive.stimuli).
 """
 
 from __future__ import annotations
@@ -15,6 +16,7 @@ from __future__ import annotations
 import base64
 import functools
 import html
+import io
 import http.server
 import json
 import math
@@ -27,16 +29,22 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 from importlib import resources
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from coartic.face.gltf import read_glb
 from coartic.runtime.animate import read_channels_csv
 from coartic.runtime.errors import AnimationError
 from coartic.outputs import atomic_path, atomic_write_text
 
+if TYPE_CHECKING:
+    from PIL import Image
+
 PAGE_NAME = "view.html"
 # --view presets: how far the face is turned, in degrees (+: its left side towards the camera)
 VIEW_PRESETS: dict[str, float] = {"front": 0.0, "three-quarter": 35.0, "profile": 90.0}
+# headless, software WebGL (SwiftShader): the same picture on any machine, with or without a GPU
+CHROMIUM_FLAGS = ("--headless", "--no-sandbox", "--disable-gpu", "--use-angle=swiftshader", "--enable-unsafe-swiftshader",
+                  "--hide-scrollbars", "--no-first-run", "--mute-audio")
 CHROMIUM_NAMES = ("chromium", "chromium-browser", "google-chrome", "google-chrome-stable")
 
 
@@ -209,6 +217,20 @@ def chromium_program() -> str:
     raise AnimationError("no Chromium on PATH (Debian package 'chromium'; scripts/setup.sh installs it)")
 
 
+def _face_query(frame: int | None, face_only: int | None, yaw: float | None, zoom: float | None,
+                section: bool) -> str:
+    query = page_query(frame, yaw, zoom, section)
+    if face_only is not None:
+        query += ("&" if query else "?") + f"face={int(face_only)}"
+    return query
+
+
+def screenshot_url(page: str | os.PathLike[str], *, frame: int | None = None, face_only: int | None = None,
+                   yaw: float | None = None, zoom: float | None = None, section: bool = False) -> str:
+    """The file URL `screenshot` opens (the tests' shared Chromium opens the same one)."""
+    return Path(page).resolve().as_uri() + _face_query(frame, face_only, yaw, zoom, section)
+
+
 def screenshot(page: str | os.PathLike[str], png: str | os.PathLike[str], *, frame: int | None = None,
                face_only: int | None = None, size: tuple[int, int] = (1130, 580), yaw: float | None = None,
                zoom: float | None = None, section: bool = False, timeout: float = 60.0) -> Path:
@@ -216,30 +238,68 @@ def screenshot(page: str | os.PathLike[str], png: str | os.PathLike[str], *, fra
 
     `face_only=N` shows only the face, on an N x N canvas at the top left; `yaw` turns it (degrees).
     """
-    query = page_query(frame, yaw, zoom, section)
-    if face_only is not None:
-        query += ("&" if query else "?") + f"face={int(face_only)}"
-    url = Path(page).resolve().as_uri() + query
     png = Path(png)
     with tempfile.TemporaryDirectory(prefix="coartic-chromium-") as profile:
         shot = Path(profile) / "shot.png"
-        cmd: Sequence[str] = [
-            chromium_program(), "--headless", "--no-sandbox", "--disable-gpu", "--use-angle=swiftshader",
-            "--enable-unsafe-swiftshader", "--hide-scrollbars", "--no-first-run", "--mute-audio",
-            f"--user-data-dir={profile}", f"--window-size={size[0]},{size[1]}", "--virtual-time-budget=5000",
-            f"--screenshot={shot}", url,
-        ]
-        try:
-            proc = subprocess.run(cmd, capture_output=True, timeout=timeout)
-        except subprocess.TimeoutExpired:
-            raise AnimationError(f"Chromium did not finish the screenshot of {page} within {timeout:g} s") from None
-        if proc.returncode != 0 or not shot.is_file():
-            tail = proc.stderr.decode("utf-8", "replace").strip().splitlines()[-3:]
-            raise AnimationError(f"Chromium failed on {page} (exit {proc.returncode}): {' | '.join(tail)}")
+        _run_chromium(page, _face_query(frame, face_only, yaw, zoom, section), profile, size, [f"--screenshot={shot}"], timeout, "the screenshot")
+        if not shot.is_file():
+            raise AnimationError(f"Chromium wrote no screenshot of {page}")
         png.parent.mkdir(parents=True, exist_ok=True)
         with atomic_path(png) as tmp:
             shutil.copyfile(shot, tmp)
     return png
+
+
+def _run_chromium(page: str | os.PathLike[str], query: str, profile: str, size: tuple[int, int], action: list[str],
+                  timeout: float, what: str) -> subprocess.CompletedProcess[bytes]:
+    """One headless Chromium (software WebGL, a throw-away profile) on `page` + `query`, doing `action`."""
+    url = Path(page).resolve().as_uri() + query
+    cmd: Sequence[str] = [
+        chromium_program(), *CHROMIUM_FLAGS, f"--user-data-dir={profile}", f"--window-size={size[0]},{size[1]}",
+        "--virtual-time-budget=5000", *action, url,
+    ]
+    try:
+        proc = subprocess.run(cmd, capture_output=True, timeout=timeout)
+    except subprocess.TimeoutExpired:
+        raise AnimationError(f"Chromium did not finish {what} of {page} within {timeout:g} s") from None
+    if proc.returncode != 0:
+        tail = proc.stderr.decode("utf-8", "replace").strip().splitlines()[-3:]
+        raise AnimationError(f"Chromium failed on {page} (exit {proc.returncode}): {' | '.join(tail)}")
+    return proc
+
+
+# Rendering every frame in one Chromium: the time allowed per frame (software WebGL draws the face
+# and encodes a PNG in ~0.1 s on one core), over a fixed start-up allowance.
+RENDER_TIMEOUT_S = (60.0, 1.0)
+
+
+def render_frames(page: str | os.PathLike[str], size: int, *, yaw: float | None = None,
+                  zoom: float | None = None) -> list[Image.Image]:
+    """Every frame of `page`'s animation as an RGB image of the face alone (`size` x `size`), drawn by
+    viewer.js in one headless Chromium (the page's ?render=1 mode, read back with --dump-dom): the
+    3-D face's frames for a video (coartic.perceive's stimuli), as `screenshot` shows one of them."""
+    from PIL import Image
+
+    n = page_frames(page)
+    query = page_query(None, yaw, zoom) + ("&" if yaw is not None or zoom is not None else "?") + f"face={int(size)}&render=1"
+    with tempfile.TemporaryDirectory(prefix="coartic-chromium-") as profile:
+        proc = _run_chromium(page, query, profile, (size, size), ["--dump-dom"],
+                             RENDER_TIMEOUT_S[0] + RENDER_TIMEOUT_S[1] * n, f"rendering {n} frames")
+    dom = proc.stdout.decode("utf-8", "replace")
+    start = dom.rfind('<pre id="frames">')  # the last: the page's script text precedes the element
+    if start < 0:
+        tail = proc.stderr.decode("utf-8", "replace").strip().splitlines()[-3:]
+        raise AnimationError(f"Chromium drew no frames of {page}: {' | '.join(tail) or 'the page failed silently'}")
+    lines = dom[start + len('<pre id="frames">'):dom.index("</pre>", start)].split()
+    if len(lines) != n:
+        raise AnimationError(f"Chromium drew {len(lines)} frames of {page}, which has {n}")
+    prefix = "data:image/png;base64,"
+    frames = []
+    for line in lines:
+        if not line.startswith(prefix):
+            raise AnimationError(f"Chromium returned a frame of {page} that is not a PNG data URL")
+        frames.append(Image.open(io.BytesIO(base64.b64decode(line[len(prefix):]))).convert("RGB"))
+    return frames
 
 
 class _Handler(http.server.SimpleHTTPRequestHandler):

@@ -100,7 +100,7 @@ def fit_channel(spec: FitSpec, utterances: Sequence[Utterance], channel: str,
                                                        include_start=spec.fit.include_start)
         else:
             final, res, stages = fit_staged(problem, spec.engine.name, spec.engine.options, stage_names, on_stage)
-        if spec.groups.emotions == "targets" and res.status not in ("interrupted", "failed", "non-finite start"):
+        if spec.groups.emotions != "none" and res.status not in ("interrupted", "failed", "non-finite start"):
             # the deviations' scale τ from the fit without their prior, then the fit with it from there
             # (coartic.estimation.emotions)
             prior = estimate_prior(final, res.x)

@@ -18,6 +18,9 @@ response = "choice"             # intelligibility: choice (closed set) or text (
 answers = ["b", "d", "g"]       # the right answer of each item (default for VCV items: the consonant)
 snr_db = [-6.0, 0.0]            # noise mixed into the sound at these SNRs (intelligibility: required)
 noise = "speech-shaped"         # or "white"
+render = "3d"                   # the face in the videos: "3d" (coartic's face, coartic view's renderer in a
+                                # headless Chromium: brows, lids, cheeks, teeth) or "2d" (the runtime's
+                                # preview: lips, jaw, front and side, no Chromium needed)
 
 [[condition]]
 name = "coarticulation"         # the fitted table's face
@@ -41,6 +44,7 @@ DESIGNS = ("intelligibility", "emotion", "preference", "mushra")
 FACES = ("model", "step", "still")
 NOISES = ("speech-shaped", "white")
 RESPONSES = ("choice", "text")
+RENDERS = ("3d", "2d")
 COUNTERBALANCE = ("full", "latin")
 _NAME = re.compile(r"[A-Za-z0-9_][A-Za-z0-9_.-]{0,63}")
 _VCV = re.compile(r"([aeiouAEIOU])([^aeiouAEIOU]+)\1")
@@ -82,6 +86,7 @@ class StudySpec:
     lang: str = "it"
     fps: float = 25.0
     size_px: int = 240
+    render: str = "3d"
     attention_every: int = 8
     counterbalance: str = "full"
     replay: bool = False
@@ -213,7 +218,7 @@ def parse_study(doc: dict[str, Any], path: Path) -> StudySpec:
     _take(study, path, "study", {"name", "design", "seed", "title", "consent", "instructions", "question",
                                  "attention_every", "counterbalance", "replay", "completion_code"})
     _take(stim, path, "stimuli", {"items", "answers", "response", "snr_db", "noise", "lang", "fps", "size_px",
-                                  "choices"})
+                                  "choices", "render"})
     name = _str(study.get("name"), path, "study.name")
     if not _NAME.fullmatch(name):
         raise _fail(path, "study.name", f"{name!r} must be one word (letters, digits, _ . -), at most 64 characters")
@@ -295,6 +300,7 @@ def parse_study(doc: dict[str, Any], path: Path) -> StudySpec:
         items=items, answers=answers, conditions=conditions, response=response, snr_db=snr,
         noise=_choice(stim.get("noise"), path, "stimuli.noise", NOISES, "speech-shaped"), lang=lang, fps=fps,
         size_px=_int(stim.get("size_px"), path, "stimuli.size_px", 240, 64, 1024),
+        render=_choice(stim.get("render"), path, "stimuli.render", RENDERS, "3d"),
         attention_every=_int(study.get("attention_every"), path, "study.attention_every", 8, 0, 1000),
         counterbalance=_choice(study.get("counterbalance"), path, "study.counterbalance", COUNTERBALANCE, "full"),
         replay=bool(study.get("replay", design != "intelligibility")),

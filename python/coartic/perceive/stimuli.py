@@ -1,9 +1,13 @@
-"""The study's videos: coartic's face (the runtime's preview face, front and side, nothing written on
-screen) saying each item with Festival's voice, one video per item x condition x SNR.
+"""The study's videos: coartic's face saying each item with Festival's voice, one video per item x
+condition x SNR, nothing written on screen. The face is the 3-D one (`render = "3d"`, the default:
+the glTF that `coartic speak --gltf` writes, drawn frame by frame by `coartic view`'s renderer in one
+headless Chromium per item and condition, coartic.face.viewer.render_frames) or the runtime's 2-D
+preview (`render = "2d"`: lips and jaw, front and side, coartic.runtime.preview).
 
 A condition's face is the table's coarticulated animation (`model`; with an `emotion`, the table's
-emotion blended in as `coartic speak --emotion` does: the lips' emotional targets — the preview face
-has no brows, lids or cheeks, so the expression outside the mouth is not in these videos), the same table with each
+emotion blended in as `coartic speak --emotion` does: the lips' emotional targets and, on the 3-D
+face, the expression outside the mouth, brows, lids and cheeks, from the same FAPs as the FAP file's,
+coartic.runtime.expression; the 2-D preview has no brows, lids or cheeks), the same table with each
 phoneme's target held over its segment (`step`: keyframe lip-sync, the runtime's analogue of the
 fit's step baseline, coartic.evaluation.baselines), or the face at rest (`still`: the audio-alone baseline
 of audiovisual intelligibility). Festival speaks each item once per table; every condition of an
@@ -180,12 +184,38 @@ def face_of(c: Condition, speech: Speech) -> Animation:
     return speech.animation
 
 
+# The 3-D face's zoom in the videos: the whole face, raised brows to chin (the camera aims at the lip
+# line; closer, surprise's brows leave the frame).
+STIMULUS_ZOOM = 1.1
+
+
+def face_frames_3d(animation: Animation, table: ParameterTable, work: Path, size_px: int) -> list[Any]:
+    """The 3-D face playing `animation` (`size_px` square RGB frames): its glTF written by the runtime's
+    exporters (the one FaceAnimation the FAP file and the glTF are made from, coartic.runtime.exporters)
+    into `work`, drawn frame by frame in headless Chromium by `coartic view`'s renderer."""
+    from coartic.face.viewer import render_frames, write_page
+    from coartic.runtime.exporters import ExportSettings, run_exports
+    from coartic.runtime.pipeline import speaker_face
+
+    settings = ExportSettings(out=work, name="face", face=speaker_face(table), table=table)
+    run_exports(animation, settings, ("channels", "fap", "segments", "gltf"))
+    return render_frames(write_page(work), size_px, zoom=STIMULUS_ZOOM)
+
+
 def prepare_stimuli(spec: StudySpec, out: Path, progress: Any = None) -> dict[str, Any]:
     """Render every stimulus into out/stimuli and write out/study.json (the manifest the server and
     the analysis read) and out/secret.key (the key that pseudonymises panel identifiers)."""
     from coartic.outputs import atomic_write_text
-    from coartic.runtime.preview import render_face_video
+    from coartic.runtime.preview import render_face_video, write_video
 
+    if spec.render == "3d":  # before Festival says anything: without Chromium no 3-D face
+        from coartic.face.viewer import chromium_program
+
+        try:
+            chromium_program()
+        except AnimationError as err:
+            raise AnimationError(f"{spec.path}: [stimuli] render = \"3d\" draws the face in Chromium: {err}; "
+                                 "or set render = \"2d\" (the runtime's preview face)") from None
     work = out / "work"
     stim_dir = out / "stimuli"
     stim_dir.mkdir(parents=True, exist_ok=True)
@@ -207,9 +237,12 @@ def prepare_stimuli(spec: StudySpec, out: Path, progress: Any = None) -> dict[st
     for i, text in enumerate(spec.items):
         sound = first[i]
         mask = speech_mask(sound.animation, sound.samples.size, sound.rate)
-        for c in spec.conditions:
+        for k, c in enumerate(spec.conditions):
             speech = spoken[(i, _table_key(c))]
             animation = face_of(c, speech)
+            # the 3-D face drawn once per item and condition: its SNRs differ in their sound only
+            frames = (face_frames_3d(animation, speech.table, work / f"face{i + 1}_{k + 1}", spec.size_px)
+                      if spec.render == "3d" else None)
             for snr in spec.snr_db:
                 sid = f"s{len(stimuli) + 1:04d}"
                 rng = np.random.default_rng([spec.seed, len(stimuli)])
@@ -217,7 +250,10 @@ def prepare_stimuli(spec: StudySpec, out: Path, progress: Any = None) -> dict[st
                 mixed, measured = mix_at_snr(sound.samples, mask, noise, snr)
                 wav = work / f"{sid}.wav"
                 write_wav(wav, mixed, sound.rate)
-                video = render_face_video(animation, animation.neutral, stim_dir / f"{sid}.mp4", wav, spec.size_px)
+                if frames is not None:
+                    video = write_video(stim_dir / f"{sid}.mp4", frames, animation.fps, wav)
+                else:
+                    video = render_face_video(animation, animation.neutral, stim_dir / f"{sid}.mp4", wav, spec.size_px)
                 stimuli.append({"id": sid, "item": i, "text": text, "condition": c.name, "snr_db": snr,
                                 "measured_snr_db": measured, "file": f"stimuli/{video.name}",
                                 "duration_s": round(sound.samples.size / sound.rate, 4),
@@ -245,6 +281,7 @@ def manifest_of(spec: StudySpec, stimuli: list[dict[str, Any]]) -> dict[str, Any
         "instructions": spec.instructions, "question": spec.question, "response": spec.response,
         "attention_every": spec.attention_every, "counterbalance": spec.counterbalance, "replay": spec.replay,
         "completion_code": spec.completion_code, "noise": spec.noise, "lang": spec.lang, "fps": spec.fps,
+        "render": spec.render,
         "items": [{"index": i, "text": t, "answer": spec.answers[i] if spec.answers else None}
                   for i, t in enumerate(spec.items)],
         "conditions": [{"name": c.name, "face": c.face, "table": None if c.table is None else str(c.table),

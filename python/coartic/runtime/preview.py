@@ -15,7 +15,7 @@ from __future__ import annotations
 
 import shutil
 import subprocess
-from collections.abc import Callable, Iterator, Mapping, Sequence
+from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING
@@ -383,11 +383,17 @@ def face_frames(animation: Animation, neutral: Mapping[str, float], size_px: int
 def render_face_video(animation: Animation, neutral: Mapping[str, float], path: str | Path, audio: Path | None,
                       size_px: int = 320) -> Path:
     """The face alone (`face_frames`) as an MP4 with `audio` as its sound track; written atomically."""
+    return write_video(path, face_frames(animation, neutral, size_px), animation.fps, audio)
+
+
+def write_video(path: str | Path, frames: Iterable[Image.Image], fps: float, audio: Path | None) -> Path:
+    """RGB frames (all of one size) as an MP4 at `fps` with `audio` as its sound track; written
+    atomically. The 2-D face's (`render_face_video`) and the 3-D face's (coartic.perceive.stimuli)."""
     path = Path(path)
     if path.suffix.lower() != ".mp4":
         raise AnimationError(f"{path}: a face video is written as .mp4")
     with atomic_path(path) as tmp:
-        _write_mp4(tmp, face_frames(animation, neutral, size_px), animation.fps, lambda: None, audio)
+        _write_mp4(tmp, iter(frames), fps, lambda: None, audio)
     return path
 
 
