@@ -46,9 +46,9 @@ def main() -> int:
     base = rd.corpus_spec(corpus).with_options(channels=(a.channel,), pauses=a.pauses)
     spec = rd.cell_spec(base, "rate-aware", "pooled", "tprior-eb", 1)
     if a.tie:
-        spec = spec.with_options(ties=spec.ties + (Tie(phonemes=(PAUSE, FINAL_PAUSE), parameters=tuple(a.tie.split(","))),))
+        spec = spec.with_options(ties=spec.parameters.ties + (Tie(phonemes=(PAUSE, FINAL_PAUSE), parameters=tuple(a.tie.split(","))),))
     if a.true_lag:
-        spec = spec.with_options(overrides=spec.overrides + (Override(phonemes=(PAUSE, FINAL_PAUSE), fixed=TRUE_LAG),))
+        spec = spec.with_options(overrides=spec.parameters.overrides + (Override(phonemes=(PAUSE, FINAL_PAUSE), fixed=TRUE_LAG),))
     _, train, test = rd.splits(rd.load_utterances(base), ["rate"])[0]
     trained = run(spec, utterances=list(train), quiet=True)
     got = rd.fit_and_score(spec, train, test, a.channel, None, "constant", trained=trained)
