@@ -8,8 +8,9 @@ from pathlib import Path
 import pytest
 
 from coartic.errors import SpecError
-from coartic.estimation.settings import SPEC_KEYS
-from coartic.fit.spec import ARRAYS, DEFAULT_STAGES, SECTION_KEYS, SECTIONS, CorpusSpec, FitSpec, Override, load_spec
+from coartic.estimation.settings import SPEC_KEYS, ModelSettings
+from coartic.fit.spec import (ARRAYS, DEFAULT_STAGES, SECTION_KEYS, SECTIONS, CorpusSpec, EngineSection, FitSpec, Override,
+                              load_spec)
 
 ROOT = Path(__file__).resolve().parents[2]
 
@@ -241,3 +242,19 @@ def test_with_options_names_a_field_that_does_not_exist(tmp_path: Path) -> None:
     s = load_spec(write(tmp_path, BASE))
     with pytest.raises(SpecError, match=r"FitSpec has no field\(s\) \['colour'\]"):
         s.with_options(colour="red")
+
+
+def test_the_spec_holds_the_estimation_settings_and_sections_change_key_by_key(tmp_path: Path) -> None:
+    # [model] and [parameters] land in estimation's own classes (no copy of their fields here)
+    s = load_spec(write(tmp_path, BASE + '[model]\nbeta = 2.0\noffsets = 0.3\n[parameters]\nprior_noise = 0.5\n'
+                        'start_table = "t.json"\n[engine]\nname = "nlopt"\noptions = { polish = "none" }\n'))
+    assert isinstance(s.model, ModelSettings) and s.model.beta == 2.0 and s.groups.offsets == 0.3
+    assert s.priors.prior_noise == 0.5 and s.start_table == tmp_path / "t.json"
+    assert s.estimation_settings().model is s.model and s.estimation_settings().source == s.path
+    # a table of changes keeps the section's other keys; a setting by its name finds its section
+    t = s.with_options(engine={"name": "scipy"}, starts=3)
+    assert (t.engine.name, t.engine.options, t.fit.starts, t.fit.seed) == ("scipy", {"polish": "none"}, 3, 0)
+    assert s.with_options(engine=EngineSection()).engine.options == {}  # or the section whole
+    again = FitSpec.from_settings(s.estimation_settings(), s.path, s.name, s.corpus, channels=s.channels,
+                                  engine={"name": "nlopt", "options": {"polish": "none"}}, start_table=s.start_table)
+    assert again == s
