@@ -50,6 +50,7 @@ FLAVOURS: tuple[str, ...] = ("model", "gestures", "italian", "emotive")
 SETTINGS = HERE / "session.toml"
 EMOTION_SETTINGS = HERE / "emotions.toml"  # the emotive flavour
 ASYMMETRY: tuple[str, ...] = ("ASYMX", "ASYMY")  # the corner asymmetries of the emotive flavour
+EMOTION_DYNAMICS: tuple[str, ...] = ("alpha", "theta_bw", "theta_fw")  # the rates [dynamics] may move
 GROUND_TRUTH = HERE / "ground_truth.json"
 GROUND_TRUTH_ITALIAN = HERE / "ground_truth_italian.json"
 CONTEXTS: tuple[str, ...] = ("VCV", "CV", "VC")
@@ -84,6 +85,7 @@ class TrialPlan:
     key: tuple[int, ...]
     context: str = "VCV"  # VCV, or (Italian flavour) CV or VC between pauses
     emotion: str = ""  # the emotive flavour's emotion ("neutral", "joy", ...); "" in the other flavours
+    intensity: float = 1.0  # the emotive flavour's intensity: the emotion's deviations scaled by it
 
     @property
     def phonemes(self) -> tuple[str, ...]:
@@ -95,7 +97,8 @@ class TrialPlan:
     def name(self) -> str:
         spelt = "".join(FILE_SPELLING.get(p, p) for p in self.phonemes)
         if self.emotion:
-            return f"{spelt}_{self.emotion}_{self.rate}_{self.repetition:02d}"
+            at = "" if self.intensity == 1.0 else f"-{self.intensity:g}"
+            return f"{spelt}_{self.emotion}{at}_{self.rate}_{self.repetition:02d}"
         return f"{spelt}_{self.rate}_{self.repetition:02d}"
 
     @property
@@ -178,6 +181,21 @@ def load_emotions(path: Path = EMOTION_SETTINGS) -> dict[str, Any]:
         raise SessionError(f"{path}: emotions must start with \"neutral\" (the reference), got {e['emotions']!r}")
     if not 0 < e["quick_repetitions"] <= e["repetitions"]:
         raise SessionError(f"{path}: quick_repetitions must be in 1..repetitions")
+    e["intensities"] = check_intensities(e["intensity"], f"{path}: intensity")
+    e.setdefault("dynamics", {})
+    e["planted_dynamics"] = False  # generate(emotion_dynamics=True) plants [dynamics]
+    for emotion, devs in e["dynamics"].items():
+        if emotion not in e["emotions"] or emotion == "neutral":
+            raise SessionError(f"{path}: [dynamics.{emotion}]: not one of the emotions {e['emotions'][1:]}")
+        for q, v in devs.items():
+            per = v if isinstance(v, dict) else {"*": v}
+            if q not in EMOTION_DYNAMICS or any(isinstance(f, bool) or not isinstance(f, (int, float)) or f <= 0
+                                               for f in per.values()):
+                raise SessionError(f"{path}: [dynamics.{emotion}] {q}: expected one of {list(EMOTION_DYNAMICS)} = a "
+                                   "positive factor or {class = factor, ...}")
+            bad = [c for c in per if c != "*" and c not in e["classes"]]
+            if bad:
+                raise SessionError(f"{path}: [dynamics.{emotion}] {q}: unknown class(es) {bad}")
     owner: dict[str, str] = {}
     for cls, members in e["classes"].items():
         for ph in members:
@@ -210,6 +228,16 @@ def load_emotions(path: Path = EMOTION_SETTINGS) -> dict[str, Any]:
     return e
 
 
+def check_intensities(value: Any, where: str) -> list[float]:
+    """The intensities every emotion is said at (a number or a list of distinct numbers in (0, 1.5];
+    the neutral trials once): the emotion's deviations scaled by each."""
+    values = value if isinstance(value, list) else [value]
+    if (not values or any(isinstance(v, bool) or not isinstance(v, (int, float)) or not 0.0 < v <= 1.5 for v in values)
+            or len(set(values)) != len(values)):
+        raise SessionError(f"{where}: expected a number in (0, 1.5] or a list of distinct ones, got {value!r}")
+    return [float(v) for v in values]
+
+
 def emotion_deviations(emo: dict[str, Any]) -> dict[str, dict[str, dict[str, float]]]:
     """emotion -> channel -> phoneme -> deviation (mm) of every non-neutral emotion (0 where none given)."""
     owner = {ph: cls for cls, members in emo["classes"].items() for ph in members}
@@ -223,15 +251,36 @@ def emotion_deviations(emo: dict[str, Any]) -> dict[str, dict[str, dict[str, flo
     return out
 
 
-def emotion_tables(table: ParameterTable, emo: dict[str, Any]) -> dict[str, ParameterTable]:
-    """The table each emotion's trials are generated from: the neutral truth with its targets moved."""
-    out = {"neutral": table}
+def emotion_dynamics(emo: dict[str, Any]) -> dict[str, dict[str, dict[str, float]]]:
+    """emotion -> parameter -> phoneme -> log factor on the neutral value (every channel) of every
+    non-neutral emotion and EMOTION_DYNAMICS parameter; all 0 unless the dynamics are planted."""
+    owner = {ph: cls for cls, members in emo["classes"].items() for ph in members}
+    out: dict[str, dict[str, dict[str, float]]] = {}
+    for emotion in emo["emotions"][1:]:
+        devs = emo["dynamics"].get(emotion, {}) if emo.get("planted_dynamics") else {}
+        out[emotion] = {}
+        for q in EMOTION_DYNAMICS:
+            v = devs.get(q, 1.0)
+            per = v if isinstance(v, dict) else {c: v for c in emo["classes"] if c != "pause"}
+            out[emotion][q] = {ph: math.log(float(per.get(cls, 1.0))) for ph, cls in owner.items()}
+    return out
+
+
+def emotion_tables(table: ParameterTable, emo: dict[str, Any]) -> dict[tuple[str, float], ParameterTable]:
+    """The table each emotion's trials at each intensity s are generated from: the neutral truth with
+    its targets moved by s times the emotion's deviations (and, planted dynamics, its rates by factor^s)."""
+    out = {("neutral", 1.0): table}
+    dyn = emotion_dynamics(emo)
     for emotion, per_ch in emotion_deviations(emo).items():
-        t = copy.deepcopy(table)
-        for ch, per in per_ch.items():
-            for ph, d in per.items():
-                t.values[ph][ch]["target"] += d
-        out[emotion] = t
+        for s in emo["intensities"]:
+            t = copy.deepcopy(table)
+            for ch, per in per_ch.items():
+                for ph, d in per.items():
+                    t.values[ph][ch]["target"] += s * d
+                    for q, logs in dyn[emotion].items():
+                        if logs[ph]:
+                            t.values[ph][ch][q] *= math.exp(s * logs[ph])
+            out[emotion, s] = t
     return out
 
 
@@ -248,6 +297,10 @@ def emotive_truth(table: ParameterTable, emo: dict[str, Any]) -> ParameterTable:
         targets = {e: {ph: t.values[ph][ch]["target"] + (devs[e][ch][ph] if e in devs else 0.0) for ph in keep}
                    for e in emo["emotions"]}
         channels[ch] = {"targets": targets, "deviations": {e: {ph: devs[e][ch][ph] for ph in keep} for e in devs}}
+        if emo.get("planted_dynamics"):  # the log deviations a targets+dynamics fit estimates
+            dyn = emotion_dynamics(emo)
+            channels[ch]["dynamics"] = {q: {"deviations": {e: {ph: dyn[e][q][ph] for ph in keep} for e in dyn}}
+                                        for q in EMOTION_DYNAMICS}
     t.metadata = {**(t.metadata or {}), "emotions": {
         "mode": "targets", "column": "emotion", "neutral": "neutral", "channels": channels,
         "asymmetry": {e: {k: float(emo["asymmetry"][e].get(k, 0.0)) for k in ASYMMETRY} for e in emo["emotions"]},
@@ -265,9 +318,11 @@ def plan_trials(settings: dict[str, Any], quick: bool = False, flavour: str = "m
     if flavour == "emotive":
         em = settings["emotive"]
         reps = em["quick_repetitions"] if quick else em["repetitions"]
+        # a trial at intensity 1 has the stream (and so the bytes) it had before intensities existed
         return [
-            TrialPlan(v, c, rate, rep + 1, (vi, ci, ri, rep, ei), "VCV", emotion)
+            TrialPlan(v, c, rate, rep + 1, (vi, ci, ri, rep, ei) + (() if s == 1.0 else (si,)), "VCV", emotion, s)
             for ei, emotion in enumerate(em["emotions"])
+            for si, s in enumerate(em["intensities"] if ei else [1.0])
             for vi, v in enumerate(em["vowels"])
             for ci, c in enumerate(em["consonants"])
             for ri, rate in enumerate(RATES)
@@ -679,6 +734,8 @@ def generate(
     flavour: str = "model",
     consonants: Sequence[str] | None = None,
     speakers: int = 1,
+    intensities: Sequence[float] | None = None,
+    emotion_dynamics: bool = False,
 ) -> Path:
     """Write the session into ``out``; return the path of its manifest.
 
@@ -687,6 +744,10 @@ def generate(
     "italian" (the model with ``ground_truth_italian.json``, every Italian vowel in VCV, CV and VC
     contexts: ``session.toml [italian]``).
     ``consonants``: only the trials of these consonants (default: all of session.toml).
+    ``intensities`` (emotive flavour): every emotion said at each of these intensities (default
+    emotions.toml's ``intensity``), its deviations scaled by it; the manifest's intensity column says which.
+    ``emotion_dynamics`` (emotive flavour): also plant emotions.toml's ``[dynamics]`` (each emotion's
+    rates), recorded in the truth's ``metadata.emotions.channels.<ch>.dynamics``.
     ``speakers``: more than 1 writes one session per speaker into ``out/s01``, ``out/s02``...
     (speakers differ in target scale and speaking rate, ``speakers.toml``; each folder holds its
     speaker's ``ground_truth.json``) and a corpus manifest ``out/manifest.csv`` with a ``speaker``
@@ -709,6 +770,9 @@ def generate(
         if speakers != 1:
             raise SessionError("--flavour emotive is one speaker's session: leave out --speakers")
         settings = {**settings, "emotive": load_emotions()}
+        if intensities is not None:
+            settings["emotive"]["intensities"] = check_intensities(list(intensities), "intensities")
+        settings["emotive"]["planted_dynamics"] = bool(emotion_dynamics)
     table = ParameterTable.load(truth_path(flavour))
     plans = plan_trials(settings, quick, flavour)
     if consonants is not None:
@@ -767,7 +831,8 @@ def _write_session(
         task = bar.add_task("", total=len(plans))
         tables = emotion_tables(table, settings["emotive"]) if flavour == "emotive" else {}
         for plan in plans:
-            trial = make_trial(settings, tables.get(plan.emotion, table), plan, seed, n_session, flavour, stream)
+            trial = make_trial(settings, tables.get((plan.emotion, plan.intensity), table), plan, seed, n_session,
+                               flavour, stream)
             name = plan.name
             write_c3d(out / "c3d" / f"{name}.c3d", trial.markers, rate)
             write_csv(out / "csv" / f"{name}.csv", trial.times, trial.markers)
@@ -795,7 +860,7 @@ def _write_session(
                     "y0_offset_mm": f"{trial.y0_offset:.4f}",
                 } | ({"context": plan.context, "ema": f"ema/{name}.csv" if trial.ema is not None else ""}
                      if flavour == "italian" else {})
-                  | ({"emotion": plan.emotion, "intensity": settings["emotive"]["intensity"]}
+                  | ({"emotion": plan.emotion, "intensity": plan.intensity}
                      if flavour == "emotive" else {})
             )
             bar.update(task, advance=1, description=name)

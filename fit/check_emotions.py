@@ -23,6 +23,8 @@ from typing import Any
 from coartic.table import ParameterTable
 
 TOLERANCE_MM = 0.3
+# an emotion's own rates ([model] emotions = "targets+dynamics"): log deviations within 0.1 (10 %)
+TOLERANCE_LOG = 0.1
 Z95 = 1.959963984540054
 
 
@@ -68,11 +70,38 @@ def deviations(fitted: ParameterTable, truth: ParameterTable) -> list[Deviation]
     return out
 
 
+def dynamics_report(fitted: ParameterTable, truth: ParameterTable, tolerance: float) -> bool:
+    """A fit with ``[model] emotions = "targets+dynamics"``: per channel and parameter the largest error of
+    the emotions' log deviations (the truth's, 0 where it plants none), and the sd per emotion that
+    empirical Bayes gave (metadata.pooling; near 0: pooled into the neutral rates). True when every one is
+    within ``tolerance``; True without a word for a fit without them."""
+    fm, tm = emotions_of(fitted), emotions_of(truth)
+    pooling = (fitted.metadata or {}).get("pooling") or {}
+    ok = True
+    for ch, fc in fm["channels"].items():
+        truth_dyn = (tm["channels"].get(ch) or {}).get("dynamics") or {}
+        for q, d in (fc.get("dynamics") or {}).items():
+            errs = [(abs(v - float(truth_dyn.get(q, {}).get("deviations", {}).get(e, {}).get(ph, 0.0))), e, ph)
+                    for e, per in d["deviations"].items() for ph, v in per.items() if ph in truth.values]
+            if not errs:
+                continue
+            worst = max(errs)
+            fams = (pooling.get(ch) or {}).get("families") or {}
+            sds = " ".join(f"{e[:4]} {fams[f'emotion {q} {e}']['sd']:.3f}" for e in d["deviations"]
+                           if f"emotion {q} {e}" in fams)
+            print(f"{ch:8} {q:9} log deviations: max error {worst[0]:.3f} ({worst[1][:4]} {worst[2]}), "
+                  f"{sum(x <= tolerance for x, _, _ in errs)}/{len(errs)} within {tolerance:g}; sd per emotion {sds}")
+            ok &= worst[0] <= tolerance
+    return ok
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("fit_dir", type=Path, nargs="?", default=Path("results/emotive"))
     ap.add_argument("truth", type=Path, nargs="?", default=Path("build/emotive/ground_truth.json"))
     ap.add_argument("--tolerance", type=float, default=TOLERANCE_MM, help="mm (default %(default)s)")
+    ap.add_argument("--dynamics-tolerance", type=float, default=TOLERANCE_LOG,
+                    help="log units, for a fit with emotions = \"targets+dynamics\" (default %(default)s)")
     a = ap.parse_args(argv)
     fitted = ParameterTable.load(a.fit_dir / "table.json")
     truth = ParameterTable.load(a.truth)
@@ -111,6 +140,7 @@ def main(argv: list[str] | None = None) -> int:
         if off_a or missing:
             print(f"  asymmetry off or missing: {off_a} {missing}")
             ok = False
+    ok &= dynamics_report(fitted, truth, a.dynamics_tolerance)
     bad = [d for d in devs if d.error > a.tolerance]
     for d in sorted(bad, key=lambda d: -d.error)[:10]:
         print(f"  off: {d.channel} {d.emotion} /{d.phoneme}/ fitted {d.fitted:+.3f} truth {d.truth:+.3f} mm")

@@ -3,8 +3,9 @@
 A fit with ``[model] emotions = "targets"`` (docs/EMOTIONS.md) records in ``metadata.emotions``, per
 channel, each emotion's deviations d = T(p|e) − T(p|neutral) from the table's (neutral) targets.
 ``emotion_table(table, "joy", 0.6)`` is the table with every target T + 0.6·d: the model is linear
-in the targets and the emotions share the dynamics, so intensity s gives F_neutral + s·(F_e − F_neutral)
-exactly. Where a phoneme makes a contact (k_R = 1 on ULO or LLO: the closure of /p b m/, the
+in the targets, so where the emotions share the dynamics (``[model] emotions = "targets"``) intensity s
+gives F_neutral + s·(F_e − F_neutral) exactly; a table fitted with ``"targets+dynamics"`` also has
+each emotion's log deviations of α, θ_bw, θ_fw, applied as v·exp(s·δ). Where a phoneme makes a contact (k_R = 1 on ULO or LLO: the closure of /p b m/, the
 lower lip on the teeth for /f v/) its target there is kept neutral at every intensity: the
 contact is phonological, and Magno Caldognetto et al. (2003, 2004) found lip opening keeping the
 phonological contrasts under every emotion.
@@ -35,6 +36,29 @@ MAX_INTENSITY = 1.5  # past the recorded expression, extrapolation: refused beyo
 class EmotionError(CoarticError, ValueError):
     """An ``--emotion`` the table cannot speak, or an intensity out of range: the message names the
     table and the known emotions."""
+
+
+# the manifest column holding a trial's known intensity (0 neutral, 1 as recorded); a trial without
+# it (no such column, or an empty cell) counts as 1
+INTENSITY_COLUMN = "intensity"
+
+
+def trial_intensity(u: Utterance) -> float:
+    """The intensity an utterance's emotion was recorded at (manifest column ``intensity``; missing or
+    empty: 1): its deviation from neutral is scaled by it, in the fit and in held-out scoring. A value
+    that is not a number from 0 to ``MAX_INTENSITY`` is refused, naming the utterance."""
+    raw = str(u.meta.get(INTENSITY_COLUMN, "") or "").strip()
+    if not raw:
+        return 1.0
+    try:
+        s = float(raw)
+    except ValueError:
+        s = math.nan
+    if not (math.isfinite(s) and 0.0 <= s <= MAX_INTENSITY):
+        raise EmotionError(f"utterance {u.name!r} ({u.meta.get('file', '')}): manifest column "
+                           f"{INTENSITY_COLUMN!r} = {raw!r}: expected a number from 0 (neutral) to "
+                           f"{MAX_INTENSITY:g} (1 as recorded), or an empty cell (counts as 1)")
+    return s
 
 
 def table_emotions(table: ParameterTable) -> tuple[str, ...]:
@@ -77,6 +101,12 @@ def emotion_table(table: ParameterTable, emotion: str | None, intensity: float =
             if keep_contacts and ch in CONTACT_CHANNELS and row["k_r"] >= CONTACT_K_R:
                 continue  # the contact is phonological: kept at every intensity
             row["target"] = float(row["target"] + intensity * float(d))
+        # [model] emotions = "targets+dynamics": the emotion's own rates, log deviations scaled likewise
+        for q, dyn in (per.get("dynamics") or {}).items():
+            for ph, d in (dyn.get("deviations") or {}).get(emotion, {}).items():
+                row = out.values.get(ph, {}).get(ch)
+                if row is not None:
+                    row[q] = float(row[q] * math.exp(intensity * float(d)))
     out.source = f"{table.source} ({emotion} at {intensity:g})"
     # what the runtime shows outside the mouth (coartic.runtime.expression); the targets carry the rest
     out.metadata = {**(out.metadata or {}), "expression": {"emotion": emotion, "intensity": float(intensity)}}
@@ -86,18 +116,20 @@ def emotion_table(table: ParameterTable, emotion: str | None, intensity: float =
 def evaluate_by_emotion(table: ParameterTable, channel: str, utterances: Sequence[Utterance]) -> list[F64]:
     """One channel over many utterances, each with its own emotion's fitted targets (the manifest
     column the table was fitted with; an utterance without one, or with an emotion the table does
-    not know, is predicted neutral): the held-out prediction of a table fitted with emotions."""
+    not know, is predicted neutral) at its intensity (``trial_intensity``): the held-out prediction
+    of a table fitted with emotions."""
     known = table_emotions(table)
     if not known:
         return evaluate_corpus(table, channel, utterances)
     column = str(table.metadata["emotions"].get("column", "emotion"))
-    groups: dict[str, list[int]] = {}
+    groups: dict[tuple[str, float], list[int]] = {}
     for i, u in enumerate(utterances):
         e = str(u.meta.get(column, known[0]))
-        groups.setdefault(e if e in known else known[0], []).append(i)
+        e = e if e in known else known[0]
+        groups.setdefault((e, 1.0 if e == known[0] else trial_intensity(u)), []).append(i)
     out: list[F64 | None] = [None] * len(utterances)
-    for e, idx in groups.items():
-        values = evaluate_corpus(emotion_table(table, e, 1.0, keep_contacts=False), channel,
+    for (e, s), idx in groups.items():
+        values = evaluate_corpus(emotion_table(table, e, s, keep_contacts=False), channel,
                                  [utterances[i] for i in idx])
         for i, v in zip(idx, values):
             out[i] = v

@@ -81,18 +81,41 @@ def synth(
                      "and OUT/manifest.csv with a 'speaker' column over all of them."),
     ] = 1,
     force: Annotated[bool, typer.Option("--force", help="Replace OUT even if it holds another run's output.")] = False,
+    intensities: Annotated[
+        str,
+        typer.Option(help="emotive: comma-separated intensities every emotion is said at (e.g. 0.5,1), its "
+                     "deviations scaled by each (default: emotions.toml's intensity, 1)."),
+    ] = "",
+    emotion_dynamics: Annotated[
+        bool,
+        typer.Option("--emotion-dynamics", help="emotive: also plant each emotion's own rates "
+                     "(emotions.toml \\[dynamics]; by default every emotion keeps the neutral dynamics)."),
+    ] = False,
 ) -> None:
     """Generate the session: C3D + CSV markers, TextGrid + .lab labels, manifest, ground truth."""
     console = Console(stderr=True)
     gen = load_generator()
     # the session is staged and swapped in whole (docs/OUTPUTS.md): an interrupted run leaves
     # OUT as it was, and a session of other settings is never mixed with (or replaced by) this one
-    identity = {"seed": gen.load_settings()["seed"] if seed is None else seed, "flavour": flavour,
-                "quick": quick, "speakers": speakers}
+    identity: dict[str, object] = {"seed": gen.load_settings()["seed"] if seed is None else seed,
+                                   "flavour": flavour, "quick": quick, "speakers": speakers}
+    levels = None
+    if intensities:
+        try:
+            levels = [float(v) for v in intensities.split(",") if v.strip()]
+        except ValueError:
+            raise typer.BadParameter(f"{intensities!r}: expected numbers separated by commas",
+                                     param_hint="--intensities") from None
+        identity["intensities"] = levels
+    if emotion_dynamics:
+        identity["emotion_dynamics"] = True
+    if (levels is not None or emotion_dynamics) and flavour != "emotive":
+        raise typer.BadParameter("only with --flavour emotive", param_hint="--intensities/--emotion-dynamics")
     output = OutputDir(out, "corpus synth", identity, force=force, recognise=_earlier_session)
     with output as staging:
         try:
-            gen.generate(staging, seed=seed, quick=quick, progress=True, flavour=flavour, speakers=speakers)
+            gen.generate(staging, seed=seed, quick=quick, progress=True, flavour=flavour, speakers=speakers,
+                         intensities=levels, emotion_dynamics=emotion_dynamics)
         except KeyboardInterrupt:
             output.abandon()  # half a session is worth nothing: generation takes seconds
             raise

@@ -21,6 +21,7 @@ from coartic.model import Utterance, evaluate_corpus
 from coartic.runtime.animate import animate, target_times
 from coartic.synthetic_cli import load_generator
 from coartic.table import CHANNELS, ParameterTable
+from face_helpers import Chromium, shared_chromium
 
 ROOT = Path(__file__).resolve().parents[2]
 EMOTIONS = ("joy", "surprise", "sadness", "disgust", "anger", "fear")
@@ -252,7 +253,10 @@ def test_fap_file_carries_the_high_level_expression(tmp_path: Path) -> None:
     assert not read_fap(path).mask[:, 1].any() and read_fap(path).expression is None
 
 
-def test_chromium_shows_each_emotion_and_the_closure_stays(tmp_path: Path) -> None:
+browser = pytest.fixture(scope="module")(shared_chromium)
+
+
+def test_chromium_shows_each_emotion_and_the_closure_stays(tmp_path: Path, browser: Chromium) -> None:
     """The face in headless Chromium at the /a/ of /a b a/: surprise opens the mouth wider than
     neutral and sadness less; at the /b/ the lips touch as in neutral speech for every emotion. The
     whole face in the pause before (no blink yet): surprise raises the brows and shows more of the
@@ -260,13 +264,9 @@ def test_chromium_shows_each_emotion_and_the_closure_stays(tmp_path: Path) -> No
     (coartic.face.deform's brow and lid zones, driven by the FAP file's expression FAPs)."""
     from face_helpers import eyes_of, mouth_opening, upper_face
 
-    from coartic.face.viewer import chromium_program, screenshot, write_page
+    from coartic.face.viewer import write_page
     from coartic.runtime.pipeline import animate_file
 
-    try:
-        chromium_program()
-    except Exception as err:  # scripts/setup.sh installs it; without it there is nothing to look at
-        pytest.skip(str(err))
     labels = tmp_path / "aba.tsv"
     labels.write_text("0.0\t0.5\t#\n0.5\t0.8\ta\n0.8\t0.92\tb\n0.92\t1.1\ta\n1.1\t1.5\t#\n", encoding="utf-8")
     seg = Segments(("#", "a", "b", "a", "#"), np.array([0.0, 0.5, 0.8, 0.92, 1.1]), np.array([0.5, 0.8, 0.92, 1.1, 1.5]))
@@ -279,13 +279,14 @@ def test_chromium_shows_each_emotion_and_the_closure_stays(tmp_path: Path) -> No
         animate_file(labels, table, tmp_path / e, fps=25.0, preview="none", gltf=True)
         page = write_page(tmp_path / e)
         # the whole head, at 0.2 s: the first blink comes at 0.6 s (coartic.runtime.fap.BLINK_FIRST_S)
-        whole = screenshot(page, tmp_path / f"{e}_face.png", frame=5, face_only=440, size=(440, 440), zoom=1.1)
+        whole = browser.screenshot(page, tmp_path / f"{e}_face.png", frame=5, face_only=440, size=(440, 440), zoom=1.1)
         eyes = eyes or eyes_of(whole)  # the neutral face's eyes: every face measured in the same band
         face[e] = upper_face(whole, eyes)
         if e == "anger":  # its lips: as neutral's, within a millimetre (EMOTIONS.md); the brows are what it adds here
             continue
-        opening[e] = {ph: mouth_opening(screenshot(page, tmp_path / f"{e}_{ph}.png", frame=int(k[i]), face_only=400,
-                                                   size=(400, 400), zoom=2.0)) for ph, i in (("a", 1), ("b", 2))}
+        opening[e] = {ph: mouth_opening(browser.screenshot(page, tmp_path / f"{e}_{ph}.png", frame=int(k[i]),
+                                                           face_only=400, size=(400, 400), zoom=2.0))
+                      for ph, i in (("a", 1), ("b", 2))}
     assert opening["surprise"]["a"] > opening["neutral"]["a"] > opening["sadness"]["a"], opening
     # the closure is the neutral one whatever the emotion (a pixel of anti-aliasing at most)
     assert all(o["b"] == opening["neutral"]["b"] <= 1 for o in opening.values()), opening

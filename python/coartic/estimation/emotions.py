@@ -41,6 +41,35 @@ EKMAN: tuple[str, ...] = ("joy", "surprise", "sadness", "disgust", "anger", "fea
 # 1 µm, far below any marker system's noise), yet keeps the penalty finite
 TAU_FLOOR = 1e-3
 SHRINK_KEY = "emotions"  # the key the pair groups are named by in reports
+# [model] emotions = "targets+dynamics": the dynamics each emotion has its own of per phoneme (where
+# the phoneme's is free), each deviation log(v_e / v_neutral) pooled toward 0 with an sd per parameter
+# and emotion that the data estimate (coartic.estimation.pooling: the family "emotion <parameter> <emotion>")
+DYNAMICS: tuple[str, ...] = ("alpha", "theta_bw", "theta_fw")
+
+
+def own_parameters(mode: str) -> tuple[str, ...]:
+    """The non-target parameters an emotion's rows have their own of under ``[model] emotions = mode``."""
+    return DYNAMICS if mode == "targets+dynamics" else ()
+
+
+def dynamics_family(parameter: str, emotion: str) -> str:
+    return f"emotion {parameter} {emotion}"
+
+
+def dynamics_groups(rows: SpeakerRows, free: NDArray[np.bool_], start_sd: float) -> list[ShrinkGroup]:
+    """The pooling groups of ``targets+dynamics``: per parameter of ``DYNAMICS``, emotion and phoneme,
+    the pair (neutral row, emotion row) on the log scale, drawn toward their mean, so the penalty
+    depends on the deviation log(v_e / v_n) only; family per parameter and emotion (its τ estimated by
+    empirical Bayes: τ → 0 pools the emotion's dynamics into the neutral ones)."""
+    labels = rows.labels
+    out = []
+    for q in DYNAMICS:
+        k = PARAMETERS.index(q)
+        for n, r, e in pairs(rows):
+            if free[r, k]:
+                out.append(ShrinkGroup("model.emotions", (labels[n], labels[r]), (n, r), k, start_sd, True,
+                                       dynamics_family(q, rows.names[e])))
+    return out
 
 
 def emotion_names(utterances: Sequence[Utterance], column: str, neutral: str) -> tuple[str, ...]:
@@ -105,19 +134,26 @@ def target_covariance(problem: Any, x: FloatArray) -> tuple[FloatArray, dict[int
     sigma2 = sse / dof
     jtj = np.asarray((j.T @ j).toarray())
     cov = sigma2 * psd_pseudo_inverse(jtj)[0]
-    k = PARAMETERS.index("target")
+    return cov, row_columns(problem, "target"), math.sqrt(sigma2)
+
+
+def row_columns(problem: Any, parameter: str) -> dict[int, int]:
+    """The x column of each row's free ``parameter`` (x is log v for a log parameter)."""
+    k = PARAMETERS.index(parameter)
     col = {int(c): i for i, c in enumerate(problem.packing.free_columns)}
     rows = problem.speaker_rows
-    targets = {r_: col[r_ * len(PARAMETERS) + k] for r_ in range(len(rows.rows)) if r_ * len(PARAMETERS) + k in col}
-    return cov, targets, math.sqrt(sigma2)
+    return {r_: col[r_ * len(PARAMETERS) + k] for r_ in range(len(rows.rows)) if r_ * len(PARAMETERS) + k in col}
 
 
-def deviations(rows: SpeakerRows, params: FloatArray) -> dict[str, dict[str, float]]:
-    """emotion -> phoneme -> d = T(p|e) − T(p|neutral) (mm) for a matrix of the problem's rows."""
-    k = PARAMETERS.index("target")
+def deviations(rows: SpeakerRows, params: FloatArray, parameter: str = "target") -> dict[str, dict[str, float]]:
+    """emotion -> phoneme -> d = T(p|e) − T(p|neutral) (mm) for a matrix of the problem's rows; for a
+    log parameter (``DYNAMICS``) log(v(p|e) / v(p|neutral))."""
+    k = PARAMETERS.index(parameter)
+    log = parameter != "target"
     out: dict[str, dict[str, float]] = {e: {} for e in rows.names[1:]}
     for n, r, e in pairs(rows):
-        out[rows.names[e]][rows.base[rows.rows[r][0]]] = float(params[r, k] - params[n, k])
+        a, b = float(params[r, k]), float(params[n, k])
+        out[rows.names[e]][rows.base[rows.rows[r][0]]] = math.log(a / b) if log else a - b
     return out
 
 
@@ -152,9 +188,16 @@ def channel_metadata(problem: Any, x: FloatArray) -> dict[str, Any]:
     rows: SpeakerRows = problem.speaker_rows
     params, _ = problem.packing.unpack(x)
     cov, targets, _ = target_covariance(problem, x)
-    return {"targets": rows.targets(params), "deviations": deviations(rows, params),
-            "deviation_sd": deviation_sd(rows, cov, targets),
-            **(problem.emotion_prior.as_dict() if problem.emotion_prior is not None else {})}
+    out = {"targets": rows.targets(params), "deviations": deviations(rows, params),
+           "deviation_sd": deviation_sd(rows, cov, targets),
+           **(problem.emotion_prior.as_dict() if problem.emotion_prior is not None else {})}
+    k_free = {q: row_columns(problem, q) for q in DYNAMICS}
+    own = [q for q in DYNAMICS if any(r in k_free[q] for _, r, _ in pairs(rows))]
+    if own:
+        # targets+dynamics: each emotion's own values, their log deviations from neutral and sd
+        out["dynamics"] = {q: {"values": rows.values(params, q), "deviations": deviations(rows, params, q),
+                               "deviation_sd": deviation_sd(rows, cov, k_free[q])} for q in own}
+    return out
 
 
 def table_emotion_meta(groups: GroupSettings, where: str, table: ParameterTable) -> dict[str, Any]:

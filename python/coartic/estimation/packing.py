@@ -51,29 +51,52 @@ class Packing:
     # "phoneme.parameter" (and "beta") -> the spec key or default its box came from, so that a
     # parameter at a bound is explained by where the bound comes from (coartic.estimation.bounds).
     bound_sources: Mapping[str, str] | None = None
+    # (follower, ((source, weight), ...)) flat indices: an entry that is a fixed linear combination of
+    # others, Σ weight·source (a trial's target at an emotion's intensity s, (1 − s)·neutral + s·emotion:
+    # coartic.estimation.emotions.intensity_rows). Natural-scale columns only (the target), where the
+    # combination is linear in x; the sources are free or fixed entries, not followers of a tie.
+    mixes: tuple[tuple[int, tuple[tuple[int, float], ...]], ...] = ()
 
     def __post_init__(self) -> None:
         self._idx = np.flatnonzero(self.free.ravel())
         self._log = np.tile(LOG_COLUMNS, len(self.phonemes))[self._idx]
         self._followers = np.array([f for f, _ in self.ties], dtype=np.int64)
         self._leaders = np.array([ld for _, ld in self.ties], dtype=np.int64)
-        self._tmap = self._column_map() if self.ties else None
+        if any(LOG_COLUMNS[f % N_PARAMS] for f, _ in self.mixes):
+            raise ValueError("a mixed entry must be on a natural-scale column (the target)")
+        n_flat = len(self.phonemes) * N_PARAMS
+        # the mixes as one sparse matrix over the flat parameters: flat[mixed] = M @ flat
+        self._mixed = np.array([f for f, _ in self.mixes], dtype=np.int64)
+        self._mix = sp.csr_matrix(
+            ([w for _, src in self.mixes for _, w in src],
+             ([i for i, (_, src) in enumerate(self.mixes) for _ in src], [s for _, src in self.mixes for s, _ in src])),
+            shape=(len(self.mixes), n_flat))
+        self._tmap = self._column_map() if self.ties or self.mixes else None
 
     def column_map(self) -> sp.csr_matrix | None:
-        """With ties, the (n_phonemes*10 + 1, n_free) 0/1 matrix taking the core's full Jacobian (or
-        gradient) to x's: each free column plus the columns of the entries tied to it; None without."""
+        """With ties (or mixes), the (n_phonemes*10 + 1, n_free) matrix taking the core's full Jacobian
+        (or gradient) to x's: each free column plus the columns of the entries tied to it (weight 1)
+        and of the mixed entries it is a source of (their weight); None without."""
         return self._tmap
 
     def _column_map(self) -> sp.csr_matrix:
         col_of = {int(c): j for j, c in enumerate(self.free_columns)}
         rows = list(col_of)
         cols = list(col_of.values())
+        vals = [1.0] * len(rows)
         for f, ld in self.ties:
             if ld in col_of:  # a leader held fixed in this stage: its followers follow a constant
                 rows.append(f)
                 cols.append(col_of[ld])
+                vals.append(1.0)
+        for f, src in self.mixes:
+            for s, w in src:
+                if s in col_of:
+                    rows.append(f)
+                    cols.append(col_of[s])
+                    vals.append(float(w))
         n_full = len(self.phonemes) * N_PARAMS + 1
-        return sp.csr_matrix((np.ones(len(rows)), (rows, cols)), shape=(n_full, self.n_free))
+        return sp.csr_matrix((vals, (rows, cols)), shape=(n_full, self.n_free))
 
     @property
     def n_free(self) -> int:
@@ -123,6 +146,8 @@ class Packing:
         flat[self._idx] = v[: self._idx.size]
         if self.ties:
             flat[self._followers] = flat[self._leaders]
+        if self.mixes:
+            flat[self._mixed] = self._mix @ flat
         beta = float(v[-1]) if self.beta_free else self.base_beta
         return params, beta
 
@@ -136,6 +161,8 @@ class Packing:
         flat[:, self._idx] = v[:, : self._idx.size]
         if self.ties:
             flat[:, self._followers] = flat[:, self._leaders]
+        if self.mixes:
+            flat[:, self._mixed] = (self._mix @ flat.T).T
         betas = v[:, -1].copy() if self.beta_free else np.full(xs.shape[0], self.base_beta)
         return params, betas
 

@@ -25,8 +25,8 @@ from numpy.typing import NDArray
 from coartic.estimation.packing import Packing, Prior, tie_group
 from coartic.estimation.target_prior import target_priors
 from coartic.errors import SpecError
-from coartic.pauses import MEDIAL_ALPHA, MEDIAL_PAUSE
-from coartic.table import N_PARAMS, PARAMETERS
+from coartic.pauses import EDGE_TIED, FINAL_PAUSE, MEDIAL_ALPHA, MEDIAL_PAUSE
+from coartic.table import N_PARAMS, PARAMETERS, PAUSE
 
 
 if TYPE_CHECKING:  # annotations only
@@ -150,6 +150,8 @@ class ParameterSet(Mapping[str, Parameter]):
         self.origins = origins
         # (follower, leader) flat indices of [[tie]]d entries (Packing.ties)
         self.ties: tuple[tuple[int, int], ...] = ()
+        # entries that are linear combinations of others (Packing.mixes: intensities' targets)
+        self.mixes: tuple[tuple[int, tuple[tuple[int, float], ...]], ...] = ()
         # free name -> where its box comes from (a spec key or a default): Packing.bound_sources
         self.bound_sources: dict[str, str] = {}
 
@@ -297,6 +299,18 @@ class ParameterSet(Mapping[str, Parameter]):
                     free[i, k] = False
                     base[i, k] = base[leader, k]
                     ties.append((i * N_PARAMS + k, leader * N_PARAMS + k))
+        # The edge pauses share one dominance magnitude α (coartic.pauses, EDGE_TIED): their
+        # postures are their targets. A separate α per edge bends each edge's transition to fit the
+        # training rate's timing and does not carry to another rate (docs/REAL_DATA.md, "Why the
+        # synthetic figures moved"); a [[tie]] of α that holds either pause already decides.
+        if PAUSE in phon and FINAL_PAUSE in phon:
+            for name in EDGE_TIED:
+                k = PARAMETERS.index(name)
+                lead, follow = phon.index(PAUSE), phon.index(FINAL_PAUSE)
+                if free[lead, k] and free[follow, k] and (lead, k) not in tied_by and (follow, k) not in tied_by:
+                    free[follow, k] = False
+                    base[follow, k] = base[lead, k]
+                    ties.append((follow * N_PARAMS + k, lead * N_PARAMS + k))
         for name in par.shared:  # one value per channel: every phoneme where it is free takes the first's
             k = PARAMETERS.index(name)
             members = [i for i in range(n) if free[i, k]]
@@ -335,7 +349,7 @@ class ParameterSet(Mapping[str, Parameter]):
         """The engines' view: the free entries, their bounds and the transform to x."""
         return Packing(self.phonemes, self.free.copy(), self.beta_free, self.lower.copy(), self.upper.copy(),
                        self.beta_bounds, self.matrix.copy(), self.beta, self.origins, self.ties,
-                       dict(self.bound_sources))
+                       dict(self.bound_sources), self.mixes)
 
     @classmethod
     def from_packing(cls, channel: str, packing: Packing, names: list[str] | None = None,
@@ -351,6 +365,7 @@ class ParameterSet(Mapping[str, Parameter]):
                  at_bound=frozenset(at_bound or ()), unidentified=frozenset(unidentified or ()),
                  bound_notes=bound_notes)
         ps.ties = tuple(packing.ties)
+        ps.mixes = tuple(packing.mixes)
         ps.bound_sources = dict(packing.bound_sources or {})
         return ps
 

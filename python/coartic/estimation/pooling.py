@@ -177,6 +177,20 @@ def pool_from_settings(settings: EstimationSettings, channel: str, phonemes: Seq
     return pool.with_scales(tau, sigma, 1.0 if start is None else start.temper)
 
 
+def with_groups(pool: Pool | None, groups: Sequence[ShrinkGroup], noise: float, start: Pool | None = None) -> Pool:
+    """``pool`` (or an empty one weighed against ``noise``) with more estimated groups (each with its
+    family set: an emotion's dynamics toward neutral, coartic.estimation.emotions.dynamics_groups),
+    their τ from ``start`` (a fitted table's) where it has them, else ``TAU_START``."""
+    base = pool if pool is not None else Pool((), {}, {}, noise)
+    out = replace(base, groups=base.groups + tuple(groups))
+    tau = {f: TAU_START for f in out.families} | dict(base.tau)
+    if start is not None:
+        tau.update({f: t for f, t in start.tau.items() if f in tau})
+    sigma = base.sigma if pool is not None or start is None else start.sigma
+    temper = base.temper if pool is not None or start is None else start.temper
+    return out.with_scales(tau, sigma, temper)
+
+
 @dataclass(frozen=True)
 class PoolEstimate:
     """τ and σ that maximise the Laplace evidence at one optimum, and what they amount to."""

@@ -28,13 +28,14 @@ from numpy.typing import NDArray
 
 from coartic import _core
 from coartic.estimation.data import ChannelData
-from coartic.estimation.emotions import EmotionPrior, emotion_names, table_emotion_meta
+from coartic.estimation.emotions import EmotionPrior, emotion_names, own_parameters, table_emotion_meta
+from coartic.estimation.emotions import dynamics_groups as emotion_dynamics_groups
 from coartic.estimation.emotions import shrink_groups as emotion_shrink_groups
 from coartic.estimation.offsets import Offsets
 from coartic.estimation.packing import Packing, Prior, moving
 from coartic.estimation.parameters import ParameterSet
 from coartic.estimation.penalties import Penalty, PenaltyRows, ShrinkGroup, Shrinkage, shrink_groups
-from coartic.estimation.pooling import Pool, pool_from_settings
+from coartic.estimation.pooling import TAU_START, Pool, pool_from_settings, with_groups
 from coartic.estimation.settings import EstimationSettings
 from coartic.estimation.speakers import SpeakerRows, Speakers, expand_speaker_targets, table_speaker_meta
 from coartic.estimation.target_prior import target_priors
@@ -327,9 +328,11 @@ class ChannelProblem:
         return p
 
     def with_emotion_prior(self, prior: EmotionPrior) -> ChannelProblem:
-        """The same problem with the emotions' deviation prior (``[model] emotions``), best point reset."""
+        """The same problem with the emotions' deviation prior (``[model] emotions``), best point reset
+        (its pool kept: an emotion's own dynamics, [parameters] pooled)."""
         p = ChannelProblem(self.data, self.packing, self.options, self.priors, self.prior_noise, self.offset_sd,
-                           self.speaker_mode, self.speaker_column, self.spec_shrink_groups, self.speaker_rows, prior)
+                           self.speaker_mode, self.speaker_column, self.spec_shrink_groups, self.speaker_rows, prior,
+                           self.pool)
         p.monitor = self.monitor
         return p
 
@@ -383,32 +386,42 @@ def build_problem(settings: EstimationSettings, utterances: Sequence[Utterance],
                                                     start_targets=own)
         shrink = rows.shrink_groups(source, shrink)
     prior = None
-    if groups.emotions == "targets":
+    dynamics: list[ShrinkGroup] = []
+    if groups.emotions != "none":
+        own = own_parameters(groups.emotions)
         if table is None:
             names = emotion_names(data.utterances, groups.emotion_column, groups.neutral_emotion)
             data, ps, rows = expand_speaker_targets(settings, data, ps, data_start=data_start, names=names,
-                                                    factor="emotions")
+                                                    factor="emotions", own=own)
         else:
             emo = table_emotion_meta(groups, settings.where, table).get("channels", {}).get(channel)
             if not emo:
                 raise TableError(f"{where}: metadata.emotions has no channel {channel}")
-            data, ps, rows = expand_speaker_targets(settings, data, ps, data_start=False, names=tuple(emo["targets"]),
-                                                    start_targets=emo["targets"], factor="emotions")
+            data, ps, rows = expand_speaker_targets(
+                settings, data, ps, data_start=False, names=tuple(emo["targets"]), start_targets=emo["targets"],
+                factor="emotions", own=own, start_own={q: d["values"] for q, d in (emo.get("dynamics") or {}).items()})
             prior = EmotionPrior.from_dict(emo) if "tau" in emo else None
         shrink = rows.shrink_groups(source, shrink)
+        dynamics = emotion_dynamics_groups(rows, ps.free, TAU_START)
     elif table is not None:
         # a table fitted with emotions needs the settings that have them
         table_emotion_meta(groups, settings.where, table)
     pool = None
     pri = settings.priors
+    start_pool = None if table is None else table_pool(table, channel)
     if pri.pooled or pri.target_prior == "estimated":
         # (with per-speaker or per-emotion rows: every row's target toward its own segment mean, the
-        # dynamics tied across a phoneme's rows counted once)
+        # dynamics tied across a phoneme's rows counted once, an emotion's own dynamics not at all:
+        # they are pooled toward neutral below)
         free_now = moving(ps.free, ps.ties)
         means = target_priors(1.0, data.utterances, channel, data.phonemes, ps.free, ps.priors)
-        pool = pool_from_settings(settings, channel, data.phonemes, free_now, means,
-                                  None if table is None else table_pool(table, channel),
-                                  frozenset(f for f, _ in ps.ties))
+        pool = pool_from_settings(settings, channel, data.phonemes, free_now, means, start_pool,
+                                  frozenset(f for f, _ in ps.ties)
+                                  | {g.rows[1] * len(PARAMETERS) + g.column for g in dynamics})
+    if dynamics:
+        # [model] emotions = "targets+dynamics": each emotion's dynamics pooled toward neutral, the
+        # strength per parameter and emotion estimated (the same empirical Bayes as [parameters] pooled)
+        pool = with_groups(pool, dynamics, pri.prior_noise, start_pool)
     return ChannelProblem(data, ps.packing(), options, ps.priors, pri.prior_noise, offset_sd, groups.speakers,
                           groups.speaker_column, shrink, rows, prior, pool)
 

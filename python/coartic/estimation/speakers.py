@@ -13,6 +13,7 @@ import numpy as np
 import scipy.sparse as sp
 from numpy.typing import NDArray
 
+from coartic.emotions import INTENSITY_COLUMN, trial_intensity
 from coartic.estimation.data import ChannelData
 from coartic.estimation.packing import Prior, moving
 from coartic.estimation.parameters import ParameterSet, data_targets
@@ -138,6 +139,7 @@ class Speakers:
 
 
 SPEAKER_SEP = "|"  # row label of phoneme p for speaker s: "p|s"
+INTENSITY_SEP = "*"  # row label of phoneme p for emotion e at intensity s (not 1): "p|e*s"
 
 
 @dataclass(frozen=True)
@@ -178,7 +180,11 @@ class SpeakerRows:
 
     def targets(self, params: FloatArray) -> dict[str, dict[str, float]]:
         """Each speaker's own targets: speaker -> phoneme -> target (the phonemes it spoke)."""
-        k = PARAMETERS.index("target")
+        return self.values(params, "target")
+
+    def values(self, params: FloatArray, parameter: str) -> dict[str, dict[str, float]]:
+        """Each speaker's (emotion's) value of ``parameter``: name -> phoneme -> value."""
+        k = PARAMETERS.index(parameter)
         out: dict[str, dict[str, float]] = {n: {} for n in self.names}
         for r, (p, s) in enumerate(self.rows):
             out[self.names[s]][self.base[p]] = float(params[r, k])
@@ -198,7 +204,9 @@ class SpeakerRows:
 def expand_speaker_targets(settings: EstimationSettings, data: ChannelData, ps: ParameterSet, data_start: bool = True,
                            names: Sequence[str] | None = None,
                            start_targets: Mapping[str, Mapping[str, float]] | None = None,
-                           factor: str = "speakers") -> tuple[ChannelData, ParameterSet, SpeakerRows]:
+                           factor: str = "speakers", own: Sequence[str] = (),
+                           start_own: Mapping[str, Mapping[str, Mapping[str, float]]] | None = None,
+                           ) -> tuple[ChannelData, ParameterSet, SpeakerRows]:
     """The per-speaker problem of ``[model] speakers = "targets"`` from the base one: data relabelled
     ``p|s``, the parameter set with a row per (phoneme, speaker), shared entries tied to the first
     row, targets per row. Targets start at each speaker's own data targets (``data_start``), at
@@ -207,7 +215,10 @@ def expand_speaker_targets(settings: EstimationSettings, data: ChannelData, ps: 
 
     ``factor`` "emotions" makes the same rows per emotion (``[model] emotions = "targets"``, column
     ``[model] emotion_column``; ``names`` then starts with the neutral emotion, whose rows lead, so
-    every phoneme must occur in a neutral trial)."""
+    every phoneme must occur in a neutral trial). ``own``: other parameters every row has its own of
+    where the phoneme's is free (not tied to its first row: ``[model] emotions = "targets+dynamics"``'s
+    alpha, theta_bw, theta_fw), started at the first row's or at ``start_own`` (parameter -> name ->
+    phoneme -> value: a fitted table's)."""
     column = settings.groups.speaker_column if factor == "speakers" else settings.groups.emotion_column
     where = settings.source
     spk = utterance_speakers(data.utterances, "targets", column, names, factor)
@@ -233,10 +244,28 @@ def expand_speaker_targets(settings: EstimationSettings, data: ChannelData, ps: 
                                f"target, so record them neutrally too (or drop them with [corpus] select)")
     sr = SpeakerRows(spk, base, rows, factor)
     labels = sr.labels
-    utts = [Utterance([f"{lab}{SPEAKER_SEP}{u.meta[column]}" for lab in u.labels], u.starts, u.ends, u.times,
-                      u.name, u.observed, u.valid, u.meta) for u in data.utterances]
-    data_x = ChannelData.build(utts, data.channel, labels)
-    idx = [p for p, _ in rows]
+    # an emotion's trials at a known intensity s other than 1 (coartic.emotions.trial_intensity): their
+    # segments use rows of their own, after the others, whose target is (1 − s)·neutral + s·emotion
+    # (Packing.mixes), so each such trial sees its emotion's deviation scaled by s
+    scale = [1.0 if factor != "emotions" or str(u.meta[column]) == spk[0] else trial_intensity(u)
+             for u in data.utterances]
+    scaled = sorted({(base.index(lab), spk.index(str(u.meta[column])), s_u)
+                     for u, s_u in zip(data.utterances, scale) if s_u != 1.0 for lab in u.labels})
+    if scaled and own:
+        raise SpecError.at(where, "model", f"{factor} = \"targets+dynamics\" with trials at an intensity other "
+                           f"than 1 (manifest column {INTENSITY_COLUMN!r}): an intensity scales the target "
+                           "deviations only; fit them with emotions = \"targets\" (or leave the column empty)")
+    own_cols = {PARAMETERS.index(q) for q in own}
+
+    def at(s_u: float) -> str:
+        return "" if s_u == 1.0 else f"{INTENSITY_SEP}{s_u!r}"
+
+    mixed_labels = tuple(f"{labels[rows.index((p, e))]}{at(s_u)}" for p, e, s_u in scaled)
+    utts = [Utterance([f"{lab}{SPEAKER_SEP}{u.meta[column]}{at(s_u)}" for lab in u.labels], u.starts, u.ends, u.times,
+                      u.name, u.observed, u.valid, u.meta) for u, s_u in zip(data.utterances, scale)]
+    data_x = ChannelData.build(utts, data.channel, labels + mixed_labels)
+    all_rows = rows + tuple((p, e) for p, e, _ in scaled)
+    idx = [p for p, _ in all_rows]
     matrix, lower, upper = ps.matrix[idx].copy(), ps.lower[idx].copy(), ps.upper[idx].copy()
     free = ps.free[idx].copy()
     origins = None if ps.origins is None else ps.origins[idx].copy()
@@ -244,12 +273,17 @@ def expand_speaker_targets(settings: EstimationSettings, data: ChannelData, ps: 
     ultimate = {f: ld for f, ld in ps.ties}
     base_free = moving(ps.free, ps.ties)
     ties: list[tuple[int, int]] = []
-    for r, (p, s) in enumerate(rows):
+    for r, (p, s) in enumerate(all_rows):
         for k in range(N_PARAMS):
             if k == kt:
                 continue
             src = ultimate.get(p * N_PARAMS + k, p * N_PARAMS + k)
             lead = sr.leader(src // N_PARAMS) * N_PARAMS + k
+            if k in own_cols and src == p * N_PARAMS + k and ps.free[p, k]:
+                v = (start_own or {}).get(PARAMETERS[k], {}).get(spk[s], {}).get(base[p])
+                if v is not None:
+                    matrix[r, k] = float(v)
+                continue  # this row's own value, free
             if lead != r * N_PARAMS + k and base_free[p, k]:
                 free[r, k] = False
                 ties.append((r * N_PARAMS + k, lead))
@@ -272,9 +306,16 @@ def expand_speaker_targets(settings: EstimationSettings, data: ChannelData, ps: 
                     priors[f"{labels[r]}.{name}"] = pr
         else:
             priors[f"{labels[sr.leader(base.index(phoneme))]}.{name}"] = pr
-    out = ParameterSet(ps.channel, labels, matrix, free, lower, upper, ps.beta, ps.beta_free, ps.beta_bounds,
-                       priors=priors, origins=origins)
+    mixes = []
+    for i, (p, e, s_u) in enumerate(scaled):
+        r, lead, row_e = len(rows) + i, sr.leader(p), rows.index((p, e))
+        free[r, kt] = False  # follows its neutral and emotion rows
+        mixes.append((r * N_PARAMS + kt, ((lead * N_PARAMS + kt, 1.0 - s_u), (row_e * N_PARAMS + kt, s_u))))
+        matrix[r, kt] = (1.0 - s_u) * matrix[lead, kt] + s_u * matrix[row_e, kt]
+    out = ParameterSet(ps.channel, labels + mixed_labels, matrix, free, lower, upper, ps.beta, ps.beta_free,
+                       ps.beta_bounds, priors=priors, origins=origins)
     out.ties = tuple(ties)
+    out.mixes = tuple(mixes)
     return data_x, out, sr
 
 

@@ -41,6 +41,7 @@ from os import PathLike
 from pathlib import Path
 from typing import Any, Sequence
 
+from coartic.estimation.checks import EMOTION_MODES
 from coartic.evaluation.baselines import BASELINES
 from coartic.fit.result import BAR_MM, FitResult
 from coartic.fit.spec import FitSpec
@@ -120,27 +121,33 @@ class Comparison:
                                           r.n_free, r.heldout_rmse)).model
 
     def factor_lines(self) -> list[str]:
-        """Per channel, whether ``[model] emotions = "targets"`` was worth its parameters held out:
-        said when the comparison has models with and without the factor."""
+        """Per channel, whether ``[model] emotions = "targets"`` was worth its parameters held out
+        (said when the comparison has models with and without the factor), and whether the
+        emotions' own dynamics (``"targets+dynamics"``) were, against ``"targets"``."""
         out: list[str] = []
-        if len({r.emotions for r in self.rows}) < 2:
-            return out
-        for ch in self.channels():
-            pick = self.chosen(ch)
-            if pick is None:
+        modes = {r.emotions for r in self.rows}
+        tests = [("the emotion factor", {"none"}, set(EMOTION_MODES) - {"none"}),
+                 ("the emotions' own dynamics", {"targets"}, {"targets+dynamics"})]
+        for what, simpler, richer in tests:
+            if not (modes & simpler and modes & richer):
                 continue
-            rows = {r.model: r for r in self.rows if r.channel == ch}
-            with_f = [r for r in rows.values() if r.emotions != "none" and math.isfinite(r.heldout_rmse)]
-            without = [r for r in rows.values() if r.emotions == "none" and math.isfinite(r.heldout_rmse)]
-            if not with_f or not without:
-                continue
-            a = min(without, key=lambda r: r.heldout_rmse)
-            b = min(with_f, key=lambda r: r.heldout_rmse)
-            worth = rows[pick].emotions != "none"
-            out.append(f"{ch}: the emotion factor is {'' if worth else 'not '}worth its parameters held out: "
-                       f"{b.heldout_rmse:.4f} ± {b.heldout_rmse_se:.4f} mm with it ({b.n_effective:.1f} effective of "
-                       f"{b.n_free} free), {a.heldout_rmse:.4f} ± {a.heldout_rmse_se:.4f} mm without "
-                       f"({a.n_effective:.1f} of {a.n_free}); chosen: {pick}")
+            for ch in self.channels():
+                pick = self.chosen(ch)
+                if pick is None:
+                    continue
+                rows = {r.model: r for r in self.rows if r.channel == ch}
+                with_f = [r for r in rows.values() if r.emotions in richer and math.isfinite(r.heldout_rmse)]
+                without = [r for r in rows.values() if r.emotions in simpler and math.isfinite(r.heldout_rmse)]
+                if not with_f or not without:
+                    continue
+                a = min(without, key=lambda r: r.heldout_rmse)
+                b = min(with_f, key=lambda r: r.heldout_rmse)
+                worth = rows[pick].emotions in richer
+                out.append(f"{ch}: {what} {'is' if what.endswith('factor') else 'are'} {'' if worth else 'not '}"
+                           f"worth {'its' if what.endswith('factor') else 'their'} parameters held out: "
+                           f"{b.heldout_rmse:.4f} ± {b.heldout_rmse_se:.4f} mm with {'it' if what.endswith('factor') else 'them'} "
+                           f"({b.n_effective:.1f} effective of {b.n_free} free), {a.heldout_rmse:.4f} ± "
+                           f"{a.heldout_rmse_se:.4f} mm without ({a.n_effective:.1f} of {a.n_free}); chosen: {pick}")
         return out
 
     def text(self) -> str:
@@ -276,7 +283,8 @@ def vary(spec: FitSpec, key: str, values: Sequence[str]) -> list[FitSpec]:
             if not (sd > 0 and math.isfinite(sd)):
                 raise SpecError(f"--vary {key}={v}: an sd must be a positive number")
             made = set_value(spec, key, sd)
-            if key == "shrink.sd" and not spec.shrinks or key != "shrink.sd" and made.shrinks == spec.shrinks:
+            shrinks = spec.priors.shrinks
+            if key == "shrink.sd" and not shrinks or key != "shrink.sd" and made.priors.shrinks == shrinks:
                 raise SpecError(f"--vary {key}: {spec.path} has no such [[shrink]] table")
             out.append(replace(made, name=f"{spec.name}, {key} = {v}"))
         return out

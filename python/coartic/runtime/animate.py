@@ -338,7 +338,9 @@ def emotion_spans_deviation(table: ParameterTable, segments: Segments, times: ND
     trajectory ``neutral`` of ``channel``: each emotion's deviation trajectory F_e − F_neutral
     weighted by its ramped intensity at ``times`` (the model is linear in the targets and the emotions
     share the dynamics, so a constant span gives the emotion's own trajectory; the contacts, kept
-    neutral in every emotion's table, stay where they are). Zeros without spans."""
+    neutral in every emotion's table, stay where they are; a table fitted with emotions =
+    "targets+dynamics" has its own rates per emotion, and a span below intensity 1 then blends the two
+    trajectories rather than the rates, as the ramps do anyway). Zeros without spans."""
     meta = (table.metadata or {}).get("expression")
     out = np.zeros_like(neutral)
     if not isinstance(meta, dict) or "spans" not in meta:

@@ -1,0 +1,83 @@
+"""[model] emotions = "targets+dynamics" (issue 27): every emotion's own alpha, theta_bw, theta_fw per
+phoneme, each log deviation from neutral pooled toward 0 with an sd per parameter and emotion that
+empirical Bayes estimates (coartic.estimation.pooling); the emotive flavour with planted dynamics
+(sadness's rates x 0.7, anger's x 1.4) is recovered, the unplanted emotions pooled into neutral."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import pytest
+
+from coartic.errors import SpecError
+from coartic.emotions import emotion_table
+from coartic.estimation.problem import build_problem
+from coartic.fit.data import load_utterances
+from coartic.fit.spec import load_spec
+from coartic.jobs.fit import fit_job
+from coartic.synthetic_cli import load_generator
+from coartic.table import N_PARAMS, PARAMETERS, ParameterTable
+
+from test_emotions import SPEC
+
+
+@pytest.fixture(scope="module")
+def session(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """/b/ only, one repetition, the emotions' dynamics planted (42 trials)."""
+    out = tmp_path_factory.mktemp("dynamics")
+    load_generator().generate(out, quick=True, progress=False, flavour="emotive", consonants=["b"],
+                              emotion_dynamics=True)
+    return out
+
+
+def spec_for(tmp: Path, manifest: Path, mode: str = "targets+dynamics") -> Path:
+    path = tmp / f"{mode}.toml"
+    path.write_text(SPEC.format(manifest=manifest.as_posix(), channels=json.dumps(["LR"]))
+                    .replace('emotions = "targets"', f'emotions = "{mode}"'), encoding="utf-8")
+    return path
+
+
+def test_emotion_rows_have_their_own_rates_pooled_toward_neutral(session: Path, tmp_path: Path) -> None:
+    spec = load_spec(spec_for(tmp_path, session / "manifest.csv"))
+    problem = build_problem(spec.estimation_settings(), load_utterances(spec), "LR")
+    pk, rows = problem.packing, problem.speaker_rows
+    assert rows is not None
+    tb, kc = PARAMETERS.index("theta_bw"), PARAMETERS.index("c_bw")
+    r = pk.phonemes.index("b|sadness")
+    followers = {f for f, _ in pk.ties}
+    assert pk.free[r, tb] and r * N_PARAMS + tb not in followers  # its own theta_bw
+    assert r * N_PARAMS + kc in followers  # c is still the neutral row's
+    assert problem.pool is not None
+    fams = problem.pool.families
+    assert {"emotion theta_bw sadness", "emotion theta_fw anger", "emotion alpha joy"} <= set(fams)
+    group = next(g for g in problem.pool.groups if g.family == "emotion theta_bw sadness" and "b|sadness" in g.phonemes)
+    assert group.log and group.phonemes == ("b|neutral", "b|sadness")
+
+
+def test_intensities_are_refused_with_dynamics(tmp_path: Path) -> None:
+    out = tmp_path / "s"
+    load_generator().generate(out, quick=True, progress=False, flavour="emotive", consonants=["b"],
+                              intensities=[0.5, 1.0])
+    spec = load_spec(spec_for(tmp_path, out / "manifest.csv"))
+    with pytest.raises(SpecError, match=r"targets\+dynamics.*intensity"):
+        build_problem(spec.estimation_settings(), load_utterances(spec), "LR")
+
+
+def test_planted_rates_are_recovered_and_the_others_pooled(session: Path, tmp_path: Path) -> None:
+    fit_job(spec_for(tmp_path, session / "manifest.csv"), tmp_path / "fit")
+    table = ParameterTable.load(tmp_path / "fit" / "table.json")
+    dyn = table.metadata["emotions"]["channels"]["LR"]["dynamics"]
+    truth = ParameterTable.load(session / "ground_truth.json").metadata["emotions"]["channels"]["LR"]["dynamics"]
+    for q in ("theta_bw", "theta_fw"):
+        for e, planted in (("sadness", -0.357), ("anger", 0.336)):
+            assert truth[q]["deviations"][e]["a"] == pytest.approx(planted, abs=1e-3)
+            for ph in ("b", "i", "u"):
+                assert dyn[q]["deviations"][e][ph] == pytest.approx(planted, abs=0.15), (q, e, ph)
+    fams = table.metadata["pooling"]["LR"]["families"]
+    # an emotion on the neutral rates is pooled into them: its family's sd far below the planted ones'
+    assert fams["emotion theta_bw sadness"]["sd"] > 0.1 and fams["emotion theta_bw anger"]["sd"] > 0.1
+    assert fams["emotion theta_bw joy"]["sd"] < 0.05
+    # the table speaks sadness with the slower rates
+    sad = emotion_table(table, "sadness", 1.0)
+    assert sad.values["b"]["LR"]["theta_bw"] < 0.85 * table.values["b"]["LR"]["theta_bw"]
