@@ -107,7 +107,7 @@ def compare(title: str, spec: FitSpec, utts: Sequence[Utterance], channels: Sequ
             ("32 starts, seed 0 (default)", spec.with_options(starts=32, seed=0)),
             ("32 starts, seed 1", spec.with_options(starts=32, seed=1)),
             ("nlopt MLSL-LDS + L-BFGS, one start", s1.with_options(
-                engine="nlopt", engine_options={"global": "mlsl", "global_maxeval": 4000})),
+                engine={"name": "nlopt", "options": {"global": "mlsl", "global_maxeval": 4000}})),
         ][: None if os.environ.get("MULTISTART_NLOPT", "1") == "1" else -1]:  # MULTISTART_NLOPT=0: without it
             with previous_default() if "previous" in label else contextlib.nullcontext():
                 fit, w = timed(s, utts, ch)
@@ -161,12 +161,12 @@ def heldout(which: Sequence[str] = ("one start", "previous default", "default"))
 
     spec, utts = german_data()
     label_map = resolve_label_map(spec.corpus.label_map) if spec.corpus.label_map else None
-    out = [f"start independence held out, German EMA (fit/ema_german.toml: {', '.join(spec.free)} free), "
+    out = [f"start independence held out, German EMA (fit/ema_german.toml: {', '.join(spec.parameters.free)} free), "
            "RMSE mm: table, step model on the same samples, in-sample"]
     print(out[0], flush=True)
 
     def started(theta: float, **kw: Any) -> FitSpec:
-        return spec.with_options(start={**spec.start, "theta_bw": theta, "theta_fw": theta}, **kw)
+        return spec.with_options(start={**spec.parameters.start, "theta_bw": theta, "theta_fw": theta}, **kw)
 
     fits = [("one start, θ 15", started(15.0, starts=1), False), ("one start, θ 100", started(100.0, starts=1), False),
             ("previous default, θ 15, seed 0", started(15.0, starts=32, seed=0), True),
@@ -354,7 +354,7 @@ def confirm_gestures() -> list[str]:
         p = prob.with_packing(full if x is None else full.with_free(full.free, full.beta_free, *full.unpack(x)))
         p.nfev = p.njev = 0
         t0 = time.process_time()
-        f, r, st = fit_staged(p, spec.engine, spec.engine_options, spec.stages if spec.staging else None)
+        f, r, st = fit_staged(p, spec.engine.name, spec.engine.options, spec.staging.stages if spec.staging.enabled else None)
         cpu = time.process_time() - t0
         xe = f.packing.pack()
         ends.append((label, xe, st[-1].sse_end, f.nfev, cpu, channel_status(r, st)[0], prob.data_rmse(xe)))

@@ -130,9 +130,9 @@ def test_deviation_prior_is_a_gaussian_on_the_difference(session: Path, tmp_path
     rows = problem.speaker_rows
     assert rows is not None and rows.factor == "emotions" and rows.names[0] == "neutral"
     prior = EmotionPrior({e: 0.5 for e in rows.names[1:]}, 0.1)
-    groups = shrink_groups(rows, prior, spec.prior_noise)
+    groups = shrink_groups(rows, prior, spec.priors.prior_noise)
     assert len(groups) == len(pairs(rows)) == sum(1 for _, e in rows.rows if e != 0)
-    shr = Shrinkage(problem.packing, groups, spec.prior_noise)
+    shr = Shrinkage(problem.packing, groups, spec.priors.prior_noise)
     params, _ = problem.packing.unpack(problem.packing.pack())
     _, r, _ = pairs(rows)[0]
     for shift in (0.0, 7.0):

@@ -142,8 +142,8 @@ def test_the_default_spec_is_start_independent_held_out_with_pause_postures(tmp_
     held, pools = {}, {}
     for theta, seed in ((15.0, 0), (100.0, 1), (100.0, 3)):
         spec = load_spec(Path(__file__).resolve().parents[2] / "fit" / "ema_german_defaults_0024.toml")
-        assert spec.pauses == "postures" and spec.starts == 32  # the defaults, as a user gets them
-        spec = spec.with_options(channels=("LA",), seed=seed, start={**spec.start, "theta_bw": theta, "theta_fw": theta})
+        assert spec.model.pauses == "postures" and spec.fit.starts == 32  # the defaults, as a user gets them
+        spec = spec.with_options(channels=("LA",), seed=seed, start={**spec.parameters.start, "theta_bw": theta, "theta_fw": theta})
         out = tmp_path / f"o{seed}"
         fit = fit_job(spec, out, quiet=True, report=False).channels["LA"]
         # its final pauses hold no valid sample: no '#end' row (coartic.model.utterances_with_postures)
@@ -165,8 +165,8 @@ def test_the_default_spec_is_start_independent_held_out_with_pause_postures(tmp_
 def test_multistart_is_deterministic_and_reports_its_optima(tmp_path: Path) -> None:
     spec, utts, prob = small_problem(tmp_path, starts=4)
     capped = {"max_nfev": 8}  # determinism, not convergence, is tested: short final fits
-    a = fit_multistart(prob, "scipy", capped, spec.stages, 4, seed=3, probe=3, keep=2)
-    b = fit_multistart(prob, "scipy", capped, spec.stages, 4, seed=3, probe=3, keep=2, workers=2)
+    a = fit_multistart(prob, "scipy", capped, spec.staging.stages, 4, seed=3, probe=3, keep=2)
+    b = fit_multistart(prob, "scipy", capped, spec.staging.stages, 4, seed=3, probe=3, keep=2, workers=2)
     np.testing.assert_array_equal(a[1].x, b[1].x)  # threads or not, the same answer
     ms = a[3]
     assert len(ms.probe_objective) == 4 and len(ms.continued) == 2
@@ -210,13 +210,13 @@ def test_fit_section_is_checked(tmp_path: Path) -> None:
         with pytest.raises(SpecError, match=key.replace(".", r"\.")):
             load_spec(german_utterance_spec(tmp_path / "s.toml", f'[model]\nchannels = ["JO"]\n[fit]\n{body}\n'))
     spec = load_spec(german_utterance_spec(tmp_path / "d.toml", '[model]\nchannels = ["JO"]\n'))
-    assert spec.starts == 1  # (conftest: tests fit once unless marked multistart)
+    assert spec.fit.starts == 1  # (conftest: tests fit once unless marked multistart)
 
 
 @pytest.mark.multistart
 def test_default_is_multistart(tmp_path: Path) -> None:
     spec = load_spec(german_utterance_spec(tmp_path / "d.toml", '[model]\nchannels = ["JO"]\n'))
-    assert spec.starts == 32 and spec.seed == 0
+    assert spec.fit.starts == 32 and spec.fit.seed == 0
 
 
 def _stage(status: str, probe: bool = False) -> StageResult:
@@ -340,7 +340,7 @@ def test_stopping_rule_ends_a_well_identified_search_after_two_starts(tmp_path: 
     # without the rule (confirm = 0) the same search probes every start
     prob = build_problem(load_spec(defaults_spec(tmp_path / "x.toml")).estimation_settings(), fit.problem.data.utterances, "JO")
     spec = load_spec(defaults_spec(tmp_path / "y.toml", 8))
-    _, _, _, old = fit_multistart(prob, "scipy", {}, spec.stages, 8, probe=10, confirm=0)
+    _, _, _, old = fit_multistart(prob, "scipy", {}, spec.staging.stages, 8, probe=10, confirm=0)
     assert old.probed == 7 and old.nfev > ms.nfev
 
 
