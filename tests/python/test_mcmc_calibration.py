@@ -23,10 +23,11 @@ criterion fails it with probability 0.9997 at n = 45 and 0.88 at n = 10; one cov
 0.962 and 0.62. (test_the_criterion_tells_calibrated_from_too_narrow_intervals_at_these_sizes
 computes these, and for n = 42, the fewest identified the session test accepts: 0.057 / 0.9994 /
 0.942.) The session test used the /p t f/ trials (36 trials; 30 dimensions and 62 walkers per
-channel; n = 54: 0.052 / 1.0000 / 0.972) at about 250 CPU-s. It now uses the /p t/ trials (24
-trials; 26 dimensions, 54 walkers; with the session's seed n = 45 of 48, 44 covered, 36 by the
-68 % intervals), which keeps that power at about 150 CPU-s (measured under load; the chains
-converged at 8000 steps on LLO and 7000 on JO, as before). Not chosen: one channel instead of two
+channel; n = 54: 0.052 / 1.0000 / 0.972). It now uses the /p t/ trials (24 trials; 26
+dimensions, 54 walkers; with the session's seed n = 45 of 48, 44 covered, 36 by the 68 %
+intervals), which keeps that power at two thirds of the CPU time (this file: 186 -> 122 CPU-s,
+bench/results/test_suite_cpu_fit.txt; the chains converged at 8000 steps on LLO and 7000 on JO,
+as before). Not chosen: one channel instead of two
 halves the sampling but leaves n = 24 (0.116 / 0.993 / 0.885); one repetition instead of two cost
 nearly as much per step in a trial run (the walkers' overhead, not the data, dominates a step)
 and would widen the intervals.
