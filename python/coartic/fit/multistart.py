@@ -88,8 +88,8 @@ X_SPREAD = 0.02
 # found nothing better (at most MAX_HOPS). Measured in bench/multistart.py; docs/FITTING.md. Until
 # HOP_BOX, every entry moved by N(0, 0.5): δ (box ±0.08 s) and k_R (box [0, 1]) were thrown onto
 # their bounds, and on the gestures flavour (LLO, 207 free) every restart from the best optimum
-# (objective 141) ended in a worse one (415, 472) at 2.3-2.5 times one start's evaluations; with
-# HOP_BOX = 0.05 three in three returned to it at 0.47-0.71 times (bench/multistart.py hops-gestures).
+# (objective 141) ended in a worse one (415, 360) at 1.6-2.5 times one start's evaluations; with
+# HOP_BOX = 0.05 the same draws returned to it at 0.53-0.65 times (bench/multistart.py confirm-gestures).
 CHAINS = 2
 HOP_SCALE = 0.5
 HOP_BOX = 0.05
