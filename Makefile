@@ -90,7 +90,7 @@ core-tests:
 	  -p no:cacheprovider ../tests/python/test_extras.py -k on_demand
 
 test-rust:
-	cargo test --release --quiet
+	cargo test --profile release-tests --quiet
 
 stubtest:
 	$(PY) -m mypy.stubtest coartic._core --allowlist tests/stubtest-allowlist.txt

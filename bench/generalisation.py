@@ -77,7 +77,7 @@ def shrink_options(spec: FitSpec, sd: float = 1.0, grid: Sequence[float] | None 
     shrinks = []
     for cls, members in CLASSES.items():
         for scale, pars in (("log", SHRINK_LOG), ("natural", SHRINK_NATURAL)):
-            free = tuple(p for p in pars if p in spec.free and not (spec.variant == "original" and p == "k_r"))
+            free = tuple(p for p in pars if p in spec.parameters.free and not (spec.model.variant == "original" and p == "k_r"))
             if free:
                 shrinks.append(Shrink(members, free, sd, scale == "log", None, f"shrink {cls} {scale}"))
     opts: dict[str, Any] = {"shrinks": tuple(shrinks)}
@@ -153,18 +153,18 @@ def select_plateau_fraction(manifest: Path, grid: Sequence[float], channels: tup
     base = load_spec(ROOT / "fit" / "synthetic.toml")
     base = base.with_options(corpus=dataclasses.replace(base.corpus, manifest=manifest.resolve()), channels=channels)
     utts = load_utterances(base)
-    normal = [u for u in utts if u.meta.get("rate") == base.train_rate]
-    fast = [u for u in utts if u.meta.get("rate") == base.test_rate]
-    out.append(f"## choosing h by 5-fold CV over repetitions within the {base.train_rate} rate "
-               f"({len(normal)} trials); the {base.test_rate} rate ({len(fast)} trials) is scored only after")
+    normal = [u for u in utts if u.meta.get("rate") == base.validate.train_rate]
+    fast = [u for u in utts if u.meta.get("rate") == base.validate.test_rate]
+    out.append(f"## choosing h by 5-fold CV over repetitions within the {base.validate.train_rate} rate "
+               f"({len(normal)} trials); the {base.validate.test_rate} rate ({len(fast)} trials) is scored only after")
     spec = base.with_options(**VARIANTS["rate-aware"],
                              choose=Choose("plateau_fraction", tuple(sorted(grid)), "repetition", 5, "min"))
     res = run(spec, utterances=normal, quiet=True, choose=cross_validate)
     assert res.choice is not None
     out.extend(res.choice.text_lines())
-    for s in score(res, fast, f"fit {base.train_rate}, test {base.test_rate}"):
-        out.append(f"{s.channel}: CV chooses h = {res.choice.chosen[s.channel]:g}; fit {base.train_rate} rate, test "
-                   f"{base.test_rate} rate: train {s.train_rmse:.3f}, test {s.test_rmse:.3f} mm")
+    for s in score(res, fast, f"fit {base.validate.train_rate}, test {base.validate.test_rate}"):
+        out.append(f"{s.channel}: CV chooses h = {res.choice.chosen[s.channel]:g}; fit {base.validate.train_rate} rate, test "
+                   f"{base.validate.test_rate} rate: train {s.train_rmse:.3f}, test {s.test_rmse:.3f} mm")
     print("\n".join(out), flush=True)
 
 
@@ -217,8 +217,8 @@ def german(variants: Sequence[str], out: list[str]) -> None:
                               for p in shared)
                 # Shrinkage pulls the unseen phonemes toward their class means, which include the
                 # shared members at their trained values; a class with no unseen member has nothing free.
-                tspec = spec.with_options(channels=(ch,), overrides=spec.overrides + fixes,
-                                          shrinks=tuple(g for g in spec.shrinks if set(g.phonemes) & set(unseen)))
+                tspec = spec.with_options(channels=(ch,), overrides=spec.parameters.overrides + fixes,
+                                          shrinks=tuple(g for g in spec.priors.shrinks if set(g.phonemes) & set(unseen)))
                 transfer = run(tspec, utterances=[held], quiet=True, choose=cross_validate).channels[ch]
                 mine = own.channels[ch]
                 data = transfer.problem.data

@@ -22,9 +22,12 @@ starts that reach the best optimum, against nlopt's global MLSL and against the 
   beside it: the pooled fit's cost as a ratio to it (bench/results/multistart_cost.txt);
   cost-per-phoneme: the same with per-phoneme dynamics, nothing pooled
   (bench/results/multistart_cost-per-phoneme.txt); cost-gestures: the gestures flavour's LLO, with
-  the rule only (bench/results/multistart_cost-gestures.txt).
+  the rule only (bench/results/multistart_cost-gestures.txt); cost-gestures-rep1: the same on the
+  normal rate's repetition 1 (63 trials), LLO and JO (bench/results/multistart_cost-gestures-rep1.txt).
   confirm-gestures: the stopping rule's confirming start on a part of the gestures flavour, drawn
-  entry by entry (the default) and per family (bench/results/multistart_confirm-gestures.txt).
+  entry by entry (the default), per family, and the log entries only, and its return test: perturbed
+  restarts from start 0's optimum, every entry moved by N(0, 0.5) (before HOP_BOX) and as
+  multistart.hop moves them (bench/results/multistart_confirm-gestures.txt).
   Costs are evaluations (exact) and CPU seconds of this process (time.process_time: every thread,
   the core's rayon workers included; a short fit repeated, MIN_CPU): the machine is shared, and
   wall times there measure the other jobs.
@@ -107,7 +110,7 @@ def compare(title: str, spec: FitSpec, utts: Sequence[Utterance], channels: Sequ
             ("32 starts, seed 0 (default)", spec.with_options(starts=32, seed=0)),
             ("32 starts, seed 1", spec.with_options(starts=32, seed=1)),
             ("nlopt MLSL-LDS + L-BFGS, one start", s1.with_options(
-                engine="nlopt", engine_options={"global": "mlsl", "global_maxeval": 4000})),
+                engine={"name": "nlopt", "options": {"global": "mlsl", "global_maxeval": 4000}})),
         ][: None if os.environ.get("MULTISTART_NLOPT", "1") == "1" else -1]:  # MULTISTART_NLOPT=0: without it
             with previous_default() if "previous" in label else contextlib.nullcontext():
                 fit, w = timed(s, utts, ch)
@@ -161,12 +164,12 @@ def heldout(which: Sequence[str] = ("one start", "previous default", "default"))
 
     spec, utts = german_data()
     label_map = resolve_label_map(spec.corpus.label_map) if spec.corpus.label_map else None
-    out = [f"start independence held out, German EMA (fit/ema_german.toml: {', '.join(spec.free)} free), "
+    out = [f"start independence held out, German EMA (fit/ema_german.toml: {', '.join(spec.parameters.free)} free), "
            "RMSE mm: table, step model on the same samples, in-sample"]
     print(out[0], flush=True)
 
     def started(theta: float, **kw: Any) -> FitSpec:
-        return spec.with_options(start={**spec.start, "theta_bw": theta, "theta_fw": theta}, **kw)
+        return spec.with_options(start={**spec.parameters.start, "theta_bw": theta, "theta_fw": theta}, **kw)
 
     fits = [("one start, θ 15", started(15.0, starts=1), False), ("one start, θ 100", started(100.0, starts=1), False),
             ("previous default, θ 15, seed 0", started(15.0, starts=32, seed=0), True),
@@ -219,7 +222,7 @@ def cost_line(label: str, fit: Any, cpu: float, one: Any, one_cpu: float) -> str
     extra = ""
     if ms is not None:
         extra = (f"; best reached from {ms.best.hits} of {len(ms.continued)} continued ({ms.share:.0%}), "
-                 f"{ms.probed} probed, {len(ms.optima)} optima; stopped: {ms.stopped}")
+                 f"{ms.probed} probed, {len(ms.optima)} optima, {ms.returns} return-test restarts; stopped: {ms.stopped}")
     pool = getattr(fit, "pooling", None)
     if pool is not None:  # the empirical Bayes that follows the search: where it ended
         extra += (f"; pooling: log evidence {pool.log_evidence:.2f}, {pool.effective:.1f} effective parameters, "
@@ -295,10 +298,14 @@ def shared_default(spec: FitSpec) -> FitSpec:
                              target_prior=0.3)
 
 
-def gestures_data() -> tuple[FitSpec, list[Utterance]]:
-    """fit/gestures_rate_aware.toml (`coartic corpus synth build/gestures --flavour gestures` first)."""
+def gestures_data(rep1: bool = False) -> tuple[FitSpec, list[Utterance]]:
+    """fit/gestures_rate_aware.toml (`coartic corpus synth build/gestures --flavour gestures` first);
+    with ``rep1`` the normal rate's repetition 1 only (63 trials, as confirm-gestures)."""
     spec = load_spec(ROOT / "fit/gestures_rate_aware.toml")
-    return spec, load_utterances(spec, manifest_rows(spec))
+    rows = manifest_rows(spec)
+    if rep1:
+        rows = [r for r in rows if r.get("rate") == "normal" and r.get("repetition") == "1"]
+    return spec, load_utterances(spec, rows)
 
 
 def family_starts(packing: Any, n: int, seed: int) -> Any:
@@ -341,28 +348,52 @@ def confirm_gestures() -> list[str]:
     spec = load_spec(ROOT / "fit/gestures_rate_aware.toml")
     rows = [r for r in manifest_rows(spec) if r.get("rate") == "normal" and r.get("repetition") == "1"]
     utts = load_utterances(spec, rows)
-    prob = build_problem(spec, utts, "LLO")
+    prob = build_problem(spec.estimation_settings(), utts, "LLO")
     full = prob.packing
     out = [f"confirming start, gestures flavour LLO, normal rate repetition 1 ({len(utts)} trials, "
            f"{full.n_free} free; fit/gestures_rate_aware.toml): one staged fit from each start"]
     print(out[0], flush=True)
-    starts = [("start 0 ([parameters.start])", None), ("start 1, every entry drawn (the default)",
-                                                       multistart.sobol_starts(full, 32, 0)[1]),
-              ("start 1, drawn per family", family_starts(full, 32, 0)[1])]
+    import numpy as np
+
+    from coartic.table import PARAMETERS
+
+    drawn = multistart.sobol_starts(full, 32, 0)[1]
+    logs_only = full.pack()
+    logs_only[full.log_mask] = drawn[full.log_mask]  # c, k_R, δ, σ at [parameters.start]
+    starts: list[tuple[str, Any]] = [
+        ("start 0 ([parameters.start])", None), ("start 1, every entry drawn (the default)", drawn),
+        ("start 1, drawn per family", family_starts(full, 32, 0)[1]),
+        ("start 1, the log entries drawn (alpha, theta)", logs_only)]
     ends = []
-    for label, x in starts:
+
+    def fit_from(label: str, x: Any, staged: bool = True) -> None:
         p = prob.with_packing(full if x is None else full.with_free(full.free, full.beta_free, *full.unpack(x)))
         p.nfev = p.njev = 0
         t0 = time.process_time()
-        f, r, st = fit_staged(p, spec.engine, spec.engine_options, spec.stages if spec.staging else None)
+        f, r, st = fit_staged(p, spec.engine.name, spec.engine.options,
+                              spec.staging.stages if spec.staging.enabled and staged else None)
         cpu = time.process_time() - t0
         xe = f.packing.pack()
         ends.append((label, xe, st[-1].sse_end, f.nfev, cpu, channel_status(r, st)[0], prob.data_rmse(xe)))
+
+    for label, x in starts:
+        fit_from(label, x)
+    # the return test's restarts from start 0's optimum (a joint fit, full budget): every entry moved
+    # by N(0, HOP_SCALE) as before HOP_BOX, and as multistart.hop moves them
+    moved = multistart._columns(full) != PARAMETERS.index("target")
+    for k in range(2):
+        rng = np.random.default_rng([0, k])
+        x = ends[0][1].copy()
+        lo, hi = full.bounds()
+        x[moved] = np.clip(x[moved] + rng.normal(0.0, multistart.HOP_SCALE, int(moved.sum())), lo[moved], hi[moved])
+        fit_from(f"restart {k + 1} from start 0's optimum, N(0, 0.5) (before)", x, False)
+        fit_from(f"restart {k + 1} from start 0's optimum, multistart.hop", multistart.hop(full, ends[0][1],
+                                                                                       np.random.default_rng([0, k])), False)
     _, x0, s0, n0, c0, _, _ = ends[0]
     for label, x, s, n, c, status, rmse in ends:
         same = len(multistart.cluster([x0, x], [s0, s], [multistart.trajectory(prob, x0), multistart.trajectory(prob, x)],
                                       prob.data.n_valid, [0, 1], ["", ""], n_free=full.n_free)) == 1
-        out.append(f"  {label:<42} objective {s:10.4f}  data RMSE {rmse:.4f} mm  {n:5d} evals = {n / n0:5.2f}x  "
+        out.append(f"  {label:<56} objective {s:10.4f}  data RMSE {rmse:.4f} mm  {n:5d} evals = {n / n0:5.2f}x  "
                    f"CPU {c:7.2f} s = {c / c0:5.2f}x  [{status}]  " + ("start 0's optimum" if same else "another optimum"))
         print(out[-1], flush=True)
     return out
@@ -399,6 +430,10 @@ def main(parts: Sequence[str]) -> None:
             spec, utts = gestures_data()
             lines += cost(f"cost, gestures flavour, LLO, {len(utts)} trials (fit/gestures_rate_aware.toml)", spec, utts,
                           ["LLO"], before=False)
+        elif part == "cost-gestures-rep1":  # the same on 63 trials: LLO and JO, minutes instead of an hour
+            spec, utts = gestures_data(rep1=True)
+            lines += cost(f"cost, gestures flavour, normal rate repetition 1, {len(utts)} trials "
+                          "(fit/gestures_rate_aware.toml)", spec, utts, ["LLO", "JO"], before=False)
         elif part == "confirm-gestures":
             lines += confirm_gestures()
         elif part == "heldout":
@@ -407,7 +442,7 @@ def main(parts: Sequence[str]) -> None:
             lines += heldout([part.removeprefix("heldout-").replace("-", " ")])
         else:
             raise SystemExit(f"unknown part {part!r} (synthetic, german, workers, heldout, cost, cost-per-phoneme, "
-                             "cost-gestures, confirm-gestures)")
+                             "cost-gestures, cost-gestures-rep1, confirm-gestures)")
         save()
     print(f"saved bench/results/{name}")
 

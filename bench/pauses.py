@@ -65,7 +65,7 @@ def lines_for(name: str, spec: FitSpec, groups: list[str | None]) -> list[str]:
         for mode in MODES:
             s = spec.with_options(pauses=mode)
             if group is not None:
-                s = s.with_options(validate_group=group)
+                s = s.with_options(validate={"group": group})
             notes: list[str] = []
             scores = validate_all(s, None, utterances=with_spec_pauses(s, utts, notes), quiet=True, notes=notes, fit=fit_job)
             per = {m: (pooled(scores, m), pooled(scores, m, speech=True)) for m in MODELS}

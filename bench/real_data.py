@@ -325,17 +325,17 @@ def predict_channel(spec: FitSpec, trained: FitResult, channel: str, test: Seque
                            fixed={par: float(fit.params[row[p], j]) for j, par in enumerate(PARAMETERS)})
                   for p in sorted(known))
     # a parameter tied across phonemes ("t+shared") keeps its trained shared value for the unseen too
-    tied = {par: float(fit.params[0, PARAMETERS.index(par)]) for par in spec.shared}
+    tied = {par: float(fit.params[0, PARAMETERS.index(par)]) for par in spec.parameters.shared}
     if tied:
         fixes += (Override(phonemes=tuple(missing), channels=(channel,), fixed=tied),)
     # the target box must hold the trained targets, which a box from the test data alone may not
     y = np.concatenate([u.observed[channel][u.valid[channel]] for u in mapped])
     targets = fit.params[:, PARAMETERS.index("target")]
-    box = (min(float(targets.min()), float(np.nanmin(y)) - spec.target_margin),
-           max(float(targets.max()), float(np.nanmax(y)) + spec.target_margin))
-    bounds = {**spec.channel_bounds, channel: {**spec.channel_bounds.get(channel, {}), "target": box}}
-    tspec = spec.with_options(channels=(channel,), overrides=spec.overrides + fixes, beta=fit.beta, channel_bounds=bounds,
-                              shrinks=tuple(g for g in spec.shrinks if set(g.phonemes) & set(missing)),
+    box = (min(float(targets.min()), float(np.nanmin(y)) - spec.parameters.target_margin),
+           max(float(targets.max()), float(np.nanmax(y)) + spec.parameters.target_margin))
+    bounds = {**spec.parameters.channel_bounds, channel: {**spec.parameters.channel_bounds.get(channel, {}), "target": box}}
+    tspec = spec.with_options(channels=(channel,), overrides=spec.parameters.overrides + fixes, beta=fit.beta, channel_bounds=bounds,
+                              shrinks=tuple(g for g in spec.priors.shrinks if set(g.phonemes) & set(missing)),
                               shared=(), pooled=(), target_prior=None)
     if hasattr(tspec, "starts"):  # a handful of free parameters: one local fit
         tspec = tspec.with_options(starts=1)
@@ -364,7 +364,7 @@ def evaluate_cell(base: FitSpec, utts: Sequence[Utterance], variant: str, freedo
                 extra = {"tprior_sd": chosen, "cv": curve}
             got = fit_and_score(one, train, test, ch, label_map, unseen)
             rows.append({"variant": variant, "freedom": freedom_name(freedom), "reg": reg, "split": name,
-                         "channel": ch, "unseen": unseen, "starts": spec.starts, "theta0": spec.start["theta_bw"],
+                         "channel": ch, "unseen": unseen, "starts": spec.fit.starts, "theta0": spec.parameters.start_of("theta_bw"),
                          **got, **extra})
         rows[-1]["cpu"] = time.process_time() - t0
     return rows
@@ -601,11 +601,11 @@ def main() -> int:
         if a.pauses is not None:
             base = base.with_options(pauses=a.pauses)
         if a.theta_start is not None:
-            base = base.with_options(start={**base.start, "theta_bw": a.theta_start, "theta_fw": a.theta_start})
-        starts = a.starts if a.starts is not None else getattr(base, "starts", 1)
+            base = base.with_options(start={**base.parameters.start, "theta_bw": a.theta_start, "theta_fw": a.theta_start})
+        starts = a.starts if a.starts is not None else base.fit.starts
         utts = load_utterances(base)
         lines += [f"## {corpus.name}: {corpus.spec.relative_to(ROOT) if corpus.manifest is None else 'a spec that sets nothing but ' + str(corpus.manifest.relative_to(ROOT))}, channels {channels}, splits {','.join(which)}; source {corpus.source}; "
-                  f"licence {corpus.licence}", f"fits: [fit] starts = {starts}; theta start {base.start['theta_bw']:g}; pauses {base.pauses}; shrink sd = {SHRINK_SD} when on; nolast: without each test "
+                  f"licence {corpus.licence}", f"fits: [fit] starts = {starts}; theta start {base.parameters.start_of('theta_bw'):g}; pauses {base.model.pauses}; shrink sd = {SHRINK_SD} when on; nolast: without each test "
                   "utterance's last segment",
                   ROW_HEADER]
         print("\n".join(lines), flush=True)

@@ -61,7 +61,7 @@ def main() -> int:
                     # the budget of the biggest stage: the full free set's is an upper bound
                     default = evaluation_budget(prob)
                     for label, opts in (("default", {}), (f"{a.factor}x", {"max_nfev": a.factor * default})):
-                        sp = one.with_options(engine_options=opts)
+                        sp = one.with_options(engine={"options": opts})
                         res = run(sp, utterances=train, quiet=True)
                         fit = res.channels[ch]
                         sse = fit.rmse ** 2 * fit.problem.data.n_valid

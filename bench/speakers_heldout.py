@@ -77,7 +77,7 @@ def main() -> int:
              + f" | {'held out':>8s} {'calibr.':>8s}  per speaker held out (population / calibrated)   CPU s"]
     print("\n".join(lines), flush=True)
     for mode in modes:
-        spec = base.with_options(speakers=mode, validate_group="speaker")
+        spec = base.with_options(speakers=mode, validate={"group": "speaker"})
         t0 = time.process_time()
         full = run(spec, utterances=utts, quiet=True)
         held: dict[str, list[tuple[str, float, float, int]]] = {c: [] for c in channels}

@@ -26,7 +26,7 @@ def main() -> None:
         for starts, theta, seed in ((32, 15.0, 0), (32, 100.0, 1)):
             spec = load_spec(ROOT / "fit" / "ema_german_defaults_0024.toml")
             spec = spec.with_options(starts=starts, seed=seed, pauses=pauses,
-                                     start={**spec.start, "theta_bw": theta, "theta_fw": theta})
+                                     start={**spec.parameters.start, "theta_bw": theta, "theta_fw": theta})
             out = Path(tempfile.mkdtemp()) / "o"
             fit_job(spec, out, quiet=True, report=False)
             sc = score_recordings(out / "table.json", [EMA / "dfgspp_mo1_prosody_0020_ema.csv"],

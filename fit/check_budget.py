@@ -22,7 +22,7 @@ def main() -> None:
     one = spec.with_options(corpus=dataclasses.replace(spec.corpus, limit=1))
     for label, options in (("max_nfev = 200 (old default)", {"max_nfev": 200}), ("default", {})):
         for staging in (True, False):
-            r = run(one.with_options(staging=staging, engine_options=options), quiet=True)
+            r = run(one.with_options(staging={"enabled": staging}, engine={"options": options}), quiet=True)
             for ch, f in r.channels.items():
                 sse = f.rmse**2 * f.problem.data.n_valid
                 stages = ", ".join(f"{st.engine.status} {st.engine.nfev}" for st in f.stages)

@@ -31,7 +31,7 @@ def main(spec_path: str, channel: str, consonants: list[str]) -> None:
         truth = ParameterTable.load(spec.corpus.manifest.parent / "ground_truth.json")
     for engine, options in ENGINES:
         t0 = time.perf_counter()
-        fit = fit_channel(spec.with_options(engine=engine, engine_options=options), utts, channel)
+        fit = fit_channel(spec.with_options(engine={"name": engine, "options": options}), utts, channel)
         wall = time.perf_counter() - t0
         err = ""
         if truth is not None:

@@ -21,7 +21,7 @@ channels), or the path of a manifest CSV, read as a fit spec's ``[corpus] manife
 ...     model=ModelSettings(dominance="centre", handover=False, pauses="one"),   # the model they are made with
 ...     parameters=ParameterSettings(free=("target", "alpha", "theta_bw", "theta_fw", "k_r")),
 ...     priors=PriorSettings(target_prior=None, pooled=()))
->>> model = Coarticulation(settings, channels=["LLO"], staging=False)
+>>> model = Coarticulation(settings, channels=["LLO"], staging={"enabled": False})
 >>> sorted(model.fit(trials[::2]).table_.phonemes)
 ['#', 'a', 'i', 'l', 'p', 't']
 >>> round(model.score(trials[1::2]), 2)   # RMSE (mm) on the trials it did not see
@@ -63,9 +63,11 @@ class Coarticulation:
 
     ``settings`` (``coartic.estimation.settings.EstimationSettings``; default: a spec's defaults) say
     what is estimated; ``channels`` which channels are fitted; ``fit`` takes any other option of a
-    fit spec's ``[engine]``, ``[staging]``, ``[fit]`` and ``[gaps]`` by its field name (``engine``,
-    ``engine_options``, ``staging``, ``stages``, ``starts``, ``seed``, ``probe``, ``keep``,
-    ``include_start``, ``max_gap``). ``Coarticulation.from_spec(path)`` takes a spec file as it is.
+    fit spec's ``[engine]``, ``[staging]``, ``[fit]``, ``[gaps]`` and ``[validate]`` as
+    ``FitSpec.with_options`` does: a section as a table of its keys (``engine={"name": "nlopt"}``,
+    ``staging={"enabled": False}``) or its class (``coartic.fit.spec.StagingSection``), or one
+    setting by its name (``starts``, ``seed``, ``probe``, ``keep``, ``include_start``, ``max_gap``).
+    ``Coarticulation.from_spec(path)`` takes a spec file as it is.
 
     After ``fit``: ``result_`` (``coartic.fit.result.FitResult``: statistics, ``to_dataframe()``)
     and ``table_`` (``coartic.table.ParameterTable``: ``save``, ``to_dataframe()``).
@@ -105,7 +107,7 @@ class Coarticulation:
 
     def __repr__(self) -> str:
         state = "fitted" if self.table_ is not None else "not fitted"
-        return f"Coarticulation(variant={self.spec.variant!r}, channels={list(self.spec.channels)!r}; {state})"
+        return f"Coarticulation(variant={self.spec.model.variant!r}, channels={list(self.spec.channels)!r}; {state})"
 
     # ------------------------------------------------------------------ data
 

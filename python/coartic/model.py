@@ -159,8 +159,9 @@ def utterances_with_postures(utterances: Sequence[Utterance], short: float = SHO
               f"channel: none is fitted as {p!r} (a posture no sample shows cannot be estimated); they stay "
               f"{PAUSE!r}" for p in unseen]
     if finals:
-        notes.insert(0, f"pauses: {finals} utterance-final pause(s) fitted as {FINAL_PAUSE!r} (their own target), "
-                        f"apart from the initial {PAUSE!r}")
+        notes.insert(0, f"pauses: {finals} utterance-final pause(s) fitted as {FINAL_PAUSE!r} (their own target and θ), "
+                        f"apart from the initial {PAUSE!r}; where α is free the two share one "
+                        f"(coartic.pauses.EDGE_TIED)")
     return out, notes
 
 

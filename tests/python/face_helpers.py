@@ -1,11 +1,24 @@
 """What the face and rig tests share: the synthetic ground-truth table, Debian's three.js (r111,
-the one the viewer and the glTF checks load) and one utterance that shows every kind of mouth."""
+the one the viewer and the glTF checks load), one utterance that shows every kind of mouth, what a
+screenshot shows of the mouth and the upper face, and one Chromium for a test file's screenshots."""
 
 from __future__ import annotations
 
+import base64
+import fcntl
+import json
+import os
+import select
+import shutil
+import signal
+import tempfile
+import time
+from collections.abc import Iterator
 from pathlib import Path
+from typing import Any
 
 import numpy as np
+import pytest
 from PIL import Image
 
 GROUND_TRUTH = Path(__file__).resolve().parents[2] / "corpus-synthetic" / "ground_truth.json"
@@ -102,3 +115,133 @@ def eyes_of(png: Path) -> tuple[int, int, int]:
     assert xs.size > 40, f"{png}: no eyes in the picture"
     mid = img.shape[1] / 2
     return int(xs[xs > mid].mean()), int(xs[xs < mid].mean()), int(ys.min())
+
+
+class Chromium:
+    """One headless Chromium for a test file's screenshots of viewer pages.
+
+    `coartic.face.viewer.screenshot` starts a Chromium for each picture, about 1 CPU-s of start-up
+    for a picture that costs a fifth of that; the face tests take dozens. This one is started once
+    and driven over its DevTools pipe (--remote-debugging-pipe: no port, no driver, the standard
+    library only) with screenshot()'s flags, viewport and URL (`screenshot_url`), so each picture is
+    the one screenshot() takes, pixel for pixel (test_view.py checks it on every kind of shot)."""
+
+    def __init__(self, timeout: float = 60.0) -> None:
+        from coartic.face.viewer import CHROMIUM_FLAGS, chromium_program
+
+        self.timeout = timeout
+        self.profile = tempfile.mkdtemp(prefix="coartic-chromium-")
+        # Chromium reads commands from its fd 3 and writes answers to its fd 4, each a JSON message ended by NUL
+        cmd_r, self._w = os.pipe()
+        self._r, ans_w = os.pipe()
+        # moved above 10 first, so that moving them onto 3 and 4 in the child cannot overwrite one with the other
+        high = [fcntl.fcntl(fd, fcntl.F_DUPFD_CLOEXEC, 10) for fd in (cmd_r, ans_w)]
+        os.close(cmd_r)
+        os.close(ans_w)
+        null = os.open(os.devnull, os.O_RDWR | os.O_CLOEXEC)
+        argv = [chromium_program(), *CHROMIUM_FLAGS, f"--user-data-dir={self.profile}", "--remote-debugging-pipe",
+                "about:blank"]
+        try:
+            self.pid = os.posix_spawn(argv[0], argv, os.environ, file_actions=[
+                (os.POSIX_SPAWN_DUP2, high[0], 3), (os.POSIX_SPAWN_DUP2, high[1], 4),
+                *[(os.POSIX_SPAWN_DUP2, null, k) for k in (0, 1, 2)]])
+        finally:
+            for fd in (*high, null):
+                os.close(fd)
+        self._buf = b""
+        self._next_id = 0
+        self._events: list[dict[str, Any]] = []
+        self._size: tuple[int, int] | None = None
+        page = next(t for t in self._call("Target.getTargets")["targetInfos"] if t["type"] == "page")
+        self._session = self._call("Target.attachToTarget", targetId=page["targetId"], flatten=True)["sessionId"]
+        self._call("Page.enable", session=True)
+
+    def _message(self, deadline: float) -> dict[str, Any]:
+        while b"\0" not in self._buf:
+            left = deadline - time.monotonic()
+            if left <= 0 or not select.select([self._r], [], [], left)[0]:
+                raise RuntimeError(f"Chromium did not answer within {self.timeout:g} s")
+            chunk = os.read(self._r, 1 << 20)
+            if not chunk:
+                raise RuntimeError("Chromium closed its DevTools pipe (it crashed or was killed)")
+            self._buf += chunk
+        msg, _, self._buf = self._buf.partition(b"\0")
+        out: dict[str, Any] = json.loads(msg)
+        return out
+
+    def _call(self, method: str, session: bool = False, **params: Any) -> dict[str, Any]:
+        self._next_id += 1
+        msg: dict[str, Any] = {"id": self._next_id, "method": method, "params": params}
+        if session:
+            msg["sessionId"] = self._session
+        os.write(self._w, json.dumps(msg).encode() + b"\0")
+        deadline = time.monotonic() + self.timeout
+        while True:
+            m = self._message(deadline)
+            if m.get("id") == self._next_id:
+                if "error" in m:
+                    raise RuntimeError(f"Chromium's {method}: {m['error']}")
+                result: dict[str, Any] = m["result"]
+                return result
+            if "method" in m:
+                self._events.append(m)
+
+    def _wait_event(self, name: str) -> None:
+        deadline = time.monotonic() + self.timeout
+        while not any(e["method"] == name for e in self._events):
+            m = self._message(deadline)
+            if "method" in m:
+                self._events.append(m)
+        self._events.clear()
+
+    def screenshot(self, page: Path, png: Path, *, frame: int | None = None, face_only: int | None = None,
+                   size: tuple[int, int] = (1130, 580), yaw: float | None = None, zoom: float | None = None,
+                   section: bool = False) -> Path:
+        """What `coartic.face.viewer.screenshot` takes with the same arguments."""
+        from coartic.face.viewer import screenshot_url
+
+        if size != self._size:  # screenshot()'s --window-size: the page's viewport
+            self._call("Emulation.setDeviceMetricsOverride", session=True, width=size[0], height=size[1],
+                       deviceScaleFactor=1, mobile=False)
+            self._size = size
+        self._events.clear()
+        self._call("Page.navigate", session=True,
+                   url=screenshot_url(page, frame=frame, face_only=face_only, yaw=yaw, zoom=zoom, section=section))
+        self._wait_event("Page.loadEventFired")
+        # the viewer draws in its load handler; a frame later the picture is on the screen
+        self._call("Runtime.evaluate", session=True, awaitPromise=True, expression=(
+            "new Promise(done => { const ready = () => (window.coarticView || document.getElementById('error')"
+            ".textContent) ? requestAnimationFrame(() => done(1)) : setTimeout(ready, 5); ready(); })"))
+        data = self._call("Page.captureScreenshot", session=True, format="png")["data"]
+        png.parent.mkdir(parents=True, exist_ok=True)
+        partial = png.with_name(png.name + ".partial")
+        partial.write_bytes(base64.b64decode(data))
+        partial.replace(png)
+        return png
+
+    def close(self) -> None:
+        try:
+            self._call("Browser.close")
+        except RuntimeError:
+            os.kill(self.pid, signal.SIGKILL)
+        finally:
+            os.close(self._w)
+            os.close(self._r)
+            os.waitpid(self.pid, 0)
+            shutil.rmtree(self.profile, ignore_errors=True)
+
+
+def shared_chromium() -> Iterator[Chromium]:
+    """A test file's Chromium (`browser = pytest.fixture(scope="module")(shared_chromium)`), or a skip
+    when there is none."""
+    from coartic.face.viewer import chromium_program
+
+    try:
+        chromium_program()
+    except Exception as err:  # scripts/setup.sh installs it; without it there is nothing to look at
+        pytest.skip(str(err))
+    browser = Chromium()
+    try:
+        yield browser
+    finally:
+        browser.close()

@@ -84,10 +84,11 @@ def test_cells_are_the_products_own_settings() -> None:
     rd = bench()
     base = load_spec(ROOT / "fit" / "ema_german.toml")
     s = rd.cell_spec(base, "rate-aware", rd.FREEDOM["t+shared"], "tprior:0.3", starts=1)
-    assert (s.dominance, s.handover, s.free, s.shared, s.target_prior, s.starts) == (
+    assert (s.model.dominance, s.model.handover, s.parameters.free, s.parameters.shared, s.priors.target_prior,
+            s.fit.starts) == (
         "plateau", True, ("target", "theta_bw", "theta_fw"), ("theta_bw", "theta_fw"), 0.3, 1)
     s = rd.cell_spec(base.with_options(dominance="plateau", handover=True), "modified", rd.FREEDOM["tat"], "none")
-    assert (s.dominance, s.handover, s.shared, s.target_prior) == ("centre", False, (), None)
+    assert (s.model.dominance, s.model.handover, s.parameters.shared, s.priors.target_prior) == ("centre", False, (), None)
     assert rd.tprior_sd("tprior-cv") == "cv" and rd.tprior_sd("tprior:x") is None and rd.tprior_sd("shrink") is None
     with pytest.raises(ValueError, match="unknown regularisation"):
         rd.cell_spec(base, "modified", rd.FREEDOM["tat"], "tprior:-1")

@@ -77,8 +77,13 @@ def _examples(page: Path) -> list[tuple[str, list[str]]]:
 
 @pytest.fixture(scope="module")
 def samples(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    """A folder laid out as the repository's root after the readers pages' sample commands."""
+    """A folder laid out as the repository's root after the readers pages' sample commands. Of the
+    quick session (`coartic corpus synth build/session --quick`) only the /b/ trials: the pages
+    inspect aba_normal_01, the same files as in the whole session (each trial's random stream is its
+    own), a seventh of the generation; corpus synth itself is tested in test_synthetic.py."""
     import sys
+
+    from coartic.synthetic_cli import load_generator
 
     where = tmp_path_factory.mktemp("readers")
     (where / "tests").symlink_to(ROOT / "tests")
@@ -86,8 +91,7 @@ def samples(tmp_path_factory: pytest.TempPathFactory) -> Path:
     import format_fixtures
 
     format_fixtures.write_all(where / "build" / "formats")
-    r = CliRunner().invoke(app, ["corpus", "synth", str(where / "build" / "session"), "--quick"])
-    assert r.exit_code == 0, r.output
+    load_generator().generate(where / "build" / "session", quick=True, progress=False, consonants=["b"])
     return where
 
 

@@ -9,7 +9,7 @@ from types import ModuleType
 
 import numpy as np
 import pytest
-from hypothesis import HealthCheck, given, settings
+from hypothesis import HealthCheck, example, given, settings
 from hypothesis import strategies as st
 from typer.testing import CliRunner
 
@@ -21,6 +21,7 @@ from coartic.model import Utterance, evaluate_corpus
 from coartic.runtime.animate import animate, target_times
 from coartic.synthetic_cli import load_generator
 from coartic.table import CHANNELS, ParameterTable
+from face_helpers import Chromium, shared_chromium
 
 ROOT = Path(__file__).resolve().parents[2]
 EMOTIONS = ("joy", "surprise", "sadness", "disgust", "anger", "fear")
@@ -84,6 +85,8 @@ def test_intensity_scales_the_deviation_trajectory_linearly() -> None:
 @given(which=st.sampled_from(["truth", "noisy"]), emotion=st.sampled_from(EMOTIONS), intensity=st.floats(0.0, 1.5), vowel=st.sampled_from("aiu"),
        consonant=st.sampled_from(["p", "b", "m", "f", "v"]), fps=st.sampled_from([25.0, 30.0, 50.0]),
        durations=st.tuples(st.floats(0.05, 0.2), st.floats(0.03, 0.15), st.floats(0.05, 0.2)))
+@example(which="truth", emotion="joy", intensity=0.0, vowel="a", consonant="b", fps=25.0,
+         durations=(0.125, 0.03, 0.05078125))  # the corner example of the docstring, always tried
 def test_lips_close_and_touch_the_teeth_at_every_intensity(which: str, emotion: str, intensity: float, vowel: str,
                                                            consonant: str, fps: float,
                                                            durations: tuple[float, float, float]) -> None:
@@ -91,7 +94,10 @@ def test_lips_close_and_touch_the_teeth_at_every_intensity(which: str, emotion: 
     lower lip to the neutral contact on the frame nearest their target, whatever the emotion and
     intensity; and so on coartic's face, whose brows, lids, cheeks and lip corners the emotion moves
     too (the FAP file's FAPs, expression included, on coartic.face's mesh): the inner lips touch or
-    press along the whole cut at /p b m/, the lower lip touches the upper incisors' edge at /f v/
+    press along the whole cut at /p b m/ (within 0.1 mm, three of the FAP file's mouth-nose units
+    of MNS/1024 = 0.03 mm, below a pixel at any size a player draws the face: beside a lip corner a
+    30 ms /b/ at 25 fps, the jaw still at the vowel's 117.7 mm, leaves 0.04 mm there while the
+    middle presses 4 mm), the lower lip touches the upper incisors' edge at /f v/
     (within 1.2 mm: neutral speech's own reach over such timings, 1.09 mm at worst over 400 random
     ones; test_face_mesh's utterance, 1 mm). The tables are drawn by name: Hypothesis would print
     a whole table with a failing example."""
@@ -111,7 +117,7 @@ def test_lips_close_and_touch_the_teeth_at_every_intensity(which: str, emotion: 
         closure = reached(TRUTH, consonant, "ULO") + reached(TRUTH, consonant, "LLO")
         la = a.channels["ULO"][k] + a.channels["LLO"][k]
         assert la == pytest.approx(closure, abs=1e-6) and la + REST_GAP_MM <= 0.0
-        assert (pose[m.slit[:, 0], 1] - pose[m.slit[:, 1], 1]).max() <= 0.0  # upper inner lip not above the lower
+        assert (pose[m.slit[:, 0], 1] - pose[m.slit[:, 1], 1]).max() <= 0.1  # upper inner lip not above the lower
     else:
         assert a.channels["LLO"][k] == pytest.approx(reached(TRUTH, consonant, "LLO"), abs=1e-6)
         central = m.in_part("upper_teeth") & (np.abs(m.vertices[:, 0]) < 4.0)
@@ -252,7 +258,10 @@ def test_fap_file_carries_the_high_level_expression(tmp_path: Path) -> None:
     assert not read_fap(path).mask[:, 1].any() and read_fap(path).expression is None
 
 
-def test_chromium_shows_each_emotion_and_the_closure_stays(tmp_path: Path) -> None:
+browser = pytest.fixture(scope="module")(shared_chromium)
+
+
+def test_chromium_shows_each_emotion_and_the_closure_stays(tmp_path: Path, browser: Chromium) -> None:
     """The face in headless Chromium at the /a/ of /a b a/: surprise opens the mouth wider than
     neutral and sadness less; at the /b/ the lips touch as in neutral speech for every emotion. The
     whole face in the pause before (no blink yet): surprise raises the brows and shows more of the
@@ -260,13 +269,9 @@ def test_chromium_shows_each_emotion_and_the_closure_stays(tmp_path: Path) -> No
     (coartic.face.deform's brow and lid zones, driven by the FAP file's expression FAPs)."""
     from face_helpers import eyes_of, mouth_opening, upper_face
 
-    from coartic.face.viewer import chromium_program, screenshot, write_page
+    from coartic.face.viewer import write_page
     from coartic.runtime.pipeline import animate_file
 
-    try:
-        chromium_program()
-    except Exception as err:  # scripts/setup.sh installs it; without it there is nothing to look at
-        pytest.skip(str(err))
     labels = tmp_path / "aba.tsv"
     labels.write_text("0.0\t0.5\t#\n0.5\t0.8\ta\n0.8\t0.92\tb\n0.92\t1.1\ta\n1.1\t1.5\t#\n", encoding="utf-8")
     seg = Segments(("#", "a", "b", "a", "#"), np.array([0.0, 0.5, 0.8, 0.92, 1.1]), np.array([0.5, 0.8, 0.92, 1.1, 1.5]))
@@ -279,13 +284,14 @@ def test_chromium_shows_each_emotion_and_the_closure_stays(tmp_path: Path) -> No
         animate_file(labels, table, tmp_path / e, fps=25.0, preview="none", gltf=True)
         page = write_page(tmp_path / e)
         # the whole head, at 0.2 s: the first blink comes at 0.6 s (coartic.runtime.fap.BLINK_FIRST_S)
-        whole = screenshot(page, tmp_path / f"{e}_face.png", frame=5, face_only=440, size=(440, 440), zoom=1.1)
+        whole = browser.screenshot(page, tmp_path / f"{e}_face.png", frame=5, face_only=440, size=(440, 440), zoom=1.1)
         eyes = eyes or eyes_of(whole)  # the neutral face's eyes: every face measured in the same band
         face[e] = upper_face(whole, eyes)
         if e == "anger":  # its lips: as neutral's, within a millimetre (EMOTIONS.md); the brows are what it adds here
             continue
-        opening[e] = {ph: mouth_opening(screenshot(page, tmp_path / f"{e}_{ph}.png", frame=int(k[i]), face_only=400,
-                                                   size=(400, 400), zoom=2.0)) for ph, i in (("a", 1), ("b", 2))}
+        opening[e] = {ph: mouth_opening(browser.screenshot(page, tmp_path / f"{e}_{ph}.png", frame=int(k[i]),
+                                                           face_only=400, size=(400, 400), zoom=2.0))
+                      for ph, i in (("a", 1), ("b", 2))}
     assert opening["surprise"]["a"] > opening["neutral"]["a"] > opening["sadness"]["a"], opening
     # the closure is the neutral one whatever the emotion (a pixel of anti-aliasing at most)
     assert all(o["b"] == opening["neutral"]["b"] <= 1 for o in opening.values()), opening

@@ -34,13 +34,13 @@ def trials() -> list:  # type: ignore[type-arg]
 
 @pytest.fixture(scope="module")
 def fitted(trials: list) -> Coarticulation:  # type: ignore[type-arg]
-    return Coarticulation(PAPER, channels=["LLO"], staging=False).fit(trials[::2])
+    return Coarticulation(PAPER, channels=["LLO"], staging={"enabled": False}).fit(trials[::2])
 
 
 def test_fit_is_coartic_fit_run_bit_for_bit(fitted: Coarticulation, trials: list) -> None:  # type: ignore[type-arg]
     direct = run(fitted.spec, utterances=trials[::2], quiet=True)
     assert fitted.table_ is not None and fitted.table_.values == direct.table().values
-    assert fitted.spec.variant == "modified" and fitted.spec.free == FREE and not fitted.spec.staging
+    assert fitted.spec.model.variant == "modified" and fitted.spec.parameters.free == FREE and not fitted.spec.staging.enabled
     assert fitted.settings.parameters.free == FREE and fitted.settings.model.dominance == "centre"
     assert fitted.table_.metadata["corpus"] == "trials given in Python"
 
@@ -109,7 +109,7 @@ def test_trials_from_a_manifest_and_a_spec_file(tmp_path) -> None:  # type: igno
     from coartic.synthetic_cli import load_generator
 
     manifest = load_generator().generate(tmp_path / "session", quick=True, progress=False, consonants=["p"])
-    model = Coarticulation(PAPER, channels=["LLO"], staging=False).fit(manifest)
+    model = Coarticulation(PAPER, channels=["LLO"], staging={"enabled": False}).fit(manifest)
     assert model.result_ is not None and model.result_.channels["LLO"].rmse < 0.3
     assert model.score(manifest) == pytest.approx(model.result_.channels["LLO"].rmse, rel=1e-9)
     spec = tmp_path / "spec.toml"

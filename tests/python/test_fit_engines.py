@@ -110,7 +110,7 @@ def test_nlopt_fits_the_default_spec_polished_by_scipy_and_says_so(tmp_path: Pat
     root = Path(__file__).resolve().parents[2]
     spec = load_spec(root / "fit" / "ema_german_defaults_0024.toml").with_options(channels=("LA",), starts=1)
     scipy_fit = run(spec, quiet=True).channels["LA"]
-    result = fit_job(spec.with_options(engine="nlopt"), tmp_path / "nlopt", quiet=True, report=False)
+    result = fit_job(spec.with_options(engine={"name": "nlopt"}), tmp_path / "nlopt", quiet=True, report=False)
     fit = result.channels["LA"]
     assert fit.status == "converged" and fit.polished
     # (the default's pooling sd is settled to 2 %: two engines' re-solves end within a few 1e-4 mm)
@@ -121,7 +121,7 @@ def test_nlopt_fits_the_default_spec_polished_by_scipy_and_says_so(tmp_path: Pat
     # polish = "none": the failure stands, said in the status (stage-failed: exit 3 in `coartic fit`),
     # whether it is a stage's (the next stage going on from its best point) or a partial-pooling
     # re-solve's (the optimum at the last sd that converged kept, written, not refused)
-    unpolished = run(spec.with_options(engine="nlopt", engine_options={"polish": "none"}), quiet=True).channels["LA"]
+    unpolished = run(spec.with_options(engine={"name": "nlopt", "options": {"polish": "none"}}), quiet=True).channels["LA"]
     assert unpolished.status == "stage-failed" and not unpolished.polished
     assert "local lbfgs: nlopt result -1 (FAILURE)" in unpolished.message
     # the optimum at the last sd that converged is kept, and the pooling says it did not settle

@@ -238,5 +238,5 @@ def test_a_pooled_fit_counts_every_evaluation(tmp_path: Path, differ: list[model
     assert fit.pooling is not None and fit.pooling.rounds >= 1  # re-solved at least once
     last = [ln for ln in buf.getvalue().splitlines() if ln.startswith("LLO done")][-1]
     assert f" {fit.nfev} evaluations " in last, (fit.nfev, last)
-    one = fit_staged(build_problem(s.estimation_settings(), differ, "LLO"), "scipy", {}, s.stages)[1].nfev
+    one = fit_staged(build_problem(s.estimation_settings(), differ, "LLO"), "scipy", {}, s.staging.stages)[1].nfev
     assert fit.nfev > one  # the fit before the re-solves, then theirs

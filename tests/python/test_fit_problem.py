@@ -118,7 +118,7 @@ def test_reference_phoneme_chosen_from_the_data_when_the_spec_names_none(utts) -
     records say which. A named one absent from the data is still an error (above)."""
     no_a = [u for u in utts if "a" not in u.labels]
     s = spec()
-    assert s.reference_phoneme is None
+    assert s.model.reference_phoneme is None
     p = build_problem(s.estimation_settings(), no_a, "LLO")
     assert "a" not in p.phonemes and "i" in p.phonemes
     ref = s.reference_for(p.phonemes)

@@ -173,7 +173,7 @@ def test_shrinkage_of_fixed_values_and_bad_choose_options_are_refused(tmp_path: 
     with pytest.raises(SpecError, match=r"--choose 'shrink.sd': expected KEY=V1,V2"):
         parse_choose(s, "shrink.sd")
     assert parse_choose(s, "shrink.sd=1, 0.1").choose == Choose("shrink.sd", (0.1, 1.0), "utterance", 5, "1se")
-    assert set_value(s, "shrink #1.sd", 0.5).shrinks[0].sd == 0.5
+    assert set_value(s, "shrink #1.sd", 0.5).priors.shrinks[0].sd == 0.5
 
 
 def test_ctrl_c_while_choosing_writes_no_fit(tmp_path: Path, utts: list[model.Utterance],
@@ -198,7 +198,7 @@ def test_compare_varies_the_shrinkage_sd(tmp_path: Path) -> None:
     s = spec_of(tmp_path, shrink=[{"phonemes": ["p", "t"], "parameters": ["target"], "sd": 1.0},
                                   {"phonemes": ["a", "i"], "parameters": ["target"], "sd": 1.0}])
     made = vary(s, "shrink #2.sd", ["0.1", "3"])
-    assert [(m.shrinks[0].sd, m.shrinks[1].sd) for m in made] == [(1.0, 0.1), (1.0, 3.0)]
+    assert [(m.priors.shrinks[0].sd, m.priors.shrinks[1].sd) for m in made] == [(1.0, 0.1), (1.0, 3.0)]
     assert made[0].name.endswith("shrink #2.sd = 0.1")
     with pytest.raises(SpecError, match="no such"):
         vary(s, "shrink #3.sd", ["0.1"])

@@ -8,7 +8,9 @@ from pathlib import Path
 import pytest
 
 from coartic.errors import SpecError
-from coartic.fit.spec import DEFAULT_STAGES, FIELD_KEYS, CorpusSpec, FitSpec, Override, load_spec
+from coartic.estimation.settings import SPEC_KEYS, ModelSettings
+from coartic.fit.spec import (ARRAYS, DEFAULT_STAGES, SECTION_KEYS, SECTIONS, CorpusSpec, EngineSection, FitSpec, Override,
+                              load_spec)
 
 ROOT = Path(__file__).resolve().parents[2]
 
@@ -16,7 +18,7 @@ ROOT = Path(__file__).resolve().parents[2]
 @pytest.mark.parametrize("name", ["synthetic.toml", "template.toml", "ema_german.toml", "ema_german_original.toml"])
 def test_shipped_specs_load(name: str) -> None:
     s = load_spec(ROOT / "fit" / name)
-    assert s.channels and s.engine in ("scipy", "nlopt", "casadi")
+    assert s.channels and s.engine.name in ("scipy", "nlopt", "casadi")
     assert s.path == ROOT / "fit" / name
 
 
@@ -24,7 +26,7 @@ def test_synthetic_spec_values() -> None:
     s = load_spec(ROOT / "fit" / "synthetic.toml")
     assert s.corpus.manifest == ROOT / "fit" / ".." / "build" / "session" / "manifest.csv"
     assert s.channels == ("ULO", "LLO", "ULP", "LLP", "LR", "JO")
-    assert s.reference_phoneme == "a" and s.staging and s.stages == DEFAULT_STAGES
+    assert s.model.reference_phoneme == "a" and s.staging.enabled and s.staging.stages == DEFAULT_STAGES
 
 
 def write(tmp_path: Path, text: str) -> Path:
@@ -89,7 +91,7 @@ def test_paths_relative_to_spec_and_overrides(tmp_path: Path) -> None:
               'fixed = { k_r = 1.0 }\nbounds = { target = [-5.0, 0.0] }\n')
     s = load_spec(p)
     assert s.corpus.manifest == tmp_path / "m.csv"
-    o = s.overrides[0]
+    o = s.parameters.overrides[0]
     assert o.applies("p", "LLO") and not o.applies("p", "ULP") and not o.applies("t", "LLO")
     assert o.fixed == {"k_r": 1.0} and o.bounds == {"target": (-5.0, 0.0)}
 
@@ -158,12 +160,12 @@ def test_unknown_keys_are_named_with_what_is_allowed(tmp_path: Path) -> None:
 def test_with_options_validates_as_loading_does(tmp_path: Path) -> None:
     p = write(tmp_path, BASE)
     s = load_spec(p)
-    assert s.with_options(plateau_fraction=0.3, starts=4).plateau_fraction == 0.3
+    assert s.with_options(plateau_fraction=0.3, starts=4).model.plateau_fraction == 0.3
     for changes, key in (({"plateau_fraction": 2.0}, "model.plateau_fraction"),
                          ({"beta": float("nan")}, "model.beta"),
                          ({"free": ("target", "speed")}, "parameters.free"),
-                         ({"engine": "foo"}, "engine.name"),
-                         ({"validate_folds": 3}, "validate.folds"),  # needs a group
+                         ({"engine": {"name": "foo"}}, "engine.name"),
+                         ({"validate": {"folds": 3}}, "validate.folds"),  # needs a group
                          ({"ties": ({"phonemes": ["a", "i"], "parameters": ["alpha"]},)}, "tie #1"),
                          ({"keep": 8, "starts": 4}, "fit.keep")):
         with pytest.raises(SpecError) as e:
@@ -176,11 +178,26 @@ def test_with_options_validates_as_loading_does(tmp_path: Path) -> None:
         dataclasses.replace(s.corpus, manifest=None)
 
 
-def test_the_document_table_covers_every_field() -> None:
-    # every FitSpec field is set by some spec key (or derived from one), so none escapes the schema's
-    # location of its errors
-    named = set(FIELD_KEYS) | {"path"}
-    assert {f.name for f in dataclasses.fields(FitSpec)} <= named
+# every setting of the nested schema: (section, field), the estimation settings' parts included
+LEAVES = [(section, f.name) for section, cls in SECTIONS.items() if section not in ("corpus", "choose")
+          for f in dataclasses.fields(cls)]
+OWN = {"name": "name", "channels": "model.channels", "start_table": "parameters.start_table", "corpus": "corpus",
+       "choose": "choose", "model": "model", "parameters": "parameters", "priors": "parameters", "groups": "model",
+       "engine": "engine", "staging": "staging", "fit": "fit", "gaps": "gaps", "validate": "validate"}
+
+
+def _expected_key(section: str, field: str) -> str:
+    # the estimation settings are written with their own table's keys; the fit's sections key for key
+    return SPEC_KEYS[field] if section in ("model", "parameters", "priors", "groups") else f"{section}.{field}"
+
+
+def test_every_setting_is_written_by_a_key_of_the_document() -> None:
+    # so that none escapes the schema's location of its errors, and the parser reaches every one
+    for section, field in LEAVES:
+        key = _expected_key(section, field)
+        head, _, rest = key.partition(".")
+        assert (head in SECTION_KEYS and rest in SECTION_KEYS[head]) or (head in ARRAYS and not rest), (section, field)
+    assert {f.name for f in dataclasses.fields(FitSpec)} - {"path"} <= set(OWN)
 
 
 class _Odd:
@@ -194,7 +211,15 @@ def test_a_bad_value_in_any_field_is_a_spec_error_naming_its_key(tmp_path: Path,
     s = load_spec(write(tmp_path, BASE))
     with pytest.raises(SpecError) as e:
         s.with_options(**{field: _Odd()})
-    assert e.value.file == tmp_path / "spec.toml" and e.value.key == FIELD_KEYS[field]
+    assert e.value.file == tmp_path / "spec.toml" and e.value.key == OWN[field]
+
+
+@pytest.mark.parametrize("section, field", LEAVES)
+def test_a_bad_value_in_any_setting_is_a_spec_error_naming_its_key(tmp_path: Path, section: str, field: str) -> None:
+    s = load_spec(write(tmp_path, BASE))
+    with pytest.raises(SpecError) as e:
+        s.with_options(**{section: {field: _Odd()}})
+    assert e.value.file == tmp_path / "spec.toml" and e.value.key == _expected_key(section, field)
 
 
 def test_the_file_of_an_unreadable_spec_is_an_attribute(tmp_path: Path) -> None:
@@ -217,3 +242,19 @@ def test_with_options_names_a_field_that_does_not_exist(tmp_path: Path) -> None:
     s = load_spec(write(tmp_path, BASE))
     with pytest.raises(SpecError, match=r"FitSpec has no field\(s\) \['colour'\]"):
         s.with_options(colour="red")
+
+
+def test_the_spec_holds_the_estimation_settings_and_sections_change_key_by_key(tmp_path: Path) -> None:
+    # [model] and [parameters] land in estimation's own classes (no copy of their fields here)
+    s = load_spec(write(tmp_path, BASE + '[model]\nbeta = 2.0\noffsets = 0.3\n[parameters]\nprior_noise = 0.5\n'
+                        'start_table = "t.json"\n[engine]\nname = "nlopt"\noptions = { polish = "none" }\n'))
+    assert isinstance(s.model, ModelSettings) and s.model.beta == 2.0 and s.groups.offsets == 0.3
+    assert s.priors.prior_noise == 0.5 and s.start_table == tmp_path / "t.json"
+    assert s.estimation_settings().model is s.model and s.estimation_settings().source == s.path
+    # a table of changes keeps the section's other keys; a setting by its name finds its section
+    t = s.with_options(engine={"name": "scipy"}, starts=3)
+    assert (t.engine.name, t.engine.options, t.fit.starts, t.fit.seed) == ("scipy", {"polish": "none"}, 3, 0)
+    assert s.with_options(engine=EngineSection()).engine.options == {}  # or the section whole
+    again = FitSpec.from_settings(s.estimation_settings(), s.path, s.name, s.corpus, channels=s.channels,
+                                  engine={"name": "nlopt", "options": {"polish": "none"}}, start_table=s.start_table)
+    assert again == s

@@ -21,7 +21,7 @@ from coartic.fit.choose import set_value
 from coartic.evaluation.score import score_recordings
 from coartic.fit.simulate import PHONEMES, vcv_utterances
 from coartic.estimation.settings import DEFAULT_FREE, DEFAULT_POOLED, DEFAULT_SHARED, DEFAULT_TARGET_PRIOR
-from coartic.fit.spec import SpecError, load_spec, parse_spec
+from coartic.fit.spec import SETTING_SECTION, SpecError, load_spec, parse_spec
 from coartic.table import PARAMETERS
 
 from fit_helpers import EMA, check_problem_derivatives
@@ -42,25 +42,26 @@ def utts() -> list[model.Utterance]:
 
 def test_a_spec_that_sets_nothing_is_the_recommended_model(tmp_path: Path) -> None:
     s = parsed(tmp_path)
-    assert (s.dominance, s.handover, s.plateau_fraction) == ("plateau", True, 0.5)
-    assert s.free == DEFAULT_FREE == ("target", "alpha", "theta_bw", "theta_fw")
-    assert s.pooled == DEFAULT_POOLED == ("alpha", "theta_bw", "theta_fw") and s.shared == DEFAULT_SHARED == ()
-    assert s.target_prior == DEFAULT_TARGET_PRIOR == "estimated"
+    assert (s.model.dominance, s.model.handover, s.model.plateau_fraction) == ("plateau", True, 0.5)
+    assert s.parameters.free == DEFAULT_FREE == ("target", "alpha", "theta_bw", "theta_fw")
+    assert s.priors.pooled == DEFAULT_POOLED == ("alpha", "theta_bw", "theta_fw") and s.parameters.shared == DEFAULT_SHARED == ()
+    assert s.priors.target_prior == DEFAULT_TARGET_PRIOR == "estimated"
     # the template shows the defaults: copying it changes nothing
     t = load_spec(ROOT / "fit" / "template.toml")
     for key in ("variant", "dominance", "handover", "plateau_fraction", "free", "shared", "pooled", "target_prior",
                 "prior_noise"):
-        assert getattr(t, key) == getattr(s, key), key
+        section = SETTING_SECTION[key]  # the part of the nested spec that holds it
+        assert getattr(getattr(t, section), key) == getattr(getattr(s, section), key), key
 
 
 def test_a_spec_that_lists_its_free_set_keeps_per_phoneme_dynamics(tmp_path: Path) -> None:
     s = parsed(tmp_path, parameters={"free": ["target", "alpha", "theta_bw"]})
-    assert s.shared == () and s.pooled == () and s.target_prior == DEFAULT_TARGET_PRIOR
+    assert s.parameters.shared == () and s.priors.pooled == () and s.priors.target_prior == DEFAULT_TARGET_PRIOR
     # sharing some of the default's pooled dynamics pools the others
     s = parsed(tmp_path, parameters={"shared": ["theta_bw"]})
-    assert s.shared == ("theta_bw",) and s.pooled == ("alpha", "theta_fw")
+    assert s.parameters.shared == ("theta_bw",) and s.priors.pooled == ("alpha", "theta_fw")
     s = parsed(tmp_path, parameters={"free": ["target", "alpha"], "shared": ["alpha"], "target_prior": "none"})
-    assert s.shared == ("alpha",) and s.target_prior is None
+    assert s.parameters.shared == ("alpha",) and s.priors.target_prior is None
 
 
 @pytest.mark.parametrize("parameters, sections, words", [
@@ -100,7 +101,7 @@ def test_target_prior_rows_pull_toward_each_phonemes_segment_mean(tmp_path: Path
     np.testing.assert_allclose(np.sort(rows), np.sort(want), rtol=1e-12)
     check_problem_derivatives(prob, x + 0.05)
     # an explicit prior on a target wins over the data's
-    s2 = s.with_options(priors={"p.target": (1.0, 2.0, False)})
+    s2 = s.with_options(priors={"priors": {"p.target": (1.0, 2.0, False)}})
     pri = build_problem(s2.estimation_settings(), utts, "LLO", phonemes=PHONEMES).priors
     assert (pri["p.target"].mean, pri["p.target"].sd) == (1.0, 2.0) and pri["t.target"].mean == pytest.approx(means["t"])
 
@@ -124,13 +125,13 @@ def test_shared_dynamics_are_one_value_per_channel(tmp_path: Path, utts: list[mo
     assert prob.packing.n_free == len(PHONEMES) + 2  # every target, one theta_bw, one theta_fw
     fit = run(s, utterances=utts, quiet=True).channels["LLO"]
     for k in (BW, FW):
-        assert np.ptp(fit.params[:, k]) == 0.0 and fit.params[0, k] != s.start[PARAMETERS[k]]
+        assert np.ptp(fit.params[:, k]) == 0.0 and fit.params[0, k] != s.parameters.start_of(PARAMETERS[k])
 
 
 def test_cross_validation_can_choose_the_target_prior(tmp_path: Path) -> None:
     s = parsed(tmp_path, choose={"key": "target_prior", "values": [0.1, 1.0], "group": "repetition", "folds": 2})
     assert s.choose is not None and s.choose.rule == "1se"
-    assert set_value(s, "target_prior", 0.1).target_prior == 0.1
+    assert set_value(s, "target_prior", 0.1).priors.target_prior == 0.1
 
 
 def test_the_specs_of_fit_keep_the_model_their_figures_were_measured_with() -> None:
@@ -141,8 +142,8 @@ def test_the_specs_of_fit_keep_the_model_their_figures_were_measured_with() -> N
         if f.name in ("template.toml", "batch_synthetic.toml", "ema_german_defaults_0024.toml", "ema_german_defaults.toml"):
             continue
         s = load_spec(f)
-        assert s.target_prior is None and s.shared == (), f.name
-        assert (s.dominance, s.handover) == (("plateau", True) if "rate_aware" in f.name else ("centre", False)), f.name
+        assert s.priors.target_prior is None and s.parameters.shared == (), f.name
+        assert (s.model.dominance, s.model.handover) == (("plateau", True) if "rate_aware" in f.name else ("centre", False)), f.name
 
 
 def test_a_spec_that_sets_nothing_beats_the_step_model_on_real_ema(tmp_path: Path) -> None:
@@ -153,7 +154,7 @@ def test_a_spec_that_sets_nothing_beats_the_step_model_on_real_ema(tmp_path: Pat
     and with the offset removed, and nothing is flagged (docs/REAL_DATA.md: by 0.2-0.4 mm on LA and
     JO, with `coartic score`'s own scoring of every segment)."""
     spec = load_spec(ROOT / "fit" / "ema_german_defaults_0024.toml")
-    assert spec.target_prior == DEFAULT_TARGET_PRIOR and spec.shared == DEFAULT_SHARED  # it sets nothing
+    assert spec.priors.target_prior == DEFAULT_TARGET_PRIOR and spec.parameters.shared == DEFAULT_SHARED  # it sets nothing
     fit_job(spec, tmp_path / "fit", quiet=True, report=False)
     sc = score_recordings(tmp_path / "fit" / "table.json", [EMA / "dfgspp_mo1_prosody_0020_ema.csv"],
                           [EMA / "dfgspp_mo1_prosody_0020_Segment.tsv"], channels=["LA", "JO"])

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from pathlib import Path
+from typing import Any
 
 import pytest
 
@@ -66,11 +67,16 @@ def test_offsets_follow_the_least_squares_model_unless_mcmc_says() -> None:
     model too: τ fixed, unless [mcmc] offsets chooses otherwise; "none"/"free" keep the default."""
     from types import SimpleNamespace
 
-    assert parse_config(None, SPEC, SimpleNamespace(offsets=0.05)).offsets == 0.05
-    assert parse_config({"walkers": 40}, SPEC, SimpleNamespace(offsets=0.05)).offsets == 0.05
-    assert parse_config({"offsets": "none"}, SPEC, SimpleNamespace(offsets=0.05)).offsets == "none"
-    assert parse_config(None, SPEC, SimpleNamespace(offsets="free")).offsets == "free"
-    assert parse_config(None, SPEC, SimpleNamespace(offsets="none")).offsets == "free"
+    from coartic.estimation.settings import GroupSettings
+
+    def fit(offsets: str | float) -> Any:  # the least-squares spec's [model] offsets (FitSpec.groups)
+        return SimpleNamespace(groups=GroupSettings(offsets=offsets))
+
+    assert parse_config(None, SPEC, fit(0.05)).offsets == 0.05
+    assert parse_config({"walkers": 40}, SPEC, fit(0.05)).offsets == 0.05
+    assert parse_config({"offsets": "none"}, SPEC, fit(0.05)).offsets == "none"
+    assert parse_config(None, SPEC, fit("free")).offsets == "free"
+    assert parse_config(None, SPEC, fit("none")).offsets == "free"
 
 
 def test_every_mistake_is_reported_at_once() -> None:

@@ -207,6 +207,39 @@ def test_medial_pause_is_weak(tmp_path: Path) -> None:
     assert fixed.packing.base[row, 1] == MEDIAL_ALPHA and f"{MEDIAL_PAUSE}.alpha" not in fixed.packing.names()
 
 
+def test_edge_pauses_share_one_alpha(tmp_path: Path) -> None:
+    """The edge pauses have their own targets but one α (EDGE_TIED): the initial pause's row carries
+    it, the final pause's follows; a [[tie]] that holds either decides instead, and where α is not
+    free nothing is tied."""
+    from coartic.estimation.problem import build_problem
+    from coartic.fit.data import with_spec_pauses
+    from coartic.fit.spec import Tie
+    from coartic.model import Utterance
+    from coartic.pauses import EDGE_TIED
+    from coartic.table import N_PARAMS, PARAMETERS
+
+    assert EDGE_TIED == ("alpha",)
+    times = np.arange(0, 1.0, 0.005)
+    u = Utterance(("#", "a", "i", "#"), [0, .3, .5, .7], [.3, .5, .7, 1.0], times, "u",
+                  {"LA": np.sin(times * 6)}, {"LA": np.ones(times.size, dtype=bool)})
+    s = parse_spec({"corpus": {"files": ["x"], "labels": ["y"]}, "model": {"channels": ["LA"]}}, tmp_path / "s.toml")
+    (v,) = with_spec_pauses(s, [u])
+    p = build_problem(s.estimation_settings(), [v], "LA")
+    names = p.packing.names()
+    first, last, k = p.phonemes.index(PAUSE), p.phonemes.index(FINAL_PAUSE), PARAMETERS.index("alpha")
+    assert f"{PAUSE}.alpha" in names and f"{FINAL_PAUSE}.alpha" not in names
+    assert (last * N_PARAMS + k, first * N_PARAMS + k) in p.packing.ties
+    # their own targets and θ: a posture is a target
+    assert {f"{PAUSE}.target", f"{FINAL_PAUSE}.target", f"{FINAL_PAUSE}.theta_bw", f"{PAUSE}.theta_fw"} <= set(names)
+    # a [[tie]] of α holding the final pause with a speech phoneme decides: no second tie of it
+    own = build_problem(s.with_options(ties=(Tie(phonemes=(FINAL_PAUSE, "i"), parameters=("alpha",)),)).estimation_settings(),
+                        [v], "LA")
+    assert f"{PAUSE}.alpha" in own.packing.names() and (last * N_PARAMS + k, first * N_PARAMS + k) not in own.packing.ties
+    # α not free: nothing to tie
+    fixed = build_problem(s.with_options(free=("target", "theta_bw", "theta_fw"), pooled=()).estimation_settings(), [v], "LA")
+    assert not any(f == last * N_PARAMS + k for f, _ in fixed.packing.ties)
+
+
 def test_a_posture_no_sample_shows_stays_the_pause() -> None:
     """The German EMA's final pauses lie where the recordings are NaN: a '#end' row fitted from them
     has no sample of its own (its target went to the bottom of its box, not identified). A final or

@@ -4,21 +4,20 @@ at the target frame of a phoneme of each of Meta's visemes that Italian has (TH 
 
 from __future__ import annotations
 
-from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 import numpy as np
 import pytest
 from PIL import Image
 
-from coartic.face.viewer import chromium_program, screenshot, write_page
+from coartic.face.viewer import write_page
 from coartic.runtime.animate import Animation, animate, target_times
 from coartic.runtime.exporters import ExportSettings, run_exports
 from coartic.runtime.pipeline import speaker_face
 from coartic.runtime.rigs import PHONEME_VISEME
 from coartic.runtime.shipped import load_shipped_table
 from coartic.io.labels import Segments
-from face_helpers import mouth_opening, mouth_pixels
+from face_helpers import Chromium, mouth_opening, mouth_pixels, shared_chromium
 
 # one phoneme of every viseme but TH, each between /a/s (the shipped table has every Italian phoneme)
 PHONES = "# a p a f a t a k a tS a s a n a r a e i o u l a v a m u f u #".split()
@@ -38,12 +37,11 @@ def utterance() -> Segments:
     return Segments(tuple(PHONES), np.array(starts), np.array(ends))
 
 
+browser = pytest.fixture(scope="module")(shared_chromium)
+
+
 @pytest.fixture(scope="module")
-def shots(tmp_path_factory: pytest.TempPathFactory) -> dict[str, dict[str, Path]]:
-    try:
-        chromium_program()
-    except Exception as err:  # scripts/setup.sh installs it; without it there is nothing to look at
-        pytest.skip(str(err))
+def shots(tmp_path_factory: pytest.TempPathFactory, browser: Chromium) -> dict[str, dict[str, Path]]:
     tmp = tmp_path_factory.mktemp("arkit_face")
     table = load_shipped_table()
     anim: Animation = animate(table, utterance(), 25.0)
@@ -57,18 +55,8 @@ def shots(tmp_path_factory: pytest.TempPathFactory) -> dict[str, dict[str, Path]
     labels = list(anim.segments.labels)
     wanted = {ph: int(frames[labels.index(ph)]) for ph in SHOTS}
     wanted["f_after_u"] = int(frames[len(labels) - 3])
-    jobs = [(ph, m, k) for ph, k in wanted.items() for m in pages]
-
-    def shoot(job: tuple[str, str, int]) -> Path:
-        ph, m, k = job
-        return screenshot(pages[m], tmp / f"{m}_{ph}.png", frame=k, face_only=SIZE, size=(SIZE, SIZE), zoom=2.5)
-
-    with ThreadPoolExecutor(2) as pool:
-        done = list(pool.map(shoot, jobs))
-    out: dict[str, dict[str, Path]] = {}
-    for (ph, m, _), png in zip(jobs, done):
-        out.setdefault(ph, {})[m] = png
-    return out
+    return {ph: {m: browser.screenshot(pages[m], tmp / f"{m}_{ph}.png", frame=k, face_only=SIZE, size=(SIZE, SIZE),
+                                       zoom=2.5) for m in pages} for ph, k in wanted.items()}
 
 
 def test_every_viseme_of_the_arkit_face_is_the_fap_face(shots: dict[str, dict[str, Path]]) -> None:

@@ -26,7 +26,7 @@ from coartic.runtime.animate import target_times
 from coartic.runtime.fap import read_fap
 from coartic.runtime.shipped import load_shipped_table, shipped_table_path
 from coartic.table import ParameterTable
-from face_helpers import mouth_opening, mouth_pixels
+from face_helpers import Chromium, mouth_opening, mouth_pixels, shared_chromium
 
 GROUND_TRUTH = Path(__file__).resolve().parents[2] / "corpus-synthetic" / "ground_truth.json"
 LABELS = ("start\tend\tlabel\n0.0\t0.20\t#\n0.20\t0.36\ta\n0.36\t0.44\tp\n0.44\t0.60\ta\n0.60\t0.68\tm\n"
@@ -116,7 +116,17 @@ def chromium() -> str:
         pytest.skip(str(err))
 
 
-def test_chromium_shows_lips_closed_at_m_and_open_at_a(run: Path, chromium: str, tmp_path: Path) -> None:
+browser = pytest.fixture(scope="module")(shared_chromium)
+
+
+def same_pixels(a: Path, b: Path) -> bool:
+    return bool(np.array_equal(np.asarray(Image.open(a).convert("RGB")), np.asarray(Image.open(b).convert("RGB"))))
+
+
+def test_chromium_shows_lips_closed_at_m_and_open_at_a(run: Path, chromium: str, browser: Chromium,
+                                                        tmp_path: Path) -> None:
+    """screenshot() (a Chromium of its own per picture) at /m/ and /a/; the tests' shared Chromium
+    takes the same pictures, pixel for pixel (the other face tests' pictures come from it)."""
     page = write_page(run)
     table = ParameterTable.load(GROUND_TRUTH)
     segs = read_labels(run / "segments.tsv")
@@ -128,6 +138,8 @@ def test_chromium_shows_lips_closed_at_m_and_open_at_a(run: Path, chromium: str,
     for ph, k in shown.items():
         png = screenshot(page, tmp_path / f"{ph}.png", frame=int(k), face_only=400, size=(400, 400))
         opening[ph] = mouth_opening(png)
+        assert same_pixels(png, browser.screenshot(page, tmp_path / f"{ph}_shared.png", frame=int(k), face_only=400,
+                                                   size=(400, 400))), ph
     assert opening["m"] == 0, opening
     assert opening["a"] >= 8, opening  # ~12 mm of opening is ~16 px here
     # the page ran without error and shows the frame asked for
@@ -204,7 +216,7 @@ VISEMES = ("start\tend\tlabel\n0.0\t0.20\t#\n0.20\t0.36\ta\n0.36\t0.46\tp\n0.46\
            "0.92\t1.12\tu\n1.12\t1.30\t#\n")
 
 
-def test_chromium_shows_f_with_teeth_on_the_lip_and_u_narrowed(tmp_path: Path, chromium: str) -> None:
+def test_chromium_shows_f_with_teeth_on_the_lip_and_u_narrowed(tmp_path: Path, browser: Chromium) -> None:
     """Close-up screenshots (zoom 2.5, 400 x 400) at rest and at the target frames of /p f a u/:
     /p/ shows no tooth and no dark pixel; /f/ shows the upper incisors with the lower lip right
     under their edge in every central column (no dark gap: the lip is above the edge, behind the
@@ -221,8 +233,8 @@ def test_chromium_shows_f_with_teeth_on_the_lip_and_u_narrowed(tmp_path: Path, c
     frames = np.rint(target_times(table, segs, "LLO") * 25).astype(int)
     labels = list(segs.labels)
     shots = {"rest": 0} | {ph: int(frames[labels.index(ph)]) for ph in ("p", "f", "a", "u")}
-    px = {ph: mouth_pixels(screenshot(page, tmp_path / f"{ph}.png", frame=k, face_only=400, size=(400, 400),
-                                      zoom=2.5)) for ph, k in shots.items()}
+    px = {ph: mouth_pixels(browser.screenshot(page, tmp_path / f"{ph}.png", frame=k, face_only=400, size=(400, 400),
+                                              zoom=2.5)) for ph, k in shots.items()}
     ys, xs = np.nonzero(px["rest"]["lip"])
     x0, x1 = int(xs.min()), int(xs.max())
     centre = slice((2 * x0 + x1) // 3, (x0 + 2 * x1) // 3)  # the central third of the mouth
@@ -249,8 +261,8 @@ def test_chromium_shows_f_with_teeth_on_the_lip_and_u_narrowed(tmp_path: Path, c
     # in profile the lower lip's front sits back behind the upper lip's at /f/ (tucked in), not at /p/
     setback = {}
     for ph in ("p", "f"):
-        lip = mouth_pixels(screenshot(page, tmp_path / f"{ph}_profile.png", frame=shots[ph], face_only=400,
-                                      size=(400, 400), zoom=2.5, yaw=90.0))["lip"]
+        lip = mouth_pixels(browser.screenshot(page, tmp_path / f"{ph}_profile.png", frame=shots[ph], face_only=400,
+                                              size=(400, 400), zoom=2.5, yaw=90.0))["lip"]
         ys, xs = np.nonzero(lip)
         mid = (ys.min() + ys.max()) // 2
         setback[ph] = int(xs[ys >= mid].min() - xs[ys < mid].min())  # the face looks left
@@ -267,7 +279,7 @@ def tongue_pixels(png: Path) -> np.ndarray:
     return (img[..., 0] - img[..., 1] > 35) & (img[..., 0] > 80) & (img.max(axis=-1) >= 70)
 
 
-def test_chromium_shows_the_tongue_at_t_l_k_and_u_rounded(tmp_path: Path, chromium: str) -> None:
+def test_chromium_shows_the_tongue_at_t_l_k_and_u_rounded(tmp_path: Path, browser: Chromium) -> None:
     """With the shipped Italian table (tongue channels; /u/ rounded): at the target frames of /t l k/ (/d n/
     and /g/ share their tongue targets), in profile cut along the midline, the tongue shows where a
     still tongue (the same table with every tongue target at rest: same lips, jaw and teeth) does
@@ -294,18 +306,23 @@ def test_chromium_shows_the_tongue_at_t_l_k_and_u_rounded(tmp_path: Path, chromi
     for ph in ("t", "l", "k", "a"):
         tongue = {}
         for name, page in pages.items():
-            png = screenshot(page, tmp_path / f"{ph}_{name}.png", frame=int(frames[labels.index(ph)]), face_only=400,
-                             size=(400, 400), zoom=2.5, yaw=90.0, section=True)
+            png = browser.screenshot(page, tmp_path / f"{ph}_{name}.png", frame=int(frames[labels.index(ph)]),
+                                     face_only=400, size=(400, 400), zoom=2.5, yaw=90.0, section=True)
             tongue[name] = tongue_pixels(png)
         # only the tongue differs between the two pictures (same lips, jaw and teeth)
         shown, hidden = tongue["moving"] & ~tongue["still"], tongue["still"] & ~tongue["moving"]
         shift[ph] = (int(shown.sum()), float(np.nonzero(hidden)[0].mean() - np.nonzero(shown)[0].mean()))
+    # the shared Chromium's picture is screenshot()'s for a turned, zoomed, cut face too
+    k = int(frames[labels.index("t")])
+    assert same_pixels(tmp_path / "t_moving.png", screenshot(pages["moving"], tmp_path / "t_own.png", frame=k,
+                                                             face_only=400, size=(400, 400), zoom=2.5, yaw=90.0,
+                                                             section=True))
     for ph in ("t", "l", "k"):  # the tongue shows where a still tongue does not, higher up (rows grow down)
         assert shift[ph][0] > 100 and shift[ph][1] > 5.0, (ph, shift[ph])
     assert shift["a"][0] > 100 and shift["a"][1] < -5.0, shift["a"]  # at /a/ it drops with the jaw
     # rounding from the front: the lips' width in pixels at /u/ against rest
-    lips = {ph: mouth_pixels(screenshot(pages["moving"], tmp_path / f"{ph}_front.png", frame=k, face_only=400,
-                                        size=(400, 400), zoom=2.5))["lip"]
+    lips = {ph: mouth_pixels(browser.screenshot(pages["moving"], tmp_path / f"{ph}_front.png", frame=k, face_only=400,
+                                                size=(400, 400), zoom=2.5))["lip"]
             for ph, k in (("rest", 0), ("u", int(frames[labels.index("u")])))}
     width = {ph: int(np.ptp(np.nonzero(m)[1])) for ph, m in lips.items()}
     assert width["u"] <= 0.8 * width["rest"], width

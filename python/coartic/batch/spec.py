@@ -18,24 +18,34 @@ staging) and the corpus of many speakers or sessions, split into *groups*::
     [posteriors]
     enabled = false                   # true: each group's posteriors too (the fit spec's [mcmc])
 
-Every path is relative to the batch spec. Every error names the file and the key at fault, as the
-fit spec's do (``coartic.fit.spec``).
+Every path is relative to the batch spec. The document is a typed schema (``BatchDocument``, its
+sections ``BatchCorpus``, ``Pooled``, ``Posteriors``) checked by the fit spec's machinery
+(``coartic.estimation.checks``): every error names the file and the key at fault, as the fit spec's
+do (``coartic.fit.spec``). What needs the disk (the fit spec, the manifests, the folders) is checked
+by ``load_batch_spec`` after it.
 """
 
 from __future__ import annotations
 
 import csv
+import dataclasses
 import glob
 import hashlib
 import io
 import os
 import re
-from dataclasses import dataclass, replace
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import Any
+from typing import Annotated, Any
+
+import pydantic.dataclasses
+from pydantic import BeforeValidator, ValidationError, model_validator
+from pydantic_core import ArgsKwargs
 
 from coartic.errors import SpecError
-from coartic.fit.spec import CorpusSpec, FitSpec, load_spec, read_document, synth_hint
+from coartic.estimation.checks import STRICT, Flag, _bad, _optional, schema_error
+from coartic.fit.spec import CorpusSpec, FitSpec, OptionalPath, Select, load_spec, read_document, synth_hint
 from coartic.textfile import TextDecodeError, read_text
 
 # A group's name is a folder name in the output: plain characters only, and never one of ours.
@@ -74,12 +84,113 @@ def _err(path: Path, key: str, msg: str) -> SpecError:
     return SpecError.at(path, key, msg)
 
 
-def _strings(v: Any, path: Path, key: str) -> tuple[str, ...]:
+def _strings(v: Any) -> tuple[str, ...]:
     if isinstance(v, str):
         return (v,)
     if not isinstance(v, list) or not v or not all(isinstance(s, str) and s for s in v):
-        raise _err(path, key, f"expected a non-empty list of strings, got {v!r}")
+        raise _bad(f"expected a non-empty list of strings, got {v!r}")
     return tuple(v)
+
+
+def _checked(check: Callable[[Any], bool], message: str) -> Callable[[Any], Any]:
+    """A field check: ``v`` if ``check(v)``, else ``message`` (``{v!r}``: the value given)."""
+    def run(v: Any) -> Any:
+        if not check(v):
+            raise _bad(message.format(v=v))
+        return v
+    return run
+
+
+def _is_table(v: Any) -> bool:
+    return isinstance(v, Mapping)
+
+
+Strings = Annotated[tuple[str, ...] | None, BeforeValidator(_optional(_strings))]
+_NO_FIT = "missing: the fit spec every unit uses, e.g. fit = 'synthetic.toml'"
+_NO_CORPUS = "missing: give manifest and group_by, or folders"
+_SWITCH = "expected a table with enabled = true/false, got {v!r}"
+
+
+@pydantic.dataclasses.dataclass(frozen=True, config=STRICT)
+class BatchCorpus:
+    """``[corpus]``: one manifest split into groups by its ``group_by`` columns, or one group per
+    folder (``folders`` patterns, each folder's ``manifest_name``); ``select`` keeps rows in every
+    group. Paths as written (relative to the batch spec)."""
+
+    manifest: OptionalPath = None
+    group_by: Strings = None
+    folders: Strings = None
+    manifest_name: Annotated[str | None, BeforeValidator(_optional(_checked(
+        lambda v: isinstance(v, str) and bool(v) and "/" not in v, "expected a file name, got {v!r}")))] = None
+    select: Select = field(default_factory=dict)
+
+    @model_validator(mode="after")
+    def _one_source(self) -> BatchCorpus:
+        if (self.manifest is None) == (self.folders is None):
+            raise _bad("give either manifest (with group_by) or folders, not both and not neither")
+        if self.manifest is not None and self.manifest_name is not None:
+            raise _bad("only with folders", ("manifest_name",))
+        if self.manifest is not None and self.group_by is None:
+            raise _bad("missing: the manifest column(s) naming the speaker or session", ("group_by",))
+        if self.folders is not None and self.group_by is not None:
+            raise _bad("only with manifest (with folders, each folder is a group)", ("group_by",))
+        return self
+
+
+@pydantic.dataclasses.dataclass(frozen=True, config=STRICT)
+class Pooled:
+    """``[pooled]``: also one fit of every group's data together."""
+
+    enabled: Flag = True
+
+
+@pydantic.dataclasses.dataclass(frozen=True, config=STRICT)
+class Posteriors:
+    """``[posteriors]``: each group's posteriors too (the fit spec's ``[mcmc]``)."""
+
+    enabled: Flag = False
+
+
+@pydantic.dataclasses.dataclass(frozen=True, config=STRICT)
+class BatchDocument:
+    """A batch spec's TOML document, section by section (``fit`` as written: relative to the file)."""
+
+    fit: Annotated[str | None, BeforeValidator(_checked(lambda v: isinstance(v, str) and bool(v), _NO_FIT))] = None
+    name: Annotated[str | None, BeforeValidator(_checked(lambda v: isinstance(v, str),
+                                                         "expected a string, got {v!r}"))] = None
+    channels: Strings = None  # a subset of the fit spec's (None: all of them)
+    corpus: Annotated[BatchCorpus | None, BeforeValidator(_checked(_is_table, _NO_CORPUS))] = None
+    pooled: Annotated[Pooled, BeforeValidator(_checked(_is_table, _SWITCH))] = field(default_factory=Pooled)
+    posteriors: Annotated[Posteriors, BeforeValidator(_checked(_is_table, _SWITCH))] = field(
+        default_factory=Posteriors)
+
+    @model_validator(mode="after")
+    def _required(self) -> BatchDocument:
+        if self.fit is None:
+            raise _bad(_NO_FIT, ("fit",))
+        if self.corpus is None:
+            raise _bad(_NO_CORPUS, ("corpus",))
+        return self
+
+
+_SECTIONS: dict[str, type] = {"": BatchDocument, "corpus": BatchCorpus, "pooled": Pooled, "posteriors": Posteriors}
+
+
+def _keys(section: str) -> list[str] | None:
+    """The keys a section of the document may have ("": the top level)."""
+    return [f.name for f in dataclasses.fields(_SECTIONS[section])] if section in _SECTIONS else None
+
+
+def parse_document(raw: Mapping[str, Any], path: Path) -> BatchDocument:
+    """The checked document of a batch spec; every problem named ``file: [key] message``."""
+    try:
+        doc: BatchDocument = BatchDocument.__pydantic_validator__.validate_python(  # type: ignore[attr-defined]
+            ArgsKwargs((), dict(raw)))
+    except ValidationError as e:
+        raise schema_error(e, path, (), lambda loc: ".".join(str(p) for p in loc) or "top level",
+                           lambda loc: _keys(".".join(map(str, loc))),
+                           "BatchDocument") from None
+    return doc
 
 
 def _sha(path: Path, key: str, spec_path: Path) -> str:
@@ -137,41 +248,25 @@ def load_batch_spec(path: str | Path) -> BatchSpec:
     the client's (a scheduler and workers started elsewhere), so a path relative to the client's
     directory would name another file, or none, there."""
     path = Path(os.path.abspath(path))
-    raw = read_document(path)
+    doc = parse_document(read_document(path), path)
     base = path.parent
-    allowed = {"name", "fit", "channels", "corpus", "pooled", "posteriors"}
-    unknown = sorted(set(raw) - allowed)
-    if unknown:
-        raise _err(path, "top level", f"unknown key(s) {unknown}; allowed: {sorted(allowed)}")
-    if not isinstance(raw.get("fit"), str) or not raw["fit"]:
-        raise _err(path, "fit", "missing: the fit spec every unit uses, e.g. fit = 'synthetic.toml'")
-    fit_path = Path(raw["fit"]) if Path(raw["fit"]).is_absolute() else base / raw["fit"]
+    c = doc.corpus
+    assert doc.fit is not None and c is not None  # BatchDocument requires both
+    fit_path = Path(doc.fit) if Path(doc.fit).is_absolute() else base / doc.fit
     if not fit_path.is_file():
         raise _err(path, "fit", f"{fit_path}: {'is a directory, not a' if fit_path.is_dir() else 'no such'} fit spec")
     fit = load_spec(fit_path)  # its own errors name the fit spec file and key
-    name = raw.get("name", path.stem)
-    if not isinstance(name, str):
-        raise _err(path, "name", f"expected a string, got {name!r}")
+    name = path.stem if doc.name is None else doc.name
 
     channels = fit.channels
-    if "channels" in raw:
-        channels = _strings(raw["channels"], path, "channels")
-        bad = [c for c in channels if c not in fit.channels]
+    if doc.channels is not None:
+        channels = doc.channels
+        bad = [ch for ch in channels if ch not in fit.channels]
         if bad:
             raise _err(path, "channels", f"{bad} are not among the fit spec's channels {list(fit.channels)} "
                        f"({fit_path})")
+    select = c.select
 
-    c = raw.get("corpus")
-    if not isinstance(c, dict):
-        raise _err(path, "corpus", "missing: give manifest and group_by, or folders")
-    c_allowed = {"manifest", "group_by", "folders", "manifest_name", "select"}
-    unknown = sorted(set(c) - c_allowed)
-    if unknown:
-        raise _err(path, "corpus", f"unknown key(s) {unknown}; allowed: {sorted(c_allowed)}")
-    select_raw = c.get("select", {})
-    if not isinstance(select_raw, dict):
-        raise _err(path, "corpus.select", f"expected a table column = [values], got {select_raw!r}")
-    select = {k: tuple(str(x) for x in (v if isinstance(v, list) else [v])) for k, v in select_raw.items()}
     # The fit spec's own reading of the data (label map, role map, file column) is kept; which rows
     # are read is the batch's.
     def corpus(**where: Any) -> CorpusSpec:
@@ -180,17 +275,9 @@ def load_batch_spec(path: str | Path) -> BatchSpec:
 
     hashes = {"batch spec": _sha(path, "top level", path), "fit spec": _sha(fit_path, "fit", path)}
     groups: list[Group] = []
-    if ("manifest" in c) == ("folders" in c):
-        raise _err(path, "corpus", "give either manifest (with group_by) or folders, not both and not neither")
-    if "manifest" in c:
-        if not isinstance(c["manifest"], str) or not c["manifest"]:
-            raise _err(path, "corpus.manifest", f"expected a path string, got {c['manifest']!r}")
-        if "manifest_name" in c:
-            raise _err(path, "corpus.manifest_name", "only with folders")
-        manifest = Path(c["manifest"]) if Path(c["manifest"]).is_absolute() else base / c["manifest"]
-        columns = _strings(c.get("group_by", []) or [], path, "corpus.group_by") if "group_by" in c else ()
-        if not columns:
-            raise _err(path, "corpus.group_by", "missing: the manifest column(s) naming the speaker or session")
+    if c.manifest is not None:
+        manifest = c.manifest if c.manifest.is_absolute() else base / c.manifest
+        columns = c.group_by or ()
         for name_, values in _manifest_groups(manifest, columns, select, path):
             sel = dict(select)
             sel.update({col: (v,) for col, v in zip(columns, values)})
@@ -201,12 +288,8 @@ def load_batch_spec(path: str | Path) -> BatchSpec:
         hashes["manifest"] = _sha(manifest, "corpus.manifest", path)
         pooled_corpus = corpus(manifest=manifest)
     else:
-        if "group_by" in c:
-            raise _err(path, "corpus.group_by", "only with manifest (with folders, each folder is a group)")
-        patterns = _strings(c["folders"], path, "corpus.folders")
-        mname = c.get("manifest_name", "manifest.csv")
-        if not isinstance(mname, str) or not mname or "/" in mname:
-            raise _err(path, "corpus.manifest_name", f"expected a file name, got {mname!r}")
+        patterns = c.folders or ()
+        mname = c.manifest_name or "manifest.csv"
         folders: list[Path] = []
         for pat in patterns:
             full = pat if Path(pat).is_absolute() else str(base / pat)
@@ -234,25 +317,15 @@ def load_batch_spec(path: str | Path) -> BatchSpec:
     if len(groups) > MAX_GROUPS:
         raise _err(path, "corpus", f"{len(groups)} groups: at most {MAX_GROUPS}")
 
-    p = raw.get("pooled", {})
-    if not isinstance(p, dict) or sorted(set(p) - {"enabled"}):
-        raise _err(path, "pooled", f"expected a table with enabled = true/false, got {p!r}")
-    pooled = p.get("enabled", True)
-    if not isinstance(pooled, bool):
-        raise _err(path, "pooled.enabled", f"expected true or false, got {pooled!r}")
+    pooled = doc.pooled.enabled
     # The pooled fit: shared dynamics, each group's targets as offset + scale of the first group's
     # ([model] speakers, by the "group" tag load_group puts on every utterance), unless the fit spec
     # already chose speakers or per-utterance offsets.
-    own = fit.speakers != "none" or fit.offsets != "none"
+    own = fit.groups.speakers != "none" or fit.groups.offsets != "none"
     pooled_spec = fit.with_options(corpus=pooled_corpus, channels=channels, name=f"{name} (pooled)",
                                    **({} if own else {"speakers": "offset_scale", "speaker_column": "group"}))
 
-    q = raw.get("posteriors", {})
-    if not isinstance(q, dict) or sorted(set(q) - {"enabled"}):
-        raise _err(path, "posteriors", f"expected a table with enabled = true/false, got {q!r}")
-    want = q.get("enabled", False)
-    if not isinstance(want, bool):
-        raise _err(path, "posteriors.enabled", f"expected true or false, got {want!r}")
+    want = doc.posteriors.enabled
     mcmc: Any = None
     post_channels: tuple[str, ...] = ()
     if want:
@@ -261,7 +334,7 @@ def load_batch_spec(path: str | Path) -> BatchSpec:
         mcmc = parse_config(read_document(fit_path).get("mcmc"), fit_path, fit)  # errors name the fit spec's key
         post_channels = channels
         if mcmc.channels is not None:
-            bad = [c for c in mcmc.channels if c not in channels]
+            bad = [ch for ch in mcmc.channels if ch not in channels]
             if bad:
                 raise _err(fit_path, "mcmc.channels", f"{bad} are not among the batch's channels {list(channels)} "
                            f"({path})")

@@ -283,7 +283,7 @@ Parameters = Annotated[tuple[str, ...], BeforeValidator(_params)]
 Channels = Annotated[tuple[str, ...], BeforeValidator(_channels)]
 ParamValues = Annotated[dict[str, float], BeforeValidator(_param_values)]
 Bounds = Annotated[dict[str, tuple[float, float]], BeforeValidator(_bounds)]
-# the [model] keys, typed once for the fit spec's flat fields and estimation.settings.ModelSettings
+# the [model] keys of estimation.settings.ModelSettings (the fit spec holds one)
 Variant = Annotated[str, BeforeValidator(_one_of(VARIANTS))]
 ReferencePhoneme = Annotated[str | None, BeforeValidator(_optional(_text))]
 ApexFraction = Annotated[float, BeforeValidator(_setting("apex_fraction"))]
@@ -341,12 +341,14 @@ def key_of(loc: Iterable[str | int], keys: Mapping[str, str], arrays: Iterable[s
 
 
 def schema_error(e: ValidationError, file: Path | str | None, root: tuple[str | int, ...],
-                 key: Callable[[Sequence[str | int]], str], allowed: Callable[[str], Sequence[str] | None],
+                 key: Callable[[Sequence[str | int]], str],
+                 allowed: Callable[[Sequence[str | int]], Sequence[str] | None],
                  owner: str) -> SpecError:
     """One SpecError of a schema's ValidationError: every problem as ``file: [key] message``, the
     first one's place in the attributes. ``root``: the location of the part validated (a Choose
-    alone is ``[choose]``); ``key`` names a location; ``allowed`` gives the keys a table at a
-    location's head may have (for unknown keys); ``owner`` is the class named when a keyword is no
+    alone is ``[choose]``); ``key`` names a location; ``allowed`` gives the keys the table at a
+    location may have (for unknown keys; at ``()`` a document's top level, None for a class built
+    in Python); ``owner`` is the class named when a keyword is no
     field of it."""
     problems: list[tuple[str, str, dict[str, Any]]] = []
     unknown: dict[tuple[Any, ...], list[str]] = {}
@@ -366,10 +368,10 @@ def schema_error(e: ValidationError, file: Path | str | None, root: tuple[str | 
         ctx.pop("error", None)
         problems.append((key(loc), message, ctx))
     for loc, names in unknown.items():
-        if not loc:  # a keyword that is no field (a TOML key never gets here)
+        keys = allowed(loc)
+        if not loc and keys is None:  # a keyword that is no field of a class built in Python
             problems.append(("top level", f"{owner} has no field(s) {sorted(names)}", {}))
             continue
-        keys = allowed(str(loc[0]))
         problems.append((key(loc), f"unknown key(s) {sorted(names)}{'' if keys is None else f'; allowed: {sorted(keys)}'}",
                          {}))
     first_key, message, place = problems[0]

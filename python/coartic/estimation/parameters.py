@@ -25,8 +25,8 @@ from numpy.typing import NDArray
 from coartic.estimation.packing import Packing, Prior, tie_group
 from coartic.estimation.target_prior import target_priors
 from coartic.errors import SpecError
-from coartic.pauses import MEDIAL_ALPHA, MEDIAL_PAUSE
-from coartic.table import N_PARAMS, PARAMETERS
+from coartic.pauses import EDGE_TIED, FINAL_PAUSE, MEDIAL_ALPHA, MEDIAL_PAUSE
+from coartic.table import N_PARAMS, PARAMETERS, PAUSE
 
 
 if TYPE_CHECKING:  # annotations only
@@ -299,6 +299,18 @@ class ParameterSet(Mapping[str, Parameter]):
                     free[i, k] = False
                     base[i, k] = base[leader, k]
                     ties.append((i * N_PARAMS + k, leader * N_PARAMS + k))
+        # The edge pauses share one dominance magnitude α (coartic.pauses, EDGE_TIED): their
+        # postures are their targets. A separate α per edge bends each edge's transition to fit the
+        # training rate's timing and does not carry to another rate (docs/REAL_DATA.md, "Why the
+        # synthetic figures moved"); a [[tie]] of α that holds either pause already decides.
+        if PAUSE in phon and FINAL_PAUSE in phon:
+            for name in EDGE_TIED:
+                k = PARAMETERS.index(name)
+                lead, follow = phon.index(PAUSE), phon.index(FINAL_PAUSE)
+                if free[lead, k] and free[follow, k] and (lead, k) not in tied_by and (follow, k) not in tied_by:
+                    free[follow, k] = False
+                    base[follow, k] = base[lead, k]
+                    ties.append((follow * N_PARAMS + k, lead * N_PARAMS + k))
         for name in par.shared:  # one value per channel: every phoneme where it is free takes the first's
             k = PARAMETERS.index(name)
             members = [i for i in range(n) if free[i, k]]

@@ -118,7 +118,8 @@ def _settings_error(e: ValidationError, file: Any, cls: type) -> SpecError:
     tables = {"override": Override, "tie": Tie, "shrink": Shrink, "overrides": Override, "ties": Tie,
               "shrinks": Shrink}
     return schema_error(e, file, root, spec_key,
-                        lambda head: table_keys(tables[head]) if head in tables else None, cls.__name__)
+                        lambda loc: table_keys(tables[str(loc[0])]) if loc and str(loc[0]) in tables else None,
+                        cls.__name__)
 
 
 def check_groups(get: Callable[[str], Any]) -> None:

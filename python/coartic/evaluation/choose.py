@@ -27,7 +27,7 @@ from __future__ import annotations
 import csv
 import io
 import math
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Sequence
 
@@ -188,7 +188,7 @@ def cross_validate(spec: FitSpec, utterances: Sequence[Utterance], progress: Pro
     if c is None:
         raise UsageError("cross_validate needs a spec with [choose]")
     try:
-        folds = kfold_splits(replace(spec, validate_group=c.group, validate_folds=c.folds), utterances)
+        folds = kfold_splits(spec.with_options(validate={"group": c.group, "folds": c.folds}), utterances)
     except SpecError as e:  # named by [choose], where the grouping came from
         why = str(e).partition("] ")[2] or str(e)
         raise SpecError.at(spec.path, "choose", f"group = {c.group!r}, in {len(utterances)} training utterances: "

@@ -283,7 +283,8 @@ def vary(spec: FitSpec, key: str, values: Sequence[str]) -> list[FitSpec]:
             if not (sd > 0 and math.isfinite(sd)):
                 raise SpecError(f"--vary {key}={v}: an sd must be a positive number")
             made = set_value(spec, key, sd)
-            if key == "shrink.sd" and not spec.shrinks or key != "shrink.sd" and made.shrinks == spec.shrinks:
+            shrinks = spec.priors.shrinks
+            if key == "shrink.sd" and not shrinks or key != "shrink.sd" and made.priors.shrinks == shrinks:
                 raise SpecError(f"--vary {key}: {spec.path} has no such [[shrink]] table")
             out.append(replace(made, name=f"{spec.name}, {key} = {v}"))
         return out

@@ -117,7 +117,7 @@ def kfold_splits(spec: FitSpec, utterances: Sequence[Utterance]) -> list[tuple[s
     """k-fold splits by ``[validate] group``: the groups (sorted) dealt round-robin into
     ``folds`` folds (default one per group: leave one group out); each fold is held out once.
     ``group = "time"``: the two halves of every utterance in time (``time_splits``)."""
-    group = spec.validate_group
+    group = spec.validate.group
     assert group is not None
     if group == "time":
         if not any(len(u.labels) >= 2 for u in utterances):
@@ -128,7 +128,7 @@ def kfold_splits(spec: FitSpec, utterances: Sequence[Utterance]) -> list[tuple[s
     if len(groups) < 2:
         raise SpecError.at(spec.path, "validate.group", f"{group!r}: the corpus has only one {group} "
                            f"({groups[0] if groups else 'none'}), nothing to hold out")
-    k = min(spec.validate_folds or len(groups), len(groups))
+    k = min(spec.validate.folds or len(groups), len(groups))
     out = []
     for j in range(k):
         held = set(groups[j::k])
@@ -144,11 +144,11 @@ def splits(spec: FitSpec, utterances: Sequence[Utterance],
     """(name, train, test) for each validation the spec asks for and the corpus allows: the
     k-fold splits of ``[validate] group`` if given, else the held-out repetition and the rate.
     A held-out repetition the corpus's repetitions do not include is said in ``notes``."""
-    if spec.validate_group is not None:
+    if spec.validate.group is not None:
         return kfold_splits(spec, utterances)
     out = []
-    if spec.holdout_repetition is not None:
-        rep = str(spec.holdout_repetition)
+    if spec.validate.holdout_repetition is not None:
+        rep = str(spec.validate.holdout_repetition)
         test = [u for u in utterances if _rep(u) == rep]
         train = [u for u in utterances if _rep(u) not in (rep, None)]
         if test and train:
@@ -160,14 +160,14 @@ def splits(spec: FitSpec, utterances: Sequence[Utterance],
                        else f"the corpus's repetitions are {', '.join(have)}")
                 notes.append(f"{spec.path}: [validate] holdout_repetition = {rep}: {why}; that split is skipped "
                              "(hold out one of them, or give [validate] group = \"repetition\" for k-fold)")
-    if spec.train_rate and spec.test_rate:
-        train = [u for u in utterances if u.meta.get("rate") == spec.train_rate]
-        test = [u for u in utterances if u.meta.get("rate") == spec.test_rate]
+    if spec.validate.train_rate and spec.validate.test_rate:
+        train = [u for u in utterances if u.meta.get("rate") == spec.validate.train_rate]
+        test = [u for u in utterances if u.meta.get("rate") == spec.validate.test_rate]
         if test and train:
-            out.append((f"fit {spec.train_rate} rate, test {spec.test_rate} rate", train, test))
+            out.append((f"fit {spec.validate.train_rate} rate, test {spec.validate.test_rate} rate", train, test))
     if not out:
-        raise SpecError.at(spec.path, "validate", f"the corpus has no repetition {spec.holdout_repetition} / "
-                           f"rates {spec.train_rate!r}, {spec.test_rate!r} to hold out (manifest columns "
+        raise SpecError.at(spec.path, "validate", f"the corpus has no repetition {spec.validate.holdout_repetition} / "
+                           f"rates {spec.validate.train_rate!r}, {spec.validate.test_rate!r} to hold out (manifest columns "
                            "'repetition' and 'rate'); or give group = \"utterance\" (k-fold by any grouping)")
     return out
 

@@ -42,6 +42,9 @@ if TYPE_CHECKING:
 PAGE_NAME = "view.html"
 # --view presets: how far the face is turned, in degrees (+: its left side towards the camera)
 VIEW_PRESETS: dict[str, float] = {"front": 0.0, "three-quarter": 35.0, "profile": 90.0}
+# headless, software WebGL (SwiftShader): the same picture on any machine, with or without a GPU
+CHROMIUM_FLAGS = ("--headless", "--no-sandbox", "--disable-gpu", "--use-angle=swiftshader", "--enable-unsafe-swiftshader",
+                  "--hide-scrollbars", "--no-first-run", "--mute-audio")
 CHROMIUM_NAMES = ("chromium", "chromium-browser", "google-chrome", "google-chrome-stable")
 
 
@@ -214,6 +217,20 @@ def chromium_program() -> str:
     raise AnimationError("no Chromium on PATH (Debian package 'chromium'; scripts/setup.sh installs it)")
 
 
+def _face_query(frame: int | None, face_only: int | None, yaw: float | None, zoom: float | None,
+                section: bool) -> str:
+    query = page_query(frame, yaw, zoom, section)
+    if face_only is not None:
+        query += ("&" if query else "?") + f"face={int(face_only)}"
+    return query
+
+
+def screenshot_url(page: str | os.PathLike[str], *, frame: int | None = None, face_only: int | None = None,
+                   yaw: float | None = None, zoom: float | None = None, section: bool = False) -> str:
+    """The file URL `screenshot` opens (the tests' shared Chromium opens the same one)."""
+    return Path(page).resolve().as_uri() + _face_query(frame, face_only, yaw, zoom, section)
+
+
 def screenshot(page: str | os.PathLike[str], png: str | os.PathLike[str], *, frame: int | None = None,
                face_only: int | None = None, size: tuple[int, int] = (1130, 580), yaw: float | None = None,
                zoom: float | None = None, section: bool = False, timeout: float = 60.0) -> Path:
@@ -221,13 +238,10 @@ def screenshot(page: str | os.PathLike[str], png: str | os.PathLike[str], *, fra
 
     `face_only=N` shows only the face, on an N x N canvas at the top left; `yaw` turns it (degrees).
     """
-    query = page_query(frame, yaw, zoom, section)
-    if face_only is not None:
-        query += ("&" if query else "?") + f"face={int(face_only)}"
     png = Path(png)
     with tempfile.TemporaryDirectory(prefix="coartic-chromium-") as profile:
         shot = Path(profile) / "shot.png"
-        _run_chromium(page, query, profile, size, [f"--screenshot={shot}"], timeout, "the screenshot")
+        _run_chromium(page, _face_query(frame, face_only, yaw, zoom, section), profile, size, [f"--screenshot={shot}"], timeout, "the screenshot")
         if not shot.is_file():
             raise AnimationError(f"Chromium wrote no screenshot of {page}")
         png.parent.mkdir(parents=True, exist_ok=True)
@@ -241,10 +255,8 @@ def _run_chromium(page: str | os.PathLike[str], query: str, profile: str, size: 
     """One headless Chromium (software WebGL, a throw-away profile) on `page` + `query`, doing `action`."""
     url = Path(page).resolve().as_uri() + query
     cmd: Sequence[str] = [
-        chromium_program(), "--headless", "--no-sandbox", "--disable-gpu", "--use-angle=swiftshader",
-        "--enable-unsafe-swiftshader", "--hide-scrollbars", "--no-first-run", "--mute-audio",
-        f"--user-data-dir={profile}", f"--window-size={size[0]},{size[1]}", "--virtual-time-budget=5000",
-        *action, url,
+        chromium_program(), *CHROMIUM_FLAGS, f"--user-data-dir={profile}", f"--window-size={size[0]},{size[1]}",
+        "--virtual-time-budget=5000", *action, url,
     ]
     try:
         proc = subprocess.run(cmd, capture_output=True, timeout=timeout)

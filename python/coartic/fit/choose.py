@@ -18,14 +18,14 @@ def set_value(spec: FitSpec, key: str, value: float) -> FitSpec:
     base = choose_base(key)
     if base == "shrink.sd":
         table = None if key == "shrink.sd" else key[: -len(".sd")]
-        shrinks = tuple(replace(s, sd=float(value)) if table in (None, s.key) else s for s in spec.shrinks)
-        return replace(spec, shrinks=shrinks, choose=None)
+        shrinks = tuple(replace(s, sd=float(value)) if table in (None, s.key) else s for s in spec.priors.shrinks)
+        return spec.with_options(shrinks=shrinks, choose=None)
     if base == "prior_noise":
-        return replace(spec, prior_noise=float(value), choose=None)
+        return spec.with_options(prior_noise=float(value), choose=None)
     if base == "plateau_fraction":
-        return replace(spec, plateau_fraction=float(value), choose=None)
+        return spec.with_options(plateau_fraction=float(value), choose=None)
     if base == "target_prior":
-        return replace(spec, target_prior=float(value), choose=None)
+        return spec.with_options(target_prior=float(value), choose=None)
     raise SpecError.at(spec.path, "choose.key", f"{key!r}: not a setting cross-validation can choose")
 
 
@@ -43,5 +43,5 @@ def parse_choose(spec: FitSpec, text: str) -> FitSpec:
     base = choose_base(key)
     rule = c.rule if c is not None else ("1se" if base is not None and CHOOSABLE[base] != 0 else "min")
     made = make_choose(spec.path, key, grid, c.group if c else "utterance", c.folds if c else 5, rule,
-                       spec.shrinks, "--choose")
-    return replace(spec, choose=made)
+                       spec.priors.shrinks, "--choose")
+    return spec.with_options(choose=made)

@@ -81,8 +81,8 @@ def load_utterances(spec: FitSpec, rows: Sequence[Mapping[str, str | None]] | No
     rows = manifest_rows(spec) if rows is None else rows
     c = spec.corpus_spec
     utts = load_rows(rows, spec.channels, file_column=c.file_column, label_map=c.label_map, role_map=c.role_map,
-                     max_gap=spec.max_gap, where=f"the corpus in {spec.path}", progress=progress,
-                     asymmetry=spec.emotions != "none")
+                     max_gap=spec.gaps.max_gap, where=f"the corpus in {spec.path}", progress=progress,
+                     asymmetry=spec.groups.emotions != "none")
     return with_spec_pauses(spec, utts, notes)
 
 
@@ -91,7 +91,7 @@ def with_spec_pauses(spec: FitSpec, utterances: Sequence[Utterance], notes: list
     initial, final and medial pauses are three rows and short pauses in a closure join it
     (``coartic.pauses``; a note per change in ``notes``); with "one", as they are. Applying it twice
     changes nothing."""
-    if spec.pauses != "postures":
+    if spec.model.pauses != "postures":
         return list(utterances)
     out, said = utterances_with_postures(utterances)
     if notes is not None:

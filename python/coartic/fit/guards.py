@@ -27,13 +27,13 @@ def small_data_notes(spec: FitSpec, utterances: Sequence[Utterance]) -> list[str
     SpecError, naming the key, for a setting the data cannot support."""
     notes: list[str] = []
     n = len(utterances)
-    if spec.offsets != "none" and n < 2:
-        if spec.offsets == "free":
+    if spec.groups.offsets != "none" and n < 2:
+        if spec.groups.offsets == "free":
             raise SpecError.at(spec.path, "model.offsets", f"\"free\" on {n} utterance: a free per-utterance offset "
                                "is confounded with the targets' common level, so the fit would fit the offset "
                                "instead of the speech; use offsets = \"none\" (and score with the offset removed: "
                                "coartic score reports it), or fit more utterances")
-        notes.append(f"[model] offsets = {spec.offsets:g} on one utterance: its offset is confounded with the "
+        notes.append(f"[model] offsets = {spec.groups.offsets:g} on one utterance: its offset is confounded with the "
                      "targets' common level and only the prior (its sd) holds it; offsets = \"none\" or more "
                      "utterances give the targets their own level")
     for ch in spec.channels:  # the fit leaves out utterances without a valid sample of the channel

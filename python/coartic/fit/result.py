@@ -299,7 +299,7 @@ class FitResult:
     def table(self) -> ParameterTable:
         """The fitted parameter table (coartic.table/1) with the fit's metadata."""
         s = self.spec
-        t = ParameterTable(variant=s.variant, source=f"fit of {s.path}")
+        t = ParameterTable(variant=s.model.variant, source=f"fit of {s.path}")
         for ch, fit in self.channels.items():
             t.channels[ch] = self.channel_settings(ch)
             lo, hi = fit.packing.lower[:, 0].min(), fit.packing.upper[:, 0].max()
@@ -307,7 +307,7 @@ class FitResult:
             # (with per-speaker targets, the shared values and the population targets: ChannelProblem)
             t.set_from_matrix(ch, list(fit.problem.phonemes), fit.problem.table_matrix(fit.params), fit.beta)
         t.metadata = {
-            "method": f"least squares ({s.engine}{', staged' if s.staging else ''})",
+            "method": f"least squares ({s.engine.name}{', staged' if s.staging.enabled else ''})",
             "corpus": ("trials given in Python" if s.corpus is None
                        else str(s.corpus.manifest or [str(f) for f in s.corpus.files])),
             "spec": str(s.path),
@@ -317,38 +317,40 @@ class FitResult:
             "status": {ch: f.status for ch, f in self.channels.items()},
             "interrupted": self.interrupted,
         }
-        if s.speakers != "none":
+        if s.groups.speakers != "none":
             # speaker s is a + b·F, F with the reference speaker's targets, or with "targets" its own
             # targets (metadata) and the table's the mean over the speakers (docs/FITTING.md)
             per = {ch: f.problem.speaker_metadata(f.x) for ch, f in self.channels.items()}
-            t.metadata["speakers"] = {"mode": s.speakers, "column": s.speaker_column,
+            t.metadata["speakers"] = {"mode": s.groups.speakers, "column": s.groups.speaker_column,
                                       **{key: {ch: m[key] for ch, m in per.items()} for key in ("coefficients", "targets")
                                          if any(key in m for m in per.values())}}
-        if s.emotions != "none":
+        if s.groups.emotions != "none":
             # each emotion's own targets, its deviations from the neutral ones (the table's) with their
             # Laplace sd, and the deviations' prior scale τ the data gave (coartic.estimation.emotions)
-            t.metadata["emotions"] = {"mode": s.emotions, "column": s.emotion_column, "neutral": s.neutral_emotion,
+            t.metadata["emotions"] = {"mode": s.groups.emotions, "column": s.groups.emotion_column,
+                                      "neutral": s.groups.neutral_emotion,
                                       "channels": {ch: channel_metadata(f.problem, f.x)
                                                    for ch, f in self.channels.items()}}
             if self.channels:  # the corner asymmetries, measured on the markers (not a channel of the model)
                 utts = next(iter(self.channels.values())).problem.data.utterances
-                asym = asymmetry_metadata(utts, s.emotion_column, s.neutral_emotion)
+                asym = asymmetry_metadata(utts, s.groups.emotion_column, s.groups.neutral_emotion)
                 if asym:
                     t.metadata["emotions"]["asymmetry"] = asym
-        if s.shrinks:  # the shrinkage the fit had (sd as the spec gives it; a [choose]n one in "choice")
+        if s.priors.shrinks:  # the shrinkage the fit had (sd as the spec gives it; a [choose]n one in "choice")
             # the members it was applied to: those present in a fitted channel's data
             applied = {(grp.key, m) for f in self.channels.values() for grp in f.problem.shrink_groups
                        for m in grp.phonemes}
             t.metadata["shrinkage"] = [{"key": g.key, "phonemes": [p for p in g.phonemes if (g.key, p) in applied],
                                         "parameters": list(g.parameters),
-                                        "sd": g.sd, "scale": "log" if g.log else "natural", "prior_noise": s.prior_noise,
-                                        "channels": list(g.channels) if g.channels else "all"} for g in s.shrinks]
+                                        "sd": g.sd, "scale": "log" if g.log else "natural",
+                                        "prior_noise": s.priors.prior_noise,
+                                        "channels": list(g.channels) if g.channels else "all"} for g in s.priors.shrinks]
         pooling = {ch: f.pooling.as_dict() for ch, f in self.channels.items() if f.pooling is not None}
         if pooling:  # the pool's estimated sd per family, σ and the effective parameters (build_problem reads it back)
             t.metadata["pooling"] = pooling
         if self.choice is not None:
             t.metadata["choice"] = self.choice.metadata()
-        if s.pauses == "postures":  # whoever evaluates the table gives pauses the same postures
+        if s.model.pauses == "postures":  # whoever evaluates the table gives pauses the same postures
             t.metadata[PAUSES_RECORD_KEY] = dict(POSTURES_RECORD)
         # the map the corpus labels went through, so trajectories/animate/score read labels alike
         resolve_label_map(None if s.corpus is None else s.corpus.label_map).record_in(t)
@@ -393,8 +395,8 @@ class FitResult:
 
     def report_text(self, max_corr: int = 10) -> str:
         """An lmfit-like fit report: statistics, warnings, strongest correlations, per channel."""
-        lines = [f"[[Fit]] {self.spec.name} ({self.spec.path})", f"    engine: {self.spec.engine}, "
-                 f"staged: {self.spec.staging}, variant: {self.spec.variant}, started {self.started}"]
+        lines = [f"[[Fit]] {self.spec.name} ({self.spec.path})", f"    engine: {self.spec.engine.name}, "
+                 f"staged: {self.spec.staging.enabled}, variant: {self.spec.model.variant}, started {self.started}"]
         if self.interrupted:
             lines.append("    INTERRUPTED by the user: the results below are the best points reached")
         lines += [f"    note: {n}" for n in self.notes]
@@ -410,10 +412,10 @@ class FitResult:
             if fit.problem.offsets is not None:
                 b = fit.problem.utterance_offsets(fit.x)
                 with_b = float(np.sqrt(np.nanmean((fit.residuals() + b[fit.problem.offsets.utt]) ** 2)))
-                lines.append(f"    per-utterance offsets ([model] offsets = {self.spec.offsets!r}): sd {b.std():.4f} mm, "
+                lines.append(f"    per-utterance offsets ([model] offsets = {self.spec.groups.offsets!r}): sd {b.std():.4f} mm, "
                              f"range {b.min():+.3f} to {b.max():+.3f} mm; RMSE with them {with_b:.4f} mm")
             for spk, (a_s, b_s) in fit.problem.speaker_coefficients(fit.x).items():
-                lines.append(f"    speaker {spk} ([model] speakers = {self.spec.speakers!r}): "
+                lines.append(f"    speaker {spk} ([model] speakers = {self.spec.groups.speakers!r}): "
                              f"offset a = {a_s:+.4f} mm, scale b = {b_s:.4f}")
             if fit.multistart is not None:
                 lines += multistart_lines(fit.multistart, fit.problem.data.n_valid)

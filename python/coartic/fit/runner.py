@@ -64,7 +64,7 @@ def fit_channel(spec: FitSpec, utterances: Sequence[Utterance], channel: str,
         problem = build_problem(settings, utterances, channel, start=start)
     if problem.packing.n_free == 0:  # no start, stage or engine has anything to move: say so, not "converged"
         raise SpecError.at(spec.path, "parameters.free", f"{channel}: no parameter is free (free = "
-                           f"{list(spec.free)!r}, and no [[override]] or fit_beta frees one): nothing to fit; free "
+                           f"{list(spec.parameters.free)!r}, and no [[override]] or fit_beta frees one): nothing to fit; free "
                            "at least one (e.g. free = [\"target\"]), or predict with a fixed table by coartic score")
     task = None
     if progress is not None:
@@ -86,25 +86,25 @@ def fit_channel(spec: FitSpec, utterances: Sequence[Utterance], channel: str,
 
     # One BLAS thread: the dense solves are small, and the machine's cores are better spent in the
     # Rust core; a multi-threaded BLAS on busy cores made them 10-30x slower.
-    stage_names = spec.stages if spec.staging else None
+    stage_names = spec.staging.stages if spec.staging.enabled else None
     multi: MultiStart | None = None
     with threadpool_limits(limits=1, user_api="blas"):
-        if spec.starts > 1:
+        if spec.fit.starts > 1:
             def on_start(done: int, total: int, what: str) -> None:
                 if progress is not None and task is not None:
                     progress.update(task, description=f"{channel} multi-start: {what} done")
 
-            final, res, stages, multi = fit_multistart(problem, spec.engine, spec.engine_options, stage_names,
-                                                       spec.starts, spec.seed, spec.probe, spec.keep,
+            final, res, stages, multi = fit_multistart(problem, spec.engine.name, spec.engine.options, stage_names,
+                                                       spec.fit.starts, spec.fit.seed, spec.fit.probe, spec.fit.keep,
                                                        workers=MULTISTART_WORKERS, on_start=on_start,
-                                                       include_start=spec.include_start)
+                                                       include_start=spec.fit.include_start)
         else:
-            final, res, stages = fit_staged(problem, spec.engine, spec.engine_options, stage_names, on_stage)
-        if spec.emotions != "none" and res.status not in ("interrupted", "failed", "non-finite start"):
+            final, res, stages = fit_staged(problem, spec.engine.name, spec.engine.options, stage_names, on_stage)
+        if spec.groups.emotions != "none" and res.status not in ("interrupted", "failed", "non-finite start"):
             # the deviations' scale τ from the fit without their prior, then the fit with it from there
             # (coartic.estimation.emotions)
             prior = estimate_prior(final, res.x)
-            final, res, more = fit_staged(final.with_emotion_prior(prior), spec.engine, spec.engine_options, None,
+            final, res, more = fit_staged(final.with_emotion_prior(prior), spec.engine.name, spec.engine.options, None,
                                           on_stage)
             stages = [*stages, *more]
         pooling = None
@@ -122,10 +122,10 @@ def fit_channel(spec: FitSpec, utterances: Sequence[Utterance], channel: str,
                 # the data weight from start 0's optimum (the single fit's, whatever the seed), else the best's
                 at = next((k + 1 for k, o in enumerate(picked) if 0 in o.starts), 0)
                 final, pooled_res, pooling = fit_pooled_best(
-                    final, [res.x] + [o.x for o in picked], spec.engine, spec.engine_options,
+                    final, [res.x] + [o.x for o in picked], spec.engine.name, spec.engine.options,
                     [multi.best.objective] + [o.objective for o in picked], weigh_at=at)
             else:
-                final, pooled_res, pooling = fit_pooled(final, res.x, spec.engine, spec.engine_options)
+                final, pooled_res, pooling = fit_pooled(final, res.x, spec.engine.name, spec.engine.options)
             if pooled_res is not None:
                 keep = res.status == "converged" and pooled_res.status == "converged"
                 status = res.status if keep else pooled_res.status
@@ -244,7 +244,7 @@ def run(spec: FitSpec | str | Path, *, utterances: Sequence[Utterance] | None = 
                 result.interrupted = True
                 break
             if fit.status in FAILED_STATUSES:
-                raise FitFailed(f"channel {ch}: the {spec.engine} engine failed ({fit.status}): {fit.message}",
+                raise FitFailed(f"channel {ch}: the {spec.engine.name} engine failed ({fit.status}): {fit.message}",
                                 channel=ch)
             result.channels[ch] = fit
             if fit.status == "interrupted":
@@ -262,9 +262,9 @@ def run(spec: FitSpec | str | Path, *, utterances: Sequence[Utterance] | None = 
 def check_engine_options(spec: FitSpec) -> None:
     """``[engine.options]`` checked before anything is loaded: errors name the spec and the key."""
     try:
-        check_options(spec.engine, spec.engine_options)
+        check_options(spec.engine.name, spec.engine.options)
     except OptionError as e:
-        raise SpecError.at(spec.path, f"engine.options.{e.key}", f"({spec.engine} engine) {e.message}",
+        raise SpecError.at(spec.path, f"engine.options.{e.key}", f"({spec.engine.name} engine) {e.message}",
                            parameter=e.key) from None
 
 
@@ -278,9 +278,9 @@ def check_overrides(spec: FitSpec, utterances: Sequence[Utterance]) -> list[str]
     present = {lab for u in utterances for lab in u.labels}
     inventory = f"(phonemes: {' '.join(sorted(present))})"
     notes = []
-    groups = ([(f"override #{i + 1}", o.phonemes, 1) for i, o in enumerate(spec.overrides)]
-              + [(f"tie #{i + 1}", t.phonemes, 2) for i, t in enumerate(spec.ties)]
-              + [(s.key, s.phonemes, 2) for s in spec.shrinks])
+    groups = ([(f"override #{i + 1}", o.phonemes, 1) for i, o in enumerate(spec.parameters.overrides)]
+              + [(f"tie #{i + 1}", t.phonemes, 2) for i, t in enumerate(spec.parameters.ties)]
+              + [(s.key, s.phonemes, 2) for s in spec.priors.shrinks])
     for key, phonemes, needed in groups:
         missing = [p for p in phonemes if p not in present]
         if len(phonemes) - len(missing) < needed:

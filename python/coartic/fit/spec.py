@@ -5,12 +5,17 @@ fault, e.g. ``fit/synthetic.toml: [engine.name] 'foo': unknown engine (scipy, nl
 carries the place as attributes (``SpecError``: file, section, entry, key, phoneme, parameter).
 
 The spec is a typed schema (pydantic v2 dataclasses, chosen by measurement: docs/FITTING.md, "The
-spec schema"; ``bench/spec_schema.py``): ``FitSpec`` and its parts check their own fields on every
-construction, so ``FitSpec.with_options`` and ``dataclasses.replace`` re-validate what they change
-as loading a file does. The TOML document maps onto ``FitSpec`` through one table, ``DOCUMENT``
-(section, key -> field), read both ways: to build the fields and to name a field's error by the key
-the user wrote. The model's channel settings (default, range, meaning) come from
-``coartic.settings``, the parameters' domains from ``coartic.table.MODEL_DOMAIN``.
+spec schema"; ``bench/spec_schema.py``), nested as the file is: ``FitSpec`` holds the estimation
+settings as estimation's own classes (``spec.model`` is a ``ModelSettings``, ``spec.parameters``,
+``spec.priors``, ``spec.groups`` likewise: every field and default written once, in
+``coartic.estimation.settings``) and the fit's own sections (``EngineSection``, ``StagingSection``,
+``FitSection``, ``GapsSection``, ``ValidateSection``, ``CorpusSpec``, ``Choose``). Each part checks
+its own fields on every construction, so ``FitSpec.with_options`` and ``dataclasses.replace``
+re-validate what they change as loading a file does. A ``[model]`` or ``[parameters]`` key is the
+setting whose spec key it is (estimation's ``SPEC_KEYS``, read both ways: to sort the file's keys
+into the settings' parts and to name a setting's error by the key the user wrote); the other
+sections are their classes, key for key. The model's channel settings (default, range, meaning)
+come from ``coartic.settings``, the parameters' domains from ``coartic.table.MODEL_DOMAIN``.
 
 See ``fit/template.toml`` for a commented example of every key.
 """
@@ -30,19 +35,14 @@ from pydantic_core import ArgsKwargs
 
 from coartic.errors import SpecError
 from coartic.estimation import settings as est
-from coartic.estimation.checks import (ApexFraction, Beta, Bounds, Channels, Dominance, EMOTION_MODES, EdgeExtent,
-                                       Flag, Handover, LOG_SCALE_PARAMETERS, Names, Number, ParamValues, Parameters,
-                                       PauseMode, PlateauFraction, Positive, ReferencePhoneme, SPEAKER_MODES, STRICT,
-                                       Text, Variant, _bad, _beta_bounds, _channel_bounds, _count, _number, _offsets,
-                                       _one_of, _optional, _params_or_beta, _pooled, _priors, _shared, _target_prior,
-                                       key_of, schema_error, spec_errors)
-from coartic.estimation.settings import (DEFAULT_BETA_BOUNDS, DEFAULT_FIT_BOUNDS, DEFAULT_FREE, DEFAULT_POOLED,
-                                         DEFAULT_SHARED, DEFAULT_START, DEFAULT_TARGET_PRIOR, SPEC_MODEL_DEFAULTS,
-                                         EstimationSettings, GroupSettings, ModelSettings, ParameterSettings,
-                                         PriorSettings, check_together, table_keys)
+from coartic.estimation.checks import (Channels, Flag, Number, STRICT, Text, _bad, _count, _number, _one_of,
+                                       _optional, _params_or_beta, key_of, schema_error, spec_errors)
+from coartic.estimation.settings import (DEFAULT_POOLED, DEFAULT_SHARED, DEFAULT_FREE, EstimationSettings,
+                                         GroupSettings, ModelSettings, ParameterSettings, PriorSettings,
+                                         check_together, table_keys)
 from coartic.io.errors import DataError
 from coartic.io.roles import RoleMap
-from coartic.settings import CHANNEL_SETTINGS, default
+from coartic.settings import CHANNEL_SETTINGS
 from coartic.table import CHANNELS, ChannelSettings
 from coartic.textfile import TextDecodeError, read_text
 
@@ -71,7 +71,6 @@ MAX_PROBE = 10_000
 # +1 larger values, 0 no such direction.
 CHOOSABLE: dict[str, int] = {"shrink.sd": -1, "prior_noise": +1, "plateau_fraction": 0, "target_prior": -1}
 CHOOSE_RULES: tuple[str, ...] = ("min", "1se")
-
 
 
 def _stages(v: Any) -> tuple[tuple[str, ...], ...]:
@@ -118,9 +117,8 @@ def _table(v: Any) -> dict[str, Any]:
     return dict(v)
 
 
-SpecPath = Annotated[Path, BeforeValidator(_path)]
-
-_STRICT = STRICT
+OptionalPath = Annotated[Path | None, BeforeValidator(_optional(_path))]
+Select = Annotated[dict[str, tuple[str, ...]], BeforeValidator(_select)]  # manifest column -> kept values
 
 
 def _fit_error(e: ValidationError, file: Any, cls: type) -> SpecError:
@@ -152,7 +150,7 @@ def _grid(v: Any) -> tuple[float, ...]:
 
 
 @_spec_errors
-@dataclass(frozen=True, config=_STRICT)
+@dataclass(frozen=True, config=STRICT)
 class Choose:
     """``[choose]``: a setting chosen by k-fold cross-validation on the training data."""
 
@@ -192,17 +190,16 @@ def _label_map(v: Any) -> str | None:
 
 
 @_spec_errors
-@dataclass(frozen=True, config=_STRICT)
+@dataclass(frozen=True, config=STRICT)
 class CorpusSpec:
-    manifest: Annotated[Path | None, BeforeValidator(_optional(_path))] = None
+    manifest: OptionalPath = None
     files: Annotated[tuple[Path, ...], BeforeValidator(_paths)] = ()
     labels: Annotated[tuple[Path, ...], BeforeValidator(_paths)] = ()
     file_column: Text = "file"  # manifest column holding the data file
     label_map: Annotated[str | None, BeforeValidator(_label_map)] = None  # a label-map name or path; None: model phonemes
     # role -> marker/sensor name; EMA: "axes" = {vertical, anterior}
     role_map: Annotated[dict[str, Any] | None, BeforeValidator(_optional(_role_map))] = None
-    select: Annotated[dict[str, tuple[str, ...]], BeforeValidator(_select)] = dataclasses.field(
-        default_factory=dict)  # manifest column -> kept values
+    select: Select = dataclasses.field(default_factory=dict)
     limit: Annotated[int | None, BeforeValidator(_optional(_count(1)))] = None  # only the first N trials (quick looks)
 
     @model_validator(mode="after")
@@ -220,109 +217,134 @@ class CorpusSpec:
 
 
 @_spec_errors
-@dataclass(frozen=True, config=_STRICT)
-class FitSpec:
-    path: Path  # the spec file (errors and relative paths refer to it)
-    name: Text
-    # where the trials are read from; None: they are given in Python (coartic.Coarticulation.fit)
-    corpus: CorpusSpec | None
-    channels: Channels = CHANNELS
-    variant: Variant = "modified"
-    # α = 1 for it (MODEL.md §1); None: chosen from the data (FitSpec.reference_for)
-    reference_phoneme: ReferencePhoneme = None
-    # the model's channel settings: defaults and ranges from coartic.settings
-    apex_fraction: ApexFraction = default("apex_fraction")
-    edge_extent: EdgeExtent = default("edge_extent")
-    # the rate-aware options of docs/MODEL.md §2.1 (defaults: today's model)
-    dominance: Dominance = SPEC_MODEL_DEFAULTS["dominance"]
-    plateau_fraction: PlateauFraction = default("plateau_fraction")
-    handover: Handover = SPEC_MODEL_DEFAULTS["handover"]
-    beta: Beta = default("beta")
-    fit_beta: Flag = False
-    beta_bounds: Annotated[tuple[float, float], BeforeValidator(_beta_bounds)] = DEFAULT_BETA_BOUNDS
-    free: Parameters = DEFAULT_FREE
-    # free parameters with one value per channel, shared by every phoneme where they are free
-    shared: Annotated[tuple[str, ...], BeforeValidator(_shared)] = DEFAULT_SHARED
-    # sd (mm) of a Gaussian prior drawing every free target toward the mean of the channel over its
-    # phoneme's segments in the fitted data (the step model's value); None: no such prior
-    target_prior: Annotated[float | str | None, BeforeValidator(_target_prior)] = DEFAULT_TARGET_PRIOR
-    # free parameters drawn toward one value per channel with an sd estimated from the data
-    # (partial pooling, coartic.estimation.pooling)
-    pooled: Annotated[tuple[str, ...], BeforeValidator(_pooled)] = DEFAULT_POOLED
-    start_table: Annotated[Path | None, BeforeValidator(_optional(_path))] = None  # start values from a table JSON
-    start: ParamValues = dataclasses.field(default_factory=lambda: dict(DEFAULT_START))
-    # Gaussian priors (penalties in least squares): "parameter" (every phoneme) or "phoneme.parameter"
-    # (or "beta") -> (mean, sd, on log values); weighed against prior_noise (mm)
-    priors: Annotated[dict[str, tuple[float, float, bool]], BeforeValidator(_priors)] = dataclasses.field(
-        default_factory=dict)
-    prior_noise: Positive = 1.0
-    # per-utterance offsets in least squares: "none", "free" or their sd (mm)
-    offsets: Annotated[str | float, BeforeValidator(_offsets)] = "none"
-    # several speakers in one fit: "none", "offset" (a_s + F), "offset_scale" (a_s + b_s·F) or
-    # "targets" (own targets per speaker), the speaker read from the manifest column speaker_column;
-    # shared dynamics
-    speakers: Annotated[str, BeforeValidator(_one_of(SPEAKER_MODES))] = "none"
-    speaker_column: Text = "speaker"
-    # "postures": initial, final and medial pauses are three rows, short pauses in a closure join
-    # it (coartic.pauses); "one": every pause is '#'
-    pauses: PauseMode = "postures"
-    # emotion as a factor of the fit: "none", or "targets" (each emotion's targets a deviation from the
-    # neutral ones, shrunk toward them by a scale the data estimate: coartic.estimation.emotions), the
-    # emotion read from the manifest column emotion_column, neutral_emotion the reference
-    emotions: Annotated[str, BeforeValidator(_one_of(EMOTION_MODES))] = "none"
-    emotion_column: Text = "emotion"
-    neutral_emotion: Text = "neutral"
-    start_given: frozenset[str] = frozenset()  # the [parameters.start] keys the spec gives (checked against bounds)
-    bounds: Bounds = dataclasses.field(default_factory=lambda: dict(DEFAULT_FIT_BOUNDS))
-    channel_bounds: Annotated[dict[str, dict[str, tuple[float, float]]], BeforeValidator(_channel_bounds)] = \
-        dataclasses.field(default_factory=dict)
-    target_margin: Number = 5.0  # mm beyond the observed range for the default target box
-    overrides: tuple[Override, ...] = ()
-    ties: tuple[Tie, ...] = ()
-    shrinks: tuple[Shrink, ...] = ()
-    choose: Choose | None = None
-    engine: Annotated[str, BeforeValidator(_one_of(ENGINES, "unknown engine"))] = "scipy"
-    engine_options: Annotated[dict[str, Any], BeforeValidator(_table)] = dataclasses.field(default_factory=dict)
-    staging: Flag = True
+@dataclass(frozen=True, config=STRICT)
+class EngineSection:
+    """``[engine]``: the least-squares engine (``ENGINES``) and its options."""
+
+    name: Annotated[str, BeforeValidator(_one_of(ENGINES, "unknown engine"))] = "scipy"
+    options: Annotated[dict[str, Any], BeforeValidator(_table)] = dataclasses.field(default_factory=dict)
+
+
+@_spec_errors
+@dataclass(frozen=True, config=STRICT)
+class StagingSection:
+    """``[staging]``: fit in stages (targets, then timing and dynamics, then resistance and shape)."""
+
+    enabled: Flag = True
     stages: Annotated[tuple[tuple[str, ...], ...], BeforeValidator(_stages)] = DEFAULT_STAGES
-    # [fit]: global estimation by multi-start (coartic.fit.multistart); starts = 1 is one local fit
-    # from [parameters.start]
-    starts: Annotated[int, BeforeValidator(_count(1, MAX_STARTS))] = DEFAULT_STARTS
+
+
+@_spec_errors
+@dataclass(frozen=True, config=STRICT)
+class FitSection:
+    """``[fit]``: global estimation by multi-start (coartic.fit.multistart); ``starts = 1`` is one
+    local fit from ``[parameters.start]``."""
+
+    # DEFAULT_STARTS read when a spec is made, not when the class was (the tests set it to 1)
+    starts: Annotated[int, BeforeValidator(_count(1, MAX_STARTS))] = dataclasses.field(
+        default_factory=lambda: DEFAULT_STARTS)
     seed: Annotated[int, BeforeValidator(_count(0))] = 0
     probe: Annotated[int, BeforeValidator(_count(1, MAX_PROBE))] = DEFAULT_PROBE
     # starts continued after the probe (None: multistart.default_keep)
     keep: Annotated[int | None, BeforeValidator(_optional(_count(1)))] = None
     include_start: Flag = True  # start 0 is [parameters.start] (always continued)
-    max_gap: Number = 0.05  # s: gaps up to this are interpolated by the reader, longer ones masked
-    # k-fold validation by this grouping (VALIDATE_GROUPS)
-    validate_group: Annotated[str | None, BeforeValidator(_optional(_one_of(VALIDATE_GROUPS)))] = None
-    # None: one fold per group (leave one group out)
-    validate_folds: Annotated[int | None, BeforeValidator(_optional(_count(2)))] = None
+
+    @model_validator(mode="after")
+    def _keep_within_starts(self) -> FitSection:
+        if self.keep is not None and self.starts > 1 and self.keep > self.starts:
+            raise _bad(f"{self.keep}: more than the {self.starts} starts", ("keep",))
+        return self
+
+
+@_spec_errors
+@dataclass(frozen=True, config=STRICT)
+class GapsSection:
+    """``[gaps]``: gaps up to ``max_gap`` s are interpolated by the reader, longer ones masked."""
+
+    max_gap: Number = 0.05
+
+
+@_spec_errors
+@dataclass(frozen=True, config=STRICT)
+class ValidateSection:
+    """``[validate]``: held-out checks, by repetition and rate, or k-fold by ``group``."""
+
     holdout_repetition: Annotated[int | None, BeforeValidator(_optional(_count(1)))] = 5  # counted from 1
     train_rate: str | None = "normal"
     test_rate: str | None = "fast"
+    # k-fold validation by this grouping (VALIDATE_GROUPS)
+    group: Annotated[str | None, BeforeValidator(_optional(_one_of(VALIDATE_GROUPS)))] = None
+    # None: one fold per group (leave one group out)
+    folds: Annotated[int | None, BeforeValidator(_optional(_count(2)))] = None
+
+    @model_validator(mode="after")
+    def _folds_need_a_group(self) -> ValidateSection:
+        if self.folds is not None and self.group is None:
+            raise _bad("needs group = \"utterance\" (or sentence, rate, speaker, repetition)", ("folds",))
+        return self
+
+
+@_spec_errors
+@dataclass(frozen=True, config=STRICT)
+class FitSpec:
+    """A fit spec, section by section. The estimation settings are estimation's own classes
+    (``model``, ``parameters``, ``priors``, ``groups``: ``coartic.estimation.settings``), whose
+    keys a file writes in ``[model]`` and ``[parameters]`` (``SPEC_KEYS`` there); the fit's own
+    sections are ``engine``, ``staging``, ``fit``, ``gaps``, ``validate``, keyed as in the file."""
+
+    path: Path  # the spec file (errors and relative paths refer to it)
+    name: Text
+    # where the trials are read from; None: they are given in Python (coartic.Coarticulation.fit)
+    corpus: CorpusSpec | None
+    channels: Channels = CHANNELS  # written in [model]
+    model: ModelSettings = dataclasses.field(default_factory=ModelSettings)
+    parameters: ParameterSettings = dataclasses.field(default_factory=ParameterSettings)
+    priors: PriorSettings = dataclasses.field(default_factory=PriorSettings)
+    groups: GroupSettings = dataclasses.field(default_factory=GroupSettings)
+    start_table: OptionalPath = None  # start values from a table JSON (written in [parameters])
+    choose: Choose | None = None
+    engine: EngineSection = dataclasses.field(default_factory=EngineSection)
+    staging: StagingSection = dataclasses.field(default_factory=StagingSection)
+    fit: FitSection = dataclasses.field(default_factory=FitSection)
+    gaps: GapsSection = dataclasses.field(default_factory=GapsSection)
+    validate: ValidateSection = dataclasses.field(default_factory=ValidateSection)
 
     @model_validator(mode="after")
     def _consistent(self) -> FitSpec:
-        """What no field can check alone."""
+        """What no section can check alone."""
         if not self.channels:
             raise _bad("no channel to fit", ("channels",))
         # the estimation settings' own checks across their parts, in their words
-        check_together(lambda name: getattr(self, name))
-        if self.keep is not None and self.starts > 1 and self.keep > self.starts:
-            raise _bad(f"{self.keep}: more than the {self.starts} starts", ("keep",))
-        if self.validate_folds is not None and self.validate_group is None:
-            raise _bad("needs group = \"utterance\" (or sentence, rate, speaker, repetition)", ("validate_folds",))
+        check_together(lambda name: getattr(getattr(self, est.PART_OF[name]), name))
         if self.choose is not None:
-            problem = _choose_shrinks(self.choose.key, self.shrinks)
+            problem = _choose_shrinks(self.choose.key, self.priors.shrinks)
             if problem is not None:
                 raise _bad(problem, ("choose", "key"))
         return self
 
     def with_options(self, **changes: Any) -> FitSpec:
-        """The spec with ``changes`` (field = value), checked as loading a file checks it: a
-        SpecError names the spec file and the key of the field at fault."""
-        return dataclasses.replace(self, **changes)
+        """The spec with ``changes``, checked as loading a file checks it: a SpecError names the spec
+        file and the key at fault. A change is a field of the spec (a section given whole, or as a
+        table of the keys it changes: ``engine={"name": "nlopt"}``) or a setting of one section by
+        its own name (``starts=1``, ``free=(...)``: ``SETTING_SECTION``)."""
+        direct: dict[str, Any] = {}
+        tables: dict[str, dict[str, Any]] = {}
+        unknown = []
+        for k, v in changes.items():
+            if k in SECTIONS and isinstance(v, Mapping):
+                tables.setdefault(k, {}).update(v)
+            elif k in _FIELDS:
+                direct[k] = v
+            elif k in SETTING_SECTION:
+                tables.setdefault(SETTING_SECTION[k], {})[k] = v
+            else:
+                unknown.append(k)
+        if unknown:
+            raise SpecError.at(self.path, "top level", f"FitSpec has no field(s) {sorted(unknown)}")
+        for section, table in tables.items():
+            current = direct.get(section, getattr(self, section))
+            direct[section] = {**{f.name: getattr(current, f.name) for f in dataclasses.fields(current)}, **table}
+        return dataclasses.replace(self, **direct)
 
     @property
     def corpus_spec(self) -> CorpusSpec:
@@ -335,59 +357,53 @@ class FitSpec:
 
     @classmethod
     def from_settings(cls, settings: EstimationSettings, path: Path, name: str, corpus: CorpusSpec | None = None,
-                      **fields: Any) -> FitSpec:
+                      **options: Any) -> FitSpec:
         """The spec of a fit with these estimation settings (built in Python: ``coartic.Coarticulation``)
-        and the fit's own ``fields`` (channels, engine, staging, starts, ...), checked as a spec file
-        is: a SpecError names ``path`` and the key each setting is written with in a file."""
-        twice = sorted(set(fields) & set(est.PART_OF))
+        and the fit's own ``options`` (channels, engine, staging, starts, ... as ``with_options``
+        takes them), checked as a spec file is: a SpecError names ``path`` and the key each option is
+        written with in a file."""
+        twice = sorted(k for k in options if est.PART_OF.get(k) in _SETTINGS_PARTS or k in _SETTINGS_PARTS)
         if twice:
             raise SpecError.at(path, None, f"{', '.join(twice)}: an estimation setting, given in the settings "
                                "(coartic.estimation.settings), not beside them")
-        values: dict[str, Any] = {f.name: getattr(part, f.name) for part in (settings.model, settings.parameters,
-                                                                           settings.priors, settings.groups)
-                                  for f in dataclasses.fields(part)}
-        par = settings.parameters
-
-        def tables(items: Sequence[Any]) -> list[dict[str, Any]]:
-            # estimation's Override/Tie/Shrink as tables, checked as the file's [[override]] #N ... are
-            return [{f.name: getattr(o, f.name) for f in dataclasses.fields(o)} for o in items]
-
-        values.update(start={**DEFAULT_START, **par.start}, start_given=par.given,
-                      bounds={**DEFAULT_FIT_BOUNDS, **par.bounds}, overrides=tables(par.overrides),
-                      ties=tables(par.ties), shrinks=tables(settings.priors.shrinks))
-        # DEFAULT_STARTS read now, as a file's parse reads it (the tests set it to 1)
-        return cls(path=path, name=name, corpus=corpus, **values, **{"starts": DEFAULT_STARTS, **fields})
+        spec = cls(path=path, name=name, corpus=corpus, model=settings.model, parameters=settings.parameters,
+                   priors=settings.priors, groups=settings.groups)
+        return spec.with_options(**options)
 
     def estimation_settings(self) -> EstimationSettings:
         """The estimation settings this spec writes (``coartic.estimation.settings``): what
         ``build_problem`` takes; errors in them name this spec file."""
-        return EstimationSettings(
-            model=ModelSettings(variant=self.variant, reference_phoneme=self.reference_phoneme,
-                                apex_fraction=self.apex_fraction, edge_extent=self.edge_extent,
-                                dominance=self.dominance, plateau_fraction=self.plateau_fraction,
-                                handover=self.handover, beta=self.beta, pauses=self.pauses),
-            parameters=ParameterSettings(free=self.free, shared=self.shared, fit_beta=self.fit_beta,
-                                         start=self.start, start_given=self.start_given, bounds=self.bounds,
-                                         channel_bounds=self.channel_bounds, beta_bounds=self.beta_bounds,
-                                         target_margin=self.target_margin, overrides=self.overrides,
-                                         ties=self.ties),
-            priors=PriorSettings(priors=self.priors, prior_noise=self.prior_noise, target_prior=self.target_prior,
-                                 pooled=self.pooled, shrinks=self.shrinks),
-            groups=GroupSettings(offsets=self.offsets, speakers=self.speakers, speaker_column=self.speaker_column,
-                                 emotions=self.emotions, emotion_column=self.emotion_column,
-                                 neutral_emotion=self.neutral_emotion),
-            source=self.path)
+        return EstimationSettings(model=self.model, parameters=self.parameters, priors=self.priors,
+                                  groups=self.groups, source=self.path)
 
     def reference_for(self, phonemes: Sequence[str]) -> str:
         """The reference phoneme (α = 1) of a channel whose data have ``phonemes``
         (``ModelSettings.reference_for``)."""
-        return self.estimation_settings().model.reference_for(phonemes)
+        return self.model.reference_for(phonemes)
 
     def channel_settings(self, channel: str, beta: float | None = None,
                          phonemes: Sequence[str] | None = None) -> ChannelSettings:
         """The settings a fit of ``channel`` uses and writes into its table
         (``ModelSettings.channel_settings``)."""
-        return self.estimation_settings().model.channel_settings(channel, beta, phonemes)
+        return self.model.channel_settings(channel, beta, phonemes)
+
+
+# The estimation settings' parts (their settings keyed by coartic.estimation.settings.SPEC_KEYS) and
+# the file section whose keys a part's settings are: [model] and [parameters] hold several parts.
+_SETTINGS_PARTS: dict[str, str] = {"model": "model", "parameters": "parameters", "priors": "parameters",
+                                   "groups": "model"}
+# the spec's fields written in a section of the estimation settings' keys
+_OWN_KEYS: dict[str, str] = {"channels": "model.channels", "start_table": "parameters.start_table"}
+_FIELDS: tuple[str, ...] = tuple(f.name for f in dataclasses.fields(FitSpec))
+# the sections (each a class of its own) and a setting's section by the setting's name, for
+# with_options; names in two sections (or a field of the spec: engine's name) go in their section
+SECTIONS: dict[str, type] = {f: c for f, c in (
+    ("model", ModelSettings), ("parameters", ParameterSettings), ("priors", PriorSettings),
+    ("groups", GroupSettings), ("engine", EngineSection), ("staging", StagingSection), ("fit", FitSection),
+    ("gaps", GapsSection), ("validate", ValidateSection), ("corpus", CorpusSpec), ("choose", Choose))}
+_NAMES = [(f.name, s) for s, c in SECTIONS.items() if s not in ("corpus", "choose") for f in dataclasses.fields(c)]
+SETTING_SECTION: dict[str, str] = {n: s for n, s in _NAMES
+                                   if [m for m, _ in _NAMES].count(n) == 1 and n not in _FIELDS}
 
 
 def _choose_shrinks(key: str, shrinks: tuple[Shrink, ...]) -> str | None:
@@ -403,41 +419,31 @@ def _choose_shrinks(key: str, shrinks: tuple[Shrink, ...]) -> str | None:
 
 # --------------------------------------------------------------------------- the TOML document
 
-# Each section's keys and the FitSpec field each one sets ("" is the top level). [corpus] and
-# [choose] are CorpusSpec and Choose (same key names); [[override]], [[tie]], [[shrink]] lists of
-# Override, Tie, Shrink. [mcmc] belongs to coartic.mcmc (docs/MCMC.md): one spec file serves both
-# commands, so it is accepted here and not read.
-DOCUMENT: dict[str, dict[str, str]] = {
-    "": {"name": "name"},
-    "model": {k: k for k in ("variant", "channels", "reference_phoneme", "apex_fraction", "edge_extent", "beta",
-                             "fit_beta", "beta_bounds", "offsets", "dominance", "plateau_fraction", "handover",
-                             "speakers", "speaker_column", "pauses", "emotions", "emotion_column",
-                             "neutral_emotion")},
-    "parameters": {"free": "free", "start": "start", "start_table": "start_table", "bounds": "bounds",
-                   "target_margin": "target_margin", "prior": "priors", "prior_noise": "prior_noise",
-                   "shared": "shared", "target_prior": "target_prior", "pooled": "pooled"},
-    "engine": {"name": "engine", "options": "engine_options"},
-    "staging": {"enabled": "staging", "stages": "stages"},
-    "fit": {k: k for k in ("starts", "seed", "probe", "keep", "include_start")},
-    "gaps": {"max_gap": "max_gap"},
-    "validate": {"holdout_repetition": "holdout_repetition", "train_rate": "train_rate", "test_rate": "test_rate",
-                 "group": "validate_group", "folds": "validate_folds"},
+# A [model] or [parameters] key is the estimation setting whose spec key it is (SPEC_KEYS, read
+# backwards: the first setting of a key, "parameters.start" is start, not start_given), or one of
+# the spec's own fields (_OWN_KEYS); every other section is its class, key for key. [[override]],
+# [[tie]] and [[shrink]] are the settings' lists of Override, Tie, Shrink. [mcmc] belongs to
+# coartic.mcmc (docs/MCMC.md): one spec file serves both commands, so it is accepted here and not read.
+SETTING_OF_KEY: dict[str, str] = {}
+for _setting, _key in est.SPEC_KEYS.items():
+    if "." in _key:
+        SETTING_OF_KEY.setdefault(_key, _setting)
+SECTION_KEYS: dict[str, tuple[str, ...]] = {
+    **{s: tuple(sorted({k.split(".", 1)[1] for k in SETTING_OF_KEY if k.startswith(f"{s}.")}
+                       | {k.split(".", 1)[1] for k in _OWN_KEYS.values() if k.startswith(f"{s}.")}))
+       for s in ("model", "parameters")},
+    **{s: tuple(f.name for f in dataclasses.fields(SECTIONS[s])) for s in ("engine", "staging", "fit", "gaps",
+                                                                           "validate")},
 }
-TABLES: dict[str, str] = {"corpus": "corpus", "choose": "choose"}
-ARRAYS: dict[str, str] = {"override": "overrides", "tie": "ties", "shrink": "shrinks"}
-IGNORED: tuple[str, ...] = ("mcmc",)
-# field -> the key its errors are named by (read backwards from the tables above)
-FIELD_KEYS: dict[str, str] = {
-    **{f: (f"{s}.{k}" if s else k) for s, keys in DOCUMENT.items() for k, f in keys.items()},
-    **{f: s for s, f in TABLES.items()}, **{f: s for s, f in ARRAYS.items()},
-    "channel_bounds": "parameters.bounds", "start_given": "parameters.start",
-}
-# the key prefix of a part's own errors when it is built alone (a Choose by --choose, an Override in Python)
-# the part of a spec a location's head is
-_PARTS: dict[str, type] = {"overrides": Override, "override": Override, "ties": Tie, "tie": Tie, "shrinks": Shrink,
-                           "shrink": Shrink, "corpus": CorpusSpec, "choose": Choose, "--choose": Choose}
-_ROOTS: dict[str, tuple[str | int, ...]] = {"Choose": ("choose",), "CorpusSpec": ("corpus",), "Override": ("override",),
-                                             "Tie": ("tie",), "Shrink": ("shrink",)}
+ARRAYS: dict[str, tuple[str, str]] = {"override": ("parameters", "overrides"), "tie": ("parameters", "ties"),
+                                      "shrink": ("priors", "shrinks")}
+TOP_KEYS: tuple[str, ...] = ("name", "corpus", "choose", *SECTION_KEYS, *ARRAYS, "mcmc")
+# a part built alone (a Choose by --choose, an Override in Python) is named by its section
+_PARTS: dict[str, type] = {"override": Override, "tie": Tie, "shrink": Shrink, "corpus": CorpusSpec,
+                           "choose": Choose, "--choose": Choose, "engine": EngineSection,
+                           "staging": StagingSection, "fit": FitSection, "gaps": GapsSection,
+                           "validate": ValidateSection}
+_ROOTS: dict[str, tuple[str | int, ...]] = {c.__name__: (s,) for s, c in _PARTS.items() if s != "--choose"}
 
 
 def _unknown(d: Mapping[str, Any], allowed: Iterable[str], key: str, path: Path) -> None:
@@ -452,20 +458,29 @@ def _relative(base: Path, v: Any) -> Any:
 
 
 def document_fields(raw: Mapping[str, Any], path: Path) -> dict[str, Any]:
-    """The FitSpec fields a TOML document sets (unknown keys refused, relative paths made relative
-    to ``path``'s folder); the values are checked by FitSpec itself."""
-    sections = {s for s in DOCUMENT if s} | set(TABLES) | set(ARRAYS) | set(IGNORED)
-    _unknown(raw, sections | set(DOCUMENT[""]), "top level", path)
-    # DEFAULT_STARTS read when parsing, not when the class was made (the tests set it to 1)
-    fields: dict[str, Any] = {"path": path, "name": raw.get("name", path.stem), "starts": DEFAULT_STARTS}
-    for section, keys in DOCUMENT.items():
-        if not section or section not in raw:
+    """The FitSpec fields a TOML document sets, section by section (unknown keys of [model] and
+    [parameters] refused here, where they are sorted into the settings' parts; relative paths made
+    relative to ``path``'s folder); the values are checked by FitSpec itself."""
+    _unknown(raw, TOP_KEYS, "top level", path)
+    fields: dict[str, Any] = {"path": path, "name": raw.get("name", path.stem)}
+    parts: dict[str, dict[str, Any]] = {part: {} for part in _SETTINGS_PARTS}
+    for section in SECTION_KEYS:
+        if section not in raw:
             continue
         d = raw[section]
         if not isinstance(d, Mapping):
             raise SpecError.at(path, section, f"expected a table, got {d!r}")
-        _unknown(d, keys, section, path)
-        fields.update({keys[k]: v for k, v in d.items()})
+        if section not in ("model", "parameters"):
+            fields[section] = dict(d)  # its class refuses unknown keys, named in this section
+            continue
+        _unknown(d, SECTION_KEYS[section], section, path)
+        for k, v in d.items():
+            own = next((f for f, key in _OWN_KEYS.items() if key == f"{section}.{k}"), None)
+            if own is not None:
+                fields[own] = v
+            else:
+                setting = SETTING_OF_KEY[f"{section}.{k}"]
+                parts[est.PART_OF[setting]][setting] = v
     base = path.parent
     c = raw.get("corpus")
     if c is None:
@@ -485,71 +500,79 @@ def document_fields(raw: Mapping[str, Any], path: Path) -> dict[str, Any]:
     if "choose" in raw:
         fields["choose"] = raw["choose"]
     p = raw.get("parameters", {})
+    par, pri = parts["parameters"], parts["priors"]
     if isinstance(p, Mapping) and "free" in p and "shared" not in p:
         # the shared dynamics belong to the default freedom: a spec that lists its own free set keeps
         # per-phoneme values unless it says shared = [...] too
-        fields["shared"] = ()
+        par["shared"] = ()
     if isinstance(p, Mapping) and "free" in p and "pooled" not in p:
-        fields["pooled"] = ()  # likewise the pooled dynamics
+        pri["pooled"] = ()  # likewise the pooled dynamics
     if isinstance(p, Mapping) and isinstance(p.get("pooled"), list) and "shared" not in p and "free" not in p:
-        fields["shared"] = tuple(q for q in DEFAULT_SHARED if q not in p["pooled"])  # pooled instead of shared
+        par["shared"] = tuple(q for q in DEFAULT_SHARED if q not in p["pooled"])  # pooled instead of shared
     if isinstance(p, Mapping) and isinstance(p.get("shared"), list) and "pooled" not in p and "free" not in p:
-        fields["pooled"] = tuple(q for q in DEFAULT_POOLED if q not in p["shared"])  # shared instead of pooled
-    for key in ("pooled",):
+        pri["pooled"] = tuple(q for q in DEFAULT_POOLED if q not in p["shared"])  # shared instead of pooled
+    for key in ("pooled", "shared"):
         if isinstance(p, Mapping) and isinstance(p.get(key), list):
             frees = [p.get("free", list(DEFAULT_FREE))] + [o.get("free", []) for o in raw.get("override", [])
                                                            if isinstance(o, Mapping)]
             freed = {n for f in frees for n in (f if isinstance(f, list) else [f])}
             if set(p[key]) - freed:
+                what = "pooling" if key == "pooled" else "sharing"
                 raise SpecError.at(path, f"parameters.{key}", f"{', '.join(sorted(set(p[key]) - freed))} is not free "
-                                   "([parameters] free or an [[override]] free): pooling a fixed value would do nothing")
-    if isinstance(p, Mapping) and "shared" in p and isinstance(p["shared"], list):
-        frees = [p.get("free", list(DEFAULT_FREE))] + [o.get("free", []) for o in raw.get("override", [])
-                                                       if isinstance(o, Mapping)]
-        freed = {n for f in frees for n in (f if isinstance(f, list) else [f])}
-        if set(p["shared"]) - freed:
-            raise SpecError.at(path, "parameters.shared", f"{', '.join(sorted(set(p['shared']) - freed))} is not "
-                               "free ([parameters] free or an [[override]] free): sharing a fixed value would do nothing")
+                                   f"([parameters] free or an [[override]] free): {what} a fixed value would do nothing")
     if "start_table" in fields:
         fields["start_table"] = _relative(base, fields["start_table"])
-    if isinstance(fields.get("start"), Mapping):
-        fields["start_given"] = frozenset(fields["start"])
-        fields["start"] = {**DEFAULT_START, **fields["start"]}
-    if isinstance(fields.get("bounds"), Mapping):
-        given = fields["bounds"]
-        fields["channel_bounds"] = {k: v for k, v in given.items() if isinstance(v, Mapping)}
-        fields["bounds"] = {**DEFAULT_FIT_BOUNDS, **{k: v for k, v in given.items() if not isinstance(v, Mapping)}}
-    for section, field in ARRAYS.items():
+    if isinstance(par.get("bounds"), Mapping):
+        given = par["bounds"]
+        par["channel_bounds"] = {k: v for k, v in given.items() if isinstance(v, Mapping)}
+        par["bounds"] = {k: v for k, v in given.items() if not isinstance(v, Mapping)}
+    for section, (part, field) in ARRAYS.items():
         items = raw.get(section, [])
         if not isinstance(items, list):
             raise SpecError.at(path, section, f"expected [[{section}]] tables")
         if section == "shrink":
             for i, t in enumerate(items):  # log and key are a Shrink's fields, not keys of the spec
                 if isinstance(t, Mapping):
-                    _unknown(t, _keys_of(Shrink), f"shrink #{i + 1}", path)
+                    _unknown(t, table_keys(Shrink), f"shrink #{i + 1}", path)
             # the key its errors and reports are named by
             items = [{**t, "key": f"shrink #{i + 1}"} if isinstance(t, Mapping) else t for i, t in enumerate(items)]
-        fields[field] = items
+        parts[part][field] = items
+    fields.update(parts)
     return fields
 
 
-def _keys_of(part: type) -> list[str]:
-    """The keys a part's spec table may have (``table_keys``: Shrink's ``log`` is ``scale`` there)."""
-    return table_keys(part)
+def _key_of(loc: Sequence[str | int]) -> str:
+    """The spec key of a schema location: ("parameters", "overrides", 2, "fixed", "theta_bw") ->
+    "override #3.fixed.theta_bw", ("model", "plateau_fraction") -> "model.plateau_fraction",
+    ("fit", "starts") -> "fit.starts"."""
+    parts = list(loc)
+    if not parts:
+        return "top level"
+    head = str(parts[0])
+    if head in _SETTINGS_PARTS:  # a part of the estimation settings: its settings' keys
+        return est.spec_key(parts[1:]) if len(parts) > 1 else _SETTINGS_PARTS[head]
+    if head in est.SPEC_KEYS:  # a setting named by the checks across parts (check_together)
+        return est.spec_key(parts)
+    if head in _OWN_KEYS:
+        return ".".join([_OWN_KEYS[head], *map(str, parts[1:])])
+    return key_of(parts, {}, ())
 
 
-def _key_of(loc: Iterable[str | int]) -> str:
-    """The spec key of a schema location: ("overrides", 2, "fixed", "theta_bw") ->
-    "override #3.fixed.theta_bw", ("plateau_fraction",) -> "model.plateau_fraction"."""
-    return key_of(loc, FIELD_KEYS, ARRAYS.values())
+def _allowed(loc: Sequence[str | int]) -> list[str] | None:
+    """The keys the table at ``loc`` may have (None: the spec itself, built in Python)."""
+    if len(loc) >= 3 and loc[0] in _SETTINGS_PARTS and isinstance(loc[2], int):
+        table = {"overrides": Override, "ties": Tie, "shrinks": Shrink}.get(str(loc[1]))
+        return None if table is None else table_keys(table)
+    if len(loc) == 1 and str(loc[0]) in SECTIONS:
+        return table_keys(SECTIONS[str(loc[0])])
+    return table_keys(_PARTS[str(loc[0])]) if loc and str(loc[0]) in _PARTS else None
 
 
 def spec_error(e: ValidationError, file: Path | str | None, root: tuple[str | int, ...] = ()) -> SpecError:
     """One SpecError of a FitSpec's (or a part's) ValidationError: every problem as ``file: [key]
     message``, the first one's place in the attributes (``coartic.estimation.checks.schema_error``).
     ``root``: the location of the part validated (a Choose alone is ``[choose]``)."""
-    return schema_error(e, file, root, _key_of,
-                        lambda head: _keys_of(_PARTS[head]) if head in _PARTS else None, "FitSpec")
+    return schema_error(e, file, root, _key_of, _allowed, "FitSpec")
 
 
 def read_document(path: Path) -> dict[str, Any]:

@@ -54,7 +54,7 @@ def compare(specs: Sequence[FitSpec | str | PathLike[str]], out: str | PathLike[
             rows.append(Row(model, ch, fit.packing.n_free + fit.problem.n_profiled, n, fit.rmse**2 * n, fit.rmse, h[0], h[1],
                             fit.status, {b: v[ch][:2] for b, v in held_base.items() if ch in v},
                             effective_parameters(fit.problem, fit.x) + fit.problem.n_profiled,
-                            heldout_se(scores, ch), s.emotions))
+                            heldout_se(scores, ch), s.groups.emotions))
             if not rows[-1].beats_step:
                 cmp.notes.append(f"{model}: {ch}: held out, the table does not beat the step model (phoneme means, "
                                  f"no coarticulation): {h[0]:.3f} vs {rows[-1].baselines['step'][0]:.3f} mm as "

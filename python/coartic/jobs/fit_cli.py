@@ -117,9 +117,8 @@ def fit_command(
         if engine is not None:
             if engine not in ENGINES:
                 raise SpecError(f"--engine {engine!r}: unknown engine ({', '.join(ENGINES)})")
-            changes["engine"] = engine
-            if engine != s.engine:
-                changes["engine_options"] = {}
+            # another engine starts from its own default options
+            changes["engine"] = {"name": engine, **({} if engine == s.engine.name else {"options": {}})}
         if channels is not None:
             chs = tuple(c.strip() for c in channels.split(",") if c.strip())
             # any channel the data can give, LA like the others (the spec's list is the default)
@@ -128,17 +127,17 @@ def fit_command(
                 raise SpecError(f"--channels: {bad or channels!r}: not channels; known: {', '.join(ALL_CHANNELS)}")
             changes["channels"] = chs
         if no_staging:
-            changes["staging"] = False
+            changes["staging"] = {"enabled": False}
         if starts is not None:
             changes["starts"] = starts
-            if s.keep is not None and s.keep > starts:
+            if s.fit.keep is not None and s.fit.keep > starts:
                 changes["keep"] = starts
         if seed is not None:
             changes["seed"] = seed
         if validate_by is not None:
             if validate_by not in VALIDATE_GROUPS:
                 raise SpecError(f"--validate-by {validate_by!r}: unknown split ({', '.join(VALIDATE_GROUPS)})")
-            changes["validate_group"] = validate_by
+            changes["validate"] = {"group": validate_by}
             validate = True
         s = s.with_options(**changes)
         if choose is not None:

@@ -131,7 +131,7 @@ def parse_section(raw: Any, path: Path) -> McmcSection:
         section: McmcSection = McmcSection.__pydantic_validator__.validate_python(  # type: ignore[attr-defined]
             ArgsKwargs((), dict(raw)))
     except ValidationError as e:
-        err: SpecError = schema_error(e, path, (), lambda loc: ".".join(str(p) for p in loc), lambda head: None,
+        err: SpecError = schema_error(e, path, (), lambda loc: ".".join(str(p) for p in loc), lambda loc: None,
                                       "[mcmc]")
         raise McmcConfigError("\n".join(f"{path}: [mcmc] {key}: {message}" for key, message in err.problems)) from None
     return section

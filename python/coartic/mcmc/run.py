@@ -56,7 +56,7 @@ def parse_config(raw: Any, path: Path, fit_spec: FitSpec | None = None) -> McmcC
     ``fit_spec``) are the posterior's too unless ``[mcmc] offsets`` says otherwise."""
     cfg = _parse_config(raw, path)
     given = isinstance(raw, dict) and "offsets" in raw
-    spec_sd = getattr(fit_spec, "offsets", "none")
+    spec_sd = "none" if fit_spec is None else fit_spec.groups.offsets
     if not given and isinstance(spec_sd, (int, float)) and not isinstance(spec_sd, bool):
         cfg.offsets = float(spec_sd)
     return cfg
@@ -124,13 +124,13 @@ def table_speakers(fit_spec: FitSpec, table: ParameterTable, channel: str) -> Sp
     the speakers and their least-squares (a_s, b_s) come from the table's metadata. None without
     speakers, and with per-speaker targets (sampled as the problem's own rows: ``table_problem``)."""
     meta = table_speaker_meta(fit_spec.estimation_settings().groups, str(fit_spec.path), table)
-    if fit_spec.speakers in ("none", "targets"):
+    if fit_spec.groups.speakers in ("none", "targets"):
         return None
     coefs = (meta.get("coefficients") or {}).get(channel)
     if not coefs:
         raise McmcError(f"{table.source}: metadata.speakers has no coefficients for channel {channel}")
     start = {str(s): (float(c["offset_mm"]), float(c["scale"])) for s, c in coefs.items()}
-    return SpeakerTerms(fit_spec.speakers, fit_spec.speaker_column, tuple(start), start)
+    return SpeakerTerms(fit_spec.groups.speakers, fit_spec.groups.speaker_column, tuple(start), start)
 
 
 def problem_priors(problem: ChannelProblem) -> dict[str, PriorTerm]:
