@@ -9,7 +9,7 @@ from types import ModuleType
 
 import numpy as np
 import pytest
-from hypothesis import HealthCheck, given, settings
+from hypothesis import HealthCheck, example, given, settings
 from hypothesis import strategies as st
 from typer.testing import CliRunner
 
@@ -85,6 +85,8 @@ def test_intensity_scales_the_deviation_trajectory_linearly() -> None:
 @given(which=st.sampled_from(["truth", "noisy"]), emotion=st.sampled_from(EMOTIONS), intensity=st.floats(0.0, 1.5), vowel=st.sampled_from("aiu"),
        consonant=st.sampled_from(["p", "b", "m", "f", "v"]), fps=st.sampled_from([25.0, 30.0, 50.0]),
        durations=st.tuples(st.floats(0.05, 0.2), st.floats(0.03, 0.15), st.floats(0.05, 0.2)))
+@example(which="truth", emotion="joy", intensity=0.0, vowel="a", consonant="b", fps=25.0,
+         durations=(0.125, 0.03, 0.05078125))  # the corner example of the docstring, always tried
 def test_lips_close_and_touch_the_teeth_at_every_intensity(which: str, emotion: str, intensity: float, vowel: str,
                                                            consonant: str, fps: float,
                                                            durations: tuple[float, float, float]) -> None:
@@ -92,7 +94,10 @@ def test_lips_close_and_touch_the_teeth_at_every_intensity(which: str, emotion: 
     lower lip to the neutral contact on the frame nearest their target, whatever the emotion and
     intensity; and so on coartic's face, whose brows, lids, cheeks and lip corners the emotion moves
     too (the FAP file's FAPs, expression included, on coartic.face's mesh): the inner lips touch or
-    press along the whole cut at /p b m/, the lower lip touches the upper incisors' edge at /f v/
+    press along the whole cut at /p b m/ (within 0.1 mm, three of the FAP file's mouth-nose units
+    of MNS/1024 = 0.03 mm, below a pixel at any size a player draws the face: beside a lip corner a
+    30 ms /b/ at 25 fps, the jaw still at the vowel's 117.7 mm, leaves 0.04 mm there while the
+    middle presses 4 mm), the lower lip touches the upper incisors' edge at /f v/
     (within 1.2 mm: neutral speech's own reach over such timings, 1.09 mm at worst over 400 random
     ones; test_face_mesh's utterance, 1 mm). The tables are drawn by name: Hypothesis would print
     a whole table with a failing example."""
@@ -112,7 +117,7 @@ def test_lips_close_and_touch_the_teeth_at_every_intensity(which: str, emotion: 
         closure = reached(TRUTH, consonant, "ULO") + reached(TRUTH, consonant, "LLO")
         la = a.channels["ULO"][k] + a.channels["LLO"][k]
         assert la == pytest.approx(closure, abs=1e-6) and la + REST_GAP_MM <= 0.0
-        assert (pose[m.slit[:, 0], 1] - pose[m.slit[:, 1], 1]).max() <= 0.0  # upper inner lip not above the lower
+        assert (pose[m.slit[:, 0], 1] - pose[m.slit[:, 1], 1]).max() <= 0.1  # upper inner lip not above the lower
     else:
         assert a.channels["LLO"][k] == pytest.approx(reached(TRUTH, consonant, "LLO"), abs=1e-6)
         central = m.in_part("upper_teeth") & (np.abs(m.vertices[:, 0]) < 4.0)
