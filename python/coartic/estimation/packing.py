@@ -15,6 +15,7 @@ import numpy as np
 import scipy.sparse as sp
 from numpy.typing import NDArray
 
+from coartic.errors import UsageError
 from coartic.table import N_PARAMS, PARAMETERS
 
 # Columns fitted on a log scale (MODEL.md §1: "fit log α", "fit log θ"; ψ > 0 likewise).
@@ -63,7 +64,7 @@ class Packing:
         self._followers = np.array([f for f, _ in self.ties], dtype=np.int64)
         self._leaders = np.array([ld for _, ld in self.ties], dtype=np.int64)
         if any(LOG_COLUMNS[f % N_PARAMS] for f, _ in self.mixes):
-            raise ValueError("a mixed entry must be on a natural-scale column (the target)")
+            raise UsageError("Packing.mixes: a mixed entry must be on a natural-scale column (the target)")
         n_flat = len(self.phonemes) * N_PARAMS
         # the mixes as one sparse matrix over the flat parameters: flat[mixed] = M @ flat
         self._mixed = np.array([f for f, _ in self.mixes], dtype=np.int64)

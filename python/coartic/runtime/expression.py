@@ -111,10 +111,9 @@ def expression_fap_offsets(animation: Animation, mns_mm: float, mw_mm: float) ->
     """FAP -> what the animation's expression adds to it per frame (FAP units): ``EXPRESSION_FAPS``
     times each frame's intensity, and the table's corner asymmetries on the corners' FAPs (ASYMY half
     up on the right corner, 13, and half down on the left, 12, in MNS; ASYMX half out on the right, 7,
-    and half in on the left, 6, in MW; ``mns_mm``, ``mw_mm`` the face's), each corner's also on its
-    outer twin (59, 60, 53, 54). {} without an emotion; ``runtime.fap.animation_faps`` adds them."""
-    from coartic.runtime.fap import OUTER_TWIN
-
+    and half in on the left, 6, in MW; ``mns_mm``, ``mw_mm`` the face's); inner contour's FAPs only.
+    {} without an emotion; ``runtime.fap.animation_faps`` adds them, each corner's also on its outer
+    twin (59, 60, 53, 54)."""
     added: dict[int, F64] = {}
     n = animation.n_frames
     for emotion, w in _intensities(animation).items():
@@ -125,9 +124,6 @@ def expression_fap_offsets(animation: Animation, mns_mm: float, mw_mm: float) ->
                               (6, -ax / 2, mw_mm / 1024.0), (7, ax / 2, mw_mm / 1024.0)):
             if mm:
                 added[fap] = added.get(fap, np.zeros(n)) + (mm / unit) * w
-    for outer, inner in OUTER_TWIN.items():
-        if inner in added:
-            added[outer] = added[inner]
     return added
 
 

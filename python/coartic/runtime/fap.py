@@ -442,8 +442,10 @@ def animation_faps(animation: Animation, face: FaceUnits, name: str) -> FapSeque
     tongue, rest, _ = tongue_channels(animation)
     # an emotion's brows, lids, cheeks and corners (coartic.runtime.expression), over the blinks, and
     # the same emotion as the high-level expression (FAP 2) for players that render it
-    low = add_fap_offsets(add_blinks(add_tongue_faps(faps, tongue, rest, face)),
-                          expression_fap_offsets(animation, face.mns_mm, face.mw_mm))
+    expression = expression_fap_offsets(animation, face.mns_mm, face.mw_mm)
+    # the lips translate rigidly (OUTER_TWIN): a corner moved by the emotion moves both contours
+    expression.update({outer: expression[inner] for outer, inner in OUTER_TWIN.items() if inner in expression})
+    low = add_fap_offsets(add_blinks(add_tongue_faps(faps, tongue, rest, face)), expression)
     return with_expression(low, expression_fap2(animation))
 
 
