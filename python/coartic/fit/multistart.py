@@ -365,7 +365,6 @@ def fit_multistart(problem: ChannelProblem, engine: str, options: dict[str, Any]
     """
     t0 = time.perf_counter()
     full = problem.packing
-    lo, hi = full.bounds()
     xs0 = sobol_starts(full, n_starts, seed)
     if include_start:  # start 0 is [parameters.start], and always continued: never worse than one fit
         xs0[0] = full.pack()
