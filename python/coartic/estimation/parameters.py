@@ -266,6 +266,13 @@ class ParameterSet(Mapping[str, Parameter]):
 
         ties: list[tuple[int, int]] = []
         tied_by: dict[tuple[int, int], int] = {}  # (phoneme row, parameter) -> the [[tie]] that holds it
+
+        def follow(i: int, leader: int, k: int) -> None:
+            """Row ``i``'s parameter ``k`` takes ``leader``'s value (a [[tie]], the edge pauses, shared)."""
+            free[i, k] = False
+            base[i, k] = base[leader, k]
+            ties.append((i * N_PARAMS + k, leader * N_PARAMS + k))
+
         for j, t in enumerate(par.ties):
             if t.channels is not None and ch not in t.channels:
                 continue
@@ -296,9 +303,7 @@ class ParameterSet(Mapping[str, Parameter]):
                 leader = members[0]
                 tied_by.update({(i, k): j for i in members})
                 for i in members[1:]:
-                    free[i, k] = False
-                    base[i, k] = base[leader, k]
-                    ties.append((i * N_PARAMS + k, leader * N_PARAMS + k))
+                    follow(i, leader, k)
         # The edge pauses share one dominance magnitude α (coartic.pauses, EDGE_TIED): their
         # postures are their targets. A separate α per edge bends each edge's transition to fit the
         # training rate's timing and does not carry to another rate (docs/REAL_DATA.md, "Why the
@@ -306,18 +311,14 @@ class ParameterSet(Mapping[str, Parameter]):
         if PAUSE in phon and FINAL_PAUSE in phon:
             for name in EDGE_TIED:
                 k = PARAMETERS.index(name)
-                lead, follow = phon.index(PAUSE), phon.index(FINAL_PAUSE)
-                if free[lead, k] and free[follow, k] and (lead, k) not in tied_by and (follow, k) not in tied_by:
-                    free[follow, k] = False
-                    base[follow, k] = base[lead, k]
-                    ties.append((follow * N_PARAMS + k, lead * N_PARAMS + k))
+                lead, final = phon.index(PAUSE), phon.index(FINAL_PAUSE)
+                if free[lead, k] and free[final, k] and (lead, k) not in tied_by and (final, k) not in tied_by:
+                    follow(final, lead, k)
         for name in par.shared:  # one value per channel: every phoneme where it is free takes the first's
             k = PARAMETERS.index(name)
             members = [i for i in range(n) if free[i, k]]
             for i in members[1:]:
-                free[i, k] = False
-                base[i, k] = base[members[0], k]
-                ties.append((i * N_PARAMS + k, members[0] * N_PARAMS + k))
+                follow(i, members[0], k)
         priors = expand_priors(settings, ch, tuple(phon), free, par.fit_beta and model.variant == "modified")
         if not isinstance(settings.priors.target_prior, str):  # "estimated": a family of the pool (build_problem)
             priors.update(target_priors(settings.priors.target_prior, data.utterances, ch, phon, free, priors))
