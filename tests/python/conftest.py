@@ -127,6 +127,21 @@ def single_start_fits() -> Any:
     coartic.fit.spec.DEFAULT_STARTS = default
 
 
+@pytest.fixture(autouse=True, scope="session")
+def one_blas_thread() -> Any:
+    """BLAS at one thread for the whole session, as `coartic fit` runs it (coartic.fit.runner limits
+    it around every channel's fit, docs/FITTING.md). Tests that call the engines, the multi-start or
+    the pooling's evidence directly ran their small dense solves (SVDs of a few hundred rows by 60) on
+    a multi-threaded OpenBLAS, whose threads spin on cores the other xdist worker and the Rust core
+    need: test_multistart_is_deterministic's two capped searches took 36 CPU-s under load, 0.9 at
+    one thread (test_fit_multistart.py 96 -> 43 CPU-s; bench/results/test_suite_cpu_fit2.txt). The
+    tests compute what they computed; only the BLAS thread count is the one the fits use anyway."""
+    from threadpoolctl import threadpool_limits
+
+    with threadpool_limits(limits=1, user_api="blas"):
+        yield
+
+
 @pytest.fixture(autouse=True)
 def multistart_default(request: pytest.FixtureRequest, single_start_fits: int, monkeypatch: pytest.MonkeyPatch) -> None:
     """A test marked ``multistart`` sees the real default ``[fit] starts``."""
