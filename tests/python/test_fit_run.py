@@ -73,7 +73,9 @@ EMA_RMSE_LIMIT = {"LA": 0.60, "JO": 0.21}
 
 @pytest.mark.slow
 def test_real_ema_rmse_does_not_get_worse(tmp_path: Path) -> None:
-    result = fit_job(load_spec(ROOT / "fit" / "ema_german.toml"), tmp_path, quiet=True)
+    # no HTML report: a fifth of this test's CPU time, and nothing here reads it (the report of a
+    # real-EMA fit is written and read by test_fit_multistart's CLI test)
+    result = fit_job(load_spec(ROOT / "fit" / "ema_german.toml"), tmp_path, quiet=True, report=False)
     assert not result.interrupted
     for ch, limit in EMA_RMSE_LIMIT.items():
         assert result.channels[ch].rmse < limit, f"{ch}: RMSE {result.channels[ch].rmse:.3f} mm > {limit}"
