@@ -1,15 +1,18 @@
-"""Shared fixtures: random models and corpora for the core, the illustrative VCV table.
+"""Shared fixtures: random models and corpora for the core, the illustrative VCV table, synthetic
+sessions without their overview figure.
 
-``random_params`` and ``random_corpus_arrays`` are plain functions (tests import them with
-``from conftest import ...``) and are also offered as fixtures.
+``random_params``, ``random_corpus_arrays`` and ``without_overview`` are plain functions (tests
+import them with ``from conftest import ...``); the first two are also offered as fixtures.
 """
 
 from __future__ import annotations
 
 import os
+import contextlib
 import sys
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from pathlib import Path
+from types import ModuleType
 from typing import Any
 
 import numpy as np
@@ -109,6 +112,21 @@ def illustrative_table() -> Any:
     from coartic.demo import illustrative_table as make
 
     return make()
+
+
+@contextlib.contextmanager
+def without_overview() -> Iterator[ModuleType]:
+    """The synthetic-session generator (corpus-synthetic/generate.py, coartic.synthetic_cli) with
+    its overview figure left out while the block runs: plot_overview costs about 1 CPU-s a session
+    (and matplotlib's import where nothing else draws), as much as generating 12 trials. For tests
+    that use a session's trials or test its staging, never the figure; test_synthetic.py's module
+    session and flavours still draw it."""
+    from coartic.synthetic_cli import load_generator
+
+    gen = load_generator()
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setattr(gen, "plot_overview", lambda *args, **kwargs: None)
+        yield gen
 
 
 @pytest.fixture(autouse=True, scope="session")

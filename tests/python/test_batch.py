@@ -30,6 +30,8 @@ from coartic.outputs import OutputError
 from coartic.synthetic_cli import load_generator
 from coartic.table import CHANNELS, ParameterTable
 
+from conftest import without_overview
+
 # The kill hook below runs on the workers: ship this module's functions by value.
 cloudpickle.register_pickle_by_value(sys.modules[__name__])
 
@@ -80,7 +82,8 @@ TABLE_FILES = ("table.csv", "rmse.csv", "parameters.csv")
 @pytest.fixture(scope="module")
 def corpus(tmp_path_factory: pytest.TempPathFactory) -> Path:
     root = tmp_path_factory.mktemp("batch")
-    load_generator().generate(root / "corpus", quick=True, progress=False, consonants=["p", "t"], speakers=2)
+    with without_overview() as gen:  # no test here looks at the speakers' overview figures
+        gen.generate(root / "corpus", quick=True, progress=False, consonants=["p", "t"], speakers=2)
     (root / "fit.toml").write_text(FIT_SPEC)
     (root / "batch.toml").write_text(BATCH_SPEC)
     return root

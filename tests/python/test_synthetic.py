@@ -27,6 +27,8 @@ from coartic.io import load_trial, read_labels
 from coartic.synthetic_cli import corpus_dir, load_generator
 from coartic.table import CHANNELS, PARAMETERS, TONGUE_CHANNELS, ParameterTable
 
+from conftest import without_overview
+
 F64 = npt.NDArray[np.float64]
 
 
@@ -51,6 +53,14 @@ def manifest(session: Path) -> list[dict[str, str]]:
 @pytest.fixture(scope="module")
 def settings(gen: ModuleType) -> dict[str, Any]:
     return dict(gen.load_settings())
+
+
+@pytest.fixture
+def no_overview() -> Iterator[None]:
+    """Sessions written without their overview figure (conftest.without_overview) for the tests of
+    determinism, staging and interruptions, which never look at it."""
+    with without_overview():
+        yield
 
 
 def truth(session: Path, row: dict[str, str]) -> dict[str, Any]:
@@ -90,7 +100,8 @@ def test_manifest_lists_every_trial_once_with_its_files(
 
 
 def test_same_seed_same_files_other_seed_other_data(
-    session: Path, gen: ModuleType, tmp_path: Path, settings: dict[str, Any], manifest: list[dict[str, str]]
+    session: Path, gen: ModuleType, tmp_path: Path, settings: dict[str, Any], manifest: list[dict[str, str]],
+    no_overview: None,
 ) -> None:
     # The /p/ and /S/ trials again (24 of 252; the whole session's second generation was two thirds
     # of this file's CPU time): each trial draws from its own random stream, so a rerun must give
@@ -131,7 +142,7 @@ def test_rerun_into_an_earlier_session_replaces_it_and_refuses_foreign_directori
 
 
 def test_corpus_synth_is_staged_marked_and_refuses_another_sessions_directory(
-    tmp_path: Path, gen: ModuleType, monkeypatch: pytest.MonkeyPatch
+    tmp_path: Path, gen: ModuleType, monkeypatch: pytest.MonkeyPatch, no_overview: None
 ) -> None:
     # What is tested is the command's staging, marking and refusals, which do not depend on how many
     # trials it writes: the command generates the /p/ trials only (12 of the quick session's 252, a
@@ -185,7 +196,7 @@ def test_demo_writes_its_outputs_whole_and_refuses_a_foreign_directory(tmp_path:
 
 
 def test_an_interrupted_run_is_replaced_by_the_next(
-    gen: ModuleType, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+    gen: ModuleType, tmp_path: Path, monkeypatch: pytest.MonkeyPatch, no_overview: None
 ) -> None:
     out = tmp_path / "s"
     original = gen.write_truth
