@@ -68,9 +68,10 @@ wheel: setup
 
 # `pip install coartic` without extras, as a new user gets it: the wheel of this checkout in a fresh
 # environment, its core dependencies from the package index, then the tests the core must pass
-# (the extras' commands must name their extra: tests/python/test_extras.py).
-CORE_TESTS := tests/python/test_extras.py tests/python/test_io_formats.py tests/python/test_io_carstens.py \
-	tests/python/test_core_model.py tests/python/test_table.py
+# (the extras' commands must name their extra: tests/python/test_extras.py), test_extras.py last: its
+# last test installs an extra over the core (COARTIC_WHEEL), after every test that needs the core alone.
+CORE_TESTS := tests/python/test_io_formats.py tests/python/test_io_carstens.py tests/python/test_core_model.py \
+	tests/python/test_table.py tests/python/test_extras.py
 test-core: core-wheel
 	$(MAKE) core-tests
 
@@ -78,16 +79,19 @@ core-wheel: setup
 	rm -rf build/core-wheel
 	$(PY) -m maturin build --release --quiet -o build/core-wheel
 
-# the tests of test-core on the wheel core-wheel built
+# the tests of test-core on the wheel core-wheel built. The environment is made for this run and
+# thrown away, so nothing is compiled ahead in it: make setup's pip installs pip (the on-demand extra's
+# test runs it), the wheel and the test tools with --no-compile, and the tests' Python writes the
+# bytecode of the modules they import, once for every test process after it (PYTHONDONTWRITEBYTECODE=
+# even where the caller set it). Compiling everything at install (all of SciPy, most of it never
+# imported) and venv's own pip made this target 77 CPU-s, now 48 (bench/results/test_suite_cpu_rest2.txt).
 core-tests:
 	rm -rf build/core-env
-	python3 -m venv build/core-env
-	build/core-env/bin/pip install -q build/core-wheel/coartic-*.whl pytest hypothesis
-	cd build && COARTIC_CORE_ONLY=1 core-env/bin/python -m pytest -q -p no:cacheprovider \
-	  $(addprefix ../,$(CORE_TESTS))
-	# then an extra installed on demand over the core (pip install 'coartic[dataframe]')
-	cd build && COARTIC_WHEEL=$$(ls $$PWD/core-wheel/coartic-*.whl) core-env/bin/python -m pytest -q \
-	  -p no:cacheprovider ../tests/python/test_extras.py -k on_demand
+	python3 -m venv --without-pip build/core-env
+	$(PY) -m pip --python build/core-env/bin/python install -q --no-compile pip build/core-wheel/coartic-*.whl \
+	  pytest hypothesis
+	cd build && PYTHONDONTWRITEBYTECODE= COARTIC_CORE_ONLY=1 COARTIC_WHEEL=$$(ls $$PWD/core-wheel/coartic-*.whl) \
+	  core-env/bin/python -m pytest -q -p no:cacheprovider $(addprefix ../,$(CORE_TESTS))
 
 test-rust:
 	cargo test --profile release-tests --quiet

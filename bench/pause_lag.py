@@ -3,6 +3,8 @@ the synthetic figures moved"): one channel, the rate split (normal -> fast), one
 default (rate-aware, target prior estimated) as bench/real_data.py fits it; the held-out speech RMSE
 by position in the # V C V # utterances, and the pause rows' fitted target, α, θ.
 
+    --corpus synthetic|gestures  the synthetic session (default) or its gestures flavour (needs
+                              build/gestures; --true-lag is the synthetic session's truth only)
     --pauses one|postures     [model] pauses
     --tie PARAMS              also tie these parameters of '#' and '#end' (a [[tie]], e.g. target)
     --true-lag                fix the pauses' δ and k_R at the ground truth's (0.075 s, 1): the lag
@@ -38,11 +40,14 @@ SHOWN = ("target", "alpha", "theta_bw", "theta_fw", "delta")
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--channel", default="LLO")
+    ap.add_argument("--corpus", default="synthetic", choices=("synthetic", "gestures"))
     ap.add_argument("--pauses", default="postures", choices=("postures", "one"))
     ap.add_argument("--tie", default="", help="comma-separated parameters of '#' and '#end' to tie")
     ap.add_argument("--true-lag", action="store_true")
     a = ap.parse_args()
-    corpus = next(c for c in rd.CORPORA if c.key == "synthetic")
+    if a.true_lag and a.corpus != "synthetic":
+        ap.error("--true-lag is the synthetic session's ground truth")
+    corpus = next(c for c in rd.CORPORA if c.key == a.corpus)
     base = rd.corpus_spec(corpus).with_options(channels=(a.channel,), pauses=a.pauses)
     spec = rd.cell_spec(base, "rate-aware", "pooled", "tprior-eb", 1)
     if a.tie:
@@ -57,7 +62,7 @@ def main() -> int:
         acc = sse.setdefault(i, [0.0, 0.0])
         acc[0] += rt * rt * n
         acc[1] += n
-    print(f"{a.channel} pauses {a.pauses} tie [{a.tie}] true lag {a.true_lag}: held-out speech {got['table']:.3f}, "
+    print(f"{a.corpus} {a.channel} pauses {a.pauses} tie [{a.tie}] true lag {a.true_lag}: held-out speech {got['table']:.3f}, "
           f"all {got['table_all']:.3f}, in-sample {got['in_sample']:.3f} mm")
     print("held-out speech by segment (1 = first vowel, 2 = consonant, 3 = last vowel): "
           + ", ".join(f"{i}: {np.sqrt(s / n):.3f}" for i, (s, n) in sorted(sse.items())))

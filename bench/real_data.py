@@ -142,7 +142,7 @@ def cell_spec(base: FitSpec, variant: str, freedom: Sequence[str] | str, reg: st
     name = freedom_name(freedom)
     spec = base.with_options(**model, free=tuple(FREEDOM[name] if name in FREEDOM else freedom),
                              shared=SHARED.get(name, ()), pooled=POOLED.get(name, ()), target_prior=None)
-    if starts is not None and hasattr(spec, "starts"):
+    if starts is not None:
         spec = spec.with_options(starts=starts)
     sd = tprior_sd(reg)
     if reg == "shrink":
@@ -337,8 +337,7 @@ def predict_channel(spec: FitSpec, trained: FitResult, channel: str, test: Seque
     tspec = spec.with_options(channels=(channel,), overrides=spec.parameters.overrides + fixes, beta=fit.beta, channel_bounds=bounds,
                               shrinks=tuple(g for g in spec.priors.shrinks if set(g.phonemes) & set(missing)),
                               shared=(), pooled=(), target_prior=None)
-    if hasattr(tspec, "starts"):  # a handful of free parameters: one local fit
-        tspec = tspec.with_options(starts=1)
+    tspec = tspec.with_options(starts=1)  # a handful of free parameters: one local fit
     notes.append(f"{channel}: /{' '.join(missing)}/ fitted on the test data (no fallback trained), not scored")
     return run(tspec, utterances=list(mapped), quiet=True).table(), mapped, notes
 

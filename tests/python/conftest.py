@@ -1,22 +1,34 @@
-"""Shared fixtures: random models and corpora for the core, the illustrative VCV table.
+"""Shared fixtures: random models and corpora for the core, the illustrative VCV table, synthetic
+sessions without their overview figure.
 
-``random_params`` and ``random_corpus_arrays`` are plain functions (tests import them with
-``from conftest import ...``) and are also offered as fixtures.
+``random_params``, ``random_corpus_arrays`` and ``without_overview`` are plain functions (tests
+import them with ``from conftest import ...``); the first two are also offered as fixtures.
 """
 
 from __future__ import annotations
 
+import os
+import contextlib
 import sys
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from pathlib import Path
+from types import ModuleType
 from typing import Any
 
 import numpy as np
 import numpy.typing as npt
 import pytest
+from hypothesis import settings
 
 # numpy_model.py (the NumPy reference) sits beside the tests; make it importable from any rootdir.
 sys.path.insert(0, str(Path(__file__).parent))
+
+# The property tests draw the same examples on every run (derandomized): make test on a clean
+# checkout then passes or fails on the code, not on the draw, and a failure reproduces. Hunting for
+# new counterexamples is a separate, deliberate run: HYPOTHESIS_PROFILE=explore make test-python.
+settings.register_profile("repeatable", derandomize=True)
+settings.register_profile("explore", derandomize=False)
+settings.load_profile(os.environ.get("HYPOTHESIS_PROFILE", "repeatable"))
 
 F64 = npt.NDArray[np.float64]
 I64 = npt.NDArray[np.int64]
@@ -102,6 +114,21 @@ def illustrative_table() -> Any:
     return make()
 
 
+@contextlib.contextmanager
+def without_overview() -> Iterator[ModuleType]:
+    """The synthetic-session generator (corpus-synthetic/generate.py, coartic.synthetic_cli) with
+    its overview figure left out while the block runs: plot_overview costs about 1 CPU-s a session
+    (and matplotlib's import where nothing else draws), as much as generating 12 trials. For tests
+    that use a session's trials or test its staging, never the figure; test_synthetic.py's module
+    session and flavours still draw it."""
+    from coartic.synthetic_cli import load_generator
+
+    gen = load_generator()
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setattr(gen, "plot_overview", lambda *args, **kwargs: None)
+        yield gen
+
+
 @pytest.fixture(autouse=True, scope="session")
 def single_start_fits() -> Any:
     """Fits in the tests start once from ``[parameters.start]`` (``[fit] starts = 1``, the old
@@ -116,6 +143,21 @@ def single_start_fits() -> Any:
     coartic.fit.spec.DEFAULT_STARTS = 1
     yield default
     coartic.fit.spec.DEFAULT_STARTS = default
+
+
+@pytest.fixture(autouse=True, scope="session")
+def one_blas_thread() -> Any:
+    """BLAS at one thread for the whole session, as `coartic fit` runs it (coartic.fit.runner limits
+    it around every channel's fit, docs/FITTING.md). Tests that call the engines, the multi-start or
+    the pooling's evidence directly ran their small dense solves (SVDs of a few hundred rows by 60) on
+    a multi-threaded OpenBLAS, whose threads spin on cores the other xdist worker and the Rust core
+    need: test_multistart_is_deterministic's two capped searches took 36 CPU-s under load, 0.9 at
+    one thread (test_fit_multistart.py 96 -> 43 CPU-s; bench/results/test_suite_cpu_fit2.txt). The
+    tests compute what they computed; only the BLAS thread count is the one the fits use anyway."""
+    from threadpoolctl import threadpool_limits
+
+    with threadpool_limits(limits=1, user_api="blas"):
+        yield
 
 
 @pytest.fixture(autouse=True)

@@ -82,7 +82,8 @@ def test_summary_ranks_by_held_out_error() -> None:
 def test_cells_are_the_products_own_settings() -> None:
     """A cell sets the spec's own fields (what a spec file with them fits), whatever the base says."""
     rd = bench()
-    base = load_spec(ROOT / "fit" / "ema_german.toml")
+    # the base's own starts set (the test session's default is already 1, conftest): --starts 1 must win
+    base = load_spec(ROOT / "fit" / "ema_german.toml").with_options(starts=32)
     s = rd.cell_spec(base, "rate-aware", rd.FREEDOM["t+shared"], "tprior:0.3", starts=1)
     assert (s.model.dominance, s.model.handover, s.parameters.free, s.parameters.shared, s.priors.target_prior,
             s.fit.starts) == (

@@ -9,6 +9,7 @@ import importlib.util
 import json
 import math
 import sys
+from collections.abc import Iterator
 from pathlib import Path
 from types import ModuleType
 
@@ -22,8 +23,8 @@ from coartic.estimation.problem import build_problem
 from coartic.jobs.fit import fit_job
 from coartic.fit.data import load_utterances
 from coartic.fit.spec import load_spec
-from coartic.synthetic_cli import load_generator
 from coartic.table import CHANNELS, ParameterTable
+from conftest import without_overview
 
 ROOT = Path(__file__).resolve().parents[2]
 # the reduced session: /b v/ only, repetition 1 (7 emotions x 3 vowels x 2 consonants x 2 rates = 84 trials)
@@ -57,8 +58,9 @@ def check_module() -> ModuleType:
 
 
 @pytest.fixture(scope="module")
-def gen() -> ModuleType:
-    return load_generator()
+def gen() -> Iterator[ModuleType]:
+    with without_overview() as g:  # no test here looks at the session's overview figure
+        yield g
 
 
 @pytest.fixture(scope="module")
@@ -200,14 +202,21 @@ def test_mcmc_intervals_of_the_deviations(session: Path, fitted: tuple[Path, Pat
 
     spec = load_spec(fitted[0])
     table = ParameterTable.load(fitted[1] / "table.json")
-    # 18 walkers, the fewest emcee takes for the 8 dimensions (7 targets and the noise): the sampler
-    # still runs to its convergence rule (50 tau, tau stable within 1 %, R-hat, ESS), so the intervals
-    # are as precise (measured 0.085-0.096 mm wide, as with 32 walkers; bulk ESS >= 3700) at two
-    # thirds of the walker-steps (3300 and 4300 steps against 32 walkers' 3750 and 2850); checks
-    # every 100 steps stop it nearer the step the rule is met
+    # 18 walkers, the fewest emcee takes for the 8 dimensions (7 targets and the noise), for 1600
+    # steps, checked once at the end. Every convergence check must pass there but the 1 % stability
+    # of tau (asserted below): the chains are past 50 tau (tau 27-29), R-hat and ESS pass. Run to the
+    # sampler's own stopping rule, the chains waited 3400-3500 steps for tau's estimate to change by
+    # less than 1 % between checks 100 steps apart; the intervals are as wide either way (0.085-0.096
+    # mm at 1600 steps, bulk ESS >= 1700, N/tau 59-61; 0.085-0.096 mm converged). The rule itself:
+    # test_mcmc_sampler.py.
+    steps = 1600
     got = session_intervals(spec, load_utterances(spec), table, tmp_path / "mcmc",
-                            SamplerSettings(n_walkers=18, n_ensembles=2, min_steps=300, chunk_steps=100),
-                            phonemes=["a"])
+                            SamplerSettings(n_walkers=18, n_ensembles=2, min_steps=steps, chunk_steps=steps,
+                                            max_steps=steps), phonemes=["a"])
+    for channel in ("LR", "LLO"):
+        check = json.loads((tmp_path / "mcmc" / channel / "a" / "summary.json").read_text())["convergence"]
+        assert check["n_steps"] == steps and not check["partial"], check
+        assert all(p.startswith("autocorrelation time not yet stable") for p in check["problems"]), check
     truth = ParameterTable.load(session / "ground_truth.json").metadata["emotions"]["channels"]
     assert {(d.channel, d.emotion) for d in got} == {(c, e) for c in ("LR", "LLO") for e in
                                                      ("joy", "surprise", "sadness", "disgust", "anger", "fear")}

@@ -19,6 +19,7 @@ from coartic.fit.spec import FitSpec, parse_spec
 from coartic.fit.simulate import vcv_utterances
 from coartic.errors import SpecError
 
+from conftest import without_overview
 from fit_helpers import PAPER_TOML
 
 FREE = ("target", "alpha", "theta_bw", "theta_fw", "k_r")
@@ -106,9 +107,8 @@ def test_mistakes_are_named(trials: list) -> None:  # type: ignore[type-arg]
 @pytest.mark.slow
 def test_trials_from_a_manifest_and_a_spec_file(tmp_path) -> None:  # type: ignore[no-untyped-def]
     """fit(manifest path) reads the recordings as a fit spec's [corpus] does; from_spec takes a file."""
-    from coartic.synthetic_cli import load_generator
-
-    manifest = load_generator().generate(tmp_path / "session", quick=True, progress=False, consonants=["p"])
+    with without_overview() as gen:  # the trials are what is fitted; the session's figure is not used
+        manifest = gen.generate(tmp_path / "session", quick=True, progress=False, consonants=["p"])
     model = Coarticulation(PAPER, channels=["LLO"], staging={"enabled": False}).fit(manifest)
     assert model.result_ is not None and model.result_.channels["LLO"].rmse < 0.3
     assert model.score(manifest) == pytest.approx(model.result_.channels["LLO"].rmse, rel=1e-9)

@@ -153,7 +153,9 @@ def test_to_dataframe_names_its_extra(fitted: tuple[Path, Path], tmp_path: Path)
 @pytest.mark.skipif(not os.environ.get("COARTIC_WHEEL"), reason="make test-core, after the core tests: the "
                     "extra installed on demand into the core environment")
 def test_an_extra_installs_on_demand(fitted: tuple[Path, Path], tmp_path: Path) -> None:
-    """`pip install 'coartic[dataframe]'` over the core install, then what refused works."""
+    """`pip install 'coartic[dataframe]'` over the core install, then what refused works. make test-core
+    runs it in the same session as the core's tests, so it stays the last test of this file and this
+    file the last of CORE_TESTS (Makefile): every test before it sees the core alone."""
     wheel = os.environ["COARTIC_WHEEL"]
     pip = subprocess.run([sys.executable, "-m", "pip", "install", "-q", f"coartic[dataframe] @ file://{wheel}"],
                          capture_output=True, text=True, timeout=900)

@@ -15,6 +15,7 @@ from coartic.jobs.fit import fit_job
 from coartic.fit.spec import load_spec
 from coartic.table import ParameterTable
 
+from conftest import without_overview
 from fit_helpers import PAPER_TOML
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -25,10 +26,9 @@ def quick_session(tmp_path_factory: pytest.TempPathFactory) -> Path:
     """The /p f t/ trials of the quick session, the only ones these tests select: the same trials as
     the whole session's (each trial's random stream is its own), a seventh of its generation;
     `coartic corpus synth` itself is tested in test_synthetic.py."""
-    from coartic.synthetic_cli import load_generator
-
     out = tmp_path_factory.mktemp("session")
-    load_generator().generate(out / "s", quick=True, progress=False, consonants=["p", "f", "t"])
+    with without_overview() as gen:  # the session's trials are what is fitted; its figure is not used
+        gen.generate(out / "s", quick=True, progress=False, consonants=["p", "f", "t"])
     return out / "s"
 
 
@@ -73,7 +73,9 @@ EMA_RMSE_LIMIT = {"LA": 0.60, "JO": 0.21}
 
 @pytest.mark.slow
 def test_real_ema_rmse_does_not_get_worse(tmp_path: Path) -> None:
-    result = fit_job(load_spec(ROOT / "fit" / "ema_german.toml"), tmp_path, quiet=True)
+    # no HTML report: a fifth of this test's CPU time, and nothing here reads it (the report of a
+    # real-EMA fit is written and read by test_fit_multistart's CLI test)
+    result = fit_job(load_spec(ROOT / "fit" / "ema_german.toml"), tmp_path, quiet=True, report=False)
     assert not result.interrupted
     for ch, limit in EMA_RMSE_LIMIT.items():
         assert result.channels[ch].rmse < limit, f"{ch}: RMSE {result.channels[ch].rmse:.3f} mm > {limit}"

@@ -11,6 +11,7 @@ from typer.testing import CliRunner
 
 from coartic.cli import app
 from coartic.mcmc.sampler import ChainStore
+from conftest import without_overview
 
 SPEC = """
 name = "mcmc cli test"
@@ -41,15 +42,23 @@ max_steps = 200
 def fitted(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, Path]:
     from coartic.jobs.fit import fit_job
     from coartic.report.html import write_report
-    from coartic.synthetic_cli import load_generator
-
     root = tmp_path_factory.mktemp("mcmc_cli")
-    manifest = load_generator().generate(root / "session", quick=True, progress=False, consonants=["p"])
+    with without_overview() as gen:  # the trials are what is fitted and sampled; the session's figure is not used
+        manifest = gen.generate(root / "session", quick=True, progress=False, consonants=["p"])
     spec = root / "spec.toml"
     spec.write_text(SPEC.format(manifest=manifest, mcmc=MCMC))
     result = fit_job(spec, root / "fit", quiet=True)  # the least-squares fit ignores [mcmc]
     write_report(result, root / "fit")
     return spec, root / "fit"
+
+
+def without_plots(spec: Path, tmp_path: Path) -> Path:
+    """The fixture's spec with ``[mcmc] plots = false``, for the tests that do not look at the
+    plots: the trace, corner and predictive plots of a posterior cost more CPU than these short
+    runs' sampling (test_unconverged_run_says_so_writes_everything_and_resumes checks them)."""
+    quiet = tmp_path / "no_plots.toml"
+    quiet.write_text(spec.read_text().replace("[mcmc]\n", "[mcmc]\nplots = false\n"))
+    return quiet
 
 
 @pytest.mark.slow
@@ -107,6 +116,7 @@ def test_ctrl_c_in_the_command_saves_and_the_rerun_resumes(fitted: tuple[Path, P
     import time
 
     spec, fit = fitted
+    spec = without_plots(spec, tmp_path)
     out = tmp_path / "mcmc"
     cmd = [sys.executable, "-m", "coartic.cli", "mcmc", str(spec), "--fit", str(fit), "--out", str(out),
            "--max-steps", "2000", "--quiet"]
@@ -141,7 +151,7 @@ def test_inference_data_and_dataframe_from_the_library_function(fitted: tuple[Pa
 
     spec, fit = fitted
     out = tmp_path / "mcmc"
-    result = sample(spec, fit, out)
+    result = sample(without_plots(spec, tmp_path), fit, out)
     assert [r.label for r in result.runs] == ["LLO /p/"] and not result.interrupted and not result.converged
     run = result.runs[0]
     idata = az.from_netcdf(out / "LLO" / "p" / "posterior.nc")
@@ -189,11 +199,10 @@ def test_mcmc_command_samples_a_speakers_fit(tmp_path: Path) -> None:
     are sampled (summary.json), the table gets the phoneme's quantiles only, and a spec without the
     speakers is refused for that table (exit 2, naming both)."""
     from coartic.jobs.fit import fit_job
-    from coartic.synthetic_cli import load_generator
-
-    manifest = load_generator().generate(tmp_path / "session", quick=True, progress=False, consonants=["p"],
-                                         speakers=2)
-    mcmc = MCMC.replace("max_steps = 200", "max_steps = 100").replace("walkers = 14", "walkers = 18")
+    with without_overview() as gen:
+        manifest = gen.generate(tmp_path / "session", quick=True, progress=False, consonants=["p"], speakers=2)
+    # the fewest steps the MCMC section takes (one chunk); no plots (what is checked is the sampled names)
+    mcmc = MCMC.replace("max_steps = 200", "max_steps = 100").replace("walkers = 14", "walkers = 18") + "plots = false\n"
     spec = tmp_path / "spec.toml"
     text = SPEC.format(manifest=manifest, mcmc=mcmc).replace('select = { vowel = ["a"] }',
                                                               'select = { vowel = ["a"], repetition = ["1"] }')

@@ -32,11 +32,19 @@ def study(tmp_path_factory: pytest.TempPathFactory) -> Path:
     return out
 
 
-@pytest.fixture()
-def driver() -> Any:
+@pytest.fixture(scope="module")
+def browser() -> Any:
+    """One headless Chromium for the file's tests: each start of one costs about a CPU-second."""
     d = chromium_driver()
     yield d
     d.quit()
+
+
+@pytest.fixture()
+def driver(browser: Any) -> Any:
+    """The file's Chromium without the cookies of an earlier test: each test's participants are new."""
+    browser.execute_cdp_cmd("Network.clearBrowserCookies", {})
+    return browser
 
 
 def rows(db: Path) -> list[tuple[Any, ...]]:
