@@ -9,6 +9,7 @@ import importlib.util
 import json
 import math
 import sys
+from collections.abc import Iterator
 from pathlib import Path
 from types import ModuleType
 
@@ -22,8 +23,8 @@ from coartic.estimation.problem import build_problem
 from coartic.jobs.fit import fit_job
 from coartic.fit.data import load_utterances
 from coartic.fit.spec import load_spec
-from coartic.synthetic_cli import load_generator
 from coartic.table import CHANNELS, ParameterTable
+from conftest import without_overview
 
 ROOT = Path(__file__).resolve().parents[2]
 # the reduced session: /b v/ only, repetition 1 (7 emotions x 3 vowels x 2 consonants x 2 rates = 84 trials)
@@ -57,8 +58,9 @@ def check_module() -> ModuleType:
 
 
 @pytest.fixture(scope="module")
-def gen() -> ModuleType:
-    return load_generator()
+def gen() -> Iterator[ModuleType]:
+    with without_overview() as g:  # no test here looks at the session's overview figure
+        yield g
 
 
 @pytest.fixture(scope="module")

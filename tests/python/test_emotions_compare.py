@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import csv
 import math
+from collections.abc import Iterator
 from pathlib import Path
 from types import ModuleType
 from typing import Any
@@ -19,8 +20,8 @@ from coartic.evaluation.compare import heldout_se, vary
 from coartic.jobs.compare import compare
 from coartic.evaluation.heldout import SplitScore
 from coartic.fit.spec import load_spec
-from coartic.synthetic_cli import load_generator
 
+from conftest import without_overview
 from test_emotions import SPEC as EMOTIVE_SPEC
 
 # the reduced emotive spec of test_emotions on LR, validated by rate (fit one rate, score the other),
@@ -52,8 +53,9 @@ def session(out: Path, gen: ModuleType, monkeypatch: pytest.MonkeyPatch | None =
 
 
 @pytest.fixture(scope="module")
-def gen() -> ModuleType:
-    return load_generator()
+def gen() -> Iterator[ModuleType]:
+    with without_overview() as g:  # no test here looks at the sessions' overview figures
+        yield g
 
 
 def test_compare_chooses_the_emotion_factor_where_the_emotions_move_the_lips(tmp_path: Path, gen: ModuleType) -> None:

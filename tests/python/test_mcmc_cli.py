@@ -11,6 +11,7 @@ from typer.testing import CliRunner
 
 from coartic.cli import app
 from coartic.mcmc.sampler import ChainStore
+from conftest import without_overview
 
 SPEC = """
 name = "mcmc cli test"
@@ -41,10 +42,9 @@ max_steps = 200
 def fitted(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, Path]:
     from coartic.jobs.fit import fit_job
     from coartic.report.html import write_report
-    from coartic.synthetic_cli import load_generator
-
     root = tmp_path_factory.mktemp("mcmc_cli")
-    manifest = load_generator().generate(root / "session", quick=True, progress=False, consonants=["p"])
+    with without_overview() as gen:  # the trials are what is fitted and sampled; the session's figure is not used
+        manifest = gen.generate(root / "session", quick=True, progress=False, consonants=["p"])
     spec = root / "spec.toml"
     spec.write_text(SPEC.format(manifest=manifest, mcmc=MCMC))
     result = fit_job(spec, root / "fit", quiet=True)  # the least-squares fit ignores [mcmc]
@@ -199,10 +199,8 @@ def test_mcmc_command_samples_a_speakers_fit(tmp_path: Path) -> None:
     are sampled (summary.json), the table gets the phoneme's quantiles only, and a spec without the
     speakers is refused for that table (exit 2, naming both)."""
     from coartic.jobs.fit import fit_job
-    from coartic.synthetic_cli import load_generator
-
-    manifest = load_generator().generate(tmp_path / "session", quick=True, progress=False, consonants=["p"],
-                                         speakers=2)
+    with without_overview() as gen:
+        manifest = gen.generate(tmp_path / "session", quick=True, progress=False, consonants=["p"], speakers=2)
     # the fewest steps the MCMC section takes (one chunk); no plots (what is checked is the sampled names)
     mcmc = MCMC.replace("max_steps = 200", "max_steps = 100").replace("walkers = 14", "walkers = 18") + "plots = false\n"
     spec = tmp_path / "spec.toml"
