@@ -1,7 +1,7 @@
 """Multi-start estimation (coartic.fit.multistart): its cost as a ratio to one start, the share of
 starts that reach the best optimum, against nlopt's global MLSL and against the single start.
 
-    .venv/bin/python bench/multistart.py [synthetic|german|workers|heldout|cost|cost-per-phoneme|cost-gestures|confirm-gestures ...]
+    .venv/bin/python bench/multistart.py [synthetic|german|workers|heldout|cost|cost-per-phoneme|cost-gestures|confirm-gestures|return-test ...]
                                                                       (default: the first four)
 
 - synthetic: LLO of the synthetic session, the 150 trials of /p f t l s/ (fit/synthetic.toml;
@@ -27,7 +27,10 @@ starts that reach the best optimum, against nlopt's global MLSL and against the 
   confirm-gestures: the stopping rule's confirming start on a part of the gestures flavour, drawn
   entry by entry (the default), per family, and the log entries only, and its return test: perturbed
   restarts from start 0's optimum, every entry moved by N(0, 0.5) (before HOP_BOX) and as
-  multistart.hop moves them (bench/results/multistart_confirm-gestures.txt).
+  multistart.hop moves them (bench/results/multistart_confirm-gestures.txt). return-test: where the
+  return test's restarts end on the gestures flavour's LLO (repetition 1) and the German EMA's per-phoneme
+  θ from θ = 100 and 15, against start 0's end (multistart.restart_verdict;
+  bench/results/multistart_return-test.txt).
   Costs are evaluations (exact) and CPU seconds of this process (time.process_time: every thread,
   the core's rayon workers included; a short fit repeated, MIN_CPU): the machine is shared, and
   wall times there measure the other jobs.
@@ -399,6 +402,90 @@ def confirm_gestures() -> list[str]:
     return out
 
 
+def return_test() -> list[str]:
+    """Where the return test's restarts end (multistart.restart_verdict): start 0's staged fit, then
+    the restarts of fit_multistart's return test (multistart.hop, the draws of default_rng([seed, 0,
+    1]), a joint fit within start 0's evaluations), each with its Δχ² from start 0's end (by the
+    residual variance), the distance of the fitted curves (RMS over the samples, as a share of the
+    residual RMSE, and squared in units of s²), the highest objective on the straight segment between
+    the two (Δχ² above the higher end), its status and verdict; on the gestures flavour (LLO, normal
+    rate repetition 1) each end polished by a joint fit with ftol = xtol = gtol = 1e-12 (600
+    evaluations), and start 0's; on the German EMA (JO of 0024, target and θ free, per phoneme, as
+    tests/python/test_fit_multistart.py's start-independence test) from θ = 100 (seed 1) and 15 (seed 0)."""
+    import numpy as np
+
+    from coartic.estimation.problem import build_problem
+    from coartic.fit.staged import fit_staged
+
+    out: list[str] = []
+
+    def say(line: str) -> None:
+        out.append(line)
+        print(line, flush=True)
+
+    def study(label: str, prob: Any, engine: str, options: dict[str, Any], stages: Any, seed: int, n: int,
+              polish: bool) -> None:
+        full = prob.packing
+
+        def fresh(x: Any) -> Any:
+            p = prob.with_packing(full if x is None else full.with_free(full.free, full.beta_free, *full.unpack(x)))
+            p.nfev = p.njev = 0
+            return p
+
+        tight = {"ftol": 1e-12, "xtol": 1e-12, "gtol": 1e-12, "max_nfev": 600}
+        nv, m = prob.data.n_valid, full.n_free
+        f0, r0, st0 = fit_staged(fresh(None), engine, options, stages)
+        x0, s0 = f0.packing.pack(), st0[-1].sse_end
+        s2 = s0 / (nv - m)
+        say(f"{label}: {nv} samples, {m} free; start 0 objective {s0:.4f}, data RMSE {prob.data_rmse(x0):.4f} mm, "
+            f"{f0.nfev} evals [{r0.status}]; s² = {s2:.4g}")
+        if polish:
+            fp, _, sp = fit_staged(fresh(x0), engine, tight, None)
+            say(f"  start 0's end polished (tolerances 1e-12): objective {sp[-1].sse_end:.4f} ({fp.nfev} evals)")
+        tr0 = multistart.trajectory(prob, x0)
+        seg = prob.with_packing(full)
+        seg.monitor = None
+        rng = np.random.default_rng([seed, 0, 1])
+        for k in range(n):
+            f, r, st = fit_staged(fresh(multistart.hop(full, x0, rng)), engine, multistart._capped(engine, options, f0.nfev),
+                                  None)
+            xe, se = f.packing.pack(), st[-1].sse_end
+            tre = multistart.trajectory(prob, xe)
+            d2 = float(np.sum((tre - tr0) ** 2))
+            top = max(float(seg.residuals(x0 + a * (xe - x0)) @ seg.residuals(x0 + a * (xe - x0)))
+                      for a in np.linspace(0.1, 0.9, 9))
+            verdict = multistart.restart_verdict(s0, se, tr0, tre, r.status, nv, m) or "not back"
+            line = (f"  restart {k + 1}: objective {se:.4f}, Δχ² {(se - s0) / s2:+.3f}, curves {np.sqrt(d2 / nv) / np.sqrt(s0 / nv):.4f} "
+                    f"of the RMSE ({d2 / s2:.2f} s²), segment's top {(top - max(s0, se)) / s2:+.2f} s² above the higher end, "
+                    f"{f.nfev} evals [{r.status}]: {verdict}")
+            if polish:
+                fp, _, sp = fit_staged(fresh(xe), engine, tight, None)
+                line += f"; polished (1e-12): {sp[-1].sse_end:.4f}, Δχ² {(sp[-1].sse_end - s0) / s2:+.3f}"
+            say(line)
+
+    spec, utts = gestures_data(rep1=True)
+    study(f"gestures flavour LLO, normal rate repetition 1 ({len(utts)} trials; fit/gestures_rate_aware.toml), seed 0",
+          build_problem(spec.estimation_settings(), utts, "LLO"), spec.engine.name, spec.engine.options,
+          spec.staging.stages if spec.staging.enabled else None, 0, 3, True)
+    sys.path.insert(0, str(ROOT / "tests" / "python"))
+    import tempfile
+
+    from coartic.fit.runner import start_values
+    from test_fit_multistart import small_problem
+
+    for theta, seed in ((100.0, 1), (15.0, 0)):
+        gspec, gutts, _ = small_problem(Path(tempfile.mkdtemp()), theta, 32)
+        settings = gspec.estimation_settings()
+        prob = build_problem(settings, gutts, "JO")
+        start = start_values(gspec, "JO", prob.phonemes)
+        if start is not None:
+            prob = build_problem(settings, gutts, "JO", start=start)
+        study(f"German EMA JO, 0024, per-phoneme target and theta, from theta = {theta:g}, seed {seed}", prob,
+              gspec.engine.name, gspec.engine.options, gspec.staging.stages if gspec.staging.enabled else None, seed, 2,
+              False)
+    return out
+
+
 def main(parts: Sequence[str]) -> None:
     lines: list[str] = []
     name = "multistart.txt" if set(parts) >= {"synthetic", "german", "workers"} else f"multistart_{'_'.join(parts)}.txt"
@@ -436,13 +523,15 @@ def main(parts: Sequence[str]) -> None:
                           "(fit/gestures_rate_aware.toml)", spec, utts, ["LLO", "JO"], before=False)
         elif part == "confirm-gestures":
             lines += confirm_gestures()
+        elif part == "return-test":
+            lines += return_test()
         elif part == "heldout":
             lines += heldout()
         elif part.startswith("heldout-"):  # one kind of fit only, e.g. heldout-default (the run is long)
             lines += heldout([part.removeprefix("heldout-").replace("-", " ")])
         else:
             raise SystemExit(f"unknown part {part!r} (synthetic, german, workers, heldout, cost, cost-per-phoneme, "
-                             "cost-gestures, cost-gestures-rep1, confirm-gestures)")
+                             "cost-gestures, cost-gestures-rep1, confirm-gestures, return-test)")
         save()
     print(f"saved bench/results/{name}")
 
