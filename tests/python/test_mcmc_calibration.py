@@ -17,20 +17,23 @@ to within 1 % of the prior width.
 Sizes, and why they keep the tests' power (issue 28, item 7). Both tests ask that at least 90 % of
 the n identified truths lie inside their 95 % intervals (``calibrated``). Were the intervals
 calibrated and independent, the count covered would be Binomial(n, 0.95), and the criterion would
-wrongly fail with probability P(B < 0.9 n): 0.073 at n = 45, 0.086 at n = 10. A posterior too
+wrongly fail with probability P(B < 0.9 n): 0.053 at n = 41, 0.086 at n = 10. A posterior too
 narrow by a factor of two (its "95 %" interval as wide as its true 68 % one) covers 68 %: the
-criterion fails it with probability 0.9997 at n = 45 and 0.88 at n = 10; one covering 80 % with
-0.962 and 0.62. (test_the_criterion_tells_calibrated_from_too_narrow_intervals_at_these_sizes
-computes these, and for n = 42, the fewest identified the session test accepts: 0.057 / 0.9994 /
-0.942.) The session test used the /p t f/ trials (36 trials; 30 dimensions and 62 walkers per
-channel; n = 54: 0.052 / 1.0000 / 0.972). It now uses the /p t/ trials (24 trials; 26
-dimensions, 54 walkers; with the session's seed n = 45 of 48, 44 covered, 36 by the 68 %
-intervals), which keeps that power at two thirds of the CPU time (this file: 186 -> 122 CPU-s,
-bench/results/test_suite_cpu_fit.txt; the chains converged at 8000 steps on LLO and 7000 on JO,
-as before). Not chosen: one channel instead of two
-halves the sampling but leaves n = 24 (0.116 / 0.993 / 0.885); one repetition instead of two cost
-nearly as much per step in a trial run (the walkers' overhead, not the data, dominates a step)
-and would widen the intervals.
+criterion fails it with probability 0.9991 at n = 41 and 0.88 at n = 10; one covering 80 % with
+0.934 and 0.62. (test_the_criterion_tells_calibrated_from_too_narrow_intervals_at_these_sizes
+computes these, and for n = 40, the fewest identified the session test accepts: 0.048 / 0.9989 /
+0.924; below 40 the false alarm jumps to 0.13 at n = 39.) The session test used the /p t f/ trials
+(36 trials; 30 dimensions and 62 walkers per channel; n = 54: 0.052 / 1.0000 / 0.972), then the
+/p t/ trials (24 trials, repetitions 1-2; 26 dimensions, 54 walkers; n = 45 of 48: 0.073 / 0.9997
+/ 0.962). It now takes repetition 1 of the /p t/ trials (12 trials; the same 26 dimensions and 54
+walkers; with the session's seed n = 41 of 48, 40 covered, 31 by the 68 % intervals; converged at
+6000 steps on LLO, tau_max 115, and 7000 on JO, tau_max 135): half the data per step, and the
+sampling is most of this test's CPU (the core's residual_sums_batch), so the test takes half the CPU
+time (101 CPU-s against about 220 measured the same day, quiet machine). The power against twice
+too narrow intervals is kept (0.9991 against 0.9997, and the realised power check below fails the
+68 % intervals: 31 of 41); against 80 % coverage it is 0.934 instead of 0.962, and the false alarm
+lower (0.053 instead of 0.073). Not chosen: one channel instead of two halves the sampling but
+leaves n = 24 (0.116 / 0.993 / 0.885).
 
 Both tests also apply the criterion to the same run's 68 % intervals (q16-q84, twice too narrow)
 and require it to FAIL: the power realised on these very draws, not only on paper. The binomial is
@@ -54,7 +57,7 @@ from coartic.mcmc.summary import covers
 from coartic.mcmc.sampler import SamplerSettings
 from coartic.table import PARAMETERS
 
-MIN_IDENTIFIED_SESSION = 42  # of 6 phonemes x 4 parameters x 2 channels: a few k_R on JO are not pinned down
+MIN_IDENTIFIED_SESSION = 40  # of 6 phonemes x 4 parameters x 2 channels: a few k_R on JO are not pinned down
 LEVEL_95 = ("q2.5", "q97.5")
 LEVEL_68 = ("q16", "q84")  # the power check's deliberately too narrow intervals
 
@@ -94,6 +97,7 @@ SESSION_SPEC = """
 name = "calibration on the synthetic session"
 [corpus]
 manifest = "{manifest}"
+select = {{ repetition = ["1"] }}  # half the data per step (module docstring, "Sizes")
 [model]
 channels = ["LLO", "JO"]
 reference_phoneme = "a"
@@ -124,9 +128,9 @@ max_steps = 20000
 # the same (same seed, chunks continue one random state), at most 500 steps longer before the
 # summary is taken: 54 identified, 52 covered in both runs.
 chunk_steps = 1000
-# and the first check at 6000 steps: at tau_max ~ 135-150 no chain shorter than 50 tau = 6750 can
-# pass, and none did before (the checks at 1000-5000 steps, a sixth of the command's CPU time with the
-# later ones, only said "chain too short"). Same chains, same stopping step, same summary.
+# and the first check at 6000 steps: at tau_max ~ 115-135 no chain shorter than 50 tau = 5750 can
+# pass (the checks at 1000-5000 steps, two fifths of the checks' CPU, a sixth of the command's, only
+# said "chain too short"). Same chains, same stopping step, same summary.
 min_steps = 6000
 plots = false
 """
@@ -141,7 +145,7 @@ def test_synthetic_session_truth_inside_95_percent_interval_for_90_percent_of_id
     from coartic.synthetic_cli import load_generator
 
     generator = load_generator()
-    # the /p t/ trials of the quick session (repetitions 1-2, both rates): 24 trials (module docstring)
+    # the /p t/ trials of the quick session (both rates; the spec selects repetition 1: 12 trials, module docstring)
     manifest = generator.generate(tmp_path / "session", quick=True, progress=False, consonants=["p", "t"])
     spec = tmp_path / "spec.toml"
     spec.write_text(SESSION_SPEC.format(manifest=manifest, truth=generator.GROUND_TRUTH))
@@ -224,6 +228,6 @@ def test_the_criterion_tells_calibrated_from_too_narrow_intervals_at_these_sizes
         k = next(c for c in range(n + 1) if calibrated(c, n))
         return float(binom.cdf(k - 1, n, coverage))
 
-    for n, false_alarm, power_68, power_80 in ((MIN_IDENTIFIED_SESSION, 0.06, 0.999, 0.94), (45, 0.08, 0.999, 0.96),
+    for n, false_alarm, power_68, power_80 in ((MIN_IDENTIFIED_SESSION, 0.05, 0.998, 0.92), (41, 0.06, 0.999, 0.93),
                                                (10, 0.09, 0.87, 0.62)):
         assert fails(n, 0.95) <= false_alarm and fails(n, 0.68) >= power_68 and fails(n, 0.80) >= power_80, n
