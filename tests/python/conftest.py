@@ -169,26 +169,13 @@ def multistart_default(request: pytest.FixtureRequest, single_start_fits: int, m
         monkeypatch.setattr(coartic.fit.spec, "DEFAULT_STARTS", single_start_fits)
 
 
-# The files whose tests take longest, longest first (seconds per file, summed from a one-worker run's
-# `pytest tests/python --durations=60` on a quiet machine, 2026-12-02 at d4ac328; docs/ARCHITECTURE.md, Tests). `make test-python` hands whole files to the two
+# The files whose tests take longest, longest first (CPU seconds of a whole run, `pytest -n 2
+# --durations=50 tests/python`; docs/ARCHITECTURE.md, Tests). `make test-python` hands whole files to the two
 # workers (`--dist loadfile`, so a module's fixtures are built once) in collection order, each
 # worker taking the next file when it is nearly done: the longest files first, then every other
 # file holding a test marked `slow`, then the rest, so that no long file starts last and leaves one
 # worker idle at the end. Only the order changes: every test still runs.
-LONGEST_FIRST = (
-    "test_mcmc_calibration.py",  # 111 s
-    "test_perceive_browser.py",  # 50
-    "test_emotions.py",  # 46
-    "test_fit_multistart.py",  # 32
-    "test_emotions_compare.py",  # 29
-    "test_batch_cluster.py",  # 28
-    "test_perceive_analysis.py",  # 28
-    "test_fit_run.py",  # 27
-    "test_emotions_dynamics.py",  # 24
-    "test_mcmc_cli.py",  # 20
-    "test_mcmc_sampler.py",  # 18
-    "test_batch.py",  # 17
-)
+LONGEST_FIRST = ("test_mcmc_calibration.py",)
 
 
 def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
