@@ -304,6 +304,14 @@ def trajectory(problem: ChannelProblem, x: FloatArray) -> FloatArray:
     return np.array(r[: problem.data.corpus.n_samples])
 
 
+def residual_variance(objective: float, n_valid: int, n_free: int) -> float:
+    """One unit of Δχ² on the objective's scale: the residual variance objective / (n_valid - n_free)
+    (n_valid when the free parameters are as many as the samples), as ``cluster`` and
+    ``restart_verdict`` tell optima apart."""
+    dof = n_valid - n_free if n_valid > n_free else max(n_valid, 1)
+    return max(objective, 1e-300) / dof
+
+
 def same_curves(tr: FloatArray, ref: FloatArray, objective: float, n_valid: int) -> bool:
     """The curve half of ``cluster``: the fitted curves ``tr`` and ``ref`` (``trajectory``) differ by at
     most ``TRAJ_RTOL`` of the residual RMSE √(objective/n_valid) (RMS over the ``n_valid`` samples)."""
@@ -330,8 +338,7 @@ def restart_verdict(objective0: float, objective: float, tr0: FloatArray, tr: Fl
     in its curves: counted as back (tried, with ``max-evaluations``), the search stopped there and the
     start-independence test failed (bench/multistart.py return-test)."""
     same_curve = same_curves(tr, tr0, objective0, n_valid)
-    dof = n_valid - n_free if n_valid > n_free else max(n_valid, 1)
-    in_optimum = same_curve and abs(objective - objective0) <= max(objective0, 1e-300) / dof
+    in_optimum = same_curve and abs(objective - objective0) <= residual_variance(objective0, n_valid, n_free)
     if status == "converged" and (in_optimum or (same_curve and objective >= objective0)):
         return "back"
     return "better" if objective < objective0 and not in_optimum else ""
@@ -340,20 +347,18 @@ def restart_verdict(objective0: float, objective: float, tr0: FloatArray, tr: Fl
 def cluster(xs: Sequence[FloatArray], sses: Sequence[float], trajectories: Sequence[FloatArray], n_valid: int,
             starts: Sequence[int], statuses: Sequence[str], n_free: int = 0) -> list[Optimum]:
     """Group end points into distinct optima, best first: one optimum when their objectives
-    (``sses``) differ by at most the residual variance objective/(n_valid - n_free) (Δχ² ≤ 1) and the fitted curves by at most
-    ``TRAJ_RTOL`` of the residual RMSE (RMS over the ``n_valid`` samples). Parameters may differ
+    (``sses``) differ by at most the residual variance (``residual_variance``: Δχ² ≤ 1) and the
+    fitted curves by at most ``TRAJ_RTOL`` of the residual RMSE (RMS over the ``n_valid`` samples). Parameters may differ
     inside an optimum: the data do not identify them (``spread_within``)."""
     order = np.argsort(np.asarray(sses), kind="stable")
     optima: list[Optimum] = []
-    n = max(n_valid, 1)
-    dof = n_valid - n_free if n_valid > n_free else n
     for i in order:
         s, x, tr = float(sses[i]), xs[i], trajectories[i]
         if not np.isfinite(s):
             continue
         for o in optima:
             assert o.trajectory is not None
-            close_sse = s - o.objective <= max(o.objective, 1e-300) / dof
+            close_sse = s - o.objective <= residual_variance(o.objective, n_valid, n_free)
             if close_sse and same_curves(tr, o.trajectory, o.objective, n_valid):
                 o.starts.append(int(starts[i]))
                 o.members.append(np.array(x))
@@ -503,8 +508,8 @@ def fit_multistart(problem: ChannelProblem, engine: str, options: dict[str, Any]
         """The first part of the stopping rule: up to ``n`` perturbed restarts (``hop``) from start
         0's optimum, each refitted (the joint fit) within one single fit's evaluations, until one
         comes back (``restart_verdict``: converged in that optimum, or in its fitted curves no
-        lower): "" when in it, words saying where when next to it, None when none came back. A restart that finds a better optimum
-        ends the test (None: the search goes on); one that ends worse elsewhere, or stops at its
+        lower): "" when in it, words saying where when next to it, None when none came back. A
+        restart that finds a better optimum ends the test (None: the search goes on); one that ends worse elsewhere, or stops at its
         budget, is followed by the next. The end points are start 0's (as a chain's); a better end
         becomes start 0's end. Second: interrupted."""
         prob0, res0, sse0 = finals[0]
@@ -512,7 +517,6 @@ def fit_multistart(problem: ChannelProblem, engine: str, options: dict[str, Any]
         x0 = prob0.packing.pack()
         tr0 = trajectory(problem, x0)
         budget = max(int(one_fit()), 1)
-        dof = problem.data.n_valid - full.n_free if problem.data.n_valid > full.n_free else max(problem.data.n_valid, 1)
         for _ in range(n):
             f, r, st = fit_staged(fresh(hop(full, x0, rng)), engine, _capped(engine, options, budget), None)
             tick("return test")
@@ -529,7 +533,7 @@ def fit_multistart(problem: ChannelProblem, engine: str, options: dict[str, Any]
             if verdict == "better":  # a better optimum next to start 0's: the search goes on
                 return None, False
             if verdict == "back":
-                dchi2 = (s - sse0) / max(sse0 / dof, 1e-300)
+                dchi2 = (s - sse0) / residual_variance(sse0, problem.data.n_valid, full.n_free)
                 return ("" if dchi2 <= 1 else f" in its fitted curves, {dchi2:.2g} s² above it (a neighbouring "
                         "optimum)"), False
         return None, False
