@@ -7,8 +7,8 @@ import them with ``from conftest import ...``); the first two are also offered a
 
 from __future__ import annotations
 
-import os
 import contextlib
+import os
 import sys
 from collections.abc import Callable, Iterator
 from pathlib import Path
