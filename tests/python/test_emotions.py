@@ -160,10 +160,11 @@ def test_spec_refuses_emotions_with_speakers_and_a_corpus_without_neutral(sessio
 
 @pytest.fixture(scope="module")
 def fitted(session: Path, tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, Path]:
-    """The reduced session fitted on LR and LLO: (spec, output folder)."""
+    """The reduced session fitted on LR and LLO: (spec, output folder). No HTML report: no test here
+    reads it (it cost a third of the fit's CPU, matplotlib's import included)."""
     tmp = tmp_path_factory.mktemp("emotive_fit")
     spec = write_spec(tmp / "s.toml", session / "manifest.csv", ["LR", "LLO"])
-    fit_job(spec, tmp / "fit")
+    fit_job(spec, tmp / "fit", quiet=True, report=False)
     return spec, tmp / "fit"
 
 
