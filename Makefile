@@ -106,8 +106,11 @@ stubtest:
 typecheck:
 	$(PY) -m mypy
 
+# Bytecode is written (PYTHONDONTWRITEBYTECODE= even where the caller set it): pytest's rewritten test modules,
+# made once by the xdist controller for both workers (conftest.py) and kept for the next run, and the
+# checkout's modules, compiled once for the many coartic commands the tests start.
 test-python:
-	$(PY) -m pytest -q -n 2 --dist loadfile tests/python
+	PYTHONDONTWRITEBYTECODE= $(PY) -m pytest -q -n 2 --dist loadfile tests/python
 
 # Each benchmark prints ratios measured in one run and saves its output in bench/results/.
 bench: setup
