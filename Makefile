@@ -6,6 +6,7 @@
 #   make table-italian   regenerate python/coartic/runtime/italian_table.json (and its provenance)
 #   make table-italian-changed   the same, refitting only the lip and jaw channels whose data changed
 PY := .venv/bin/python
+UV := .venv/bin/uv
 .PHONY: setup fit fit-emotive test test-rust test-python test-python-core-wheel test-core core-wheel core-tests stubtest typecheck bench clean wheel table-italian table-italian-changed
 
 setup:
@@ -53,13 +54,15 @@ table-italian-changed: setup
 # The core wheel (build/core-wheel) is built first: core-tests installs it, and test-python's wheel
 # test installs the same wheel. Then the five parts run side by side (-j3, each part's output printed
 # whole when it ends, every part run and any failure failing make test), the longest first: mypy,
-# stubtest and the core environment's pip and tests use one core each, and one after the other they
+# stubtest and the core environment's install and tests use one core each, and one after the other they
 # left the second core idle while the Python tests waited (bench/results/test_suite_cpu.txt).
 test: setup core-wheel
 	$(MAKE) -j3 --output-sync=target --keep-going test-python-core-wheel typecheck test-rust core-tests stubtest
 
+# make test's Python session: the wheel test installs core-wheel's wheel, and the core files' tests that
+# core-tests runs on that wheel are left to it (tests/python/conftest.py, COARTIC_CORE_TESTS): they ran twice
 test-python-core-wheel:
-	COARTIC_WHEEL_DIR=$(CURDIR)/build/core-wheel $(MAKE) test-python
+	COARTIC_WHEEL_DIR=$(CURDIR)/build/core-wheel COARTIC_CORE_TESTS="$(CORE_TESTS)" $(MAKE) test-python
 
 # dist/coartic-VERSION-cp311-abi3-PLATFORM.whl: one wheel for every CPython >= 3.11 (pyo3's
 # abi3-py311), installed by pip without Rust (tests/python/test_wheel.py). Reuses make setup's build.
@@ -80,16 +83,17 @@ core-wheel: setup
 	$(PY) -m maturin build --release --quiet -o build/core-wheel
 
 # the tests of test-core on the wheel core-wheel built. The environment is made for this run and
-# thrown away, so nothing is compiled ahead in it: make setup's pip installs pip (the on-demand extra's
-# test runs it), the wheel and the test tools with --no-compile, and the tests' Python writes the
-# bytecode of the modules they import, once for every test process after it (PYTHONDONTWRITEBYTECODE=
-# even where the caller set it). Compiling everything at install (all of SciPy, most of it never
-# imported) and venv's own pip made this target 77 CPU-s, now 48 (bench/results/test_suite_cpu_rest2.txt).
+# thrown away: uv (make setup's, one of the dev tools) installs pip (the on-demand extra's test runs it),
+# the wheel, its core dependencies and the test tools into it from the package index, keeping the wheels
+# it downloads in its cache (~/.cache/uv; pip's HTTP cache kept nothing here, the index sending no caching
+# headers), and compiles nothing: the tests' Python writes the bytecode of the modules they import, once
+# for every test process after it (PYTHONDONTWRITEBYTECODE= even where the caller set it). The install
+# cost 11 CPU-s with pip, 2.1 with uv on an empty cache, 0.6 on a warm one; the target 50 -> 34 CPU-s
+# side by side under load (bench/results/test_suite_cpu_core3.txt).
 core-tests:
 	rm -rf build/core-env
 	python3 -m venv --without-pip build/core-env
-	$(PY) -m pip --python build/core-env/bin/python install -q --no-compile pip build/core-wheel/coartic-*.whl \
-	  pytest hypothesis
+	$(UV) pip install -q --python build/core-env/bin/python pip build/core-wheel/coartic-*.whl pytest hypothesis
 	cd build && PYTHONDONTWRITEBYTECODE= COARTIC_CORE_ONLY=1 COARTIC_WHEEL=$$(ls $$PWD/core-wheel/coartic-*.whl) \
 	  core-env/bin/python -m pytest -q -p no:cacheprovider $(addprefix ../,$(CORE_TESTS))
 
@@ -102,8 +106,11 @@ stubtest:
 typecheck:
 	$(PY) -m mypy
 
+# Bytecode is written (PYTHONDONTWRITEBYTECODE= even where the caller set it): pytest's rewritten test modules,
+# made once by the xdist controller for both workers (conftest.py) and kept for the next run, and the
+# checkout's modules, compiled once for the many coartic commands the tests start.
 test-python:
-	$(PY) -m pytest -q -n 2 --dist loadfile tests/python
+	PYTHONDONTWRITEBYTECODE= $(PY) -m pytest -q -n 2 --dist loadfile tests/python
 
 # Each benchmark prints ratios measured in one run and saves its output in bench/results/.
 bench: setup

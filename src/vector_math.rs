@@ -7,7 +7,7 @@
 //! the scalar path must run on any x86_64 (and aarch64) without it. The reductions and
 //! polynomials: for exp, Cody–Waite reduction by ln 2 split in two and a degree-13 Taylor
 //! polynomial (no division, no table); for ln, fdlibm's `__ieee754_log`
-//! (exponent extraction, a Remez series in s = f/(2 + f)). tests/vector_math.rs checks both
+//! (exponent extraction, a Remez series in s = f/(2 + f)). tests/core/vector_math.rs checks both
 //! against std over wide ranges (subnormals, edges, special values).
 
 #[cfg(target_arch = "x86_64")]

@@ -169,6 +169,26 @@ def multistart_default(request: pytest.FixtureRequest, single_start_fits: int, m
         monkeypatch.setattr(coartic.fit.spec, "DEFAULT_STARTS", single_start_fits)
 
 
+def pytest_configure(config: pytest.Config) -> None:
+    """Under xdist the controller rewrites the asserts of every test module once and caches the result where
+    pytest looks for it (__pycache__/*-pytest-*.pyc, checked against the source's hash), before it starts the
+    workers: each worker imports every module to collect, and rewriting them all cost 4.7 CPU-s a process
+    against 0.4 for compiling them (bench/results/test_suite_cpu_core3.txt); the workers then load the cached
+    code, as every later run does. Nothing is written where bytecode must not be (PYTHONDONTWRITEBYTECODE,
+    which make test-python clears) or asserts are not rewritten (--assert=plain)."""
+    if (hasattr(config, "workerinput") or not config.getoption("numprocesses", None) or sys.dont_write_bytecode
+            or config.getoption("assertmode") != "rewrite"):
+        return
+    from _pytest.assertion import rewrite  # pytest's own cache format (pinned in constraints.txt)
+
+    state = config.stash[rewrite.assertstate_key]
+    for source in sorted(Path(__file__).parent.glob("test_*.py")):
+        pyc = rewrite.get_cache_dir(source) / (source.name[:-3] + rewrite.PYC_TAIL)
+        if rewrite._read_pyc(source, pyc) is None and rewrite.try_makedirs(pyc.parent):
+            source_hash, code = rewrite._rewrite_test(source, config)
+            rewrite._write_pyc(state, code, source_hash, pyc)
+
+
 # The files whose tests take longest, longest first (CPU seconds of a whole run, `pytest -n 2
 # --durations=50 tests/python`; docs/ARCHITECTURE.md, Tests). `make test-python` hands whole files to the two
 # workers (`--dist loadfile`, so a module's fixtures are built once) in collection order, each
@@ -178,7 +198,19 @@ def multistart_default(request: pytest.FixtureRequest, single_start_fits: int, m
 LONGEST_FIRST = ("test_mcmc_calibration.py",)
 
 
+# make test runs the core's test files (the Makefile's CORE_TESTS) on the installed core wheel in a fresh
+# environment (make core-tests) beside this session and names them in COARTIC_CORE_TESTS: this session leaves
+# their tests to that one, but for those marked ``full_env``, which need what only this environment has (the
+# extras, the checkout) and are skipped there. Run without it (make test-python, pytest), every test runs here.
+CORE_TESTS = frozenset(Path(p).name for p in os.environ.get("COARTIC_CORE_TESTS", "").split())
+
+
 def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
+    in_core_env = [i for i in items if i.path.name in CORE_TESTS and i.get_closest_marker("full_env") is None]
+    if in_core_env:
+        config.hook.pytest_deselected(items=in_core_env)
+        left_out = set(in_core_env)
+        items[:] = [i for i in items if i not in left_out]
     slow_files = {item.path.name for item in items if item.get_closest_marker("slow") is not None}
 
     def rank(item: pytest.Item) -> tuple[int, int]:

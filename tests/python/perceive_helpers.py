@@ -104,14 +104,30 @@ def chromium_driver() -> Any:
     return webdriver.Chrome(options=opts, service=Service(driver))
 
 
+# Selenium polls a wait's condition every half second by default: each trial waits three times (the
+# videos' end, the answers' opening, the next page), so a participant's dozen trials idled 10-20 s
+# of wall time between events that had happened. Each poll is one round trip to chromedriver.
+POLL = 0.05
+# The trials' videos play at this rate: the page opens the answers on each video's `ended` event,
+# which a faster playback fires too, at its end; how long a video lasts is the
+# stimuli's business (test_perceive_face.py), not the server's. Chromium allows up to 16.
+PLAYBACK_RATE = 8.0
+
+
+def waiting(driver: Any, timeout: float = 20.0) -> Any:
+    """A WebDriverWait that looks every POLL seconds."""
+    from selenium.webdriver.support.ui import WebDriverWait
+
+    return WebDriverWait(driver, timeout, poll_frequency=POLL)
+
+
 def answer_current_trial(driver: Any, pick: Any, timeout: float = 20.0) -> tuple[int, int]:
     """Play every video of the trial page, wait until the answers open, answer with `pick(choices,
     instruction)` (a button's text). Returns (position counted from 1, total) read from the page."""
     from selenium.webdriver.common.by import By
     from selenium.webdriver.support import expected_conditions as ec
-    from selenium.webdriver.support.ui import WebDriverWait
 
-    wait = WebDriverWait(driver, timeout)
+    wait = waiting(driver, timeout)
     progress = wait.until(ec.presence_of_element_located((By.ID, "progress"))).text
     position, total = (int(x) for x in progress.split("/"))
     play_all(driver, timeout)
@@ -127,24 +143,24 @@ def answer_current_trial(driver: Any, pick: Any, timeout: float = 20.0) -> tuple
 
 def play_all(driver: Any, timeout: float = 20.0) -> int:
     """Play each video of the page to its end, one after the other, as a participant does (starting
-    one pauses the others). Returns how many there were."""
+    one pauses the others), at PLAYBACK_RATE. Returns how many there were."""
     from selenium.webdriver.common.by import By
-    from selenium.webdriver.support.ui import WebDriverWait
 
     buttons = driver.find_elements(By.CSS_SELECTOR, "button.play")
     for button in buttons:
         video = button.find_element(By.XPATH, "preceding-sibling::video[1]")
+        driver.execute_script("arguments[0].defaultPlaybackRate = arguments[0].playbackRate = arguments[1];",
+                              video, PLAYBACK_RATE)
         button.click()
-        WebDriverWait(driver, timeout).until(lambda d: d.execute_script("return arguments[0].ended", video))
+        waiting(driver, timeout).until(lambda d: d.execute_script("return arguments[0].ended", video))
     return len(buttons)
 
 
 def wait_for_text(driver: Any, element_id: str, timeout: float = 20.0) -> str:
     from selenium.webdriver.common.by import By
     from selenium.webdriver.support import expected_conditions as ec
-    from selenium.webdriver.support.ui import WebDriverWait
 
-    return str(WebDriverWait(driver, timeout).until(ec.presence_of_element_located((By.ID, element_id))).text)
+    return str(waiting(driver, timeout).until(ec.presence_of_element_located((By.ID, element_id))).text)
 
 
 def until(predicate: Any, timeout: float = 20.0) -> None:

@@ -29,6 +29,10 @@ from conftest import without_overview
 ROOT = Path(__file__).resolve().parents[2]
 # the reduced session: /b v/ only, repetition 1 (7 emotions x 3 vowels x 2 consonants x 2 rates = 84 trials)
 REDUCED = ("b", "v")
+# Fitted in one stage: every deviation is recovered as by the staged fit (the worst 0.087 mm off the
+# truth against 0.084, tolerance 0.3; the intervals and asymmetries alike) at half its CPU (LR and LLO
+# 15.4 -> 8.3 CPU-s, test_emotions_intensity's fit 8.3 -> 4.6, under the same load); staging is
+# tested in test_fit_run.py and test_synthetic.py. test_emotions_dynamics stages its fit (below).
 SPEC = """name = "emotive reduced"
 [corpus]
 manifest = "{manifest}"
@@ -42,7 +46,7 @@ emotions = "targets"
 target_prior = "none"
 free = ["target", "alpha", "theta_bw", "theta_fw", "c_bw", "c_fw", "k_r", "delta"]
 [staging]
-enabled = true
+enabled = false
 [fit]
 starts = 1
 """
@@ -160,10 +164,11 @@ def test_spec_refuses_emotions_with_speakers_and_a_corpus_without_neutral(sessio
 
 @pytest.fixture(scope="module")
 def fitted(session: Path, tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, Path]:
-    """The reduced session fitted on LR and LLO: (spec, output folder)."""
+    """The reduced session fitted on LR and LLO: (spec, output folder). No HTML report: no test here
+    reads it (it cost a third of the fit's CPU, matplotlib's import included)."""
     tmp = tmp_path_factory.mktemp("emotive_fit")
     spec = write_spec(tmp / "s.toml", session / "manifest.csv", ["LR", "LLO"])
-    fit_job(spec, tmp / "fit")
+    fit_job(spec, tmp / "fit", quiet=True, report=False)
     return spec, tmp / "fit"
 
 
@@ -202,21 +207,26 @@ def test_mcmc_intervals_of_the_deviations(session: Path, fitted: tuple[Path, Pat
 
     spec = load_spec(fitted[0])
     table = ParameterTable.load(fitted[1] / "table.json")
-    # 18 walkers, the fewest emcee takes for the 8 dimensions (7 targets and the noise), for 1600
-    # steps, checked once at the end. Every convergence check must pass there but the 1 % stability
-    # of tau (asserted below): the chains are past 50 tau (tau 27-29), R-hat and ESS pass. Run to the
-    # sampler's own stopping rule, the chains waited 3400-3500 steps for tau's estimate to change by
-    # less than 1 % between checks 100 steps apart; the intervals are as wide either way (0.085-0.096
-    # mm at 1600 steps, bulk ESS >= 1700, N/tau 59-61; 0.085-0.096 mm converged). The rule itself:
-    # test_mcmc_sampler.py.
+    # One ensemble of 18 walkers, the fewest emcee takes for the 8 dimensions (7 targets and the
+    # noise), for 1600 steps, checked once at the end. Every convergence check must pass there but
+    # the 1 % stability of tau and R-hat, which needs a second ensemble (asserted below): the chain
+    # is past 50 tau (tau 27-29, N/tau 55-58), bulk ESS >= 800. The prediction is linear in the
+    # targets (MODEL.md eq. 1 and 3, the dynamics held at the optimum) and the deviation prior is a
+    # Gaussian, so given the noise the posterior is a Gaussian: one mode, which a second ensemble
+    # (R-hat < 1.01 with two) would only confirm at twice the CPU. Ensemble 0 is the same chain
+    # either way (each ensemble is seeded by its index); the intervals are 0.08-0.09 mm wide, as with
+    # two ensembles (0.085-0.096 mm) and as with the chains run to the sampler's own stopping rule
+    # (3400-3500 steps, waiting for tau's estimate to change by < 1 % in 100 steps). The rules
+    # themselves: test_mcmc_sampler.py.
     steps = 1600
     got = session_intervals(spec, load_utterances(spec), table, tmp_path / "mcmc",
-                            SamplerSettings(n_walkers=18, n_ensembles=2, min_steps=steps, chunk_steps=steps,
+                            SamplerSettings(n_walkers=18, n_ensembles=1, min_steps=steps, chunk_steps=steps,
                                             max_steps=steps), phonemes=["a"])
     for channel in ("LR", "LLO"):
         check = json.loads((tmp_path / "mcmc" / channel / "a" / "summary.json").read_text())["convergence"]
         assert check["n_steps"] == steps and not check["partial"], check
-        assert all(p.startswith("autocorrelation time not yet stable") for p in check["problems"]), check
+        assert all(p.startswith(("autocorrelation time not yet stable", "a single ensemble"))
+                   for p in check["problems"]), check
     truth = ParameterTable.load(session / "ground_truth.json").metadata["emotions"]["channels"]
     assert {(d.channel, d.emotion) for d in got} == {(c, e) for c in ("LR", "LLO") for e in
                                                      ("joy", "surprise", "sadness", "disgust", "anger", "fear")}

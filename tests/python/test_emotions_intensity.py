@@ -13,6 +13,7 @@ import numpy as np
 import pytest
 
 from coartic.emotions import EmotionError
+from coartic.errors import SpecError
 from coartic.estimation.problem import build_problem
 from coartic.fit.data import load_utterances
 from coartic.fit.spec import load_spec
@@ -20,21 +21,24 @@ from coartic.jobs.fit import fit_job
 from coartic.synthetic_cli import load_generator
 from coartic.table import ParameterTable
 
+from conftest import without_overview
 from test_emotions import SPEC, check_module
 
 
 @pytest.fixture(scope="module")
 def session(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    """/b/ only, one repetition, every emotion at intensities 0.5 and 1 (78 trials)."""
+    """/b/ only, one repetition, every emotion at intensities 0.5 and 1 (78 trials); no test here looks
+    at its overview figure."""
     out = tmp_path_factory.mktemp("intensity")
-    load_generator().generate(out, quick=True, progress=False, flavour="emotive", consonants=["b"],
-                              intensities=[0.5, 1.0])
+    with without_overview() as gen:
+        gen.generate(out, quick=True, progress=False, flavour="emotive", consonants=["b"], intensities=[0.5, 1.0])
     return out
 
 
-def spec_for(tmp: Path, manifest: Path) -> Path:
-    path = tmp / "s.toml"
-    path.write_text(SPEC.format(manifest=manifest.as_posix(), channels=json.dumps(["LR"])), encoding="utf-8")
+def spec_for(tmp: Path, manifest: Path, mode: str = "targets") -> Path:
+    path = tmp / f"{mode}.toml"
+    path.write_text(SPEC.format(manifest=manifest.as_posix(), channels=json.dumps(["LR"]))
+                    .replace('emotions = "targets"', f'emotions = "{mode}"'), encoding="utf-8")
     return path
 
 
@@ -90,10 +94,19 @@ def test_bad_intensity_names_the_trial(session: Path, tmp_path: Path) -> None:
         build_problem(spec.estimation_settings(), load_utterances(spec), "LR")
 
 
+def test_intensities_are_refused_with_dynamics(session: Path, tmp_path: Path) -> None:
+    """``emotions = "targets+dynamics"`` (test_emotions_dynamics.py) takes no intensities: on this
+    file's session rather than a session of its own (the same trials; 2.4 CPU-s to generate)."""
+    spec = load_spec(spec_for(tmp_path, session / "manifest.csv", "targets+dynamics"))
+    with pytest.raises(SpecError, match=r"targets\+dynamics.*intensity"):
+        build_problem(spec.estimation_settings(), load_utterances(spec), "LR")
+
+
 def test_deviations_are_recovered_from_trials_at_two_intensities(session: Path, tmp_path: Path) -> None:
     """Half the trials of every emotion at half its deviation: the fit's deviations are the full
     ones (ignoring the intensity would return 3/4 of them: 1 mm off for joy's 4 mm)."""
-    fit_job(spec_for(tmp_path, session / "manifest.csv"), tmp_path / "fit")
+    # no HTML report: nothing here reads it (a third of the fit's CPU, matplotlib's import included)
+    fit_job(spec_for(tmp_path, session / "manifest.csv"), tmp_path / "fit", quiet=True, report=False)
     check = check_module()
     table = ParameterTable.load(tmp_path / "fit" / "table.json")
     devs = [d for d in check.deviations(table, ParameterTable.load(session / "ground_truth.json")) if d.channel == "LR"]

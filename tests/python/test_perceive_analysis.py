@@ -47,6 +47,37 @@ def test_a_planted_intelligibility_effect_is_recovered(tmp_path: Path) -> None:
     assert (cells["low"] <= cells["mean"]).all() and (cells["mean"] <= cells["high"]).all()
 
 
+def test_the_fast_glmm_fits_as_statsmodels_bit_for_bit() -> None:
+    """coartic.perceive.vb's model forms the random-effect sums without scipy.sparse, in the same
+    order: from one start, with a warm start too, the same fit as BinomialBayesMixedGLM to the last
+    bit (on 240 answers of 12 participants x 5 items, as the analysis lays them out)."""
+    import numpy as np
+    from scipy import sparse
+    from statsmodels.genmod.bayes_mixed_glm import BinomialBayesMixedGLM
+
+    from coartic.perceive.vb import InterceptsBinomialGLMM
+
+    rng = np.random.default_rng(5)
+    person, item = np.repeat(np.arange(12), 20), np.tile(np.arange(5), 48)
+    x = np.column_stack([np.ones(240), rng.integers(0, 2, 240)]).astype(float)
+    y = (rng.random(240) < 1 / (1 + np.exp(-(0.5 - x[:, 1] + 0.5 * rng.normal(size=12)[person])))).astype(float)
+    exog_vc = sparse.hstack([sparse.csr_matrix((np.ones(240), (np.arange(240), c)), shape=(240, c.max() + 1))
+                             for c in (person, item)]).tocsr()
+    ident = np.array([0] * 12 + [1] * 5)
+    start = np.zeros(2 + 2 + 17), np.full(2 + 2 + 17, np.exp(-0.5))
+    fits = []
+    for cls in (BinomialBayesMixedGLM, InterceptsBinomialGLMM):
+        model = cls(y, x, exog_vc, ident)
+        first = model.fit_vb(mean=start[0], sd=start[1])
+        again = model.fit_vb(mean=first.params, sd=1.5 * np.sqrt(first.cov_params()))
+        fits.append([first.params, first.cov_params(), again.params, again.cov_params()])
+    assert fits[0][0][1] < -0.3  # a real fit: the planted effect is found
+    for ours, theirs in zip(fits[1], fits[0]):
+        assert np.array_equal(ours, theirs)
+    with pytest.raises(ValueError, match="one indicator column"):
+        InterceptsBinomialGLMM(y, x, 2 * exog_vc, ident)
+
+
 @pytest.mark.slow
 def test_intervals_are_calibrated_over_simulated_studies(tmp_path: Path) -> None:
     """Six studies of 16 simulated participants, with and without a planted effect: a 95 % interval

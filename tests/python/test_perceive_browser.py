@@ -16,7 +16,7 @@ from typer.testing import CliRunner
 
 from coartic.cli import app
 
-from perceive_helpers import Server, answer_current_trial, chromium_driver, play_all, wait_for_text, write_spec
+from perceive_helpers import Server, answer_current_trial, chromium_driver, play_all, wait_for_text, waiting, write_spec
 
 pytestmark = [pytest.mark.festival, pytest.mark.slow]
 
@@ -182,7 +182,6 @@ def other_design(study: Path, where: Path, design: str) -> Path:
 @pytest.mark.parametrize("design", ["preference", "mushra", "text"])
 def test_preference_mushra_and_typed_answers_in_chromium(study: Path, tmp_path: Path, driver: Any, design: str) -> None:
     from selenium.webdriver.common.by import By
-    from selenium.webdriver.support.ui import WebDriverWait
 
     other = other_design(study, tmp_path, design)
     db = tmp_path / "r.sqlite"
@@ -194,7 +193,7 @@ def test_preference_mushra_and_typed_answers_in_chromium(study: Path, tmp_path: 
         for k in range(2):  # two items, one trial each
             assert wait_for_text(driver, "progress") == f"{k + 1} / 2"
             assert play_all(driver) == {"mushra": 3, "preference": 2, "text": 1}[design]  # MUSHRA: the reference too
-            WebDriverWait(driver, 20).until(
+            waiting(driver).until(
                 lambda d: all(e.is_enabled() for e in d.find_elements(By.CSS_SELECTOR, ".answer")))
             old = driver.find_element(By.ID, "answer-form")
             if design == "preference":
@@ -206,7 +205,7 @@ def test_preference_mushra_and_typed_answers_in_chromium(study: Path, tmp_path: 
                 driver.execute_script("document.getElementById('rating-0').value = 91;"
                                       "document.getElementById('rating-1').value = 17;")
                 driver.find_element(By.ID, "submit").click()
-            WebDriverWait(driver, 20).until(lambda d: old not in d.find_elements(By.ID, "answer-form"))
+            waiting(driver).until(lambda d: old not in d.find_elements(By.ID, "answer-form"))
         wait_for_text(driver, "done")
     finally:
         server.stop()

@@ -172,6 +172,7 @@ def long_csv(table: ParameterTable) -> str:
     return buf.getvalue()
 
 
+@pytest.mark.full_env
 def test_csv_is_tidy_and_pandas_reads_numbers(tmp_path: Path) -> None:
     pd = pytest.importorskip("pandas", reason="the [dataframe] extra (absent in make test-core)")
 

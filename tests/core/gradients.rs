@@ -3,9 +3,8 @@
 //! sample exactly at a target time, dominance underflow, and rows independent of the four-sample
 //! blocks the value pass runs in.
 
-mod common;
+use crate::common::*;
 use coartic::{Dominance, ModelOptions, Param, Variant, N_PARAMS};
-use common::*;
 use proptest::prelude::*;
 
 /// Rows where a segment of phoneme `p` has its target within `margin` of the sample (the kink

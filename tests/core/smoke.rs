@@ -1,6 +1,5 @@
-mod common;
+use crate::common::*;
 use coartic::{ModelOptions, Variant};
-use common::*;
 
 /// /# a p a #/ with /p/ fully resistant: F reaches T_p at t_p, at normal and fast speech.
 #[test]

@@ -1,12 +1,11 @@
 //! The corpus and walker batches agree with per-utterance, per-walker calls; the parallel path
 //! (large corpora) agrees with the sequential one.
 
-mod common;
+use crate::common::*;
 use coartic::{
     evaluate_batch, jacobian, jacobian_values, residual_sums_batch, sse_batch, sse_gradient,
     Corpus, ModelError, ModelOptions, Param, N_PARAMS,
 };
-use common::*;
 use proptest::prelude::*;
 
 /// A corpus of many random utterances over shared phonemes (large enough to run in parallel),

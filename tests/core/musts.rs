@@ -1,8 +1,7 @@
 //! The **must** statements of MODEL.md §3 as property tests over random models.
 
-mod common;
+use crate::common::*;
 use coartic::{ModelOptions, Param, Variant};
-use common::*;
 use proptest::prelude::*;
 
 /// Eq. 1 written out plainly (no logs), as an independent reference.

@@ -1,11 +1,10 @@
 //! Every bad input gets the error that names what is at fault.
 
-mod common;
+use crate::common::*;
 use coartic::{
     evaluate, jacobian, sse_gradient, validate_params, Corpus, ModelError, ModelOptions, Param,
     Variant, N_PARAMS,
 };
-use common::*;
 
 fn good_params() -> Vec<f64> {
     flat(&[

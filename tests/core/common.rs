@@ -1,5 +1,4 @@
 //! Helpers shared by the integration tests: small corpora and parameter rows.
-#![allow(dead_code)]
 
 use coartic::{Corpus, ModelOptions, Param, N_PARAMS};
 
