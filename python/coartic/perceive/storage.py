@@ -21,7 +21,7 @@ from datetime import datetime, timezone
 from typing import Any
 
 from sqlalchemy import (Column, Float, ForeignKey, Integer, MetaData, String, Table, Text, UniqueConstraint,
-                        create_engine, event, func, insert, select, update)
+                        bindparam, create_engine, event, func, insert, select, update)
 from sqlalchemy.engine import Engine
 from sqlalchemy.exc import IntegrityError, SQLAlchemyError
 
@@ -60,6 +60,16 @@ answers = Table(
     Column("answered_at", String(40), nullable=False),
     UniqueConstraint("participant_id", "trial", name="one_answer_per_trial"),
 )
+
+
+# record()'s statements, built once with their parameters bound at execution: built per answer, SQLAlchemy
+# coerced every value and derived the statement's cache key each time, most of an answer's CPU
+_ANSWER_OF = select(answers.c.id).where(answers.c.participant_id == bindparam("pid"), answers.c.trial == bindparam("trial"))
+_INSERT_ANSWER = insert(answers)
+# (participant_id, trial) is unique: the count is the number of trials answered
+_ANSWERS_OF = select(func.count()).select_from(answers).where(answers.c.participant_id == bindparam("pid"))
+_COMPLETE = (update(participants).where(participants.c.id == bindparam("pid"), participants.c.completed_at.is_(None))
+             .values(completed_at=bindparam("at")))
 
 
 class StorageError(CoarticError, RuntimeError):
@@ -195,22 +205,14 @@ class Store:
                "correct": score(self.manifest, t, response), "rt_ms": rt_ms, "answered_at": _now()}
         try:
             with self.engine.begin() as conn:
-                exists = conn.execute(select(answers.c.id).where(answers.c.participant_id == participant.id,
-                                                                 answers.c.trial == trial)).first()
-                if exists is not None:
+                if conn.execute(_ANSWER_OF, {"pid": participant.id, "trial": trial}).first() is not None:
                     return False
-                conn.execute(insert(answers).values(**row))
-                if len(self._answered_in(conn, participant)) == len(participant.trials):
-                    conn.execute(update(participants).where(participants.c.id == participant.id,
-                                                            participants.c.completed_at.is_(None))
-                                 .values(completed_at=_now()))
+                conn.execute(_INSERT_ANSWER, row)
+                if conn.execute(_ANSWERS_OF, {"pid": participant.id}).scalar_one() == len(participant.trials):
+                    conn.execute(_COMPLETE, {"pid": participant.id, "at": _now()})
         except IntegrityError:
             return False  # the same answer committed by a concurrent request
         return True
-
-    @staticmethod
-    def _answered_in(conn: Any, participant: Participant) -> set[int]:
-        return set(conn.execute(select(answers.c.trial).where(answers.c.participant_id == participant.id)).scalars())
 
     # ------------------------------------------------------------------ reading back
     def answer_rows(self) -> list[dict[str, Any]]:
