@@ -29,6 +29,10 @@ from conftest import without_overview
 ROOT = Path(__file__).resolve().parents[2]
 # the reduced session: /b v/ only, repetition 1 (7 emotions x 3 vowels x 2 consonants x 2 rates = 84 trials)
 REDUCED = ("b", "v")
+# Fitted in one stage: every deviation is recovered as by the staged fit (the worst 0.087 mm off the
+# truth against 0.084, tolerance 0.3; the intervals and asymmetries alike) at half its CPU (LR and LLO
+# 15.4 -> 8.3 CPU-s, test_emotions_intensity's fit 8.3 -> 4.6, under the same load); staging is
+# tested in test_fit_run.py and test_synthetic.py. test_emotions_dynamics stages its fit (below).
 SPEC = """name = "emotive reduced"
 [corpus]
 manifest = "{manifest}"
@@ -42,7 +46,7 @@ emotions = "targets"
 target_prior = "none"
 free = ["target", "alpha", "theta_bw", "theta_fw", "c_bw", "c_fw", "k_r", "delta"]
 [staging]
-enabled = true
+enabled = false
 [fit]
 starts = 1
 """

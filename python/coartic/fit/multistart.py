@@ -63,7 +63,6 @@ from typing import Any, Callable, Sequence
 
 import numpy as np
 from numpy.typing import NDArray
-from scipy.stats import qmc
 
 from coartic.fit.engines import EngineResult
 from coartic.estimation.packing import Packing
@@ -258,6 +257,10 @@ def sobol_starts(packing: Packing, n: int, seed: int) -> FloatArray:
     drawn = (cols != PARAMETERS.index("target")) & np.isfinite(lo) & np.isfinite(hi) & (hi > lo)
     out = np.tile(x0, (n, 1))
     if drawn.any():
+        # imported here, not with the module: scipy.stats costs a fresh process (a batch worker, the
+        # CLI) about 0.4 CPU-s, which a fit from one start never needs
+        from scipy.stats import qmc
+
         with warnings.catch_warnings():  # n not a power of two: balance is not needed here
             warnings.simplefilter("ignore", UserWarning)
             u = qmc.Sobol(int(drawn.sum()), scramble=True, seed=seed).random(n)

@@ -15,7 +15,6 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 from scipy.interpolate import CubicSpline
-from scipy.signal import butter, sosfiltfilt
 
 from coartic.io.errors import DataError
 
@@ -104,6 +103,10 @@ def resample(
     t_old = np.arange(n) / rate
     t_new = np.arange(n_new) / new_rate
     out = np.full((n_new, *markers.shape[1:]), np.nan)
+    # imported here, not with the module: every reader of recordings imports this one, and scipy.signal
+    # (with scipy.stats) costs a fresh process about 0.5 CPU-s where nothing is resampled
+    from scipy.signal import butter, sosfiltfilt
+
     sos = butter(4, 0.8 * (new_rate / 2) / (rate / 2), output="sos") if new_rate < rate else None
     for j in range(markers.shape[1]):
         ok = np.all(np.isfinite(markers[:, j, :]), axis=1)

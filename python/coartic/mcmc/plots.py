@@ -4,16 +4,13 @@ from __future__ import annotations
 
 import html
 from pathlib import Path
+from types import ModuleType
 from typing import TYPE_CHECKING, Sequence
 
-import matplotlib
+import numpy as np
+from numpy.typing import NDArray
 
-matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402
-import numpy as np  # noqa: E402
-from numpy.typing import NDArray  # noqa: E402
-
-from coartic.extras import require  # noqa: E402
+from coartic.extras import require
 
 if TYPE_CHECKING:
     from coartic.mcmc.posterior import LogPosterior
@@ -23,9 +20,22 @@ if TYPE_CHECKING:
 PREDICTIVE_DRAWS = 200
 
 
+def pyplot() -> ModuleType:
+    """matplotlib's pyplot (Agg), imported by the figures only: a posterior without plots (``[mcmc] plots =
+    false``, coartic batch's posterior units) writes its HTML fragment without it, and a fresh process
+    (a batch worker) saves matplotlib's import, about 0.5 CPU-s."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    return plt
+
+
 def corner_plot(result: SamplingResult, start: NDArray[np.float64], path: Path, title: str = "") -> Path:
     """Corner plot of the sampling coordinates; the least-squares optimum drawn as the 'truth' lines."""
     require("mcmc", "a corner plot")
+    plt = pyplot()  # the Agg backend before corner draws
     import corner
 
     draws = result.draws()
@@ -50,6 +60,7 @@ def corner_plot(result: SamplingResult, start: NDArray[np.float64], path: Path, 
 
 def trace_plot(result: SamplingResult, path: Path, title: str = "", max_walkers: int = 8) -> Path:
     """One panel per coordinate: a few walkers of each ensemble, the burn-in shaded."""
+    plt = pyplot()
     dim = len(result.names)
     fig, axes = plt.subplots(dim, 1, figsize=(9, 1.3 * dim + 0.6), sharex=True, squeeze=False)
     colors = plt.get_cmap("tab10")
@@ -95,6 +106,7 @@ def predictive_plot(
     chosen = list(utterances) if utterances is not None else list(range(min(n_utt, 6)))
     ncol = 2 if len(chosen) > 1 else 1
     nrow = int(np.ceil(len(chosen) / ncol))
+    plt = pyplot()
     fig, axes = plt.subplots(nrow, ncol, figsize=(5.5 * ncol, 2.6 * nrow), squeeze=False)
     for ax, u in zip(axes.ravel(), chosen):
         sl = data.utterance_samples(u)
