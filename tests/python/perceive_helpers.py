@@ -54,9 +54,13 @@ class Server:
 
     def __init__(self, study: Path, db: str, port: int = 0) -> None:
         env = {**os.environ, "PYTHONPATH": str(REPO / "python")}
+        # SIGINT at its default in the server, whatever pytest inherited: a shell without job control
+        # starts background commands (`make test &` in a script) with SIGINT ignored, Python then
+        # installs no KeyboardInterrupt for it, and stop() waited out its 30 s for every server
         self.proc = subprocess.Popen([sys.executable, "-m", "coartic.cli", "perceive", "serve", str(study),
                                       "--db", db, "--port", str(port)], stdout=subprocess.PIPE,
-                                     stderr=subprocess.PIPE, text=True, env=env)
+                                     stderr=subprocess.PIPE, text=True, env=env,
+                                     preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
         assert self.proc.stdout is not None
         line = self.proc.stdout.readline()  # blocks until the socket listens (or the process ends)
         if "serving" not in line:
