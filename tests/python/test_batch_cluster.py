@@ -15,7 +15,7 @@ import subprocess
 import sys
 import time
 from collections.abc import Iterator
-from contextlib import contextmanager, nullcontext
+from contextlib import contextmanager
 from pathlib import Path
 
 import pytest
@@ -153,39 +153,44 @@ def assert_same_units(out: Path, serial: Path) -> None:
         assert json.loads((got / "unit.json").read_text())["pid"] != os.getpid()  # ran on the worker
 
 
-@pytest.fixture(scope="module")
-def tcp_cluster(tmp_path_factory: pytest.TempPathFactory) -> Iterator[str]:
-    with dask_cluster(tmp_path_factory.mktemp("tcp") / "cluster") as address:
-        yield address
+@pytest.fixture(scope="module", params=["tcp", "tls"])
+def cluster(request: pytest.FixtureRequest, tmp_path_factory: pytest.TempPathFactory
+            ) -> Iterator[tuple[str, dict[str, Path] | None]]:
+    """The address of a scheduler and worker over ``tcp`` or ``tls`` (and the TLS certificates). One
+    module-scoped fixture with the protocol as its parameter: pytest runs every test of the TCP cluster,
+    stops it, then starts the TLS one, so that the two clusters' processes (idle ones poll and profile
+    themselves) never run side by side."""
+    where = tmp_path_factory.mktemp(request.param)
+    certs = make_certificates(where / "certs") if request.param == "tls" else None
+    with dask_cluster(where / "cluster", certs) as address:
+        yield address, certs
 
 
-@pytest.mark.parametrize("protocol", ["tcp", "tls"])
-def test_readme_batch_runs_on_a_scheduler_and_worker_started_elsewhere(client_dir: Path, serial: Path,
-                                                                       tmp_path: Path, protocol: str,
-                                                                       request: pytest.FixtureRequest) -> None:
-    certs = make_certificates(tmp_path / "certs") if protocol == "tls" else None
-    with (dask_cluster(tmp_path / "cluster", certs) if certs else nullcontext(request.getfixturevalue("tcp_cluster"))
-          ) as address:
-        tls = [] if certs is None else ["--tls-ca-file", str(certs["ca"]), "--tls-cert", str(certs["cert"]),
-                                        "--tls-key", str(certs["key"])]
-        code, output = run_cli_in(client_dir, "batch.toml", "--out", f"out-{protocol}", "--scheduler", address, *tls)
-        assert code == 0, output
-        assert_same_units(client_dir / f"out-{protocol}", serial)
-        if certs is not None:  # the scheduler takes no unencrypted client
-            with pytest.raises(ClusterError, match="needs the CA certificate"):
-                run_batch(load_batch_spec(client_dir / "batch.toml"), client_dir / "out-none", scheduler=address,
-                          quiet=True)
-            assert not (client_dir / "out-none").exists()  # refused before any output
+def test_readme_batch_runs_on_a_scheduler_and_worker_started_elsewhere(
+        client_dir: Path, serial: Path, cluster: tuple[str, dict[str, Path] | None]) -> None:
+    address, certs = cluster
+    protocol = "tcp" if certs is None else "tls"
+    tls = [] if certs is None else ["--tls-ca-file", str(certs["ca"]), "--tls-cert", str(certs["cert"]),
+                                    "--tls-key", str(certs["key"])]
+    code, output = run_cli_in(client_dir, "batch.toml", "--out", f"out-{protocol}", "--scheduler", address, *tls)
+    assert code == 0, output
+    assert_same_units(client_dir / f"out-{protocol}", serial)
+    if certs is not None:  # the scheduler takes no unencrypted client
+        with pytest.raises(ClusterError, match="needs the CA certificate"):
+            run_batch(load_batch_spec(client_dir / "batch.toml"), client_dir / "out-none", scheduler=address,
+                      quiet=True)
+        assert not (client_dir / "out-none").exists()  # refused before any output
 
 
-def test_a_worker_without_the_recordings_names_the_path_and_the_host(client_dir: Path, tmp_path: Path,
-                                                                   tcp_cluster: str) -> None:
+@pytest.mark.parametrize("cluster", ["tcp"], indirect=True)
+def test_a_worker_without_the_recordings_names_the_path_and_the_host(
+        client_dir: Path, tmp_path: Path, cluster: tuple[str, dict[str, Path] | None]) -> None:
     elsewhere = tmp_path / "moved"
     shutil.copytree(client_dir, elsewhere, ignore=shutil.ignore_patterns("serial", "out-*"))
     spec = load_batch_spec(elsewhere / "batch.toml")
     assert spec.path.is_absolute() and all(g.spec.corpus.manifest.is_absolute() for g in spec.groups)  # type: ignore[union-attr]
     shutil.rmtree(elsewhere / "corpus")  # read by the client, then gone before the workers look
-    outcome = run_batch(spec, tmp_path / "out", scheduler=tcp_cluster, quiet=True)
+    outcome = run_batch(spec, tmp_path / "out", scheduler=cluster[0], quiet=True)
     assert len(outcome.failed) == 3
     why = outcome.failed["s01 JO"]
     assert str(elsewhere / "corpus" / "manifest.csv") in why and "not readable on the worker" in why

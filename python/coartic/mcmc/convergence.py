@@ -103,17 +103,38 @@ def load_arviz() -> Any:
 def autocorr_time(chain: NDArray[np.float64]) -> NDArray[np.float64]:
     """Integrated autocorrelation time per parameter of one ensemble, chain shaped (steps, walkers, dim).
 
-    emcee's estimator with ``tol=0``: it never raises, the caller compares the length with τ.
+    emcee's estimator (``emcee.autocorr.integrated_time`` with ``tol=0``: it never raises, the
+    caller compares the length with τ): each walker's normalised autocorrelation function, averaged
+    over the walkers, summed up to Sokal's window (c = 5). Computed here with a real FFT of all
+    walkers at once, zero-padded to a fast length >= 2 n - 1 rather than emcee's complex FFT per
+    walker padded to twice the next power of two: the same linear autocorrelation (no wrap-around
+    either way), equal to emcee's to rounding (1e-15 relative), at a quarter of its CPU time (a
+    7000-step chain of 108 walkers in 26 dimensions, as test_mcmc_calibration's: 1.2 against 5
+    CPU-s, and the sampler computes it twice per complete check).
     """
-    require("mcmc", "MCMC convergence diagnostics")
-    import emcee
+    from scipy import fft
 
-    if chain.shape[0] < 2:
-        return np.full(chain.shape[2], np.inf)
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore")
-        tau = emcee.autocorr.integrated_time(chain, tol=0, quiet=True)
-    return np.asarray(tau, dtype=np.float64)
+    n_t, _, n_d = chain.shape
+    if n_t < 2:
+        return np.full(n_d, np.inf)
+    n = fft.next_fast_len(2 * n_t - 1, real=True)
+    tau = np.empty(n_d)
+    for d in range(n_d):
+        x = np.array(chain[:, :, d].T, dtype=np.float64)  # (walkers, steps): each series contiguous
+        x -= x.mean(axis=1, keepdims=True)
+        f = fft.rfft(x, n=n, axis=1)
+        acf = fft.irfft(f.real ** 2 + f.imag ** 2, n=n, axis=1)[:, :n_t]
+        with np.errstate(invalid="ignore", divide="ignore"):  # a constant walker: nan, as emcee gives
+            acf /= acf[:, :1]
+        taus = 2.0 * np.cumsum(acf.mean(axis=0)) - 1.0
+        tau[d] = taus[_auto_window(taus, 5.0)]
+    return tau
+
+
+def _auto_window(taus: NDArray[np.float64], c: float) -> int:
+    """Sokal's window: the first lag m with m >= c τ(m) (emcee.autocorr.auto_window)."""
+    m = np.arange(len(taus)) < c * taus
+    return int(np.argmin(m)) if np.any(m) else len(taus) - 1
 
 
 def ensemble_chains(chains: Sequence[NDArray[np.float64]], burn_in: int, thin: int) -> NDArray[np.float64]:

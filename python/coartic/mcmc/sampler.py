@@ -23,7 +23,7 @@ import zipfile
 import zlib
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Callable, Iterator, Sequence
+from typing import Any, Callable, Sequence
 
 import numpy as np
 from numpy.typing import NDArray
@@ -294,16 +294,18 @@ def _run_chunk(
 
     Only whole steps are kept, each with the random state right after it, so that the resumed
     chain equals an uninterrupted one.
-    """
-    require("mcmc", "MCMC sampling")
-    import emcee
 
+    The steps are emcee's (``EnsembleSampler.sample`` with its red-blue moves), taken by
+    ``_Ensemble.step``: the same draws from the same generator in the same order, so the chains
+    are emcee's to the bit, without the per-walker Python loops of emcee's step (the acceptance
+    test, the log-probabilities' blob handling), a third of a step's cost on a cheap posterior.
+    """
     stop = False
 
     def guarded(x: NDArray[np.float64]) -> NDArray[np.float64]:
         # An interrupt inside the log-probability finishes the step with every proposal rejected
-        # (that step is then dropped) instead of escaping through emcee, which would print the
-        # walkers' parameters and a traceback on the way out.
+        # (that step is then dropped) instead of escaping through the sampler, which would print
+        # the walkers' parameters and a traceback on the way out.
         nonlocal stop
         if not stop:
             try:
@@ -313,46 +315,120 @@ def _run_chunk(
         return np.full(np.atleast_2d(x).shape[0], -np.inf)
 
     n_walkers, dim = coords.shape
-    sampler = emcee.EnsembleSampler(n_walkers, dim, guarded, vectorize=True, moves=make_moves(moves))
-    state = emcee.State(coords, log_prob=last_lp, random_state=random_state)
-    good = 0  # whole steps done before any interrupt
-    kept_state = random_state
-    kept_accepted = np.zeros(n_walkers)
+    ensemble = _Ensemble(guarded, moves, random_state)
+    chain = np.empty((steps, n_walkers, dim))
+    lps = np.empty((steps, n_walkers))
+    accepted = np.zeros(n_walkers)
+    # (whole steps, accepted counts, random state after them): replaced as one, so an interrupt
+    # anywhere leaves a consistent record of the steps done
+    kept: tuple[int, NDArray[np.float64], tuple[Any, ...]] = (0, accepted, random_state)
     interrupted = False
-    it: Iterator[Any] = sampler.sample(state, iterations=steps, store=True)
     try:
-        for step in it:
+        lp = ensemble.start(coords, last_lp)
+        for i in range(steps):
+            coords, lp, acc = ensemble.step(coords, lp)
             if stop:
                 break
-            good += 1
-            kept_state = step.random_state
-            kept_accepted = np.array(sampler.backend.accepted, dtype=np.float64)
+            chain[i] = coords
+            lps[i] = lp
+            kept = (i + 1, kept[1] + acc, ensemble.random_state())
             on_step()
-    except KeyboardInterrupt:  # raised outside the log-probability (in emcee's own code)
+    except KeyboardInterrupt:  # raised outside the log-probability
         interrupted = True
     interrupted = interrupted or stop
-    n = sampler.backend.iteration
-    if n > good and not stop:
-        # interrupted after emcee stored a step but before it was handed out: keep it, with the
-        # generator's current state (nothing has drawn from it since)
-        kept_state = sampler.random_state
-        kept_accepted = np.array(sampler.backend.accepted, dtype=np.float64)
-        good = n
+    good, accepted, state = kept
     if good == 0:
         return None, interrupted
-    chain = sampler.get_chain()[:good]
-    lp = sampler.get_log_prob()[:good]
     return (
         Chunk(
-            chain=chain,
-            log_prob=lp,
-            accepted=kept_accepted,
-            coords=chain[-1].copy(),
-            last_log_prob=lp[-1].copy(),
-            random_state=kept_state,
+            chain=chain[:good],
+            log_prob=lps[:good],
+            accepted=accepted,
+            coords=chain[good - 1].copy(),
+            last_log_prob=lps[good - 1].copy(),
+            random_state=state,
         ),
         interrupted,
     )
+
+
+class _Ensemble:
+    """emcee's ensemble step (``EnsembleSampler.sample`` with ``RedBlueMove.propose``), vectorised.
+
+    Every draw is emcee's, from a ``RandomState`` in emcee's order: per step the choice of move,
+    the shuffle of the walkers into halves, per half the move's proposal and one uniform per walker
+    for the acceptance test (drawn as one array: the same numbers, the same logarithms). The
+    initial checks are emcee's too, with its messages (independent walkers, no NaN).
+    """
+
+    def __init__(self, log_prob: LogProb, moves: str, random_state: tuple[Any, ...]) -> None:
+        require("mcmc", "MCMC sampling")
+        import emcee
+
+        made = make_moves(moves)
+        pairs = [(emcee.moves.StretchMove(), 1.0)] if made is None else made
+        self.moves = [m for m, _ in pairs]
+        for m in self.moves:
+            if not isinstance(m, emcee.moves.RedBlueMove):  # pragma: no cover - make_moves gives red-blue moves
+                raise McmcError(f"{type(m).__name__}: not a red-blue move")
+        weights = np.array([w for _, w in pairs], dtype=np.float64)
+        self.weights = weights / weights.sum()
+        self.log_prob = log_prob
+        self.random = np.random.RandomState()
+        self.random.set_state(random_state)
+        self._walkers_independent = emcee.ensemble.walkers_independent
+
+    def random_state(self) -> tuple[Any, ...]:
+        """The generator's state as emcee keeps it (and the chunks store it)."""
+        state = self.random.get_state(legacy=True)
+        if not isinstance(state, tuple):  # pragma: no cover - MT19937's legacy state is a tuple
+            raise McmcError(f"unexpected random state {type(state).__name__}")
+        return state
+
+    def log_probs(self, coords: NDArray[np.float64]) -> NDArray[np.float64]:
+        """emcee's ``compute_log_prob`` for a log-probability returning one float per walker."""
+        if np.any(np.isinf(coords)):
+            raise ValueError("At least one parameter value was infinite")
+        if np.any(np.isnan(coords)):
+            raise ValueError("At least one parameter value was NaN")
+        lp = np.array(self.log_prob(coords), dtype=np.float64).reshape(len(coords))
+        if np.any(np.isnan(lp)):
+            raise ValueError("Probability function returned NaN")
+        return lp
+
+    def start(self, coords: NDArray[np.float64], last_lp: NDArray[np.float64] | None) -> NDArray[np.float64]:
+        if not self._walkers_independent(coords):
+            raise ValueError("Initial state has a large condition number. Make sure that your walkers are "
+                             "linearly independent for the best performance")
+        if last_lp is None:
+            last_lp = self.log_probs(coords)
+        if np.any(np.isnan(last_lp)):
+            raise ValueError("The initial log_prob was NaN")
+        return np.array(last_lp, dtype=np.float64)
+
+    def step(self, coords: NDArray[np.float64], lp: NDArray[np.float64]) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
+        """One step from (coords, lp): the new positions and log-probabilities (new arrays) and which walkers moved."""
+        random = self.random
+        move = self.moves[random.choice(len(self.moves), p=self.weights)]
+        coords, lp = coords.copy(), lp.copy()
+        n_walkers = len(coords)
+        move.setup(coords)
+        accepted = np.zeros(n_walkers, dtype=bool)
+        inds = np.arange(n_walkers) % move.nsplits
+        if move.randomize_split:
+            random.shuffle(inds)
+        for split in range(move.nsplits):
+            subset = inds == split
+            sets = [coords[inds == j] for j in range(move.nsplits)]
+            q, factors = move.get_proposal(sets[split], sets[:split] + sets[split + 1:], random)
+            new_lp = self.log_probs(q)
+            # emcee: for each walker of the half in turn, accept if f + lp' - lp > log(u), u = random.rand()
+            moved = factors + new_lp - lp[subset] > np.log(random.rand(len(q)))
+            accepted[subset] = moved
+            into = subset & accepted
+            coords[into] = q[moved]
+            lp[into] = new_lp[moved]
+        return coords, lp, accepted.astype(np.float64)
 
 
 def run(
