@@ -167,7 +167,10 @@ def fit_pooled(problem: ChannelProblem, x: NDArray[np.float64], engine: str, opt
         assert w is not None
         # the evidence counts the target prior's centres as estimates (Pool.counted), whatever the start
         est = estimate(r[:nd], j[:nd].toarray(), problem.pool.counting(), problem.packing, x, d.n_valid, w)
-        if settled(problem.pool, est) or k == rounds:
+        # settled, unless the last re-solve stopped at its evaluation limit: then it is resumed (from
+        # its point, at the same τ) rather than reported unconverged (nlopt's L-BFGS on the default
+        # spec: the first re-solve, where the target prior's centres start to count, is the long one)
+        if (settled(problem.pool, est) and (res is None or res.status != "max-evaluations")) or k == rounds:
             est = replace(est, rounds=k, settled=settled(problem.pool, est))
             break
         before = problem
