@@ -101,7 +101,7 @@ test-rust:
 	cargo test --profile release-tests --quiet
 
 stubtest:
-	$(PY) -m mypy.stubtest coartic._core --allowlist tests/stubtest-allowlist.txt
+	$(PY) -m mypy.stubtest coartic._core --allowlist tests/stubtest-allowlist.txt --mypy-config-file tests/stubtest-mypy.ini
 
 typecheck:
 	$(PY) -m mypy

@@ -54,9 +54,13 @@ class Server:
 
     def __init__(self, study: Path, db: str, port: int = 0) -> None:
         env = {**os.environ, "PYTHONPATH": str(REPO / "python")}
+        # SIGINT at its default in the server, whatever pytest inherited: a shell without job control
+        # starts background commands (`make test &` in a script) with SIGINT ignored, Python then
+        # installs no KeyboardInterrupt for it, and stop() waited out its 30 s for every server
         self.proc = subprocess.Popen([sys.executable, "-m", "coartic.cli", "perceive", "serve", str(study),
                                       "--db", db, "--port", str(port)], stdout=subprocess.PIPE,
-                                     stderr=subprocess.PIPE, text=True, env=env)
+                                     stderr=subprocess.PIPE, text=True, env=env,
+                                     preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
         assert self.proc.stdout is not None
         line = self.proc.stdout.readline()  # blocks until the socket listens (or the process ends)
         if "serving" not in line:
@@ -104,9 +108,10 @@ def chromium_driver() -> Any:
     return webdriver.Chrome(options=opts, service=Service(driver))
 
 
-# Selenium polls a wait's condition every half second by default: each trial waits three times (the
-# videos' end, the answers' opening, the next page), so a participant's dozen trials idled 10-20 s
-# of wall time between events that had happened. Each poll is one round trip to chromedriver.
+# Selenium polls a wait's condition every half second by default: each trial waits for the answers'
+# opening and the next page (the videos' ends are awaited in the page: play_all), so a participant's
+# dozen trials idled seconds of wall time between events that had happened. Each poll is one round
+# trip to chromedriver.
 POLL = 0.05
 # The trials' videos play at this rate: the page opens the answers on each video's `ended` event,
 # which a faster playback fires too, at its end; how long a video lasts is the
@@ -143,16 +148,19 @@ def answer_current_trial(driver: Any, pick: Any, timeout: float = 20.0) -> tuple
 
 def play_all(driver: Any, timeout: float = 20.0) -> int:
     """Play each video of the page to its end, one after the other, as a participant does (starting
-    one pauses the others), at PLAYBACK_RATE. Returns how many there were."""
+    one pauses the others), at PLAYBACK_RATE. Returns how many there were. Each end is awaited in
+    the page (a listener on the video's `ended`, set before the click), not polled for."""
     from selenium.webdriver.common.by import By
 
     buttons = driver.find_elements(By.CSS_SELECTOR, "button.play")
+    driver.set_script_timeout(timeout)
     for button in buttons:
         video = button.find_element(By.XPATH, "preceding-sibling::video[1]")
-        driver.execute_script("arguments[0].defaultPlaybackRate = arguments[0].playbackRate = arguments[1];",
+        driver.execute_script("const v = arguments[0]; v.defaultPlaybackRate = v.playbackRate = arguments[1];"
+                              "window.videoEnded = new Promise(done => v.addEventListener('ended', done, {once: true}));",
                               video, PLAYBACK_RATE)
         button.click()
-        waiting(driver, timeout).until(lambda d: d.execute_script("return arguments[0].ended", video))
+        driver.execute_async_script("window.videoEnded.then(() => arguments[0]());")
     return len(buttons)
 
 

@@ -118,12 +118,35 @@ def test_nlopt_fits_the_default_spec_polished_by_scipy_and_says_so(tmp_path: Pat
     assert "nlopt result -1 (FAILURE); polished by scipy least_squares" in fit.polished[-1]
     assert any("LA: polished" in line and "polished by scipy" in line for line in status_lines(result))
     assert "polished by scipy least_squares" in (tmp_path / "nlopt" / "fit_report.txt").read_text()
-    # polish = "none": the failure stands, said in the status (stage-failed: exit 3 in `coartic fit`),
-    # whether it is a stage's (the next stage going on from its best point) or a partial-pooling
-    # re-solve's (the optimum at the last sd that converged kept, written, not refused)
+    # polish = "none": the failure stands, said in the status (stage-failed: exit 3 in `coartic fit`)
     unpolished = run(spec.with_options(engine={"name": "nlopt", "options": {"polish": "none"}}), quiet=True).channels["LA"]
     assert unpolished.status == "stage-failed" and not unpolished.polished
     assert "local lbfgs: nlopt result -1 (FAILURE)" in unpolished.message
-    # the optimum at the last sd that converged is kept, and the pooling says it did not settle
-    assert np.isfinite(unpolished.rmse) and unpolished.pooling is not None and not unpolished.pooling.settled
-    assert "the optimum at the last pooling sd that converged is kept" in unpolished.message
+
+
+def test_a_failed_pooling_re_solve_keeps_the_last_optimum_that_converged(tmp_path: Path,
+                                                                         monkeypatch: pytest.MonkeyPatch) -> None:
+    """A partial-pooling re-solve that fails: the optimum at the last sd that converged is kept,
+    written, not refused, and the status (stage-failed) and the pooling (not settled) say so. The
+    re-solves are the fits whose pool counts its target centres (Pool.counted); the engine fails
+    those alone."""
+    import coartic.fit.staged as staged
+    from coartic.fit import load_spec, run
+    from coartic.fit.engines import EngineResult
+
+    def failing(name: str) -> Any:
+        engine = get_engine(name)
+
+        def minimize(problem: ChannelProblem, x0: np.ndarray, options: dict[str, Any]) -> EngineResult:
+            if problem.pool is not None and problem.pool.counted:
+                return EngineResult(x0, "failed", "a re-solve made to fail", 0, 0)
+            return engine(problem, x0, options)
+        return minimize
+
+    monkeypatch.setattr(staged, "get_engine", failing)
+    root = Path(__file__).resolve().parents[2]
+    spec = load_spec(root / "fit" / "ema_german_defaults_0024.toml").with_options(channels=("LA",), starts=1)
+    fit = run(spec, quiet=True).channels["LA"]
+    assert fit.status == "stage-failed" and "a re-solve made to fail" in fit.message
+    assert np.isfinite(fit.rmse) and fit.pooling is not None and not fit.pooling.settled
+    assert "the optimum at the last pooling sd that converged is kept" in fit.message

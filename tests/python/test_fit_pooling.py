@@ -75,6 +75,42 @@ def test_the_evidence_is_the_exact_marginal_likelihood_of_a_linear_model() -> No
     np.testing.assert_allclose(np.diff(mine), np.diff(ref), rtol=1e-8, atol=1e-8)
 
 
+def test_the_target_prior_is_no_tighter_than_its_centre_is_known() -> None:
+    # the target prior is centred on a segment mean of the noisy data, itself known to σ²/n: T ~
+    # N(mean, τ² + σ²/n). The evidence must be the exact marginal likelihood of that linear model
+    # (each row its own variance), and as τ → 0 the prior keeps that variance instead of pinning
+    # the targets to the means (the evidence's τ → 0 on little data made the default a step model)
+    rng = np.random.default_rng(1)
+    d, n = 4, 30
+    X = rng.normal(size=(n, d))
+    means = rng.normal(0.0, 1.0, d)
+    y = X @ (means + rng.normal(0.0, 0.5, d)) + rng.normal(0.0, 0.3, n)
+    phon = tuple("abcd")
+    free = np.zeros((d, N_PARAMS), dtype=bool)
+    free[:, 0] = True  # the target: a natural-scale column, u is x itself
+    pk = Packing(phon, free, False, np.full((d, N_PARAMS), -1e9), np.full((d, N_PARAMS), 1e9), (1.0, 1.0),
+                 np.ones((d, N_PARAMS)), 1.0)
+    counts = {f"{p}.target": k for p, k in zip(phon, (2.0, 5.0, 20.0, 80.0))}
+    pool = Pool((), {f"{p}.target": m for p, m in zip(phon, means)}, {"target prior": 1.0}, 1.0,
+                target_counts=counts, counted=True)
+    x = rng.normal(size=d)
+    ev = Evidence(X @ x - y, X, pool, pk, x, n)
+    c = 1.0 / np.array(list(counts.values()))
+
+    def exact(sigma: float, tau: float) -> float:  # -log p(y | sigma, tau), the centres given
+        cov = sigma**2 * np.eye(n) + X @ np.diag(tau**2 + sigma**2 * c) @ X.T
+        e = y - X @ means
+        return 0.5 * (np.linalg.slogdet(cov)[1] + e @ np.linalg.solve(cov, e))
+
+    pts = [(0.3, 0.7), (0.2, 1e-3), (0.5, 3.0)]
+    np.testing.assert_allclose(np.diff([ev(np.log([s, t])) for s, t in pts]), np.diff([exact(s, t) for s, t in pts]),
+                               rtol=1e-8, atol=1e-8)
+    # the MAP's rows: at τ → 0 each target's sd is its centre's standard error (noise / √n)
+    tight = pool.with_scales({"target prior": 1e-3}, 0.3)
+    (rows,) = [r for r in tight.rows(pk) if r.size]
+    np.testing.assert_allclose(rows.sd, np.sqrt(1e-6 + 0.3**2 * c))
+
+
 def test_pooled_rows_have_exact_derivatives(tmp_path: Path, differ: list[model.Utterance]) -> None:
     s = spec_of(tmp_path, parameters={**POOLED, "free": ["target", "alpha", "theta_bw", "theta_fw"],
                                       "pooled": ["alpha", "theta_bw"], "target_prior": "estimated"})
@@ -202,14 +238,20 @@ def test_mcmc_samples_the_pool_and_names_what_it_holds_fixed(tmp_path: Path, dif
     rows = prob.residuals(prob.packing.pack())[n_rows:]
     plain = phoneme_posterior(prob.data, prob.packing, prob.options, "a")
     xa = held.start_point()
-    ranks = sum(pool.rank(f) * np.log(pool.tau[f]) for f in pool.families)
+    # (the target prior's rows: variance τ² + each centre's, Pool.centre_variance)
+    centre = np.array(list(pool.centre_variance(pool.noise**2).values()))
+    assert centre.size == pool.rank("target prior") and np.all(centre > 0)
+    tvar = pool.tau["target prior"] ** 2 + centre
+    ranks = sum(pool.rank(f) * np.log(pool.tau[f]) for f in pool.families if f != "target prior")
+    ranks += 0.5 * np.sum(np.log(tvar))
     np.testing.assert_allclose(held.log_prior(xa[None]) - plain.log_prior(xa[None]),
                                -0.5 * rows @ rows / pool.noise**2 - ranks, rtol=1e-9)
     x1 = x0.copy()
     x1[-1] += 0.5  # a wider target prior: the prior term changes by exactly its formula
     dev = pool.deviations(prob.packing.base, prob.data.phonemes)[-1]
     diff = joint.log_prior(x1[None]) - joint.log_prior(x0[None])
-    expect = -0.5 * (dev @ dev) * (np.exp(-2 * x1[-1]) - np.exp(-2 * x0[-1])) - pool.rank("target prior") * 0.5
+    wider = np.exp(2 * x1[-1]) + centre
+    expect = -0.5 * np.sum(dev**2 / wider + np.log(wider)) + 0.5 * np.sum(dev**2 / tvar + np.log(tvar))
     np.testing.assert_allclose(diff, expect, rtol=1e-9)
     # a per-phoneme run holds the pool's sd and the pause's parameters at the fit's values, and says so
     cfg = McmcConfig(phonemes=("a",), noise=0.1, offsets="none", plots=False,

@@ -14,7 +14,14 @@ estimated, not given. Two kinds of rows exist today:
   ``coartic.estimation.speakers.SpeakerRows`` makes per-speaker target rows) in one family per
   parameter, drawn toward the phoneme's value with an estimated τ;
 - **means** (the target prior): every free target drawn toward its phoneme's mean over its segments
-  (the step model's value, ``coartic.estimation.target_prior``), rows ``σ (T_i − m_i) / τ``.
+  (the step model's value, ``coartic.estimation.target_prior``), rows ``σ (T_i − m_i) / √(τ² + v_i)``.
+  m_i is itself an estimate, the mean of n_i noisy samples: v_i = σ²/(w n_i) its variance (``w``
+  below), so the prior is no tighter than its centre is known (``Pool.centre_variance``). Without v_i
+  the evidence drives τ to its floor wherever the data are few: m_i was computed from the same data,
+  so the data always agree with it and every τ > 0 only costs (in a step model exactly: the evidence
+  then falls monotonically in τ), and a table pinned to the segment means is a smoothed step model
+  (on the German EMA's one-utterance splits, the target sd at its floor in 4 of 6 fits;
+  docs/REAL_DATA.md).
 
 ``Pool`` holds the rows of one channel, each family's current τ and the noise sd σ the rows are
 weighed against (minimising SSE + Σ rows² is then the MAP of y ~ N(F, σ²), u ~ N(ū, τ²)).
@@ -27,7 +34,8 @@ prior rows' Jacobians K_f (unit sd):
     −log p(y | σ, τ) ≈ |r|²/2σ² + Σ_f |z_f|²/2τ_f² − ½ gᵀA⁻¹g + n log σ + Σ_f rank_f log τ_f + ½ log det A
 
 (rank_f: the prior's rank, Σ (members − 1) over a family's groups, one per target prior row;
-constants dropped). The Gaussian likelihood counts every sample as independent; articulatory
+constants dropped; the target prior's rows each weighed by 1/(τ² + v_i) instead of 1/τ², and its
+rank_f log τ_f is ½ Σ_i log(τ² + v_i)). The Gaussian likelihood counts every sample as independent; articulatory
 residuals are not (a model error lasts many samples), and counted as n independent samples they
 would swamp every prior (τ → ∞, per-phoneme fits, on any real recording). So the data are weighed
 as n_eff = w n samples, w = 1/τ_int from the residuals' integrated autocorrelation time (Geyer's
@@ -88,6 +96,13 @@ class Pool:
     # the weight w = n_eff / n of the data against the priors (autocorrelated residuals carry fewer
     # independent samples than there are samples: ``temper``); the rows' noise is σ / √w
     temper: float = 1.0
+    # "phoneme.target" -> the samples its mean averages: the mean's own variance is noise² / n
+    # (``centre_variance``); absent (a pool holding only scales): treated as known exactly
+    target_counts: Mapping[str, float] = field(default_factory=dict)
+    # whether the centres' variance is counted: not in the fit at the starting τ (the fixed start
+    # prior of before, so the multi-start's optima and the data weight w do not move: the start
+    # prior only picks the basin), from the first estimate on (``counting``) and in a fitted table's
+    counted: bool = False
 
     @property
     def families(self) -> tuple[str, ...]:
@@ -106,8 +121,10 @@ class Pool:
         fams = self.families if unit else ((TARGET_FAMILY,) if self.target_means else ()) + ("*",)
         for fam in fams:
             if fam == TARGET_FAMILY:
-                sd = 1.0 if unit else self.tau[TARGET_FAMILY]
-                out.append(Penalty(packing, {k: Prior(m, sd) for k, m in self.target_means.items()},
+                var = self.centre_variance(self.noise ** 2)
+                sd = {k: 1.0 if unit else float(np.sqrt(self.tau[TARGET_FAMILY] ** 2 + var[k]))
+                      for k in self.target_means}
+                out.append(Penalty(packing, {k: Prior(m, sd[k]) for k, m in self.target_means.items()},
                                    1.0 if unit else self.noise))
             else:
                 groups = [replace(g, sd=1.0 if unit else self.tau[str(g.family)]) for g in self.groups
@@ -136,6 +153,19 @@ class Pool:
             out.append(np.concatenate(parts, axis=-1))
         return out
 
+    def centre_variance(self, noise2: float) -> dict[str, float]:
+        """Per target prior, the variance of its centre (a segment mean of the noisy data, noise
+        variance ``noise2`` per sample as the rows weigh it): noise2 / n. The prior T ~ N(mean, τ²)
+        is centred on that estimate, so T ~ N(estimate, τ² + noise2 / n): a prior can be no tighter
+        than its own centre is known. Without it the evidence finds τ → 0 wherever the data are few
+        (the centre fits the data it was computed from: every τ > 0 only costs)."""
+        return {k: noise2 / self.target_counts[k] if self.counted and self.target_counts.get(k) else 0.0
+                for k in self.target_means}
+
+    def counting(self) -> Pool:
+        """This pool with its centres' variance counted (``counted``)."""
+        return replace(self, counted=True)
+
     @property
     def noise(self) -> float:
         """The noise the rows are weighed against: σ / √w."""
@@ -148,7 +178,7 @@ class Pool:
 
 def pool_from_settings(settings: EstimationSettings, channel: str, phonemes: Sequence[str], moving: NDArray[np.bool_],
                    priors: Mapping[str, Prior], start: Pool | None = None,
-                   followers: frozenset[int] = frozenset()) -> Pool | None:
+                   followers: frozenset[int] = frozenset(), counts: Mapping[str, float] | None = None) -> Pool | None:
     """The channel's pool from ``[parameters] pooled`` (one group of every phoneme per parameter)
     and ``target_prior = "estimated"`` (the target priors ``priors`` holds, taken out of the fixed
     ones by the caller); None when the settings estimate nothing. ``start``: τ and σ to start from
@@ -168,7 +198,9 @@ def pool_from_settings(settings: EstimationSettings, channel: str, phonemes: Seq
     means = {k: p.mean for k, p in priors.items()} if pri.target_prior == "estimated" else {}
     if not groups and not means:
         return None
-    pool = Pool(tuple(groups), means, {}, pri.prior_noise)
+    # a fitted table's τ were estimated with the centres' variance counted: so are they here (MCMC)
+    pool = Pool(tuple(groups), means, {}, pri.prior_noise,
+                target_counts={k: float(n) for k, n in (counts or {}).items() if k in means}, counted=start is not None)
     tau = {f: TAU_START for f in pool.families}
     sigma = pri.prior_noise
     if start is not None:
@@ -236,13 +268,21 @@ class Evidence:
         self.families = pool.families
         self.rank = {f: pool.rank(f) for f in self.families}
         self.n = float(n)
+        self.temper = 1.0  # w: the data weighed as n_eff = w n samples (``estimate`` sets it)
         self.gd = data_j.T @ data_j
         self.bd = data_j.T @ data_r
         self.sd = float(data_r @ data_r)
         self.gf, self.bf, self.sf = [], [], []
-        for rows in pool.rows(packing, unit=True):
+        # the target prior's rows one by one (each its own centre variance): K, z and n_eff per row
+        self.tk: FloatArray | None = None
+        self.tz = self.tn = np.zeros(0)
+        for fam, rows in zip(self.families, pool.rows(packing, unit=True)):
             z = rows.residuals(x)
             k = rows.jacobian(x).toarray()
+            if fam == TARGET_FAMILY:
+                assert isinstance(rows, Penalty)
+                cv = pool.centre_variance(1.0)  # 1 / n per row (0: a centre known exactly)
+                self.tk, self.tz, self.tn = k, z, np.array([cv[key] for key in rows.names])
             self.gf.append(k.T @ k)
             self.bf.append(k.T @ z)
             self.sf.append(float(z @ z))
@@ -252,36 +292,56 @@ class Evidence:
         # constant in σ, τ, so the estimate does not depend on it)
         self.ridge = 1e-10 * scale * np.eye(d)
 
-    def _a(self, s: FloatArray) -> tuple[FloatArray, FloatArray, float]:
+    def prior_variances(self, s: FloatArray) -> list[FloatArray]:
+        """Per family, its rows' prior variances at s: τ², plus (target prior) each centre's
+        variance σ² / n_eff, σ the evidence's noise against the data weighed as n_eff = w n samples."""
+        sig2 = np.exp(2 * s[0])
+        return [np.exp(2 * t) + (sig2 * self.tn / self.temper if f == TARGET_FAMILY else 0.0)
+                for f, t in zip(self.families, s[1:])]
+
+    def _a(self, s: FloatArray) -> tuple[FloatArray, FloatArray, float, float]:
+        """A, g, the quadratic constant and Σ_f ½ log det(prior covariance_f)."""
         sig2 = np.exp(2 * s[0])
         a = self.gd / sig2 + self.ridge
         g = self.bd / sig2
         l0 = self.sd / (2 * sig2)
-        for t, gf, bf, sf in zip(s[1:], self.gf, self.bf, self.sf):
-            w = np.exp(-2 * t)
+        half_logdet = 0.0
+        for f, v, gf, bf, sf in zip(self.families, self.prior_variances(s), self.gf, self.bf, self.sf):
+            if f == TARGET_FAMILY and self.tk is not None:
+                p = 1.0 / v
+                a = a + (self.tk.T * p) @ self.tk
+                g = g + self.tk.T @ (p * self.tz)
+                l0 += float(np.sum(p * self.tz ** 2)) / 2
+                half_logdet += 0.5 * float(np.sum(np.log(v)))
+                continue
+            w = 1.0 / float(v)
             a = a + gf * w
             g = g + bf * w
             l0 += sf * w / 2
-        return a, g, l0
+            half_logdet += 0.5 * self.rank[f] * float(np.log(v))
+        return a, g, l0, half_logdet
 
     def __call__(self, s: FloatArray) -> float:
         """−log evidence at s = (log σ, log τ_f...)."""
-        a, g, l0 = self._a(s)
+        a, g, l0, prior_logdet = self._a(s)
         try:
             c = sla.cho_factor(a)
         except np.linalg.LinAlgError:
             return np.inf
         quad = float(g @ sla.cho_solve(c, g))
         logdet = 2.0 * float(np.sum(np.log(np.diag(c[0]))))
-        return float(l0 - 0.5 * quad + self.n * s[0] + sum(self.rank[f] * t for f, t in zip(self.families, s[1:]))
-                     + 0.5 * logdet)
+        return float(l0 - 0.5 * quad + self.n * s[0] + prior_logdet + 0.5 * logdet)
 
     def effective(self, s: FloatArray) -> tuple[float, dict[str, float]]:
-        a, _, _ = self._a(s)
+        a = self._a(s)[0]
         inv = np.linalg.pinv(a, hermitian=True)
         total = float(np.sum(inv * self.gd.T) / np.exp(2 * s[0]))
-        fam = {f: float(self.rank[f] - np.sum(inv * gf.T) * np.exp(-2 * t))
-               for f, gf, t in zip(self.families, self.gf, s[1:])}
+        fam = {}
+        for f, v, gf in zip(self.families, self.prior_variances(s), self.gf):
+            if f == TARGET_FAMILY and self.tk is not None:
+                fam[f] = float(self.rank[f] - np.sum(inv * ((self.tk.T / v) @ self.tk).T))
+            else:
+                fam[f] = float(self.rank[f] - np.sum(inv * gf.T) / float(v))
         return total, fam
 
 
@@ -328,6 +388,7 @@ def estimate(data_r: FloatArray, data_j: FloatArray, pool: Pool, packing: Packin
     likelihood tempered by w)."""
     ev = Evidence(np.sqrt(w) * data_r, np.sqrt(w) * np.asarray(data_j, dtype=np.float64), pool, packing, x, n)
     ev.n = w * n
+    ev.temper = w
     fams = ev.families
     s0 = np.log(np.array([pool.sigma] + [pool.tau[f] for f in fams]))
     rms = np.sqrt(ev.sd / max(ev.n, 1e-300))
@@ -345,6 +406,20 @@ def estimate(data_r: FloatArray, data_j: FloatArray, pool: Pool, packing: Packin
 
 
 def settled(a: Pool, b: PoolEstimate) -> bool:
-    """τ and σ within SETTLED (in log) of the pool's."""
-    return bool(abs(np.log(b.sigma / a.sigma)) <= SETTLED and abs(np.log(b.temper / a.temper)) <= SETTLED
-                and all(abs(np.log(b.tau[f] / a.tau[f])) <= SETTLED for f in b.tau))
+    """τ and σ within SETTLED (in log) of the pool's, and the pool's centres counted as the estimate's
+    are. The target prior is compared by its rows' sd √(τ² + v_i), what the fit sees: a τ far below
+    its centres' sd moves nothing (the evidence is flat there) and need not settle."""
+    if not (a.counted or not any(a.target_counts.values())):
+        return False
+    if abs(np.log(b.sigma / a.sigma)) > SETTLED or abs(np.log(b.temper / a.temper)) > SETTLED:
+        return False
+    for f in b.tau:
+        if f == TARGET_FAMILY:
+            v = np.array(list(a.centre_variance(a.noise**2).values()))
+            va = a.tau[f] ** 2 + v
+            vb = b.tau[f] ** 2 + v * (b.sigma**2 / b.temper) / (a.sigma**2 / a.temper)
+            if np.max(np.abs(0.5 * np.log(vb / va)), initial=0.0) > SETTLED:
+                return False
+        elif abs(np.log(b.tau[f] / a.tau[f])) > SETTLED:
+            return False
+    return True

@@ -38,7 +38,7 @@ from coartic.estimation.penalties import Penalty, PenaltyRows, ShrinkGroup, Shri
 from coartic.estimation.pooling import TAU_START, Pool, pool_from_settings, with_groups
 from coartic.estimation.settings import EstimationSettings
 from coartic.estimation.speakers import SpeakerRows, Speakers, expand_speaker_targets, table_speaker_meta
-from coartic.estimation.target_prior import target_priors
+from coartic.estimation.target_prior import segment_stats, target_priors
 from coartic.errors import SpecError
 from coartic.jacobian import JacobianBuffer
 from coartic.model import Utterance, channel_options, core_error, model_options
@@ -443,9 +443,11 @@ def build_problem(settings: EstimationSettings, utterances: Sequence[Utterance],
         # they are pooled toward neutral below)
         free_now = moving(ps.free, ps.ties)
         means = target_priors(1.0, data.utterances, channel, data.phonemes, ps.free, ps.priors)
+        stats = segment_stats(data.utterances, channel)
         pool = pool_from_settings(settings, channel, data.phonemes, free_now, means, start_pool,
                                   frozenset(f for f, _ in ps.ties)
-                                  | {g.rows[1] * len(PARAMETERS) + g.column for g in dynamics})
+                                  | {g.rows[1] * len(PARAMETERS) + g.column for g in dynamics},
+                                  {k: stats[k.rpartition(".")[0]][1] for k in means})
     if dynamics:
         # [model] emotions = "targets+dynamics": each emotion's dynamics pooled toward neutral, the
         # strength per parameter and emotion estimated (the same empirical Bayes as [parameters] pooled)

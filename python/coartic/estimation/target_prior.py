@@ -24,6 +24,11 @@ from coartic.table import PARAMETERS
 def segment_means(utterances: Sequence[Utterance], channel: str) -> dict[str, float]:
     """Each phoneme's mean of ``channel`` over the valid samples inside its segments (phonemes
     with no such sample are absent): the step model's value."""
+    return {lab: m for lab, (m, _) in segment_stats(utterances, channel).items()}
+
+
+def segment_stats(utterances: Sequence[Utterance], channel: str) -> dict[str, tuple[float, int]]:
+    """``segment_means`` and, with each, the number of samples it averages."""
     acc: dict[str, list[float]] = {}
     for u in utterances:
         y = u.observed[channel]
@@ -35,7 +40,7 @@ def segment_means(utterances: Sequence[Utterance], channel: str) -> dict[str, fl
                 a = acc.setdefault(lab, [0.0, 0.0])
                 a[0] += float(y[m].sum())
                 a[1] += float(m.sum())
-    return {lab: s / k for lab, (s, k) in acc.items()}
+    return {lab: (s / k, int(k)) for lab, (s, k) in acc.items()}
 
 
 def target_priors(sd: float | None, utterances: Sequence[Utterance], channel: str, phonemes: Sequence[str],

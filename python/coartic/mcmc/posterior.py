@@ -12,7 +12,8 @@ Sampling coordinates are the least-squares problem's own internal vector x
   the least-squares rows divided by prior_noise, so −½ Σ z²);
 * ``-inf`` outside the support (those walkers are not even sent to the core);
 * times the fit's partial pooling (``[parameters] pooled``, ``target_prior = "estimated"``:
-  ``coartic.estimation.pooling``): each family's hierarchical prior −½ Σ dev²/τ_f² − rank_f log τ_f,
+  ``coartic.estimation.pooling``): each family's hierarchical prior −½ Σ dev²/τ_f² − rank_f log τ_f
+  (the target prior: −½ Σ dev²/v − ½ Σ log v, v = τ² + each centre's variance),
   with τ_f sampled as ``log sd(family)`` (log-uniform on ``TAU_BOUNDS``) or held at the fit's
   estimate; the likelihood then counts the samples as the fit's evidence did, n_eff = w n (the
   log-likelihood times w, the data weight the fit recorded: autocorrelated residuals hold fewer
@@ -47,6 +48,7 @@ from typing import TYPE_CHECKING, Any, Callable, Mapping, Sequence
 import numpy as np
 from numpy.typing import NDArray
 from coartic.mcmc.errors import McmcError
+from coartic.estimation.pooling import TARGET_FAMILY
 
 if TYPE_CHECKING:
     from coartic import _core
@@ -222,6 +224,8 @@ class LogPosterior:
 
         self.pool = pool
         self.temper = 1.0 if pool is None else float(pool.temper)
+        # the target prior's centre variances, at the fit's noise (held, as the centres are)
+        self._centre_var = np.zeros(0) if pool is None else np.array(list(pool.centre_variance(pool.noise**2).values()))
         self._pool_cols: list[int | None] = []
         for fam in () if pool is None else pool.families:
             if sample_pool:
@@ -311,8 +315,14 @@ class LogPosterior:
             params, _ = self.matrices(x)
             for fam, col, dev in zip(self.pool.families, self._pool_cols, self.pool.deviations(params, self.data.phonemes)):
                 log_tau = np.full(x.shape[0], math.log(self.pool.tau[fam])) if col is None else x[:, col]
+                dev = np.where(np.isfinite(dev), dev, np.inf)
+                if fam == TARGET_FAMILY:  # each row's variance τ² + its centre's (``Pool.centre_variance``)
+                    var = np.exp(2.0 * log_tau)[:, None] + self._centre_var[None, :]
+                    with np.errstate(invalid="ignore"):
+                        lp = lp - 0.5 * np.sum(dev**2 / var + np.log(var), axis=-1)
+                    continue
                 with np.errstate(invalid="ignore"):
-                    q = np.sum(np.where(np.isfinite(dev), dev, np.inf) ** 2, axis=-1)
+                    q = np.sum(dev**2, axis=-1)
                 lp = lp - 0.5 * q * np.exp(-2.0 * log_tau) - self.pool.rank(fam) * log_tau
         return lp
 
@@ -455,7 +465,7 @@ class LogPosterior:
             h.update(repr((self.speakers.mode, self.speakers.names, self._spk_a.tolist(), self._spk_b.tolist())).encode())
         if self.pool is not None:
             h.update(repr((sorted(self.pool.tau.items()), self.pool.temper, self._pool_cols, self.pool.groups,
-                           sorted(self.pool.target_means.items()))).encode())
+                           sorted(self.pool.target_means.items()), sorted(self.pool.target_counts.items()))).encode())
         for u in self.data.utterances:
             h.update(repr((u.name, u.labels)).encode())
             h.update(np.ascontiguousarray(u.starts).tobytes() + np.ascontiguousarray(u.ends).tobytes())
