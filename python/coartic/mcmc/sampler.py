@@ -388,22 +388,22 @@ class _Ensemble:
     def log_probs(self, coords: NDArray[np.float64]) -> NDArray[np.float64]:
         """emcee's ``compute_log_prob`` for a log-probability returning one float per walker."""
         if np.any(np.isinf(coords)):
-            raise ValueError("At least one parameter value was infinite")
+            raise ChainError("At least one parameter value was infinite")
         if np.any(np.isnan(coords)):
-            raise ValueError("At least one parameter value was NaN")
+            raise ChainError("At least one parameter value was NaN")
         lp = np.array(self.log_prob(coords), dtype=np.float64).reshape(len(coords))
         if np.any(np.isnan(lp)):
-            raise ValueError("Probability function returned NaN")
+            raise ChainError("Probability function returned NaN")
         return lp
 
     def start(self, coords: NDArray[np.float64], last_lp: NDArray[np.float64] | None) -> NDArray[np.float64]:
         if not self._walkers_independent(coords):
-            raise ValueError("Initial state has a large condition number. Make sure that your walkers are "
+            raise ChainError("Initial state has a large condition number. Make sure that your walkers are "
                              "linearly independent for the best performance")
         if last_lp is None:
             last_lp = self.log_probs(coords)
         if np.any(np.isnan(last_lp)):
-            raise ValueError("The initial log_prob was NaN")
+            raise ChainError("The initial log_prob was NaN")
         return np.array(last_lp, dtype=np.float64)
 
     def step(self, coords: NDArray[np.float64], lp: NDArray[np.float64]) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:

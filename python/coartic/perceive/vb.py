@@ -19,6 +19,8 @@ import numpy.typing as npt
 from scipy import sparse
 from statsmodels.genmod.bayes_mixed_glm import BinomialBayesMixedGLM, glw
 
+from coartic.errors import UsageError
+
 F64 = npt.NDArray[np.float64]
 
 
@@ -33,7 +35,7 @@ class InterceptsBinomialGLMM(BinomialBayesMixedGLM):  # type: ignore[misc]  # st
         n_obs, n_blocks = vc.shape[0], int(np.max(ident)) + 1
         if not (np.all(np.diff(vc.indptr) == n_blocks) and np.all(vc.data == 1.0)
                 and np.all(np.asarray(ident)[vc.indices.reshape(n_obs, n_blocks)] == np.arange(n_blocks))):
-            raise ValueError("exog_vc must hold one indicator column per level of each grouping, a single 1 per row "
+            raise UsageError("exog_vc must hold one indicator column per level of each grouping, a single 1 per row "
                              "and grouping")
         self._cols = vc.indices.reshape(n_obs, n_blocks).astype(np.intp)  # row i's column in each grouping
         self._flat = self._cols.ravel()
