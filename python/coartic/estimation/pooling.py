@@ -409,7 +409,7 @@ def settled(a: Pool, b: PoolEstimate) -> bool:
     """τ and σ within SETTLED (in log) of the pool's, and the pool's centres counted as the estimate's
     are. The target prior is compared by its rows' sd √(τ² + v_i), what the fit sees: a τ far below
     its centres' sd moves nothing (the evidence is flat there) and need not settle."""
-    if not (a.counted or not any(a.target_counts.values())):
+    if any(a.target_counts.values()) and not a.counted:  # the estimate counted the centres, the pool's fit did not
         return False
     if abs(np.log(b.sigma / a.sigma)) > SETTLED or abs(np.log(b.temper / a.temper)) > SETTLED:
         return False
