@@ -13,13 +13,14 @@ the tongue moves through them from one neighbour to the next.
 
 from __future__ import annotations
 
+import functools
 from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
 
 from coartic.runtime.animate import Animation, animate, neutral_posture
-from coartic.runtime.shipped import SHIPPED_TABLE, load_shipped_table
+from coartic.runtime.shipped import SHIPPED_TABLE, load_shipped_table, shipped_table_path
 from coartic.table import PAUSE, TONGUE_CHANNELS, ParameterTable
 
 # (TTH, TTA, TBH, TBA) mm from rest, and whether the tongue makes a contact there (k_R 1, strong)
@@ -75,7 +76,25 @@ def default_tongue_table(phonemes: list[str], source: str = "coartic default ton
 
 def shipped_tongue_table(phonemes: list[str]) -> ParameterTable:
     """The default tongue for `phonemes`: the shipped table's tongue channels, and for a phoneme
-    it lacks (or a shipped table without them) the class default of `default_tongue_table`."""
+    it lacks (or a shipped table without them) the class default of `default_tongue_table`.
+
+    Made once per set of phonemes and state of the shipped file in a process, and shared: read it,
+    do not change it. Every animation's FAPs need it (coartic.runtime.fap.animation_faps), and
+    loading, parsing and validating the shipped table anew each time was a third of the CPU of
+    drawing 61 emotive utterances' faces (test_emotions_runtime's contact property, 1.7 -> 1.2 CPU-s)."""
+    path = shipped_table_path()
+    try:
+        st = path.stat()
+        stamp = (str(path), st.st_mtime_ns, st.st_size)
+    except OSError:  # load_shipped_table says what is missing
+        stamp = (str(path), -1, -1)
+    return _shipped_tongue_table(tuple(phonemes), stamp)
+
+
+@functools.lru_cache(maxsize=32)
+def _shipped_tongue_table(phonemes_in: tuple[str, ...], stamp: tuple[str, int, int]) -> ParameterTable:
+    """``shipped_tongue_table`` for the phonemes, the shipped file as ``stamp`` (path, mtime, size) found it."""
+    phonemes = list(phonemes_in)
     shipped = load_shipped_table()
     if all(c in shipped.channels for c in TONGUE_CHANNELS):
         # the channels' reference phoneme (alpha = 1) comes along, said or not
