@@ -237,6 +237,7 @@ class PoolEstimate:
     at_bound: dict[str, str] = field(default_factory=dict)  # family -> "lower" (shared) / "upper" (free)
     rounds: int = 0  # MAP re-solves until τ settled (set by the fit)
     settled: bool = True
+    cycle: int = 0  # not settled: the alternation went round a cycle of this many rounds (fit_pooled)
     temper: float = 1.0  # w = n_eff / n (residual_weight): 1 / the residuals' autocorrelation time
     n_valid: int = 0  # the samples n
     # empirical Bayes run from several optima (a multi-start's; coartic.fit.staged.fit_pooled_best):
@@ -247,7 +248,7 @@ class PoolEstimate:
 
     def as_dict(self) -> dict[str, object]:
         return {"sigma_mm": self.sigma, "effective_parameters": self.effective, "free_parameters": self.n_free,
-                "rounds": self.rounds, "settled": bool(self.settled), "data_weight": self.temper,
+                "rounds": self.rounds, "settled": bool(self.settled), "cycle": self.cycle, "data_weight": self.temper,
                 "samples": self.n_valid, "log_evidence": self.log_evidence,
                 "candidates": [dict(c) for c in self.candidates], "chosen": self.chosen,
                 "families": {f: {"sd": t, "effective_parameters": self.family_effective[f], "rank": self.rank[f],
