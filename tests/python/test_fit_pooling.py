@@ -113,6 +113,33 @@ def test_the_target_prior_is_no_tighter_than_its_centre_is_known() -> None:
     np.testing.assert_allclose(rows.sd, np.sqrt(1e-6 + 0.3**2 * c))
 
 
+def test_the_evidence_gradient_is_exact() -> None:
+    # the estimate maximises the evidence with its closed-form gradient in (log σ, log τ_f): it must
+    # be the derivative of the evidence itself, for a group family and the target prior (whose
+    # centres' variance σ²/(w n) moves with σ) together, data weighed by w
+    rng = np.random.default_rng(0)
+    d, n = 6, 40
+    X = rng.normal(size=(n, d))
+    y = X @ rng.normal(2.0, 0.7, d) + rng.normal(0.0, 0.3, n)
+    phon = tuple("abcdef")
+    k = PARAMETERS.index("c_bw")
+    free = np.zeros((d, N_PARAMS), dtype=bool)
+    free[:3, k] = free[3:, 0] = True  # three phonemes' c_bw in a group, three targets under the prior
+    pk = Packing(phon, free, False, np.full((d, N_PARAMS), -1e9), np.full((d, N_PARAMS), 1e9), (1.0, 1.0),
+                 np.ones((d, N_PARAMS)), 1.0)
+    pool = Pool((ShrinkGroup("t", phon[:3], (0, 1, 2), k, 1.0, False, "f"),),
+                {"d.target": 0.5, "e.target": 1.0, "f.target": -0.2}, {"f": 1.0, "target prior": 0.7}, 1.0,
+                target_counts={"d.target": 5.0, "e.target": 9.0, "f.target": 3.0}, counted=True)
+    x = rng.normal(size=d)
+    ev = Evidence(X @ x - y, X, pool, pk, x, n)
+    ev.temper = 0.3
+    for s in (np.log([0.3, 0.7, 0.5]), np.log([0.2, 0.05, 2.0]), np.log([1.5, 3.0, 0.01])):
+        value, grad = ev.value_and_gradient(s)
+        assert value == pytest.approx(ev(s), abs=1e-9)
+        fd = [(ev(s + h) - ev(s - h)) / 2e-6 for h in np.eye(3) * 1e-6]
+        np.testing.assert_allclose(grad, fd, rtol=1e-5, atol=1e-4)
+
+
 def test_pooled_rows_have_exact_derivatives(tmp_path: Path, differ: list[model.Utterance]) -> None:
     s = spec_of(tmp_path, parameters={**POOLED, "free": ["target", "alpha", "theta_bw", "theta_fw"],
                                       "pooled": ["alpha", "theta_bw"], "target_prior": "estimated"})
