@@ -132,7 +132,9 @@ def fit_staged(problem: ChannelProblem, engine: str, options: dict[str, Any], st
 # MAP re-solves at most, alternating with the τ estimate, before the pool is reported unsettled.
 # The alternation creeps where a family's τ is weakly determined (German EMA, one utterance, the
 # target prior's centres counted: α's τ 1.5 → 0.001 over 15 rounds, 5 % a round, then settled);
-# 12 stopped such fits half way, at a τ that depended on the start (held out 2.59 against 2.66 mm)
+# 12 stopped such fits half way, at a τ that depended on the start (held out 2.59 against 2.66 mm).
+# Since the estimate's exact gradient, the secant (``next_scales``) and the 2-cycle stop (``two_cycle``):
+# 1-9 re-solves on the data of docs/REAL_DATA.md
 POOL_ROUNDS = 30
 # The most the secant stretches one round's step of a creeping τ (``next_scales``): a trust region,
 # so that each jump is verified by the re-solve and the estimate at its end before the next one.
