@@ -32,14 +32,15 @@ def session(tmp_path_factory: pytest.TempPathFactory) -> Path:
 
 
 # The engine stops when the objective or the step changes by less than 1e-6 (relative) instead of its
-# default 1e-8: at 1e-8 the emotion prior's refit and the pooled re-solves took 717 of the fit's 832
-# evaluations (12.5 of 18 CPU-s, the first re-solve 505 of them), creeping along the stiff directions
-# of the families pooled to an sd of 0.001-0.004; at 1e-6 the fit takes about 120 evaluations (6 CPU-s)
-# and recovers as well: every planted deviation within 0.075-0.09 of the truth (0.12 at 1e-8; the test
-# allows 0.15), the unplanted families' sd 0.001-0.026 (< 0.05 asked), the planted ones' 0.19-0.27
-# (> 0.1 asked), with this pooling alternation and with one that extrapolates τ's steps. Not a
-# setting to copy blindly: in test_emotions_compare a split's fit stopped at 1e-6 at a worse optimum
-# (held out 0.171 against 0.145 mm), and the other emotion tests keep the defaults.
+# default 1e-8: at 1e-8 the emotion prior's refit and the three pooled re-solves took 969 of the fit's
+# 1084 evaluations (12.6 of 17 CPU-s, the first re-solve 509 of them), creeping along the stiff
+# directions of the families pooled to an sd of 0.001-0.02; at 1e-6 the fit takes 134 evaluations
+# (5.4 CPU-s) and recovers as well: every planted deviation within 0.075 of the truth (0.11 at 1e-8;
+# the test allows 0.15), the unplanted families' sd 0.001-0.026 (< 0.05 asked), the planted ones'
+# 0.19-0.25 (> 0.1 asked); so too before the alternation extrapolated τ's steps (within 0.09; sd
+# below 0.01 and 0.21-0.27). Not a setting to copy blindly: in test_emotions_compare a split's fit
+# stopped at 1e-6 at a worse optimum (held out 0.171 against 0.145 mm), and the other emotion tests
+# keep the defaults.
 TOLERANCES = "[engine.options]\nftol = 1e-6\nxtol = 1e-6\n"
 
 
