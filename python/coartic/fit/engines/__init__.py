@@ -16,7 +16,8 @@ from coartic.fit.engines.base import (Check, EngineResult, Minimizer, OptionErro
                                       evaluation_budget, is_int, is_number, iteration_budget, prepare_start)
 
 __all__ = ["Check", "EngineResult", "Minimizer", "OptionError", "Unit", "check_against", "check_options",
-           "evaluation_budget", "get_engine", "is_int", "is_number", "iteration_budget", "local_options", "prepare_start"]
+           "evaluation_budget", "get_engine", "is_int", "is_number", "iteration_budget", "local_options",
+           "prepare_start"]
 
 
 def _require(name: str) -> None:
