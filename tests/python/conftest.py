@@ -117,10 +117,10 @@ def illustrative_table() -> Any:
 @contextlib.contextmanager
 def without_overview() -> Iterator[ModuleType]:
     """The synthetic-session generator (corpus-synthetic/generate.py, coartic.synthetic_cli) with
-    its overview figure left out while the block runs: plot_overview costs about 1 CPU-s a session
-    (and matplotlib's import where nothing else draws), as much as generating 12 trials. For tests
-    that use a session's trials or test its staging, never the figure; test_synthetic.py's module
-    session and flavours still draw it."""
+    its overview figure left out while the block runs: plot_overview costs about 2 CPU-s a session
+    (and matplotlib's import where nothing else draws), more than generating a small session's
+    trials. For tests that use a session's trials or test its staging, never the figure;
+    test_synthetic.py's module session still draws it."""
     from coartic.synthetic_cli import load_generator
 
     gen = load_generator()

@@ -152,6 +152,7 @@ class Chromium:
         self._next_id = 0
         self._events: list[dict[str, Any]] = []
         self._size: tuple[int, int] | None = None
+        self._view: tuple[Any, ...] | None = None  # the page and view on the screen (screenshot)
         page = next(t for t in self._call("Target.getTargets")["targetInfos"] if t["type"] == "page")
         self._session = self._call("Target.attachToTarget", targetId=page["targetId"], flatten=True)["sessionId"]
         self._call("Page.enable", session=True)
@@ -197,21 +198,36 @@ class Chromium:
     def screenshot(self, page: Path, png: Path, *, frame: int | None = None, face_only: int | None = None,
                    size: tuple[int, int] = (1130, 580), yaw: float | None = None, zoom: float | None = None,
                    section: bool = False) -> Path:
-        """What `coartic.face.viewer.screenshot` takes with the same arguments."""
+        """What `coartic.face.viewer.screenshot` takes with the same arguments.
+
+        Another frame of the page and view on the screen is drawn by the page's own
+        coarticView.show(frame / fps), what its load does for ?frame=, instead of loading the page
+        again (parsing its glTF and setting up WebGL: 0.14 CPU-s of Chromium's a picture, against
+        0.035). test_view.py compares such pictures with screenshot()'s too."""
         from coartic.face.viewer import screenshot_url
 
         if size != self._size:  # screenshot()'s --window-size: the page's viewport
             self._call("Emulation.setDeviceMetricsOverride", session=True, width=size[0], height=size[1],
                        deviceScaleFactor=1, mobile=False)
             self._size = size
-        self._events.clear()
-        self._call("Page.navigate", session=True,
-                   url=screenshot_url(page, frame=frame, face_only=face_only, yaw=yaw, zoom=zoom, section=section))
-        self._wait_event("Page.loadEventFired")
-        # the viewer draws in its load handler; a frame later the picture is on the screen
-        self._call("Runtime.evaluate", session=True, awaitPromise=True, expression=(
-            "new Promise(done => { const ready = () => (window.coarticView || document.getElementById('error')"
-            ".textContent) ? requestAnimationFrame(() => done(1)) : setTimeout(ready, 5); ready(); })"))
+            self._view = None
+        st = Path(page).stat()
+        view = (str(Path(page).resolve()), st.st_mtime_ns, st.st_size, face_only, yaw, zoom, section)
+        # a frame the animation lacks is the page's load to refuse (its error), not show()'s to clamp
+        if frame is None or view != self._view or not self._call("Runtime.evaluate", session=True, awaitPromise=True,
+                                                                   expression=(
+                "new Promise(done => { const v = window.coarticView, k = " + str(int(frame)) + ";"
+                "if (!v || document.getElementById('error').textContent || !(k < v.nFrames)) { done(0); return; }"
+                "v.show(k / v.fps); requestAnimationFrame(() => done(1)); })"))["result"].get("value"):
+            self._events.clear()
+            self._call("Page.navigate", session=True,
+                       url=screenshot_url(page, frame=frame, face_only=face_only, yaw=yaw, zoom=zoom, section=section))
+            self._wait_event("Page.loadEventFired")
+            # the viewer draws in its load handler; a frame later the picture is on the screen
+            self._call("Runtime.evaluate", session=True, awaitPromise=True, expression=(
+                "new Promise(done => { const ready = () => (window.coarticView || document.getElementById('error')"
+                ".textContent) ? requestAnimationFrame(() => done(1)) : setTimeout(ready, 5); ready(); })"))
+            self._view = view
         data = self._call("Page.captureScreenshot", session=True, format="png")["data"]
         png.parent.mkdir(parents=True, exist_ok=True)
         partial = png.with_name(png.name + ".partial")

@@ -19,12 +19,13 @@ ROOT = Path(__file__).resolve().parents[2]
 EMA = ROOT / "tests" / "data" / "realdata" / "emu-ema-german" / "derived"
 
 
-def german_utterance_spec(path: Path, rest: str, name: str | None = None) -> Path:
-    """A spec file at ``path`` fitting one real German EMA utterance (0020, German SAMPA labels);
-    ``rest``: the TOML that follows its [corpus] table ([model], [parameters]...)."""
+def german_utterance_spec(path: Path, rest: str, name: str | None = None, utterance: str = "0020") -> Path:
+    """A spec file at ``path`` fitting one real German EMA utterance (0020 unless ``utterance`` says
+    0024; German SAMPA labels); ``rest``: the TOML that follows its [corpus] table ([model],
+    [parameters]...)."""
     head = f'name = "{name}"\n' if name is not None else ""
-    path.write_text(head + f'[corpus]\nfiles = ["{EMA}/dfgspp_mo1_prosody_0020_ema.csv"]\n'
-                    f'labels = ["{EMA}/dfgspp_mo1_prosody_0020_Segment.tsv"]\nlabel_map = "german_sampa"\n' + rest)
+    path.write_text(head + f'[corpus]\nfiles = ["{EMA}/dfgspp_mo1_prosody_{utterance}_ema.csv"]\n'
+                    f'labels = ["{EMA}/dfgspp_mo1_prosody_{utterance}_Segment.tsv"]\nlabel_map = "german_sampa"\n' + rest)
     return path
 
 

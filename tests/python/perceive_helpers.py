@@ -90,6 +90,36 @@ class Server:
                 f.close()
 
 
+class AppServer:
+    """The study's pages (coartic.perceive.server.create_app, the app `coartic perceive serve` serves)
+    on a free local port, from a thread of the test process, with `Server`'s url and stop(). For the
+    tests of the pages and the answers: the server process itself (its start, a crash, waitress) is
+    `Server`'s test; starting one costs a CPU-second and 2-3 s of wall for the interpreter and its
+    imports (coartic.cli, flask, sqlalchemy), which the tests' process has already loaded."""
+
+    def __init__(self, study: Path, db: str) -> None:
+        import threading
+
+        from werkzeug.serving import make_server
+
+        from coartic.perceive.server import create_app, load_study
+        from coartic.perceive.storage import Store
+
+        manifest, secret = load_study(study)
+        self.store = Store(db, manifest, secret)
+        self.server = make_server("127.0.0.1", 0, create_app(study, self.store), threaded=True)
+        self.port = int(self.server.port)
+        self.url = f"http://127.0.0.1:{self.port}/"  # as serve() prints it
+        self.thread = threading.Thread(target=self.server.serve_forever, daemon=True)
+        self.thread.start()
+
+    def stop(self) -> None:
+        self.server.shutdown()
+        self.server.server_close()
+        self.thread.join(timeout=30)
+        self.store.close()
+
+
 def chromium_driver() -> Any:
     """A headless Chromium under Selenium, or a skip saying what to install."""
     pytest.importorskip("selenium")

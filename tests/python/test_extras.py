@@ -113,32 +113,73 @@ def test_the_core_fits_and_scores(fitted: tuple[Path, Path], tmp_path: Path) -> 
     assert "LA" in r.stdout
 
 
-@pytest.mark.parametrize(("args", "extra", "missing"), [
-    (["mcmc", "{spec}", "--fit", "{fit}", "--out", "{tmp}/mcmc"], "mcmc", "emcee, corner, arviz, xarray, pandas are"),
-    (["fit", "{spec}", "--out", "{tmp}/nl", "--engine", "nlopt"], "engines", "nlopt is"),
-    (["fit", "{spec}", "--out", "{tmp}/ca", "--engine", "casadi"], "engines", "casadi is"),
-    (["perceive", "analyse", "{tmp}", "--out", "{tmp}/ca"], "perceive",
-     "flask, waitress, sqlalchemy, psycopg, statsmodels, pandas are"),
-])
-def test_each_command_names_its_extra(fitted: tuple[Path, Path], tmp_path: Path, args: list[str], extra: str,
-                                      missing: str) -> None:
+REFUSED = {
+    "mcmc": ["mcmc", "{spec}", "--fit", "{fit}", "--out", "{tmp}/mcmc"],
+    "nlopt": ["fit", "{spec}", "--out", "{tmp}/nl", "--engine", "nlopt"],
+    "casadi": ["fit", "{spec}", "--out", "{tmp}/ca", "--engine", "casadi"],
+    "perceive": ["perceive", "analyse", "{tmp}", "--out", "{tmp}/ca"],
+    "batch": ["batch", str(ROOT / "fit" / "batch_synthetic.toml"), "--out", "{tmp}/b"],
+}
+
+# Runs each command of argv lists (JSON, the first argument) in turn as `coartic` does (coartic.cli.main),
+# its exit code and output kept apart (click, typer and rich write to sys.stdout and sys.stderr as they
+# find them); an exception other than the exit is kept as its traceback.
+EACH_COMMAND = """
+import contextlib, io, json, sys, traceback
+from coartic.cli import main
+said = []
+for argv in json.loads(sys.argv[1]):
+    out, code = io.StringIO(), None
+    with contextlib.redirect_stdout(out), contextlib.redirect_stderr(out):
+        sys.argv = ["coartic", *argv]
+        try:
+            main()
+            code = 0
+        except SystemExit as e:
+            code = e.code if isinstance(e.code, int) else 1
+        except BaseException:
+            traceback.print_exc()
+            code = 1
+    said.append([code, out.getvalue()])
+print(json.dumps(said))
+"""
+
+
+@pytest.fixture(scope="module")
+def refusals(fitted: tuple[Path, Path], tmp_path_factory: pytest.TempPathFactory) -> dict[str, tuple[int, str, Path]]:
+    """{name: (exit code, output, its directory)} of each command of REFUSED, in one child process
+    with the core alone: a child per command cost a second of CPU each, most of it the interpreter's
+    start and coartic.cli's imports, the same for all of them (every command refuses before its work,
+    and an extra blocked for the first is blocked for the next)."""
     spec, fit = fitted
-    argv = [a.format(spec=spec, fit=fit, tmp=tmp_path) for a in args]
-    r = run_core(argv, tmp_path)
-    out = r.stdout + r.stderr
-    assert r.returncode != 0 and "Traceback" not in out, out
+    dirs = {name: tmp_path_factory.mktemp(name) for name in REFUSED}
+    argvs = [[a.format(spec=spec, fit=fit, tmp=dirs[name]) for a in args] for name, args in REFUSED.items()]
+    r = run_core([json.dumps(argvs)], spec.parent, EACH_COMMAND)
+    assert r.returncode == 0, r.stdout + r.stderr
+    said = json.loads(r.stdout.splitlines()[-1])
+    return {name: (code, out, dirs[name]) for name, (code, out) in zip(REFUSED, said)}
+
+
+@pytest.mark.parametrize(("name", "extra", "missing"), [
+    ("mcmc", "mcmc", "emcee, corner, arviz, xarray, pandas are"),
+    ("nlopt", "engines", "nlopt is"),
+    ("casadi", "engines", "casadi is"),
+    ("perceive", "perceive", "flask, waitress, sqlalchemy, psycopg, statsmodels, pandas are"),
+])
+def test_each_command_names_its_extra(refusals: dict[str, tuple[int, str, Path]], name: str, extra: str,
+                                      missing: str) -> None:
+    code, out, where = refusals[name]
+    assert code != 0 and "Traceback" not in out, out
     assert f"needs coartic's [{extra}] extra ({missing} not installed): pip install 'coartic[{extra}]'" in out, out
-    assert not any(p.name in ("mcmc", "nl", "ca") for p in tmp_path.iterdir())  # refused before any output
+    assert not any(p.name in ("mcmc", "nl", "ca") for p in where.iterdir())  # refused before any output
 
 
-def test_batch_on_a_cluster_names_its_extra(tmp_path: Path) -> None:
-    spec = ROOT / "fit" / "batch_synthetic.toml"
-    r = run_core(["batch", str(spec), "--out", str(tmp_path / "b")], tmp_path)
-    out = r.stdout + r.stderr
-    assert r.returncode != 0 and "Traceback" not in out, out
+def test_batch_on_a_cluster_names_its_extra(refusals: dict[str, tuple[int, str, Path]]) -> None:
+    code, out, where = refusals["batch"]
+    assert code != 0 and "Traceback" not in out, out
     assert ("coartic batch on a Dask cluster (--serial runs without Dask) needs coartic's [batch] extra "
             "(dask, distributed are not installed): pip install 'coartic[batch]'") in out, out
-    assert not (tmp_path / "b").exists()
+    assert not (where / "b").exists()
 
 
 def test_to_dataframe_names_its_extra(fitted: tuple[Path, Path], tmp_path: Path) -> None:

@@ -39,17 +39,10 @@ SMALL = ('[model]\nchannels = ["JO"]\n[parameters]\ntarget_prior = "none"\nfree 
          'include_start = {inc}\n')
 
 
-def utterance_0024_spec(path: Path, rest: str) -> Path:
-    """As fit_helpers.german_utterance_spec, on the other utterance (0024): its phonemes cover
-    those of 0020 but /p t/, which score by their class fallbacks."""
-    path.write_text(f'[corpus]\nfiles = ["{EMA}/dfgspp_mo1_prosody_0024_ema.csv"]\n'
-                    f'labels = ["{EMA}/dfgspp_mo1_prosody_0024_Segment.tsv"]\nlabel_map = "german_sampa"\n' + rest)
-    return path
-
-
 def small_problem(tmp_path: Path, theta: float = 40.0, starts: int = 4, inc: str = "true"):
-    spec = load_spec(utterance_0024_spec(tmp_path / f"s{theta}_{starts}_{inc}.toml",
-                                         SMALL.format(theta=theta, starts=starts, inc=inc)))
+    # utterance 0024: its phonemes cover those of 0020 but /p t/, which score by their class fallbacks
+    spec = load_spec(german_utterance_spec(tmp_path / f"s{theta}_{starts}_{inc}.toml",
+                                           SMALL.format(theta=theta, starts=starts, inc=inc), utterance="0024"))
     utts = load_utterances(spec, manifest_rows(spec))
     return spec, utts, build_problem(spec.estimation_settings(), utts, "JO")
 
@@ -329,9 +322,9 @@ def defaults_spec(path: Path, starts: int = 32) -> Path:
     partial pooling (shared θ, a fixed target prior: a penalised objective), well identified. (The
     pooled default re-solves the multi-start's best at its estimated sd: its optima are those of the
     fit at the starting sd, docs/FITTING.md.)"""
-    return utterance_0024_spec(path, f'[model]\nchannels = ["JO"]\n[parameters]\nfree = ["target", "theta_bw", '
-                               f'"theta_fw"]\nshared = ["theta_bw", "theta_fw"]\ntarget_prior = 0.3\n'
-                               f'[fit]\nstarts = {starts}\n')
+    return german_utterance_spec(path, f'[model]\nchannels = ["JO"]\n[parameters]\nfree = ["target", "theta_bw", '
+                                 f'"theta_fw"]\nshared = ["theta_bw", "theta_fw"]\ntarget_prior = 0.3\n'
+                                 f'[fit]\nstarts = {starts}\n', utterance="0024")
 
 
 @pytest.mark.multistart
@@ -390,8 +383,9 @@ def test_a_restart_moves_log_entries_by_a_factor_and_the_others_within_their_box
     and c, k_R, δ by a twentieth of their box: before, every entry moved by N(0, 0.5), which threw δ
     (box ±0.08 s) and k_R ([0, 1]) onto their bounds, and on the gestures flavour no restart came back
     to the best optimum (bench/results/multistart_confirm-gestures.txt)."""
-    spec = load_spec(utterance_0024_spec(tmp_path / "h.toml", '[model]\nchannels = ["JO"]\n[parameters]\n'
-                                         'free = ["target", "alpha", "theta_bw", "c_bw", "k_r", "delta"]\n'))
+    spec = load_spec(german_utterance_spec(tmp_path / "h.toml", '[model]\nchannels = ["JO"]\n[parameters]\n'
+                                           'free = ["target", "alpha", "theta_bw", "c_bw", "k_r", "delta"]\n',
+                                           utterance="0024"))
     pk = build_problem(spec.estimation_settings(), load_utterances(spec, manifest_rows(spec)), "JO").packing
     x = pk.pack()
     lo, hi = pk.bounds()

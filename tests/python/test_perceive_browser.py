@@ -1,7 +1,8 @@
 """`coartic perceive`, end to end in a real browser: a study prepared with Festival and the face,
 served by the real server process, answered by simulated participants in headless Chromium
 (Selenium); the server killed (SIGKILL) mid-session and restarted, the participant resuming; the
-database holding every answer exactly once."""
+database holding every answer exactly once. The other designs' pages are served by the same app
+from the tests' process (perceive_helpers.AppServer)."""
 
 from __future__ import annotations
 
@@ -16,7 +17,7 @@ from typer.testing import CliRunner
 
 from coartic.cli import app
 
-from perceive_helpers import Server, answer_current_trial, chromium_driver, play_all, wait_for_text, waiting, write_spec
+from perceive_helpers import AppServer, Server, answer_current_trial, chromium_driver, play_all, wait_for_text, waiting, write_spec
 
 pytestmark = [pytest.mark.festival, pytest.mark.slow]
 
@@ -185,7 +186,7 @@ def test_preference_mushra_and_typed_answers_in_chromium(study: Path, tmp_path: 
 
     other = other_design(study, tmp_path, design)
     db = tmp_path / "r.sqlite"
-    server = Server(other, f"sqlite:///{db}")
+    server = AppServer(other, f"sqlite:///{db}")  # the pages under test; the process is the test above's
     try:
         driver.get(server.url)
         driver.find_element(By.ID, "agree").click()

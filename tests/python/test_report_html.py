@@ -35,7 +35,8 @@ def fitted(tmp_path_factory: pytest.TempPathFactory) -> tuple[FitResult, Path]:
     tmp = tmp_path_factory.mktemp("fit")
     utts = vcv_utterances(np.random.default_rng(5), repetitions=2)
     spec = make_spec(tmp, ["target", "alpha", "theta_bw", "theta_fw", "k_r", "psi"])
-    return fit_job(spec, tmp / "out", utterances=utts, quiet=True), tmp / "out"
+    # the HTML report is test_html_report's, written there (with the MCMC fragment beside it)
+    return fit_job(spec, tmp / "out", utterances=utts, quiet=True, report=False), tmp / "out"
 
 
 def test_statistics_flags(fitted: tuple[FitResult, Path]) -> None:
@@ -109,7 +110,9 @@ def test_report_escapes_names_and_manifest_cells(tmp_path: Path) -> None:
         u.meta["repetition"] = "<img src=x onerror=alert(2)>" + u.meta["repetition"]
     raw = {"name": "<script>alert(1)</script>", "corpus": {"files": ["x"], "labels": ["y"]},
            "model": {"channels": ["LLO"]}, "parameters": {"free": ["target"]}, "staging": {"enabled": False}}
-    result = fit_job(parse_spec(raw, tmp_path / "spec.toml"), tmp_path / "out", utterances=utts, quiet=True)
+    # report=False: the report under test is the one written below, with the MCMC fragment
+    result = fit_job(parse_spec(raw, tmp_path / "spec.toml"), tmp_path / "out", utterances=utts, quiet=True,
+                     report=False)
     (tmp_path / "out" / "report_mcmc.html").write_text("<section class=\"mcmc\"><h3>LLO /p/</h3></section>")
     html = write_report(result, tmp_path / "out").read_text()
     assert "<script>" not in html and "<img src=x" not in html
@@ -144,7 +147,7 @@ def test_report_of_a_sentence_reads_well(tmp_path: Path) -> None:
 
     utts = sentence(np.random.default_rng(3))
     spec = make_spec(tmp_path, ["target"])
-    result = fit_job(spec, tmp_path / "out", utterances=utts, quiet=True)
+    result = fit_job(spec, tmp_path / "out", utterances=utts, quiet=True, report=False)  # written below
     fit = result.channels["LLO"]
     fig = plots.trajectory_figure(fit, result.table(), [0])
     fig.canvas.draw()

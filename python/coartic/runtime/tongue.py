@@ -13,13 +13,14 @@ the tongue moves through them from one neighbour to the next.
 
 from __future__ import annotations
 
+import functools
 from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
 
 from coartic.runtime.animate import Animation, animate, neutral_posture
-from coartic.runtime.shipped import SHIPPED_TABLE, load_shipped_table
+from coartic.runtime.shipped import SHIPPED_TABLE, load_shipped_table, shipped_table_path
 from coartic.table import PAUSE, TONGUE_CHANNELS, ParameterTable
 
 # (TTH, TTA, TBH, TBA) mm from rest, and whether the tongue makes a contact there (k_R 1, strong)
@@ -75,7 +76,30 @@ def default_tongue_table(phonemes: list[str], source: str = "coartic default ton
 
 def shipped_tongue_table(phonemes: list[str]) -> ParameterTable:
     """The default tongue for `phonemes`: the shipped table's tongue channels, and for a phoneme
-    it lacks (or a shipped table without them) the class default of `default_tongue_table`."""
+    it lacks (or a shipped table without them) the class default of `default_tongue_table`.
+
+    Made once per set of phonemes and shipped file (its path, size and time of change): every FAP
+    sequence of an animation without tongue channels asks for it (coartic.runtime.fap, several times
+    per `coartic speak`), and reading and validating the whole shipped table cost 15 ms each time.
+    The table is shared: its users read it (they animate it), as they read any table."""
+    path = shipped_table_path()
+    try:
+        st = path.stat()
+        version: tuple[str, int, int] | None = (str(path), st.st_size, st.st_mtime_ns)
+    except OSError:
+        version = None  # load_shipped_table says what is wrong
+    if version is None:
+        return _shipped_tongue_table(tuple(phonemes))
+    return _cached_shipped_tongue_table(tuple(phonemes), version)
+
+
+@functools.lru_cache(maxsize=64)
+def _cached_shipped_tongue_table(phonemes: tuple[str, ...], version: tuple[str, int, int]) -> ParameterTable:
+    return _shipped_tongue_table(phonemes)
+
+
+def _shipped_tongue_table(phonemes_given: tuple[str, ...]) -> ParameterTable:
+    phonemes = list(phonemes_given)
     shipped = load_shipped_table()
     if all(c in shipped.channels for c in TONGUE_CHANNELS):
         # the channels' reference phoneme (alpha = 1) comes along, said or not
