@@ -576,7 +576,8 @@ def shrinkage_lines(problem: ChannelProblem, x: FloatArray) -> list[str]:
 def pooling_lines(est: PoolEstimate) -> list[str]:
     """fit_report.txt: each pooled family's estimated sd and what it amounts to."""
     lines = [f"    [[Pooling]] (sd estimated from the data: Laplace evidence, empirical Bayes; noise sd "
-             f"{est.sigma:.4g} mm; {est.rounds} re-solve(s){'' if est.settled else ', NOT settled'})",
+             f"{est.sigma:.4g} mm; {est.rounds} re-solve(s){'' if est.settled else ', NOT settled'}"
+             f"{f': it went round a cycle of {est.cycle} rounds, the highest evidence kept' if est.cycle else ''})",
              f"        data weighed as {est.temper:.3g} x the samples (1 / the residuals' autocorrelation time: "
              f"n_eff = {est.temper * est.n_valid:.0f} of {est.n_valid})",
              f"        effective parameters: {est.effective:.2f} of {est.n_free} free (trace of the hat matrix)"]
