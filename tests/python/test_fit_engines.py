@@ -172,6 +172,44 @@ def test_a_pooling_re_solve_at_its_evaluation_limit_is_resumed(monkeypatch: pyte
     assert seen[i - 1] == ("re-solve", "max-evaluations") and seen[i + 1] == ("re-solve", "converged")
 
 
+def test_a_pooling_re_solve_polished_by_another_method_is_reported(tmp_path: Path,
+                                                                   monkeypatch: pytest.MonkeyPatch) -> None:
+    """A partial-pooling re-solve that another local method finished (nlopt's failed L-BFGS
+    polished by scipy) is said where a polished stage is: the fit's polished notes (the console
+    line), fit_report.txt and summary.json; before, the re-solve's note was dropped and a polished
+    fit read as nlopt's own. Here the engine marks every re-solve polished."""
+    import json
+    from dataclasses import replace
+
+    import coartic.fit.staged as staged
+    from coartic.fit import load_spec
+    from coartic.jobs.fit import fit_job
+    from coartic.jobs.fit_cli import status_lines
+
+    def polishing(name: str) -> Any:
+        engine = get_engine(name)
+
+        def minimize(problem: ChannelProblem, x0: np.ndarray, options: dict[str, Any]) -> Any:
+            res = engine(problem, x0, options)
+            if problem.pool is not None and problem.pool.counted:  # a re-solve, not a stage
+                return replace(res, polished=True, message=f"{res.message}; polished by a test method")
+            return res
+        return minimize
+
+    monkeypatch.setattr(staged, "get_engine", polishing)
+    root = Path(__file__).resolve().parents[2]
+    spec = load_spec(root / "fit" / "ema_german_defaults_0024.toml").with_options(channels=("LA",), starts=1)
+    result = fit_job(spec, tmp_path / "out", quiet=True, report=False)
+    fit = result.channels["LA"]
+    assert fit.pooling is not None and fit.pooling.rounds >= 1
+    notes = [p for p in fit.polished if p.startswith("pooling re-solve")]
+    assert len(notes) == fit.pooling.rounds and all("polished by a test method" in n for n in notes)
+    assert any("LA: polished" in line and "pooling re-solve 1" in line for line in status_lines(result))
+    assert "polished: re-solve 1:" in (tmp_path / "out" / "fit_report.txt").read_text()
+    summary = json.loads((tmp_path / "out" / "summary.json").read_text())
+    assert len(summary["channels"]["LA"]["pooling"]["polished"]) == fit.pooling.rounds
+
+
 def test_a_failed_pooling_re_solve_keeps_the_last_optimum_that_converged(tmp_path: Path,
                                                                          monkeypatch: pytest.MonkeyPatch) -> None:
     """A partial-pooling re-solve that fails: the optimum at the last sd that converged is kept,

@@ -228,6 +228,7 @@ def fit_pooled(problem: ChannelProblem, x: NDArray[np.float64], engine: str, opt
     history: list[tuple[NDArray[np.float64], NDArray[np.float64]]] = []
     stretchable = np.array([False] + [f != TARGET_FAMILY for f in problem.pool.families])
     kept: list[tuple[ChannelProblem, NDArray[np.float64], PoolEstimate, EngineResult | None]] = []
+    polished: list[str] = []  # re-solves another local method finished: said, not silent (PoolEstimate.polished)
     for k in range(rounds + 1):
         n0, j0 = problem.nfev, problem.njev
         r = problem.residuals(x)
@@ -274,6 +275,8 @@ def fit_pooled(problem: ChannelProblem, x: NDArray[np.float64], engine: str, opt
         res = minimize(problem, x, options)
         nfev += problem.nfev
         njev += problem.njev
+        if res.polished:
+            polished.append(f"re-solve {k + 1}: {res.message}")
         if res.status in ("interrupted", "failed", "non-finite start"):
             # the last optimum kept is the previous round's, so its problem (pool at that round's τ,
             # σ) is kept with it: statistics at the new τ around the old optimum would be neither fit
@@ -282,6 +285,7 @@ def fit_pooled(problem: ChannelProblem, x: NDArray[np.float64], engine: str, opt
             break
         x = res.x
     assert est is not None
+    est = replace(est, polished=tuple(polished))
     params, beta = problem.packing.unpack(x)
     problem.packing.base, problem.packing.base_beta = params, beta
     problem.nfev, problem.njev = n_in + nfev, j_in + njev
