@@ -26,13 +26,19 @@ from test_emotions import SPEC as EMOTIVE_SPEC
 
 # the reduced emotive spec of test_emotions on LR (fitted in one stage: every assertion below holds as
 # with the staged fit, at two thirds of its CPU: the file 65 -> 46 CPU-s under the same load),
-# validated by rate (fit one rate, score the other)
-SPEC = EMOTIVE_SPEC.replace("channels = {channels}", 'channels = ["LR"]') + '[validate]\ngroup = "rate"\n'
+# validated by rate in one direction, the model's claim: fit the normal rate, score the fast one
+# ([validate]'s default; its held-out repetition, 5, the session lacks: skipped with a note). Both
+# directions (group = "rate") cost a third more fits, the fast rate's the longest (130-170 evaluations
+# against 20-40 on every trial), and every assertion below held with either: held out 0.1435 ± 0.0040
+# against 2.49 ± 0.38 mm on the emotive session (0.1455 ± 0.0029 against 2.31 ± 0.20 both ways), 0.1428
+# against 0.1428 ± 0.0039 on the flat one (0.1450 against 0.1452 ± 0.0028), 1.7 effective parameters
+# more either way. The test CPU 27 -> 17 s.
+SPEC = EMOTIVE_SPEC.replace("channels = {channels}", 'channels = ["LR"]')
 
 
 def session(out: Path, gen: ModuleType, monkeypatch: pytest.MonkeyPatch | None = None) -> Path:
     """The reduced emotive session (/b v/, one repetition, 84 trials) and a spec fitting LR with
-    emotions, validated by rate (fit one rate, score the other, both ways); with ``monkeypatch``,
+    emotions, validated by rate (fit the normal rate, score the fast one); with ``monkeypatch``,
     the same design with no emotion moving anything (every deviation and asymmetry 0)."""
     if monkeypatch is not None:
         real = gen.load_emotions
@@ -79,7 +85,8 @@ def test_compare_chooses_the_emotion_factor_where_the_emotions_move_the_lips(tmp
 def test_compare_does_not_choose_an_emotion_factor_that_moves_nothing(tmp_path: Path, gen: ModuleType,
                                                                        monkeypatch: pytest.MonkeyPatch) -> None:
     spec = session(tmp_path / "neutral", gen, monkeypatch)
-    cmp = compare(vary(load_spec(spec), "emotions", ["none", "targets"]), tmp_path / "c")
+    # nothing written (out None): this test reads the comparison itself, the other one its files
+    cmp = compare(vary(load_spec(spec), "emotions", ["none", "targets"]))
     none, targets = cmp.rows
     assert (none.emotions, targets.emotions) == ("none", "targets")
     assert cmp.chosen("LR") == none.model

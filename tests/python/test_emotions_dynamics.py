@@ -31,13 +31,28 @@ def session(tmp_path_factory: pytest.TempPathFactory) -> Path:
     return out
 
 
+# The engine stops when the objective or the step changes by less than 1e-6 (relative) instead of its
+# default 1e-8: at 1e-8 the emotion prior's refit and the three pooled re-solves took 969 of the fit's
+# 1084 evaluations (12.6 of 17 CPU-s, the first re-solve 509 of them), creeping along the stiff
+# directions of the families pooled to an sd of 0.001-0.02; at 1e-6 the fit takes 134 evaluations
+# (5.4 CPU-s) and recovers as well: every planted deviation within 0.075 of the truth (0.11 at 1e-8;
+# the test allows 0.15), the unplanted families' sd 0.001-0.026 (< 0.05 asked), the planted ones'
+# 0.19-0.25 (> 0.1 asked); so too before the alternation extrapolated τ's steps (within 0.09; sd
+# below 0.01 and 0.21-0.27). Not a setting to copy blindly: in test_emotions_compare a split's fit
+# stopped at 1e-6 at a worse optimum (held out 0.171 against 0.145 mm), and the other emotion tests
+# keep the defaults.
+TOLERANCES = "[engine.options]\nftol = 1e-6\nxtol = 1e-6\n"
+
+
 def spec_for(tmp: Path, manifest: Path, mode: str = "targets+dynamics") -> Path:
-    """test_emotions' spec on LR with ``mode``, staged: with the emotions' own rates free from the
-    start, the one-stage fit took 28 CPU-s against the staged one's 20."""
+    """test_emotions' spec on LR with ``mode``, staged (with the emotions' own rates free from the
+    start, the one-stage fit took 28 CPU-s against the staged one's 20), the engine's tolerances
+    ``TOLERANCES``."""
     path = tmp / f"{mode}.toml"
     path.write_text(SPEC.format(manifest=manifest.as_posix(), channels=json.dumps(["LR"]))
                     .replace('emotions = "targets"', f'emotions = "{mode}"')
-                    .replace("[staging]\nenabled = false", "[staging]\nenabled = true"), encoding="utf-8")
+                    .replace("[staging]\nenabled = false", "[staging]\nenabled = true") + TOLERANCES,
+                    encoding="utf-8")
     return path
 
 

@@ -156,3 +156,29 @@ def test_a_table_without_tongue_takes_the_shipped_tongue(tmp_path: Path) -> None
     iti = animate(lips, read_labels(tmp_path / "iti.tsv"), 100.0)
     got, _, _ = tongue_channels(iti)
     assert got["TTH"].max() > 7.0
+
+
+def test_the_shipped_tongue_is_made_once_and_again_when_the_file_changes(tmp_path: Path,
+                                                                          monkeypatch: pytest.MonkeyPatch) -> None:
+    """Every animation's FAPs take the shipped tongue (``shipped_tongue_table``): one table per set of
+    phonemes, shared, not the shipped file loaded and validated each time; a shipped file rewritten
+    meanwhile (`make table-italian` beside a running session) is read again."""
+    import os
+
+    import coartic.runtime.shipped as shipped
+    import coartic.runtime.tongue as tongue
+
+    copy = tmp_path / SHIPPED_TABLE
+    copy.write_bytes(shipped_table_path().read_bytes())
+    monkeypatch.setattr(shipped, "shipped_table_path", lambda: copy)  # what load_shipped_table reads
+    monkeypatch.setattr(tongue, "shipped_table_path", lambda: copy)
+    first = tongue.shipped_tongue_table([PAUSE, "a", "t"])
+    assert tongue.shipped_tongue_table([PAUSE, "a", "t"]) is first
+    assert first.values["t"]["TTH"]["target"] == pytest.approx(9.0, abs=0.01)
+    doc = json.loads(copy.read_text(encoding="utf-8"))
+    doc["phonemes"]["t"]["TTH"]["target"] = 7.5
+    copy.write_text(json.dumps(doc), encoding="utf-8")
+    st = copy.stat()
+    os.utime(copy, ns=(st.st_atime_ns, st.st_mtime_ns + 10**9))  # a later time whatever the clock's grain
+    again = tongue.shipped_tongue_table([PAUSE, "a", "t"])
+    assert again is not first and again.values["t"]["TTH"]["target"] == 7.5

@@ -155,10 +155,12 @@ class ChannelFit:
 
     @property
     def polished(self) -> list[str]:
-        """Each stage another local method finished (nlopt's failed L-BFGS polished by scipy), as
-        "stage i: the engine's message"; the console, fit report and summary.json say so."""
-        return [f"stage {i + 1}: {sr.engine.message}" for i, sr in enumerate(self.stages)
-                if sr.engine.polished and not sr.probe]
+        """Each stage, and each partial-pooling re-solve, that another local method finished
+        (nlopt's failed L-BFGS polished by scipy), as "stage i: the engine's message" and "pooling
+        re-solve k: …"; the console, fit report and summary.json say so."""
+        return ([f"stage {i + 1}: {sr.engine.message}" for i, sr in enumerate(self.stages)
+                 if sr.engine.polished and not sr.probe]
+                + [f"pooling {note}" for note in (self.pooling.polished if self.pooling is not None else ())])
 
     @property
     def packing(self) -> Packing:
@@ -576,11 +578,13 @@ def shrinkage_lines(problem: ChannelProblem, x: FloatArray) -> list[str]:
 def pooling_lines(est: PoolEstimate) -> list[str]:
     """fit_report.txt: each pooled family's estimated sd and what it amounts to."""
     lines = [f"    [[Pooling]] (sd estimated from the data: Laplace evidence, empirical Bayes; noise sd "
-             f"{est.sigma:.4g} mm; {est.rounds} re-solve(s){'' if est.settled else ', NOT settled'})",
+             f"{est.sigma:.4g} mm; {est.rounds} re-solve(s){'' if est.settled else ', NOT settled'}"
+             f"{f': it went round a cycle of {est.cycle} rounds, the highest evidence kept' if est.cycle else ''})",
              f"        data weighed as {est.temper:.3g} x the samples (1 / the residuals' autocorrelation time: "
              f"n_eff = {est.temper * est.n_valid:.0f} of {est.n_valid})",
              f"        effective parameters: {est.effective:.2f} of {est.n_free} free (trace of the hat matrix)"]
     lines += [f"        {est.line(f)}" for f in est.tau]
+    lines += [f"        polished: {note}" for note in est.polished]  # another local method finished a re-solve
     if len(est.candidates) > 1:  # empirical Bayes from several of the multi-start's optima (fit_pooled_best)
         lines.append(f"        estimated from each of {len(est.candidates)} optima of the multi-start, the highest evidence "
                      f"kept (optimum {est.chosen + 1}; data weight {est.temper:.3g} for all):")

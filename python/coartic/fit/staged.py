@@ -15,8 +15,8 @@ from typing import Any, Callable, Sequence
 import numpy as np
 from numpy.typing import NDArray
 
-from coartic.fit.engines import EngineResult, get_engine
-from coartic.estimation.pooling import PoolEstimate, estimate, residual_weight, settled
+from coartic.fit.engines import EngineResult, get_engine, local_options
+from coartic.estimation.pooling import SETTLED, TARGET_FAMILY, TAU_BOUNDS, PoolEstimate, estimate, residual_weight, settled
 from coartic.estimation.problem import ChannelProblem
 from coartic.table import PARAMETERS
 
@@ -132,8 +132,70 @@ def fit_staged(problem: ChannelProblem, engine: str, options: dict[str, Any], st
 # MAP re-solves at most, alternating with the τ estimate, before the pool is reported unsettled.
 # The alternation creeps where a family's τ is weakly determined (German EMA, one utterance, the
 # target prior's centres counted: α's τ 1.5 → 0.001 over 15 rounds, 5 % a round, then settled);
-# 12 stopped such fits half way, at a τ that depended on the start (held out 2.59 against 2.66 mm)
+# 12 stopped such fits half way, at a τ that depended on the start (held out 2.59 against 2.66 mm).
+# Since the estimate's exact gradient, the secant (``next_scales``) and the 2-cycle stop (``two_cycle``):
+# 1-9 re-solves on the data of docs/REAL_DATA.md
 POOL_ROUNDS = 30
+# The most the secant stretches one round's step of a creeping τ (``next_scales``): a trust region,
+# so that each jump is verified by the re-solve and the estimate at its end before the next one.
+STRETCH_MAX = 8.0
+
+
+def next_scales(history: Sequence[tuple[NDArray[np.float64], NDArray[np.float64]]], lower: NDArray[np.float64],
+                upper: NDArray[np.float64], still: float, stretchable: NDArray[np.bool_]) -> NDArray[np.float64]:
+    """The next (log σ, log τ_f...) of the alternation from its rounds so far, ``history``: per
+    round, s (the scales the optimum was solved at) and g (the estimate there). The last g, except
+    where a τ creeps.
+
+    The alternation is a fixed-point iteration s → G(s) in the logs, residual R = G(s) − s. Where a
+    τ is weakly determined, G′ is close to 1 in its coordinate and each round moves it a fraction
+    1 − G′ of the way left (α's τ on the German EMA by 0.03-0.05 in log a round for ten rounds). The
+    secant through the last two rounds estimates G′ ≈ q = 1 + ΔR / Δs and puts the fixed point
+    R / (1 − q) away (Aitken's Δ², Steffensen's method coordinate by coordinate; in the traces one
+    family creeps at a time while the others have settled). The step is stretched by 1 / (1 − q),
+    at most ``STRETCH_MAX``, only where the coordinate creeps: its last three residuals and steps
+    of one sign, 0 < q < 1, the residual beyond ``still`` (its settled tolerance: no stretching of
+    re-solve noise). Everything else takes the plain step, so that where the alternation does not
+    creep, its path and the fixed point it reaches stay as they were: an oscillation (q < 0: the
+    evidence of a τ with two maxima, the optimum moving between two basins) is not damped toward a
+    middle that the plain alternation would leave again (tried: on the German EMA it found other
+    fixed points, held out up to 0.3 mm away). Only the coordinates ``stretchable`` are: not σ (n
+    samples determine it; it moves because the τ do), nor the target prior's τ (its rows' sd is
+    √(τ² + v_i): below the centres' sd the evidence is flat in it, and a run of its steps says
+    little about where it ends; stretched, it overshot on the German EMA's time split, JO, into the
+    other maximum, 0.65 → 0.04, and took three rounds more). A round still ends settled only where
+    the estimate at the optimum for s is s itself (``settled``)."""
+    out = history[-1][1].copy()  # the estimate: within the bounds already
+    if len(history) < 3:
+        return out
+    (s2, g2), (s1, g1), (s, g) = history[-3:]
+    r, r1, r2, ds, ds1 = g - s, g1 - s1, g2 - s2, s - s1, s1 - s2
+    for i in np.flatnonzero(stretchable):
+        if abs(r[i]) <= still or min(r[i] * r1[i], r[i] * r2[i], r[i] * ds[i], r[i] * ds1[i]) <= 0:
+            continue
+        q = 1.0 + (r[i] - r1[i]) / ds[i]
+        if 0.0 < q < 1.0:
+            out[i] = np.clip(s[i] + min(1.0 / (1.0 - q), STRETCH_MAX) * r[i], lower[i], upper[i])
+    return out
+
+
+# A 2-cycle (``two_cycle``): the rounds return to within this fraction of the jump between them
+CYCLE_RETURN = 1 / 8
+
+
+def two_cycle(scales: Sequence[NDArray[np.float64]]) -> bool:
+    """Whether the last four rounds' scales (logs) go back and forth between two points: each
+    round's within ``CYCLE_RETURN`` of the jump (max over the coordinates) of where it was two rounds
+    before, twice in a row. One return is not enough: the alternation on the German EMA (LOO 0020,
+    LA) went θ_bw's τ 1.14 → 0.03 → 1.27 → 0.01 and settled there (a return within a sixth of the
+    jump); nor is a longer cycle that drifts (LOO 0024, JO: a cycle of six rounds, left after
+    two and a half by the τ's jump to its floor) a cycle to stop."""
+    if len(scales) < 4:
+        return False
+    s = list(scales[-4:])
+    jump = min(float(np.max(np.abs(s[i + 1] - s[i]))) for i in range(3))
+    back = max(float(np.max(np.abs(s[3] - s[1]))), float(np.max(np.abs(s[2] - s[0]))))
+    return jump > 2 * SETTLED and back <= CYCLE_RETURN * jump
 
 
 def fit_pooled(problem: ChannelProblem, x: NDArray[np.float64], engine: str, options: dict[str, Any],
@@ -141,11 +203,16 @@ def fit_pooled(problem: ChannelProblem, x: NDArray[np.float64], engine: str, opt
     """Partial pooling's empirical Bayes (``coartic.estimation.pooling``): from the optimum ``x`` of
     ``problem`` (its pool at its starting τ and σ), alternate the τ and σ that maximise the Laplace
     evidence at the current optimum and the optimum (one local fit from the last) at those τ, σ,
-    until τ and σ settle. Returns the problem at the final τ, σ (its packing's base the optimum),
+    until τ and σ settle: a fixed-point iteration in the logs of τ, σ, whose creeping steps the secant
+    stretches (``next_scales``) and which stops, not settled, when it goes back and forth between two
+    scales (``two_cycle``). Returns the problem at the final τ, σ (its packing's base the optimum),
     the last engine result (None if the first estimate already matched) and the estimate.
     ``w``: the data weight n_eff / n (``residual_weight``); default: from the residuals at ``x``."""
     assert problem.pool is not None
     minimize = get_engine(engine)
+    # each re-solve starts at the last optimum, in its basin: local (nlopt's global phase ran once, in
+    # the fit before; at every round it cost 2000 evaluations, and 30 rounds at a limit 60 000)
+    options = local_options(engine, options)
     res: EngineResult | None = None
     est: PoolEstimate | None = None
     # every evaluation made here (the re-solves' and the evidence's residuals and Jacobians), so that
@@ -154,6 +221,14 @@ def fit_pooled(problem: ChannelProblem, x: NDArray[np.float64], engine: str, opt
     # reported 21).
     n_in, j_in = problem.nfev, problem.njev
     nfev = njev = 0
+    # the box of the logs (σ unbounded: the estimate bounds it); per counted round, its (s, G(s))
+    # and what it had (problem, optimum, estimate, re-solve), for a cycle's best round
+    lower = np.array([-np.inf] + [np.log(TAU_BOUNDS[0])] * len(problem.pool.families))
+    upper = np.array([np.inf] + [np.log(TAU_BOUNDS[1])] * len(problem.pool.families))
+    history: list[tuple[NDArray[np.float64], NDArray[np.float64]]] = []
+    stretchable = np.array([False] + [f != TARGET_FAMILY for f in problem.pool.families])
+    kept: list[tuple[ChannelProblem, NDArray[np.float64], PoolEstimate, EngineResult | None]] = []
+    polished: list[str] = []  # re-solves another local method finished: said, not silent (PoolEstimate.polished)
     for k in range(rounds + 1):
         n0, j0 = problem.nfev, problem.njev
         r = problem.residuals(x)
@@ -169,16 +244,39 @@ def fit_pooled(problem: ChannelProblem, x: NDArray[np.float64], engine: str, opt
         est = estimate(r[:nd], j[:nd].toarray(), problem.pool.counting(), problem.packing, x, d.n_valid, w)
         # settled, unless the last re-solve stopped at its evaluation limit: then it is resumed (from
         # its point, at the same τ) rather than reported unconverged (nlopt's L-BFGS on the default
-        # spec: the first re-solve, where the target prior's centres start to count, is the long one)
+        # spec, docs/REAL_DATA.md "Partial pooling")
         if (settled(problem.pool, est) and (res is None or res.status != "max-evaluations")) or k == rounds:
             est = replace(est, rounds=k, settled=settled(problem.pool, est))
             break
+        fams = list(est.tau)
+        here = np.log([problem.pool.sigma] + [problem.pool.tau[f] for f in fams])
+        there = np.log([est.sigma] + [est.tau[f] for f in fams])
+        if k >= 1:  # the first estimate counted the target prior's centres where the fit at the start did not
+            history.append((here, there))
+            kept.append((problem, x, est, res))
+            if two_cycle([h for h, _ in history]):
+                # the alternation goes back and forth between two scales without settling: it would
+                # until the last round (the synthetic session's LLO, the rate split: θ_fw's τ 0.82 →
+                # 1.64 → 0.82 for thirty rounds, 40 CPU-s; the estimate there jumps between two maxima of
+                # the evidence and none of the scales between is its own estimate, so there is no fixed
+                # point between to settle at). Of the two, the round whose estimate has the higher
+                # evidence is kept, not settled (fit_pooled_best compares optima by the same)
+                best = max((-1, -2), key=lambda i: kept[i][2].log_evidence)
+                problem, x, est, res = kept[best]
+                est = replace(est, rounds=k, settled=False, cycle=2)
+                break
         before = problem
-        problem = problem.with_pool(problem.pool.counting().with_scales(est.tau, est.sigma, est.temper))
+        nxt = next_scales(history, lower, upper, SETTLED, stretchable) if history else there
+        # the estimate's own values where the step is not stretched (exp(log τ) may differ in its last bit)
+        tau = {f: est.tau[f] if nxt[i + 1] == there[i + 1] else float(np.exp(nxt[i + 1])) for i, f in enumerate(fams)}
+        assert problem.pool is not None  # (a round kept from a cycle is a pooled problem too)
+        problem = problem.with_pool(problem.pool.counting().with_scales(tau, est.sigma, est.temper))
         problem.nfev = problem.njev = 0  # the engines report the problem's own counts
         res = minimize(problem, x, options)
         nfev += problem.nfev
         njev += problem.njev
+        if res.polished:
+            polished.append(f"re-solve {k + 1}: {res.message}")
         if res.status in ("interrupted", "failed", "non-finite start"):
             # the last optimum kept is the previous round's, so its problem (pool at that round's τ,
             # σ) is kept with it: statistics at the new τ around the old optimum would be neither fit
@@ -187,6 +285,7 @@ def fit_pooled(problem: ChannelProblem, x: NDArray[np.float64], engine: str, opt
             break
         x = res.x
     assert est is not None
+    est = replace(est, polished=tuple(polished))
     params, beta = problem.packing.unpack(x)
     problem.packing.base, problem.packing.base_beta = params, beta
     problem.nfev, problem.njev = n_in + nfev, j_in + njev
