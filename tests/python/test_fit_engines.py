@@ -99,10 +99,14 @@ def test_ctrl_c_keeps_best_point(engine: str, options: dict[str, Any], monkeypat
     np.testing.assert_array_equal(res.x, p.best_x)
 
 
-def test_nlopt_fits_the_default_spec_polished_by_scipy_and_says_so(tmp_path: Path) -> None:
+def test_nlopt_fits_the_default_spec_polished_by_scipy_and_says_so(tmp_path: Path,
+                                                                    monkeypatch: pytest.MonkeyPatch) -> None:
     """The default spec on a German EMA utterance: nlopt's MLSL reaches scipy's optimum, then its
     L-BFGS fails to take a step from it (nlopt's generic FAILURE); the fit is finished by scipy's
     least_squares from that point instead of refused, and the status says so everywhere."""
+    from functools import partial
+
+    import coartic.fit.runner as runner
     from coartic.fit import load_spec, run
     from coartic.jobs.fit import fit_job
     from coartic.jobs.fit_cli import status_lines
@@ -118,10 +122,92 @@ def test_nlopt_fits_the_default_spec_polished_by_scipy_and_says_so(tmp_path: Pat
     assert "nlopt result -1 (FAILURE); polished by scipy least_squares" in fit.polished[-1]
     assert any("LA: polished" in line and "polished by scipy" in line for line in status_lines(result))
     assert "polished by scipy least_squares" in (tmp_path / "nlopt" / "fit_report.txt").read_text()
-    # polish = "none": the failure stands, said in the status (stage-failed: exit 3 in `coartic fit`)
+    # polish = "none": the failure stands, said in the status (stage-failed: exit 3 in `coartic fit`).
+    # The failure is stage 1's; the partial pooling after the stages stops at its first estimate here:
+    # its re-solves (nlopt's L-BFGS, one at its 7500-evaluation limit: 5 CPU-s) are the fit's above,
+    # which checked that they converge (an unconverged re-solve would be the status)
+    monkeypatch.setattr(runner, "fit_pooled", partial(runner.fit_pooled, rounds=0))
     unpolished = run(spec.with_options(engine={"name": "nlopt", "options": {"polish": "none"}}), quiet=True).channels["LA"]
     assert unpolished.status == "stage-failed" and not unpolished.polished
     assert "local lbfgs: nlopt result -1 (FAILURE)" in unpolished.message
+
+
+def test_a_pooling_re_solve_at_its_evaluation_limit_is_resumed(monkeypatch: pytest.MonkeyPatch) -> None:
+    """A partial-pooling re-solve that stops at its evaluation limit once τ has settled is resumed
+    from its point, not reported unconverged (nlopt's L-BFGS on the default spec of a German EMA
+    utterance, where whether a limited re-solve falls on a settled τ depends on the alternation's
+    path: here scipy's re-solves stop at 3 evaluations until τ settles, so that it settles at an
+    optimum not reached). The fit converges and its pooling settles."""
+    import coartic.fit.staged as staged
+    from coartic.fit import load_spec, run
+    from coartic.fit.engines import EngineResult
+
+    seen: list[tuple[str, object]] = []  # ("re-solve", its status) and ("settled", the answer), in order
+
+    def limited(name: str) -> Any:
+        engine = get_engine(name)
+
+        def minimize(problem: ChannelProblem, x0: np.ndarray, options: dict[str, Any]) -> EngineResult:
+            if problem.pool is None or not problem.pool.counted:  # the stages, not a re-solve
+                return engine(problem, x0, options)
+            res = engine(problem, x0, options if ("settled", True) in seen else {**options, "max_nfev": 3})
+            seen.append(("re-solve", res.status))
+            return res
+        return minimize
+
+    def settled(*args: Any) -> bool:
+        out = settled_before(*args)
+        seen.append(("settled", out))
+        return out
+
+    settled_before = staged.settled
+    monkeypatch.setattr(staged, "get_engine", limited)
+    monkeypatch.setattr(staged, "settled", settled)
+    root = Path(__file__).resolve().parents[2]
+    spec = load_spec(root / "fit" / "ema_german_defaults_0024.toml").with_options(channels=("LA",), starts=1)
+    fit = run(spec, quiet=True).channels["LA"]
+    assert fit.status == "converged" and fit.pooling is not None and fit.pooling.settled
+    # τ settled after a re-solve at its limit, and the next step was a re-solve (the resume), not the end
+    i = seen.index(("settled", True))
+    assert seen[i - 1] == ("re-solve", "max-evaluations") and seen[i + 1] == ("re-solve", "converged")
+
+
+def test_a_pooling_re_solve_polished_by_another_method_is_reported(tmp_path: Path,
+                                                                   monkeypatch: pytest.MonkeyPatch) -> None:
+    """A partial-pooling re-solve that another local method finished (nlopt's failed L-BFGS
+    polished by scipy) is said where a polished stage is: the fit's polished notes (the console
+    line), fit_report.txt and summary.json; before, the re-solve's note was dropped and a polished
+    fit read as nlopt's own. Here the engine marks every re-solve polished."""
+    import json
+    from dataclasses import replace
+
+    import coartic.fit.staged as staged
+    from coartic.fit import load_spec
+    from coartic.jobs.fit import fit_job
+    from coartic.jobs.fit_cli import status_lines
+
+    def polishing(name: str) -> Any:
+        engine = get_engine(name)
+
+        def minimize(problem: ChannelProblem, x0: np.ndarray, options: dict[str, Any]) -> Any:
+            res = engine(problem, x0, options)
+            if problem.pool is not None and problem.pool.counted:  # a re-solve, not a stage
+                return replace(res, polished=True, message=f"{res.message}; polished by a test method")
+            return res
+        return minimize
+
+    monkeypatch.setattr(staged, "get_engine", polishing)
+    root = Path(__file__).resolve().parents[2]
+    spec = load_spec(root / "fit" / "ema_german_defaults_0024.toml").with_options(channels=("LA",), starts=1)
+    result = fit_job(spec, tmp_path / "out", quiet=True, report=False)
+    fit = result.channels["LA"]
+    assert fit.pooling is not None and fit.pooling.rounds >= 1
+    notes = [p for p in fit.polished if p.startswith("pooling re-solve")]
+    assert len(notes) == fit.pooling.rounds and all("polished by a test method" in n for n in notes)
+    assert any("LA: polished" in line and "pooling re-solve 1" in line for line in status_lines(result))
+    assert "polished: re-solve 1:" in (tmp_path / "out" / "fit_report.txt").read_text()
+    summary = json.loads((tmp_path / "out" / "summary.json").read_text())
+    assert len(summary["channels"]["LA"]["pooling"]["polished"]) == fit.pooling.rounds
 
 
 def test_a_failed_pooling_re_solve_keeps_the_last_optimum_that_converged(tmp_path: Path,

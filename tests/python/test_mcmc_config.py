@@ -44,7 +44,7 @@ def test_defaults_and_every_key() -> None:
         ({"priors": {"p.k_r": [1, 0.1]}}, r"\[mcmc\] priors.p.k_r: expected a key \"CHANNEL.phoneme.parameter\""),
         ({"priors": {"LLO.p.k_r": [1, 0]}}, r"\[mcmc\] priors.LLO.p.k_r: sd must be positive"),
         ({"priors": {"LLO.p.k_r": "1"}}, r"\[mcmc\] priors.LLO.p.k_r: expected \[mean, sd\]"),
-        ({"moves": "hmc"}, r"\[mcmc\] moves: unknown moves 'hmc'; expected one of de, stretch"),
+        ({"moves": "hmc"}, r"\[mcmc\] moves: unknown moves 'hmc'; expected one of de, de\+laplace, stretch"),
         ({"moves": "de-snooker"}, r"\[mcmc\] moves: moves = 'de-snooker' is no longer offered: emcee's DESnookerMove"),
         ({"phonemes": "p"}, r"\[mcmc\] phonemes: expected a list of strings"),
         # chains that cannot fit in memory: refused when the spec is read, naming the keys

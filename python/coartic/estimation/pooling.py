@@ -245,10 +245,14 @@ class PoolEstimate:
     # parameters, and the index of the one kept (the highest evidence)
     candidates: tuple[dict[str, float], ...] = ()
     chosen: int = 0
+    # the re-solves another local method finished (nlopt's failed L-BFGS polished by scipy), as
+    # "re-solve k: the engine's message" (set by the fit; FitResult.polished reports them with the stages')
+    polished: tuple[str, ...] = ()
 
     def as_dict(self) -> dict[str, object]:
         return {"sigma_mm": self.sigma, "effective_parameters": self.effective, "free_parameters": self.n_free,
                 "rounds": self.rounds, "settled": bool(self.settled), "cycle": self.cycle, "data_weight": self.temper,
+                "polished": list(self.polished),
                 "samples": self.n_valid, "log_evidence": self.log_evidence,
                 "candidates": [dict(c) for c in self.candidates], "chosen": self.chosen,
                 "families": {f: {"sd": t, "effective_parameters": self.family_effective[f], "rank": self.rank[f],

@@ -56,7 +56,7 @@ def stack_rows(blocks: Sequence[sp.csr_matrix]) -> sp.csr_matrix:
     n = 0
     for b in blocks:
         indptr.append(b.indptr[1:].astype(np.int64) + n)
-        n += b.indptr[-1]
+        n += int(b.indptr[-1])
     shape = (sum(b.shape[0] for b in blocks), blocks[0].shape[1])
     return sp.csr_matrix((np.concatenate([b.data for b in blocks]), np.concatenate([b.indices for b in blocks]),
                           np.concatenate(indptr)), shape=shape)

@@ -64,7 +64,7 @@ from typing import Any, Callable, Sequence
 import numpy as np
 from numpy.typing import NDArray
 
-from coartic.fit.engines import EngineResult
+from coartic.fit.engines import EngineResult, local_options
 from coartic.estimation.packing import Packing
 from coartic.estimation.problem import ChannelProblem
 from coartic.fit.staged import StageResult, channel_status, fit_staged
@@ -291,10 +291,8 @@ def hop(packing: Packing, x: FloatArray, rng: np.random.Generator) -> FloatArray
 
 
 def _capped(engine: str, options: dict[str, Any], budget: int) -> dict[str, Any]:
-    o = dict(options)
+    o = local_options(engine, options)  # the starts are the global phase
     o[BUDGET_OPTION[engine]] = min(int(o.get(BUDGET_OPTION[engine], budget)), budget)
-    if engine == "nlopt":
-        o["global"] = "none"  # the starts are the global phase
     return o
 
 

@@ -155,10 +155,12 @@ class ChannelFit:
 
     @property
     def polished(self) -> list[str]:
-        """Each stage another local method finished (nlopt's failed L-BFGS polished by scipy), as
-        "stage i: the engine's message"; the console, fit report and summary.json say so."""
-        return [f"stage {i + 1}: {sr.engine.message}" for i, sr in enumerate(self.stages)
-                if sr.engine.polished and not sr.probe]
+        """Each stage, and each partial-pooling re-solve, that another local method finished
+        (nlopt's failed L-BFGS polished by scipy), as "stage i: the engine's message" and "pooling
+        re-solve k: …"; the console, fit report and summary.json say so."""
+        return ([f"stage {i + 1}: {sr.engine.message}" for i, sr in enumerate(self.stages)
+                 if sr.engine.polished and not sr.probe]
+                + [f"pooling {note}" for note in (self.pooling.polished if self.pooling is not None else ())])
 
     @property
     def packing(self) -> Packing:
@@ -582,6 +584,7 @@ def pooling_lines(est: PoolEstimate) -> list[str]:
              f"n_eff = {est.temper * est.n_valid:.0f} of {est.n_valid})",
              f"        effective parameters: {est.effective:.2f} of {est.n_free} free (trace of the hat matrix)"]
     lines += [f"        {est.line(f)}" for f in est.tau]
+    lines += [f"        polished: {note}" for note in est.polished]  # another local method finished a re-solve
     if len(est.candidates) > 1:  # empirical Bayes from several of the multi-start's optima (fit_pooled_best)
         lines.append(f"        estimated from each of {len(est.candidates)} optima of the multi-start, the highest evidence "
                      f"kept (optimum {est.chosen + 1}; data weight {est.temper:.3g} for all):")

@@ -15,7 +15,7 @@ from typing import Any, Callable, Sequence
 import numpy as np
 from numpy.typing import NDArray
 
-from coartic.fit.engines import EngineResult, get_engine
+from coartic.fit.engines import EngineResult, get_engine, local_options
 from coartic.estimation.pooling import SETTLED, TARGET_FAMILY, TAU_BOUNDS, PoolEstimate, estimate, residual_weight, settled
 from coartic.estimation.problem import ChannelProblem
 from coartic.table import PARAMETERS
@@ -210,6 +210,9 @@ def fit_pooled(problem: ChannelProblem, x: NDArray[np.float64], engine: str, opt
     ``w``: the data weight n_eff / n (``residual_weight``); default: from the residuals at ``x``."""
     assert problem.pool is not None
     minimize = get_engine(engine)
+    # each re-solve starts at the last optimum, in its basin: local (nlopt's global phase ran once, in
+    # the fit before; at every round it cost 2000 evaluations, and 30 rounds at a limit 60 000)
+    options = local_options(engine, options)
     res: EngineResult | None = None
     est: PoolEstimate | None = None
     # every evaluation made here (the re-solves' and the evidence's residuals and Jacobians), so that
@@ -225,6 +228,7 @@ def fit_pooled(problem: ChannelProblem, x: NDArray[np.float64], engine: str, opt
     history: list[tuple[NDArray[np.float64], NDArray[np.float64]]] = []
     stretchable = np.array([False] + [f != TARGET_FAMILY for f in problem.pool.families])
     kept: list[tuple[ChannelProblem, NDArray[np.float64], PoolEstimate, EngineResult | None]] = []
+    polished: list[str] = []  # re-solves another local method finished: said, not silent (PoolEstimate.polished)
     for k in range(rounds + 1):
         n0, j0 = problem.nfev, problem.njev
         r = problem.residuals(x)
@@ -240,7 +244,7 @@ def fit_pooled(problem: ChannelProblem, x: NDArray[np.float64], engine: str, opt
         est = estimate(r[:nd], j[:nd].toarray(), problem.pool.counting(), problem.packing, x, d.n_valid, w)
         # settled, unless the last re-solve stopped at its evaluation limit: then it is resumed (from
         # its point, at the same τ) rather than reported unconverged (nlopt's L-BFGS on the default
-        # spec: the first re-solve, where the target prior's centres start to count, is the long one)
+        # spec, docs/REAL_DATA.md "Partial pooling")
         if (settled(problem.pool, est) and (res is None or res.status != "max-evaluations")) or k == rounds:
             est = replace(est, rounds=k, settled=settled(problem.pool, est))
             break
@@ -271,6 +275,8 @@ def fit_pooled(problem: ChannelProblem, x: NDArray[np.float64], engine: str, opt
         res = minimize(problem, x, options)
         nfev += problem.nfev
         njev += problem.njev
+        if res.polished:
+            polished.append(f"re-solve {k + 1}: {res.message}")
         if res.status in ("interrupted", "failed", "non-finite start"):
             # the last optimum kept is the previous round's, so its problem (pool at that round's τ,
             # σ) is kept with it: statistics at the new τ around the old optimum would be neither fit
@@ -279,6 +285,7 @@ def fit_pooled(problem: ChannelProblem, x: NDArray[np.float64], engine: str, opt
             break
         x = res.x
     assert est is not None
+    est = replace(est, polished=tuple(polished))
     params, beta = problem.packing.unpack(x)
     problem.packing.base, problem.packing.base_beta = params, beta
     problem.nfev, problem.njev = n_in + nfev, j_in + njev

@@ -211,6 +211,7 @@ def sample_posterior(
         fingerprint=posterior.fingerprint(),
         progress=progress,
         label=label,
+        bounds=(posterior.lower, posterior.upper),
     )
     # ArviZ's form of the chains so far, for the ecosystem's tools; the chunks stay what resumes
     idata.write_inference_data(directory, posterior, result, label)

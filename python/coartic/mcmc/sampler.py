@@ -29,9 +29,10 @@ import numpy as np
 from numpy.typing import NDArray
 
 from coartic.extras import require
-from coartic.mcmc import convergence
+from coartic.mcmc import convergence, laplace
 from coartic.mcmc.convergence import ConvergenceReport
 from coartic.mcmc.errors import ChainError, McmcConfigError, McmcError
+from coartic.mcmc.laplace import LaplaceProposal
 from coartic.outputs import DeferredSignals, atomic_path, atomic_write_text
 
 LogProb = Callable[[NDArray[np.float64]], NDArray[np.float64]]
@@ -41,25 +42,36 @@ META = "meta.json"
 _CHUNK = re.compile(r"^ens(\d+)_chunk(\d+)\.npz$")
 
 
-MOVES = ("de", "stretch")
+MOVES = ("de", "de+laplace", "stretch")
 # emcee 3.1.6's DESnookerMove does not leave the target invariant: alone it samples a 28-dimensional
 # Gaussian with 0.64 of its standard deviation, and mixed 20 % with DEMove (this module's default
 # until 2026-11) with 0.974 (bench/results/mcmc_moves.txt), so the 95 % intervals under-covered
 # (docs/MCMC.md). It steps x' = z + (1 + γ e·(z1 - z2)) (x - z), a scaling about z
 # whose factor has no inverse symmetry, and corrects with half the (d - 1) exponent.
 REMOVED_MOVES = {"de-snooker": "emcee's DESnookerMove does not sample the posterior (intervals come out too narrow, docs/MCMC.md)"}
+# "de+laplace": each step is, at random with these weights, the independence Metropolis-Hastings
+# move from the posterior's Laplace approximation (coartic.mcmc.laplace) or emcee's DE move
+LAPLACE = "laplace"
+LAPLACE_WEIGHT = 0.5
 
 
 def make_moves(name: str) -> Any:
-    """emcee moves by name. "de" (default): differential evolution (ter Braak 2006), which on the
-    correlated per-phoneme and channel posteriors has about a third of the stretch move's
-    autocorrelation time at the same cost per step. "stretch": emcee's default."""
+    """emcee moves by name (the red-blue ones; "de+laplace" adds ``(LAPLACE, weight)``, the
+    independence move that ``_Ensemble`` takes itself). "de" (default): differential evolution
+    (ter Braak 2006), which on the correlated per-phoneme and channel posteriors has about a third of
+    the stretch move's autocorrelation time at the same cost per step. "de+laplace": half the steps
+    DE, half independence proposals from the Laplace approximation (coartic.mcmc.laplace): a half to
+    a quarter of DE's autocorrelation time, but not fewer steps to convergence where the τ-stability
+    check decides, and on the joint channel posteriors more CPU time (bench/results/mcmc_laplace.txt,
+    docs/MCMC.md). "stretch": emcee's default."""
     require("mcmc", "MCMC sampling")
     import emcee
 
     check_moves(name)
     if name == "stretch":
         return None
+    if name == "de+laplace":
+        return [(emcee.moves.DEMove(), 1.0 - LAPLACE_WEIGHT), (LAPLACE, LAPLACE_WEIGHT)]
     return [(emcee.moves.DEMove(), 1.0)]
 
 
@@ -289,6 +301,7 @@ def _run_chunk(
     steps: int,
     on_step: Callable[[], None],
     moves: str = "de",
+    proposal: LaplaceProposal | None = None,
 ) -> tuple[Chunk | None, bool]:
     """Advance one ensemble by ``steps``; on KeyboardInterrupt return the steps done so far and True.
 
@@ -299,6 +312,8 @@ def _run_chunk(
     ``_Ensemble.step``: the same draws from the same generator in the same order, so the chains
     are emcee's to the bit, without the per-walker Python loops of emcee's step (the acceptance
     test, the log-probabilities' blob handling), a third of a step's cost on a cheap posterior.
+    With "de+laplace" some steps are the Laplace proposal's independence move instead (``proposal``;
+    None: DE alone, as when the approximation could not be built).
     """
     stop = False
 
@@ -315,7 +330,7 @@ def _run_chunk(
         return np.full(np.atleast_2d(x).shape[0], -np.inf)
 
     n_walkers, dim = coords.shape
-    ensemble = _Ensemble(guarded, moves, random_state)
+    ensemble = _Ensemble(guarded, moves, random_state, proposal)
     chain = np.empty((steps, n_walkers, dim))
     lps = np.empty((steps, n_walkers))
     accepted = np.zeros(n_walkers)
@@ -359,17 +374,24 @@ class _Ensemble:
     the shuffle of the walkers into halves, per half the move's proposal and one uniform per walker
     for the acceptance test (drawn as one array: the same numbers, the same logarithms). The
     initial checks are emcee's too, with its messages (independent walkers, no NaN).
+
+    The independence move (``LAPLACE``, coartic.mcmc.laplace) is not emcee's: all walkers propose
+    from the fixed ``proposal`` at once, one uniform each for the acceptance test.
     """
 
-    def __init__(self, log_prob: LogProb, moves: str, random_state: tuple[Any, ...]) -> None:
+    def __init__(self, log_prob: LogProb, moves: str, random_state: tuple[Any, ...],
+                 proposal: LaplaceProposal | None = None) -> None:
         require("mcmc", "MCMC sampling")
         import emcee
 
         made = make_moves(moves)
         pairs = [(emcee.moves.StretchMove(), 1.0)] if made is None else made
+        if proposal is None:  # no approximation: the red-blue moves alone
+            pairs = [(m, w) for m, w in pairs if m != LAPLACE]
+        self.proposal = proposal
         self.moves = [m for m, _ in pairs]
         for m in self.moves:
-            if not isinstance(m, emcee.moves.RedBlueMove):  # pragma: no cover - make_moves gives red-blue moves
+            if m != LAPLACE and not isinstance(m, emcee.moves.RedBlueMove):  # pragma: no cover - make_moves gives red-blue moves
                 raise McmcError(f"{type(m).__name__}: not a red-blue move")
         weights = np.array([w for _, w in pairs], dtype=np.float64)
         self.weights = weights / weights.sum()
@@ -410,6 +432,8 @@ class _Ensemble:
         """One step from (coords, lp): the new positions and log-probabilities (new arrays) and which walkers moved."""
         random = self.random
         move = self.moves[random.choice(len(self.moves), p=self.weights)]
+        if isinstance(move, str):
+            return self.independence(coords, lp)
         coords, lp = coords.copy(), lp.copy()
         n_walkers = len(coords)
         move.setup(coords)
@@ -430,6 +454,42 @@ class _Ensemble:
             lp[into] = new_lp[moved]
         return coords, lp, accepted.astype(np.float64)
 
+    def independence(self, coords: NDArray[np.float64], lp: NDArray[np.float64]) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
+        """Every walker's independence Metropolis-Hastings step from the proposal q: accept x' if
+        log q(x) - log q(x') + lp' - lp > log u (coartic.mcmc.laplace, detailed balance)."""
+        assert self.proposal is not None
+        q, inside = self.proposal.draw(self.random, len(coords))
+        new_lp = np.full(len(q), -np.inf)
+        if inside.any():
+            new_lp[inside] = self.log_probs(q[inside])
+        with np.errstate(invalid="ignore"):
+            factors = self.proposal.log_density(coords) - self.proposal.log_density(q)
+            moved = (factors + new_lp - lp > np.log(self.random.rand(len(q)))) & inside
+        coords, lp = coords.copy(), lp.copy()
+        coords[moved] = q[moved]
+        lp[moved] = new_lp[moved]
+        return coords, lp, moved.astype(np.float64)
+
+
+def laplace_proposal(store: ChainStore, settings: SamplerSettings, log_prob: LogProb, start: NDArray[np.float64] | None,
+                     bounds: tuple[NDArray[np.float64], NDArray[np.float64]] | None) -> LaplaceProposal | None:
+    """The chains' Laplace proposal for "de+laplace": the saved one (a resumed run uses the very
+    same), or built from ``start`` (a fresh run) and saved; None for other moves, and when the
+    approximation cannot be built (the chains then take DE steps alone, and the file says why)."""
+    if settings.moves != "de+laplace":
+        return None
+    if start is None:
+        return laplace.LaplaceProposal.load(store.directory, len((store.meta() or {})["coordinates"]))
+    lower, upper = bounds if bounds is not None else (None, None)
+    try:
+        proposal: LaplaceProposal | None = laplace.build(log_prob, start, lower, upper)
+    except laplace.ProposalError as exc:
+        laplace.save_failure(store.directory, str(exc))
+        return None
+    assert proposal is not None
+    proposal.save(store.directory)
+    return proposal
+
 
 def run(
     log_prob: LogProb,
@@ -441,11 +501,14 @@ def run(
     progress: bool = True,
     label: str = "",
     stop_when_converged: bool = True,
+    bounds: tuple[NDArray[np.float64], NDArray[np.float64]] | None = None,
 ) -> SamplingResult:
     """Sample until converged (convergence.check) or ``max_steps``, resuming whatever ``out`` holds.
 
-    ``initial(rng, n_walkers)`` gives starting positions for a fresh ensemble. Returns the chains,
-    the last convergence report and whether the run was interrupted.
+    ``initial(rng, n_walkers)`` gives starting positions for a fresh ensemble. ``bounds``: the
+    support's (lower, upper), for the Laplace proposal of "de+laplace" (coartic.mcmc.laplace; it
+    starts from the mean of the first ensemble's initial positions). Returns the chains, the last
+    convergence report and whether the run was interrupted.
     """
     dim = len(names)
     settings.validate(dim)
@@ -483,6 +546,8 @@ def run(
             states.append((coords, None, rs))
         else:
             states.append((last.coords, last.last_log_prob, last.random_state))
+    fresh = states[0][1] is None and len(chains[0]) == 0
+    proposal = laplace_proposal(store, settings, log_prob, states[0][0].mean(axis=0) if fresh else None, bounds)
 
     history: list[dict[str, float]] = []
     report: ConvergenceReport | None = None
@@ -536,7 +601,7 @@ def run(
                     if todo <= 0:
                         continue
                     coords, last_lp, rs = states[e]
-                    chunk, stopped = _run_chunk(log_prob, coords, last_lp, rs, todo, lambda: bar.advance(task), settings.moves)
+                    chunk, stopped = _run_chunk(log_prob, coords, last_lp, rs, todo, lambda: bar.advance(task), settings.moves, proposal)
                     if chunk is not None:
                         with signals.saving():
                             store.append(e, chunk)

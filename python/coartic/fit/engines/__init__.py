@@ -16,7 +16,8 @@ from coartic.fit.engines.base import (Check, EngineResult, Minimizer, OptionErro
                                       evaluation_budget, is_int, is_number, iteration_budget, prepare_start)
 
 __all__ = ["Check", "EngineResult", "Minimizer", "OptionError", "Unit", "check_against", "check_options",
-           "evaluation_budget", "get_engine", "is_int", "is_number", "iteration_budget", "prepare_start"]
+           "evaluation_budget", "get_engine", "is_int", "is_number", "iteration_budget", "local_options",
+           "prepare_start"]
 
 
 def _require(name: str) -> None:
@@ -53,3 +54,11 @@ def check_options(name: str, options: dict[str, Any]) -> None:
     else:
         raise UsageError(f"unknown engine {name!r} (scipy, nlopt, casadi)")
     check(options)
+
+
+def local_options(name: str, options: dict[str, Any]) -> dict[str, Any]:
+    """``options`` for a local fit from a point already in its basin (a multi-start's start, a
+    partial-pooling re-solve from the last optimum): nlopt's global phase off (it looks for the
+    basin: run at every pooling round, its 2000 evaluations were most of a fit of up to 40 free
+    parameters); the other engines are local already."""
+    return {**options, "global": "none"} if name == "nlopt" else dict(options)
