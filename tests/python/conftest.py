@@ -175,7 +175,14 @@ def pytest_configure(config: pytest.Config) -> None:
     workers: each worker imports every module to collect, and rewriting them all cost 4.7 CPU-s a process
     against 0.4 for compiling them (bench/results/test_suite_cpu_core3.txt); the workers then load the cached
     code, as every later run does. Nothing is written where bytecode must not be (PYTHONDONTWRITEBYTECODE,
-    which make test-python clears) or asserts are not rewritten (--assert=plain)."""
+    which make test-python clears) or asserts are not rewritten (--assert=plain).
+
+    And the files are handed out in the order pytest_collection_modifyitems gives (LONGEST_FIRST below):
+    xdist (3.6 on) otherwise hands out the files with the most tests first (``--loadscope-reorder``, its
+    default), which undid that order: the calibration file (3 tests, 83 s of the session's 248 on a
+    quiet machine) started 151 s in, and one worker ran 33 s after the other had finished."""
+    if not hasattr(config, "workerinput") and hasattr(config.option, "loadscopereorder"):
+        config.option.loadscopereorder = False
     if (hasattr(config, "workerinput") or not config.getoption("numprocesses", None) or sys.dont_write_bytecode
             or config.getoption("assertmode") != "rewrite"):
         return
@@ -189,13 +196,16 @@ def pytest_configure(config: pytest.Config) -> None:
             rewrite._write_pyc(state, code, source_hash, pyc)
 
 
-# The files whose tests take longest, longest first (CPU seconds of a whole run, `pytest -n 2
-# --durations=50 tests/python`; docs/ARCHITECTURE.md, Tests). `make test-python` hands whole files to the two
+# The files whose tests take longest, longest first (seconds of each file's tests in a whole run on a quiet
+# 2-core machine, 12-02: 90, 36, 24, 23, 21, 20, 18, 18, 18 s of the session's 452; the next is 12.5 s;
+# docs/ARCHITECTURE.md, Tests). `make test-python` hands whole files to the two
 # workers (`--dist loadfile`, so a module's fixtures are built once) in collection order, each
 # worker taking the next file when it is nearly done: the longest files first, then every other
 # file holding a test marked `slow`, then the rest, so that no long file starts last and leaves one
 # worker idle at the end. Only the order changes: every test still runs.
-LONGEST_FIRST = ("test_mcmc_calibration.py",)
+LONGEST_FIRST = ("test_mcmc_calibration.py", "test_fit_multistart.py", "test_batch.py", "test_fit_run.py",
+                 "test_batch_cluster.py", "test_perceive_browser.py", "test_mcmc_cli.py", "test_emotions_compare.py",
+                 "test_view.py")
 
 
 # make test runs the core's test files (the Makefile's CORE_TESTS) on the installed core wheel in a fresh
