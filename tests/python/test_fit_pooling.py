@@ -47,19 +47,30 @@ def differ() -> list[model.Utterance]:
     return utterances(WELL)
 
 
+def linear_model(d: int, n: int) -> tuple[np.random.Generator, np.ndarray, np.ndarray, tuple[str, ...], int]:
+    """y = X u + noise (n samples, d phonemes' u ~ N(2, 0.7²), noise sd 0.3): the random state after
+    drawing them, X, y, the phonemes and the column that holds u (c_bw: a natural-scale column, so u
+    is x itself)."""
+    rng = np.random.default_rng(0)
+    X = rng.normal(size=(n, d))
+    y = X @ rng.normal(2.0, 0.7, d) + rng.normal(0.0, 0.3, n)
+    return rng, X, y, tuple("abcdef"[:d]), PARAMETERS.index("c_bw")
+
+
+def unbounded_packing(phon: tuple[str, ...], free: np.ndarray) -> Packing:
+    d = len(phon)
+    return Packing(phon, free, False, np.full((d, N_PARAMS), -1e9), np.full((d, N_PARAMS), 1e9), (1.0, 1.0),
+                   np.ones((d, N_PARAMS)), 1.0)
+
+
 def test_the_evidence_is_the_exact_marginal_likelihood_of_a_linear_model() -> None:
     # y = X u + noise, u_i ~ N(mu, tau^2) with a flat prior on mu: the linearised Laplace evidence is
     # exact here; its differences between (sigma, tau) must equal those of the closed form
-    rng = np.random.default_rng(0)
     d, n = 5, 40
-    X = rng.normal(size=(n, d))
-    y = X @ rng.normal(2.0, 0.7, d) + rng.normal(0.0, 0.3, n)
-    phon = tuple("abcde")
-    k = PARAMETERS.index("c_bw")  # a natural-scale column: u is x itself
+    rng, X, y, phon, k = linear_model(d, n)
     free = np.zeros((d, N_PARAMS), dtype=bool)
     free[:, k] = True
-    base = np.ones((d, N_PARAMS))
-    pk = Packing(phon, free, False, np.full((d, N_PARAMS), -1e9), np.full((d, N_PARAMS), 1e9), (1.0, 1.0), base, 1.0)
+    pk = unbounded_packing(phon, free)
     pool = Pool((ShrinkGroup("t", phon, tuple(range(d)), k, 1.0, False, "f"),), {}, {"f": 1.0}, 1.0)
     x = rng.normal(size=d)  # any point: the quadratic expansion of a linear model is exact
     ev = Evidence(X @ x - y, X, pool, pk, x, n)
@@ -90,8 +101,7 @@ def test_the_target_prior_is_no_tighter_than_its_centre_is_known() -> None:
     phon = tuple("abcd")
     free = np.zeros((d, N_PARAMS), dtype=bool)
     free[:, 0] = True  # the target: a natural-scale column, u is x itself
-    pk = Packing(phon, free, False, np.full((d, N_PARAMS), -1e9), np.full((d, N_PARAMS), 1e9), (1.0, 1.0),
-                 np.ones((d, N_PARAMS)), 1.0)
+    pk = unbounded_packing(phon, free)
     counts = {f"{p}.target": k for p, k in zip(phon, (2.0, 5.0, 20.0, 80.0))}
     pool = Pool((), {f"{p}.target": m for p, m in zip(phon, means)}, {"target prior": 1.0}, 1.0,
                 target_counts=counts, counted=True)
@@ -117,16 +127,11 @@ def test_the_evidence_gradient_is_exact() -> None:
     # the estimate maximises the evidence with its closed-form gradient in (log σ, log τ_f): it must
     # be the derivative of the evidence itself, for a group family and the target prior (whose
     # centres' variance σ²/(w n) moves with σ) together, data weighed by w
-    rng = np.random.default_rng(0)
     d, n = 6, 40
-    X = rng.normal(size=(n, d))
-    y = X @ rng.normal(2.0, 0.7, d) + rng.normal(0.0, 0.3, n)
-    phon = tuple("abcdef")
-    k = PARAMETERS.index("c_bw")
+    rng, X, y, phon, k = linear_model(d, n)
     free = np.zeros((d, N_PARAMS), dtype=bool)
     free[:3, k] = free[3:, 0] = True  # three phonemes' c_bw in a group, three targets under the prior
-    pk = Packing(phon, free, False, np.full((d, N_PARAMS), -1e9), np.full((d, N_PARAMS), 1e9), (1.0, 1.0),
-                 np.ones((d, N_PARAMS)), 1.0)
+    pk = unbounded_packing(phon, free)
     pool = Pool((ShrinkGroup("t", phon[:3], (0, 1, 2), k, 1.0, False, "f"),),
                 {"d.target": 0.5, "e.target": 1.0, "f.target": -0.2}, {"f": 1.0, "target prior": 0.7}, 1.0,
                 target_counts={"d.target": 5.0, "e.target": 9.0, "f.target": 3.0}, counted=True)
