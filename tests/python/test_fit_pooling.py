@@ -220,6 +220,9 @@ def test_outputs_say_which_sd_was_found_and_the_effective_parameters(tmp_path: P
     ({"free": ["target", "theta_bw"], "pooled": ["theta_bw"], "shared": ["theta_bw"]}, "both shared"),
     ({"pooled": ["target"]}, "target_prior = \"estimated\""),
     ({"target_prior": "estimate"}, "\"estimated\""),
+    # a typo is named as no parameter at all, with the known ones, not as "not free"
+    ({"pooled": ["thetafw"]}, "unknown parameter 'thetafw'; known: target, alpha, theta_bw"),
+    ({"shared": ["thetabw"]}, "unknown parameter 'thetabw'; known: target, alpha, theta_bw"),
 ])
 def test_pooling_settings_are_checked(tmp_path: Path, parameters: dict[str, object], words: str) -> None:
     with pytest.raises(SpecError, match=words):

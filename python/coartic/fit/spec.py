@@ -43,7 +43,7 @@ from coartic.estimation.settings import (DEFAULT_POOLED, DEFAULT_SHARED, DEFAULT
 from coartic.io.errors import DataError
 from coartic.io.roles import RoleMap
 from coartic.settings import CHANNEL_SETTINGS
-from coartic.table import CHANNELS, ChannelSettings
+from coartic.table import CHANNELS, PARAMETERS, ChannelSettings
 from coartic.textfile import TextDecodeError, read_text
 
 ENGINES: tuple[str, ...] = ("scipy", "nlopt", "casadi")
@@ -516,9 +516,11 @@ def document_fields(raw: Mapping[str, Any], path: Path) -> dict[str, Any]:
             frees = [p.get("free", list(DEFAULT_FREE))] + [o.get("free", []) for o in raw.get("override", [])
                                                            if isinstance(o, Mapping)]
             freed = {n for f in frees for n in (f if isinstance(f, list) else [f])}
-            if set(p[key]) - freed:
+            # a name that is no parameter at all (a typo) is left to the schema, whose message lists the known ones
+            fixed = {n for n in p[key] if isinstance(n, str) and n in PARAMETERS} - freed
+            if fixed:
                 what = "pooling" if key == "pooled" else "sharing"
-                raise SpecError.at(path, f"parameters.{key}", f"{', '.join(sorted(set(p[key]) - freed))} is not free "
+                raise SpecError.at(path, f"parameters.{key}", f"{', '.join(sorted(fixed))} is not free "
                                    f"([parameters] free or an [[override]] free): {what} a fixed value would do nothing")
     if "start_table" in fields:
         fields["start_table"] = _relative(base, fields["start_table"])
