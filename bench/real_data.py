@@ -1,6 +1,16 @@
 """Which model to recommend for real recordings? Held-out error on every real recording we have
 (issue 19 item 3; the evidence in docs/REAL_DATA.md).
 
+The corpora (``--corpus``): ``german``, the EMU demo database's two German utterances (speaker
+mo1, fit/ema_german.toml); ``s1em``, EMU-webApp's test database tinyDfg91 (another speaker and
+sentence, one utterance; fit/ema_s1em.toml, a spec that sets nothing but the recordings) and
+``speakers``, both together (fit/ema_speakers.toml: its manifest's ``speaker`` column, which the
+product reads as ``[validate] group = "speaker"`` does, says whose each utterance is), two
+recording sets the project never fitted or tuned on before these figures; ``synthetic`` and
+``gestures``, the synthetic sessions. The base spec's settings that a cell does not set stay the
+corpus's: fit/ema_german.toml's one pause label and θ start 40, the defaults (pause postures, θ
+start 30) for the specs that set nothing but the recordings.
+
 Each *cell* is a fit spec: a model variant (original, modified, rate-aware = plateau dominance +
 handover, docs/VARIANTS.md), a *freedom* (which per-phoneme parameters are free; "t+shared": one
 theta_bw and theta_fw per channel for every phoneme, ``[parameters] shared``) and a
@@ -21,16 +31,24 @@ training mean, step = each phoneme's training mean) on exactly the same samples:
   (``--unseen transfer``, bench/generalisation.py) -- its own segments are not scored;
 - **split in time**: every utterance cut at its middle segment (bench/baselines_german.py's
   ``halves``); fit the first halves together, predict the second halves, scored likewise on the
-  segments whose phonemes the first halves have.
+  segments whose phonemes the first halves have;
+- **another speaker** ("speaker", the ``speakers`` corpus): fit the utterances of the corpus's first
+  speaker (mo1's two), predict each other speaker's (s1em's 0666), scored and with unseen phonemes
+  as in leave one out. The sensors sit elsewhere on another face (and the recordings' origins
+  differ: JO is about 23 mm on mo1, 87 mm on s1em), so the figure as measured mostly measures that
+  origin; the one that matters here is the offset-removed one (as ``coartic score`` compares a
+  speaker the training lacks: ``coartic.evaluation.baselines.other_session``).
 
 In-sample RMSE is the training RMSE of the same fits. The raw RMSE is as measured; "-offset" removes
 each test utterance's mean residual (a recording's rest reference is estimated once per utterance);
 "nolast" is every figure again without each test utterance's last segment, and ``--losses`` prints
-where each table loses to the step model, segment by segment.
+where each table loses to the step model, segment by segment (as measured: across speakers mostly
+the offset).
 
 Not part of `make test` (CPU minutes); its core, ``evaluate_cell``, is tested on a tiny case in
 tests/python/test_bench_real_data.py. Output in bench/results/real_data.txt (the parts of the grid
-that were run, and their commands: docs/REAL_DATA.md):
+that were run, and their commands: docs/REAL_DATA.md; the shared / pooled / per-phoneme cells per
+corpus, merged with ``--merge``: bench/results/real_data_pooling_<corpus>.txt):
 
     nice -n 10 .venv/bin/python bench/real_data.py --variants rate-aware --freedom t+shared --reg tprior:0.3 --starts 1
 """
@@ -116,6 +134,16 @@ CORPORA = (
     Corpus("German EMA, EMU demo (speaker mo1, 2 utterances)", ROOT / "fit" / "ema_german.toml",
            "tests/data/realdata/emu-ema-german: the EMU-webApp demo database ema (IPS Munich, DFG SPP prosody, speaker mo1)",
            "MIT (distributed in github.com/IPS-LMU/EMU-webApp; README.txt there)"),
+    # a speaker and sentence the project never fitted or tuned on (EMU-webApp's test database), with a
+    # spec that sets nothing but the recordings: one utterance, so held out in time only
+    Corpus("German EMA, EMU-webApp tinyDfg91 (speaker s1em, 1 utterance)", ROOT / "fit" / "ema_s1em.toml",
+           "tests/data/realdata/emu-tinydfg91: EMU-webApp's test database tinyDfg91 (speaker s1em, utterance 0666)",
+           "MIT (distributed in github.com/IPS-LMU/EMU-webApp; README.txt there)", "s1em", splits="time"),
+    # both German speakers in one spec that sets nothing but the recordings (a manifest with a speaker
+    # column): fit mo1, predict s1em
+    Corpus("German EMA, two speakers (mo1's 2 utterances, s1em's 1)", ROOT / "fit" / "ema_speakers.toml",
+           "tests/data/realdata/emu-ema-german (mo1) and tests/data/realdata/emu-tinydfg91 (s1em), fit/ema_speakers.csv",
+           "MIT (distributed in github.com/IPS-LMU/EMU-webApp; README.txt in each)", "speakers", splits="speaker"),
     # the synthetic sessions (coartic corpus synth build/session; ... build/gestures --flavour gestures),
     # with a spec that sets nothing but the corpus: held out by rate, and data-starved
     Corpus("synthetic session (model flavour)", ROOT / "bench" / "synthetic_session.toml", "coartic corpus synth build/session",
@@ -226,7 +254,7 @@ def segment_losses(sc: Any, channel: str, test: Sequence[Utterance]) -> list[lis
         for i, lab in enumerate(u.labels):
             m = (seg == i) & np.isfinite(rt)
             if m.any():
-                out.append([u.name.replace("dfgspp_mo1_prosody_", "").replace("_ema", ""), i, lab, int(m.sum()),
+                out.append([short_name(u.name), i, lab, int(m.sum()),
                             float(np.sqrt(np.mean(rt[m] ** 2))), float(np.sqrt(np.mean(rs[m] ** 2))),
                             float(np.sum(rt[m] ** 2) - np.sum(rs[m] ** 2))])
     return out
@@ -254,6 +282,14 @@ def loss_lines(rows: Sequence[dict[str, Any]], worst: int = 3) -> list[str]:
     return out
 
 
+def short_name(name: str) -> str:
+    """An utterance's name in the tables: the German EMA's and tinyDfg91's file names without what
+    every file of their corpus repeats (dfgspp_mo1_prosody_0020_ema -> 0020, dfg91_s1em_0666_annot -> 0666)."""
+    for common in ("dfgspp_mo1_prosody_", "_ema", "dfg91_s1em_", "_annot"):
+        name = name.replace(common, "")
+    return name
+
+
 def drop_last(u: Utterance) -> Utterance:
     """``u`` with the samples of its last non-pause segment not scored."""
     last = max(i for i, lab in enumerate(u.labels) if not is_pause(lab))
@@ -266,8 +302,18 @@ def splits(utts: Sequence[Utterance], which: Sequence[str] = ("loo", "time")) ->
     """(name, train, test) of each held-out split: leave one utterance out, and split in time; for a
     session with rates ("rate"): fit the normal rate, predict the fast one, and data-starved
     ("starvedK"): fit only repetitions 1..K of the normal rate (K utterances per vowel-consonant
-    pair), predict the fast rate."""
+    pair), predict the fast rate; across speakers ("speaker"; every utterance's meta ``speaker``,
+    a manifest column): fit the first speaker's utterances (in corpus order), predict each other
+    speaker's, one split per other speaker."""
     out = []
+    if "speaker" in which:
+        unnamed = [u.name for u in utts if "speaker" not in u.meta]
+        if unnamed:
+            raise ValueError(f"split 'speaker': no speaker for {', '.join(unnamed)} (give the manifest a 'speaker' column)")
+        speakers = list(dict.fromkeys(u.meta["speaker"] for u in utts))
+        for other in speakers[1:]:
+            out.append((f"speaker {other}", [u for u in utts if u.meta["speaker"] == speakers[0]],
+                        [u for u in utts if u.meta["speaker"] == other]))
     fast = [u for u in utts if u.meta.get("rate") == "fast"]
     if "rate" in which:
         out.append(("rate", [u for u in utts if u.meta.get("rate") == "normal"], fast))
@@ -277,7 +323,7 @@ def splits(utts: Sequence[Utterance], which: Sequence[str] = ("loo", "time")) ->
                                          and int(u.meta.get("repetition", 0)) <= k], fast))
     if "loo" in which and len(utts) > 1:
         for k, held in enumerate(utts):
-            out.append((f"LOO {held.name.replace('dfgspp_mo1_prosody_', '').replace('_ema', '')}",
+            out.append((f"LOO {short_name(held.name)}",
                         [u for j, u in enumerate(utts) if j != k], [held]))
     if "time" in which:
         first, second = zip(*(halves(u) for u in utts))
@@ -493,7 +539,8 @@ def noise_lines(rows: Sequence[dict[str, Any]]) -> list[str]:
             a, b = utterance_units(base, ch), utterance_units(rs, ch, other)
             sel = [r for r in base if ch is None or r["channel"] == ch], [r for r in rs if ch is None or r["channel"] == ch]
             d, se = pooled(sel[0], "table") - pooled(sel[1], other), paired_se(a, b)
-            word = "noise" if abs(d) <= se else ("lower" if d < 0 else "HIGHER")
+            # one test utterance (a corpus of one, or one other speaker) gives no SE: say so, not a verdict
+            word = "no SE" if math.isnan(se) else "noise" if abs(d) <= se else ("lower" if d < 0 else "HIGHER")
             parts.append(f"{ch or 'all'} {d:+.3f} ± {se:.3f} {word}")
         out.append(f"  vs {' '.join(key[:3]).strip()}: " + "; ".join(parts))
     return out
@@ -535,6 +582,17 @@ def markdown_lines(rows: Sequence[dict[str, Any]]) -> list[str]:
     return out
 
 
+def speaker_note(rows: Sequence[dict[str, Any]]) -> list[str]:
+    """A warning above the tables of a split across speakers: there the figures as measured (and
+    what ranks by them: the summary, the noise section) mostly measure where each speaker's sensors
+    sit; the offset-removed figures are the ones to compare."""
+    if not any(str(r["split"]).startswith("speaker") for r in rows):
+        return []
+    return ["note: across speakers the recordings' origins differ (the sensors sit elsewhere on another face): "
+            "the figures as measured, the summary's ranking and the noise section (both by them) mostly measure "
+            "that origin; compare the offset-removed figures ('-offset', '-off', the second of each table cell)"]
+
+
 def row_line(r: dict[str, Any]) -> str:
     sd = f"  sd {r['tprior_sd']:g}" if "tprior_sd" in r else ""
     if r.get("pooling"):
@@ -560,9 +618,10 @@ def main() -> int:
     ap.add_argument("--freedom", default=",".join(FREEDOM), help=f"among {', '.join(FREEDOM)}")
     ap.add_argument("--reg", default=",".join(REGULARISATION))
     ap.add_argument("--corpus", default="german", help=f"among {', '.join(c.key for c in CORPORA)} (comma-separated)")
-    ap.add_argument("--channels", default=None, help="default: the corpus's (German LA,JO; synthetic LLO,JO)")
-    ap.add_argument("--splits", default=None, help="default: the corpus's (German loo,time; synthetic "
-                    "rate,starved1,starved2; gestures rate)")
+    ap.add_argument("--channels", default=None, help="default: the corpus's (German, s1em, speakers LA,JO; "
+                    "synthetic LLO,JO)")
+    ap.add_argument("--splits", default=None, help="default: the corpus's (german loo,time; s1em time; speakers "
+                    "speaker; synthetic rate,starved1,starved2; gestures rate)")
     ap.add_argument("--starts", type=int, default=None, help="[fit] starts of every fit (default: the spec default)")
     ap.add_argument("--theta-start", type=float, default=None,
                     help="start of theta_bw and theta_fw (default: the corpus spec's): is the fit start-independent?")
@@ -628,7 +687,7 @@ def main() -> int:
                       "scored samples; 'last seg': the part of it in each test utterance's last segment, 'of n' "
                       "that segment's share of the samples", *loss_lines(rows)]
         lines += ["", f"## summary, {corpus.name}: pooled over splits and channels, best held-out (raw) first",
-                  *summary_lines(rows), ""]
+                  *speaker_note(rows), *summary_lines(rows), ""]
     lines.append(f"({time.perf_counter() - t0:.0f} s wall, {time.process_time() - c0:.0f} s CPU of this process)")
     print("\n".join(lines[-12:]))
     a.out.parent.mkdir(parents=True, exist_ok=True)
@@ -648,7 +707,7 @@ def merge(parts: Sequence[Path], out: Path) -> int:
                 rows.append(r)
     lines = [line for p in parts for line in p.read_text(encoding="utf-8").splitlines()]
     lines += ["", "## summary of all the parts above: pooled over splits and channels, best held-out (raw) first",
-              *summary_lines(rows)]
+              *speaker_note(rows), *summary_lines(rows)]
     table = markdown_lines(rows)
     if table:
         lines += ["", "## docs/REAL_DATA.md: held-out RMSE (mm), speech as measured / speech offset removed / all samples",

@@ -1,5 +1,7 @@
 """bench/real_data.py's core (``evaluate_cell``) on a tiny case, so the benchmark cannot rot: the
-German EMA's jaw channel, targets only, both held-out schemes; what is scored is checked by hand."""
+German EMA's jaw channel, targets only, both held-out schemes; what is scored is checked by hand.
+And its second German speaker (tinyDfg91, s1em): the bundle read through the product, and the
+split across speakers."""
 
 from __future__ import annotations
 
@@ -16,8 +18,13 @@ import pytest
 from coartic.fit import load_spec
 from coartic.evaluation.baselines import Baselines
 from coartic.fit.data import load_utterances
+from coartic.io import load_trial
+from coartic.io.emu import parse_ssff
+from coartic.model import Utterance
+from coartic.pauses import is_pause
 
 ROOT = Path(__file__).resolve().parents[2]
+S1EM = ROOT / "tests" / "data" / "realdata" / "emu-tinydfg91" / "tinyDfg91" / "0000_ses" / "dfg91_s1em_0666_bndl"
 
 
 def bench() -> ModuleType:
@@ -156,3 +163,88 @@ def test_markdown_and_noise_lines_name_the_default_against_each_cell() -> None:
     # every cell scales one pattern (RMSE 1.1, SE 0.1 over the two utterances), so each difference is
     # (t_a - t_b) times the first and its paired SE (t_a - t_b) times the second: lower, beyond one SE
     assert all(" lower" in x and "noise" not in x for x in against)
+
+
+def test_the_tinydfg91_bundle_reads_through_the_product() -> None:
+    """The copied emuDB bundle as fit/ema_s1em.toml reads it: its sensor tracks through the
+    _annot.json, the MAUS phones of the .MAU mapped by german_sampa, the pauses as pauses."""
+    trial = load_trial(S1EM / "dfg91_s1em_0666_annot.json", labels=S1EM / "dfg91_s1em_0666.MAU", label_map="german_sampa")
+    assert {"ulip", "llip", "jaw"} <= set(trial.marker_names) and np.isfinite(trial.markers).all()
+    ch = trial.channels(["LA", "JO"])
+    assert ch.times.size == 612  # 3.06 s at 200 Hz
+    for c in ("LA", "JO"):
+        assert np.isfinite(ch[c]).all() and ch.valid[c].all(), c
+    # our LA (the 3-D distance of the lip sensors) follows the lab's own lip-aperture track: the roles
+    # guessed from the sensor names are the lips
+    cols, rate, _ = parse_ssff((S1EM / "dfg91_s1em_0666.la").read_bytes(), "la")
+    lab_la = cols["LipAp"][:, 0]
+    assert rate == 200 and lab_la.size == 612
+    assert np.corrcoef(lab_la, ch["LA"])[0, 1] > 0.995 and np.abs(lab_la - ch["LA"]).max() < 1.5
+    # the .MAU's phones (its first entry, "H#" at 0 s, marks the start and is no segment), then the model's
+    raw = ("<p:> m e l a n i: s ? o m i k kh a l I m i t i: 6 aI n l i: t <p:>").split()
+    assert trial.meta["raw_labels"] == tuple(raw) and "H#" not in trial.segments.labels
+    assert trial.segments.labels == tuple("# m e l a n i s ? o m i k k a l i m i t i a a n l i t #".split())
+    assert trial.segments.starts[0] == 0.0 and trial.segments.ends[0] == pytest.approx(0.87994)
+    # as the spec fits it (the default pause postures): the initial pause '#', the final one '#end',
+    # and nothing else a pause
+    (u,) = load_utterances(load_spec(ROOT / "fit" / "ema_s1em.toml"))
+    assert [lab for lab in u.labels if is_pause(lab)] == ["#", "#end"]
+    assert (u.labels[0], u.labels[-1]) == ("#", "#end")
+
+
+@pytest.fixture(scope="module")
+def speakers() -> list[Utterance]:
+    return load_utterances(load_spec(ROOT / "fit" / "ema_speakers.toml").with_options(channels=("JO",)))
+
+
+def test_the_speaker_split_fits_mo1_and_predicts_s1em(speakers: list[Utterance]) -> None:
+    rd = bench()
+    ((name, train, test),) = rd.splits(speakers, ("speaker",))
+    assert name == "speaker s1em"
+    assert [Path(u.meta["file"]).name for u in train] == ["dfgspp_mo1_prosody_0020_ema.csv", "dfgspp_mo1_prosody_0024_ema.csv"]
+    assert [Path(u.meta["file"]).name for u in test] == ["dfg91_s1em_0666_annot.json"]
+    assert {u.meta["speaker"] for u in train} == {"mo1"} and {u.meta["speaker"] for u in test} == {"s1em"}
+    # the split is asked for by name; an utterance with no speaker cannot be placed
+    assert all(not n.startswith("speaker") for n, _, _ in rd.splits(speakers, ("loo", "time")))
+    nameless = [Utterance(u.labels, u.starts, u.ends, u.times, u.name, u.observed, u.valid, {"file": u.meta["file"]})
+                for u in speakers]
+    with pytest.raises(ValueError, match="no speaker"):
+        rd.splits(nameless, ("speaker",))
+
+
+def test_the_speaker_split_scores_s1em_against_mo1s_step_model(speakers: list[Utterance]) -> None:
+    """What the speaker split scores, by hand: s1em's samples in segments of phonemes mo1's
+    utterances have (pauses not), against the step model of mo1's phoneme means, offset removed."""
+    rd = bench()
+    base = load_spec(ROOT / "fit" / "ema_speakers.toml").with_options(channels=("JO",))
+    (r,) = rd.evaluate_cell(base, speakers, "modified", ("target",), "none", ("speaker",), starts=1)
+    train, held = speakers[:2], speakers[2]
+    seen = {lab for u in train for lab in u.labels}
+    seg = held.sample_segments()
+    keep = np.array([lab in seen and not is_pause(lab) for lab in held.labels] + [False])[seg] & held.valid["JO"]
+    assert r["split"] == "speaker s1em" and r["samples"] == int(keep.sum()) and 0 < int(keep.sum()) < held.times.size
+    step = Baselines.fit(train, ["JO"]).step["JO"]
+    pred = np.array([step.get(lab, np.nan) for lab in held.labels] + [np.nan])[seg]
+    resid = pred[keep] - held.observed["JO"][keep]
+    assert r["step"] == pytest.approx(float(np.sqrt(np.mean(resid**2))), rel=1e-9)
+    assert r["step_off"] == pytest.approx(float(np.std(resid)), rel=1e-9)
+    # the jaw sensors' origins differ by some 60 mm between the speakers: as measured, every model
+    # is off by about that; with the offset removed, by millimetres
+    assert r["step"] > 30 and r["step_off"] < 5 and r["table_off"] < 5
+
+
+def test_one_test_utterance_gives_no_se_and_a_speaker_split_says_which_figure_counts() -> None:
+    """A corpus of one test utterance (s1em's time split, the speaker split) has no SE: the noise
+    section says "no SE", not "lower" or "HIGHER"; a split across speakers gets the note that the
+    offset-removed figures are the ones to compare."""
+    rd = bench()
+    common = {"variant": "rate-aware", "channel": "JO", "unseen": "constant", "starts": 1, "theta0": 30.0,
+              "samples": 6, "in_sample": 0.1, "constant": 60.0, "constant_off": 3.0, "step": 60.0, "step_off": 2.0,
+              "notes": []}
+    rows = [{**common, "split": "speaker s1em", "freedom": f, "reg": g, "table": 61.0, "table_off": t,
+             "segments": [["0666", 0, "a", 6, 61.0, 60.0, 12.0]]}
+            for f, g, t in (("t+shared", "tprior:0.3", 2.1), ("pooled", "tprior-eb", 2.4))]
+    against = [x for x in rd.noise_lines(rows) if x.startswith("  vs ")]
+    assert against and all("no SE" in x and "lower" not in x and "HIGHER" not in x for x in against)
+    assert rd.speaker_note(rows) and "offset-removed" in rd.speaker_note(rows)[0]
+    assert rd.speaker_note([{**r, "split": "time split"} for r in rows]) == []
