@@ -5,12 +5,13 @@ from __future__ import annotations
 
 import json
 import math
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
 import pytest
 
-from coartic.evaluation.baselines import Baselines, beats_step, warp_times
+from coartic.evaluation.baselines import Baselines, beats_step, flag_text, warp_times
 from coartic.evaluation.compare import Row
 from coartic.evaluation.score import Score
 from coartic.evaluation.heldout import SplitScore, flags, pooled
@@ -118,6 +119,30 @@ def test_beats_step_needs_both_figures() -> None:
     assert beats_step((1.0, 0.5), (1.1, 0.6))
     assert not beats_step((1.0, 0.7), (1.1, 0.6))  # worse once the offset is removed
     assert not beats_step((1.2, 0.5), (1.1, 0.6))
+
+
+def test_a_flag_says_when_the_table_wins_on_speech_alone() -> None:
+    """A table that loses to the step model only through the pauses (real labels: a long final pause)
+    is flagged, and the flag says that on speech alone it wins (issue 25: figures that say what they are)."""
+    # (as measured, offset removed, calibrated, speech as measured, speech offset removed)
+    step = {"step": (1.766, 1.527, 1.5, 1.826, 1.570)}
+    pauses = SplitScore("time split", "JO", 1.3, 1.787, 100, ("", float("nan")), 1.645, baselines=step,
+                        test_rmse_speech=1.776, test_rmse_speech_offset_removed=1.550, test_speech_samples=84)
+    worse = SplitScore("time split", "JO", 1.3, 1.787, 100, ("", float("nan")), 1.645, baselines=step,
+                       test_rmse_speech=1.900, test_rmse_speech_offset_removed=1.550, test_speech_samples=84)
+    assert not pauses.beats_step and not worse.beats_step
+    assert pauses.flag() == ("time split: JO: the table does not beat the step model (phoneme means, no "
+                             "coarticulation): 1.787 vs 1.766 mm as measured, 1.645 vs 1.527 mm offset removed; on "
+                             "speech alone (pauses left out) it does: 1.776 vs 1.826 mm as measured, 1.550 vs 1.570 "
+                             "mm offset removed, so the pauses decide")
+    assert worse.flag() is not None and "speech alone" not in worse.flag()  # it loses there too
+    # the pooled line of several splits says the same from the pooled speech figures
+    other = replace(pauses, split="LOO")
+    assert flags([pauses, other])[-1].startswith("all splits pooled: JO: the table does not beat")
+    assert flags([pauses, other])[-1].endswith("so the pauses decide")
+    # another session: compared offset removed only, on speech too
+    assert "speech alone" in flag_text("JO", (9.0, 1.645), (1.0, 1.527), "speaker s1em is not in the training data",
+                                       ((9.0, 1.550), (1.0, 1.570)))
 
 
 def test_validation_and_compare_flags() -> None:

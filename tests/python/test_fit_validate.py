@@ -38,6 +38,7 @@ def test_splits_and_scores(tmp_path: Path) -> None:
         assert set(sc.baselines) == {"constant", "step", "warped"} and sc.beats_step
         assert sc.baselines["warped"][0] < sc.baselines["step"][0] < sc.baselines["constant"][0]
         assert sc.test_rmse < sc.baselines["warped"][0]
+        assert sc.worst_vowel[0] in {"a", "i", "u"} and sc.worst_vowel[1] >= sc.test_rmse  # the worst VCV context
     text = (tmp_path / "val" / "validation.csv").read_text()
     assert text.count("\n") == 3 and "step_rmse_offset_removed_mm" in text.splitlines()[0]
 
@@ -121,6 +122,10 @@ def test_time_split_from_the_command_line_with_class_fallbacks(tmp_path: Path) -
     assert res.exit_code == 0, res.output
     text = (out / "validation" / "validation.csv").read_text()
     assert "\"time split: first halves fitted, second halves held out\",LA," in text
+    # real speech has no vowel context: no "worst vowel" (it was "(?)", read as the glottal stop)
+    import csv
+    rows = list(csv.DictReader(text.splitlines()))
+    assert rows and all(r["worst_vowel"] == "" for r in rows)
     flat = " ".join(res.output.split())
     assert "the table has no /E/ (scored as /e/)" in flat
     assert "second halves fitted, first halves held out: the test utterances contain phonemes the training " \

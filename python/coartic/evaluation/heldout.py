@@ -66,8 +66,11 @@ class SplitScore:
     def flag(self) -> str | None:
         if self.beats_step:
             return None
+        step = self.baselines["step"]
+        speech = ((self.test_rmse_speech, self.test_rmse_speech_offset_removed), (step[3], step[4])) \
+            if len(step) > 4 else None
         return f"{self.split}: " + flag_text(self.channel, (self.test_rmse, self.test_rmse_offset_removed),
-                                             self.baselines["step"][:2], self.other_session)
+                                             step[:2], self.other_session, speech)
 
 
 def pooled(scores: Sequence[SplitScore], model: str = "table", speech: bool = False) -> dict[str, tuple[float, float, int]]:
@@ -81,7 +84,7 @@ def pooled(scores: Sequence[SplitScore], model: str = "table", speech: bool = Fa
         if model == "table":
             rm, ro = ((sc.test_rmse_speech, sc.test_rmse_speech_offset_removed) if speech
                       else (sc.test_rmse, sc.test_rmse_offset_removed))
-        elif model in sc.baselines:
+        elif model in sc.baselines and (not speech or len(sc.baselines[model]) > 4):
             rm, ro = sc.baselines[model][3:5] if speech else sc.baselines[model][:2]
         else:
             lacking.add(sc.channel)
@@ -102,10 +105,14 @@ def flags(scores: Sequence[SplitScore]) -> list[str]:
     out = [f for f in (sc.flag() for sc in scores) if f is not None]
     if len({sc.split for sc in scores}) > 1:
         table, step = pooled(scores), pooled(scores, "step")
+        table_speech, step_speech = pooled(scores, speech=True), pooled(scores, "step", speech=True)
         # a channel any of whose splits is from another session is compared with the offsets removed
         other = {sc.channel: sc.other_session for sc in scores if sc.other_session}
-        out += [f"all splits pooled: {flag_text(ch, table[ch][:2], step[ch][:2], other.get(ch))}" for ch in table
-                if ch in step and not beats_step(table[ch][:2], step[ch][:2], offset_only=ch in other)]
+        out += [f"all splits pooled: "
+                + flag_text(ch, table[ch][:2], step[ch][:2], other.get(ch),
+                            (table_speech[ch][:2], step_speech[ch][:2]) if ch in table_speech and ch in step_speech
+                            else None)
+                for ch in table if ch in step and not beats_step(table[ch][:2], step[ch][:2], offset_only=ch in other)]
     return out
 
 

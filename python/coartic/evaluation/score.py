@@ -173,7 +173,9 @@ class Score:
             pair_t = (t["rmse_mm"], t["rmse_offset_removed_mm"])
             pair_s = (s["rmse_mm"], s["rmse_offset_removed_mm"])
             if not beats_step(pair_t, pair_s, offset_only=self.other_session is not None):
-                out.append(flag_text(ch, pair_t, pair_s, self.other_session))
+                speech = ((t["rmse_speech_mm"], t["rmse_speech_offset_removed_mm"]),
+                          (s["rmse_speech_mm"], s["rmse_speech_offset_removed_mm"]))
+                out.append(flag_text(ch, pair_t, pair_s, self.other_session, speech))
         return out
 
     def add_baselines(self, train: Sequence[Utterance]) -> None:

@@ -64,7 +64,10 @@ def score(result: FitResult, test: Sequence[Utterance], split: str,
             a[1] += float(np.isfinite(r).sum())
             per_utterance[utt.name] = (float(np.nansum(r**2)), int(np.isfinite(r).sum()))
         vowel_rmse = {v: float(np.sqrt(s / n)) for v, (s, n) in by_vowel.items() if n}
-        worst = max(vowel_rmse.items(), key=lambda kv: kv[1])
+        # recordings without a vowel context (real speech: no VCV manifest) have no worst vowel to name;
+        # "?" there read as the glottal stop's label
+        worst = (max(vowel_rmse.items(), key=lambda kv: kv[1]) if any("vowel" in u.meta for u in sc.utterances)
+                 else NO_VOWEL)
         row = sc.channel_rows()[0]
         n = fit.problem.data.n_valid
         base = {r["model"]: (r["rmse_mm"], r["rmse_offset_removed_mm"], r["rmse_calibrated_mm"], r["rmse_speech_mm"],
@@ -84,6 +87,10 @@ def score(result: FitResult, test: Sequence[Utterance], split: str,
                 o.heldout_rmse[split] = float(score_utterances(t, test_ch, [ch]).channel_rows()[0]["rmse_mm"])
             out[-1].optima_test_rmse = tuple(o.heldout_rmse[split] for o in fit.multistart.optima)
     return out
+
+
+# SplitScore.worst_vowel of test utterances without a vowel context (shown as "–")
+NO_VOWEL = ("", float("nan"))
 
 
 class UnseenPhonemes(CoarticError, ValueError):
@@ -273,7 +280,7 @@ def validation_table(scores: Sequence[SplitScore]) -> Table:
                   cell(sc.test_rmse_offset_removed),
                   f"{sc.test_rmse_speech:.3f} / {sc.test_rmse_speech_offset_removed:.3f}",
                   *(pair(sc.baselines.get(b)) for b in have),
-                  f"{sc.worst_vowel[1]:.3f} ({escape(sc.worst_vowel[0])})")
+                  f"{sc.worst_vowel[1]:.3f} ({escape(sc.worst_vowel[0])})" if sc.worst_vowel[0] else "–")
     if len({sc.split for sc in scores}) > 1:
         def both(b: str, ch: str) -> BaselineFigures | None:
             a, s = pooled(scores, b).get(ch), pooled(scores, b, speech=True).get(ch)
