@@ -1,7 +1,7 @@
 """How accurate `coartic align` is, and what it does to the lips (docs/ALIGN.md; issue 26 item 2).
 
 1. **Boundaries on real German recordings**: the three German EMA recordings with audio we may use
-   (tests/data/realdata/emu-ema-german: mo1's 0020 and 0024; shared/realdata/emu-tinydfg91: s1em's
+   (tests/data/realdata/emu-ema-german: mo1's 0020 and 0024; tests/data/realdata/emu-tinydfg91: s1em's
    0666), aligned from their audio and a transcript written from their MAUS phones, against those
    MAUS labels: median and 90th percentile boundary error, % within 20 and 40 ms. No second
    labelling of these recordings exists, so the labels' own agreement cannot be given.
@@ -72,10 +72,7 @@ PATTERNS = ("symmetric2", "symmetricP05", "symmetricP1", "asymmetricP1")
 def realdata_dir(given: str | None) -> Path:
     if given:
         return Path(given)
-    for d in (ROOT / "tests/data/realdata", ROOT.parent / "shared/realdata", ROOT.parents[1] / "shared/realdata"):
-        if (d / TINY).with_suffix(".wav").exists():
-            return d
-    return ROOT / "tests/data/realdata"
+    return ROOT / "tests/data/realdata"  # both corpora are copied there, each with its licence
 
 
 def espeak_reference(text: str, voice: str, wav: Path) -> Segments:
@@ -208,7 +205,7 @@ def lips(data: Path, aligned: dict[str, Segments], lines: list[str]) -> None:
 
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--realdata", help="the realdata directory (default: tests/data/realdata or ../shared/realdata)")
+    parser.add_argument("--realdata", help="the realdata directory (default: tests/data/realdata)")
     parser.add_argument("--no-fit", action="store_true", help="leave out part 4 (it fits a table, ~2 min)")
     args = parser.parse_args()
     t0 = time.perf_counter()
