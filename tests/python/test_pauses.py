@@ -25,6 +25,8 @@ from coartic.pauses import (FINAL_PAUSE, MEDIAL_ALPHA, MEDIAL_PAUSE, POSTURES_RE
                             pause_postures)
 from coartic.table import PAUSE
 
+ROOT = Path(__file__).resolve().parents[2]
+
 RATE = 200.0
 # Sentences of the written recordings: (labels, durations); '#' the pause label of the label files
 SENTENCES = (
@@ -266,3 +268,42 @@ def test_a_posture_no_sample_shows_stays_the_pause() -> None:
     assert not any("has a valid sample" in n for n in notes)
     none, _ = utterances_with_postures([utt("w", 0.3)])  # nothing measured after 0.3 s: neither row
     assert none[0].labels == ("#", "a", PAUSE, "p", "a", PAUSE)
+
+
+def test_a_fit_gives_its_rmse_on_speech_beside_all_samples(tmp_path: Path) -> None:
+    """In sample as held out, a pause's samples can outweigh the speech: before s1em's sentence
+    (tests/data/realdata/emu-tinydfg91) 0.88 s of "pause" hold a breath, the lips moving between 15
+    and 33 mm, which no pause posture follows. rmse.csv and the console give the speech alone too,
+    the same figure `score` gives on the same samples; a pooled multi-start's line says its optima
+    are the search's, before the empirical Bayes, and where the fit ended."""
+    from typer.testing import CliRunner
+
+    from coartic.cli import app
+
+    bundle = ROOT / "tests/data/realdata/emu-tinydfg91/tinyDfg91/0000_ses/dfg91_s1em_0666_bndl/dfg91_s1em_0666"
+    spec = tmp_path / "s1em.toml"
+    spec.write_text(f'[corpus]\nfiles = ["{bundle}_annot.json"]\nlabels = ["{bundle}.MAU"]\nlabel_map = "german_sampa"\n'
+                    '[model]\nchannels = ["LA"]\n[parameters]\nfree = ["target"]\ntarget_prior = "none"\n'
+                    '[staging]\nenabled = false\n')
+    out = tmp_path / "fit"
+    res = CliRunner().invoke(app, ["fit", str(spec), "--starts", "1", "--no-report", "--out", str(out)])
+    assert res.exit_code == 0, res.output
+    rows = {r.split(",")[1]: r.split(",") for r in (out / "rmse.csv").read_text().splitlines()[1:]}
+    all_rmse, speech_rmse, speech_n = float(rows["all"][3]), float(rows["speech"][3]), int(rows["speech"][4])
+    assert speech_rmse < all_rmse / 2 and 0 < speech_n < int(rows["all"][4])  # the breath before the sentence
+    table = ParameterTable.load(out / "table.json")
+    scored = score_recordings(table, [str(bundle) + "_annot.json"], labels=[str(bundle) + ".MAU"], channels=["LA"])
+    row = scored.channel_rows()[0]
+    assert speech_rmse == pytest.approx(row["rmse_speech_mm"], rel=1e-9) and speech_n == row["speech_samples"]
+    assert all_rmse == pytest.approx(row["rmse_mm"], rel=1e-9)
+    head = next(line for line in res.output.splitlines() if "┃ channel" in line)
+    assert "speech" in head
+
+    # the default's pooled dynamics with two starts: the line names the search's optima as such
+    spec.write_text(spec.read_text().replace('free = ["target"]\ntarget_prior = "none"\n', ""))
+    res = CliRunner().invoke(app, ["fit", str(spec), "--starts", "2", "--no-report", "--out", str(tmp_path / "pooled")])
+    assert res.exit_code in (0, 3), res.output
+    fitted = ParameterTable.load(tmp_path / "pooled" / "table.json").metadata["rmse"]["LA"]
+    flat = " ".join(res.output.split())
+    assert (f"these optima are the search's, at the pooling's starting sd: the empirical Bayes that followed ended "
+            f"at data RMSE {fitted:.4f} mm") in flat

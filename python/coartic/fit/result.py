@@ -36,7 +36,7 @@ from coartic.fit.multistart import MultiStart
 from coartic.fit.staged import StageResult
 from coartic.io.labelmap import resolve_label_map
 from coartic.model import Utterance
-from coartic.pauses import POSTURES_RECORD, RECORD_KEY as PAUSES_RECORD_KEY
+from coartic.pauses import POSTURES_RECORD, RECORD_KEY as PAUSES_RECORD_KEY, is_pause
 from coartic.io.roles import ROLE_RECORD_KEY, resolve_role_map
 from coartic.outputs import atomic_path, atomic_write_text
 from coartic.table import PARAMETERS, ChannelSettings, ParameterTable
@@ -187,6 +187,32 @@ class ChannelFit:
         r = self.residuals()
         return float(np.sqrt(np.nanmean(r**2)))
 
+    def multistart_line(self) -> str:
+        """The multi-start's one line (console, fit_report.txt). With partial pooling its optima are
+        those of the search, at the pooling's starting sd; the empirical Bayes moves the sd after it
+        and can end far from them (a stronger pool fits the training data less closely): said, with
+        the figure it ended at, so the two data RMSEs printed are not read as one."""
+        assert self.multistart is not None
+        line = self.multistart.summary_line(self.problem.data.n_valid)
+        if self.pooling is not None:
+            line += (f"; these optima are the search's, at the pooling's starting sd: the empirical Bayes that "
+                     f"followed ended at data RMSE {self.rmse:.4f} mm")
+        return line
+
+    def speech_rmse(self) -> tuple[float, int] | None:
+        """RMSE and samples inside speech segments, every pause posture left out (as ``score`` and
+        ``--validate`` give it beside all samples): on real recordings a long pause before or after
+        the sentence, where lips move for breath, can outweigh the speech. None where no sample is
+        in a pause."""
+        d = self.problem.data
+        pause_of = [np.array([is_pause(lab) for lab in u.labels] + [True]) for u in d.utterances]  # -1: no segment
+        speech = np.concatenate([~pause[u.sample_segments()] for pause, u in zip(pause_of, d.utterances)])
+        if speech.all():
+            return None
+        r2 = np.nan_to_num(self.residuals() ** 2)
+        n = float(d.weights[speech].sum())
+        return (float(np.sqrt(r2[speech].sum() / n)) if n else float("nan")), int(n)
+
     def utterance_sse(self) -> tuple[FloatArray, FloatArray]:
         """Per utterance: sum of squared residuals and number of valid samples."""
         d = self.problem.data
@@ -269,12 +295,17 @@ class FitResult:
 
     # ---------------------------------------------------------------- tables
     def rmse_rows(self) -> list[dict[str, Any]]:
-        """One row per channel and group (all, each vowel, consonant, repetition, rate)."""
+        """One row per channel and group (all, speech where the data hold pauses, each vowel,
+        consonant, repetition, rate)."""
         rows: list[dict[str, Any]] = []
         for ch, fit in self.channels.items():
             n = int(fit.problem.data.n_valid)
             rows.append({"channel": ch, "group": "all", "value": "all", "rmse_mm": fit.rmse, "samples": n,
                          "below_bar": fit.rmse < BAR_MM})
+            speech = fit.speech_rmse()
+            if speech is not None:
+                rows.append({"channel": ch, "group": "speech", "value": "pauses left out", "rmse_mm": speech[0],
+                             "samples": speech[1], "below_bar": speech[0] < BAR_MM})
             present = set().union(*(u.meta for u in fit.problem.data.utterances))
             for key in GROUP_KEYS:
                 if key not in present:
@@ -420,7 +451,7 @@ class FitResult:
                 lines.append(f"    speaker {spk} ([model] speakers = {self.spec.groups.speakers!r}): "
                              f"offset a = {a_s:+.4f} mm, scale b = {b_s:.4f}")
             if fit.multistart is not None:
-                lines += multistart_lines(fit.multistart, fit.problem.data.n_valid)
+                lines += multistart_lines(fit.multistart, fit.multistart_line())
             objective = "penalised objective" if fit.problem.penalised else "SSE"
             for s_i, sr in enumerate(fit.stages):
                 what = "probe stage" if sr.probe else "stage"
@@ -524,7 +555,7 @@ class FitResult:
         return paths
 
 
-def multistart_lines(ms: MultiStart, n_valid: int) -> list[str]:
+def multistart_lines(ms: MultiStart, summary: str) -> list[str]:
     """fit_report.txt: the multi-start's optima (SSE, RMSE, the starts that reached each, held-out
     RMSE where validation scored them), the parameters the data leave free inside an optimum, and
     those that differ most between the optima."""
@@ -532,7 +563,7 @@ def multistart_lines(ms: MultiStart, n_valid: int) -> list[str]:
     how = (f"probe: {ms.probe} evaluations per stage from {ms.probed} starts, continued: starts {ms.continued}{hops}"
            if ms.probed else f"starts {ms.continued} fitted in full, no probe needed")
     objective = f"penalised objective (SSE + {ms.penalty})" if ms.penalty else "objective (SSE)"
-    lines = [f"    multi-start: {ms.summary_line(n_valid)}",
+    lines = [f"    multi-start: {summary}",
              f"        {ms.nfev} evaluations in {ms.wall_time:.1f} s ({ms.workers} worker(s)); {how}; optima ranked "
              f"by the {objective}, data RMSE as measured"]
     for k, o in enumerate(ms.optima):

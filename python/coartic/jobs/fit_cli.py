@@ -22,11 +22,13 @@ from coartic.outputs import OutputDir
 
 
 def rmse_table(result: FitResult, title: str = "RMSE (mm)") -> Table:
-    """Channels as rows; overall, worst vowel context, worst consonant, worst repetition, worst rate."""
+    """Channels as rows; overall, speech alone (where the data hold pauses), worst vowel context,
+    worst consonant, worst repetition, worst rate."""
     t = Table(title=f"{title} — the paper's bar is {BAR_MM} mm")
     # only the groupings the corpus has (a manifest without 'rate' has no worst rate)
     groups = [g for g in ("vowel", "consonant", "repetition", "rate") if result.worst(g)]
-    for col in ("channel", "all", *(f"worst {g}" for g in groups), "status"):
+    speech = {ch: s for ch, s in result.worst("speech").items()}  # one row per channel: its speech RMSE
+    for col in ("channel", "all", *(["speech"] if speech else []), *(f"worst {g}" for g in groups), "status"):
         t.add_column(col, justify="left" if col in ("channel", "status") else "right")
     worst = {g: result.worst(g) for g in groups}
 
@@ -35,7 +37,7 @@ def rmse_table(result: FitResult, title: str = "RMSE (mm)") -> Table:
         return f"[{colour}]{v:.3f}[/{colour}]" + (f" ({label})" if label else "")
 
     for ch, fit in result.channels.items():
-        row = [ch, cell(fit.rmse)]
+        row = [ch, cell(fit.rmse)] + ([cell(speech[ch][1]) if ch in speech else "–"] if speech else [])
         for g in groups:
             w = worst[g].get(ch)
             row.append(cell(w[1], w[0]) if w else "–")
@@ -52,7 +54,7 @@ def status_lines(result: FitResult) -> list[str]:
     for ch, fit in result.channels.items():
         if fit.multistart is not None:
             colour = "yellow" if fit.multistart.best_found_once else "green"
-            lines.append(f"[{colour}]{escape(ch)}[/{colour}]: {escape(fit.multistart.summary_line(fit.problem.data.n_valid))}")
+            lines.append(f"[{colour}]{escape(ch)}[/{colour}]: {escape(fit.multistart_line())}")
         for line in fit.polished:  # another local method finished the engine's fit: say so
             lines.append(f"[yellow]{escape(ch)}: polished[/yellow]: {escape(line)}")
         if fit.status != "converged":
