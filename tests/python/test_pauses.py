@@ -307,3 +307,6 @@ def test_a_fit_gives_its_rmse_on_speech_beside_all_samples(tmp_path: Path) -> No
     flat = " ".join(res.output.split())
     assert (f"these optima are the search's, at the pooling's starting sd: the empirical Bayes that followed ended "
             f"at data RMSE {fitted:.4f} mm") in flat
+    summary = json.loads((tmp_path / "pooled" / "summary.json").read_text())["channels"]["LA"]
+    assert summary["multistart"]["optima_before_pooling"] and summary["rmse_mm"] == pytest.approx(fitted)
+    assert 0 < summary["rmse_speech_mm"] < summary["rmse_mm"]

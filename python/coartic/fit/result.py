@@ -527,7 +527,10 @@ class FitResult:
             np.savez_compressed(tmp, **arrays)
         summary: dict[str, Any] = {"spec": str(self.spec.path), "interrupted": self.interrupted, "started": self.started,
                    "notes": list(self.notes),  # the small-data warnings among them (coartic.fit.guards)
-                   "channels": {ch: {"rmse_mm": f.rmse, "status": f.status, "message": f.message, "nfev": f.nfev,
+                   "channels": {ch: {"rmse_mm": f.rmse,
+                                     # every pause posture left out (None: no sample in a pause)
+                                     "rmse_speech_mm": None if (sp := f.speech_rmse()) is None else sp[0],
+                                     "status": f.status, "message": f.message, "nfev": f.nfev,
                                      "wall_time_s": f.wall_time, "at_bound": f.stats.at_bound if f.stats else [],
                                      # why each is at its bound (coartic.estimation.bounds.BoundNote fields)
                                      "at_bound_explained": [b.as_dict() for b in f.stats.bounds.values()]
@@ -544,7 +547,9 @@ class FitResult:
                                                  "message": sr.engine.message,
                                                  "polished": sr.engine.polished} for sr in f.stages],
                                      "multistart": None if f.multistart is None
-                                     else f.multistart.as_dict(f.problem.data.n_valid),
+                                     # a pooled fit's optima are the search's, at the pooling's starting sd
+                                     else f.multistart.as_dict(f.problem.data.n_valid)
+                                     | {"optima_before_pooling": f.pooling is not None},
                                      "pooling": None if f.pooling is None else f.pooling.as_dict()}
                                 for ch, f in self.channels.items()}}
         if self.validation is not None and (held := self.validation.summary()) is not None:
