@@ -33,7 +33,7 @@ def printed(table: Table, width: int, keys: int = 1) -> list[str]:
 
 def fit_like() -> Table:
     """fit's RMSE table, from a stand-in for a FitResult with a status per channel."""
-    fits = {ch: SimpleNamespace(rmse=0.4 + i / 10, status=st, polished=[])
+    fits = {ch: SimpleNamespace(rmse=0.4 + i / 10, status=st, polished=[], speech_rmse=lambda: (0.35, 900))
             for i, (ch, st) in enumerate(zip(("LA", "JO", "LLO", "ULO"), STATUSES))}
     worst = {"vowel": {ch: ("a", 0.61) for ch in fits}, "consonant": {ch: ("ts", 0.7) for ch in fits},
              "repetition": {ch: ("2", 0.5) for ch in fits}, "rate": {ch: ("normal", 0.55) for ch in fits}}

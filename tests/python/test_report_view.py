@@ -86,6 +86,9 @@ def test_report_of_a_real_sentence_leads_with_the_figures(chromium: str, tmp_pat
     assert m["bound-rows"] == len(st.bounds)
     check_reads_well(m, html)
     assert "RMSE by group" not in html  # one sentence has no groups: no empty table
+    # its pause ('#' with pauses = "one") has samples: the speech alone is a column of the channels' table
+    speech = result.channels["LA"].speech_rmse()
+    assert speech is not None and f"<th>speech (pauses left out)</th>" in html and f"<td>{speech[0]:.3f}</td>" in html
     assert html.index('id="trajectories"') < html.index('id="residuals"') < html.index('id="bounds"')
 
 

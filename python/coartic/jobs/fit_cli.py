@@ -27,7 +27,7 @@ def rmse_table(result: FitResult, title: str = "RMSE (mm)") -> Table:
     t = Table(title=f"{title} — the paper's bar is {BAR_MM} mm")
     # only the groupings the corpus has (a manifest without 'rate' has no worst rate)
     groups = [g for g in ("vowel", "consonant", "repetition", "rate") if result.worst(g)]
-    speech = {ch: s for ch, s in result.worst("speech").items()}  # one row per channel: its speech RMSE
+    speech = {ch: sp[0] for ch, fit in result.channels.items() if (sp := fit.speech_rmse()) is not None}
     for col in ("channel", "all", *(["speech"] if speech else []), *(f"worst {g}" for g in groups), "status"):
         t.add_column(col, justify="left" if col in ("channel", "status") else "right")
     worst = {g: result.worst(g) for g in groups}
@@ -37,7 +37,7 @@ def rmse_table(result: FitResult, title: str = "RMSE (mm)") -> Table:
         return f"[{colour}]{v:.3f}[/{colour}]" + (f" ({label})" if label else "")
 
     for ch, fit in result.channels.items():
-        row = [ch, cell(fit.rmse)] + ([cell(speech[ch][1]) if ch in speech else "–"] if speech else [])
+        row = [ch, cell(fit.rmse)] + ([cell(speech[ch]) if ch in speech else "–"] if speech else [])
         for g in groups:
             w = worst[g].get(ch)
             row.append(cell(w[1], w[0]) if w else "–")

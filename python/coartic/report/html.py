@@ -135,7 +135,9 @@ def write_report(result: FitResult, out: str | Path, console: Console | None = N
     env = jinja2.Environment(loader=jinja2.FileSystemLoader(_TEMPLATES), autoescape=True)
     html = env.get_template("fit_report.html.j2").render(
         result=result, spec=result.spec, bar=BAR_MM, figures=figures, sections=SECTIONS,
-        group_rows=[r for r in result.rmse_rows() if r["group"] != "all"],
+        # speech alone is a column of the channels' table, not a group
+        group_rows=[r for r in result.rmse_rows() if r["group"] not in ("all", "speech")],
+        speech={ch: sp[0] for ch, f in result.channels.items() if (sp := f.speech_rmse()) is not None},
         channels=result.channels, report_text=result.report_text(), extras=extras,
         validation=_validation_rows(out), validation_flags=flags(held_out(result)),
         heldout=_heldout_summary(result), bounds=bounds, settings=settings,
