@@ -107,8 +107,13 @@ def kill_own_worker_once(key: UnitKey) -> None:
         import psutil
 
         top = psutil.Process(int(os.environ["COARTIC_TEST_CLIENT_PID"]))
-        found = [[c.laddr.ip, c.laddr.port] for p in [top, *top.children(recursive=True)]
-                 for c in p.net_connections(kind="inet") if c.status == psutil.CONN_LISTEN]
+        found = []
+        for p in [top, *top.children(recursive=True)]:
+            try:
+                found += [[c.laddr.ip, c.laddr.port] for c in p.net_connections(kind="inet")
+                          if c.status == psutil.CONN_LISTEN]
+            except psutil.NoSuchProcess:  # the worker the other unit kills, gone while the tree was read
+                continue
         sockets.write_text(json.dumps(found))
     if key == UnitKey("s01", "LLO") and not marker.exists():
         marker.write_text(str(os.getpid()))

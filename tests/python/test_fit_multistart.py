@@ -273,7 +273,8 @@ def test_status_words_are_never_cut(width: int) -> None:
     statuses = {"ULO": "max-evaluations", "LLO": "best-found-once", "JO": "stage-failed", "LA": "converged"}
     chans = {}
     for ch, st in statuses.items():
-        chans[ch] = SimpleNamespace(status=st, message=f"why {ch}", rmse=0.2, multistart=None, polished=[])
+        chans[ch] = SimpleNamespace(status=st, message=f"why {ch}", rmse=0.2, multistart=None, polished=[],
+                                    speech_rmse=lambda: (0.25, 100))
     result = SimpleNamespace(channels=chans, worst=lambda g: {ch: ("a", 0.3) for ch in chans} if g == "vowel" else {})
     buf = io.StringIO()
     console = Console(file=buf, width=width, force_terminal=False, color_system=None)
