@@ -76,6 +76,10 @@ def test_warped_token_by_hand() -> None:
     # the same file is not "another token" of its sentence
     assert b.predict_one("warped", utt(["a", "p", "a"], [0.0, 0.2, 0.3], [0.2, 0.3, 0.6], t_tok, "slow.csv"),
                          "LA") is None
+    # nor is it when named another way (a spec's "fit/../slow.csv", the command line's "slow.csv"): a
+    # recording scored in sample was its own warped baseline, RMSE 0.000
+    assert b.predict_one("warped", utt(["a", "p", "a"], [0.0, 0.2, 0.3], [0.2, 0.3, 0.6], t_tok, "fit/../slow.csv"),
+                         "LA") is None
     # two tokens: the mean of their warped trajectories
     other = Utterance(["a", "p", "a"], [0.0, 0.2, 0.3], [0.2, 0.3, 0.6], t_tok, "slow2", {"LA": t_tok + 1.0},
                       {"LA": np.ones(61, dtype=bool)}, {"file": "slow2.csv"})

@@ -41,7 +41,10 @@ def _token_key(u: Utterance) -> tuple[str, ...]:
 
 
 def _file(u: Utterance) -> str:
-    return u.meta.get("file") or u.name
+    """Which recording ``u`` is: its file resolved (a spec's "fit/../x.csv" and the command line's
+    "x.csv" are one file, or a recording scored in sample is its own "other token"), else its name."""
+    f = u.meta.get("file")
+    return str(Path(f).resolve()) if f else u.name
 
 
 def warp_times(test: Utterance, token: Utterance) -> F64:
