@@ -77,6 +77,13 @@ def is_pause(label: str) -> bool:
     return label in PAUSE_PHONEMES
 
 
+def speech_samples(labels: Sequence[str], segments: NDArray[np.int64]) -> NDArray[np.bool_]:
+    """Which samples lie inside a segment that is no pause, given each sample's segment index
+    (``Utterance.sample_segments``: -1 outside every segment, which is not speech either)."""
+    pause = np.array([is_pause(lab) for lab in labels] + [True])
+    return ~pause[segments]
+
+
 @dataclass(frozen=True)
 class PauseChange:
     """One pause given another row, or joined to its neighbours."""

@@ -33,7 +33,7 @@ from numpy.typing import NDArray
 from coartic.errors import CoarticError
 from coartic.evaluation.baselines import Baselines, beats_step, flag_text
 from coartic.model import Utterance, evaluate_corpus, utterances_for_table
-from coartic.pauses import is_pause
+from coartic.pauses import speech_samples
 from coartic.table import ParameterTable
 
 F64 = NDArray[np.float64]
@@ -137,11 +137,9 @@ class Score:
                 "rmse_speech_offset_removed_mm": _rms(ro[speech])}
 
     def speech(self, u: int) -> NDArray[np.bool_]:
-        """The samples of utterance ``u`` inside a segment that is no pause (``coartic.pauses.is_pause``)."""
+        """The samples of utterance ``u`` inside a segment that is no pause (``coartic.pauses.speech_samples``)."""
         utt = self.utterances[u]
-        seg = utt.sample_segments()
-        pause = np.array([is_pause(lab) for lab in utt.labels] + [True])  # -1 (outside every segment): not speech
-        return ~pause[seg]
+        return speech_samples(utt.labels, utt.sample_segments())
 
     def channel_rows(self) -> list[dict[str, Any]]:
         rows = []

@@ -36,7 +36,7 @@ from coartic.fit.multistart import MultiStart
 from coartic.fit.staged import StageResult
 from coartic.io.labelmap import resolve_label_map
 from coartic.model import Utterance
-from coartic.pauses import POSTURES_RECORD, RECORD_KEY as PAUSES_RECORD_KEY, is_pause
+from coartic.pauses import POSTURES_RECORD, RECORD_KEY as PAUSES_RECORD_KEY, speech_samples
 from coartic.io.roles import ROLE_RECORD_KEY, resolve_role_map
 from coartic.outputs import atomic_path, atomic_write_text
 from coartic.table import PARAMETERS, ChannelSettings, ParameterTable
@@ -205,8 +205,7 @@ class ChannelFit:
         the sentence, where lips move for breath, can outweigh the speech. None where no sample is
         in a pause."""
         d = self.problem.data
-        pause_of = [np.array([is_pause(lab) for lab in u.labels] + [True]) for u in d.utterances]  # -1: no segment
-        speech = np.concatenate([~pause[u.sample_segments()] for pause, u in zip(pause_of, d.utterances)])
+        speech = np.concatenate([speech_samples(u.labels, u.sample_segments()) for u in d.utterances])
         if speech.all():
             return None
         r2 = np.nan_to_num(self.residuals() ** 2)
