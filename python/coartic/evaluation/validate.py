@@ -37,6 +37,10 @@ from coartic.fit.spec import FitSpec
 from coartic.outputs import atomic_write_text
 
 
+# SplitScore.worst_vowel of test utterances without a vowel context (shown as "–")
+NO_VOWEL = ("", float("nan"))
+
+
 def score(result: FitResult, test: Sequence[Utterance], split: str,
           train: Sequence[Utterance] | None = None, notes: list[str] | None = None) -> list[SplitScore]:
     """RMSE of the fitted table on utterances the fit did not see (``coartic.evaluation.score``); with
@@ -87,10 +91,6 @@ def score(result: FitResult, test: Sequence[Utterance], split: str,
                 o.heldout_rmse[split] = float(score_utterances(t, test_ch, [ch]).channel_rows()[0]["rmse_mm"])
             out[-1].optima_test_rmse = tuple(o.heldout_rmse[split] for o in fit.multistart.optima)
     return out
-
-
-# SplitScore.worst_vowel of test utterances without a vowel context (shown as "–")
-NO_VOWEL = ("", float("nan"))
 
 
 class UnseenPhonemes(CoarticError, ValueError):

@@ -305,21 +305,18 @@ class FitResult:
             if speech is not None:
                 rows.append({"channel": ch, "group": "speech", "value": "pauses left out", "rmse_mm": speech[0],
                              "samples": speech[1], "below_bar": speech[0] < BAR_MM})
-            present = set().union(*(u.meta for u in fit.problem.data.utterances))
             for key in GROUP_KEYS:
-                if key not in present:
-                    continue
-                for (val,), (rm, cnt) in sorted(fit.rmse_by((key,)).items(), key=lambda kv: _natural(kv[0][0])):
-                    rows.append({"channel": ch, "group": key, "value": val, "rmse_mm": rm, "samples": cnt,
-                                 "below_bar": rm < BAR_MM})
+                rows.extend(_group_rows(ch, fit, key))
         return rows
 
     def worst(self, group: str) -> dict[str, tuple[str, float]]:
         """Per channel, the group value with the largest RMSE."""
         out: dict[str, tuple[str, float]] = {}
-        for r in self.rmse_rows():
-            if r["group"] == group and (r["channel"] not in out or r["rmse_mm"] > out[r["channel"]][1]):
-                out[r["channel"]] = (r["value"], r["rmse_mm"])
+        for ch, fit in self.channels.items():
+            rows = _group_rows(ch, fit, group)
+            if rows:
+                r = max(rows, key=lambda r: r["rmse_mm"])
+                out[ch] = (r["value"], r["rmse_mm"])
         return out
 
     def channel_settings(self, channel: str) -> ChannelSettings:
@@ -648,6 +645,15 @@ def pooling_rows(channel: str, est: PoolEstimate, columns: list[str]) -> list[di
 
 def now() -> str:
     return _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds")
+
+
+def _group_rows(channel: str, fit: ChannelFit, key: str) -> list[dict[str, Any]]:
+    """``rmse_rows``' rows of one group (vowel, consonant, ...), in natural order; none where the
+    utterances do not carry that key."""
+    if not any(key in u.meta for u in fit.problem.data.utterances):
+        return []
+    return [{"channel": channel, "group": key, "value": val, "rmse_mm": rm, "samples": cnt, "below_bar": rm < BAR_MM}
+            for (val,), (rm, cnt) in sorted(fit.rmse_by((key,)).items(), key=lambda kv: _natural(kv[0][0]))]
 
 
 def _natural(v: str) -> tuple[int, float | str]:
