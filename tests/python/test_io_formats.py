@@ -8,6 +8,8 @@ the same motion, so each reader is checked against the motion it was given."""
 from __future__ import annotations
 
 import json
+import subprocess
+import sys
 import warnings
 from pathlib import Path
 
@@ -296,6 +298,25 @@ def test_last_label_within_a_frame_or_a_final_pause_is_clipped_speech_beyond_is_
         load_trial(data, labels=lab)
 
 
+def test_a_speech_label_far_longer_than_a_phone_is_named_with_the_fix(tmp_path: Path) -> None:
+    # an aligner that ran the last phone into the rest after the sentence (the German EMA's final /n/
+    # lasts 1.3 and 1.8 s): a warning naming the file, line and label; the labels are kept as given
+    data = ff.write_lab_csv(tmp_path / "u.csv", ff.motion(200.0))
+    lab = tmp_path / "u.tsv"
+    bounds = (0.0, 0.05, 0.10, 0.15, 0.20, 0.25, 0.30, 1.13)
+    lab.write_text("".join(f"{s!r}\t{e!r}\t{p}\n" for s, e, p in zip(bounds, bounds[1:], ff.ARPABET_LABELS)))
+    with pytest.warns(DataWarning, match=r"u\.tsv, line 7: the label 'UW1' \(0\.3-1\.13 s, segment 7\) lasts "
+                                         r"0\.83 s, 17 times the recording's median speech label \(50 ms\).* "
+                                         r"label that part as a pause; the model fits it as /u/ throughout") as rec:
+        t = load_trial(data, labels=lab, label_map="english_arpabet")
+    assert len(rec) == 1 and t.segments is not None and t.segments.labels[-1] == "u"
+    # slow or sustained speech, every label long: no phone stands out
+    lab.write_text("0.0\t0.1\tsil\n0.1\t0.65\tAA1\n0.65\t1.13\tIY1\n")
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", DataWarning)
+        load_trial(data, labels=lab, label_map="english_arpabet")
+
+
 def test_label_maps_mocha_timit_arpabet_and_their_fallbacks(tmp_path: Path) -> None:
     mocha, timit, arpa = (LabelMap.builtin(n) for n in ("mocha", "timit", "english_arpabet"))
     assert [mocha.map_label(x) for x in ("@", "@@", "ii", "uu", "oo", "ou", "ai", "e@", "uh",
@@ -392,6 +413,12 @@ def test_registry_unknown_format_and_a_new_reader(tmp_path: Path) -> None:
     names = [r.name for r in readers()]
     assert {"c3d", "carstens-pos", "ema-csv", "markers-csv", "emu", "est", "xrmb", "mview"} <= set(names)
     assert names.index("ema-csv") < names.index("markers-csv")  # the generic sniffer asks last
+    # the order does not depend on which reader module a caller imported first (a test importing
+    # the EMU reader before any file was read put it before C3D, in this message and the sniffing)
+    order = "from coartic.io.registry import readers; print([r.name for r in readers()])"
+    first = [subprocess.run([sys.executable, "-c", pre + order], capture_output=True, text=True, check=True).stdout
+             for pre in ("", "import coartic.io.emu, coartic.io.xrmb; ")]
+    assert first[0] == first[1] == f"{names}\n"
 
     def read(path: Path, req: ReadRequest) -> tuple[Trial, None]:
         m = np.zeros((3, 2, 3))

@@ -59,6 +59,7 @@ class Reader:
 
 
 _READERS: list[Reader] = []
+_REGISTERED: dict[str, int] = {}  # each reader's name -> when it first registered
 # the modules of the built-in readers, imported on first use
 BUILTIN_READERS = ("coartic.io.c3d", "coartic.io.carstens", "coartic.io.ema", "coartic.io.emu",
                    "coartic.io.est", "coartic.io.markers_csv", "coartic.io.mview", "coartic.io.xrmb")
@@ -75,9 +76,20 @@ def register(reader: Reader) -> Reader:
         if r.name == reader.name:
             _READERS[i] = reader
             return reader
+    _REGISTERED.setdefault(reader.name, len(_REGISTERED))
     _READERS.append(reader)
-    _READERS.sort(key=lambda r: r.priority)  # stable: registration order within a priority
+    _READERS.sort(key=_rank)
     return reader
+
+
+def _rank(r: Reader) -> tuple[int, int, int]:
+    """Readers are asked by priority, then the built-ins in ``BUILTIN_READERS``' order, then others
+    in order of registration: which built-in claims a file must not depend on which reader module
+    some caller happened to import first (the EMU reader, imported by a bundle's caller, came
+    before C3D's in the list and in the sniffing)."""
+    module = getattr(r.read, "__module__", "")
+    builtin = BUILTIN_READERS.index(module) if module in BUILTIN_READERS else len(BUILTIN_READERS)
+    return (r.priority, builtin, _REGISTERED[r.name])
 
 
 def readers() -> tuple[Reader, ...]:

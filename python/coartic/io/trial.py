@@ -109,6 +109,31 @@ def _clip_final_pause(segments: Segments, label_map: LabelMap, end: float, data:
     return segments.clipped(end, k)
 
 
+# A speech label this long, and this many times the recording's median speech label, is no phone:
+# phones in connected speech last 30-300 ms and utterance-final lengthening about doubles them, so
+# past half a second an automatic aligner has most likely run the last (or first) phone into the
+# rest the labels do not mark. The ratio keeps slow and sustained speech, whose labels are all long,
+# quiet. A warning only: the model fits what the labels say.
+LONG_SEGMENT_S = 0.5
+LONG_SEGMENT_RATIO = 5.0
+
+
+def _warn_long_segments(raw: Segments, mapped: Segments) -> None:
+    """Warn (DataWarning) of each speech label far longer than a phone lasts (``LONG_SEGMENT_S``)."""
+    durations = mapped.ends - mapped.starts
+    speech = np.array([lab != PAUSE for lab in mapped.labels])
+    if speech.sum() < 2:
+        return
+    median = float(np.median(durations[speech]))
+    for i in np.flatnonzero(speech & (durations > LONG_SEGMENT_S) & (durations > LONG_SEGMENT_RATIO * median)):
+        line = f", line {raw.lines[i]}" if raw.lines[i] is not None else ""
+        warnings.warn(f"{raw.source}{line}: the label {raw.labels[i]!r} ({raw.starts[i]:g}-{raw.ends[i]:g} s, "
+                      f"segment {i + 1}) lasts {durations[i]:.2f} s, {durations[i] / median:.0f} times the "
+                      f"recording's median speech label ({1000 * median:.0f} ms): longer than a phone lasts. If "
+                      f"the speaker was silent or at rest for part of it, label that part as a pause; the model "
+                      f"fits it as /{mapped.labels[i]}/ throughout", DataWarning, stacklevel=3)
+
+
 @dataclass(frozen=True)
 class Trial:
     """One recording: positions (frames x markers x 3, mm, NaN where missing) and labels."""
@@ -180,6 +205,7 @@ class Trial:
                                 f"({self.start_time:g}-{end:g} s)", path=segments.source,
                                 line=segments.lines[i], item=lab)
         mapped = lm.apply(segments)
+        _warn_long_segments(segments, mapped)
         meta = dict(self.meta)
         meta["raw_labels"] = segments.labels
         meta["label_map"] = lm.source
