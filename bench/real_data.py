@@ -302,7 +302,8 @@ def splits(utts: Sequence[Utterance], which: Sequence[str] = ("loo", "time")) ->
     """(name, train, test) of each held-out split: leave one utterance out, and split in time; for a
     session with rates ("rate"): fit the normal rate, predict the fast one, and data-starved
     ("starvedK"): fit only repetitions 1..K of the normal rate (K utterances per vowel-consonant
-    pair), predict the fast rate; across speakers ("speaker"; every utterance's meta ``speaker``,
+    pair), predict the fast rate; "ratefast" the other way round (fit the fast rate, predict the
+    normal one); across speakers ("speaker"; every utterance's meta ``speaker``,
     a manifest column): fit the first speaker's utterances (in corpus order), predict each other
     speaker's, one split per other speaker."""
     out = []
@@ -317,6 +318,8 @@ def splits(utts: Sequence[Utterance], which: Sequence[str] = ("loo", "time")) ->
     fast = [u for u in utts if u.meta.get("rate") == "fast"]
     if "rate" in which:
         out.append(("rate", [u for u in utts if u.meta.get("rate") == "normal"], fast))
+    if "ratefast" in which:  # the other direction: fit the fast rate, predict the normal one
+        out.append(("rate fast", fast, [u for u in utts if u.meta.get("rate") == "normal"]))
     for k in (1, 2):
         if f"starved{k}" in which:
             out.append((f"starved {k}", [u for u in utts if u.meta.get("rate") == "normal"
@@ -621,7 +624,7 @@ def main() -> int:
     ap.add_argument("--channels", default=None, help="default: the corpus's (German, s1em, speakers LA,JO; "
                     "synthetic LLO,JO)")
     ap.add_argument("--splits", default=None, help="default: the corpus's (german loo,time; s1em time; speakers "
-                    "speaker; synthetic rate,starved1,starved2; gestures rate)")
+                    "speaker; synthetic rate,starved1,starved2; gestures rate; ratefast: fit fast, predict normal)")
     ap.add_argument("--starts", type=int, default=None, help="[fit] starts of every fit (default: the spec default)")
     ap.add_argument("--theta-start", type=float, default=None,
                     help="start of theta_bw and theta_fw (default: the corpus spec's): is the fit start-independent?")

@@ -248,3 +248,14 @@ def test_one_test_utterance_gives_no_se_and_a_speaker_split_says_which_figure_co
     assert against and all("no SE" in x and "lower" not in x and "HIGHER" not in x for x in against)
     assert rd.speaker_note(rows) and "offset-removed" in rd.speaker_note(rows)[0]
     assert rd.speaker_note([{**r, "split": "time split"} for r in rows]) == []
+
+
+def test_the_rate_splits_go_both_ways(speakers: list[Utterance]) -> None:
+    rd = bench()
+    rated = [Utterance(u.labels, u.starts, u.ends, u.times, f"u{k}", u.observed, u.valid,
+                       {**u.meta, "rate": rate, "repetition": 1})
+             for k, (u, rate) in enumerate(zip(speakers, ("normal", "fast", "normal")))]
+    (_, train, test), (_, back_train, back_test) = rd.splits(rated, ("rate", "ratefast"))
+    assert [u.name for u in train] == ["u0", "u2"] and [u.name for u in test] == ["u1"]
+    assert [u.name for u in back_train] == ["u1"] and [u.name for u in back_test] == ["u0", "u2"]
+    assert [n for n, _, _ in rd.splits(rated, ("rate", "ratefast"))] == ["rate", "rate fast"]
