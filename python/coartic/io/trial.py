@@ -126,8 +126,9 @@ def _warn_long_segments(raw: Segments, mapped: Segments) -> None:
         return
     median = float(np.median(durations[speech]))
     for i in np.flatnonzero(speech & (durations > LONG_SEGMENT_S) & (durations > LONG_SEGMENT_RATIO * median)):
-        line = f", line {raw.lines[i]}" if raw.lines[i] is not None else ""
-        warnings.warn(f"{raw.source}{line}: the label {raw.labels[i]!r} ({raw.starts[i]:g}-{raw.ends[i]:g} s, "
+        where = f"{raw.source if raw.source is not None else 'labels'}" + (
+            f", line {raw.lines[i]}" if raw.lines[i] is not None else "")
+        warnings.warn(f"{where}: the label {raw.labels[i]!r} ({raw.starts[i]:g}-{raw.ends[i]:g} s, "
                       f"segment {i + 1}) lasts {durations[i]:.2f} s, {durations[i] / median:.0f} times the "
                       f"recording's median speech label ({1000 * median:.0f} ms): longer than a phone lasts. If "
                       f"the speaker was silent or at rest for part of it, label that part as a pause; the model "
