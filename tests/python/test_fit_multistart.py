@@ -275,7 +275,8 @@ def test_status_words_are_never_cut(width: int) -> None:
     for ch, st in statuses.items():
         chans[ch] = SimpleNamespace(status=st, message=f"why {ch}", rmse=0.2, multistart=None, polished=[],
                                     speech_rmse=lambda: (0.25, 100))
-    result = SimpleNamespace(channels=chans, worst=lambda g: {ch: ("a", 0.3) for ch in chans} if g == "vowel" else {})
+    result = SimpleNamespace(channels=chans, worst=lambda g: {ch: ("a", 0.3) for ch in chans} if g == "vowel" else {},
+                             speech_rmse=lambda: {ch: 0.25 for ch in chans})
     buf = io.StringIO()
     console = Console(file=buf, width=width, force_terminal=False, color_system=None)
     print_table(console, rmse_table(result))  # type: ignore[arg-type]

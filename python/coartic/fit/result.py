@@ -309,6 +309,11 @@ class FitResult:
                 rows.extend(_group_rows(ch, fit, key))
         return rows
 
+    def speech_rmse(self) -> dict[str, float]:
+        """Per channel, the RMSE on speech alone (``ChannelFit.speech_rmse``); channels whose data
+        hold no pause are left out."""
+        return {ch: sp[0] for ch, fit in self.channels.items() if (sp := fit.speech_rmse()) is not None}
+
     def worst(self, group: str) -> dict[str, tuple[str, float]]:
         """Per channel, the group value with the largest RMSE."""
         out: dict[str, tuple[str, float]] = {}

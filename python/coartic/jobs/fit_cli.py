@@ -27,7 +27,7 @@ def rmse_table(result: FitResult, title: str = "RMSE (mm)") -> Table:
     t = Table(title=f"{title} — the paper's bar is {BAR_MM} mm")
     # only the groupings the corpus has (a manifest without 'rate' has no worst rate)
     groups = [g for g in ("vowel", "consonant", "repetition", "rate") if result.worst(g)]
-    speech = {ch: sp[0] for ch, fit in result.channels.items() if (sp := fit.speech_rmse()) is not None}
+    speech = result.speech_rmse()
     for col in ("channel", "all", *(["speech"] if speech else []), *(f"worst {g}" for g in groups), "status"):
         t.add_column(col, justify="left" if col in ("channel", "status") else "right")
     worst = {g: result.worst(g) for g in groups}

@@ -137,7 +137,7 @@ def write_report(result: FitResult, out: str | Path, console: Console | None = N
         result=result, spec=result.spec, bar=BAR_MM, figures=figures, sections=SECTIONS,
         # speech alone is a column of the channels' table, not a group
         group_rows=[r for r in result.rmse_rows() if r["group"] not in ("all", "speech")],
-        speech={ch: sp[0] for ch, f in result.channels.items() if (sp := f.speech_rmse()) is not None},
+        speech=result.speech_rmse(),
         channels=result.channels, report_text=result.report_text(), extras=extras,
         validation=_validation_rows(out), validation_flags=flags(held_out(result)),
         heldout=_heldout_summary(result), bounds=bounds, settings=settings,
